@@ -1,0 +1,1 @@
+"""Typer commands only: parse, call a use case, render with rich."""

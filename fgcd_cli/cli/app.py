@@ -1,0 +1,92 @@
+"""The ``fgcd`` command: one typer app, errors mapped to exit codes here only."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from fgcd_cli import __version__
+from fgcd_cli.cli.output import err_console, state
+from fgcd_cli.errors import FgcdError
+
+app = typer.Typer(
+    name="fgcd",
+    help="Fine-grained change detection of cultural heritage: calibrate, capture, relocate, diff.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.callback()
+def _root(
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Print debugging detail."),
+    version: bool = typer.Option(False, "--version", help="Print the version and exit."),
+) -> None:
+    """fgcd: fine-grained change detection with active camera relocalization."""
+    state.verbose = verbose
+    if version:
+        print(f"fgcd {__version__}")
+        raise typer.Exit(0)
+
+
+def _register() -> None:
+    """Attach every command group. Only commands that work are registered."""
+    from fgcd_cli.cli import campaign_cmd
+
+    app.add_typer(campaign_cmd.app, name="campaign")
+
+
+_register()
+
+# Exit codes for failures that do not come from fgcd_cli.errors.
+EXIT_PLATFORM = 7
+EXIT_INTERRUPTED = 130
+
+
+def _platform_error_type():
+    try:
+        from drivers.platform import PlatformError
+
+        return PlatformError
+    except Exception:  # pragma: no cover - drivers always ship with fgcd
+        return ()
+
+
+def main() -> None:
+    """Console-script entry point: run the app, turn expected failures into one line."""
+    platform_error = _platform_error_type()
+    try:
+        app(standalone_mode=False)
+    except FgcdError as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        sys.exit(exc.exit_code)
+    except platform_error as exc:  # type: ignore[misc]
+        err_console.print(f"[red]platform error:[/red] {exc}")
+        sys.exit(EXIT_PLATFORM)
+    except KeyboardInterrupt:
+        err_console.print("[yellow]interrupted[/yellow]: stopped by the user")
+        sys.exit(EXIT_INTERRUPTED)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        err_console.print("aborted")
+        sys.exit(1)
+    except Exception as exc:  # click usage errors and the like
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        if isinstance(exc, OSError):
+            err_console.print(f"[red]error:[/red] {exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}")
+            sys.exit(1)
+        if state.verbose:
+            raise
+        err_console.print(f"[red]internal error:[/red] {type(exc).__name__}: {exc} (run with --verbose for details)")
+        sys.exit(70)
+
+
+if __name__ == "__main__":
+    main()
