@@ -23,6 +23,7 @@ __all__ = [
     "PlatformTimeout",
     "SafetyStop",
     "MotionRejected",
+    "MotionInterrupted",
     "Capabilities",
     "MoveResult",
     "Platform",
@@ -30,6 +31,8 @@ __all__ = [
     "MotionGuard",
     "rotation_angle",
     "compose_flange_delta",
+    "needed_axes",
+    "AXES",
 ]
 
 
@@ -52,6 +55,10 @@ class SafetyStop(PlatformError):
 
 class MotionRejected(PlatformError):
     """A motion was refused before being sent (guard, workspace, unreachable)."""
+
+
+class MotionInterrupted(PlatformError):
+    """A motion was stopped before arrival (stop request, Ctrl-C); the platform is halted."""
 
 
 # ----------------------------------------------------------------------------- data
@@ -172,6 +179,10 @@ class GuardLimits:
         Fraction (0, 1] of the platform's maximum speeds used for motions.
     workspace_min_m, workspace_max_m : tuple of 3 floats or None
         Extra workspace box (intersected with the platform's own), metres.
+    allow_partial_motion : bool
+        If True (default) a platform with fewer DoF performs the reachable part
+        of a motion and reports the rest in ``MoveResult.unreachable``; if False
+        such a motion is refused before anything moves.
     """
 
     max_step_m: float = 0.05
@@ -179,6 +190,43 @@ class GuardLimits:
     speed_fraction: float = 0.5
     workspace_min_m: tuple[float, float, float] | None = None
     workspace_max_m: tuple[float, float, float] | None = None
+    allow_partial_motion: bool = True
+
+
+#: Axis names of a flange motion, in the order of ``Capabilities.controllable``.
+AXES = ("x", "y", "z", "rx", "ry", "rz")
+
+
+def needed_axes(
+    T_base_flange_current: np.ndarray,
+    T_base_flange_target: np.ndarray,
+    *,
+    tol_m: float = 1e-6,
+    tol_rad: float = 1e-6,
+) -> tuple[str, ...]:
+    """Axes a motion uses: base-frame translation axes, flange-frame rotation axes.
+
+    Parameters
+    ----------
+    T_base_flange_current, T_base_flange_target : (4, 4) ndarray
+        Poses in metres.
+    tol_m, tol_rad : float
+        Components smaller than these are not counted.
+
+    Returns
+    -------
+    tuple of str
+        Subset of ``("x", "y", "z", "rx", "ry", "rz")``.
+    """
+    from scipy.spatial.transform import Rotation
+
+    current = np.asarray(T_base_flange_current, dtype=float)
+    target = np.asarray(T_base_flange_target, dtype=float)
+    dp = target[:3, 3] - current[:3, 3]
+    rotvec = Rotation.from_matrix(current[:3, :3].T @ target[:3, :3]).as_rotvec()
+    used = [a for a, v in zip(AXES[:3], dp) if abs(v) > tol_m]
+    used += [a for a, v in zip(AXES[3:], rotvec) if abs(v) > tol_rad]
+    return tuple(used)
 
 
 @dataclass
@@ -186,9 +234,11 @@ class MotionGuard:
     """The single gate every motion of fgcd passes.
 
     It checks workspace, step size and speed, asks for a confirmation before
-    the first motion of a session, refuses motions a platform cannot perform,
-    and can be tripped (Ctrl-C, lost connection) after which it refuses every
-    motion until reset.
+    the first motion of a session, refuses motions a platform cannot perform
+    (when ``limits.allow_partial_motion`` is False), and can be tripped after
+    which it refuses every motion until reset. It trips itself when a motion
+    ends in Ctrl-C (``KeyboardInterrupt``), a lost connection, a safety stop or
+    an interrupted motion.
 
     Parameters
     ----------
@@ -219,7 +269,7 @@ class MotionGuard:
         self._tripped = reason
         try:
             self.platform.stop()
-        except PlatformError:
+        except (PlatformError, OSError):
             pass
 
     def reset(self) -> None:
@@ -265,6 +315,14 @@ class MotionGuard:
             )
         if not (0.0 < self.limits.speed_fraction <= 1.0):
             raise MotionRejected("motion refused: speed fraction must be in (0, 1]")
+        if not self.limits.allow_partial_motion:
+            missing = [a for a in needed_axes(current, target) if a not in caps.controllable]
+            if missing:
+                raise MotionRejected(
+                    f"motion refused: '{self.platform.name}' cannot move along "
+                    + ", ".join(missing)
+                    + f" (it controls {', '.join(caps.controllable)})"
+                )
 
     # -- motions
     def move_to(self, T_base_flange_target: np.ndarray) -> MoveResult:
@@ -282,10 +340,19 @@ class MotionGuard:
                     if not self.confirm(text):
                         raise MotionRejected("motion refused: the first motion was not confirmed")
                 self._confirmed = True
-            return self.platform.move_to(
-                np.asarray(T_base_flange_target, dtype=float),
-                speed_fraction=self.limits.speed_fraction,
-            )
+            try:
+                return self.platform.move_to(
+                    np.asarray(T_base_flange_target, dtype=float),
+                    speed_fraction=self.limits.speed_fraction,
+                )
+            except KeyboardInterrupt:
+                # Ctrl-C: halt the platform before the interrupt propagates.
+                self.trip("interrupted by the user (Ctrl-C)")
+                raise
+            except (PlatformConnectionError, SafetyStop, MotionInterrupted) as exc:
+                # A lost connection or a safety state stops the loop until a person resets.
+                self.trip(str(exc))
+                raise
 
     def move_by(self, T_flange_delta: np.ndarray) -> MoveResult:
         """Relative motion expressed in the current flange frame."""
