@@ -1,0 +1,569 @@
+"""The campaign store: a site, its stations, their reference observation and visits.
+
+On disk (format version 1)::
+
+    <campaign>/campaign.toml                 site, rig section, format version
+    <campaign>/rig/<name>.json               calibration results (+ rig/history/)
+    <campaign>/stations/<station>/station.json
+    <campaign>/stations/<station>/reference/manifest.json, images/, arrays/, cloud.ply ...
+    <campaign>/stations/<station>/visits/<UTC timestamp>/manifest.json, ...
+
+An observation directory is assembled under a hidden temporary name and renamed
+into place only once complete and fsynced, with its ``manifest.json`` (sha256 of
+every file) written last; a reference observation is immutable once written
+(its files are read-only and any second write is refused). Visits accept later
+*derived* products (change maps, reports) which are added to the manifest
+atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import shutil
+import tomllib
+import uuid
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import tomli_w
+
+from fgcd_cli import __version__
+from fgcd_cli.campaign.atomic import (
+    TMP_PREFIX,
+    atomic_write_bytes,
+    atomic_write_json,
+    fsync_dir,
+    sha256_bytes,
+    sha256_file,
+)
+from fgcd_cli.errors import CampaignError, DataIntegrityError, ImmutableDataError, UserInputError
+
+__all__ = [
+    "FORMAT_VERSION",
+    "Campaign",
+    "Station",
+    "Observation",
+    "ObservationWriter",
+    "init_campaign",
+    "open_campaign",
+    "utc_stamp",
+]
+
+FORMAT_VERSION = 1
+CAMPAIGN_FILE = "campaign.toml"
+MANIFEST = "manifest.json"
+_NAME_RE = re.compile(r"^[^/\\\x00]+$")
+
+
+def utc_stamp(now: datetime | None = None) -> str:
+    """A UTC timestamp usable as a directory name, e.g. ``20261122T041503Z``."""
+    now = now or datetime.now(timezone.utc)
+    return now.astimezone(timezone.utc).strftime("%Y%m%dT%H%M%S") + f"{now.microsecond // 1000:03d}Z"
+
+
+def _now_iso() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _check_name(name: str, what: str) -> str:
+    name = name.strip()
+    if not name or name in (".", "..") or not _NAME_RE.match(name) or name.startswith("."):
+        raise UserInputError(f"invalid {what} name {name!r}: use a non-empty name without '/' that does not start with '.'")
+    return name
+
+
+# ----------------------------------------------------------------------------- encoding helpers
+def encode_png(image: np.ndarray) -> bytes:
+    """PNG bytes of an 8- or 16-bit grayscale/RGB image (float [0,1] becomes 16-bit)."""
+    import cv2
+
+    img = np.asarray(image)
+    if img.dtype.kind == "f":
+        img = np.clip(np.nan_to_num(img), 0.0, 1.0)
+        img = (img * 65535.0 + 0.5).astype(np.uint16)
+    elif img.dtype == np.bool_:
+        img = img.astype(np.uint8) * 255
+    elif img.dtype not in (np.uint8, np.uint16):
+        raise UserInputError(f"cannot store an image of dtype {img.dtype}")
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = img[:, :, ::-1]  # RGB -> BGR for OpenCV
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise CampaignError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def decode_png(data: bytes) -> np.ndarray:
+    """Image from PNG bytes, RGB order for colour images, dtype preserved."""
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise DataIntegrityError("image file cannot be decoded")
+    if img.ndim == 3:
+        img = img[:, :, ::-1].copy()
+    return img
+
+
+def encode_npy(array: np.ndarray) -> bytes:
+    """``.npy`` bytes of an array (no pickles)."""
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(array), allow_pickle=False)
+    return buf.getvalue()
+
+
+def encode_ply(points: np.ndarray, colors: np.ndarray | None = None, normals: np.ndarray | None = None) -> bytes:
+    """Binary little-endian PLY of a point cloud (readable by Open3D, MeshLab, CloudCompare).
+
+    Written with numpy rather than Open3D because Open3D's writer needs a real
+    file path and cannot be made atomic; the format is a short header plus a
+    packed record array.
+    """
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    if normals is not None:
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    if colors is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    rec = np.empty(len(P), dtype=fields)
+    rec["x"], rec["y"], rec["z"] = P[:, 0], P[:, 1], P[:, 2]
+    if normals is not None:
+        N = np.asarray(normals, dtype=np.float32).reshape(-1, 3)
+        rec["nx"], rec["ny"], rec["nz"] = N[:, 0], N[:, 1], N[:, 2]
+    if colors is not None:
+        C = np.asarray(colors)
+        if C.ndim == 1:
+            C = np.repeat(C[:, None], 3, axis=1)
+        if C.dtype.kind == "f":
+            C = np.clip(C * 255.0 + 0.5, 0, 255)
+        C = C.astype(np.uint8)
+        rec["red"], rec["green"], rec["blue"] = C[:, 0], C[:, 1], C[:, 2]
+    type_names = {"<f8": "double", "<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(P)}"]
+    header += [f"property {type_names[t]} {n}" for n, t in fields]
+    header += ["end_header"]
+    return ("\n".join(header) + "\n").encode("ascii") + rec.tobytes()
+
+
+# ----------------------------------------------------------------------------- observation
+@dataclass
+class Observation:
+    """A written observation (a station's reference, or one visit). Read-only view."""
+
+    path: Path
+    kind: str  # "reference" or "visit"
+    manifest: dict
+
+    @property
+    def name(self) -> str:
+        """Directory name (``reference`` or the visit's UTC stamp)."""
+        return self.path.name
+
+    @property
+    def metadata(self) -> dict:
+        """Free-form metadata recorded at capture time."""
+        return self.manifest.get("metadata", {})
+
+    def files(self) -> dict[str, dict]:
+        """Relative path -> ``{"sha256", "bytes"}`` for every listed file."""
+        return self.manifest.get("files", {})
+
+    def has(self, relpath: str) -> bool:
+        """True if the manifest lists ``relpath``."""
+        return relpath in self.files()
+
+    def _read(self, relpath: str) -> bytes:
+        if relpath not in self.files():
+            raise CampaignError(f"{self.path / relpath}: not part of this observation")
+        p = self.path / relpath
+        try:
+            return p.read_bytes()
+        except FileNotFoundError:
+            raise DataIntegrityError(f"{p}: missing (run `fgcd campaign verify`)") from None
+
+    def image_names(self) -> list[str]:
+        """Names of the stored images (without ``images/`` and ``.png``)."""
+        return sorted(
+            k[len("images/") : -len(".png")] for k in self.files() if k.startswith("images/") and k.endswith(".png")
+        )
+
+    def image(self, name: str) -> np.ndarray:
+        """A stored image by name."""
+        return decode_png(self._read(f"images/{name}.png"))
+
+    def array(self, name: str) -> np.ndarray:
+        """A stored numpy array by name."""
+        return np.load(io.BytesIO(self._read(f"arrays/{name}.npy")), allow_pickle=False)
+
+    def json(self, relpath: str) -> Any:
+        """A stored JSON document."""
+        return json.loads(self._read(relpath).decode("utf-8"))
+
+    def bytes(self, relpath: str) -> bytes:
+        """Raw bytes of a stored file."""
+        return self._read(relpath)
+
+    def add_derived(self, relpath: str, data: bytes) -> Path:
+        """Add or replace a derived product (visit only): file + manifest, atomically.
+
+        Files written at capture time are never replaced; derived products
+        (change maps, reports) may be recomputed.
+        """
+        if self.kind == "reference":
+            raise ImmutableDataError(f"{self.path}: the reference observation is immutable")
+        relpath = relpath.replace("\\", "/").lstrip("/")
+        if relpath == MANIFEST or ".." in relpath.split("/"):
+            raise UserInputError(f"invalid derived file name {relpath!r}")
+        entry = self.files().get(relpath)
+        if entry is not None and not entry.get("derived", False):
+            raise ImmutableDataError(f"{self.path / relpath}: captured data cannot be replaced")
+        target = self.path / relpath
+        atomic_write_bytes(target, data)
+        manifest = dict(self.manifest)
+        files = dict(manifest.get("files", {}))
+        files[relpath] = {"sha256": sha256_bytes(data), "bytes": len(data), "derived": True}
+        manifest["files"] = files
+        manifest["updated"] = _now_iso()
+        atomic_write_json(self.path / MANIFEST, manifest)
+        self.manifest = manifest
+        return target
+
+
+class ObservationWriter:
+    """Assembles an observation in a hidden temporary directory, then commits it.
+
+    Use as a context manager; on an exception (or Ctrl-C) nothing is committed
+    and the temporary directory is removed.
+    """
+
+    def __init__(self, final_path: Path, kind: str, metadata: dict | None = None) -> None:
+        self.final_path = Path(final_path)
+        self.kind = kind
+        self.metadata = dict(metadata or {})
+        self.tmp_path = self.final_path.parent / f"{TMP_PREFIX}{self.final_path.name}-{uuid.uuid4().hex[:8]}"
+        self.tmp_path.mkdir(parents=True)
+        self._files: dict[str, dict] = {}
+        self._committed = False
+
+    def __enter__(self) -> "ObservationWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None or not self._committed:
+            self.abort()
+
+    def add_bytes(self, relpath: str, data: bytes) -> None:
+        """Add a file with the given bytes."""
+        relpath = relpath.replace("\\", "/").lstrip("/")
+        if relpath == MANIFEST or ".." in relpath.split("/") or relpath in self._files:
+            raise UserInputError(f"invalid or duplicate file name {relpath!r}")
+        p = self.tmp_path / relpath
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with open(p, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        self._files[relpath] = {"sha256": sha256_bytes(data), "bytes": len(data)}
+
+    def add_image(self, name: str, image: np.ndarray) -> None:
+        """Add ``images/<name>.png``."""
+        self.add_bytes(f"images/{_check_name(name, 'image')}.png", encode_png(image))
+
+    def add_array(self, name: str, array: np.ndarray) -> None:
+        """Add ``arrays/<name>.npy``."""
+        self.add_bytes(f"arrays/{_check_name(name, 'array')}.npy", encode_npy(array))
+
+    def add_json(self, relpath: str, data: Any) -> None:
+        """Add a JSON document."""
+        self.add_bytes(relpath, (json.dumps(data, indent=2, ensure_ascii=False) + "\n").encode("utf-8"))
+
+    def add_cloud(
+        self,
+        points: np.ndarray,
+        *,
+        colors: np.ndarray | None = None,
+        normals: np.ndarray | None = None,
+        name: str = "cloud",
+    ) -> None:
+        """Add ``<name>.ply`` plus exact arrays ``arrays/<name>_points.npy`` etc."""
+        self.add_bytes(f"{name}.ply", encode_ply(points, colors, normals))
+        self.add_array(f"{name}_points", np.asarray(points, dtype=np.float64))
+        if colors is not None:
+            self.add_array(f"{name}_colors", np.asarray(colors))
+        if normals is not None:
+            self.add_array(f"{name}_normals", np.asarray(normals, dtype=np.float32))
+
+    def commit(self) -> Observation:
+        """Write the manifest, then move the directory into place atomically."""
+        if self._committed:
+            raise CampaignError("observation already committed")
+        manifest = {
+            "format_version": FORMAT_VERSION,
+            "kind": self.kind,
+            "created": _now_iso(),
+            "fgcd_version": __version__,
+            "metadata": self.metadata,
+            "files": self._files,
+        }
+        atomic_write_json(self.tmp_path / MANIFEST, manifest)
+        fsync_dir(self.tmp_path)
+        if self.final_path.exists():
+            self.abort()
+            if self.kind == "reference":
+                raise ImmutableDataError(
+                    f"{self.final_path}: a reference observation already exists and is immutable"
+                )
+            raise CampaignError(f"{self.final_path} already exists")
+        os.rename(self.tmp_path, self.final_path)
+        fsync_dir(self.final_path.parent)
+        if self.kind == "reference":
+            for rel in list(self._files) + [MANIFEST]:
+                try:
+                    os.chmod(self.final_path / rel, 0o444)
+                except OSError:
+                    pass
+        self._committed = True
+        return Observation(self.final_path, self.kind, manifest)
+
+    def abort(self) -> None:
+        """Drop the temporary directory."""
+        if self.tmp_path.exists():
+            shutil.rmtree(self.tmp_path, ignore_errors=True)
+
+
+def _load_observation(path: Path, kind: str) -> Observation:
+    mpath = path / MANIFEST
+    try:
+        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataIntegrityError(f"{mpath}: manifest missing") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DataIntegrityError(f"{mpath}: manifest is not valid JSON ({exc})") from None
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("files"), dict):
+        raise DataIntegrityError(f"{mpath}: manifest has no file list")
+    return Observation(path, kind, manifest)
+
+
+# ----------------------------------------------------------------------------- station
+@dataclass
+class Station:
+    """A viewpoint of a campaign: one reference observation and its visits."""
+
+    campaign: "Campaign"
+    name: str
+    path: Path
+    info: dict = field(default_factory=dict)
+
+    @property
+    def reference_path(self) -> Path:
+        """Where the reference observation lives."""
+        return self.path / "reference"
+
+    def has_reference(self) -> bool:
+        """True once a reference observation was committed."""
+        return (self.reference_path / MANIFEST).exists()
+
+    def reference(self) -> Observation:
+        """The reference observation (error if none yet)."""
+        if not self.reference_path.exists():
+            raise CampaignError(f"station '{self.name}' has no reference observation yet (run `fgcd capture`)")
+        return _load_observation(self.reference_path, "reference")
+
+    def write_reference(self, metadata: dict | None = None) -> ObservationWriter:
+        """Start writing the reference observation; refused if one exists."""
+        if self.reference_path.exists():
+            raise ImmutableDataError(
+                f"station '{self.name}' already has a reference observation; it is immutable "
+                "(create a new station to capture another reference)"
+            )
+        return ObservationWriter(self.reference_path, "reference", metadata)
+
+    def visit_names(self) -> list[str]:
+        """Committed visits, oldest first."""
+        vdir = self.path / "visits"
+        if not vdir.is_dir():
+            return []
+        return sorted(p.name for p in vdir.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+    def visits(self) -> list[Observation]:
+        """Committed visits, oldest first."""
+        return [self.visit(n) for n in self.visit_names()]
+
+    def visit(self, name: str | None = None) -> Observation:
+        """A visit by name; the latest when ``name`` is None."""
+        names = self.visit_names()
+        if not names:
+            raise CampaignError(f"station '{self.name}' has no visits yet (run `fgcd relocate`)")
+        if name is None:
+            name = names[-1]
+        if name not in names:
+            raise CampaignError(f"station '{self.name}' has no visit '{name}' (visits: {', '.join(names)})")
+        return _load_observation(self.path / "visits" / name, "visit")
+
+    def new_visit(self, metadata: dict | None = None, *, stamp: str | None = None) -> ObservationWriter:
+        """Start writing a new visit named by its UTC time."""
+        vdir = self.path / "visits"
+        vdir.mkdir(parents=True, exist_ok=True)
+        return ObservationWriter(vdir / (stamp or utc_stamp()), "visit", metadata)
+
+
+# ----------------------------------------------------------------------------- campaign
+@dataclass
+class Campaign:
+    """An opened campaign directory."""
+
+    path: Path
+    config: dict
+
+    @property
+    def site(self) -> str:
+        """The site name."""
+        return str(self.config.get("campaign", {}).get("site", ""))
+
+    @property
+    def rig_config(self) -> dict:
+        """The ``[rig]`` section of campaign.toml (driver, port, host, lights...)."""
+        return dict(self.config.get("rig", {}))
+
+    # -- stations
+    def station_names(self) -> list[str]:
+        """Names of the stations, sorted."""
+        sdir = self.path / "stations"
+        if not sdir.is_dir():
+            return []
+        return sorted(p.name for p in sdir.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+    def station(self, name: str) -> Station:
+        """An existing station."""
+        name = _check_name(name, "station")
+        path = self.path / "stations" / name
+        if not path.is_dir():
+            known = ", ".join(self.station_names()) or "none"
+            raise CampaignError(f"campaign has no station '{name}' (stations: {known})")
+        info: dict = {}
+        sfile = path / "station.json"
+        if sfile.exists():
+            try:
+                info = json.loads(sfile.read_text(encoding="utf-8"))
+            except json.JSONDecodeError as exc:
+                raise DataIntegrityError(f"{sfile}: not valid JSON ({exc})") from None
+        return Station(self, name, path, info)
+
+    def create_station(self, name: str, *, description: str = "", **info: Any) -> Station:
+        """Create a station (error if it exists)."""
+        name = _check_name(name, "station")
+        path = self.path / "stations" / name
+        if path.exists():
+            raise CampaignError(f"station '{name}' already exists")
+        path.mkdir(parents=True)
+        data = {"name": name, "description": description, "created": _now_iso(), **info}
+        atomic_write_json(path / "station.json", data)
+        return Station(self, name, path, data)
+
+    def station_or_create(self, name: str, **info: Any) -> Station:
+        """The station, created if missing."""
+        try:
+            return self.station(name)
+        except CampaignError:
+            return self.create_station(name, **info)
+
+    # -- rig calibration records
+    def rig_path(self, name: str) -> Path:
+        """Path of a rig record, e.g. ``rig/handeye.json``."""
+        return self.path / "rig" / f"{_check_name(name, 'rig record')}.json"
+
+    def read_rig(self, name: str) -> dict | None:
+        """A rig record (intrinsics, handeye...), or None if absent."""
+        p = self.rig_path(name)
+        if not p.exists():
+            return None
+        try:
+            return json.loads(p.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as exc:
+            raise DataIntegrityError(f"{p}: not valid JSON ({exc})") from None
+
+    def write_rig(self, name: str, record: dict) -> Path:
+        """Store a rig record atomically; the previous one is kept in ``rig/history/``."""
+        p = self.rig_path(name)
+        record = {"written": _now_iso(), **record}
+        history = self.path / "rig" / "history"
+        history.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(history / f"{name}-{utc_stamp()}.json", record)
+        atomic_write_json(p, record)
+        return p
+
+    def update_config(self, section: str, values: dict) -> None:
+        """Merge ``values`` into a section of campaign.toml (atomic rewrite)."""
+        cfg = dict(self.config)
+        sec = dict(cfg.get(section, {}))
+        sec.update(values)
+        cfg[section] = sec
+        atomic_write_bytes(self.path / CAMPAIGN_FILE, tomli_w.dumps(cfg).encode("utf-8"))
+        self.config = cfg
+
+    def iter_observations(self) -> Iterator[tuple[Station, Path, str]]:
+        """``(station, path, kind)`` for every observation directory present."""
+        for sname in self.station_names():
+            st = self.station(sname)
+            if st.reference_path.exists():
+                yield st, st.reference_path, "reference"
+            for vname in st.visit_names():
+                yield st, st.path / "visits" / vname, "visit"
+
+
+def init_campaign(path: Path, *, site: str, description: str = "", rig: dict | None = None) -> Campaign:
+    """Create a new campaign directory with its campaign.toml."""
+    path = Path(path)
+    if not site.strip():
+        raise UserInputError("--site must not be empty")
+    if (path / CAMPAIGN_FILE).exists():
+        raise CampaignError(f"{path} already holds a campaign")
+    if path.exists() and not path.is_dir():
+        raise UserInputError(f"{path} exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        (path / "stations").mkdir(exist_ok=True)
+        (path / "rig").mkdir(exist_ok=True)
+        config = {
+            "campaign": {
+                "format_version": FORMAT_VERSION,
+                "site": site.strip(),
+                "description": description,
+                "created": _now_iso(),
+                "fgcd_version": __version__,
+            },
+            "rig": dict(rig or {}),
+        }
+        atomic_write_bytes(path / CAMPAIGN_FILE, tomli_w.dumps(config).encode("utf-8"))
+    except PermissionError as exc:
+        raise CampaignError(f"cannot write to {exc.filename or path}: permission denied") from None
+    return Campaign(path, config)
+
+
+def open_campaign(path: Path) -> Campaign:
+    """Open an existing campaign; one clear error if it is not one."""
+    path = Path(path)
+    if not path.exists():
+        raise CampaignError(f"{path}: no such directory")
+    cfile = path / CAMPAIGN_FILE
+    if not cfile.exists():
+        raise CampaignError(f"{path} is not a campaign (no {CAMPAIGN_FILE}; create one with `fgcd campaign init`)")
+    try:
+        config = tomllib.loads(cfile.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CampaignError(f"{cfile}: malformed TOML ({exc})") from None
+    camp = config.get("campaign")
+    if not isinstance(camp, dict) or "format_version" not in camp:
+        raise CampaignError(f"{cfile}: no [campaign] section with a format_version")
+    version = camp.get("format_version")
+    if not isinstance(version, int) or version > FORMAT_VERSION:
+        raise CampaignError(
+            f"{cfile}: format version {version!r} is not supported by fgcd {__version__} (max {FORMAT_VERSION})"
+        )
+    return Campaign(path, config)

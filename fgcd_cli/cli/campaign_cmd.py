@@ -1,0 +1,147 @@
+"""`fgcd campaign init|list|show|verify|add-station`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from fgcd_cli.campaign import init_campaign, open_campaign, verify_campaign
+from fgcd_cli.cli.output import emit
+from fgcd_cli.errors import DataIntegrityError, UserInputError
+
+app = typer.Typer(help="Create, inspect and verify campaigns (a site, its stations and observations).", no_args_is_help=True)
+
+JSON_OPT = typer.Option(False, "--json", help="Print one JSON object instead of text.")
+
+
+@app.command("init")
+def init_cmd(
+    directory: Path = typer.Argument(..., help="Campaign directory to create."),
+    site: str = typer.Option(..., "--site", help="Site name, e.g. 'Dunhuang cave 45'."),
+    description: str = typer.Option("", "--description", help="Free text."),
+    driver: str = typer.Option("sim", "--driver", help="Default platform driver: sim, grbl, ur or manual."),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """Create a new campaign directory."""
+    if driver not in ("sim", "grbl", "ur", "manual"):
+        raise UserInputError(f"unknown driver '{driver}' (use sim, grbl, ur or manual)")
+    camp = init_campaign(directory, site=site, description=description, rig={"driver": driver})
+    emit(
+        {"campaign": str(camp.path), "site": camp.site, "created": True},
+        as_json=as_json,
+        render=lambda c: c.print(f"Created campaign [bold]{camp.site}[/bold] in {camp.path}"),
+    )
+
+
+@app.command("add-station")
+def add_station_cmd(
+    name: str = typer.Argument(..., help="Station (viewpoint) name."),
+    campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign directory."),
+    description: str = typer.Option("", "--description"),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """Add a station (a viewpoint to monitor) to a campaign."""
+    st = open_campaign(campaign).create_station(name, description=description)
+    emit({"station": st.name, "path": str(st.path)}, as_json=as_json,
+         render=lambda c: c.print(f"Added station [bold]{st.name}[/bold]"))
+
+
+def _station_summary(st) -> dict:
+    return {
+        "name": st.name,
+        "description": st.info.get("description", ""),
+        "reference": st.has_reference(),
+        "visits": st.visit_names(),
+    }
+
+
+@app.command("list")
+def list_cmd(
+    campaign: Path = typer.Argument(..., help="Campaign directory."),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """List the stations of a campaign with their reference and visits."""
+    camp = open_campaign(campaign)
+    stations = [_station_summary(camp.station(n)) for n in camp.station_names()]
+
+    def render(c) -> None:
+        t = Table(title=f"{camp.site} — {camp.path}")
+        t.add_column("station")
+        t.add_column("reference")
+        t.add_column("visits", justify="right")
+        t.add_column("latest visit")
+        for s in stations:
+            t.add_row(s["name"], "yes" if s["reference"] else "—", str(len(s["visits"])), s["visits"][-1] if s["visits"] else "—")
+        c.print(t)
+
+    emit({"campaign": str(camp.path), "site": camp.site, "stations": stations}, as_json=as_json, render=render)
+
+
+@app.command("show")
+def show_cmd(
+    campaign: Path = typer.Argument(..., help="Campaign directory."),
+    station: str = typer.Option(None, "--station", "-s", help="Show one station in detail."),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """Show a campaign's configuration, or one station's observations."""
+    camp = open_campaign(campaign)
+    if station is None:
+        data = {"campaign": str(camp.path), "config": camp.config, "stations": camp.station_names(),
+                "rig_records": sorted(p.stem for p in (camp.path / "rig").glob("*.json"))}
+
+        def render(c) -> None:
+            c.print(f"[bold]{camp.site}[/bold]  ({camp.path})")
+            for sec, vals in camp.config.items():
+                c.print(f"[{sec}]")
+                for k, v in vals.items():
+                    c.print(f"  {k} = {v}")
+            c.print(f"stations: {', '.join(data['stations']) or '—'}")
+            c.print(f"rig records: {', '.join(data['rig_records']) or '—'}")
+
+        emit(data, as_json=as_json, render=render)
+        return
+    st = camp.station(station)
+    obs = []
+    if st.has_reference():
+        obs.append(st.reference())
+    obs += st.visits()
+    rows = [
+        {"name": o.name, "kind": o.kind, "created": o.manifest.get("created"), "files": len(o.files()),
+         "images": o.image_names(), "metadata": o.metadata}
+        for o in obs
+    ]
+
+    def render(c) -> None:
+        t = Table(title=f"station {st.name}")
+        for col in ("observation", "kind", "created", "files", "images"):
+            t.add_column(col)
+        for r in rows:
+            t.add_row(r["name"], r["kind"], str(r["created"]), str(r["files"]), ", ".join(r["images"]))
+        c.print(t)
+
+    emit({"station": _station_summary(st), "observations": rows}, as_json=as_json, render=render)
+
+
+@app.command("verify")
+def verify_cmd(
+    campaign: Path = typer.Argument(..., help="Campaign directory."),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """Check every manifest and checksum; exit non-zero and name each damaged file."""
+    report = verify_campaign(open_campaign(campaign))
+
+    def render(c) -> None:
+        for p in report.problems:
+            colour = "red" if p.severity == "error" else "yellow"
+            c.print(f"[{colour}]{p.severity}[/{colour}] {p.kind}: {p.path} — {p.detail}")
+        status = "[green]OK[/green]" if report.ok else "[red]DAMAGED[/red]"
+        c.print(f"{status}: {report.observations} observations, {report.files_checked} files checked, "
+                f"{len(report.problems)} problems")
+
+    emit(report.to_dict(), as_json=as_json, render=render)
+    if not report.ok:
+        n = sum(p.severity == "error" for p in report.problems)
+        first = next(p for p in report.problems if p.severity == "error")
+        raise DataIntegrityError(f"{n} damaged or missing file(s), first: {first.path} ({first.kind})")
