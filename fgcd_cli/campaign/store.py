@@ -543,6 +543,8 @@ def init_campaign(path: Path, *, site: str, description: str = "", rig: dict | N
         atomic_write_bytes(path / CAMPAIGN_FILE, tomli_w.dumps(config).encode("utf-8"))
     except PermissionError as exc:
         raise CampaignError(f"cannot write to {exc.filename or path}: permission denied") from None
+    except OSError as exc:
+        raise CampaignError(f"cannot create a campaign in {path}: {exc.strerror or exc}") from None
     return Campaign(path, config)
 
 

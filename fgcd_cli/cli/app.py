@@ -7,7 +7,7 @@ import sys
 import typer
 
 from fgcd_cli import __version__
-from fgcd_cli.cli.output import err_console, state
+from fgcd_cli.cli.output import state
 from fgcd_cli.errors import FgcdError
 
 app = typer.Typer(
@@ -54,38 +54,40 @@ def _platform_error_type():
         return ()
 
 
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def _fail(prefix: str, exc: object, code: int) -> None:
+    # Plain print: one unwrapped line whatever the terminal width.
+    print(f"{prefix}: {_one_line(exc)}", file=sys.stderr)
+    sys.exit(code)
+
+
 def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
     platform_error = _platform_error_type()
     try:
         app(standalone_mode=False)
     except FgcdError as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
-        sys.exit(exc.exit_code)
+        _fail("error", exc, exc.exit_code)
     except platform_error as exc:  # type: ignore[misc]
-        err_console.print(f"[red]platform error:[/red] {exc}")
-        sys.exit(EXIT_PLATFORM)
+        _fail("platform error", exc, EXIT_PLATFORM)
     except KeyboardInterrupt:
-        err_console.print("[yellow]interrupted[/yellow]: stopped by the user")
-        sys.exit(EXIT_INTERRUPTED)
+        _fail("interrupted", "stopped by the user", EXIT_INTERRUPTED)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
     except typer.Abort:
-        err_console.print("aborted")
-        sys.exit(1)
-    except Exception as exc:  # click usage errors and the like
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
+        _fail("aborted", "by the user", 1)
+    except Exception as exc:
+        # typer vendors click: usage errors carry show() and exit_code.
+        if hasattr(exc, "show") and hasattr(exc, "exit_code") and hasattr(exc, "format_message"):
+            _fail("usage error", exc.format_message(), int(exc.exit_code))
         if isinstance(exc, OSError):
-            err_console.print(f"[red]error:[/red] {exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}")
-            sys.exit(1)
+            _fail("error", f"{exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}", 1)
         if state.verbose:
             raise
-        err_console.print(f"[red]internal error:[/red] {type(exc).__name__}: {exc} (run with --verbose for details)")
-        sys.exit(70)
+        _fail("internal error", f"{type(exc).__name__}: {exc} (run with --verbose for details)", 70)
 
 
 if __name__ == "__main__":

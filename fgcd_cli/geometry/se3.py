@@ -156,8 +156,11 @@ def interpolate_pose(T0: np.ndarray, T1: np.ndarray, alpha: float) -> np.ndarray
 
 def rotation_angle_rad(R: np.ndarray) -> float:
     """Angle of a rotation matrix in radians, in [0, pi]."""
-    c = (float(np.trace(np.asarray(R, dtype=float)[:3, :3])) - 1.0) / 2.0
-    return math.acos(max(-1.0, min(1.0, c)))
+    # atan2 of sine and cosine parts: accurate near 0 and pi, unlike acos alone.
+    R = np.asarray(R, dtype=float)[:3, :3]
+    c = (float(np.trace(R)) - 1.0) / 2.0
+    s = 0.5 * float(np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]))
+    return math.atan2(s, c)
 
 
 def pose_distance(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:

@@ -1,0 +1,230 @@
+"""Campaign store: round trips, immutability, and the bad input it must survive."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgcd_cli.campaign import init_campaign, open_campaign, verify_campaign
+from fgcd_cli.errors import CampaignError, DataIntegrityError, ImmutableDataError, UserInputError
+
+
+@pytest.fixture
+def camp(tmp_path):
+    return init_campaign(tmp_path / "camp", site="Stele Forest, Xi'an")
+
+
+def _write_reference(station, value=7):
+    with station.write_reference({"lighting": "front"}) as w:
+        w.add_image("front", np.full((12, 16), value, np.uint8))
+        w.add_array("T_ref_cam", np.eye(4))
+        w.add_cloud(np.random.default_rng(0).normal(size=(30, 3)), colors=np.linspace(0, 1, 30))
+        w.add_json("capture.json", {"note": "Référence ✓"})
+        return w.commit()
+
+
+def test_round_trip_reference_and_visits(camp):
+    st = camp.create_station("north-face", description="the inscription")
+    ref = _write_reference(st)
+    assert st.has_reference()
+    again = open_campaign(camp.path).station("north-face").reference()
+    assert again.image_names() == ["front"]
+    assert np.array_equal(again.image("front"), np.full((12, 16), 7, np.uint8))
+    assert np.array_equal(again.array("T_ref_cam"), np.eye(4))
+    assert again.json("capture.json")["note"] == "Référence ✓"
+    assert again.metadata == {"lighting": "front"}
+    assert again.array("cloud_points").shape == (30, 3)
+    for i in range(2):
+        with st.new_visit({"i": i}, stamp=f"2026010{i}T000000000Z") as w:
+            w.add_image("cur", np.zeros((4, 4, 3), np.uint8))
+            w.commit()
+    assert st.visit_names() == ["20260100T000000000Z", "20260101T000000000Z"]
+    assert st.visit().metadata == {"i": 1}
+    assert verify_campaign(camp).ok
+    assert ref.path.name == "reference"
+
+
+def test_16bit_and_float_images_are_kept(camp):
+    st = camp.create_station("s")
+    img16 = (np.arange(12 * 16).reshape(12, 16) * 300).astype(np.uint16)
+    with st.write_reference() as w:
+        w.add_image("a", img16)
+        w.add_image("b", np.linspace(0, 1, 20).reshape(4, 5).astype(np.float32))
+        w.commit()
+    ref = st.reference()
+    assert np.array_equal(ref.image("a"), img16)
+    assert ref.image("b").dtype == np.uint16 and ref.image("b").max() == 65535
+
+
+def test_reference_is_immutable(camp):
+    st = camp.create_station("s")
+    ref = _write_reference(st)
+    with pytest.raises(ImmutableDataError):
+        st.write_reference()
+    with pytest.raises(ImmutableDataError):
+        ref.add_derived("changes/x.png", b"123")
+    mode = os.stat(ref.path / "images" / "front.png").st_mode & 0o777
+    assert mode == 0o444
+
+
+def test_visit_derived_products_update_manifest(camp):
+    st = camp.create_station("s")
+    with st.new_visit() as w:
+        w.add_image("cur", np.zeros((4, 4), np.uint8))
+        visit = w.commit()
+    visit.add_derived("changes/regions.json", b"[]")
+    visit.add_derived("changes/regions.json", b"[1]")  # recomputed
+    assert verify_campaign(camp).ok
+    with pytest.raises(ImmutableDataError):
+        visit.add_derived("images/cur.png", b"x")
+    with pytest.raises(UserInputError):
+        visit.add_derived("../escape.txt", b"x")
+
+
+def test_wrong_checksum_is_named(camp):
+    st = camp.create_station("s")
+    ref = _write_reference(st)
+    target = ref.path / "images" / "front.png"
+    os.chmod(target, 0o644)
+    data = bytearray(target.read_bytes())
+    data[-5] ^= 0xFF
+    target.write_bytes(bytes(data))
+    report = verify_campaign(camp)
+    assert not report.ok
+    assert [p.path for p in report.problems if p.severity == "error"] == [str(target)]
+    assert report.problems[0].kind == "checksum"
+
+
+def test_deleted_image_is_named(camp):
+    st = camp.create_station("s")
+    ref = _write_reference(st)
+    target = ref.path / "images" / "front.png"
+    target.unlink()
+    report = verify_campaign(camp)
+    assert [(p.path, p.kind) for p in report.problems] == [(str(target), "missing")]
+    with pytest.raises(DataIntegrityError, match="front.png"):
+        st.reference().image("front")
+
+
+def test_damaged_manifest_is_named(camp):
+    st = camp.create_station("s")
+    ref = _write_reference(st)
+    m = ref.path / "manifest.json"
+    os.chmod(m, 0o644)
+    m.write_text("{ not json")
+    report = verify_campaign(camp)
+    assert not report.ok and report.problems[0].path == str(m)
+    with pytest.raises(DataIntegrityError):
+        st.reference()
+
+
+def test_missing_and_malformed_campaign_toml(tmp_path):
+    with pytest.raises(CampaignError, match="not a campaign"):
+        open_campaign(tmp_path)
+    with pytest.raises(CampaignError, match="no such directory"):
+        open_campaign(tmp_path / "nope")
+    (tmp_path / "campaign.toml").write_text("[campaign\nsite = ")
+    with pytest.raises(CampaignError, match="malformed TOML"):
+        open_campaign(tmp_path)
+    (tmp_path / "campaign.toml").write_text("[other]\nx = 1\n")
+    with pytest.raises(CampaignError, match="format_version"):
+        open_campaign(tmp_path)
+    (tmp_path / "campaign.toml").write_text("[campaign]\nformat_version = 99\n")
+    with pytest.raises(CampaignError, match="not supported"):
+        open_campaign(tmp_path)
+
+
+def test_init_refuses_existing_and_bad_places(tmp_path):
+    init_campaign(tmp_path / "c", site="x")
+    with pytest.raises(CampaignError, match="already holds"):
+        init_campaign(tmp_path / "c", site="x")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(UserInputError):
+        init_campaign(tmp_path / "file", site="x")
+    with pytest.raises(CampaignError):
+        init_campaign(tmp_path / "file" / "sub", site="x")  # parent is a file: unwritable
+    with pytest.raises(UserInputError):
+        init_campaign(tmp_path / "d", site="  ")
+
+
+def test_unwritable_directory(tmp_path, monkeypatch):
+    # Running as root ignores permission bits, so make the OS refuse the write.
+    import fgcd_cli.campaign.store as store
+
+    def deny(*a, **k):
+        raise PermissionError(13, "Permission denied", str(tmp_path / "ro"))
+
+    monkeypatch.setattr(store, "atomic_write_bytes", deny)
+    with pytest.raises(CampaignError, match="permission denied"):
+        init_campaign(tmp_path / "ro", site="x")
+
+
+def test_non_ascii_site_and_station_names(tmp_path):
+    camp = init_campaign(tmp_path / "莫高窟", site="敦煌 莫高窟 — Höhle 45")
+    camp.create_station("北壁")
+    again = open_campaign(tmp_path / "莫高窟")
+    assert again.site == "敦煌 莫高窟 — Höhle 45"
+    assert again.station_names() == ["北壁"]
+
+
+def test_invalid_station_names(camp):
+    for bad in ["", "a/b", "..", ".hidden"]:
+        with pytest.raises(UserInputError):
+            camp.create_station(bad)
+    with pytest.raises(CampaignError, match="no station"):
+        camp.station("ghost")
+
+
+def test_killed_during_write_leaves_no_valid_half_observation(camp):
+    """A process killed while writing a visit leaves only a hidden temp dir."""
+    camp.create_station("s")
+    script = textwrap.dedent(
+        f"""
+        import os, signal, numpy as np
+        from fgcd_cli.campaign import open_campaign
+        st = open_campaign({str(camp.path)!r}).station("s")
+        w = st.new_visit()
+        w.add_image("a", np.zeros((64, 64), np.uint8))
+        w.add_bytes("big.bin", os.urandom(1 << 16))
+        os.kill(os.getpid(), signal.SIGKILL)  # dies before commit
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script], cwd=Path(__file__).parents[2])
+    assert proc.returncode == -9
+    st = camp.station("s")
+    assert st.visit_names() == []
+    report = verify_campaign(camp)
+    assert report.ok  # nothing valid is damaged...
+    assert any(p.kind == "incomplete-write" for p in report.problems)  # ...and the leftover is reported
+
+
+def test_killed_during_atomic_file_write_keeps_old_content(tmp_path):
+    target = tmp_path / "rec.json"
+    target.write_text('{"v": 1}')
+    script = textwrap.dedent(
+        f"""
+        import os, signal
+        import fgcd_cli.campaign.atomic as atomic
+        real_replace = os.replace
+        def dying_replace(a, b):
+            os.kill(os.getpid(), signal.SIGKILL)
+        atomic.os.replace = dying_replace
+        atomic.atomic_write_json({str(target)!r}, {{"v": 2}})
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script], cwd=Path(__file__).parents[2])
+    assert proc.returncode == -9
+    assert json.loads(target.read_text()) == {"v": 1}
+
+
+def test_rig_records_keep_history(camp):
+    camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist(), "method": "test"})
+    camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist(), "method": "test2"})
+    assert camp.read_rig("handeye")["method"] == "test2"
+    assert len(list((camp.path / "rig" / "history").glob("handeye-*.json"))) == 2
+    assert camp.read_rig("intrinsics") is None
