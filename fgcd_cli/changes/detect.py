@@ -1,0 +1,219 @@
+"""Top-level fine-grained change detection: register, normalize light, fuse cues, threshold, regions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from fgcd_cli.changes.cues import local_ncc_dissimilarity, relative_to_median, shift_tolerant_difference
+from fgcd_cli.changes.illumination import normalize_local_gain, normalize_shading
+from fgcd_cli.changes.images import image_health, to_gray, validate_stacks
+from fgcd_cli.changes.regions import ChangeRegion, clean_mask, extract_regions
+from fgcd_cli.changes.registration import Registration, register_to_reference, warp_to_reference
+from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
+from fgcd_cli.errors import UserInputError
+
+
+@dataclass(kw_only=True)
+class ChangeResult:
+    """Everything :func:`detect_changes` found, in the reference image's frame."""
+
+    comparable: bool
+    """False when the pair cannot be compared honestly (see ``reason``); then the maps are empty."""
+    reason: str = ""
+    score: np.ndarray
+    """HxW float32 fused change score (dimensionless, background median ~1; 0 outside ``valid``)."""
+    mask: np.ndarray
+    """HxW bool, changed pixels after threshold and cleaning."""
+    labels: np.ndarray
+    """HxW int32, region id per pixel (0 = unchanged)."""
+    valid: np.ndarray
+    """HxW bool, pixels that were compared (evaluation mask ∩ seen in the current image)."""
+    regions: list[ChangeRegion]
+    registration: Registration | None
+    threshold: ThresholdInfo | None
+    current_registered: list[np.ndarray] = field(default_factory=list)
+    """Current images resampled into the reference frame, light-normalized (float32)."""
+    settings: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def changed_fraction(self) -> float:
+        """Fraction of compared pixels flagged as changed."""
+        return float(self.mask[self.valid].mean()) if self.valid.any() else 0.0
+
+
+def _empty(shape: tuple[int, int], reason: str, registration: Registration | None, settings: dict) -> ChangeResult:
+    return ChangeResult(
+        comparable=False,
+        reason=reason,
+        score=np.zeros(shape, np.float32),
+        mask=np.zeros(shape, bool),
+        labels=np.zeros(shape, np.int32),
+        valid=np.zeros(shape, bool),
+        regions=[],
+        registration=registration,
+        threshold=None,
+        settings=settings,
+    )
+
+
+def detect_changes(
+    ref_images: list[np.ndarray],
+    cur_images: list[np.ndarray],
+    *,
+    eval_mask: np.ndarray | None = None,
+    pixel_area_mm2: np.ndarray | None = None,
+    shading_ref: list[np.ndarray] | None = None,
+    shading_cur: list[np.ndarray] | None = None,
+    register: bool = True,
+    gain_sigma_px: float = 12.0,
+    shift_radius_px: int = 1,
+    structure_weight: float = 0.0,
+    smooth_sigma_px: float = 2.0,
+    k_high: float = 20.0,
+    k_low: float = 10.0,
+    min_region_px: int = 30,
+    max_hole_px: int = 30,
+    registration_lighting: int = 0,
+) -> ChangeResult:
+    """Find fine-grained changes between a reference and a current observation.
+
+    Parameters
+    ----------
+    ref_images, cur_images : list of ndarray, HxW or HxWx3, uint8/uint16/float in [0, 1]
+        One image per lighting, the same lightings in the same order in both lists.
+        All images must have the same size. The camera may have moved slightly
+        between the observations (a few pixels after relocation).
+    eval_mask : ndarray, HxW bool, optional
+        Pixels of the reference to compare (e.g. the object, not the background).
+    pixel_area_mm2 : ndarray, HxW float, optional
+        Surface area seen by each reference pixel, mm² (see
+        :func:`fgcd_cli.changes.regions.pixel_area_from_points` /
+        :func:`~fgcd_cli.changes.regions.pixel_area_from_depth`); gives region areas in mm².
+    shading_ref, shading_cur : list of ndarray, HxW float, optional
+        Per-lighting Lambertian shading maps in the reference frame (from the
+        observation's normals and the capture's light directions, see
+        :func:`fgcd_cli.changes.illumination.shading_from_normals`). When given,
+        the current images are re-lit to the reference lighting before the local
+        gain correction.
+    register : bool
+        Register the current images on the reference (homography, ECC on gradients).
+    gain_sigma_px : float
+        Scale of the smooth light-gain field removed per lighting, pixels.
+    shift_radius_px : int
+        Residual misregistration absorbed by the difference cue, pixels.
+    structure_weight : float
+        Weight in [0, 1] of the gain-invariant local-NCC cue against the colour difference cue.
+    smooth_sigma_px : float
+        Gaussian smoothing of the fused score, pixels.
+    k_high, k_low : float
+        Automatic threshold (see :func:`fgcd_cli.changes.threshold.robust_hysteresis_threshold`).
+    min_region_px, max_hole_px : int
+        Regions up to this size are dropped / holes up to this size filled.
+    registration_lighting : int
+        Index of the lighting used to estimate the registration (the most diffuse one is best).
+
+    Returns
+    -------
+    ChangeResult
+        ``comparable`` is False (with a reason) for black, textureless or
+        non-overlapping pairs. Raises :class:`UserInputError` for inconsistent input.
+    """
+    settings = {
+        "lightings": len(ref_images),
+        "gain_sigma_px": gain_sigma_px,
+        "shift_radius_px": shift_radius_px,
+        "structure_weight": structure_weight,
+        "smooth_sigma_px": smooth_sigma_px,
+        "k_high": k_high,
+        "k_low": k_low,
+        "min_region_px": min_region_px,
+        "max_hole_px": max_hole_px,
+        "registration_lighting": registration_lighting,
+        "shading_normalization": shading_ref is not None,
+    }
+    refs, curs = validate_stacks(ref_images, cur_images)
+    shape = refs[0].shape[:2]
+    if eval_mask is not None:
+        eval_mask = np.asarray(eval_mask).astype(bool)
+        if eval_mask.shape != shape:
+            raise UserInputError(f"evaluation mask is {eval_mask.shape[1]}x{eval_mask.shape[0]} px, images are {shape[1]}x{shape[0]} px")
+    if pixel_area_mm2 is not None and np.asarray(pixel_area_mm2).shape != shape:
+        raise UserInputError("pixel area map must have the reference image's size")
+    if not 0 <= registration_lighting < len(refs):
+        raise UserInputError(f"registration lighting {registration_lighting} out of range 0..{len(refs) - 1}")
+    if (shading_ref is None) != (shading_cur is None):
+        raise UserInputError("give shading maps for both the reference and the current observation, or neither")
+
+    grays_ref = [to_gray(im) for im in refs]
+    grays_cur = [to_gray(im) for im in curs]
+    for label, grays in (("reference", grays_ref), ("current", grays_cur)):
+        for i, gray in enumerate(grays):
+            problem = image_health(gray)
+            if problem:
+                return _empty(shape, f"cannot compare: {label} image {i + 1}: {problem}", None, settings)
+
+    if register:
+        registration = register_to_reference(grays_ref[registration_lighting], grays_cur[registration_lighting])
+        if not registration.ok:
+            return _empty(shape, f"cannot compare: {registration.reason}", registration, settings)
+    else:
+        registration = Registration(H_cur_ref=np.eye(3), ok=True, init="none", overlap_fraction=1.0)
+
+    valid = np.ones(shape, bool) if eval_mask is None else eval_mask.copy()
+    differences, structures, registered = [], [], []
+    for i, (ref, cur) in enumerate(zip(refs, curs)):
+        warped, seen = warp_to_reference(cur, registration.H_cur_ref, shape)
+        valid &= seen
+        if shading_ref is not None:
+            warped = normalize_shading(ref, warped, shading_ref=shading_ref[i], shading_cur=shading_cur[i])
+        normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px)
+        registered.append(np.clip(normalized, 0.0, 1.0))
+        differences.append(shift_tolerant_difference(ref, normalized, radius_px=shift_radius_px))
+        if structure_weight > 0:
+            structures.append(local_ncc_dissimilarity(to_gray(ref), to_gray(normalized)))
+    # Keep away from the border of the seen area: the gain field and shifts are biased there.
+    margin = int(np.ceil(max(shift_radius_px, smooth_sigma_px * 2)))
+    if margin > 0:
+        valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)).astype(bool)
+    if valid.sum() < 100:
+        return _empty(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
+
+    # Each cue is divided by its median (dimensionless) so lightings of different
+    # brightness weigh the same; averaging over lightings suppresses cast-shadow
+    # and specular differences that only one light produces.
+    fused = np.mean([relative_to_median(d, valid) for d in differences], axis=0)
+    if structures:
+        structure = np.mean([relative_to_median(s, valid) for s in structures], axis=0)
+        fused = (1.0 - structure_weight) * fused + structure_weight * structure
+    if smooth_sigma_px > 0:
+        fused = cv2.GaussianBlur(fused.astype(np.float32), (0, 0), smooth_sigma_px)
+    score = np.where(valid, fused, 0.0).astype(np.float32)
+
+    raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
+    mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
+    regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
+    warnings = []
+    fraction = float(mask[valid].mean())
+    if fraction > 0.25:
+        warnings.append(
+            f"{fraction * 100:.0f} % of the compared area flagged: lighting or viewpoint may differ too much for a fine-grained comparison"
+        )
+    if registration.init == "identity" and register:
+        warnings.append("features did not match; registration started from the identity (gradient ECC only)")
+    return ChangeResult(
+        comparable=True,
+        score=score,
+        mask=mask,
+        labels=labels,
+        valid=valid,
+        regions=regions,
+        registration=registration,
+        threshold=threshold,
+        current_registered=registered,
+        settings=settings,
+        warnings=warnings,
+    )

@@ -1,0 +1,81 @@
+"""Illumination normalization between a registered current image and the reference."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def normalize_local_gain(
+    ref_image: np.ndarray, cur_warped: np.ndarray, *, sigma_px: float = 12.0, floor: float = 0.01
+) -> np.ndarray:
+    """Correct a smooth, spatially varying light gain on the current image.
+
+    The gain ``G = blur(ref) / blur(cur)`` (per channel) absorbs light falloff,
+    exposure and white-balance differences whose scale is larger than
+    ``sigma_px``; changes smaller than that survive.
+
+    Parameters
+    ----------
+    ref_image, cur_warped : ndarray, HxW or HxWx3 float32 in [0, 1], same frame.
+    sigma_px : float
+        Gaussian scale of the gain field, pixels.
+    floor : float
+        Added to both blurred images so dark areas do not explode the gain.
+
+    Returns
+    -------
+    ndarray, the current image with the gain applied (float32, same shape).
+    """
+    blur_ref = cv2.GaussianBlur(ref_image, (0, 0), sigma_px)
+    blur_cur = cv2.GaussianBlur(cur_warped, (0, 0), sigma_px)
+    gain = (blur_ref + floor) / (blur_cur + floor)
+    return (cur_warped * gain).astype(np.float32)
+
+
+def shading_from_normals(normals_cam: np.ndarray, light_dir_cam: np.ndarray) -> np.ndarray:
+    """Lambertian shading ``max(0, n·l)`` for per-pixel normals and one light direction.
+
+    Parameters
+    ----------
+    normals_cam : ndarray, HxWx3 float, unit normals in the camera frame (NaN where unknown).
+    light_dir_cam : ndarray, 3, direction towards the light in the camera frame.
+
+    Returns
+    -------
+    ndarray, HxW float32 in [0, 1] (0 where the normal is unknown).
+    """
+    light = np.asarray(light_dir_cam, dtype=np.float64)
+    light = light / np.linalg.norm(light)
+    shading = np.einsum("hwc,c->hw", np.nan_to_num(normals_cam.astype(np.float64)), light)
+    return np.clip(shading, 0.0, 1.0).astype(np.float32)
+
+
+def normalize_shading(
+    ref_image: np.ndarray,
+    cur_warped: np.ndarray,
+    *,
+    shading_ref: np.ndarray,
+    shading_cur: np.ndarray,
+    min_shading: float = 0.05,
+) -> np.ndarray:
+    """Re-light the current image to the reference's lighting with known shading maps.
+
+    With per-pixel normals (from the observation's 3D points) and the capture's
+    light direction, albedo ``= image / shading``; the current image is divided by
+    its own shading and multiplied by the reference's, so only albedo or geometry
+    changes remain. Pixels with shading below ``min_shading`` keep their value.
+
+    Parameters
+    ----------
+    ref_image, cur_warped : ndarray, HxW or HxWx3 float32, reference frame.
+    shading_ref, shading_cur : ndarray, HxW float32, shading of each capture in the reference frame.
+    """
+    ratio = np.where(
+        (shading_cur > min_shading) & (shading_ref > min_shading),
+        shading_ref / np.maximum(shading_cur, min_shading),
+        1.0,
+    ).astype(np.float32)
+    if cur_warped.ndim == 3:
+        ratio = ratio[:, :, None]
+    return np.clip(cur_warped * ratio, 0.0, 1.0).astype(np.float32)

@@ -1,0 +1,99 @@
+"""Input images for change detection: validation and conversion to float32 in [0, 1]."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fgcd_cli.errors import UserInputError
+
+
+def to_float_image(image: np.ndarray, *, name: str = "image") -> np.ndarray:
+    """Convert an image to float32 in [0, 1], keeping its channels.
+
+    Parameters
+    ----------
+    image : ndarray, HxW or HxWxC, uint8, uint16 or float
+        Integer images are scaled by their dtype's maximum (so 16-bit input keeps
+        its full dynamic range); float images must already lie in [0, 1].
+    name : str
+        Used in error messages.
+
+    Returns
+    -------
+    ndarray, float32, same shape, values in [0, 1].
+    """
+    array = np.asarray(image)
+    if array.ndim not in (2, 3) or array.shape[0] < 2 or array.shape[1] < 2:
+        raise UserInputError(f"{name}: expected an HxW or HxWxC image, got shape {array.shape}")
+    if array.ndim == 3 and array.shape[2] not in (1, 3, 4):
+        raise UserInputError(f"{name}: expected 1, 3 or 4 channels, got {array.shape[2]}")
+    if array.ndim == 3 and array.shape[2] == 4:
+        array = array[:, :, :3]
+    if array.ndim == 3 and array.shape[2] == 1:
+        array = array[:, :, 0]
+    if np.issubdtype(array.dtype, np.integer):
+        return (array.astype(np.float32) / float(np.iinfo(array.dtype).max)).astype(np.float32)
+    if np.issubdtype(array.dtype, np.floating):
+        finite = array[np.isfinite(array)]
+        if finite.size and (finite.min() < -1e-3 or finite.max() > 1.0 + 1e-3):
+            raise UserInputError(f"{name}: float images must lie in [0, 1] (got {finite.min():.3g}..{finite.max():.3g})")
+        return np.clip(np.nan_to_num(array, nan=0.0), 0.0, 1.0).astype(np.float32)
+    raise UserInputError(f"{name}: unsupported pixel type {array.dtype}")
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """Luminance of a float image (HxW float32); grey images pass through."""
+    if image.ndim == 2:
+        return image.astype(np.float32)
+    # Rec. 601 luma weights on whatever channel order the caller uses: the result
+    # only feeds registration and structure cues, where the order barely matters.
+    return image.mean(axis=2).astype(np.float32)
+
+
+def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Check and convert the reference and current image stacks (one image per lighting).
+
+    Returns the two lists as float32 images in [0, 1]. Raises :class:`UserInputError`
+    when the stacks are empty, of different lengths, or of different image sizes.
+    """
+    if len(ref_images) == 0 or len(cur_images) == 0:
+        raise UserInputError("need at least one reference and one current image")
+    if len(ref_images) != len(cur_images):
+        raise UserInputError(
+            f"{len(ref_images)} reference image(s) but {len(cur_images)} current image(s): "
+            "give one current image per reference lighting, in the same order"
+        )
+    refs = [to_float_image(im, name=f"reference image {i + 1}") for i, im in enumerate(ref_images)]
+    curs = [to_float_image(im, name=f"current image {i + 1}") for i, im in enumerate(cur_images)]
+    shape = refs[0].shape
+    for i, im in enumerate(refs + curs):
+        if im.shape[:2] != shape[:2]:
+            which = f"reference image {i + 1}" if i < len(refs) else f"current image {i - len(refs) + 1}"
+            raise UserInputError(
+                f"{which} is {im.shape[1]}x{im.shape[0]} px but reference image 1 is {shape[1]}x{shape[0]} px: "
+                "all images must have the same size"
+            )
+        if im.ndim != refs[0].ndim:
+            raise UserInputError("mixing colour and grey images: give all images in colour or all in grey")
+    return refs, curs
+
+
+def image_health(image: np.ndarray) -> str | None:
+    """Why an image cannot be compared (too dark, saturated, textureless), or None if usable.
+
+    Parameters
+    ----------
+    image : ndarray, HxW float32 in [0, 1]
+    """
+    mean = float(image.mean())
+    if mean < 0.02:
+        return f"image is black (mean level {mean * 100:.1f} %)"
+    if mean > 0.98:
+        return f"image is saturated (mean level {mean * 100:.1f} %)"
+    # Texture: robust spread of the gradient magnitude. Fewer than 0.5 % of pixels
+    # with a gradient above 2 grey levels per pixel means nothing to register on.
+    gy, gx = np.gradient(image)
+    strong = np.hypot(gx, gy) > 2.0 / 255.0
+    if strong.mean() < 0.005:
+        return "image has no texture to register on"
+    return None

@@ -1,0 +1,130 @@
+"""Change regions: connected, cleaned components of a change mask, with their area."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from skimage.morphology import remove_small_holes, remove_small_objects
+
+
+@dataclass(kw_only=True)
+class ChangeRegion:
+    """One connected change region, in the reference image's frame."""
+
+    id: int
+    """1-based, largest region first."""
+    area_px: int
+    area_mm2: float | None
+    """Metric area (mm²) when a per-pixel area map was given; None otherwise."""
+    bbox_xywh: tuple[int, int, int, int]
+    centroid_xy: tuple[float, float]
+    mean_score: float
+    max_score: float
+
+
+def clean_mask(mask: np.ndarray, *, min_region_px: int, max_hole_px: int) -> np.ndarray:
+    """Remove regions of at most ``min_region_px`` pixels and fill holes of at most ``max_hole_px``."""
+    cleaned = remove_small_objects(mask.astype(bool), max_size=int(min_region_px))
+    return remove_small_holes(cleaned, max_size=int(max_hole_px))
+
+
+def extract_regions(
+    mask: np.ndarray,
+    score: np.ndarray,
+    *,
+    pixel_area_mm2: np.ndarray | None = None,
+) -> tuple[list[ChangeRegion], np.ndarray]:
+    """Label 8-connected regions of a (cleaned) change mask.
+
+    Parameters
+    ----------
+    mask : ndarray, HxW bool
+    score : ndarray, HxW float
+    pixel_area_mm2 : ndarray, HxW float, optional
+        Area of the surface seen by each reference pixel, mm² (NaN where unknown).
+
+    Returns
+    -------
+    regions : list of ChangeRegion, largest first, ids 1..n
+    labels : ndarray, HxW int32, 0 = unchanged, i = region with id i
+    """
+    raw_labels, count = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return [], np.zeros(mask.shape, np.int32)
+    index = np.arange(1, count + 1)
+    areas = ndimage.sum_labels(np.ones(mask.shape), raw_labels, index)
+    order = np.argsort(-areas, kind="stable")
+    relabel = np.zeros(count + 1, np.int32)
+    relabel[index[order]] = np.arange(1, count + 1)
+    labels = relabel[raw_labels]
+    slices = ndimage.find_objects(labels)
+    means = ndimage.mean(score, labels, index)
+    maxima = ndimage.maximum(score, labels, index)
+    centroids = ndimage.center_of_mass(np.ones(mask.shape), labels, index)
+    if pixel_area_mm2 is not None:
+        area_map = np.nan_to_num(np.asarray(pixel_area_mm2, dtype=np.float64), nan=0.0)
+        known = ndimage.sum_labels(np.isfinite(pixel_area_mm2).astype(np.float64), labels, index)
+        metric = ndimage.sum_labels(area_map, labels, index)
+    regions = []
+    for i in range(count):
+        sl = slices[i]
+        y0, y1, x0, x1 = sl[0].start, sl[0].stop, sl[1].start, sl[1].stop
+        area_px = int((labels[sl] == i + 1).sum())
+        area_mm2 = None
+        if pixel_area_mm2 is not None and known[i] > 0:
+            # Extrapolate over pixels without 3D data at the region's mean pixel area.
+            area_mm2 = float(metric[i] * area_px / known[i])
+        regions.append(
+            ChangeRegion(
+                id=i + 1,
+                area_px=area_px,
+                area_mm2=area_mm2,
+                bbox_xywh=(int(x0), int(y0), int(x1 - x0), int(y1 - y0)),
+                centroid_xy=(float(centroids[i][1]), float(centroids[i][0])),
+                mean_score=float(means[i]),
+                max_score=float(maxima[i]),
+            )
+        )
+    return regions, labels
+
+
+def pixel_area_from_points(points_cam: np.ndarray) -> np.ndarray:
+    """Surface area seen by each pixel from an organized point map.
+
+    Parameters
+    ----------
+    points_cam : ndarray, HxWx3 float, metres, 3D point of each pixel (NaN where unknown).
+
+    Returns
+    -------
+    ndarray, HxW float64, mm² per pixel (NaN where unknown): ``|dP/du x dP/dv|``.
+    """
+    points = np.asarray(points_cam, dtype=np.float64)
+    if points.ndim != 3 or points.shape[2] != 3:
+        raise ValueError(f"points_cam must be HxWx3, got {points.shape}")
+    dP_dv, dP_du = np.gradient(points, axis=(0, 1))
+    area_m2 = np.linalg.norm(np.cross(dP_du, dP_dv), axis=2)
+    return area_m2 * 1e6
+
+
+def pixel_area_from_depth(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Surface area seen by each pixel from a z-depth map and pinhole intrinsics.
+
+    Parameters
+    ----------
+    depth_m : ndarray, HxW float, z-depth in metres (NaN or <= 0 where unknown).
+    K : ndarray, 3x3 camera matrix (pixels).
+
+    Returns
+    -------
+    ndarray, HxW float64, mm² per pixel (NaN where unknown).
+    """
+    depth = np.asarray(depth_m, dtype=np.float64).copy()
+    depth[~(depth > 0)] = np.nan
+    h, w = depth.shape
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    x = (u - K[0, 2]) / K[0, 0] * depth
+    y = (v - K[1, 2]) / K[1, 1] * depth
+    return pixel_area_from_points(np.stack([x, y, depth], axis=2))

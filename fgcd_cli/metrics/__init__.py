@@ -1,0 +1,1 @@
+"""Measurements: FDF/AFD between images, change-detection scores."""

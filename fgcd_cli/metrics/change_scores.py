@@ -1,0 +1,99 @@
+"""Change-detection scores against a ground-truth mask, inside an optional evaluation mask."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(kw_only=True)
+class BinaryScores:
+    """Pixel counts and rates of a binary change mask against ground truth."""
+
+    precision: float
+    recall: float
+    f1: float
+    iou: float
+    true_positive: int
+    false_positive: int
+    false_negative: int
+
+
+@dataclass(kw_only=True)
+class SweepScores:
+    """Threshold-free scores of a continuous change map."""
+
+    best_f1: float
+    """F1 at the best threshold of a sweep (oracle, optimistic)."""
+    best_threshold: float
+    average_precision: float
+    """Area under the precision-recall curve (step-wise, every distinct score a threshold)."""
+
+
+def _select(array: np.ndarray, eval_mask: np.ndarray | None) -> np.ndarray:
+    array = np.asarray(array)
+    if eval_mask is None:
+        return array.ravel()
+    eval_mask = np.asarray(eval_mask).astype(bool)
+    if eval_mask.shape != array.shape:
+        raise ValueError(f"evaluation mask shape {eval_mask.shape} differs from {array.shape}")
+    return array[eval_mask]
+
+
+def binary_scores(predicted: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray | None = None) -> BinaryScores:
+    """Precision, recall, F1 and IoU of a predicted mask (HxW bool) against ground truth (HxW bool).
+
+    Empty prediction and empty truth give precision = recall = F1 = IoU = 1 (nothing
+    to find, nothing found); any other empty denominator gives 0.
+    """
+    if np.shape(predicted) != np.shape(truth):
+        raise ValueError(f"prediction shape {np.shape(predicted)} differs from truth {np.shape(truth)}")
+    p = _select(predicted, eval_mask).astype(bool)
+    t = _select(truth, eval_mask).astype(bool)
+    tp = int(np.count_nonzero(p & t))
+    fp = int(np.count_nonzero(p & ~t))
+    fn = int(np.count_nonzero(~p & t))
+    if tp + fp + fn == 0:
+        return BinaryScores(precision=1.0, recall=1.0, f1=1.0, iou=1.0, true_positive=0, false_positive=0, false_negative=0)
+    precision = tp / (tp + fp) if tp + fp else 0.0
+    recall = tp / (tp + fn) if tp + fn else 0.0
+    f1 = 2 * tp / (2 * tp + fp + fn)
+    iou = tp / (tp + fp + fn)
+    return BinaryScores(precision=precision, recall=recall, f1=f1, iou=iou, true_positive=tp, false_positive=fp, false_negative=fn)
+
+
+def precision_recall_curve(score: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray | None = None):
+    """Precision and recall for every distinct threshold ``score >= t``.
+
+    Returns (precision, recall, thresholds), 1-D arrays ordered by decreasing threshold.
+    """
+    s = _select(score, eval_mask).astype(np.float64)
+    t = _select(truth, eval_mask).astype(bool)
+    order = np.argsort(-s, kind="mergesort")
+    s_sorted = s[order]
+    t_sorted = t[order]
+    tp = np.cumsum(t_sorted)
+    fp = np.cumsum(~t_sorted)
+    # Keep the last index of each run of equal scores: ties share one threshold.
+    last = np.r_[np.nonzero(np.diff(s_sorted))[0], s_sorted.size - 1]
+    tp, fp, thresholds = tp[last], fp[last], s_sorted[last]
+    positives = max(int(t.sum()), 1)
+    precision = tp / np.maximum(tp + fp, 1)
+    recall = tp / positives
+    return precision, recall, thresholds
+
+
+def sweep_scores(score: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray | None = None) -> SweepScores:
+    """Best F1 over all thresholds and average precision of a continuous change map.
+
+    Average precision is ``sum_k (R_k - R_{k-1}) P_k`` (scikit-learn's definition).
+    """
+    precision, recall, thresholds = precision_recall_curve(score, truth, eval_mask=eval_mask)
+    if not np.any(_select(truth, eval_mask)):
+        return SweepScores(best_f1=float("nan"), best_threshold=float("nan"), average_precision=float("nan"))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f1 = np.where(precision + recall > 0, 2 * precision * recall / (precision + recall), 0.0)
+    best = int(np.argmax(f1))
+    ap = float(np.sum(np.diff(np.r_[0.0, recall]) * precision))
+    return SweepScores(best_f1=float(f1[best]), best_threshold=float(thresholds[best]), average_precision=ap)

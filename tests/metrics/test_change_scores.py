@@ -1,0 +1,55 @@
+import numpy as np
+import pytest
+
+from fgcd_cli.metrics.change_scores import binary_scores, precision_recall_curve, sweep_scores
+
+
+def test_binary_scores_by_hand():
+    truth = np.zeros((4, 4), bool)
+    truth[0, :] = True  # 4 positives
+    pred = np.zeros((4, 4), bool)
+    pred[0, :2] = True
+    pred[1, 0] = True  # 2 TP, 1 FP, 2 FN
+    s = binary_scores(pred, truth)
+    assert (s.true_positive, s.false_positive, s.false_negative) == (2, 1, 2)
+    assert s.precision == pytest.approx(2 / 3)
+    assert s.recall == pytest.approx(0.5)
+    assert s.f1 == pytest.approx(4 / 7)
+    assert s.iou == pytest.approx(2 / 5)
+
+
+def test_evaluation_mask_excludes_pixels():
+    truth = np.zeros((4, 4), bool)
+    pred = np.zeros((4, 4), bool)
+    pred[3, 3] = True
+    mask = np.ones((4, 4), bool)
+    mask[3, 3] = False
+    assert binary_scores(pred, truth, eval_mask=mask).f1 == 1.0
+    assert binary_scores(pred, truth).f1 == 0.0
+
+
+def test_perfect_score_map_has_ap_and_best_f1_one():
+    rng = np.random.default_rng(1)
+    truth = rng.random((50, 50)) < 0.02
+    score = truth + 0.1 * rng.random((50, 50))
+    s = sweep_scores(score, truth)
+    assert s.best_f1 == pytest.approx(1.0)
+    assert s.average_precision == pytest.approx(1.0)
+
+
+def test_random_score_ap_is_prevalence():
+    rng = np.random.default_rng(2)
+    truth = rng.random((300, 300)) < 0.03
+    s = sweep_scores(rng.random((300, 300)), truth)
+    # AP of an uninformed ranking is the prevalence; its std over 2700 positives is < 0.005.
+    assert s.average_precision == pytest.approx(truth.mean(), abs=0.01)
+
+
+def test_best_f1_matches_exhaustive_sweep():
+    rng = np.random.default_rng(3)
+    truth = rng.random((40, 40)) < 0.1
+    score = np.round(truth * 0.5 + rng.random((40, 40)), 2)  # with ties
+    best = max(binary_scores(score >= t, truth).f1 for t in np.unique(score))
+    assert sweep_scores(score, truth).best_f1 == pytest.approx(best)
+    precision, recall, thresholds = precision_recall_curve(score, truth)
+    assert np.all(np.diff(thresholds) < 0) and np.all(np.diff(recall) >= 0)
