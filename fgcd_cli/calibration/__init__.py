@@ -1,0 +1,22 @@
+"""Calibration: camera intrinsics (ChArUco), hand-eye ``T_flange_cam`` and the monocular map scale.
+
+Public API::
+
+    solve_handeye_scale(T_base_flange, T_map_cam, *, pairs="all") -> HandEyeResult
+    estimate_scale(T_flange_cam, T_base_flange, T_map_cam) -> ScaleResult
+    solve_handeye_target(T_base_flange, T_cam_target, *, methods=...) -> TargetHandEyeResult
+"""
+
+from fgcd_cli.calibration.errors import CalibrationError
+from fgcd_cli.calibration.handeye import HandEyeResult, ScaleResult, estimate_scale, solve_handeye_scale
+from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_handeye_target
+
+__all__ = [
+    "CalibrationError",
+    "HandEyeResult",
+    "ScaleResult",
+    "TargetHandEyeResult",
+    "estimate_scale",
+    "solve_handeye_scale",
+    "solve_handeye_target",
+]
