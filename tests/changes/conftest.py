@@ -17,7 +17,8 @@ def textured_scene(size: int = 256) -> np.ndarray:
 def translate(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
     """Content moves by (dx, dy) pixels: out(x) = in(x - d)."""
     M = np.float32([[1, 0, dx], [0, 1, dy]])
-    return cv2.warpAffine(image, M, (image.shape[1], image.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    moved = cv2.warpAffine(image, M, (image.shape[1], image.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    return np.clip(moved, 0.0, 1.0)
 
 
 @pytest.fixture

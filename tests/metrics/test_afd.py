@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+
+from fgcd_cli.errors import AlgorithmError, UserInputError
+from fgcd_cli.metrics.afd import compute_fdf, read_pairs_csv
+
+from changes.conftest import textured_scene, translate
+
+SHIFT = (2.4, -1.3)
+TRUE_AFD = float(np.hypot(*SHIFT))
+
+
+@pytest.fixture(scope="module")
+def pair():
+    ref = textured_scene(256)
+    gain = np.linspace(0.7, 1.2, 256, dtype=np.float32)[None, :]
+    return ref, np.clip(translate(ref, *SHIFT) * gain, 0, 1)
+
+
+def test_sift_afd_of_a_pure_translation(pair):
+    result = compute_fdf(*pair, method="sift")
+    # SIFT keypoints localize to ~0.1 px on a textured image; the mean over
+    # hundreds of inliers is much tighter.
+    assert result.afd_px == pytest.approx(TRUE_AFD, abs=0.1)
+    assert result.inliers >= 50
+    assert result.settings["ratio"] == 0.75 and result.settings["ransac_px"] == 3.0
+    assert np.allclose(result.displacements.mean(axis=0), SHIFT, atol=0.1)
+
+
+def test_grid_afd_under_gain_ramp(pair):
+    result = compute_fdf(*pair, method="grid", grid_cells=6, patch_px=64)
+    # Per patch the phase-correlation shift scatters by ~0.4 px on this fine
+    # texture; over >= 20 patches the mean vector is good to 3 * 0.4 / sqrt(20) ~ 0.25 px.
+    assert result.inliers >= 20
+    assert np.allclose(result.displacements.mean(axis=0), SHIFT, atol=0.25)
+    assert result.afd_px == pytest.approx(TRUE_AFD, abs=0.3)
+
+
+def test_user_pairs(tmp_path, pair):
+    path = tmp_path / "pairs.csv"
+    path.write_text("x_ref,y_ref,x_cur,y_cur\n10,10,13,14\n20,20,20,20\n")
+    points = read_pairs_csv(path)
+    result = compute_fdf(*pair, method="pairs", pairs=points)
+    assert result.afd_px == pytest.approx(2.5)
+    assert result.inliers == 2
+
+
+def test_bad_pairs_file(tmp_path):
+    path = tmp_path / "pairs.csv"
+    path.write_text("1,2,3\n")
+    with pytest.raises(UserInputError, match="expected 4 numbers"):
+        read_pairs_csv(path)
+
+
+def test_textureless_pair_is_an_algorithm_error():
+    flat = np.full((128, 128), 0.5, np.float32)
+    with pytest.raises(AlgorithmError, match="grid"):
+        compute_fdf(flat, flat, method="sift")
+
+
+def test_size_mismatch(pair):
+    with pytest.raises(UserInputError, match="equal sizes"):
+        compute_fdf(pair[0], pair[1][:100])
