@@ -1,0 +1,559 @@
+"""A GRBL v1.1 controller emulated on a pseudo-terminal, for tests without hardware.
+
+The driver opens :attr:`GrblEmulator.port` (a ``/dev/pts/N`` path) exactly as it
+would open ``/dev/ttyUSB0``; a thread serves the master side of the pty with
+GRBL's grammar (see GRBL's ``doc/markdown/interface.md``):
+
+* one ``ok`` or ``error:N`` per line; ``ok`` for a motion means *queued*, not
+  arrived; a full planner (15 blocks) delays the ``ok`` like the real buffer;
+* real-time bytes ``?`` (status report), ``!`` (feed hold), ``~`` (resume),
+  ``0x18`` (soft reset), ``0x85`` (jog cancel), never acknowledged;
+* ``$$`` settings, ``$I``, ``$G``, ``$X`` unlock, ``$H`` homing, ``$C`` check mode,
+  ``$J=`` jogging, ``$N=value`` setting writes; ``G0/G1/G4/G90/G91/G21`` with
+  ``F``, axes ``X Y Z`` and optionally ``A B C`` (grblHAL style);
+* constant-feed motion in real time (scaled by ``time_scale``), soft limits
+  (``$20``: ``ALARM:2`` for a G-code motion, ``error:15`` for a jog), alarms with
+  ``[MSG:'$H'|'$X' to unlock]``;
+* faults on demand: :meth:`inject_alarm`, :meth:`set_silent`,
+  :meth:`inject_garbage`, :meth:`unplug`.
+
+Machine coordinates follow GRBL's homing convention: after ``$H`` the machine
+sits at 0 and travel is ``[-$13x, 0]`` mm on each axis.
+
+pyserial has no loopback that speaks a protocol, and socat would add an
+external process; a pty thread is the smallest faithful stand-in, so it is
+written by hand here.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import threading
+import time
+import tty
+from collections import deque
+from dataclasses import dataclass
+
+import pty
+
+__all__ = ["GrblEmulator", "BANNER"]
+
+BANNER = "Grbl 1.1h ['$' for help]"
+_PLANNER_BLOCKS = 15
+_WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+@dataclass
+class _Segment:
+    start_mm: list[float]
+    end_mm: list[float]
+    feed_mm_min: float
+    jog: bool = False
+    dwell_s: float = 0.0
+    elapsed_s: float = 0.0
+
+    @property
+    def duration_s(self) -> float:
+        if self.dwell_s:
+            return self.dwell_s
+        dist = sum((e - s) ** 2 for s, e in zip(self.start_mm, self.end_mm)) ** 0.5
+        return dist / (self.feed_mm_min / 60.0) if dist > 0 else 0.0
+
+
+class GrblEmulator:
+    """GRBL 1.1 on a pseudo-terminal.
+
+    Parameters
+    ----------
+    axes : str
+        Axis letters, ``"XYZ"`` or with rotary axes e.g. ``"XYZABC"``.
+    start_mm : sequence of float, optional
+        Initial machine position (mm for XYZ, degrees for ABC). Default: all
+        axes at -10 (inside the travel).
+    homing_enabled : bool
+        ``$22``: with homing on, GRBL starts in ``Alarm`` until ``$H`` or ``$X``.
+    soft_limits : bool
+        ``$20``.
+    max_travel_mm : float
+        ``$130..$135`` for every axis.
+    max_rate_mm_min : float
+        ``$110..$115`` for every axis; G0 moves at this rate.
+    time_scale : float
+        Motions take ``duration * time_scale`` wall-clock seconds (tests use < 1).
+    banner_on_open : bool
+        Real boards reset when the port opens (DTR) and print the banner; a pty
+        cannot see the open, so by default the banner only follows a soft reset.
+    """
+
+    def __init__(
+        self,
+        *,
+        axes: str = "XYZ",
+        start_mm=None,
+        homing_enabled: bool = False,
+        soft_limits: bool = True,
+        max_travel_mm: float = 300.0,
+        max_rate_mm_min: float = 3000.0,
+        time_scale: float = 1.0,
+    ) -> None:
+        self.axes = axes
+        self.settings: dict[int, float] = {
+            0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002,
+            13: 0, 20: int(soft_limits), 21: 0, 22: int(homing_enabled), 23: 0, 24: 25.0,
+            25: 500.0, 26: 250, 27: 1.0, 30: 1000, 31: 0, 32: 0,
+        }
+        for i in range(len(axes)):
+            self.settings[100 + i] = 250.0
+            self.settings[110 + i] = max_rate_mm_min
+            self.settings[120 + i] = 10.0
+            self.settings[130 + i] = max_travel_mm
+        self.time_scale = float(time_scale)
+        self.mpos = list(start_mm) if start_mm is not None else [-10.0] * len(axes)
+        self.wco = [0.0] * len(axes)
+        self.state = "Alarm" if homing_enabled else "Idle"
+        self.alarm_code: int | None = None
+        self.check_mode = False
+        self.absolute = True
+        self.feed_mm_min: float | None = None
+        self.queue: deque[_Segment] = deque()
+        self.current: _Segment | None = None
+        self.hold = False
+        self.silent = False
+        self.lines_received: list[str] = []
+        self.realtime_received: list[int] = []
+        self._reports = 0
+        self._lock = threading.RLock()
+        self._space = threading.Condition(self._lock)
+        self._stop = threading.Event()
+        self._pending_lines: deque[str] = deque()
+        self._line_ready = threading.Condition(threading.Lock())
+        self._master, self._slave = pty.openpty()
+        tty.setraw(self._slave)
+        self.port = os.ttyname(self._slave)
+        self._threads = [
+            threading.Thread(target=self._read_loop, name="grbl-emu-read", daemon=True),
+            threading.Thread(target=self._exec_loop, name="grbl-emu-exec", daemon=True),
+            threading.Thread(target=self._motion_loop, name="grbl-emu-motion", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    # ------------------------------------------------------------------ life cycle
+    def close(self) -> None:
+        """Stop the threads and close the pty."""
+        self._stop.set()
+        with self._line_ready:
+            self._line_ready.notify_all()
+        with self._space:
+            self._space.notify_all()
+        for t in self._threads:
+            t.join(timeout=1.0)
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self) -> "GrblEmulator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ faults
+    def inject_alarm(self, code: int = 1) -> None:
+        """A hard limit (1) or other alarm: motion stops at once, queue cleared."""
+        with self._lock:
+            self._enter_alarm(code)
+
+    def set_silent(self, silent: bool = True) -> None:
+        """Stop answering anything (a hung controller or a dead link)."""
+        self.silent = silent
+
+    def inject_garbage(self, data: bytes) -> None:
+        """Write noise on the line (EMI, baud mismatch, a boot loader)."""
+        self._write_raw(data)
+
+    def unplug(self) -> None:
+        """The USB cable is pulled: the pty hangs up under the driver."""
+        self._stop.set()
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self._master = self._slave = -1
+
+    def position(self) -> list[float]:
+        """Current machine position (thread-safe copy)."""
+        with self._lock:
+            return list(self.mpos)
+
+    # ------------------------------------------------------------------ I/O
+    def _write_raw(self, data: bytes) -> None:
+        if self._master < 0:
+            return
+        try:
+            os.write(self._master, data)
+        except OSError:
+            pass
+
+    def _send(self, line: str) -> None:
+        if not self.silent:
+            self._write_raw(line.encode("ascii") + b"\r\n")
+
+    def _read_loop(self) -> None:
+        buffer = bytearray()
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([self._master], [], [], 0.05)
+                if not ready:
+                    continue
+                chunk = os.read(self._master, 1024)
+            except (OSError, ValueError):
+                return
+            if not chunk:
+                return
+            for byte in chunk:
+                if self.silent:
+                    continue
+                if byte in (0x3F, 0x21, 0x7E, 0x18, 0x85, 0x90, 0x91, 0x92, 0x93):
+                    self.realtime_received.append(byte)
+                    self._realtime(byte)
+                elif byte in (0x0A, 0x0D):
+                    line = buffer.decode("ascii", errors="replace").strip()
+                    buffer.clear()
+                    if line:
+                        with self._line_ready:
+                            self._pending_lines.append(line)
+                            self._line_ready.notify()
+                elif byte >= 0x80:
+                    continue  # unsupported extended real-time command: ignored like GRBL
+                else:
+                    buffer.append(byte)
+
+    def _exec_loop(self) -> None:
+        while not self._stop.is_set():
+            with self._line_ready:
+                while not self._pending_lines and not self._stop.is_set():
+                    self._line_ready.wait(0.1)
+                if self._stop.is_set():
+                    return
+                line = self._pending_lines.popleft()
+            self.lines_received.append(line)
+            reply = self._execute(line)
+            if reply is not None:
+                self._send(reply)
+
+    # ------------------------------------------------------------------ real-time
+    def _realtime(self, byte: int) -> None:
+        with self._lock:
+            if byte == 0x3F:  # '?'
+                self._send(self._status())
+            elif byte == 0x21:  # '!' feed hold
+                if self.current is not None or self.queue:
+                    self.hold = True
+                    self.state = "Hold:0"
+            elif byte == 0x7E:  # '~' resume
+                if self.hold:
+                    self.hold = False
+                    self.state = "Run" if (self.current or self.queue) else "Idle"
+            elif byte == 0x85:  # jog cancel
+                if self.state == "Jog" or (self.current is not None and self.current.jog):
+                    self.current = None
+                    self.queue = deque(s for s in self.queue if not s.jog)
+                    self.state = "Idle"
+            elif byte == 0x18:  # soft reset
+                moving = self.current is not None and not self.hold
+                self.current = None
+                self.queue.clear()
+                self.hold = False
+                with self._line_ready:
+                    self._pending_lines.clear()
+                self._space.notify_all()
+                if moving:
+                    # Reset during motion loses position: GRBL raises ALARM:3.
+                    self._send("ALARM:3")
+                    self.state = "Alarm"
+                    self.alarm_code = 3
+                elif self.state != "Alarm":
+                    self.state = "Idle"
+                if self.check_mode:
+                    self.check_mode = False
+                self._send("")
+                self._send(BANNER)
+                if self.state == "Alarm":
+                    self._send("[MSG:'$H'|'$X' to unlock]")
+
+    def _status(self) -> str:
+        self._reports += 1
+        pos = ",".join(f"{v:.3f}" for v in self.mpos)
+        feed = 0.0
+        if self.current is not None and not self.hold and not self.current.dwell_s:
+            feed = self.current.feed_mm_min
+        state = "Check" if self.check_mode and self.state == "Idle" else self.state
+        text = f"<{state}|MPos:{pos}|FS:{feed:.0f},0"
+        if self._reports % 10 == 1:
+            text += "|WCO:" + ",".join(f"{v:.3f}" for v in self.wco)
+        return text + ">"
+
+    # ------------------------------------------------------------------ motion
+    def _motion_loop(self) -> None:
+        last = time.monotonic()
+        while not self._stop.is_set():
+            time.sleep(0.005)
+            now = time.monotonic()
+            dt = (now - last) / max(self.time_scale, 1e-6)
+            last = now
+            with self._lock:
+                if self.hold:
+                    if self.state == "Hold:0":
+                        pass
+                    continue
+                if self.current is None and self.queue:
+                    self.current = self.queue.popleft()
+                    self._space.notify_all()
+                    if self.state not in ("Alarm",):
+                        self.state = "Jog" if self.current.jog else "Run"
+                seg = self.current
+                if seg is None:
+                    continue
+                seg.elapsed_s += dt
+                duration = seg.duration_s
+                frac = 1.0 if duration <= 0 else min(1.0, seg.elapsed_s / duration)
+                if not seg.dwell_s:
+                    self.mpos = [s + (e - s) * frac for s, e in zip(seg.start_mm, seg.end_mm)]
+                if frac >= 1.0:
+                    self.current = None
+                    if not self.queue and self.state in ("Run", "Jog"):
+                        self.state = "Idle"
+                    self._space.notify_all()
+
+    def _enter_alarm(self, code: int) -> None:
+        self.current = None
+        self.queue.clear()
+        self.hold = False
+        self.state = "Alarm"
+        self.alarm_code = code
+        self._space.notify_all()
+        self._send(f"ALARM:{code}")
+
+    def _planned_end(self) -> list[float]:
+        if self.queue:
+            return list(self.queue[-1].end_mm)
+        if self.current is not None:
+            return list(self.current.end_mm)
+        return list(self.mpos)
+
+    def _within_travel(self, target: list[float]) -> bool:
+        for i, v in enumerate(target):
+            if self.axes[i] not in "XYZ":
+                continue  # rotary axes: no soft limits, as on most grblHAL builds
+            travel = self.settings[130 + i]
+            if v > 1e-6 or v < -travel - 1e-6:
+                return False
+        return True
+
+    def _enqueue(self, seg: _Segment) -> str | None:
+        with self._space:
+            while len(self.queue) >= _PLANNER_BLOCKS and not self._stop.is_set():
+                self._space.wait(0.05)
+            if self.state == "Alarm":
+                return "error:9"
+            self.queue.append(seg)
+        return "ok"
+
+    # ------------------------------------------------------------------ lines
+    def _execute(self, line: str) -> str | None:
+        text = line.upper().replace(" ", "")
+        if text.startswith("$"):
+            return self._system(text)
+        with self._lock:
+            if self.state == "Alarm":
+                return "error:9"
+        return self._gcode(text)
+
+    def _system(self, text: str) -> str | None:
+        if text == "$$":
+            with self._lock:
+                for key in sorted(self.settings):
+                    value = self.settings[key]
+                    shown = f"{value:.3f}" if isinstance(value, float) else str(int(value))
+                    self._send(f"${key}={shown}")
+            return "ok"
+        if text == "$I":
+            self._send("[VER:1.1h.20190825:]")
+            self._send("[OPT:V,15,128]")
+            return "ok"
+        if text == "$G":
+            mode = "G90" if self.absolute else "G91"
+            self._send(f"[GC:G0 G54 G17 G21 {mode} G94 M5 M9 T0 F{self.feed_mm_min or 0:.0f} S0]")
+            return "ok"
+        if text == "$X":
+            with self._lock:
+                if self.state == "Alarm":
+                    self.state = "Idle"
+                    self.alarm_code = None
+                    self._send("[MSG:Caution: Unlocked]")
+            return "ok"
+        if text == "$H":
+            with self._lock:
+                if not self.settings[22]:
+                    return "error:5"
+                if self.state not in ("Idle", "Alarm"):
+                    return "error:8"
+                self.state = "Home"
+                start = list(self.mpos)
+            # Homing: travel to the switches at the seek rate, then pull off to 0.
+            dist = max(abs(v) for v in start) if start else 0.0
+            time.sleep(min(2.0, dist / (self.settings[25] / 60.0)) * self.time_scale)
+            with self._lock:
+                if self.state != "Home":
+                    return None
+                self.mpos = [0.0] * len(self.axes)
+                self.state = "Idle"
+                self.alarm_code = None
+            return "ok"
+        if text == "$C":
+            with self._lock:
+                if self.state not in ("Idle", "Alarm") or self.current or self.queue:
+                    return "error:8"
+                self.check_mode = not self.check_mode
+                if self.check_mode:
+                    self._send("[MSG:Enabled]")
+                    return "ok"
+            # Leaving check mode soft-resets GRBL.
+            self._send("[MSG:Disabled]")
+            self._send("ok")
+            self._realtime(0x18)
+            return None
+        if text.startswith("$J="):
+            return self._jog(text[3:])
+        match = re.fullmatch(r"\$(\d+)=([-+]?\d*\.?\d+)", text)
+        if match:
+            key = int(match.group(1))
+            with self._lock:
+                if self.state not in ("Idle", "Alarm"):
+                    return "error:8"
+                if key not in self.settings:
+                    return "error:3"
+                self.settings[key] = float(match.group(2)) if "." in match.group(2) else int(match.group(2))
+            return "ok"
+        return "error:3"
+
+    def _parse_words(self, text: str) -> list[tuple[str, float]] | str:
+        pos = 0
+        words = []
+        for m in _WORD.finditer(text):
+            if m.start() != pos:
+                return "error:1" if text[pos].isalpha() is False else "error:2"
+            words.append((m.group(1), float(m.group(2))))
+            pos = m.end()
+        if pos != len(text):
+            rest = text[pos:]
+            return "error:2" if rest[0].isalpha() else "error:1"
+        return words
+
+    def _jog(self, text: str) -> str:
+        words = self._parse_words(text)
+        if isinstance(words, str):
+            return words
+        with self._lock:
+            if self.state not in ("Idle", "Jog"):
+                return "error:8"
+            target = self._planned_end()
+            absolute = self.absolute
+            feed = None
+            for letter, value in words:
+                if letter == "G" and value in (90.0, 91.0):
+                    absolute = value == 90.0
+                elif letter == "G" and value in (20.0, 21.0, 53.0):
+                    continue
+                elif letter == "F":
+                    feed = value
+                elif letter in self.axes:
+                    i = self.axes.index(letter)
+                    target[i] = value if absolute else target[i] + value
+                else:
+                    return "error:16"
+            if feed is None:
+                return "error:22"
+            if self.settings[20] and not self._within_travel(target):
+                return "error:15"
+            if self.check_mode:
+                return "ok"
+            seg = _Segment(self._planned_end(), target, min(feed, self.settings[110]), jog=True)
+        return self._enqueue(seg)
+
+    def _gcode(self, text: str) -> str | None:
+        words = self._parse_words(text)
+        if isinstance(words, str):
+            return words
+        motion = None
+        dwell = None
+        axis_values: dict[int, float] = {}
+        with self._lock:
+            absolute = self.absolute
+            feed = self.feed_mm_min
+            for letter, value in words:
+                if letter == "G":
+                    if value in (0.0, 1.0):
+                        motion = int(value)
+                    elif value == 4.0:
+                        dwell = 0.0
+                    elif value in (90.0, 91.0):
+                        absolute = value == 90.0
+                    elif value in (17.0, 21.0, 54.0, 94.0):
+                        continue
+                    else:
+                        return "error:20"
+                elif letter == "M" and value in (0.0, 2.0, 5.0, 9.0, 30.0):
+                    continue
+                elif letter == "F":
+                    feed = value
+                elif letter == "P" and dwell is not None:
+                    dwell = value
+                elif letter in self.axes:
+                    axis_values[self.axes.index(letter)] = value
+                else:
+                    return "error:20"
+            self.absolute = absolute
+            self.feed_mm_min = feed
+            if dwell is not None:
+                pass
+            elif axis_values:
+                motion = 0 if motion is None else motion
+                if motion == 1 and not feed:
+                    return "error:22"
+                start = self._planned_end()
+                target = list(start)
+                for i, v in axis_values.items():
+                    target[i] = v if absolute else target[i] + v
+                if self.settings[20] and not self._within_travel(target):
+                    if self.check_mode:
+                        return "error:15"
+                    # GRBL: a soft-limit violation of a G-code motion is an alarm.
+                    self._enter_alarm(2)
+                    return None
+                if self.check_mode:
+                    return "ok"
+                rate = self.settings[110] if motion == 0 else min(feed, self.settings[110])
+                seg = _Segment(start, target, rate)
+            else:
+                return "ok"
+        if dwell is not None:
+            if self.check_mode:
+                return "ok"
+            # G4 waits for the planner to empty, then dwells: its ok marks arrival.
+            while not self._stop.is_set():
+                with self._lock:
+                    if self.state == "Alarm":
+                        return "error:9"
+                    if self.current is None and not self.queue:
+                        break
+                time.sleep(0.005)
+            time.sleep(dwell * self.time_scale)
+            return "ok"
+        return self._enqueue(seg)
