@@ -1,0 +1,250 @@
+"""Reference capture and revisit as use cases on a rig (no CLI, no rich).
+
+``capture_reference``: start the VSE, explore, estimate the map scale, come
+back to the chosen pose, and write the immutable reference observation (metric
+cloud, reference camera pose, keyframes, images under each lighting).
+
+``relocate_and_capture``: on a revisit, start a new session, explore a little,
+re-estimate the scale, align to the reference and drive the camera back with
+the rACR loop, then write a visit (images, cloud, relocation log).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_cli.geometry.sim3 import Sim3
+from fgcd_cli.relocation.loop import (
+    AdjustmentRecord,
+    ReferenceData,
+    RelocationConfig,
+    RelocationResult,
+    initial_guess_from_first_camera,
+    run_relocation,
+)
+from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
+
+__all__ = ["RigHandles", "CaptureResult", "capture_reference", "relocate_and_capture", "grab_images", "load_reference"]
+
+
+@dataclass
+class RigHandles:
+    """What the use cases need of a rig (any driver).
+
+    Attributes
+    ----------
+    guard : drivers.platform.MotionGuard
+    camera_source : object with ``grab()``
+    intrinsics : PinholeCamera
+    T_flange_cam : (4, 4) ndarray
+        Hand-eye from calibration (identity with ``--no-handeye``).
+    lights : object with ``set(name)`` or None
+    vse_factory : callable() -> VseThread (not started)
+    on_event : callable(str) or None
+    """
+
+    guard: object
+    camera_source: object
+    intrinsics: PinholeCamera
+    T_flange_cam: np.ndarray
+    vse_factory: Callable[[], object]
+    lights: object | None = None
+    on_event: Callable[[str], None] | None = None
+
+    def say(self, text: str) -> None:
+        if self.on_event:
+            self.on_event(text)
+
+
+@dataclass
+class CaptureResult:
+    """Summary of a capture or a visit."""
+
+    observation_path: str
+    scale: ScaleEstimate
+    cloud_points: int
+    images: list[str]
+    relocation: RelocationResult | None = None
+    extra: dict = field(default_factory=dict)
+
+
+def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> dict[str, np.ndarray]:
+    """Images at the current pose, one per lighting, averaged over a few frames (noise)."""
+    images: dict[str, np.ndarray] = {}
+    for name in lightings:
+        if rig.lights is not None and name != "ambient":
+            rig.lights.set(name)
+        acc = None
+        for _ in range(max(1, average)):
+            frame = rig.camera_source.grab()
+            img = frame.rgb if getattr(frame, "rgb", None) is not None else frame.image
+            img = np.asarray(img, dtype=np.float64)
+            if img.max() > 1.5:
+                img = img / 255.0
+            acc = img if acc is None else acc + img
+        images[name] = (acc / max(1, average)).astype(np.float32)
+    return images
+
+
+def _start_session(rig: RigHandles, *, explore_m: float) -> tuple[VseSession, object, ScaleEstimate, np.ndarray]:
+    vse = rig.vse_factory()
+    vse.start()
+    session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event)
+    T_base_flange_home = rig.guard.platform.flange_pose()
+    rig.say("exploring to initialise the VSE and its scale")
+    flange, cams = session.explore(exploration_pattern(translation_m=explore_m))
+    scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
+    rig.say(f"map scale {scale.scale:.4f} m/unit (±{scale.scale_std / scale.scale * 100:.2f} %), residual {scale.residual_rms_mm:.2f} mm")
+    return session, vse, scale, T_base_flange_home
+
+
+def _metric_keyframes(state, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    poses = []
+    for kf in state.keyframes:
+        T = np.array(kf.T_map_cam, dtype=float)
+        T[:3, 3] *= scale
+        poses.append(T)
+    images = np.stack([kf.image for kf in state.keyframes]) if state.keyframes else np.zeros((0, 1, 1), np.float32)
+    return np.array(poses).reshape(-1, 4, 4), images
+
+
+def capture_reference(
+    rig: RigHandles,
+    station,
+    *,
+    lightings: list[str],
+    explore_m: float = 0.02,
+    metadata: dict | None = None,
+    evaluation: dict | None = None,
+) -> CaptureResult:
+    """Capture the immutable reference observation of ``station`` at the platform's current pose."""
+    session, vse, scale, T_base_flange_ref = _start_session(rig, explore_m=explore_m)
+    try:
+        session.move_to_flange(T_base_flange_ref)
+        state = session.tracking_state()
+        # a few more frames at the reference pose let the semi-dense cloud mature
+        state = session.settle(frames=6)
+        if state.status != "tracking":
+            raise AlgorithmError(f"the VSE lost track at the reference pose ({state.message})")
+        T_ref_camref = np.array(state.T_map_cam, dtype=float)
+        T_ref_camref[:3, 3] *= scale.scale
+        cloud = state.cloud
+        if len(cloud) < 1000:
+            raise AlgorithmError(f"the reference cloud has only {len(cloud)} points: scene too weakly textured for rACR")
+        points = np.asarray(cloud.points, dtype=float) * scale.scale
+        kf_poses, kf_images = _metric_keyframes(state, scale.scale)
+        images = grab_images(rig, lightings)
+        meta = {
+            "lightings": lightings,
+            "scale": scale.__dict__,
+            "T_flange_cam": np.asarray(rig.T_flange_cam).tolist(),
+            "T_base_flange": np.asarray(rig.guard.platform.flange_pose()).tolist(),
+            "intrinsics": rig.intrinsics.to_dict(),
+            "cloud_points": int(len(points)),
+            "keyframes": int(len(kf_poses)),
+            "platform_s": session.timing.platform_s,
+            **(metadata or {}),
+        }
+        with station.write_reference(meta) as w:
+            for name, img in images.items():
+                w.add_image(name, img)
+            w.add_cloud(points, colors=np.asarray(cloud.intensities, dtype=np.float32))
+            w.add_array("cloud_intensities", np.asarray(cloud.intensities, dtype=np.float32))
+            w.add_array("T_ref_camref", T_ref_camref)
+            w.add_array("keyframe_poses", kf_poses)
+            w.add_array("keyframe_images", kf_images.astype(np.float32))
+            if evaluation is not None:
+                w.add_json("evaluation/sim_truth.json", evaluation)
+            obs = w.commit()
+    finally:
+        vse.stop()
+    return CaptureResult(str(obs.path), scale, int(len(points)), list(images))
+
+
+def load_reference(station) -> ReferenceData:
+    """The reference cloud and camera of a station, as relocation needs them."""
+    ref = station.reference()
+    return ReferenceData(
+        points=ref.array("cloud_points"),
+        intensities=ref.array("cloud_intensities"),
+        T_ref_camref=ref.array("T_ref_camref"),
+    )
+
+
+def relocate_and_capture(
+    rig: RigHandles,
+    station,
+    *,
+    config: RelocationConfig,
+    lightings: list[str],
+    explore_m: float = 0.015,
+    metadata: dict | None = None,
+    evaluate: Callable[[], dict] | None = None,
+    on_record: Callable[[AdjustmentRecord], None] | None = None,
+    evaluation: Callable[[], dict] | None = None,
+) -> CaptureResult:
+    """Relocate to the station's reference pose with rACR, then write a visit."""
+    from fgcd_cli.alignment import ReferenceIndex
+
+    reference = load_reference(station)
+    ref_index = ReferenceIndex(reference.points, intensities=reference.intensities)
+    session, vse, scale, _ = _start_session(rig, explore_m=explore_m)
+    try:
+        first = session.tracking_state()
+        T_cur_cam0 = np.array(first.T_map_cam, dtype=float)
+        T_cur_cam0[:3, 3] *= scale.scale
+        init = initial_guess_from_first_camera(T_cur_cam0, reference.T_ref_camref)
+        rig.say(f"relocating ({config.mode}) to the reference of station '{station.name}'")
+        result = run_relocation(
+            session=session,
+            reference=reference,
+            ref_index=ref_index,
+            camera=rig.intrinsics,
+            scale=scale.scale,
+            T_flange_cam=rig.T_flange_cam,
+            init=init,
+            config=config,
+            evaluate=evaluate,
+            on_record=on_record,
+        )
+        state = session.settle(frames=2)
+        points = np.asarray(state.cloud.points, dtype=float) * scale.scale
+        images = grab_images(rig, lightings)
+        meta = {
+            "lightings": lightings,
+            "scale": scale.__dict__,
+            "relocation": {
+                "converged": result.converged,
+                "reason": result.reason,
+                "adjustments": result.adjustments,
+                "wall_s": result.wall_s,
+                "session_s": result.session_s,
+                "platform_s": result.platform_s,
+                "mode": config.mode,
+            },
+            "T_flange_cam": np.asarray(rig.T_flange_cam).tolist(),
+            "T_base_flange": np.asarray(rig.guard.platform.flange_pose()).tolist(),
+            "intrinsics": rig.intrinsics.to_dict(),
+            **(metadata or {}),
+        }
+        stamp_writer = station.new_visit(meta)
+        with stamp_writer as w:
+            for name, img in images.items():
+                w.add_image(name, img)
+            w.add_cloud(points, colors=np.asarray(state.cloud.intensities, dtype=np.float32))
+            w.add_bytes(
+                "relocation.jsonl", "".join(r.to_json() + "\n" for r in result.records).encode("utf-8")
+            )
+            if evaluation is not None:
+                w.add_json("evaluation/sim_truth.json", evaluation())
+            obs = w.commit()
+    finally:
+        vse.stop()
+    return CaptureResult(str(obs.path), scale, int(len(points)), list(images), relocation=result)

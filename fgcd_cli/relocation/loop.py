@@ -1,0 +1,465 @@
+"""The rACR relocation loop: VSE thread, alignment thread, adjustment thread (paper 000, Fig. 2).
+
+* the VSE thread (``fgcd_cli.vse.thread.VseThread``) keeps the latest camera pose
+  and cloud of the current session;
+* the alignment thread (:class:`AlignmentWorker`) aligns the latest cloud to the
+  reference, fast then fine, again and again, and publishes its latest
+  similarity ``T_ref_cur``;
+* the adjustment thread (the caller of :func:`run_relocation`) combines the
+  latest pose and the latest similarity into a hand motion (Eq. 3, see
+  :mod:`fgcd_cli.relocation.adjustment`), sends it through the motion guard, and
+  stops when ``g <= eta``.
+
+Hand-over between threads is "latest value" under a lock: nobody waits for
+anybody except the adjustment thread, which needs one estimate newer than its
+previous motion. ``mode="serial"`` runs the same steps one after the other
+(the paper's Table 5 baseline). A failing VSE or alignment pauses motion
+instead of guessing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.geometry.se3 import pose_distance
+from fgcd_cli.geometry.sim3 import Sim3
+from fgcd_cli.relocation.adjustment import Adjustment, compute_adjustment
+from fgcd_cli.relocation.session import VseSession
+
+__all__ = [
+    "ReferenceData",
+    "RelocationConfig",
+    "AlignmentEstimate",
+    "AlignmentWorker",
+    "AdjustmentRecord",
+    "RelocationResult",
+    "align_once",
+    "run_relocation",
+    "initial_guess_from_first_camera",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReferenceData:
+    """What relocation needs of a reference observation (all in the ref frame, metres).
+
+    Attributes
+    ----------
+    points : (N, 3) ndarray
+        Reference metric cloud.
+    intensities : (N,) ndarray
+        Grey value of each point in [0, 1].
+    T_ref_camref : (4, 4) ndarray
+        The reference camera pose.
+    """
+
+    points: np.ndarray
+    intensities: np.ndarray
+    T_ref_camref: np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class RelocationConfig:
+    """Options of the loop.
+
+    Attributes
+    ----------
+    mode : {"parallel", "serial"}
+        Three threads with latest-value hand-over, or everything in turn.
+    eta : float
+        Stop when ``g = ||M_B - I||_F <= eta`` (paper: 1e-4).
+    max_adjustments : int
+        Give up after this many adjustments.
+    max_step_m, max_step_rad : float
+        Largest motion of one adjustment (also enforced by the guard).
+    fine : bool
+        Run the fine-grained stage after the fast one (``-F`` ablation when False).
+    min_points : int
+        Current cloud size needed before aligning.
+    estimate_timeout_s : float
+        Longest wait for a fresh alignment before pausing with an error.
+    stall_adjustments : int
+        Stop (converged to the noise floor) when ``g`` has not decreased for this
+        many adjustments in a row and the offset is below ``stall_max_mm``.
+    stall_max_mm : float
+        See ``stall_adjustments``.
+    """
+
+    mode: str = "parallel"
+    eta: float = 1e-4
+    max_adjustments: int = 12
+    max_step_m: float = 0.05
+    max_step_rad: float = math.radians(10.0)
+    fine: bool = True
+    min_points: int = 500
+    estimate_timeout_s: float = 120.0
+    stall_adjustments: int = 2
+    stall_max_mm: float = 0.5
+
+
+@dataclass(frozen=True, kw_only=True)
+class AlignmentEstimate:
+    """One published alignment."""
+
+    T_ref_cur: Sim3
+    stage: str  # "fast" | "fine"
+    ok: bool
+    reason: str
+    vse_frame: int  # frames_processed of the VSE state it used
+    seconds: float
+    serial: int  # increasing publication number
+
+
+def initial_guess_from_first_camera(T_cur_cam0: np.ndarray, T_ref_camref: np.ndarray) -> Sim3:
+    """The similarity that puts the session's first camera on the reference camera.
+
+    rACR starts every relocation near the reference pose, so this is a good
+    starting point for the fast alignment (scale 1: both frames are metric).
+    """
+    T = np.asarray(T_ref_camref, dtype=float) @ np.linalg.inv(np.asarray(T_cur_cam0, dtype=float))
+    return Sim3(T[:3, :3], T[:3, 3], 1.0)
+
+
+def _scaled_pose(T_map_cam: np.ndarray, scale: float) -> np.ndarray:
+    T = np.array(T_map_cam, dtype=float)
+    T[:3, 3] *= scale
+    return T
+
+
+def align_once(
+    *,
+    state,
+    scale: float,
+    reference: ReferenceData,
+    ref_index,
+    camera,
+    init: Sim3,
+    fine: bool,
+    serial: int = 0,
+) -> list[AlignmentEstimate]:
+    """Fast (then fine) alignment of one VSE state; returns the estimates it produced."""
+    from fgcd_cli.alignment import fast_align, fine_align
+
+    out: list[AlignmentEstimate] = []
+    cur_points = np.asarray(state.cloud.points, dtype=float) * scale
+    t0 = time.monotonic()
+    fast = fast_align(cur_points, ref_index, init=init)
+    out.append(
+        AlignmentEstimate(
+            T_ref_cur=fast.T_ref_cur,
+            stage="fast",
+            ok=bool(fast.health.ok),
+            reason=fast.health.reason,
+            vse_frame=state.frames_processed,
+            seconds=time.monotonic() - t0,
+            serial=serial,
+        )
+    )
+    if fine and fast.health.ok and len(state.keyframes) >= 2:
+        t1 = time.monotonic()
+        kfs = [(_scaled_pose(kf.T_map_cam, scale), kf.image) for kf in state.keyframes[-6:]]
+        res = fine_align(
+            ref_points=reference.points,
+            ref_intensities=reference.intensities,
+            cur_keyframes=kfs,
+            camera=camera,
+            init=fast.T_ref_cur,
+            cur_points=cur_points,
+        )
+        out.append(
+            AlignmentEstimate(
+                T_ref_cur=res.T_ref_cur,
+                stage="fine",
+                ok=bool(res.health.ok),
+                reason=res.health.reason,
+                vse_frame=state.frames_processed,
+                seconds=time.monotonic() - t1,
+                serial=serial + 1,
+            )
+        )
+    return out
+
+
+class AlignmentWorker:
+    """The alignment thread: aligns the latest VSE state again and again."""
+
+    def __init__(self, *, vse, scale: float, reference: ReferenceData, ref_index, camera, init: Sim3, fine: bool, min_points: int):
+        self._vse = vse
+        self._scale = scale
+        self._reference = reference
+        self._ref_index = ref_index
+        self._camera = camera
+        self._init = init
+        self._fine = fine
+        self._min_points = min_points
+        self._lock = threading.Lock()
+        self._latest: AlignmentEstimate | None = None
+        self._serial = 0
+        self._stop = threading.Event()
+        self._error: str | None = None
+        self._thread = threading.Thread(target=self._run, name="fgcd-alignment", daemon=True)
+
+    def start(self) -> "AlignmentWorker":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=30)
+
+    @property
+    def error(self) -> str | None:
+        return self._error
+
+    def latest(self) -> AlignmentEstimate | None:
+        with self._lock:
+            return self._latest
+
+    def _run(self) -> None:
+        last_frame = -1
+        try:
+            while not self._stop.is_set():
+                state = self._vse.latest()
+                if (
+                    state.status != "tracking"
+                    or len(state.cloud) < self._min_points
+                    or state.frames_processed == last_frame
+                ):
+                    time.sleep(0.01)
+                    continue
+                last_frame = state.frames_processed
+                with self._lock:
+                    prev = self._latest
+                init = prev.T_ref_cur if (prev is not None and prev.ok) else self._init
+                for est in align_once(
+                    state=state,
+                    scale=self._scale,
+                    reference=self._reference,
+                    ref_index=self._ref_index,
+                    camera=self._camera,
+                    init=init,
+                    fine=self._fine,
+                    serial=self._serial + 1,
+                ):
+                    with self._lock:
+                        self._serial = est.serial
+                        # a failed estimate is published too (the loop pauses on it) but never
+                        # replaces the starting point of the next run
+                        self._latest = est
+                    if self._stop.is_set():
+                        break
+        except Exception as exc:  # noqa: BLE001 - reported to the adjustment thread, which stops
+            self._error = f"{type(exc).__name__}: {exc}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class AdjustmentRecord:
+    """One line of ``relocation.jsonl``."""
+
+    iteration: int
+    t_wall_s: float
+    t_session_s: float
+    stage: str
+    g: float
+    offset_mm: float
+    offset_deg: float
+    T_ref_cam: list
+    M_flange_commanded: list
+    clamped: bool
+    vse_status: str
+    vse_points: int
+    alignment_ok: bool
+    alignment_reason: str
+    scale: float
+    sigma: float
+    truth: dict | None = None
+
+    def to_json(self) -> str:
+        return json.dumps(self.__dict__, ensure_ascii=False)
+
+
+@dataclass
+class RelocationResult:
+    """Outcome of a relocation."""
+
+    converged: bool
+    reason: str
+    adjustments: int
+    records: list[AdjustmentRecord] = field(default_factory=list)
+    final_T_ref_cam: np.ndarray | None = None
+    wall_s: float = 0.0
+    session_s: float = 0.0
+    platform_s: float = 0.0
+
+
+def run_relocation(
+    *,
+    session: VseSession,
+    reference: ReferenceData,
+    ref_index,
+    camera,
+    scale: float,
+    T_flange_cam: np.ndarray,
+    init: Sim3,
+    config: RelocationConfig = RelocationConfig(),
+    evaluate: Callable[[], dict] | None = None,
+    on_record: Callable[[AdjustmentRecord], None] | None = None,
+) -> RelocationResult:
+    """Drive the camera to the reference pose.
+
+    Parameters
+    ----------
+    session : VseSession
+        A running VSE session (exploration done, scale known).
+    reference : ReferenceData
+        Reference cloud and camera.
+    ref_index : fgcd_cli.alignment.ReferenceIndex
+        Search structure over the reference cloud, built once.
+    camera : PinholeCamera
+        Intrinsics of the current camera.
+    scale : float
+        Metres per VSE map unit of this session.
+    T_flange_cam : (4, 4) ndarray
+        Hand-eye (identity for the ``--no-handeye`` variant).
+    init : Sim3
+        Starting similarity ``T_ref_cur``.
+    evaluate : callable, optional
+        Evaluation hook (simulation only, outside the algorithm): returns a
+        dict of true errors written into each log record.
+    on_record : callable, optional
+        Called with each record (live display, log file).
+    """
+    t_start = time.monotonic()
+    worker: AlignmentWorker | None = None
+    records: list[AdjustmentRecord] = []
+    result = RelocationResult(False, "not started", 0)
+    if config.mode not in ("parallel", "serial"):
+        raise AlgorithmError(f"unknown relocation mode {config.mode!r}")
+    if config.mode == "parallel":
+        worker = AlignmentWorker(
+            vse=session.vse,
+            scale=scale,
+            reference=reference,
+            ref_index=ref_index,
+            camera=camera,
+            init=init,
+            fine=config.fine,
+            min_points=config.min_points,
+        ).start()
+    current_init = init
+    last_serial = 0
+    best_g = math.inf
+    no_progress = 0
+    try:
+        for iteration in range(1, config.max_adjustments + 1):
+            state = session.tracking_state()
+            if config.mode == "parallel":
+                est = _wait_for_estimate(worker, last_serial, config, session)
+                state = session.vse.latest() if session.vse.latest().status == "tracking" else state
+            else:
+                t0 = time.monotonic()
+                if len(state.cloud) < config.min_points:
+                    raise AlgorithmError(f"the VSE cloud has only {len(state.cloud)} points: cannot align")
+                ests = align_once(
+                    state=state,
+                    scale=scale,
+                    reference=reference,
+                    ref_index=ref_index,
+                    camera=camera,
+                    init=current_init,
+                    fine=config.fine,
+                    serial=last_serial + 1,
+                )
+                session.timing.wait_s += time.monotonic() - t0
+                oks = [e for e in ests if e.ok]
+                est = oks[-1] if oks else ests[-1]
+                if not est.ok:
+                    raise AlgorithmError(f"alignment failed, motion paused: {est.reason}")
+            last_serial = est.serial
+            current_init = est.T_ref_cur
+            adj: Adjustment = compute_adjustment(
+                T_ref_cur=est.T_ref_cur,
+                T_cur_cam=_scaled_pose(state.T_map_cam, scale),
+                T_ref_camref=reference.T_ref_camref,
+                T_flange_cam=T_flange_cam,
+                max_step_m=config.max_step_m,
+                max_step_rad=config.max_step_rad,
+            )
+            rec = AdjustmentRecord(
+                iteration=iteration,
+                t_wall_s=time.monotonic() - t_start,
+                t_session_s=session.timing.total_s,
+                stage=est.stage,
+                g=adj.g,
+                offset_mm=adj.offset_mm,
+                offset_deg=adj.offset_deg,
+                T_ref_cam=adj.T_ref_cam.tolist(),
+                M_flange_commanded=adj.M_flange_commanded.tolist(),
+                clamped=adj.clamped,
+                vse_status=state.status,
+                vse_points=len(state.cloud),
+                alignment_ok=est.ok,
+                alignment_reason=est.reason,
+                scale=scale,
+                sigma=est.T_ref_cur.scale,
+                truth=evaluate() if evaluate else None,
+            )
+            records.append(rec)
+            if on_record:
+                on_record(rec)
+            if adj.g <= config.eta:
+                result = RelocationResult(True, f"g = {adj.g:.2e} <= eta = {config.eta:.0e}", iteration)
+                break
+            if adj.g < best_g * 0.9:
+                best_g = adj.g
+                no_progress = 0
+            else:
+                no_progress += 1
+            if no_progress >= config.stall_adjustments and adj.offset_mm <= config.stall_max_mm:
+                result = RelocationResult(
+                    True,
+                    f"converged to the estimation noise floor (g = {adj.g:.2e}, {adj.offset_mm:.2f} mm)",
+                    iteration,
+                )
+                break
+            session.move_by(adj.M_flange_commanded)
+        else:
+            result = RelocationResult(False, f"not converged after {config.max_adjustments} adjustments", config.max_adjustments)
+    finally:
+        if worker is not None:
+            worker.stop()
+    result.records = records
+    result.final_T_ref_cam = np.array(records[-1].T_ref_cam) if records else None
+    result.wall_s = time.monotonic() - t_start
+    result.session_s = session.timing.total_s
+    result.platform_s = session.timing.platform_s
+    return result
+
+
+def _wait_for_estimate(worker: AlignmentWorker, last_serial: int, config: RelocationConfig, session: VseSession) -> AlignmentEstimate:
+    """The newest alignment published after ``last_serial``; pause on failures."""
+    t0 = time.monotonic()
+    while True:
+        if worker.error:
+            raise AlgorithmError(f"alignment thread stopped: {worker.error}")
+        est = worker.latest()
+        if est is not None and est.serial > last_serial and est.ok:
+            session.timing.wait_s += time.monotonic() - t0
+            return est
+        if time.monotonic() - t0 > config.estimate_timeout_s:
+            why = est.reason if est is not None else "no estimate yet"
+            raise AlgorithmError(f"no trustworthy alignment within {config.estimate_timeout_s:.0f} s, motion paused: {why}")
+        time.sleep(0.01)
+
+
+def offset_to_reference(T_ref_cam: np.ndarray, T_ref_camref: np.ndarray) -> tuple[float, float]:
+    """Remaining offset in mm and degrees (for displays)."""
+    return pose_distance(T_ref_cam, T_ref_camref)

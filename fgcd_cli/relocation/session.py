@@ -1,0 +1,210 @@
+"""A VSE session on a rig: start the engine, move slowly, settle, estimate the map scale.
+
+Shared by capture and relocate. The engine runs in its own thread over the
+camera; motions go through the :class:`drivers.platform.MotionGuard` in small
+sub-steps so that the VSE keeps tracking (the rACR platform moves slowly too),
+and after each sub-step the session waits for fresh frames before it trusts a
+pose.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Protocol, Sequence
+
+import numpy as np
+
+from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.geometry.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
+
+__all__ = [
+    "SessionTiming",
+    "ScaleEstimate",
+    "VseSession",
+    "exploration_pattern",
+]
+
+
+class VseThreadLike(Protocol):
+    """What the session needs of :class:`fgcd_cli.vse.thread.VseThread`."""
+
+    def latest(self): ...  # noqa: D102
+
+    def stop(self) -> None: ...  # noqa: D102
+
+
+@dataclass
+class SessionTiming:
+    """Where the time of a session went.
+
+    Attributes
+    ----------
+    platform_s : float
+        Time the platform spent moving (simulated seconds on the simulator).
+    wait_s : float
+        Wall time spent waiting for VSE frames and estimates while not moving.
+    moves : int
+        Motions sent (sub-steps counted).
+    """
+
+    platform_s: float = 0.0
+    wait_s: float = 0.0
+    moves: int = 0
+
+    @property
+    def total_s(self) -> float:
+        """Platform time plus waiting time: the session's duration on a real rig."""
+        return self.platform_s + self.wait_s
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScaleEstimate:
+    """The map scale of a session (metres per VSE unit)."""
+
+    scale: float
+    scale_std: float
+    n_samples: int
+    residual_rms_mm: float
+    method: str
+
+
+def exploration_pattern(*, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0)) -> list[np.ndarray]:
+    """Relative flange motions of the exploration that initialises the VSE and its scale.
+
+    Translations along the three flange axes with small tilts, returning to the
+    start; translation is what initialises a monocular engine (pure rotation
+    cannot) and observes the scale.
+
+    Returns
+    -------
+    list of (4, 4) ndarray
+        Motions in the flange frame, applied one after the other.
+    """
+    d, r = translation_m, rotation_rad
+    waypoints = [
+        np.zeros(6),
+        np.array([d, 0, 0, 0, r, 0]),
+        np.array([d, d, 0, -r, r, 0]),
+        np.array([0, d, d / 2, -r, 0, 0]),
+        np.array([-d, 0, d / 2, 0, -r, 0]),
+        np.array([0, -d, 0, r, 0, 0]),
+        np.zeros(6),
+    ]
+    poses = [exp_se3(w) for w in waypoints]
+    return [invert_pose(a) @ b for a, b in zip(poses[:-1], poses[1:])]
+
+
+@dataclass
+class VseSession:
+    """One VSE session on a rig.
+
+    Parameters
+    ----------
+    guard : drivers.platform.MotionGuard
+        Every motion passes here.
+    vse : VseThreadLike
+        A started VSE thread over the rig's camera.
+    substep_m, substep_rad : float
+        Largest sub-step of a motion; the VSE sees every sub-step.
+    settle_frames : int
+        Fresh frames to wait for after a motion before trusting the pose.
+    frame_timeout_s : float
+        Wall time after which a silent VSE is an error.
+    on_event : callable(str), optional
+        Progress lines for people.
+    """
+
+    guard: object
+    vse: VseThreadLike
+    substep_m: float = 0.005
+    substep_rad: float = math.radians(1.0)
+    settle_frames: int = 2
+    frame_timeout_s: float = 60.0
+    on_event: Callable[[str], None] | None = None
+    timing: SessionTiming = field(default_factory=SessionTiming)
+
+    # -- VSE access
+    def settle(self, *, frames: int | None = None):
+        """Wait until the VSE has processed ``frames`` new frames; return its state."""
+        need = self.settle_frames if frames is None else frames
+        t0 = time.monotonic()
+        start = self.vse.latest().frames_processed
+        while True:
+            st = self.vse.latest()
+            if st.frames_processed >= start + need:
+                self.timing.wait_s += time.monotonic() - t0
+                return st
+            if time.monotonic() - t0 > self.frame_timeout_s:
+                raise AlgorithmError(f"the VSE processed no new frame in {self.frame_timeout_s:.0f} s")
+            time.sleep(0.005)
+
+    def tracking_state(self, *, timeout_s: float = 60.0):
+        """Wait for a settled state in which the VSE tracks; raise if it fails."""
+        t0 = time.monotonic()
+        while True:
+            st = self.settle()
+            if st.status == "tracking" and st.T_map_cam is not None:
+                return st
+            if st.status == "failed":
+                raise AlgorithmError(f"the VSE cannot track this scene: {st.message}")
+            if time.monotonic() - t0 > timeout_s:
+                raise AlgorithmError(f"the VSE is not tracking ({st.status}: {st.message})")
+
+    # -- motion
+    def move_by(self, M_flange: np.ndarray) -> float:
+        """Move by ``M_flange`` (flange frame) in sub-steps; returns the platform time spent."""
+        xi = log_se3(M_flange)
+        trans = float(np.linalg.norm(M_flange[:3, 3]))
+        rot = rotation_angle_rad(M_flange[:3, :3])
+        n = max(1, int(math.ceil(max(trans / self.substep_m, rot / self.substep_rad))))
+        step = exp_se3(xi / n)
+        spent = 0.0
+        for _ in range(n):
+            result = self.guard.move_by(step)
+            spent += float(getattr(result, "duration_s", 0.0))
+            self.timing.moves += 1
+            self.settle(frames=1)
+        self.timing.platform_s += spent
+        return spent
+
+    def move_to_flange(self, T_base_flange_target: np.ndarray) -> float:
+        """Move the flange to an absolute pose in sub-steps."""
+        current = self.guard.platform.flange_pose()
+        return self.move_by(invert_pose(current) @ np.asarray(T_base_flange_target, dtype=float))
+
+    # -- exploration and scale
+    def explore(self, motions: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Run an exploration; return the flange and VSE poses at each tracked waypoint."""
+        flange, cams = [], []
+        for i, M in enumerate(motions):
+            self.move_by(M)
+            st = self.settle(frames=self.settle_frames + 1)
+            if st.status == "failed":
+                raise AlgorithmError(f"the VSE cannot track this scene: {st.message}")
+            if st.status == "tracking" and st.T_map_cam is not None:
+                flange.append(self.guard.platform.flange_pose())
+                cams.append(np.asarray(st.T_map_cam, dtype=float))
+            if self.on_event:
+                self.on_event(f"exploration {i + 1}/{len(motions)}: VSE {st.status}")
+        return flange, cams
+
+    def estimate_scale(
+        self, T_flange_cam: np.ndarray, flange: list[np.ndarray], cams: list[np.ndarray]
+    ) -> ScaleEstimate:
+        """Metric scale of the map from the recorded waypoints and a known hand-eye."""
+        from fgcd_cli.calibration.handeye import estimate_scale
+
+        if len(flange) < 3:
+            raise AlgorithmError(
+                f"only {len(flange)} tracked exploration waypoints: the VSE could not follow the motion"
+            )
+        res = estimate_scale(T_flange_cam, flange, cams, pairs="all")
+        return ScaleEstimate(
+            scale=float(res.scale),
+            scale_std=float(res.scale_std),
+            n_samples=len(flange),
+            residual_rms_mm=float(res.rms_mm),
+            method="rACR scale (hand-eye known)",
+        )
