@@ -1,0 +1,57 @@
+"""Evaluation against the simulator's ground truth (evaluation code only).
+
+Algorithms never call this; commands running on the simulator attach it to
+the relocation log ("truth" fields) and to the observation's
+``evaluation/sim_truth.json`` so that benchmarks and reports can score a run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcd_cli.geometry.se3 import pose_distance
+
+__all__ = ["reference_truth", "RelocationEvaluator"]
+
+
+def reference_truth(sim_rig) -> dict:
+    """What evaluation needs to remember of a simulated reference capture."""
+    gt = sim_rig.ground_truth
+    return {
+        "T_world_cam": np.asarray(gt.T_world_cam_true()).tolist(),
+        "T_flange_cam": np.asarray(gt.T_flange_cam_true()).tolist(),
+        "intrinsics": gt.intrinsics_true().to_dict(),
+    }
+
+
+@dataclass
+class RelocationEvaluator:
+    """True pose error and true AFD of the simulated camera against the reference."""
+
+    sim_rig: object
+    T_world_camref: np.ndarray
+
+    @classmethod
+    def from_reference(cls, sim_rig, reference_observation) -> "RelocationEvaluator | None":
+        """Build from a reference observation captured on the simulator (None otherwise)."""
+        if not reference_observation.has("evaluation/sim_truth.json"):
+            return None
+        truth = reference_observation.json("evaluation/sim_truth.json")
+        return cls(sim_rig, np.array(truth["T_world_cam"], dtype=float))
+
+    def evaluate(self) -> dict:
+        """Truth of the current camera: pose error (mm, deg) and AFD (px)."""
+        gt = self.sim_rig.ground_truth
+        T_cur = np.asarray(gt.T_world_cam_true())
+        mm, deg = pose_distance(T_cur, self.T_world_camref)
+        afd = float(gt.true_afd_px(self.T_world_camref, T_cur, gt.intrinsics_true()))
+        return {"pose_err_mm": mm, "pose_err_deg": deg, "afd_px": afd}
+
+    def summary(self) -> dict:
+        """Final truth written with a visit."""
+        out = self.evaluate()
+        out["T_world_cam"] = np.asarray(self.sim_rig.ground_truth.T_world_cam_true()).tolist()
+        out["T_world_camref"] = self.T_world_camref.tolist()
+        return out

@@ -1,0 +1,205 @@
+"""Open a rig (platform + guard + camera + lights + VSE factory) from driver options.
+
+This is the one place where a command chooses between the simulator and real
+hardware; algorithms receive only the resulting :class:`RigHandles`. For the
+simulator it also returns the evaluation hooks (ground truth), which only
+``fgcd_cli.metrics`` reads.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from fgcd_cli.errors import HardwareError, UserInputError
+from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_cli.relocation.capture import RigHandles
+
+__all__ = ["OpenedRig", "SimScenario", "open_rig", "pinhole_from_intrinsics", "vse_factory_for"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimScenario:
+    """How the simulated world of a session differs from the reference one.
+
+    Attributes
+    ----------
+    scene : str
+        Scene name (``fgcd sim scenes``).
+    seed : int
+        World seed: same seed, same object and same hidden hand-eye.
+    lighting : str
+        Lighting preset of this session.
+    changes : int
+        Number of fine-grained changes injected (0 for the reference).
+    change_seed : int
+        Seed of the changes.
+    start_offset_mm, start_offset_deg : float
+        How far from the reference the platform starts (the rig was set up
+        again); a random direction drawn from ``session_seed``.
+    session_seed : int
+        Seed of this session's start offset and noise.
+    noise : str
+        Platform noise preset.
+    """
+
+    scene: str = "stele"
+    seed: int = 0
+    lighting: str = "front"
+    changes: int = 0
+    change_seed: int = 1
+    start_offset_mm: float = 0.0
+    start_offset_deg: float = 0.0
+    session_seed: int = 0
+    noise: str = "default"
+
+
+@dataclass
+class OpenedRig:
+    """A rig ready for the use cases, plus what to close and (sim only) evaluation hooks."""
+
+    handles: RigHandles
+    close: Callable[[], None]
+    sim: object | None = None  # the SimRig, for evaluation code only
+    info: dict = field(default_factory=dict)
+
+
+def pinhole_from_intrinsics(intr) -> PinholeCamera:
+    """``PinholeCamera`` from ``drivers.cameras.CameraIntrinsics`` (or a dict)."""
+    if isinstance(intr, dict):
+        return PinholeCamera.from_dict(intr)
+    return PinholeCamera(
+        fx=float(intr.fx),
+        fy=float(intr.fy),
+        cx=float(intr.cx),
+        cy=float(intr.cy),
+        width=int(intr.width),
+        height=int(intr.height),
+        dist=tuple(float(d) for d in intr.dist),
+    )
+
+
+def vse_factory_for(camera: PinholeCamera, source, *, variant: str = "mono") -> Callable[[], object]:
+    """A factory of (not yet started) VSE threads over ``source``."""
+
+    def make():
+        from fgcd_cli.vse import MonocularVSE, RgbdVSE, SparseVSE
+        from fgcd_cli.vse.thread import VseThread
+
+        engines = {"mono": MonocularVSE, "sparse": SparseVSE, "rgbd": RgbdVSE}
+        if variant not in engines:
+            raise UserInputError(f"unknown VSE variant '{variant}' (mono, sparse, rgbd)")
+        return VseThread(engines[variant](camera), source)
+
+    return make
+
+
+def _random_offset(rng: np.random.Generator, mm: float, deg: float) -> np.ndarray:
+    from fgcd_cli.geometry.se3 import exp_se3
+
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    a = rng.normal(size=3)
+    a /= np.linalg.norm(a)
+    return exp_se3(np.r_[d * mm / 1000.0, a * math.radians(deg)])
+
+
+def open_sim_rig(
+    scenario: SimScenario,
+    *,
+    T_flange_cam: np.ndarray | None,
+    intrinsics: PinholeCamera | None,
+    confirm: Callable[[str], bool] | None = None,
+    vse_variant: str = "mono",
+    on_event: Callable[[str], None] | None = None,
+) -> OpenedRig:
+    """A simulated rig for one session of a scenario."""
+    from drivers.platform import GuardLimits, MotionGuard
+    from drivers.sim.rig import build_sim_rig
+
+    rig = build_sim_rig(
+        scene=scenario.scene,
+        lighting=scenario.lighting,
+        seed=scenario.seed,
+        noise=scenario.noise,
+        session_seed=scenario.session_seed,
+    )
+    if scenario.changes > 0:
+        rig.inject_changes(n=scenario.changes, seed=scenario.change_seed)
+    if scenario.start_offset_mm > 0 or scenario.start_offset_deg > 0:
+        rng = np.random.default_rng(10_000 + scenario.session_seed)
+        rig.displace_base(_random_offset(rng, scenario.start_offset_mm, scenario.start_offset_deg))
+    rig.platform.connect()
+    cam = intrinsics or pinhole_from_intrinsics(rig.camera.intrinsics_nominal)
+    guard = MotionGuard(rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12)), confirm=confirm)
+    handles = RigHandles(
+        guard=guard,
+        camera_source=rig.camera,
+        intrinsics=cam,
+        T_flange_cam=np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float),
+        vse_factory=vse_factory_for(cam, rig.camera, variant=vse_variant),
+        lights=rig.lights,
+        on_event=on_event,
+    )
+    return OpenedRig(handles=handles, close=rig.platform.close, sim=rig, info={"scenario": scenario.__dict__})
+
+
+def open_rig(
+    *,
+    driver: str,
+    T_flange_cam: np.ndarray | None,
+    intrinsics: PinholeCamera | None,
+    scenario: SimScenario | None = None,
+    port: str | None = None,
+    baud: int = 115200,
+    host: str | None = None,
+    camera_index: int | str = 0,
+    confirm: Callable[[str], bool] | None = None,
+    vse_variant: str = "mono",
+    on_event: Callable[[str], None] | None = None,
+) -> OpenedRig:
+    """Open the rig a command asked for."""
+    if driver == "sim":
+        return open_sim_rig(
+            scenario or SimScenario(),
+            T_flange_cam=T_flange_cam,
+            intrinsics=intrinsics,
+            confirm=confirm,
+            vse_variant=vse_variant,
+            on_event=on_event,
+        )
+    if driver not in ("grbl", "ur", "manual"):
+        raise UserInputError(f"unknown driver '{driver}' (sim, grbl, ur, manual)")
+    if intrinsics is None:
+        raise UserInputError("no camera intrinsics in the campaign rig: run `fgcd calibrate intrinsics` first")
+    from drivers.cameras import OpenCVCamera
+    from drivers.connect import open_platform
+    from drivers.platform import GuardLimits, MotionGuard
+
+    try:
+        platform = open_platform(driver, port=port, baud=baud, host=host)
+        platform.connect()
+        camera = OpenCVCamera(camera_index, width=intrinsics.width, height=intrinsics.height)
+    except OSError as exc:
+        raise HardwareError(f"cannot open the rig: {exc}") from None
+    guard = MotionGuard(platform, GuardLimits(), confirm=confirm)
+
+    def close() -> None:
+        try:
+            camera.close()
+        finally:
+            platform.close()
+
+    handles = RigHandles(
+        guard=guard,
+        camera_source=camera,
+        intrinsics=intrinsics,
+        T_flange_cam=np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float),
+        vse_factory=vse_factory_for(intrinsics, camera, variant=vse_variant),
+        lights=None,
+        on_event=on_event,
+    )
+    return OpenedRig(handles=handles, close=close)
