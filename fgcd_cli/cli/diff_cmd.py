@@ -1,0 +1,68 @@
+"""``fgcd diff``: fine-grained change detection between a reference and a current observation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from fgcd_cli.cli.output import emit, info
+
+HELP = "Find fine-grained changes between reference and current images; write maps, regions and a report."
+
+
+def _render(data: dict):
+    def render(console):
+        if not data["comparable"]:
+            console.print(f"[yellow]cannot compare[/yellow]: {data['reason']}")
+        else:
+            n = len(data["regions"])
+            console.print(f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area")
+            for r in data["regions"][:10]:
+                mm2 = f", {r['area_mm2']:.2f} mm²" if r.get("area_mm2") is not None else ""
+                console.print(f"  #{r['id']}: {r['area_px']} px{mm2} at ({r['centroid_xy'][0]:.0f}, {r['centroid_xy'][1]:.0f})")
+            for w in data.get("warnings", []):
+                console.print(f"[yellow]warning[/yellow]: {w}")
+        if "afd" in data:
+            console.print(f"AFD {data['afd']['afd_px']:.2f} px ({data['afd']['method']}, {data['afd']['inliers']} vectors)")
+        if data.get("scores"):
+            s = data["scores"]
+            console.print(f"against ground truth: F1 {s['f1']:.3f} (P {s['precision']:.3f}, R {s['recall']:.3f}), "
+                          f"best F1 {s['best_f1']:.3f}, AP {s['average_precision']:.3f}")
+        console.print(f"outputs: {data['output']}")
+    return render
+
+
+def diff(
+    ref: Optional[list[str]] = typer.Option(None, "--ref", help="Reference image(s): repeat, comma-separate or quote a glob; one per lighting."),
+    cur: Optional[list[str]] = typer.Option(None, "--cur", help="Current image(s), same lightings in the same order."),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Output folder (bare-image mode)."),
+    campaign: Optional[Path] = typer.Option(None, "--campaign", help="Campaign folder (campaign mode)."),
+    station: Optional[str] = typer.Option(None, "--station", help="Station name (campaign mode)."),
+    visit: Optional[str] = typer.Option(None, "--visit", help="Visit name (default: latest)."),
+    eval_mask: Optional[Path] = typer.Option(None, "--eval-mask", help="Compare only where this mask is non-zero (reference frame)."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."),
+    mm_per_px: Optional[float] = typer.Option(None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."),
+    no_register: bool = typer.Option(False, "--no-register", help="Images are already aligned: skip registration."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Find fine-grained changes; writes change_score.png/.npy, change_mask.png, overlay.png, regions.json, report.html."""
+    from fgcd_cli.report.usecases import run_bare, run_campaign
+    from fgcd_cli.errors import UserInputError
+
+    if campaign is not None or station is not None:
+        if ref or cur:
+            raise UserInputError("give either --campaign/--station or --ref/--cur, not both")
+        if campaign is None or station is None:
+            raise UserInputError("campaign mode needs both --campaign and --station")
+        data = run_campaign(campaign, station, visit=visit, eval_mask=eval_mask, mm_per_px=mm_per_px,
+                            register=not no_register, output=output, progress=None if as_json else info)
+    else:
+        if not ref or not cur:
+            raise UserInputError("give --ref and --cur images (or --campaign and --station)")
+        if output is None:
+            raise UserInputError("give an output folder with -o DIR")
+        data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
+                        register=not no_register, progress=None if as_json else info)
+    emit(data, as_json=as_json, render=_render(data))

@@ -1,0 +1,182 @@
+"""Figures of the change reports, as RGB arrays or PNG bytes (matplotlib Agg, OpenCV drawing)."""
+
+from __future__ import annotations
+
+import base64
+import io
+
+import cv2
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
+
+# Colours (RGB) chosen to stand out on plaster, pigments and stone.
+CHANGE_RGB = (255, 0, 200)
+LABEL_RGB = (255, 255, 0)
+
+
+def to_display_rgb(image: np.ndarray) -> np.ndarray:
+    """Any image (grey/RGB, uint8/uint16/float in [0, 1]) as HxWx3 uint8 RGB."""
+    array = np.asarray(image)
+    if np.issubdtype(array.dtype, np.integer):
+        array = array.astype(np.float32) / float(np.iinfo(array.dtype).max)
+    array = np.clip(array.astype(np.float32), 0.0, 1.0)
+    if array.ndim == 2:
+        array = np.repeat(array[:, :, None], 3, axis=2)
+    return (array[:, :, :3] * 255.0 + 0.5).astype(np.uint8)
+
+
+def png_bytes(rgb: np.ndarray) -> bytes:
+    """Encode an RGB (or grey) uint8/uint16 array as PNG bytes."""
+    array = rgb if rgb.ndim == 2 else cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    ok, buffer = cv2.imencode(".png", array)
+    if not ok:
+        raise ValueError("PNG encoding failed")
+    return buffer.tobytes()
+
+
+def data_uri(png: bytes) -> str:
+    """A ``data:`` URI embedding PNG bytes (for self-contained HTML)."""
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _figure_png(fig) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRegion], *, valid: np.ndarray | None = None) -> np.ndarray:
+    """The reference image with changed regions tinted, outlined and numbered.
+
+    Parameters
+    ----------
+    image : ndarray, HxW or HxWx3, reference image.
+    labels : ndarray, HxW int, region id per pixel (0 = unchanged).
+    regions : list of ChangeRegion (their ids are drawn next to them).
+    valid : ndarray, HxW bool, optional; pixels outside are dimmed (not compared).
+
+    Returns
+    -------
+    ndarray, HxWx3 uint8 RGB.
+    """
+    rgb = to_display_rgb(image).astype(np.float32)
+    if valid is not None:
+        rgb[~valid] *= 0.35
+    changed = labels > 0
+    tint = np.array(CHANGE_RGB, np.float32)
+    rgb[changed] = 0.55 * rgb[changed] + 0.45 * tint
+    out = np.clip(rgb, 0, 255).astype(np.uint8)
+    contours, _ = cv2.findContours(changed.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    thickness = max(1, int(round(min(image.shape[:2]) / 500)))
+    cv2.drawContours(out, contours, -1, CHANGE_RGB, thickness)
+    scale = max(0.45, min(image.shape[:2]) / 900)
+    for region in regions:
+        x, y, w, h = region.bbox_xywh
+        text = str(region.id)
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 2)
+        tx = int(min(max(x + w + 2, 0), out.shape[1] - tw - 2))
+        ty = int(min(max(y + th, th + 2), out.shape[0] - 2))
+        cv2.putText(out, text, (tx, ty), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 4, cv2.LINE_AA)
+        cv2.putText(out, text, (tx, ty), cv2.FONT_HERSHEY_SIMPLEX, scale, LABEL_RGB, 2, cv2.LINE_AA)
+    return out
+
+
+def score_heatmap(score: np.ndarray, valid: np.ndarray, *, high: float | None = None) -> np.ndarray:
+    """Change score as an RGB heat map (magma), saturating at ``high`` (default: 99.9th percentile)."""
+    values = score[valid] if valid.any() else score.ravel()
+    top = high if high is not None and high > 0 else float(np.percentile(values, 99.9)) or 1.0
+    normalized = np.clip(score / top, 0.0, 1.0)
+    rgb = (plt.get_cmap("magma")(normalized)[:, :, :3] * 255).astype(np.uint8)
+    rgb[~valid] = (40, 40, 40)
+    return rgb
+
+
+def fdf_quiver_png(ref_image: np.ndarray, points_ref: np.ndarray, points_cur: np.ndarray, *, afd_px: float,
+                   inliers: int, method: str, max_arrows: int = 400) -> bytes:
+    """FDF quiver figure: displacement vectors drawn on the reference image, AFD in the title.
+
+    Arrows are magnified so that the median one is ~4 % of the image width; the
+    magnification is printed on the figure (a 2 px vector would be invisible otherwise).
+    """
+    rgb = to_display_rgb(ref_image)
+    h, w = rgb.shape[:2]
+    disp = points_cur - points_ref
+    if len(points_ref) > max_arrows:
+        keep = np.random.default_rng(0).choice(len(points_ref), max_arrows, replace=False)
+        pts, disp = points_ref[keep], disp[keep]
+    else:
+        pts = points_ref
+    lengths = np.linalg.norm(disp, axis=1)
+    median = float(np.median(lengths)) if lengths.size else 0.0
+    magnify = max(1.0, round(0.04 * w / median)) if median > 0 else 1.0
+    fig, ax = plt.subplots(figsize=(6.4, 6.4 * h / w))
+    ax.imshow(rgb, cmap="gray")
+    if len(pts):
+        ax.quiver(pts[:, 0], pts[:, 1], disp[:, 0] * magnify, disp[:, 1] * magnify, angles="xy", scale_units="xy",
+                  scale=1, color="#ffd400", width=0.004, headwidth=4)
+    ax.set_title(f"FDF ({method}): AFD = {afd_px:.2f} px, {inliers} vectors, arrows x{magnify:g}", fontsize=10)
+    ax.set_axis_off()
+    return _figure_png(fig)
+
+
+def convergence_png(log_rows: list[dict]) -> bytes:
+    """Relocation convergence curves (as rACR Fig. 8): AFD and pose error per adjustment.
+
+    Parameters
+    ----------
+    log_rows : list of dict
+        One per adjustment, keys among ``iteration``, ``t_wall_s``, ``afd_px`` /
+        ``afd_px_true``, ``pose_err_mm_true`` / ``pose_err_mm``, ``pose_err_deg_true`` / ``pose_err_deg``.
+    """
+    def series(*keys):
+        for key in keys:
+            values = [row.get(key) for row in log_rows]
+            if any(v is not None for v in values):
+                return key, np.array([np.nan if v is None else float(v) for v in values])
+        return None, None
+
+    iterations = np.array([row.get("iteration", i) for i, row in enumerate(log_rows)], dtype=float)
+    panels = [
+        (series("afd_px", "afd_px_true"), "AFD (px)", 3.0, "success AFD < 3 px"),
+        (series("pose_err_mm", "pose_err_mm_true"), "translation error (mm)", None, None),
+        (series("pose_err_deg", "pose_err_deg_true"), "rotation error (deg)", None, None),
+    ]
+    panels = [p for p in panels if p[0][0] is not None]
+    if not panels:
+        raise ValueError("relocation log has no AFD or pose error column")
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels), 3.0), squeeze=False)
+    for ax, ((key, values), ylabel, line, line_label) in zip(axes[0], panels):
+        ax.plot(iterations, values, "o-", color="#1f5fa8", markersize=3)
+        if line is not None:
+            ax.axhline(line, color="#c0392b", linestyle="--", linewidth=1, label=line_label)
+            ax.legend(fontsize=8)
+        ax.set_xlabel("adjustment")
+        ax.set_ylabel(ylabel + (" [simulator truth]" if key.endswith("_true") else ""), fontsize=8)
+        if np.nanmin(values) > 0 and np.nanmax(values) / max(np.nanmin(values), 1e-9) > 50:
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _figure_png(fig)
+
+
+def history_png(dates: list[str], changed_mm2: list[float | None], changed_px: list[int], afd_px: list[float | None]) -> bytes:
+    """Station history: changed area and AFD per visit."""
+    fig, ax = plt.subplots(figsize=(7.0, 2.8))
+    x = np.arange(len(dates))
+    use_mm2 = any(v is not None for v in changed_mm2)
+    area = [np.nan if v is None else v for v in (changed_mm2 if use_mm2 else changed_px)]
+    ax.bar(x, area, color="#c2185b", alpha=0.8)
+    ax.set_ylabel("changed area (mm²)" if use_mm2 else "changed area (px)", fontsize=9)
+    ax.set_xticks(x, dates, rotation=20, fontsize=7, ha="right")
+    ax2 = ax.twinx()
+    ax2.plot(x, [np.nan if v is None else v for v in afd_px], "o-", color="#1f5fa8")
+    ax2.set_ylabel("AFD after relocation (px)", fontsize=9, color="#1f5fa8")
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    return _figure_png(fig)

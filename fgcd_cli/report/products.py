@@ -1,0 +1,89 @@
+"""The files of one comparison (change maps, regions, report) as bytes, ready to write anywhere."""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import asdict
+
+import numpy as np
+
+from fgcd_cli.changes.detect import ChangeResult
+from fgcd_cli.metrics.afd import FdfResult
+from fgcd_cli.report.figures import change_overlay, fdf_quiver_png, png_bytes
+from fgcd_cli.report.html import render_diff_report
+
+SCORE_PNG_FULL_SCALE = 4.0
+"""``change_score.png`` maps score 0..(4 x detection threshold) to 0..65535 (recorded in regions.json)."""
+
+
+def result_summary(result: ChangeResult, fdf: FdfResult | None = None) -> dict:
+    """JSON-ready summary of a comparison (what ``regions.json`` holds)."""
+    reg = result.registration
+    summary = {
+        "comparable": result.comparable,
+        "reason": result.reason,
+        "frame": "reference image pixels (x right, y down)",
+        "changed_fraction": result.changed_fraction,
+        "compared_fraction": float(result.valid.mean()),
+        "regions": [asdict(r) for r in result.regions],
+        "registration": None if reg is None else {
+            "H_cur_ref": reg.H_cur_ref.tolist(), "ok": reg.ok, "reason": reg.reason, "init": reg.init,
+            "sift_inliers": reg.sift_inliers, "ecc_correlation": reg.ecc_correlation,
+            "overlap_fraction": reg.overlap_fraction, "settings": reg.settings,
+        },
+        "threshold": None if result.threshold is None else asdict(result.threshold),
+        "settings": result.settings,
+        "warnings": result.warnings,
+    }
+    if result.threshold is not None:
+        summary["change_score_png_scale"] = {
+            "full_scale_score": SCORE_PNG_FULL_SCALE * result.threshold.high,
+            "note": "change_score.png value v means score v / 65535 * full_scale_score",
+        }
+    if fdf is not None:
+        summary["afd"] = fdf.as_dict()
+    return summary
+
+
+def diff_products(
+    *,
+    ref_images: list[np.ndarray],
+    cur_images: list[np.ndarray],
+    result: ChangeResult,
+    fdf: FdfResult | None = None,
+    relocation_log: list[dict] | None = None,
+    metadata: dict | None = None,
+    title: str = "Change report",
+    subtitle: str = "",
+    shown_lighting: int = 0,
+) -> dict[str, bytes]:
+    """All output files of a comparison, by file name.
+
+    Returns a dict with ``change_score.png`` (16-bit), ``change_score.npy`` (float32),
+    ``change_mask.png`` (0/255), ``overlay.png``, ``regions.json``, ``report.html``
+    and, when ``fdf`` is given, ``fdf.png``.
+    """
+    files: dict[str, bytes] = {}
+    summary = result_summary(result, fdf)
+    if metadata:
+        summary["metadata"] = metadata
+    full_scale = SCORE_PNG_FULL_SCALE * result.threshold.high if result.threshold else 1.0
+    score16 = np.clip(result.score / full_scale * 65535.0 + 0.5, 0, 65535).astype(np.uint16)
+    files["change_score.png"] = png_bytes(score16)
+    buffer = io.BytesIO()
+    np.save(buffer, result.score.astype(np.float32))
+    files["change_score.npy"] = buffer.getvalue()
+    files["change_mask.png"] = png_bytes((result.mask * 255).astype(np.uint8))
+    ref_shown = ref_images[shown_lighting]
+    files["overlay.png"] = png_bytes(change_overlay(ref_shown, result.labels, result.regions, valid=result.valid if result.comparable else None))
+    files["regions.json"] = json.dumps(summary, indent=1, default=float).encode()
+    if fdf is not None:
+        files["fdf.png"] = fdf_quiver_png(ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px,
+                                          inliers=fdf.inliers, method=fdf.method)
+    files["report.html"] = render_diff_report(
+        ref_image=ref_shown, cur_image=cur_images[shown_lighting], result=result, fdf=fdf,
+        cur_registered=result.current_registered[shown_lighting] if result.current_registered else None,
+        relocation_log=relocation_log, metadata=metadata, title=title, subtitle=subtitle,
+    ).encode()
+    return files

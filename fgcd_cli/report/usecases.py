@@ -1,0 +1,229 @@
+"""Use cases behind ``fgcd diff`` and ``fgcd report``: load inputs, compare, write the products.
+
+Plain functions (no typer); the CLI parses options and renders what they return.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from fgcd_cli.campaign.atomic import atomic_write_bytes
+from fgcd_cli.changes import detect_changes
+from fgcd_cli.changes.images import to_float_image, to_gray
+from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
+from fgcd_cli.changes.regions import pixel_area_from_cloud
+from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
+from fgcd_cli.metrics.afd import FdfResult, compute_fdf
+from fgcd_cli.report.products import diff_products, result_summary
+
+Progress = Callable[[str], None] | None
+
+
+def _say(progress: Progress, message: str) -> None:
+    if progress is not None:
+        progress(message)
+
+
+def measure_fdf(ref_image: np.ndarray, cur_image: np.ndarray) -> FdfResult | None:
+    """FDF with the authors' SIFT protocol, falling back to the grid variant; None if both fail."""
+    ref = to_gray(to_float_image(ref_image, name="reference image"))
+    cur = to_gray(to_float_image(cur_image, name="current image"))
+    if ref.shape != cur.shape:
+        return None
+    for method in ("sift", "grid"):
+        try:
+            return compute_fdf(ref, cur, method=method)
+        except AlgorithmError:
+            continue
+    return None
+
+
+def _write_dir(output: Path, files: dict[str, bytes]) -> None:
+    output.mkdir(parents=True, exist_ok=True)
+    for name, data in files.items():
+        atomic_write_bytes(output / name, data)
+
+
+def run_bare(
+    ref: list[str],
+    cur: list[str],
+    output: Path,
+    *,
+    eval_mask: Path | None = None,
+    truth: Path | None = None,
+    mm_per_px: float | None = None,
+    register: bool = True,
+    progress: Progress = None,
+) -> dict:
+    """Compare image files (one per lighting) and write the products into ``output``."""
+    ref_paths = expand_image_args(ref, what="--ref")
+    cur_paths = expand_image_args(cur, what="--cur")
+    ref_images = [read_image(p) for p in ref_paths]
+    cur_images = [read_image(p) for p in cur_paths]
+    mask = read_mask(eval_mask) if eval_mask is not None else None
+    area = None
+    if mm_per_px is not None:
+        if not mm_per_px > 0:
+            raise UserInputError("--mm-per-px must be positive")
+        area = np.full(ref_images[0].shape[:2], mm_per_px**2)
+    _say(progress, f"comparing {len(ref_images)} lighting(s)…")
+    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register)
+    fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
+    metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
+    if mm_per_px is not None:
+        metadata["scale (mm per px)"] = mm_per_px
+    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, metadata=metadata,
+                          title="Change report", subtitle=f"{ref_paths[0].parent} — reference vs current")
+    _write_dir(output, files)
+    data = result_summary(result, fdf)
+    data["output"] = str(output)
+    if truth is not None:
+        from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores
+
+        truth_mask = read_mask(truth)
+        if truth_mask.shape != result.mask.shape:
+            raise UserInputError("--truth mask must have the reference image's size")
+        b = binary_scores(result.mask, truth_mask, eval_mask=mask)
+        s = sweep_scores(result.score, truth_mask, eval_mask=mask)
+        data["scores"] = {"precision": b.precision, "recall": b.recall, "f1": b.f1, "iou": b.iou,
+                          "best_f1": s.best_f1, "average_precision": s.average_precision}
+    return data
+
+
+def _shared_lightings(reference, visit) -> list[str]:
+    ref_names = list(reference.metadata.get("lightings") or reference.image_names())
+    visit_names = set(visit.image_names())
+    shared = [n for n in ref_names if n in visit_names and reference.has(f"images/{n}.png")]
+    if not shared:
+        raise CampaignError(
+            f"visit {visit.name} has no image with the reference's lightings ({', '.join(ref_names) or 'none'})"
+        )
+    return shared
+
+
+def _relocation_log(visit) -> list[dict] | None:
+    if not visit.has("relocation.jsonl"):
+        return None
+    rows = []
+    for line in visit.bytes("relocation.jsonl").decode("utf-8").splitlines():
+        if line.strip():
+            row = json.loads(line)
+            truth = row.pop("truth", None) or {}
+            rows.append({**row, **truth})
+    return rows or None
+
+
+def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
+    """mm² per reference pixel from the reference's metric cloud and camera, when stored."""
+    from fgcd_cli.geometry.camera import PinholeCamera
+
+    meta = reference.metadata
+    if not (reference.has("arrays/cloud_points.npy") and reference.has("arrays/T_ref_camref.npy") and meta.get("intrinsics")):
+        return None
+    camera = PinholeCamera.from_dict(meta["intrinsics"])
+    K = camera.K.copy()
+    if (camera.width, camera.height) != (shape[1], shape[0]):
+        K[0] *= shape[1] / camera.width
+        K[1] *= shape[0] / camera.height
+    area = pixel_area_from_cloud(reference.array("cloud_points"), reference.array("T_ref_camref"), K, shape)
+    return area if np.isfinite(area).any() else None
+
+
+def run_campaign(
+    campaign: Path,
+    station: str,
+    *,
+    visit: str | None = None,
+    eval_mask: Path | None = None,
+    mm_per_px: float | None = None,
+    register: bool = True,
+    output: Path | None = None,
+    progress: Progress = None,
+) -> dict:
+    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``)."""
+    from fgcd_cli.campaign import open_campaign
+
+    camp = open_campaign(campaign)
+    st = camp.station(station)
+    reference = st.reference()
+    observation = st.visit(visit)
+    lightings = _shared_lightings(reference, observation)
+    ref_images = [reference.image(n) for n in lightings]
+    cur_images = [observation.image(n) for n in lightings]
+    shape = ref_images[0].shape[:2]
+    if mm_per_px is not None:
+        area = np.full(shape, mm_per_px**2)
+        scale_note = f"{mm_per_px} mm per px (given)"
+    else:
+        area = _reference_pixel_area(reference, shape)
+        scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
+    mask = read_mask(eval_mask) if eval_mask is not None else None
+    _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
+    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register)
+    fdf = measure_fdf(ref_images[0], cur_images[0])
+    reloc = observation.metadata.get("relocation") or {}
+    metadata = {
+        "site": camp.site,
+        "station": station,
+        "visit": observation.name,
+        "lightings": lightings,
+        "metric scale": scale_note,
+        "relocation": reloc,
+    }
+    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf,
+                          relocation_log=_relocation_log(observation), metadata=metadata,
+                          title=f"Station {station}: change report",
+                          subtitle=f"{camp.site} · reference vs visit {observation.name}")
+    for name, data in files.items():
+        target = "report.html" if name == "report.html" else f"changes/{name}"
+        observation.add_derived(target, data)
+    if fdf is not None:
+        observation.add_derived("afd.json", json.dumps(fdf.as_dict(), indent=1).encode())
+    if output is not None:
+        _write_dir(output, files)
+    data = result_summary(result, fdf)
+    data["output"] = str(output or observation.path)
+    data["visit"] = observation.name
+    return data
+
+
+def station_history(campaign: Path, station: str, *, output: Path | None = None, progress: Progress = None) -> dict:
+    """Write a station's history report (every visit against the reference); compares visits not yet compared."""
+    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.report.figures import png_bytes, to_display_rgb
+    from fgcd_cli.report.html import VisitSummary, render_station_history
+
+    camp = open_campaign(campaign)
+    st = camp.station(station)
+    reference = st.reference()
+    summaries = []
+    for name in st.visit_names():
+        observation = st.visit(name)
+        if not observation.has("changes/regions.json"):
+            run_campaign(campaign, station, visit=name, progress=progress)
+            observation = st.visit(name)
+        summary = observation.json("changes/regions.json")
+        regions = summary.get("regions", [])
+        mm2 = [r.get("area_mm2") for r in regions]
+        summaries.append(VisitSummary(
+            name=name,
+            date=name,
+            comparable=bool(summary.get("comparable")),
+            reason=summary.get("reason", ""),
+            regions=len(regions),
+            changed_px=int(sum(r["area_px"] for r in regions)),
+            changed_mm2=float(sum(mm2)) if regions and all(v is not None for v in mm2) else (0.0 if not regions and summary.get("comparable") else None),
+            afd_px=(summary.get("afd") or {}).get("afd_px"),
+            overlay_png=observation.bytes("changes/overlay.png") if observation.has("changes/overlay.png") else None,
+        ))
+    lightings = list(reference.metadata.get("lightings") or reference.image_names())
+    reference_png = png_bytes(to_display_rgb(reference.image(lightings[0]))) if lightings else None
+    html_text = render_station_history(station=station, site=camp.site, reference_date=str(reference.manifest.get("created", "")),
+                                       reference_png=reference_png, visits=summaries)
+    target = output if output is not None else st.path / "history.html"
+    atomic_write_bytes(target, html_text.encode())
+    return {"station": station, "visits": [s.__dict__ | {"overlay_png": None} for s in summaries], "output": str(target)}

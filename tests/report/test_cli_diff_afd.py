@@ -1,0 +1,70 @@
+"""`fgcd diff` and `fgcd afd` in bare-image mode, through the console entry point."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from changes.conftest import textured_scene, translate  # noqa: E402
+
+FGCD = [sys.executable, "-c", "from fgcd_cli.cli.app import main; main()"]
+
+
+@pytest.fixture(scope="module")
+def image_files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("imgs")
+    ref = textured_scene(256)
+    changed = ref.copy()
+    cv2.circle(changed, (200, 60), 12, 0.95, -1)
+    cur = translate(changed, -1.4, 2.1)
+    for name, im in (("ref-1", ref), ("ref-2", ref * 0.7), ("cur-1", cur), ("cur-2", cur * 0.7)):
+        cv2.imwrite(str(folder / f"{name}.png"), np.round(im * 65535).astype(np.uint16))  # 16-bit input
+    cv2.imwrite(str(folder / "small.png"), (ref[:100] * 255).astype(np.uint8))
+    return folder
+
+
+def run(*args):
+    return subprocess.run([*FGCD, *args], capture_output=True, text=True, timeout=300)
+
+
+def test_diff_writes_all_outputs(image_files, tmp_path):
+    out = tmp_path / "out"
+    proc = run("diff", "--ref", str(image_files / "ref-*.png"), "--cur", str(image_files / "cur-*.png"),
+               "-o", str(out), "--mm-per-px", "0.1", "--json")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert data["comparable"] and data["settings"]["lightings"] == 2
+    assert data["regions"][0]["area_mm2"] == pytest.approx(data["regions"][0]["area_px"] * 0.01)
+    cx, cy = data["regions"][0]["centroid_xy"]
+    assert abs(cx - 200) < 3 and abs(cy - 60) < 3  # reference frame, not the current one
+    for name in ("change_score.png", "change_score.npy", "change_mask.png", "overlay.png", "regions.json", "report.html"):
+        assert (out / name).stat().st_size > 0
+    assert cv2.imread(str(out / "change_score.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint16
+    assert np.load(out / "change_score.npy").shape == (256, 256)
+
+
+def test_diff_size_mismatch_is_one_line(image_files, tmp_path):
+    proc = run("diff", "--ref", str(image_files / "ref-1.png"), "--cur", str(image_files / "small.png"), "-o", str(tmp_path))
+    assert proc.returncode == 2
+    assert "same size" in proc.stderr and "Traceback" not in proc.stderr
+    assert sum(line.startswith("error:") for line in proc.stderr.splitlines()) == 1
+
+
+def test_diff_missing_file(tmp_path):
+    proc = run("diff", "--ref", str(tmp_path / "nope.png"), "--cur", str(tmp_path / "nope.png"), "-o", str(tmp_path))
+    assert proc.returncode == 2 and "not found" in proc.stderr
+
+
+def test_afd_json_and_figure(image_files, tmp_path):
+    fig = tmp_path / "q.png"
+    proc = run("afd", str(image_files / "ref-1.png"), str(image_files / "cur-1.png"), "-o", str(fig), "--json")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert data["afd_px"] == pytest.approx(np.hypot(1.4, 2.1), abs=0.15)
+    assert data["settings"]["ratio"] == 0.75 and data["inliers"] > 20
+    assert cv2.imread(str(fig)) is not None
