@@ -36,6 +36,11 @@ def _register() -> None:
     from fgcd_cli.cli import campaign_cmd
 
     app.add_typer(campaign_cmd.app, name="campaign")
+    from fgcd_cli.cli import afd_cmd, diff_cmd, report_cmd
+
+    app.command(name="afd")(afd_cmd.afd)
+    app.command(name="diff", help=diff_cmd.HELP)(diff_cmd.diff)
+    app.command(name="report")(report_cmd.report)
 
 
 _register()
