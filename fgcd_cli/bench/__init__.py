@@ -1,0 +1,1 @@
+"""Experiment harness: ``fgcd bench NAME`` runs ``fgcd_cli.bench.NAME.run(quick=...)``."""

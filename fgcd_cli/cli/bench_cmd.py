@@ -1,0 +1,42 @@
+"""``fgcd bench NAME``: benchmarks; each prints a JSON-able dict with a ``summary``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from fgcd_cli.cli.output import emit, info
+
+app = typer.Typer(help="Benchmarks reproducing the papers' measurements.", no_args_is_help=True)
+
+
+@app.command("changes")
+def changes(
+    quick: bool = typer.Option(False, "--quick", help="Fewer lightings and pairs."),
+    overlays: Optional[Path] = typer.Option(None, "--overlays", help="Write sample overlays (PNG) into this folder."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Fine-grained change detection: real FGCD dataset (Db-1..5) and simulated pairs."""
+    from fgcd_cli.bench.changes import run
+
+    if not as_json:
+        info("running the change-detection benchmark…")
+    data = run(quick=quick, overlay_dir=overlays)
+
+    def render(console):
+        real = data["real"]
+        if real.get("available"):
+            for g in real["groups"]:
+                console.print(f"{g['group']}: best F1 {g['best_f1']:.3f}  AP {g['ap']:.3f}  auto F1 {g['auto_f1']:.3f} "
+                              f"(P {g['auto_precision']:.2f} R {g['auto_recall']:.2f})  {g['seconds']:.1f} s")
+        else:
+            console.print(f"real dataset: {real.get('reason')}")
+        if data["sim"] and not data["sim"].get("available"):
+            console.print(f"simulated part: {data['sim'].get('reason')}")
+        for key, value in data["summary"].items():
+            target = data["targets"].get(key)
+            console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target ≥ {target})" if target else ""))
+
+    emit(data, as_json=as_json, render=render)
