@@ -41,6 +41,9 @@ def _register() -> None:
     app.command(name="afd")(afd_cmd.afd)
     app.command(name="diff", help=diff_cmd.HELP)(diff_cmd.diff)
     app.command(name="report")(report_cmd.report)
+    from fgcd_cli.cli import bench_cmd
+
+    app.add_typer(bench_cmd.app, name="bench")
 
 
 _register()
