@@ -1,0 +1,270 @@
+"""Fast scale-aware alignment (rACR §3.4.2, Eqs. 12–15).
+
+Alternates a robust rigid step (sparse ICP, Eq. 13) with the closed-form scale
+step (Eq. 15) until the change of the rigid part is below ``tau_T`` and the
+change of the scale below ``tau_sigma``. Two measures keep it from collapsing
+(similarity ICP shrinks the scale when started without a prior):
+
+* the scale starts from a prior (the given ``init``, or the ratio of RMS radii),
+  and the first, widest correspondence level estimates only R and t;
+* coarse-to-fine: few points with unbounded correspondences first, then more
+  points with shrinking correspondence radii.
+
+The scale step is Eq. (15) with the translation re-solved jointly (weighted
+centroids), over the correspondences that sparse ICP kept as inliers and within
+``trim_factor`` times the median residual, weighted by the caller's per-point
+confidence: Umeyama-type scale estimates are biased low when the source cloud is
+noisy, and trimming/weighting keep that bias at the noise-variance level.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcd_cli.alignment.health import assess, residual_stats
+from fgcd_cli.alignment.reference import ReferenceIndex
+from fgcd_cli.alignment.results import AlignmentHealth, AlignmentResult, ResidualStats
+from fgcd_cli.alignment.sparse_icp import (
+    scale_step_point_to_plane,
+    sparse_point_to_plane_step,
+    sparse_point_to_point_step,
+    trimmed_point_to_plane_step,
+)
+from fgcd_cli.geometry import Sim3, make_pose
+
+__all__ = ["FastAlignConfig", "fast_align", "initial_scale", "as_reference"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class FastAlignConfig:
+    """Options of :func:`fast_align`.
+
+    Distances given as ``*_rel`` are fractions of the reference cloud's width.
+    """
+
+    tau_T: float = 1e-4
+    """Stop when ``|dT - I|_F`` of the rigid part (metres/radians) falls below this..."""
+    tau_sigma: float = 1e-5
+    """...and the scale changes by less than this."""
+    estimate_scale: bool = True
+    """False keeps the initial scale (the paper's rACR-S ablation)."""
+    robust: str = "sparse"
+    """Rigid step: ``"sparse"`` (sparse ICP, ADMM) or ``"trimmed"`` (trimmed least squares)."""
+    sparse_p: float = 0.4
+    admm_iterations: int = 3
+    level_points: tuple[int, ...] = (1500, 5000, 20000)
+    """Current points used at each resolution level (random subset)."""
+    level_radius_rel: tuple[float, ...] = (math.inf, 0.2, 0.06)
+    """Largest correspondence distance at each level."""
+    level_iterations: tuple[int, ...] = (60, 20, 40)
+    level_metric: tuple[str, ...] = ("point", "plane", "plane")
+    """ICP error per level: ``"point"`` (wide basin) or ``"plane"`` (fast convergence)."""
+    scale_from_level: int = 1
+    """First level at which the scale step runs (the widest level estimates R, t only)."""
+    max_scale_step: float = 0.02
+    """Largest relative scale change per iteration."""
+    inlier_factor: float = 3.0
+    """Working inlier distance: this times the median correspondence distance."""
+    min_inlier_spacing: float = 2.0
+    """...but never below this many reference point spacings."""
+    trim_factor: float = 3.0
+    inlier_rel: float = 0.01
+    """Health: a current point is an inlier if within this fraction of the width (>= 3 spacings).
+    Assumes the current cloud's noise is below about half of it; a mirrored or
+    wrongly registered relief leaves about half of its points beyond it."""
+    overlap_rel: float = 0.05
+    min_inlier_ratio: float = 0.6
+    min_overlap: float = 0.3
+    min_condition_ratio: float = 2e-3
+    scale_bounds: tuple[float, float] = (1 / 1.5, 1.5)
+    """Health: allowed range of the result's scale relative to the initial scale."""
+    seed: int = 0
+
+
+def as_reference(ref_points: np.ndarray | ReferenceIndex) -> ReferenceIndex:
+    """Wrap an (M, 3) array into a :class:`ReferenceIndex` (reuse one across calls instead)."""
+    return ref_points if isinstance(ref_points, ReferenceIndex) else ReferenceIndex(ref_points)
+
+
+def initial_scale(cur_points: np.ndarray, ref: ReferenceIndex) -> Sim3:
+    """Similarity prior without pose knowledge: centroids and the ratio of RMS radii.
+
+    Valid when the two clouds cover the same part of the scene; the relocation
+    loop normally has a better prior (:func:`~fgcd_cli.alignment.initial_guess`).
+    """
+    c = cur_points.mean(axis=0)
+    rms = float(np.sqrt(np.mean(np.sum((cur_points - c) ** 2, axis=1))))
+    scale = ref.rms_radius / rms if rms > 0 else 1.0
+    return Sim3(np.eye(3), ref.centroid - scale * c, scale)
+
+
+def fast_align(
+    cur_points: np.ndarray,
+    ref_points: np.ndarray | ReferenceIndex,
+    *,
+    init: Sim3 | None = None,
+    cur_weights: np.ndarray | None = None,
+    config: FastAlignConfig = FastAlignConfig(),
+) -> AlignmentResult:
+    """Similarity ``T_ref_cur`` registering the current cloud to the reference cloud.
+
+    Parameters
+    ----------
+    cur_points : (N, 3) ndarray
+        Current session's cloud in its map frame (metric up to the session scale error).
+    ref_points : (M, 3) ndarray or ReferenceIndex
+        Reference cloud, metres; pass a :class:`ReferenceIndex` built once to
+        avoid rebuilding the KD-tree on every call.
+    init : Sim3, optional
+        Prior ``T_ref_cur`` (e.g. from :func:`~fgcd_cli.alignment.initial_guess` or the
+        previous alignment); without it, centroids and RMS radii give the prior.
+    cur_weights : (N,) ndarray, optional
+        Confidence of each current point (e.g. inverse depth variance).
+    config : FastAlignConfig
+
+    Returns
+    -------
+    AlignmentResult
+        Never raises on bad geometry: check ``result.health.ok``.
+    """
+    t0 = time.perf_counter()
+    cur = np.asarray(cur_points, dtype=float)
+    if cur.ndim != 2 or cur.shape[1] != 3:
+        raise ValueError(f"current points must be (N, 3), got {cur.shape}")
+    finite = np.all(np.isfinite(cur), axis=1)
+    weights_all = None if cur_weights is None else np.asarray(cur_weights, dtype=float).reshape(-1)
+    if weights_all is not None:
+        if len(weights_all) != len(cur):
+            raise ValueError("cur_weights must have one value per current point")
+        finite &= np.isfinite(weights_all) & (weights_all > 0)
+    cur = cur[finite]
+    if weights_all is not None:
+        weights_all = weights_all[finite]
+    ref = as_reference(ref_points)
+    T = initial_scale(cur, ref) if init is None else init
+    if len(cur) < 10:
+        return _failed(T, "fewer than 10 valid current points", t0)
+
+    rng = np.random.default_rng(config.seed)
+    order = rng.permutation(len(cur))
+    R, t, s = T.R, T.t, T.scale
+    s_prior = s
+    iterations = 0
+    converged = False
+    r_floor = config.min_inlier_spacing * ref.spacing
+    normals = ref.normals
+    n_levels = len(config.level_points)
+    for level in range(n_levels):
+        sel = order[: config.level_points[level]]
+        x = cur[sel]
+        w_pts = None if weights_all is None else weights_all[sel]
+        r_max = config.level_radius_rel[level] * ref.width
+        last = level == n_levels - 1
+        tol_T = config.tau_T if last else 10 * config.tau_T
+        tol_s = config.tau_sigma if last else 10 * config.tau_sigma
+        level_converged = False
+        for _ in range(config.level_iterations[level]):
+            iterations += 1
+            y = s * (x @ R.T) + t
+            d, idx = ref.nearest(y, max_distance=r_max)
+            valid = np.isfinite(d)
+            if np.count_nonzero(valid) < 10:
+                return _failed(Sim3(R, t, s), "lost the correspondences (fewer than 10 within range)", t0, iterations)
+            dv = d[valid]
+            r_in = float(np.clip(config.inlier_factor * np.median(dv), r_floor, r_max))
+            q = ref.points[idx[valid]]
+            nq = normals[idx[valid]]
+            wv = None if w_pts is None else w_pts[valid]
+            R_old, t_old, s_old = R, t, s
+            if config.level_metric[level] == "point":
+                dT, inl = sparse_point_to_point_step(
+                    y[valid], q, inlier_distance=r_in, p=config.sparse_p,
+                    admm_iterations=config.admm_iterations, weights=wv,
+                )
+            elif config.robust == "sparse":
+                dT, inl = sparse_point_to_plane_step(
+                    y[valid], q, nq, inlier_distance=r_in, p=config.sparse_p,
+                    admm_iterations=config.admm_iterations, weights=wv,
+                )
+            elif config.robust == "trimmed":
+                # Trimmed least squares: drop correspondences beyond the working inlier distance.
+                inl = dv < r_in
+                w = inl.astype(float) if wv is None else inl * wv
+                dT = trimmed_point_to_plane_step(y[valid], q, nq, weights=w)
+            else:
+                raise ValueError(f"unknown robust method {config.robust!r}")
+            R = dT[:3, :3] @ R
+            t = dT[:3, :3] @ t + dT[:3, 3]
+            if config.estimate_scale and level >= config.scale_from_level:
+                a = x[valid] @ R.T
+                e = np.abs(np.sum(nq * (s * a + t - q), axis=1))
+                med = float(np.median(e[inl])) if np.any(inl) else r_in
+                use = inl & (e < config.trim_factor * max(med, 1e-12))
+                if np.count_nonzero(use) >= 10:
+                    w = use.astype(float) if wv is None else use * wv
+                    s_new, t_new = scale_step_point_to_plane(a, q, nq, w)
+                    if s_new > 0 and math.isfinite(s_new):
+                        # Least-squares scale is attenuated (biased low) while the
+                        # correspondences are poor; bounding each step stops a collapse
+                        # from running away before R, t have caught up.
+                        s_clip = float(np.clip(s_new, s * (1 - config.max_scale_step), s * (1 + config.max_scale_step)))
+                        if s_clip != s_new:
+                            t_new = t_new + (s_new - s_clip) * (a.T @ w) / w.sum()
+                        s, t = s_clip, t_new
+            dT = make_pose(R, t) @ np.linalg.inv(make_pose(R_old, t_old))
+            if np.linalg.norm(dT - np.eye(4)) <= tol_T and abs(s - s_old) <= tol_s:
+                level_converged = True
+                break
+        converged = level_converged
+    T = Sim3(R, t, s)
+    return _finish(T, cur, ref, config, converged, iterations, t0, scale_prior=s_prior)
+
+
+def _finish(
+    T: Sim3, cur, ref: ReferenceIndex, config: FastAlignConfig, converged, iterations, t0, *, scale_prior: float
+) -> AlignmentResult:
+    inlier_thr = max(config.inlier_rel * ref.width, 3 * ref.spacing)
+    overlap_thr = max(config.overlap_rel * ref.width, 5 * ref.spacing)
+    d, idx = ref.nearest(T.apply(cur), max_distance=overlap_thr)
+    inl = d < inlier_thr
+    matched = idx[inl]
+    if len(matched) > 5000:
+        matched = matched[:: len(matched) // 5000 + 1]
+    health = assess(
+        distances=d,
+        matched_points=ref.points[matched],
+        matched_normals=ref.normals[matched],
+        converged=converged,
+        inlier_threshold=inlier_thr,
+        overlap_threshold=overlap_thr,
+        min_inlier_ratio=config.min_inlier_ratio,
+        min_overlap=config.min_overlap,
+        min_condition_ratio=config.min_condition_ratio,
+        scale=T.scale / scale_prior,
+        scale_bounds=config.scale_bounds,
+    )
+    return AlignmentResult(
+        T_ref_cur=T,
+        residuals=residual_stats(d, inlier_threshold=inlier_thr),
+        health=health,
+        iterations=iterations,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _failed(T: Sim3, reason: str, t0: float, iterations: int = 0) -> AlignmentResult:
+    nan = float("nan")
+    return AlignmentResult(
+        T_ref_cur=T,
+        residuals=ResidualStats(count=0, rms_mm=nan, median_mm=nan, inlier_threshold_mm=nan),
+        health=AlignmentHealth(
+            ok=False, reason=reason, converged=False, overlap=0.0, inlier_ratio=0.0,
+            condition_ratio=0.0, degenerate=False,
+        ),
+        iterations=iterations,
+        seconds=time.perf_counter() - t0,
+    )

@@ -1,0 +1,145 @@
+"""Self-checks of an alignment: overlap, inliers and geometric conditioning.
+
+A plane leaves in-plane translation and the rotation about its normal free; a
+sphere leaves every rotation about its centre free. Such clouds give a
+confident-looking ICP answer that is arbitrary along those directions, so the
+conditioning of the point-to-plane problem is checked explicitly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fgcd_cli.alignment.results import AlignmentHealth, ResidualStats
+
+__all__ = ["similarity_conditioning", "residual_stats", "assess"]
+
+_PARAM_NAMES = ("tx", "ty", "tz", "rx", "ry", "rz", "scale")
+
+
+def similarity_conditioning(points: np.ndarray, normals: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Eigen-decomposition of the normalised point-to-plane Hessian of a similarity.
+
+    Each matched reference point ``q`` with normal ``n`` contributes the row
+    ``[n, (q'/L) x n, n . q'/L]`` (``q' = q - centroid``, ``L`` the RMS radius),
+    the derivative of its point-to-plane residual with respect to translation
+    (in units of ``L``), rotation and log-scale. Normalising by ``L`` makes the
+    eigenvalues comparable and independent of units.
+
+    Parameters
+    ----------
+    points : (N, 3) ndarray
+        Matched reference points, metres.
+    normals : (N, 3) ndarray
+        Their unit normals.
+
+    Returns
+    -------
+    condition_ratio : float
+        Smallest over largest eigenvalue, in [0, 1].
+    eigenvalues : (7,) ndarray
+        Ascending.
+    eigenvectors : (7, 7) ndarray
+        Columns, in the order ``(tx, ty, tz, rx, ry, rz, scale)``.
+    """
+    q = np.asarray(points, dtype=float)
+    n = np.asarray(normals, dtype=float)
+    if len(q) < 7:
+        return 0.0, np.zeros(7), np.eye(7)
+    c = q.mean(axis=0)
+    L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, axis=1))))
+    if L <= 0:
+        return 0.0, np.zeros(7), np.eye(7)
+    qn = (q - c) / L
+    J = np.column_stack([n, np.cross(qn, n), np.sum(n * qn, axis=1)])
+    H = J.T @ J / len(q)
+    w, V = np.linalg.eigh(H)
+    w = np.clip(w, 0.0, None)
+    ratio = float(w[0] / w[-1]) if w[-1] > 0 else 0.0
+    return ratio, w, V
+
+
+def weak_direction_names(eigenvalues: np.ndarray, eigenvectors: np.ndarray, *, limit: float) -> tuple[str, ...]:
+    """Describe the eigenvectors whose eigenvalue is below ``limit`` times the largest."""
+    names = []
+    for k in range(len(eigenvalues)):
+        if eigenvalues[k] >= limit * eigenvalues[-1]:
+            break
+        v = eigenvectors[:, k]
+        parts = [f"{_PARAM_NAMES[i]}:{v[i]:+.2f}" for i in np.argsort(-np.abs(v))[:3] if abs(v[i]) > 0.2]
+        names.append(" ".join(parts))
+    return tuple(names)
+
+
+def residual_stats(distances: np.ndarray, *, inlier_threshold: float) -> ResidualStats:
+    """Residual statistics in millimetres from point distances in metres."""
+    d = np.asarray(distances, dtype=float)
+    d = d[np.isfinite(d)]
+    inl = d[d < inlier_threshold]
+    if len(inl) == 0:
+        return ResidualStats(count=len(d), rms_mm=float("nan"), median_mm=float("nan"),
+                             inlier_threshold_mm=inlier_threshold * 1e3)
+    return ResidualStats(
+        count=len(d),
+        rms_mm=float(np.sqrt(np.mean(inl**2)) * 1e3),
+        median_mm=float(np.median(inl) * 1e3),
+        inlier_threshold_mm=inlier_threshold * 1e3,
+    )
+
+
+def assess(
+    *,
+    distances: np.ndarray,
+    matched_points: np.ndarray,
+    matched_normals: np.ndarray,
+    converged: bool,
+    inlier_threshold: float,
+    overlap_threshold: float,
+    min_inlier_ratio: float,
+    min_overlap: float,
+    min_condition_ratio: float,
+    scale: float,
+    scale_bounds: tuple[float, float],
+) -> AlignmentHealth:
+    """Combine the checks into one :class:`AlignmentHealth`.
+
+    Parameters
+    ----------
+    distances : (N,) ndarray
+        Distance of every current point to its nearest reference point after
+        alignment, metres (``inf`` when none within the search radius).
+    matched_points, matched_normals : (K, 3) ndarray
+        Reference points (and normals) matched by inliers, for the conditioning.
+    scale : float
+        Result scale relative to the prior; must lie within ``scale_bounds``.
+    """
+    d = np.asarray(distances, dtype=float)
+    n = max(1, len(d))
+    overlap = float(np.count_nonzero(d < overlap_threshold) / n)
+    inlier_ratio = float(np.count_nonzero(d < inlier_threshold) / n)
+    ratio, w, V = similarity_conditioning(matched_points, matched_normals)
+    degenerate = ratio < min_condition_ratio
+    weak = weak_direction_names(w, V, limit=min_condition_ratio) if degenerate else ()
+    problems = []
+    if not converged:
+        problems.append("did not converge")
+    if overlap < min_overlap:
+        problems.append(f"overlap {overlap:.0%} < {min_overlap:.0%}")
+    if inlier_ratio < min_inlier_ratio:
+        problems.append(f"inlier ratio {inlier_ratio:.0%} < {min_inlier_ratio:.0%}")
+    if degenerate:
+        problems.append(
+            f"degenerate geometry (condition {ratio:.1e} < {min_condition_ratio:.0e}; weak: {'; '.join(weak)})"
+        )
+    if not (scale_bounds[0] <= scale <= scale_bounds[1]):
+        problems.append(f"scale changed by a factor {scale:.3f}, outside [{scale_bounds[0]:.3f}, {scale_bounds[1]:.3f}]")
+    return AlignmentHealth(
+        ok=not problems,
+        reason="ok" if not problems else "; ".join(problems),
+        converged=converged,
+        overlap=overlap,
+        inlier_ratio=inlier_ratio,
+        condition_ratio=ratio,
+        degenerate=degenerate,
+        weak_directions=weak,
+    )
