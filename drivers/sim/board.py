@@ -1,0 +1,258 @@
+"""A ChArUco calibration board in the simulated world.
+
+Two uses:
+
+- :func:`board_mesh_part` / :func:`add_board_to_scene`: the board as a textured
+  plane of a :class:`drivers.sim.scene.Scene`, so the simulated rig camera sees
+  it through the scene renderer (hand-eye with a target);
+- :func:`render_board_view`: an exact ray-cast image of the board alone for a
+  camera with given intrinsics and distortion (intrinsic calibration views and
+  tests). Every pixel's ray is undistorted with OpenCV and intersected with the
+  board plane, supersampled to avoid aliasing.
+
+Board frame (OpenCV's ChArUco convention): origin at the outer corner of the
+first square, x along a row of squares, y down the columns, z into the board;
+metres. The board is described by plain numbers (no ``fgcd_cli`` import).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from drivers.sim.meshes import MeshPart, quad
+from drivers.sim.scene import Scene
+
+__all__ = [
+    "SimBoard",
+    "board_texture",
+    "board_mesh_part",
+    "add_board_to_scene",
+    "render_board_view",
+    "random_board_poses",
+    "BOARD_LABEL",
+]
+
+#: Label of the board in the renderer's label buffer.
+BOARD_LABEL = 50
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimBoard:
+    """ChArUco board geometry (same fields as ``fgcd_cli.calibration.board.BoardSpec``)."""
+
+    squares_x: int = 10
+    squares_y: int = 7
+    square_m: float = 0.025
+    marker_m: float = 0.018
+    dictionary: str = "DICT_5X5_100"
+    margin_m: float = 0.01
+
+    def cv_board(self):
+        """OpenCV board object."""
+        return cv2.aruco.CharucoBoard(
+            (self.squares_x, self.squares_y),
+            self.square_m,
+            self.marker_m,
+            cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)),
+        )
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """Board size without margin (width, height), metres."""
+        return self.squares_x * self.square_m, self.squares_y * self.square_m
+
+
+def board_texture(board: SimBoard, *, px_per_square: int = 64) -> tuple[np.ndarray, float, float]:
+    """Board albedo with its white margin.
+
+    Returns
+    -------
+    texture : (H, W) float32 ndarray
+        Albedo in [0, 1] (black 0.04, white 0.9, like matte print).
+    m_per_px : float
+        Size of one texture pixel on the board, metres.
+    margin_m : float
+        The margin actually drawn (a whole number of texture pixels), metres.
+    """
+    m_per_px = board.square_m / px_per_square
+    margin_px = int(round(board.margin_m / m_per_px))
+    w = board.squares_x * px_per_square + 2 * margin_px
+    h = board.squares_y * px_per_square + 2 * margin_px
+    img = board.cv_board().generateImage((w, h), marginSize=margin_px, borderBits=1)
+    tex = 0.04 + (0.9 - 0.04) * (img.astype(np.float32) / 255.0)
+    return tex, m_per_px, margin_px * m_per_px
+
+
+def board_mesh_part(board: SimBoard, T_world_board: np.ndarray, *, px_per_square: int = 64) -> MeshPart:
+    """The board (with margin) as a textured quad placed at ``T_world_board``.
+
+    The texture's first row lies along the board's -y edge; texture coordinates
+    run 0..1 across the quad (u along board x, v along board y).
+    """
+    tex, _, margin_m = board_texture(board, px_per_square=px_per_square)
+    T = np.asarray(T_world_board, dtype=float)
+    w, h = board.size_m
+    w += 2 * margin_m
+    h += 2 * margin_m
+    origin = T[:3, :3] @ np.array([-margin_m, -margin_m, 0.0]) + T[:3, 3]
+    vertices, triangles, tri_uv = quad(origin=origin, axis_u=T[:3, 0], axis_v=T[:3, 1], size_u=w, size_v=h)
+    return MeshPart(
+        name="charuco_board",
+        label=BOARD_LABEL,
+        vertices=vertices,
+        triangles=triangles,
+        tri_uv=tri_uv,
+        texture=np.repeat(tex[:, :, None], 3, axis=2),
+        texel_size_m=board.square_m / px_per_square,
+        smooth=False,
+    )
+
+
+def add_board_to_scene(scene: Scene, board: SimBoard, T_world_board: np.ndarray) -> Scene:
+    """Append the board to ``scene.parts`` (in place) and return the scene."""
+    scene.parts.append(board_mesh_part(board, T_world_board))
+    return scene
+
+
+def render_board_view(
+    board: SimBoard,
+    T_cam_board: np.ndarray,
+    *,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    dist=(0.0, 0.0, 0.0, 0.0, 0.0),
+    noise_sigma: float = 1.5 / 255.0,
+    blur_sigma_px: float = 0.6,
+    background: float = 0.45,
+    supersample: int = 3,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
+    """Grayscale uint8 image of the board seen by a pinhole camera with distortion.
+
+    Parameters
+    ----------
+    board : SimBoard
+        Board geometry.
+    T_cam_board : (4, 4) ndarray
+        Board pose in the camera frame (OpenCV camera axes), metres.
+    fx, fy, cx, cy, width, height, dist
+        True intrinsics and OpenCV distortion ``(k1, k2, p1, p2, k3)``.
+    noise_sigma : float
+        Gaussian sensor noise, in [0, 1] intensity units.
+    blur_sigma_px : float
+        Optical blur (Gaussian), pixels.
+    background : float
+        Intensity around the board.
+    supersample : int
+        Rays per pixel along each axis (anti-aliasing).
+    rng : numpy Generator, optional
+        Noise source.
+
+    Returns
+    -------
+    (height, width) uint8 ndarray
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    tex, m_per_px, margin_m = board_texture(board)
+    ss = int(supersample)
+    us = (np.arange(width * ss) + 0.5) / ss - 0.5
+    vs = (np.arange(height * ss) + 0.5) / ss - 0.5
+    uu, vv = np.meshgrid(us, vs)
+    pix = np.stack([uu.ravel(), vv.ravel()], axis=1).reshape(-1, 1, 2)
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    dist = np.asarray(dist, dtype=float)
+    if np.any(dist != 0):
+        xy = cv2.undistortPointsIter(
+            pix, K, dist, None, None, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-9)
+        ).reshape(-1, 2)
+    else:
+        xy = np.column_stack([(pix[:, 0, 0] - cx) / fx, (pix[:, 0, 1] - cy) / fy])
+    # Plane z_board = 0: normalised (x, y, 1) ~ [r1 r2 t] (bx, by, 1); invert that homography.
+    T = np.asarray(T_cam_board, dtype=float)
+    H = np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]])
+    rays = np.column_stack([xy, np.ones(len(xy))])
+    b = rays @ np.linalg.inv(H).T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bx = b[:, 0] / b[:, 2]
+        by = b[:, 1] / b[:, 2]
+    # Depth along the ray must be positive (1 / b_z > 0 when H is built from a visible plane).
+    front = b[:, 2] > 0
+    map_x = ((bx + margin_m) / m_per_px - 0.5).astype(np.float32)
+    map_y = ((by + margin_m) / m_per_px - 0.5).astype(np.float32)
+    map_x[~front] = -1e6
+    map_y[~front] = -1e6
+    sampled = cv2.remap(
+        tex,
+        map_x.reshape(height * ss, width * ss),
+        map_y.reshape(height * ss, width * ss),
+        interpolation=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=float(background),
+    )
+    img = cv2.resize(sampled, (width, height), interpolation=cv2.INTER_AREA)
+    if blur_sigma_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur_sigma_px)
+    img = img + rng.normal(0.0, noise_sigma, img.shape).astype(np.float32)
+    return np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def random_board_poses(
+    board: SimBoard,
+    n: int,
+    *,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    distance_m: tuple[float, float] = (0.3, 0.6),
+    max_tilt_deg: float = 40.0,
+    rng: np.random.Generator | None = None,
+) -> list[np.ndarray]:
+    """Board poses ``T_cam_board`` covering the image (centre, edges, corners) with varied tilts.
+
+    Each pose puts the board centre on the ray of a pixel drawn on a 3 x 3 grid
+    of image regions in turn, at a random distance, tilted up to ``max_tilt_deg``
+    about a random in-plane axis and rolled up to 30 degrees; poses whose board
+    would be less than half visible are redrawn.
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    w_m, h_m = board.size_m
+    centre_local = np.array([w_m / 2, h_m / 2, 0.0])
+    corners_local = np.array([[0, 0, 0], [w_m, 0, 0], [0, h_m, 0], [w_m, h_m, 0.0]])
+    poses: list[np.ndarray] = []
+    attempts = 0
+    while len(poses) < n:
+        attempts += 1
+        if attempts > 200 * max(n, 1):
+            raise RuntimeError("could not place the board in view; the camera field is too narrow")
+        cell = len(poses) % 9
+        gx, gy = cell % 3, cell // 3
+        u = (gx + rng.uniform(0.2, 0.8)) / 3 * width
+        v = (gy + rng.uniform(0.2, 0.8)) / 3 * height
+        z = rng.uniform(*distance_m)
+        centre = np.array([(u - cx) / fx * z, (v - cy) / fy * z, z])
+        axis = np.array([np.cos(a := rng.uniform(0, 2 * np.pi)), np.sin(a), 0.0])
+        tilt = np.radians(rng.uniform(10.0, max_tilt_deg)) if len(poses) % 4 else np.radians(rng.uniform(0, 15))
+        R = cv2.Rodrigues(axis * tilt)[0] @ cv2.Rodrigues(np.array([0, 0, np.radians(rng.uniform(-30, 30))]))[0]
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = centre - R @ centre_local
+        pc = corners_local @ R.T + T[:3, 3]
+        if np.any(pc[:, 2] < 0.05):
+            continue
+        pu = fx * pc[:, 0] / pc[:, 2] + cx
+        pv = fy * pc[:, 1] / pc[:, 2] + cy
+        inside = (pu >= 0) & (pu < width) & (pv >= 0) & (pv < height)
+        if inside.sum() < 2:
+            continue
+        poses.append(T)
+    return poses
