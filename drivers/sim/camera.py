@@ -1,0 +1,112 @@
+"""Simulated camera: renders the world at the true pose of the camera on the platform.
+
+Its true intrinsics (focal lengths, principal point, distortion) may differ from
+the nominal ones it advertises; calibration has to find them.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from drivers.cameras import CameraIntrinsics, Frame
+from drivers.sim.render import CameraEffects
+from drivers.sim.world import SimLights, SimWorld
+
+__all__ = ["SimCamera", "DEFAULT_INTRINSICS", "perturbed_intrinsics", "DEFAULT_EFFECTS"]
+
+#: Nominal 640x480 camera with a ~56 deg horizontal field of view.
+DEFAULT_INTRINSICS = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
+
+#: A realistic small sensor: vignetting, read and shot noise, gamma.
+DEFAULT_EFFECTS = CameraEffects(gamma=2.2, vignetting=0.15, read_noise=0.002, shot_noise=0.006, max_exposure=32.0)
+
+
+def perturbed_intrinsics(nominal: CameraIntrinsics, level: str | float, rng: np.random.Generator) -> CameraIntrinsics:
+    """True intrinsics differing from ``nominal``.
+
+    ``level``: ``"none"``, ``"default"`` (focal ~1 %, principal point ~4 px, mild
+    radial distortion k1 ~ -0.05), ``"large"`` (3 %, 10 px, k1 ~ -0.15), or a float
+    scaling the default.
+    """
+    if level == "none" or level == 0:
+        return nominal
+    scale = {"default": 1.0, "large": 3.0}.get(level, level) if isinstance(level, str) else float(level)
+    if isinstance(scale, str):
+        raise ValueError(f"unknown intrinsics error level {level!r}: use none, default, large or a number")
+    f = 1.0 + rng.normal(0, 0.01 * scale)
+    return CameraIntrinsics(
+        fx=nominal.fx * f,
+        fy=nominal.fy * f * (1.0 + rng.normal(0, 0.001 * scale)),
+        cx=nominal.cx + rng.normal(0, 4.0 * scale),
+        cy=nominal.cy + rng.normal(0, 4.0 * scale),
+        width=nominal.width,
+        height=nominal.height,
+        dist=(-0.05 * scale * abs(1 + rng.normal(0, 0.2)), 0.02 * scale * rng.normal(), 0.0, 0.0, 0.0),
+    )
+
+
+class SimCamera:
+    """A camera in the simulated world (implements ``drivers.cameras.CameraSource``).
+
+    Parameters
+    ----------
+    world : SimWorld
+    pose_fn : callable returning the true ``T_world_cam`` now.
+    lights : SimLights
+    intrinsics_true : what the renderer uses.
+    intrinsics_nominal : what the camera advertises.
+    effects : CameraEffects (noise, vignetting, gamma).
+    exposure : ``"auto"`` or a fixed float.
+    with_depth : also return z-depth (an RGB-D camera).
+    with_rgb : also return the colour image.
+    clock : object with ``now()``/``advance()``; timestamps come from it.
+    frame_period_s : simulated time each grab takes.
+    seed : noise seed.
+    """
+
+    def __init__(self, *, world: SimWorld, pose_fn: Callable[[], np.ndarray], lights: SimLights,
+                 intrinsics_true: CameraIntrinsics = DEFAULT_INTRINSICS,
+                 intrinsics_nominal: CameraIntrinsics | None = None,
+                 effects: CameraEffects = DEFAULT_EFFECTS, exposure: float | str = "auto",
+                 with_depth: bool = False, with_rgb: bool = False, clock=None, frame_period_s: float = 0.0,
+                 seed: int = 0):
+        self.world = world
+        self._pose_fn = pose_fn
+        self.lights = lights
+        self._intr_true = intrinsics_true
+        self._intr_nominal = intrinsics_nominal or intrinsics_true
+        self.effects = effects
+        self.exposure = exposure
+        self.with_depth = with_depth
+        self.with_rgb = with_rgb
+        self.clock = clock
+        self.frame_period_s = float(frame_period_s)
+        self._rng = np.random.default_rng([seed, 0xCA3])
+        self.last_exposure: float | None = None
+        self._closed = False
+
+    @property
+    def intrinsics_nominal(self) -> CameraIntrinsics:
+        return self._intr_nominal
+
+    def grab(self) -> Frame:
+        if self._closed:
+            from drivers.cameras import CameraError
+
+            raise CameraError("simulated camera is closed")
+        T = self._pose_fn()
+        want = ("gray", "rgb") if self.with_rgb else ("gray",)
+        res = self.world.renderer.render(T, self._intr_true, self.lights.lighting, changes=self.world.changes,
+                                         exposure=self.exposure, effects=self.effects, rng=self._rng, want=want)
+        self.last_exposure = res.exposure
+        ts = 0.0
+        if self.clock is not None:
+            ts = self.clock.now()
+            if self.frame_period_s:
+                self.clock.advance(self.frame_period_s)
+        return Frame(res.gray, ts, res.depth if self.with_depth else None, res.rgb)
+
+    def close(self) -> None:
+        self._closed = True

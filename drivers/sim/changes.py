@@ -1,0 +1,330 @@
+"""Fine-grained changes injected between two observations, with ground-truth masks.
+
+A change sits on the object's surface at ``position`` with surface normal
+``normal``; its footprint is a small raster (``footprint``) in the tangent plane,
+generated from its seed. The renderer applies it where camera rays hit the
+surface within the footprint:
+
+* ``crack``: a narrow branching groove (0.3-1 mm wide, 1-2 mm deep), darker;
+* ``flaking``: a shallow irregular depression (0.3-1 mm) exposing a lighter layer;
+* ``stain``: albedo only (dark brown stain or whitish efflorescence);
+* ``missing``: a lost fragment, a deeper depression (2-8 mm) with fresh, lighter stone.
+
+Geometry changes are rendered as a displacement in shading space (depth moved
+along the ray, normal tilted by the depression's slope, a cavity darkening
+term), not as mesh edits: at 1-20 mm that is what a camera 0.4-2 m away sees,
+and it keeps the ray-casting scene fixed. The ground-truth mask is the set of
+pixels whose surface point lies where the footprint is >= 0.5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+__all__ = ["ChangeSpec", "ChangeEffect", "KINDS", "random_changes", "evaluate_changes"]
+
+KINDS = ("crack", "flaking", "stain", "missing")
+_RASTER = 96
+
+
+def _tangent_basis(normal: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    n = normal / np.linalg.norm(normal)
+    ref = np.asarray(up, float)
+    if abs(n @ ref) > 0.9:
+        ref = np.array([1.0, 0.0, 0.0])
+    e1 = np.cross(ref, n)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    return e1, e2
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChangeSpec:
+    """One change.
+
+    Attributes
+    ----------
+    kind : ``crack``, ``flaking``, ``stain`` or ``missing``.
+    position : (3,) world point on the surface, metres.
+    normal : (3,) outward surface normal there.
+    size_mm : float
+        Extent of the footprint (1-20 mm typical).
+    seed : int
+        Shape of the footprint.
+    depth_mm : float or None
+        Depth of the depression (None: a default for the kind; stains have none).
+    """
+
+    kind: str
+    position: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    size_mm: float
+    seed: int = 0
+    depth_mm: float | None = None
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown change kind {self.kind!r}; known: {', '.join(KINDS)}")
+        if not (0.1 <= self.size_mm <= 500):
+            raise ValueError(f"change size {self.size_mm} mm out of range")
+        n = np.asarray(self.normal, float)
+        object.__setattr__(self, "normal", tuple(n / np.linalg.norm(n)))
+        object.__setattr__(self, "position", tuple(float(x) for x in self.position))
+
+    # -- derived quantities
+    @property
+    def depth_m(self) -> float:
+        if self.kind == "stain":
+            return 0.0
+        if self.depth_mm is not None:
+            return self.depth_mm / 1000.0
+        default = {"crack": 1.5, "flaking": 0.6, "missing": min(6.0, 0.4 * self.size_mm)}[self.kind]
+        return default / 1000.0
+
+    @property
+    def half_extent_m(self) -> float:
+        """Half side of the footprint raster, metres (a margin around ``size_mm``)."""
+        return 0.6 * self.size_mm / 1000.0
+
+    @property
+    def target_albedo(self) -> tuple[np.ndarray, float]:
+        """(RGB the albedo moves towards, how far at footprint 1)."""
+        rng = np.random.default_rng(self.seed + 7)
+        if self.kind == "crack":
+            return np.array([0.08, 0.07, 0.06]), 0.75
+        if self.kind == "flaking":
+            return np.array([0.86, 0.82, 0.74]), 0.55
+        if self.kind == "missing":
+            return np.array([0.80, 0.74, 0.64]), 0.45
+        if rng.random() < 0.5:  # dark stain (biological, water)
+            return np.array([0.22, 0.17, 0.10]), 0.5
+        return np.array([0.95, 0.95, 0.93]), 0.5  # efflorescence
+
+    def basis(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tangent axes (e1, e2) of the footprint raster."""
+        return _tangent_basis(np.asarray(self.normal))
+
+    def footprint(self) -> np.ndarray:
+        """(96, 96) float32 in [0, 1] over ``[-half_extent, half_extent]^2`` (rows = e2, cols = e1)."""
+        if "F" not in self._cache:
+            self._cache["F"] = _make_footprint(self.kind, self.size_mm, self.seed)
+        return self._cache["F"]
+
+    def footprint_at(self, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
+        """Footprint value at tangent coordinates (metres), bilinear, 0 outside."""
+        F = self.footprint()
+        return _sample(F, self._to_raster(a_m), self._to_raster(b_m))
+
+    def _to_raster(self, x_m: np.ndarray) -> np.ndarray:
+        h = self.half_extent_m
+        return ((np.asarray(x_m) + h) / (2 * h) * _RASTER - 0.5).astype(np.float32)
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "position": list(self.position), "normal": list(self.normal),
+                "size_mm": self.size_mm, "seed": self.seed, "depth_mm": self.depth_m * 1000.0}
+
+
+def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a small float image at float pixel coords, 0 outside."""
+    n = x.size
+    if n == 0:
+        return np.zeros(0, np.float32)
+    cols = 1024
+    rows = (n + cols - 1) // cols
+    mx = np.full(rows * cols, -10.0, np.float32)
+    my = np.full(rows * cols, -10.0, np.float32)
+    mx[:n] = x.ravel()
+    my[:n] = y.ravel()
+    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.ravel()[:n]
+
+
+def _make_footprint(kind: str, size_mm: float, seed: int) -> np.ndarray:
+    """Procedural footprint raster; the change spans about ``size_mm`` across."""
+    rng = np.random.default_rng(seed)
+    n = _RASTER
+    px_per_mm = n / (1.2 * size_mm)
+    c = (n - 1) / 2.0
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float32)
+    r_px = 0.5 * size_mm * px_per_mm
+    if kind == "crack":
+        # a random walk across the footprint with one branch, drawn anti-aliased
+        width_mm = float(np.clip(0.04 * size_mm, 0.3, 1.0))
+        canvas = np.zeros((n * 4, n * 4), np.uint8)
+        s = 4.0
+        def walk(start, heading, length_px, steps):
+            pts = [np.array(start, float)]
+            h = heading
+            for _ in range(steps):
+                h += rng.normal(0, 0.35)
+                pts.append(pts[-1] + length_px / steps * np.array([np.cos(h), np.sin(h)]))
+            return np.array(pts)
+        heading = rng.uniform(0, 2 * np.pi)
+        main = walk((c, c), heading, r_px, 12)
+        other = walk((c, c), heading + np.pi, r_px, 12)
+        line = np.concatenate([other[::-1], main[1:]])
+        thick = max(1, int(round(width_mm * px_per_mm * s)))
+        cv2.polylines(canvas, [np.round(line * s).astype(np.int32)], False, 255, thick, cv2.LINE_AA)
+        k = rng.integers(4, len(line) - 4)
+        branch = walk(line[k], heading + rng.choice([-1, 1]) * rng.uniform(0.6, 1.2), 0.5 * r_px, 6)
+        cv2.polylines(canvas, [np.round(branch * s).astype(np.int32)], False, 255, max(1, thick // 2 + 1), cv2.LINE_AA)
+        F = cv2.resize(canvas.astype(np.float32) / 255.0, (n, n), interpolation=cv2.INTER_AREA)
+    else:
+        # an irregular blob: a disc with a noisy radius
+        ang = np.arctan2(yy - c, xx - c)
+        rad = np.hypot(yy - c, xx - c)
+        k = np.arange(1, 6)
+        amp = rng.normal(0, 0.12, 5) / k
+        ph = rng.uniform(0, 2 * np.pi, 5)
+        wobble = 1.0 + (amp[:, None, None] * np.cos(k[:, None, None] * ang[None] + ph[:, None, None])).sum(0)
+        edge = r_px * wobble
+        softness = {"flaking": 0.8, "stain": 0.22 * r_px + 0.8, "missing": 0.8}[kind]
+        F = np.clip(0.5 + (edge - rad) / (2 * softness), 0, 1).astype(np.float32)
+        if kind == "stain":
+            F = F * np.clip(1.0 + 0.15 * rng.standard_normal((n, n)).astype(np.float32), 0.6, 1.2)
+            F = np.clip(cv2.GaussianBlur(F, (5, 5), 1.0), 0, 1)
+    # nothing at the raster border, so the footprint is exactly zero outside it
+    F[[0, -1], :] = 0
+    F[:, [0, -1]] = 0
+    return F.astype(np.float32)
+
+
+@dataclass(kw_only=True)
+class ChangeEffect:
+    """What the changes do to a set of surface samples (only affected samples listed).
+
+    Attributes
+    ----------
+    index : (K,) int indices into the samples given to :func:`evaluate_changes`.
+    footprint : (K,) float in [0, 1].
+    height_m : (K,) depth of the depression (>= 0, inward).
+    slope : (K, 3) gradient of the depression in world coordinates (tilts the normal).
+    albedo_target : (K, 3) RGB the albedo moves towards.
+    albedo_weight : (K,) how far (0..1).
+    """
+
+    index: np.ndarray
+    footprint: np.ndarray
+    height_m: np.ndarray
+    slope: np.ndarray
+    albedo_target: np.ndarray
+    albedo_weight: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "ChangeEffect":
+        return cls(index=np.zeros(0, np.int64), footprint=np.zeros(0, np.float32), height_m=np.zeros(0),
+                   slope=np.zeros((0, 3)), albedo_target=np.zeros((0, 3)), albedo_weight=np.zeros(0))
+
+
+def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> ChangeEffect:
+    """Footprint, depression and albedo change of every change at surface samples.
+
+    Parameters
+    ----------
+    changes : sequence of ChangeSpec
+    points : (N, 3) world points hit by camera rays, metres.
+    normals : (N, 3) their unit surface normals.
+
+    Returns
+    -------
+    ChangeEffect for the samples inside at least one footprint (overlaps: the
+    strongest footprint wins for the albedo, depressions add).
+    """
+    if not changes or len(points) == 0:
+        return ChangeEffect.empty()
+    acc: dict[int, list] = {}
+    for ch in changes:
+        c = np.asarray(ch.position)
+        nrm = np.asarray(ch.normal)
+        h = ch.half_extent_m
+        d = points - c
+        near = np.einsum("ij,ij->i", d, d) < 2.0 * h * h + 1e-12
+        if not near.any():
+            continue
+        idx = np.nonzero(near)[0]
+        dn = d[idx]
+        # same surface: close to the tangent plane and facing the same way
+        off = dn @ nrm
+        ok = (np.abs(off) < max(0.004, 0.5 * h)) & (normals[idx] @ nrm > 0.5)
+        idx, dn = idx[ok], dn[ok]
+        if len(idx) == 0:
+            continue
+        e1, e2 = ch.basis()
+        a, b = dn @ e1, dn @ e2
+        F = ch.footprint_at(a, b)
+        hit = F > 1e-4
+        if not hit.any():
+            continue
+        idx, a, b, F = idx[hit], a[hit], b[hit], F[hit]
+        depth = ch.depth_m
+        if depth > 0:
+            eps = ch.half_extent_m / _RASTER
+            Fa = (ch.footprint_at(a + eps, b) - ch.footprint_at(a - eps, b)) / (2 * eps)
+            Fb = (ch.footprint_at(a, b + eps) - ch.footprint_at(a, b - eps)) / (2 * eps)
+            # limit the slope: a real groove wall is steep but the normal tilt saturates
+            slope = depth * (Fa[:, None] * e1 + Fb[:, None] * e2)
+            sn = np.linalg.norm(slope, axis=1, keepdims=True)
+            slope = slope / np.maximum(1.0, sn / 3.0)
+        else:
+            slope = np.zeros((len(idx), 3))
+        target, weight = ch.target_albedo
+        acc[id(ch)] = [idx, F, depth * F, slope, target, weight]
+    if not acc:
+        return ChangeEffect.empty()
+    n = len(points)
+    Fsum = np.zeros(n, np.float32)
+    H = np.zeros(n)
+    S = np.zeros((n, 3))
+    T = np.zeros((n, 3))
+    W = np.zeros(n)
+    for idx, F, h, slope, target, weight in acc.values():
+        stronger = F > Fsum[idx]
+        T[idx[stronger]] = target
+        W[idx[stronger]] = weight * F[stronger]
+        Fsum[idx] = np.maximum(Fsum[idx], F)
+        H[idx] += h
+        S[idx] += slope
+    sel = np.nonzero(Fsum > 0)[0]
+    return ChangeEffect(index=sel, footprint=Fsum[sel], height_m=H[sel], slope=S[sel],
+                        albedo_target=T[sel], albedo_weight=W[sel])
+
+
+def random_changes(scene, *, n: int, seed: int, kinds=KINDS, size_mm: tuple[float, float] = (1.0, 20.0),
+                   T_world_cam: np.ndarray | None = None, margin_px: int = 40) -> list[ChangeSpec]:
+    """``n`` random changes on the object, placed where the default camera sees it.
+
+    Positions are drawn from surface points seen from ``T_world_cam`` (default:
+    the scene's default camera) on the object (label 1), away from the image border;
+    sizes are log-uniform in ``size_mm``.
+    """
+    from drivers.cameras import CameraIntrinsics
+    from drivers.sim.render import Renderer
+
+    rng = np.random.default_rng(seed)
+    T = scene.default_T_world_cam if T_world_cam is None else T_world_cam
+    intr = CameraIntrinsics(fx=300, fy=300, cx=159.5, cy=119.5, width=320, height=240)
+    res = Renderer(scene).render(T, intr, None, want=("depth", "normals", "labels"))
+    m = margin_px // 2
+    ok = np.zeros_like(res.labels, bool)
+    ok[m:-m, m:-m] = True
+    ok &= (res.labels == 1) & (res.depth > 0)
+    vs, us = np.nonzero(ok)
+    if len(vs) == 0:
+        raise ValueError(f"the object of scene {scene.name} is not visible from the camera")
+    out = []
+    for i in range(n):
+        j = rng.integers(len(vs))
+        v, u = vs[j], us[j]
+        z = float(res.depth[v, u])
+        p_cam = np.array([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z])
+        p = T[:3, :3] @ p_cam + T[:3, 3]
+        kind = str(rng.choice(list(kinds)))
+        size = float(np.exp(rng.uniform(np.log(size_mm[0]), np.log(size_mm[1]))))
+        out.append(ChangeSpec(kind=kind, position=tuple(p), normal=tuple(res.normals[v, u]), size_mm=size,
+                              seed=int(rng.integers(1 << 30))))
+    return out
