@@ -24,6 +24,10 @@ class GroundTruth:
         self._T_flange_cam = np.asarray(T_flange_cam, float).copy()
         self._intr = intrinsics_true
 
+    def _set_T_world_base(self, T: np.ndarray) -> None:
+        """Move the platform base (the rig was set up again); simulator internal."""
+        self._T_world_base = np.asarray(T, float).copy()
+
     # -- poses
     def T_world_base_true(self) -> np.ndarray:
         return self._T_world_base.copy()

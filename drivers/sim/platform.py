@@ -114,6 +114,9 @@ class SimPlatform:
     T_base_flange_home : (4, 4) home pose of the flange in the base frame.
     errors : PlatformErrorModel or preset name (``none default precise sloppy``).
     seed : int
+        Draws the fixed kinematic errors (and the noise unless ``session_seed`` is given).
+    session_seed : int, optional
+        Seeds the per-motion noise separately (same platform, another session).
     clock : SimClock, optional (a new one by default).
     workspace_min_m, workspace_max_m : box for the flange origin in the base frame
         (default: home +- 0.25 m).
@@ -133,7 +136,8 @@ class SimPlatform:
                  seed: int = 0, clock: SimClock | None = None,
                  workspace_min_m=None, workspace_max_m=None, seconds_per_m: float = 150.0,
                  rotation_deg_per_s: float = 5.0, settle_s: float = 0.2, dof: int = 6,
-                 realtime_factor: float | None = None, timeout_s: float = 600.0, name: str = "sim"):
+                 realtime_factor: float | None = None, timeout_s: float = 600.0, name: str = "sim",
+                 session_seed: int | None = None):
         self.name = name
         self.errors = ERROR_PRESETS[errors] if isinstance(errors, str) else errors
         self.clock = clock or SimClock()
@@ -156,6 +160,8 @@ class SimPlatform:
         off = self._rng.normal(0, e.axis_misalignment_rad, (3, 3))
         self._M += off - np.diag(np.diag(off))
         self._rot_scale = 1.0 + self._rng.normal(0, e.rotation_scale_error)
+        if session_seed is not None:
+            self._rng = np.random.default_rng([seed, 0x5E55, session_seed])
         self._last_dir = np.zeros(3)  # sign of each axis' last motion (backlash state)
         self._cmd = self._home.copy()
         self._true = self._execute(self._home, np.zeros(3), noise=False)

@@ -33,6 +33,23 @@ class SimRig:
         self.camera.close()
         self.platform.close()
 
+    def inject_changes(self, *, n: int, seed: int, kinds=None, size_mm: tuple[float, float] = (1.0, 20.0)) -> list:
+        """Add ``n`` random changes on the object where the reference camera sees it (returns them)."""
+        from drivers.sim.changes import KINDS, random_changes
+
+        chs = random_changes(self.world.scene, n=n, seed=seed, kinds=kinds or KINDS, size_mm=size_mm)
+        self.world.apply_changes(chs)
+        return chs
+
+    def displace_base(self, T_cam_delta: np.ndarray) -> None:
+        """The rig was set up again: move the platform base so that the camera, at the current
+        flange pose, ends up displaced by ``T_cam_delta`` (a pose expressed in the camera frame)."""
+        gt = self.ground_truth
+        T_world_cam = gt.T_world_cam_true()
+        T_base_flange = self.platform.true_flange_pose()
+        new = T_world_cam @ np.asarray(T_cam_delta, float) @ invert_pose(gt.T_flange_cam_true()) @ invert_pose(T_base_flange)
+        gt._set_T_world_base(new)
+
 
 def random_hand_eye(rng: np.random.Generator) -> np.ndarray:
     """A realistic hidden ``T_flange_cam``: camera 5-15 cm from the flange, rotated 5-30 degrees."""
@@ -49,7 +66,7 @@ def build_sim_rig(*, scene: str, lighting: str = "front", seed: int = 0, noise: 
                   intrinsics_nominal: CameraIntrinsics = DEFAULT_INTRINSICS, effects: CameraEffects | None = None,
                   supersample: int = 1, with_depth: bool = False, with_rgb: bool = False,
                   exposure: float | str = "auto", dof: int = 6, realtime_factor: float | None = None,
-                  workspace_half_m: float = 0.25, scene_seed: int = 0) -> SimRig:
+                  workspace_half_m: float = 0.25, scene_seed: int = 0, session_seed: int = 0) -> SimRig:
     """Build a rig in scene ``scene``.
 
     The platform base is placed so that the flange's home pose puts the camera at
@@ -61,7 +78,8 @@ def build_sim_rig(*, scene: str, lighting: str = "front", seed: int = 0, noise: 
     ----------
     scene : scene name (``drivers.sim.scenes.list_scenes``).
     lighting : initial lighting preset.
-    seed : seeds hand-eye, platform errors, intrinsics error and sensor noise.
+    seed : the world: hand-eye, base placement, the platform's kinematic errors, true intrinsics.
+    session_seed : this session's random draws: platform repeatability noise, sensor noise.
     noise : platform error preset (``none default precise sloppy``) or a PlatformErrorModel.
     T_flange_cam : hand-eye; random (5-15 cm, 5-30 deg) if None.
     intrinsics_error : ``none``, ``default``, ``large`` or a scale factor.
@@ -86,6 +104,7 @@ def build_sim_rig(*, scene: str, lighting: str = "front", seed: int = 0, noise: 
     T_world_base = sc.default_T_world_cam @ invert_pose(X) @ invert_pose(T_base_flange_home)
     h = T_base_flange_home[:3, 3]
     platform = SimPlatform(T_base_flange_home=T_base_flange_home, errors=noise, seed=int(rng.integers(1 << 31)),
+                           session_seed=session_seed,
                            clock=clock, workspace_min_m=h - workspace_half_m, workspace_max_m=h + workspace_half_m,
                            dof=dof, realtime_factor=realtime_factor)
     intr_true = perturbed_intrinsics(intrinsics_nominal, intrinsics_error, rng)
@@ -94,13 +113,11 @@ def build_sim_rig(*, scene: str, lighting: str = "front", seed: int = 0, noise: 
                                                                          vignetting=DEFAULT_EFFECTS.vignetting)
     lights = SimLights(lighting)
 
-    def pose_fn() -> np.ndarray:
-        return T_world_base @ platform.true_flange_pose() @ X
-
-    camera = SimCamera(world=world, pose_fn=pose_fn, lights=lights, intrinsics_true=intr_true,
-                       intrinsics_nominal=intrinsics_nominal, effects=effects, exposure=exposure,
-                       with_depth=with_depth, with_rgb=with_rgb, clock=clock, seed=int(rng.integers(1 << 31)))
     gt = GroundTruth(world=world, platform=platform, T_world_base=T_world_base, T_flange_cam=X,
                      intrinsics_true=intr_true)
+    camera_seed = int(rng.integers(1 << 31))
+    camera = SimCamera(world=world, pose_fn=gt.T_world_cam_true, lights=lights, intrinsics_true=intr_true,
+                       intrinsics_nominal=intrinsics_nominal, effects=effects, exposure=exposure,
+                       with_depth=with_depth, with_rgb=with_rgb, clock=clock, seed=camera_seed + 7919 * session_seed)
     platform.connect()
     return SimRig(platform=platform, camera=camera, lights=lights, clock=clock, ground_truth=gt, world=world)
