@@ -3,6 +3,7 @@
 """
 
 from fgcd_cli.alignment.fast import FastAlignConfig, fast_align, initial_scale
+from fgcd_cli.alignment.fine import FineAlignConfig, fine_align
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentHealth, AlignmentResult, FineAlignmentResult, ResidualStats
 
@@ -11,6 +12,8 @@ __all__ = [
     "FastAlignConfig",
     "fast_align",
     "initial_scale",
+    "FineAlignConfig",
+    "fine_align",
     "AlignmentHealth",
     "AlignmentResult",
     "FineAlignmentResult",

@@ -36,7 +36,7 @@ from fgcd_cli.alignment.sparse_icp import (
 )
 from fgcd_cli.geometry import Sim3, make_pose
 
-__all__ = ["FastAlignConfig", "fast_align", "initial_scale", "as_reference"]
+__all__ = ["FastAlignConfig", "fast_align", "initial_scale", "as_reference", "evaluate_alignment"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -227,6 +227,24 @@ def fast_align(
 def _finish(
     T: Sim3, cur, ref: ReferenceIndex, config: FastAlignConfig, converged, iterations, t0, *, scale_prior: float
 ) -> AlignmentResult:
+    residuals, health = evaluate_alignment(
+        T, cur, ref, converged=converged, scale_ratio=T.scale / scale_prior, config=config
+    )
+    return AlignmentResult(
+        T_ref_cur=T, residuals=residuals, health=health, iterations=iterations, seconds=time.perf_counter() - t0
+    )
+
+
+def evaluate_alignment(
+    T: Sim3,
+    cur: np.ndarray,
+    ref: ReferenceIndex,
+    *,
+    converged: bool,
+    scale_ratio: float,
+    config: FastAlignConfig = FastAlignConfig(),
+) -> tuple[ResidualStats, AlignmentHealth]:
+    """Geometric residuals and health of ``T_ref_cur`` for the current cloud (thresholds from ``config``)."""
     inlier_thr = max(config.inlier_rel * ref.width, 3 * ref.spacing)
     overlap_thr = max(config.overlap_rel * ref.width, 5 * ref.spacing)
     d, idx = ref.nearest(T.apply(cur), max_distance=overlap_thr)
@@ -244,16 +262,10 @@ def _finish(
         min_inlier_ratio=config.min_inlier_ratio,
         min_overlap=config.min_overlap,
         min_condition_ratio=config.min_condition_ratio,
-        scale=T.scale / scale_prior,
+        scale=scale_ratio,
         scale_bounds=config.scale_bounds,
     )
-    return AlignmentResult(
-        T_ref_cur=T,
-        residuals=residual_stats(d, inlier_threshold=inlier_thr),
-        health=health,
-        iterations=iterations,
-        seconds=time.perf_counter() - t0,
-    )
+    return residual_stats(d, inlier_threshold=inlier_thr), health
 
 
 def _failed(T: Sim3, reason: str, t0: float, iterations: int = 0) -> AlignmentResult:

@@ -21,6 +21,8 @@ __all__ = [
     "sample_sphere",
     "random_similarity",
     "look_at",
+    "SyntheticSession",
+    "make_session",
 ]
 
 
@@ -185,3 +187,84 @@ def look_at(eye: np.ndarray, target: np.ndarray, *, up=(0.0, -1.0, 0.0)) -> np.n
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_pose(np.column_stack([x, y, z]), eye)
+
+
+@dataclass(kw_only=True)
+class SyntheticSession:
+    """A current session over a :class:`ReliefScene` as a VSE would deliver it, with ground truth.
+
+    Attributes
+    ----------
+    keyframes : list of (T_cur_cam (4, 4), image (H, W) float32)
+        Keyframe poses in the current map frame *with* VSE-like pose errors, and
+        images rendered from the true poses.
+    cur_points : (N, 3) ndarray
+        Semi-dense current cloud (high-gradient pixels), depth noise, built with
+        the erroneous keyframe poses; map frame.
+    keyframe_ids : (N,) int ndarray
+    T_ref_cur : Sim3
+        True map -> reference similarity.
+    T_ref_cam_true : list of (4, 4) ndarray
+        True keyframe poses in the reference frame.
+    """
+
+    keyframes: list
+    cur_points: np.ndarray
+    keyframe_ids: np.ndarray
+    T_ref_cur: Sim3
+    T_ref_cam_true: list
+
+
+def make_session(
+    scene: ReliefScene,
+    *,
+    camera: PinholeCamera,
+    T_ref_cur: Sim3,
+    rng: np.random.Generator,
+    n_keyframes: int = 6,
+    distance: float = 0.6,
+    baseline: float = 0.08,
+    pose_noise_deg: float = 0.15,
+    pose_noise_m: float = 0.0015,
+    depth_noise_rel: float = 0.003,
+    points_per_keyframe: int = 4000,
+    centre=(0.0, 0.0),
+) -> SyntheticSession:
+    """Render keyframes around a frontal view of the relief and build the current cloud.
+
+    Camera centres lie on a small circle (radius ``baseline``) at ``distance``
+    in front of ``centre``, all looking at it. Pose errors are independent per
+    keyframe (rotation ``pose_noise_deg``, translation ``pose_noise_m`` per axis,
+    Gaussian); depth noise is relative (``depth_noise_rel`` of the depth).
+    """
+    target = np.array([centre[0], centre[1], 0.0])
+    kfs, truths, pts, ids = [], [], [], []
+    for k in range(n_keyframes):
+        ang = 2 * np.pi * k / n_keyframes
+        eye = target + np.array([baseline * np.cos(ang), baseline * np.sin(ang), -distance])
+        T_ref_cam = look_at(eye, target)
+        img, depth = scene.render(camera, T_ref_cam)
+        T_cur_cam_true = T_ref_cur.inverse().transform_pose(T_ref_cam)
+        noise = exp_se3(np.concatenate([rng.normal(0, pose_noise_m, 3) / T_ref_cur.scale,
+                                        np.radians(rng.normal(0, pose_noise_deg, 3))]))
+        T_cur_cam = T_cur_cam_true @ noise
+        # Semi-dense: pixels with strong gradient, as a direct VSE keeps them.
+        gy, gx = np.gradient(img.astype(float))
+        g = np.hypot(gx, gy)
+        valid = depth > 0
+        cand = np.flatnonzero(valid.ravel() & (g.ravel() > np.percentile(g[valid], 60)))
+        pick = rng.choice(cand, min(points_per_keyframe, len(cand)), replace=False)
+        v, u = np.unravel_index(pick, depth.shape)
+        z = depth[v, u] * (1.0 + rng.normal(0, depth_noise_rel, len(pick)))
+        X = camera.unproject(np.column_stack([u, v]).astype(float), z)
+        pts.append((X / T_ref_cur.scale) @ T_cur_cam[:3, :3].T + T_cur_cam[:3, 3])
+        ids.append(np.full(len(pick), k))
+        kfs.append((T_cur_cam, img))
+        truths.append(T_ref_cam)
+    return SyntheticSession(
+        keyframes=kfs,
+        cur_points=np.concatenate(pts),
+        keyframe_ids=np.concatenate(ids),
+        T_ref_cur=T_ref_cur,
+        T_ref_cam_true=truths,
+    )
