@@ -132,7 +132,8 @@ def convergence_png(log_rows: list[dict]) -> bytes:
     ----------
     log_rows : list of dict
         One per adjustment, keys among ``iteration``, ``t_wall_s``, ``afd_px`` /
-        ``afd_px_true``, ``pose_err_mm_true`` / ``pose_err_mm``, ``pose_err_deg_true`` / ``pose_err_deg``.
+        ``afd_px_true``, ``pose_err_mm_true`` / ``pose_err_mm`` / ``offset_mm`` (the loop's own
+        estimate), ``pose_err_deg_true`` / ``pose_err_deg`` / ``offset_deg``.
     """
     def series(*keys):
         for key in keys:
@@ -144,8 +145,8 @@ def convergence_png(log_rows: list[dict]) -> bytes:
     iterations = np.array([row.get("iteration", i) for i, row in enumerate(log_rows)], dtype=float)
     panels = [
         (series("afd_px", "afd_px_true"), "AFD (px)", 3.0, "success AFD < 3 px"),
-        (series("pose_err_mm", "pose_err_mm_true"), "translation error (mm)", None, None),
-        (series("pose_err_deg", "pose_err_deg_true"), "rotation error (deg)", None, None),
+        (series("pose_err_mm", "pose_err_mm_true", "offset_mm"), "translation error (mm)", None, None),
+        (series("pose_err_deg", "pose_err_deg_true", "offset_deg"), "rotation error (deg)", None, None),
     ]
     panels = [p for p in panels if p[0][0] is not None]
     if not panels:
@@ -157,7 +158,8 @@ def convergence_png(log_rows: list[dict]) -> bytes:
             ax.axhline(line, color="#c0392b", linestyle="--", linewidth=1, label=line_label)
             ax.legend(fontsize=8)
         ax.set_xlabel("adjustment")
-        ax.set_ylabel(ylabel + (" [simulator truth]" if key.endswith("_true") else ""), fontsize=8)
+        note = " [simulator truth]" if key.endswith("_true") else (" [estimated offset]" if key.startswith("offset") else "")
+        ax.set_ylabel(ylabel + note, fontsize=8)
         if np.nanmin(values) > 0 and np.nanmax(values) / max(np.nanmin(values), 1e-9) > 50:
             ax.set_yscale("log")
         ax.grid(alpha=0.3)

@@ -171,7 +171,10 @@ def render_diff_report(
                 fdf_quiver_png(ref_image, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px, inliers=fdf.inliers, method=fdf.method),
                 "Feature displacement field from reference to current image (before registration)"))
         if relocation_log:
-            parts.append(_figure(convergence_png(relocation_log), "Convergence of the relocation, per adjustment"))
+            try:
+                parts.append(_figure(convergence_png(relocation_log), "Convergence of the relocation, per adjustment"))
+            except ValueError as exc:  # a log without any plottable column
+                parts.append(f'<p class="small">Relocation log not plotted: {html.escape(str(exc))}.</p>')
         parts.append("</div>")
 
     details = {}
