@@ -1,0 +1,405 @@
+"""Universal Robots arm through the ``ur_rtde`` client (RTDE, dashboard, control script).
+
+Behaviours of ``ur_rtde`` 1.6.5 this driver guards against (see the project's
+hardware notes):
+
+* the interface constructors and ``reconnect()`` have no timeout and hold the
+  GIL: a peer that accepts TCP but never answers freezes the interpreter. So a
+  pure-Python **pre-flight** (:func:`preflight`) first opens RTDE with a short
+  timeout, sends the protocol-version request and requires an answer, and
+  checks the dashboard greeting;
+* after a dropped link the getters keep returning the last, **stale** values:
+  every pose read checks ``isConnected()`` first;
+* ``moveL`` returns ``False`` (no exception) under a protective stop, and a
+  blocking ``moveL`` cannot be interrupted by Ctrl-C. Moves are therefore sent
+  asynchronously and the driver polls arrival, safety bits and the connection
+  itself, so Ctrl-C or :meth:`stop` can ``stopL`` the arm at once.
+
+All poses are of the **flange**: at connect the driver sets the TCP offset to
+zero (``setTcp``), so ``actual_TCP_pose`` is the flange pose. Poses travel as
+``[x, y, z, rx, ry, rz]`` (metres, rotation vector) and are converted with
+scipy's ``Rotation.from_rotvec`` / ``as_rotvec``, never Euler angles.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from drivers.platform import (
+    Capabilities,
+    MotionInterrupted,
+    MotionRejected,
+    MoveResult,
+    PlatformConnectionError,
+    PlatformTimeout,
+    SafetyStop,
+)
+
+__all__ = ["URConfig", "URPlatform", "preflight", "pose_to_vector", "vector_to_pose", "safety_problem"]
+
+#: Variables the receive interface asks for (less traffic than the default set).
+RECEIVE_VARIABLES = [
+    "timestamp",
+    "actual_TCP_pose",
+    "actual_TCP_speed",
+    "robot_mode",
+    "safety_mode",
+    "safety_status_bits",
+    "runtime_state",
+    "robot_status_bits",
+]
+ROBOT_MODE_RUNNING = 7
+_SAFETY_BITS = {
+    2: "protective stop",
+    3: "recovery mode",
+    4: "safeguard stop",
+    5: "system emergency stop",
+    6: "robot emergency stop",
+    7: "emergency stop",
+    8: "safety violation",
+    9: "safety fault",
+    10: "stopped due to safety",
+}
+# ur_rtde's accepted ranges for moveL (rtde_control_interface.h).
+_UR_TOOL_SPEED_MAX = 3.0
+_UR_TOOL_ACC_MAX = 150.0
+
+
+def pose_to_vector(T: np.ndarray) -> list[float]:
+    """``[x, y, z, rx, ry, rz]`` (metres, rotation vector) of a 4x4 pose."""
+    T = np.asarray(T, dtype=float)
+    return [float(v) for v in T[:3, 3]] + [float(v) for v in Rotation.from_matrix(T[:3, :3]).as_rotvec()]
+
+
+def vector_to_pose(vector) -> np.ndarray:
+    """4x4 pose from ``[x, y, z, rx, ry, rz]`` (metres, rotation vector)."""
+    v = np.asarray(vector, dtype=float)
+    if v.shape != (6,) or not np.all(np.isfinite(v)):
+        raise PlatformConnectionError(f"the robot reported an invalid pose {list(v)}")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(v[3:]).as_matrix()
+    T[:3, 3] = v[:3]
+    return T
+
+
+def safety_problem(bits: int) -> str | None:
+    """Words for the raised safety-status bits, or None when the robot is normal."""
+    raised = [text for bit, text in _SAFETY_BITS.items() if bits & (1 << bit)]
+    return ", ".join(raised) if raised else None
+
+
+def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, timeout_s: float = 2.0) -> str:
+    """Check that a UR controller answers before ``ur_rtde`` touches it.
+
+    Opens RTDE with a timeout, sends the protocol-version request (v2) and
+    requires an answer; then reads the dashboard greeting.
+
+    Returns
+    -------
+    str
+        The dashboard greeting.
+
+    Raises
+    ------
+    PlatformConnectionError
+        Refused or unreachable.
+    PlatformTimeout
+        The peer accepted the connection but did not answer in time.
+    """
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s) as sock:
+            sock.settimeout(timeout_s)
+            sock.sendall(struct.pack(">HBH", 5, ord("V"), 2))
+            header = _recv_exact(sock, 3)
+            size, kind = struct.unpack(">HB", header)
+            body = _recv_exact(sock, size - 3)
+            if kind != ord("V") or not body or body[0] != 1:
+                raise PlatformConnectionError(f"{host}:{port} does not speak RTDE protocol version 2")
+        with socket.create_connection((host, dashboard_port), timeout=timeout_s) as sock:
+            sock.settimeout(timeout_s)
+            greeting = sock.recv(256).decode(errors="replace").strip()
+            if "Dashboard" not in greeting:
+                raise PlatformConnectionError(f"{host}:{dashboard_port} is not a UR dashboard server")
+            return greeting
+    except socket.timeout:
+        raise PlatformTimeout(
+            f"the UR controller at {host} accepted the connection but did not answer within {timeout_s:.1f} s"
+        ) from None
+    except (ConnectionError, OSError) as exc:
+        raise PlatformConnectionError(f"cannot reach the UR controller at {host}: {exc}") from None
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes:
+    data = b""
+    while len(data) < n:
+        chunk = sock.recv(n - len(data))
+        if not chunk:
+            raise ConnectionError("connection closed by the controller")
+        data += chunk
+    return data
+
+
+@dataclass(frozen=True, kw_only=True)
+class URConfig:
+    """Connection and motion limits of a UR arm.
+
+    Attributes
+    ----------
+    host : str
+        Controller address (``127.0.0.1`` for the fake controller or URSim).
+    preflight_timeout_s : float
+        Timeout of the pure-Python pre-flight.
+    max_linear_speed_m_s, max_linear_acc_m_s2 : float
+        Caps on moveL speed and acceleration (within ur_rtde's accepted ranges).
+    max_angular_speed_rad_s : float
+        Cap used by the guard and to time rotations.
+    workspace_min_m, workspace_max_m : tuple of 3 float
+        Box for the flange origin in the base frame.
+    arrival_tolerance_m, arrival_tolerance_rad : float
+        Distance from the target counted as arrived.
+    arrival_margin_s : float
+        Extra time beyond the nominal motion time before a move times out.
+    poll_s : float
+        Polling period while waiting for arrival.
+    """
+
+    host: str
+    preflight_timeout_s: float = 2.0
+    max_linear_speed_m_s: float = 0.1
+    max_linear_acc_m_s2: float = 0.5
+    max_angular_speed_rad_s: float = math.radians(30.0)
+    workspace_min_m: tuple[float, float, float] = (-0.8, -0.8, -0.1)
+    workspace_max_m: tuple[float, float, float] = (0.8, 0.8, 0.9)
+    arrival_tolerance_m: float = 2e-4
+    arrival_tolerance_rad: float = math.radians(0.05)
+    arrival_margin_s: float = 5.0
+    poll_s: float = 0.02
+
+
+class URPlatform:
+    """A UR arm as a :class:`~drivers.platform.Platform` (6 DoF, flange frame)."""
+
+    name = "ur"
+
+    def __init__(self, config: URConfig) -> None:
+        self.config = config
+        self._rtde_c = None
+        self._rtde_r = None
+        self._control_lock = threading.Lock()
+        self._stop_requested = threading.Event()
+        self.greeting: str | None = None
+
+    # ------------------------------------------------------------------ connection
+    def connect(self) -> None:
+        """Pre-flight, construct the ur_rtde interfaces, zero the TCP, check safety."""
+        self.greeting = preflight(self.config.host, timeout_s=self.config.preflight_timeout_s)
+        import rtde_control
+        import rtde_receive
+
+        try:
+            self._rtde_r = rtde_receive.RTDEReceiveInterface(self.config.host, -1.0, RECEIVE_VARIABLES)
+            self._rtde_c = rtde_control.RTDEControlInterface(self.config.host)
+        except RuntimeError as exc:
+            self._rtde_c = self._rtde_r = None
+            raise PlatformConnectionError(f"ur_rtde could not connect to {self.config.host}: {exc}") from None
+        with self._control_lock:
+            if not self._rtde_c.setTcp([0.0] * 6):
+                raise PlatformConnectionError("the UR controller refused setTcp (is the control script running?)")
+        time.sleep(0.05)  # let a state package with the new TCP arrive
+
+    def reconnect(self) -> None:
+        """Drop the old interfaces and connect afresh (pre-flight first).
+
+        ur_rtde's own ``reconnect()`` has no timeout and was seen failing with
+        "Bad file descriptor" after a dropped link; new interfaces are reliable.
+        """
+        self.close()
+        self.connect()
+
+    def close(self) -> None:
+        """Stop, end the control script and disconnect.
+
+        Commands are only sent while the link and the script are up: on a
+        broken link ur_rtde would try to reconnect inside ``stopL`` with no timeout.
+        """
+        c, r = self._rtde_c, self._rtde_r
+        self._rtde_c = self._rtde_r = None
+        try:
+            healthy = c is not None and c.isConnected() and c.isProgramRunning()
+        except RuntimeError:
+            healthy = False
+        steps = [lambda: c.stopL(self.config.max_linear_acc_m_s2), lambda: c.stopScript()] if healthy else []
+        steps += [lambda: c is not None and c.disconnect(), lambda: r is not None and r.disconnect()]
+        for action in steps:
+            try:
+                action()
+            except RuntimeError:
+                pass
+
+    # ------------------------------------------------------------------ state
+    def _receive(self):
+        r = self._rtde_r
+        if r is None or self._rtde_c is None:
+            raise PlatformConnectionError("the UR arm is not connected")
+        if not r.isConnected() or not self._rtde_c.isConnected():
+            raise PlatformConnectionError(
+                f"lost the connection to the UR controller at {self.config.host} (the last pose is stale)"
+            )
+        return r
+
+    def check_safety(self) -> None:
+        """Raise SafetyStop unless the arm is running with no safety bit raised."""
+        r = self._receive()
+        problem = safety_problem(int(r.getSafetyStatusBits()))
+        if problem:
+            raise SafetyStop(
+                f"UR safety status: {problem}; clear it on the teach pendant (or the dashboard) before moving"
+            )
+        mode = int(r.getRobotMode())
+        if mode != ROBOT_MODE_RUNNING:
+            raise SafetyStop(f"UR robot mode is {mode}, not running (7): power on and release the brakes")
+
+    def flange_pose(self) -> np.ndarray:
+        """``T_base_flange`` (4x4, metres) from a live state package."""
+        return vector_to_pose(self._receive().getActualTCPPose())
+
+    def capabilities(self) -> Capabilities:
+        """6 DoF with the configured workspace and speed caps."""
+        return Capabilities(
+            dof=6,
+            controllable=("x", "y", "z", "rx", "ry", "rz"),
+            workspace_min_m=tuple(self.config.workspace_min_m),
+            workspace_max_m=tuple(self.config.workspace_max_m),
+            max_linear_speed_m_s=self.config.max_linear_speed_m_s,
+            max_angular_speed_rad_s=self.config.max_angular_speed_rad_s,
+        )
+
+    def describe(self) -> dict:
+        """State and pose for ``fgcd platform check``."""
+        r = self._receive()
+        bits = int(r.getSafetyStatusBits())
+        mode = int(r.getRobotMode())
+        return {
+            "driver": "ur",
+            "host": self.config.host,
+            "greeting": self.greeting,
+            "robot_mode": mode,
+            "safety_status_bits": bits,
+            "safety_problem": safety_problem(bits),
+            "program_running": bool(self._rtde_c.isProgramRunning()),
+            "healthy": mode == ROBOT_MODE_RUNNING and safety_problem(bits) is None,
+        }
+
+    # ------------------------------------------------------------------ motion
+    def move_to(self, T_base_flange: np.ndarray, *, speed_fraction: float = 1.0) -> MoveResult:
+        """moveL to ``T_base_flange`` (asynchronous send, polled arrival).
+
+        Raises
+        ------
+        SafetyStop
+            A safety bit was raised before or during the move.
+        PlatformConnectionError
+            The link dropped (stale data is never used).
+        MotionInterrupted
+            :meth:`stop` was called; the arm was stopped with stopL.
+        PlatformTimeout
+            No arrival in time; the arm was stopped.
+        """
+        started = time.monotonic()
+        target = np.asarray(T_base_flange, dtype=float)
+        self._stop_requested.clear()
+        self.check_safety()
+        start = self.flange_pose()
+        fraction = min(max(float(speed_fraction), 1e-3), 1.0)
+        speed = min(self.config.max_linear_speed_m_s * fraction, _UR_TOOL_SPEED_MAX)
+        acc = min(self.config.max_linear_acc_m_s2, _UR_TOOL_ACC_MAX)
+        dist = float(np.linalg.norm(target[:3, 3] - start[:3, 3]))
+        angle = float(np.linalg.norm(Rotation.from_matrix(start[:3, :3].T @ target[:3, :3]).as_rotvec()))
+        nominal = max(dist / speed, angle / (self.config.max_angular_speed_rad_s * fraction)) + speed / acc
+        try:
+            with self._control_lock:
+                accepted = self._rtde_c.moveL(pose_to_vector(target), speed, acc, True)
+            if not accepted:
+                self.check_safety()  # a protective stop is the usual reason
+                if not self._rtde_c.isProgramRunning():
+                    raise PlatformConnectionError(
+                        "the UR control script is not running (connection lost or program stopped); reconnect"
+                    )
+                raise MotionRejected("the UR controller refused the move (moveL returned False)")
+            self._wait_arrival(target, nominal)
+        except KeyboardInterrupt:
+            self.stop()
+            raise
+        except (PlatformTimeout, SafetyStop, PlatformConnectionError, MotionInterrupted):
+            self.stop()
+            raise
+        except MotionRejected:
+            raise
+        except RuntimeError as exc:  # ur_rtde: lost link or a failed command
+            self.stop()
+            raise PlatformConnectionError(f"UR move failed: {exc}") from None
+        self.check_safety()
+        reached = self.flange_pose()
+        return MoveResult(
+            T_base_flange_target=target,
+            T_base_flange_reached=reached,
+            T_base_flange_commanded=target,
+            unreachable=(),
+            duration_s=time.monotonic() - started,
+        )
+
+    def _wait_arrival(self, target: np.ndarray, nominal_s: float) -> None:
+        deadline = time.monotonic() + 1.5 * nominal_s + self.config.arrival_margin_s
+        while True:
+            if self._stop_requested.is_set():
+                raise MotionInterrupted("UR motion stopped on request before arrival; the arm is stopped")
+            self.check_safety()
+            r = self._receive()
+            pose = vector_to_pose(r.getActualTCPPose())
+            speed = float(np.linalg.norm(r.getActualTCPSpeed()[:3]))
+            err_m = float(np.linalg.norm(pose[:3, 3] - target[:3, 3]))
+            err_rad = float(np.linalg.norm(Rotation.from_matrix(pose[:3, :3].T @ target[:3, :3]).as_rotvec()))
+            if err_m <= self.config.arrival_tolerance_m and err_rad <= self.config.arrival_tolerance_rad and speed < 1e-3:
+                return
+            if time.monotonic() > deadline:
+                raise PlatformTimeout(
+                    f"the UR arm did not arrive in time ({err_m * 1000:.1f} mm from the target); it was stopped"
+                )
+            time.sleep(self.config.poll_s)
+
+    def stop(self) -> None:
+        """stopL now (safe from any thread); the move in progress ends."""
+        self._stop_requested.set()
+        c = self._rtde_c
+        if c is None:
+            return
+        try:
+            if c.isConnected() and c.isProgramRunning():
+                c.stopL(self.config.max_linear_acc_m_s2 * 2.0)
+        except RuntimeError:
+            pass
+
+    def home(self) -> None:
+        """A UR arm has no homing cycle: its home is a taught pose, reached by moves."""
+        raise MotionRejected(
+            "a UR arm has no homing cycle; move it to a taught pose with 'fgcd platform move' or the pendant"
+        )
+
+    def unlock_protective_stop(self) -> str:
+        """Ask the dashboard to release a protective stop (a person checked the cause)."""
+        try:
+            with socket.create_connection((self.config.host, 29999), timeout=self.config.preflight_timeout_s) as sock:
+                sock.settimeout(self.config.preflight_timeout_s)
+                sock.recv(256)
+                sock.sendall(b"unlock protective stop\n")
+                return sock.recv(256).decode(errors="replace").strip()
+        except OSError as exc:
+            raise PlatformConnectionError(f"dashboard at {self.config.host} unreachable: {exc}") from None

@@ -1,0 +1,167 @@
+"""UR driver: the real ur_rtde client against the fake controller process.
+
+The fake controller's ports are fixed (29999, 30003, 30004): these tests must
+not run in parallel with each other; every test kills its fake in a finally.
+"""
+
+from __future__ import annotations
+
+import _thread
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from drivers.platform import (
+    GuardLimits,
+    MotionGuard,
+    MotionInterrupted,
+    MotionRejected,
+    PlatformConnectionError,
+    PlatformTimeout,
+    SafetyStop,
+)
+from drivers.testing.fake_ur import FakeURProcess
+from drivers.ur import URConfig, URPlatform, pose_to_vector, preflight, safety_problem, vector_to_pose
+
+pytestmark = pytest.mark.timeout(90)
+
+CONFIG = URConfig(host="127.0.0.1", preflight_timeout_s=0.5, max_linear_speed_m_s=0.05, arrival_margin_s=1.0)
+
+
+@pytest.fixture
+def fake():
+    process = FakeURProcess()
+    try:
+        yield process.start()
+    finally:
+        process.stop()
+
+
+@pytest.fixture
+def arm(fake):
+    platform = URPlatform(CONFIG)
+    platform.connect()
+    try:
+        yield platform
+    finally:
+        platform.close()
+
+
+def shifted(T, d_m):
+    out = np.array(T)
+    out[:3, 3] += d_m
+    return out
+
+
+def test_rotation_vector_round_trip_without_euler():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        T[:3, 3] = rng.normal(size=3)
+        np.testing.assert_allclose(vector_to_pose(pose_to_vector(T)), T, atol=1e-12)
+    assert safety_problem(1) is None and safety_problem(1 | 4) == "protective stop"
+
+
+def test_real_client_connects_reads_flange_pose_and_moves(arm):
+    T0 = arm.flange_pose()
+    # The fake's flange starts at (0.4, -0.1, 0.3), pointing down; its TCP offset
+    # (5 cm) was zeroed at connect, so the reported pose is the flange's.
+    np.testing.assert_allclose(T0[:3, 3], [0.4, -0.1, 0.3], atol=1e-9)
+    target = shifted(T0, [0.01, -0.005, 0.0])
+    target[:3, :3] = T0[:3, :3] @ Rotation.from_rotvec([0.0, 0.02, 0.0]).as_matrix()
+    result = arm.move_to(target)
+    np.testing.assert_allclose(result.T_base_flange_reached, target, atol=CONFIG.arrival_tolerance_m)
+    assert result.duration_s >= 0.0112 / CONFIG.max_linear_speed_m_s * 0.9
+    assert arm.describe()["healthy"]
+
+
+def test_protective_stop_before_move_refuses(arm, fake):
+    fake.send("protective_stop")
+    time.sleep(0.05)
+    T0 = arm.flange_pose()
+    with pytest.raises(SafetyStop, match="protective stop"):
+        arm.move_to(shifted(T0, [0.01, 0, 0]))
+    np.testing.assert_allclose(arm.flange_pose(), T0)
+
+
+def test_protective_stop_during_move_trips_guard_then_recovers(arm, fake):
+    guard = MotionGuard(arm, GuardLimits(max_step_m=0.1, speed_fraction=0.5))
+    T0 = arm.flange_pose()
+    threading.Timer(0.3, fake.send, args=("protective_stop",)).start()
+    with pytest.raises(SafetyStop, match="protective stop"):
+        guard.move_to(shifted(T0, [0.05, 0, 0]))  # 2 s at 25 mm/s
+    assert guard.tripped
+    stopped = arm.flange_pose()
+    assert 0.001 < stopped[0, 3] - T0[0, 3] < 0.04
+    time.sleep(0.2)
+    np.testing.assert_allclose(arm.flange_pose(), stopped)
+    assert "releasing" in arm.unlock_protective_stop()
+    time.sleep(0.05)
+    guard.reset()
+    guard.move_to(shifted(stopped, [0.002, 0, 0]))
+
+
+def test_controller_gone_mid_move_is_connection_error_not_stale_pose(arm, fake):
+    # The controller vanishes (power cut, cable pulled): the client's getters keep
+    # the last values, the driver must refuse them.
+    T0 = arm.flange_pose()
+    threading.Timer(0.3, fake.stop).start()
+    with pytest.raises(PlatformConnectionError, match="lost the connection|not running|failed"):
+        arm.move_to(shifted(T0, [0.05, 0, 0]))
+    with pytest.raises(PlatformConnectionError, match="stale|not connected"):
+        arm.flange_pose()
+    with pytest.raises(PlatformConnectionError, match="cannot reach"):
+        arm.reconnect()
+
+
+def test_stop_from_another_thread_interrupts(arm):
+    T0 = arm.flange_pose()
+    threading.Timer(0.3, arm.stop).start()
+    with pytest.raises(MotionInterrupted):
+        arm.move_to(shifted(T0, [0.05, 0, 0]))
+    stopped = arm.flange_pose()
+    time.sleep(0.2)
+    np.testing.assert_allclose(arm.flange_pose(), stopped)
+    assert stopped[0, 3] - T0[0, 3] < 0.04
+
+
+def test_ctrl_c_during_move_stops_arm(arm):
+    guard = MotionGuard(arm, GuardLimits(max_step_m=0.1))
+    T0 = arm.flange_pose()
+    threading.Timer(0.3, _thread.interrupt_main).start()
+    with pytest.raises(KeyboardInterrupt):
+        guard.move_to(shifted(T0, [0.05, 0, 0]))
+    stopped = arm.flange_pose()
+    time.sleep(0.2)
+    np.testing.assert_allclose(arm.flange_pose(), stopped)
+    assert stopped[0, 3] - T0[0, 3] < 0.04 and "Ctrl-C" in guard.tripped
+
+
+def test_outside_workspace_refused_before_moving(arm):
+    guard = MotionGuard(arm, GuardLimits(max_step_m=0.1, workspace_max_m=(0.405, 1.0, 1.0)))
+    T0 = arm.flange_pose()
+    with pytest.raises(MotionRejected, match="outside the workspace"):
+        guard.move_to(shifted(T0, [0.01, 0, 0]))
+    np.testing.assert_allclose(arm.flange_pose(), T0)
+
+
+def test_silent_peer_times_out_in_preflight_without_freezing():
+    with FakeURProcess(silent=True):
+        t0 = time.monotonic()
+        with pytest.raises(PlatformTimeout, match="did not answer"):
+            URPlatform(CONFIG).connect()
+        assert time.monotonic() - t0 < 3.0
+
+
+def test_refused_port_is_connection_error():
+    # Nothing listens on the RTDE port once the fake is gone.
+    with socket.socket() as probe:
+        if probe.connect_ex(("127.0.0.1", 30004)) == 0:
+            pytest.skip("something else listens on 30004")
+    with pytest.raises(PlatformConnectionError, match="cannot reach"):
+        preflight("127.0.0.1", timeout_s=0.5)
