@@ -1,0 +1,255 @@
+"""Calibration procedures that move the platform: target-free (rACR) and with a board.
+
+Every motion goes through :class:`drivers.platform.MotionGuard`. Samples pair
+the platform's *reported* flange pose (what a real rig knows) with what the
+camera measured at the same stop: the VSE camera pose (target-free) or the board
+pose from ``solvePnP`` (target).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+
+from drivers.platform import MotionGuard
+from fgcd_cli.calibration.board import BoardSpec
+from fgcd_cli.calibration.errors import CalibrationError
+from fgcd_cli.calibration.handeye import HandEyeResult, solve_handeye_scale
+from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_handeye_target
+from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
+from fgcd_cli.geometry.camera import PinholeCamera
+
+__all__ = ["TargetFreeRun", "TargetRun", "run_target_free", "run_target", "CameraSourceLike", "VseEngineLike"]
+
+
+class CameraSourceLike(Protocol):
+    """What the procedures need from a camera (``drivers.cameras.CameraSource``)."""
+
+    def grab(self) -> Any:
+        """A frame with ``.image`` and ``.timestamp_s``."""
+
+
+class VseEngineLike(Protocol):
+    """What the target-free procedure needs from a VSE engine (``fgcd_cli.vse.MonocularVSE``)."""
+
+    def process(self, image: np.ndarray, timestamp_s: float) -> Any:
+        """A state with ``.status``, ``.message`` and ``.T_map_cam``."""
+
+
+@dataclass(kw_only=True)
+class TargetFreeRun:
+    """Outcome of :func:`run_target_free`.
+
+    Attributes
+    ----------
+    result : HandEyeResult
+        Hand-eye and map scale of this VSE session.
+    T_base_flange, T_map_cam : list of (4, 4) ndarray
+        The samples used (reported flange poses, VSE poses in map units).
+    skipped : dict of int to str
+        Stops without a usable VSE pose, with the reason.
+    frames : int
+        Frames given to the VSE.
+    engine : object
+        The VSE engine, still tracking (the session can continue with it).
+    """
+
+    result: HandEyeResult
+    T_base_flange: list[np.ndarray]
+    T_map_cam: list[np.ndarray]
+    skipped: dict[int, str] = field(default_factory=dict)
+    frames: int = 0
+    engine: Any = None
+
+
+@dataclass(kw_only=True)
+class TargetRun:
+    """Outcome of :func:`run_target`: the solvers' result and the samples."""
+
+    result: TargetHandEyeResult
+    T_base_flange: list[np.ndarray]
+    T_cam_target: list[np.ndarray]
+    skipped: dict[int, str] = field(default_factory=dict)
+
+
+def _rotation_axes(guard: MotionGuard) -> str:
+    caps = guard.platform.capabilities()
+    return "".join(a for a in "xyz" if f"r{a}" in caps.controllable)
+
+
+def run_target_free(
+    guard: MotionGuard,
+    camera_source: CameraSourceLike,
+    vse_engine_factory: Callable[[PinholeCamera], VseEngineLike],
+    *,
+    camera: PinholeCamera,
+    motions: Sequence[np.ndarray] | None = None,
+    translation_m: float = 0.03,
+    rotation_deg: float = 8.0,
+    settle_frames: int = 3,
+    max_step_m: float = 0.005,
+    max_step_deg: float = 1.0,
+    progress: Callable[[str], None] | None = None,
+) -> TargetFreeRun:
+    """Command exploration motions, track them with the VSE, solve ``X`` and ``s``.
+
+    Parameters
+    ----------
+    guard : MotionGuard
+        The platform, behind its safety guard.
+    camera_source : CameraSourceLike
+        ``grab() -> Frame``.
+    vse_engine_factory : callable(PinholeCamera) -> engine
+        Builds a fresh monocular VSE (e.g. ``fgcd_cli.vse.MonocularVSE``).
+    camera : PinholeCamera
+        Calibrated intrinsics.
+    motions : sequence of (4, 4) ndarray, optional
+        Stops relative to the start flange pose; default :func:`exploration_motions`.
+    translation_m, rotation_deg : float
+        Size of the default motions.
+    settle_frames : int
+        Frames given to the VSE at each stop before its pose is read.
+    max_step_m, max_step_deg : float
+        Largest platform step between two frames (keeps the tracker locked).
+    progress : callable(str), optional
+        Receives one line per stop.
+
+    Returns
+    -------
+    TargetFreeRun
+
+    Raises
+    ------
+    CalibrationError
+        The platform cannot rotate about two axes, the VSE failed, or the
+        samples are degenerate.
+    drivers.platform.PlatformError
+        A motion failed or was refused (the platform stays where it stopped).
+    """
+    say = progress or (lambda _msg: None)
+    if motions is None:
+        axes = _rotation_axes(guard)
+        if len(axes) < 2:
+            raise CalibrationError(
+                f"platform '{guard.platform.name}' rotates about {len(axes)} axis(es) only: target-free hand-eye "
+                "needs rotations about two axes (use a 6-DoF arm, or enter the hand-eye measured by hand)"
+            )
+        motions = exploration_motions(translation_m=translation_m, rotation_deg=rotation_deg, rotation_axes=axes)
+    engine = vse_engine_factory(camera)
+    T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
+    hand: list[np.ndarray] = []
+    eye: list[np.ndarray] = []
+    skipped: dict[int, str] = {}
+    frames = 0
+    state = None
+
+    def feed() -> Any:
+        nonlocal frames
+        frame = camera_source.grab()
+        frames += 1
+        return engine.process(frame.image, frame.timestamp_s)
+
+    T_prev = T_start
+    for index, T_rel in enumerate(motions):
+        T_target = T_start @ np.asarray(T_rel, dtype=float)
+        for T_step in interpolate_steps(T_prev, T_target, max_step_m=max_step_m, max_step_deg=max_step_deg) if index else []:
+            guard.move_to(T_step)
+            state = feed()
+        T_prev = T_target
+        for _ in range(max(1, settle_frames)):
+            state = feed()
+        if state.status == "failed":
+            raise CalibrationError(f"the VSE cannot track this scene: {state.message}")
+        if state.status == "tracking" and state.T_map_cam is not None:
+            hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
+            eye.append(np.asarray(state.T_map_cam, dtype=float))
+            say(f"stop {index + 1}/{len(motions)}: sample {len(hand)} recorded")
+        else:
+            skipped[index] = f"VSE {state.status}: {state.message}"
+            say(f"stop {index + 1}/{len(motions)}: no VSE pose ({state.status})")
+    if len(hand) < 3:
+        raise CalibrationError(
+            f"the VSE gave a pose at only {len(hand)} of {len(motions)} stops: point the camera at a textured, "
+            "static surface 0.3-2 m away and try again"
+        )
+    result = solve_handeye_scale(hand, eye, pairs="all")
+    return TargetFreeRun(result=result, T_base_flange=hand, T_map_cam=eye, skipped=skipped, frames=frames, engine=engine)
+
+
+def run_target(
+    guard: MotionGuard,
+    camera_source: CameraSourceLike,
+    board: BoardSpec,
+    *,
+    camera: PinholeCamera,
+    motions: Sequence[np.ndarray] | None = None,
+    rotation_deg: float = 15.0,
+    translation_m: float = 0.04,
+    methods: Sequence[str] = ("TSAI", "PARK", "HORAUD", "ANDREFF", "DANIILIDIS"),
+    min_corners: int = 12,
+    progress: Callable[[str], None] | None = None,
+) -> TargetRun:
+    """Visit stops looking at a fixed ChArUco board and solve ``AX = XB``.
+
+    Parameters
+    ----------
+    guard : MotionGuard
+        The platform behind its safety guard.
+    camera_source : CameraSourceLike
+        ``grab() -> Frame``.
+    board : BoardSpec
+        The board as printed, fixed in the scene, visible from the start pose.
+    camera : PinholeCamera
+        Calibrated intrinsics.
+    motions : sequence of (4, 4) ndarray, optional
+        Stops relative to the start flange pose; default :func:`target_motions`.
+    rotation_deg, translation_m : float
+        Size of the default motions.
+    methods : sequence of str
+        Solvers to compare.
+    min_corners : int
+        Views with fewer board corners are skipped.
+    progress : callable(str), optional
+        Receives one line per stop.
+
+    Returns
+    -------
+    TargetRun
+    """
+    say = progress or (lambda _msg: None)
+    motions = list(motions) if motions is not None else target_motions(rotation_deg=rotation_deg, translation_m=translation_m)
+    T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
+    step_m = guard.limits.max_step_m * 0.95
+    step_deg = np.degrees(guard.limits.max_step_rad) * 0.95
+    hand: list[np.ndarray] = []
+    boards: list[np.ndarray] = []
+    skipped: dict[int, str] = {}
+    T_prev = T_start
+    for index, T_rel in enumerate(motions):
+        T_target = T_start @ np.asarray(T_rel, dtype=float)
+        if index:
+            for T_step in interpolate_steps(T_prev, T_target, max_step_m=step_m, max_step_deg=step_deg):
+                guard.move_to(T_step)
+        T_prev = T_target
+        frame = camera_source.grab()
+        det = board.detect(frame.image)
+        T_cam_target = board.estimate_pose(det, camera.K, camera.dist) if det.n_corners >= min_corners else None
+        if T_cam_target is None:
+            skipped[index] = f"board not seen ({det.n_corners} corners)"
+            say(f"stop {index + 1}/{len(motions)}: board not seen ({det.n_corners} corners)")
+            continue
+        hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
+        boards.append(T_cam_target)
+        say(f"stop {index + 1}/{len(motions)}: {det.n_corners} corners")
+    # Return to the start pose (the same small steps).
+    for T_step in interpolate_steps(T_prev, T_start, max_step_m=step_m, max_step_deg=step_deg):
+        guard.move_to(T_step)
+    if len(hand) < 3:
+        raise CalibrationError(
+            f"the board was seen at only {len(hand)} of {len(motions)} stops: place it 0.3-0.8 m in front of the "
+            "camera, fully visible from the start pose, or reduce --rotation-deg"
+        )
+    result = solve_handeye_target(hand, boards, methods=methods)
+    return TargetRun(result=result, T_base_flange=hand, T_cam_target=boards, skipped=skipped)

@@ -1,0 +1,163 @@
+"""The calibration procedures against a fake rig: motions pass the guard, samples are solved."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
+from fgcd_cli.calibration.errors import CalibrationError
+from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
+from fgcd_cli.calibration.procedure import run_target_free
+from fgcd_cli.calibration.samples import rotation_axis_spread_deg
+from fgcd_cli.errors import UserInputError
+from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_cli.geometry.se3 import exp_so3, invert_pose, make_pose, pose_distance
+
+CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
+
+
+class IdealPlatform:
+    """A 6-DoF platform that reaches every target exactly and counts its motions."""
+
+    name = "ideal"
+
+    def __init__(self, rot_axes=("rx", "ry", "rz")):
+        self.T = make_pose(exp_so3([3.0, 0.1, 0.0]), [0.5, 0.0, 0.4])
+        self.moves = []
+        self.rot_axes = rot_axes
+
+    def connect(self):
+        pass
+
+    def capabilities(self):
+        return Capabilities(
+            dof=3 + len(self.rot_axes),
+            controllable=("x", "y", "z") + tuple(self.rot_axes),
+            workspace_min_m=(-1.0, -1.0, -1.0),
+            workspace_max_m=(1.0, 1.0, 1.0),
+            max_linear_speed_m_s=0.1,
+            max_angular_speed_rad_s=0.5,
+        )
+
+    def flange_pose(self):
+        return self.T.copy()
+
+    def move_to(self, T, *, speed_fraction=1.0):
+        self.moves.append(pose_distance(self.T, T))
+        self.T = np.asarray(T, float).copy()
+        return MoveResult(T_base_flange_target=T, T_base_flange_reached=T, T_base_flange_commanded=T)
+
+    def stop(self):
+        pass
+
+    def home(self):
+        pass
+
+    def close(self):
+        pass
+
+
+class FakeVSE:
+    """Reports the true camera pose in a map frame scaled by 1/s, after an initialisation delay."""
+
+    def __init__(self, platform, X, scale, init_frames=5):
+        self.platform, self.X, self.scale = platform, X, scale
+        self.T_base_map = make_pose(exp_so3([0.2, -0.4, 1.0]), [0.1, 0.2, 0.3])
+        self.frames = 0
+        self.init_frames = init_frames
+
+    def process(self, image, timestamp_s):
+        self.frames += 1
+        if self.frames <= self.init_frames:
+            return SimpleNamespace(status="initializing", message="need parallax", T_map_cam=None)
+        T = invert_pose(self.T_base_map) @ self.platform.T @ self.X
+        T[:3, 3] /= self.scale
+        return SimpleNamespace(status="tracking", message="ok", T_map_cam=T)
+
+
+class FakeCamera:
+    def __init__(self):
+        self.t = 0.0
+
+    def grab(self):
+        self.t += 0.1
+        return SimpleNamespace(image=np.zeros((4, 4), np.uint8), timestamp_s=self.t)
+
+
+def test_exploration_motions_are_small_and_rotate_about_several_axes():
+    stops = exploration_motions(translation_m=0.03, rotation_deg=8.0)
+    np.testing.assert_allclose(stops[0], np.eye(4))
+    np.testing.assert_allclose(stops[-1], np.eye(4))
+    assert np.linalg.norm(stops[1][:3, 3]) > 0 and np.allclose(stops[1][:3, :3], np.eye(3))
+    for T in stops:
+        assert np.linalg.norm(T[:3, 3]) <= 0.03 * math.sqrt(2) + 1e-9
+        assert pose_distance(np.eye(4), T)[1] <= 8.0 * 1.0 + 1e-6
+    assert rotation_axis_spread_deg([T[:3, :3] for T in stops if not np.allclose(T[:3, :3], np.eye(3))]) > 45
+    with pytest.raises(UserInputError, match="two of the axes"):
+        exploration_motions(rotation_axes="z")
+    assert len(target_motions()) == 13
+
+
+def test_interpolate_steps_respects_limits_and_arrives():
+    T0 = make_pose(np.eye(3), [0, 0, 0])
+    T1 = make_pose(exp_so3(np.radians([10, -5, 3])), [0.04, 0.01, -0.02])
+    steps = interpolate_steps(T0, T1, max_step_m=0.005, max_step_deg=1.0)
+    np.testing.assert_allclose(steps[-1], T1, atol=1e-12)
+    prev = T0
+    for T in steps:
+        mm, deg = pose_distance(prev, T)
+        assert mm <= 5.0 + 1e-9 and deg <= 1.0 + 1e-9
+        prev = T
+
+
+def test_run_target_free_recovers_x_and_scale_through_the_guard():
+    platform = IdealPlatform()
+    X = make_pose(exp_so3([0.1, -0.3, 0.2]), [0.03, -0.05, 0.08])
+    camera = FakeCamera()
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
+    start = platform.flange_pose()
+    run = run_target_free(guard, camera, lambda cam: FakeVSE(platform, X, 0.42), camera=CAMERA)
+    assert pose_distance(run.result.T_flange_cam, X)[0] < 1e-6
+    assert run.result.scale == pytest.approx(0.42, rel=1e-9)
+    assert run.skipped and 0 in run.skipped  # the VSE was still initialising at the first stop
+    assert max(m for m, _ in platform.moves) <= 5.0 + 1e-9
+    np.testing.assert_allclose(platform.flange_pose(), start, atol=1e-12)  # back home at the end
+
+
+def test_run_target_free_refuses_a_platform_that_cannot_rotate():
+    platform = IdealPlatform(rot_axes=("rz",))
+    guard = MotionGuard(platform)
+    with pytest.raises(CalibrationError, match="rotates about 1 axis"):
+        run_target_free(guard, FakeCamera(), lambda cam: FakeVSE(platform, np.eye(4), 1.0), camera=CAMERA)
+    assert platform.moves == []
+
+
+def test_run_target_free_reports_a_vse_that_never_tracks():
+    platform = IdealPlatform()
+    guard = MotionGuard(platform)
+    with pytest.raises(CalibrationError, match="VSE gave a pose at only 0"):
+        run_target_free(guard, FakeCamera(), lambda cam: FakeVSE(platform, np.eye(4), 1.0, init_frames=10**6), camera=CAMERA)
+
+
+def test_results_are_stored_in_the_campaign_rig_with_history(tmp_path, handeye_data):
+    from fgcd_cli.calibration.handeye import solve_handeye_scale
+    from fgcd_cli.calibration.rig import load_camera, load_handeye, save_handeye
+    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.errors import CampaignError
+
+    camp = init_campaign(tmp_path / "c", site="test")
+    with pytest.raises(CampaignError, match="not calibrated"):
+        load_camera(camp)
+    assert load_handeye(camp) is None
+    d = handeye_data(seed=1)
+    first = solve_handeye_scale(d["T_base_flange"], d["T_map_cam"])
+    save_handeye(camp, first)
+    second = solve_handeye_scale(d["T_base_flange"][:8], d["T_map_cam"][:8])
+    save_handeye(camp, second)
+    loaded = load_handeye(camp)
+    assert loaded.n_samples == 8 and np.allclose(loaded.T_flange_cam, second.T_flange_cam)
+    assert len(list((camp.path / "rig" / "history").glob("handeye-*.json"))) >= 1
