@@ -33,6 +33,7 @@ __all__ = [
     "render_board_view",
     "random_board_poses",
     "BOARD_LABEL",
+    "SimBoardCamera",
 ]
 
 #: Label of the board in the renderer's label buffer.
@@ -256,3 +257,53 @@ def random_board_poses(
             continue
         poses.append(T)
     return poses
+
+
+class SimBoardCamera:
+    """A simulated camera looking at a hand-held board: each ``grab()`` shows a new pose.
+
+    The true intrinsics differ from the nominal ones like a real camera's
+    (``drivers.sim.camera.perturbed_intrinsics``, seeded); only evaluation code
+    reads :attr:`intrinsics_true` and :attr:`poses_true`.
+
+    Parameters
+    ----------
+    board : SimBoard
+    seed : int
+        Seeds the true intrinsics, the board poses and the sensor noise.
+    intrinsics_error : str or float
+        ``"none"``, ``"default"``, ``"large"`` or a factor (see ``perturbed_intrinsics``).
+    supersample : int
+        Anti-aliasing rays per pixel and axis.
+    """
+
+    def __init__(self, board: SimBoard, *, seed: int = 0, intrinsics_error="default", supersample: int = 2):
+        from drivers.cameras import Frame
+        from drivers.sim.camera import DEFAULT_INTRINSICS, perturbed_intrinsics
+
+        self._frame_type = Frame
+        self.board = board
+        self.intrinsics_nominal = DEFAULT_INTRINSICS
+        self.intrinsics_true = perturbed_intrinsics(DEFAULT_INTRINSICS, intrinsics_error, np.random.default_rng([seed, 0xB0A]))
+        self._rng = np.random.default_rng([seed, 0xB0B])
+        self._supersample = supersample
+        self.poses_true: list[np.ndarray] = []
+        self._t = 0.0
+
+    def _params(self) -> dict:
+        i = self.intrinsics_true
+        return dict(fx=i.fx, fy=i.fy, cx=i.cx, cy=i.cy, width=i.width, height=i.height)
+
+    def grab(self):
+        """Next view: the board at a new pose (cycling over image regions and tilts)."""
+        # Draw one pose at a time, cycling the image cells like random_board_poses does for a list.
+        k = len(self.poses_true)
+        T = random_board_poses(self.board, k + 1, **self._params(), rng=np.random.default_rng([int(self._rng.integers(1 << 31)), k]))[k]
+        self.poses_true.append(T)
+        image = render_board_view(self.board, T, **self._params(), dist=self.intrinsics_true.dist,
+                                  supersample=self._supersample, rng=self._rng)
+        self._t += 0.5
+        return self._frame_type(image, self._t)
+
+    def close(self) -> None:
+        """Nothing to release."""

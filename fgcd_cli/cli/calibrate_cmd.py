@@ -1,0 +1,268 @@
+"""`fgcd calibrate board|intrinsics|hand-eye`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from fgcd_cli.cli.output import emit, info
+from fgcd_cli.errors import UserInputError
+
+app = typer.Typer(help="Calibrate the rig: ChArUco board, camera intrinsics, hand-eye and map scale.", no_args_is_help=True)
+
+JSON_OPT = typer.Option(False, "--json", help="Print one JSON object instead of text.")
+
+
+def _board_from_options(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary):
+    from fgcd_cli.calibration.board import BoardSpec, load_board_sidecar
+
+    if board_file is not None:
+        board = load_board_sidecar(board_file)
+        if square_mm is not None:  # the measured print overrides the nominal size
+            ratio = square_mm / (board.square_m * 1000)
+            board = BoardSpec(**{**board.__dict__, "square_m": board.square_m * ratio, "marker_m": board.marker_m * ratio})
+        return board
+    square = 25.0 if square_mm is None else square_mm
+    marker = marker_mm if marker_mm is not None else square * 0.72
+    return BoardSpec(
+        squares_x=squares_x, squares_y=squares_y, square_m=square / 1000, marker_m=marker / 1000, dictionary=dictionary
+    )
+
+
+BOARD_FILE = typer.Option(None, "--board", help="Board sidecar JSON written by `fgcd calibrate board`.")
+SQX = typer.Option(10, "--squares-x", help="Squares along the board's width.")
+SQY = typer.Option(7, "--squares-y", help="Squares along the board's height.")
+SQMM = typer.Option(None, "--square-mm", help="Side of one square in mm (measure the print).")
+MKMM = typer.Option(None, "--marker-mm", help="Side of one marker in mm (default 72 % of the square).")
+DICT = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary.")
+
+
+def _open_campaign(path: Optional[Path]):
+    if path is None:
+        return None
+    from fgcd_cli.campaign import open_campaign
+
+    return open_campaign(path)
+
+
+@app.command("board")
+def board_cmd(
+    output: Path = typer.Option(..., "--output", "-o", help="Board file to write: .png or .pdf (true size)."),
+    squares_x: int = SQX,
+    squares_y: int = SQY,
+    square_mm: Optional[float] = SQMM,
+    marker_mm: Optional[float] = MKMM,
+    dictionary: str = DICT,
+    dpi: int = typer.Option(300, "--dpi", help="Print resolution."),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """Write a printable ChArUco board and its exact geometry (<output>.json)."""
+    from fgcd_cli.calibration.board import write_printable_board
+
+    board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
+    sidecar = write_printable_board(board, output, dpi=dpi)
+    data = {"board_file": str(output), "sidecar": str(output) + ".json", **sidecar}
+    emit(
+        data,
+        as_json=as_json,
+        render=lambda c: c.print(
+            f"Wrote {output} ({sidecar['page_mm'][0]:.0f} x {sidecar['page_mm'][1]:.0f} mm, "
+            f"{board.squares_x}x{board.squares_y} squares of {board.square_m * 1000:.1f} mm) and {output}.json\n"
+            + sidecar["instructions"]
+        ),
+    )
+
+
+def _load_images(directory: Path) -> tuple[list[np.ndarray], list[str]]:
+    import cv2
+
+    if not directory.is_dir():
+        raise UserInputError(f"{directory} is not a directory of images")
+    files = sorted(p for p in directory.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"))
+    if not files:
+        raise UserInputError(f"no images (.png, .jpg, .tif, .bmp) in {directory}")
+    images, names = [], []
+    for p in files:
+        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise UserInputError(f"cannot read image {p}")
+        images.append(img)
+        names.append(p.name)
+    return images, names
+
+
+@app.command("intrinsics")
+def intrinsics_cmd(
+    images: Optional[Path] = typer.Option(None, "--images", help="Folder of board photographs."),
+    sim: bool = typer.Option(False, "--sim", help="Use views of a board rendered by the simulator."),
+    sim_views: int = typer.Option(20, "--sim-views", help="Number of simulated views."),
+    seed: int = typer.Option(0, "--seed", help="Simulated camera (same seed as the simulated rig)."),
+    board_file: Optional[Path] = BOARD_FILE,
+    squares_x: int = SQX,
+    squares_y: int = SQY,
+    square_mm: Optional[float] = SQMM,
+    marker_mm: Optional[float] = MKMM,
+    dictionary: str = DICT,
+    distortion: str = typer.Option("k1k2p1p2", "--distortion", help="none, k1k2, k1k2p1p2 or k1k2p1p2k3."),
+    campaign: Optional[Path] = typer.Option(None, "--campaign", "-c", help="Store the result in this campaign's rig."),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """Calibrate the camera from views of a ChArUco board."""
+    from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
+    from fgcd_cli.calibration.rig import save_intrinsics
+
+    if (images is None) == (not sim):
+        raise UserInputError("give exactly one of --images DIR or --sim")
+    camp = _open_campaign(campaign)
+    if sim:
+        from drivers.sim.board import SimBoard, SimBoardCamera
+
+        board_file = None
+        board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
+        source = SimBoardCamera(
+            SimBoard(squares_x=board.squares_x, squares_y=board.squares_y, square_m=board.square_m,
+                     marker_m=board.marker_m, dictionary=board.dictionary),
+            seed=seed,
+        )
+        if not as_json:
+            info(f"rendering {sim_views} simulated board views…")
+        imgs = [source.grab().image for _ in range(sim_views)]
+        names = [f"sim_{i:03d}" for i in range(sim_views)]
+    else:
+        board = _board_from_options(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary)
+        imgs, names = _load_images(images)
+    result = calibrate_intrinsics(imgs, board, names=names, distortion_model=distortion)
+    data = result.to_dict()
+    if camp is not None:
+        data["stored"] = save_intrinsics(camp, result)
+
+    def render(console):
+        cam = result.camera
+        console.print(
+            f"fx {cam.fx:.2f} ± {result.std_px['fx']:.2f}  fy {cam.fy:.2f} ± {result.std_px['fy']:.2f}  "
+            f"cx {cam.cx:.2f}  cy {cam.cy:.2f} px   dist {', '.join(f'{d:.4f}' for d in cam.dist)}"
+        )
+        console.print(
+            f"RMS reprojection error {result.rms_px:.3f} px over {result.n_views} views ({result.n_corners} corners), "
+            f"coverage {result.coverage_pct:.0f} %, largest tilt {result.max_tilt_deg:.0f} deg"
+        )
+        table = Table("view", "error px")
+        for name, err in result.per_view_error_px.items():
+            table.add_row(name, f"{err:.3f}")
+        for name, why in result.rejected.items():
+            table.add_row(name, f"[red]rejected[/red]: {why}")
+        console.print(table)
+        for line in result.feedback:
+            console.print(f"[yellow]hint:[/yellow] {line}")
+        if "stored" in data:
+            console.print(f"stored in {data['stored']}")
+
+    emit(data, as_json=as_json, render=render)
+
+
+def _render_handeye(console, data: dict) -> None:
+    from fgcd_cli.geometry.se3 import log_so3
+
+    X = np.array(data["T_flange_cam"])
+    rv = np.degrees(log_so3(X[:3, :3]))
+    console.print(
+        f"T_flange_cam: t = ({', '.join(f'{v * 1000:.1f}' for v in X[:3, 3])}) mm, "
+        f"rotation vector = ({', '.join(f'{v:.2f}' for v in rv)}) deg   [{data['method']}]"
+    )
+    if data.get("scale") is not None:
+        console.print(f"map scale s = {data['scale']:.5f} m per VSE unit")
+    console.print(
+        f"{data['n_samples']} samples, {data['n_pairs']} motion pairs, residual RMS {data['rms_mm']:.2f} mm / "
+        f"{data['rms_deg']:.3f} deg, rotation-axis spread {data['axis_spread_deg']:.0f} deg"
+    )
+    table = Table("sample", "mean residual mm", "deg")
+    for i, (mm, deg) in enumerate(zip(data["sample_residuals_mm"], data["sample_residuals_deg"])):
+        table.add_row(str(i), f"{mm:.2f}", f"{deg:.3f}")
+    console.print(table)
+    if "methods" in data:
+        mt = Table("solver", "RMS mm", "RMS deg")
+        for name, m in data["methods"].items():
+            mt.add_row(name + (" (chosen)" if name == data["method"] else ""), f"{m['rms_mm']:.2f}", f"{m['rms_deg']:.3f}")
+        console.print(mt)
+        console.print(f"solvers agree within {data['agreement_mm']:.2f} mm / {data['agreement_deg']:.3f} deg")
+    for note in data.get("notes", []):
+        console.print(f"[yellow]note:[/yellow] {note}")
+    if "stored" in data:
+        console.print(f"stored in {data['stored']}")
+
+
+@app.command("hand-eye")
+def handeye_cmd(
+    mode: str = typer.Option("target-free", "--mode", help="target (ChArUco board) or target-free (VSE, rACR)."),
+    driver: str = typer.Option("sim", "--driver", help="sim, grbl or ur."),
+    campaign: Optional[Path] = typer.Option(None, "--campaign", "-c", help="Campaign: intrinsics from, result into its rig."),
+    scene: str = typer.Option("stele", "--scene", help="Simulator scene (--driver sim)."),
+    seed: int = typer.Option(0, "--seed", help="Simulated rig seed (--driver sim)."),
+    port: Optional[str] = typer.Option(None, "--port", help="Serial port (grbl)."),
+    host: Optional[str] = typer.Option(None, "--host", help="Robot address (ur)."),
+    camera_index: str = typer.Option("0", "--camera", help="OpenCV camera index or device path."),
+    translation_mm: float = typer.Option(30.0, "--translation-mm", help="Exploration translation (target-free)."),
+    rotation_deg: float = typer.Option(8.0, "--rotation-deg", help="Rotation about each axis (target: default 15)."),
+    board_file: Optional[Path] = BOARD_FILE,
+    yes: bool = typer.Option(False, "--yes", help="Do not ask before the first motion."),
+    as_json: bool = JSON_OPT,
+) -> None:
+    """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
+    from fgcd_cli.calibration.procedure import run_target, run_target_free
+    from fgcd_cli.calibration.rig import load_intrinsics, save_handeye
+    from fgcd_cli.rigs import SimScenario, open_rig
+
+    if mode not in ("target", "target-free"):
+        raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
+    if mode == "target" and driver == "sim":
+        raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
+    camp = _open_campaign(campaign)
+    intr = load_intrinsics(camp) if camp is not None else None
+    confirm = None if yes else (lambda text: typer.confirm(text, default=False, err=True))
+    opened = open_rig(
+        driver=driver,
+        T_flange_cam=None,
+        intrinsics=intr.camera if intr is not None else None,
+        scenario=SimScenario(scene=scene, seed=seed),
+        port=port,
+        host=host,
+        camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
+        confirm=confirm,
+    )
+    progress = None if as_json else info
+    try:
+        h = opened.handles
+        if mode == "target-free":
+            from fgcd_cli.vse import MonocularVSE
+
+            if not as_json:
+                info("target-free hand-eye: the platform makes small motions while the VSE tracks…")
+            run = run_target_free(
+                h.guard, h.camera_source, lambda cam: MonocularVSE(cam), camera=h.intrinsics,
+                translation_m=translation_mm / 1000, rotation_deg=rotation_deg, progress=progress,
+            )
+            result, data = run.result, run.result.to_dict()
+            data["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
+        else:
+            if board_file is None:
+                raise UserInputError("--mode target needs --board <sidecar.json> describing the printed board")
+            from fgcd_cli.calibration.board import load_board_sidecar
+
+            run = run_target(
+                h.guard, h.camera_source, load_board_sidecar(board_file), camera=h.intrinsics,
+                rotation_deg=rotation_deg if rotation_deg != 8.0 else 15.0, progress=progress,
+            )
+            result, data = run.result.best, run.result.to_dict()
+            data["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
+    finally:
+        opened.close()
+    data["mode"] = mode
+    data["driver"] = driver
+    if camp is not None:
+        data["stored"] = save_handeye(camp, result, extra={"mode": mode, "driver": driver})
+    emit(data, as_json=as_json, render=lambda c: _render_handeye(c, data))
+
