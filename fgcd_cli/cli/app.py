@@ -44,6 +44,9 @@ def _register() -> None:
     from fgcd_cli.cli import bench_cmd
 
     app.add_typer(bench_cmd.app, name="bench")
+    from fgcd_cli.cli import calibrate_cmd
+
+    app.add_typer(calibrate_cmd.app, name="calibrate")
 
 
 _register()
