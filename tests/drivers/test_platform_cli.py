@@ -1,0 +1,127 @@
+"""``fgcd platform`` end to end (subprocess) against the GRBL pty emulator and the fake UR."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from drivers.testing.fake_ur import FakeURProcess
+from drivers.testing.grbl_emulator import GrblEmulator
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def fgcd(*args: str, **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "fgcd_cli.cli.app", *args], capture_output=True, text=True, timeout=60, **kwargs
+    )
+
+
+@pytest.fixture
+def emulator():
+    emu = GrblEmulator(time_scale=0.2)
+    try:
+        yield emu
+    finally:
+        emu.close()
+
+
+def test_check_grbl_json(emulator):
+    run = fgcd("platform", "check", "--driver", "grbl", "--port", emulator.port, "--timeout", "1", "--json")
+    assert run.returncode == 0, run.stderr
+    data = json.loads(run.stdout)
+    assert data["state"] == "Idle" and data["healthy"] is True
+    assert data["pose"]["position_mm"] == [-10.0, -10.0, -10.0]
+
+
+def test_move_grbl_arrives_and_reports_unreachable_rotation(emulator):
+    run = fgcd(
+        "platform", "move", "--driver", "grbl", "--port", emulator.port, "--timeout", "1",
+        "--dx", "-2.5", "--ry", "1.0", "--yes", "--json",
+    )
+    assert run.returncode == 0, run.stderr
+    data = json.loads(run.stdout)
+    assert data["arrived"] and data["unreachable"] == ["ry"]
+    assert emulator.position() == pytest.approx([-12.5, -10.0, -10.0], abs=1e-3)
+
+
+def test_move_outside_workspace_is_one_line_error(emulator):
+    run = fgcd("platform", "move", "--driver", "grbl", "--port", emulator.port, "--timeout", "1", "--dz", "20", "--yes")
+    assert run.returncode == 7
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "outside the workspace" in lines[0], run.stderr
+    assert emulator.position() == [-10.0, -10.0, -10.0]
+
+
+def test_silent_port_is_one_line_timeout():
+    emu = GrblEmulator()
+    emu.set_silent(True)
+    try:
+        run = fgcd("platform", "check", "--driver", "grbl", "--port", emu.port, "--timeout", "0.5")
+    finally:
+        emu.close()
+    assert run.returncode == 7 and "no GRBL banner" in run.stderr
+    assert "Traceback" not in run.stderr
+
+
+def test_ctrl_c_during_move_stops_stage_and_exits_130(emulator):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "grbl", "--port", emulator.port,
+         "--timeout", "1", "--dx", "-40", "--speed-fraction", "0.1", "--yes"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while emulator.position()[0] > -10.5 and time.monotonic() < deadline:
+            time.sleep(0.05)  # wait until the stage moves
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "interrupted by the user" in lines[0], stderr
+    stopped = emulator.position()
+    time.sleep(0.3)
+    assert emulator.position() == stopped and stopped[0] > -45.0
+
+
+def test_check_in_alarm_is_unhealthy_and_fails():
+    emu = GrblEmulator(homing_enabled=True)
+    try:
+        run = fgcd("platform", "check", "--driver", "grbl", "--port", emu.port, "--timeout", "1")
+        assert run.returncode == 7 and "not healthy (Alarm)" in run.stderr, run.stderr
+        run = fgcd("platform", "home", "--driver", "grbl", "--port", emu.port, "--timeout", "1", "--yes", "--json")
+        assert run.returncode == 0, run.stderr
+        assert json.loads(run.stdout)["pose"]["position_mm"] == [0.0, 0.0, 0.0]
+    finally:
+        emu.close()
+
+
+def test_bad_driver_is_user_error():
+    run = fgcd("platform", "check", "--driver", "kuka")
+    assert run.returncode == 2 and "unknown driver 'kuka'" in run.stderr
+
+
+def test_check_and_move_ur_against_fake_controller():
+    with FakeURProcess():
+        run = fgcd("platform", "check", "--driver", "ur", "--host", "127.0.0.1", "--json")
+        assert run.returncode == 0, run.stderr
+        data = json.loads(run.stdout)
+        assert data["healthy"] and data["pose"]["position_mm"] == pytest.approx([400.0, -100.0, 300.0])
+        run = fgcd("platform", "move", "--driver", "ur", "--host", "127.0.0.1", "--dz", "5", "--yes", "--json")
+        assert run.returncode == 0, run.stderr
+        # The flange points down (rotation pi about x): +5 mm along flange z is -5 mm in base z.
+        assert json.loads(run.stdout)["reached"]["position_mm"] == pytest.approx([400.0, -100.0, 295.0], abs=0.2)
+
+
+def test_ur_unreachable_host_is_one_line_error():
+    run = fgcd("platform", "check", "--driver", "ur", "--host", "127.0.0.1", "--timeout", "0.5")
+    assert run.returncode == 7 and "cannot reach the UR controller" in run.stderr
