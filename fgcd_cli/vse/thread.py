@@ -1,0 +1,148 @@
+"""Run a VSE engine continuously over a camera source in its own thread.
+
+The worker grabs a frame, processes it and publishes the resulting immutable
+:class:`~fgcd_cli.vse.types.VseState` by swapping one reference under a lock;
+readers (:meth:`VseThread.latest`) only take that lock for the swap, so they
+never wait for a frame to be processed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+from fgcd_cli.vse.types import FrameSource, VseState
+
+__all__ = ["VseThread"]
+
+
+class VseThread:
+    """A VSE engine running over a camera source.
+
+    Parameters
+    ----------
+    engine : MonocularVSE, SparseVSE or RgbdVSE
+        The engine (``process(image, timestamp_s[, depth=...])``, ``state()``, ``reset()``).
+    source : FrameSource
+        Anything with ``grab() -> frame`` (``frame.image``, ``frame.timestamp_s``,
+        optional ``frame.depth``), e.g. a ``drivers.cameras`` camera.
+    idle_s : float
+        Pause between frames (0: as fast as the engine goes).
+    max_consecutive_errors : int
+        Camera errors in a row after which the thread stops and reports ``failed``.
+    """
+
+    def __init__(self, engine, source: FrameSource, *, idle_s: float = 0.0, max_consecutive_errors: int = 20):
+        self.engine = engine
+        self.source = source
+        self.idle_s = float(idle_s)
+        self.max_consecutive_errors = int(max_consecutive_errors)
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._latest: VseState = engine.state()
+        self._stop = threading.Event()
+        self._reset_requested = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: str | None = None
+
+    # ------------------------------------------------------------------ control
+    def start(self) -> "VseThread":
+        """Start the worker (idempotent)."""
+        if self._thread is not None and self._thread.is_alive():
+            return self
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="vse", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Ask the worker to stop and wait for it (at most ``timeout`` seconds)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        with self._cond:
+            self._cond.notify_all()
+
+    @property
+    def running(self) -> bool:
+        """True while the worker thread is alive."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def reset(self) -> None:
+        """Ask the engine to forget its map before the next frame (non-blocking)."""
+        self._reset_requested.set()
+        if not self.running:
+            self._do_reset()
+
+    def latest(self) -> VseState:
+        """The latest published state (never waits for a frame to be processed)."""
+        with self._lock:
+            return self._latest
+
+    def wait_for(self, predicate: Callable[[VseState], bool], timeout: float) -> VseState | None:
+        """Block until ``predicate(latest())`` holds; the state, or ``None`` after ``timeout`` seconds."""
+        deadline = time.monotonic() + float(timeout)
+        with self._cond:
+            while True:
+                if predicate(self._latest):
+                    return self._latest
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or (self._thread is not None and not self._thread.is_alive() and self._stop.is_set()):
+                    return None
+                self._cond.wait(min(remaining, 0.1))
+
+    def __enter__(self) -> "VseThread":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ worker
+    def _publish(self, state: VseState) -> None:
+        with self._cond:
+            self._latest = state
+            self._cond.notify_all()
+
+    def _do_reset(self) -> None:
+        self._reset_requested.clear()
+        self.engine.reset()
+        self._publish(self.engine.state())
+
+    def _run(self) -> None:
+        errors = 0
+        while not self._stop.is_set():
+            if self._reset_requested.is_set():
+                self._do_reset()
+            try:
+                frame = self.source.grab()
+            except Exception as exc:  # camera trouble: report, retry a few times, then stop
+                errors += 1
+                self.error = f"camera error: {exc}"
+                if errors >= self.max_consecutive_errors:
+                    self._publish(_failed(self._latest, f"failed: camera stopped delivering frames ({exc})"))
+                    return
+                time.sleep(0.05)
+                continue
+            errors = 0
+            if self._stop.is_set():
+                break
+            try:
+                depth = getattr(frame, "depth", None)
+                if getattr(self.engine, "_metric", False):
+                    state = self.engine.process(frame.image, frame.timestamp_s, depth=depth)
+                else:
+                    state = self.engine.process(frame.image, frame.timestamp_s)
+            except Exception as exc:  # an engine bug must not kill the caller silently
+                self.error = f"engine error: {type(exc).__name__}: {exc}"
+                self._publish(_failed(self._latest, f"failed: {self.error}"))
+                return
+            self._publish(state)
+            if self.idle_s > 0:
+                self._stop.wait(self.idle_s)
+
+
+def _failed(prev: VseState, message: str) -> VseState:
+    from dataclasses import replace
+
+    return replace(prev, status="failed", message=message)
