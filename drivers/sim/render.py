@@ -120,7 +120,7 @@ def auto_exposure(linear_gray: np.ndarray, valid: np.ndarray | None = None, *, t
     p50 = float(np.percentile(v, 50))
     p99 = float(np.percentile(v, 99.5))
     e = target / max(p50, 1e-6)
-    e = min(e, 1.0 / max(p99, 1e-6))
+    e = min(e, 0.9 / max(p99, 1e-6))
     return float(min(max(e, 1e-3), max_exposure))
 
 
@@ -293,15 +293,19 @@ class Renderer:
                 frac = (level - l0).astype(np.float32)[:, None]
                 uvs = uv[sel]
                 out = np.empty((len(sel), 3), np.float32)
-                for lv in np.unique(l0):
-                    m = np.flatnonzero(l0 == lv)
+                lo, hi = int(l0.min()), int(l0.max())
+                for lv in range(lo, hi + 1):
+                    m = slice(None) if lo == hi else np.flatnonzero(l0 == lv)
+                    if not isinstance(m, slice) and len(m) == 0:
+                        continue
                     acc = None
                     for k, wgt in ((lv, 1.0 - frac[m]), (min(lv + 1, len(pd.pyramid) - 1), frac[m])):
                         tex = pd.pyramid[k]
                         th, tw = tex.shape[:2]
                         x = uvs[m, 0] * np.float32(tw) - np.float32(0.5)
                         y = uvs[m, 1] * np.float32(th) - np.float32(0.5)
-                        smp = _remap_1d(tex, x, y) * wgt
+                        smp = _remap_1d(tex, x, y)
+                        smp *= wgt
                         acc = smp if acc is None else acc + smp
                     out[m] = acc
                 albedo[sel] = out
@@ -448,7 +452,11 @@ class Renderer:
             if isinstance(exposure, str):
                 if exposure != "auto":
                     raise ValueError(f"exposure must be a number or 'auto', got {exposure!r}")
-                exp_used = auto_exposure(lin_gray, valid, max_exposure=effects.max_exposure)
+                # centre-weighted metering, as most cameras do: the middle half of the frame
+                meter = np.zeros_like(valid)
+                meter[h // 4: h - h // 4, w // 4: w - w // 4] = True
+                meter &= valid
+                exp_used = auto_exposure(lin_gray, meter if meter.any() else valid, max_exposure=effects.max_exposure)
             if "gray" in want:
                 gray = apply_camera_response(lin_gray, exposure=exp_used, effects=effects, rng=rng)
             if "rgb" in want:

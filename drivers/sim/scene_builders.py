@@ -67,15 +67,24 @@ def _grid_to_texture(grid: np.ndarray, size) -> np.ndarray:
 
 
 def _text_mask(rng, n_lines: int) -> np.ndarray:
-    """Inscription mask (1 = letter) from scikit-image's photographed text, several lines."""
-    txt = photo("text").mean(axis=2)
-    letters = (txt < 0.45).astype(np.float32)
-    letters = letters[20:160, 10:440]
-    lines = []
-    for _ in range(n_lines):
-        shift = int(rng.integers(0, letters.shape[1]))
-        lines.append(np.roll(letters, shift, axis=1))
-    return np.concatenate(lines, axis=0)
+    """Inscription mask (1 = letter): lines of random capitals in a serif Hershey font.
+
+    Drawn with OpenCV at 4 px per mm-ish resolution so the 3 mm cells of the
+    relief see clean V-cut strokes after smoothing.
+    """
+    letters = "ABCDEFGHIKLMNOPQRSTVXY"
+    h_line, w = 160, 1400
+    canvas = np.zeros((h_line * n_lines, w), np.uint8)
+    for k in range(n_lines):
+        words = ["".join(rng.choice(list(letters), size=int(rng.integers(2, 7)))) for _ in range(4)]
+        text = " ".join(words)
+        scale = 3.2
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_TRIPLEX, scale, 7)
+        scale *= min(1.0, (w - 40) / tw)
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_TRIPLEX, scale, 7)
+        cv2.putText(canvas, text, ((w - tw) // 2, k * h_line + (h_line + th) // 2), cv2.FONT_HERSHEY_TRIPLEX,
+                    scale, 255, 7, cv2.LINE_AA)
+    return canvas.astype(np.float32) / 255.0
 
 
 def _panel_relief_part(*, name, width, height, cell, Hgrid, tex, origin, label=OBJECT_LABEL, frame_depth=0.0):
@@ -294,7 +303,7 @@ def build_bricks(p: dict, rng) -> dict:
     xo = Xt + (course_t % 2) * (bw + mortar) / 2
     col_t = np.floor(xo / (bw + mortar)).astype(int)
     brick_t = (np.mod(xo, bw + mortar) > mortar) & (np.mod(Yt, bh + mortar) > mortar)
-    photo_b = photo("brick").mean(axis=2)
+    photo_b = photo("gravel").mean(axis=2)  # fired-clay grain (the bundled brick photo has its own joints)
     idt = np.mod(course_t * 7919 + col_t * 104729, 4096)
     offs = rng.integers(0, 512, (4096, 2))
     tints = np.clip(np.array([0.62, 0.30, 0.20]) * rng.normal(1.0, 0.12, (4096, 1)), 0, 1).astype(np.float32)
@@ -377,7 +386,7 @@ def build_statue(p: dict, rng) -> dict:
     v, t, uv = implicit_surface(f, origin=(-0.35, -0.25, base_h - 0.05), voxel_m=vox, level=0.45, uv_repeat_m=0.4)
     marble = photo("moon", size=(1024, 1024)).mean(axis=2)
     veins = np.abs(fractal_noise((1024, 1024), rng, base_sigma=40))
-    g = np.clip(0.82 + 0.25 * (marble - marble.mean()) - 0.18 * np.exp(-veins * 6), 0, 1)
+    g = np.clip(0.62 + 0.35 * (marble - marble.mean()) - 0.25 * np.exp(-veins * 6), 0, 1)
     tex = blend_detail(tinted(g, (0.98, 0.96, 0.92)), rng, amount=0.05)
     statue = MeshPart(name="statue", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
                       texel_size_m=0.4 / 1024)

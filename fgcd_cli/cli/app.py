@@ -47,6 +47,9 @@ def _register() -> None:
     from fgcd_cli.cli import calibrate_cmd
 
     app.add_typer(calibrate_cmd.app, name="calibrate")
+    from fgcd_cli.cli import sim_cmd
+
+    app.add_typer(sim_cmd.app, name="sim")
     from fgcd_cli.cli import platform_cmd
 
     app.add_typer(platform_cmd.app, name="platform")

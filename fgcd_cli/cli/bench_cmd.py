@@ -40,3 +40,28 @@ def changes(
             console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target ≥ {target})" if target else ""))
 
     emit(data, as_json=as_json, render=render)
+
+
+@app.command("render")
+def render(
+    quick: bool = typer.Option(False, "--quick", help="Three scenes, three frames each."),
+    supersample: int = typer.Option(1, "--supersample", help="Anti-aliasing samples per pixel and axis."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Simulator renderer: time per shaded 640x480 frame for each scene (target <= 200 ms)."""
+    from fgcd_cli.bench.render import run
+
+    if not as_json:
+        info("timing the simulator renderer…")
+    data = run(quick=quick, supersample=supersample)
+
+    def show(console):
+        for s in data["scenes"]:
+            console.print(f"{s['scene']:<14} {s['ms_median']:7.1f} ms/frame (CPU {s['cpu_ms_median']:.0f} ms)  "
+                          f"({s['triangles']} triangles, "
+                          f"built in {s['build_s']:.1f} s)")
+        sm = data["summary"]
+        console.print(f"[bold]ms_per_frame_median[/bold] = {sm['ms_per_frame_median']:.1f} (target ≤ {sm['target_ms']:.0f}); "
+                      f"load average {data['machine']['load_avg_1min']:.1f} on {data['machine']['cpu_count']} cores")
+
+    emit(data, as_json=as_json, render=show)
