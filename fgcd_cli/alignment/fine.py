@@ -65,9 +65,9 @@ class FineAlignConfig:
     """False keeps the scale (rACR-S)."""
     blur_sigmas: tuple[float, ...] = (3.0, 1.0)
     """Gaussian blur (pixels) of each level, coarse to fine."""
-    keyframe_iterations: int = 6
-    similarity_iterations: int = 6
-    max_photometric_points: int = 2500
+    keyframe_iterations: int = 5
+    similarity_iterations: int = 5
+    max_photometric_points: int = 2000
     max_geometric_points: int = 3000
     min_photometric_sigma: float = 0.004
     """Floor of the robust photometric residual scale (grey levels in [0, 1])."""
@@ -191,8 +191,13 @@ class _Problem:
         return total, H, b
 
 
-def _lm(evaluate, apply, state, *, iterations: int, free: np.ndarray) -> tuple[object, int, bool]:
-    """Levenberg–Marquardt on the ``free`` parameters; returns (state, iterations, converged)."""
+def _lm(
+    evaluate, apply, state, *, iterations: int, free: np.ndarray, gauge: np.ndarray | None = None
+) -> tuple[object, int, bool]:
+    """Levenberg–Marquardt on the ``free`` parameters; returns (state, iterations, converged).
+
+    ``gauge`` (rows C) adds the constraint ``C delta = 0`` as a stiff penalty.
+    """
     cost, H, b = evaluate(state, True)
     lam = 1e-3
     done = 0
@@ -201,6 +206,9 @@ def _lm(evaluate, apply, state, *, iterations: int, free: np.ndarray) -> tuple[o
         done += 1
         Hf = H[np.ix_(free, free)]
         bf = b[free]
+        if gauge is not None:
+            Cf = gauge[:, free]
+            Hf = Hf + 1e3 * max(float(np.max(np.diag(Hf))), 1e-12) * (Cf.T @ Cf)
         diag = np.diag(Hf).copy()
         diag[diag <= 0] = 1e-12
         try:
@@ -372,8 +380,12 @@ def fine_align(
             def apply_kf(state, delta):
                 return [T @ exp_se3(delta[6 * u : 6 * u + 6]) for u, T in enumerate(state)]
 
+            # Moving all keyframes together is (nearly) a change of the similarity,
+            # observed by E_p only through parallax: fix that gauge (zero mean
+            # correction) and leave it to the similarity step, where E_g sees it.
+            gauge = np.tile(np.eye(6), (1, K)) / K
             poses, it, conv = _lm(eval_kf, apply_kf, poses, iterations=config.keyframe_iterations,
-                                  free=np.arange(6 * K))
+                                  free=np.arange(6 * K), gauge=gauge)
             iterations += it
 
         def eval_sim(state, jac, _p=problem):

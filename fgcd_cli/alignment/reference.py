@@ -42,7 +42,7 @@ class ReferenceIndex:
         *,
         normals: np.ndarray | None = None,
         intensities: np.ndarray | None = None,
-        normal_neighbours: int = 20,
+        normal_neighbours: int = 50,
     ) -> None:
         pts = np.ascontiguousarray(np.asarray(points, dtype=float))
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:
