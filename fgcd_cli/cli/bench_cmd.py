@@ -65,3 +65,29 @@ def render(
                       f"load average {data['machine']['load_avg_1min']:.1f} on {data['machine']['cpu_count']} cores")
 
     emit(data, as_json=as_json, render=show)
+
+
+@app.command("calibrate")
+def calibrate(
+    quick: bool = typer.Option(False, "--quick", help="Two rigs, 12 intrinsics views each."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Calibration on simulated rigs: intrinsics, hand-eye (board and target-free) and map scale."""
+    from fgcd_cli.bench.calibrate import run
+
+    if not as_json:
+        info("running the calibration benchmark (simulated rigs, a minute or more per rig)…")
+    data = run(quick=quick)
+
+    def show(console):
+        for r in data["rigs"]:
+            f = r["target_free"]
+            free = (f"target-free {f['trans_err_mm']:.1f} mm / {f['rot_err_deg']:.2f} deg, scale {f['scale_err_pct']:.2f} %"
+                    if "error" not in f else f"target-free failed: {f['error']}")
+            console.print(f"rig {r['seed']} ({r['noise']}): intrinsics {r['intrinsics']['err_pct']:.3f} %, "
+                          f"board {r['target']['trans_err_mm']:.1f} mm / {r['target']['rot_err_deg']:.2f} deg, {free}")
+        for key, value in data["summary"].items():
+            target = data["targets"].get(key)
+            console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target ≤ {target})" if target else ""))
+
+    emit(data, as_json=as_json, render=show)

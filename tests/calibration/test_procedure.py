@@ -161,3 +161,13 @@ def test_results_are_stored_in_the_campaign_rig_with_history(tmp_path, handeye_d
     loaded = load_handeye(camp)
     assert loaded.n_samples == 8 and np.allclose(loaded.T_flange_cam, second.T_flange_cam)
     assert len(list((camp.path / "rig" / "history").glob("handeye-*.json"))) >= 1
+
+
+def test_calibration_package_never_imports_the_simulator():
+    from pathlib import Path
+
+    import fgcd_cli.calibration as pkg
+
+    for path in Path(pkg.__file__).parent.glob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        assert "drivers.sim" not in text, f"{path.name} imports the simulator"
