@@ -276,7 +276,9 @@ class _EngineBase:
         if E is None or E.shape != (3, 3):
             self._message = "initialising: no essential matrix yet (move the camera sideways)"
             return
-        _, R, t, mask2 = cv2.recoverPose(E, p0, p1, self.K, mask=mask.copy())
+        # distanceThresh: OpenCV's default (50 baselines) drops points far away relative to a
+        # short exploration baseline (1.5 cm at 1.2 m is 80 baselines); keep all but infinity
+        _, R, t, mask2, _ = cv2.recoverPose(E, p0, p1, self.K, distanceThresh=1e6, mask=mask.copy())
         inl = mask2.ravel() > 0
         if inl.sum() < cfg.init_min_inliers:
             self._message = f"initialising: {int(inl.sum())} inliers, need {cfg.init_min_inliers}"

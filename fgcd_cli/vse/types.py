@@ -52,7 +52,8 @@ class VseConfig:
         Minimum spacing of new corners, pixels (at full resolution).
     min_corner_response : float
         Absolute minimum eigenvalue of a corner's 7x7 structure tensor (OpenCV
-        units): sensor noise on a blank surface gives ~2e-5, textured stone ~4e-2.
+        units): sensor noise of 1 grey level on a blank surface gives ~2e-5 (it grows
+        with the noise variance), the simulated stele ~1e-3, strong texture ~4e-2.
     klt_window_px, klt_levels : int
         Lucas-Kanade window size and pyramid levels.
     klt_fb_max_px : float
@@ -103,17 +104,17 @@ class VseConfig:
 
     max_features: int = 900
     min_feature_distance_px: float = 12.0
-    min_corner_response: float = 1e-3
+    min_corner_response: float = 2e-4
     klt_window_px: int = 21
     klt_levels: int = 3
     klt_fb_max_px: float = 0.5
-    init_min_parallax_deg: float = 1.0
-    init_min_translation_parallax_deg: float = 0.05
+    init_min_parallax_deg: float = 0.5
+    init_min_translation_parallax_deg: float = 0.02
     init_min_inliers: int = 60
     init_fail_frames: int = 40
     min_tracked_landmarks: int = 25
     reproj_inlier_px: float = 2.0
-    kf_min_baseline_ratio: float = 0.02
+    kf_min_baseline_ratio: float = 0.008
     kf_max_rotation_deg: float = 6.0
     kf_min_tracked_fraction: float = 0.6
     ba_window: int = 8
