@@ -91,3 +91,33 @@ def calibrate(
             console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target ≤ {target})" if target else ""))
 
     emit(data, as_json=as_json, render=show)
+
+
+@app.command("vse")
+def vse(
+    quick: bool = typer.Option(False, "--quick", help="Three textured scenes, half the exploration, no hard scenes."),
+    variant: str = typer.Option("both", "--variant", help="mono, sparse or both (side by side)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Visual SLAM engine: ATE, cloud accuracy and density, tracking speed on simulated explorations."""
+    from fgcd_cli.bench.vse import run
+    from fgcd_cli.errors import UserInputError
+
+    if variant not in ("mono", "sparse", "both"):
+        raise UserInputError(f"--variant must be mono, sparse or both, not {variant!r}")
+    if not as_json:
+        info("running the VSE benchmark (renders every frame on the CPU; a few minutes)…")
+    data = run(quick=quick, variant=variant)
+
+    def show(console):
+        for r in data["scenes"]:
+            ate = "—" if r["ate_mm"] is None else f"{r['ate_mm']:.2f}"
+            cl = "—" if r["cloud_median_error_pct_depth"] is None else f"{r['cloud_median_error_pct_depth']:.2f}"
+            console.print(f"{r['scene']:<13} {r['variant']:<6} {r['status']:<12} ATE {ate:>6} mm  cloud {cl:>5} % "
+                          f"of depth  {r['cloud_points']:>6} pts  {r['track_fps']:.0f} fps track "
+                          f"({r['overall_fps']:.0f} with mapping)")
+        for key, value in data["summary"].items():
+            target = data["targets"].get(key)
+            console.print(f"[bold]{key}[/bold] = {value}" + (f"  (target {target})" if target else ""))
+
+    emit(data, as_json=as_json, render=show)
