@@ -36,6 +36,11 @@ def _register() -> None:
     from fgcd_cli.cli import campaign_cmd
 
     app.add_typer(campaign_cmd.app, name="campaign")
+    from fgcd_cli.cli import capture_cmd, demo_cmd
+
+    app.command(name="capture")(capture_cmd.capture)
+    app.command(name="relocate")(capture_cmd.relocate)
+    app.command(name="demo")(demo_cmd.demo)
     from fgcd_cli.cli import afd_cmd, diff_cmd, report_cmd
 
     app.command(name="afd")(afd_cmd.afd)
@@ -85,7 +90,10 @@ def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
     platform_error = _platform_error_type()
     try:
-        app(standalone_mode=False)
+        # without standalone mode typer *returns* the exit code of typer.Exit / Ctrl-C
+        code = app(standalone_mode=False)
+        if isinstance(code, int) and code:
+            sys.exit(code)
     except FgcdError as exc:
         _fail("error", exc, exc.exit_code)
     except platform_error as exc:  # type: ignore[misc]
