@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -55,7 +55,8 @@ class FastAlignConfig:
     robust: str = "sparse"
     """Rigid step: ``"sparse"`` (sparse ICP, ADMM) or ``"trimmed"`` (trimmed least squares)."""
     sparse_p: float = 0.4
-    admm_iterations: int = 3
+    admm_iterations: int = 1
+    """ADMM iterations per correspondence update (one is enough with fresh multipliers; measured as robust as 3)."""
     level_points: tuple[int, ...] = (1500, 5000, 20000)
     """Current points used at each resolution level (random subset)."""
     level_radius_rel: tuple[float, ...] = (math.inf, 0.2, 0.06)
@@ -82,6 +83,12 @@ class FastAlignConfig:
     min_condition_ratio: float = 2e-3
     scale_bounds: tuple[float, float] = (1 / 1.5, 1.5)
     """Health: allowed range of the result's scale relative to the initial scale."""
+    warm_rel: float = 0.02
+    """Warm start if the median distance of the prior's correspondences is below this fraction of the width."""
+    scale_candidates: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.25)
+    """Cold start only: relative scales tried with rigid coarse ICP before the scale is estimated."""
+    search_iterations: tuple[int, int] = (40, 10)
+    """Iteration limits of the two coarse levels during that scale search."""
     seed: int = 0
 
 
@@ -151,14 +158,56 @@ def fast_align(
 
     rng = np.random.default_rng(config.seed)
     order = rng.permutation(len(cur))
+    s_prior = T.scale
+    normals = ref.normals
+    n_levels = len(config.level_points)
+    # Warm start (the loop re-aligns from its previous result): skip the coarse
+    # level and the scale search when the prior already fits.
+    probe = cur[order[:1000]]
+    d0, _ = ref.nearest(T.apply(probe))
+    warm = bool(np.median(d0) < config.warm_rel * ref.width)
+    first = n_levels - 1 if warm else 0
+    iterations = 0
+    if not warm and config.estimate_scale and len(config.scale_candidates) > 1:
+        # Cold start: a scale prior that is off by 10-20 % sends similarity ICP
+        # astray, so try a few scales with rigid ICP on the coarse levels (scale
+        # changed about the mapped centroid) and keep the best-fitting one.
+        c_cur = cur.mean(axis=0)
+        search = replace(config, level_iterations=tuple(
+            min(n, m) for n, m in zip(config.level_iterations, config.search_iterations + config.level_iterations[2:])
+        ))
+        best = None
+        for factor in config.scale_candidates:
+            s_c = T.scale * factor
+            start = Sim3(T.R, T.apply(c_cur) - s_c * (T.R @ c_cur), s_c)
+            out = _run_levels(cur, weights_all, ref, normals, order, start, range(0, min(2, n_levels)), search,
+                              estimate_scale=False)
+            iterations += out[2]
+            if out[0] is None:
+                continue
+            score = float(np.mean(ref.nearest(out[0].apply(probe))[0] < config.inlier_rel * ref.width))
+            if best is None or score > best[0]:
+                best = (score, out[0])
+        if best is not None:
+            T = best[1]
+            first = 1 if n_levels > 1 else 0
+    T_out, converged, its, failure = _run_levels(cur, weights_all, ref, normals, order, T, range(first, n_levels),
+                                                  config, estimate_scale=config.estimate_scale)
+    iterations += its
+    if T_out is None:
+        return _failed(T, failure, t0, iterations)
+    return _finish(T_out, cur, ref, config, converged, iterations, t0, scale_prior=s_prior)
+
+
+def _run_levels(cur, weights_all, ref: ReferenceIndex, normals, order, T: Sim3, levels, config: FastAlignConfig,
+                *, estimate_scale: bool):
+    """Coarse-to-fine ICP over ``levels``; returns ``(T or None, converged, iterations, failure reason)``."""
     R, t, s = T.R, T.t, T.scale
-    s_prior = s
     iterations = 0
     converged = False
     r_floor = config.min_inlier_spacing * ref.spacing
-    normals = ref.normals
     n_levels = len(config.level_points)
-    for level in range(n_levels):
+    for level in levels:
         sel = order[: config.level_points[level]]
         x = cur[sel]
         w_pts = None if weights_all is None else weights_all[sel]
@@ -173,7 +222,7 @@ def fast_align(
             d, idx = ref.nearest(y, max_distance=r_max)
             valid = np.isfinite(d)
             if np.count_nonzero(valid) < 10:
-                return _failed(Sim3(R, t, s), "lost the correspondences (fewer than 10 within range)", t0, iterations)
+                return None, False, iterations, "lost the correspondences (fewer than 10 within range)"
             dv = d[valid]
             r_in = float(np.clip(config.inlier_factor * np.median(dv), r_floor, r_max))
             q = ref.points[idx[valid]]
@@ -199,7 +248,7 @@ def fast_align(
                 raise ValueError(f"unknown robust method {config.robust!r}")
             R = dT[:3, :3] @ R
             t = dT[:3, :3] @ t + dT[:3, 3]
-            if config.estimate_scale and level >= config.scale_from_level:
+            if estimate_scale and level >= config.scale_from_level:
                 a = x[valid] @ R.T
                 e = np.abs(np.sum(nq * (s * a + t - q), axis=1))
                 med = float(np.median(e[inl])) if np.any(inl) else r_in
@@ -220,8 +269,7 @@ def fast_align(
                 level_converged = True
                 break
         converged = level_converged
-    T = Sim3(R, t, s)
-    return _finish(T, cur, ref, config, converged, iterations, t0, scale_prior=s_prior)
+    return Sim3(R, t, s), converged, iterations, ""
 
 
 def _finish(
