@@ -68,6 +68,10 @@ class FastAlignConfig:
     """First level at which the scale step runs (the widest level estimates R, t only)."""
     max_scale_step: float = 0.02
     """Largest relative scale change per iteration."""
+    max_scale_drift: float = 0.12
+    """Largest relative scale change over a run from its starting scale (after the cold-start
+    scale search, whose candidates are 10-25 % apart). Noisy VSE clouds let the least-squares
+    scale run away (measured: +40 %) while R, t are still wrong."""
     inlier_factor: float = 3.0
     """Working inlier distance: this times the median correspondence distance."""
     min_inlier_spacing: float = 2.0
@@ -83,6 +87,9 @@ class FastAlignConfig:
     min_condition_ratio: float = 2e-3
     scale_bounds: tuple[float, float] = (1 / 1.5, 1.5)
     """Health: allowed range of the result's scale relative to the initial scale."""
+    stall_rel: float = 0.005
+    """Also converged when an iteration moves the points by less than this fraction of the
+    working inlier distance (noise-level jitter)."""
     warm_rel: float = 0.02
     """Warm start if the median distance of the prior's correspondences is below this fraction of the width."""
     scale_candidates: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.25)
@@ -203,6 +210,7 @@ def _run_levels(cur, weights_all, ref: ReferenceIndex, normals, order, T: Sim3, 
                 *, estimate_scale: bool):
     """Coarse-to-fine ICP over ``levels``; returns ``(T or None, converged, iterations, failure reason)``."""
     R, t, s = T.R, T.t, T.scale
+    s_lo, s_hi = T.scale / (1 + config.max_scale_drift), T.scale * (1 + config.max_scale_drift)
     iterations = 0
     converged = False
     r_floor = config.min_inlier_spacing * ref.spacing
@@ -260,12 +268,19 @@ def _run_levels(cur, weights_all, ref: ReferenceIndex, normals, order, T: Sim3, 
                         # Least-squares scale is attenuated (biased low) while the
                         # correspondences are poor; bounding each step stops a collapse
                         # from running away before R, t have caught up.
-                        s_clip = float(np.clip(s_new, s * (1 - config.max_scale_step), s * (1 + config.max_scale_step)))
+                        s_clip = float(np.clip(s_new, max(s * (1 - config.max_scale_step), s_lo),
+                                               min(s * (1 + config.max_scale_step), s_hi)))
                         if s_clip != s_new:
                             t_new = t_new + (s_new - s_clip) * (a.T @ w) / w.sum()
                         s, t = s_clip, t_new
             dT = make_pose(R, t) @ np.linalg.inv(make_pose(R_old, t_old))
             if np.linalg.norm(dT - np.eye(4)) <= tol_T and abs(s - s_old) <= tol_s:
+                level_converged = True
+                break
+            # On noisy clouds the estimate can jitter above tau_T for ever: accept when the
+            # points move by a negligible fraction of the working inlier distance.
+            moved = float(np.sqrt(np.mean(np.sum((s * (x @ R.T) + t - y) ** 2, axis=1))))
+            if moved < config.stall_rel * r_in:
                 level_converged = True
                 break
         converged = level_converged

@@ -27,13 +27,20 @@ class ReferenceIndex:
         points for the photometric term, never compared with current images).
     normal_neighbours : int
         Neighbours used to estimate normals.
+    remove_outliers : bool
+        Drop isolated points first: a point is kept if its distance to its
+        ``outlier_neighbours``-th neighbour is at most ``outlier_factor`` times the
+        25th percentile of that distance. Points a session did not reconstruct
+        consistently ("non-repeated" points) are sparse and otherwise attract
+        correspondences and spoil the normals.
 
     Attributes
     ----------
     points, tree, centroid, rms_radius, width, spacing
+        ``points`` are the kept points (see ``remove_outliers``); ``kept`` marks them in the input.
         ``rms_radius``: RMS distance to the centroid (m); ``width``: largest
         extent along the principal axes (m); ``spacing``: median nearest-neighbour
-        distance (m).
+        distance (m). ``width`` ignores the outer 1 % of points on each side.
     """
 
     def __init__(
@@ -43,12 +50,26 @@ class ReferenceIndex:
         normals: np.ndarray | None = None,
         intensities: np.ndarray | None = None,
         normal_neighbours: int = 50,
+        remove_outliers: bool = True,
+        outlier_neighbours: int = 8,
+        outlier_factor: float = 3.0,
     ) -> None:
         pts = np.ascontiguousarray(np.asarray(points, dtype=float))
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:
             raise ValueError(f"reference points must be (M>=10, 3), got {pts.shape}")
         if not np.all(np.isfinite(pts)):
             raise ValueError("reference points contain NaN or inf")
+        keep = np.ones(len(pts), dtype=bool)
+        if remove_outliers and len(pts) > 4 * outlier_neighbours:
+            # Density filter: the distance to the k-th neighbour against the dense quarter of the
+            # cloud. Open3D's statistical filter (mean + n std) is defeated when stray points are
+            # a large population (its mean and std then include them), hence this rule.
+            d, _ = cKDTree(pts).query(pts, k=outlier_neighbours + 1, workers=2)
+            dk = d[:, -1]
+            keep = dk <= outlier_factor * np.percentile(dk, 25)
+        self.kept = keep
+        """(M_input,) bool: which input points were kept."""
+        pts = np.ascontiguousarray(pts[keep])
         self.points = pts
         self.tree = cKDTree(pts, balanced_tree=False, compact_nodes=False)
         self.centroid = pts.mean(axis=0)
@@ -56,17 +77,23 @@ class ReferenceIndex:
         self.rms_radius = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
         axes = np.linalg.svd(centred[:: max(1, len(pts) // 5000)], full_matrices=False)[2]
         proj = centred @ axes.T
-        self.width = float(np.max(proj.max(axis=0) - proj.min(axis=0)))
+        # Robust extent (1st-99th percentile): stray points must not inflate every threshold.
+        lo, hi = np.percentile(proj, [1.0, 99.0], axis=0)
+        self.width = float(np.max(hi - lo))
         rng = np.random.default_rng(0)
         sample = pts[rng.choice(len(pts), size=min(len(pts), 2000), replace=False)]
         d, _ = self.tree.query(sample, k=2)
         self.spacing = float(np.median(d[:, 1]))
         self.intensities = None if intensities is None else np.asarray(intensities, dtype=float).reshape(-1)
-        if self.intensities is not None and len(self.intensities) != len(pts):
-            raise ValueError("reference intensities must have one value per point")
+        if self.intensities is not None:
+            if len(self.intensities) != len(keep):
+                raise ValueError("reference intensities must have one value per point")
+            self.intensities = self.intensities[keep]
         self._normals = None if normals is None else _unit_rows(np.asarray(normals, dtype=float))
-        if self._normals is not None and self._normals.shape != pts.shape:
-            raise ValueError("reference normals must be (M, 3) like the points")
+        if self._normals is not None:
+            if self._normals.shape != (len(keep), 3):
+                raise ValueError("reference normals must be (M, 3) like the points")
+            self._normals = self._normals[keep]
         self._normal_neighbours = int(normal_neighbours)
         self._contrast: np.ndarray | None = None
 
