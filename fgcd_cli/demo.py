@@ -36,13 +36,35 @@ class DemoConfig:
     station: str = "inscription"
 
 
-def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None]) -> dict:
+def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None]):
+    """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
+    from drivers.sim.board import SimBoard
+    from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
+    from fgcd_cli.calibration.rig import save_intrinsics
+    from fgcd_cli.rigs import open_sim_rig
+
+    board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
+    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)
+    try:
+        source = rig.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
+                                               square_m=board.square_m, marker_m=board.marker_m,
+                                               dictionary=board.dictionary), seed=scenario.seed)
+        images = [source.grab().image for _ in range(views)]
+    finally:
+        rig.close()
+    result = calibrate_intrinsics(images, board, names=[f"view_{i:02d}" for i in range(views)])
+    save_intrinsics(campaign, result)
+    say(f"intrinsics: fx {result.camera.fx:.1f} px, RMS {result.rms_px:.3f} px over {result.n_views} views")
+    return result.camera
+
+
+def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], camera=None) -> dict:
     """Target-free hand-eye + scale on the simulated rig; stored in the campaign rig."""
     from fgcd_cli.calibration.procedure import run_target_free
     from fgcd_cli.rigs import open_sim_rig
     from fgcd_cli.vse import MonocularVSE
 
-    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None, on_event=say)
+    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=camera, on_event=say)
     try:
         run = run_target_free(
             rig.handles.guard,
@@ -55,7 +77,6 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None]) -> 
         rig.close()
     record = run.result.to_dict()
     campaign.write_rig("handeye", record)
-    campaign.write_rig("intrinsics", {"camera": rig.handles.intrinsics.to_dict(), "method": "nominal (simulator)"})
     return record
 
 
@@ -80,13 +101,14 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
 
     say("1/5 calibrating hand-eye and map scale (target-free, rACR §3.2)")
     base = SimScenario(scene=config.scene, seed=config.seed, lighting=config.reference_light, session_seed=100)
-    he = calibrate_sim_handeye(camp, base, say=say)
+    cam = calibrate_sim_intrinsics(camp, base, say=say)
+    he = calibrate_sim_handeye(camp, base, say=say, camera=cam)
     X = np.array(he["T_flange_cam"], dtype=float)
     summary["handeye"] = {k: he.get(k) for k in ("rms_rotation_deg", "rms_translation_mm", "n_samples") if k in he}
 
     say(f"2/5 capturing the reference under '{config.reference_light}'")
     rig = open_sim_rig(SimScenario(scene=config.scene, seed=config.seed, lighting=config.reference_light, session_seed=0),
-                       T_flange_cam=X, intrinsics=None, on_event=say)
+                       T_flange_cam=X, intrinsics=cam, on_event=say)
     try:
         cap = capture_reference(rig.handles, station, lightings=[config.reference_light],
                                 metadata={"driver": "sim", "scenario": rig.info["scenario"]},
@@ -100,11 +122,11 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
     scen = SimScenario(scene=config.scene, seed=config.seed, lighting=config.visit_light, changes=config.changes,
                        change_seed=7, start_offset_mm=config.start_offset_mm, start_offset_deg=config.start_offset_deg,
                        session_seed=1)
-    rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=None, on_event=say)
+    rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=cam, on_event=say)
     evaluator = RelocationEvaluator.from_reference(rig.sim, station.reference())
     say("4/5 relocating (parallel rACR loop)")
     try:
-        vis = relocate_and_capture(rig.handles, station, config=RelocationConfig(), lightings=[config.visit_light],
+        vis = relocate_and_capture(rig.handles, station, config=RelocationConfig(), lightings=[config.visit_light, config.reference_light],
                                    metadata={"driver": "sim", "scenario": rig.info["scenario"]},
                                    evaluate=evaluator.evaluate, on_record=on_record, evaluation=evaluator.summary)
     finally:

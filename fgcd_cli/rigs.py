@@ -82,6 +82,16 @@ def pinhole_from_intrinsics(intr) -> PinholeCamera:
     )
 
 
+def undistorted(camera: PinholeCamera, source):
+    """``(ideal camera, source)``: frames remapped to an ideal pinhole when the lens distorts."""
+    if not camera.has_distortion:
+        return camera, source
+    from fgcd_cli.vse.undistort import Undistorter, UndistortedSource
+
+    u = Undistorter(camera)
+    return u.ideal, UndistortedSource(source, u)
+
+
 def vse_factory_for(camera: PinholeCamera, source, *, variant: str = "mono") -> Callable[[], object]:
     """A factory of (not yet started) VSE threads over ``source``."""
 
@@ -126,6 +136,7 @@ def open_sim_rig(
         seed=scenario.seed,
         noise=scenario.noise,
         session_seed=scenario.session_seed,
+        with_depth=vse_variant == "rgbd",
     )
     if scenario.changes > 0:
         rig.inject_changes(n=scenario.changes, seed=scenario.change_seed)
@@ -133,14 +144,14 @@ def open_sim_rig(
         rng = np.random.default_rng(10_000 + scenario.session_seed)
         rig.displace_base(_random_offset(rng, scenario.start_offset_mm, scenario.start_offset_deg))
     rig.platform.connect()
-    cam = intrinsics or pinhole_from_intrinsics(rig.camera.intrinsics_nominal)
+    cam, source = undistorted(intrinsics or pinhole_from_intrinsics(rig.camera.intrinsics_nominal), rig.camera)
     guard = MotionGuard(rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12)), confirm=confirm)
     handles = RigHandles(
         guard=guard,
-        camera_source=rig.camera,
+        camera_source=source,
         intrinsics=cam,
         T_flange_cam=np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float),
-        vse_factory=vse_factory_for(cam, rig.camera, variant=vse_variant),
+        vse_factory=vse_factory_for(cam, source, variant=vse_variant),
         lights=rig.lights,
         on_event=on_event,
     )
@@ -182,10 +193,11 @@ def open_rig(
     try:
         platform = open_platform(driver, port=port, baud=baud, host=host)
         platform.connect()
-        camera = OpenCVCamera(camera_index, width=intrinsics.width, height=intrinsics.height)
+        raw_camera = OpenCVCamera(camera_index, width=intrinsics.width, height=intrinsics.height)
     except OSError as exc:
         raise HardwareError(f"cannot open the rig: {exc}") from None
     guard = MotionGuard(platform, GuardLimits(), confirm=confirm)
+    intrinsics, camera = undistorted(intrinsics, raw_camera)
 
     def close() -> None:
         try:

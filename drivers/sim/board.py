@@ -277,14 +277,17 @@ class SimBoardCamera:
         Anti-aliasing rays per pixel and axis.
     """
 
-    def __init__(self, board: SimBoard, *, seed: int = 0, intrinsics_error="default", supersample: int = 2):
+    def __init__(self, board: SimBoard, *, seed: int = 0, intrinsics_error="default", supersample: int = 2,
+                 intrinsics_true=None):
         from drivers.cameras import Frame
         from drivers.sim.camera import DEFAULT_INTRINSICS, perturbed_intrinsics
 
         self._frame_type = Frame
         self.board = board
         self.intrinsics_nominal = DEFAULT_INTRINSICS
-        self.intrinsics_true = perturbed_intrinsics(DEFAULT_INTRINSICS, intrinsics_error, np.random.default_rng([seed, 0xB0A]))
+        # ``intrinsics_true`` given: the same physical camera as a simulated rig (SimRig.board_camera)
+        self.intrinsics_true = intrinsics_true if intrinsics_true is not None else perturbed_intrinsics(
+            DEFAULT_INTRINSICS, intrinsics_error, np.random.default_rng([seed, 0xB0A]))
         self._rng = np.random.default_rng([seed, 0xB0B])
         self._supersample = supersample
         self.poses_true: list[np.ndarray] = []

@@ -33,6 +33,13 @@ class SimRig:
         self.camera.close()
         self.platform.close()
 
+    def board_camera(self, board, *, seed: int = 0, supersample: int = 2):
+        """The rig's camera looking at a hand-held ChArUco board (intrinsics calibration views)."""
+        from drivers.sim.board import SimBoardCamera
+
+        return SimBoardCamera(board, seed=seed, supersample=supersample,
+                              intrinsics_true=self.ground_truth.intrinsics_true())
+
     def inject_changes(self, *, n: int, seed: int, kinds=None, size_mm: tuple[float, float] = (1.0, 20.0)) -> list:
         """Add ``n`` random changes on the object where the reference camera sees it (returns them)."""
         from drivers.sim.changes import KINDS, random_changes

@@ -53,13 +53,21 @@ def sim_scenario_from_campaign(campaign, **overrides):
     return SimScenario(**base)
 
 
+def visit_lightings(visit_light: str, reference_lightings: list[str], *, controllable: bool) -> list[str]:
+    """Images of a visit: under the day's light, and under the reference's lightings when the rig controls its lights."""
+    names = [visit_light]
+    if controllable:
+        names += [n for n in reference_lightings if n not in names]
+    return names
+
+
 def print_record(rec) -> None:
     """One live line per adjustment."""
     truth = ""
     if rec.truth:
         truth = f"  [dim]true: {rec.truth.get('pose_err_mm', float('nan')):.2f} mm, AFD {rec.truth.get('afd_px', float('nan')):.2f} px[/dim]"
     info(
-        f"adjustment {rec.iteration:2d} [{rec.stage}]  g = {rec.g:.2e}  remaining {rec.offset_mm:7.2f} mm "
+        f"adjustment {rec.iteration:2d} ({rec.stage})  g = {rec.g:.2e}  remaining {rec.offset_mm:7.2f} mm "
         f"{rec.offset_deg:5.2f} deg  cloud {rec.vse_points}{truth}"
     )
 
@@ -159,7 +167,7 @@ def relocate(
     evaluator = RelocationEvaluator.from_reference(rig.sim, ref) if rig.sim is not None else None
     try:
         result = relocate_and_capture(
-            rig.handles, st, config=config, lightings=list(ref.metadata.get("lightings", [light]))[:1] and [light],
+            rig.handles, st, config=config, lightings=visit_lightings(light, ref.metadata.get("lightings", []), controllable=driver == "sim"),
             metadata={"driver": driver, "scenario": rig.info.get("scenario"), "no_handeye": no_handeye},
             evaluate=evaluator.evaluate if evaluator else None, on_record=print_record,
             evaluation=evaluator.summary if evaluator else None,

@@ -148,6 +148,8 @@ class PinholeCamera:
     def normalized_rays(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised image coordinates ``(x, y, 1)`` of pixels, shape (N, 3)."""
         uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        if len(uv) == 0:
+            return np.zeros((0, 3))
         if self.has_distortion:
             xy = cv2.undistortPointsIter(
                 uv.reshape(-1, 1, 2),

@@ -120,7 +120,7 @@ def capture_reference(
     station,
     *,
     lightings: list[str],
-    explore_m: float = 0.04,
+    explore_m: float = 0.05,
     metadata: dict | None = None,
     evaluation: dict | None = None,
 ) -> CaptureResult:
@@ -184,7 +184,7 @@ def relocate_and_capture(
     *,
     config: RelocationConfig,
     lightings: list[str],
-    explore_m: float = 0.03,
+    explore_m: float = 0.04,
     metadata: dict | None = None,
     evaluate: Callable[[], dict] | None = None,
     on_record: Callable[[AdjustmentRecord], None] | None = None,
