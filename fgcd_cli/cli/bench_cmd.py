@@ -141,3 +141,34 @@ def vse(
             console.print(f"[bold]{key}[/bold] = {value}" + (f"  (target {target})" if target else ""))
 
     emit(data, as_json=as_json, render=show)
+
+
+@app.command("relocate")
+def relocate(
+    quick: bool = typer.Option(False, "--quick", help="A 3-case subset (CI-sized)."),
+    no_serial: bool = typer.Option(False, "--no-serial", help="Skip the serial comparison."),
+    case: Optional[list[str]] = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """The rACR loop on simulated indoor/outdoor cases: success (true AFD < 3 px), AFD, adjustments, time."""
+    from fgcd_cli.bench.relocate import run
+
+    data = run(quick=quick, serial=not no_serial, say=info, cases=case)
+
+    def show(console):
+        for r in data["cases"]:
+            for mode in ("parallel", "serial"):
+                if mode in r:
+                    m = r[mode]
+                    if "error" in m:
+                        console.print(f"{r['case']:<11} {mode:<8} [red]error[/red]: {m['error']} (AFD {m.get('afd_px', float('nan')):.2f} px)")
+                    else:
+                        console.print(f"{r['case']:<11} {mode:<8} AFD {m['afd_px']:6.2f} px  {m['pose_err_mm']:6.2f} mm  "
+                                      f"{m['adjustments']} adj  {m['session_s']:6.1f} s rig  {m['wall_s']:6.1f} s wall")
+            if "error" in r:
+                console.print(f"{r['case']:<11} [red]{r['error']}[/red]")
+        for k, v in data["summary"].items():
+            t = data["targets"].get(k)
+            console.print(f"[bold]{k}[/bold] = {v:.3f}" + (f"  (target {t})" if t is not None else ""))
+
+    emit(data, as_json=as_json, render=show)
