@@ -68,7 +68,7 @@ def print_record(rec) -> None:
         truth = f"  [dim]true: {rec.truth.get('pose_err_mm', float('nan')):.2f} mm, AFD {rec.truth.get('afd_px', float('nan')):.2f} px[/dim]"
     info(
         f"adjustment {rec.iteration:2d} ({rec.stage})  g = {rec.g:.2e}  remaining {rec.offset_mm:7.2f} mm "
-        f"{rec.offset_deg:5.2f} deg  cloud {rec.vse_points}{truth}"
+        f"{rec.offset_deg:5.2f} deg  est. AFD {rec.afd_est_px:5.2f} px  cloud {rec.vse_points}{truth}"
     )
 
 

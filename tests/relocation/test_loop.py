@@ -193,3 +193,15 @@ def test_failed_alignment_pauses_motion(monkeypatch):
                        init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5))
     vse.stop()
     assert platform.moves == 0
+
+
+def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
+    from fgcd_cli.geometry import PinholeCamera
+    from fgcd_cli.relocation.loop import estimated_afd_px
+
+    cam = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
+    rng = np.random.default_rng(0)
+    P = np.column_stack([rng.uniform(-0.5, 0.5, 2000), rng.uniform(-0.4, 0.4, 2000), np.full(2000, 2.0)])
+    assert estimated_afd_px(P, np.eye(4), np.eye(4), cam) == 0.0
+    shifted = exp_se3([0.004, 0, 0, 0, 0, 0])  # 4 mm sideways at 2 m depth
+    assert estimated_afd_px(P, np.eye(4), shifted, cam) == pytest.approx(600 * 0.004 / 2.0, rel=1e-6)
