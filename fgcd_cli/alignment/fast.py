@@ -87,7 +87,10 @@ class FastAlignConfig:
     min_inlier_ratio: float = 0.6
     min_overlap: float = 0.3
     min_condition_ratio: float = 5e-3
-    """Measured: VSE plane 2e-3, VSE sphere 4e-4; relief of 1 cm on 0.5 m 9e-3, relief panel 0.1."""
+    """Measured: VSE plane 2e-3-6e-3, VSE sphere 4e-4-1e-3; relief of 1 cm on 0.5 m 9e-3, relief panel 0.1."""
+    condition_noise_factor: float = 3.0
+    """The limit is raised to this times ``(roughness / normal radius)^2`` of the reference: the
+    floor that normal noise puts under a plane's smallest eigenvalue."""
     scale_bounds: tuple[float, float] = (1 / 1.5, 1.5)
     """Health: allowed range of the result's scale relative to the initial scale."""
     stall_rel: float = 0.005
@@ -332,7 +335,9 @@ def evaluate_alignment(
         overlap_threshold=overlap_thr,
         min_inlier_ratio=config.min_inlier_ratio,
         min_overlap=config.min_overlap,
-        min_condition_ratio=config.min_condition_ratio,
+        # Noisy normals lift the smallest eigenvalue of a plane to about (noise / radius)^2.
+        min_condition_ratio=max(config.min_condition_ratio,
+                                config.condition_noise_factor * (ref.roughness / ref.smooth_radius) ** 2),
         scale=scale_ratio,
         scale_bounds=config.scale_bounds,
     )

@@ -142,6 +142,11 @@ class ReferenceIndex:
             self._roughness = local_roughness(self.points)
         return self._roughness
 
+    @property
+    def smooth_radius(self) -> float:
+        """Neighbourhood radius of :meth:`smooth_normals` (m)."""
+        return max(10.0 * self.roughness, 5.0 * self.spacing, 0.05 * self.width)
+
     def smooth_normals(self) -> tuple[np.ndarray, np.ndarray, cKDTree]:
         """Normals at a scale well above the noise, for the conditioning check.
 
@@ -157,7 +162,7 @@ class ReferenceIndex:
         if self._smooth is None:
             import open3d as o3d
 
-            radius = max(10.0 * self.roughness, 5.0 * self.spacing, 0.05 * self.width)
+            radius = self.smooth_radius
             pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points)).voxel_down_sample(radius / 3.0)
             pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(30))
             pts = np.asarray(pcd.points)
