@@ -57,8 +57,12 @@ class FastAlignConfig:
     sparse_p: float = 0.4
     admm_iterations: int = 1
     """ADMM iterations per correspondence update (one is enough with fresh multipliers; measured as robust as 3)."""
-    level_points: tuple[int, ...] = (1500, 5000, 20000)
-    """Current points used at each resolution level (random subset)."""
+    level_points: tuple[int, ...] = (1500, 5000, 8000)
+    """Current points used at each resolution level (random subset). 8000 points at the
+    last level give the same accuracy as 20000 (errors are noise-averaged already) at
+    twice the rate."""
+    health_points: int = 10000
+    """Current points (random subset) used for the health checks."""
     level_radius_rel: tuple[float, ...] = (math.inf, 0.2, 0.06)
     """Largest correspondence distance at each level."""
     level_iterations: tuple[int, ...] = (60, 20, 40)
@@ -209,7 +213,8 @@ def fast_align(
     iterations += its
     if T_out is None:
         return _failed(T, failure, t0, iterations)
-    return _finish(T_out, cur, ref, config, converged, iterations, t0, scale_prior=s_prior)
+    return _finish(T_out, cur[order[: config.health_points]], ref, config, converged, iterations, t0,
+                   scale_prior=s_prior)
 
 
 def _run_levels(cur, weights_all, ref: ReferenceIndex, normals, order, T: Sim3, levels, config: FastAlignConfig,
@@ -316,7 +321,7 @@ def evaluate_alignment(
     """Geometric residuals and health of ``T_ref_cur`` for the current cloud (thresholds from ``config``)."""
     # Inlier threshold: a fraction of the width, or three times the two clouds' combined
     # noise (measured on each cloud by itself, so it cannot be inflated by a bad fit).
-    noise = math.hypot(local_roughness(cur) * T.scale, ref.roughness)
+    noise = math.hypot(local_roughness(cur, samples=500) * T.scale, ref.roughness)
     inlier_thr = max(config.inlier_rel * ref.width, config.inlier_noise_factor * noise, 3 * ref.spacing)
     overlap_thr = max(config.overlap_rel * ref.width, 2 * inlier_thr, 5 * ref.spacing)
     d, idx = ref.nearest(T.apply(cur), max_distance=overlap_thr)
