@@ -31,9 +31,11 @@ class DemoConfig:
     reference_light: str = "front"
     visit_light: str = "led:3"
     changes: int = 4
+    change_size_mm: tuple[float, float] = (8.0, 25.0)
     start_offset_mm: float = 25.0
     start_offset_deg: float = 2.5
     station: str = "inscription"
+    vse: str = "mono"
 
 
 def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None]):
@@ -108,7 +110,8 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
 
     say(f"2/5 capturing the reference under '{config.reference_light}'")
     rig = open_sim_rig(SimScenario(scene=config.scene, seed=config.seed, lighting=config.reference_light, session_seed=0),
-                       T_flange_cam=X, intrinsics=cam, on_event=say)
+                       T_flange_cam=X, intrinsics=cam, on_event=say,
+                       vse_variant=config.vse)
     try:
         cap = capture_reference(rig.handles, station, lightings=[config.reference_light],
                                 metadata={"driver": "sim", "scenario": rig.info["scenario"]},
@@ -120,9 +123,10 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
     say(f"3/5 revisit: light '{config.visit_light}', {config.changes} injected changes, start displaced by "
         f"{config.start_offset_mm:.0f} mm / {config.start_offset_deg:.1f} deg")
     scen = SimScenario(scene=config.scene, seed=config.seed, lighting=config.visit_light, changes=config.changes,
-                       change_seed=7, start_offset_mm=config.start_offset_mm, start_offset_deg=config.start_offset_deg,
+                       change_seed=7, change_size_mm=config.change_size_mm, start_offset_mm=config.start_offset_mm, start_offset_deg=config.start_offset_deg,
                        session_seed=1)
-    rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=cam, on_event=say)
+    rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=cam, on_event=say,
+                       vse_variant=config.vse)
     evaluator = RelocationEvaluator.from_reference(rig.sim, station.reference())
     say("4/5 relocating (parallel rACR loop)")
     try:
@@ -140,7 +144,27 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
 
     say("5/5 change detection and report")
     diff = run_campaign(camp_dir, config.station)
-    summary["diff"] = diff if isinstance(diff, dict) else {"result": str(diff)}
+    visit = station.visit()
+    summary["diff"] = {
+        "regions": len(diff.get("regions", [])),
+        "changed_fraction": diff.get("changed_fraction"),
+        "comparable": diff.get("comparable"),
+        "report": str(visit.path / "report.html"),
+    }
+    # evaluation against the simulator's truth (the tool never saw it)
+    if visit.has("changes/change_mask.png"):
+        from fgcd_cli.metrics.sim_eval import change_truth_in_reference, score_change_detection
+
+        import cv2
+
+        found = cv2.imdecode(np.frombuffer(visit.bytes("changes/change_mask.png"), np.uint8), cv2.IMREAD_UNCHANGED) > 0
+        truth_ref = station.reference().json("evaluation/sim_truth.json")
+        rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=cam)
+        try:
+            truth = change_truth_in_reference(rig.sim, np.array(truth_ref["T_world_cam"]), cam)
+        finally:
+            rig.close()
+        summary["diff"]["evaluation"] = score_change_detection(found, truth)
     summary["wall_s"] = round(time.monotonic() - t0, 1)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     return summary

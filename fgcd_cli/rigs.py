@@ -35,6 +35,8 @@ class SimScenario:
         Lighting preset of this session.
     changes : int
         Number of fine-grained changes injected (0 for the reference).
+    change_size_mm : (float, float)
+        Size range of the injected changes, millimetres.
     change_seed : int
         Seed of the changes.
     start_offset_mm, start_offset_deg : float
@@ -51,6 +53,7 @@ class SimScenario:
     lighting: str = "front"
     changes: int = 0
     change_seed: int = 1
+    change_size_mm: tuple[float, float] = (1.0, 20.0)
     start_offset_mm: float = 0.0
     start_offset_deg: float = 0.0
     session_seed: int = 0
@@ -139,7 +142,7 @@ def open_sim_rig(
         with_depth=vse_variant == "rgbd",
     )
     if scenario.changes > 0:
-        rig.inject_changes(n=scenario.changes, seed=scenario.change_seed)
+        rig.inject_changes(n=scenario.changes, seed=scenario.change_seed, size_mm=tuple(scenario.change_size_mm))
     if scenario.start_offset_mm > 0 or scenario.start_offset_deg > 0:
         rng = np.random.default_rng(10_000 + scenario.session_seed)
         rig.displace_base(_random_offset(rng, scenario.start_offset_mm, scenario.start_offset_deg))

@@ -15,16 +15,21 @@ def demo(
     scene: str = typer.Option("stele", "--scene", help="Simulator scene."),
     visit_light: str = typer.Option("led:3", "--visit-light", help="Lighting of the revisit (e.g. led:3, sun-evening)."),
     changes: int = typer.Option(4, "--changes", help="Fine-grained changes injected before the revisit."),
+    vse: str = typer.Option("mono", "--vse", help="VSE of capture and relocation: mono (rACR, monocular) or rgbd (depth camera)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Run a complete simulated campaign: calibrate, capture, relocate under other light, diff, report."""
     from fgcd_cli.demo import DemoConfig, run_demo
+    from fgcd_cli.errors import UserInputError
+
+    if vse not in ("mono", "rgbd"):
+        raise UserInputError(f"unknown --vse '{vse}' (mono or rgbd)")
 
     if out.exists() and any(out.iterdir()):
         from datetime import datetime, timezone
 
         out = out / datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    summary = run_demo(out, config=DemoConfig(scene=scene, visit_light=visit_light, changes=changes), say=info,
+    summary = run_demo(out, config=DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse), say=info,
                        on_record=print_record)
 
     def render(c) -> None:
@@ -36,7 +41,11 @@ def demo(
                 f"{r['session_s']} s on the rig; true error {truth.get('pose_err_mm', float('nan')):.2f} mm, "
                 f"AFD {truth.get('afd_px', float('nan')):.2f} px")
         d = summary.get("diff", {})
-        c.print(f"  changes: {d.get('regions', d.get('n_regions', '?'))} regions; report: {d.get('report', '?')}")
+        c.print(f"  changes: {d.get('regions', '?')} regions found; report: {d.get('report', '?')}")
+        ev = d.get("evaluation")
+        if ev:
+            c.print(f"  [dim]truth: {ev['true_changes_found']} of {ev['true_changes']} injected changes found, "
+                    f"{ev['false_regions']} false regions, pixel F1 {ev['f1']:.2f}[/dim]")
         c.print(f"  summary: {out / 'summary.json'}")
 
     emit(summary, as_json=as_json, render=render)

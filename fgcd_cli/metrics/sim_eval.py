@@ -55,3 +55,36 @@ class RelocationEvaluator:
         out["T_world_cam"] = np.asarray(self.sim_rig.ground_truth.T_world_cam_true()).tolist()
         out["T_world_camref"] = self.T_world_camref.tolist()
         return out
+
+
+def change_truth_in_reference(sim_rig, T_world_camref: np.ndarray, camera_used) -> np.ndarray:
+    """Ground-truth change mask in the reference image as fgcd stores it (HxW bool).
+
+    Rendered at the true reference camera with the true intrinsics, then
+    remapped like the stored images (undistorted with the calibrated camera
+    ``camera_used``, a PinholeCamera with its distortion).
+    """
+    gt = sim_rig.ground_truth
+    mask = gt.change_mask(np.asarray(T_world_camref, dtype=float), gt.intrinsics_true())
+    if camera_used is not None and camera_used.has_distortion:
+        from fgcd_cli.vse.undistort import Undistorter
+
+        mask = Undistorter(camera_used).depth(mask.astype(np.float32)) > 0.5
+    return np.asarray(mask, dtype=bool)
+
+
+def score_change_detection(found_mask: np.ndarray, truth_mask: np.ndarray) -> dict:
+    """Pixel scores and how many true change blobs a found region touches."""
+    from scipy import ndimage
+
+    from fgcd_cli.metrics.change_scores import binary_scores
+
+    s = binary_scores(found_mask.astype(bool), truth_mask.astype(bool))
+    labels, n_true = ndimage.label(truth_mask)
+    hit = sum(1 for i in range(1, n_true + 1) if np.any(found_mask[labels == i]))
+    f_labels, n_found = ndimage.label(found_mask)
+    false = sum(1 for i in range(1, n_found + 1) if not np.any(truth_mask[f_labels == i]))
+    out = {k: float(v) for k, v in s.__dict__.items() if isinstance(v, (int, float))}
+    out.update({"true_changes": int(n_true), "true_changes_found": int(hit), "found_regions": int(n_found),
+                "false_regions": int(false)})
+    return out

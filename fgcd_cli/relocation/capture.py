@@ -100,7 +100,13 @@ def _start_session(rig: RigHandles, *, explore_m: float) -> tuple[VseSession, ob
     T_base_flange_home = rig.guard.platform.flange_pose()
     rig.say("exploring to initialise the VSE and its scale")
     flange, cams = session.explore(exploration_pattern(translation_m=explore_m))
-    scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
+    if getattr(vse.latest(), "scale_is_metric", False):
+        # a depth camera's map is metric: the platform motions only confirm it
+        check = session.estimate_scale(rig.T_flange_cam, flange, cams)
+        scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=check.n_samples,
+                              residual_rms_mm=check.residual_rms_mm, method=f"metric depth (platform check {check.scale:.4f})")
+    else:
+        scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
     rig.say(f"map scale {scale.scale:.4f} m/unit (±{scale.scale_std / scale.scale * 100:.2f} %), residual {scale.residual_rms_mm:.2f} mm")
     return session, vse, scale, T_base_flange_home
 
