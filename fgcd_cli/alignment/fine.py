@@ -45,6 +45,7 @@ from fgcd_cli.alignment.photometric import (
     visible_nearest,
 )
 from fgcd_cli.alignment.reference import ReferenceIndex
+from fgcd_cli.alignment.sparse_icp import gram
 from fgcd_cli.alignment.results import AlignmentHealth, FineAlignmentResult, ResidualStats
 from fgcd_cli.geometry import PinholeCamera, Sim3, exp_se3
 
@@ -177,8 +178,8 @@ class _Problem:
         if J is not None:
             scale_p = ((1 - self.alpha) if with_geometry else 1.0) / (self.n_p * self.sigma_p**2)
             Jw = J * (w * scale_p)[:, None]
-            H = Jw.T @ J
-            b = -Jw.T @ r
+            H = gram(Jw, J)
+            b = -(r @ Jw)
         if with_geometry and self.geo is not None:
             rg, Jg = self.geometric(S, jac=J is not None)
             wg, cg = _huber_weights(rg, self.sigma_g)
@@ -186,8 +187,8 @@ class _Problem:
             if Jg is not None:
                 scale_g = self.alpha / (self.n_g * self.sigma_g**2)
                 Jgw = Jg * (wg * scale_g)[:, None]
-                H = H + Jgw.T @ Jg
-                b = b - Jgw.T @ rg
+                H = H + gram(Jgw, Jg)
+                b = b - rg @ Jgw
         return total, H, b
 
 

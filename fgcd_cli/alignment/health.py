@@ -52,7 +52,7 @@ def similarity_conditioning(points: np.ndarray, normals: np.ndarray) -> tuple[fl
         return 0.0, np.zeros(7), np.eye(7)
     qn = (q - c) / L
     J = np.column_stack([n, np.cross(qn, n), np.sum(n * qn, axis=1)])
-    H = J.T @ J / len(q)
+    H = np.einsum("ni,nj->ij", J, J, optimize=False) / len(q)
     w, V = np.linalg.eigh(H)
     w = np.clip(w, 0.0, None)
     ratio = float(w[0] / w[-1]) if w[-1] > 0 else 0.0

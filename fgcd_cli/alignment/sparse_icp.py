@@ -25,6 +25,7 @@ __all__ = [
     "sparse_point_to_point_step",
     "trimmed_point_to_plane_step",
     "scale_step_point_to_plane",
+    "gram",
 ]
 
 #: ADMM penalty in the normalised units used by :func:`sparse_point_to_plane_step`.
@@ -59,13 +60,23 @@ def shrink(h: np.ndarray, *, mu: float, p: float) -> np.ndarray:
     return h * beta if h.ndim == 1 else h * beta[:, None]
 
 
+def gram(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A.T @ B`` for tall, narrow matrices, without BLAS.
+
+    OpenBLAS's threaded GEMM on these shapes collapses when the machine's cores are
+    busy (measured 75 ms instead of 1 ms for 9000 x 36 on 2 loaded cores);
+    ``einsum`` without BLAS takes a steady few milliseconds.
+    """
+    return np.einsum("ni,nj->ij", A, B, optimize=False)
+
+
 def _solve_increment(yc: np.ndarray, n: np.ndarray, target: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted least squares for the se(3) increment ``(rho, phi)`` of ``n.(y + rho + phi x y) = target``."""
     J = np.column_stack([n, np.cross(yc, n)])
     r = target - np.sum(n * yc, axis=1)
     Jw = J * w[:, None]
-    H = Jw.T @ J + 1e-9 * np.eye(6)
-    return np.linalg.solve(H, Jw.T @ r)
+    H = gram(Jw, J) + 1e-9 * np.eye(6)
+    return np.linalg.solve(H, r @ Jw)
 
 
 def sparse_point_to_plane_step(
@@ -191,7 +202,7 @@ def scale_step_point_to_plane(
     J = np.column_stack([np.sum(n * ac, axis=1), n])
     r = np.sum(n * q, axis=1)
     Jw = J * w[:, None]
-    sol = np.linalg.solve(Jw.T @ J + 1e-12 * np.eye(4), Jw.T @ r)
+    sol = np.linalg.solve(gram(Jw, J) + 1e-12 * np.eye(4), r @ Jw)
     s = float(sol[0])
     # y = s (a - ca) + t'  ->  t = t' - s ca
     return s, sol[1:] - s * ca
