@@ -31,7 +31,7 @@ class DemoConfig:
     reference_light: str = "front"
     visit_light: str = "led:3"
     changes: int = 4
-    change_size_mm: tuple[float, float] = (8.0, 25.0)
+    change_size_mm: tuple[float, float] = (15.0, 35.0)
     start_offset_mm: float = 25.0
     start_offset_deg: float = 2.5
     station: str = "inscription"

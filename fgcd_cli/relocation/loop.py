@@ -134,6 +134,23 @@ def _scaled_pose(T_map_cam: np.ndarray, scale: float) -> np.ndarray:
     return T
 
 
+def _local_cloud(state, recent_keyframes: int, *, min_points: int = 3000) -> np.ndarray:
+    """Cloud points of the most recent keyframes (the local map around the current camera).
+
+    A monocular map drifts in scale over a session; the points measured from
+    the latest keyframes are consistent with the latest camera pose, which is
+    what the adjustment needs. Falls back to the whole cloud when the local
+    part is too small.
+    """
+    pts = np.asarray(state.cloud.points, dtype=float)
+    ids = np.asarray(getattr(state.cloud, "keyframe_ids", np.zeros(0)))
+    if recent_keyframes <= 0 or len(ids) != len(pts) or not state.keyframes:
+        return pts
+    recent = {kf.id for kf in state.keyframes[-recent_keyframes:]}
+    keep = np.isin(ids, list(recent))
+    return pts[keep] if keep.sum() >= min_points else pts
+
+
 def align_once(
     *,
     state,
@@ -144,12 +161,13 @@ def align_once(
     init: Sim3,
     fine: bool,
     serial: int = 0,
+    recent_keyframes: int = 6,
 ) -> list[AlignmentEstimate]:
     """Fast (then fine) alignment of one VSE state; returns the estimates it produced."""
     from fgcd_cli.alignment import fast_align, fine_align
 
     out: list[AlignmentEstimate] = []
-    cur_points = np.asarray(state.cloud.points, dtype=float) * scale
+    cur_points = _local_cloud(state, recent_keyframes) * scale
     t0 = time.monotonic()
     fast = fast_align(cur_points, ref_index, init=init)
     out.append(
