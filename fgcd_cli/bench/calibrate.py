@@ -112,7 +112,11 @@ def _target_free_stage(rig, calibrated: PinholeCamera) -> dict:
     gt = rig.ground_truth
     guard = MotionGuard(rig.platform)
     t0 = time.perf_counter()
-    run = run_target_free(guard, rig.camera, lambda cam: MonocularVSE(cam), camera=calibrated)
+    from fgcd_cli.rigs import undistorted
+
+    # the VSE works on undistorted frames, as in the field commands (fgcd_cli.rigs)
+    ideal, source = undistorted(calibrated, rig.camera)
+    run = run_target_free(guard, source, lambda cam: MonocularVSE(cam), camera=ideal)
     X_true = gt.T_flange_cam_true()
     mm, deg = pose_distance(run.result.T_flange_cam, X_true)
     # True scale: Sim(3) between the VSE camera centres and the true centres of the same stops

@@ -228,8 +228,8 @@ def handeye_cmd(
         T_flange_cam=None,
         intrinsics=intr.camera if intr is not None else None,
         scenario=SimScenario(scene=scene, seed=seed),
-        port=port,
-        host=host,
+        port=port or (camp.rig_config.get("port") if camp is not None else None),
+        host=host or (camp.rig_config.get("host") if camp is not None else None),
         camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
         confirm=confirm,
     )

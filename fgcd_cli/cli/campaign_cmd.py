@@ -22,12 +22,16 @@ def init_cmd(
     site: str = typer.Option(..., "--site", help="Site name, e.g. 'Dunhuang cave 45'."),
     description: str = typer.Option("", "--description", help="Free text."),
     driver: str = typer.Option("sim", "--driver", help="Default platform driver: sim, grbl, ur or manual."),
+    port: str = typer.Option(None, "--port", help="Serial port of a GRBL stage (stored in the rig section)."),
+    host: str = typer.Option(None, "--host", help="Address of a UR arm (stored in the rig section)."),
     as_json: bool = JSON_OPT,
 ) -> None:
     """Create a new campaign directory."""
     if driver not in ("sim", "grbl", "ur", "manual"):
         raise UserInputError(f"unknown driver '{driver}' (use sim, grbl, ur or manual)")
-    camp = init_campaign(directory, site=site, description=description, rig={"driver": driver})
+    rig = {"driver": driver}
+    rig.update({k: v for k, v in (("port", port), ("host", host)) if v})
+    camp = init_campaign(directory, site=site, description=description, rig=rig)
     emit(
         {"campaign": str(camp.path), "site": camp.site, "created": True},
         as_json=as_json,

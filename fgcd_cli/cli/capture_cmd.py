@@ -108,7 +108,7 @@ def capture(
             camp.update_config("rig", {"sim": sim_cfg})
         scenario = sim_scenario_from_campaign(camp, lighting=light)
     names = [x.strip() for x in (lightings or light).split(",") if x.strip()]
-    rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port, host=host,
+    rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port or camp.rig_config.get("port"), host=host or camp.rig_config.get("host"),
                    confirm=_confirm_factory(yes), on_event=info)
     try:
         result = capture_reference(
@@ -162,7 +162,7 @@ def relocate(
         scenario = sim_scenario_from_campaign(camp, lighting=light, changes=changes, start_offset_mm=start_offset_mm,
                                               start_offset_deg=start_offset_deg, session_seed=session_seed)
     config = RelocationConfig(mode="serial" if serial else "parallel", eta=eta, max_adjustments=max_adjustments)
-    rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port, host=host,
+    rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port or camp.rig_config.get("port"), host=host or camp.rig_config.get("host"),
                    confirm=_confirm_factory(yes), on_event=info)
     evaluator = RelocationEvaluator.from_reference(rig.sim, ref) if rig.sim is not None else None
     try:

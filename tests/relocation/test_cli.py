@@ -66,3 +66,16 @@ def test_demo_runs_end_to_end(tmp_path):
     assert (tmp_path / "demo" / "campaign").is_dir()
     v = fgcd("campaign", "verify", tmp_path / "demo" / "campaign")
     assert v.returncode == 0, v.stdout + v.stderr
+
+
+def test_connection_options_come_from_the_rig_section(tmp_path):
+    r = fgcd("campaign", "init", tmp_path / "c", "--site", "x", "--driver", "grbl", "--port", "/dev/ttyFGCD-NOPE")
+    assert r.returncode == 0, r.stderr
+    from fgcd_cli.campaign import open_campaign
+
+    camp = open_campaign(tmp_path / "c")
+    camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
+    camp.write_rig("intrinsics", {"camera": {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}})
+    r = fgcd("capture", "-c", tmp_path / "c", "-s", "s", "--yes")
+    one_line_error(r, 7)
+    assert "/dev/ttyFGCD-NOPE" in r.stderr
