@@ -185,7 +185,7 @@ def align_once(
         t1 = time.monotonic()
         kfs = [(_scaled_pose(kf.T_map_cam, scale), kf.image) for kf in state.keyframes[-6:]]
         res = fine_align(
-            ref_points=reference.points,
+            ref_points=ref_index if ref_index is not None else reference.points,
             ref_intensities=reference.intensities,
             cur_keyframes=kfs,
             camera=camera,
