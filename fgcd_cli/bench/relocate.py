@@ -66,7 +66,7 @@ QUICK = ["indoor-1", "indoor-2", "outdoor-1"]
 
 
 def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
-    from fgcd_cli.demo import calibrate_sim_handeye
+    from fgcd_cli.demo import calibrate_sim_handeye, calibrate_sim_intrinsics
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
     from fgcd_cli.relocation.capture import capture_reference, relocate_and_capture
@@ -78,22 +78,24 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
     out: dict = {"case": case.name, "scene": case.scene, "reference_light": case.reference_light,
                  "visit_light": case.visit_light}
     try:
-        he = calibrate_sim_handeye(camp, SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light,
-                                                     session_seed=100), say=say)
+        calib = SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light, session_seed=100)
+        cam = calibrate_sim_intrinsics(camp, calib, say=say)
+        he = calibrate_sim_handeye(camp, calib, say=say, camera=cam)
         X = np.array(he["T_flange_cam"])
         rig = open_sim_rig(SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light),
-                           T_flange_cam=X, intrinsics=None)
+                           T_flange_cam=X, intrinsics=cam)
         try:
             capture_reference(rig.handles, st, lightings=[case.reference_light], evaluation=reference_truth(rig.sim))
         finally:
             rig.close()
     except FgcdError as exc:
         out["error"] = f"setup: {exc}"
+        say(f"{case.name}: setup failed: {exc}")
         return out
     for i, mode in enumerate(modes):
         scen = SimScenario(scene=case.scene, seed=case.seed, lighting=case.visit_light, changes=3, change_seed=7,
                            start_offset_mm=case.offset_mm, start_offset_deg=case.offset_deg, session_seed=1 + i)
-        rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=None)
+        rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=cam)
         ev = RelocationEvaluator.from_reference(rig.sim, st.reference())
         try:
             t0 = time.monotonic()
