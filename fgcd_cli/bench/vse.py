@@ -39,23 +39,10 @@ TARGETS = {"ate_mm": 2.0, "cloud_median_error_pct_depth": 0.5, "cloud_points": 1
 
 
 def exploration_waypoints(*, translation_m: float = 0.03, rotation_deg: float = 4.0, legs: int = 6) -> list[np.ndarray]:
-    """Flange-frame waypoints of an exploration (relative to the start), as a robot would make.
+    """Flange-frame waypoints of the exploration the relocation sessions make (shared definition)."""
+    from fgcd_cli.relocation.session import exploration_waypoints as waypoints
 
-    Sideways, vertical and forward translations of a few cm with tilts of a few
-    degrees, ending back at the start.
-    """
-    d, r = translation_m, math.radians(rotation_deg)
-    twists = [
-        np.zeros(6),
-        np.array([d, 0, 0, 0, r, 0]),
-        np.array([d, d, 0, -r, r, 0]),
-        np.array([0, d, d / 2, -r, 0, 0]),
-        np.array([-d, 0, d / 2, 0, -r, 0]),
-        np.array([0, -d, 0, r, 0, 0]),
-        np.zeros(6),
-    ]
-    twists = twists[: legs + 1]
-    return [exp_se3(w) for w in twists]
+    return waypoints(translation_m=translation_m, rotation_rad=math.radians(rotation_deg), legs=legs)
 
 
 def _render_sequence(scene: str, *, legs: int, step_m: float, step_deg: float, seed: int = 0):

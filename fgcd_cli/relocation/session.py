@@ -70,20 +70,17 @@ class ScaleEstimate:
     method: str
 
 
-def exploration_pattern(*, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0)) -> list[np.ndarray]:
-    """Relative flange motions of the exploration that initialises the VSE and its scale.
+def exploration_waypoints(
+    *, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0), legs: int = 6
+) -> list[np.ndarray]:
+    """Flange poses of the exploration relative to its start (the first is the identity).
 
     Translations along the three flange axes with small tilts, returning to the
-    start; translation is what initialises a monocular engine (pure rotation
-    cannot) and observes the scale.
-
-    Returns
-    -------
-    list of (4, 4) ndarray
-        Motions in the flange frame, applied one after the other.
+    start after six legs; translation is what initialises a monocular engine
+    (pure rotation cannot) and observes the scale.
     """
     d, r = translation_m, rotation_rad
-    waypoints = [
+    twists = [
         np.zeros(6),
         np.array([d, 0, 0, 0, r, 0]),
         np.array([d, d, 0, -r, r, 0]),
@@ -92,7 +89,12 @@ def exploration_pattern(*, translation_m: float = 0.02, rotation_rad: float = ma
         np.array([0, -d, 0, r, 0, 0]),
         np.zeros(6),
     ]
-    poses = [exp_se3(w) for w in waypoints]
+    return [exp_se3(w) for w in twists[: legs + 1]]
+
+
+def exploration_pattern(*, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0)) -> list[np.ndarray]:
+    """The exploration as relative flange motions, applied one after the other (see :func:`exploration_waypoints`)."""
+    poses = exploration_waypoints(translation_m=translation_m, rotation_rad=rotation_rad)
     return [invert_pose(a) @ b for a, b in zip(poses[:-1], poses[1:])]
 
 
