@@ -93,22 +93,56 @@ def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> d
     return images
 
 
-def _start_session(rig: RigHandles, *, explore_m: float) -> tuple[VseSession, object, ScaleEstimate, np.ndarray]:
+#: A session whose scale fit leaves more than this residual (mm) is explored again.
+MAX_SCALE_RESIDUAL_MM = 12.0
+
+
+def _start_session(
+    rig: RigHandles, *, explore_m: float, attempts: int = 2
+) -> tuple[VseSession, object, ScaleEstimate, np.ndarray]:
+    """Start the VSE, explore and estimate the map scale; explore again once on a bad start.
+
+    A monocular engine occasionally initialises on a wrong solution (a map whose
+    motion opposes the platform's, or a large scale residual); the session then
+    resets the engine and explores again rather than building on it.
+    """
     vse = rig.vse_factory()
     vse.start()
     session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event)
     T_base_flange_home = rig.guard.platform.flange_pose()
-    rig.say("exploring to initialise the VSE and its scale")
-    flange, cams = session.explore(exploration_pattern(translation_m=explore_m))
-    if getattr(vse.latest(), "scale_is_metric", False):
-        # a depth camera's map is metric: the platform motions only confirm it
-        check = session.estimate_scale(rig.T_flange_cam, flange, cams)
-        scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=check.n_samples,
-                              residual_rms_mm=check.residual_rms_mm, method=f"metric depth (platform check {check.scale:.4f})")
-    else:
-        scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
-    rig.say(f"map scale {scale.scale:.4f} m/unit (±{scale.scale_std / scale.scale * 100:.2f} %), residual {scale.residual_rms_mm:.2f} mm")
-    return session, vse, scale, T_base_flange_home
+    last_error: AlgorithmError | None = None
+    try:
+        for attempt in range(1, attempts + 1):
+            rig.say("exploring to initialise the VSE and its scale" + (f" (attempt {attempt})" if attempt > 1 else ""))
+            try:
+                flange, cams = session.explore(exploration_pattern(translation_m=explore_m))
+                if getattr(vse.latest(), "scale_is_metric", False):
+                    # a depth camera's map is metric: the platform motions only confirm it
+                    check = session.estimate_scale(rig.T_flange_cam, flange, cams)
+                    scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=check.n_samples,
+                                          residual_rms_mm=check.residual_rms_mm,
+                                          method=f"metric depth (platform check {check.scale:.4f})")
+                else:
+                    scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
+                if scale.residual_rms_mm > MAX_SCALE_RESIDUAL_MM:
+                    raise AlgorithmError(
+                        f"the VSE motion disagrees with the platform by {scale.residual_rms_mm:.1f} mm RMS"
+                    )
+            except AlgorithmError as exc:
+                last_error = exc
+                rig.say(f"bad VSE start: {exc}; resetting the engine")
+                session.move_to_flange(T_base_flange_home)
+                vse.reset()
+                continue
+            rig.say(
+                f"map scale {scale.scale:.4f} m/unit (±{scale.scale_std / scale.scale * 100:.2f} %), "
+                f"residual {scale.residual_rms_mm:.2f} mm"
+            )
+            return session, vse, scale, T_base_flange_home
+        raise AlgorithmError(f"the VSE could not start after {attempts} explorations: {last_error}")
+    except BaseException:
+        vse.stop()
+        raise
 
 
 def _metric_keyframes(state, scale: float) -> tuple[np.ndarray, np.ndarray]:
