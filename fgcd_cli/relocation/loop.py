@@ -231,7 +231,7 @@ class AlignmentWorker:
 
     def stop(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=30)
+        self._thread.join(timeout=120)  # one alignment run at most; never leave it inside native code
 
     @property
     def error(self) -> str | None:

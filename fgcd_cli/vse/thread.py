@@ -56,8 +56,13 @@ class VseThread:
         self._thread.start()
         return self
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """Ask the worker to stop and wait for it (at most ``timeout`` seconds)."""
+    def stop(self, timeout: float = 60.0) -> None:
+        """Ask the worker to stop and wait for it (at most ``timeout`` seconds).
+
+        The wait is long on purpose: a keyframe's mapping can take seconds on a
+        busy machine, and a thread still inside OpenCV/Open3D when the
+        interpreter exits aborts the process.
+        """
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
