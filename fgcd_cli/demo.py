@@ -26,7 +26,7 @@ __all__ = ["DemoConfig", "run_demo"]
 class DemoConfig:
     """Scenario of the demo."""
 
-    scene: str = "stele"
+    scene: str = "relief_panel"
     seed: int = 0
     reference_light: str = "front"
     visit_light: str = "led:3"
@@ -34,7 +34,7 @@ class DemoConfig:
     change_size_mm: tuple[float, float] = (15.0, 35.0)
     start_offset_mm: float = 25.0
     start_offset_deg: float = 2.5
-    station: str = "inscription"
+    station: str = "niche-figure"
     vse: str = "mono"
 
 

@@ -12,7 +12,7 @@ from fgcd_cli.cli.output import emit, info
 
 def demo(
     out: Path = typer.Option(Path("runs/demo"), "--out", "-o", help="Directory for the campaign and the summary."),
-    scene: str = typer.Option("stele", "--scene", help="Simulator scene."),
+    scene: str = typer.Option("relief_panel", "--scene", help="Simulator scene (fgcd sim scenes)."),
     visit_light: str = typer.Option("led:3", "--visit-light", help="Lighting of the revisit (e.g. led:3, sun-evening)."),
     changes: int = typer.Option(4, "--changes", help="Fine-grained changes injected before the revisit."),
     vse: str = typer.Option("mono", "--vse", help="VSE of capture and relocation: mono (rACR, monocular) or rgbd (depth camera)."),

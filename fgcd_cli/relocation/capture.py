@@ -26,7 +26,6 @@ from fgcd_cli.relocation.loop import (
     ReferenceData,
     RelocationConfig,
     RelocationResult,
-    initial_guess_from_first_camera,
     run_relocation,
 )
 from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
@@ -240,7 +239,16 @@ def relocate_and_capture(
         first = session.tracking_state()
         T_cur_cam0 = np.array(first.T_map_cam, dtype=float)
         T_cur_cam0[:3, 3] *= scale.scale
-        init = initial_guess_from_first_camera(T_cur_cam0, reference.T_ref_camref)
+        from fgcd_cli.alignment import initial_guess
+
+        # the first camera is near the reference camera; checked by a fast alignment of the
+        # whole current cloud, with the global multi-start registration as fallback
+        guess = initial_guess(T_ref_camref=reference.T_ref_camref, T_cur_cam0=T_cur_cam0,
+                              cur_points=np.asarray(first.cloud.points, dtype=float) * scale.scale,
+                              reference=ref_index, scale=1.0)
+        init = guess.T_ref_cur
+        rig.say(f"initial alignment: {guess.source}"
+                + (f" ({guess.fast.health.reason})" if guess.fast is not None else ""))
         rig.say(f"relocating ({config.mode}) to the reference of station '{station.name}'")
         result = run_relocation(
             session=session,

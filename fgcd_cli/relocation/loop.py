@@ -43,7 +43,6 @@ __all__ = [
     "RelocationResult",
     "align_once",
     "run_relocation",
-    "initial_guess_from_first_camera",
 ]
 
 
@@ -116,16 +115,6 @@ class AlignmentEstimate:
     vse_frame: int  # frames_processed of the VSE state it used
     seconds: float
     serial: int  # increasing publication number
-
-
-def initial_guess_from_first_camera(T_cur_cam0: np.ndarray, T_ref_camref: np.ndarray) -> Sim3:
-    """The similarity that puts the session's first camera on the reference camera.
-
-    rACR starts every relocation near the reference pose, so this is a good
-    starting point for the fast alignment (scale 1: both frames are metric).
-    """
-    T = np.asarray(T_ref_camref, dtype=float) @ np.linalg.inv(np.asarray(T_cur_cam0, dtype=float))
-    return Sim3(T[:3, :3], T[:3, 3], 1.0)
 
 
 def _scaled_pose(T_map_cam: np.ndarray, scale: float) -> np.ndarray:
@@ -220,6 +209,7 @@ class AlignmentWorker:
         self._min_points = min_points
         self._lock = threading.Lock()
         self._latest: AlignmentEstimate | None = None
+        self._last_ok: AlignmentEstimate | None = None  # starting point of the next run
         self._serial = 0
         self._stop = threading.Event()
         self._error: str | None = None
@@ -254,9 +244,7 @@ class AlignmentWorker:
                     time.sleep(0.01)
                     continue
                 last_frame = state.frames_processed
-                with self._lock:
-                    prev = self._latest
-                init = prev.T_ref_cur if (prev is not None and prev.ok) else self._init
+                init = self._last_ok.T_ref_cur if self._last_ok is not None else self._init
                 for est in align_once(
                     state=state,
                     scale=self._scale,
@@ -272,6 +260,8 @@ class AlignmentWorker:
                         # a failed estimate is published too (the loop pauses on it) but never
                         # replaces the starting point of the next run
                         self._latest = est
+                    if est.ok:
+                        self._last_ok = est
                     if self._stop.is_set():
                         break
         except Exception as exc:  # noqa: BLE001 - reported to the adjustment thread, which stops
