@@ -97,7 +97,7 @@ MAX_SCALE_RESIDUAL_MM = 12.0
 
 
 def _start_session(
-    rig: RigHandles, *, explore_m: float, attempts: int = 2
+    rig: RigHandles, *, explore_m: float, attempts: int = 2, legs: int = 6
 ) -> tuple[VseSession, object, ScaleEstimate, np.ndarray]:
     """Start the VSE, explore and estimate the map scale; explore again once on a bad start.
 
@@ -114,7 +114,7 @@ def _start_session(
         for attempt in range(1, attempts + 1):
             rig.say("exploring to initialise the VSE and its scale" + (f" (attempt {attempt})" if attempt > 1 else ""))
             try:
-                flange, cams = session.explore(exploration_pattern(translation_m=explore_m))
+                flange, cams = session.explore(exploration_pattern(translation_m=explore_m, legs=legs))
                 if getattr(vse.latest(), "scale_is_metric", False):
                     # a depth camera's map is metric: the platform motions only confirm it
                     check = session.estimate_scale(rig.T_flange_cam, flange, cams)
@@ -224,6 +224,7 @@ def relocate_and_capture(
     config: RelocationConfig,
     lightings: list[str],
     explore_m: float = 0.04,
+    explore_legs: int = 4,
     metadata: dict | None = None,
     evaluate: Callable[[], dict] | None = None,
     on_record: Callable[[AdjustmentRecord], None] | None = None,
@@ -234,7 +235,7 @@ def relocate_and_capture(
 
     reference = load_reference(station)
     ref_index = ReferenceIndex(reference.points, intensities=reference.intensities)
-    session, vse, scale, _ = _start_session(rig, explore_m=explore_m)
+    session, vse, scale, _ = _start_session(rig, explore_m=explore_m, legs=explore_legs)
     try:
         first = session.tracking_state()
         T_cur_cam0 = np.array(first.T_map_cam, dtype=float)

@@ -92,9 +92,19 @@ def exploration_waypoints(
     return [exp_se3(w) for w in twists[: legs + 1]]
 
 
-def exploration_pattern(*, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0)) -> list[np.ndarray]:
-    """The exploration as relative flange motions, applied one after the other (see :func:`exploration_waypoints`)."""
+def exploration_pattern(
+    *, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0), legs: int = 6
+) -> list[np.ndarray]:
+    """The exploration as relative flange motions, applied one after the other.
+
+    ``legs=6`` is the full pattern of :func:`exploration_waypoints` (capture:
+    the reference cloud sees the object from several sides); fewer legs take
+    the first waypoints and return straight to the start (relocation: the
+    hand-eye is known, translations suffice for the scale).
+    """
     poses = exploration_waypoints(translation_m=translation_m, rotation_rad=rotation_rad)
+    if legs < 6:
+        poses = poses[: max(2, legs)] + [poses[-1]]
     return [invert_pose(a) @ b for a, b in zip(poses[:-1], poses[1:])]
 
 
