@@ -28,7 +28,7 @@ import uuid
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import tomli_w
@@ -242,9 +242,17 @@ class ObservationWriter:
     and the temporary directory is removed.
     """
 
-    def __init__(self, final_path: Path, kind: str, metadata: dict | None = None) -> None:
+    def __init__(
+        self,
+        final_path: Path,
+        kind: str,
+        metadata: dict | None = None,
+        *,
+        on_commit: Callable[[Path], None] | None = None,
+    ) -> None:
         self.final_path = Path(final_path)
         self.kind = kind
+        self._on_commit = on_commit
         self.metadata = dict(metadata or {})
         self.tmp_path = self.final_path.parent / f"{TMP_PREFIX}{self.final_path.name}-{uuid.uuid4().hex[:8]}"
         self.tmp_path.mkdir(parents=True)
@@ -329,6 +337,8 @@ class ObservationWriter:
                 except OSError:
                     pass
         self._committed = True
+        if self._on_commit is not None:
+            self._on_commit(self.final_path)
         return Observation(self.final_path, self.kind, manifest)
 
     def abort(self) -> None:
@@ -382,7 +392,7 @@ class Station:
                 f"station '{self.name}' already has a reference observation; it is immutable "
                 "(create a new station to capture another reference)"
             )
-        return ObservationWriter(self.reference_path, "reference", metadata)
+        return ObservationWriter(self.reference_path, "reference", metadata, on_commit=self._index)
 
     def visit_names(self) -> list[str]:
         """Committed visits, oldest first."""
@@ -410,7 +420,30 @@ class Station:
         """Start writing a new visit named by its UTC time."""
         vdir = self.path / "visits"
         vdir.mkdir(parents=True, exist_ok=True)
-        return ObservationWriter(vdir / (stamp or utc_stamp()), "visit", metadata)
+        return ObservationWriter(vdir / (stamp or utc_stamp()), "visit", metadata, on_commit=self._index)
+
+    def indexed_observations(self) -> list[str] | None:
+        """Observations recorded in ``station.json`` (``reference``, ``visits/<stamp>``).
+
+        ``None`` for a station written before the index existed. ``fgcd campaign
+        verify`` uses it to notice a whole observation deleted behind the tool's back.
+        """
+        index = self.info.get("observations")
+        return list(index) if isinstance(index, list) else None
+
+    def _index(self, obs_path: Path) -> None:
+        """Record a committed observation in ``station.json`` (atomic rewrite)."""
+        rel = obs_path.relative_to(self.path).as_posix()
+        sfile = self.path / "station.json"
+        try:  # re-read: another Station object may have indexed an observation since
+            self.info = json.loads(sfile.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError):
+            pass
+        index = self.indexed_observations() or []
+        if rel not in index:
+            index.append(rel)
+        self.info = {**self.info, "observations": index}
+        atomic_write_json(self.path / "station.json", self.info)
 
 
 # ----------------------------------------------------------------------------- campaign
@@ -462,7 +495,7 @@ class Campaign:
         if path.exists():
             raise CampaignError(f"station '{name}' already exists")
         path.mkdir(parents=True)
-        data = {"name": name, "description": description, "created": _now_iso(), **info}
+        data = {"name": name, "description": description, "created": _now_iso(), **info, "observations": []}
         atomic_write_json(path / "station.json", data)
         return Station(self, name, path, data)
 

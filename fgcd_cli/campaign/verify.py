@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from fgcd_cli.campaign.atomic import TMP_PREFIX, sha256_file
 from fgcd_cli.campaign.store import MANIFEST, Campaign
+from fgcd_cli.errors import DataIntegrityError
 
 __all__ = ["Problem", "VerifyReport", "verify_campaign"]
 
@@ -17,7 +18,7 @@ class Problem:
     """One damaged, missing or unexpected file."""
 
     path: str
-    kind: str  # missing | checksum | size | manifest | unlisted | incomplete-write
+    kind: str  # missing | checksum | size | manifest | station | unindexed | unlisted | incomplete-write
     detail: str
     severity: str = "error"  # error | warning
 
@@ -62,8 +63,12 @@ def _verify_observation(obs_path: Path, report: VerifyReport) -> None:
         return
     report.observations += 1
     for rel, entry in files.items():
-        p = obs_path / rel
         report.files_checked += 1
+        parts = PurePosixPath(rel).parts
+        if not isinstance(entry, dict) or not rel or PurePosixPath(rel).is_absolute() or ".." in parts:
+            report.problems.append(Problem(str(mpath), "manifest", f"manifest entry {rel!r} is malformed"))
+            continue
+        p = obs_path / rel
         if not p.is_file():
             report.problems.append(Problem(str(p), "missing", "listed in the manifest but missing"))
             continue
@@ -86,13 +91,30 @@ def verify_campaign(campaign: Campaign) -> VerifyReport:
     """Check every observation's manifest and checksums, and leftovers of killed writes."""
     report = VerifyReport(str(campaign.path))
     for sname in campaign.station_names():
-        st = campaign.station(sname)
+        try:
+            st = campaign.station(sname)
+        except DataIntegrityError as exc:
+            # station.json damaged: name it and go on with the other stations.
+            report.problems.append(Problem(str(campaign.path / "stations" / sname / "station.json"), "station", str(exc)))
+            continue
         candidates = [st.reference_path] if st.reference_path.exists() else []
         vdir = st.path / "visits"
         if vdir.is_dir():
             candidates += sorted(p for p in vdir.iterdir() if p.is_dir() and not p.name.startswith("."))
         for obs in candidates:
             _verify_observation(obs, report)
+        index = st.indexed_observations()
+        if index is not None:
+            present = {obs.relative_to(st.path).as_posix() for obs in candidates}
+            for rel in index:
+                if rel not in present:
+                    report.problems.append(
+                        Problem(str(st.path / rel), "missing", "observation recorded in station.json is gone")
+                    )
+            for rel in sorted(present - set(index)):
+                report.problems.append(
+                    Problem(str(st.path / rel), "unindexed", "observation not recorded in station.json", "warning")
+                )
         for parent in [st.path, vdir]:
             if parent.is_dir():
                 for p in parent.iterdir():

@@ -228,3 +228,86 @@ def test_rig_records_keep_history(camp):
     assert camp.read_rig("handeye")["method"] == "test2"
     assert len(list((camp.path / "rig" / "history").glob("handeye-*.json"))) == 2
     assert camp.read_rig("intrinsics") is None
+
+
+def test_malformed_manifest_entries_are_named_not_crashing(camp):
+    st = camp.create_station("s")
+    with st.new_visit(stamp="20260101T000000000Z") as w:
+        w.add_image("cur", np.zeros((4, 4), np.uint8))
+        visit = w.commit()
+    m = visit.path / "manifest.json"
+    manifest = json.loads(m.read_text())
+    manifest["files"]["images/cur.png"] = 3  # not a {"sha256", "bytes"} entry
+    manifest["files"]["../../../campaign.toml"] = {"sha256": "0" * 64, "bytes": 1}
+    m.write_text(json.dumps(manifest))
+    report = verify_campaign(camp)
+    errors = [(p.path, p.kind) for p in report.problems if p.severity == "error"]
+    assert errors == [(str(m), "manifest"), (str(m), "manifest")]
+    assert "images/cur.png" in report.problems[0].detail and "campaign.toml" in report.problems[1].detail
+
+
+def test_deleted_observation_directories_are_named(camp):
+    st = camp.create_station("s")
+    ref = _write_reference(st)
+    for i in range(2):
+        with st.new_visit(stamp=f"2026010{i}T000000000Z") as w:
+            w.add_image("cur", np.zeros((4, 4), np.uint8))
+            w.commit()
+    assert json.loads((st.path / "station.json").read_text())["observations"] == [
+        "reference", "visits/20260100T000000000Z", "visits/20260101T000000000Z"]
+    assert verify_campaign(camp).ok
+    os.chmod(ref.path, 0o755)
+    for p in ref.path.rglob("*"):
+        os.chmod(p, 0o755 if p.is_dir() else 0o644)
+    import shutil
+
+    shutil.rmtree(ref.path)
+    shutil.rmtree(st.path / "visits" / "20260100T000000000Z")
+    report = verify_campaign(camp)
+    assert not report.ok
+    assert [(p.path, p.kind) for p in report.problems if p.severity == "error"] == [
+        (str(st.path / "reference"), "missing"),
+        (str(st.path / "visits" / "20260100T000000000Z"), "missing"),
+    ]
+
+
+def test_index_survives_stale_station_objects(camp):
+    a = camp.create_station("s")
+    b = open_campaign(camp.path).station("s")  # loaded before a's commit
+    _write_reference(a)
+    with b.new_visit(stamp="20260101T000000000Z") as w:
+        w.add_image("cur", np.zeros((4, 4), np.uint8))
+        w.commit()
+    assert camp.station("s").indexed_observations() == ["reference", "visits/20260101T000000000Z"]
+
+
+def test_station_written_before_the_index_still_verifies(camp):
+    st = camp.create_station("s")
+    _write_reference(st)
+    info = json.loads((st.path / "station.json").read_text())
+    del info["observations"]
+    (st.path / "station.json").write_text(json.dumps(info))
+    report = verify_campaign(camp)
+    assert report.ok and report.problems == []
+    # an observation the index does not know (e.g. killed between rename and index update) is a warning
+    st2 = camp.create_station("t")
+    _write_reference(st2)
+    info = json.loads((st2.path / "station.json").read_text())
+    info["observations"] = []
+    (st2.path / "station.json").write_text(json.dumps(info))
+    report = verify_campaign(camp)
+    assert report.ok and [(p.kind, p.severity) for p in report.problems] == [("unindexed", "warning")]
+
+
+def test_damaged_station_json_is_named_and_other_stations_still_checked(camp):
+    bad = camp.create_station("a")
+    good = camp.create_station("b")
+    ref = _write_reference(good)
+    (bad.path / "station.json").write_text("{ broken")
+    target = ref.path / "images" / "front.png"
+    target.unlink()
+    report = verify_campaign(camp)
+    assert [(p.path, p.kind) for p in report.problems] == [
+        (str(bad.path / "station.json"), "station"),
+        (str(target), "missing"),
+    ]
