@@ -151,6 +151,29 @@ def encode_ply(points: np.ndarray, colors: np.ndarray | None = None, normals: np
     return ("\n".join(header) + "\n").encode("ascii") + rec.tobytes()
 
 
+# ----------------------------------------------------------------------------- rig records
+RIG_CHECKSUM_KEY = "record_sha256"
+
+
+def _rig_checksum(record: dict) -> str:
+    body = {k: v for k, v in record.items() if k != RIG_CHECKSUM_KEY}
+    return sha256_bytes(json.dumps(body, sort_keys=True, ensure_ascii=False, separators=(",", ":")).encode("utf-8"))
+
+
+def load_rig_record(path: Path) -> dict:
+    """Read a rig record and check its embedded checksum (records without one are accepted)."""
+    try:
+        record = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DataIntegrityError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(record, dict):
+        raise DataIntegrityError(f"{path}: not a rig record (a JSON object)")
+    stored = record.pop(RIG_CHECKSUM_KEY, None)
+    if stored is not None and stored != _rig_checksum(record):
+        raise DataIntegrityError(f"{path}: content does not match its sha256 (edited or damaged)")
+    return record
+
+
 # ----------------------------------------------------------------------------- observation
 @dataclass
 class Observation:
@@ -512,19 +535,27 @@ class Campaign:
         return self.path / "rig" / f"{_check_name(name, 'rig record')}.json"
 
     def read_rig(self, name: str) -> dict | None:
-        """A rig record (intrinsics, handeye...), or None if absent."""
+        """A rig record (intrinsics, handeye...), or None if absent.
+
+        Raises DataIntegrityError when the record is not valid JSON or no longer
+        matches the checksum it was written with.
+        """
         p = self.rig_path(name)
         if not p.exists():
             return None
-        try:
-            return json.loads(p.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise DataIntegrityError(f"{p}: not valid JSON ({exc})") from None
+        return load_rig_record(p)
 
     def write_rig(self, name: str, record: dict) -> Path:
-        """Store a rig record atomically; the previous one is kept in ``rig/history/``."""
+        """Store a rig record atomically; the previous one is kept in ``rig/history/``.
+
+        The record carries the sha256 of its own content (``record_sha256``), so
+        damage is found by ``fgcd campaign verify`` and refused by :meth:`read_rig`.
+        """
         p = self.rig_path(name)
         record = {"written": _now_iso(), **record}
+        record.pop(RIG_CHECKSUM_KEY, None)
+        record = json.loads(json.dumps(record, ensure_ascii=False))  # the form it is read back in
+        record[RIG_CHECKSUM_KEY] = _rig_checksum(record)
         history = self.path / "rig" / "history"
         history.mkdir(parents=True, exist_ok=True)
         atomic_write_json(history / f"{name}-{utc_stamp()}.json", record)

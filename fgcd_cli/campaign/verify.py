@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from fgcd_cli.campaign.atomic import TMP_PREFIX, sha256_file
-from fgcd_cli.campaign.store import MANIFEST, Campaign
+from fgcd_cli.campaign.store import MANIFEST, Campaign, load_rig_record
 from fgcd_cli.errors import DataIntegrityError
 
 __all__ = ["Problem", "VerifyReport", "verify_campaign"]
@@ -127,7 +127,7 @@ def verify_campaign(campaign: Campaign) -> VerifyReport:
         for p in sorted(rig.rglob("*.json")):
             report.files_checked += 1
             try:
-                json.loads(p.read_text(encoding="utf-8"))
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                report.problems.append(Problem(str(p), "checksum", f"rig record is not valid JSON ({exc})"))
+                load_rig_record(p)
+            except DataIntegrityError as exc:
+                report.problems.append(Problem(str(p), "checksum", f"rig record: {str(exc).removeprefix(str(p) + ': ')}"))
     return report

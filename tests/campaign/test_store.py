@@ -311,3 +311,22 @@ def test_damaged_station_json_is_named_and_other_stations_still_checked(camp):
         (str(bad.path / "station.json"), "station"),
         (str(target), "missing"),
     ]
+
+
+def test_edited_rig_record_is_named_and_refused(camp):
+    path = camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist(), "rmse_mm": 0.25, "note": "Kalibrierung ✓"})
+    assert camp.read_rig("handeye")["rmse_mm"] == 0.25  # round trip, checksum key stripped
+    assert "record_sha256" not in camp.read_rig("handeye")
+    assert verify_campaign(camp).ok
+    text = path.read_text().replace("0.25", "0.52")  # still valid JSON, different numbers
+    path.write_text(text)
+    report = verify_campaign(camp)
+    assert [(p.path, p.kind) for p in report.problems if p.severity == "error"] == [(str(path), "checksum")]
+    with pytest.raises(DataIntegrityError, match="sha256"):
+        camp.read_rig("handeye")
+
+
+def test_rig_record_without_checksum_is_still_read(camp):
+    (camp.path / "rig" / "intrinsics.json").write_text(json.dumps({"fx": 500.0}))
+    assert camp.read_rig("intrinsics") == {"fx": 500.0}
+    assert verify_campaign(camp).ok
