@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import expm, logm
+from scipy.spatial.transform import Rotation, Slerp
 
 from fgcd_cli.geometry.se3 import make_pose, project_to_so3, rotation_angle_rad, skew
 
@@ -101,6 +102,46 @@ class Sim3:
         """
         T = np.asarray(T_src_cam, dtype=float)
         return make_pose(self.R @ T[:3, :3], self.apply(T[:3, 3]))
+
+    # -- conversions
+    @classmethod
+    def from_rotvec(cls, rotvec: np.ndarray, t: np.ndarray, scale: float = 1.0) -> "Sim3":
+        """From a rotation vector (axis * angle, radians), a translation and a scale."""
+        return cls(Rotation.from_rotvec(np.asarray(rotvec, dtype=float).reshape(3)).as_matrix(), t, scale)
+
+    def to_rotvec(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(rotvec, t, scale)``; inverse of :meth:`from_rotvec`."""
+        return Rotation.from_matrix(self.R).as_rotvec(), self.t.copy(), self.scale
+
+    @classmethod
+    def from_quat(cls, q_xyzw: np.ndarray, t: np.ndarray, scale: float = 1.0) -> "Sim3":
+        """From a unit quaternion ``(x, y, z, w)``, a translation and a scale."""
+        return cls(Rotation.from_quat(np.asarray(q_xyzw, dtype=float).reshape(4)).as_matrix(), t, scale)
+
+    def to_quat(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(q_xyzw with w >= 0, t, scale)``; inverse of :meth:`from_quat`."""
+        q = Rotation.from_matrix(self.R).as_quat()
+        return (-q if q[3] < 0 else q), self.t.copy(), self.scale
+
+    # -- interpolation and distances
+    def interpolate(self, other: "Sim3", alpha: float) -> "Sim3":
+        """Similarity a fraction ``alpha`` in [0, 1] of the way to ``other``.
+
+        Rotation by spherical interpolation, translation linearly, scale
+        geometrically (like :func:`~fgcd_cli.geometry.se3.interpolate_pose`).
+        """
+        a = float(alpha)
+        R = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([self.R, other.R])))([a]).as_matrix()[0]
+        t = (1.0 - a) * self.t + a * other.t
+        scale = math.exp((1.0 - a) * math.log(self.scale) + a * math.log(other.scale))
+        return Sim3(R, t, scale)
+
+    def distance(self, other: "Sim3") -> tuple[float, float, float]:
+        """``(translation mm, rotation deg, scale ratio >= 1)`` between two similarities."""
+        mm = float(np.linalg.norm(self.t - other.t) * 1000.0)
+        deg = math.degrees(rotation_angle_rad(self.R.T @ other.R))
+        ratio = max(self.scale, other.scale) / min(self.scale, other.scale)
+        return mm, deg, ratio
 
     # -- Lie algebra
     @staticmethod

@@ -118,3 +118,38 @@ def test_transform_pose_moves_camera_centre_with_scale():
     np.testing.assert_allclose(T2[:3, 3], [2.0, 0.0, 0.0])
     np.testing.assert_allclose(T2[:3, :3], T[:3, :3])
     np.testing.assert_allclose(transform_points(T2, np.zeros((1, 3)))[0], T2[:3, 3])
+
+
+@given(sim_tangent)
+def test_sim3_rotvec_quaternion_and_matrix_round_trips(xi):
+    S = Sim3.exp(xi)
+    rv, t, s = S.to_rotvec()
+    np.testing.assert_allclose(Sim3.from_rotvec(rv, t, s).matrix(), S.matrix(), atol=1e-9)
+    q, t, s = S.to_quat()
+    assert q[3] >= 0 and math.isclose(np.linalg.norm(q), 1.0, rel_tol=1e-12)
+    np.testing.assert_allclose(Sim3.from_quat(q, t, s).matrix(), S.matrix(), atol=1e-9)
+    np.testing.assert_allclose(Sim3.from_matrix(S.matrix()).matrix(), S.matrix(), atol=1e-9)
+
+
+@given(sim_tangent, sim_tangent, st.floats(0.0, 1.0))
+def test_sim3_interpolation_endpoints_and_monotone_distance(a, b, alpha):
+    A, B = Sim3.exp(a), Sim3.exp(b)
+    np.testing.assert_allclose(A.interpolate(B, 0.0).matrix(), A.matrix(), atol=1e-9)
+    np.testing.assert_allclose(A.interpolate(B, 1.0).matrix(), B.matrix(), atol=1e-9)
+    M = A.interpolate(B, alpha)
+    mm_total, deg_total, ratio_total = A.distance(B)
+    mm, deg, ratio = A.distance(M)
+    assert mm <= mm_total * alpha + 1e-6
+    assert deg <= deg_total * alpha + 1e-6
+    assert math.log(ratio) <= math.log(ratio_total) * alpha + 1e-9
+    # scale is interpolated geometrically: exactly the log-linear blend
+    assert math.isclose(math.log(M.scale), (1 - alpha) * math.log(A.scale) + alpha * math.log(B.scale), abs_tol=1e-12)
+
+
+def test_sim3_distance_units():
+    A = Sim3.identity()
+    B = Sim3.from_rotvec([0.0, 0.0, math.radians(3.0)], [0.001, 0.002, 0.0], 0.5)
+    mm, deg, ratio = A.distance(B)
+    assert math.isclose(mm, math.hypot(1.0, 2.0), rel_tol=1e-12)
+    assert math.isclose(deg, 3.0, rel_tol=1e-9)
+    assert math.isclose(ratio, 2.0, rel_tol=1e-12)
