@@ -123,6 +123,7 @@ class GrblEmulator:
         self.silent = False
         self.lines_received: list[str] = []
         self.realtime_received: list[int] = []
+        self.silent_realtime_received: list[int] = []  # real-time bytes that arrived while silent
         self._reports = 0
         self._lock = threading.RLock()
         self._space = threading.Condition(self._lock)
@@ -218,6 +219,10 @@ class GrblEmulator:
                 return
             for byte in chunk:
                 if self.silent:
+                    # a hung controller: bytes still arrive on the line (recorded for
+                    # the tests) but nothing is executed or answered
+                    if byte in (0x3F, 0x21, 0x7E, 0x18, 0x85):
+                        self.silent_realtime_received.append(byte)
                     continue
                 if byte in (0x3F, 0x21, 0x7E, 0x18, 0x85, 0x90, 0x91, 0x92, 0x93):
                     self.realtime_received.append(byte)

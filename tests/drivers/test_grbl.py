@@ -169,11 +169,24 @@ def test_silent_controller_times_out_on_connect():
 
 
 def test_controller_going_silent_mid_move_times_out_and_holds(stage, emulator):
-    threading.Timer(0.25, emulator.set_silent).start()
-    with pytest.raises(PlatformTimeout):
+    def silence_once_moving():
+        deadline = time.monotonic() + 10
+        while emulator.state != "Run" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        emulator.set_silent()
+
+    threading.Thread(target=silence_once_moving, daemon=True).start()
+    t0 = time.monotonic()
+    with pytest.raises(PlatformTimeout, match="did not answer|no status report"):
         stage.move_to(offset(stage.flange_pose(), (-40.0, 0.0, 0.0)), speed_fraction=0.1)
-    # The feed hold went out even though the controller no longer talks.
-    assert 0x21 in emulator.realtime_received or emulator.silent
+    # detected by the answer timeout (0.8 s), not by the 40 mm motion's arrival deadline (~21 s)
+    assert time.monotonic() - t0 < 5.0
+    # The feed hold and jog cancel went out even though the controller no longer talks
+    # (give the pty a moment to deliver them).
+    deadline = time.monotonic() + 1.0
+    while 0x85 not in emulator.silent_realtime_received and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert 0x21 in emulator.silent_realtime_received and 0x85 in emulator.silent_realtime_received
 
 
 def test_garbage_bytes_are_tolerated(stage, emulator):
