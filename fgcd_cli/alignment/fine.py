@@ -62,8 +62,15 @@ class FineAlignConfig:
     """Weight of the geometric term (the paper's alpha)."""
     refine_keyframes: bool = True
     """False skips Eq. (16) (the paper's rACR-P ablation)."""
-    estimate_scale: bool = True
-    """False keeps the scale (rACR-S)."""
+    estimate_scale: bool = False
+    """Refine the scale here too (the paper's Eq. 18). Off by default: the scale
+    then stays the fast stage's (Eq. 14, from ``E_g``). ``E_p`` sees the scale,
+    and the shift along the viewing direction that goes with it on a nearly flat
+    object, only through the parallax between the current keyframes, i.e.
+    through the monocular trajectory, whose scale disagrees with its own cloud
+    by 1-2 % (bas-relief ambiguity of small motions). Measured on the stele
+    (``docs/alignment.md``): Eq. 18 moved the camera 17-29 mm along the optical
+    axis and the true AFD from 0.5 to 1.4-2.5 px; with the scale kept, 0.44 px."""
     blur_sigmas: tuple[float, ...] = (3.0, 1.0)
     """Gaussian blur (pixels) of each level, coarse to fine."""
     keyframe_iterations: int = 5
@@ -95,7 +102,7 @@ def _huber_weights(r: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]
 class _Problem:
     """Residuals and Jacobians of the fine alignment at one blur level."""
 
-    def __init__(self, *, camera, images, ref_pts, pt, kf, n_kf, geo, alpha, sigma_p, sigma_g, n_p, n_g):
+    def __init__(self, *, camera, images, ref_pts, pt, kf, n_kf, geo, alpha, sigma_p, sigma_g, sigma_t, n_p, n_g):
         self.camera = camera
         self.images: list[KeyframeImage] = images
         self.ref_pts = ref_pts  # (M, 3) selected reference points, ref frame
@@ -106,6 +113,7 @@ class _Problem:
         self.alpha = alpha
         self.sigma_p = sigma_p
         self.sigma_g = sigma_g
+        self.sigma_t = sigma_t
         self.n_p = max(1, n_p)
         self.n_g = max(1, n_g)
         self.by_kf = [np.flatnonzero(kf == u) for u in range(n_kf)]
@@ -158,15 +166,39 @@ class _Problem:
         return r, ok, J
 
     def geometric(self, S: Sim3, *, jac: bool):
-        """Point-to-plane residuals of the current points against the matched reference planes."""
+        """Residuals of the current points against their matched reference points.
+
+        Returns ``(r_n, r_t, J_n, J_t)``: ``r_n`` (G,) the offset along the
+        reference normal (point-to-plane), ``r_t`` (G, 3) the offset within the
+        tangent plane. The paper's ``E_g`` (Eq. 9) is point-to-point, i.e. both
+        parts with one weight; point-to-plane alone cannot tell the scale from a
+        shift along the normal on a nearly flat object (a stele: 1.5 % of scale
+        became 26 mm along the optical axis), while the normal part is far less
+        noisy than the tangential one. So both are kept, each with its own
+        robust scale (an anisotropic, GICP-like point-to-point).
+        """
         x, q_ref, n_ref = self.geo
         Sq = S.apply(q_ref)
         n_c = n_ref @ S.R.T
-        r = np.sum(n_c * (x - Sq), axis=1)
+        d = x - Sq
+        r_n = np.sum(n_c * d, axis=1)
+        r_t = d - n_c * r_n[:, None]
         if not jac:
-            return r, None
-        J = np.concatenate([-n_c, -np.cross(Sq, n_c), -np.sum(n_c * Sq, axis=1, keepdims=True)], axis=1)
-        return r, J
+            return r_n, r_t, None, None
+        J_n = np.concatenate([-n_c, -np.cross(Sq, n_c), -np.sum(n_c * Sq, axis=1, keepdims=True)], axis=1)
+        # d(Sq)/dxi for the left perturbation S <- exp(xi) S: [I, -[Sq]x, Sq]; d = x - Sq.
+        G = len(Sq)
+        J_d = np.zeros((G, 3, 7))
+        J_d[:, :, 0:3] = -np.eye(3)
+        skew = np.zeros((G, 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2] = -Sq[:, 2], Sq[:, 1]
+        skew[:, 1, 0], skew[:, 1, 2] = Sq[:, 2], -Sq[:, 0]
+        skew[:, 2, 0], skew[:, 2, 1] = -Sq[:, 1], Sq[:, 0]
+        J_d[:, :, 3:6] = skew
+        J_d[:, :, 6] = -Sq
+        P_t = np.eye(3)[None] - n_c[:, :, None] * n_c[:, None, :]
+        J_t = np.einsum("gij,gjk->gik", P_t, J_d)
+        return r_n, r_t, J_n, J_t
 
     def cost(self, S, poses, *, block: str | None, with_geometry: bool):
         """Total normalised robust cost; with ``block`` also the weighted normal equations."""
@@ -181,14 +213,19 @@ class _Problem:
             H = gram(Jw, J)
             b = -(r @ Jw)
         if with_geometry and self.geo is not None:
-            rg, Jg = self.geometric(S, jac=J is not None)
-            wg, cg = _huber_weights(rg, self.sigma_g)
-            total += self.alpha * float(np.sum(cg)) / self.n_g
-            if Jg is not None:
-                scale_g = self.alpha / (self.n_g * self.sigma_g**2)
-                Jgw = Jg * (wg * scale_g)[:, None]
-                H = H + gram(Jgw, Jg)
-                b = b - rg @ Jgw
+            rn, rt, Jn, Jt = self.geometric(S, jac=J is not None)
+            wn, cn = _huber_weights(rn, self.sigma_g)
+            rt = rt.reshape(-1)
+            wt, ct = _huber_weights(rt, self.sigma_t)
+            total += self.alpha * (float(np.sum(cn)) + float(np.sum(ct))) / self.n_g
+            if Jn is not None:
+                scale_n = self.alpha / (self.n_g * self.sigma_g**2)
+                Jnw = Jn * (wn * scale_n)[:, None]
+                Jt = Jt.reshape(-1, 7)
+                scale_t = self.alpha / (self.n_g * self.sigma_t**2)
+                Jtw = Jt * (wt * scale_t)[:, None]
+                H = H + gram(Jnw, Jn) + gram(Jtw, Jt)
+                b = b - rn @ Jnw - rt @ Jtw
         return total, H, b
 
 
@@ -338,6 +375,7 @@ def fine_align(
 
     geo_all = None
     sigma_g = max(ref.spacing, 1e-6)
+    sigma_t = sigma_g
     if cur_points is not None and config.alpha > 0:
         cur = np.asarray(cur_points, dtype=float)
         cur = cur[np.all(np.isfinite(cur), axis=1)]
@@ -349,8 +387,12 @@ def fine_align(
             thr = max(3.0 * float(np.median(d[keep])), 3 * ref.spacing)
             keep &= d < thr
             geo_all = (cur[keep], ref.points[idx[keep]], ref.normals[idx[keep]])
-            rg = np.sum((geo_all[2] @ S0.R.T) * (geo_all[0] - S0.apply(geo_all[1])), axis=1)
+            n0 = geo_all[2] @ S0.R.T
+            d0 = geo_all[0] - S0.apply(geo_all[1])
+            rg = np.sum(n0 * d0, axis=1)
             sigma_g = max(1.4826 * float(np.median(np.abs(rg))), ref.spacing / 4)
+            rt0 = (d0 - n0 * rg[:, None]).reshape(-1)
+            sigma_t = max(1.4826 * float(np.median(np.abs(rt0))), sigma_g)
     free_sim = np.arange(7) if config.estimate_scale else np.arange(6)
     iterations = 0
     converged = True
@@ -366,11 +408,11 @@ def fine_align(
             continue
         n_g = 0 if geo_all is None else len(geo_all[0])
         probe = _Problem(camera=cam, images=images, ref_pts=ref.points[sel], pt=pt, kf=kf, n_kf=K, geo=geo_all,
-                         alpha=config.alpha, sigma_p=1.0, sigma_g=sigma_g, n_p=len(pt), n_g=n_g)
+                         alpha=config.alpha, sigma_p=1.0, sigma_g=sigma_g, sigma_t=sigma_t, n_p=len(pt), n_g=n_g)
         r0, ok0, _ = probe.photometric(S, poses, block=None)
         sigma_p = max(1.4826 * float(np.median(np.abs(r0[ok0]))) if ok0.any() else 0.0, config.min_photometric_sigma)
         problem = _Problem(camera=cam, images=images, ref_pts=ref.points[sel], pt=pt, kf=kf, n_kf=K, geo=geo_all,
-                           alpha=config.alpha, sigma_p=sigma_p, sigma_g=sigma_g, n_p=len(pt), n_g=n_g)
+                           alpha=config.alpha, sigma_p=sigma_p, sigma_g=sigma_g, sigma_t=sigma_t, n_p=len(pt), n_g=n_g)
         if level == len(config.blur_sigmas) - 1:
             rms_before = _photometric_rms(problem, S0, poses0)
             n_res = int(np.count_nonzero(ok0))
