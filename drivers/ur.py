@@ -9,7 +9,8 @@ hardware notes):
   timeout, sends the protocol-version request and requires an answer, and
   checks the dashboard greeting;
 * after a dropped link the getters keep returning the last, **stale** values:
-  every pose read checks ``isConnected()`` first;
+  every pose read checks ``isConnected()`` first, and that the controller's
+  timestamp still advances (a hung controller keeps the link "connected");
 * ``moveL`` returns ``False`` (no exception) under a protective stop, and a
   blocking ``moveL`` cannot be interrupted by Ctrl-C. Moves are therefore sent
   asynchronously and the driver polls arrival, safety bits and the connection
@@ -42,6 +43,10 @@ from drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
+
+#: Interfaces of hung controllers, kept alive so that no ur_rtde call (not even a
+#: destructor's disconnect, which can block without a timeout) touches them again.
+_ABANDONED: list = []
 
 __all__ = ["URConfig", "URPlatform", "preflight", "pose_to_vector", "vector_to_pose", "safety_problem"]
 
@@ -120,8 +125,10 @@ def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, time
             sock.sendall(struct.pack(">HBH", 5, ord("V"), 2))
             header = _recv_exact(sock, 3)
             size, kind = struct.unpack(">HB", header)
+            if kind != ord("V") or not 4 <= size <= 64:  # garbage: do not wait for a bogus length
+                raise PlatformConnectionError(f"{host}:{port} does not speak RTDE (unexpected answer {header!r})")
             body = _recv_exact(sock, size - 3)
-            if kind != ord("V") or not body or body[0] != 1:
+            if not body or body[0] != 1:
                 raise PlatformConnectionError(f"{host}:{port} does not speak RTDE protocol version 2")
         with socket.create_connection((host, dashboard_port), timeout=timeout_s) as sock:
             sock.settimeout(timeout_s)
@@ -169,6 +176,9 @@ class URConfig:
         Extra time beyond the nominal motion time before a move times out.
     poll_s : float
         Polling period while waiting for arrival.
+    stale_after_s : float
+        A state whose controller timestamp has not advanced for this long is
+        stale (the controller streams at 125 or 500 Hz): the link is treated as lost.
     """
 
     host: str
@@ -182,6 +192,7 @@ class URConfig:
     arrival_tolerance_rad: float = math.radians(0.05)
     arrival_margin_s: float = 5.0
     poll_s: float = 0.02
+    stale_after_s: float = 0.5
 
 
 class URPlatform:
@@ -196,6 +207,8 @@ class URPlatform:
         self._control_lock = threading.Lock()
         self._stop_requested = threading.Event()
         self.greeting: str | None = None
+        self._last_timestamp: float | None = None
+        self._last_fresh = 0.0
 
     # ------------------------------------------------------------------ connection
     def connect(self) -> None:
@@ -210,6 +223,7 @@ class URPlatform:
         except RuntimeError as exc:
             self._rtde_c = self._rtde_r = None
             raise PlatformConnectionError(f"ur_rtde could not connect to {self.config.host}: {exc}") from None
+        self._last_timestamp, self._last_fresh = None, time.monotonic()
         with self._control_lock:
             if not self._rtde_c.setTcp([0.0] * 6):
                 raise PlatformConnectionError("the UR controller refused setTcp (is the control script running?)")
@@ -232,6 +246,12 @@ class URPlatform:
         """
         c, r = self._rtde_c, self._rtde_r
         self._rtde_c = self._rtde_r = None
+        if c is not None and self._hung(r):
+            # A hung controller: ur_rtde's stopL/disconnect on such a link block with
+            # no timeout (seen for tens of seconds). Never touch these interfaces again;
+            # keep them referenced so their destructors do not run either.
+            _ABANDONED.append((c, r))
+            return
         try:
             healthy = c is not None and c.isConnected() and c.isProgramRunning()
         except RuntimeError:
@@ -245,6 +265,19 @@ class URPlatform:
                 pass
 
     # ------------------------------------------------------------------ state
+    def _hung(self, r) -> bool:
+        """True when the receive stream stopped advancing (the controller hangs)."""
+        if r is None:
+            return False
+        try:
+            stamp = float(r.getTimestamp())
+        except RuntimeError:
+            return False
+        if stamp != self._last_timestamp:
+            self._last_timestamp, self._last_fresh = stamp, time.monotonic()
+            return False
+        return time.monotonic() - self._last_fresh > self.config.stale_after_s
+
     def _receive(self):
         r = self._rtde_r
         if r is None or self._rtde_c is None:
@@ -252,6 +285,17 @@ class URPlatform:
         if not r.isConnected() or not self._rtde_c.isConnected():
             raise PlatformConnectionError(
                 f"lost the connection to the UR controller at {self.config.host} (the last pose is stale)"
+            )
+        # A hung controller or a half-open link keeps isConnected() True while the
+        # getters repeat the last package: the controller's own clock must advance.
+        stamp = float(r.getTimestamp())
+        now = time.monotonic()
+        if stamp != self._last_timestamp:
+            self._last_timestamp, self._last_fresh = stamp, now
+        elif now - self._last_fresh > self.config.stale_after_s:
+            raise PlatformConnectionError(
+                f"the UR controller at {self.config.host} sent no fresh state for "
+                f"{now - self._last_fresh:.1f} s (the last pose is stale)"
             )
         return r
 
@@ -379,8 +423,8 @@ class URPlatform:
         """stopL now (safe from any thread); the move in progress ends."""
         self._stop_requested.set()
         c = self._rtde_c
-        if c is None:
-            return
+        if c is None or self._hung(self._rtde_r):
+            return  # nothing can be sent to a hung controller (and ur_rtde would block)
         try:
             if c.isConnected() and c.isProgramRunning():
                 c.stopL(self.config.max_linear_acc_m_s2 * 2.0)

@@ -12,6 +12,9 @@ on stdin, one per line:
                      the dashboard and script connections stay, like a dropped RTDE link)
 ``disconnect_first`` close only the oldest RTDE connection (the receive interface's)
 ``silent``           from now on accept connections but never answer
+``freeze``           stop sending RTDE data packages on the open connections, which stay
+                     open (a hung controller or a half-open link: the client's getters go stale)
+``slow``             the arm moves at a tenth of the commanded speed (it does not arrive in time)
 ``quit``             exit
 
 What it speaks (RTDE protocol v2, big-endian, ``uint16 size | uint8 type | payload``):
@@ -122,6 +125,8 @@ class FakeController:
         self.motion = None  # (start T, end T, start time, duration)
         self.speed = np.zeros(6)
         self.silent = False
+        self.frozen = False
+        self.speed_factor = 1.0
         self.connections: list[socket.socket] = []
         self.t0 = time.monotonic()
         self.done_at: float | None = None
@@ -191,7 +196,7 @@ class FakeController:
                 start = self.T_base_flange.copy()
                 dist = float(np.linalg.norm(end[:3, 3] - start[:3, 3]))
                 angle = float(np.linalg.norm(Rotation.from_matrix(start[:3, :3].T @ end[:3, :3]).as_rotvec()))
-                speed = max(d[6], 1e-6)
+                speed = max(d[6] * self.speed_factor, 1e-6)
                 duration = max(dist / speed, angle / max(speed * 10.0, 1e-6))
                 self.motion = (start, end, time.monotonic(), duration)
                 if not asynchronous:
@@ -293,6 +298,9 @@ def _serve_rtde(ctrl: FakeController, conn: socket.socket) -> None:
     def sender() -> None:
         period = 1.0 / min(frequency, 125.0)
         while started.is_set():
+            if ctrl.frozen:
+                time.sleep(period)
+                continue
             ctrl.step()
             try:
                 payload = b"\x01" + b"".join(_pack(t, ctrl.outputs(n)) for n, t in zip(outputs, output_types))
@@ -500,6 +508,10 @@ def main(argv: list[str] | None = None) -> int:
                         pass
         elif command == "silent":
             ctrl.silent = True
+        elif command == "freeze":
+            ctrl.frozen = True
+        elif command == "slow":
+            ctrl.speed_factor = 0.1
         elif command == "quit":
             break
         print(f"ACK {command}", flush=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 import typer
@@ -88,6 +89,25 @@ def _fail(prefix: str, exc: object, code: int) -> None:
 
 def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
+    try:
+        _main()
+    except SystemExit as exc:
+        if _abandoned_native_threads():
+            # A hung UR controller left ur_rtde threads reconnecting forever inside
+            # native code: a normal interpreter exit would wait for them.
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+        raise
+
+
+def _abandoned_native_threads() -> bool:
+    ur = sys.modules.get("drivers.ur")
+    return bool(getattr(ur, "_ABANDONED", None))
+
+
+def _main() -> None:
     platform_error = _platform_error_type()
     try:
         # without standalone mode typer *returns* the exit code of typer.Exit / Ctrl-C

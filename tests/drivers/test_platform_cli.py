@@ -125,3 +125,29 @@ def test_check_and_move_ur_against_fake_controller():
 def test_ur_unreachable_host_is_one_line_error():
     run = fgcd("platform", "check", "--driver", "ur", "--host", "127.0.0.1", "--timeout", "0.5")
     assert run.returncode == 7 and "cannot reach the UR controller" in run.stderr
+
+
+def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
+    # The controller stops streaming mid-move but keeps its sockets open: ur_rtde keeps
+    # reconnecting forever in native threads; fgcd must still say why and exit.
+    with FakeURProcess() as fake:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "ur", "--host", "127.0.0.1",
+             "--dx", "40", "--speed-fraction", "0.2", "--yes"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        try:
+            time.sleep(2.5)  # connected and moving (40 mm at 10 mm/s)
+            fake.send("freeze")
+            t0 = time.monotonic()
+            _, stderr = proc.communicate(timeout=30)
+            elapsed = time.monotonic() - t0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert proc.returncode == 7, stderr
+    assert elapsed < 5.0
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert lines[0].startswith("platform error:") and "no fresh state" in lines[0], stderr
+    assert "Traceback" not in stderr

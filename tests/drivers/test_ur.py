@@ -7,7 +7,10 @@ not run in parallel with each other; every test kills its fake in a finally.
 from __future__ import annotations
 
 import _thread
+import json
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -117,6 +120,101 @@ def test_controller_gone_mid_move_is_connection_error_not_stale_pose(arm, fake):
         arm.flange_pose()
     with pytest.raises(PlatformConnectionError, match="cannot reach"):
         arm.reconnect()
+
+
+HUNG_SCRIPT = """
+import json, os, sys, time
+from drivers.platform import GuardLimits, MotionGuard, PlatformConnectionError
+from drivers.ur import URConfig, URPlatform
+arm = URPlatform(URConfig(host="127.0.0.1", preflight_timeout_s=0.5, max_linear_speed_m_s=0.05))
+arm.connect()
+arm.flange_pose()
+print("READY", flush=True)
+sys.stdin.readline()  # the test froze the controller
+time.sleep(0.7)
+out = {"still_connected": arm._rtde_r.isConnected()}
+try:
+    arm.flange_pose()
+    out["pose"] = "returned"
+except PlatformConnectionError as exc:
+    out["pose"] = str(exc)
+guard = MotionGuard(arm, GuardLimits(max_step_m=0.1))
+t0 = time.monotonic()
+try:
+    guard.move_by(__import__("numpy").eye(4))
+    out["move"] = "returned"
+except PlatformConnectionError as exc:
+    out["move"] = str(exc)
+out["tripped"] = guard.tripped
+t0 = time.monotonic()
+arm.close()
+out["close_s"] = time.monotonic() - t0
+print(json.dumps(out), flush=True)
+os._exit(0)  # ur_rtde's threads of a hung link would hold up a normal exit
+"""
+
+
+def test_hung_controller_state_is_stale_not_trusted(fake):
+    # The controller stops streaming but keeps its sockets open (a hung controller, a
+    # half-open link): isConnected() stays True and the getters repeat the last package.
+    # Run in a child: ur_rtde's threads of a hung link keep reconnecting in native code
+    # and must not share this test process with the next tests' clients.
+    child = subprocess.Popen([sys.executable, "-c", HUNG_SCRIPT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert child.stdout.readline().strip() == "READY"
+        fake.send("freeze")
+        child.stdin.write("go\n")
+        child.stdin.flush()
+        out, _ = child.communicate(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result["still_connected"] is True  # ur_rtde itself has not noticed
+    assert "no fresh state" in result["pose"]
+    assert "no fresh state" in result["move"]  # refused before anything is sent
+    assert result["close_s"] < 1.0  # close does not wait on the hung link
+
+
+def test_arrival_timeout_stops_the_arm(arm, fake):
+    fake.send("slow")  # the arm crawls at a tenth of the commanded speed
+    guard = MotionGuard(arm, GuardLimits(max_step_m=0.1, speed_fraction=1.0))
+    T0 = arm.flange_pose()
+    t0 = time.monotonic()
+    with pytest.raises(PlatformTimeout, match="did not arrive in time"):
+        guard.move_to(shifted(T0, [0.02, 0, 0]))  # nominal 0.4 s, 4 s at the crawl
+    # deadline: 1.5 x nominal + the 1 s margin, well before the crawl would arrive
+    assert time.monotonic() - t0 < 3.0
+    stopped = arm.flange_pose()
+    time.sleep(0.3)
+    np.testing.assert_allclose(arm.flange_pose(), stopped)  # stopL went out: no further motion
+    assert stopped[0, 3] - T0[0, 3] < 0.015
+
+
+def test_garbage_peer_is_refused_before_ur_rtde_touches_it():
+    # Something else answers on the RTDE port (a web server, a wrong device).
+    with socket.socket() as probe:
+        if probe.connect_ex(("127.0.0.1", 30004)) == 0:
+            pytest.skip("something else listens on 30004")
+    server = socket.socket()
+    server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    server.bind(("127.0.0.1", 30004))
+    server.listen(1)
+
+    def answer_garbage():
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(64)
+            conn.sendall(b"HTTP/1.1 400 Bad Request\r\n\r\n\x00\xff")
+
+    threading.Thread(target=answer_garbage, daemon=True).start()
+    try:
+        with pytest.raises(PlatformConnectionError, match="does not speak RTDE"):
+            URPlatform(CONFIG).connect()
+    finally:
+        server.close()
 
 
 def test_stop_from_another_thread_interrupts(arm):
