@@ -330,3 +330,22 @@ def test_rig_record_without_checksum_is_still_read(camp):
     (camp.path / "rig" / "intrinsics.json").write_text(json.dumps({"fx": 500.0}))
     assert camp.read_rig("intrinsics") == {"fx": 500.0}
     assert verify_campaign(camp).ok
+
+
+def test_platform_fault_while_writing_a_visit_leaves_the_campaign_consistent(camp):
+    # A relocation writes its visit (images, cloud, relocation.jsonl) in one ObservationWriter;
+    # a platform fault before commit must leave no visit, no leftover and a clean verify.
+    from drivers.platform import SafetyStop
+
+    st = camp.create_station("s")
+    _write_reference(st)
+    with pytest.raises(SafetyStop):
+        with st.new_visit({"driver": "grbl"}) as w:
+            w.add_image("cur", np.zeros((4, 4), np.uint8))
+            w.add_bytes("relocation.jsonl", b'{"adjustment": 1}\n')
+            raise SafetyStop("GRBL ALARM:1 (hard limit triggered)")
+    assert st.visit_names() == []
+    assert [p.name for p in (st.path / "visits").iterdir()] == []
+    report = verify_campaign(camp)
+    assert report.ok and report.problems == []
+    assert camp.station("s").indexed_observations() == ["reference"]
