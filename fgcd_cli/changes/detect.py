@@ -10,7 +10,7 @@ import numpy as np
 from fgcd_cli.changes.cues import local_ncc_dissimilarity, relative_to_median, shift_tolerant_difference
 from fgcd_cli.changes.illumination import normalize_local_gain, normalize_shading
 from fgcd_cli.changes.images import image_health, to_gray, validate_stacks
-from fgcd_cli.changes.regions import ChangeRegion, clean_mask, extract_regions
+from fgcd_cli.changes.regions import ChangeRegion, clean_mask, extract_regions, refine_to_local_peak
 from fgcd_cli.changes.registration import Registration, register_to_reference, warp_to_reference
 from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
 from fgcd_cli.errors import UserInputError
@@ -78,6 +78,9 @@ def detect_changes(
     min_region_px: int = 30,
     max_hole_px: int = 30,
     registration_lighting: int = 0,
+    robust_gain_rounds: int = 1,
+    edge_fraction: float = 0.2,
+    edge_radius_px: int = 6,
 ) -> ChangeResult:
     """Find fine-grained changes between a reference and a current observation.
 
@@ -115,6 +118,13 @@ def detect_changes(
         Regions up to this size are dropped / holes up to this size filled.
     registration_lighting : int
         Index of the lighting used to estimate the registration (the most diffuse one is best).
+    edge_fraction, edge_radius_px : float, int
+        Region trimming: pixels whose score excess is below ``edge_fraction`` of
+        the largest excess within ``edge_radius_px`` are dropped (see
+        :func:`fgcd_cli.changes.regions.refine_to_local_peak`; 0 disables).
+    robust_gain_rounds : int
+        Re-estimations of the light-gain field without the pixels the previous
+        score flags as suspect (0: one plain estimate, the change biases it).
 
     Returns
     -------
@@ -133,6 +143,9 @@ def detect_changes(
         "min_region_px": min_region_px,
         "max_hole_px": max_hole_px,
         "registration_lighting": registration_lighting,
+        "robust_gain_rounds_max": robust_gain_rounds,
+        "edge_fraction": edge_fraction,
+        "edge_radius_px": edge_radius_px,
         "shading_normalization": shading_ref is not None,
     }
     refs, curs = validate_stacks(ref_images, cur_images)
@@ -164,17 +177,15 @@ def detect_changes(
         registration = Registration(H_cur_ref=np.eye(3), ok=True, init="none", overlap_fraction=1.0)
 
     valid = np.ones(shape, bool) if eval_mask is None else eval_mask.copy()
-    differences, structures, registered = [], [], []
-    for i, (ref, cur) in enumerate(zip(refs, curs)):
+    warped_images = []
+    seen_all = np.ones(shape, bool)
+    for i, cur in enumerate(curs):
         warped, seen = warp_to_reference(cur, registration.H_cur_ref, shape)
         valid &= seen
+        seen_all &= seen
         if shading_ref is not None:
-            warped = normalize_shading(ref, warped, shading_ref=shading_ref[i], shading_cur=shading_cur[i])
-        normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px)
-        registered.append(np.clip(normalized, 0.0, 1.0))
-        differences.append(shift_tolerant_difference(ref, normalized, radius_px=shift_radius_px))
-        if structure_weight > 0:
-            structures.append(local_ncc_dissimilarity(to_gray(ref), to_gray(normalized)))
+            warped = normalize_shading(refs[i], warped, shading_ref=shading_ref[i], shading_cur=shading_cur[i])
+        warped_images.append(warped)
     # Keep away from the border of the seen area: the gain field and shifts are biased there.
     margin = int(np.ceil(max(shift_radius_px, smooth_sigma_px * 2)))
     if margin > 0:
@@ -182,18 +193,50 @@ def detect_changes(
     if valid.sum() < 100:
         return _empty(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
 
-    # Each cue is divided by its median (dimensionless) so lightings of different
-    # brightness weigh the same; averaging over lightings suppresses cast-shadow
-    # and specular differences that only one light produces.
-    fused = np.mean([relative_to_median(d, valid) for d in differences], axis=0)
-    if structures:
-        structure = np.mean([relative_to_median(s, valid) for s in structures], axis=0)
-        fused = (1.0 - structure_weight) * fused + structure_weight * structure
-    if smooth_sigma_px > 0:
-        fused = cv2.GaussianBlur(fused.astype(np.float32), (0, 0), smooth_sigma_px)
-    score = np.where(valid, fused, 0.0).astype(np.float32)
+    def fuse(gain_weight: np.ndarray | None) -> tuple[np.ndarray, list[np.ndarray]]:
+        differences, structures, registered = [], [], []
+        for ref, warped in zip(refs, warped_images):
+            normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px, weight=gain_weight)
+            registered.append(np.clip(normalized, 0.0, 1.0))
+            differences.append(shift_tolerant_difference(ref, normalized, radius_px=shift_radius_px))
+            if structure_weight > 0:
+                structures.append(local_ncc_dissimilarity(to_gray(ref), to_gray(normalized)))
+        # Each cue is divided by its median (dimensionless) so lightings of different
+        # brightness weigh the same; averaging over lightings suppresses cast-shadow
+        # and specular differences that only one light produces.
+        fused = np.mean([relative_to_median(d, valid) for d in differences], axis=0)
+        if structures:
+            structure = np.mean([relative_to_median(s, valid) for s in structures], axis=0)
+            fused = (1.0 - structure_weight) * fused + structure_weight * structure
+        if smooth_sigma_px > 0:
+            fused = cv2.GaussianBlur(fused.astype(np.float32), (0, 0), smooth_sigma_px)
+        return np.where(valid, fused, 0.0).astype(np.float32), registered
+
+    # The light-gain field is estimated from unchanged pixels only: a first pass
+    # flags what is suspect (above the growing threshold, fused over all
+    # lightings), the gain is re-estimated without it, and so on until the
+    # suspect set settles. Without this, a change drags the local gain and
+    # leaves a halo as wide as the gain window around itself.
+    score, registered = fuse(None)
+    gain_weight = seen_all.astype(np.float32)
+    robust_rounds = 0
+    for _ in range(robust_gain_rounds):
+        _, first = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
+        suspect = (score > first.low) & valid
+        if suspect.mean() > 0.5 * valid.mean():
+            break  # more suspect than trusted pixels: nothing sensible to re-estimate from
+        suspect = cv2.dilate(suspect.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        new_weight = (seen_all & ~suspect).astype(np.float32)
+        if robust_rounds and np.array_equal(new_weight, gain_weight):
+            break
+        gain_weight = new_weight
+        score, registered = fuse(gain_weight)
+        robust_rounds += 1
+    settings["robust_gain_rounds"] = robust_rounds
 
     raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
+    raw_mask = refine_to_local_peak(raw_mask, score, background=threshold.median, fraction=edge_fraction,
+                                    radius_px=edge_radius_px)
     mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
     regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
     warnings = []

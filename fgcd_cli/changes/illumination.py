@@ -7,13 +7,24 @@ import numpy as np
 
 
 def normalize_local_gain(
-    ref_image: np.ndarray, cur_warped: np.ndarray, *, sigma_px: float = 12.0, floor: float = 0.01
+    ref_image: np.ndarray,
+    cur_warped: np.ndarray,
+    *,
+    sigma_px: float = 12.0,
+    floor: float = 0.01,
+    weight: np.ndarray | None = None,
 ) -> np.ndarray:
     """Correct a smooth, spatially varying light gain on the current image.
 
-    The gain ``G = blur(ref) / blur(cur)`` (per channel) absorbs light falloff,
-    exposure and white-balance differences whose scale is larger than
-    ``sigma_px``; changes smaller than that survive.
+    The gain ``G = mean_ref / mean_cur`` (local Gaussian means, per channel)
+    absorbs light falloff, exposure and white-balance differences whose scale is
+    larger than ``sigma_px``; changes smaller than that survive.
+
+    A change inside the window biases the local means: a dark spot of a few
+    hundred pixels lowers ``mean_cur`` and brightens its unchanged surroundings
+    by 20-50 %, a halo as wide as the window. ``weight`` (0 on pixels suspected
+    of change) makes the means weighted (normalized convolution), so the gain
+    there is interpolated from the unchanged surroundings.
 
     Parameters
     ----------
@@ -21,15 +32,36 @@ def normalize_local_gain(
     sigma_px : float
         Gaussian scale of the gain field, pixels.
     floor : float
-        Added to both blurred images so dark areas do not explode the gain.
+        Added to both means so dark areas do not explode the gain.
+    weight : ndarray, HxW float in [0, 1], optional
+        Trust of each pixel for the gain estimate (None: all pixels count).
+        Where the weighted window holds almost no trusted pixel, a 4x wider
+        window is used.
 
     Returns
     -------
     ndarray, the current image with the gain applied (float32, same shape).
     """
-    blur_ref = cv2.GaussianBlur(ref_image, (0, 0), sigma_px)
-    blur_cur = cv2.GaussianBlur(cur_warped, (0, 0), sigma_px)
-    gain = (blur_ref + floor) / (blur_cur + floor)
+    blur = lambda x, s: cv2.GaussianBlur(x, (0, 0), s)  # noqa: E731
+    if weight is None:
+        gain = (blur(ref_image, sigma_px) + floor) / (blur(cur_warped, sigma_px) + floor)
+        return (cur_warped * gain).astype(np.float32)
+    w = np.asarray(weight, dtype=np.float32)
+    w3 = w[:, :, None] if ref_image.ndim == 3 else w
+
+    def weighted_gain(s: float) -> tuple[np.ndarray, np.ndarray]:
+        wb = blur(w, s)
+        wb3 = wb[:, :, None] if ref_image.ndim == 3 else wb
+        denom = np.maximum(wb3, 1e-6)
+        g = (blur(w3 * ref_image, s) / denom + floor) / (blur(w3 * cur_warped, s) / denom + floor)
+        return g, wb3
+
+    gain, support = weighted_gain(sigma_px)
+    if float(support.min()) < 0.05:
+        wide, _ = weighted_gain(4.0 * sigma_px)
+        # Blend smoothly towards the wide estimate where the narrow window has little support.
+        alpha = np.clip(support / 0.05, 0.0, 1.0)
+        gain = alpha * gain + (1.0 - alpha) * wide
     return (cur_warped * gain).astype(np.float32)
 
 
