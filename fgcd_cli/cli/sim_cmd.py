@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Optional
@@ -27,6 +28,8 @@ def _parse_pose(text: str | None) -> np.ndarray:
         raise UserInputError(f"--pose must be six numbers x,y,z,rx,ry,rz (mm, deg), got {text!r}") from None
     if len(vals) != 6:
         raise UserInputError(f"--pose must be six numbers x,y,z,rx,ry,rz (mm, deg), got {len(vals)}")
+    if not all(np.isfinite(vals)):
+        raise UserInputError(f"--pose must be six finite numbers x,y,z,rx,ry,rz (mm, deg), got {text!r}")
     from scipy.spatial.transform import Rotation
 
     T[:3, :3] = Rotation.from_euler("xyz", vals[3:], degrees=True).as_matrix()
@@ -34,16 +37,48 @@ def _parse_pose(text: str | None) -> np.ndarray:
     return T
 
 
-def _write_png(path: Path, img: np.ndarray) -> None:
+def _check_output(path: Path, what: str) -> None:
+    """Fail early, in one line, if ``path`` cannot be written (before minutes of rendering)."""
+    if path.is_dir():
+        raise UserInputError(f"cannot write {what} {path}: it is a directory")
+    for anc in path.parents:
+        if anc.exists():
+            if not anc.is_dir():
+                raise UserInputError(f"cannot write {what} {path}: {anc} is not a directory")
+            break
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserInputError(f"cannot write {what} {path}: {exc.strerror or exc} ({exc.filename or path.parent})") \
+            from None
+    if not os.access(path.parent, os.W_OK):
+        raise UserInputError(f"cannot write {what} {path}: {path.parent} is not writable")
+
+
+def _write_png(path: Path, img: np.ndarray, what: str = "image") -> None:
     import cv2
 
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_output(path, what)
     tmp = path.with_name(path.name + ".tmp.png")
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
-    if not cv2.imwrite(str(tmp), img):
-        raise UserInputError(f"cannot write image {path}")
-    tmp.replace(path)
+    try:
+        ok = cv2.imwrite(str(tmp), img)
+        if ok:
+            tmp.replace(path)
+    except (OSError, cv2.error) as exc:
+        tmp.unlink(missing_ok=True)
+        raise UserInputError(f"cannot write {what} {path}: {exc}") from None
+    if not ok:
+        raise UserInputError(f"cannot write {what} {path}")
+
+
+def _save_npy(path: Path, arr: np.ndarray) -> None:
+    _check_output(path, "depth")
+    try:
+        np.save(path, arr)
+    except OSError as exc:
+        raise UserInputError(f"cannot write depth {path}: {exc.strerror or exc}") from None
 
 
 @app.command("scenes")
@@ -111,6 +146,10 @@ def render_cmd(
         raise UserInputError(f"--depth must end in .npy or .png, got {depth}")
     if width < 16 or height < 16 or supersample < 1 or changes < 0:
         raise UserInputError("image size must be >= 16 px, supersample >= 1, changes >= 0")
+    T_rel = _parse_pose(pose)
+    for path, what in ((out, "image"), (depth, "depth"), (mask, "mask")):
+        if path is not None:
+            _check_output(path, what)
     try:
         lighting = lighting_preset(light)
     except ValueError as exc:
@@ -121,7 +160,7 @@ def render_cmd(
         raise UserInputError(str(exc)) from None
     f = 600.0 * width / 640.0
     intr = CameraIntrinsics(fx=f, fy=f, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width, height=height)
-    T = sc.default_T_world_cam @ _parse_pose(pose)
+    T = sc.default_T_world_cam @ T_rel
     chs = random_changes(sc, n=changes, seed=change_seed) if changes else []
     renderer = Renderer(sc, supersample=supersample)
     t0 = time.perf_counter()
@@ -131,14 +170,13 @@ def render_cmd(
     _write_png(out, np.round(img * 255).astype(np.uint8))
     written = {"image": str(out)}
     if depth is not None:
-        depth.parent.mkdir(parents=True, exist_ok=True)
         if depth.suffix.lower() == ".npy":
-            np.save(depth, res.depth)
+            _save_npy(depth, res.depth)
         else:
-            _write_png(depth, np.clip(np.round(res.depth * 1000), 0, 65535).astype(np.uint16))
+            _write_png(depth, np.clip(np.round(res.depth * 1000), 0, 65535).astype(np.uint16), "depth")
         written["depth"] = str(depth)
     if mask is not None:
-        _write_png(mask, res.change_mask.astype(np.uint8) * 255)
+        _write_png(mask, res.change_mask.astype(np.uint8) * 255, "mask")
         written["mask"] = str(mask)
     data = {
         "scene": scene, "lighting": lighting.name, "T_world_cam": T, "intrinsics": intr.to_dict(),
