@@ -15,7 +15,8 @@ HELP = "Find fine-grained changes between reference and current images; write ma
 def _render(data: dict):
     def render(console):
         if not data["comparable"]:
-            console.print(f"[yellow]cannot compare[/yellow]: {data['reason']}")
+            reason = data["reason"].removeprefix("cannot compare: ")
+            console.print(f"[yellow]cannot compare[/yellow]: {reason}")
         else:
             n = len(data["regions"])
             console.print(f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area")
@@ -47,7 +48,12 @@ def diff(
     no_register: bool = typer.Option(False, "--no-register", help="Images are already aligned: skip registration."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """Find fine-grained changes; writes change_score.png/.npy, change_mask.png, overlay.png, regions.json, report.html."""
+    """Find fine-grained changes; writes change_score.png/.npy, change_mask.png, overlay.png, regions.json, report.html.
+
+    Exit status 0 when the images were compared (with or without changes); 6 when
+    they cannot be compared honestly (black, textureless, not overlapping): the
+    report and regions.json are still written and say why; 2 for bad input.
+    """
     from fgcd_cli.report.usecases import run_bare, run_campaign
     from fgcd_cli.errors import UserInputError
 
@@ -66,3 +72,7 @@ def diff(
         data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
                         register=not no_register, progress=None if as_json else info)
     emit(data, as_json=as_json, render=_render(data))
+    if not data["comparable"]:
+        from fgcd_cli.errors import AlgorithmError
+
+        raise typer.Exit(AlgorithmError.exit_code)
