@@ -228,11 +228,18 @@ class SimPlatform:
                 self._connected = False
                 raise PlatformConnectionError("connection to the simulated platform lost")
             if fault == "estop":
+                # pressed half way: the platform stops there, half the motion's time has passed
                 self._estop = True
-                self._run_motion(T_cmd, 0.5 * duration, partial=0.5)
+                self._run_motion(T_cmd, duration, partial=0.5)
                 raise SafetyStop("emergency stop pressed during the motion (simulated)")
             if fault == "timeout" or duration > self.timeout_s:
-                self._run_motion(T_cmd, min(duration, self.timeout_s), partial=0.5)
+                # the host waits timeout_s: a too-long motion gets as far as it can in that time,
+                # an injected timeout (stalled axis) stops half way; either way timeout_s have passed
+                part = 0.5 if fault == "timeout" else self.timeout_s / duration
+                self._run_motion(T_cmd, duration, partial=part)
+                stalled = self.timeout_s - part * duration
+                if stalled > 0:
+                    self.clock.advance(stalled)
                 raise PlatformTimeout(f"simulated platform did not arrive within {self.timeout_s:.0f} s")
             stopped_at = self._run_motion(T_cmd, duration)
             self.move_count += 1
@@ -329,6 +336,7 @@ class SimPlatform:
                     break
                 if partial is not None and (k + 1) / steps > partial:
                     elapsed = partial * duration
+                    self.clock.advance(max(0.0, elapsed - k * duration / steps))
                     break
                 self._lock.release()
                 try:

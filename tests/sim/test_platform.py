@@ -159,3 +159,50 @@ def test_determinism_under_seed():
         return p.true_flange_pose()
     np.testing.assert_array_equal(run(7), run(7))
     assert not np.allclose(run(7), run(8))
+
+
+def test_faults_take_the_time_they_would_on_the_rig():
+    p = _platform()
+    full = 1.5 + p.settle_s  # 1 cm
+    p.inject_fault("estop")
+    t0 = p.clock.now()
+    with pytest.raises(SafetyStop):
+        p.move_to(_target(p, [0.01, 0, 0]))
+    assert p.clock.now() - t0 == pytest.approx(0.5 * full)  # stopped half way, after half the motion's time
+    assert p.true_flange_pose()[0, 3] == pytest.approx(0.505, abs=1e-9)
+    p.clear_faults()
+    p.move_to(_target(p, [0.0, 0, 0]))
+    p.inject_fault("timeout")
+    t0 = p.clock.now()
+    with pytest.raises(PlatformTimeout):
+        p.move_to(_target(p, [0.01, 0, 0]))
+    assert p.clock.now() - t0 == pytest.approx(p.timeout_s)  # the host waited the whole timeout
+    # a motion longer than the timeout gets as far as its speed allows in that time
+    q = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", timeout_s=3.0)
+    q.connect()
+    t0 = q.clock.now()
+    with pytest.raises(PlatformTimeout):
+        q.move_to(_target(q, [0.04, 0, 0]))  # 6 s + settle at 1.5 s/cm
+    assert q.clock.now() - t0 == pytest.approx(3.0)
+    assert q.true_flange_pose()[0, 3] - 0.5 == pytest.approx(0.04 * 3.0 / (6.0 + q.settle_s), rel=1e-9)
+
+
+def test_realtime_factor_runs_the_clock_faster_than_wall_time_and_stop_halts():
+    import threading
+    import time
+
+    p = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", realtime_factor=20.0)
+    p.connect()
+    w0, t0 = time.perf_counter(), p.clock.now()
+    res = p.move_to(_target(p, [0.01, 0, 0]))  # 1.7 s simulated
+    wall = time.perf_counter() - w0
+    assert p.clock.now() - t0 == pytest.approx(1.5 + p.settle_s)
+    assert res.duration_s == pytest.approx(1.5 + p.settle_s)
+    assert 1.7 / 20 * 0.9 < wall < 1.7 / 20 + 1.0  # ~85 ms of wall time, slack for a busy machine
+    # a 4 cm motion (6.2 s simulated, ~0.3 s wall) stopped from another thread after ~0.1 s of wall time
+    threading.Timer(0.1, p.stop).start()
+    res = p.move_to(_target(p, [0.05, 0, 0]))
+    x = p.true_flange_pose()[0, 3]
+    assert 0.51 < x < 0.55 - 1e-3
+    assert res.duration_s < 6.2
+    np.testing.assert_allclose(res.T_base_flange_commanded[:3, 3], p.true_flange_pose()[:3, 3], atol=1e-12)
