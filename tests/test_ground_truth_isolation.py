@@ -57,3 +57,27 @@ def test_checker_detects_planted_violations(tmp_path):
         (bad / "sub").mkdir()
         (bad / "sub" / "x.py").write_text(line + "\n")
         assert sim_imports(bad), line
+
+
+def test_algorithm_packages_exist():
+    """The static check passes vacuously on a missing folder: make sure the five are where it looks."""
+    for package in ALGORITHM_PACKAGES:
+        assert (ROOT / "fgcd_cli" / package / "__init__.py").is_file(), package
+
+
+def test_importing_the_algorithm_packages_does_not_load_the_simulator():
+    """Transitively too: every module of the five packages imported, ``drivers.sim`` is not in sys.modules."""
+    import subprocess
+    import sys
+
+    code = (
+        "import importlib, pkgutil, sys\n"
+        f"for p in {ALGORITHM_PACKAGES!r}:\n"
+        "    pkg = importlib.import_module('fgcd_cli.' + p)\n"
+        "    for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):\n"
+        "        importlib.import_module(m.name)\n"
+        "print(sorted(m for m in sys.modules if m == 'drivers.sim' or m.startswith('drivers.sim.')))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]", f"importing the algorithm packages loads the simulator: {r.stdout.strip()}"
