@@ -148,7 +148,11 @@ def open_sim_rig(
         rig.displace_base(_random_offset(rng, scenario.start_offset_mm, scenario.start_offset_deg))
     rig.platform.connect()
     cam, source = undistorted(intrinsics or pinhole_from_intrinsics(rig.camera.intrinsics_nominal), rig.camera)
-    guard = MotionGuard(rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12)), confirm=confirm)
+    # The simulated platform's speed model is already the rACR paper's slow stage
+    # (1.5 s per cm, ~6.7 mm/s): run it at that speed, not at the guard's default
+    # half speed meant for fast industrial arms, so simulated times compare with the paper's.
+    guard = MotionGuard(rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12), speed_fraction=1.0),
+                        confirm=confirm)
     handles = RigHandles(
         guard=guard,
         camera_source=source,

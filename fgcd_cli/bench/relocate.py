@@ -109,6 +109,13 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
                 "session_s": r.session_s, "platform_s": r.platform_s, "wall_s": time.monotonic() - t0,
                 "success": bool(truth["afd_px"] < 3.0),
             }
+            # The 3D loop's own end (before the final image stage), from the log's evaluation records.
+            racr = [rec for rec in r.records if rec.stage != "image" and rec.truth]
+            if racr:
+                out[mode]["afd_px_racr_only"] = racr[-1].truth["afd_px"]
+            image = [rec for rec in r.records if rec.stage == "image"]
+            out[mode]["image_stage"] = ("not run" if not image else
+                                        "ok" if all(rec.alignment_ok for rec in image) else image[-1].alignment_reason)
         except FgcdError as exc:
             truth = ev.evaluate()
             out[mode] = {"error": str(exc), "success": False, "afd_px": truth["afd_px"],
@@ -127,6 +134,8 @@ def _summarise(results: list[dict], mode: str) -> dict:
         "cases": len(results),
         "success_rate": sum(bool(r.get("success")) for r in rows) / max(1, len(results)),
         "mean_afd_px": mean([r["afd_px"] for r in rows if math.isfinite(r.get("afd_px", float("nan")))]),
+        "mean_afd_px_racr_only": mean([r["afd_px_racr_only"] for r in rows if "afd_px_racr_only" in r]),
+        "image_stage_used": sum(r.get("image_stage") == "ok" for r in rows),
         "mean_iterations": mean([r["adjustments"] for r in ok]),
         "mean_sim_time_s": mean([r["session_s"] for r in ok]),
         "mean_wall_s": mean([r["wall_s"] for r in ok]),

@@ -217,6 +217,23 @@ def load_reference(station) -> ReferenceData:
     )
 
 
+def _reference_images(station) -> dict[str, np.ndarray]:
+    """The reference observation's images (undistorted, one per lighting)."""
+    ref = station.reference()
+    return {name: ref.image(name) for name in ref.image_names()}
+
+
+def _grab_gray(rig: RigHandles, *, average: int = 2) -> np.ndarray:
+    """The current undistorted grey image, averaged over a few frames (noise)."""
+    acc = None
+    for _ in range(max(1, average)):
+        img = np.asarray(rig.camera_source.grab().image, dtype=np.float64)
+        if img.max() > 1.5:
+            img = img / 255.0
+        acc = img if acc is None else acc + img
+    return (acc / max(1, average)).astype(np.float32)
+
+
 def relocate_and_capture(
     rig: RigHandles,
     station,
@@ -224,7 +241,7 @@ def relocate_and_capture(
     config: RelocationConfig,
     lightings: list[str],
     explore_m: float = 0.04,
-    explore_legs: int = 4,
+    explore_legs: int = 3,
     metadata: dict | None = None,
     evaluate: Callable[[], dict] | None = None,
     on_record: Callable[[AdjustmentRecord], None] | None = None,
@@ -262,6 +279,8 @@ def relocate_and_capture(
             config=config,
             evaluate=evaluate,
             on_record=on_record,
+            reference_images=_reference_images(station),
+            grab_current=lambda: _grab_gray(rig),
         )
         state = session.settle(frames=2)
         points = np.asarray(state.cloud.points, dtype=float) * scale.scale

@@ -102,6 +102,12 @@ class RelocationConfig:
     min_points: int = 500
     estimate_timeout_s: float = 120.0
     stop_afd_px: float = 0.5
+    image_refine: bool = True
+    """After the 3D loop converges, refine from the reference images
+    (:mod:`fgcd_cli.relocation.image_refine`) when the evidence is strong."""
+    image_refine_steps: int = 3
+    image_stop_afd_px: float = 0.3
+    """The image stage stops when its correction moves the reference image by less than this."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -290,6 +296,8 @@ class AdjustmentRecord:
     sigma: float
     afd_est_px: float
     truth: dict | None = None
+    image: dict | None = None
+    """Image stage only: matches, inliers, RMS, measured AFD, reference image."""
 
     def to_json(self) -> str:
         return json.dumps(self.__dict__, ensure_ascii=False)
@@ -321,6 +329,8 @@ def run_relocation(
     config: RelocationConfig = RelocationConfig(),
     evaluate: Callable[[], dict] | None = None,
     on_record: Callable[[AdjustmentRecord], None] | None = None,
+    reference_images: dict[str, np.ndarray] | None = None,
+    grab_current: Callable[[], np.ndarray] | None = None,
 ) -> RelocationResult:
     """Drive the camera to the reference pose.
 
@@ -345,6 +355,10 @@ def run_relocation(
         dict of true errors written into each log record.
     on_record : callable, optional
         Called with each record (live display, log file).
+    reference_images : dict of name -> (H, W) ndarray, optional
+        Undistorted reference images, for the final image stage.
+    grab_current : callable() -> (H, W) ndarray, optional
+        The current undistorted grey image, for the final image stage.
     """
     t_start = time.monotonic()
     worker: AlignmentWorker | None = None
@@ -436,6 +450,11 @@ def run_relocation(
             session.move_by(adj.M_flange_commanded)
         else:
             result = RelocationResult(False, f"not converged after {config.max_adjustments} adjustments", config.max_adjustments)
+        if result.converged and config.image_refine and reference_images and grab_current is not None:
+            result = _image_stage(session=session, reference=reference, camera=camera, scale=scale,
+                                  T_flange_cam=T_flange_cam, config=config, records=records, result=result,
+                                  reference_images=reference_images, grab_current=grab_current,
+                                  evaluate=evaluate, on_record=on_record, t_start=t_start)
     finally:
         if worker is not None:
             worker.stop()
@@ -445,6 +464,63 @@ def run_relocation(
     result.session_s = session.timing.total_s
     result.platform_s = session.timing.platform_s
     return result
+
+
+def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, records, result, reference_images,
+                 grab_current, evaluate, on_record, t_start) -> RelocationResult:
+    """Final image-based steps after the 3D loop converged (see :mod:`.image_refine`).
+
+    Each step matches the current image with the reference images, solves the
+    camera motion by PnP on the reference cloud and moves; it stops when the
+    correction is below ``image_stop_afd_px``, or leaves the rACR result as it is
+    when the evidence is weak (the record says why).
+    """
+    from fgcd_cli.geometry.se3 import invert_pose
+    from fgcd_cli.relocation.adjustment import clamp_motion
+    from fgcd_cli.relocation.image_refine import refine_from_reference_image
+
+    last = records[-1]
+    X = np.asarray(T_flange_cam, dtype=float)
+    reason = result.reason
+    for step in range(config.image_refine_steps):
+        state = session.settle(frames=2)
+        t0 = time.monotonic()
+        ref = refine_from_reference_image(reference_images=reference_images, current_image=grab_current(),
+                                          camera=camera, ref_points=reference.points,
+                                          T_ref_camref=reference.T_ref_camref)
+        session.timing.wait_s += time.monotonic() - t0
+        info = {"matches": ref.matches, "inliers": ref.inliers, "rms_px": ref.rms_px,
+                "measured_afd_px": ref.measured_afd_px, "reference_image": ref.reference_image}
+        if ref.ok:
+            T_ref_cam = np.asarray(reference.T_ref_camref, dtype=float) @ invert_pose(ref.M_cam)
+            M_flange = X @ ref.M_cam @ invert_pose(X)
+            M_cmd, clamped = clamp_motion(M_flange, max_step_m=config.max_step_m, max_step_rad=config.max_step_rad)
+            g = float(np.linalg.norm(M_flange - np.eye(4)))
+            off_mm, off_deg = pose_distance(T_ref_cam, reference.T_ref_camref)
+            afd = estimated_afd_px(reference.points, reference.T_ref_camref, T_ref_cam, camera)
+        else:
+            T_ref_cam, M_cmd, clamped = np.asarray(last.T_ref_cam), np.eye(4), False
+            g, off_mm, off_deg, afd = last.g, last.offset_mm, last.offset_deg, last.afd_est_px
+        rec = AdjustmentRecord(
+            iteration=last.iteration + step + 1, t_wall_s=time.monotonic() - t_start,
+            t_session_s=session.timing.total_s, stage="image", g=g, offset_mm=off_mm, offset_deg=off_deg,
+            T_ref_cam=np.asarray(T_ref_cam).tolist(), M_flange_commanded=np.asarray(M_cmd).tolist(),
+            clamped=clamped, vse_status=state.status, vse_points=len(state.cloud), alignment_ok=ref.ok,
+            alignment_reason=ref.reason, scale=scale, sigma=last.sigma, afd_est_px=afd,
+            truth=evaluate() if evaluate else None, image=info,
+        )
+        records.append(rec)
+        if on_record:
+            on_record(rec)
+        if not ref.ok:
+            reason = f"{result.reason}; image stage: {ref.reason}"
+            break
+        if afd <= config.image_stop_afd_px:
+            reason = f"{result.reason}; image stage: correction {afd:.2f} px <= {config.image_stop_afd_px} px"
+            break
+        session.move_by(M_cmd)
+        reason = f"{result.reason}; image stage: moved {step + 1} time(s)"
+    return RelocationResult(True, reason, records[-1].iteration)
 
 
 def _wait_for_estimate(worker: AlignmentWorker, last_serial: int, config: RelocationConfig, session: VseSession) -> AlignmentEstimate:

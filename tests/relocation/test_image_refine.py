@@ -1,0 +1,90 @@
+"""The final image stage against the simulator's truth (the stage itself sees only images and a cloud)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from drivers.cameras import CameraIntrinsics
+from drivers.sim.render import Renderer
+from drivers.sim.scenes import load_scene
+from fgcd_cli.geometry import PinholeCamera
+from fgcd_cli.geometry.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_cli.relocation.image_refine import (
+    ImageRefineConfig,
+    reference_depth_lookup,
+    refine_from_reference_image,
+)
+
+INTR = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
+CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
+
+
+@pytest.fixture(scope="module")
+def relief():
+    scene = load_scene("relief_panel")
+    renderer = Renderer(scene)
+    T_ref = scene.default_T_world_cam
+    ref = renderer.render(T_ref, INTR, "front", exposure=1.0, want=("gray", "depth"))
+    # Reference cloud: every 3rd pixel of the true depth, in the world (= ref) frame.
+    v, u = np.mgrid[0:480:3, 0:640:3]
+    z = ref.depth[v, u]
+    ok = np.isfinite(z) & (z > 0)
+    Xc = np.column_stack([(u[ok] - INTR.cx) / INTR.fx * z[ok], (v[ok] - INTR.cy) / INTR.fy * z[ok], z[ok]])
+    pts = Xc @ T_ref[:3, :3].T + T_ref[:3, 3]
+    return renderer, T_ref, ref, pts
+
+
+def test_depth_lookup_returns_the_surface_depth(relief):
+    _, T_ref, ref, pts = relief
+    rng = np.random.default_rng(0)
+    px = np.column_stack([rng.uniform(20, 620, 200), rng.uniform(20, 460, 200)])
+    z = reference_depth_lookup(pts, T_ref, CAMERA, px, radius_px=4.0)
+    u, v = np.round(px[:, 0]).astype(int), np.round(px[:, 1]).astype(int)
+    z_true = ref.depth[v, u]
+    # Where the surface is smooth within the radius (depth range < 5 mm), the lookup is
+    # within that range.
+    win = np.array([np.ptp(ref.depth[b - 5 : b + 6, a - 5 : a + 6]) for a, b in zip(u, v)])
+    smooth = (win < 0.005) & (z_true > 0)
+    assert smooth.sum() > 100
+    assert np.all(np.abs(z[smooth] - z_true[smooth]) < 0.005)
+    far = reference_depth_lookup(pts, T_ref, CAMERA, np.array([[-50.0, -50.0]]), radius_px=2.0)
+    assert np.isnan(far[0])
+
+
+def test_recovers_a_small_offset_under_another_light(relief):
+    renderer, T_ref, ref, pts = relief
+    # The current camera: 6 mm and 0.3 deg away from the reference, lit by the LED from 3 o'clock.
+    M_true = exp_se3(np.array([0.004, -0.003, 0.003, math.radians(0.2), math.radians(-0.2), math.radians(0.1)]))
+    T_cur = T_ref @ invert_pose(M_true)  # M_cam = T_cur_camref = inv(T_cur) T_ref
+    cur = renderer.render(T_cur, INTR, "led:3", exposure="auto", rng=np.random.default_rng(1), want=("gray",))
+    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA,
+                                      ref_points=pts, T_ref_camref=T_ref)
+    assert res.ok, res.reason
+    assert res.inliers >= 40
+    mm, deg = pose_distance(res.M_cam, M_true)
+    # Hundreds of matches at ~0.3 px: the pose must be far better than the 6 mm / 0.3 deg offset;
+    # 1 px at 1.35 m is 2.3 mm, 1/600 rad is 0.1 deg.
+    assert mm < 2.0
+    assert deg < 0.05
+    # The measured AFD is the mean match displacement: a few pixels for this offset.
+    assert 1.0 < res.measured_afd_px < 15.0
+
+
+def test_refuses_when_the_evidence_is_weak(relief):
+    _, T_ref, ref, pts = relief
+    blank = np.full_like(ref.gray, 0.5)
+    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=blank, camera=CAMERA,
+                                      ref_points=pts, T_ref_camref=T_ref)
+    assert not res.ok and res.M_cam is None
+    assert "matches" in res.reason or "grid" in res.reason
+
+
+def test_refuses_a_large_correction(relief):
+    renderer, T_ref, ref, pts = relief
+    M_true = exp_se3(np.array([0.04, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    cur = renderer.render(T_ref @ invert_pose(M_true), INTR, "front", exposure=1.0, want=("gray",))
+    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA,
+                                      ref_points=pts, T_ref_camref=T_ref, config=ImageRefineConfig(max_motion_m=0.02))
+    assert not res.ok
+    assert "too large" in res.reason
