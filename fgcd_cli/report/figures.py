@@ -7,6 +7,7 @@ import io
 
 import cv2
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -162,6 +163,9 @@ def convergence_png(log_rows: list[dict]) -> bytes:
         ax.set_ylabel(ylabel + note, fontsize=8)
         if np.nanmin(values) > 0 and np.nanmax(values) / max(np.nanmin(values), 1e-9) > 50:
             ax.set_yscale("log")
+            # Plain numbers, no minor-tick labels ("6 x 10^0" clutters a small panel).
+            ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.grid(alpha=0.3)
     fig.tight_layout()
     return _figure_png(fig)
@@ -182,3 +186,35 @@ def history_png(dates: list[str], changed_mm2: list[float | None], changed_px: l
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return _figure_png(fig)
+
+
+def region_closeup(ref_image: np.ndarray, cur_image: np.ndarray, labels: np.ndarray, region: ChangeRegion, *,
+                   tile_px: int = 180) -> np.ndarray:
+    """Before / after / outlined close-up of one region, side by side (HxWx3 uint8 RGB).
+
+    The crop is square, centred on the region, its side 2x the region's larger
+    extent (at least 40 px); it is enlarged to ``tile_px`` per tile so a 10 px change
+    is seen. Tiles: reference, current (registered into the reference frame), and
+    the reference with the region's outline. Nothing is drawn on the first two, so
+    the change itself is not hidden.
+    """
+    h, w = labels.shape
+    x, y, bw, bh = region.bbox_xywh
+    side = int(max(40, 2 * max(bw, bh)))
+    side = min(side, h, w)
+    cx, cy = x + bw / 2.0, y + bh / 2.0
+    x0 = int(np.clip(round(cx - side / 2), 0, w - side))
+    y0 = int(np.clip(round(cy - side / 2), 0, h - side))
+    window = (slice(y0, y0 + side), slice(x0, x0 + side))
+    scale = tile_px / side
+    interp = cv2.INTER_NEAREST if scale >= 3 else cv2.INTER_CUBIC
+    tiles = []
+    for image in (ref_image, cur_image, ref_image):
+        tile = cv2.resize(to_display_rgb(image)[window], (tile_px, tile_px), interpolation=interp)
+        tiles.append(np.ascontiguousarray(tile))
+    inside = (labels[window] == region.id).astype(np.uint8)
+    inside = cv2.resize(inside, (tile_px, tile_px), interpolation=cv2.INTER_NEAREST)
+    contours, _ = cv2.findContours(inside, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(tiles[2], contours, -1, CHANGE_RGB, 2)
+    gap = np.full((tile_px, 6, 3), 255, np.uint8)
+    return np.hstack([tiles[0], gap, tiles[1], gap, tiles[2]])

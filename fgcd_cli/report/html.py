@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import html
-import json
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
@@ -19,6 +18,7 @@ from fgcd_cli.report.figures import (
     fdf_quiver_png,
     history_png,
     png_bytes,
+    region_closeup,
     score_heatmap,
     to_display_rgb,
 )
@@ -41,6 +41,10 @@ th, td { border: 1px solid #ddd; padding: 4px 9px; text-align: right; }
 th { background: #f0ece6; } td.l, th.l { text-align: left; }
 .kv td { text-align: left; vertical-align: top; } .kv td:first-child { color: #555; white-space: nowrap; }
 .small { font-size: 12px; color: #666; }
+figure.wide { flex: 1 1 100%; max-width: 100%; }
+.closeups { display: flex; flex-wrap: wrap; gap: 16px 22px; }
+.closeups figure { flex: 0 0 auto; max-width: none; }
+.closeups figure img { width: 552px; }
 """
 
 
@@ -60,12 +64,38 @@ def _fmt(value, digits: int = 2) -> str:
     return html.escape(str(value))
 
 
+def _human_date(text: str) -> str:
+    """``20250601T000000Z`` or ISO 8601 as ``2025-06-01 00:00 UTC``; anything else unchanged."""
+    for fmt in ("%Y%m%dT%H%M%SZ", "%Y-%m-%dT%H:%M:%S%z", "%Y-%m-%dT%H:%M:%S.%f%z"):
+        try:
+            stamp = datetime.strptime(str(text), fmt)
+        except ValueError:
+            continue
+        if stamp.tzinfo is not None:
+            stamp = stamp.astimezone(timezone.utc)
+        return stamp.strftime("%Y-%m-%d %H:%M UTC")
+    return str(text)
+
+
+def _plain(value) -> str:
+    """A metadata value as readable text: lists of files as folder + names, dicts as ``key: value`` lines."""
+    if isinstance(value, dict):
+        return "; ".join(f"{html.escape(str(k))} = {_plain(v)}" for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        items = [str(v) for v in value]
+        if len(items) > 1 and all("/" in v for v in items):
+            folders = {v.rsplit("/", 1)[0] for v in items}
+            if len(folders) == 1:
+                return (f"{html.escape(folders.pop())}/: " +
+                        ", ".join(html.escape(v.rsplit("/", 1)[1]) for v in items))
+        return ", ".join(html.escape(v) for v in items)
+    if isinstance(value, float):
+        return f"{value:.4g}" if np.isfinite(value) else "–"
+    return html.escape(str(value))
+
+
 def _kv_table(items: dict) -> str:
-    rows = []
-    for key, value in items.items():
-        if isinstance(value, (dict, list)):
-            value = json.dumps(value, default=str)
-        rows.append(f"<tr><td>{html.escape(str(key))}</td><td>{_fmt(value, 4)}</td></tr>")
+    rows = [f"<tr><td>{html.escape(str(key))}</td><td>{_plain(value)}</td></tr>" for key, value in items.items()]
     return f'<table class="kv">{"".join(rows)}</table>'
 
 
@@ -80,7 +110,9 @@ def _page(title: str, body: str) -> str:
 
 def _verdict(result: ChangeResult) -> str:
     if not result.comparable:
-        return f'<div class="verdict cannot"><b>Not compared.</b> {html.escape(result.reason)}</div>'
+        reason = result.reason.removeprefix("cannot compare: ")
+        return (f'<div class="verdict cannot"><b>Not compared:</b> {html.escape(reason)}. '
+                "No change map was made; check the capture (exposure, lighting, framing) and compare again.</div>")
     n = len(result.regions)
     if n == 0:
         return ('<div class="verdict none"><b>No change found</b> above the automatic threshold '
@@ -104,6 +136,7 @@ def render_diff_report(
     title: str = "Change report",
     subtitle: str = "",
     max_table_rows: int = 50,
+    max_closeups: int = 12,
 ) -> str:
     """HTML text of the report of one comparison (reference vs current observation).
 
@@ -134,7 +167,8 @@ def render_diff_report(
     shown_cur = cur_registered if cur_registered is not None else cur_image
     parts.append("<h2>Reference and current images</h2><div class=\"pair\">")
     parts.append(_figure(png_bytes(to_display_rgb(ref_image)), "Reference observation"))
-    cur_caption = "Current observation, registered onto the reference" + (" and light-normalized" if cur_registered is not None else " (not registered)")
+    cur_caption = ("Current observation, registered onto the reference and light-normalized" if cur_registered is not None
+                   else "Current observation as captured (not registered)")
     parts.append(_figure(png_bytes(to_display_rgb(shown_cur)), cur_caption))
     parts.append("</div>")
 
@@ -163,6 +197,20 @@ def render_diff_report(
             parts.append(f"<h2>Changed regions</h2><table>{header}{''.join(rows)}</table>")
             if more > 0:
                 parts.append(f'<p class="small">… and {more} smaller regions (all in regions.json).</p>')
+            parts.append('<p class="small">Positions are pixels of the reference image (x to the right, y down). '
+                         "Strength: the region's largest change score over the detection threshold "
+                         "(1 = barely detected).</p>")
+            if max_closeups > 0:
+                parts.append("<h2>Close-ups</h2><p class=\"small\">Each region enlarged: reference | current "
+                             "(registered, light-normalized) | reference with the region outlined.</p>"
+                             '<div class="closeups">')
+                for r in result.regions[:max_closeups]:
+                    area = f"{r.area_mm2:.1f} mm²" if r.area_mm2 is not None else f"{r.area_px} px"
+                    tile = region_closeup(ref_image, shown_cur, result.labels, r)
+                    parts.append(_figure(png_bytes(tile), f"Region {r.id}: {area}, strength {r.max_score / high:.1f}"))
+                parts.append("</div>")
+                if len(result.regions) > max_closeups:
+                    parts.append(f'<p class="small">Close-ups of the {max_closeups} largest regions only.</p>')
 
     if fdf is not None or relocation_log:
         parts.append("<h2>Camera relocation</h2><div class=\"pair\">")
@@ -170,12 +218,15 @@ def render_diff_report(
             parts.append(_figure(
                 fdf_quiver_png(ref_image, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px, inliers=fdf.inliers, method=fdf.method),
                 "Feature displacement field from reference to current image (before registration)"))
+        parts.append("</div>")
         if relocation_log:
+            # Full width: three panels side by side are unreadable at half the page.
             try:
-                parts.append(_figure(convergence_png(relocation_log), "Convergence of the relocation, per adjustment"))
+                parts.append('<div class="pair"><figure class="wide">' +
+                             _img(convergence_png(relocation_log), "relocation convergence") +
+                             "<figcaption>Convergence of the relocation, per adjustment (as rACR Fig. 8)</figcaption></figure></div>")
             except ValueError as exc:  # a log without any plottable column
                 parts.append(f'<p class="small">Relocation log not plotted: {html.escape(str(exc))}.</p>')
-        parts.append("</div>")
 
     details = {}
     if metadata:
@@ -215,6 +266,8 @@ class VisitSummary:
 def render_station_history(*, station: str, site: str, reference_date: str, reference_png: bytes | None,
                            visits: list[VisitSummary]) -> str:
     """HTML text of a station's history across visits (one row and one thumbnail per visit)."""
+    visits = [VisitSummary(**{**v.__dict__, "date": _human_date(v.date)}) for v in visits]
+    reference_date = _human_date(reference_date)
     parts = [f"<h1>Station {html.escape(station)}: history</h1>",
              f'<div class="sub">Site {html.escape(site)} · reference observation {html.escape(reference_date)} · '
              f"{len(visits)} visit{'s' if len(visits) != 1 else ''}</div>"]

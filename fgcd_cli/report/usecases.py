@@ -77,7 +77,7 @@ def run_bare(
     if mm_per_px is not None:
         metadata["scale (mm per px)"] = mm_per_px
     files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, metadata=metadata,
-                          title="Change report", subtitle=f"{ref_paths[0].parent} — reference vs current")
+                          title="Change report", subtitle=f"{ref_paths[0].resolve().parent} — reference vs current")
     _write_dir(output, files)
     data = result_summary(result, fdf)
     data["output"] = str(output)

@@ -74,3 +74,21 @@ def test_report_renders_in_chromium(products, tmp_path):
     # The magenta change tint is visible somewhere on the page.
     b, g, r = image[..., 0].astype(int), image[..., 1].astype(int), image[..., 2].astype(int)
     assert np.count_nonzero((r > 180) & (b > 120) & (g < 120)) > 50
+
+
+def test_report_shows_close_ups_of_the_regions(products):
+    result, files = products
+    html = files["report.html"].decode()
+    assert "Close-ups" in html
+    shown = min(len(result.regions), 12)
+    assert html.count("<figcaption>Region 1:") == 1 and len(re.findall(r"<figcaption>Region \d+:", html)) == shown
+
+
+def test_cannot_compare_report_says_why_once(tmp_path):
+    ref = np.repeat(textured_scene(128)[:, :, None], 3, axis=2)
+    black = np.zeros_like(ref)
+    result = detect_changes([ref], [black])
+    html = diff_products(ref_images=[ref], cur_images=[black], result=result)["report.html"].decode()
+    assert "Not compared:" in html and "black" in html
+    assert "cannot compare: cannot compare" not in html and "Not compared:</b> cannot compare" not in html
+    assert "Close-ups" not in html
