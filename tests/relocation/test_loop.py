@@ -205,3 +205,64 @@ def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
     assert estimated_afd_px(P, np.eye(4), np.eye(4), cam) == 0.0
     shifted = exp_se3([0.004, 0, 0, 0, 0, 0])  # 4 mm sideways at 2 m depth
     assert estimated_afd_px(P, np.eye(4), shifted, cam) == pytest.approx(600 * 0.004 / 2.0, rel=1e-6)
+
+
+def _biased_case_with_image_stage(monkeypatch, refine):
+    """3D estimates off by 8 mm / 0.3 deg (a biased alignment); the image stage is ``refine``."""
+    from fgcd_cli.geometry import PinholeCamera
+    from fgcd_cli.relocation import image_refine as image_mod
+
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
+    bias = Sim3.from_pose(exp_se3([0.008, 0.0, 0.0, 0.0, 0.005, 0.0]))
+    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
+        AlignmentEstimate(T_ref_cur=bias @ T_ref_cur, stage="fast", ok=True, reason="biased",
+                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+    true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
+    monkeypatch.setattr(image_mod, "refine_from_reference_image", lambda **kw: refine(true_cam()))
+    camera = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
+    u, v = np.meshgrid(np.linspace(-0.4, 0.4, 9), np.linspace(-0.3, 0.3, 7))
+    pts_cam = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 1.5)])
+    pts = pts_cam @ T_ref_camref[:3, :3].T + T_ref_camref[:3, 3]
+    vse = ExactVse(platform, X, T_map_base, s)
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
+    session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
+    ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
+    res = run_relocation(session=session, reference=ref, ref_index=None, camera=camera, scale=s, T_flange_cam=X,
+                         init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6),
+                         reference_images={"front": np.zeros((480, 640), np.float32)},
+                         grab_current=lambda: np.zeros((480, 640), np.float32))
+    vse.stop()
+    return res, pose_distance(true_cam(), T_ref_camref)
+
+
+def test_image_stage_removes_a_biased_alignment(monkeypatch):
+    from fgcd_cli.relocation.image_refine import ImageRefinement
+
+    def exact(T_ref_cam_true):
+        # what a perfect image stage measures: the reference camera seen from the current one
+        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ ref_T[0], measured_afd_px=1.0,
+                               matches=100, inliers=100, rms_px=0.2, reference_image="front", matcher="sift")
+
+    ref_T = [make_case()[4]]
+    res, (mm, deg) = _biased_case_with_image_stage(monkeypatch, exact)
+    assert res.converged
+    stages = [r.stage for r in res.records]
+    assert "image" in stages and stages[0] != "image"
+    # the 3D loop alone stops 8 mm off (its estimate is biased); the image stage brings it back
+    last_3d = [r for r in res.records if r.stage != "image"][-1]
+    assert last_3d.afd_est_px <= 0.5
+    assert mm < 1e-3 and deg < 1e-3
+    assert "image stage" in res.reason
+
+
+def test_weak_image_evidence_leaves_the_3d_result(monkeypatch):
+    from fgcd_cli.relocation.image_refine import ImageRefinement
+
+    weak = lambda _T: ImageRefinement(ok=False, reason="only 12 feature matches with the reference image",  # noqa: E731
+                                      M_cam=None, measured_afd_px=float("nan"), matches=12, inliers=0,
+                                      rms_px=float("nan"))
+    res, (mm, deg) = _biased_case_with_image_stage(monkeypatch, weak)
+    assert res.converged
+    assert res.records[-1].stage == "image" and not res.records[-1].alignment_ok
+    assert "12 feature matches" in res.reason
+    assert 5.0 < mm < 12.0  # the biased 3D result stands: no motion on weak evidence
