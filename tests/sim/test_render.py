@@ -152,3 +152,37 @@ def test_camera_effects_vignetting_and_noise(factories, small_intr):
     assert np.std(noisy.gray - 0.3) == pytest.approx(sigma, rel=0.08)
     again = r.render(T, small_intr, light, exposure=1.0, effects=eff, rng=np.random.default_rng(1), want=("gray",))
     np.testing.assert_array_equal(noisy.gray, again.gray)
+
+
+def test_bilinear_texture_sampling_with_wrap(factories, small_intr):
+    """Albedo under pure ambient light is the texture bilinearly interpolated at the hit's (u, v), tiles wrapping."""
+    rng = np.random.default_rng(5)
+    tex = np.repeat(rng.uniform(0.2, 0.8, (16, 16, 1)), 3, axis=2).astype(np.float32)
+    part = factories.plane_part()
+    part = MeshPart(name="plane", label=1, vertices=part.vertices, triangles=part.triangles, tri_uv=part.tri_uv,
+                    texture=tex, texel_size_m=part.texel_size_m, smooth=False)
+    scene = factories.make_scene([part])
+    # frontal, 1 m away: a pixel covers 12.5 mm, a texel 31 mm (mip level 0); the view centre is a tile corner
+    T = look_at((0.0, -1.0, 1.0), (0.0, 0.0, 1.0))
+    res = Renderer(scene).render(T, small_intr, Lighting(name="a", lights=(), ambient=1.0), exposure=1.0,
+                                 effects=LINEAR, want=("gray",))
+    d, o = _rays_world(small_intr, T)
+    p = o + (-o[1] / d[..., 1])[..., None] * d
+    u = (p[..., 0] + 2.0) / 0.5  # plane_part: origin (-2, 0, -1), 0.5 m per texture repeat, v runs down z
+    v = -(p[..., 2] + 1.0) / 0.5
+    x = (u - np.floor(u)) * 16 - 0.5
+    y = (v - np.floor(v)) * 16 - 0.5
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    g = tex[..., 0].astype(float)
+
+    def at(yy, xx):
+        return g[yy % 16, xx % 16]
+
+    expected = ((1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1))
+                + fy * ((1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1)))
+    nearest = at(np.round(y).astype(int), np.round(x).astype(int))
+    assert (np.abs(x - 7.5) > 7.5).any() and (np.abs(y - 7.5) > 7.5).any()  # samples straddle the wrap
+    # cv2.remap interpolates with 1/32-pixel weights: error <= 0.6 (largest step) / 64 per axis
+    np.testing.assert_allclose(res.gray, expected, atol=0.02)
+    assert np.abs(res.gray - nearest).max() > 0.1  # not nearest-neighbour
