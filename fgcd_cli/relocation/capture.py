@@ -114,7 +114,7 @@ def _start_session(
         for attempt in range(1, attempts + 1):
             rig.say("exploring to initialise the VSE and its scale" + (f" (attempt {attempt})" if attempt > 1 else ""))
             try:
-                flange, cams = session.explore(exploration_pattern(translation_m=explore_m, legs=legs))
+                flange, cams = session.explore(exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2))
                 if getattr(vse.latest(), "scale_is_metric", False):
                     # a depth camera's map is metric: the platform motions only confirm it
                     check = session.estimate_scale(rig.T_flange_cam, flange, cams)

@@ -93,19 +93,24 @@ def exploration_waypoints(
 
 
 def exploration_pattern(
-    *, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0), legs: int = 6
+    *, translation_m: float = 0.02, rotation_rad: float = math.radians(3.0), legs: int = 6, stops_per_leg: int = 1
 ) -> list[np.ndarray]:
     """The exploration as relative flange motions, applied one after the other.
 
     ``legs=6`` is the full pattern of :func:`exploration_waypoints` (capture:
     the reference cloud sees the object from several sides); fewer legs take
     the first waypoints and return straight to the start (relocation: the
-    hand-eye is known, translations suffice for the scale).
+    hand-eye is known, translations suffice for the scale). ``stops_per_leg``
+    cuts every leg into that many equal motions along its geodesic: the same
+    path, more recorded stops for the scale (a monocular engine that
+    initialises late in the first leg still leaves enough tracked stops).
     """
     poses = exploration_waypoints(translation_m=translation_m, rotation_rad=rotation_rad)
     if legs < 6:
         poses = poses[: max(2, legs)] + [poses[-1]]
-    return [invert_pose(a) @ b for a, b in zip(poses[:-1], poses[1:])]
+    legs_rel = [invert_pose(a) @ b for a, b in zip(poses[:-1], poses[1:])]
+    n = max(1, int(stops_per_leg))
+    return [exp_se3(log_se3(M) / n) for M in legs_rel for _ in range(n)]
 
 
 @dataclass
