@@ -102,6 +102,12 @@ class RelocationConfig:
     min_points: int = 500
     estimate_timeout_s: float = 120.0
     stop_afd_px: float = 0.5
+    divergence_factor: float = 1.5
+    divergence_margin_mm: float = 10.0
+    divergence_margin_deg: float = 1.0
+    divergence_patience: int = 2
+    """Pause with an error when the estimated offset exceeds ``factor x best + margin``
+    this many adjustments in a row (the loop should shrink it every time)."""
     image_refine: bool = True
     """After the 3D loop converges, refine from the reference images
     (:mod:`fgcd_cli.relocation.image_refine`) when the evidence is strong."""
@@ -379,6 +385,8 @@ def run_relocation(
         ).start()
     current_init = init
     last_serial = 0
+    best_offset: tuple[float, float] | None = None  # smallest estimated remaining offset so far (mm, deg)
+    growths = 0
     try:
         for iteration in range(1, config.max_adjustments + 1):
             state = session.tracking_state()
@@ -437,6 +445,24 @@ def run_relocation(
             records.append(rec)
             if on_record:
                 on_record(rec)
+            # Convergence check (paper §3.7: each adjustment shrinks the offset while the
+            # hand-eye rotation error is below 45 deg). An estimate that keeps growing means the
+            # estimates or the hand-eye are wrong: stop rather than wander next to the object.
+            if best_offset is not None and (
+                adj.offset_mm > config.divergence_factor * best_offset[0] + config.divergence_margin_mm
+                or adj.offset_deg > config.divergence_factor * best_offset[1] + config.divergence_margin_deg
+            ):
+                growths += 1
+                if growths >= config.divergence_patience:
+                    raise AlgorithmError(
+                        f"relocation is diverging, motion paused: the estimated offset grew to {adj.offset_mm:.1f} mm / "
+                        f"{adj.offset_deg:.2f} deg (best {best_offset[0]:.1f} mm / {best_offset[1]:.2f} deg); "
+                        "check the hand-eye calibration and the scene (symmetric or flat objects defeat 3D alignment)"
+                    )
+            else:
+                growths = 0
+            if best_offset is None or adj.offset_mm < best_offset[0]:
+                best_offset = (adj.offset_mm, adj.offset_deg)
             if adj.g <= config.eta:
                 result = RelocationResult(True, f"g = {adj.g:.2e} <= eta = {config.eta:.0e}", iteration)
                 break
