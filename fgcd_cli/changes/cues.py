@@ -60,3 +60,80 @@ def relative_to_median(cue: np.ndarray, valid: np.ndarray) -> np.ndarray:
     median = float(np.median(values)) if values.size else 0.0
     floor = 1e-6 if median <= 0 else 0.0
     return (np.maximum(cue, 0.0) / (median + floor + 1e-12)).astype(np.float32)
+
+
+def envelope_distance(image: np.ndarray, other: np.ndarray, *, radius_px: int = 1) -> np.ndarray:
+    """Distance of each pixel of ``image`` to the [min, max] envelope of ``other`` around it.
+
+    Zero where ``image`` lies between the smallest and the largest value of
+    ``other`` in the (2r+1)² window: any shift of up to ``radius_px`` with linear
+    (sub-pixel) interpolation of ``other`` produces such values, so the difference
+    can be explained by a misalignment of that size. Colour channels are summed (L1).
+
+    Returns HxW float32 (intensity units, summed over channels).
+    """
+    image = np.asarray(image, np.float32)
+    other = np.asarray(other, np.float32)
+    kernel = np.ones((2 * radius_px + 1, 2 * radius_px + 1), np.uint8)
+    low = cv2.erode(other, kernel, borderType=cv2.BORDER_REFLECT)
+    high = cv2.dilate(other, kernel, borderType=cv2.BORDER_REFLECT)
+    distance = np.maximum(low - image, 0.0) + np.maximum(image - high, 0.0)
+    if distance.ndim == 3:
+        distance = distance.sum(axis=2)
+    return distance.astype(np.float32)
+
+
+def edge_band(ref_image: np.ndarray, *, radius_px: int = 2, contrast: float = 3.0) -> np.ndarray:
+    """Pixels within ``radius_px`` of a strong edge of the reference image.
+
+    An edge pixel's 3x3 intensity range exceeds ``contrast`` times the median 3x3
+    range of the image (scale-free: the same in dark and bright images, textured
+    or not). Occlusion and depth edges, thin high-contrast lines and strong texture
+    edges are where a sub-pixel relocation residual (parallax, resampling blur,
+    aliasing) changes the image most.
+
+    Returns HxW bool.
+    """
+    gray = np.asarray(ref_image, np.float32)
+    if gray.ndim == 3:
+        gray = gray.mean(axis=2)
+    kernel = np.ones((3, 3), np.uint8)
+    local_range = cv2.dilate(gray, kernel) - cv2.erode(gray, kernel)
+    edges = local_range > contrast * max(float(np.median(local_range)), 1e-6)
+    grow = np.ones((2 * radius_px + 1, 2 * radius_px + 1), np.uint8)
+    return cv2.dilate(edges.astype(np.uint8), grow).astype(bool)
+
+
+def edge_tolerant_difference(
+    ref_image: np.ndarray,
+    cur_image: np.ndarray,
+    *,
+    radius_px: int = 1,
+    edge_radius_px: int = 2,
+    edge_contrast: float = 3.0,
+    band: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`shift_tolerant_difference`, with a wider, two-sided tolerance near strong edges.
+
+    Near strong reference edges (see :func:`edge_band`) a relocation residual of
+    a few millimetres moves, blurs or hides thin structures by up to a pixel or
+    two (parallax at depth edges, occlusion of grazing walls, resampling of the
+    warp). There a difference only counts if neither image is explained by the
+    other within ``edge_radius_px``: the current pixel lies outside the reference's
+    min/max envelope *and* the reference pixel outside the current one's
+    (:func:`envelope_distance`). A stain or loss wider than the envelope still
+    differs from both; a thin line that a sub-pixel shift thins, blurs or moves
+    does not. Elsewhere the plain shift-tolerant difference applies.
+
+    Returns HxW float32 (intensity units, summed over channels).
+    """
+    base = shift_tolerant_difference(ref_image, cur_image, radius_px=radius_px)
+    if edge_radius_px <= 0:
+        return base
+    if band is None:
+        band = edge_band(ref_image, radius_px=edge_radius_px, contrast=edge_contrast)
+    two_sided = np.minimum(
+        envelope_distance(cur_image, ref_image, radius_px=edge_radius_px),
+        envelope_distance(ref_image, cur_image, radius_px=edge_radius_px),
+    )
+    return np.where(band, np.minimum(base, two_sided), base).astype(np.float32)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.cues import local_ncc_dissimilarity, relative_to_median, shift_tolerant_difference
+from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, local_ncc_dissimilarity, relative_to_median
 from fgcd_cli.changes.illumination import normalize_local_gain, normalize_shading
 from fgcd_cli.changes.images import image_health, to_gray, validate_stacks
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, extract_regions, refine_to_local_peak
@@ -81,6 +81,8 @@ def detect_changes(
     robust_gain_rounds: int = 1,
     edge_fraction: float = 0.2,
     edge_radius_px: int = 6,
+    edge_tolerance_px: int = 0,
+    edge_contrast: float = 3.0,
 ) -> ChangeResult:
     """Find fine-grained changes between a reference and a current observation.
 
@@ -122,6 +124,16 @@ def detect_changes(
         Region trimming: pixels whose score excess is below ``edge_fraction`` of
         the largest excess within ``edge_radius_px`` are dropped (see
         :func:`fgcd_cli.changes.regions.refine_to_local_peak`; 0 disables).
+    edge_tolerance_px, edge_contrast : int, float
+        Near strong reference edges (3x3 intensity range above ``edge_contrast``
+        times its image median, grown by ``edge_tolerance_px``) a difference counts
+        only if neither image lies within the other's min/max envelope over
+        ``edge_tolerance_px``: a relocation residual of a few mm thins, blurs or
+        moves thin structures there by up to ~1-2 px (see
+        :func:`fgcd_cli.changes.cues.edge_tolerant_difference`). 0 (default)
+        disables it: it also hides small changes on strong texture edges, so it is
+        for pairs known to be relocated only to a few mm (``fgcd diff`` on a
+        campaign turns it on from the visit's relocation log, 2 px).
     robust_gain_rounds : int
         Re-estimations of the light-gain field without the pixels the previous
         score flags as suspect (0: one plain estimate, the change biases it).
@@ -146,6 +158,8 @@ def detect_changes(
         "robust_gain_rounds_max": robust_gain_rounds,
         "edge_fraction": edge_fraction,
         "edge_radius_px": edge_radius_px,
+        "edge_tolerance_px": edge_tolerance_px,
+        "edge_contrast": edge_contrast,
         "shading_normalization": shading_ref is not None,
     }
     refs, curs = validate_stacks(ref_images, cur_images)
@@ -193,12 +207,18 @@ def detect_changes(
     if valid.sum() < 100:
         return _empty(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
 
+    bands = [edge_band(ref, radius_px=edge_tolerance_px, contrast=edge_contrast) if edge_tolerance_px > 0 else None
+             for ref in refs]
+    if edge_tolerance_px > 0:
+        settings["edge_band_fraction"] = float(np.mean([b[valid].mean() for b in bands]))
+
     def fuse(gain_weight: np.ndarray | None) -> tuple[np.ndarray, list[np.ndarray]]:
         differences, structures, registered = [], [], []
-        for ref, warped in zip(refs, warped_images):
+        for ref, warped, band in zip(refs, warped_images, bands):
             normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px, weight=gain_weight)
             registered.append(np.clip(normalized, 0.0, 1.0))
-            differences.append(shift_tolerant_difference(ref, normalized, radius_px=shift_radius_px))
+            differences.append(edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
+                                                        edge_radius_px=edge_tolerance_px, band=band))
             if structure_weight > 0:
                 structures.append(local_ncc_dissimilarity(to_gray(ref), to_gray(normalized)))
         # Each cue is divided by its median (dimensionless) so lightings of different

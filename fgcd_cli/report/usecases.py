@@ -117,6 +117,26 @@ def _relocation_log(visit) -> list[dict] | None:
     return rows or None
 
 
+# A relocation that ends farther than this from the reference pose (its own
+# estimate, not the truth) leaves parallax, occlusion and resampling differences
+# at strong edges that the flat registration cannot absorb (docs/change-detection.md).
+EDGE_TOLERANCE_FROM_MM = 1.0
+EDGE_TOLERANCE_PX = 2
+
+
+def relocation_residual_mm(visit) -> float | None:
+    """The relocation's own estimate of the remaining camera offset (mm, last logged iteration), if logged."""
+    if not visit.has("relocation.jsonl"):
+        return None
+    last = None
+    for line in visit.bytes("relocation.jsonl").decode("utf-8").splitlines():
+        if line.strip():
+            last = json.loads(line)
+    if not last or last.get("offset_mm") is None:
+        return None
+    return float(last["offset_mm"])  # the row's estimate; its "truth" entry is never read here
+
+
 def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
     """mm² per reference pixel from the reference's metric cloud and camera, when stored."""
     from fgcd_cli.geometry.camera import PinholeCamera
@@ -162,8 +182,11 @@ def run_campaign(
         area = _reference_pixel_area(reference, shape)
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
     mask = read_mask(eval_mask) if eval_mask is not None else None
+    residual_mm = relocation_residual_mm(observation)
+    edge_tolerance = EDGE_TOLERANCE_PX if residual_mm is not None and residual_mm >= EDGE_TOLERANCE_FROM_MM else 0
     _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
-    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register)
+    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
+                            edge_tolerance_px=edge_tolerance)
     fdf = measure_fdf(ref_images[0], cur_images[0])
     reloc = observation.metadata.get("relocation") or {}
     metadata = {
@@ -173,6 +196,8 @@ def run_campaign(
         "lightings": lightings,
         "metric scale": scale_note,
         "relocation": reloc,
+        "edge tolerance": (f"{edge_tolerance} px (relocation residual estimate {residual_mm:.1f} mm)" if edge_tolerance
+                           else "off"),
     }
     files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf,
                           relocation_log=_relocation_log(observation), metadata=metadata,
