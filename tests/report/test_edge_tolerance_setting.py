@@ -1,0 +1,27 @@
+"""``fgcd diff`` on a campaign turns the edge tolerance on from the relocation's own residual estimate."""
+
+import json
+
+from fgcd_cli.report.usecases import EDGE_TOLERANCE_FROM_MM, relocation_residual_mm
+
+
+class _Visit:
+    def __init__(self, rows):
+        self._data = "\n".join(json.dumps(r) for r in rows).encode() if rows is not None else None
+
+    def has(self, name):
+        return name == "relocation.jsonl" and self._data is not None
+
+    def bytes(self, name):
+        return self._data
+
+
+def test_residual_is_the_last_rows_estimate_never_the_truth():
+    rows = [{"iteration": 1, "offset_mm": 25.1}, {"iteration": 2, "offset_mm": 2.7, "truth": {"pose_err_mm": 0.2}}]
+    assert relocation_residual_mm(_Visit(rows)) == 2.7
+    assert relocation_residual_mm(_Visit(rows)) >= EDGE_TOLERANCE_FROM_MM
+
+
+def test_no_log_or_no_estimate_gives_none():
+    assert relocation_residual_mm(_Visit(None)) is None
+    assert relocation_residual_mm(_Visit([{"iteration": 1, "truth": {"pose_err_mm": 3.0}}])) is None
