@@ -7,6 +7,8 @@ translation, ~0.1 deg rotation: an AFD of a few pixels), with or without
 injected changes. Ground truth (change mask, depth) is read here, in evaluation
 code only: the detector sees the images, plus the metric pixel area a real rig
 derives from its reference cloud (here: the rendered reference depth).
+:func:`run_relocated` adds pairs relocated only to 3 mm on a scene with depth
+edges (a real relocation's residual, as in ``fgcd demo``).
 """
 
 from __future__ import annotations
