@@ -268,20 +268,31 @@ def test_weak_image_evidence_leaves_the_3d_result(monkeypatch):
     assert 5.0 < mm < 12.0  # the biased 3D result stands: no motion on weak evidence
 
 
+def _exact_estimates(monkeypatch, T_ref_cur):
+    """The alignment replaced by an exact stand-in returning ``T_ref_cur``."""
+    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
+        AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
+                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+
+
+def _exact_session(platform, X, T_map_base, s, T_ref_camref):
+    """An exact VSE over ``platform``, a guarded session and a trivial reference."""
+    vse = ExactVse(platform, X, T_map_base, s)
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
+    session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
+    ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
+    return vse, session, ref
+
+
 def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
     """With the hand-eye rotation 150 deg off (beyond the paper's 45 deg bound) every motion
     goes the wrong way; the loop must pause with an error instead of wandering off."""
     from fgcd_cli.errors import AlgorithmError
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+    _exact_estimates(monkeypatch, T_ref_cur)
     X_wrong = X @ exp_se3([0, 0, 0, math.radians(150), 0, 0])
-    vse = ExactVse(platform, X, T_map_base, s)
-    guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
-    session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
-    ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     start_mm = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]
     with pytest.raises(AlgorithmError, match="diverging"):
         run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X_wrong,
@@ -294,13 +305,8 @@ def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
 
 def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case(proportional=0.3)
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
-    vse = ExactVse(platform, X, T_map_base, s)
-    guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
-    session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
-    ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
+    _exact_estimates(monkeypatch, T_ref_cur)
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-4, max_adjustments=12))
     vse.stop()
