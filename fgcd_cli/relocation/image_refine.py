@@ -32,8 +32,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.changes.registration import match_sift
-from fgcd_cli.errors import FgcdError
+from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import compute_fdf
 from fgcd_cli.geometry.se3 import make_pose, pose_distance
 
@@ -181,34 +182,29 @@ def refine_from_reference_image(
     -------
     ImageRefinement
     """
-    cur = _gray01(current_image)
+    def refused(reason: str, name: str = "") -> ImageRefinement:
+        return ImageRefinement(ok=False, reason=reason, M_cam=None, measured_afd_px=math.nan, matches=0, inliers=0,
+                               rms_px=math.nan, reference_image=name)
+
+    try:
+        cur = to_gray(to_float_image(current_image, name="current image"))
+    except UserInputError as exc:
+        return refused(str(exc))
     K = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1]], dtype=float)
     best: ImageRefinement | None = None
     for name, img in reference_images.items():
-        ref = _gray01(img)
-        if ref.shape != cur.shape:
-            res = ImageRefinement(ok=False, reason=f"reference image {name!r} is {ref.shape}, current {cur.shape}",
-                                  M_cam=None, measured_afd_px=math.nan, matches=0, inliers=0, rms_px=math.nan,
-                                  reference_image=name)
+        try:
+            ref = to_gray(to_float_image(img, name=f"reference image {name!r}"))
+        except UserInputError as exc:
+            res = refused(str(exc), name)
         else:
-            res = _refine_one(ref, cur, K, camera, ref_points, T_ref_camref, config, name)
+            if ref.shape != cur.shape:
+                res = refused(f"reference image {name!r} is {ref.shape}, current {cur.shape}", name)
+            else:
+                res = _refine_one(ref, cur, K, camera, ref_points, T_ref_camref, config, name)
         if best is None or (res.ok, res.inliers) > (best.ok, best.inliers):
             best = res
-    if best is None:
-        return ImageRefinement(ok=False, reason="no reference image", M_cam=None, measured_afd_px=math.nan,
-                               matches=0, inliers=0, rms_px=math.nan)
-    return best
-
-
-def _gray01(img: np.ndarray) -> np.ndarray:
-    a = np.asarray(img)
-    if a.ndim == 3:
-        a = cv2.cvtColor(a.astype(np.float32) / (255.0 if a.dtype == np.uint8 else 1.0), cv2.COLOR_RGB2GRAY)
-    elif a.dtype == np.uint8:
-        a = a.astype(np.float32) / 255.0
-    elif a.dtype == np.uint16:
-        a = a.astype(np.float32) / 65535.0
-    return np.clip(a.astype(np.float32), 0.0, 1.0)
+    return best if best is not None else refused("no reference image")
 
 
 def _refine_one(ref, cur, K, camera, ref_points, T_ref_camref, config: ImageRefineConfig, name: str) -> ImageRefinement:

@@ -88,3 +88,14 @@ def test_refuses_a_large_correction(relief):
                                       ref_points=pts, T_ref_camref=T_ref, config=ImageRefineConfig(max_motion_m=0.02))
     assert not res.ok
     assert "too large" in res.reason
+
+
+def test_bad_images_are_refused_not_raised(relief):
+    _, T_ref, ref, pts = relief
+    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=ref.gray * 300.0,
+                                      camera=CAMERA, ref_points=pts, T_ref_camref=T_ref)
+    assert not res.ok and "[0, 1]" in res.reason
+    as16 = (ref.gray * 65535).astype(np.uint16)  # 16-bit reference PNGs, as a campaign stores them
+    res = refine_from_reference_image(reference_images={"front": as16}, current_image=ref.gray, camera=CAMERA,
+                                      ref_points=pts, T_ref_camref=T_ref)
+    assert res.ok and res.measured_afd_px < 0.5
