@@ -17,8 +17,10 @@ protocol; under a strong lighting change, the lighting-robust grid variant of
 and solves PnP with RANSAC for the current camera relative to the reference
 camera. The motion it gives has the reference pose as an exact fixed point,
 whatever the clouds' distortions. It acts only when the evidence is strong
-(enough inliers, small reprojection error, a small motion); otherwise the rACR
-result stands and the log says why.
+(enough inliers, small reprojection error, a small motion, or a larger one
+only on many more inliers); otherwise the rACR result stands and the log says
+why. The same measurement is the loop's fallback when the 3D alignment pauses
+on geometry it cannot register (a flat wall, a body of revolution).
 
 Inputs are only what a real rig gives: images, the reference observation's
 cloud and camera pose, the calibrated intrinsics.
@@ -65,7 +67,16 @@ class ImageRefineConfig:
     scales the correction, whose fixed point (the reference pose) stays exact."""
     max_motion_m: float = 0.02
     max_motion_deg: float = 1.5
-    """The stage is for the last millimetres: larger corrections are not trusted."""
+    """Largest correction trusted on ordinary evidence (the last millimetres)."""
+    strong_min_inliers: int = 100
+    strong_min_inlier_ratio: float = 0.5
+    strong_max_motion_m: float = 0.10
+    strong_max_motion_deg: float = 5.0
+    """A larger correction, up to these limits, is trusted only on strong
+    evidence: at least ``strong_min_inliers`` PnP inliers making at least
+    ``strong_min_inlier_ratio`` of the matches (a chance PnP fit on repeated or
+    weak texture gathers neither). The loop still clamps each motion to its
+    largest step and measures again after moving."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -266,7 +277,13 @@ def _refine_matches(p_ref, p_cur, K, camera, ref_points, T_ref_camref, config: I
     if rms > config.max_rms_px:
         return fail(f"PnP reprojection RMS {rms:.2f} px", n, len(inl), afd, rms)
     if mm > 1000 * config.max_motion_m or deg > config.max_motion_deg:
-        return fail(f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust", n, len(inl), afd, rms)
+        strong = len(inl) >= config.strong_min_inliers and len(inl) / n >= config.strong_min_inlier_ratio
+        if not strong:
+            return fail(f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on {len(inl)} inliers "
+                        f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})",
+                        n, len(inl), afd, rms)
+        if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
+            return fail(f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust", n, len(inl), afd, rms)
     return ImageRefinement(ok=True, reason="ok", M_cam=M_cam, measured_afd_px=afd, matches=n, inliers=len(inl),
                            rms_px=rms, reference_image=name, matcher=matcher)
 

@@ -114,6 +114,16 @@ class RelocationConfig:
     image_refine_steps: int = 3
     image_stop_afd_px: float = 0.3
     """The image stage stops when its correction moves the reference image by less than this."""
+    image_fallback: bool = True
+    """When the 3D alignment stays untrustworthy (degenerate geometry such as a
+    flat wall, too few inliers, divergence), try the image stage before pausing:
+    it needs no alignment of the current cloud, only the reference images and
+    cloud. It acts only on strong evidence; otherwise the loop pauses as before."""
+    image_fallback_steps: int = 6
+    untrusted_patience: int = 6
+    untrusted_min_wait_s: float = 20.0
+    """Pause early (instead of waiting ``estimate_timeout_s``) after this many
+    consecutive untrustworthy estimates, once at least this long was waited."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -323,6 +333,105 @@ class RelocationResult:
     platform_s: float = 0.0
 
 
+def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, init, config, evaluate,
+               on_record, worker, records, t_start) -> RelocationResult:
+    """The 3D rACR loop: align, adjust, until converged; raises AlgorithmError when it pauses."""
+    result = RelocationResult(False, "not started", 0)
+    current_init = init
+    last_serial = 0
+    best_offset: tuple[float, float] | None = None  # smallest estimated remaining offset so far (mm, deg)
+    growths = 0
+    for iteration in range(1, config.max_adjustments + 1):
+        state = session.tracking_state()
+        if config.mode == "parallel":
+            est = _wait_for_estimate(worker, last_serial, config, session)
+            state = session.vse.latest() if session.vse.latest().status == "tracking" else state
+        else:
+            t0 = time.monotonic()
+            if len(state.cloud) < config.min_points:
+                raise AlgorithmError(f"the VSE cloud has only {len(state.cloud)} points: cannot align")
+            ests = align_once(
+                state=state,
+                scale=scale,
+                reference=reference,
+                ref_index=ref_index,
+                camera=camera,
+                init=current_init,
+                fine=config.fine,
+                serial=last_serial + 1,
+            )
+            session.timing.wait_s += time.monotonic() - t0
+            oks = [e for e in ests if e.ok]
+            est = oks[-1] if oks else ests[-1]
+            if not est.ok:
+                raise AlgorithmError(f"alignment failed, motion paused: {est.reason}")
+        last_serial = est.serial
+        current_init = est.T_ref_cur
+        adj: Adjustment = compute_adjustment(
+            T_ref_cur=est.T_ref_cur,
+            T_cur_cam=_scaled_pose(state.T_map_cam, scale),
+            T_ref_camref=reference.T_ref_camref,
+            T_flange_cam=T_flange_cam,
+            max_step_m=config.max_step_m,
+            max_step_rad=config.max_step_rad,
+        )
+        rec = AdjustmentRecord(
+            iteration=iteration,
+            t_wall_s=time.monotonic() - t_start,
+            t_session_s=session.timing.total_s,
+            stage=est.stage,
+            g=adj.g,
+            offset_mm=adj.offset_mm,
+            offset_deg=adj.offset_deg,
+            T_ref_cam=adj.T_ref_cam.tolist(),
+            M_flange_commanded=adj.M_flange_commanded.tolist(),
+            clamped=adj.clamped,
+            vse_status=state.status,
+            vse_points=len(state.cloud),
+            alignment_ok=est.ok,
+            alignment_reason=est.reason,
+            scale=scale,
+            sigma=est.T_ref_cur.scale,
+            afd_est_px=estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera),
+            truth=evaluate() if evaluate else None,
+        )
+        records.append(rec)
+        if on_record:
+            on_record(rec)
+        # Convergence check (paper §3.7: each adjustment shrinks the offset while the
+        # hand-eye rotation error is below 45 deg). An estimate that keeps growing means the
+        # estimates or the hand-eye are wrong: stop rather than wander next to the object.
+        if best_offset is not None and (
+            adj.offset_mm > config.divergence_factor * best_offset[0] + config.divergence_margin_mm
+            or adj.offset_deg > config.divergence_factor * best_offset[1] + config.divergence_margin_deg
+        ):
+            growths += 1
+            if growths >= config.divergence_patience:
+                raise AlgorithmError(
+                    f"relocation is diverging, motion paused: the estimated offset grew to {adj.offset_mm:.1f} mm / "
+                    f"{adj.offset_deg:.2f} deg (best {best_offset[0]:.1f} mm / {best_offset[1]:.2f} deg); "
+                    "check the hand-eye calibration and the scene (symmetric or flat objects defeat 3D alignment)"
+                )
+        else:
+            growths = 0
+        if best_offset is None or adj.offset_mm < best_offset[0]:
+            best_offset = (adj.offset_mm, adj.offset_deg)
+        if adj.g <= config.eta:
+            result = RelocationResult(True, f"g = {adj.g:.2e} <= eta = {config.eta:.0e}", iteration)
+            break
+        if rec.afd_est_px <= config.stop_afd_px:
+            result = RelocationResult(
+                True,
+                f"estimated AFD {rec.afd_est_px:.2f} px <= {config.stop_afd_px} px (g = {adj.g:.2e})",
+                iteration,
+            )
+            break
+        session.move_by(adj.M_flange_commanded)
+    else:
+        result = RelocationResult(False, f"not converged after {config.max_adjustments} adjustments", config.max_adjustments)
+    return result
+
+
 def run_relocation(
     *,
     session: VseSession,
@@ -383,104 +492,30 @@ def run_relocation(
             fine=config.fine,
             min_points=config.min_points,
         ).start()
-    current_init = init
-    last_serial = 0
-    best_offset: tuple[float, float] | None = None  # smallest estimated remaining offset so far (mm, deg)
-    growths = 0
+    can_image = bool(reference_images) and grab_current is not None
     try:
-        for iteration in range(1, config.max_adjustments + 1):
-            state = session.tracking_state()
-            if config.mode == "parallel":
-                est = _wait_for_estimate(worker, last_serial, config, session)
-                state = session.vse.latest() if session.vse.latest().status == "tracking" else state
-            else:
-                t0 = time.monotonic()
-                if len(state.cloud) < config.min_points:
-                    raise AlgorithmError(f"the VSE cloud has only {len(state.cloud)} points: cannot align")
-                ests = align_once(
-                    state=state,
-                    scale=scale,
-                    reference=reference,
-                    ref_index=ref_index,
-                    camera=camera,
-                    init=current_init,
-                    fine=config.fine,
-                    serial=last_serial + 1,
-                )
-                session.timing.wait_s += time.monotonic() - t0
-                oks = [e for e in ests if e.ok]
-                est = oks[-1] if oks else ests[-1]
-                if not est.ok:
-                    raise AlgorithmError(f"alignment failed, motion paused: {est.reason}")
-            last_serial = est.serial
-            current_init = est.T_ref_cur
-            adj: Adjustment = compute_adjustment(
-                T_ref_cur=est.T_ref_cur,
-                T_cur_cam=_scaled_pose(state.T_map_cam, scale),
-                T_ref_camref=reference.T_ref_camref,
-                T_flange_cam=T_flange_cam,
-                max_step_m=config.max_step_m,
-                max_step_rad=config.max_step_rad,
-            )
-            rec = AdjustmentRecord(
-                iteration=iteration,
-                t_wall_s=time.monotonic() - t_start,
-                t_session_s=session.timing.total_s,
-                stage=est.stage,
-                g=adj.g,
-                offset_mm=adj.offset_mm,
-                offset_deg=adj.offset_deg,
-                T_ref_cam=adj.T_ref_cam.tolist(),
-                M_flange_commanded=adj.M_flange_commanded.tolist(),
-                clamped=adj.clamped,
-                vse_status=state.status,
-                vse_points=len(state.cloud),
-                alignment_ok=est.ok,
-                alignment_reason=est.reason,
-                scale=scale,
-                sigma=est.T_ref_cur.scale,
-                afd_est_px=estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera),
-                truth=evaluate() if evaluate else None,
-            )
-            records.append(rec)
-            if on_record:
-                on_record(rec)
-            # Convergence check (paper §3.7: each adjustment shrinks the offset while the
-            # hand-eye rotation error is below 45 deg). An estimate that keeps growing means the
-            # estimates or the hand-eye are wrong: stop rather than wander next to the object.
-            if best_offset is not None and (
-                adj.offset_mm > config.divergence_factor * best_offset[0] + config.divergence_margin_mm
-                or adj.offset_deg > config.divergence_factor * best_offset[1] + config.divergence_margin_deg
-            ):
-                growths += 1
-                if growths >= config.divergence_patience:
-                    raise AlgorithmError(
-                        f"relocation is diverging, motion paused: the estimated offset grew to {adj.offset_mm:.1f} mm / "
-                        f"{adj.offset_deg:.2f} deg (best {best_offset[0]:.1f} mm / {best_offset[1]:.2f} deg); "
-                        "check the hand-eye calibration and the scene (symmetric or flat objects defeat 3D alignment)"
-                    )
-            else:
-                growths = 0
-            if best_offset is None or adj.offset_mm < best_offset[0]:
-                best_offset = (adj.offset_mm, adj.offset_deg)
-            if adj.g <= config.eta:
-                result = RelocationResult(True, f"g = {adj.g:.2e} <= eta = {config.eta:.0e}", iteration)
-                break
-            if rec.afd_est_px <= config.stop_afd_px:
-                result = RelocationResult(
-                    True,
-                    f"estimated AFD {rec.afd_est_px:.2f} px <= {config.stop_afd_px} px (g = {adj.g:.2e})",
-                    iteration,
-                )
-                break
-            session.move_by(adj.M_flange_commanded)
-        else:
-            result = RelocationResult(False, f"not converged after {config.max_adjustments} adjustments", config.max_adjustments)
-        if result.converged and config.image_refine and reference_images and grab_current is not None:
-            result = _image_stage(session=session, reference=reference, camera=camera, scale=scale,
-                                  T_flange_cam=T_flange_cam, config=config, records=records, result=result,
-                                  reference_images=reference_images, grab_current=grab_current,
-                                  evaluate=evaluate, on_record=on_record, t_start=t_start)
+        try:
+            result = _racr_loop(session=session, reference=reference, ref_index=ref_index, camera=camera,
+                                scale=scale, T_flange_cam=T_flange_cam, init=init, config=config,
+                                evaluate=evaluate, on_record=on_record, worker=worker, records=records,
+                                t_start=t_start)
+        except AlgorithmError as paused:
+            # The 3D loop paused (degenerate geometry, too few inliers, divergence). Without
+            # the fallback, or when it finds no strong evidence either, the pause stands.
+            if not (config.image_fallback and can_image):
+                raise
+            result = RelocationResult(False, str(paused), len(records))
+        if worker is not None and not result.converged:
+            worker.stop()  # the 3D estimates are not used any more: free the CPU for matching
+            worker = None
+        image_kwargs = dict(session=session, reference=reference, camera=camera, scale=scale,
+                            T_flange_cam=T_flange_cam, config=config, records=records,
+                            reference_images=reference_images, grab_current=grab_current,
+                            evaluate=evaluate, on_record=on_record, t_start=t_start)
+        if result.converged and config.image_refine and can_image:
+            result = _image_stage(result=result, fallback=False, **image_kwargs)
+        elif not result.converged and config.image_fallback and can_image:
+            result = _image_stage(result=result, fallback=True, **image_kwargs)
     finally:
         if worker is not None:
             worker.stop()
@@ -493,22 +528,32 @@ def run_relocation(
 
 
 def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, records, result, reference_images,
-                 grab_current, evaluate, on_record, t_start) -> RelocationResult:
-    """Final image-based steps after the 3D loop converged (see :mod:`.image_refine`).
+                 grab_current, evaluate, on_record, t_start, fallback: bool) -> RelocationResult:
+    """Image-based steps from the reference images (see :mod:`.image_refine`).
 
     Each step matches the current image with the reference images, solves the
-    camera motion by PnP on the reference cloud and moves; it stops when the
-    correction is below ``image_stop_afd_px``, or leaves the rACR result as it is
-    when the evidence is weak (the record says why).
+    camera motion by PnP on the reference cloud and moves (through the guard,
+    clamped to the largest step); it stops when the correction is below
+    ``image_stop_afd_px``.
+
+    After a converged 3D loop (``fallback=False``) it is the final refinement:
+    weak evidence leaves the rACR result as it is (the record says why). When
+    the 3D loop paused (``fallback=True``) it is the only estimate left: the
+    relocation converges only if the image evidence brings the correction below
+    ``stop_afd_px``; otherwise it pauses, naming both reasons.
     """
     from fgcd_cli.geometry.se3 import invert_pose
     from fgcd_cli.relocation.adjustment import clamp_motion
     from fgcd_cli.relocation.image_refine import refine_from_reference_image
 
-    last = records[-1]
+    last = records[-1] if records else None
+    first_iteration = last.iteration if last is not None else 0
     X = np.asarray(T_flange_cam, dtype=float)
+    label = "image fallback" if fallback else "image stage"
     reason = result.reason
-    for step in range(config.image_refine_steps):
+    steps = config.image_fallback_steps if fallback else config.image_refine_steps
+    final_afd = math.inf
+    for step in range(steps):
         state = session.settle(frames=2)
         t0 = time.monotonic()
         ref = refine_from_reference_image(reference_images=reference_images, current_image=grab_current(),
@@ -516,7 +561,8 @@ def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, rec
                                           T_ref_camref=reference.T_ref_camref)
         session.timing.wait_s += time.monotonic() - t0
         info = {"matches": ref.matches, "inliers": ref.inliers, "rms_px": ref.rms_px,
-                "measured_afd_px": ref.measured_afd_px, "reference_image": ref.reference_image}
+                "measured_afd_px": ref.measured_afd_px, "reference_image": ref.reference_image,
+                "matcher": ref.matcher, "fallback": fallback}
         if ref.ok:
             T_ref_cam = np.asarray(reference.T_ref_camref, dtype=float) @ invert_pose(ref.M_cam)
             M_flange = X @ ref.M_cam @ invert_pose(X)
@@ -524,34 +570,44 @@ def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, rec
             g = float(np.linalg.norm(M_flange - np.eye(4)))
             off_mm, off_deg = pose_distance(T_ref_cam, reference.T_ref_camref)
             afd = estimated_afd_px(reference.points, reference.T_ref_camref, T_ref_cam, camera)
-        else:
+        elif last is not None:
             T_ref_cam, M_cmd, clamped = np.asarray(last.T_ref_cam), np.eye(4), False
             g, off_mm, off_deg, afd = last.g, last.offset_mm, last.offset_deg, last.afd_est_px
+        else:  # nothing is known about the current pose
+            T_ref_cam, M_cmd, clamped = np.full((4, 4), np.nan), np.eye(4), False
+            g = off_mm = off_deg = afd = math.nan
         rec = AdjustmentRecord(
-            iteration=last.iteration + step + 1, t_wall_s=time.monotonic() - t_start,
+            iteration=first_iteration + step + 1, t_wall_s=time.monotonic() - t_start,
             t_session_s=session.timing.total_s, stage="image", g=g, offset_mm=off_mm, offset_deg=off_deg,
             T_ref_cam=np.asarray(T_ref_cam).tolist(), M_flange_commanded=np.asarray(M_cmd).tolist(),
             clamped=clamped, vse_status=state.status, vse_points=len(state.cloud), alignment_ok=ref.ok,
-            alignment_reason=ref.reason, scale=scale, sigma=last.sigma, afd_est_px=afd,
-            truth=evaluate() if evaluate else None, image=info,
+            alignment_reason=ref.reason, scale=scale, sigma=last.sigma if last is not None else math.nan,
+            afd_est_px=afd, truth=evaluate() if evaluate else None, image=info,
         )
         records.append(rec)
         if on_record:
             on_record(rec)
         if not ref.ok:
-            reason = f"{result.reason}; image stage: {ref.reason}"
+            reason = f"{result.reason}; {label}: {ref.reason}"
             break
+        final_afd = afd
         if afd <= config.image_stop_afd_px:
-            reason = f"{result.reason}; image stage: correction {afd:.2f} px <= {config.image_stop_afd_px} px"
+            reason = f"{result.reason}; {label}: correction {afd:.2f} px <= {config.image_stop_afd_px} px"
             break
         session.move_by(M_cmd)
-        reason = f"{result.reason}; image stage: moved {step + 1} time(s)"
-    return RelocationResult(True, reason, records[-1].iteration)
+        final_afd = math.inf  # moved: the remaining correction is not measured yet
+        reason = f"{result.reason}; {label}: moved {step + 1} time(s)"
+    if not fallback:
+        return RelocationResult(True, reason, records[-1].iteration)
+    if final_afd <= config.stop_afd_px:
+        return RelocationResult(True, reason, records[-1].iteration)
+    raise AlgorithmError(f"motion paused: {reason}")
 
 
 def _wait_for_estimate(worker: AlignmentWorker, last_serial: int, config: RelocationConfig, session: VseSession) -> AlignmentEstimate:
     """The newest alignment published after ``last_serial``; pause on failures."""
     t0 = time.monotonic()
+    seen_bad: set[int] = set()  # serials of untrustworthy estimates since we started waiting
     while True:
         if worker.error:
             raise AlgorithmError(f"alignment thread stopped: {worker.error}")
@@ -559,7 +615,15 @@ def _wait_for_estimate(worker: AlignmentWorker, last_serial: int, config: Reloca
         if est is not None and est.serial > last_serial and est.ok:
             session.timing.wait_s += time.monotonic() - t0
             return est
-        if time.monotonic() - t0 > config.estimate_timeout_s:
+        waited = time.monotonic() - t0
+        if est is not None and est.serial > last_serial and not est.ok:
+            seen_bad.add(est.serial)
+            if len(seen_bad) >= config.untrusted_patience and waited >= config.untrusted_min_wait_s:
+                session.timing.wait_s += waited
+                raise AlgorithmError(f"alignment untrustworthy in {len(seen_bad)} estimates in a row "
+                                     f"({waited:.0f} s), motion paused: {est.reason}")
+        if waited > config.estimate_timeout_s:
+            session.timing.wait_s += waited
             why = est.reason if est is not None else "no estimate yet"
             raise AlgorithmError(f"no trustworthy alignment within {config.estimate_timeout_s:.0f} s, motion paused: {why}")
         time.sleep(0.01)

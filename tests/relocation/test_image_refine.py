@@ -80,14 +80,23 @@ def test_refuses_when_the_evidence_is_weak(relief):
     assert "matches" in res.reason or "grid" in res.reason
 
 
-def test_refuses_a_large_correction(relief):
+def test_a_large_correction_needs_strong_evidence(relief):
     renderer, T_ref, ref, pts = relief
-    M_true = exp_se3(np.array([0.04, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    M_true = exp_se3(np.array([0.04, 0.0, 0.0, 0.0, 0.0, 0.0]))  # 40 mm: beyond the ordinary 20 mm limit
     cur = renderer.render(T_ref @ invert_pose(M_true), INTR, "front", exposure=1.0, want=("gray",))
-    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA,
-                                      ref_points=pts, T_ref_camref=T_ref, config=ImageRefineConfig(max_motion_m=0.02))
-    assert not res.ok
-    assert "too large" in res.reason
+    kw = dict(reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA, ref_points=pts,
+              T_ref_camref=T_ref)
+    # Same light, 40 mm: hundreds of consistent matches, so the correction is trusted ...
+    res = refine_from_reference_image(**kw)
+    assert res.ok, res.reason
+    assert res.inliers >= ImageRefineConfig().strong_min_inliers
+    mm, deg = pose_distance(res.M_cam, M_true)
+    assert mm < 2.0 and deg < 0.05  # 1 px at 1.35 m is 2.3 mm; hundreds of inliers average it down
+    # ... but not on ordinary evidence, nor beyond the strong-evidence limit.
+    weak = refine_from_reference_image(**kw, config=ImageRefineConfig(strong_min_inliers=10**6))
+    assert not weak.ok and "too large" in weak.reason and "needs" in weak.reason
+    capped = refine_from_reference_image(**kw, config=ImageRefineConfig(strong_max_motion_m=0.03))
+    assert not capped.ok and "too large" in capped.reason
 
 
 def test_bad_images_are_refused_not_raised(relief):

@@ -311,3 +311,79 @@ def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
                          init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-4, max_adjustments=12))
     vse.stop()
     assert res.converged  # a 30 % sloppy platform still shrinks the offset every time
+
+
+def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial"):
+    """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``."""
+    from fgcd_cli.geometry import PinholeCamera
+    from fgcd_cli.relocation import image_refine as image_mod
+
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
+    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
+        AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
+                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+    true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
+    monkeypatch.setattr(image_mod, "refine_from_reference_image", lambda **kw: refine(true_cam(), T_ref_camref))
+    camera = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
+    u, v = np.meshgrid(np.linspace(-0.4, 0.4, 9), np.linspace(-0.3, 0.3, 7))
+    pts_cam = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 1.5)])
+    pts = pts_cam @ T_ref_camref[:3, :3].T + T_ref_camref[:3, 3]
+    vse = ExactVse(platform, X, T_map_base, s)
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
+    session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
+    ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
+    config = RelocationConfig(mode=mode, eta=1e-6, estimate_timeout_s=5.0, untrusted_min_wait_s=0.2)
+    try:
+        res = run_relocation(session=session, reference=ref, ref_index=None, camera=camera, scale=s,
+                             T_flange_cam=X, init=Sim3(), config=config,
+                             reference_images={"front": np.zeros((480, 640), np.float32)},
+                             grab_current=lambda: np.zeros((480, 640), np.float32))
+    finally:
+        vse.stop()
+    return res, platform, pose_distance(true_cam(), T_ref_camref)
+
+
+@pytest.mark.parametrize("mode", ["serial", "parallel"])
+def test_image_fallback_relocates_when_3d_alignment_is_degenerate(monkeypatch, mode):
+    from fgcd_cli.relocation.image_refine import ImageRefinement
+
+    def exact(T_ref_cam_true, T_ref_camref):
+        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
+                               measured_afd_px=5.0, matches=300, inliers=250, rms_px=0.3, matcher="sift")
+
+    res, platform, (mm, deg) = _degenerate_case_with_image_fallback(monkeypatch, exact, mode)
+    assert res.converged
+    assert all(r.stage == "image" for r in res.records)  # no 3D estimate was ever trusted
+    assert "degenerate" in res.reason and "image fallback" in res.reason
+    assert platform.moves >= 1
+    assert mm < 1e-3 and deg < 1e-3
+
+
+def test_weak_image_evidence_keeps_the_pause(monkeypatch):
+    from fgcd_cli.errors import AlgorithmError
+    from fgcd_cli.relocation.image_refine import ImageRefinement
+
+    weak = lambda _T, _R: ImageRefinement(ok=False, reason="only 9 feature matches with the reference image",  # noqa: E731
+                                          M_cam=None, measured_afd_px=float("nan"), matches=9, inliers=0,
+                                          rms_px=float("nan"))
+    with pytest.raises(AlgorithmError, match="plane.*image fallback: only 9 feature matches"):
+        _degenerate_case_with_image_fallback(monkeypatch, weak)
+
+
+def test_untrustworthy_estimates_pause_before_the_timeout(monkeypatch):
+    """The parallel loop pauses after a run of untrustworthy estimates instead of waiting the full timeout."""
+    from fgcd_cli.errors import AlgorithmError
+
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _ = make_case()
+    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
+        AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="inlier ratio 41% < 60%",
+                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    t0 = time.monotonic()
+    with pytest.raises(AlgorithmError, match="untrustworthy in .* estimates in a row.*inlier ratio"):
+        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                       init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=60.0,
+                                                            untrusted_min_wait_s=0.5))
+    vse.stop()
+    assert time.monotonic() - t0 < 30.0  # far below the 60 s timeout
+    assert platform.moves == 0
