@@ -136,7 +136,7 @@ def relocate(
     serial: bool = typer.Option(False, "--serial", help="Single-thread variant (rACR Table 5)."),
     no_handeye: bool = typer.Option(False, "--no-handeye", help="Guess X = I instead of the calibration (rACR Table 3)."),
     no_image_refine: bool = typer.Option(False, "--no-image-refine",
-                                         help="Skip the final image stage (pure rACR: 3D alignment only)."),
+                                         help="Skip the image stage and its fallback (pure rACR: 3D alignment only)."),
     eta: float = typer.Option(1e-4, "--eta", help="Stop when ||M_B - I|| <= eta."),
     max_adjustments: int = typer.Option(12, "--max-adjustments"),
     port: str = typer.Option(None, "--port"),
@@ -164,7 +164,7 @@ def relocate(
         scenario = sim_scenario_from_campaign(camp, lighting=light, changes=changes, start_offset_mm=start_offset_mm,
                                               start_offset_deg=start_offset_deg, session_seed=session_seed)
     config = RelocationConfig(mode="serial" if serial else "parallel", eta=eta, max_adjustments=max_adjustments,
-                              image_refine=not no_image_refine)
+                              image_refine=not no_image_refine, image_fallback=not no_image_refine)
     rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port or camp.rig_config.get("port"), host=host or camp.rig_config.get("host"),
                    confirm=_confirm_factory(yes), on_event=info)
     evaluator = RelocationEvaluator.from_reference(rig.sim, ref) if rig.sim is not None else None
