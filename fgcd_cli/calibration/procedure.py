@@ -8,7 +8,7 @@ pose from ``solvePnP`` (target).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
@@ -91,6 +91,7 @@ def run_target_free(
     settle_frames: int = 3,
     max_step_m: float = 0.005,
     max_step_deg: float = 1.0,
+    refine: bool = True,
     progress: Callable[[str], None] | None = None,
 ) -> TargetFreeRun:
     """Command exploration motions, track them with the VSE, solve ``X`` and ``s``.
@@ -113,6 +114,11 @@ def run_target_free(
         Frames given to the VSE at each stop before its pose is read.
     max_step_m, max_step_deg : float
         Largest platform step between two frames (keeps the tracker locked).
+    refine : bool
+        Refine ``X`` by a bundle adjustment over the stop images with the camera
+        poses tied to the reported flange poses, then re-estimate the scale
+        (:func:`fgcd_cli.calibration.handeye_ba.refine_target_free`); if the images
+        cannot be matched the linear solution is kept with a note.
     progress : callable(str), optional
         Receives one line per stop.
 
@@ -141,6 +147,9 @@ def run_target_free(
     T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
     hand: list[np.ndarray] = []
     eye: list[np.ndarray] = []
+    stop_images: list[np.ndarray] = []
+    last_image: list[Any] = [None]
+    flange_at: dict[float, np.ndarray] = {}  # reported flange pose of every frame, by timestamp
     skipped: dict[int, str] = {}
     frames = 0
     state = None
@@ -149,6 +158,8 @@ def run_target_free(
         nonlocal frames
         frame = camera_source.grab()
         frames += 1
+        last_image[0] = frame.image
+        flange_at[float(frame.timestamp_s)] = np.asarray(guard.platform.flange_pose(), dtype=float)
         return engine.process(frame.image, frame.timestamp_s)
 
     T_prev = T_start
@@ -165,6 +176,7 @@ def run_target_free(
         if state.status == "tracking" and state.T_map_cam is not None:
             hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
             eye.append(np.asarray(state.T_map_cam, dtype=float))
+            stop_images.append(np.asarray(last_image[0]))
             say(f"stop {index + 1}/{len(motions)}: sample {len(hand)} recorded")
         else:
             skipped[index] = f"VSE {state.status}: {state.message}"
@@ -175,7 +187,38 @@ def run_target_free(
             "static surface 0.3-2 m away and try again"
         )
     result = solve_handeye_scale(hand, eye, pairs="all")
+    if refine:
+        from fgcd_cli.calibration.handeye_ba import refine_target_free
+
+        try:
+            result = refine_target_free(result, hand, eye, stop_images, camera.K, dist=camera.dist,
+                                        keyframes=_keyframe_depths(state, flange_at))
+            say(
+                f"image refinement: {result.refinement['points']} points, {result.refinement['rms_px']:.2f} px RMS, "
+                f"X moved {result.refinement['change_mm']:.1f} mm / {result.refinement['change_deg']:.2f} deg"
+            )
+        except CalibrationError as exc:
+            result = replace(result, notes=list(result.notes) + [f"image refinement skipped: {exc}"])
+            say(f"image refinement skipped: {exc}")
     return TargetFreeRun(result=result, T_base_flange=hand, T_map_cam=eye, skipped=skipped, frames=frames, engine=engine)
+
+
+def _keyframe_depths(state: Any, flange_at: dict[float, np.ndarray]) -> list:
+    """The VSE keyframes with their cloud points and the flange pose of their frame."""
+    from fgcd_cli.calibration.handeye_ba import KeyframeDepths
+
+    cloud = getattr(state, "cloud", None)
+    if cloud is None or len(getattr(cloud, "points", ())) == 0:
+        return []
+    out = []
+    for kf in getattr(state, "keyframes", ()):
+        T_flange = flange_at.get(float(kf.timestamp_s))
+        sel = np.asarray(cloud.keyframe_ids) == kf.id
+        if T_flange is None or not np.any(sel):
+            continue
+        out.append(KeyframeDepths(T_base_flange=T_flange, T_map_cam=np.asarray(kf.T_map_cam, dtype=float),
+                                  pixels=np.asarray(cloud.pixels)[sel], points_map=np.asarray(cloud.points)[sel]))
+    return out
 
 
 def run_target(
