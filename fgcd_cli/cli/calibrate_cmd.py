@@ -175,6 +175,13 @@ def _render_handeye(console, data: dict) -> None:
     )
     if data.get("scale") is not None:
         console.print(f"map scale s = {data['scale']:.5f} m per VSE unit")
+    ref = data.get("refinement") or {}
+    if ref:
+        console.print(
+            f"image refinement: {ref['points']} points, {ref['rms_px']:.2f} px RMS, X +- {ref['std_mm']:.1f} mm / "
+            f"{ref['std_deg']:.3f} deg (1 sigma), moved {ref['change_mm']:.1f} mm / {ref['change_deg']:.2f} deg "
+            f"from the linear solve; scale from {ref.get('scale_method', '?')}"
+        )
     console.print(
         f"{data['n_samples']} samples, {data['n_pairs']} motion pairs, residual RMS {data['rms_mm']:.2f} mm / "
         f"{data['rms_deg']:.3f} deg, rotation-axis spread {data['axis_spread_deg']:.0f} deg"

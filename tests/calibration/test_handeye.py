@@ -225,3 +225,21 @@ def test_estimate_scale_regression_directions_under_independent_vse_noise(handey
     assert np.mean(errors["platform"]) < -0.02  # errors in the regressor: ~-3 % here
     with pytest.raises(UserInputError, match="unknown regression"):
         estimate_scale(d["X"], d["T_base_flange"], d["T_map_cam"], regress="both")
+
+
+def test_hand_eye_report_shows_the_image_refinement(handeye_data):
+    from dataclasses import replace
+
+    from rich.console import Console
+
+    from fgcd_cli.cli.calibrate_cmd import _render_handeye
+
+    d = handeye_data(seed=2)
+    res = solve_handeye_scale(d["T_base_flange"], d["T_map_cam"])
+    res = replace(res, method="racr-linear+image-ba", refinement={
+        "points": 543, "rms_px": 0.25, "std_mm": 0.7, "std_deg": 0.024, "change_mm": 9.8, "change_deg": 0.29,
+        "scale_method": "map depths (scale_from_depths)"})
+    console = Console(record=True, width=200)
+    _render_handeye(console, res.to_dict())
+    text = console.export_text()
+    assert "image refinement: 543 points, 0.25 px RMS" in text and "map depths" in text
