@@ -171,7 +171,7 @@ def _render_handeye(console, data: dict) -> None:
     rv = np.degrees(log_so3(X[:3, :3]))
     console.print(
         f"T_flange_cam: t = ({', '.join(f'{v * 1000:.1f}' for v in X[:3, 3])}) mm, "
-        f"rotation vector = ({', '.join(f'{v:.2f}' for v in rv)}) deg   [{data['method']}]"
+        f"rotation vector = ({', '.join(f'{v:.2f}' for v in rv)}) deg   \\[{data['method']}]"
     )
     if data.get("scale") is not None:
         console.print(f"map scale s = {data['scale']:.5f} m per VSE unit")
@@ -229,6 +229,9 @@ def handeye_cmd(
         raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
     camp = _open_campaign(campaign)
     intr = load_intrinsics(camp) if camp is not None else None
+    if intr is None and not as_json:
+        info("warning: no calibrated intrinsics (-c CAMPAIGN): using the camera's nominal ones; a focal length "
+             "1 % off puts the hand-eye centimetres off (docs/calibration.md, §2)")
     confirm = None if yes else (lambda text: typer.confirm(text, default=False, err=True))
     opened = open_rig(
         driver=driver,

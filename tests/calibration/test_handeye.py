@@ -243,3 +243,4 @@ def test_hand_eye_report_shows_the_image_refinement(handeye_data):
     _render_handeye(console, res.to_dict())
     text = console.export_text()
     assert "image refinement: 543 points, 0.25 px RMS" in text and "map depths" in text
+    assert "[racr-linear+image-ba]" in text  # the method is shown, not taken for rich markup
