@@ -95,6 +95,11 @@ def global_registration(
         level_points=config.level_points[:2],
         level_radius_rel=config.level_radius_rel[:2],
         level_iterations=tuple(min(20, n) for n in config.level_iterations[:2]),
+        # The 24 starts only rank rotations: no shift search, scale refinement or minimum check
+        # there (they would multiply the cost by ~10); the final run below has them.
+        shift_steps=0,
+        scale_refinements=0,
+        minimum_check_step=0.0,
     )
     best = None
     for Q in _rotations_24():
