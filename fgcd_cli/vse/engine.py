@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -35,7 +35,7 @@ from fgcd_cli.geometry.camera import PinholeCamera
 from fgcd_cli.geometry.se3 import invert_pose, log_so3, make_pose, rotation_angle_rad, transform_points
 from fgcd_cli.vse.ba import bundle_adjust, refine_pose
 from fgcd_cli.vse.features import KltFrontend, OrbFrontend, orb_describe, to_gray_f32, to_gray_u8
-from fgcd_cli.vse.semidense import SemiDenseDepth, keyframe_depth
+from fgcd_cli.vse.semidense import SemiDenseDepth, fuse_across_keyframes, keyframe_depth
 from fgcd_cli.vse.types import Keyframe, MapCloud, VseConfig, VseState
 
 __all__ = ["MonocularVSE", "SparseVSE", "RgbdVSE"]
@@ -142,6 +142,7 @@ class _EngineBase:
         self._total_times: deque[float] = deque(maxlen=30)
         self._timestamp = float("nan")
         self._cloud_cache: MapCloud | None = None
+        self._fused_parts: dict[int, tuple] = {}  # keyframe id -> (poses key, cloud part)
         self._state = self._snapshot()
 
     def state(self) -> VseState:
@@ -181,10 +182,14 @@ class _EngineBase:
         else:
             self._track(img_u8, frame_image)
         self._prev_u8 = img_u8
+        # the snapshot rebuilds the cloud after a keyframe (cross-keyframe fusion): mapping time
+        t_snap = time.perf_counter()
+        state = self._snapshot()
         dt = time.perf_counter() - t0
+        self._mapping_time += time.perf_counter() - t_snap
         self._total_times.append(dt)
         self._track_times.append(max(dt - self._mapping_time, 1e-6))
-        self._state = self._snapshot()
+        self._state = replace(state, track_fps=self._fps(self._track_times), overall_fps=self._fps(self._total_times))
         return self._state
 
     # ------------------------------------------------------------------ helpers
@@ -745,7 +750,7 @@ class _EngineBase:
         kf.semidense = keyframe_depth(
             kf.undist, neighbors, self.K, (lo, hi),
             grad_threshold=cfg.semidense_grad_threshold, max_points=cfg.semidense_max_points_per_kf,
-            min_views=cfg.semidense_min_views, max_rel_sigma=cfg.semidense_max_rel_sigma,
+            cell_px=cfg.semidense_cell_px, min_views=cfg.semidense_min_views, max_rel_sigma=2.0 * cfg.semidense_max_rel_sigma,
         )
 
     # ------------------------------------------------------------------ relocalisation
@@ -873,22 +878,45 @@ class _EngineBase:
         if self._cloud_cache is not None:
             return self._cloud_cache
         parts = []
-        for kf in self._kfs:
+        with_depth = [kf for kf in self._kfs if kf.semidense is not None and len(kf.semidense.inv_depth)]
+        # monocular only: a depth camera's per-keyframe depths are its own measurements
+        reach = self.config.semidense_cross_fusion_keyframes if self._cloud_kind == "semidense" else 0
+        for a, kf in enumerate(with_depth):
             sd = kf.semidense
-            if sd is None or len(sd.inv_depth) == 0:
+            partners = [o for b, o in enumerate(with_depth) if b != a and abs(b - a) <= reach]
+            # the fused part only changes when a pose involved (bundle adjustment) or a partner changes
+            key = tuple((o.id, o.T_cam_map.tobytes()) for o in [kf, *partners])
+            hit = self._fused_parts.get(kf.id)
+            if hit is not None and hit[0] == key:
+                parts.append(hit[1])
                 continue
-            Xc = np.column_stack([(sd.pixels[:, 0] - self.K[0, 2]) / self.K[0, 0],
-                                  (sd.pixels[:, 1] - self.K[1, 2]) / self.K[1, 1], np.ones(len(sd.pixels))]) * sd.depth[:, None]
+            rho, rho_sig = sd.inv_depth, sd.inv_depth_sigma
+            if partners:
+                # the same surface seen from other keyframes: their estimates carry independent reference noise
+                others = [(o.semidense.pixels, o.semidense.inv_depth, o.semidense.inv_depth_sigma,
+                           kf.T_cam_map @ invert_pose(o.T_cam_map)) for o in partners]
+                rho, rho_sig, _ = fuse_across_keyframes(self.K, (sd.pixels, rho, rho_sig), others)
+            keep = rho_sig / rho < self.config.semidense_max_rel_sigma
+            rho, rho_sig, pix = rho[keep], rho_sig[keep], sd.pixels[keep]
+            depth = 1.0 / rho
+            Xc = np.column_stack([(pix[:, 0] - self.K[0, 2]) / self.K[0, 0],
+                                  (pix[:, 1] - self.K[1, 2]) / self.K[1, 1], np.ones(len(pix))]) * depth[:, None]
             X = transform_points(invert_pose(kf.T_cam_map), Xc)
-            parts.append((X, sd.intensities, np.full(len(X), kf.id, np.int64), sd.depth_sigma, self._distort_px(sd.pixels)))
+            part = (X, sd.intensities[keep], np.full(len(X), kf.id, np.int64), rho_sig * depth**2, self._distort_px(pix))
+            self._fused_parts[kf.id] = (key, part)
+            parts.append(part)
         if not parts:
             return MapCloud()
+        n = sum(len(p[0]) for p in parts)
+        cap = self.config.cloud_max_points
+        # uniform stride over the cloud (no preference for precise points: the accuracy is not selected)
+        sel = np.linspace(0, n - 1, cap).astype(int) if 0 < cap < n else slice(None)
         self._cloud_cache = MapCloud(
-            points=np.vstack([p[0] for p in parts]),
-            intensities=np.concatenate([p[1] for p in parts]).astype(np.float32),
-            keyframe_ids=np.concatenate([p[2] for p in parts]),
-            depth_sigma=np.concatenate([p[3] for p in parts]),
-            pixels=np.vstack([p[4] for p in parts]),
+            points=np.vstack([p[0] for p in parts])[sel],
+            intensities=np.concatenate([p[1] for p in parts]).astype(np.float32)[sel],
+            keyframe_ids=np.concatenate([p[2] for p in parts])[sel],
+            depth_sigma=np.concatenate([p[3] for p in parts])[sel],
+            pixels=np.vstack([p[4] for p in parts])[sel],
         )
         return self._cloud_cache
 

@@ -92,12 +92,24 @@ class VseConfig:
         Cap on semi-dense pixels per keyframe.
     semidense_grad_threshold : float
         Minimum gradient magnitude (grey levels/pixel on the [0, 1] scale times 255).
+    semidense_cell_px : int
+        At most one semi-dense pixel per square of this side (pixels).
     semidense_neighbors : int
         Neighbouring keyframes searched per keyframe (multi-view fusion).
     semidense_min_views : int
         Consistent depth observations a semi-dense point needs to be kept.
     semidense_max_rel_sigma : float
-        Keep points whose depth sigma over depth is below this.
+        Publish points whose depth sigma over depth, after the fusion across
+        keyframes, is below this (a keyframe keeps its own estimates up to twice
+        this, so that fusion can bring them under it).
+    semidense_cross_fusion_keyframes : int
+        A keyframe's semi-dense depths are fused with the estimates of the same
+        surface points from the keyframes up to this many places away in the
+        keyframe list (0: off).
+    cloud_max_points : int
+        The published semi-dense/depth cloud is thinned by a uniform stride to
+        at most this many points (0: no cap). The photometric alignment samples
+        all points in one ``cv2.remap`` call, which refuses more than 32767.
     depth_sigma_rel : float
         RGB-D only: relative depth noise of the sensor (sigma / depth).
     """
@@ -124,10 +136,13 @@ class VseConfig:
     ba_iterations: int = 8
     semidense: bool = True
     semidense_max_points_per_kf: int = 12000
-    semidense_grad_threshold: float = 12.0
+    semidense_grad_threshold: float = 6.0
+    semidense_cell_px: int = 3
     semidense_neighbors: int = 4
     semidense_min_views: int = 2
     semidense_max_rel_sigma: float = 0.02
+    semidense_cross_fusion_keyframes: int = 6
+    cloud_max_points: int = 30000
     depth_sigma_rel: float = 0.002
 
 
