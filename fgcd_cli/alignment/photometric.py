@@ -62,8 +62,15 @@ def sample(kf: KeyframeImage, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u = uv[:, 0].astype(np.float32)
     v = uv[:, 1].astype(np.float32)
     inside = (uv[:, 0] >= 1) & (uv[:, 0] <= kf.width - 2) & (uv[:, 1] >= 1) & (uv[:, 1] <= kf.height - 2)
-    out = cv2.remap(kf.stack, u.reshape(-1, 1), v.reshape(-1, 1), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1, 3).astype(float), inside
+    # cv2.remap needs map sides below 32767: lay the samples out as a (rows, 4096) map.
+    n = len(u)
+    cols = 4096
+    rows = max(1, -(-n // cols))
+    pad = rows * cols - n
+    mu = np.pad(u, (0, pad)).reshape(rows, cols)
+    mv = np.pad(v, (0, pad)).reshape(rows, cols)
+    out = cv2.remap(kf.stack, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:n].astype(float), inside
 
 
 def project_with_jacobian(camera: PinholeCamera, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
