@@ -42,7 +42,7 @@ def test_latest_is_cheap_and_consistent_while_engine_runs(world, small_camera, h
     worst = 0.0
     seen = []
     with th:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 240  # generous: a loaded 2-core machine maps slowly; this test is about consistency
         while time.monotonic() < deadline:
             t0 = time.perf_counter()
             st = th.latest()
