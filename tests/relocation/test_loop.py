@@ -313,7 +313,7 @@ def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
     assert res.converged  # a 30 % sloppy platform still shrinks the offset every time
 
 
-def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial"):
+def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, untrusted_min_wait_s=0.2):
     """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``."""
     from fgcd_cli.geometry import PinholeCamera
     from fgcd_cli.relocation import image_refine as image_mod
@@ -321,7 +321,7 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial"):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
     monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
         AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+                          vse_frame=state.frames_processed, seconds=0.0, serial=serial, degenerate=True)])
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
     monkeypatch.setattr(image_mod, "refine_from_reference_image", lambda **kw: refine(true_cam(), T_ref_camref))
     camera = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
@@ -332,7 +332,7 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial"):
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
-    config = RelocationConfig(mode=mode, eta=1e-6, estimate_timeout_s=5.0, untrusted_min_wait_s=0.2)
+    config = RelocationConfig(mode=mode, eta=1e-6, estimate_timeout_s=120.0, untrusted_min_wait_s=untrusted_min_wait_s)
     try:
         res = run_relocation(session=session, reference=ref, ref_index=None, camera=camera, scale=s,
                              T_flange_cam=X, init=Sim3(), config=config,
@@ -357,6 +357,23 @@ def test_image_fallback_relocates_when_3d_alignment_is_degenerate(monkeypatch, m
     assert "degenerate" in res.reason and "image fallback" in res.reason
     assert platform.moves >= 1
     assert mm < 1e-3 and deg < 1e-3
+
+
+def test_degenerate_geometry_falls_back_without_waiting_for_the_untrusted_timeout(monkeypatch):
+    """Degenerate geometry is the scene, not noise: the parallel loop falls back after a few such estimates."""
+    from fgcd_cli.relocation.image_refine import ImageRefinement
+
+    def exact(T_ref_cam_true, T_ref_camref):
+        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
+                               measured_afd_px=5.0, matches=300, inliers=250, rms_px=0.3, matcher="sift")
+
+    t0 = time.monotonic()
+    res, _platform, (mm, _deg) = _degenerate_case_with_image_fallback(monkeypatch, exact, "parallel",
+                                                                       untrusted_min_wait_s=100.0)
+    assert res.converged and "degenerate geometry in 3 estimates" in res.reason
+    assert mm < 1e-3
+    # the untrusted rule alone would have waited 100 s (the 120 s timeout behind it)
+    assert time.monotonic() - t0 < 60.0
 
 
 def test_weak_image_evidence_keeps_the_pause(monkeypatch):
