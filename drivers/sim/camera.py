@@ -6,6 +6,8 @@ the nominal ones it advertises; calibration has to find them.
 
 from __future__ import annotations
 
+import time
+
 from typing import Callable
 
 import numpy as np
@@ -86,6 +88,8 @@ class SimCamera:
         self._rng = np.random.default_rng([seed, 0xCA3])
         self.last_exposure: float | None = None
         self._closed = False
+        self._render_total_s = 0.0  # wall seconds spent rendering finished frames
+        self._render_started: float | None = None  # time.monotonic() when the render in progress began
 
     @property
     def intrinsics_nominal(self) -> CameraIntrinsics:
@@ -98,8 +102,13 @@ class SimCamera:
             raise CameraError("simulated camera is closed")
         T = self._pose_fn()
         want = ("gray", "rgb") if self.with_rgb else ("gray",)
-        res = self.world.renderer.render(T, self._intr_true, self.lights.lighting, changes=self.world.changes,
-                                         exposure=self.exposure, effects=self.effects, rng=self._rng, want=want)
+        self._render_started = time.monotonic()
+        try:
+            res = self.world.renderer.render(T, self._intr_true, self.lights.lighting, changes=self.world.changes,
+                                             exposure=self.exposure, effects=self.effects, rng=self._rng, want=want)
+        finally:
+            self._render_total_s += time.monotonic() - self._render_started
+            self._render_started = None
         self.last_exposure = res.exposure
         ts = 0.0
         if self.clock is not None:
@@ -107,6 +116,18 @@ class SimCamera:
             if self.frame_period_s:
                 self.clock.advance(self.frame_period_s)
         return Frame(res.gray, ts, res.depth if self.with_depth else None, res.rgb)
+
+    def synthetic_overhead_s(self) -> float:
+        """Wall seconds spent so far synthesising frames (the render in progress included).
+
+        A real camera streams frames while the software works; this camera renders
+        each frame on demand in the grabbing thread (~0.2 s on 2 cores), which a
+        rig's time budget must not count. ``time.monotonic`` seconds, comparable
+        between calls.
+        """
+        started = self._render_started
+        busy = time.monotonic() - started if started is not None else 0.0
+        return self._render_total_s + busy
 
     def close(self) -> None:
         self._closed = True

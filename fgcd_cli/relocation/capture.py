@@ -107,7 +107,8 @@ def _start_session(
     """
     vse = rig.vse_factory()
     vse.start()
-    session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event)
+    session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event,
+                         frame_synthesis_s=getattr(rig.camera_source, "synthetic_overhead_s", None))
     T_base_flange_home = rig.guard.platform.flange_pose()
     last_error: AlgorithmError | None = None
     try:
@@ -295,6 +296,7 @@ def relocate_and_capture(
                 "wall_s": result.wall_s,
                 "session_s": result.session_s,
                 "platform_s": result.platform_s,
+                "synthetic_s": result.synthetic_s,
                 "mode": config.mode,
             },
             "T_flange_cam": np.asarray(rig.T_flange_cam).tolist(),

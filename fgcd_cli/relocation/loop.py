@@ -341,6 +341,8 @@ class RelocationResult:
     wall_s: float = 0.0
     session_s: float = 0.0
     platform_s: float = 0.0
+    synthetic_s: float = 0.0
+    """Frame-synthesis time left out of ``session_s`` (simulator rendering; 0 on hardware)."""
 
 
 def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, init, config, evaluate,
@@ -534,6 +536,7 @@ def run_relocation(
     result.wall_s = time.monotonic() - t_start
     result.session_s = session.timing.total_s
     result.platform_s = session.timing.platform_s
+    result.synthetic_s = session.timing.synthetic_s
     return result
 
 

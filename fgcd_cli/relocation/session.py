@@ -52,11 +52,20 @@ class SessionTiming:
     platform_s: float = 0.0
     wait_s: float = 0.0
     moves: int = 0
+    synthetic_s: float = 0.0
+    """Wall time of frame waits that the camera spent synthesising the frames (the
+    simulator's rendering), left out of ``wait_s``: a real camera streams frames
+    while the VSE works. 0 on hardware."""
 
     @property
     def total_s(self) -> float:
         """Platform time plus waiting time: the session's duration on a real rig."""
         return self.platform_s + self.wait_s
+
+    @property
+    def with_synthesis_s(self) -> float:
+        """``total_s`` with the frame synthesis counted too (what the simulator's wall clock saw)."""
+        return self.total_s + self.synthetic_s
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -131,6 +140,13 @@ class VseSession:
         Wall time after which a silent VSE is an error.
     on_event : callable(str), optional
         Progress lines for people.
+    frame_synthesis_s : callable() -> float, optional
+        Cumulative seconds the camera has spent synthesising frames (the
+        simulator's ``synthetic_overhead_s``). When given, frame waits count
+        without that time, and at least one ``1 / camera_fps`` per frame: the
+        rig-time model of a streaming camera (see :class:`SessionTiming`).
+    camera_fps : float
+        Frame rate of the modelled streaming camera.
     """
 
     guard: object
@@ -140,22 +156,35 @@ class VseSession:
     settle_frames: int = 2
     frame_timeout_s: float = 60.0
     on_event: Callable[[str], None] | None = None
+    frame_synthesis_s: Callable[[], float] | None = None
+    camera_fps: float = 30.0
     timing: SessionTiming = field(default_factory=SessionTiming)
 
     # -- VSE access
     def settle(self, *, frames: int | None = None):
         """Wait until the VSE has processed ``frames`` new frames; return its state."""
         need = self.settle_frames if frames is None else frames
+        synth0 = self.frame_synthesis_s() if self.frame_synthesis_s is not None else 0.0
         t0 = time.monotonic()
         start = self.vse.latest().frames_processed
         while True:
             st = self.vse.latest()
             if st.frames_processed >= start + need:
-                self.timing.wait_s += time.monotonic() - t0
+                self._count_frame_wait(time.monotonic() - t0, synth0, need)
                 return st
             if time.monotonic() - t0 > self.frame_timeout_s:
                 raise AlgorithmError(f"the VSE processed no new frame in {self.frame_timeout_s:.0f} s")
             time.sleep(0.005)
+
+    def _count_frame_wait(self, wall_s: float, synth0: float, frames: int) -> None:
+        """Add a frame wait to the timing, without the camera's frame synthesis (if known)."""
+        if self.frame_synthesis_s is None:
+            self.timing.wait_s += wall_s
+            return
+        synth = min(wall_s, max(0.0, self.frame_synthesis_s() - synth0))
+        rig = min(wall_s, max(wall_s - synth, frames / self.camera_fps))
+        self.timing.wait_s += rig
+        self.timing.synthetic_s += wall_s - rig
 
     def tracking_state(self, *, timeout_s: float = 60.0):
         """Wait for a settled state in which the VSE tracks; raise if it fails."""

@@ -68,6 +68,11 @@ class UndistortedSource:
             rgb=None if rgb is None else u.image(rgb),
         )
 
+    def synthetic_overhead_s(self) -> float:
+        """The wrapped source's frame-synthesis time (a simulator's rendering; 0 for real cameras)."""
+        inner = getattr(self.source, "synthetic_overhead_s", None)
+        return float(inner()) if inner is not None else 0.0
+
     def close(self) -> None:
         close = getattr(self.source, "close", None)
         if close:

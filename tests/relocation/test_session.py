@@ -38,3 +38,57 @@ def test_pattern_has_translation_on_every_leg_and_small_tilts():
     for M in exploration_pattern(translation_m=0.04, legs=6):
         assert np.linalg.norm(M[:3, 3]) > 0.02  # a monocular engine needs translation
         assert rotation_angle_rad(M[:3, :3]) < math.radians(5)
+
+
+class _SlowSynthesisVse:
+    """A VSE thread stand-in whose every frame takes ``render_s`` of synthesis plus ``process_s`` of work."""
+
+    def __init__(self, render_s: float, process_s: float):
+        import threading
+        import time
+
+        self.synthesis = 0.0
+        self.frames = 0
+        self._stop = threading.Event()
+
+        def run():
+            while not self._stop.is_set():
+                time.sleep(render_s)
+                self.synthesis += render_s
+                time.sleep(process_s)
+                self.frames += 1
+
+        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread.start()
+
+    def latest(self):
+        from types import SimpleNamespace
+
+        return SimpleNamespace(frames_processed=self.frames)
+
+    def stop(self):
+        self._stop.set()
+        self._thread.join()
+
+
+def test_frame_waits_count_without_the_synthesis_of_the_frames():
+    """Rig-time model: a streaming camera costs the VSE's work (at least 1/fps a frame), not the rendering."""
+    from fgcd_cli.relocation.session import VseSession
+
+    render_s, process_s, frames = 0.06, 0.01, 5
+    vse = _SlowSynthesisVse(render_s, process_s)
+    try:
+        plain = VseSession(guard=None, vse=vse)
+        plain.settle(frames=frames)
+        modelled = VseSession(guard=None, vse=vse, frame_synthesis_s=lambda: vse.synthesis, camera_fps=30.0)
+        modelled.settle(frames=frames)
+    finally:
+        vse.stop()
+    # without the model every frame costs render + process (the first one partly)
+    assert plain.timing.wait_s >= (frames - 1) * (render_s + process_s)
+    assert plain.timing.synthetic_s == 0.0
+    # with it, the rendering is set aside and each frame costs the 1/30 s floor (> process_s here)
+    assert modelled.timing.wait_s >= frames / 30.0 - 1e-9
+    assert modelled.timing.wait_s < 0.5 * plain.timing.wait_s  # rendering is 6/7 of a frame here
+    assert modelled.timing.synthetic_s >= (frames - 1) * render_s - frames / 30.0
+    assert modelled.timing.with_synthesis_s == pytest.approx(modelled.timing.wait_s + modelled.timing.synthetic_s)

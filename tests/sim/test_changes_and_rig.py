@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -127,8 +129,13 @@ def test_rig_home_pose_camera_and_ground_truth():
     X = gt.T_flange_cam_true()
     assert 0.05 <= np.linalg.norm(X[:3, 3]) <= 0.15
     assert isinstance(rig.camera, CameraSource)
+    assert rig.camera.synthetic_overhead_s() == 0.0
+    t0 = time.monotonic()
     f = rig.camera.grab()
+    grab_s = time.monotonic() - t0
     assert f.image.shape == (480, 640) and f.image.dtype == np.float32 and 0.2 < f.image.mean() < 0.8
+    # the rendering time is accounted (for the rig-time model), within the grab's wall time
+    assert 0.0 < rig.camera.synthetic_overhead_s() <= grab_s
     # move the flange: the camera follows through the hidden hand-eye
     T = rig.platform.flange_pose()
     T[:3, 3] += [0.01, 0.0, 0.0]
