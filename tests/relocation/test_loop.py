@@ -404,3 +404,30 @@ def test_untrustworthy_estimates_pause_before_the_timeout(monkeypatch):
     vse.stop()
     assert time.monotonic() - t0 < 30.0  # far below the 60 s timeout
     assert platform.moves == 0
+
+
+def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monkeypatch):
+    """Ctrl-C in the middle of the parallel loop: the platform is told to stop, the guard refuses
+    every further motion, the alignment thread ends, and the interrupt reaches the caller."""
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _ = make_case()
+    _exact_estimates(monkeypatch, T_ref_cur)
+    stops = []
+    monkeypatch.setattr(platform, "stop", lambda: stops.append(True))
+
+    def interrupted_move(T, *, speed_fraction=1.0):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(platform, "move_to", interrupted_move)
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    before = {t.name for t in threading.enumerate()}
+    with pytest.raises(KeyboardInterrupt):
+        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                       init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-6))
+    vse.stop()
+    assert stops, "the platform was not told to stop"
+    assert session.guard.tripped and "Ctrl-C" in session.guard.tripped
+    from drivers.platform import MotionRejected
+
+    with pytest.raises(MotionRejected):
+        session.guard.move_by(np.eye(4))
+    assert "fgcd-alignment" not in {t.name for t in threading.enumerate()} - before
