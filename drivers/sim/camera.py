@@ -6,6 +6,7 @@ the nominal ones it advertises; calibration has to find them.
 
 from __future__ import annotations
 
+import threading
 import time
 
 from typing import Callable
@@ -88,8 +89,11 @@ class SimCamera:
         self._rng = np.random.default_rng([seed, 0xCA3])
         self.last_exposure: float | None = None
         self._closed = False
-        self._render_total_s = 0.0  # wall seconds spent rendering finished frames
-        self._render_started: float | None = None  # time.monotonic() when the render in progress began
+        # rendering time, for the rig-time model: finished renders, and the start of those in
+        # progress by thread (the VSE thread and a caller grabbing images may render at once)
+        self._render_lock = threading.Lock()
+        self._render_total_s = 0.0
+        self._render_started: dict[int, float] = {}
 
     @property
     def intrinsics_nominal(self) -> CameraIntrinsics:
@@ -102,13 +106,17 @@ class SimCamera:
             raise CameraError("simulated camera is closed")
         T = self._pose_fn()
         want = ("gray", "rgb") if self.with_rgb else ("gray",)
-        self._render_started = time.monotonic()
+        me = threading.get_ident()
+        start = time.monotonic()
+        with self._render_lock:
+            self._render_started[me] = start
         try:
             res = self.world.renderer.render(T, self._intr_true, self.lights.lighting, changes=self.world.changes,
                                              exposure=self.exposure, effects=self.effects, rng=self._rng, want=want)
         finally:
-            self._render_total_s += time.monotonic() - self._render_started
-            self._render_started = None
+            with self._render_lock:
+                self._render_total_s += time.monotonic() - start
+                self._render_started.pop(me, None)
         self.last_exposure = res.exposure
         ts = 0.0
         if self.clock is not None:
@@ -125,9 +133,9 @@ class SimCamera:
         rig's time budget must not count. ``time.monotonic`` seconds, comparable
         between calls.
         """
-        started = self._render_started
-        busy = time.monotonic() - started if started is not None else 0.0
-        return self._render_total_s + busy
+        with self._render_lock:
+            now = time.monotonic()
+            return self._render_total_s + sum(now - t for t in self._render_started.values())
 
     def close(self) -> None:
         self._closed = True

@@ -136,6 +136,25 @@ def test_rig_home_pose_camera_and_ground_truth():
     assert f.image.shape == (480, 640) and f.image.dtype == np.float32 and 0.2 < f.image.mean() < 0.8
     # the rendering time is accounted (for the rig-time model), within the grab's wall time
     assert 0.0 < rig.camera.synthetic_overhead_s() <= grab_s
+    # the VSE thread and a caller taking images may grab at once: each render is counted once
+    import threading
+
+    before, errors = rig.camera.synthetic_overhead_s(), []
+
+    def grab():
+        try:
+            rig.camera.grab()
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    workers = [threading.Thread(target=grab) for _ in range(3)]
+    t0 = time.monotonic()
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    assert not errors
+    assert 0.0 < rig.camera.synthetic_overhead_s() - before <= 3 * (time.monotonic() - t0)
     # move the flange: the camera follows through the hidden hand-eye
     T = rig.platform.flange_pose()
     T[:3, 3] += [0.01, 0.0, 0.0]
