@@ -262,14 +262,15 @@ def bundle_adjust_rejecting_outliers(
         The last solution; ``residual_px`` holds the residual of every
         observation at it, rejected ones included.
     outlier : (M,) bool ndarray
-        The observations that solution was computed without.
+        The observations beyond the threshold at that solution (when the
+        rounds converged, exactly those it was computed without; with
+        ``max_rounds=1``, the former single solve and fixed-threshold test).
     """
     obs_cam, obs_pt, obs_uv = np.asarray(obs_cam), np.asarray(obs_pt), np.asarray(obs_uv, dtype=float)
     X_in = np.asarray(points, dtype=float)
     bad = np.zeros(len(obs_cam), bool)
-    res = None
+    res, new = None, bad
     for _ in range(max_rounds):
-        bad_used = bad
         res = bundle_adjust(T_cam_map, X_in, obs_cam[~bad], obs_pt[~bad], obs_uv[~bad], K, fixed_cams=fixed_cams,
                             iterations=iterations, huber_px=huber_px)
         seen = np.bincount(obs_pt[~bad], minlength=len(X_in)) > 0
@@ -282,8 +283,7 @@ def bundle_adjust_rejecting_outliers(
         if np.array_equal(new, bad) or (~new).sum() < 10:
             break
         bad = new
-    # bad_used: the observations the returned solution was solved without
-    return res, bad_used
+    return res, new
 
 
 def refine_pose(
