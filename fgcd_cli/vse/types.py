@@ -84,6 +84,15 @@ class VseConfig:
         ... or fewer than this fraction of the last keyframe's landmarks are still tracked.
     ba_window : int
         Keyframes optimised by the windowed bundle adjustment.
+    outlier_sigmas : float
+        An observation is an outlier when its reprojection error exceeds this
+        many times the robust noise scale of the residuals (from their median;
+        chi-square with 2 degrees of freedom: 4 sigma is exceeded with
+        probability 3e-4). KLT tracks are good to ~0.05 px on slow motion, so a
+        fixed pixel threshold let tracks that slide along occluding contours
+        (errors of 1-20 px, absorbed by a wrong landmark depth) bias the poses.
+    outlier_min_px : float
+        ... but never below this many pixels (the tails of KLT errors).
     ba_iterations : int
         Levenberg-Marquardt iterations of each bundle adjustment.
     semidense : bool
@@ -133,6 +142,8 @@ class VseConfig:
     kf_max_rotation_deg: float = 6.0
     kf_min_tracked_fraction: float = 0.6
     ba_window: int = 8
+    outlier_sigmas: float = 4.0
+    outlier_min_px: float = 0.5
     ba_iterations: int = 8
     semidense: bool = True
     semidense_max_points_per_kf: int = 12000
