@@ -81,6 +81,11 @@ class AlignmentResult:
         ICP iterations over all resolution levels.
     seconds : float
         Wall-clock time of the call.
+    start : str
+        Which path ran: ``"warm"`` (finest level only), ``"warm, checked"`` (a warm run
+        that moved the scale by more than ``warm_check_scale_change`` or did not converge,
+        confirmed by the scale-minimum check), ``"warm -> cold"`` (a warm run handed over
+        to the cold-start search) or ``"cold"``.
     """
 
     T_ref_cur: Sim3
@@ -88,6 +93,7 @@ class AlignmentResult:
     health: AlignmentHealth
     iterations: int
     seconds: float
+    start: str = "cold"
 
     def to_dict(self) -> dict:
         """JSON-friendly form."""
@@ -97,6 +103,7 @@ class AlignmentResult:
             "health": asdict(self.health),
             "iterations": self.iterations,
             "seconds": self.seconds,
+            "start": self.start,
         }
 
 

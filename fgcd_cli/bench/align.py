@@ -203,6 +203,7 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
                                   config=FastAlignConfig(estimate_scale=False))
             row.update(_score("fast", fast.T_ref_cur, vse_poses, truths_ref, T_true, fast.health.ok))
             row["fast_seconds"] = fast.seconds
+            row["fast_start"] = fast.start
             row.update(_score("S", no_scale.T_ref_cur, vse_poses, truths_ref, T_true, no_scale.health.ok))
             if fast.health.ok and k < (3 if quick else 5):
                 fine = fine_align(ref_points=ref_index, cur_keyframes=keyframes, camera=camera, init=fast.T_ref_cur,
