@@ -4,9 +4,20 @@ A plane leaves in-plane translation and the rotation about its normal free; a
 sphere leaves every rotation about its centre free. Such clouds give a
 confident-looking ICP answer that is arbitrary along those directions, so the
 conditioning of the point-to-plane problem is checked explicitly.
+
+The conditioning uses normals smoothed over several centimetres (fine normals
+of a noisy VSE cloud would fake a constraint). That also smooths away what
+pins a near-planar object in practice: a shallow relief, mortar joints, the
+object's sides and plinth. So a poorly conditioned result is not called
+degenerate at once: the caller may *probe* its weak directions (perturb the
+result along each and let the alignment run again; see
+:func:`fgcd_cli.alignment.fast.probe_weak_directions`). Only if a perturbation
+stays where it was put is the geometry degenerate.
 """
 
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 
@@ -100,6 +111,9 @@ def assess(
     min_condition_ratio: float,
     scale: float,
     scale_bounds: tuple[float, float],
+    probe: Callable[[np.ndarray, np.ndarray], tuple[float, ...]] | None = None,
+    probe_return: float = 0.5,
+    probe_directions: int = 3,
 ) -> AlignmentHealth:
     """Combine the checks into one :class:`AlignmentHealth`.
 
@@ -112,14 +126,28 @@ def assess(
         Reference points (and normals) matched by inliers, for the conditioning.
     scale : float
         Result scale relative to the prior; must lie within ``scale_bounds``.
+    probe : callable(points, directions) -> tuple of float, optional
+        Called when the conditioning is below the limit, with the matched
+        points (K, 3) and the weakest eigenvectors (7, D) (at most
+        ``probe_directions``, weakest first, in the parameter order of
+        :func:`similarity_conditioning`); returns, per direction, the
+        fraction of a perturbation along it that the alignment left
+        unrecovered. The geometry is degenerate only if one of them exceeds
+        ``probe_return``.
     """
     d = np.asarray(distances, dtype=float)
     n = max(1, len(d))
     overlap = float(np.count_nonzero(d < overlap_threshold) / n)
     inlier_ratio = float(np.count_nonzero(d < inlier_threshold) / n)
     ratio, w, V = similarity_conditioning(matched_points, matched_normals)
-    degenerate = ratio < min_condition_ratio
-    weak = weak_direction_names(w, V, limit=min_condition_ratio) if degenerate else ()
+    weak = weak_direction_names(w, V, limit=min_condition_ratio) if ratio < min_condition_ratio else ()
+    remaining: tuple[float, ...] = ()
+    if weak and probe is not None and len(matched_points) >= 7:
+        remaining = tuple(float(r) for r in probe(np.asarray(matched_points, dtype=float),
+                                                  V[:, : min(len(weak), probe_directions)]))
+        degenerate = not remaining or max(remaining) > probe_return
+    else:
+        degenerate = bool(weak)
     problems = []
     if not converged:
         problems.append("did not converge")
@@ -128,8 +156,10 @@ def assess(
     if inlier_ratio < min_inlier_ratio:
         problems.append(f"inlier ratio {inlier_ratio:.0%} < {min_inlier_ratio:.0%}")
     if degenerate:
+        probed = (f"; perturbations along them kept {', '.join(f'{r:.0%}' for r in remaining)}"
+                  if remaining else "")
         problems.append(
-            f"degenerate geometry (condition {ratio:.1e} < {min_condition_ratio:.0e}; weak: {'; '.join(weak)})"
+            f"degenerate geometry (condition {ratio:.1e} < {min_condition_ratio:.0e}; weak: {'; '.join(weak)}{probed})"
         )
     if not (scale_bounds[0] <= scale <= scale_bounds[1]):
         problems.append(f"scale changed by a factor {scale:.3f}, outside [{scale_bounds[0]:.3f}, {scale_bounds[1]:.3f}]")
@@ -142,4 +172,5 @@ def assess(
         condition_ratio=ratio,
         degenerate=degenerate,
         weak_directions=weak,
+        weak_probe=remaining,
     )

@@ -159,7 +159,12 @@ def initial_guess(
     if not have_clouds:
         return InitialGuess(T_ref_cur=prior, source="first_camera", fast=None, seconds=time.perf_counter() - t0)
     fast = fast_align(cur_points, ref, init=prior, config=config)
-    if fast.health.ok or not global_fallback:
+    # Degenerate geometry (a plane, a sphere) is not cured by other starts: they only find
+    # other, equally good-looking fits (measured before the weak-direction probe: a stele
+    # whose prior fit was 0.5 px from the truth went to a 180-degree flip at 0.54 scale).
+    only_degenerate = (fast.health.degenerate and fast.health.inlier_ratio >= config.min_inlier_ratio
+                       and fast.health.overlap >= config.min_overlap)
+    if fast.health.ok or not global_fallback or only_degenerate:
         return InitialGuess(T_ref_cur=fast.T_ref_cur, source="first_camera+fast", fast=fast,
                             seconds=time.perf_counter() - t0)
     glob = global_registration(cur_points, ref, config=config, around=prior)

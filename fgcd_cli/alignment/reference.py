@@ -63,6 +63,9 @@ class ReferenceIndex:
         ``rms_radius``: RMS distance to the centroid (m); ``width``: largest
         extent along the principal axes (m); ``spacing``: median nearest-neighbour
         distance (m). ``width`` ignores the outer 1 % of points on each side.
+    view : (T_ref_cam (4, 4) ndarray, PinholeCamera), optional
+        The camera the cloud was captured for (the reference camera), which
+        tells the object's outline from the edge of the view (:attr:`view_rim`).
     """
 
     def __init__(
@@ -75,6 +78,7 @@ class ReferenceIndex:
         remove_outliers: bool = True,
         outlier_neighbours: int = 8,
         outlier_factor: float = 3.0,
+        view: tuple | None = None,
     ) -> None:
         pts = np.ascontiguousarray(np.asarray(points, dtype=float))
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:
@@ -120,6 +124,8 @@ class ReferenceIndex:
         self._contrast: np.ndarray | None = None
         self._roughness: float | None = None
         self._smooth: tuple | None = None
+        self._boundary: np.ndarray | None = None
+        self._view = view
 
     def __len__(self) -> int:
         return len(self.points)
@@ -168,6 +174,42 @@ class ReferenceIndex:
             pts = np.asarray(pcd.points)
             self._smooth = (pts, _unit_rows(np.asarray(pcd.normals)), cKDTree(pts))
         return self._smooth
+
+    @property
+    def view_rim(self) -> np.ndarray:
+        """(M,) bool: points on the cloud's rim where the rim is the edge of the view.
+
+        A point is on the rim when the centroid of its 24 nearest neighbours
+        lies more than 0.3 of the neighbourhood radius away from it (half a
+        disc puts it at 0.42, a full disc at 0). A rim is either the object's
+        own outline (where the surface ends; another session sees it end at
+        the same place) or where the camera stopped seeing a surface that goes
+        on, or a limb (the occluding contour of a curved surface, which moves
+        with the viewpoint). With ``view=(T_ref_cam, camera)`` given at
+        construction, rim points that the reference camera sees inside its
+        image (8 % from the border) on a surface facing it (normal within 60
+        degrees of the ray) are outline; every other rim point is view rim.
+        Without ``view`` every rim point is.
+        """
+        if self._boundary is None:
+            d, idx = self.tree.query(self.points, k=25, workers=2)
+            offset = np.linalg.norm(self.points[idx[:, 1:]].mean(axis=1) - self.points, axis=1)
+            rim = offset > 0.3 * d[:, -1]
+            if self._view is not None and np.any(rim):
+                T_ref_cam, camera = self._view
+                T = np.asarray(T_ref_cam, dtype=float)
+                uv, in_view = camera.project((self.points[rim] - T[:3, 3]) @ T[:3, :3])
+                m = 0.08 * min(camera.width, camera.height)
+                inner = in_view & (uv[:, 0] >= m) & (uv[:, 0] <= camera.width - 1 - m) \
+                    & (uv[:, 1] >= m) & (uv[:, 1] <= camera.height - 1 - m)
+                # An outline faces the camera up to where it ends; a limb (a sphere's or a
+                # drum's occluding contour) turns away from it and moves with the viewpoint.
+                rays = self.points[rim] - T[:3, 3]
+                rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+                facing = np.abs(np.sum(rays * self.normals[rim], axis=1)) >= 0.5
+                rim[np.flatnonzero(rim)[inner & facing]] = False
+            self._boundary = rim
+        return self._boundary
 
     @property
     def contrast(self) -> np.ndarray | None:

@@ -51,10 +51,15 @@ class AlignmentHealth:
         Smallest over largest eigenvalue of the normalised point-to-plane Hessian
         of the 7 similarity parameters (0 for a plane or a sphere).
     degenerate : bool
-        ``condition_ratio`` is below the configured limit.
+        ``condition_ratio`` is below the configured limit and (when probed)
+        a perturbation along a weak direction was not recovered.
     weak_directions : tuple of str
-        Names of the poorly constrained parameter combinations ("translation",
+        Names of the poorly conditioned parameter combinations ("translation",
         "rotation", "scale" mixtures), empty when well conditioned.
+    weak_probe : tuple of float
+        Per probed weak direction, the fraction of a perturbation the
+        alignment left unrecovered (about 0: the direction is pinned after
+        all; about 1 or more: it is free). Empty when not probed.
     """
 
     ok: bool
@@ -65,6 +70,7 @@ class AlignmentHealth:
     condition_ratio: float
     degenerate: bool
     weak_directions: tuple[str, ...] = ()
+    weak_probe: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -163,7 +163,8 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
         ref_state, ref_truth, scale_error=0.0, renderer=renderer, intr=intr, camera=camera)
     # The reference frame is the world frame as the reference session's VSE saw it.
     ref_points = T_world_ref.apply(ref_pts)  # reference frame := world (as the reference VSE saw it)
-    ref_index = ReferenceIndex(ref_points, intensities=np.asarray(ref_state.cloud.intensities, dtype=float))
+    ref_index = ReferenceIndex(ref_points, intensities=np.asarray(ref_state.cloud.intensities, dtype=float),
+                               view=(T0, camera))
     session_specs = [("sun-morning", 0.04, 0.015)] if quick else [
         ("sun-morning", 0.04, 0.015), ("led:3", -0.05, -0.02), ("overcast", 0.02, 0.03)]
     trials_per_session = 6 if quick else 10
@@ -239,7 +240,7 @@ def _degenerate_case(scene_name, intr, camera, rng, *, frames: int) -> dict:
         return {"scene": scene_name, "vse_failed": True}
     _, ref_pts, T_world_ref, _, _ = _metric_session(ref_state, ref_truth, scale_error=0.0)
     _, cur_pts, T_world_cur, _, _ = _metric_session(cur_state, cur_truth, scale_error=0.01)
-    ref = ReferenceIndex(T_world_ref.apply(ref_pts))
+    ref = ReferenceIndex(T_world_ref.apply(ref_pts), view=(T0, camera))
     init = random_similarity(rng, rotation_deg=2.0, translation_m=0.02, scale_rel=0.02) @ T_world_cur
     res = fast_align(cur_pts, ref, init=init)
     return {"scene": scene_name, "flagged_degenerate": bool(res.health.degenerate), "ok": bool(res.health.ok),

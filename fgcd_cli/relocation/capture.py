@@ -252,7 +252,8 @@ def relocate_and_capture(
     from fgcd_cli.alignment import ReferenceIndex
 
     reference = load_reference(station)
-    ref_index = ReferenceIndex(reference.points, intensities=reference.intensities)
+    ref_index = ReferenceIndex(reference.points, intensities=reference.intensities,
+                               view=(reference.T_ref_camref, rig.intrinsics))
     session, vse, scale, _ = _start_session(rig, explore_m=explore_m, legs=explore_legs)
     try:
         first = session.tracking_state()
