@@ -142,6 +142,8 @@ def _summarise(results: list[dict], mode: str) -> dict:
         "mean_afd_px": mean([r["afd_px"] for r in rows if math.isfinite(r.get("afd_px", float("nan")))]),
         "mean_afd_px_racr_only": mean([r["afd_px_racr_only"] for r in rows if "afd_px_racr_only" in r]),
         "image_stage_used": sum(r.get("image_stage") == "ok" for r in rows),
+        # converged in 3D (rACR proper), not rescued by the image fallback
+        "racr_converged": sum(bool(r.get("converged")) and "image fallback" not in r.get("reason", "") for r in rows),
         "mean_iterations": mean([r["adjustments"] for r in ok]),
         "mean_sim_time_s": mean([r["session_s"] for r in ok]),
         "mean_platform_s": mean([r["platform_s"] for r in ok]),
