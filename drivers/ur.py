@@ -179,6 +179,12 @@ class URConfig:
     stale_after_s : float
         A state whose controller timestamp has not advanced for this long is
         stale (the controller streams at 125 or 500 Hz): the link is treated as lost.
+    stop_timeout_s : float
+        ``stop()`` returns after at most this long: ur_rtde can block inside
+        ``stopL`` for minutes while it tries to reconnect to a controller that
+        is gone (measured: > 90 s on a loaded machine), and a stop must never
+        hang the tool (the controller stops the arm by itself when its
+        connection drops).
     """
 
     host: str
@@ -193,6 +199,7 @@ class URConfig:
     arrival_margin_s: float = 5.0
     poll_s: float = 0.02
     stale_after_s: float = 0.5
+    stop_timeout_s: float = 2.0
 
 
 class URPlatform:
@@ -425,11 +432,18 @@ class URPlatform:
         c = self._rtde_c
         if c is None or self._hung(self._rtde_r):
             return  # nothing can be sent to a hung controller (and ur_rtde would block)
-        try:
-            if c.isConnected() and c.isProgramRunning():
-                c.stopL(self.config.max_linear_acc_m_s2 * 2.0)
-        except RuntimeError:
-            pass
+
+        def send_stop() -> None:
+            try:
+                if c.isConnected() and c.isProgramRunning():
+                    c.stopL(self.config.max_linear_acc_m_s2 * 2.0)
+            except RuntimeError:
+                pass
+
+        # In a daemon thread: ur_rtde may block in its reconnect loop (see URConfig.stop_timeout_s).
+        sender = threading.Thread(target=send_stop, name="fgcd-ur-stop", daemon=True)
+        sender.start()
+        sender.join(self.config.stop_timeout_s)
 
     def home(self) -> None:
         """A UR arm has no homing cycle: its home is a taught pose, reached by moves."""

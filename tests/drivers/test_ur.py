@@ -270,3 +270,26 @@ def test_refused_port_is_connection_error():
             pytest.skip("something else listens on 30004")
     with pytest.raises(PlatformConnectionError, match="cannot reach"):
         preflight("127.0.0.1", timeout_s=0.5)
+
+
+def test_stop_returns_even_when_ur_rtde_blocks_in_stopL():
+    # ur_rtde can sit in its reconnect loop inside stopL for minutes when the controller is
+    # gone; Ctrl-C and failure paths call stop() and must not hang with it.
+    released = threading.Event()
+
+    class BlockingControl:
+        def isConnected(self):
+            return True
+
+        def isProgramRunning(self):
+            return True
+
+        def stopL(self, _acc):
+            released.wait(30.0)
+
+    arm = URPlatform(URConfig(host="127.0.0.1", stop_timeout_s=0.3))
+    arm._rtde_c = BlockingControl()
+    t0 = time.monotonic()
+    arm.stop()
+    assert time.monotonic() - t0 < 2.0
+    released.set()
