@@ -108,6 +108,13 @@ class RelocationConfig:
     divergence_patience: int = 2
     """Pause with an error when the estimated offset exceeds ``factor x best + margin``
     this many adjustments in a row (the loop should shrink it every time)."""
+    max_offset_m: float = 0.25
+    max_offset_deg: float = 20.0
+    """Pause (and let the image fallback try) when an estimate puts the camera farther than this
+    from the reference pose: rACR starts a revisit within a few centimetres (the exploration moves
+    4 cm), so such an estimate is a confidently wrong alignment, or a start that needs the active
+    coarse stage first. Measured (bench relocate, outdoor-5, statue, serial): a first estimate at
+    1.19 m, trusted, led the loop 50 mm the wrong way before the divergence stop fired."""
     image_refine: bool = True
     """After the 3D loop converges, refine from the reference images
     (:mod:`fgcd_cli.relocation.image_refine`) when the evidence is strong."""
@@ -410,6 +417,12 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
         records.append(rec)
         if on_record:
             on_record(rec)
+        if adj.offset_mm > config.max_offset_m * 1e3 or adj.offset_deg > config.max_offset_deg:
+            raise AlgorithmError(
+                f"the alignment puts the camera {adj.offset_mm:.0f} mm / {adj.offset_deg:.1f} deg from the reference, "
+                f"beyond the {config.max_offset_m * 1e3:.0f} mm / {config.max_offset_deg:.0f} deg a revisit starts "
+                "within; motion paused (a wrong alignment, or a start far from the reference)"
+            )
         # Convergence check (paper §3.7: each adjustment shrinks the offset while the
         # hand-eye rotation error is below 45 deg). An estimate that keeps growing means the
         # estimates or the hand-eye are wrong: stop rather than wander next to the object.

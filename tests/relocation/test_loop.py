@@ -431,3 +431,19 @@ def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monk
     with pytest.raises(MotionRejected):
         session.guard.move_by(np.eye(4))
     assert "fgcd-alignment" not in {t.name for t in threading.enumerate()} - before
+
+
+@pytest.mark.parametrize("mode", ["parallel", "serial"])
+def test_an_estimate_far_beyond_any_revisit_start_pauses_before_moving(monkeypatch, mode):
+    """A confidently wrong alignment that puts the camera a metre away: no motion at all."""
+    from fgcd_cli.errors import AlgorithmError
+
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
+    wrong = Sim3.from_pose(exp_se3([0.8, -0.5, 0.3, 0.0, 0.0, 0.0])) @ T_ref_cur  # ~1 m off
+    _exact_estimates(monkeypatch, wrong)
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    with pytest.raises(AlgorithmError, match="beyond the 250 mm"):
+        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                       init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6))
+    vse.stop()
+    assert platform.moves == 0
