@@ -270,6 +270,11 @@ class AlignmentWorker:
         with self._lock:
             return self._latest
 
+    def latest_ok(self) -> AlignmentEstimate | None:
+        """The newest trustworthy estimate, if the newest published one is trustworthy."""
+        with self._lock:
+            return self._latest if self._latest is not None and self._latest.ok else None
+
     def _run(self) -> None:
         last_frame = -1
         try:
@@ -331,6 +336,10 @@ class AdjustmentRecord:
     truth: dict | None = None
     image: dict | None = None
     """Image stage only: matches, inliers, RMS, measured AFD, reference image."""
+    estimate_serial: int | None = None
+    estimate_vse_frame: int | None = None
+    """3D stages: the alignment estimate used (its publication number and the VSE frame it saw);
+    in parallel mode a motion may reuse an estimate of the view before the previous motion."""
 
     def to_json(self) -> str:
         return json.dumps(self.__dict__, ensure_ascii=False)
@@ -360,10 +369,19 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
     last_serial = 0
     best_offset: tuple[float, float] | None = None  # smallest estimated remaining offset so far (mm, deg)
     growths = 0
+    moved_at_frame = -1  # VSE frame count when the last motion ended
     for iteration in range(1, config.max_adjustments + 1):
         state = session.tracking_state()
         if config.mode == "parallel":
-            est = _wait_for_estimate(worker, last_serial, config, session)
+            # Latest-value hand-over (paper Fig. 2): T_ref_cur maps the session's map frame, which
+            # does not move with the camera, so the latest trustworthy estimate and the VSE's
+            # current pose give the next motion without waiting for an alignment of the new view.
+            # Only the decision to stop waits for an estimate computed after the last motion.
+            latest = worker.latest_ok() if iteration > 1 else None
+            if latest is not None and latest.serial >= last_serial:
+                est = latest
+            else:
+                est = _wait_for_estimate(worker, last_serial, config, session)
             state = session.vse.latest() if session.vse.latest().status == "tracking" else state
         else:
             t0 = time.monotonic()
@@ -384,16 +402,27 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             est = oks[-1] if oks else ests[-1]
             if not est.ok:
                 raise AlgorithmError(f"alignment failed, motion paused: {est.reason}")
+        def adjustment_for(est: AlignmentEstimate, state) -> Adjustment:
+            return compute_adjustment(
+                T_ref_cur=est.T_ref_cur,
+                T_cur_cam=_scaled_pose(state.T_map_cam, scale),
+                T_ref_camref=reference.T_ref_camref,
+                T_flange_cam=T_flange_cam,
+                max_step_m=config.max_step_m,
+                max_step_rad=config.max_step_rad,
+            )
+
+        adj = adjustment_for(est, state)
+        while (config.mode == "parallel" and est.vse_frame < moved_at_frame
+               and (adj.g <= config.eta
+                    or estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera)
+                    <= config.stop_afd_px)):
+            # About to stop on an estimate of the view before the last motion: confirm it first.
+            est = _wait_for_estimate(worker, est.serial, config, session)
+            state = session.vse.latest() if session.vse.latest().status == "tracking" else state
+            adj = adjustment_for(est, state)
         last_serial = est.serial
         current_init = est.T_ref_cur
-        adj: Adjustment = compute_adjustment(
-            T_ref_cur=est.T_ref_cur,
-            T_cur_cam=_scaled_pose(state.T_map_cam, scale),
-            T_ref_camref=reference.T_ref_camref,
-            T_flange_cam=T_flange_cam,
-            max_step_m=config.max_step_m,
-            max_step_rad=config.max_step_rad,
-        )
         rec = AdjustmentRecord(
             iteration=iteration,
             t_wall_s=time.monotonic() - t_start,
@@ -413,6 +442,8 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             sigma=est.T_ref_cur.scale,
             afd_est_px=estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera),
             truth=evaluate() if evaluate else None,
+            estimate_serial=est.serial,
+            estimate_vse_frame=est.vse_frame,
         )
         records.append(rec)
         if on_record:
@@ -452,6 +483,7 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             )
             break
         session.move_by(adj.M_flange_commanded)
+        moved_at_frame = session.vse.latest().frames_processed
     else:
         result = RelocationResult(False, f"not converged after {config.max_adjustments} adjustments", config.max_adjustments)
     return result

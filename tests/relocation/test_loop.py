@@ -447,3 +447,35 @@ def test_an_estimate_far_beyond_any_revisit_start_pauses_before_moving(monkeypat
                        init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6))
     vse.stop()
     assert platform.moves == 0
+
+
+def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(monkeypatch):
+    """Latest-value hand-over: a slow alignment does not hold the motions back (the map frame
+    does not move with the camera), but the stop is decided on an estimate of the final view."""
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case(proportional=0.2)
+
+    def slow_exact(*, serial=0, state=None, **kw):
+        time.sleep(0.4)
+        return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
+                                  vse_frame=state.frames_processed, seconds=0.4, serial=serial)]
+
+    monkeypatch.setattr(loop_mod, "align_once", slow_exact)
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    frames_after_motion = []
+    original_move = session.move_by
+
+    def move_and_note(M):
+        out = original_move(M)
+        frames_after_motion.append(vse.latest().frames_processed)
+        return out
+
+    session.move_by = move_and_note
+    res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12))
+    vse.stop()
+    assert res.converged
+    serials = [r.estimate_serial for r in res.records]
+    assert len(set(serials)) < len(serials)  # some motions reused the previous estimate
+    assert res.records[-1].estimate_vse_frame >= frames_after_motion[-1]  # the stop saw the final view
+    mm, _ = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)
+    assert mm < 0.2
