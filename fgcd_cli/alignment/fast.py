@@ -34,7 +34,7 @@ from fgcd_cli.alignment.sparse_icp import (
     sparse_point_to_point_step,
     trimmed_point_to_plane_step,
 )
-from fgcd_cli.geometry import Sim3, make_pose
+from fgcd_cli.geometry import Sim3, exp_se3, make_pose
 
 __all__ = ["FastAlignConfig", "fast_align", "initial_scale", "as_reference", "evaluate_alignment",
            "probe_weak_directions"]
@@ -100,9 +100,9 @@ class FastAlignConfig:
     """Below the limit, probe the weak directions before calling the geometry degenerate
     (:func:`probe_weak_directions`). Measured on relocation sessions (VSE clouds, 640 x 480):
     the stele, mural, stupa and brick wall sit at 1e-3-5e-3 with smoothed normals, yet
-    perturbations along their three weakest directions come back to within 1-3 % and the
-    results are 0.4-0.8 px from the truth; on the plane scene they stay (100-300 %) and the
-    result is 30 px off."""
+    perturbations along their three weakest directions come back to within 5-30 % and the
+    results are 0.3-0.8 px from the truth; on the plane and sphere scenes they stay (77-230 %)
+    and the results are 1-42 px off."""
     weak_probe_rel: float = 0.01
     """Size of a probe perturbation: RMS displacement of the matched points, fraction of the
     reference width (at least 3 times the reference roughness)."""
@@ -562,8 +562,6 @@ def _perturbation(direction: np.ndarray, centre: np.ndarray, radius: float) -> S
     """Similarity (reference frame) of a 7-vector in the normalised parameters of
     :func:`~fgcd_cli.alignment.health.similarity_conditioning`: translation ``radius * v[:3]``,
     rotation ``v[3:6]`` and log-scale ``v[6]`` about ``centre``."""
-    from fgcd_cli.geometry import exp_se3
-
     R = exp_se3(np.r_[0.0, 0.0, 0.0, direction[3:6]])[:3, :3]
     s = math.exp(float(direction[6]))
     return Sim3(R, centre + radius * direction[:3] - s * (R @ centre), s)

@@ -124,7 +124,7 @@ class ReferenceIndex:
         self._contrast: np.ndarray | None = None
         self._roughness: float | None = None
         self._smooth: tuple | None = None
-        self._boundary: np.ndarray | None = None
+        self._view_rim: np.ndarray | None = None
         self._view = view
 
     def __len__(self) -> int:
@@ -191,7 +191,7 @@ class ReferenceIndex:
         degrees of the ray) are outline; every other rim point is view rim.
         Without ``view`` every rim point is.
         """
-        if self._boundary is None:
+        if self._view_rim is None:
             d, idx = self.tree.query(self.points, k=25, workers=2)
             offset = np.linalg.norm(self.points[idx[:, 1:]].mean(axis=1) - self.points, axis=1)
             rim = offset > 0.3 * d[:, -1]
@@ -208,8 +208,8 @@ class ReferenceIndex:
                 rays /= np.linalg.norm(rays, axis=1, keepdims=True)
                 facing = np.abs(np.sum(rays * self.normals[rim], axis=1)) >= 0.5
                 rim[np.flatnonzero(rim)[inner & facing]] = False
-            self._boundary = rim
-        return self._boundary
+            self._view_rim = rim
+        return self._view_rim
 
     @property
     def contrast(self) -> np.ndarray | None:

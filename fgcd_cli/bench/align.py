@@ -362,7 +362,8 @@ def run(*, quick: bool) -> dict:
         "near_planar_trusted_rate": float(np.mean([bool(d.get("ok")) for d in vse["degenerate_scenes"]
                                                    if d["scene"] in NEAR_PLANAR_SCENES])),
         "near_planar_confident_wrong": int(sum(bool(d.get("fast_ok")) and not d.get("fast_success")
-                                               for d in vse["degenerate_scenes"])),
+                                               for d in vse["degenerate_scenes"]
+                                               if d["scene"] in NEAR_PLANAR_SCENES)),
         "fast_confident_wrong_rate": float(np.mean([r["fast_ok"] and not r["fast_success"] for r in rows]))
         if rows else float("nan"),
     }

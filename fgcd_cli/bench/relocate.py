@@ -120,6 +120,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
             if racr:
                 out[mode]["afd_px_racr_only"] = racr[-1].truth["afd_px"]
             image = [rec for rec in r.records if rec.stage == "image"]
+            out[mode]["image_fallback"] = any(rec.image and rec.image.get("fallback") for rec in image)
             out[mode]["image_stage"] = ("not run" if not image else
                                         "ok" if all(rec.alignment_ok for rec in image) else image[-1].alignment_reason)
         except FgcdError as exc:
@@ -143,7 +144,7 @@ def _summarise(results: list[dict], mode: str) -> dict:
         "mean_afd_px_racr_only": mean([r["afd_px_racr_only"] for r in rows if "afd_px_racr_only" in r]),
         "image_stage_used": sum(r.get("image_stage") == "ok" for r in rows),
         # converged in 3D (rACR proper), not rescued by the image fallback
-        "racr_converged": sum(bool(r.get("converged")) and "image fallback" not in r.get("reason", "") for r in rows),
+        "racr_converged": sum(bool(r.get("converged")) and not r.get("image_fallback") for r in rows),
         "mean_iterations": mean([r["adjustments"] for r in ok]),
         "mean_sim_time_s": mean([r["session_s"] for r in ok]),
         "mean_platform_s": mean([r["platform_s"] for r in ok]),

@@ -370,6 +370,23 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
     best_offset: tuple[float, float] | None = None  # smallest estimated remaining offset so far (mm, deg)
     growths = 0
     moved_at_frame = -1  # VSE frame count when the last motion ended
+
+    def adjustment_for(est: AlignmentEstimate, state) -> Adjustment:
+        return compute_adjustment(
+            T_ref_cur=est.T_ref_cur,
+            T_cur_cam=_scaled_pose(state.T_map_cam, scale),
+            T_ref_camref=reference.T_ref_camref,
+            T_flange_cam=T_flange_cam,
+            max_step_m=config.max_step_m,
+            max_step_rad=config.max_step_rad,
+        )
+
+    def afd_of(adj: Adjustment) -> float:
+        return estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera)
+
+    def stops(adj: Adjustment, afd_est_px: float) -> bool:
+        return adj.g <= config.eta or afd_est_px <= config.stop_afd_px
+
     for iteration in range(1, config.max_adjustments + 1):
         state = session.tracking_state()
         if config.mode == "parallel":
@@ -402,25 +419,14 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             est = oks[-1] if oks else ests[-1]
             if not est.ok:
                 raise AlgorithmError(f"alignment failed, motion paused: {est.reason}")
-        def adjustment_for(est: AlignmentEstimate, state) -> Adjustment:
-            return compute_adjustment(
-                T_ref_cur=est.T_ref_cur,
-                T_cur_cam=_scaled_pose(state.T_map_cam, scale),
-                T_ref_camref=reference.T_ref_camref,
-                T_flange_cam=T_flange_cam,
-                max_step_m=config.max_step_m,
-                max_step_rad=config.max_step_rad,
-            )
-
         adj = adjustment_for(est, state)
-        while (config.mode == "parallel" and est.vse_frame < moved_at_frame
-               and (adj.g <= config.eta
-                    or estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera)
-                    <= config.stop_afd_px)):
+        afd_est = afd_of(adj)
+        while config.mode == "parallel" and est.vse_frame < moved_at_frame and stops(adj, afd_est):
             # About to stop on an estimate of the view before the last motion: confirm it first.
             est = _wait_for_estimate(worker, est.serial, config, session)
             state = session.vse.latest() if session.vse.latest().status == "tracking" else state
             adj = adjustment_for(est, state)
+            afd_est = afd_of(adj)
         last_serial = est.serial
         current_init = est.T_ref_cur
         rec = AdjustmentRecord(
@@ -440,7 +446,7 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             alignment_reason=est.reason,
             scale=scale,
             sigma=est.T_ref_cur.scale,
-            afd_est_px=estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera),
+            afd_est_px=afd_est,
             truth=evaluate() if evaluate else None,
             estimate_serial=est.serial,
             estimate_vse_frame=est.vse_frame,

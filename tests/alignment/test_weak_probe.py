@@ -9,7 +9,6 @@ perturbation test tells the joints pin the in-plane motion.
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
 from fgcd_cli.alignment.synthetic import look_at
@@ -112,8 +111,7 @@ def test_view_rim_tells_an_outline_from_the_edge_of_the_view_and_a_limb():
     assert _rim_share(ball[visible], T_ref_cam, near_limb) > 0.8
 
 
-@pytest.mark.parametrize("joints", [True])
-def test_probe_reports_one_value_per_probed_direction(joints):
-    result, _ = _align_wall(joints=joints)
+def test_probe_reports_one_value_per_probed_direction():
+    result, _ = _align_wall(joints=True)
     assert len(result.health.weak_probe) == min(len(result.health.weak_directions),
                                                 FastAlignConfig().weak_probe_directions)
