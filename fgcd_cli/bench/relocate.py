@@ -70,7 +70,12 @@ CASES: list[Case] = [
 QUICK = ["indoor-1", "indoor-2", "outdoor-1"]
 
 
-def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
+def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tuple] | None = None) -> dict:
+    """Calibrate, capture the reference, then relocate once per mode.
+
+    ``runs`` (label, mode, coarse config or None), when given, replaces ``modes``: the
+    coarse-stage benchmark relocates the same reference with and without the stage.
+    """
     from fgcd_cli.demo import calibrate_sim_handeye, calibrate_sim_intrinsics
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
@@ -97,7 +102,10 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
         out["error"] = f"setup: {exc}"
         say(f"{case.name}: setup failed: {exc}")
         return out
-    for i, mode in enumerate(modes):
+    from fgcd_cli.relocation.coarse import CoarseConfig
+
+    runs = runs if runs is not None else [(m, m, CoarseConfig()) for m in modes]
+    for i, (label, mode, coarse) in enumerate(runs):
         scen = SimScenario(scene=case.scene, seed=case.seed, lighting=case.visit_light, changes=3, change_seed=7,
                            start_offset_mm=case.offset_mm, start_offset_deg=case.offset_deg, session_seed=1 + i)
         rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=cam)
@@ -105,10 +113,10 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
         try:
             t0 = time.monotonic()
             vis = relocate_and_capture(rig.handles, st, config=RelocationConfig(mode=mode), lightings=[case.visit_light, case.reference_light],
-                                       evaluate=ev.evaluate, evaluation=ev.summary)
+                                       evaluate=ev.evaluate, evaluation=ev.summary, coarse=coarse)
             r = vis.relocation
             truth = ev.evaluate()
-            out[mode] = {
+            out[label] = {
                 "converged": r.converged, "reason": r.reason, "adjustments": r.adjustments,
                 "afd_px": truth["afd_px"], "pose_err_mm": truth["pose_err_mm"], "pose_err_deg": truth["pose_err_deg"],
                 "session_s": r.session_s, "platform_s": r.platform_s, "synthetic_s": r.synthetic_s,
@@ -118,19 +126,35 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say) -> dict:
             # The 3D loop's own end (before the final image stage), from the log's evaluation records.
             racr = [rec for rec in r.records if rec.stage != "image" and rec.truth]
             if racr:
-                out[mode]["afd_px_racr_only"] = racr[-1].truth["afd_px"]
+                out[label]["afd_px_racr_only"] = racr[-1].truth["afd_px"]
             image = [rec for rec in r.records if rec.stage == "image"]
-            out[mode]["image_fallback"] = any(rec.image and rec.image.get("fallback") for rec in image)
-            out[mode]["image_stage"] = ("not run" if not image else
+            out[label]["image_fallback"] = any(rec.image and rec.image.get("fallback") for rec in image)
+            out[label]["coarse"] = _coarse_summary(vis.coarse)
+            out[label]["image_stage"] = ("not run" if not image else
                                         "ok" if all(rec.alignment_ok for rec in image) else image[-1].alignment_reason)
         except FgcdError as exc:
             truth = ev.evaluate()
-            out[mode] = {"error": str(exc), "success": False, "afd_px": truth["afd_px"],
-                         "pose_err_mm": truth["pose_err_mm"]}
+            out[label] = {"error": str(exc), "success": False, "afd_px": truth["afd_px"],
+                          "pose_err_mm": truth["pose_err_mm"]}
         finally:
             rig.close()
-        say(f"{case.name} [{mode}]: {out[mode]}")
+        say(f"{case.name} [{label}]: {out[label]}")
     return out
+
+
+def _coarse_summary(result) -> dict | None:
+    """The coarse stage's outcome with the truth at its end (evaluation only)."""
+    if result is None:
+        return None
+    last = result.steps[-1] if result.steps else None
+    truth = last.truth if last is not None else None
+    return {"handed_over": result.handed_over, "reason": result.reason, "steps": len(result.steps),
+            "moves": sum(s.action == "move" for s in result.steps),
+            "looks": sum(s.action == "look" for s in result.steps),
+            "start_err_mm": result.steps[0].truth["pose_err_mm"] if result.steps and result.steps[0].truth else None,
+            "start_err_deg": result.steps[0].truth["pose_err_deg"] if result.steps and result.steps[0].truth else None,
+            "end_err_mm": truth["pose_err_mm"] if truth else None,
+            "end_err_deg": truth["pose_err_deg"] if truth else None}
 
 
 def _summarise(results: list[dict], mode: str) -> dict:

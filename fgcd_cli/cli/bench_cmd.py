@@ -172,3 +172,39 @@ def relocate(
             console.print(f"[bold]{k}[/bold] = {v:.3f}" + (f"  (target {t})" if t is not None else ""))
 
     emit(data, as_json=as_json, render=show)
+
+
+@app.command("coarse")
+def coarse(
+    quick: bool = typer.Option(False, "--quick", help="A 2-case subset."),
+    no_baseline: bool = typer.Option(False, "--no-baseline", help="Skip the runs without the coarse stage."),
+    case: Optional[list[str]] = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """The active coarse stage (paper 001) from far starts: hand-over within 5 cm / 5 deg, then rACR."""
+    from fgcd_cli.bench.coarse import run
+
+    data = run(quick=quick, baseline=not no_baseline, say=info, cases=case)
+
+    def show(console):
+        for r in data["cases"]:
+            for label in ("coarse", "baseline"):
+                m = r.get(label)
+                if m is None:
+                    continue
+                if "error" in m:
+                    console.print(f"{r['case']:<6} {label:<8} [red]error[/red]: {m['error']} "
+                                  f"(AFD {m.get('afd_px', float('nan')):.2f} px)")
+                    continue
+                c = m.get("coarse") or {}
+                stage = (f"coarse {c.get('steps')} steps, end {c.get('end_err_mm') or float('nan'):.0f} mm / "
+                         f"{c.get('end_err_deg') or float('nan'):.1f} deg" if c else "no coarse stage")
+                console.print(f"{r['case']:<6} {label:<8} AFD {m['afd_px']:6.2f} px  {m['adjustments']} adj  "
+                              f"{m['session_s']:6.1f} s rig  {stage}")
+            if "error" in r:
+                console.print(f"{r['case']:<6} [red]{r['error']}[/red]")
+        for k, v in data["summary"].items():
+            t = data["targets"].get(k)
+            console.print(f"[bold]{k}[/bold] = {v:.3f}" + (f"  (target {t})" if t is not None else ""))
+
+    emit(data, as_json=as_json, render=show)

@@ -28,6 +28,7 @@ from fgcd_cli.relocation.loop import (
     RelocationResult,
     run_relocation,
 )
+from fgcd_cli.relocation.coarse import CoarseConfig, CoarseResult, run_coarse_stage
 from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
 
 __all__ = ["RigHandles", "CaptureResult", "capture_reference", "relocate_and_capture", "grab_images", "load_reference"]
@@ -72,6 +73,8 @@ class CaptureResult:
     images: list[str]
     relocation: RelocationResult | None = None
     extra: dict = field(default_factory=dict)
+    coarse: CoarseResult | None = None
+    """The active coarse stage's outcome, when it ran (far starts only)."""
 
 
 def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> dict[str, np.ndarray]:
@@ -247,8 +250,14 @@ def relocate_and_capture(
     evaluate: Callable[[], dict] | None = None,
     on_record: Callable[[AdjustmentRecord], None] | None = None,
     evaluation: Callable[[], dict] | None = None,
+    coarse: CoarseConfig | None = CoarseConfig(),
 ) -> CaptureResult:
-    """Relocate to the station's reference pose with rACR, then write a visit."""
+    """Relocate to the station's reference pose with rACR, then write a visit.
+
+    When the first estimate puts the camera farther than ``coarse.trigger_*`` from the
+    reference pose, the active coarse stage (:mod:`fgcd_cli.relocation.coarse`, paper 001)
+    runs first; ``coarse=None`` leaves it out (the loop then pauses on such a start).
+    """
     from fgcd_cli.alignment import ReferenceIndex
 
     reference = load_reference(station)
@@ -269,6 +278,10 @@ def relocate_and_capture(
         init = guess.T_ref_cur
         rig.say(f"initial alignment: {guess.source}"
                 + (f" ({guess.fast.health.reason})" if guess.fast is not None else ""))
+        coarse_result = None
+        if coarse is not None:
+            coarse_result, init = _maybe_coarse(rig, session, reference, ref_index, station, scale.scale, init,
+                                                coarse, evaluate)
         rig.say(f"relocating ({config.mode}) to the reference of station '{station.name}'")
         result = run_relocation(
             session=session,
@@ -300,6 +313,10 @@ def relocate_and_capture(
                 "synthetic_s": result.synthetic_s,
                 "mode": config.mode,
             },
+            "coarse": None if coarse_result is None else {
+                "handed_over": coarse_result.handed_over, "reason": coarse_result.reason,
+                "steps": len(coarse_result.steps),
+            },
             "T_flange_cam": np.asarray(rig.T_flange_cam).tolist(),
             "T_base_flange": np.asarray(rig.guard.platform.flange_pose()).tolist(),
             "intrinsics": rig.intrinsics.to_dict(),
@@ -313,9 +330,41 @@ def relocate_and_capture(
             w.add_bytes(
                 "relocation.jsonl", "".join(r.to_json() + "\n" for r in result.records).encode("utf-8")
             )
+            if coarse_result is not None and coarse_result.steps:
+                w.add_bytes("coarse.jsonl", "".join(json.dumps(st.to_dict(), default=float) + "\n"
+                                                    for st in coarse_result.steps).encode("utf-8"))
             if evaluation is not None:
                 w.add_json("evaluation/sim_truth.json", evaluation())
             obs = w.commit()
     finally:
         vse.stop()
-    return CaptureResult(str(obs.path), scale, int(len(points)), list(images), relocation=result)
+    return CaptureResult(str(obs.path), scale, int(len(points)), list(images), relocation=result,
+                         coarse=coarse_result)
+
+
+def _maybe_coarse(rig, session, reference, ref_index, station, scale: float, init, config: CoarseConfig,
+                  evaluate) -> tuple[CoarseResult | None, object]:
+    """Run the active coarse stage when the first estimate is far from the reference pose.
+
+    Returns the stage's result (None when it did not run) and the alignment the rACR loop
+    starts from: the stage's verified one, or the first one when the stage could not verify
+    any (the loop then pauses on the far estimate and its image fallback tries, as before).
+    """
+    from fgcd_cli.geometry.se3 import pose_distance
+    from fgcd_cli.relocation.adjustment import camera_in_reference
+
+    state = session.tracking_state()
+    T_cur_cam = np.array(state.T_map_cam, dtype=float)
+    T_cur_cam[:3, 3] *= scale
+    off_mm, off_deg = pose_distance(camera_in_reference(init, T_cur_cam), reference.T_ref_camref)
+    if off_mm <= config.trigger_m * 1e3 and off_deg <= config.trigger_deg:
+        return None, init
+    rig.say(f"first estimate {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
+    result = run_coarse_stage(session=session, reference=reference, ref_index=ref_index, camera=rig.intrinsics,
+                              scale=scale, T_flange_cam=rig.T_flange_cam, init=init,
+                              reference_images=_reference_images(station), grab_current=lambda: _grab_gray(rig),
+                              config=config, evaluate=evaluate, say=rig.say)
+    if not result.handed_over:
+        rig.say(f"{result.reason}; the rACR loop starts from the first estimate")
+        return result, init
+    return result, result.init
