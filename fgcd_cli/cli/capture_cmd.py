@@ -137,6 +137,9 @@ def relocate(
     no_handeye: bool = typer.Option(False, "--no-handeye", help="Guess X = I instead of the calibration (rACR Table 3)."),
     no_image_refine: bool = typer.Option(False, "--no-image-refine",
                                          help="Skip the image stage and its fallback (pure rACR: 3D alignment only)."),
+    no_coarse: bool = typer.Option(False, "--no-coarse",
+                                   help="Leave out the active coarse stage (paper 001) that first brings a far start "
+                                        "(beyond 10 cm / 8 deg) near the reference; the loop then pauses on such a start."),
     eta: float = typer.Option(1e-4, "--eta", help="Stop when ||M_B - I|| <= eta."),
     max_adjustments: int = typer.Option(12, "--max-adjustments"),
     port: str = typer.Option(None, "--port"),
@@ -147,6 +150,7 @@ def relocate(
     """Drive the camera back to a station's reference pose (rACR) and record a visit."""
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.capture import relocate_and_capture
+    from fgcd_cli.relocation.coarse import CoarseConfig
     from fgcd_cli.relocation.loop import RelocationConfig
     from fgcd_cli.rigs import open_rig
 
@@ -174,14 +178,18 @@ def relocate(
             metadata={"driver": driver, "scenario": rig.info.get("scenario"), "no_handeye": no_handeye},
             evaluate=evaluator.evaluate if evaluator else None, on_record=print_record,
             evaluation=evaluator.summary if evaluator else None,
+            coarse=None if no_coarse else CoarseConfig(),
         )
     finally:
         rig.close()
     reloc = result.relocation
+    coarse = result.coarse
     data = {
         "station": station, "visit": result.observation_path, "converged": reloc.converged, "reason": reloc.reason,
         "adjustments": reloc.adjustments, "wall_s": reloc.wall_s, "session_s": reloc.session_s,
         "final_truth": reloc.records[-1].truth if reloc.records else None,
+        "coarse": None if coarse is None else {"handed_over": coarse.handed_over, "reason": coarse.reason,
+                                               "actions": [s.action for s in coarse.steps]},
     }
     emit(data, as_json=as_json, render=lambda c: c.print(
         f"{'[green]converged[/green]' if reloc.converged else '[red]not converged[/red]'}: {reloc.reason}; "

@@ -82,3 +82,92 @@ def test_a_far_wrong_estimate_is_not_verified(reference_points):
 def test_too_little_observation_gives_infinite_uncertainty(reference_points):
     unc = camera_uncertainty(np.zeros((20, 3)) + [0, 0, 1.5], reference_points, np.eye(4), CAMERA)
     assert math.isinf(unc.translation_m) and not unc.verified(CoarseConfig())
+
+
+class _FakeSession:
+    """A camera on a perfect platform over the relief; the VSE map is the ``ref`` frame moved by ``T_map_ref``
+    and scaled by 1 / ``scale`` (what a monocular session's map is)."""
+
+    def __init__(self, T_ref_cam: np.ndarray, X: np.ndarray, cloud_ref: np.ndarray, T_map_ref: np.ndarray, scale: float):
+        self.T_ref_cam, self.X, self.T_map_ref, self.scale = T_ref_cam.copy(), X, T_map_ref, scale
+        self.cloud_map = (cloud_ref @ T_map_ref[:3, :3].T + T_map_ref[:3, 3]) / scale
+        self.timing = SimpleNamespace(wait_s=0.0, total_s=0.0)
+        self.settle_frames = 2
+        self.motions: list[np.ndarray] = []
+
+    def tracking_state(self):
+        T = self.T_map_ref @ self.T_ref_cam
+        T[:3, 3] /= self.scale
+        return SimpleNamespace(T_map_cam=T, cloud=SimpleNamespace(points=self.cloud_map))
+
+    def settle(self, frames=None):
+        return self.tracking_state()
+
+    def move_by(self, M_flange: np.ndarray) -> float:
+        self.motions.append(M_flange.copy())
+        self.T_ref_cam = self.T_ref_cam @ invert_pose(self.X) @ M_flange @ self.X
+        return 0.0
+
+
+def _stage(session, reference_points, init, **config):
+    from fgcd_cli.alignment import ReferenceIndex
+    from fgcd_cli.relocation.coarse import run_coarse_stage
+
+    ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
+    return run_coarse_stage(session=session, reference=ref, ref_index=ReferenceIndex(reference_points), camera=CAMERA,
+                            scale=session.scale, T_flange_cam=session.X, init=init, reference_images=None,
+                            grab_current=None, config=CoarseConfig(**config))
+
+
+X_HANDEYE = exp_se3(np.r_[0.03, -0.05, 0.12, np.radians([1.0, 2.0, 90.0])])
+
+
+def test_a_far_verified_start_is_walked_to_the_reference_in_bounded_steps(reference_points):
+    from fgcd_cli.geometry.sim3 import Sim3
+
+    T_start = exp_se3(np.r_[0.16, -0.08, 0.05, np.radians([3.0, 9.0, -2.0])])  # 185 mm / ~10 deg away
+    T_map_ref = exp_se3(np.r_[0.4, 0.1, -0.2, 0.3, -0.2, 0.1])
+    cloud = _relief(30000, np.random.default_rng(5))
+    session = _FakeSession(T_start, X_HANDEYE, cloud, T_map_ref, scale=1.7)
+    # the first estimate is the truth off by 15 mm / 1 deg (what the passive localizer might give)
+    T_ref_map = invert_pose(T_map_ref) @ exp_se3(np.r_[0.01, 0.01, -0.005, 0.0, np.radians(1.0), 0.0])
+    init = Sim3(T_ref_map[:3, :3], T_ref_map[:3, 3], 1.0)
+    result = _stage(session, reference_points, init)
+    assert result.handed_over, result.reason
+    cfg = CoarseConfig()
+    # every commanded motion respects the step limits; several were needed
+    assert len(session.motions) >= 2
+    for M in session.motions:
+        mm, deg = pose_distance(np.eye(4), M)
+        assert mm <= cfg.step_m * 1e3 + 1e-6 and deg <= cfg.step_deg + 1e-6
+    # the camera truly ends within the paper's 5 cm / 5 deg, and the hand-over alignment agrees with the truth
+    mm, deg = pose_distance(session.T_ref_cam, np.eye(4))
+    assert mm < 50.0 and deg < 5.0
+    T_est = result.init.transform_pose(_metric(session.tracking_state().T_map_cam, session.scale))
+    err_mm, err_deg = pose_distance(T_est, session.T_ref_cam)
+    assert err_mm < 10.0 and err_deg < 0.5
+
+
+def _metric(T_map_cam: np.ndarray, scale: float) -> np.ndarray:
+    T = np.array(T_map_cam, dtype=float)
+    T[:3, 3] *= scale
+    return T
+
+
+def test_an_unverifiable_observation_only_looks_around_then_pauses():
+    from fgcd_cli.geometry.sim3 import Sim3
+
+    # the camera sees a flat wall 0.6 m nearer than the relief: nothing the reference can explain
+    rng = np.random.default_rng(6)
+    wall = np.column_stack([rng.uniform(-0.5, 0.5, 1500), rng.uniform(-0.4, 0.4, 1500), np.full(1500, 0.9)])
+    T_start = exp_se3(np.r_[0.15, 0.0, 0.0, 0.0, np.radians(10.0), 0.0])
+    session = _FakeSession(T_start, X_HANDEYE, wall, np.eye(4), scale=1.0)
+    # (a small reference keeps the 3D localizer's multi-start search, which runs at every view, cheap)
+    result = _stage(session, _relief(8000, rng), Sim3(np.eye(3), np.zeros(3), 1.0), max_looks=1)
+    assert not result.handed_over and "no estimate verified" in result.reason
+    assert [s.action for s in result.steps] == ["look", "pause"]
+    # looks are small pure rotations of the camera: it never translated towards an unverified estimate
+    for M in session.motions:
+        M_cam = invert_pose(X_HANDEYE) @ M @ X_HANDEYE
+        assert np.linalg.norm(M_cam[:3, 3]) < 1e-9
+        assert pose_distance(np.eye(4), M_cam)[1] <= 2 * CoarseConfig().look_deg + 1e-6
