@@ -77,6 +77,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tu
     coarse-stage benchmark relocates the same reference with and without the stage.
     """
     from fgcd_cli.demo import calibrate_sim_handeye, calibrate_sim_intrinsics
+    from drivers.platform import PlatformError
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
     from fgcd_cli.relocation.capture import capture_reference, relocate_and_capture
@@ -132,7 +133,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tu
             out[label]["coarse"] = _coarse_summary(vis.coarse)
             out[label]["image_stage"] = ("not run" if not image else
                                         "ok" if all(rec.alignment_ok for rec in image) else image[-1].alignment_reason)
-        except FgcdError as exc:
+        except (FgcdError, PlatformError) as exc:  # a refused motion is an outcome of the run, not of the bench
             truth = ev.evaluate()
             out[label] = {"error": str(exc), "success": False, "afd_px": truth["afd_px"],
                           "pose_err_mm": truth["pose_err_mm"]}
