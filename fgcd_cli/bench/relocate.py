@@ -139,7 +139,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tu
                           "pose_err_mm": truth["pose_err_mm"]}
         finally:
             rig.close()
-        say(f"{case.name} [{label}]: {out[label]}")
+        say(f"{case.name} ({label}): {out[label]}")
     return out
 
 

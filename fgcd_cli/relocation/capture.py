@@ -28,7 +28,7 @@ from fgcd_cli.relocation.loop import (
     RelocationResult,
     run_relocation,
 )
-from fgcd_cli.relocation.coarse import CoarseConfig, CoarseResult, run_coarse_stage
+from fgcd_cli.relocation.coarse import CoarseConfig, CoarseResult, image_estimate, run_coarse_stage
 from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
 
 __all__ = ["RigHandles", "CaptureResult", "capture_reference", "relocate_and_capture", "grab_images", "load_reference"]
@@ -280,8 +280,9 @@ def relocate_and_capture(
                 + (f" ({guess.fast.health.reason})" if guess.fast is not None else ""))
         coarse_result = None
         if coarse is not None:
+            first_trusted = guess.fast is not None and guess.fast.health.ok
             coarse_result, init = _maybe_coarse(rig, session, reference, ref_index, station, scale.scale, init,
-                                                coarse, evaluate)
+                                                coarse, evaluate, first_trusted=first_trusted)
         rig.say(f"relocating ({config.mode}) to the reference of station '{station.name}'")
         result = run_relocation(
             session=session,
@@ -343,8 +344,12 @@ def relocate_and_capture(
 
 
 def _maybe_coarse(rig, session, reference, ref_index, station, scale: float, init, config: CoarseConfig,
-                  evaluate) -> tuple[CoarseResult | None, object]:
+                  evaluate, *, first_trusted: bool = True) -> tuple[CoarseResult | None, object]:
     """Run the active coarse stage when the first estimate is far from the reference pose.
+
+    An untrustworthy first alignment (a degenerate fit can claim the camera is near when it is
+    not: a stupa's frieze slides along itself) is checked against the image localizer too;
+    the stage runs when either puts the camera far away.
 
     Returns the stage's result (None when it did not run) and the alignment the rACR loop
     starts from: the stage's verified one, or the first one when the stage could not verify
@@ -357,9 +362,18 @@ def _maybe_coarse(rig, session, reference, ref_index, station, scale: float, ini
     T_cur_cam = np.array(state.T_map_cam, dtype=float)
     T_cur_cam[:3, 3] *= scale
     off_mm, off_deg = pose_distance(camera_in_reference(init, T_cur_cam), reference.T_ref_camref)
-    if off_mm <= config.trigger_m * 1e3 and off_deg <= config.trigger_deg:
+    source = "first estimate"
+    near = off_mm <= config.trigger_m * 1e3 and off_deg <= config.trigger_deg
+    if near and not first_trusted:
+        T_img, _info = image_estimate(reference_images=_reference_images(station), current_image=_grab_gray(rig),
+                                      camera=rig.intrinsics, reference=reference)
+        if T_img is not None:
+            off_mm, off_deg = pose_distance(T_img, reference.T_ref_camref)
+            source = "image estimate (the 3D one is untrustworthy)"
+            near = off_mm <= config.trigger_m * 1e3 and off_deg <= config.trigger_deg
+    if near:
         return None, init
-    rig.say(f"first estimate {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
+    rig.say(f"{source} {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
     result = run_coarse_stage(session=session, reference=reference, ref_index=ref_index, camera=rig.intrinsics,
                               scale=scale, T_flange_cam=rig.T_flange_cam, init=init,
                               reference_images=_reference_images(station), grab_current=lambda: _grab_gray(rig),

@@ -49,6 +49,7 @@ __all__ = [
     "CoarseResult",
     "CoarseStep",
     "camera_uncertainty",
+    "image_estimate",
     "render_visible_points",
     "run_coarse_stage",
 ]
@@ -277,6 +278,49 @@ class CoarseResult:
     steps: list[CoarseStep] = field(default_factory=list)
 
 
+def image_estimate(*, reference_images: dict[str, np.ndarray], current_image: np.ndarray, camera,
+                   reference) -> tuple[np.ndarray | None, dict]:
+    """The image (PnP) passive localizer: the current camera in ``ref``, or None.
+
+    Parameters
+    ----------
+    reference_images : dict of name -> (H, W) ndarray
+        Undistorted reference images.
+    current_image : (H, W) ndarray
+        Undistorted current image.
+    camera : PinholeCamera
+    reference : ReferenceData
+        ``points`` (N, 3) metres and ``T_ref_camref`` (4, 4).
+
+    Returns
+    -------
+    T_ref_cam : (4, 4) ndarray or None
+        None when the matches do not make a PnP solution (too few, too few inliers, large residual).
+    info : dict
+        PnP outcome for the log.
+
+    Unlike the loop's image stage, any motion size is accepted here: the camera
+    uncertainty, not the size of the correction, decides whether it is trusted.
+    """
+    from fgcd_cli.relocation.image_refine import ImageRefineConfig, refine_from_reference_image
+
+    config = replace(ImageRefineConfig(), max_motion_m=10.0, max_motion_deg=180.0,
+                     strong_max_motion_m=10.0, strong_max_motion_deg=180.0)
+    T_ref_camref = np.asarray(reference.T_ref_camref, dtype=float)
+    pnp = refine_from_reference_image(reference_images=reference_images, current_image=current_image, camera=camera,
+                                      ref_points=reference.points, T_ref_camref=T_ref_camref, config=config)
+    info = {"pnp": pnp.reason, "inliers": pnp.inliers}
+    return (T_ref_camref @ invert_pose(pnp.M_cam) if pnp.ok else None), info
+
+
+def _yaw(angle_rad: float) -> np.ndarray:
+    """Rotation about the camera's vertical (y) axis through its centre, (4, 4)."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    M = np.eye(4)
+    M[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+    return M
+
+
 def _sim3_from_camera(T_ref_cam: np.ndarray, T_cur_cam: np.ndarray) -> Sim3:
     """The rigid ``T_ref_cur`` that puts the session camera at ``T_ref_cam``."""
     M = np.asarray(T_ref_cam, dtype=float) @ invert_pose(np.asarray(T_cur_cam, dtype=float))
@@ -327,17 +371,13 @@ def run_coarse_stage(
         ``handed_over`` with the verified ``init`` for the rACR loop, or the reason it paused.
     """
     from fgcd_cli.alignment import fast_align, global_registration
-    from fgcd_cli.relocation.image_refine import ImageRefineConfig, refine_from_reference_image
 
-    # The image localizer here trusts any motion size: the camera uncertainty verifies it.
-    pnp_config = replace(ImageRefineConfig(), max_motion_m=10.0, max_motion_deg=180.0,
-                         strong_max_motion_m=10.0, strong_max_motion_deg=180.0)
     X = np.asarray(T_flange_cam, dtype=float)
     T_ref_camref = np.asarray(reference.T_ref_camref, dtype=float)
     steps: list[CoarseStep] = []
     last_3d = init
     looks = 0
-    look_sign = 1.0
+    heading = 0.0  # look-around rotation from where the stage started, radians
     for step in range(1, config.max_steps + 1):
         state = session.tracking_state()
         T_cur_cam = np.array(state.T_map_cam, dtype=float)
@@ -353,12 +393,10 @@ def run_coarse_stage(
         candidates["3d"] = fast.T_ref_cur.transform_pose(T_cur_cam)
         notes["3d"] = {"alignment": fast.health.reason}
         if reference_images and grab_current is not None:
-            pnp = refine_from_reference_image(reference_images=reference_images, current_image=grab_current(),
-                                              camera=camera, ref_points=reference.points,
-                                              T_ref_camref=T_ref_camref, config=pnp_config)
-            notes["image"] = {"pnp": pnp.reason, "inliers": pnp.inliers}
-            if pnp.ok:
-                candidates["image"] = T_ref_camref @ invert_pose(pnp.M_cam)
+            T_img, notes["image"] = image_estimate(reference_images=reference_images, current_image=grab_current(),
+                                                   camera=camera, reference=reference)
+            if T_img is not None:
+                candidates["image"] = T_img
         best: tuple[str, np.ndarray, CameraUncertainty] | None = None
         for name, T_ref_cam in candidates.items():
             unc = camera_uncertainty(observed, reference.points, T_ref_cam, camera, config=config, seed=step)
@@ -375,26 +413,30 @@ def run_coarse_stage(
                 steps.append(CoarseStep(step=step, t_session_s=t_s, action="pause", source="", estimates=notes,
                                         offset_mm=math.nan, offset_deg=math.nan, commanded_mm=0.0,
                                         commanded_deg=0.0, truth=truth))
-                return CoarseResult(False, f"coarse stage: no estimate verified in {looks + 1} views "
-                                    f"(camera uncertainty above {config.verify_m * 1e3:.0f} mm / "
-                                    f"{config.verify_deg:.0f} deg); bring the camera nearer the reference pose",
-                                    None, steps)
-            # turn-around: a small rotation about the camera's vertical axis, alternating sides
-            angle = math.radians(config.look_deg) * look_sign * (1 + looks // 2)
-            look_sign = -look_sign
-            c, s_ = math.cos(angle), math.sin(angle)
-            M_cam = np.eye(4)
-            M_cam[:3, :3] = [[c, 0, s_], [0, 1, 0], [-s_, 0, c]]
+                reason = (f"coarse stage: no estimate verified in {looks + 1} views (camera uncertainty above "
+                          f"{config.verify_m * 1e3:.0f} mm / {config.verify_deg:.0f} deg); bring the camera nearer "
+                          "the reference pose")
+                try:  # back to the heading the stage started from: the loop starts where it would have
+                    if heading:
+                        session.move_by(X @ _yaw(-heading) @ invert_pose(X))
+                except MotionRejected:
+                    pass
+                return CoarseResult(False, reason, None, steps)
+            # turn-around: headings +a, -a, +2a, -2a ... about the camera's vertical axis through its
+            # centre, relative to where the stage started (a pure rotation: no translation towards
+            # anything unverified)
+            target = math.radians(config.look_deg) * (1 + looks // 2) * (1.0 if looks % 2 == 0 else -1.0)
             try:
-                session.move_by(X @ M_cam @ invert_pose(X))
+                session.move_by(X @ _yaw(target - heading) @ invert_pose(X))
             except MotionRejected as exc:
                 return CoarseResult(False, f"coarse stage: a look-around motion is refused by the platform "
                                     f"guard ({exc})", None, steps)
-            looks += 1
             steps.append(CoarseStep(step=step, t_session_s=t_s, action="look", source="", estimates=notes,
                                     offset_mm=math.nan, offset_deg=math.nan, commanded_mm=0.0,
-                                    commanded_deg=config.look_deg, truth=truth))
-            say(f"coarse step {step}: no verified estimate; looking {math.degrees(angle):+.0f} deg")
+                                    commanded_deg=math.degrees(abs(target - heading)), truth=truth))
+            heading = target
+            looks += 1
+            say(f"coarse step {step}: no verified estimate; looking {math.degrees(target):+.0f} deg from the start")
             continue
         name, T_ref_cam, unc = best
         last_3d = _sim3_from_camera(T_ref_cam, T_cur_cam)

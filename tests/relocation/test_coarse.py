@@ -171,3 +171,6 @@ def test_an_unverifiable_observation_only_looks_around_then_pauses():
         M_cam = invert_pose(X_HANDEYE) @ M @ X_HANDEYE
         assert np.linalg.norm(M_cam[:3, 3]) < 1e-9
         assert pose_distance(np.eye(4), M_cam)[1] <= 2 * CoarseConfig().look_deg + 1e-6
+    # giving up, it turned back: the loop starts from where the stage did
+    mm, deg = pose_distance(session.T_ref_cam, T_start)
+    assert mm < 1e-6 and deg < 1e-6
