@@ -174,3 +174,16 @@ def test_an_unverifiable_observation_only_looks_around_then_pauses():
     # giving up, it turned back: the loop starts from where the stage did
     mm, deg = pose_distance(session.T_ref_cam, T_start)
     assert mm < 1e-6 and deg < 1e-6
+
+
+def test_bench_coarse_is_registered_with_quick_and_json():
+    from typer.testing import CliRunner
+
+    from fgcd_cli.cli.app import app
+
+    result = CliRunner().invoke(app, ["bench", "coarse", "--help"])
+    assert result.exit_code == 0
+    assert "--quick" in result.output and "--json" in result.output
+    from fgcd_cli.bench import coarse
+
+    assert {c.name for c in coarse.CASES} >= set(coarse.QUICK)
