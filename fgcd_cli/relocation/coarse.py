@@ -74,6 +74,9 @@ class CoarseConfig:
     verify_m: float = 0.05
     verify_deg: float = 5.0
     """Camera uncertainty that verifies an estimate (the paper's 5 cm / 5 deg, lambda_cu)."""
+    weak_ratio: float = 0.01
+    """A direction of the residual registration whose information is below this fraction of the
+    strongest (rotations scaled by the median depth) is weak."""
     min_fitness: float = 0.5
     """Fraction of the observed points that must find a rendered point after the residual
     registration; less means the estimate and the observation barely overlap."""
@@ -114,16 +117,41 @@ class CameraUncertainty:
     observed: int
     rendered: int
     T_correction: np.ndarray
+    weak_directions: int = 0
+    """Directions of the residual registration the geometry does not constrain (a body of
+    revolution turning about its axis, a plane sliding along itself)."""
+    constrained_translation_m: float = math.inf
+    constrained_rotation_deg: float = math.inf
+    """The residual motion without its part along the weak directions."""
+    T_correction_constrained: np.ndarray | None = None
 
-    def verified(self, config: CoarseConfig) -> bool:
-        """True when the estimate is within the verification limits on enough overlap."""
-        return (self.translation_m <= config.verify_m and self.rotation_deg <= config.verify_deg
-                and self.fitness >= config.min_fitness)
+    def verified(self, config: CoarseConfig, *, geometric_source: bool = True) -> bool:
+        """True when the estimate is within the verification limits on enough overlap.
+
+        An estimate from the geometry itself (the 3D alignment) is checked on the whole
+        residual: along a weak direction, geometry can tell neither how wrong it is nor
+        whether the residual registration merely slid. An image estimate is checked on the
+        constrained part only: along the weak directions its texture correspondences are the
+        evidence, and the registration's slide there is not a measurement.
+        """
+        if self.fitness < config.min_fitness:
+            return False
+        if geometric_source:
+            return self.translation_m <= config.verify_m and self.rotation_deg <= config.verify_deg
+        return self.constrained_translation_m <= config.verify_m and self.constrained_rotation_deg <= config.verify_deg
+
+    def correction(self, *, geometric_source: bool = True) -> np.ndarray:
+        """The residual motion to apply to the estimate (the constrained part for an image estimate)."""
+        if geometric_source or self.T_correction_constrained is None:
+            return self.T_correction
+        return self.T_correction_constrained
 
     def to_dict(self) -> dict:
         return {"translation_mm": self.translation_m * 1e3, "rotation_deg": self.rotation_deg,
                 "fitness": self.fitness, "rmse_mm": self.rmse_m * 1e3, "observed": self.observed,
-                "rendered": self.rendered}
+                "rendered": self.rendered, "weak_directions": self.weak_directions,
+                "constrained_translation_mm": self.constrained_translation_m * 1e3,
+                "constrained_rotation_deg": self.constrained_rotation_deg}
 
 
 def render_visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera, *, stride_px: int = 4,
@@ -243,9 +271,44 @@ def camera_uncertainty(
     # ``T`` maps observed (true camera frame) points onto the rendering (estimated camera frame):
     # T_estcam_truecam, i.e. the true camera in the estimated camera's frame.
     mm, deg = pose_distance(np.eye(4), T)
+    weak, T_constrained = _constrained_part(T, obs, rendered, np.asarray(dst.normals), radius=0.02 * depth,
+                                            depth=depth, weak_ratio=config.weak_ratio)
+    c_mm, c_deg = pose_distance(np.eye(4), T_constrained)
     return CameraUncertainty(translation_m=mm / 1e3, rotation_deg=deg, fitness=float(result.fitness),
                              rmse_m=float(result.inlier_rmse), observed=len(obs), rendered=len(rendered),
-                             T_correction=T.copy())
+                             T_correction=T.copy(), weak_directions=weak, constrained_translation_m=c_mm / 1e3,
+                             constrained_rotation_deg=c_deg, T_correction_constrained=T_constrained)
+
+
+def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray, normals: np.ndarray, *,
+                      radius: float, depth: float, weak_ratio: float) -> tuple[int, np.ndarray]:
+    """The residual motion ``T`` without its part along the registration's weak directions.
+
+    Point-to-plane information ``H = sum J^T J`` with ``J = [n, (p x n) / depth]`` over the
+    final correspondences (twist ``(t, depth * phi)``: rotations as motions at the scene's
+    depth); eigen-directions below ``weak_ratio`` of the strongest are weak. Returns their
+    count and ``exp`` of the twist projected onto the others. Written by hand: Open3D's
+    information matrix is the point-to-point one, which does not see a surface sliding
+    along itself.
+    """
+    from scipy.spatial import cKDTree
+
+    from fgcd_cli.geometry.se3 import exp_se3, log_se3
+
+    p = observed @ T[:3, :3].T + T[:3, 3]
+    dist, idx = cKDTree(rendered).query(p, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    if ok.sum() < 50:
+        return 6, np.eye(4)
+    n = normals[idx[ok]]
+    J = np.hstack([n, np.cross(p[ok], n) / depth])
+    evals, evecs = np.linalg.eigh(J.T @ J)
+    strong = evals >= weak_ratio * evals.max()
+    xi = log_se3(T)
+    v = np.concatenate([xi[:3], xi[3:] * depth])
+    E = evecs[:, strong]
+    v_c = E @ (E.T @ v)
+    return int((~strong).sum()), exp_se3(np.concatenate([v_c[:3], v_c[3:] / depth]))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -403,8 +466,10 @@ def run_coarse_stage(
             notes[name]["uncertainty"] = unc.to_dict()
             off_mm, off_deg = pose_distance(T_ref_cam, T_ref_camref)
             notes[name]["offset_mm"], notes[name]["offset_deg"] = off_mm, off_deg
-            if unc.verified(config) and (best is None or unc.translation_m < best[2].translation_m):
-                best = (name, T_ref_cam @ unc.T_correction, unc)
+            geometric = name == "3d"
+            if unc.verified(config, geometric_source=geometric) and (
+                    best is None or unc.constrained_translation_m < best[2].constrained_translation_m):
+                best = (name, T_ref_cam @ unc.correction(geometric_source=geometric), unc)
         session.timing.wait_s += time.monotonic() - t0
         truth = evaluate() if evaluate is not None else None
         t_s = session.timing.total_s
@@ -456,8 +521,10 @@ def run_coarse_stage(
         steps.append(CoarseStep(step=step, t_session_s=t_s, action="move", source=name, estimates=notes,
                                 offset_mm=off_mm, offset_deg=off_deg, commanded_mm=cmd_mm, commanded_deg=cmd_deg,
                                 truth=truth))
-        say(f"coarse step {step}: verified ({name}, uncertainty {unc.translation_m * 1e3:.0f} mm / "
-            f"{unc.rotation_deg:.1f} deg) {off_mm:.0f} mm / {off_deg:.1f} deg away; moving {cmd_mm:.0f} mm")
+        say(f"coarse step {step}: verified ({name}, uncertainty {unc.constrained_translation_m * 1e3:.0f} mm / "
+            f"{unc.constrained_rotation_deg:.1f} deg"
+            + (f", {unc.weak_directions} weak directions" if unc.weak_directions else "")
+            + f") {off_mm:.0f} mm / {off_deg:.1f} deg away; moving {cmd_mm:.0f} mm")
         try:
             session.move_by(M_flange)
         except MotionRejected as exc:
