@@ -74,7 +74,7 @@ class CoarseConfig:
     verify_m: float = 0.05
     verify_deg: float = 5.0
     """Camera uncertainty that verifies an estimate (the paper's 5 cm / 5 deg, lambda_cu)."""
-    weak_ratio: float = 0.01
+    weak_ratio: float = 0.002
     """A direction of the residual registration whose information is below this fraction of the
     strongest (rotations scaled by the median depth) is weak."""
     min_fitness: float = 0.5
