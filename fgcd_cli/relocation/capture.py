@@ -365,8 +365,10 @@ def _maybe_coarse(rig, session, reference, ref_index, station, scale: float, ini
     source = "first estimate"
     near = off_mm <= config.trigger_m * 1e3 and off_deg <= config.trigger_deg
     if near and not first_trusted:
+        t0 = time.monotonic()
         T_img, _info = image_estimate(reference_images=_reference_images(station), current_image=_grab_gray(rig),
                                       camera=rig.intrinsics, reference=reference)
+        session.timing.wait_s += time.monotonic() - t0  # the platform waits for it
         if T_img is not None:
             off_mm, off_deg = pose_distance(T_img, reference.T_ref_camref)
             source = "image estimate (the 3D one is untrustworthy)"
