@@ -364,15 +364,26 @@ def _maybe_coarse(rig, session, reference, ref_index, station, scale: float, ini
     off_mm, off_deg = pose_distance(camera_in_reference(init, T_cur_cam), reference.T_ref_camref)
     source = "first estimate"
     near = off_mm <= config.trigger_m * 1e3 and off_deg <= config.trigger_deg
-    if near and not first_trusted:
+    if not near or not first_trusted:
+        # A second opinion: a far 3D estimate may be a confidently wrong fit (a statue's at 1.19 m
+        # from a start 20 mm away), a near one from an untrustworthy fit may be a slide (a stupa's).
+        # When the image localizer puts the camera near, the loop and its image fallback take it
+        # from there (measured, that statue: the stage found nothing to verify in 4 views on its
+        # distorted session cloud and cost 50 s before the fallback relocated anyway).
         t0 = time.monotonic()
         T_img, _info = image_estimate(reference_images=_reference_images(station), current_image=_grab_gray(rig),
                                       camera=rig.intrinsics, reference=reference)
         session.timing.wait_s += time.monotonic() - t0  # the platform waits for it
         if T_img is not None:
-            off_mm, off_deg = pose_distance(T_img, reference.T_ref_camref)
-            source = "image estimate (the 3D one is untrustworthy)"
-            near = off_mm <= config.trigger_m * 1e3 and off_deg <= config.trigger_deg
+            img_mm, img_deg = pose_distance(T_img, reference.T_ref_camref)
+            img_near = img_mm <= config.trigger_m * 1e3 and img_deg <= config.trigger_deg
+            if near and not img_near:
+                off_mm, off_deg, near = img_mm, img_deg, False
+                source = "image estimate (the 3D one is untrustworthy)"
+            elif not near and img_near:
+                rig.say(f"first estimate {off_mm:.0f} mm / {off_deg:.1f} deg from the reference, but the image "
+                        f"localizer says {img_mm:.0f} mm / {img_deg:.1f} deg: no coarse stage")
+                near = True
     if near:
         return None, init
     rig.say(f"{source} {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
