@@ -136,7 +136,8 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tu
         except (FgcdError, PlatformError) as exc:  # a refused motion is an outcome of the run, not of the bench
             truth = ev.evaluate()
             out[label] = {"error": str(exc), "success": False, "afd_px": truth["afd_px"],
-                          "pose_err_mm": truth["pose_err_mm"]}
+                          "pose_err_mm": truth["pose_err_mm"],
+                          "coarse": _coarse_summary(getattr(exc, "coarse_result", None))}
         finally:
             rig.close()
         say(f"{case.name} ({label}): {out[label]}")

@@ -284,20 +284,25 @@ def relocate_and_capture(
             coarse_result, init = _maybe_coarse(rig, session, reference, ref_index, station, scale.scale, init,
                                                 coarse, evaluate, first_trusted=first_trusted)
         rig.say(f"relocating ({config.mode}) to the reference of station '{station.name}'")
-        result = run_relocation(
-            session=session,
-            reference=reference,
-            ref_index=ref_index,
-            camera=rig.intrinsics,
-            scale=scale.scale,
-            T_flange_cam=rig.T_flange_cam,
-            init=init,
-            config=config,
-            evaluate=evaluate,
-            on_record=on_record,
-            reference_images=_reference_images(station),
-            grab_current=lambda: _grab_gray(rig),
-        )
+        try:
+            result = run_relocation(
+                session=session,
+                reference=reference,
+                ref_index=ref_index,
+                camera=rig.intrinsics,
+                scale=scale.scale,
+                T_flange_cam=rig.T_flange_cam,
+                init=init,
+                config=config,
+                evaluate=evaluate,
+                on_record=on_record,
+                reference_images=_reference_images(station),
+                grab_current=lambda: _grab_gray(rig),
+            )
+        except AlgorithmError as exc:
+            # the loop paused: what the coarse stage did before stays available to the caller
+            exc.coarse_result = coarse_result
+            raise
         state = session.settle(frames=2)
         points = np.asarray(state.cloud.points, dtype=float) * scale.scale
         images = grab_images(rig, lightings)
