@@ -53,8 +53,8 @@ def _summarise(results: list[dict], label: str) -> dict:
 
 def _coarse_ok(row: dict) -> bool:
     c = row.get("coarse") or {}
-    return bool(c.get("handed_over")) and (c.get("end_err_mm") or math.inf) <= 50.0 and (
-        c.get("end_err_deg") or math.inf) <= 5.0
+    mm, deg = c.get("end_err_mm"), c.get("end_err_deg")
+    return bool(c.get("handed_over")) and mm is not None and deg is not None and mm <= 50.0 and deg <= 5.0
 
 
 def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[str] | None = None) -> dict:

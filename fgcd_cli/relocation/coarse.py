@@ -181,39 +181,29 @@ def render_visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera,
     (M, 3) ndarray
         Visible points in the camera frame, metres.
     """
-    P = np.asarray(points_ref, dtype=float)
-    T = np.asarray(T_ref_cam, dtype=float)
-    Xc = (P - T[:3, 3]) @ T[:3, :3]
-    z = Xc[:, 2]
-    front = z > 1e-3
-    Xc, z = Xc[front], z[front]
-    u = camera.fx * Xc[:, 0] / z + camera.cx
-    v = camera.fy * Xc[:, 1] / z + camera.cy
-    inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    Xc, z, u, v = Xc[inside], z[inside], u[inside], v[inside]
-    if len(z) == 0:
+    Xc, uv = _in_view(points_ref, T_ref_cam, camera)
+    if len(Xc) == 0:
         return np.zeros((0, 3))
+    z = Xc[:, 2]
     s = max(1, int(stride_px))
     cols = int(math.ceil(camera.width / s))
-    cell = (v // s).astype(np.int64) * cols + (u // s).astype(np.int64)
+    col = np.clip(uv[:, 0], 0, camera.width - 1) // s
+    row = np.clip(uv[:, 1], 0, camera.height - 1) // s
+    cell = row.astype(np.int64) * cols + col.astype(np.int64)
     zmin = np.full(int(cell.max()) + 1, np.inf)
     np.minimum.at(zmin, cell, z)
     keep = z <= zmin[cell] * (1.0 + depth_tolerance_rel)
     return Xc[keep]
 
 
-def _observed_in_camera(cloud_points_metric: np.ndarray, T_cur_cam: np.ndarray, camera) -> np.ndarray:
-    """Session cloud points in front of the current camera and inside its image, camera frame."""
-    P = np.asarray(cloud_points_metric, dtype=float)
-    T = np.asarray(T_cur_cam, dtype=float)
+def _in_view(points: np.ndarray, T_frame_cam: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 3) of a frame seen by a camera at ``T_frame_cam``: the ones in front of it and inside
+    its image, in the camera frame (M, 3), with their pixels (M, 2)."""
+    P = np.asarray(points, dtype=float)
+    T = np.asarray(T_frame_cam, dtype=float)
     Xc = (P - T[:3, 3]) @ T[:3, :3]
-    z = Xc[:, 2]
-    ok = z > 1e-3
-    Xc, z = Xc[ok], z[ok]
-    u = camera.fx * Xc[:, 0] / z + camera.cx
-    v = camera.fy * Xc[:, 1] / z + camera.cy
-    inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    return Xc[inside]
+    uv, inside = camera.project(Xc)
+    return Xc[inside], uv[inside]
 
 
 def camera_uncertainty(
@@ -450,7 +440,7 @@ def run_coarse_stage(
         T_cur_cam = np.array(state.T_map_cam, dtype=float)
         T_cur_cam[:3, 3] *= scale
         cloud = np.asarray(state.cloud.points, dtype=float) * scale
-        observed = _observed_in_camera(cloud, T_cur_cam, camera)
+        observed, _ = _in_view(cloud, T_cur_cam, camera)
         t0 = time.monotonic()
         candidates: dict[str, np.ndarray] = {}
         notes: dict[str, dict] = {}
