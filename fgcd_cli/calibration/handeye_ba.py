@@ -34,10 +34,10 @@ import cv2
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.geometry.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_cli.geometry.se3 import exp_se3, exp_so3, invert_pose, log_so3, make_pose, pose_distance
 
-__all__ = ["BAHandEyeResult", "refine_handeye_images", "refine_handeye_tracks", "refine_target_free", "scale_from_depths",
-           "KeyframeDepths", "stop_features"]
+__all__ = ["BAHandEyeResult", "PathViews", "refine_handeye_images", "refine_handeye_tracks", "refine_target_free", "scale_from_depths",
+           "KeyframeDepths", "gray_u8", "stop_features"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -63,6 +63,10 @@ class BAHandEyeResult:
         Warnings.
     points_base : (M, 3) ndarray
         The adjusted scene points in the platform base frame, metres.
+    rotation_scale, rotation_scale_std : float
+        Ratio of the platform's true rotations to the reported ones, estimated
+        with ``X`` (see :class:`_HandPoses`), and its one-sigma; 1.0 / NaN when
+        not estimated.
     """
 
     T_flange_cam: np.ndarray
@@ -76,9 +80,12 @@ class BAHandEyeResult:
     change_deg: float
     notes: list[str] = field(default_factory=list)
     points_base: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    rotation_scale: float = 1.0
+    rotation_scale_std: float = float("nan")
 
 
-def _gray_u8(image: np.ndarray) -> np.ndarray:
+def gray_u8(image: np.ndarray) -> np.ndarray:
+    """An image as 8-bit grey (float images in [0, 1] or [0, 255])."""
     img = np.asarray(image)
     if img.ndim == 3:
         img = cv2.cvtColor(img.astype(np.float32) if img.dtype != np.uint8 else img, cv2.COLOR_RGB2GRAY)
@@ -91,11 +98,22 @@ def _gray_u8(image: np.ndarray) -> np.ndarray:
 
 
 def stop_features(images: Sequence[np.ndarray], *, n_features: int = 1500) -> list[tuple[np.ndarray, np.ndarray]]:
-    """SIFT keypoints ``(N, 2)`` and descriptors of every stop image."""
+    """SIFT keypoints ``(N, 2)`` and descriptors of every stop image.
+
+    The images are equalised locally (CLAHE) first. Why: SIFT drops extrema
+    below a fixed contrast, and on dim stone lit by a lamp that moves with the
+    camera the raw images keep ~500 matched points, mostly large blobs of
+    shading whose centres shift as the light moves with the camera (0.3-2 px
+    between stops, measured against the simulator's geometry); those shifts
+    biased ``X`` by ~3 mm on a perfect platform. Equalised, the same images give
+    ~2 300 points, mostly small-scale texture, and the bias fell to 0.6 mm
+    (docs/benchmarks.md, "Calibration", 2026-11-25).
+    """
     sift = cv2.SIFT_create(nfeatures=n_features)
+    clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
     out = []
     for img in images:
-        kp, desc = sift.detectAndCompute(_gray_u8(img), None)
+        kp, desc = sift.detectAndCompute(clahe.apply(gray_u8(img)), None)
         xy = np.array([k.pt for k in kp], dtype=float).reshape(-1, 2)
         out.append((xy, desc if desc is not None else np.zeros((0, 128), np.float32)))
     return out
@@ -192,6 +210,9 @@ def refine_handeye_images(
     max_points: int = 3000,
     n_features: int = 1500,
     dist: Sequence[float] | None = None,
+    match_window: int | None = None,
+    anchors: Sequence[int] | None = None,
+    estimate_rotation_scale: bool = True,
 ) -> BAHandEyeResult:
     """Refine the hand-eye on the stop images with the camera poses tied to the flange poses.
 
@@ -219,6 +240,15 @@ def refine_handeye_images(
     dist : sequence of float, optional
         OpenCV distortion coefficients if the images are *not* undistorted; the
         keypoints are then undistorted before the adjustment.
+    match_window : int, optional
+        None: match every pair of images (a dozen stops). Else the images are a
+        sequence along the platform's path, and image ``i`` is matched with
+        ``i+1 .. i+match_window`` and, if it is one of ``anchors``, with every
+        other anchor.
+    anchors : sequence of int, optional
+        Indices of the images matched with each other in any case (the stops).
+    estimate_rotation_scale : bool
+        See :func:`refine_handeye_tracks`.
 
     Returns
     -------
@@ -240,13 +270,19 @@ def refine_handeye_images(
              if len(xy) else xy, desc)
             for xy, desc in features
         ]
-    pair_list = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    if match_window is None:
+        pair_list = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    else:
+        pairs = {(i, j) for i in range(n) for j in range(i + 1, min(n, i + 1 + int(match_window)))}
+        stops = sorted({int(a) for a in (anchors or ()) if 0 <= int(a) < n})
+        pairs |= {(a, b) for k, a in enumerate(stops) for b in stops[k + 1:]}
+        pair_list = sorted(pairs)
     matches = [_pair_matches(features[i], features[j], ratio=ratio, ransac_px=ransac_px) for i, j in pair_list]
     tracks = _tracks(features, pair_list, matches)
     tracks.sort(key=len, reverse=True)
     tracks = [[(img, features[img][0][k]) for img, k in members] for members in tracks[:max_points]]
     return refine_handeye_tracks(T_base_flange, tracks, K, T_flange_cam_init, reject_px=reject_px,
-                                 min_points=min_points)
+                                 min_points=min_points, estimate_rotation_scale=estimate_rotation_scale)
 
 
 def refine_handeye_tracks(
@@ -257,6 +293,7 @@ def refine_handeye_tracks(
     *,
     reject_px: float = 2.0,
     min_points: int = 60,
+    estimate_rotation_scale: bool = True,
 ) -> BAHandEyeResult:
     """Bundle adjustment of ``X`` and the scene points from feature tracks across the stops.
 
@@ -272,6 +309,9 @@ def refine_handeye_tracks(
     T_flange_cam_init : (4, 4) ndarray
         Initial hand-eye.
     reject_px, min_points : see :func:`refine_handeye_images`.
+    estimate_rotation_scale : bool
+        Also estimate the scale of the platform's reported rotations (when it
+        turned by more than 2 degrees).
     """
     n = len(T_base_flange)
     hand = [np.asarray(T, dtype=float) for T in T_base_flange]
@@ -312,9 +352,11 @@ def refine_handeye_tracks(
     obs_pt = np.asarray(obs_pt)
     obs_uv = np.asarray(obs_uv)
 
-    inv_hand = np.stack([invert_pose(T) for T in hand])
-    X, P, _ = _lm_handeye(inv_hand, K, X0, pts0, obs_cam, obs_pt, obs_uv)
-    r = _residuals(inv_hand, K, X, P, obs_cam, obs_pt, obs_uv)
+    poses = _HandPoses(np.stack(hand))
+    # the rotation scale is observable only if the platform turned (the procedures turn by ~8 degrees)
+    s0 = 1.0 if estimate_rotation_scale and np.max(np.linalg.norm(poses.phi, axis=1)) > math.radians(2.0) else None
+    X, P, s_rot, _ = _lm_handeye(poses, K, X0, pts0, obs_cam, obs_pt, obs_uv, rotation_scale=s0)
+    r = _residuals(poses.inv(s_rot), K, X, P, obs_cam, obs_pt, obs_uv)
     keep = np.linalg.norm(r, axis=1) < reject_px
     # points left with fewer than two observations go too
     counts = np.bincount(obs_pt[keep], minlength=len(pts0))
@@ -325,23 +367,30 @@ def refine_handeye_tracks(
     remap = -np.ones(len(pts0), int)
     remap[used] = np.arange(len(used))
     oc, op, ouv = obs_cam[keep], remap[obs_pt[keep]], obs_uv[keep]
-    X, P, S = _lm_handeye(inv_hand, K, X, P[used], oc, op, ouv)
-    r = _residuals(inv_hand, K, X, P, oc, op, ouv)
+    X, P, s_rot, S = _lm_handeye(poses, K, X, P[used], oc, op, ouv, rotation_scale=None if s0 is None else s_rot)
+    r = _residuals(poses.inv(s_rot), K, X, P, oc, op, ouv)
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
     per_image = np.array([
         float(np.sqrt(np.mean(np.sum(r[oc == i] ** 2, axis=1)))) if np.any(oc == i) else float("nan") for i in range(n)
     ])
-    # covariance of the 6 hand-eye parameters: inverse Schur complement times the residual variance
-    dof = max(r.size - 6 - 3 * len(used), 1)
+    # covariance of the hand-eye (and rotation scale): inverse Schur complement times the residual variance
+    dof = max(r.size - len(S) - 3 * len(used), 1)
     sigma2 = float(np.sum(r**2)) / dof
     try:
         d = np.sqrt(np.clip(np.diag(np.linalg.inv(S)) * sigma2, 0, None))
         std_mm = float(np.linalg.norm(d[:3])) * 1000.0
-        std_deg = math.degrees(float(np.linalg.norm(d[3:])))
+        std_deg = math.degrees(float(np.linalg.norm(d[3:6])))
+        s_std = float(d[6]) if len(d) > 6 else float("nan")
     except np.linalg.LinAlgError:  # pragma: no cover - singular: X not observable from these stops
-        std_mm = std_deg = float("inf")
+        std_mm = std_deg = s_std = float("inf")
     change_mm, change_deg = pose_distance(X, X0)
     notes = []
+    if s0 is not None and abs(s_rot - 1.0) > max(3.0 * s_std, 3e-4):
+        notes.append(
+            f"the platform's rotations are {abs(s_rot - 1) * 100:.2f} % {'longer' if s_rot > 1 else 'shorter'} than "
+            f"it reports (+-{s_std * 100:.2f} %, from the images): the hand-eye accounts for it, but the platform's "
+            "own calibration is off"
+        )
     if rms > 0.6:  # 0.22-0.26 px in the simulator with a good platform; 0.99 px with the 'sloppy' one
         notes.append(
             f"image refinement: reprojection RMS {rms:.2f} px is high: the platform did not reach the poses it "
@@ -350,6 +399,7 @@ def refine_handeye_tracks(
     return BAHandEyeResult(
         T_flange_cam=X, std_mm=std_mm, std_deg=std_deg, rms_px=rms, n_points=len(used), n_observations=len(oc),
         per_image_rms_px=per_image, change_mm=change_mm, change_deg=change_deg, notes=notes, points_base=P,
+        rotation_scale=s_rot, rotation_scale_std=s_std,
     )
 
 
@@ -360,19 +410,53 @@ def _residuals(inv_hand, K, X, P, oc, op, ouv) -> np.ndarray:
     return proj - ouv
 
 
-def _lm_handeye(inv_hand, K, X, P, oc, op, ouv, *, iterations: int = 40, huber_px: float = 1.0):
-    """Levenberg-Marquardt over ``X`` (right perturbation ``X exp(d)``) and the points, Huber IRLS.
+class _HandPoses:
+    """Reported flange poses, optionally with the platform's rotations scaled by ``s``.
+
+    With ``s`` the flange orientation of view ``i`` is ``R_0 exp(s log(R_0^T R_i))``
+    (rotations about the first view's orientation scaled by ``s``; positions as
+    reported): a rotary stage or arm whose rotations are a fraction of a percent
+    longer or shorter than it reports. The images measure the camera's rotations
+    far better than that, and left unmodelled a 0.13 % rotation scale error
+    biased ``t_X`` by 2 mm in the simulator (seed 2 of ``fgcd bench calibrate``).
+    """
+
+    def __init__(self, T_base_flange: np.ndarray):
+        self.T = np.asarray(T_base_flange, dtype=float)
+        R0 = self.T[0, :3, :3]
+        self.R0 = R0
+        self.phi = np.stack([log_so3(R0.T @ T[:3, :3]) for T in self.T])  # (N, 3) rad
+
+    def inv(self, scale: float) -> np.ndarray:
+        """``inv(T_base_flange)`` of every view, ``(N, 4, 4)``."""
+        if scale == 1.0:
+            return np.stack([invert_pose(T) for T in self.T])
+        out = np.empty_like(self.T)
+        for i, T in enumerate(self.T):
+            R = self.R0 @ exp_so3(scale * self.phi[i])
+            out[i] = invert_pose(make_pose(R, T[:3, 3]))
+        return out
+
+
+def _lm_handeye(hand: _HandPoses, K, X, P, oc, op, ouv, *, rotation_scale: float | None = None,
+                iterations: int = 40, huber_px: float = 1.0):
+    """Levenberg-Marquardt over ``X`` (right perturbation ``X exp(d)``), the points and, if
+    ``rotation_scale`` is given (its start value), the platform's rotation scale; Huber IRLS.
 
     The point blocks are eliminated (Schur complement), so each step solves a 6x6
-    system. Returns ``(X, P, S)`` with ``S`` the reduced normal matrix of ``X``
+    (7x7) system. Returns ``(X, P, s, S)`` with ``s`` the rotation scale (1.0 when
+    not estimated) and ``S`` the reduced normal matrix of the parameters
     (undamped, unweighted by the Huber kernel) for the covariance.
     """
     m = len(P)
     fx, fy = K[0, 0], K[1, 1]
+    with_scale = rotation_scale is not None
+    npar = 7 if with_scale else 6
+    scale = float(rotation_scale) if with_scale else 1.0
 
-    def linearise(X, P):
+    def linearise(X, P, scale):
         Xi = invert_pose(X)
-        T_cam_base = np.einsum("ij,mjk->mik", Xi, inv_hand)
+        T_cam_base = np.einsum("ij,mjk->mik", Xi, hand.inv(scale))
         R = T_cam_base[oc, :3, :3]
         pc = np.einsum("mij,mj->mi", R, P[op]) + T_cam_base[oc, :3, 3]
         z = pc[:, 2]
@@ -389,6 +473,14 @@ def _lm_handeye(inv_hand, K, X, P, oc, op, ouv, *, iterations: int = 40, huber_p
         qx[:, 1, 0], qx[:, 1, 2] = pc[:, 2], -pc[:, 0]
         qx[:, 2, 0], qx[:, 2, 1] = -pc[:, 1], pc[:, 0]
         A = np.concatenate([-Jp, np.einsum("mij,mjk->mik", Jp, qx)], axis=2)  # (M, 2, 6)
+        if with_scale:
+            # ds turns flange i by phi_i ds about its own origin (right perturbation, flange frame);
+            # seen from the camera that is the twist Ad(inv(X)) (0, phi_i) ds
+            Rx, tx = X[:3, :3], X[:3, 3]
+            ang = hand.phi @ Rx  # rows: R_X^T phi_i
+            lin = -np.cross(tx @ Rx, ang)  # rows: -[R_X^T t_X]x R_X^T phi_i
+            twist = np.concatenate([lin, ang], axis=1)[oc]  # (M, 6)
+            A = np.concatenate([A, np.einsum("mij,mj->mi", A, twist)[:, :, None]], axis=2)
         B = np.einsum("mij,mjk->mik", Jp, R)  # (M, 2, 3)
         return r, A, B
 
@@ -404,9 +496,9 @@ def _lm_handeye(inv_hand, K, X, P, oc, op, ouv, *, iterations: int = 40, huber_p
     def normal_equations(r, A, B, w):
         Aw = A * w[:, None, None]
         At = np.transpose(Aw, (0, 2, 1))
-        Hxx = Aw.reshape(-1, 6).T @ A.reshape(-1, 6)
-        gx = Aw.reshape(-1, 6).T @ r.reshape(-1)
-        Hxp = (G @ np.matmul(At, B).reshape(len(op), 18)).reshape(m, 6, 3)
+        Hxx = Aw.reshape(-1, npar).T @ A.reshape(-1, npar)
+        gx = Aw.reshape(-1, npar).T @ r.reshape(-1)
+        Hxp = (G @ np.matmul(At, B).reshape(len(op), 3 * npar)).reshape(m, npar, 3)
         Bw = B * w[:, None, None]
         Bt = np.transpose(Bw, (0, 2, 1))
         Hpp = (G @ np.matmul(Bt, B).reshape(len(op), 9)).reshape(m, 3, 3)
@@ -418,12 +510,12 @@ def _lm_handeye(inv_hand, K, X, P, oc, op, ouv, *, iterations: int = 40, huber_p
         # a tiny relative damping keeps its block invertible
         eps = 1e-9 * np.trace(Hpp, axis1=1, axis2=2)[:, None, None] + 1e-12
         Hpp_inv = np.linalg.inv(Hpp + (lam + eps) * np.eye(3))
-        HxpHinv = np.matmul(Hxp, Hpp_inv)  # (m, 6, 3)
-        S = Hxx + lam * np.eye(6) - np.einsum("mij,mkj->ik", HxpHinv, Hxp, optimize=True)
+        HxpHinv = np.matmul(Hxp, Hpp_inv)  # (m, npar, 3)
+        S = Hxx + lam * np.eye(npar) - np.einsum("mij,mkj->ik", HxpHinv, Hxp, optimize=True)
         return S, Hpp_inv, HxpHinv
 
     lam = 1e-3
-    r, A, B = linearise(X, P)
+    r, A, B = linearise(X, P, scale)
     cost = robust_cost(r)
     for _ in range(iterations):
         e = np.linalg.norm(r, axis=1)
@@ -439,12 +531,13 @@ def _lm_handeye(inv_hand, K, X, P, oc, op, ouv, *, iterations: int = 40, huber_p
                 lam *= 10
                 continue
             dp = -np.matmul(Hpp_inv, (gp + np.einsum("mji,j->mi", Hxp, dx))[:, :, None])[:, :, 0]
-            X_new = X @ exp_se3(dx)
+            X_new = X @ exp_se3(dx[:6])
+            s_new = scale + float(dx[6]) if with_scale else scale
             P_new = P + dp
-            r_new, A_new, B_new = linearise(X_new, P_new)
+            r_new, A_new, B_new = linearise(X_new, P_new, s_new)
             c_new = robust_cost(r_new)
             if c_new < cost:
-                X, P, r, A, B = X_new, P_new, r_new, A_new, B_new
+                X, P, scale, r, A, B = X_new, P_new, s_new, r_new, A_new, B_new
                 step = float(np.linalg.norm(dx))
                 converged = cost - c_new < 1e-10 * cost or step < 1e-10
                 cost = c_new
@@ -456,7 +549,7 @@ def _lm_handeye(inv_hand, K, X, P, oc, op, ouv, *, iterations: int = 40, huber_p
             break
     Hxx, _gx, Hxp, Hpp, _gp = normal_equations(r, A, B, np.ones(len(oc)))
     S, _, _ = reduced(Hxx, Hxp, Hpp, 0.0)
-    return X, P, S
+    return X, P, scale, S
 
 
 def refine_target_free(
@@ -469,6 +562,8 @@ def refine_target_free(
     dist: Sequence[float] | None = None,
     n_features: int = 1500,
     keyframes: Sequence[KeyframeDepths] | None = None,
+    path: PathViews | None = None,
+    match_window: int = 2,
 ):
     """The target-free result with ``X`` refined on the stop images and the scale re-estimated.
 
@@ -488,6 +583,12 @@ def refine_target_free(
     keyframes : sequence of KeyframeDepths, optional
         The VSE's keyframes with their cloud; when given (and matched), the scale
         is the ratio of metric to map depths (:func:`scale_from_depths`).
+    path : PathViews, optional
+        All the views along the platform's path (stops included); when given, the
+        adjustment runs over them (each matched with the next ``match_window``
+        views, the stops with each other) instead of over the stops alone.
+    match_window : int
+        See ``path``.
 
     Returns
     -------
@@ -507,7 +608,15 @@ def refine_target_free(
     from fgcd_cli.calibration.handeye import estimate_scale, pair_residuals, per_sample_residuals
     from fgcd_cli.calibration.samples import relative_motions
 
-    ba = refine_handeye_images(T_base_flange, images, K, linear.T_flange_cam, dist=dist, n_features=n_features)
+    if path is not None and len(path.images) > len(images):
+        if len(path.stop_index) != len(images) or len(path.T_base_flange) != len(path.images):
+            raise CalibrationError("the path views do not match the stop samples")
+        ba = refine_handeye_images(path.T_base_flange, path.images, K, linear.T_flange_cam, dist=dist,
+                                   n_features=n_features, match_window=match_window, anchors=path.stop_index)
+        views, stop_rms = len(path.images), np.asarray(ba.per_image_rms_px)[list(path.stop_index)]
+    else:
+        ba = refine_handeye_images(T_base_flange, images, K, linear.T_flange_cam, dist=dist, n_features=n_features)
+        views, stop_rms = len(images), np.asarray(ba.per_image_rms_px)
     # the VSE side carries the noise: fit 1/s (unbiased for independent pose noise, see estimate_scale)
     sc = estimate_scale(ba.T_flange_cam, T_base_flange, T_map_cam, pairs=linear.pairs, regress="vse")
     scale, scale_method, depth_info = sc.scale, "camera motions (estimate_scale, regress=vse)", {}
@@ -523,13 +632,17 @@ def refine_target_free(
     MA_metric = [np.block([[A[:3, :3], scale * A[:3, 3:4]], [A[3:4, :]]]) for A in MA]
     res_mm, res_deg = pair_residuals(ba.T_flange_cam, MB, MA_metric)
     refinement = {
-        "method": "bundle adjustment of X over the stop images, camera poses = T_base_flange @ X",
+        "method": "bundle adjustment of X over the images of the platform's rest poses, camera poses = "
+                  "T_base_flange @ X",
+        "views": views,
         "points": ba.n_points,
         "observations": ba.n_observations,
         "rms_px": ba.rms_px,
-        "per_image_rms_px": np.asarray(ba.per_image_rms_px).tolist(),
+        "per_image_rms_px": stop_rms.tolist(),
         "std_mm": ba.std_mm,
         "std_deg": ba.std_deg,
+        "platform_rotation_scale": ba.rotation_scale,
+        "platform_rotation_scale_std": ba.rotation_scale_std,
         "change_mm": ba.change_mm,
         "change_deg": ba.change_deg,
         "linear_T_flange_cam": np.asarray(linear.T_flange_cam).tolist(),
@@ -553,6 +666,31 @@ def refine_target_free(
         notes=notes,
         refinement=refinement,
     )
+
+
+@dataclass(frozen=True, kw_only=True)
+class PathViews:
+    """Every pose the platform came to rest at during a procedure, in order, with its image.
+
+    The steps between the stops (a few millimetres and a degree apart) are views
+    with a reported flange pose like the stops: the bundle adjustment needs no
+    VSE pose for them. Each step brings the platform's repeatability error anew,
+    and with ~10x more views than stops the adjustment averages it down
+    (docs/calibration.md §3).
+
+    Attributes
+    ----------
+    T_base_flange : list of (4, 4) ndarray
+        Reported flange pose of each view, metres.
+    images : list of images
+        The camera image at each view (undistorted like the stop images).
+    stop_index : list of int
+        For each stop sample (in the order of the samples), its index in this path.
+    """
+
+    T_base_flange: list
+    images: list
+    stop_index: list
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -17,6 +17,7 @@ from drivers.platform import MotionGuard
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import HandEyeResult, solve_handeye_scale
+from fgcd_cli.calibration.handeye_ba import gray_u8
 from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_handeye_target
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
 from fgcd_cli.geometry.camera import PinholeCamera
@@ -150,6 +151,11 @@ def run_target_free(
     stop_images: list[np.ndarray] = []
     last_image: list[Any] = [None]
     flange_at: dict[float, np.ndarray] = {}  # reported flange pose of every frame, by timestamp
+    last_pose: list[Any] = [None]
+    # every rest pose along the path with its image (grey, 8 bit), for the image refinement
+    path_T: list[np.ndarray] = []
+    path_images: list[np.ndarray] = []
+    stop_index: list[int] = []
     skipped: dict[int, str] = {}
     frames = 0
     state = None
@@ -159,15 +165,19 @@ def run_target_free(
         frame = camera_source.grab()
         frames += 1
         last_image[0] = frame.image
-        flange_at[float(frame.timestamp_s)] = np.asarray(guard.platform.flange_pose(), dtype=float)
+        last_pose[0] = flange_at[float(frame.timestamp_s)] = np.asarray(guard.platform.flange_pose(), dtype=float)
         return engine.process(frame.image, frame.timestamp_s)
 
     T_prev = T_start
     for index, T_rel in enumerate(motions):
         T_target = T_start @ np.asarray(T_rel, dtype=float)
-        for T_step in interpolate_steps(T_prev, T_target, max_step_m=max_step_m, max_step_deg=max_step_deg) if index else []:
+        steps = interpolate_steps(T_prev, T_target, max_step_m=max_step_m, max_step_deg=max_step_deg) if index else []
+        for T_step in steps:
             guard.move_to(T_step)
             state = feed()
+            if refine:
+                path_T.append(last_pose[0])
+                path_images.append(gray_u8(last_image[0]))
         T_prev = T_target
         for _ in range(max(1, settle_frames)):
             state = feed()
@@ -177,6 +187,14 @@ def run_target_free(
             hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
             eye.append(np.asarray(state.T_map_cam, dtype=float))
             stop_images.append(np.asarray(last_image[0]))
+            if refine:
+                # the last step ended at the stop: the stop's own view replaces it (same rest pose)
+                if steps:
+                    path_T.pop()
+                    path_images.pop()
+                path_T.append(hand[-1])
+                path_images.append(gray_u8(last_image[0]))
+                stop_index.append(len(path_T) - 1)
             say(f"stop {index + 1}/{len(motions)}: sample {len(hand)} recorded")
         else:
             skipped[index] = f"VSE {state.status}: {state.message}"
@@ -188,11 +206,12 @@ def run_target_free(
         )
     result = solve_handeye_scale(hand, eye, pairs="all")
     if refine:
-        from fgcd_cli.calibration.handeye_ba import refine_target_free
+        from fgcd_cli.calibration.handeye_ba import PathViews, refine_target_free
 
+        path = PathViews(T_base_flange=path_T, images=path_images, stop_index=stop_index)
         try:
             result = refine_target_free(result, hand, eye, stop_images, camera.K, dist=camera.dist,
-                                        keyframes=_keyframe_depths(state, flange_at))
+                                        keyframes=_keyframe_depths(state, flange_at), path=path)
             say(
                 f"image refinement: {result.refinement['points']} points, {result.refinement['rms_px']:.2f} px RMS, "
                 f"X moved {result.refinement['change_mm']:.1f} mm / {result.refinement['change_deg']:.2f} deg"
