@@ -183,18 +183,22 @@ def run_target_free(
             state = feed()
         if state.status == "failed":
             raise CalibrationError(f"the VSE cannot track this scene: {state.message}")
-        if state.status == "tracking" and state.T_map_cam is not None:
+        tracked = state.status == "tracking" and state.T_map_cam is not None
+        if tracked:
             hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
             eye.append(np.asarray(state.T_map_cam, dtype=float))
             stop_images.append(np.asarray(last_image[0]))
-            if refine:
-                # the last step ended at the stop: the stop's own view replaces it (same rest pose)
-                if steps:
-                    path_T.pop()
-                    path_images.pop()
-                path_T.append(hand[-1])
-                path_images.append(gray_u8(last_image[0]))
+        if refine:
+            # the last step ended at the stop: the stop's own view replaces it (same rest pose);
+            # the refinement needs no VSE pose, so a stop the VSE missed is still a view
+            if steps:
+                path_T.pop()
+                path_images.pop()
+            path_T.append(hand[-1] if tracked else last_pose[0])
+            path_images.append(gray_u8(last_image[0]))
+            if tracked:
                 stop_index.append(len(path_T) - 1)
+        if tracked:
             say(f"stop {index + 1}/{len(motions)}: sample {len(hand)} recorded")
         else:
             skipped[index] = f"VSE {state.status}: {state.message}"

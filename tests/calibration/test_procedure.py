@@ -171,3 +171,36 @@ def test_calibration_package_never_imports_the_simulator():
     for path in Path(pkg.__file__).parent.glob("*.py"):
         text = path.read_text(encoding="utf-8")
         assert "drivers.sim" not in text, f"{path.name} imports the simulator"
+
+
+def test_run_target_free_gives_the_refinement_every_rest_pose_of_the_path(monkeypatch):
+    """The image refinement sees the stops and every step between them, each once, with the
+    pose reported when its frame was taken; the stops are marked in the path."""
+    import fgcd_cli.calibration.handeye_ba as handeye_ba
+
+    seen = {}
+
+    def spy(linear, T_base_flange, T_map_cam, images, K, **kwargs):
+        seen.update(hand=T_base_flange, images=images, path=kwargs["path"])
+        from dataclasses import replace
+
+        return replace(linear, refinement={"points": 0, "rms_px": 0.0, "change_mm": 0.0, "change_deg": 0.0})
+
+    monkeypatch.setattr(handeye_ba, "refine_target_free", spy)
+    platform = IdealPlatform()
+    X = make_pose(exp_so3([0.1, -0.3, 0.2]), [0.03, -0.05, 0.08])
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
+    run_target_free(guard, FakeCamera(), lambda cam: FakeVSE(platform, X, 0.42), camera=CAMERA)
+    path = seen["path"]
+    # one view per platform motion, plus the start (the first stop, reached without moving, which
+    # the VSE missed: still a view of the refinement, not a stop sample)
+    assert len(path.T_base_flange) == len(path.images) == len(platform.moves) + 1
+    assert len(path.stop_index) == len(seen["hand"]) == len(seen["images"])
+    for k, i in enumerate(path.stop_index):
+        np.testing.assert_allclose(path.T_base_flange[i], seen["hand"][k], atol=1e-12)
+    # consecutive views are distinct rest poses a step apart
+    steps = [max(pose_distance(a, b)[0] / 5.0, pose_distance(a, b)[1]) for a, b in
+             zip(path.T_base_flange[:-1], path.T_base_flange[1:])]
+    assert min(steps) > 0.01 and max(steps) <= 1.0 + 1e-9  # distinct poses, each <= 5 mm / 1 deg on
+    assert 0 not in path.stop_index
+    assert all(img.dtype == np.uint8 and img.ndim == 2 for img in path.images)
