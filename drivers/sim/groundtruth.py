@@ -49,6 +49,10 @@ class GroundTruth:
     def intrinsics_true(self) -> CameraIntrinsics:
         return self._intr
 
+    def platform_rotation_scale_true(self) -> float:
+        """Ratio of the simulated platform's executed to commanded rotations (its kinematic error)."""
+        return float(getattr(self._platform, "_rot_scale", 1.0))
+
     # -- images
     def depth(self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None) -> np.ndarray:
         """(H, W) float32 z-depth in metres (0 where nothing), current changes included."""

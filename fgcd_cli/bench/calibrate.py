@@ -201,7 +201,10 @@ def _target_free_stage(rig, calibrated: PinholeCamera) -> dict:
         linear = {"linear_trans_err_mm": lmm, "linear_rot_err_deg": ldeg,
                   "linear_scale_err_pct": 100.0 * abs(ref["linear_scale"] / s_true - 1),
                   "ba_points": ref["points"], "ba_rms_px": ref["rms_px"], "ba_std_mm": ref["std_mm"],
-                  "ba_std_deg": ref["std_deg"]}
+                  "ba_std_deg": ref["std_deg"], "ba_views": ref.get("views"),
+                  "platform_rotation_scale": ref.get("platform_rotation_scale"),
+                  "platform_rotation_scale_std": ref.get("platform_rotation_scale_std"),
+                  "platform_rotation_scale_true": gt.platform_rotation_scale_true()}
     return {
         "method": run.result.method,
         "trans_err_mm": mm,

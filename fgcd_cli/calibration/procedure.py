@@ -217,7 +217,8 @@ def run_target_free(
             result = refine_target_free(result, hand, eye, stop_images, camera.K, dist=camera.dist,
                                         keyframes=_keyframe_depths(state, flange_at), path=path)
             say(
-                f"image refinement: {result.refinement['points']} points, {result.refinement['rms_px']:.2f} px RMS, "
+                f"image refinement: {result.refinement.get('views', len(hand))} views, "
+                f"{result.refinement['points']} points, {result.refinement['rms_px']:.2f} px RMS, "
                 f"X moved {result.refinement['change_mm']:.1f} mm / {result.refinement['change_deg']:.2f} deg"
             )
         except CalibrationError as exc:

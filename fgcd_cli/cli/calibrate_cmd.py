@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from pathlib import Path
 from typing import Optional
 
@@ -177,11 +179,17 @@ def _render_handeye(console, data: dict) -> None:
         console.print(f"map scale s = {data['scale']:.5f} m per VSE unit")
     ref = data.get("refinement") or {}
     if ref:
+        views = f"{ref['views']} views, " if ref.get("views") else ""
         console.print(
-            f"image refinement: {ref['points']} points, {ref['rms_px']:.2f} px RMS, X +- {ref['std_mm']:.1f} mm / "
+            f"image refinement: {views}{ref['points']} points, {ref['rms_px']:.2f} px RMS, X +- {ref['std_mm']:.1f} mm / "
             f"{ref['std_deg']:.3f} deg (1 sigma), moved {ref['change_mm']:.1f} mm / {ref['change_deg']:.2f} deg "
             f"from the linear solve; scale from {ref.get('scale_method', '?')}"
         )
+        s_rot, s_std = ref.get("platform_rotation_scale"), ref.get("platform_rotation_scale_std")
+        if s_rot is not None and s_std is not None and math.isfinite(s_std):
+            console.print(
+                f"platform rotations: {s_rot:.5f} x the reported ones (+- {s_std:.5f}), estimated with X"
+            )
     console.print(
         f"{data['n_samples']} samples, {data['n_pairs']} motion pairs, residual RMS {data['rms_mm']:.2f} mm / "
         f"{data['rms_deg']:.3f} deg, rotation-axis spread {data['axis_spread_deg']:.0f} deg"
