@@ -102,7 +102,8 @@ def intrinsics_cmd(
     images: Optional[Path] = typer.Option(None, "--images", help="Folder of board photographs."),
     sim: bool = typer.Option(False, "--sim", help="Use views of a board rendered by the simulator."),
     sim_views: int = typer.Option(20, "--sim-views", help="Number of simulated views."),
-    seed: int = typer.Option(0, "--seed", help="Simulated camera (same seed as the simulated rig)."),
+    seed: int = typer.Option(0, "--seed", help="Simulated rig whose camera is calibrated (--sim): same seed as "
+                             "`calibrate hand-eye --driver sim --seed`."),
     board_file: Optional[Path] = BOARD_FILE,
     squares_x: int = SQX,
     squares_y: int = SQY,
@@ -121,18 +122,27 @@ def intrinsics_cmd(
         raise UserInputError("give exactly one of --images DIR or --sim")
     camp = _open_campaign(campaign)
     if sim:
-        from drivers.sim.board import SimBoard, SimBoardCamera
+        from drivers.sim.board import SimBoard
+        from fgcd_cli.rigs import SimScenario, open_sim_rig
 
         board_file = None
         board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
-        source = SimBoardCamera(
-            SimBoard(squares_x=board.squares_x, squares_y=board.squares_y, square_m=board.square_m,
-                     marker_m=board.marker_m, dictionary=board.dictionary),
-            seed=seed,
-        )
-        if not as_json:
-            info(f"rendering {sim_views} simulated board views…")
-        imgs = [source.grab().image for _ in range(sim_views)]
+        if sim_views < 1:
+            raise UserInputError("--sim-views must be at least 1")
+        # the camera of the simulated rig of this seed (the one `hand-eye --driver sim --seed` moves),
+        # not a stand-alone camera with other true intrinsics
+        opened = open_sim_rig(SimScenario(seed=seed), T_flange_cam=None, intrinsics=None)
+        try:
+            source = opened.sim.board_camera(
+                SimBoard(squares_x=board.squares_x, squares_y=board.squares_y, square_m=board.square_m,
+                         marker_m=board.marker_m, dictionary=board.dictionary),
+                seed=seed,
+            )
+            if not as_json:
+                info(f"rendering {sim_views} simulated board views…")
+            imgs = [source.grab().image for _ in range(sim_views)]
+        finally:
+            opened.close()
         names = [f"sim_{i:03d}" for i in range(sim_views)]
     else:
         board = _board_from_options(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary)
