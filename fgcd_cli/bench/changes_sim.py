@@ -58,7 +58,7 @@ def _render_set(renderer, T, intr, *, changes, effects, exposure, rng):
 
 RELOCATED_SCENE = "relief_panel"
 RELOCATED_TRANSLATION_MM = 3.0
-RELOCATED_EDGE_TOLERANCE_PX = 2  # what ``fgcd diff`` on a campaign uses when the relocation ends >= 1 mm off
+RELOCATED_EDGE_CHECK_PX = 2  # the region-level edge check ``fgcd diff`` on a campaign uses (report.usecases.EDGE_CHECK_PX)
 
 
 def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
@@ -69,8 +69,8 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
     camera 3 mm away in a random direction and 0.1 deg rotated. Parallax,
     occlusion of the niche walls and the resampling of thin high-contrast lines
     differ at the depth edges; the flat registration cannot absorb them. Scored
-    with the edge tolerance a campaign diff turns on from its relocation log
-    (``*_campaign``), and without it (``*_plain``) for comparison.
+    with the region-level edge check a campaign diff uses (``*_campaign``), and
+    without it (``*_plain``) for comparison.
     """
     if seeds is None:
         seeds = (0,) if quick else (0, 1, 2)
@@ -100,11 +100,12 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
         for changed in (True, False):
             cur_images = _render_set(renderer, T_cur, intr, changes=changes if changed else None,
                                      effects=cur_effects, exposure=ref_exposure * 0.8, rng=rng)
-            for setting, tolerance in (("campaign", RELOCATED_EDGE_TOLERANCE_PX), ("plain", 0)):
+            for setting, check in (("campaign", RELOCATED_EDGE_CHECK_PX), ("plain", 0)):
                 result = detect_changes(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=area,
-                                        edge_tolerance_px=tolerance)
+                                        edge_check_px=check)
                 row = {"scene": RELOCATED_SCENE, "seed": seed, "changed": changed, "setting": setting,
-                       "edge_tolerance_px": tolerance, "comparable": result.comparable, "regions": len(result.regions)}
+                       "edge_check_px": check, "comparable": result.comparable, "regions": len(result.regions),
+                       "set_aside_regions": result.settings.get("edge_explained_regions", 0)}
                 if changed:
                     scores = binary_scores(result.mask, truth, eval_mask=eval_mask)
                     row.update({"auto_f1": scores.f1, "precision": scores.precision, "recall": scores.recall,

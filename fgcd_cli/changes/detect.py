@@ -38,6 +38,8 @@ class ChangeResult:
     """Current images resampled into the reference frame, light-normalized (float32)."""
     settings: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    edge_explained: np.ndarray | None = None
+    """HxW bool, pixels of the regions the region-level edge check set aside (``edge_check_px``), or None."""
 
     @property
     def changed_fraction(self) -> float:
@@ -58,6 +60,37 @@ def _empty(shape: tuple[int, int], reason: str, registration: Registration | Non
         threshold=None,
         settings=settings,
     )
+
+
+def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, warped_images, valid, gain_weight, bands, settings,
+                    seed_level: float, gain_sigma_px: float, shift_radius_px: int, smooth_sigma_px: float,
+                    edge_tolerance_px: int, edge_check_px: int, edge_contrast: float,
+                    band_fraction: float) -> np.ndarray:
+    """HxW bool: pixels of the regions that the region-level edge check explains (see detect_changes)."""
+    check_bands = [edge_band(ref, radius_px=edge_check_px, contrast=edge_contrast) for ref in refs]
+    tolerant = []
+    for ref, warped, band, check_band in zip(refs, warped_images, bands, check_bands):
+        normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px, weight=gain_weight)
+        plain = edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
+                                         edge_radius_px=edge_tolerance_px, band=band)
+        # divided by the detection cue's own median, so that it compares with the seed threshold
+        median = float(np.median(plain[valid])) if valid.any() else 0.0
+        checked = edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
+                                           edge_radius_px=edge_check_px, band=check_band)
+        tolerant.append(np.maximum(checked, 0.0) / (median + 1e-12))
+    tolerant_score = np.mean(tolerant, axis=0).astype(np.float32)
+    if smooth_sigma_px > 0:
+        tolerant_score = cv2.GaussianBlur(tolerant_score, (0, 0), smooth_sigma_px)
+    in_band = np.logical_or.reduce(check_bands)
+    explained = np.zeros(labels.shape, bool)
+    n_explained = 0
+    for region_id in range(1, n_regions + 1):
+        pixels = labels == region_id
+        if in_band[pixels].mean() >= band_fraction and tolerant_score[pixels].max() < seed_level:
+            explained |= pixels
+            n_explained += 1
+    settings["edge_explained_regions"] = n_explained
+    return explained
 
 
 def detect_changes(
@@ -83,6 +116,8 @@ def detect_changes(
     edge_radius_px: int = 6,
     edge_tolerance_px: int = 0,
     edge_contrast: float = 3.0,
+    edge_check_px: int = 0,
+    edge_check_band_fraction: float = 0.8,
 ) -> ChangeResult:
     """Find fine-grained changes between a reference and a current observation.
 
@@ -134,6 +169,16 @@ def detect_changes(
         disables it: it also hides small changes on strong texture edges, so it is
         for pairs known to be relocated only to a few mm (``fgcd diff`` on a
         campaign turns it on from the visit's relocation log, 2 px).
+    edge_check_px, edge_check_band_fraction : int, float
+        Region-level edge check (0 disables): a region lying for at least
+        ``edge_check_band_fraction`` of its pixels in the reference's strong-edge
+        band (grown by ``edge_check_px``) is dropped when the two-sided envelope
+        difference over ``edge_check_px`` (the edge tolerance above) nowhere
+        reaches the seed threshold inside it: a thin structure that a sub-pixel
+        viewpoint difference thinned, moved or (in point-sampled renders) made
+        appear in other pixels. Unlike ``edge_tolerance_px`` it leaves the pixels
+        of every other region untouched. The dropped regions are counted in
+        ``settings["edge_explained_regions"]``.
     robust_gain_rounds : int
         Re-estimations of the light-gain field without the pixels the previous
         score flags as suspect (0: one plain estimate, the change biases it).
@@ -160,6 +205,7 @@ def detect_changes(
         "edge_radius_px": edge_radius_px,
         "edge_tolerance_px": edge_tolerance_px,
         "edge_contrast": edge_contrast,
+        "edge_check_px": edge_check_px,
         "shading_normalization": shading_ref is not None,
     }
     refs, curs = validate_stacks(ref_images, cur_images)
@@ -259,6 +305,19 @@ def detect_changes(
                                     radius_px=edge_radius_px)
     mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
     regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
+    if edge_check_px > 0 and regions:
+        explained = _edge_explained(
+            labels, len(regions), refs=refs, warped_images=warped_images, valid=valid, gain_weight=gain_weight,
+            bands=bands, settings=settings, seed_level=threshold.high,
+            gain_sigma_px=gain_sigma_px, shift_radius_px=shift_radius_px, smooth_sigma_px=smooth_sigma_px,
+            edge_tolerance_px=edge_tolerance_px, edge_check_px=edge_check_px, edge_contrast=edge_contrast,
+            band_fraction=edge_check_band_fraction,
+        )
+        if explained.any():
+            mask &= ~explained
+            regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
+    else:
+        explained = None
     warnings = []
     fraction = float(mask[valid].mean())
     if fraction > 0.25:
@@ -279,4 +338,5 @@ def detect_changes(
         current_registered=registered,
         settings=settings,
         warnings=warnings,
+        edge_explained=explained,
     )

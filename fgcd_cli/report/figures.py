@@ -17,6 +17,7 @@ from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
 
 # Colours (RGB) chosen to stand out on plaster, pigments and stone.
 CHANGE_RGB = (255, 0, 200)
+SET_ASIDE_RGB = (0, 220, 255)  # cyan: found, then set aside by the edge check
 LABEL_RGB = (255, 255, 0)
 
 
@@ -52,7 +53,8 @@ def _figure_png(fig) -> bytes:
     return buffer.getvalue()
 
 
-def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRegion], *, valid: np.ndarray | None = None) -> np.ndarray:
+def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRegion], *, valid: np.ndarray | None = None,
+                   set_aside: np.ndarray | None = None) -> np.ndarray:
     """The reference image with changed regions tinted, outlined and numbered.
 
     Parameters
@@ -61,6 +63,8 @@ def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRe
     labels : ndarray, HxW int, region id per pixel (0 = unchanged).
     regions : list of ChangeRegion (their ids are drawn next to them).
     valid : ndarray, HxW bool, optional; pixels outside are dimmed (not compared).
+    set_aside : ndarray, HxW bool, optional; regions found but set aside (edge check),
+        outlined thinly in cyan and not numbered, so that nothing is hidden.
 
     Returns
     -------
@@ -73,8 +77,11 @@ def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRe
     tint = np.array(CHANGE_RGB, np.float32)
     rgb[changed] = 0.55 * rgb[changed] + 0.45 * tint
     out = np.clip(rgb, 0, 255).astype(np.uint8)
-    contours, _ = cv2.findContours(changed.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     thickness = max(1, int(round(min(image.shape[:2]) / 500)))
+    if set_aside is not None and set_aside.any():
+        aside, _ = cv2.findContours(set_aside.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(out, aside, -1, SET_ASIDE_RGB, 1)
+    contours, _ = cv2.findContours(changed.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     cv2.drawContours(out, contours, -1, CHANGE_RGB, thickness)
     scale = max(0.45, min(image.shape[:2]) / 900)
     for region in regions:

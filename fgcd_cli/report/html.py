@@ -157,6 +157,14 @@ def render_diff_report(
     parts.append(_verdict(result))
     for warning in result.warnings:
         parts.append(f'<div class="warn">⚠ {html.escape(warning)}</div>')
+    set_aside = int(result.settings.get("edge_explained_regions") or 0)
+    if set_aside:
+        parts.append(
+            f"<p>{set_aside} further region{'s' if set_aside > 1 else ''} along strong edges of the reference "
+            f"{'were' if set_aside > 1 else 'was'} set aside: a sub-pixel difference of viewpoint explains "
+            f"{'them' if set_aside > 1 else 'it'} (thin lines and edges thinned or moved by up to 2 px). "
+            "They are outlined in cyan on the change map; check them by eye where an edge itself may have changed.</p>"
+        )
     if fdf is not None:
         quality = "within" if fdf.afd_px < 3 else "outside"
         parts.append(
@@ -174,8 +182,11 @@ def render_diff_report(
 
     if result.comparable:
         parts.append("<h2>Where it changed</h2><div class=\"pair\">")
-        overlay = change_overlay(ref_image, result.labels, result.regions, valid=result.valid)
-        parts.append(_figure(png_bytes(overlay), "Changed regions (magenta, numbered) on the reference; dimmed = not compared"))
+        overlay = change_overlay(ref_image, result.labels, result.regions, valid=result.valid,
+                                 set_aside=result.edge_explained)
+        parts.append(_figure(png_bytes(overlay), "Changed regions (magenta, numbered) on the reference; "
+                             + ("cyan outline = set aside as an edge effect; " if set_aside else "")
+                             + "dimmed = not compared"))
         high = result.threshold.high if result.threshold else None
         parts.append(_figure(png_bytes(score_heatmap(result.score, result.valid, high=high)),
                              "Change score (bright = strong difference; saturates at the detection threshold)"))

@@ -35,6 +35,7 @@ def result_summary(result: ChangeResult, fdf: FdfResult | None = None) -> dict:
         "threshold": None if result.threshold is None else asdict(result.threshold),
         "settings": result.settings,
         "warnings": result.warnings,
+        "set_aside_px": 0 if result.edge_explained is None else int(result.edge_explained.sum()),
     }
     if result.threshold is not None:
         summary["change_score_png_scale"] = {
@@ -76,7 +77,8 @@ def diff_products(
     files["change_score.npy"] = buffer.getvalue()
     files["change_mask.png"] = png_bytes((result.mask * 255).astype(np.uint8))
     ref_shown = ref_images[shown_lighting]
-    files["overlay.png"] = png_bytes(change_overlay(ref_shown, result.labels, result.regions, valid=result.valid if result.comparable else None))
+    files["overlay.png"] = png_bytes(change_overlay(ref_shown, result.labels, result.regions, valid=result.valid if result.comparable else None,
+                                                      set_aside=result.edge_explained))
     files["regions.json"] = json.dumps(summary, indent=1, default=float).encode()
     if fdf is not None:
         files["fdf.png"] = fdf_quiver_png(ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px,

@@ -70,3 +70,46 @@ def test_stain_next_to_an_edge_is_still_found():
     assert len(result.regions) == 1
     scores = binary_scores(result.mask, truth)
     assert scores.recall > 0.6 and scores.precision > 0.6
+
+
+# -- region-level edge check (what `fgcd diff` on a campaign uses)
+
+def test_edge_check_sets_the_shifted_groove_aside_and_keeps_it_visible():
+    ref, _ = _niche_scene(0)
+    cur, _ = _niche_scene(2)
+    result = detect_changes([ref], [np.clip(cur * 0.9 + 0.03, 0, 1)], edge_check_px=2)
+    assert result.comparable, result.reason
+    assert result.regions == []
+    assert result.settings["edge_explained_regions"] >= 1
+    assert result.edge_explained is not None and result.edge_explained[:, 97:104].any()  # shown, not lost
+
+
+def test_edge_check_keeps_the_whole_stain_next_to_the_groove():
+    """The pixel-level tolerance trims a change's pixels inside the band; the region check keeps them all."""
+    ref, _ = _niche_scene(0)
+    cur, truth = _niche_scene(2, stain=True)
+    result = detect_changes([ref], [np.clip(cur * 0.9 + 0.03, 0, 1)], edge_check_px=2)
+    assert len(result.regions) == 1
+    scores = binary_scores(result.mask, truth)
+    assert scores.recall > 0.8 and scores.precision > 0.6
+
+
+def test_edge_check_keeps_a_new_thin_crack_away_from_reference_edges():
+    ref, _ = _niche_scene(0)
+    cur, _ = _niche_scene(2)
+    cur = cur.copy()
+    cur[60:200, 140:142] = 0.05  # a new 2 px dark crack across the texture, away from the groove and the step
+    truth = np.zeros(ref.shape, bool)
+    truth[60:200, 139:143] = True
+    plain = detect_changes([ref], [np.clip(cur * 0.9 + 0.03, 0, 1)])
+    assert any(r.bbox_xywh[0] > 130 for r in plain.regions)  # the plain detector finds it (and the groove)
+    result = detect_changes([ref], [np.clip(cur * 0.9 + 0.03, 0, 1)], edge_check_px=2)
+    assert len(result.regions) == 1
+    assert binary_scores(result.mask, truth).recall > 0.8
+
+
+def test_edge_check_off_by_default():
+    ref, _ = _niche_scene(0)
+    cur, _ = _niche_scene(2)
+    result = detect_changes([ref], [np.clip(cur * 0.9 + 0.03, 0, 1)])
+    assert result.edge_explained is None and "edge_explained_regions" not in result.settings
