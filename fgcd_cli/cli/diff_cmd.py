@@ -46,6 +46,9 @@ def diff(
     truth: Optional[Path] = typer.Option(None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."),
     mm_per_px: Optional[float] = typer.Option(None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."),
     no_register: bool = typer.Option(False, "--no-register", help="Images are already aligned: skip registration."),
+    edge_check: Optional[int] = typer.Option(
+        None, "--edge-check", help="Set aside regions along strong reference edges that a shift of up to this many px "
+        "explains (shown in cyan); 0 = off. Default: 2 on a campaign, 0 on bare images."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Find fine-grained changes; writes change_score.png/.npy, change_mask.png, overlay.png, regions.json, report.html.
@@ -63,14 +66,15 @@ def diff(
         if campaign is None or station is None:
             raise UserInputError("campaign mode needs both --campaign and --station")
         data = run_campaign(campaign, station, visit=visit, eval_mask=eval_mask, mm_per_px=mm_per_px,
-                            register=not no_register, output=output, progress=None if as_json else info)
+                            register=not no_register, output=output, edge_check_px=edge_check,
+                            progress=None if as_json else info)
     else:
         if not ref or not cur:
             raise UserInputError("give --ref and --cur images (or --campaign and --station)")
         if output is None:
             raise UserInputError("give an output folder with -o DIR")
         data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
-                        register=not no_register, progress=None if as_json else info)
+                        register=not no_register, edge_check_px=edge_check or 0, progress=None if as_json else info)
     emit(data, as_json=as_json, render=_render(data))
     if not data["comparable"]:
         from fgcd_cli.errors import AlgorithmError

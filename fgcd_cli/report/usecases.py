@@ -57,6 +57,7 @@ def run_bare(
     truth: Path | None = None,
     mm_per_px: float | None = None,
     register: bool = True,
+    edge_check_px: int = 0,
     progress: Progress = None,
 ) -> dict:
     """Compare image files (one per lighting) and write the products into ``output``."""
@@ -71,7 +72,8 @@ def run_bare(
             raise UserInputError("--mm-per-px must be positive")
         area = np.full(ref_images[0].shape[:2], mm_per_px**2)
     _say(progress, f"comparing {len(ref_images)} lighting(s)…")
-    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register)
+    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
+                            edge_check_px=_edge_check(edge_check_px))
     fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
     metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
     if mm_per_px is not None:
@@ -125,6 +127,12 @@ def _relocation_log(visit) -> list[dict] | None:
 EDGE_CHECK_PX = 2
 
 
+def _edge_check(px: int) -> int:
+    if not 0 <= px <= 8:
+        raise UserInputError(f"--edge-check must be between 0 (off) and 8 px, got {px}")
+    return int(px)
+
+
 def relocation_residual_mm(visit) -> float | None:
     """The relocation's own estimate of the remaining camera offset (mm, last logged iteration), if logged."""
     if not visit.has("relocation.jsonl"):
@@ -163,6 +171,7 @@ def run_campaign(
     mm_per_px: float | None = None,
     register: bool = True,
     output: Path | None = None,
+    edge_check_px: int | None = None,
     progress: Progress = None,
 ) -> dict:
     """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``)."""
@@ -184,9 +193,10 @@ def run_campaign(
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
     mask = read_mask(eval_mask) if eval_mask is not None else None
     residual_mm = relocation_residual_mm(observation)
+    edge_check = _edge_check(EDGE_CHECK_PX if edge_check_px is None else edge_check_px)
     _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                            edge_check_px=EDGE_CHECK_PX)
+                            edge_check_px=edge_check)
     fdf = measure_fdf(ref_images[0], cur_images[0])
     reloc = observation.metadata.get("relocation") or {}
     metadata = {
@@ -197,8 +207,8 @@ def run_campaign(
         "metric scale": scale_note,
         "relocation": reloc,
         "relocation residual (its own estimate)": (f"{residual_mm:.2f} mm" if residual_mm is not None else "not logged"),
-        "edge check": (f"{EDGE_CHECK_PX} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
-                       "edges set aside (cyan outlines)"),
+        "edge check": (f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
+                       "edges set aside (cyan outlines)" if edge_check else "off"),
     }
     files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf,
                           relocation_log=_relocation_log(observation), metadata=metadata,

@@ -68,3 +68,25 @@ def test_afd_json_and_figure(image_files, tmp_path):
     assert data["afd_px"] == pytest.approx(np.hypot(1.4, 2.1), abs=0.15)
     assert data["settings"]["ratio"] == 0.75 and data["inliers"] > 20
     assert cv2.imread(str(fig)) is not None
+
+
+def test_diff_edge_check_option(tmp_path):
+    """--edge-check sets the half-pixel-shifted groove aside (and says so); a bad value is one clear line."""
+    from changes.test_edge_tolerance import _niche_scene
+
+    ref, _ = _niche_scene(0)
+    cur, _ = _niche_scene(2)
+    cv2.imwrite(str(tmp_path / "ref.png"), np.round(ref * 65535).astype(np.uint16))
+    cv2.imwrite(str(tmp_path / "cur.png"), np.round(np.clip(cur * 0.9 + 0.03, 0, 1) * 65535).astype(np.uint16))
+    args = ("diff", "--ref", str(tmp_path / "ref.png"), "--cur", str(tmp_path / "cur.png"), "--json")
+    plain = run(*args, "-o", str(tmp_path / "plain"))
+    assert plain.returncode == 0, plain.stderr
+    assert len(json.loads(plain.stdout)["regions"]) > 0
+    checked = run(*args, "-o", str(tmp_path / "checked"), "--edge-check", "2")
+    assert checked.returncode == 0, checked.stderr
+    data = json.loads(checked.stdout)
+    assert data["regions"] == [] and data["settings"]["edge_explained_regions"] >= 1 and data["set_aside_px"] > 0
+    assert "set aside" in (tmp_path / "checked" / "report.html").read_text()
+    bad = run(*args, "-o", str(tmp_path / "bad"), "--edge-check", "99")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert "--edge-check" in bad.stderr.strip().splitlines()[-1]
