@@ -245,6 +245,11 @@ def handeye_cmd(
         raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
     if mode == "target" and driver == "sim":
         raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
+    if mode == "target-free":
+        from fgcd_cli.calibration.motions import exploration_motions
+
+        # refuse bad motion sizes before connecting to a platform
+        exploration_motions(translation_m=translation_mm / 1000, rotation_deg=rotation_deg)
     camp = _open_campaign(campaign)
     intr = load_intrinsics(camp) if camp is not None else None
     if intr is None and not as_json:

@@ -56,6 +56,10 @@ def test_handeye_rejects_a_zero_rotation_before_moving():
     r = fgcd("calibrate", "hand-eye", "--mode", "target-free", "--driver", "sim", "--rotation-deg", "0", "--yes")
     one_line_error(r, mentions="rotation")
     assert "stop 1/" not in r.stderr + r.stdout
+    assert "platform makes small motions" not in r.stderr + r.stdout  # refused before the rig is opened
+    r = fgcd("calibrate", "hand-eye", "--mode", "target-free", "--driver", "ur", "--host", "192.0.2.1",
+             "--translation-mm", "500", "--yes")
+    one_line_error(r, mentions="translation")  # not a connection error: checked before connecting
 
 
 def test_sim_intrinsics_calibrate_the_camera_of_the_rig_of_that_seed(tmp_path):
