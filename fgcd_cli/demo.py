@@ -147,6 +147,7 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
     visit = station.visit()
     summary["diff"] = {
         "regions": len(diff.get("regions", [])),
+        "set_aside_regions": (diff.get("settings") or {}).get("edge_explained_regions", 0),
         "changed_fraction": diff.get("changed_fraction"),
         "comparable": diff.get("comparable"),
         "report": str(visit.path / "report.html"),

@@ -41,7 +41,9 @@ def demo(
                 f"{r['session_s']} s on the rig; true error {truth.get('pose_err_mm', float('nan')):.2f} mm, "
                 f"AFD {truth.get('afd_px', float('nan')):.2f} px")
         d = summary.get("diff", {})
-        c.print(f"  changes: {d.get('regions', '?')} regions found; report: {d.get('report', '?')}")
+        aside = d.get("set_aside_regions")
+        aside_text = f" ({aside} more along edges set aside, cyan in the report)" if aside else ""
+        c.print(f"  changes: {d.get('regions', '?')} regions found{aside_text}; report: {d.get('report', '?')}")
         ev = d.get("evaluation")
         if ev:
             c.print(f"  [dim]truth: {ev['true_changes_found']} of {ev['true_changes']} injected changes found, "
