@@ -11,8 +11,8 @@ from fgcd_cli.cli.output import emit, info
 
 
 def report(
-    campaign: Path = typer.Option(..., "--campaign", help="Campaign folder."),
-    station: str = typer.Option(..., "--station", help="Station name."),
+    campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign folder."),
+    station: str = typer.Option(..., "--station", "-s", help="Station name."),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="HTML file (default: <station>/history.html)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
