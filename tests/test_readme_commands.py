@@ -61,3 +61,39 @@ def test_options_in_the_readme_exist(tokens):
     flags = [re.sub(r"[\[\]]", "", t) for t in rest if t.lstrip("[").startswith("-")]
     missing = [f for f in flags if f not in _options(cmd)]
     assert not missing, f"`{' '.join(tokens)}`: {missing} not options of {cmd.name}"
+
+
+def _doc_invocations() -> list[tuple[str, list[str]]]:
+    """`fgcd ...` lines of the code blocks of docs/*.md and README.md."""
+    import shlex
+
+    root = README.parent
+    out = []
+    for md in [*sorted((root / "docs").glob("*.md")), README]:
+        in_block = False
+        for number, line in enumerate(md.read_text().splitlines(), 1):
+            if line.startswith("```"):
+                in_block = not in_block
+                continue
+            match = re.search(r"(?:^|\s|/)(fgcd\s.*)$", line.strip()) if in_block else None
+            if match:
+                text = match.group(1).split("#")[0]
+                try:
+                    tokens = shlex.split(text)
+                except ValueError:
+                    tokens = text.split()
+                out.append((f"{md.name}:{number}", tokens))
+    return out
+
+
+DOC_INVOCATIONS = _doc_invocations()
+
+
+@pytest.mark.parametrize("where,tokens", DOC_INVOCATIONS, ids=[w for w, _ in DOC_INVOCATIONS])
+def test_options_in_the_docs_code_blocks_exist(where, tokens):
+    cmd, rest = _command(tokens)
+    assert not _is_group(cmd), f"{where}: `{' '.join(tokens)}` names no command"
+    flags = [re.sub(r"[\[\]]", "", t).split("=")[0] for t in rest if t.lstrip("[").startswith("-")]
+    flags = [f for f in flags if not re.fullmatch(r"-[0-9.]+", f)]  # negative numbers are values
+    missing = [f for f in flags if f not in _options(cmd)]
+    assert not missing, f"{where}: `{' '.join(tokens)}`: {missing} not options of {cmd.name}"
