@@ -124,3 +124,15 @@ def test_board_spec_validation():
         BoardSpec(dictionary="DICT_NOPE")
     with pytest.raises(UserInputError, match="do not fit"):
         BoardSpec(squares_x=20, squares_y=20, dictionary="DICT_4X4_50")
+
+
+def test_an_uncertain_focal_length_asks_for_more_views():
+    """OpenCV's focal sigma drives the hint: 6 views (~0.2 %) get it, 30 views (~0.055 %) do not."""
+    few, _ = _views(6, seed=3)
+    result = calibrate_intrinsics(few, SPEC)
+    assert 100 * result.std_px["fx"] / result.camera.fx > 0.06
+    assert any("focal length known to" in line for line in result.feedback)
+    many, _ = _views(30, seed=4)
+    result = calibrate_intrinsics(many, SPEC)
+    assert 100 * result.std_px["fx"] / result.camera.fx < 0.06
+    assert not any("focal length known to" in line for line in result.feedback)
