@@ -54,10 +54,14 @@ def local_ncc_dissimilarity(ref_gray: np.ndarray, cur_gray: np.ndarray, *, sigma
     return (1.0 - ncc).astype(np.float32)
 
 
-def relative_to_median(cue: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Divide a non-negative cue by its median over ``valid`` pixels (dimensionless, median 1)."""
-    values = cue[valid]
-    median = float(np.median(values)) if values.size else 0.0
+def relative_to_median(cue: np.ndarray, valid: np.ndarray, *, median: float | None = None) -> np.ndarray:
+    """Divide a non-negative cue by its median over ``valid`` pixels (dimensionless, median 1).
+
+    ``median`` given: divide by that instead (another cue's median, to compare with it).
+    """
+    if median is None:
+        values = cue[valid]
+        median = float(np.median(values)) if values.size else 0.0
     floor = 1e-6 if median <= 0 else 0.0
     return (np.maximum(cue, 0.0) / (median + floor + 1e-12)).astype(np.float32)
 

@@ -62,22 +62,21 @@ def _empty(shape: tuple[int, int], reason: str, registration: Registration | Non
     )
 
 
-def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, warped_images, valid, gain_weight, bands, settings,
-                    seed_level: float, gain_sigma_px: float, shift_radius_px: int, smooth_sigma_px: float,
-                    edge_tolerance_px: int, edge_check_px: int, edge_contrast: float,
-                    band_fraction: float) -> np.ndarray:
-    """HxW bool: pixels of the regions that the region-level edge check explains (see detect_changes)."""
+def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, normalized_images, medians, valid,
+                    seed_level: float, shift_radius_px: int, smooth_sigma_px: float, edge_check_px: int,
+                    edge_contrast: float, band_fraction: float) -> tuple[np.ndarray, int]:
+    """Pixels of the regions the region-level edge check explains (HxW bool), and their number.
+
+    ``normalized_images`` and ``medians`` are the light-normalised current images and
+    the per-lighting medians of the detection cue, so that the edge-tolerant score
+    compares with the detection's seed threshold.
+    """
     check_bands = [edge_band(ref, radius_px=edge_check_px, contrast=edge_contrast) for ref in refs]
-    tolerant = []
-    for ref, warped, band, check_band in zip(refs, warped_images, bands, check_bands):
-        normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px, weight=gain_weight)
-        plain = edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
-                                         edge_radius_px=edge_tolerance_px, band=band)
-        # divided by the detection cue's own median, so that it compares with the seed threshold
-        median = float(np.median(plain[valid])) if valid.any() else 0.0
-        checked = edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
-                                           edge_radius_px=edge_check_px, band=check_band)
-        tolerant.append(np.maximum(checked, 0.0) / (median + 1e-12))
+    tolerant = [
+        relative_to_median(edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
+                                                    edge_radius_px=edge_check_px, band=band), valid, median=median)
+        for ref, normalized, band, median in zip(refs, normalized_images, check_bands, medians)
+    ]
     tolerant_score = np.mean(tolerant, axis=0).astype(np.float32)
     if smooth_sigma_px > 0:
         tolerant_score = cv2.GaussianBlur(tolerant_score, (0, 0), smooth_sigma_px)
@@ -89,8 +88,7 @@ def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, warped_images, 
         if in_band[pixels].mean() >= band_fraction and tolerant_score[pixels].max() < seed_level:
             explained |= pixels
             n_explained += 1
-    settings["edge_explained_regions"] = n_explained
-    return explained
+    return explained, n_explained
 
 
 def detect_changes(
@@ -167,8 +165,8 @@ def detect_changes(
         moves thin structures there by up to ~1-2 px (see
         :func:`fgcd_cli.changes.cues.edge_tolerant_difference`). 0 (default)
         disables it: it also hides small changes on strong texture edges, so it is
-        for pairs known to be relocated only to a few mm (``fgcd diff`` on a
-        campaign turns it on from the visit's relocation log, 2 px).
+        for pairs known to be relocated only to a few mm (campaign diffs use the
+        region-level ``edge_check_px`` below instead).
     edge_check_px, edge_check_band_fraction : int, float
         Region-level edge check (0 disables): a region lying for at least
         ``edge_check_band_fraction`` of its pixels in the reference's strong-edge
@@ -258,11 +256,12 @@ def detect_changes(
     if edge_tolerance_px > 0:
         settings["edge_band_fraction"] = float(np.mean([b[valid].mean() for b in bands]))
 
-    def fuse(gain_weight: np.ndarray | None) -> tuple[np.ndarray, list[np.ndarray]]:
-        differences, structures, registered = [], [], []
+    def fuse(gain_weight: np.ndarray | None) -> tuple[np.ndarray, list[np.ndarray], list[float]]:
+        """Fused score, the light-normalised current images, and each lighting's cue median."""
+        differences, structures, normalized_images = [], [], []
         for ref, warped, band in zip(refs, warped_images, bands):
             normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px, weight=gain_weight)
-            registered.append(np.clip(normalized, 0.0, 1.0))
+            normalized_images.append(normalized)
             differences.append(edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
                                                         edge_radius_px=edge_tolerance_px, band=band))
             if structure_weight > 0:
@@ -270,20 +269,21 @@ def detect_changes(
         # Each cue is divided by its median (dimensionless) so lightings of different
         # brightness weigh the same; averaging over lightings suppresses cast-shadow
         # and specular differences that only one light produces.
-        fused = np.mean([relative_to_median(d, valid) for d in differences], axis=0)
+        medians = [float(np.median(d[valid])) if valid.any() else 0.0 for d in differences]
+        fused = np.mean([relative_to_median(d, valid, median=m) for d, m in zip(differences, medians)], axis=0)
         if structures:
             structure = np.mean([relative_to_median(s, valid) for s in structures], axis=0)
             fused = (1.0 - structure_weight) * fused + structure_weight * structure
         if smooth_sigma_px > 0:
             fused = cv2.GaussianBlur(fused.astype(np.float32), (0, 0), smooth_sigma_px)
-        return np.where(valid, fused, 0.0).astype(np.float32), registered
+        return np.where(valid, fused, 0.0).astype(np.float32), normalized_images, medians
 
     # The light-gain field is estimated from unchanged pixels only: a first pass
     # flags what is suspect (above the growing threshold, fused over all
     # lightings), the gain is re-estimated without it, and so on until the
     # suspect set settles. Without this, a change drags the local gain and
     # leaves a halo as wide as the gain window around itself.
-    score, registered = fuse(None)
+    score, normalized_images, medians = fuse(None)
     gain_weight = seen_all.astype(np.float32)
     robust_rounds = 0
     for _ in range(robust_gain_rounds):
@@ -296,7 +296,7 @@ def detect_changes(
         if robust_rounds and np.array_equal(new_weight, gain_weight):
             break
         gain_weight = new_weight
-        score, registered = fuse(gain_weight)
+        score, normalized_images, medians = fuse(gain_weight)
         robust_rounds += 1
     settings["robust_gain_rounds"] = robust_rounds
 
@@ -306,12 +306,10 @@ def detect_changes(
     mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
     regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
     if edge_check_px > 0 and regions:
-        explained = _edge_explained(
-            labels, len(regions), refs=refs, warped_images=warped_images, valid=valid, gain_weight=gain_weight,
-            bands=bands, settings=settings, seed_level=threshold.high,
-            gain_sigma_px=gain_sigma_px, shift_radius_px=shift_radius_px, smooth_sigma_px=smooth_sigma_px,
-            edge_tolerance_px=edge_tolerance_px, edge_check_px=edge_check_px, edge_contrast=edge_contrast,
-            band_fraction=edge_check_band_fraction,
+        explained, settings["edge_explained_regions"] = _edge_explained(
+            labels, len(regions), refs=refs, normalized_images=normalized_images, medians=medians, valid=valid,
+            seed_level=threshold.high, shift_radius_px=shift_radius_px, smooth_sigma_px=smooth_sigma_px,
+            edge_check_px=edge_check_px, edge_contrast=edge_contrast, band_fraction=edge_check_band_fraction,
         )
         if explained.any():
             mask &= ~explained
@@ -335,7 +333,7 @@ def detect_changes(
         regions=regions,
         registration=registration,
         threshold=threshold,
-        current_registered=registered,
+        current_registered=[np.clip(image, 0.0, 1.0) for image in normalized_images],
         settings=settings,
         warnings=warnings,
         edge_explained=explained,

@@ -72,12 +72,12 @@ def test_afd_json_and_figure(image_files, tmp_path):
 
 def test_diff_edge_check_option(tmp_path):
     """--edge-check sets the half-pixel-shifted groove aside (and says so); a bad value is one clear line."""
-    from changes.test_edge_tolerance import _niche_scene
+    from changes.test_edge_tolerance import _niche_scene, _revisit
 
     ref, _ = _niche_scene(0)
     cur, _ = _niche_scene(2)
     cv2.imwrite(str(tmp_path / "ref.png"), np.round(ref * 65535).astype(np.uint16))
-    cv2.imwrite(str(tmp_path / "cur.png"), np.round(np.clip(cur * 0.9 + 0.03, 0, 1) * 65535).astype(np.uint16))
+    cv2.imwrite(str(tmp_path / "cur.png"), np.round(_revisit(cur) * 65535).astype(np.uint16))
     args = ("diff", "--ref", str(tmp_path / "ref.png"), "--cur", str(tmp_path / "cur.png"), "--json")
     plain = run(*args, "-o", str(tmp_path / "plain"))
     assert plain.returncode == 0, plain.stderr
