@@ -1,0 +1,257 @@
+"""A-contrario decision: which high-score regions are changes, with a stated meaning.
+
+The rule (Desolneux, Moisan & Morel, *From Gestalt Theory to Image Analysis*,
+2008, ch. 3-4): a candidate region is reported when its **number of false
+alarms** is below ``epsilon``,
+
+    NFA(R) = N_tests * P_H0(R),
+
+i.e. when fewer than ``epsilon`` regions at least as extreme are expected, per
+image, if nothing had changed. The background model H0 is taken from the pair
+itself, so no threshold is tuned on other data:
+
+* **marginal**: the empirical distribution of the pair's own score over the
+  compared pixels. Changes are 0.3-4 % of a frame, so they barely move it, and
+  whatever heavy tail the texture, cast shadows or misregistration give this
+  pair is in it by construction. Per-pixel ``-log p`` with ``p`` the empirical
+  survival ``P(S >= s)``.
+* **dependence**: neighbouring scores are not independent (smoothing,
+  demosaicing, texture edges), so a region of ``n`` pixels holds only
+  ``n / A`` independent samples. ``A`` is the median size of the connected
+  clusters of exceedances at the seed level: the reciprocal of the extremal
+  index of extreme-value theory (Leadbetter 1983), estimated on the pair. The
+  median, not the mean, so that the few large change regions do not inflate it.
+* **region probability**: under H0 the ``n_eff`` independent samples of a
+  region found at level ``lambda = -log p_level`` all exceed it with
+  probability ``exp(-lambda n_eff)``, and, given that, their excesses of
+  ``-log p`` over ``lambda`` are i.i.d. Exp(1), so their sum exceeds the
+  observed one with probability ``Q(n_eff, excess)`` (regularized upper
+  incomplete gamma). ``P_H0(R) = exp(-lambda n_eff) Q(n_eff, excess / A)``.
+* **tests**: connected components of ``{p <= p_level}`` for a ladder of levels
+  from ``seed_p`` down to the most extreme score; ``N_tests = (N / A) * levels``.
+
+Regions are accepted most significant first, without overlap (the exclusion
+principle); each is then grown to its extent (pixels connected to it whose
+score excess over the background median is at least ``extent_fraction`` of its
+peak excess: the flank of a smoothed change, as a half-maximum rule is for a
+blob). The two constants that are not fixed by the model (``seed_p``,
+``extent_fraction``) are chosen by leave-one-group-out in ``fgcd bench
+changes``; see ``docs/change-detection.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage, special
+from skimage.morphology import reconstruction
+
+_EIGHT = np.ones((3, 3), bool)
+
+
+@dataclass(kw_only=True)
+class SignificantRegion:
+    """One region that passed (or, for candidates, missed) the a-contrario test."""
+
+    log10_nfa: float
+    """log10 of the number of false alarms: below log10(epsilon) = significant (0 for epsilon = 1)."""
+    p_level: float
+    """Empirical survival probability of the level at which the region was found."""
+    area_px: int
+    """Pixels of the component at that level (before growing to its extent)."""
+    centroid_xy: tuple[float, float]
+    peak_score: float
+
+
+@dataclass(kw_only=True)
+class Decision:
+    """Result of :func:`acontrario_decision`."""
+
+    mask: np.ndarray
+    """HxW bool, pixels of the significant regions grown to their extent."""
+    regions: list[SignificantRegion]
+    """Significant regions, most significant first."""
+    candidates: list[SignificantRegion]
+    """The strongest regions that did not pass (most significant first; at most 5)."""
+    cluster_area_px: float
+    """A, pixels per independent sample (the extremal index's reciprocal)."""
+    n_tests: float
+    seed_level: float
+    """Score at the seed probability ``seed_p`` (the lowest level tested)."""
+    median: float
+    """Median score over the compared pixels (the background level)."""
+    settings: dict = field(default_factory=dict)
+
+    def log10_nfa_map(self, labels: np.ndarray) -> dict[int, float]:
+        """log10 NFA of each labelled region (label -> value), from the seed it contains."""
+        out: dict[int, float] = {}
+        for region in self.regions:
+            x, y = region.centroid_xy
+            label = int(labels[int(round(y)), int(round(x))])
+            if label and label not in out:
+                out[label] = region.log10_nfa
+        return out
+
+
+def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``-log P(S >= s)`` of every pixel under the empirical distribution of ``score[valid]``.
+
+    Parameters
+    ----------
+    score : ndarray, HxW float
+    valid : ndarray, HxW bool
+
+    Returns
+    -------
+    ndarray, HxW float32 (0 outside ``valid``; at most ``log(2N)`` for N valid pixels).
+    """
+    values = np.sort(score[valid])
+    n = values.size
+    rank = np.searchsorted(values, score, side="left")
+    survival = np.clip((n - rank + 0.5) / n, 0.5 / n, 1.0)
+    return np.where(valid, -np.log(survival), 0.0).astype(np.float32)
+
+
+def exceedance_cluster_area(score: np.ndarray, valid: np.ndarray, level: float) -> float:
+    """Median size (px) of the 8-connected clusters of ``score >= level`` (at least 1)."""
+    labels, count = ndimage.label((score >= level) & valid, structure=_EIGHT)
+    if count == 0:
+        return 1.0
+    sizes = np.bincount(labels.ravel())[1:]
+    return max(1.0, float(np.median(sizes)))
+
+
+def _log_region_probability(lam: float, sizes: np.ndarray, excess: np.ndarray, area: float) -> np.ndarray:
+    """log P_H0 of regions found at level ``lam`` (see the module docstring)."""
+    n_eff = np.maximum(sizes / area, 1.0)
+    tail = special.gammaincc(n_eff, np.maximum(excess, 0.0) / area)
+    return -lam * n_eff + np.log(np.maximum(tail, 1e-300))
+
+
+def acontrario_decision(
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    epsilon: float = 1.0,
+    seed_p: float = 0.005,
+    extent_fraction: float = 0.2,
+    level_step: float = 0.25,
+    max_candidates: int = 5,
+) -> Decision:
+    """Significant change regions of a score map, by their number of false alarms.
+
+    Parameters
+    ----------
+    score : ndarray, HxW float
+        Change score, larger = more likely changed (any monotone scale).
+    valid : ndarray, HxW bool
+        Compared pixels: they define the background distribution and may be flagged.
+    epsilon : float
+        Expected number of false regions per image tolerated under the pair's own
+        no-change model (1: at most one false region expected per image).
+    seed_p : float
+        Lowest level tested, as an empirical survival probability.
+    extent_fraction : float in [0, 1)
+        A region grows into connected pixels whose excess over the median score is at
+        least this fraction of its peak excess (0: the component at its level).
+    level_step : float
+        Spacing of the ladder of levels, in ``-log p`` (0.25: ~28 % apart in probability).
+    max_candidates : int
+        Non-significant regions kept for "no significant change; strongest candidate ...".
+
+    Returns
+    -------
+    Decision
+    """
+    valid = np.asarray(valid, bool)
+    score = np.asarray(score, np.float32)
+    n_valid = int(valid.sum())
+    if n_valid == 0:
+        raise ValueError("no valid pixel to decide on")
+    neglogp = empirical_neglog_survival(score, valid)
+    median = float(np.median(score[valid]))
+    seed_level = float(np.quantile(score[valid], 1.0 - seed_p))
+    area = exceedance_cluster_area(score, valid, seed_level)
+    levels = np.arange(-np.log(seed_p), float(neglogp.max()) + 1e-9, level_step)
+    n_tests = n_valid / area * max(len(levels), 1)
+    found = []
+    for lam in levels:
+        labels, count = ndimage.label((neglogp >= lam) & valid, structure=_EIGHT)
+        if count == 0:
+            continue
+        index = np.arange(1, count + 1)
+        sizes = np.bincount(labels.ravel(), minlength=count + 1)[1:].astype(np.float64)
+        excess = ndimage.sum_labels(neglogp - np.float32(lam), labels, index)
+        log_nfa = np.log(n_tests) + _log_region_probability(float(lam), sizes, excess, area)
+        slices = ndimage.find_objects(labels)
+        order = np.argsort(log_nfa)
+        keep = max(int((log_nfa < np.log(epsilon)).sum()), 0) + 4 * max_candidates
+        for i in order[:keep]:
+            found.append((float(log_nfa[i]), float(lam), int(i + 1), slices[i], labels))
+    found.sort(key=lambda item: item[0])
+    seeds = np.zeros(score.shape, bool)
+    significant = np.zeros(score.shape, bool)
+    regions: list[SignificantRegion] = []
+    candidates: list[SignificantRegion] = []
+    for log_nfa, lam, label, window, labels in found:
+        component = np.zeros(score.shape, bool)
+        component[window] = labels[window] == label
+        if (component & seeds).any():
+            continue
+        ys, xs = np.nonzero(component)
+        entry = SignificantRegion(
+            log10_nfa=log_nfa / np.log(10.0), p_level=float(np.exp(-lam)), area_px=int(ys.size),
+            centroid_xy=(float(xs.mean()), float(ys.mean())), peak_score=float(score[component].max()),
+        )
+        if log_nfa < np.log(epsilon):
+            seeds |= component
+            significant |= component
+            regions.append(entry)
+        elif len(candidates) < max_candidates:
+            seeds |= component  # a weaker, overlapping level of the same candidate is not another one
+            candidates.append(entry)
+    mask = grow_to_extent(significant, score, valid, background=median, fraction=extent_fraction)
+    return Decision(
+        mask=mask, regions=regions, candidates=candidates, cluster_area_px=area, n_tests=float(n_tests),
+        seed_level=seed_level, median=median,
+        settings={"epsilon": epsilon, "seed_p": seed_p, "extent_fraction": extent_fraction, "level_step": level_step,
+                  "levels": int(len(levels))},
+    )
+
+
+def grow_to_extent(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, background: float,
+                   fraction: float) -> np.ndarray:
+    """Grow each seed region into connected pixels whose excess reaches ``fraction`` of its peak excess.
+
+    Parameters
+    ----------
+    seeds : ndarray, HxW bool
+    score : ndarray, HxW float
+    valid : ndarray, HxW bool
+    background : float, score of unchanged pixels (median).
+    fraction : float in [0, 1); 0 returns the seeds.
+
+    Returns
+    -------
+    ndarray, HxW bool
+    """
+    if fraction <= 0 or not seeds.any():
+        return seeds & valid
+    excess = np.maximum(score.astype(np.float32) - np.float32(background), 0.0)
+    labels, count = ndimage.label(seeds, structure=_EIGHT)
+    peaks = ndimage.maximum(excess, labels, np.arange(1, count + 1))
+    # Every pixel may join the seed whose peak allows it: threshold map per seed,
+    # then one morphological reconstruction per seed inside its bounding window.
+    out = seeds.copy()
+    slices = ndimage.find_objects(labels)
+    h, w = seeds.shape
+    for i, (window, peak) in enumerate(zip(slices, peaks)):
+        pad = max(8, int(max(window[0].stop - window[0].start, window[1].stop - window[1].start)))
+        y0, y1 = max(0, window[0].start - pad), min(h, window[0].stop + pad)
+        x0, x1 = max(0, window[1].start - pad), min(w, window[1].stop + pad)
+        seed = labels[y0:y1, x0:x1] == i + 1
+        allowed = ((excess[y0:y1, x0:x1] >= fraction * peak) & valid[y0:y1, x0:x1]) | seed
+        grown = reconstruction(seed.astype(np.uint8), allowed.astype(np.uint8), method="dilation").astype(bool)
+        out[y0:y1, x0:x1] |= grown
+    return out & valid
