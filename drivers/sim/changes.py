@@ -8,13 +8,33 @@ surface within the footprint:
 * ``crack``: a narrow branching groove (0.3-1 mm wide, 1-2 mm deep), darker;
 * ``flaking``: a shallow irregular depression (0.3-1 mm) exposing a lighter layer;
 * ``stain``: albedo only (dark brown stain or whitish efflorescence);
-* ``missing``: a lost fragment, a deeper depression (2-8 mm) with fresh, lighter stone.
+* ``missing``: a lost fragment, a deeper depression (2-8 mm) with fresh, lighter stone;
+* ``pit``: a small roughly round bowl (pitting), relief only: depth
+  ``min(2, 0.3 * size_mm)`` mm by default, albedo unchanged;
+* ``lifted``: a lifted paint flake, relief only: an irregular plate raised out of
+  the surface and tilted, its free edge up to ``min(2, 0.3 * size_mm)`` mm high
+  by default (a negative ``depth_mm``), albedo unchanged.
+
+``KINDS`` (the first four) is the default of :func:`random_changes`, kept so that
+a seed draws the same changes as before the relief-only kinds existed;
+``ALL_KINDS`` adds ``pit`` and ``lifted``. ``CHANGE_CATEGORY`` says which cue a
+kind changes: ``relief`` (shading only, seen under a directional light),
+``colour`` (albedo only, seen under every light) or ``both``.
 
 Geometry changes are rendered as a displacement in shading space (depth moved
-along the ray, normal tilted by the depression's slope, a cavity darkening
-term), not as mesh edits: at 1-20 mm that is what a camera 0.4-2 m away sees,
-and it keeps the ray-casting scene fixed. The ground-truth mask is the set of
-pixels whose surface point lies where the footprint is >= 0.5.
+along the ray, normal tilted by the relief's slope, a cavity darkening term), not
+as mesh edits: at 1-20 mm that is what a camera 0.4-2 m away sees, and it keeps
+the ray-casting scene fixed. The relief of a change is ``depth_m * relief()``
+(inward; negative is outward); for the first four kinds ``relief()`` is the
+footprint itself. Shadow rays of crack, flaking and missing start at the
+displaced point (the mesh around a deep depression shadows it); those of pit and
+lifted start at the mesh surface (their shallow relief casts no modelled shadow,
+attached shadows come from the tilted normal). Ambient light lost in a cavity is
+``0.5 * min(H / 2 mm, 1) * F`` (H the summed depth, F the footprint); a pit
+scales it so that at its bottom it is the cosine-weighted share of the sky its
+rim hides, ``d^2 / (d^2 + R^2)`` (depth d, radius R). The ground-truth mask is
+the set of pixels whose surface point lies where the footprint is >= 0.5; the
+change ids say which change (the one with the strongest footprint) it is.
 """
 
 from __future__ import annotations
@@ -24,9 +44,14 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["ChangeSpec", "ChangeEffect", "KINDS", "random_changes", "evaluate_changes"]
+__all__ = ["ChangeSpec", "ChangeEffect", "KINDS", "ALL_KINDS", "CHANGE_CATEGORY", "random_changes",
+           "evaluate_changes"]
 
 KINDS = ("crack", "flaking", "stain", "missing")
+ALL_KINDS = KINDS + ("pit", "lifted")
+CHANGE_CATEGORY = {"crack": "both", "flaking": "both", "missing": "both", "stain": "colour", "pit": "relief",
+                   "lifted": "relief"}
+_RELIEF_ONLY = ("pit", "lifted")
 _RASTER = 96
 
 
@@ -47,7 +72,7 @@ class ChangeSpec:
 
     Attributes
     ----------
-    kind : ``crack``, ``flaking``, ``stain`` or ``missing``.
+    kind : one of ``ALL_KINDS``.
     position : (3,) world point on the surface, metres.
     normal : (3,) outward surface normal there.
     size_mm : float
@@ -55,7 +80,9 @@ class ChangeSpec:
     seed : int
         Shape of the footprint.
     depth_mm : float or None
-        Depth of the depression (None: a default for the kind; stains have none).
+        Depth of the depression, mm (None: a default for the kind; stains have
+        none). A pit's is > 0; a lifted flake's is < 0, the height of its free
+        edge above the surface.
     """
 
     kind: str
@@ -67,8 +94,14 @@ class ChangeSpec:
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"unknown change kind {self.kind!r}; known: {', '.join(KINDS)}")
+        if self.kind not in ALL_KINDS:
+            raise ValueError(f"unknown change kind {self.kind!r}; known: {', '.join(ALL_KINDS)}")
+        if self.depth_mm is not None and self.kind == "lifted" and not self.depth_mm < 0:
+            raise ValueError(f"a lifted flake rises out of the surface: depth_mm must be < 0, got {self.depth_mm}")
+        if self.depth_mm is not None and self.kind == "pit" and not self.depth_mm > 0:
+            raise ValueError(f"a pit's depth_mm must be > 0, got {self.depth_mm}")
+        if self.depth_mm is not None and self.kind not in _RELIEF_ONLY and not self.depth_mm >= 0:
+            raise ValueError(f"depth_mm of a {self.kind} must be >= 0, got {self.depth_mm}")
         if not (0.1 <= self.size_mm <= 500):
             raise ValueError(f"change size {self.size_mm} mm out of range")
         n = np.asarray(self.normal, float)
@@ -77,13 +110,41 @@ class ChangeSpec:
 
     # -- derived quantities
     @property
+    def category(self) -> str:
+        """Cue the change alters: ``relief``, ``colour`` or ``both`` (see ``CHANGE_CATEGORY``)."""
+        return CHANGE_CATEGORY[self.kind]
+
+    @property
     def depth_m(self) -> float:
+        """Depth of the relief at ``relief() == 1``, metres (inward; negative is outward)."""
         if self.kind == "stain":
             return 0.0
         if self.depth_mm is not None:
             return self.depth_mm / 1000.0
-        default = {"crack": 1.5, "flaking": 0.6, "missing": min(6.0, 0.4 * self.size_mm)}[self.kind]
+        relief_mm = min(2.0, 0.3 * self.size_mm)
+        default = {"crack": 1.5, "flaking": 0.6, "missing": min(6.0, 0.4 * self.size_mm), "pit": relief_mm,
+                   "lifted": -relief_mm}[self.kind]
         return default / 1000.0
+
+    @property
+    def occlusion_scale(self) -> float:
+        """Factor on the cavity rule ``0.5 * min(H / 2 mm, 1) * F`` (1 but for pit and lifted).
+
+        A pit's makes the lost ambient light at its bottom ``d^2 / (d^2 + R^2)``,
+        the cosine-weighted share of the sky hidden by a rim of radius R seen from
+        depth d; a lifted flake is no cavity (0).
+        """
+        if self.kind == "lifted":
+            return 0.0
+        if self.kind != "pit":
+            return 1.0
+        d, r = self.depth_m, 0.5 * self.size_mm / 1000.0
+        return (d * d / (d * d + r * r)) / (0.5 * min(d / 0.002, 1.0))
+
+    @property
+    def shadows_from_surface(self) -> bool:
+        """True if shadow rays start at the mesh surface rather than at the displaced point."""
+        return self.kind in _RELIEF_ONLY
 
     @property
     def half_extent_m(self) -> float:
@@ -93,6 +154,8 @@ class ChangeSpec:
     @property
     def target_albedo(self) -> tuple[np.ndarray, float]:
         """(RGB the albedo moves towards, how far at footprint 1)."""
+        if self.kind in _RELIEF_ONLY:
+            return np.zeros(3), 0.0
         rng = np.random.default_rng(self.seed + 7)
         if self.kind == "crack":
             return np.array([0.08, 0.07, 0.06]), 0.75
@@ -111,13 +174,25 @@ class ChangeSpec:
     def footprint(self) -> np.ndarray:
         """(96, 96) float32 in [0, 1] over ``[-half_extent, half_extent]^2`` (rows = e2, cols = e1)."""
         if "F" not in self._cache:
-            self._cache["F"] = _make_footprint(self.kind, self.size_mm, self.seed)
+            if self.kind in _RELIEF_ONLY:
+                self._cache["F"], self._cache["R"] = _make_relief_footprint(self.kind, self.size_mm, self.seed)
+            else:
+                self._cache["F"] = _make_footprint(self.kind, self.size_mm, self.seed)
         return self._cache["F"]
+
+    def relief(self) -> np.ndarray:
+        """(96, 96) float32 in [0, 1]: the relief is ``depth_m * relief()`` (the footprint but for lifted)."""
+        F = self.footprint()
+        return self._cache.get("R", F)
 
     def footprint_at(self, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
         """Footprint value at tangent coordinates (metres), bilinear, 0 outside."""
         F = self.footprint()
         return _sample(F, self._to_raster(a_m), self._to_raster(b_m))
+
+    def relief_at(self, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
+        """``relief()`` at tangent coordinates (metres), bilinear, 0 outside."""
+        return _sample(self.relief(), self._to_raster(a_m), self._to_raster(b_m))
 
     def _to_raster(self, x_m: np.ndarray) -> np.ndarray:
         h = self.half_extent_m
@@ -194,6 +269,39 @@ def _make_footprint(kind: str, size_mm: float, seed: int) -> np.ndarray:
     return F.astype(np.float32)
 
 
+def _make_relief_footprint(kind: str, size_mm: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Footprint and relief rasters (96, 96) float32 of a ``pit`` or ``lifted`` change.
+
+    A pit is a paraboloid bowl under a slightly wobbly rim of diameter ``size_mm``
+    (footprint = relief = ``1 - (r / rim)^2``). A lifted flake is an irregular blob
+    (footprint) whose relief rises linearly across it along a random direction,
+    from 0.25 at the hinged side to 1 at the free edge.
+    """
+    rng = np.random.default_rng(seed)
+    n = _RASTER
+    c = (n - 1) / 2.0
+    r_px = 0.5 * n / 1.2
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float32)
+    ang = np.arctan2(yy - c, xx - c)
+    rad = np.hypot(yy - c, xx - c)
+    k = np.arange(1, 6)
+    amp = rng.normal(0, 0.05 if kind == "pit" else 0.12, 5) / k
+    ph = rng.uniform(0, 2 * np.pi, 5)
+    edge = r_px * (1.0 + (amp[:, None, None] * np.cos(k[:, None, None] * ang[None] + ph[:, None, None])).sum(0))
+    if kind == "pit":
+        F = np.clip(1.0 - (rad / edge) ** 2, 0, 1).astype(np.float32)
+        R = F
+    else:
+        F = np.clip(0.5 + (edge - rad) / 1.6, 0, 1).astype(np.float32)
+        heading = rng.uniform(0, 2 * np.pi)
+        u = ((xx - c) * np.cos(heading) + (yy - c) * np.sin(heading)) / r_px
+        R = F * np.clip(0.25 + 0.375 * (u + 1.0), 0, 1).astype(np.float32)
+    for a in (F, R):
+        a[[0, -1], :] = 0
+        a[:, [0, -1]] = 0
+    return F, R
+
+
 @dataclass(kw_only=True)
 class ChangeEffect:
     """What the changes do to a set of surface samples (only affected samples listed).
@@ -201,28 +309,36 @@ class ChangeEffect:
     Attributes
     ----------
     index : (K,) int indices into the samples given to :func:`evaluate_changes`.
-    footprint : (K,) float in [0, 1].
-    height_m : (K,) depth of the depression (>= 0, inward).
-    slope : (K, 3) gradient of the depression in world coordinates (tilts the normal).
+    footprint : (K,) float in [0, 1], the strongest footprint there.
+    change_index : (K,) int, index (into the ``changes`` given) of the change with that footprint.
+    height_m : (K,) depth of the relief, metres (inward; negative is outward).
+    slope : (K, 3) gradient of the relief depth in world coordinates (tilts the normal).
     albedo_target : (K, 3) RGB the albedo moves towards.
     albedo_weight : (K,) how far (0..1).
+    occlusion : (K,) share of the ambient light the cavity hides (0..1).
+    shadow_height_m : (K,) the part of ``height_m`` that also moves the start of shadow rays.
     """
 
     index: np.ndarray
     footprint: np.ndarray
+    change_index: np.ndarray
     height_m: np.ndarray
     slope: np.ndarray
     albedo_target: np.ndarray
     albedo_weight: np.ndarray
+    occlusion: np.ndarray
+    shadow_height_m: np.ndarray
 
     @classmethod
     def empty(cls) -> "ChangeEffect":
-        return cls(index=np.zeros(0, np.int64), footprint=np.zeros(0, np.float32), height_m=np.zeros(0),
-                   slope=np.zeros((0, 3)), albedo_target=np.zeros((0, 3)), albedo_weight=np.zeros(0))
+        return cls(index=np.zeros(0, np.int64), footprint=np.zeros(0, np.float32),
+                   change_index=np.zeros(0, np.int64), height_m=np.zeros(0), slope=np.zeros((0, 3)),
+                   albedo_target=np.zeros((0, 3)), albedo_weight=np.zeros(0), occlusion=np.zeros(0),
+                   shadow_height_m=np.zeros(0))
 
 
 def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> ChangeEffect:
-    """Footprint, depression and albedo change of every change at surface samples.
+    """Footprint, relief and albedo change of every change at surface samples.
 
     Parameters
     ----------
@@ -233,65 +349,90 @@ def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> Change
     Returns
     -------
     ChangeEffect for the samples inside at least one footprint (overlaps: the
-    strongest footprint wins for the albedo, depressions add).
+    strongest footprint, the first on ties, gives the albedo, the change index and
+    the occlusion scale; reliefs add).
     """
     if not changes or len(points) == 0:
         return ChangeEffect.empty()
     acc: dict[int, list] = {}
-    for ch in changes:
-        c = np.asarray(ch.position)
-        nrm = np.asarray(ch.normal)
-        h = ch.half_extent_m
-        d = points - c
-        near = np.einsum("ij,ij->i", d, d) < 2.0 * h * h + 1e-12
-        if not near.any():
+    for i, ch in enumerate(changes):
+        if id(ch) in acc:
             continue
-        idx = np.nonzero(near)[0]
-        dn = d[idx]
-        # same surface: close to the tangent plane and facing the same way
-        off = dn @ nrm
-        ok = (np.abs(off) < max(0.004, 0.5 * h)) & (normals[idx] @ nrm > 0.5)
-        idx, dn = idx[ok], dn[ok]
-        if len(idx) == 0:
-            continue
-        e1, e2 = ch.basis()
-        a, b = dn @ e1, dn @ e2
-        F = ch.footprint_at(a, b)
-        hit = F > 1e-4
-        if not hit.any():
-            continue
-        idx, a, b, F = idx[hit], a[hit], b[hit], F[hit]
-        depth = ch.depth_m
-        if depth > 0:
-            eps = ch.half_extent_m / _RASTER
-            Fa = (ch.footprint_at(a + eps, b) - ch.footprint_at(a - eps, b)) / (2 * eps)
-            Fb = (ch.footprint_at(a, b + eps) - ch.footprint_at(a, b - eps)) / (2 * eps)
-            # limit the slope: a real groove wall is steep but the normal tilt saturates
-            slope = depth * (Fa[:, None] * e1 + Fb[:, None] * e2)
-            sn = np.linalg.norm(slope, axis=1, keepdims=True)
-            slope = slope / np.maximum(1.0, sn / 3.0)
-        else:
-            slope = np.zeros((len(idx), 3))
-        target, weight = ch.target_albedo
-        acc[id(ch)] = [idx, F, depth * F, slope, target, weight]
+        local = _change_at(ch, points, normals)
+        if local is not None:
+            acc[id(ch)] = [i, *local]
     if not acc:
         return ChangeEffect.empty()
     n = len(points)
     Fsum = np.zeros(n, np.float32)
     H = np.zeros(n)
+    Hs = np.zeros(n)
     S = np.zeros((n, 3))
     T = np.zeros((n, 3))
     W = np.zeros(n)
-    for idx, F, h, slope, target, weight in acc.values():
+    ids = np.zeros(n, np.int64)
+    occ_scale = np.ones(n)
+    for i, idx, F, h, slope, ch in acc.values():
+        target, weight = ch.target_albedo
         stronger = F > Fsum[idx]
         T[idx[stronger]] = target
         W[idx[stronger]] = weight * F[stronger]
+        ids[idx[stronger]] = i
+        occ_scale[idx[stronger]] = ch.occlusion_scale
         Fsum[idx] = np.maximum(Fsum[idx], F)
         H[idx] += h
+        if not ch.shadows_from_surface:
+            Hs[idx] += h
         S[idx] += slope
     sel = np.nonzero(Fsum > 0)[0]
-    return ChangeEffect(index=sel, footprint=Fsum[sel], height_m=H[sel], slope=S[sel],
-                        albedo_target=T[sel], albedo_weight=W[sel])
+    occlusion = 0.5 * np.clip(H[sel] / 0.002, 0, 1) * Fsum[sel] * occ_scale[sel]
+    return ChangeEffect(index=sel, footprint=Fsum[sel], change_index=ids[sel], height_m=H[sel], slope=S[sel],
+                        albedo_target=T[sel], albedo_weight=W[sel], occlusion=occlusion, shadow_height_m=Hs[sel])
+
+
+def _change_at(ch: ChangeSpec, points: np.ndarray, normals: np.ndarray):
+    """One change at surface samples: (index, footprint, relief depth, slope, ch) or None.
+
+    ``index`` (M,) into ``points``, ``footprint`` (M,) float32, ``relief depth`` (M,)
+    metres along the inward normal, ``slope`` (M, 3) its world gradient.
+    """
+    c = np.asarray(ch.position)
+    nrm = np.asarray(ch.normal)
+    h = ch.half_extent_m
+    d = points - c
+    near = np.einsum("ij,ij->i", d, d) < 2.0 * h * h + 1e-12
+    if not near.any():
+        return None
+    idx = np.nonzero(near)[0]
+    dn = d[idx]
+    # same surface: close to the tangent plane and facing the same way
+    off = dn @ nrm
+    ok = (np.abs(off) < max(0.004, 0.5 * h)) & (normals[idx] @ nrm > 0.5)
+    idx, dn = idx[ok], dn[ok]
+    if len(idx) == 0:
+        return None
+    e1, e2 = ch.basis()
+    a, b = dn @ e1, dn @ e2
+    F = ch.footprint_at(a, b)
+    hit = F > 1e-4
+    if not hit.any():
+        return None
+    idx, a, b, F = idx[hit], a[hit], b[hit], F[hit]
+    depth = ch.depth_m
+    relief_is_footprint = ch.relief() is ch.footprint()
+    rel = F if relief_is_footprint else ch.relief_at(a, b)
+    if depth != 0:
+        at = ch.footprint_at if relief_is_footprint else ch.relief_at
+        eps = ch.half_extent_m / _RASTER
+        Fa = (at(a + eps, b) - at(a - eps, b)) / (2 * eps)
+        Fb = (at(a, b + eps) - at(a, b - eps)) / (2 * eps)
+        # limit the slope: a real groove wall is steep but the normal tilt saturates
+        slope = depth * (Fa[:, None] * e1 + Fb[:, None] * e2)
+        sn = np.linalg.norm(slope, axis=1, keepdims=True)
+        slope = slope / np.maximum(1.0, sn / 3.0)
+    else:
+        slope = np.zeros((len(idx), 3))
+    return idx, F, depth * rel, slope, ch
 
 
 def random_changes(scene, *, n: int, seed: int, kinds=KINDS, size_mm: tuple[float, float] = (1.0, 20.0),
@@ -300,8 +441,12 @@ def random_changes(scene, *, n: int, seed: int, kinds=KINDS, size_mm: tuple[floa
 
     Positions are drawn from surface points seen from ``T_world_cam`` (default:
     the scene's default camera) on the object (label 1), away from the image border;
-    sizes are log-uniform in ``size_mm``.
+    kinds are drawn uniformly from ``kinds`` (any of ``ALL_KINDS``); sizes are
+    log-uniform in ``size_mm``.
     """
+    unknown = [k for k in kinds if k not in ALL_KINDS]
+    if unknown or not len(kinds):
+        raise ValueError(f"kinds must be a non-empty subset of {', '.join(ALL_KINDS)}, got {list(kinds)}")
     from drivers.cameras import CameraIntrinsics
     from drivers.sim.render import Renderer
 

@@ -14,7 +14,7 @@ __all__ = ["GroundTruth"]
 
 
 class GroundTruth:
-    """True poses, hand-eye, intrinsics, depths, change masks and AFD of a simulated rig."""
+    """True poses, hand-eye, intrinsics, depths, change masks and ids and AFD of a simulated rig."""
 
     def __init__(self, *, world, platform, T_world_base: np.ndarray, T_flange_cam: np.ndarray,
                  intrinsics_true: CameraIntrinsics):
@@ -68,6 +68,17 @@ class GroundTruth:
         ch = self._world.changes if changes is None else changes
         res = self._world.renderer.render(T, intrinsics or self._intr, None, changes=ch, want=("labels",))
         return res.change_mask
+
+    def change_ids(self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None,
+                   changes=None) -> np.ndarray:
+        """(H, W) int32: 0 where no change, else 1 + the change's index in ``changes`` (default: :meth:`changes`).
+
+        Same pixels as :meth:`change_mask`; where footprints overlap, the strongest wins.
+        """
+        T = self.T_world_cam_true() if T_world_cam is None else T_world_cam
+        ch = self._world.changes if changes is None else changes
+        res = self._world.renderer.render(T, intrinsics or self._intr, None, changes=ch, want=("labels",))
+        return res.change_ids
 
     def labels(self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None) -> np.ndarray:
         T = self.T_world_cam_true() if T_world_cam is None else T_world_cam

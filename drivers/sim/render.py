@@ -9,8 +9,8 @@ from a mip pyramid (trilinear between levels, chosen from the pixel footprint)
 so that distant texture does not alias. Shading is Lambert with an ambient
 (optionally hemispherical) term and hard cast shadows (occlusion rays towards
 each light). Optional supersampling (``supersample=s``) shades an s x s grid per
-pixel and box-filters it (anti-aliased edges); depth, normals, labels and change
-masks always come from the pixel centres.
+pixel and box-filters it (anti-aliased edges); depth, normals, labels, change
+masks and change ids always come from the pixel centres.
 
 The camera response (exposure, vignetting, noise, gamma) is applied by
 :func:`apply_camera_response`.
@@ -73,6 +73,9 @@ class RenderResult:
     normals : (H, W, 3) float32 unit normals in the world frame, 0 where nothing.
     labels : (H, W) int32 part labels (1 = object, 0 = nothing).
     change_mask : (H, W) bool, pixels on an injected change.
+    change_ids : (H, W) int32, 0 where no change, else 1 + the index (in the
+        ``changes`` given to :meth:`Renderer.render`) of the change whose footprint
+        is the strongest there; ``change_mask == (change_ids > 0)``.
     exposure : float used.
     """
 
@@ -82,6 +85,7 @@ class RenderResult:
     normals: np.ndarray
     labels: np.ndarray
     change_mask: np.ndarray
+    change_ids: np.ndarray
     exposure: float = 1.0
 
 
@@ -320,8 +324,13 @@ class Renderer:
             return np.asarray(self.scene.lamp_position, float)
         return np.asarray(light.position, float)
 
-    def _shade(self, points, shade_n, geo_n, albedo, depth, lighting: Lighting, T_world_cam, cavity):
-        """Linear RGB radiance (N, 3) float32 of surface samples (all inputs float32)."""
+    def _shade(self, points, shade_n, geo_n, albedo, depth, lighting: Lighting, T_world_cam, cavity,
+               shadow_lift=None):
+        """Linear RGB radiance (N, 3) float32 of surface samples (all inputs float32).
+
+        ``shadow_lift`` (N,) metres, optional: shadow rays start that much further
+        along the geometric normal (back on the mesh surface for relief-only changes).
+        """
         up = np.asarray(self.scene.up, np.float32)
         if lighting.sky_weight > 0:
             sky = (1.0 - lighting.sky_weight) + lighting.sky_weight * (0.5 + 0.5 * (shade_n @ up))
@@ -352,6 +361,8 @@ class Renderer:
                 li = np.flatnonzero(lit)
                 if offset is None:
                     offset = (np.float32(0.0005) + np.float32(0.002) * depth)[:, None] * geo_n
+                    if shadow_lift is not None:
+                        offset = offset + shadow_lift[:, None] * geo_n
                 org = points[li] + offset[li]
                 if light.kind == "point":
                     occ = self.occluded(org, pos[None, :] - org, 0.999)
@@ -370,7 +381,8 @@ class Renderer:
         d_hit = dirs_world[idx]
         points = o[None, :] + t[:, None] * d_hit
         cavity = np.ones(len(idx), np.float32)
-        mask_local = np.zeros(len(idx), bool)
+        ids_local = np.zeros(len(idx), np.int32)
+        shadow_lift = None
         if changes:
             eff = evaluate_changes(changes, points.astype(np.float64), shade_n.astype(np.float64))
             if len(eff.index):
@@ -381,15 +393,19 @@ class Renderer:
                 points[k] = o[None, :] + t[k, None] * d_hit[k]
                 n = shade_n[k] + eff.slope.astype(np.float32)
                 shade_n[k] = n / np.linalg.norm(n, axis=1, keepdims=True)
-                cavity[k] = 1.0 - 0.5 * np.clip(eff.height_m / 0.002, 0, 1) * eff.footprint
+                cavity[k] = 1.0 - eff.occlusion
+                lift = eff.height_m - eff.shadow_height_m
+                if np.any(lift != 0):
+                    shadow_lift = np.zeros(len(idx), np.float32)
+                    shadow_lift[k] = lift
                 if want_albedo:
                     wgt = eff.albedo_weight[:, None].astype(np.float32)
                     albedo[k] = albedo[k] * (1 - wgt) + wgt * eff.albedo_target.astype(np.float32)
-                mask_local[k] = eff.footprint >= 0.5
+                ids_local[k] = np.where(eff.footprint >= 0.5, eff.change_index + 1, 0)
         radiance = None
         if want_albedo and lighting is not None:
-            radiance = self._shade(points, shade_n, geo_n, albedo, t, lighting, T_world_cam, cavity)
-        return dict(n=len(dirs_cam), idx=idx, t=t, labels=labels, normals=shade_n, radiance=radiance, mask=mask_local)
+            radiance = self._shade(points, shade_n, geo_n, albedo, t, lighting, T_world_cam, cavity, shadow_lift)
+        return dict(n=len(dirs_cam), idx=idx, t=t, labels=labels, normals=shade_n, radiance=radiance, ids=ids_local)
 
     # ------------------------------------------------------------------ public
     def render(self, T_world_cam: np.ndarray, intrinsics: CameraIntrinsics, lighting: Lighting | str | None = "front",
@@ -407,9 +423,9 @@ class Renderer:
         exposure : float or ``"auto"``.
         effects : CameraEffects (default: gamma 2.2, no noise, no vignetting).
         rng : numpy Generator for the sensor noise.
-        want : which of ``gray rgb depth normals labels change_mask`` are needed
-            (depth, normals, labels and change_mask are always returned; asking
-            for neither gray nor rgb skips shading).
+        want : which of ``gray rgb depth normals labels change_mask change_ids`` are
+            needed (depth, normals, labels, change_mask and change_ids are always
+            returned; asking for neither gray nor rgb skips shading).
 
         Returns
         -------
@@ -431,8 +447,8 @@ class Renderer:
         normals[prim["idx"]] = prim["normals"]
         labels = np.zeros(h * w, np.int32)
         labels[prim["idx"]] = prim["labels"]
-        cmask = np.zeros(h * w, bool)
-        cmask[prim["idx"]] = prim["mask"]
+        ids = np.zeros(h * w, np.int32)
+        ids[prim["idx"]] = prim["ids"]
         gray = rgb = None
         exp_used = float(exposure) if not isinstance(exposure, str) else 1.0
         if shade:
@@ -462,4 +478,5 @@ class Renderer:
             if "rgb" in want:
                 rgb = apply_camera_response(lin, exposure=exp_used, effects=effects, rng=rng)
         return RenderResult(gray=gray, rgb=rgb, depth=depth.reshape(h, w), normals=normals.reshape(h, w, 3),
-                            labels=labels.reshape(h, w), change_mask=cmask.reshape(h, w), exposure=exp_used)
+                            labels=labels.reshape(h, w), change_mask=(ids > 0).reshape(h, w),
+                            change_ids=ids.reshape(h, w), exposure=exp_used)

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import time
 
+import cv2
 import numpy as np
 import pytest
 
 from drivers.cameras import CameraIntrinsics, CameraSource
-from drivers.sim.changes import ChangeSpec, random_changes
+from drivers.sim.changes import ALL_KINDS, CHANGE_CATEGORY, KINDS, ChangeSpec, evaluate_changes, random_changes
 from drivers.sim.lights import Lighting, lighting_preset, list_lighting_presets, solar_az_el
 from drivers.sim.render import CameraEffects, Renderer
 from drivers.sim.transforms import look_at
@@ -119,6 +120,164 @@ def test_random_changes_lie_on_the_visible_object():
     assert random_changes(s, n=6, seed=2)[0].position == chs[0].position
 
 
+# random_changes(load_scene("plane"), n=12, seed=0) recorded before pit and lifted existed: (kind, seed, size_mm)
+_PLANE_12_SEED_0 = [
+    ("stain", 330529326, 2.243885060187946), ("crack", 17746413, 11.43112505181846),
+    ("missing", 1042327185, 6.155329991455284), ("stain", 583712889, 16.464830777272045),
+    ("missing", 423214460, 1.008237556829487), ("stain", 36062236, 8.898229901136776),
+    ("crack", 23731787, 13.274606911924353), ("crack", 321813192, 3.5475518652144635),
+    ("crack", 8895210, 1.451096420079578), ("stain", 694914446, 6.318798246003776),
+    ("flaking", 864350543, 19.833530958985794), ("flaking", 736095100, 7.018867263540793),
+]
+
+
+def test_random_changes_default_kinds_draw_as_before_and_kinds_select():
+    from drivers.sim.scenes import load_scene
+
+    s = load_scene("plane")
+    chs = random_changes(s, n=12, seed=0)
+    assert [(c.kind, c.seed, c.size_mm) for c in chs] == _PLANE_12_SEED_0
+    np.testing.assert_allclose(chs[0].position, (-0.28133331656455995, 0.0, 1.0620000112056731), atol=1e-6)
+    assert KINDS == ("crack", "flaking", "stain", "missing") and ALL_KINDS == KINDS + ("pit", "lifted")
+    for kind in ALL_KINDS:  # the category says what the kind changes: relief (a depth), colour (an albedo weight)
+        ch = ChangeSpec(kind=kind, position=(0, 0, 1), normal=(0, -1, 0), size_mm=5.0, seed=1)
+        relief, colour = ch.depth_m != 0, ch.target_albedo[1] > 0
+        expected = {(True, True): "both", (True, False): "relief", (False, True): "colour"}[relief, colour]
+        assert ch.category == CHANGE_CATEGORY[kind] == expected
+    picked = random_changes(s, n=30, seed=0, kinds=("pit", "lifted", "stain"))
+    assert {c.kind for c in picked} == {"pit", "lifted", "stain"}
+    assert {c.category for c in picked} == {"relief", "colour"}
+    with pytest.raises(ValueError):
+        random_changes(s, n=1, seed=0, kinds=("pit", "dent"))
+    with pytest.raises(ValueError):  # a lifted flake rises: its depth is negative
+        ChangeSpec(kind="lifted", position=(0, 0, 1), normal=(0, -1, 0), size_mm=5.0, depth_mm=1.0)
+
+
+# relief and colour cues: a 10 mm change on a frontal plane of albedo 0.5 seen at 0.25 mm per pixel
+_FINE = CameraIntrinsics(fx=2000.0, fy=2000.0, cx=49.5, cy=49.5, width=100, height=100)
+# a camera LED on its 0.6 m arm lights the plane 0.5 m away at beta = atan(0.6 / 0.5) = 50 deg from the normal
+_TAN_BETA = 0.6 / 0.5
+_LIGHTINGS = [AMBIENT] + [lighting_preset(n) for n in ("front", "led:3", "led:9", "led:12", "sun-noon", "overcast",
+                                                      "night")]
+
+
+def _relative_change(r, ch, lighting):
+    """Mean |after / before - 1| inside the change mask, linear response without clipping."""
+    T, _, _ = _frontal(_FINE)
+    kw = dict(exposure=0.2, effects=LINEAR, want=("gray",))
+    before = r.render(T, _FINE, lighting, **kw)
+    after = r.render(T, _FINE, lighting, changes=[ch], **kw)
+    m = after.change_mask
+    assert m.sum() > 300 and before.gray.max() < 1.0 and after.gray.max() < 1.0
+    return float(np.mean(np.abs(after.gray[m] / before.gray[m] - 1.0)))
+
+
+def _centred(kind, seed=1, **kw):
+    return ChangeSpec(kind=kind, position=(0.0, 0.0, 1.0), normal=(0, -1, 0), size_mm=10.0, seed=seed, **kw)
+
+
+def test_pit_is_relief_shown_by_a_side_light_and_a_stain_is_colour_under_every_light(factories):
+    r = Renderer(factories.make_scene([factories.plane_part(albedo=0.5)]))
+    pit, stain = _centred("pit"), _centred("stain")
+    assert (pit.category, stain.category) == ("relief", "colour")
+    pit_rel = {L.name: _relative_change(r, pit, L) for L in _LIGHTINGS}
+    stain_rel = {L.name: _relative_change(r, stain, L) for L in _LIGHTINGS}
+    # ambient light: only the cavity's occlusion, D F^2 with D = d^2 / (d^2 + R^2) the sky share the rim
+    # hides at the bottom and F >= 0.5 in the mask
+    d, R = pit.depth_m, 0.005
+    D = d * d / (d * d + R * R)
+    assert 0.25 * D < pit_rel["a"] < D
+    assert pit_rel["a"] < 0.5 * stain_rel["a"]
+    # the bowl 1 - (r/R)^2 slopes by s = 2 d r / R^2; to first order Lambert changes by s tan(beta) cos(phi),
+    # which averages 2/3 * 2 d / (R sqrt 2) * tan(beta) * 2/pi = 0.29 over the mask (r < R / sqrt 2)
+    expected_side = 2 / 3 * 2 * d / (R * np.sqrt(2)) * _TAN_BETA * 2 / np.pi
+    for side in ("led:3", "led:9"):
+        assert pit_rel[side] > 0.6 * expected_side
+        assert pit_rel[side] > 2.5 * max(pit_rel["a"], pit_rel["front"])
+    # the stain: same relative change under every light (the lamps' colours weigh its brown a few % apart)
+    values = np.array(list(stain_rel.values()))
+    assert values.min() > 0.2 and values.max() / values.min() < 1.05
+    pit_values = np.array(list(pit_rel.values()))
+    assert pit_values.max() / pit_values.min() > 2.5
+
+
+def test_lifted_flake_is_raised_tilted_and_seen_only_by_its_shading(factories):
+    r = Renderer(factories.make_scene([factories.plane_part(albedo=0.5)]))
+    T, _, _ = _frontal(_FINE)
+    for seed in (1, 2, 3):
+        ch = _centred("lifted", seed=seed)
+        assert ch.category == "relief" and ch.depth_m == pytest.approx(-0.002)
+        kw = dict(exposure=0.2, effects=LINEAR, want=("gray",))
+        before = r.render(T, _FINE, AMBIENT, **kw)
+        after = r.render(T, _FINE, AMBIENT, changes=[ch], **kw)
+        # no albedo change and no cavity: uniform ambient light sees nothing
+        np.testing.assert_array_equal(after.gray, before.gray)
+        height = before.depth - after.depth
+        assert height.min() >= 0 and height.max() == pytest.approx(-ch.depth_m, rel=0.05)
+        # the plate rises from 0.25 to 1 of the lift across the 10 mm flake: slope s = 0.75 * 2 mm / 10 mm, seen
+        # by lights 90 deg apart (3 and 12 o'clock) as s tan(beta) |cos phi| with max(|cos|, |sin|) >= 1/sqrt 2
+        s = 0.75 * -ch.depth_m / 0.010
+        side = max(_relative_change(r, ch, lighting_preset(n)) for n in ("led:3", "led:12"))
+        assert side > 0.6 * s * _TAN_BETA / np.sqrt(2)
+        assert side > 2.0 * _relative_change(r, ch, lighting_preset("front"))
+
+
+@pytest.mark.parametrize("kind", ["pit", "lifted"])
+def test_relief_changes_mask_depth_normals_and_albedo(factories, kind):
+    """Mask where the footprint is >= 0.5; the normal tilts as the displaced depth slopes; albedo untouched."""
+    r = Renderer(factories.make_scene([factories.plane_part(albedo=0.5)]))
+    T, x, z = _frontal(_FINE)
+    ch = _centred(kind)
+    before = r.render(T, _FINE, "led:3", exposure=0.2, want=("gray",))
+    after = r.render(T, _FINE, "led:3", changes=[ch], exposure=0.2, want=("gray",))
+    F = _footprint_image(ch, x, z)
+    np.testing.assert_array_equal(after.change_mask, F >= 0.5)
+    assert np.all(after.gray[F == 0] == before.gray[F == 0])
+    height = (before.depth - after.depth).astype(float)  # outward, metres
+    assert np.abs(height).max() == pytest.approx(abs(ch.depth_m), rel=0.05)
+    # a height field y = -h(x, z) has the outward normal (-h_x, -1, -h_z) (up to scale)
+    px = 0.5 / _FINE.fx
+    h_v, h_u = np.gradient(height, px)
+    n = after.normals.astype(float)
+    inner = cv2.erode((F >= 0.5).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)  # off the walls
+    err = np.hypot(n[..., 0] / -n[..., 1] + h_u, n[..., 2] / -n[..., 1] - h_v)
+    assert np.percentile(err[inner], 95) < 0.01
+    assert np.median(np.hypot(h_u, h_v)[inner]) > 0.1  # a relief that tilts the normal, not a flat step
+    pts = np.stack([x, np.zeros_like(x), z], -1).reshape(-1, 3)
+    eff = evaluate_changes([ch], pts, np.tile([0.0, -1.0, 0.0], (len(pts), 1)))
+    assert len(eff.index) > 300 and np.all(eff.albedo_weight == 0)
+
+
+def test_change_ids_tell_which_change_each_masked_pixel_is(factories):
+    r = Renderer(factories.make_scene([factories.plane_part(albedo=0.5)]))
+    T, x, z = _frontal(_FINE)
+    stain = ChangeSpec(kind="stain", position=(-0.006, 0.0, 1.0), normal=(0, -1, 0), size_mm=8.0, seed=1)
+    pit = ChangeSpec(kind="pit", position=(0.006, 0.0, 1.0), normal=(0, -1, 0), size_mm=8.0, seed=1)
+    for changes in ([stain, pit], [pit, stain]):
+        res = r.render(T, _FINE, "led:3", changes=changes, want=("gray",))
+        assert res.change_ids.dtype == np.int32 and res.change_ids.shape == res.change_mask.shape
+        np.testing.assert_array_equal(res.change_mask, res.change_ids > 0)
+        for i, ch in enumerate(changes):
+            F = _footprint_image(ch, x, z)
+            np.testing.assert_array_equal(res.change_ids == i + 1, F >= 0.5)
+            assert (res.change_ids == i + 1).sum() > 100
+        assert set(np.unique(res.change_ids)) == {0, 1, 2}
+    # overlapping footprints: the strongest one names the pixel (the first on ties)
+    big = ChangeSpec(kind="stain", position=(0.0, 0.0, 1.0), normal=(0, -1, 0), size_mm=20.0, seed=2)
+    res = r.render(T, _FINE, None, changes=[big, pit], want=("labels",))
+    F1, F2 = _footprint_image(big, x, z), _footprint_image(pit, x, z)
+    expected = np.where(np.maximum(F1, F2) >= 0.5, np.where(F2 > F1, 2, 1), 0)
+    np.testing.assert_array_equal(res.change_ids, expected)
+    assert ((expected == 2).sum() > 20) and ((expected == 1) & (F2 >= 0.5)).sum() > 20
+
+
+def _footprint_image(ch, x, z):
+    """Footprint of ``ch`` at the frontal plane's pixels (x, z world coordinates)."""
+    P = np.stack([x, np.zeros_like(x), z], -1) - np.asarray(ch.position)
+    e1, e2 = ch.basis()
+    return ch.footprint_at((P @ e1).ravel(), (P @ e2).ravel()).reshape(x.shape)
+
+
 def test_rig_home_pose_camera_and_ground_truth():
     from drivers.sim.rig import build_sim_rig
 
@@ -197,6 +356,9 @@ def test_rig_sessions_changes_and_displaced_base():
     chs = b.inject_changes(n=3, seed=5)
     assert len(chs) == 3 and b.ground_truth.changes() == chs
     assert b.ground_truth.change_mask().any()
+    ids = b.ground_truth.change_ids()
+    np.testing.assert_array_equal(ids > 0, b.ground_truth.change_mask())
+    assert ids.max() <= len(chs)
     T0 = b.ground_truth.T_world_cam_true()
     delta = np.eye(4)
     delta[:3, 3] = [0.02, 0.0, 0.0]
