@@ -12,6 +12,7 @@ from fgcd_cli.changes.illumination import normalize_local_gain, normalize_shadin
 from fgcd_cli.changes.images import image_health, to_gray, validate_stacks
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, extract_regions, refine_to_local_peak
 from fgcd_cli.changes.registration import Registration, register_to_reference, warp_to_reference
+from fgcd_cli.changes.significance import Decision, SignificantRegion, acontrario_decision
 from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
 from fgcd_cli.errors import UserInputError
 
@@ -40,6 +41,8 @@ class ChangeResult:
     warnings: list[str] = field(default_factory=list)
     edge_explained: np.ndarray | None = None
     """HxW bool, pixels of the regions the region-level edge check set aside (``edge_check_px``), or None."""
+    candidates: list[SignificantRegion] = field(default_factory=list)
+    """The strongest a-contrario regions that were not reported (for "no significant change; strongest candidate ...")."""
 
     @property
     def changed_fraction(self) -> float:
@@ -91,6 +94,19 @@ def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, normalized_imag
     return explained, n_explained
 
 
+def _regions_with_significance(mask, score, significance: Decision, pixel_area_mm2):
+    """Regions of the final mask, each with the log10 NFA of the most significant a-contrario seed it holds."""
+    regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
+    if significance.seed_index is None:
+        return regions, labels
+    for region in regions:
+        inside = significance.seed_index[labels == region.id]
+        inside = np.unique(inside[inside > 0])
+        if inside.size:
+            region.log10_nfa = float(min(significance.regions[i - 1].log10_nfa for i in inside))
+    return regions, labels
+
+
 def detect_changes(
     ref_images: list[np.ndarray],
     cur_images: list[np.ndarray],
@@ -116,6 +132,10 @@ def detect_changes(
     edge_contrast: float = 3.0,
     edge_check_px: int = 0,
     edge_check_band_fraction: float = 0.8,
+    decision: str = "hysteresis",
+    epsilon: float = 1.0,
+    seed_p: float = 0.005,
+    extent_fraction: float = 0.2,
 ) -> ChangeResult:
     """Find fine-grained changes between a reference and a current observation.
 
@@ -180,6 +200,15 @@ def detect_changes(
     robust_gain_rounds : int
         Re-estimations of the light-gain field without the pixels the previous
         score flags as suspect (0: one plain estimate, the change biases it).
+    decision : {"hysteresis", "acontrario"}
+        Which rule decides the regions. Either way every region carries its
+        a-contrario significance (``ChangeRegion.log10_nfa``, see
+        :func:`fgcd_cli.changes.significance.acontrario_decision`) and the strongest
+        regions not reported are kept in ``candidates``.
+    epsilon, seed_p, extent_fraction : float
+        The a-contrario test: tolerated false regions per image under the pair's own
+        null, lowest level tested (empirical tail probability), extent of a region
+        (fraction of its peak excess).
 
     Returns
     -------
@@ -205,7 +234,13 @@ def detect_changes(
         "edge_contrast": edge_contrast,
         "edge_check_px": edge_check_px,
         "shading_normalization": shading_ref is not None,
+        "decision": decision,
+        "epsilon": epsilon,
+        "seed_p": seed_p,
+        "extent_fraction": extent_fraction,
     }
+    if decision not in ("hysteresis", "acontrario"):
+        raise UserInputError(f"unknown decision rule {decision!r}: use hysteresis or acontrario")
     refs, curs = validate_stacks(ref_images, cur_images)
     shape = refs[0].shape[:2]
     if eval_mask is not None:
@@ -301,10 +336,15 @@ def detect_changes(
     settings["robust_gain_rounds"] = robust_rounds
 
     raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
-    raw_mask = refine_to_local_peak(raw_mask, score, background=threshold.median, fraction=edge_fraction,
-                                    radius_px=edge_radius_px)
+    significance = acontrario_decision(score, valid, epsilon=epsilon, seed_p=seed_p, extent_fraction=extent_fraction,
+                                       min_cluster_area_px=4.0 * np.pi * smooth_sigma_px**2)
+    if decision == "acontrario":
+        raw_mask = significance.mask
+    else:
+        raw_mask = refine_to_local_peak(raw_mask, score, background=threshold.median, fraction=edge_fraction,
+                                        radius_px=edge_radius_px)
     mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
-    regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
+    regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
     if edge_check_px > 0 and regions:
         explained, settings["edge_explained_regions"] = _edge_explained(
             labels, len(regions), refs=refs, normalized_images=normalized_images, medians=medians, valid=valid,
@@ -313,7 +353,7 @@ def detect_changes(
         )
         if explained.any():
             mask &= ~explained
-            regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
+            regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
     else:
         explained = None
     warnings = []
@@ -337,4 +377,7 @@ def detect_changes(
         settings=settings,
         warnings=warnings,
         edge_explained=explained,
+        candidates=sorted((c for c in significance.candidates + significance.regions
+                           if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]),
+                          key=lambda c: c.log10_nfa)[:5],
     )

@@ -22,6 +22,8 @@ class ChangeRegion:
     centroid_xy: tuple[float, float]
     mean_score: float
     max_score: float
+    log10_nfa: float | None = None
+    """log10 of the region's number of false alarms (a-contrario significance; < 0 is significant at epsilon = 1)."""
 
 
 def clean_mask(mask: np.ndarray, *, min_region_px: int, max_hole_px: int) -> np.ndarray:

@@ -81,17 +81,9 @@ class Decision:
     """Score at the seed probability ``seed_p`` (the lowest level tested)."""
     median: float
     """Median score over the compared pixels (the background level)."""
+    seed_index: np.ndarray | None = None
+    """HxW int32: i + 1 on the seed pixels of ``regions[i]``, 0 elsewhere."""
     settings: dict = field(default_factory=dict)
-
-    def log10_nfa_map(self, labels: np.ndarray) -> dict[int, float]:
-        """log10 NFA of each labelled region (label -> value), from the seed it contains."""
-        out: dict[int, float] = {}
-        for region in self.regions:
-            x, y = region.centroid_xy
-            label = int(labels[int(round(y)), int(round(x))])
-            if label and label not in out:
-                out[label] = region.log10_nfa
-        return out
 
 
 def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -113,13 +105,41 @@ def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray) -> np.ndarra
     return np.where(valid, -np.log(survival), 0.0).astype(np.float32)
 
 
-def exceedance_cluster_area(score: np.ndarray, valid: np.ndarray, level: float) -> float:
-    """Median size (px) of the 8-connected clusters of ``score >= level`` (at least 1)."""
+def halfnormal_neglog_survival(relative_score: np.ndarray) -> np.ndarray:
+    """``-log P(S >= s)`` when ``S`` is half-normal with median 1 (the absolute value of Gaussian noise).
+
+    Parameters
+    ----------
+    relative_score : ndarray, HxW float, score divided by its median.
+
+    Returns
+    -------
+    ndarray, HxW float32.
+    """
+    # median |N(0, 1)| = 0.6745, so s * 0.6745 is in units of the noise's sigma.
+    z = np.asarray(relative_score, np.float64) * 0.6745
+    return (-(special.log_ndtr(-z) + np.log(2.0))).clip(min=0.0).astype(np.float32)
+
+
+def exceedance_cluster_area(score: np.ndarray, valid: np.ndarray, level: float,
+                            exclude: np.ndarray | None = None) -> float:
+    """Median size (px) of the 8-connected clusters of ``score >= level`` (at least 1).
+
+    Clusters touching ``exclude`` (regions already found significant) do not count:
+    where changes cover more than the seed probability, the clusters at the seed
+    level are mostly changes, and their size is not the background's dependence.
+    """
     labels, count = ndimage.label((score >= level) & valid, structure=_EIGHT)
     if count == 0:
         return 1.0
-    sizes = np.bincount(labels.ravel())[1:]
-    return max(1.0, float(np.median(sizes)))
+    sizes = np.bincount(labels.ravel(), minlength=count + 1)[1:]
+    if exclude is not None and exclude.any():
+        touched = np.unique(labels[exclude & (labels > 0)])
+        keep = np.ones(count, bool)
+        keep[touched - 1] = False
+        if keep.any():
+            sizes = sizes[keep]
+    return max(1.0, float(np.mean(sizes)))
 
 
 def _log_region_probability(lam: float, sizes: np.ndarray, excess: np.ndarray, area: float) -> np.ndarray:
@@ -138,6 +158,8 @@ def acontrario_decision(
     extent_fraction: float = 0.2,
     level_step: float = 0.25,
     max_candidates: int = 5,
+    area_rounds: int = 3,
+    min_cluster_area_px: float = 1.0,
 ) -> Decision:
     """Significant change regions of a score map, by their number of false alarms.
 
@@ -159,6 +181,12 @@ def acontrario_decision(
         Spacing of the ladder of levels, in ``-log p`` (0.25: ~28 % apart in probability).
     max_candidates : int
         Non-significant regions kept for "no significant change; strongest candidate ...".
+    area_rounds : int
+        Re-estimations of the cluster area without the clusters found significant.
+    min_cluster_area_px : float
+        Lower bound of the cluster area: a score smoothed with a Gaussian of sigma
+        ``s`` px has a correlation area of at least ``4 pi s^2`` px whatever its
+        exceedance clusters look like (the caller passes it).
 
     Returns
     -------
@@ -169,12 +197,34 @@ def acontrario_decision(
     n_valid = int(valid.sum())
     if n_valid == 0:
         raise ValueError("no valid pixel to decide on")
-    neglogp = empirical_neglog_survival(score, valid)
     median = float(np.median(score[valid]))
+    # A pixel is only as surprising as its least surprising explanation: the pair's
+    # empirical tail, or sensor-like noise (half-normal with the score's median as
+    # its median). Without the second, the top fraction of an unchanged, nearly
+    # noise-free pair is "significant" whenever it is spatially structured.
+    neglogp = np.minimum(empirical_neglog_survival(score, valid), halfnormal_neglog_survival(score / max(median, 1e-12)))
     seed_level = float(np.quantile(score[valid], 1.0 - seed_p))
-    area = exceedance_cluster_area(score, valid, seed_level)
+    area = max(exceedance_cluster_area(score, valid, seed_level), min_cluster_area_px)
     levels = np.arange(-np.log(seed_p), float(neglogp.max()) + 1e-9, level_step)
-    n_tests = n_valid / area * max(len(levels), 1)
+    for _ in range(area_rounds + 1):
+        n_tests = n_valid / area * max(len(levels), 1)
+        regions, candidates, significant, seed_index = _scan_levels(
+            score, neglogp, valid, levels, area=area, n_tests=n_tests, epsilon=epsilon, max_candidates=max_candidates)
+        used_area = area
+        area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
+        if area == used_area:
+            break
+    mask = grow_to_extent(significant, score, valid, background=median, fraction=extent_fraction)
+    return Decision(
+        mask=mask, regions=regions, candidates=candidates, cluster_area_px=used_area, n_tests=float(n_tests),
+        seed_level=seed_level, median=median, seed_index=seed_index,
+        settings={"epsilon": epsilon, "seed_p": seed_p, "extent_fraction": extent_fraction, "level_step": level_step,
+                  "levels": int(len(levels))},
+    )
+
+
+def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates):
+    """Components of every level, their NFA, and the exclusion principle (most significant first)."""
     found = []
     for lam in levels:
         labels, count = ndimage.label((neglogp >= lam) & valid, structure=_EIGHT)
@@ -192,6 +242,7 @@ def acontrario_decision(
     found.sort(key=lambda item: item[0])
     seeds = np.zeros(score.shape, bool)
     significant = np.zeros(score.shape, bool)
+    seed_index = np.zeros(score.shape, np.int32)
     regions: list[SignificantRegion] = []
     candidates: list[SignificantRegion] = []
     for log_nfa, lam, label, window, labels in found:
@@ -208,16 +259,11 @@ def acontrario_decision(
             seeds |= component
             significant |= component
             regions.append(entry)
+            seed_index[component] = len(regions)
         elif len(candidates) < max_candidates:
             seeds |= component  # a weaker, overlapping level of the same candidate is not another one
             candidates.append(entry)
-    mask = grow_to_extent(significant, score, valid, background=median, fraction=extent_fraction)
-    return Decision(
-        mask=mask, regions=regions, candidates=candidates, cluster_area_px=area, n_tests=float(n_tests),
-        seed_level=seed_level, median=median,
-        settings={"epsilon": epsilon, "seed_p": seed_p, "extent_fraction": extent_fraction, "level_step": level_step,
-                  "levels": int(len(levels))},
-    )
+    return regions, candidates, significant, seed_index
 
 
 def grow_to_extent(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, background: float,

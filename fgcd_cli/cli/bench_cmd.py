@@ -18,7 +18,7 @@ def changes(
     overlays: Optional[Path] = typer.Option(None, "--overlays", help="Write sample overlays (PNG) into this folder."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """Fine-grained change detection: real FGCD dataset (Db-1..5) and simulated pairs."""
+    """Fine-grained change detection: real FGCD groups (leave one group out) and simulated pairs."""
     from fgcd_cli.bench.changes import run
 
     if not as_json:
@@ -28,9 +28,10 @@ def changes(
     def render(console):
         real = data["real"]
         if real.get("available"):
+            console.print("leave one group out (constants chosen on the other groups):")
             for g in real["groups"]:
                 console.print(f"{g['group']}: best F1 {g['best_f1']:.3f}  AP {g['ap']:.3f}  auto F1 {g['auto_f1']:.3f} "
-                              f"(P {g['auto_precision']:.2f} R {g['auto_recall']:.2f})  {g['seconds']:.1f} s")
+                              f"(P {g['auto_precision']:.2f} R {g['auto_recall']:.2f})  {g['chosen']}  {g['seconds']:.1f} s")
         else:
             console.print(f"real dataset: {real.get('reason')}")
         if data["sim"] and not data["sim"].get("available"):
