@@ -127,6 +127,12 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         "logo_min_auto_recall": float(min(r["auto_recall"] for r in logo)),
         "deployed": detector_options(deployed),
         "in_sample": in_sample,
+        # Every grid point on every group (in-sample, a reference: how each rule behaves).
+        "per_setting": [{"setting": detector_options(key),
+                         "mean_auto_f1": float(np.mean([g["grid"][key]["auto_f1"] for g in scored])),
+                         "auto_recall": {g["group"]: g["grid"][key]["auto_recall"] for g in scored},
+                         "auto_precision": {g["group"]: g["grid"][key]["auto_precision"] for g in scored}}
+                        for key in grid],
         "in_sample_auto_f1": mean(in_sample, "auto_f1"),
         "in_sample_best_f1": mean(in_sample, "best_f1"),
         "seconds_per_pair": float(np.median([g["grid"][deployed]["seconds"] for g in scored])),

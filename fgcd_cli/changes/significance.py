@@ -11,16 +11,21 @@ image, if nothing had changed. The background model H0 is taken from the pair
 itself, so no threshold is tuned on other data:
 
 * **marginal**: the empirical distribution of the pair's own score over the
-  compared pixels. Changes are 0.3-4 % of a frame, so they barely move it, and
-  whatever heavy tail the texture, cast shadows or misregistration give this
-  pair is in it by construction. Per-pixel ``-log p`` with ``p`` the empirical
-  survival ``P(S >= s)``.
+  compared pixels: whatever heavy tail the texture, cast shadows or
+  misregistration give this pair is in it by construction. Per-pixel
+  ``-log p``, with ``p`` the larger of the empirical survival ``P(S >= s)`` and
+  that of half-normal sensor noise with the score's median (a pixel is only as
+  surprising as its least surprising explanation). Changes covering more than
+  ``seed_p`` of the frame do move the empirical tail (see the strict ``xfail``
+  tests in ``tests/changes/test_significance.py``).
 * **dependence**: neighbouring scores are not independent (smoothing,
   demosaicing, texture edges), so a region of ``n`` pixels holds only
-  ``n / A`` independent samples. ``A`` is the median size of the connected
+  ``n / A`` independent samples. ``A`` is the mean size of the connected
   clusters of exceedances at the seed level: the reciprocal of the extremal
-  index of extreme-value theory (Leadbetter 1983), estimated on the pair. The
-  median, not the mean, so that the few large change regions do not inflate it.
+  index of extreme-value theory (Leadbetter 1983), estimated on the pair,
+  re-estimated without the clusters found significant (changes are not the
+  background's dependence), and at least the correlation area of the score's
+  smoothing (passed by the caller).
 * **region probability**: under H0 the ``n_eff`` independent samples of a
   region found at level ``lambda = -log p_level`` all exceed it with
   probability ``exp(-lambda n_eff)``, and, given that, their excesses of
@@ -123,7 +128,7 @@ def halfnormal_neglog_survival(relative_score: np.ndarray) -> np.ndarray:
 
 def exceedance_cluster_area(score: np.ndarray, valid: np.ndarray, level: float,
                             exclude: np.ndarray | None = None) -> float:
-    """Median size (px) of the 8-connected clusters of ``score >= level`` (at least 1).
+    """Mean size (px) of the 8-connected clusters of ``score >= level`` (at least 1).
 
     Clusters touching ``exclude`` (regions already found significant) do not count:
     where changes cover more than the seed probability, the clusters at the seed
@@ -236,7 +241,7 @@ def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_c
         log_nfa = np.log(n_tests) + _log_region_probability(float(lam), sizes, excess, area)
         slices = ndimage.find_objects(labels)
         order = np.argsort(log_nfa)
-        keep = max(int((log_nfa < np.log(epsilon)).sum()), 0) + 4 * max_candidates
+        keep = int((log_nfa < np.log(epsilon)).sum()) + 4 * max_candidates
         for i in order[:keep]:
             found.append((float(log_nfa[i]), float(lam), int(i + 1), slices[i], labels))
     found.sort(key=lambda item: item[0])

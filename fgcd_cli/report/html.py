@@ -249,7 +249,8 @@ def render_diff_report(
                                    "overlap": round(reg.overlap_fraction, 3)}
     if result.threshold is not None:
         t = result.threshold
-        details["threshold"] = {"method": t.method, "k_high": t.k_high, "k_low": t.k_low, "decision": result.settings.get("decision"), "high": round(t.high, 3),
+        details["threshold"] = {"method": t.method, "decision": result.settings.get("decision"),
+                                "k_high": t.k_high, "k_low": t.k_low, "high": round(t.high, 3),
                                 "low": round(t.low, 3), "median": round(t.median, 3), "sigma_upper": round(t.sigma_upper, 4)}
     details["settings"] = result.settings
     if fdf is not None:

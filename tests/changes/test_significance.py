@@ -20,6 +20,17 @@ def _disc(shape, centre, radius):
     return (yy - centre[1]) ** 2 + (xx - centre[0]) ** 2 <= radius**2
 
 
+def _strong_and_medium_change():
+    """A strong (+6) and a weaker (+3) disc on smoothed noise, and the decision on them."""
+    score = _background(seed=3)
+    strong = _disc(score.shape, (80, 80), 10)
+    medium = _disc(score.shape, (200, 220), 7)
+    score[strong] += 6.0
+    score[medium] += 3.0
+    score = ndimage.gaussian_filter(score, 1.0)
+    return strong, medium, acontrario_decision(score, np.ones(score.shape, bool), min_cluster_area_px=4 * np.pi * 4)
+
+
 def test_pure_noise_gives_no_region_in_most_images():
     # epsilon = 1 means at most ~1 false region expected per image under the model;
     # over 10 noise images the model is conservative (half-normal floor), so nearly none.
@@ -29,13 +40,7 @@ def test_pure_noise_gives_no_region_in_most_images():
 
 
 def test_compact_changes_are_found_with_their_extent_and_weak_ones_stay_candidates():
-    score = _background(seed=3)
-    strong = _disc(score.shape, (80, 80), 10)
-    medium = _disc(score.shape, (200, 220), 7)
-    score[strong] += 6.0
-    score[medium] += 3.0
-    score = ndimage.gaussian_filter(score, 1.0)
-    decision = acontrario_decision(score, np.ones(score.shape, bool), min_cluster_area_px=4 * np.pi * 4)
+    strong, medium, decision = _strong_and_medium_change()
     assert len(decision.regions) >= 1
     assert all(r.log10_nfa < 0 for r in decision.regions)
     overlap = (decision.mask & strong).sum() / strong.sum()
@@ -49,13 +54,7 @@ def test_compact_changes_are_found_with_their_extent_and_weak_ones_stay_candidat
 @pytest.mark.xfail(strict=True, reason="known weakness (issue 19): the seed level is an empirical quantile, so a strong "
                    "change covering most of the top seed_p pixels pushes a weaker one below it")
 def test_a_weaker_change_beside_a_strong_one_is_at_least_a_candidate():
-    score = _background(seed=3)
-    strong = _disc(score.shape, (80, 80), 10)
-    medium = _disc(score.shape, (200, 220), 7)
-    score[strong] += 6.0
-    score[medium] += 3.0
-    score = ndimage.gaussian_filter(score, 1.0)
-    decision = acontrario_decision(score, np.ones(score.shape, bool), min_cluster_area_px=4 * np.pi * 4)
+    strong, medium, decision = _strong_and_medium_change()
     found_medium = (decision.mask & medium).any()
     first = decision.candidates[0] if decision.candidates else None
     assert found_medium or (first is not None and medium[int(round(first.centroid_xy[1])), int(round(first.centroid_xy[0]))])
