@@ -24,6 +24,9 @@ class ChangeRegion:
     max_score: float
     log10_nfa: float | None = None
     """log10 of the region's number of false alarms (a-contrario significance; < 0 is significant at epsilon = 1)."""
+    cue: str | None = None
+    """What changed, from the photometric-stereo cues: ``"relief"`` (surface normals: pits, flakes, cracks),
+    ``"colour"`` (albedo: stains, salts, fading), ``"both"``, or None when the cues were not computed."""
 
 
 def clean_mask(mask: np.ndarray, *, min_region_px: int, max_hole_px: int) -> np.ndarray:
