@@ -14,11 +14,22 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
+from fgcd_cli.changes.significance import SignificantRegion  # noqa: E402
 
 # Colours (RGB) chosen to stand out on plaster, pigments and stone.
 CHANGE_RGB = (255, 0, 200)
 SET_ASIDE_RGB = (0, 220, 255)  # cyan: found, then set aside by the edge check
 LABEL_RGB = (255, 255, 0)
+CANDIDATE_RGB = (255, 150, 0)  # amber, dashed and half-transparent: strongest regions not reported
+CANDIDATE_ALPHA = 0.6
+CUE_RGB = {
+    "relief": (60, 110, 255),  # blue: surface normals changed (pits, flakes, cracks)
+    "colour": (0, 190, 90),  # green: albedo changed (stains, salts, fading)
+    "both": CHANGE_RGB,
+}
+"""Tint of a reported region by its cue; a region without a cue is tinted ``CHANGE_RGB``."""
+CUE_NAMES = {"relief": "blue", "colour": "green", "both": "magenta"}
+"""Colour names of ``CUE_RGB``, for legends."""
 
 
 def to_display_rgb(image: np.ndarray) -> np.ndarray:
@@ -53,18 +64,53 @@ def _figure_png(fig) -> bytes:
     return buffer.getvalue()
 
 
+def candidate_radius_px(area_px: float, shape: tuple[int, ...]) -> int:
+    """Radius of a candidate's circle: 1.5x that of a disc of its area, at least 1 % of the image (5 px)."""
+    return int(round(max(1.5 * np.sqrt(max(area_px, 0) / np.pi), min(shape[:2]) / 100, 5)))
+
+
+def _dashed_circle(out: np.ndarray, centre: tuple[int, int], radius: int, colour: tuple[int, int, int], *,
+                   dashes: int = 16) -> None:
+    """A thin dashed circle (``dashes`` arcs drawn, as many gaps) on ``out``, in place."""
+    step = 360.0 / (2 * max(dashes, 4))
+    for k in range(0, 2 * max(dashes, 4), 2):
+        cv2.ellipse(out, centre, (radius, radius), 0, k * step, (k + 1) * step, colour, 1, cv2.LINE_AA)
+
+
+def _draw_candidates(out: np.ndarray, candidates: list[SignificantRegion]) -> np.ndarray:
+    """``out`` with faint dashed amber circles at the candidates, labelled c1, c2, ... in small thin type."""
+    layer = out.copy()
+    scale = max(0.35, min(out.shape[:2]) / 1400)
+    for k, candidate in enumerate(candidates, start=1):
+        cx, cy = (int(round(v)) for v in candidate.centroid_xy)
+        radius = candidate_radius_px(candidate.area_px, out.shape)
+        _dashed_circle(layer, (cx, cy), radius, CANDIDATE_RGB)
+        text = f"c{k}"
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+        tx = int(min(max(cx + int(0.75 * radius) + 2, 0), out.shape[1] - tw - 2))
+        ty = int(min(max(cy - int(0.75 * radius), th + 2), out.shape[0] - 2))
+        cv2.putText(layer, text, (tx, ty), cv2.FONT_HERSHEY_SIMPLEX, scale, CANDIDATE_RGB, 1, cv2.LINE_AA)
+    return cv2.addWeighted(layer, CANDIDATE_ALPHA, out, 1.0 - CANDIDATE_ALPHA, 0.0)
+
+
 def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRegion], *, valid: np.ndarray | None = None,
-                   set_aside: np.ndarray | None = None) -> np.ndarray:
+                   set_aside: np.ndarray | None = None, candidates: list[SignificantRegion] | None = None) -> np.ndarray:
     """The reference image with changed regions tinted, outlined and numbered.
 
     Parameters
     ----------
     image : ndarray, HxW or HxWx3, reference image.
     labels : ndarray, HxW int, region id per pixel (0 = unchanged).
-    regions : list of ChangeRegion (their ids are drawn next to them).
+    regions : list of ChangeRegion (their ids are drawn next to them). A region with a
+        ``cue`` is tinted by it (``CUE_RGB``: relief blue, colour green, both magenta);
+        without one, magenta.
     valid : ndarray, HxW bool, optional; pixels outside are dimmed (not compared).
     set_aside : ndarray, HxW bool, optional; regions found but set aside (edge check),
         outlined thinly in cyan and not numbered, so that nothing is hidden.
+    candidates : list of SignificantRegion, optional; the strongest regions that were not
+        reported, drawn as thin dashed half-transparent amber circles (radius 1.5x that of
+        a disc of their area) labelled c1, c2, ... in small type: seen, never mistaken for a
+        reported region (tinted, outlined, numbered in yellow).
 
     Returns
     -------
@@ -74,15 +120,26 @@ def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRe
     if valid is not None:
         rgb[~valid] *= 0.35
     changed = labels > 0
-    tint = np.array(CHANGE_RGB, np.float32)
-    rgb[changed] = 0.55 * rgb[changed] + 0.45 * tint
+    colour_of = np.zeros(int(labels.max()) + 1, np.int32)  # 0: CHANGE_RGB, k: k-th colour of CUE_RGB
+    palette = [CHANGE_RGB, *CUE_RGB.values()]
+    for region in regions:
+        if region.cue in CUE_RGB and region.id < colour_of.size:
+            colour_of[region.id] = 1 + list(CUE_RGB).index(region.cue)
+    colour_index = colour_of[np.maximum(labels, 0)]
+    tint = np.asarray(palette, np.float32)[colour_index]
+    rgb[changed] = 0.55 * rgb[changed] + 0.45 * tint[changed]
     out = np.clip(rgb, 0, 255).astype(np.uint8)
+    if candidates:
+        out = _draw_candidates(out, candidates)
     thickness = max(1, int(round(min(image.shape[:2]) / 500)))
     if set_aside is not None and set_aside.any():
         aside, _ = cv2.findContours(set_aside.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         cv2.drawContours(out, aside, -1, SET_ASIDE_RGB, 1)
-    contours, _ = cv2.findContours(changed.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    cv2.drawContours(out, contours, -1, CHANGE_RGB, thickness)
+    for k, colour in enumerate(palette):
+        group = changed & (colour_index == k)
+        if group.any():
+            contours, _ = cv2.findContours(group.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(out, contours, -1, colour, thickness)
     scale = max(0.45, min(image.shape[:2]) / 900)
     for region in regions:
         x, y, w, h = region.bbox_xywh

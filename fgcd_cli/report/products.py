@@ -10,6 +10,7 @@ import numpy as np
 
 from fgcd_cli.changes.detect import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
+from fgcd_cli.report.candidates import candidate_dict, nfa_value
 from fgcd_cli.report.figures import change_overlay, fdf_quiver_png, png_bytes
 from fgcd_cli.report.html import render_diff_report
 
@@ -18,7 +19,14 @@ SCORE_PNG_FULL_SCALE = 4.0
 
 
 def result_summary(result: ChangeResult, fdf: FdfResult | None = None) -> dict:
-    """JSON-ready summary of a comparison (what ``regions.json`` holds)."""
+    """JSON-ready summary of a comparison (what ``regions.json`` holds).
+
+    Each region carries its ``log10_nfa`` and ``nfa`` (a-contrario number of false
+    alarms; None when the region holds no significant seed) and its ``cue``;
+    ``candidates`` lists the strongest regions that were not reported, most
+    significant first, each with ``log10_nfa``, ``nfa``, ``p_level``, ``area_px``,
+    ``centroid_xy`` and ``peak_score``, so that "no change" is never silent.
+    """
     reg = result.registration
     summary = {
         "comparable": result.comparable,
@@ -26,7 +34,8 @@ def result_summary(result: ChangeResult, fdf: FdfResult | None = None) -> dict:
         "frame": "reference image pixels (x right, y down)",
         "changed_fraction": result.changed_fraction,
         "compared_fraction": float(result.valid.mean()),
-        "regions": [asdict(r) for r in result.regions],
+        "regions": [{**asdict(r), "nfa": nfa_value(r.log10_nfa)} for r in result.regions],
+        "candidates": [candidate_dict(c) for c in result.candidates],
         "registration": None if reg is None else {
             "H_cur_ref": reg.H_cur_ref.tolist(), "ok": reg.ok, "reason": reg.reason, "init": reg.init,
             "sift_inliers": reg.sift_inliers, "ecc_correlation": reg.ecc_correlation,
@@ -78,7 +87,7 @@ def diff_products(
     files["change_mask.png"] = png_bytes((result.mask * 255).astype(np.uint8))
     ref_shown = ref_images[shown_lighting]
     files["overlay.png"] = png_bytes(change_overlay(ref_shown, result.labels, result.regions, valid=result.valid if result.comparable else None,
-                                                      set_aside=result.edge_explained))
+                                                      set_aside=result.edge_explained, candidates=result.candidates))
     files["regions.json"] = json.dumps(summary, indent=1, default=float).encode()
     if fdf is not None:
         files["fdf.png"] = fdf_quiver_png(ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px,

@@ -1,0 +1,106 @@
+"""Plain-text wording of the a-contrario significance: NFA values, candidates, the "no significant change" verdict.
+
+Shared by the CLI (``fgcd diff``) and the HTML report so that both say the same
+thing. Everything works on the JSON form of ``regions.json`` (plain dicts), so
+the CLI can word what it is handed without the detection's objects.
+"""
+
+from __future__ import annotations
+
+import math
+
+from fgcd_cli.changes.significance import SignificantRegion
+
+
+def nfa_value(log10_nfa: float | None) -> float | None:
+    """``10 ** log10_nfa`` (0.0 below the smallest float, ``inf`` above the largest), or None."""
+    if log10_nfa is None or not math.isfinite(log10_nfa):
+        return None if log10_nfa is None or math.isnan(log10_nfa) else (0.0 if log10_nfa < 0 else math.inf)
+    return 10.0 ** log10_nfa if log10_nfa < 308 else math.inf
+
+
+def nfa_text(log10_nfa: float | None) -> str:
+    """A number of false alarms, readable at any magnitude: ``"1e-12"``, ``"3.2e-05"``, ``"0.041"``, ``"3.2"``, ``"2.1e+03"``.
+
+    Formatted from the log10 so that an NFA of 1e-400 (below the smallest float) still prints.
+    Returns ``"–"`` when the value is missing.
+    """
+    if log10_nfa is None or math.isnan(log10_nfa):
+        return "–"
+    if math.isinf(log10_nfa):
+        return "0" if log10_nfa < 0 else "inf"
+    exponent = math.floor(log10_nfa)
+    mantissa = round(10.0 ** (log10_nfa - exponent), 1)
+    if mantissa >= 10.0:
+        mantissa, exponent = 1.0, exponent + 1
+    if -2 <= exponent <= 1:
+        return f"{mantissa * 10.0 ** exponent:.2g}"
+    digits = f"{mantissa:g}"
+    return f"{digits}e{'+' if exponent > 0 else '-'}{abs(exponent):02d}"
+
+
+def p_text(p_level: float | None) -> str:
+    """A survival probability with two significant digits (``"0.005"``, ``"1.2e-05"``)."""
+    if p_level is None or not math.isfinite(p_level):
+        return "–"
+    return f"{p_level:.2g}"
+
+
+def candidate_dict(candidate: SignificantRegion) -> dict:
+    """JSON form of a candidate (as in ``regions.json``): its fields plus ``nfa = 10 ** log10_nfa``.
+
+    Parameters
+    ----------
+    candidate : SignificantRegion
+        One of :attr:`fgcd_cli.changes.detect.ChangeResult.candidates`.
+
+    Returns
+    -------
+    dict with ``log10_nfa``, ``nfa``, ``p_level``, ``area_px``, ``centroid_xy`` (reference
+    image pixels, x right, y down) and ``peak_score``.
+    """
+    return {
+        "log10_nfa": float(candidate.log10_nfa),
+        "nfa": nfa_value(float(candidate.log10_nfa)),
+        "p_level": float(candidate.p_level),
+        "area_px": int(candidate.area_px),
+        "centroid_xy": [float(candidate.centroid_xy[0]), float(candidate.centroid_xy[1])],
+        "peak_score": float(candidate.peak_score),
+    }
+
+
+def candidate_text(candidate: dict) -> str:
+    """``"NFA = 3.2 (p = 0.0012) at (120, 45), 34 px"`` for a candidate in its JSON form."""
+    x, y = candidate["centroid_xy"]
+    return (f"NFA = {nfa_text(candidate.get('log10_nfa'))} (p = {p_text(candidate.get('p_level'))}) "
+            f"at ({x:.0f}, {y:.0f}), {candidate['area_px']} px")
+
+
+def is_significant(log10_nfa: float | None, *, epsilon: float = 1.0) -> bool:
+    """Whether a log10 NFA is below ``log10(epsilon)`` (the a-contrario rule's acceptance)."""
+    if log10_nfa is None or math.isnan(log10_nfa):
+        return False
+    return log10_nfa < math.log10(epsilon)
+
+
+def region_significance_text(log10_nfa: float | None, *, epsilon: float = 1.0) -> str:
+    """A reported region's significance: ``"NFA 1e-12"``, or ``"not significant (NFA ≥ 1)"`` without a significant seed."""
+    if log10_nfa is None:
+        return f"not significant (NFA ≥ {epsilon:g})"
+    return f"NFA {nfa_text(log10_nfa)}"
+
+
+def no_change_line(candidates: list[dict], *, epsilon: float = 1.0) -> str:
+    """The one line said when no region is reported, naming the strongest candidate.
+
+    ``"no significant change; strongest candidate NFA = 3.2 (p = 0.0012) at (120, 45), 34 px"``.
+    When that candidate is itself significant (the hysteresis rule did not report it),
+    the line says so instead of "no significant change".
+    """
+    if not candidates:
+        return "no significant change; no candidate region"
+    strongest = candidates[0]
+    if is_significant(strongest.get("log10_nfa"), epsilon=epsilon):
+        return (f"no change reported, but the strongest candidate is significant: {candidate_text(strongest)}"
+                " (not kept by the threshold rule; check it by eye)")
+    return f"no significant change; strongest candidate {candidate_text(strongest)}"
