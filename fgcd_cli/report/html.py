@@ -11,7 +11,16 @@ import numpy as np
 from fgcd_cli import __version__
 from fgcd_cli.changes.detect import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
+from fgcd_cli.report.candidates import (
+    candidate_dict,
+    candidate_text,
+    is_significant,
+    nfa_text,
+    p_text,
+    region_significance_text,
+)
 from fgcd_cli.report.figures import (
+    CUE_NAMES,
     change_overlay,
     convergence_png,
     data_uri,
@@ -31,6 +40,7 @@ h1 { font-size: 24px; margin: 6px 0 2px; } h2 { font-size: 18px; margin: 26px 0 
 .verdict { font-size: 17px; padding: 12px 16px; border-radius: 6px; background: #fdf3f8; border-left: 6px solid #c2185b; }
 .verdict.none { background: #f1f8f1; border-left-color: #2e7d32; }
 .verdict.cannot { background: #fff5e6; border-left-color: #e67e22; }
+.verdict .cand { display: block; font-size: 14px; color: #444; margin-top: 4px; }
 .warn { color: #8a4b00; font-size: 13px; margin: 6px 0; }
 .pair { display: flex; gap: 14px; flex-wrap: wrap; }
 figure { margin: 0; flex: 1 1 360px; max-width: 580px; }
@@ -108,6 +118,31 @@ def _page(title: str, body: str) -> str:
     )
 
 
+def _epsilon(result: ChangeResult) -> float:
+    return float(result.settings.get("epsilon") or 1.0)
+
+
+def _no_change_verdict(result: ChangeResult) -> str:
+    """Verdict without reported region: "No significant change", naming the strongest candidate."""
+    surface = f"on the compared surface ({result.valid.mean() * 100:.0f} % of the image)"
+    epsilon = _epsilon(result)
+    if not result.candidates:
+        return (f'<div class="verdict none"><b>No significant change</b> {surface}; '
+                "no candidate region either.</div>")
+    strongest = candidate_dict(result.candidates[0])
+    where = html.escape(candidate_text(strongest))
+    if is_significant(strongest["log10_nfa"], epsilon=epsilon):
+        rule = html.escape(str(result.settings.get("decision") or "threshold"))
+        return (f'<div class="verdict"><b>No change reported</b> {surface} by the {rule} rule, but the strongest '
+                f"candidate is significant: <b>{where}</b>. Check it by eye (dashed amber circle c1 on the change "
+                "map).</div>")
+    times = nfa_text(strongest["log10_nfa"])
+    return (f'<div class="verdict none"><b>No significant change</b> {surface}. '
+            f'<span class="cand">Strongest candidate: <b>{where}</b>. A region this strong is expected about '
+            f"{times} time(s) per image on an unchanged pair (NFA ≥ {epsilon:g}), so it is not reported; "
+            "it is circled faintly (dashed amber, c1) on the change map.</span></div>")
+
+
 def _verdict(result: ChangeResult) -> str:
     if not result.comparable:
         reason = result.reason.removeprefix("cannot compare: ")
@@ -115,13 +150,29 @@ def _verdict(result: ChangeResult) -> str:
                 "No change map was made; check the capture (exposure, lighting, framing) and compare again.</div>")
     n = len(result.regions)
     if n == 0:
-        return ('<div class="verdict none"><b>No change found</b> above the automatic threshold '
-                f"on the compared surface ({result.valid.mean() * 100:.0f} % of the image).</div>")
+        return _no_change_verdict(result)
     total_px = sum(r.area_px for r in result.regions)
     mm2 = [r.area_mm2 for r in result.regions]
     area = f"{sum(mm2):.1f} mm² ({total_px} px)" if all(v is not None for v in mm2) else f"{total_px} px (no metric scale given)"
     return (f'<div class="verdict"><b>{n} changed region{"s" if n > 1 else ""}</b>, total area {area}, '
             f"{result.changed_fraction * 100:.2f} % of the compared surface. Region 1 is the largest.</div>")
+
+
+def _candidates_table(result: ChangeResult) -> str:
+    """The strongest regions that were not reported, as a table (most significant first)."""
+    high = result.threshold.high if result.threshold else None
+    rows = []
+    for k, candidate in enumerate(result.candidates, start=1):
+        x, y = candidate.centroid_xy
+        strength = f"{candidate.peak_score / high:.1f}" if high else "–"
+        rows.append(f"<tr><td>c{k}</td><td>{nfa_text(candidate.log10_nfa)}</td><td>{p_text(candidate.p_level)}</td>"
+                    f"<td>{x:.0f}, {y:.0f}</td><td>{candidate.area_px}</td><td>{strength}</td></tr>")
+    return ("<h2>Candidates not reported</h2><table><tr><th>#</th><th>significance (NFA)</th><th>level p</th>"
+            "<th>centre x, y (px)</th><th>area (px)</th><th>strength (× threshold)</th></tr>" + "".join(rows) +
+            '</table><p class="small">The strongest regions of the change score that were not reported, most '
+            "significant first (dashed amber circles on the change map). NFA: regions at least as extreme expected "
+            f"per image on an unchanged pair (reported below {_epsilon(result):g}); level p: the share of compared "
+            "pixels scoring at least the level at which the region was found; area: pixels at that level.</p>")
 
 
 def render_diff_report(
@@ -183,9 +234,14 @@ def render_diff_report(
     if result.comparable:
         parts.append("<h2>Where it changed</h2><div class=\"pair\">")
         overlay = change_overlay(ref_image, result.labels, result.regions, valid=result.valid,
-                                 set_aside=result.edge_explained)
-        parts.append(_figure(png_bytes(overlay), "Changed regions (magenta, numbered) on the reference; "
+                                 set_aside=result.edge_explained, candidates=result.candidates)
+        cues = sorted({r.cue for r in result.regions if r.cue in CUE_NAMES}, key=list(CUE_NAMES).index)
+        tint = ("tinted by cue: " + ", ".join(f"{CUE_NAMES[c]} = {c}" for c in cues)
+                + (", magenta = no cue" if any(r.cue is None for r in result.regions) else "")) if cues else "magenta"
+        parts.append(_figure(png_bytes(overlay), f"Changed regions ({tint}; numbered) on the reference; "
                              + ("cyan outline = set aside as an edge effect; " if set_aside else "")
+                             + ("dashed amber circles c1, c2, … = strongest candidates, not reported; "
+                                if result.candidates else "")
                              + "dimmed = not compared"))
         high = result.threshold.high if result.threshold else None
         parts.append(_figure(png_bytes(score_heatmap(result.score, result.valid, high=high)),
@@ -194,7 +250,9 @@ def render_diff_report(
         if result.regions:
             has_mm2 = any(r.area_mm2 is not None for r in result.regions)
             header = "<tr><th>#</th><th>area (px)</th>" + ("<th>area (mm²)</th>" if has_mm2 else "") + \
-                "<th>centre x, y (px)</th><th>size w × h (px)</th><th>strength (× threshold)</th></tr>"
+                "<th>centre x, y (px)</th><th>size w × h (px)</th><th>strength (× threshold)</th>" \
+                '<th>significance (NFA)</th><th class="l">cue</th></tr>'
+            epsilon = _epsilon(result)
             rows = []
             high = result.threshold.high if result.threshold else 1.0
             for r in result.regions[:max_table_rows]:
@@ -202,7 +260,9 @@ def render_diff_report(
                 rows.append(
                     f"<tr><td>{r.id}</td><td>{r.area_px}</td>" + (f"<td>{_fmt(r.area_mm2)}</td>" if has_mm2 else "") +
                     f"<td>{r.centroid_xy[0]:.0f}, {r.centroid_xy[1]:.0f}</td><td>{w} × {h}</td>"
-                    f"<td>{r.max_score / high:.1f}</td></tr>"
+                    f"<td>{r.max_score / high:.1f}</td>"
+                    f"<td>{html.escape(region_significance_text(r.log10_nfa, epsilon=epsilon).removeprefix('NFA '))}</td>"
+                    f'<td class="l">{html.escape(r.cue or "–")}</td></tr>'
                 )
             more = len(result.regions) - max_table_rows
             parts.append(f"<h2>Changed regions</h2><table>{header}{''.join(rows)}</table>")
@@ -210,7 +270,10 @@ def render_diff_report(
                 parts.append(f'<p class="small">… and {more} smaller regions (all in regions.json).</p>')
             parts.append('<p class="small">Positions are pixels of the reference image (x to the right, y down). '
                          "Strength: the region's largest change score over the detection threshold "
-                         "(1 = barely detected).</p>")
+                         "(1 = barely detected). Significance: the number of false alarms (NFA), how many regions "
+                         "at least as extreme are expected per image on an unchanged pair (a-contrario; "
+                         f"below {epsilon:g} = significant). Cue: what changed, relief (surface normals) or colour "
+                         "(albedo) or both, when the photometric cues were computed.</p>")
             if max_closeups > 0:
                 parts.append("<h2>Close-ups</h2><p class=\"small\">Each region enlarged: reference | current "
                              "(registered, light-normalized) | reference with the region outlined.</p>"
@@ -218,10 +281,15 @@ def render_diff_report(
                 for r in result.regions[:max_closeups]:
                     area = f"{r.area_mm2:.1f} mm²" if r.area_mm2 is not None else f"{r.area_px} px"
                     tile = region_closeup(ref_image, shown_cur, result.labels, r)
-                    parts.append(_figure(png_bytes(tile), f"Region {r.id}: {area}, strength {r.max_score / high:.1f}"))
+                    extra = (f", NFA {nfa_text(r.log10_nfa)}" if r.log10_nfa is not None else "") + \
+                        (f", {r.cue}" if r.cue else "")
+                    parts.append(_figure(png_bytes(tile), f"Region {r.id}: {area}, strength {r.max_score / high:.1f}{extra}"))
                 parts.append("</div>")
                 if len(result.regions) > max_closeups:
                     parts.append(f'<p class="small">Close-ups of the {max_closeups} largest regions only.</p>')
+
+        if result.candidates:
+            parts.append(_candidates_table(result))
 
     if fdf is not None or relocation_log:
         parts.append("<h2>Camera relocation</h2><div class=\"pair\">")
