@@ -12,6 +12,26 @@ from fgcd_cli.cli.output import emit, info
 HELP = "Find fine-grained changes between reference and current images; write maps, regions and a report."
 
 
+def _region_line(region: dict, *, epsilon: float) -> str:
+    """``#1: 340 px, 3.40 mm² at (200, 60), NFA 1e-12, relief`` (the cue only when known)."""
+    from fgcd_cli.report.candidates import region_significance_text
+
+    mm2 = f", {region['area_mm2']:.2f} mm²" if region.get("area_mm2") is not None else ""
+    x, y = region["centroid_xy"]
+    cue = f", [bold]{region['cue']}[/bold]" if region.get("cue") else ""
+    significance = region_significance_text(region.get("log10_nfa"), epsilon=epsilon)
+    return f"#{region['id']}: {region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}"
+
+
+def _no_change_lines(candidates: list[dict], *, epsilon: float, more: int = 2) -> list[str]:
+    """The "no significant change; strongest candidate ..." line and up to ``more`` further candidates."""
+    from fgcd_cli.report.candidates import candidate_text, no_change_line
+
+    lines = [no_change_line(candidates, epsilon=epsilon)]
+    lines += [f"  candidate {k}: {candidate_text(c)}" for k, c in enumerate(candidates[1:1 + more], start=2)]
+    return lines
+
+
 def _render(data: dict):
     def render(console):
         if not data["comparable"]:
@@ -19,10 +39,14 @@ def _render(data: dict):
             console.print(f"[yellow]cannot compare[/yellow]: {reason}")
         else:
             n = len(data["regions"])
-            console.print(f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area")
+            epsilon = float((data.get("settings") or {}).get("epsilon") or 1.0)
+            if n == 0:
+                for line in _no_change_lines(data.get("candidates") or [], epsilon=epsilon):
+                    console.print(line, markup=False)
+            else:
+                console.print(f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area")
             for r in data["regions"][:10]:
-                mm2 = f", {r['area_mm2']:.2f} mm²" if r.get("area_mm2") is not None else ""
-                console.print(f"  #{r['id']}: {r['area_px']} px{mm2} at ({r['centroid_xy'][0]:.0f}, {r['centroid_xy'][1]:.0f})")
+                console.print("  " + _region_line(r, epsilon=epsilon))
             for w in data.get("warnings", []):
                 console.print(f"[yellow]warning[/yellow]: {w}")
         if "afd" in data:
