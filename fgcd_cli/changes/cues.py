@@ -9,34 +9,53 @@ import cv2
 import numpy as np
 
 
-def shift_tolerant_difference(ref_image: np.ndarray, cur_image: np.ndarray, *, radius_px: int = 1) -> np.ndarray:
-    """Absolute difference, minimized over small shifts of the current image.
+def _min_shifted_difference(fixed: np.ndarray, moving: np.ndarray, radius_px: int) -> np.ndarray:
+    """``min over |s| <= r of |fixed(x) - moving(x + s)|``, channels summed (L1); HxW float32."""
+    best = None
+    h, w = fixed.shape[:2]
+    padded = cv2.copyMakeBorder(moving, radius_px, radius_px, radius_px, radius_px, cv2.BORDER_REFLECT)
+    for dy in range(-radius_px, radius_px + 1):
+        for dx in range(-radius_px, radius_px + 1):
+            shifted = padded[radius_px + dy : radius_px + dy + h, radius_px + dx : radius_px + dx + w]
+            diff = np.abs(fixed - shifted)
+            if diff.ndim == 3:
+                diff = diff.sum(axis=2)
+            best = diff if best is None else np.minimum(best, diff)
+    return best.astype(np.float32)
+
+
+def shift_tolerant_difference(ref_image: np.ndarray, cur_image: np.ndarray, *, radius_px: int = 1,
+                              symmetric: bool = True) -> np.ndarray:
+    """Absolute difference, minimized over small shifts, in both directions.
 
     The minimum over shifts of up to ``radius_px`` absorbs residual misregistration
     at edges (sub-pixel to 1 px) while a real change, larger than the shift, survives.
-    Colour channels are summed (L1).
+    It must be taken both ways (``symmetric``): shifting only the current image
+    explains away a *new* feature narrower than ``2 * radius_px`` (a 2 px crack:
+    every crack pixel has a crack-free neighbour to shift to), and shifting only
+    the reference would do the same to a *lost* one. A misregistered edge is
+    explained in both directions, a thin change in neither, so the larger of the
+    two minima is kept. Colour channels are summed (L1).
 
     Parameters
     ----------
     ref_image, cur_image : ndarray, HxW or HxWx3 float32 in [0, 1].
     radius_px : int
         Largest shift tried in x and y, pixels.
+    symmetric : bool
+        Take the larger of the two one-sided minima (False: shift the current image only).
 
     Returns
     -------
     ndarray, HxW float32 (intensity units, summed over channels).
     """
-    best = None
-    h, w = ref_image.shape[:2]
-    padded = cv2.copyMakeBorder(cur_image, radius_px, radius_px, radius_px, radius_px, cv2.BORDER_REFLECT)
-    for dy in range(-radius_px, radius_px + 1):
-        for dx in range(-radius_px, radius_px + 1):
-            shifted = padded[radius_px + dy : radius_px + dy + h, radius_px + dx : radius_px + dx + w]
-            diff = np.abs(ref_image - shifted)
-            if diff.ndim == 3:
-                diff = diff.sum(axis=2)
-            best = diff if best is None else np.minimum(best, diff)
-    return best.astype(np.float32)
+    if radius_px <= 0:
+        diff = np.abs(np.asarray(ref_image, np.float32) - np.asarray(cur_image, np.float32))
+        return (diff.sum(axis=2) if diff.ndim == 3 else diff).astype(np.float32)
+    forward = _min_shifted_difference(ref_image, cur_image, radius_px)
+    if not symmetric:
+        return forward
+    return np.maximum(forward, _min_shifted_difference(cur_image, ref_image, radius_px))
 
 
 def local_ncc_dissimilarity(ref_gray: np.ndarray, cur_gray: np.ndarray, *, sigma_px: float = 2.0) -> np.ndarray:

@@ -7,11 +7,14 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, local_ncc_dissimilarity, relative_to_median
-from fgcd_cli.changes.illumination import normalize_local_gain, normalize_shading
+from fgcd_cli.changes.cue_labels import CueMaps, label_regions, relief_colour_cues
+from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, relative_to_median
+from fgcd_cli.changes.dense import DenseAlignment, refine_dense, warp_with_flow
+from fgcd_cli.changes.illumination import normalize_shading
 from fgcd_cli.changes.images import image_health, to_gray, validate_stacks
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, extract_regions, refine_to_local_peak
 from fgcd_cli.changes.registration import Registration, register_to_reference, warp_to_reference
+from fgcd_cli.changes.score import ScoreOptions, score_pair
 from fgcd_cli.changes.significance import Decision, SignificantRegion, acontrario_decision
 from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
 from fgcd_cli.errors import UserInputError
@@ -43,6 +46,12 @@ class ChangeResult:
     """HxW bool, pixels of the regions the region-level edge check set aside (``edge_check_px``), or None."""
     candidates: list[SignificantRegion] = field(default_factory=list)
     """The strongest a-contrario regions that were not reported (for "no significant change; strongest candidate ...")."""
+    not_compared: np.ndarray | None = None
+    """HxW bool, pixels of the evaluation area the dense refinement could not align (left out, not changed)."""
+    dense: DenseAlignment | None = None
+    """The dense parallax refinement after the homography, when it ran."""
+    cue_maps: CueMaps | None = None
+    """Relief and colour cue maps (photometric stereo), when they were computed."""
 
     @property
     def changed_fraction(self) -> float:
@@ -136,6 +145,10 @@ def detect_changes(
     epsilon: float = 1.0,
     seed_p: float = 0.005,
     extent_fraction: float = 0.2,
+    dense: bool = True,
+    cues: bool = True,
+    ambient_index: int | None = 0,
+    light_dirs: np.ndarray | None = None,
 ) -> ChangeResult:
     """Find fine-grained changes between a reference and a current observation.
 
@@ -209,6 +222,19 @@ def detect_changes(
         The a-contrario test: tolerated false regions per image under the pair's own
         null, lowest level tested (empirical tail probability), extent of a region
         (fraction of its peak excess).
+    dense : bool
+        After the homography, estimate the residual parallax as a smooth dense flow
+        (:func:`fgcd_cli.changes.dense.refine_dense`) and resample the current images
+        through both at once; pixels it cannot align are *not compared*
+        (``ChangeResult.not_compared``) instead of changed.
+    cues : bool
+        Fit photometric stereo to both stacks and label each region ``relief``,
+        ``colour`` or ``both`` (:mod:`fgcd_cli.changes.cue_labels`); needs three
+        directional lightings besides the ambient one.
+    ambient_index : int or None
+        Index of the ambient lighting in the stacks (None: all are directional).
+    light_dirs : ndarray, Kx3, optional
+        Known light directions in the camera frame (calibrated photometric stereo).
 
     Returns
     -------
@@ -238,6 +264,7 @@ def detect_changes(
         "epsilon": epsilon,
         "seed_p": seed_p,
         "extent_fraction": extent_fraction,
+        "dense": dense,
     }
     if decision not in ("hysteresis", "acontrario"):
         raise UserInputError(f"unknown decision rule {decision!r}: use hysteresis or acontrario")
@@ -262,78 +289,27 @@ def detect_changes(
             if problem:
                 return _empty(shape, f"cannot compare: {label} image {i + 1}: {problem}", None, settings)
 
-    if register:
-        registration = register_to_reference(grays_ref[registration_lighting], grays_cur[registration_lighting])
-        if not registration.ok:
-            return _empty(shape, f"cannot compare: {registration.reason}", registration, settings)
-    else:
-        registration = Registration(H_cur_ref=np.eye(3), ok=True, init="none", overlap_fraction=1.0)
-
-    valid = np.ones(shape, bool) if eval_mask is None else eval_mask.copy()
-    warped_images = []
-    seen_all = np.ones(shape, bool)
-    for i, cur in enumerate(curs):
-        warped, seen = warp_to_reference(cur, registration.H_cur_ref, shape)
-        valid &= seen
-        seen_all &= seen
-        if shading_ref is not None:
-            warped = normalize_shading(refs[i], warped, shading_ref=shading_ref[i], shading_cur=shading_cur[i])
-        warped_images.append(warped)
-    # Keep away from the border of the seen area: the gain field and shifts are biased there.
-    margin = int(np.ceil(max(shift_radius_px, smooth_sigma_px * 2)))
-    if margin > 0:
-        valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)).astype(bool)
+    alignment = _align(refs, curs, grays_ref, grays_cur, eval_mask=eval_mask, register=register, dense=dense,
+                       registration_lighting=registration_lighting, margin_px=int(np.ceil(max(shift_radius_px,
+                                                                                             smooth_sigma_px * 2))))
+    if isinstance(alignment, str):
+        return _empty(shape, alignment, None, settings)
+    registration, warped_images, valid, seen_all, dense_fit, not_compared = alignment
     if valid.sum() < 100:
         return _empty(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
+    if shading_ref is not None:
+        warped_images = [normalize_shading(ref, warped, shading_ref=s_ref, shading_cur=s_cur)
+                         for ref, warped, s_ref, s_cur in zip(refs, warped_images, shading_ref, shading_cur)]
 
-    bands = [edge_band(ref, radius_px=edge_tolerance_px, contrast=edge_contrast) if edge_tolerance_px > 0 else None
-             for ref in refs]
-    if edge_tolerance_px > 0:
-        settings["edge_band_fraction"] = float(np.mean([b[valid].mean() for b in bands]))
-
-    def fuse(gain_weight: np.ndarray | None) -> tuple[np.ndarray, list[np.ndarray], list[float]]:
-        """Fused score, the light-normalised current images, and each lighting's cue median."""
-        differences, structures, normalized_images = [], [], []
-        for ref, warped, band in zip(refs, warped_images, bands):
-            normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px, weight=gain_weight)
-            normalized_images.append(normalized)
-            differences.append(edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
-                                                        edge_radius_px=edge_tolerance_px, band=band))
-            if structure_weight > 0:
-                structures.append(local_ncc_dissimilarity(to_gray(ref), to_gray(normalized)))
-        # Each cue is divided by its median (dimensionless) so lightings of different
-        # brightness weigh the same; averaging over lightings suppresses cast-shadow
-        # and specular differences that only one light produces.
-        medians = [float(np.median(d[valid])) if valid.any() else 0.0 for d in differences]
-        fused = np.mean([relative_to_median(d, valid, median=m) for d, m in zip(differences, medians)], axis=0)
-        if structures:
-            structure = np.mean([relative_to_median(s, valid) for s in structures], axis=0)
-            fused = (1.0 - structure_weight) * fused + structure_weight * structure
-        if smooth_sigma_px > 0:
-            fused = cv2.GaussianBlur(fused.astype(np.float32), (0, 0), smooth_sigma_px)
-        return np.where(valid, fused, 0.0).astype(np.float32), normalized_images, medians
-
-    # The light-gain field is estimated from unchanged pixels only: a first pass
-    # flags what is suspect (above the growing threshold, fused over all
-    # lightings), the gain is re-estimated without it, and so on until the
-    # suspect set settles. Without this, a change drags the local gain and
-    # leaves a halo as wide as the gain window around itself.
-    score, normalized_images, medians = fuse(None)
-    gain_weight = seen_all.astype(np.float32)
-    robust_rounds = 0
-    for _ in range(robust_gain_rounds):
-        _, first = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
-        suspect = (score > first.low) & valid
-        if suspect.mean() > 0.5 * valid.mean():
-            break  # more suspect than trusted pixels: nothing sensible to re-estimate from
-        suspect = cv2.dilate(suspect.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-        new_weight = (seen_all & ~suspect).astype(np.float32)
-        if robust_rounds and np.array_equal(new_weight, gain_weight):
-            break
-        gain_weight = new_weight
-        score, normalized_images, medians = fuse(gain_weight)
-        robust_rounds += 1
-    settings["robust_gain_rounds"] = robust_rounds
+    options = ScoreOptions(gain_sigma_px=gain_sigma_px, shift_radius_px=shift_radius_px,
+                           structure_weight=structure_weight, smooth_sigma_px=smooth_sigma_px,
+                           robust_gain_rounds=robust_gain_rounds, edge_tolerance_px=edge_tolerance_px,
+                           edge_contrast=edge_contrast, suspect_k_high=k_high, suspect_k_low=k_low)
+    scored = score_pair(refs, warped_images, valid=valid, seen_all=seen_all, options=options)
+    score, normalized_images, medians = scored.score, scored.normalized, scored.medians
+    settings["robust_gain_rounds"] = scored.robust_rounds
+    if scored.edge_band_fraction is not None:
+        settings["edge_band_fraction"] = scored.edge_band_fraction
 
     raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
     significance = acontrario_decision(score, valid, epsilon=epsilon, seed_p=seed_p, extent_fraction=extent_fraction,
@@ -345,6 +321,7 @@ def detect_changes(
                                         radius_px=edge_radius_px)
     mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
     regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
+    explained = None
     if edge_check_px > 0 and regions:
         explained, settings["edge_explained_regions"] = _edge_explained(
             labels, len(regions), refs=refs, normalized_images=normalized_images, medians=medians, valid=valid,
@@ -354,16 +331,12 @@ def detect_changes(
         if explained.any():
             mask &= ~explained
             regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
-    else:
-        explained = None
-    warnings = []
-    fraction = float(mask[valid].mean())
-    if fraction > 0.25:
-        warnings.append(
-            f"{fraction * 100:.0f} % of the compared area flagged: lighting or viewpoint may differ too much for a fine-grained comparison"
-        )
-    if registration.init == "identity" and register:
-        warnings.append("features did not match; registration started from the identity (gradient ECC only)")
+    cue_maps = None
+    if cues:
+        cue_maps = relief_colour_cues(refs, normalized_images, valid=valid, ambient_index=ambient_index,
+                                      light_dirs=light_dirs)
+        label_regions(regions, labels, cue_maps, valid=valid, smooth_sigma_px=smooth_sigma_px)
+        settings["cues"] = cue_maps.reason or "relief and colour (photometric stereo)"
     return ChangeResult(
         comparable=True,
         score=score,
@@ -375,9 +348,62 @@ def detect_changes(
         threshold=threshold,
         current_registered=[np.clip(image, 0.0, 1.0) for image in normalized_images],
         settings=settings,
-        warnings=warnings,
+        warnings=_warnings(mask, valid, registration, register=register),
         edge_explained=explained,
         candidates=sorted((c for c in significance.candidates + significance.regions
                            if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]),
                           key=lambda c: c.log10_nfa)[:5],
+        not_compared=not_compared,
+        dense=dense_fit,
+        cue_maps=cue_maps,
     )
+
+
+def _warnings(mask: np.ndarray, valid: np.ndarray, registration: Registration, *, register: bool) -> list[str]:
+    warnings = []
+    fraction = float(mask[valid].mean())
+    if fraction > 0.25:
+        warnings.append(
+            f"{fraction * 100:.0f} % of the compared area flagged: lighting or viewpoint may differ too much for a fine-grained comparison"
+        )
+    if registration.init == "identity" and register:
+        warnings.append("features did not match; registration started from the identity (gradient ECC only)")
+    return warnings
+
+
+def _align(refs, curs, grays_ref, grays_cur, *, eval_mask, register: bool, dense: bool, registration_lighting: int,
+           margin_px: int):
+    """Bring the current stack into the reference frame: homography, then (``dense``) the parallax flow.
+
+    Returns a reason string when the pair cannot be registered, else
+    ``(registration, warped images, valid, seen_all, dense fit or None, not_compared or None)``.
+    """
+    shape = grays_ref[0].shape
+    if register:
+        registration = register_to_reference(grays_ref[registration_lighting], grays_cur[registration_lighting])
+        if not registration.ok:
+            return f"cannot compare: {registration.reason}"
+    else:
+        registration = Registration(H_cur_ref=np.eye(3), ok=True, init="none", overlap_fraction=1.0)
+    area = np.ones(shape, bool) if eval_mask is None else eval_mask.copy()
+    dense_fit = not_compared = None
+    if dense:
+        warped_gray, seen = warp_to_reference(grays_cur[registration_lighting], registration.H_cur_ref, shape)
+        dense_fit = refine_dense(grays_ref[registration_lighting], warped_gray, valid=area & seen)
+        not_compared = dense_fit.not_compared & area
+    warped_images = []
+    seen_all = np.ones(shape, bool)
+    for cur in curs:
+        if dense_fit is not None:
+            warped, seen = warp_with_flow(cur, registration.H_cur_ref, dense_fit.flow)
+        else:
+            warped, seen = warp_to_reference(cur, registration.H_cur_ref, shape)
+        seen_all &= seen
+        warped_images.append(warped)
+    valid = area & seen_all
+    if not_compared is not None:
+        valid &= ~not_compared
+    # Keep away from the border of the seen area: the gain field and shifts are biased there.
+    if margin_px > 0:
+        valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)).astype(bool)
+    return registration, warped_images, valid, seen_all, dense_fit, not_compared

@@ -48,7 +48,9 @@ def test_strong_change_region_matches_its_footprint():
     result = detect_changes([ref], [cur], register=False)
     scores = binary_scores(result.mask, truth)
     assert scores.recall > 0.9
-    assert scores.precision > 0.85, f"region {result.mask.sum()} px for a {truth.sum()} px change"
+    # The 10 px disc may come out up to 1.5 px wider in radius (the score is smoothed
+    # with sigma = 2 px): precision above (10 / 11.5)^2 = 0.756.
+    assert scores.precision > (10 / 11.5) ** 2, f"region {result.mask.sum()} px for a {truth.sum()} px change"
     # Without the two fixes the same change comes out about twice too large.
     loose = detect_changes([ref], [cur], register=False, robust_gain_rounds=0, edge_fraction=0.0)
     assert loose.mask.sum() > 1.5 * result.mask.sum()
