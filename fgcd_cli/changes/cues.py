@@ -17,11 +17,11 @@ def _min_shifted_difference(fixed: np.ndarray, moving: np.ndarray, radius_px: in
     for dy in range(-radius_px, radius_px + 1):
         for dx in range(-radius_px, radius_px + 1):
             shifted = padded[radius_px + dy : radius_px + dy + h, radius_px + dx : radius_px + dx + w]
-            diff = np.abs(fixed - shifted)
-            if diff.ndim == 3:
-                diff = diff.sum(axis=2)
-            best = diff if best is None else np.minimum(best, diff)
-    return best.astype(np.float32)
+            diff = cv2.absdiff(fixed, shifted)
+            if diff.ndim == 3:  # channel sum through OpenCV: numpy's reduction over the last axis is ~10x slower
+                diff = cv2.transform(diff, np.ones((1, diff.shape[2]), np.float32))
+            best = diff if best is None else np.minimum(best, diff, out=best)
+    return best.astype(np.float32, copy=False)
 
 
 def shift_tolerant_difference(ref_image: np.ndarray, cur_image: np.ndarray, *, radius_px: int = 1,
@@ -52,6 +52,8 @@ def shift_tolerant_difference(ref_image: np.ndarray, cur_image: np.ndarray, *, r
     if radius_px <= 0:
         diff = np.abs(np.asarray(ref_image, np.float32) - np.asarray(cur_image, np.float32))
         return (diff.sum(axis=2) if diff.ndim == 3 else diff).astype(np.float32)
+    ref_image = np.ascontiguousarray(ref_image, np.float32)
+    cur_image = np.ascontiguousarray(cur_image, np.float32)
     forward = _min_shifted_difference(ref_image, cur_image, radius_px)
     if not symmetric:
         return forward

@@ -141,10 +141,10 @@ def detect_changes(
     edge_contrast: float = 3.0,
     edge_check_px: int = 0,
     edge_check_band_fraction: float = 0.8,
-    decision: str = "hysteresis",
+    decision: str = "acontrario",
     epsilon: float = 1.0,
     seed_p: float = 0.005,
-    extent_fraction: float = 0.2,
+    extent_fraction: float = 0.3,
     dense: bool = True,
     cues: bool = True,
     ambient_index: int | None = 0,
@@ -311,21 +311,17 @@ def detect_changes(
     if scored.edge_band_fraction is not None:
         settings["edge_band_fraction"] = scored.edge_band_fraction
 
-    raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
-    significance = acontrario_decision(score, valid, epsilon=epsilon, seed_p=seed_p, extent_fraction=extent_fraction,
-                                       min_cluster_area_px=4.0 * np.pi * smooth_sigma_px**2)
-    if decision == "acontrario":
-        raw_mask = significance.mask
-    else:
-        raw_mask = refine_to_local_peak(raw_mask, score, background=threshold.median, fraction=edge_fraction,
-                                        radius_px=edge_radius_px)
-    mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
+    mask, threshold, significance = decide(score, valid, decision=decision, k_high=k_high, k_low=k_low,
+                                           epsilon=epsilon, seed_p=seed_p, extent_fraction=extent_fraction,
+                                           edge_fraction=edge_fraction, edge_radius_px=edge_radius_px,
+                                           min_region_px=min_region_px, max_hole_px=max_hole_px,
+                                           smooth_sigma_px=smooth_sigma_px)
     regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
     explained = None
     if edge_check_px > 0 and regions:
         explained, settings["edge_explained_regions"] = _edge_explained(
             labels, len(regions), refs=refs, normalized_images=normalized_images, medians=medians, valid=valid,
-            seed_level=threshold.high, shift_radius_px=shift_radius_px, smooth_sigma_px=smooth_sigma_px,
+            seed_level=significance.seed_level if decision == "acontrario" else threshold.high, shift_radius_px=shift_radius_px, smooth_sigma_px=smooth_sigma_px,
             edge_check_px=edge_check_px, edge_contrast=edge_contrast, band_fraction=edge_check_band_fraction,
         )
         if explained.any():
@@ -333,8 +329,8 @@ def detect_changes(
             regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
     cue_maps = None
     if cues:
-        cue_maps = relief_colour_cues(refs, normalized_images, valid=valid, ambient_index=ambient_index,
-                                      light_dirs=light_dirs)
+        cue_maps = relief_colour_cues(refs, [np.clip(image, 0.0, 1.0) for image in normalized_images], valid=valid,
+                                      ambient_index=ambient_index, light_dirs=light_dirs)
         label_regions(regions, labels, cue_maps, valid=valid, smooth_sigma_px=smooth_sigma_px)
         settings["cues"] = cue_maps.reason or "relief and colour (photometric stereo)"
     return ChangeResult(
@@ -357,6 +353,33 @@ def detect_changes(
         dense=dense_fit,
         cue_maps=cue_maps,
     )
+
+
+def decide(score: np.ndarray, valid: np.ndarray, *, decision: str = "acontrario", k_high: float = 20.0,
+           k_low: float = 10.0, epsilon: float = 1.0, seed_p: float = 0.005, extent_fraction: float = 0.3,
+           edge_fraction: float = 0.2, edge_radius_px: int = 6, min_region_px: int = 30, max_hole_px: int = 30,
+           smooth_sigma_px: float = 2.0) -> tuple[np.ndarray, ThresholdInfo, Decision]:
+    """The changed pixels of a fused score map (see :func:`detect_changes` for every option).
+
+    Both rules are evaluated: the hysteresis threshold is kept as a reference (and
+    is what the a-contrario scan is compared with in the report), the a-contrario
+    decision gives every region its significance.
+
+    Returns
+    -------
+    mask : ndarray, HxW bool, the cleaned change mask (inside ``valid``)
+    threshold : ThresholdInfo, the hysteresis threshold's statistics
+    significance : Decision, the a-contrario scan
+    """
+    raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=k_high, k_low=k_low)
+    significance = acontrario_decision(score, valid, epsilon=epsilon, seed_p=seed_p, extent_fraction=extent_fraction,
+                                       min_cluster_area_px=4.0 * np.pi * smooth_sigma_px**2)
+    if decision == "acontrario":
+        raw_mask = significance.mask
+    else:
+        raw_mask = refine_to_local_peak(raw_mask, score, background=threshold.median, fraction=edge_fraction,
+                                        radius_px=edge_radius_px)
+    return clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid, threshold, significance
 
 
 def _warnings(mask: np.ndarray, valid: np.ndarray, registration: Registration, *, register: bool) -> list[str]:

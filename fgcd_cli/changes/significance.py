@@ -91,19 +91,22 @@ class Decision:
     settings: dict = field(default_factory=dict)
 
 
-def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray) -> np.ndarray:
+def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray, *, sample: np.ndarray | None = None) -> np.ndarray:
     """``-log P(S >= s)`` of every pixel under the empirical distribution of ``score[valid]``.
 
     Parameters
     ----------
     score : ndarray, HxW float
     valid : ndarray, HxW bool
+    sample : ndarray, HxW bool, optional
+        Pixels whose scores form the distribution (default: ``valid``), e.g. the
+        compared pixels outside the regions already found significant.
 
     Returns
     -------
     ndarray, HxW float32 (0 outside ``valid``; at most ``log(2N)`` for N valid pixels).
     """
-    values = np.sort(score[valid])
+    values = np.sort(score[valid if sample is None else sample & valid])
     n = values.size
     rank = np.searchsorted(values, score, side="left")
     survival = np.clip((n - rank + 0.5) / n, 0.5 / n, 1.0)
@@ -165,6 +168,7 @@ def acontrario_decision(
     max_candidates: int = 5,
     area_rounds: int = 3,
     min_cluster_area_px: float = 1.0,
+    null_rounds: int = 2,
 ) -> Decision:
     """Significant change regions of a score map, by their number of false alarms.
 
@@ -192,6 +196,9 @@ def acontrario_decision(
         Lower bound of the cluster area: a score smoothed with a Gaussian of sigma
         ``s`` px has a correlation area of at least ``4 pi s^2`` px whatever its
         exceedance clusters look like (the caller passes it).
+    null_rounds : int
+        Re-estimations of the null distribution without the regions found (and their
+        correlation radius); 0 keeps the null of all compared pixels.
 
     Returns
     -------
@@ -207,24 +214,43 @@ def acontrario_decision(
     # empirical tail, or sensor-like noise (half-normal with the score's median as
     # its median). Without the second, the top fraction of an unchanged, nearly
     # noise-free pair is "significant" whenever it is spatially structured.
-    neglogp = np.minimum(empirical_neglog_survival(score, valid), halfnormal_neglog_survival(score / max(median, 1e-12)))
-    seed_level = float(np.quantile(score[valid], 1.0 - seed_p))
-    area = max(exceedance_cluster_area(score, valid, seed_level), min_cluster_area_px)
-    levels = np.arange(-np.log(seed_p), float(neglogp.max()) + 1e-9, level_step)
-    for _ in range(area_rounds + 1):
-        n_tests = n_valid / area * max(len(levels), 1)
-        regions, candidates, significant, seed_index = _scan_levels(
-            score, neglogp, valid, levels, area=area, n_tests=n_tests, epsilon=epsilon, max_candidates=max_candidates)
-        used_area = area
+    halfnormal = halfnormal_neglog_survival(score / max(median, 1e-12))
+    background = valid
+    significant = np.zeros(valid.shape, bool)
+    null_round = 0
+    while True:
+        neglogp = np.minimum(empirical_neglog_survival(score, valid, sample=background), halfnormal)
+        seed_level = float(np.quantile(score[background], 1.0 - seed_p))
         area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
-        if area == used_area:
+        levels = np.arange(-np.log(seed_p), float(neglogp.max()) + 1e-9, level_step)
+        for _ in range(area_rounds + 1):
+            n_tests = n_valid / area * max(len(levels), 1)
+            regions, candidates, significant, seed_index = _scan_levels(
+                score, neglogp, valid, levels, area=area, n_tests=n_tests, epsilon=epsilon,
+                max_candidates=max_candidates)
+            used_area = area
+            area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
+            if area == used_area:
+                break
+        mask = grow_to_extent(significant, score, valid, background=median, fraction=extent_fraction)
+        # The null is the distribution of the *unchanged* pixels: once regions are found,
+        # it is re-estimated without them (grown by the correlation radius), so that a
+        # strong or extended change no longer fattens the tail that weaker ones are
+        # judged against. Stops when the found set no longer grows.
+        if null_round >= null_rounds or not mask.any():
             break
-    mask = grow_to_extent(significant, score, valid, background=median, fraction=extent_fraction)
+        grow = int(np.ceil(np.sqrt(min_cluster_area_px / np.pi)))
+        changed = ndimage.binary_dilation(mask, structure=_EIGHT, iterations=max(grow, 1))
+        new_background = valid & ~changed
+        if new_background.sum() < 0.5 * n_valid or np.array_equal(new_background, background):
+            break
+        background = new_background
+        null_round += 1
     return Decision(
         mask=mask, regions=regions, candidates=candidates, cluster_area_px=used_area, n_tests=float(n_tests),
         seed_level=seed_level, median=median, seed_index=seed_index,
         settings={"epsilon": epsilon, "seed_p": seed_p, "extent_fraction": extent_fraction, "level_step": level_step,
-                  "levels": int(len(levels))},
+                  "levels": int(len(levels)), "null_rounds": null_round},
     )
 
 
@@ -294,7 +320,7 @@ def grow_to_extent(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, b
     peaks = ndimage.maximum(excess, labels, np.arange(1, count + 1))
     # Every pixel may join the seed whose peak allows it: threshold map per seed,
     # then one morphological reconstruction per seed inside its bounding window.
-    out = seeds.copy()
+    out = np.zeros_like(seeds)
     slices = ndimage.find_objects(labels)
     h, w = seeds.shape
     for i, (window, peak) in enumerate(zip(slices, peaks)):
@@ -302,7 +328,13 @@ def grow_to_extent(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, b
         y0, y1 = max(0, window[0].start - pad), min(h, window[0].stop + pad)
         x0, x1 = max(0, window[1].start - pad), min(w, window[1].stop + pad)
         seed = labels[y0:y1, x0:x1] == i + 1
-        allowed = ((excess[y0:y1, x0:x1] >= fraction * peak) & valid[y0:y1, x0:x1]) | seed
-        grown = reconstruction(seed.astype(np.uint8), allowed.astype(np.uint8), method="dilation").astype(bool)
+        allowed = (excess[y0:y1, x0:x1] >= fraction * peak) & valid[y0:y1, x0:x1]
+        # The seed obeys the same rule: a strong change found at a low level carries
+        # the low level's flank (and any gain halo) in its seed component.
+        core = seed & allowed
+        if not core.any():
+            core = seed
+        grown = reconstruction(core.astype(np.uint8), (allowed | core).astype(np.uint8),
+                               method="dilation").astype(bool)
         out[y0:y1, x0:x1] |= grown
     return out & valid

@@ -73,6 +73,9 @@ def diff(
     edge_check: Optional[int] = typer.Option(
         None, "--edge-check", help="Set aside regions along strong reference edges that a shift of up to this many px "
         "explains (shown in cyan); 0 = off. Default: 2 on a campaign, 0 on bare images."),
+    ambient_index: Optional[int] = typer.Option(
+        None, "--ambient-index", help="Bare images: 0-based index of the ambient-light image (left out of the "
+        "photometric stereo that labels regions relief/colour). Campaigns know it from the lighting names."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Find fine-grained changes; writes change_score.png/.npy, change_mask.png, overlay.png, regions.json, report.html.
@@ -98,7 +101,8 @@ def diff(
         if output is None:
             raise UserInputError("give an output folder with -o DIR")
         data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
-                        register=not no_register, edge_check_px=edge_check or 0, progress=None if as_json else info)
+                        register=not no_register, edge_check_px=edge_check or 0, ambient_index=ambient_index,
+                        progress=None if as_json else info)
     emit(data, as_json=as_json, render=_render(data))
     if not data["comparable"]:
         from fgcd_cli.errors import AlgorithmError

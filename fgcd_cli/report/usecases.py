@@ -58,11 +58,18 @@ def run_bare(
     mm_per_px: float | None = None,
     register: bool = True,
     edge_check_px: int = 0,
+    ambient_index: int | None = None,
     progress: Progress = None,
 ) -> dict:
-    """Compare image files (one per lighting) and write the products into ``output``."""
+    """Compare image files (one per lighting) and write the products into ``output``.
+
+    ``ambient_index`` (0-based) names the image taken under ambient light only; it is
+    left out of the photometric-stereo fit that labels regions relief / colour.
+    """
     ref_paths = expand_image_args(ref, what="--ref")
     cur_paths = expand_image_args(cur, what="--cur")
+    if ambient_index is not None and not 0 <= ambient_index < len(ref_paths):
+        raise UserInputError(f"--ambient-index {ambient_index} is outside 0..{len(ref_paths) - 1}")
     ref_images = [read_image(p) for p in ref_paths]
     cur_images = [read_image(p) for p in cur_paths]
     mask = read_mask(eval_mask) if eval_mask is not None else None
@@ -73,7 +80,7 @@ def run_bare(
         area = np.full(ref_images[0].shape[:2], mm_per_px**2)
     _say(progress, f"comparing {len(ref_images)} lighting(s)…")
     result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                            edge_check_px=_edge_check(edge_check_px))
+                            edge_check_px=_edge_check(edge_check_px), ambient_index=ambient_index)
     fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
     metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
     if mm_per_px is not None:
@@ -195,8 +202,10 @@ def run_campaign(
     residual_mm = relocation_residual_mm(observation)
     edge_check = _edge_check(EDGE_CHECK_PX if edge_check_px is None else edge_check_px)
     _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
+    # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
     result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                            edge_check_px=edge_check)
+                            edge_check_px=edge_check,
+                            ambient_index=lightings.index("ambient") if "ambient" in lightings else None)
     fdf = measure_fdf(ref_images[0], cur_images[0])
     reloc = observation.metadata.get("relocation") or {}
     metadata = {
