@@ -103,6 +103,7 @@ def ransac_homography(
     n = len(points_ref)
     if n < 4:
         return None, np.zeros(n, dtype=bool)
+    cv2.setRNGSeed(0)  # the same pair registers the same way every time (RANSAC samples with OpenCV's RNG)
     H, inliers = cv2.findHomography(points_ref, points_cur, cv2.RANSAC, float(ransac_px), maxIters=5000, confidence=0.999)
     if H is None:
         return None, np.zeros(n, dtype=bool)
