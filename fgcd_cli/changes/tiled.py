@@ -118,7 +118,7 @@ def _crop_float(image: np.ndarray, y0: int, y1: int, x0: int, x1: int) -> np.nda
     if crop.ndim == 3:
         crop = crop[:, :, 0] if crop.shape[2] == 1 else crop[:, :, :3]
     if np.issubdtype(crop.dtype, np.integer):
-        return crop.astype(np.float32) * np.float32(1.0 / np.iinfo(crop.dtype).max)
+        return crop.astype(np.float32) / np.float32(np.iinfo(crop.dtype).max)  # bit-identical to to_float_image
     return np.clip(np.nan_to_num(crop.astype(np.float32), nan=0.0), 0.0, 1.0)
 
 
