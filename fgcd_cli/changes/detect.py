@@ -59,7 +59,8 @@ class ChangeResult:
         return float(self.mask[self.valid].mean()) if self.valid.any() else 0.0
 
 
-def _empty(shape: tuple[int, int], reason: str, registration: Registration | None, settings: dict) -> ChangeResult:
+def empty_result(shape: tuple[int, int], reason: str, registration: Registration | None, settings: dict) -> ChangeResult:
+    """The result of a pair that cannot be compared honestly (``comparable=False``, empty HxW maps)."""
     return ChangeResult(
         comparable=False,
         reason=reason,
@@ -103,7 +104,7 @@ def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, normalized_imag
     return explained, n_explained
 
 
-def _regions_with_significance(mask, score, significance: Decision, pixel_area_mm2):
+def regions_with_significance(mask, score, significance: Decision, pixel_area_mm2):
     """Regions of the final mask, each with the log10 NFA of the most significant a-contrario seed it holds."""
     regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
     if significance.seed_index is None:
@@ -287,16 +288,16 @@ def detect_changes(
         for i, gray in enumerate(grays):
             problem = image_health(gray)
             if problem:
-                return _empty(shape, f"cannot compare: {label} image {i + 1}: {problem}", None, settings)
+                return empty_result(shape, f"cannot compare: {label} image {i + 1}: {problem}", None, settings)
 
     alignment = _align(refs, curs, grays_ref, grays_cur, eval_mask=eval_mask, register=register, dense=dense,
                        registration_lighting=registration_lighting, margin_px=int(np.ceil(max(shift_radius_px,
                                                                                              smooth_sigma_px * 2))))
     if isinstance(alignment, str):
-        return _empty(shape, alignment, None, settings)
+        return empty_result(shape, alignment, None, settings)
     registration, warped_images, valid, seen_all, dense_fit, not_compared = alignment
     if valid.sum() < 100:
-        return _empty(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
+        return empty_result(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
     if shading_ref is not None:
         warped_images = [normalize_shading(ref, warped, shading_ref=s_ref, shading_cur=s_cur)
                          for ref, warped, s_ref, s_cur in zip(refs, warped_images, shading_ref, shading_cur)]
@@ -316,7 +317,7 @@ def detect_changes(
                                            edge_fraction=edge_fraction, edge_radius_px=edge_radius_px,
                                            min_region_px=min_region_px, max_hole_px=max_hole_px,
                                            smooth_sigma_px=smooth_sigma_px)
-    regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
+    regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     explained = None
     if edge_check_px > 0 and regions:
         explained, settings["edge_explained_regions"] = _edge_explained(
@@ -326,7 +327,7 @@ def detect_changes(
         )
         if explained.any():
             mask &= ~explained
-            regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
+            regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     cue_maps = None
     if cues:
         cue_maps = relief_colour_cues(refs, [np.clip(image, 0.0, 1.0) for image in normalized_images], valid=valid,
@@ -344,7 +345,7 @@ def detect_changes(
         threshold=threshold,
         current_registered=[np.clip(image, 0.0, 1.0) for image in normalized_images],
         settings=settings,
-        warnings=_warnings(mask, valid, registration, register=register),
+        warnings=result_warnings(mask, valid, registration, register=register),
         edge_explained=explained,
         candidates=sorted((c for c in significance.candidates + significance.regions
                            if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]),
@@ -382,7 +383,8 @@ def decide(score: np.ndarray, valid: np.ndarray, *, decision: str = "acontrario"
     return clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid, threshold, significance
 
 
-def _warnings(mask: np.ndarray, valid: np.ndarray, registration: Registration, *, register: bool) -> list[str]:
+def result_warnings(mask: np.ndarray, valid: np.ndarray, registration: Registration, *, register: bool) -> list[str]:
+    """Warnings a conservator should read with the map (too much flagged, registration without features)."""
     warnings = []
     fraction = float(mask[valid].mean())
     if fraction > 0.25:

@@ -49,7 +49,8 @@ import numpy as np
 
 from fgcd_cli.changes.cue_labels import label_regions, relief_colour_cues
 from fgcd_cli.changes.dense import refine_dense, warp_with_flow
-from fgcd_cli.changes.detect import ChangeResult, _empty, _regions_with_significance, _warnings
+from fgcd_cli.changes.cues import shift_tolerant_difference
+from fgcd_cli.changes.detect import ChangeResult, empty_result, regions_with_significance, result_warnings
 from fgcd_cli.changes.illumination import normalize_local_gain
 from fgcd_cli.changes.images import image_health
 from fgcd_cli.changes.regions import clean_mask, refine_to_local_peak
@@ -246,38 +247,11 @@ def _warp_tile(cur: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndar
 # --------------------------------------------------------------------- cues
 
 
-def _shift_tolerant_difference(ref: np.ndarray, cur: np.ndarray, radius_px: int) -> np.ndarray:
-    """Same values as :func:`fgcd_cli.changes.cues.shift_tolerant_difference` (symmetric, L1 over channels).
-
-    Written with OpenCV primitives (``absdiff``, a channel-sum ``transform``, in-place
-    ``min``): numpy's reduction over a last axis of 3 dominated the untiled cue's time.
-    """
-    h, w = ref.shape[:2]
-
-    def channel_sum(diff: np.ndarray) -> np.ndarray:
-        return diff if diff.ndim == 2 else cv2.transform(diff, np.ones((1, diff.shape[2]), np.float32))
-
-    if radius_px <= 0:
-        return channel_sum(cv2.absdiff(ref, cur))
-    r = radius_px
-
-    def one_sided(fixed: np.ndarray, moving: np.ndarray) -> np.ndarray:
-        padded = cv2.copyMakeBorder(moving, r, r, r, r, cv2.BORDER_REFLECT)
-        best = None
-        for dy in range(-r, r + 1):
-            for dx in range(-r, r + 1):
-                diff = channel_sum(cv2.absdiff(fixed, padded[r + dy: r + dy + h, r + dx: r + dx + w]))
-                best = diff if best is None else cv2.min(best, diff, dst=best)
-        return best
-
-    return cv2.max(one_sided(ref, cur), one_sided(cur, ref))
-
-
 def _lighting_difference(ref: np.ndarray, warped: np.ndarray, *, gain_sigma_px: float, shift_radius_px: int,
                          weight: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """One lighting of one tile: local-gain normalisation, then the difference cue (as ``score._fuse``)."""
     normalized = normalize_local_gain(ref, warped, sigma_px=gain_sigma_px, weight=weight)
-    return _shift_tolerant_difference(ref, normalized, shift_radius_px), normalized
+    return shift_tolerant_difference(ref, normalized, radius_px=shift_radius_px), normalized
 
 
 # --------------------------------------------------------------------- main
@@ -405,7 +379,7 @@ def detect_changes_tiled(
             problem = image_health(g)
             if problem:
                 report("checked", units=total)
-                return _empty(shape, f"cannot compare: {label} image {i + 1}: {problem}", None, settings)
+                return empty_result(shape, f"cannot compare: {label} image {i + 1}: {problem}", None, settings)
     mask_small = None
     if eval_mask is not None:
         mask_small = cv2.resize(eval_mask.astype(np.uint8), (ws, hs), interpolation=cv2.INTER_NEAREST).astype(bool)
@@ -413,7 +387,7 @@ def detect_changes_tiled(
         reg_small = register_to_reference(grays_ref[registration_lighting], grays_cur[registration_lighting])
         if not reg_small.ok:
             report("registration failed", units=total)
-            return _empty(shape, f"cannot compare: {reg_small.reason}", None, settings)
+            return empty_result(shape, f"cannot compare: {reg_small.reason}", None, settings)
     else:
         reg_small = Registration(H_cur_ref=np.eye(3), ok=True, init="none", overlap_fraction=1.0)
     A = _scale_matrix(fx, fy)
@@ -492,7 +466,7 @@ def detect_changes_tiled(
         valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)).astype(bool)
     if valid.sum() < 100:
         report("nothing to compare", units=total - done[0])
-        return _empty(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
+        return empty_result(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
     score, medians = fuse(valid)
     # Robust gain rounds (as score.score_pair, on the full frame): the suspect set is
     # decided by the whole frame's threshold, the gain re-estimated without it.
@@ -532,7 +506,7 @@ def detect_changes_tiled(
                                         radius_px=edge_radius_px)
     mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
     del raw_mask
-    regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
+    regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
 
     cue_maps = None
     if cues:
@@ -544,7 +518,7 @@ def detect_changes_tiled(
     return ChangeResult(
         comparable=True, score=score, mask=mask, labels=labels, valid=valid, regions=regions,
         registration=registration, threshold=threshold, current_registered=[], settings=settings,
-        warnings=_warnings(mask, valid, registration, register=register), edge_explained=None,
+        warnings=result_warnings(mask, valid, registration, register=register), edge_explained=None,
         candidates=sorted((c for c in significance.candidates + significance.regions
                            if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]),
                           key=lambda c: c.log10_nfa)[:5],

@@ -38,7 +38,8 @@ def changes(
             console.print(f"simulated part: {data['sim'].get('reason')}")
         for key, value in data["summary"].items():
             target = data["targets"].get(key)
-            console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target ≥ {target})" if target else ""))
+            bound = "≤" if key.startswith(("seconds", "peak")) else "≥"  # times and memory are upper bounds
+            console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target {bound} {target})" if target else ""))
 
     emit(data, as_json=as_json, render=render)
 

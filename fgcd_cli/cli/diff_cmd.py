@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
@@ -59,6 +60,28 @@ def _render(data: dict):
     return render
 
 
+@contextmanager
+def tile_progress_bar(*, enabled: bool):
+    """A rich progress bar for tiled comparisons (large frames), or a no-op callback."""
+    if not enabled:
+        yield None
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), transient=True, console=Console(stderr=True)) as bar:
+        task = None
+
+        def update(done: int, total: int, label: str) -> None:
+            nonlocal task
+            if task is None:
+                task = bar.add_task(label, total=total)
+            bar.update(task, completed=done, total=total, description=label)
+
+        yield update
+
+
 def diff(
     ref: Optional[list[str]] = typer.Option(None, "--ref", help="Reference image(s): repeat, comma-separate or quote a glob; one per lighting."),
     cur: Optional[list[str]] = typer.Option(None, "--cur", help="Current image(s), same lightings in the same order."),
@@ -100,9 +123,10 @@ def diff(
             raise UserInputError("give --ref and --cur images (or --campaign and --station)")
         if output is None:
             raise UserInputError("give an output folder with -o DIR")
-        data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
-                        register=not no_register, edge_check_px=edge_check or 0, ambient_index=ambient_index,
-                        progress=None if as_json else info)
+        with tile_progress_bar(enabled=not as_json) as tile_progress:
+            data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
+                            register=not no_register, edge_check_px=edge_check or 0, ambient_index=ambient_index,
+                            progress=None if as_json else info, tile_progress=tile_progress)
     emit(data, as_json=as_json, render=_render(data))
     if not data["comparable"]:
         from fgcd_cli.errors import AlgorithmError

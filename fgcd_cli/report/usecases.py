@@ -21,6 +21,11 @@ from fgcd_cli.metrics.afd import FdfResult, compute_fdf
 from fgcd_cli.report.products import diff_products, result_summary
 
 Progress = Callable[[str], None] | None
+TileProgress = Callable[[int, int, str], None] | None
+
+LARGE_FRAME_PX = 8_000_000
+"""Frames above this many pixels are compared tile by tile in bounded memory
+(:func:`fgcd_cli.changes.tiled.detect_changes_tiled`; ``docs/change-detection.md``)."""
 
 
 def _say(progress: Progress, message: str) -> None:
@@ -60,6 +65,7 @@ def run_bare(
     edge_check_px: int = 0,
     ambient_index: int | None = None,
     progress: Progress = None,
+    tile_progress: TileProgress = None,
 ) -> dict:
     """Compare image files (one per lighting) and write the products into ``output``.
 
@@ -79,9 +85,19 @@ def run_bare(
             raise UserInputError("--mm-per-px must be positive")
         area = np.full(ref_images[0].shape[:2], mm_per_px**2)
     _say(progress, f"comparing {len(ref_images)} lighting(s)…")
-    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                            edge_check_px=_edge_check(edge_check_px), ambient_index=ambient_index)
-    fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
+    large = ref_images[0].shape[0] * ref_images[0].shape[1] > LARGE_FRAME_PX
+    if large:
+        from fgcd_cli.changes.tiled import detect_changes_tiled
+
+        _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
+                       "(no edge check, no FDF on frames this large)")
+        result = detect_changes_tiled(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
+                                      ambient_index=ambient_index, progress=tile_progress)
+        fdf = None
+    else:
+        result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
+                                edge_check_px=_edge_check(edge_check_px), ambient_index=ambient_index)
+        fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
     metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
     if mm_per_px is not None:
         metadata["scale (mm per px)"] = mm_per_px

@@ -90,3 +90,19 @@ def test_diff_edge_check_option(tmp_path):
     bad = run(*args, "-o", str(tmp_path / "bad"), "--edge-check", "99")
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     assert "--edge-check" in bad.stderr.strip().splitlines()[-1]
+
+
+def test_large_frames_take_the_tiled_path_with_the_same_change(image_files, tmp_path, monkeypatch):
+    # A frame above LARGE_FRAME_PX goes through detect_changes_tiled; lowered here so the
+    # 256 px pair takes that path: the same change is found at the same place.
+    from fgcd_cli.report import usecases
+
+    monkeypatch.setattr(usecases, "LARGE_FRAME_PX", 10_000)
+    calls = []
+    data = usecases.run_bare([str(image_files / "ref-*.png")], [str(image_files / "cur-*.png")], tmp_path / "out",
+                             tile_progress=lambda done, total, label: calls.append((done, total)))
+    assert data["comparable"] and "work_scale" in data["settings"]
+    cx, cy = data["regions"][0]["centroid_xy"]
+    assert abs(cx - 200) < 3 and abs(cy - 60) < 3
+    assert calls and calls[-1][0] == calls[-1][1]  # progress reached its total
+    assert (tmp_path / "out" / "report.html").stat().st_size > 0
