@@ -1,0 +1,39 @@
+"""Leave-one-group-out selection in ``fgcd bench changes``: a group never chooses its own constants."""
+
+from fgcd_cli.bench.changes import leave_one_group_out, leave_one_group_out_score_constants
+
+
+def _group(name, scores_by_key, metric):
+    return {"group": name, "kind": "Db", "changed_fraction_true": 0.01,
+            "grid": {key: {metric: value, "best_f1": value, "ap": value, "auto_f1": value, "auto_recall": value}
+                     for key, value in scores_by_key.items()},
+            "score_variants": {key: {"best_f1": value, "ap": value} for key, value in scores_by_key.items()}}
+
+
+def test_held_out_group_is_scored_with_the_constants_the_others_prefer():
+    a, b = ("acontrario", 0.005, 0.3), ("acontrario", 0.01, 0.2)
+    # Group g0 alone prefers b (0.9 vs 0.1); the four others prefer a (0.6 vs 0.5).
+    groups = [_group("g0", {a: 0.1, b: 0.9}, "auto_f1")] + [_group(f"g{i}", {a: 0.6, b: 0.5}, "auto_f1")
+                                                             for i in range(1, 5)]
+    rows = leave_one_group_out(groups, [a, b])
+    assert rows[0]["group"] == "g0" and rows[0]["auto_f1"] == 0.1  # chosen without g0: a
+    assert rows[0]["chosen"] == {"decision": "acontrario", "seed_p": 0.005, "extent_fraction": 0.3}
+    # Each of the others is chosen on g0 and three like itself: mean 0.6*3+0.1 = 1.9 vs 0.5*3+0.9 = 2.4 -> b.
+    assert all(row["auto_f1"] == 0.5 for row in rows[1:])
+
+
+def test_score_constants_are_chosen_on_the_other_groups():
+    shipped, wide = (12.0, 2.0), (24.0, 2.0)
+    others = [_group(f"g{i}", {shipped: 0.7, wide: 0.6}, "best_f1") for i in range(1, 4)]
+    groups = [_group("g0", {shipped: 0.2, wide: 0.8}, "best_f1")] + others
+    out = leave_one_group_out_score_constants(groups)
+    first = out["groups"][0]
+    assert (first["gain_sigma_px"], first["smooth_sigma_px"]) == shipped and first["best_f1"] == 0.2
+    # Each other group is chosen on g0 and two like itself: (0.2 + 1.4) / 3 < (0.8 + 1.2) / 3 -> wide, 0.6.
+    assert [row["gain_sigma_px"] for row in out["groups"][1:]] == [24.0] * 3
+    assert abs(out["logo_best_f1_all_constants"] - (0.2 + 0.6 * 3) / 4) < 1e-12
+
+
+def test_without_score_variants_there_is_no_all_constants_figure():
+    groups = [_group("g0", {}, "best_f1"), _group("g1", {}, "best_f1")]
+    assert leave_one_group_out_score_constants(groups) is None
