@@ -54,6 +54,14 @@ class ChangeResult:
     """Relief and colour cue maps (photometric stereo), when they were computed."""
 
     @property
+    def detection_level(self) -> float | None:
+        """Score at which the decision starts a region: the a-contrario seed level (the ``seed_p``
+        quantile of the pair's null), or the hysteresis rule's high threshold; None without a decision."""
+        if self.settings.get("decision") == "acontrario" and self.settings.get("seed_level") is not None:
+            return float(self.settings["seed_level"])
+        return self.threshold.high if self.threshold is not None else None
+
+    @property
     def changed_fraction(self) -> float:
         """Fraction of compared pixels flagged as changed."""
         return float(self.mask[self.valid].mean()) if self.valid.any() else 0.0
@@ -317,6 +325,7 @@ def detect_changes(
                                            edge_fraction=edge_fraction, edge_radius_px=edge_radius_px,
                                            min_region_px=min_region_px, max_hole_px=max_hole_px,
                                            smooth_sigma_px=smooth_sigma_px)
+    settings["seed_level"] = significance.seed_level
     regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     explained = None
     if edge_check_px > 0 and regions:

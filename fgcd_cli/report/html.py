@@ -160,7 +160,7 @@ def _verdict(result: ChangeResult) -> str:
 
 def _candidates_table(result: ChangeResult) -> str:
     """The strongest regions that were not reported, as a table (most significant first)."""
-    high = result.threshold.high if result.threshold else None
+    high = result.detection_level
     rows = []
     for k, candidate in enumerate(result.candidates, start=1):
         x, y = candidate.centroid_xy
@@ -243,7 +243,7 @@ def render_diff_report(
                              + ("dashed amber circles c1, c2, … = strongest candidates, not reported; "
                                 if result.candidates else "")
                              + "dimmed = not compared"))
-        high = result.threshold.high if result.threshold else None
+        high = result.detection_level
         parts.append(_figure(png_bytes(score_heatmap(result.score, result.valid, high=high)),
                              "Change score (bright = strong difference; saturates at the detection threshold)"))
         parts.append("</div>")
@@ -254,7 +254,7 @@ def render_diff_report(
                 '<th>significance (NFA)</th><th class="l">cue</th></tr>'
             epsilon = _epsilon(result)
             rows = []
-            high = result.threshold.high if result.threshold else 1.0
+            high = result.detection_level or 1.0
             for r in result.regions[:max_table_rows]:
                 x, y, w, h = r.bbox_xywh
                 rows.append(
@@ -269,8 +269,10 @@ def render_diff_report(
             if more > 0:
                 parts.append(f'<p class="small">… and {more} smaller regions (all in regions.json).</p>')
             parts.append('<p class="small">Positions are pixels of the reference image (x to the right, y down). '
-                         "Strength: the region's largest change score over the detection threshold "
-                         "(1 = barely detected). Significance: the number of false alarms (NFA), how many regions "
+                         "Strength: the region's largest change score over the level at which the decision starts a "
+                         f"region (a-contrario: the pair's top {100 * float(result.settings.get('seed_p', 0.005)):g} % of scores; "
+                         "a region also needs its significance, so a weak but extended one may be below 1; "
+                         "hysteresis: its high threshold). Significance: the number of false alarms (NFA), how many regions "
                          "at least as extreme are expected per image on an unchanged pair (a-contrario; "
                          f"below {epsilon:g} = significant). Cue: what changed, relief (surface normals) or colour "
                          "(albedo) or both, when the photometric cues were computed.</p>")
@@ -317,7 +319,9 @@ def render_diff_report(
                                    "overlap": round(reg.overlap_fraction, 3)}
     if result.threshold is not None:
         t = result.threshold
-        details["threshold"] = {"method": t.method, "decision": result.settings.get("decision"),
+        details["threshold"] = {"decision": result.settings.get("decision"),
+                                "detection_level": round(result.detection_level, 3),
+                                "reference rule": t.method,
                                 "k_high": t.k_high, "k_low": t.k_low, "high": round(t.high, 3),
                                 "low": round(t.low, 3), "median": round(t.median, 3), "sigma_upper": round(t.sigma_upper, 4)}
     details["settings"] = result.settings
