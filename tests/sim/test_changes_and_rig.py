@@ -136,7 +136,9 @@ def test_random_changes_default_kinds_draw_as_before_and_kinds_select():
 
     s = load_scene("plane")
     chs = random_changes(s, n=12, seed=0)
-    assert [(c.kind, c.seed, c.size_mm) for c in chs] == _PLANE_12_SEED_0
+    # kinds and seeds exactly; sizes to float precision (the last bit differs between numpy builds)
+    assert [(c.kind, c.seed) for c in chs] == [(kind, seed) for kind, seed, _ in _PLANE_12_SEED_0]
+    np.testing.assert_allclose([c.size_mm for c in chs], [size for _, _, size in _PLANE_12_SEED_0], rtol=1e-12)
     np.testing.assert_allclose(chs[0].position, (-0.28133331656455995, 0.0, 1.0620000112056731), atol=1e-6)
     assert KINDS == ("crack", "flaking", "stain", "missing") and ALL_KINDS == KINDS + ("pit", "lifted")
     for kind in ALL_KINDS:  # the category says what the kind changes: relief (a depth), colour (an albedo weight)
