@@ -59,8 +59,10 @@ def child_main(folder: str, lightings: str, tile_px: int, workers: int) -> None:
     root = Path(folder)
     ks = [int(k) for k in lightings.split(",")]
     t0 = time.perf_counter()
-    ref = load_images([root / f"ref-{k}.png" for k in ks])
-    cur = load_images([root / f"cur-{k}.png" for k in ks])
+    # One pool over all the files: two calls would each end on one file decoding alone.
+    images = load_images([root / f"ref-{k}.png" for k in ks] + [root / f"cur-{k}.png" for k in ks])
+    ref, cur = images[:len(ks)], images[len(ks):]
+    del images
     mask = cv2.imread(str(root / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
     t_load = time.perf_counter() - t0
     stages: list[tuple[str, float]] = []

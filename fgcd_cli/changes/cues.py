@@ -9,19 +9,32 @@ import cv2
 import numpy as np
 
 
+_STRIP_ROWS = 32
+"""Rows processed at a time by the shift-tolerant difference (its arrays then stay in cache)."""
+
+
 def _min_shifted_difference(fixed: np.ndarray, moving: np.ndarray, radius_px: int) -> np.ndarray:
-    """``min over |s| <= r of |fixed(x) - moving(x + s)|``, channels summed (L1); HxW float32."""
-    best = None
+    """``min over |s| <= r of |fixed(x) - moving(x + s)|``, channels summed (L1); HxW float32.
+
+    Computed strip by strip (:data:`_STRIP_ROWS` rows): every pixel's value is the same
+    as on the whole image, but the shifted differences of a strip stay in cache.
+    """
     h, w = fixed.shape[:2]
     padded = cv2.copyMakeBorder(moving, radius_px, radius_px, radius_px, radius_px, cv2.BORDER_REFLECT)
-    for dy in range(-radius_px, radius_px + 1):
-        for dx in range(-radius_px, radius_px + 1):
-            shifted = padded[radius_px + dy : radius_px + dy + h, radius_px + dx : radius_px + dx + w]
-            diff = cv2.absdiff(fixed, shifted)
-            if diff.ndim == 3:  # channel sum through OpenCV: numpy's reduction over the last axis is ~10x slower
-                diff = cv2.transform(diff, np.ones((1, diff.shape[2]), np.float32))
-            best = diff if best is None else np.minimum(best, diff, out=best)
-    return best.astype(np.float32, copy=False)
+    out = np.empty((h, w), np.float32)
+    for y0 in range(0, h, _STRIP_ROWS):
+        y1 = min(h, y0 + _STRIP_ROWS)
+        strip = fixed[y0:y1]
+        best = None
+        for dy in range(-radius_px, radius_px + 1):
+            for dx in range(-radius_px, radius_px + 1):
+                shifted = padded[radius_px + dy + y0 : radius_px + dy + y1, radius_px + dx : radius_px + dx + w]
+                diff = cv2.absdiff(strip, shifted)
+                if diff.ndim == 3:  # channel sum through OpenCV: numpy's reduction over the last axis is ~10x slower
+                    diff = cv2.transform(diff, np.ones((1, diff.shape[2]), np.float32))
+                best = diff if best is None else np.minimum(best, diff, out=best)
+        out[y0:y1] = best
+    return out
 
 
 def shift_tolerant_difference(ref_image: np.ndarray, cur_image: np.ndarray, *, radius_px: int = 1,
@@ -52,12 +65,46 @@ def shift_tolerant_difference(ref_image: np.ndarray, cur_image: np.ndarray, *, r
     if radius_px <= 0:
         diff = np.abs(np.asarray(ref_image, np.float32) - np.asarray(cur_image, np.float32))
         return (diff.sum(axis=2) if diff.ndim == 3 else diff).astype(np.float32)
-    ref_image = np.ascontiguousarray(ref_image, np.float32)
-    cur_image = np.ascontiguousarray(cur_image, np.float32)
-    forward = _min_shifted_difference(ref_image, cur_image, radius_px)
+    ref_image = np.asarray(ref_image, np.float32)  # OpenCV reads row-strided views as they are
+    cur_image = np.asarray(cur_image, np.float32)
     if not symmetric:
-        return forward
-    return np.maximum(forward, _min_shifted_difference(cur_image, ref_image, radius_px))
+        return _min_shifted_difference(ref_image, cur_image, radius_px)
+    return _symmetric_min_difference(ref_image, cur_image, radius_px)
+
+
+def _symmetric_min_difference(ref: np.ndarray, cur: np.ndarray, radius_px: int) -> np.ndarray:
+    """``max(min_s |ref(x) - cur(x + s)|, min_s |cur(x) - ref(x + s)|)``, channels summed (L1); HxW float32.
+
+    Both minima read the same differences: ``|cur(x) - ref(x + s)|`` is
+    ``E_{-s}(x + s)`` with ``E_t(p) = |ref(p) - cur(p + t)|``. Each ``E_t`` is computed
+    once, on the image grown by the radius (the reference reflected there, the current
+    image reflected by twice the radius), and both minima are taken from it: the same
+    values as two separate passes (``|a - b| = |b - a|`` exactly), half the differences.
+    Strip by strip (:data:`_STRIP_ROWS` rows), as :func:`_min_shifted_difference`.
+    """
+    r = radius_px
+    h, w = ref.shape[:2]
+    ref_pad = cv2.copyMakeBorder(ref, r, r, r, r, cv2.BORDER_REFLECT)  # index (i, j): pixel (i - r, j - r)
+    cur_pad = cv2.copyMakeBorder(cur, 2 * r, 2 * r, 2 * r, 2 * r, cv2.BORDER_REFLECT)  # pixel (i - 2r, j - 2r)
+    shifts = [(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1)]
+    out = np.empty((h, w), np.float32)
+    for y0 in range(0, h, _STRIP_ROWS):
+        y1 = min(h, y0 + _STRIP_ROWS)
+        rows = ref_pad[y0 : y1 + 2 * r]  # pixels y0 - r .. y1 + r - 1, x = -r .. w + r - 1
+        grown = {}
+        for dy, dx in shifts:
+            diff = cv2.absdiff(rows, cur_pad[y0 + r + dy : y1 + 3 * r + dy, r + dx : r + dx + w + 2 * r])
+            if diff.ndim == 3:
+                diff = cv2.transform(diff, np.ones((1, diff.shape[2]), np.float32))
+            grown[dy, dx] = diff
+        forward = backward = None
+        for dy, dx in shifts:
+            f = grown[dy, dx][r : r + y1 - y0, r : r + w]
+            b = grown[-dy, -dx][r + dy : r + dy + y1 - y0, r + dx : r + dx + w]
+            forward = f.copy() if forward is None else np.minimum(forward, f, out=forward)
+            backward = b.copy() if backward is None else np.minimum(backward, b, out=backward)
+        np.maximum(forward, backward, out=out[y0:y1])
+    return out
 
 
 def local_ncc_dissimilarity(ref_gray: np.ndarray, cur_gray: np.ndarray, *, sigma_px: float = 2.0) -> np.ndarray:
