@@ -6,13 +6,14 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from fgcd_cli.changes.cue_labels import CueMaps, label_regions, relief_colour_cues
 from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, relative_to_median
 from fgcd_cli.changes.dense import DenseAlignment, refine_dense, warp_with_flow
 from fgcd_cli.changes.illumination import normalize_shading
 from fgcd_cli.changes.images import image_health, to_gray, validate_stacks
-from fgcd_cli.changes.regions import ChangeRegion, clean_mask, extract_regions, refine_to_local_peak
+from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak
 from fgcd_cli.changes.registration import Registration, register_to_reference, warp_to_reference
 from fgcd_cli.changes.score import ScoreOptions, score_pair
 from fgcd_cli.changes.significance import Decision, SignificantRegion, acontrario_decision
@@ -113,15 +114,55 @@ def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, normalized_imag
 
 
 def regions_with_significance(mask, score, significance: Decision, pixel_area_mm2):
-    """Regions of the final mask, each with the log10 NFA of the most significant a-contrario seed it holds."""
-    regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
-    if significance.seed_index is None:
-        return regions, labels
-    for region in regions:
-        inside = significance.seed_index[labels == region.id]
-        inside = np.unique(inside[inside > 0])
-        if inside.size:
-            region.log10_nfa = float(min(significance.regions[i - 1].log10_nfa for i in inside))
+    """Regions of the final mask (as :func:`fgcd_cli.changes.regions.extract_regions`: numbered by
+    decreasing area), each with the log10 NFA of the most significant a-contrario seed it holds.
+
+    The per-region sums run over the list of mask pixels rather than whole-frame arrays
+    (a change mask covers a few percent of a large frame).
+    """
+    raw_labels, count = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return [], np.zeros(mask.shape, np.int32)
+    pixels = np.flatnonzero(raw_labels)
+    raw = raw_labels.ravel()[pixels]
+    areas = np.bincount(raw, minlength=count + 1)[1:].astype(np.float64)
+    order = np.argsort(-areas, kind="stable")
+    relabel = np.zeros(count + 1, np.int32)
+    relabel[order + 1] = np.arange(1, count + 1)
+    labels = relabel[raw_labels]
+    del raw_labels
+    ids = relabel[raw]
+    counts = np.bincount(ids, minlength=count + 1)[1:]
+    ys, xs = np.divmod(pixels, mask.shape[1])
+    values = score.ravel()[pixels]
+    means = np.bincount(ids, weights=values, minlength=count + 1)[1:] / counts.astype(np.float64)
+    cy = np.bincount(ids, weights=ys.astype(np.float64), minlength=count + 1)[1:] / counts
+    cx = np.bincount(ids, weights=xs.astype(np.float64), minlength=count + 1)[1:] / counts
+    by_id = np.argsort(ids, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    maxima = np.maximum.reduceat(values[by_id], starts)
+    y_lo, y_hi = np.minimum.reduceat(ys[by_id], starts), np.maximum.reduceat(ys[by_id], starts)
+    x_lo, x_hi = np.minimum.reduceat(xs[by_id], starts), np.maximum.reduceat(xs[by_id], starts)
+    area_mm2 = [None] * count
+    if pixel_area_mm2 is not None:
+        area_map = np.asarray(pixel_area_mm2).ravel()[pixels]
+        known = np.bincount(ids, weights=np.isfinite(area_map).astype(np.float64), minlength=count + 1)[1:]
+        metric = np.bincount(ids, weights=np.nan_to_num(area_map.astype(np.float64), nan=0.0), minlength=count + 1)[1:]
+        # Extrapolate over pixels without 3D data at the region's mean pixel area.
+        area_mm2 = [float(metric[i] * counts[i] / known[i]) if known[i] > 0 else None for i in range(count)]
+    nfa = [None] * count
+    if significance.seed_index is not None:
+        seeds = significance.seed_index.ravel()[pixels]
+        for region_id, seed in set(zip(ids[seeds > 0].tolist(), seeds[seeds > 0].tolist())):
+            value = significance.regions[seed - 1].log10_nfa
+            nfa[region_id - 1] = value if nfa[region_id - 1] is None else min(nfa[region_id - 1], value)
+    regions = [
+        ChangeRegion(id=i + 1, area_px=int(counts[i]), area_mm2=area_mm2[i],
+                     bbox_xywh=(int(x_lo[i]), int(y_lo[i]), int(x_hi[i] - x_lo[i] + 1), int(y_hi[i] - y_lo[i] + 1)),
+                     centroid_xy=(float(cx[i]), float(cy[i])), mean_score=float(means[i]), max_score=float(maxima[i]),
+                     log10_nfa=None if nfa[i] is None else float(nfa[i]))
+        for i in range(count)
+    ]
     return regions, labels
 
 

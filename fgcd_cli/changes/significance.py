@@ -50,7 +50,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage, special
-from skimage.morphology import reconstruction
 
 _EIGHT = np.ones((3, 3), bool)
 
@@ -315,26 +314,26 @@ def grow_to_extent(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, b
     """
     if fraction <= 0 or not seeds.any():
         return seeds & valid
-    excess = np.maximum(score.astype(np.float32) - np.float32(background), 0.0)
-    labels, count = ndimage.label(seeds, structure=_EIGHT)
-    peaks = ndimage.maximum(excess, labels, np.arange(1, count + 1))
-    # Every pixel may join the seed whose peak allows it: threshold map per seed,
-    # then one morphological reconstruction per seed inside its bounding window.
-    out = np.zeros_like(seeds)
-    slices = ndimage.find_objects(labels)
+    # Each seed grows inside its bounding box padded by its larger side (at least 8 px).
+    # The binary morphological reconstruction of the seed in the allowed pixels is the
+    # union of the 8-connected components of the allowed pixels that hold a seed pixel:
+    # labelling them gives it, several times faster, with no statistic over the frame.
+    labels, _ = ndimage.label(seeds, structure=_EIGHT)
+    out = np.zeros(seeds.shape, bool)
     h, w = seeds.shape
-    for i, (window, peak) in enumerate(zip(slices, peaks)):
+    for i, window in enumerate(ndimage.find_objects(labels)):
         pad = max(8, int(max(window[0].stop - window[0].start, window[1].stop - window[1].start)))
-        y0, y1 = max(0, window[0].start - pad), min(h, window[0].stop + pad)
-        x0, x1 = max(0, window[1].start - pad), min(w, window[1].stop + pad)
-        seed = labels[y0:y1, x0:x1] == i + 1
-        allowed = (excess[y0:y1, x0:x1] >= fraction * peak) & valid[y0:y1, x0:x1]
+        ys = slice(max(0, window[0].start - pad), min(h, window[0].stop + pad))
+        xs = slice(max(0, window[1].start - pad), min(w, window[1].stop + pad))
+        seed = labels[ys, xs] == i + 1
+        excess = np.maximum(score[ys, xs].astype(np.float32) - np.float32(background), 0.0)
+        allowed = (excess >= fraction * excess[seed].max()) & valid[ys, xs]
         # The seed obeys the same rule: a strong change found at a low level carries
         # the low level's flank (and any gain halo) in its seed component.
         core = seed & allowed
         if not core.any():
             core = seed
-        grown = reconstruction(core.astype(np.uint8), (allowed | core).astype(np.uint8),
-                               method="dilation").astype(bool)
-        out[y0:y1, x0:x1] |= grown
+        components, _ = ndimage.label(allowed | core, structure=_EIGHT)
+        reached = np.unique(components[core])
+        out[ys, xs] |= np.isin(components, reached[reached > 0])
     return out & valid

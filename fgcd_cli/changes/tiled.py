@@ -60,7 +60,7 @@ from scipy import ndimage
 from fgcd_cli.changes.cue_labels import label_regions, relief_colour_cues
 from fgcd_cli.changes.dense import refine_dense, warp_with_flow
 from fgcd_cli.changes.cues import shift_tolerant_difference
-from fgcd_cli.changes.detect import ChangeResult, empty_result, result_warnings
+from fgcd_cli.changes.detect import ChangeResult, empty_result, regions_with_significance, result_warnings
 from fgcd_cli.changes.illumination import normalize_local_gain, prepare_gain_weight
 from fgcd_cli.changes.images import image_health
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak
@@ -817,102 +817,15 @@ def _decide(score, valid, aside: ThreadPoolExecutor, cue_job: Callable | None, *
         if significance.settings["scale"] == 1.0 or significance.seed_index is None:
             raw_mask = significance.mask
         else:
-            raw_mask = _grow_each_seed(significance.seed_index > 0, score, valid, background=threshold.median,
+            raw_mask = grow_to_extent(significance.seed_index > 0, score, valid, background=threshold.median,
                                        fraction=extent_fraction)
     else:
         raw_mask = refine_to_local_peak(raw_mask, score, background=threshold.median, fraction=edge_fraction,
                                         radius_px=edge_radius_px)
     mask = clean_mask(raw_mask, min_region_px=min_region_px, max_hole_px=max_hole_px) & valid
     del raw_mask
-    regions, labels = _regions_with_significance(mask, score, significance, pixel_area_mm2)
+    regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     return mask, regions, labels, threshold, significance, beside.get("cues")
-
-
-def _grow_each_seed(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, background: float,
-                    fraction: float) -> np.ndarray:
-    """:func:`grow_to_extent` of the whole frame, computed seed by seed on the window each one can reach.
-
-    The same rule on the same windows: every 8-connected seed grows, inside its
-    bounding box padded by its larger side (at least 8 px), into the pixels connected
-    to it whose excess over ``background`` reaches ``fraction`` of the seed's peak
-    excess. The morphological reconstruction of ``grow_to_extent`` (binary, 3x3) is
-    the union of the 8-connected components of the allowed pixels that hold a seed
-    pixel; labelling them is several times faster, and no statistic is taken over the
-    whole frame.
-    """
-    if fraction <= 0 or not seeds.any():
-        return grow_to_extent(seeds, score, valid, background=background, fraction=fraction)
-    eight = np.ones((3, 3), bool)
-    labels, _ = ndimage.label(seeds, structure=eight)
-    out = np.zeros(seeds.shape, bool)
-    h, w = seeds.shape
-    for i, window in enumerate(ndimage.find_objects(labels)):
-        pad = max(8, int(max(window[0].stop - window[0].start, window[1].stop - window[1].start)))
-        ys = slice(max(0, window[0].start - pad), min(h, window[0].stop + pad))
-        xs = slice(max(0, window[1].start - pad), min(w, window[1].stop + pad))
-        seed = labels[ys, xs] == i + 1
-        excess = np.maximum(score[ys, xs].astype(np.float32) - np.float32(background), 0.0)
-        allowed = (excess >= fraction * excess[seed].max()) & valid[ys, xs]
-        core = seed & allowed
-        if not core.any():
-            core = seed
-        components, _ = ndimage.label(allowed | core, structure=eight)
-        reached = np.unique(components[core])
-        out[ys, xs] |= np.isin(components, reached[reached > 0])
-    return out & valid
-
-
-def _regions_with_significance(mask, score, significance, pixel_area_mm2):
-    """:func:`fgcd_cli.changes.detect.regions_with_significance`, from the mask's pixels only.
-
-    Same regions, same order, same numbers: the per-region sums are taken over the
-    same pixels in the same (raster) order, on the list of mask pixels rather than
-    on whole-frame arrays (a change mask covers a few percent of a large frame).
-    """
-    raw_labels, count = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
-    if count == 0:
-        return [], np.zeros(mask.shape, np.int32)
-    pixels = np.flatnonzero(raw_labels)
-    raw = raw_labels.ravel()[pixels]
-    areas = np.bincount(raw, minlength=count + 1)[1:].astype(np.float64)
-    order = np.argsort(-areas, kind="stable")
-    relabel = np.zeros(count + 1, np.int32)
-    relabel[order + 1] = np.arange(1, count + 1)
-    labels = relabel[raw_labels]
-    del raw_labels
-    ids = relabel[raw]
-    counts = np.bincount(ids, minlength=count + 1)[1:]
-    ys, xs = np.divmod(pixels, mask.shape[1])
-    values = score.ravel()[pixels]
-    means = np.bincount(ids, weights=values, minlength=count + 1)[1:] / counts.astype(np.float64)
-    cy = np.bincount(ids, weights=ys.astype(np.float64), minlength=count + 1)[1:] / counts
-    cx = np.bincount(ids, weights=xs.astype(np.float64), minlength=count + 1)[1:] / counts
-    by_id = np.argsort(ids, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    maxima = np.maximum.reduceat(values[by_id], starts)
-    y_lo, y_hi = np.minimum.reduceat(ys[by_id], starts), np.maximum.reduceat(ys[by_id], starts)
-    x_lo, x_hi = np.minimum.reduceat(xs[by_id], starts), np.maximum.reduceat(xs[by_id], starts)
-    area_mm2 = [None] * count
-    if pixel_area_mm2 is not None:
-        area_map = np.asarray(pixel_area_mm2).ravel()[pixels]
-        known = np.bincount(ids, weights=np.isfinite(area_map).astype(np.float64), minlength=count + 1)[1:]
-        metric = np.bincount(ids, weights=np.nan_to_num(area_map.astype(np.float64), nan=0.0), minlength=count + 1)[1:]
-        # Extrapolate over pixels without 3D data at the region's mean pixel area.
-        area_mm2 = [float(metric[i] * counts[i] / known[i]) if known[i] > 0 else None for i in range(count)]
-    nfa = [None] * count
-    if significance.seed_index is not None:
-        seeds = significance.seed_index.ravel()[pixels]
-        for region_id, seed in set(zip(ids[seeds > 0].tolist(), seeds[seeds > 0].tolist())):
-            value = significance.regions[seed - 1].log10_nfa
-            nfa[region_id - 1] = value if nfa[region_id - 1] is None else min(nfa[region_id - 1], value)
-    regions = [
-        ChangeRegion(id=i + 1, area_px=int(counts[i]), area_mm2=area_mm2[i],
-                     bbox_xywh=(int(x_lo[i]), int(y_lo[i]), int(x_hi[i] - x_lo[i] + 1), int(y_hi[i] - y_lo[i] + 1)),
-                     centroid_xy=(float(cx[i]), float(cy[i])), mean_score=float(means[i]), max_score=float(maxima[i]),
-                     log10_nfa=None if nfa[i] is None else float(nfa[i]))
-        for i in range(count)
-    ]
-    return regions, labels
 
 
 # ----------------------------------------------------------------------- cues

@@ -11,16 +11,45 @@ from fgcd_cli.changes.cues import _min_shifted_difference, shift_tolerant_differ
 from fgcd_cli.changes.detect import regions_with_significance
 from fgcd_cli.changes.illumination import normalize_local_gain, prepare_gain_weight
 from fgcd_cli.changes.significance import acontrario_decision, grow_to_extent
-from fgcd_cli.changes.tiled import (
-    _TiledScore,
-    _grow_each_seed,
-    _median_float16,
-    _regions_with_significance,
-    _run_tiles,
-    tile_grid,
-)
+from fgcd_cli.changes.regions import extract_regions
+from fgcd_cli.changes.tiled import _TiledScore, _median_float16, _run_tiles, tile_grid
+from skimage.morphology import reconstruction
 
 RNG_SEED = 7
+
+
+def _grow_by_reconstruction(seeds, score, valid, *, background, fraction):
+    """Reference for ``grow_to_extent``: a morphological reconstruction per seed, in the same window."""
+    if fraction <= 0 or not seeds.any():
+        return seeds & valid
+    excess = np.maximum(score.astype(np.float32) - np.float32(background), 0.0)
+    labels, count = ndimage.label(seeds, structure=np.ones((3, 3), bool))
+    peaks = ndimage.maximum(excess, labels, np.arange(1, count + 1))
+    out = np.zeros_like(seeds)
+    h, w = seeds.shape
+    for i, (window, peak) in enumerate(zip(ndimage.find_objects(labels), peaks)):
+        pad = max(8, int(max(window[0].stop - window[0].start, window[1].stop - window[1].start)))
+        y0, y1 = max(0, window[0].start - pad), min(h, window[0].stop + pad)
+        x0, x1 = max(0, window[1].start - pad), min(w, window[1].stop + pad)
+        seed = labels[y0:y1, x0:x1] == i + 1
+        allowed = (excess[y0:y1, x0:x1] >= fraction * peak) & valid[y0:y1, x0:x1]
+        core = seed & allowed
+        if not core.any():
+            core = seed
+        out[y0:y1, x0:x1] |= reconstruction(core.astype(np.uint8), (allowed | core).astype(np.uint8),
+                                            method="dilation").astype(bool)
+    return out & valid
+
+
+def _regions_by_extraction(mask, score, significance, pixel_area_mm2):
+    """Reference for ``regions_with_significance``: the shared region extraction, then each seed's NFA."""
+    regions, labels = extract_regions(mask, score, pixel_area_mm2=pixel_area_mm2)
+    for region in regions:
+        inside = significance.seed_index[labels == region.id]
+        inside = np.unique(inside[inside > 0])
+        if inside.size:
+            region.log10_nfa = float(min(significance.regions[i - 1].log10_nfa for i in inside))
+    return regions, labels
 
 
 def _texture(shape, rng) -> np.ndarray:
@@ -78,19 +107,19 @@ def test_gain_on_a_region_with_a_shared_weight_equals_the_whole_image_gain(shape
                              region=region)
 
 
-def test_grow_each_seed_equals_grow_to_extent():
+def test_grow_to_extent_equals_a_reconstruction_per_seed():
     rng = np.random.default_rng(RNG_SEED)
     score, valid = _score_with_blobs(rng)
     seeds = score > np.quantile(score[valid], 0.995)
     for fraction in (0.0, 0.3, 0.6):
         np.testing.assert_array_equal(
-            _grow_each_seed(seeds, score, valid, background=float(np.median(score)), fraction=fraction),
-            grow_to_extent(seeds, score, valid, background=float(np.median(score)), fraction=fraction))
+            grow_to_extent(seeds, score, valid, background=float(np.median(score)), fraction=fraction),
+            _grow_by_reconstruction(seeds, score, valid, background=float(np.median(score)), fraction=fraction))
     empty = np.zeros_like(seeds)
-    np.testing.assert_array_equal(_grow_each_seed(empty, score, valid, background=0.5, fraction=0.3), empty)
+    np.testing.assert_array_equal(grow_to_extent(empty, score, valid, background=0.5, fraction=0.3), empty)
 
 
-def test_regions_from_the_mask_pixels_equal_the_shared_ones():
+def test_regions_from_the_mask_pixels_equal_the_extracted_ones():
     rng = np.random.default_rng(RNG_SEED)
     score, valid = _score_with_blobs(rng)
     decision = acontrario_decision(score, valid, epsilon=1.0, seed_p=0.005, extent_fraction=0.3,
@@ -100,12 +129,12 @@ def test_regions_from_the_mask_pixels_equal_the_shared_ones():
     area = np.full(score.shape, 0.04)
     area[:, :100] = np.nan
     for pixel_area in (None, area):
-        fast, fast_labels = _regions_with_significance(mask, score, decision, pixel_area)
-        shared, shared_labels = regions_with_significance(mask, score, decision, pixel_area)
+        fast, fast_labels = regions_with_significance(mask, score, decision, pixel_area)
+        shared, shared_labels = _regions_by_extraction(mask, score, decision, pixel_area)
         assert fast == shared
         np.testing.assert_array_equal(fast_labels, shared_labels)
     assert any(r.log10_nfa is None for r in fast) and any(r.log10_nfa is not None for r in fast)
-    assert _regions_with_significance(np.zeros_like(mask), score, decision, None)[0] == []
+    assert regions_with_significance(np.zeros_like(mask), score, decision, None)[0] == []
 
 
 def test_float16_median_is_numpys():
@@ -159,7 +188,7 @@ def test_first_pass_reads_only_the_narrow_reach_and_later_passes_the_overlap():
 
 
 def test_labels_of_regions_match_a_fresh_labelling():
-    # _regions_with_significance relabels by area like extract_regions: a sanity check on ties.
+    # regions_with_significance relabels by area like extract_regions: a sanity check on ties.
     mask = np.zeros((40, 40), bool)
     mask[2:5, 2:5] = mask[10:13, 30:33] = mask[30:34, 5:9] = True  # two of 9 px, one of 16 px
     score = np.ones(mask.shape, np.float32)
@@ -167,7 +196,7 @@ def test_labels_of_regions_match_a_fresh_labelling():
     class NoSeeds:
         seed_index = None
 
-    regions, labels = _regions_with_significance(mask, score, NoSeeds(), None)
+    regions, labels = regions_with_significance(mask, score, NoSeeds(), None)
     assert [r.area_px for r in regions] == [16, 9, 9]
     assert [r.bbox_xywh[:2] for r in regions] == [(5, 30), (2, 2), (30, 10)]  # ties in raster order
     assert ndimage.label(labels > 0)[1] == 3
