@@ -53,12 +53,17 @@ __all__ = [
     "init_campaign",
     "open_campaign",
     "utc_stamp",
+    "image_file_stem",
+    "image_relpath_candidates",
 ]
 
 FORMAT_VERSION = 1
 CAMPAIGN_FILE = "campaign.toml"
 MANIFEST = "manifest.json"
 _NAME_RE = re.compile(r"^[^/\\\x00]+$")
+#: Characters no file name may hold on FAT, exFAT or NTFS (field laptops, SD cards), control characters included.
+_NON_PORTABLE = re.compile(r'[<>:"/\\|?*\x00-\x1f]')
+IMAGES_KEY = "images"
 
 
 def utc_stamp(now: datetime | None = None) -> str:
@@ -76,6 +81,33 @@ def _check_name(name: str, what: str) -> str:
     if not name or name in (".", "..") or not _NAME_RE.match(name) or name.startswith("."):
         raise UserInputError(f"invalid {what} name {name!r}: use a non-empty name without '/' that does not start with '.'")
     return name
+
+
+# ----------------------------------------------------------------------------- image file names
+def image_file_stem(name: str) -> str:
+    """The portable file stem of an image name: ``led:3`` -> ``led-3``.
+
+    Image names are lighting names, which may hold characters a FAT, exFAT or
+    NTFS medium refuses (``:``); each such character becomes ``-`` and trailing
+    dots and spaces (which Windows drops) are removed. The manifest keeps the
+    name -> file mapping, so the name itself is never lost.
+    """
+    stem = _NON_PORTABLE.sub("-", name).rstrip(". ")
+    if not stem or stem.startswith("."):
+        raise UserInputError(f"invalid image name {name!r}: it leaves no portable file name")
+    return stem
+
+
+def image_relpath_candidates(name: str) -> list[str]:
+    """Where an image of this name may be stored: the portable name, then the name as-is.
+
+    Campaigns written before portable names stored ``images/led:3.png``; the
+    second spelling lets them be read. Prefer :meth:`Observation.image_relpath`,
+    which also follows the manifest's own name -> file mapping.
+    """
+    portable = f"images/{image_file_stem(name)}.png"
+    legacy = f"images/{name}.png"
+    return [portable] if legacy == portable else [portable, legacy]
 
 
 # ----------------------------------------------------------------------------- encoding helpers
@@ -210,15 +242,42 @@ class Observation:
         except FileNotFoundError:
             raise DataIntegrityError(f"{p}: missing (run `fgcd campaign verify`)") from None
 
+    def image_files(self) -> dict[str, str]:
+        """Image name (a lighting, e.g. ``led:3``) -> its file, relative to the observation.
+
+        The manifest's own mapping when it has one; otherwise (observations
+        written before portable file names) every ``images/*.png`` file, named
+        by its stem.
+        """
+        mapping = self.manifest.get(IMAGES_KEY)
+        if isinstance(mapping, dict):
+            return {str(k): str(v) for k, v in mapping.items() if str(v) in self.files()}
+        return {
+            k[len("images/") : -len(".png")]: k for k in self.files() if k.startswith("images/") and k.endswith(".png")
+        }
+
     def image_names(self) -> list[str]:
-        """Names of the stored images (without ``images/`` and ``.png``)."""
-        return sorted(
-            k[len("images/") : -len(".png")] for k in self.files() if k.startswith("images/") and k.endswith(".png")
-        )
+        """Names of the stored images (lighting names, e.g. ``front``, ``led:3``)."""
+        return sorted(self.image_files())
+
+    def image_relpath(self, name: str) -> str | None:
+        """The file of image ``name`` in either spelling (portable ``led-3.png`` or old ``led:3.png``); None if absent."""
+        mapped = self.image_files().get(name)
+        if mapped is not None:
+            return mapped
+        return next((rel for rel in image_relpath_candidates(name) if rel in self.files()), None)
+
+    def has_image(self, name: str) -> bool:
+        """True if the observation holds an image of this name (either file spelling)."""
+        return self.image_relpath(name) is not None
 
     def image(self, name: str) -> np.ndarray:
-        """A stored image by name."""
-        return decode_png(self._read(f"images/{name}.png"))
+        """A stored image by name (a lighting name, e.g. ``led:3``)."""
+        rel = self.image_relpath(name)
+        if rel is None:
+            known = ", ".join(self.image_names()) or "none"
+            raise CampaignError(f"{self.path}: no image '{name}' (images: {known})")
+        return decode_png(self._read(rel))
 
     def array(self, name: str) -> np.ndarray:
         """A stored numpy array by name."""
@@ -280,6 +339,7 @@ class ObservationWriter:
         self.tmp_path = self.final_path.parent / f"{TMP_PREFIX}{self.final_path.name}-{uuid.uuid4().hex[:8]}"
         self.tmp_path.mkdir(parents=True)
         self._files: dict[str, dict] = {}
+        self._images: dict[str, str] = {}
         self._committed = False
 
     def __enter__(self) -> "ObservationWriter":
@@ -303,8 +363,16 @@ class ObservationWriter:
         self._files[relpath] = {"sha256": sha256_bytes(data), "bytes": len(data)}
 
     def add_image(self, name: str, image: np.ndarray) -> None:
-        """Add ``images/<name>.png``."""
-        self.add_bytes(f"images/{_check_name(name, 'image')}.png", encode_png(image))
+        """Add image ``name`` as ``images/<portable name>.png`` (``led:3`` -> ``images/led-3.png``)."""
+        name = _check_name(name, "image")
+        if name in self._images:
+            raise UserInputError(f"duplicate image name {name!r}")
+        relpath = f"images/{image_file_stem(name)}.png"
+        if relpath in self._files:
+            other = next((n for n, rel in self._images.items() if rel == relpath), relpath)
+            raise UserInputError(f"image names {other!r} and {name!r} would share the file {relpath}")
+        self.add_bytes(relpath, encode_png(image))
+        self._images[name] = relpath
 
     def add_array(self, name: str, array: np.ndarray) -> None:
         """Add ``arrays/<name>.npy``."""
@@ -342,6 +410,8 @@ class ObservationWriter:
             "metadata": self.metadata,
             "files": self._files,
         }
+        if self._images:
+            manifest[IMAGES_KEY] = dict(self._images)
         atomic_write_json(self.tmp_path / MANIFEST, manifest)
         fsync_dir(self.tmp_path)
         if self.final_path.exists():
