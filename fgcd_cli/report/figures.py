@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import io
+from dataclasses import dataclass
 
 import cv2
 import matplotlib
@@ -15,6 +16,7 @@ import numpy as np  # noqa: E402
 
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
 from fgcd_cli.changes.significance import SignificantRegion  # noqa: E402
+from fgcd_cli.report.areas import area_mm2_text  # noqa: E402
 
 # Colours (RGB) chosen to stand out on plaster, pigments and stone.
 CHANGE_RGB = (255, 0, 200)
@@ -152,6 +154,112 @@ def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRe
     return out
 
 
+@dataclass(frozen=True, kw_only=True)
+class LegendEntry:
+    """One entry of the overlay's legend: a swatch drawn the way the overlay draws it, and its meaning."""
+
+    swatch: str
+    """``fill`` (tinted and outlined region), ``outline`` (thin outline), ``dashed`` (dashed circle),
+    ``dim`` (dimmed image) or ``number`` (a region's number)."""
+    colour: tuple[int, int, int]
+    text: str
+
+
+def overlay_legend_entries(regions: list[ChangeRegion], *, set_aside: bool = False, candidates: bool = False,
+                           dimmed: bool = False) -> list[LegendEntry]:
+    """What :func:`change_overlay` drew, as legend entries (only what is on the image).
+
+    Parameters
+    ----------
+    regions : list of ChangeRegion
+        Reported regions; one entry per cue present (``CUE_RGB``), one for regions without a cue.
+    set_aside : bool, keyword-only
+        Regions set aside by the edge check are outlined (cyan).
+    candidates : bool, keyword-only
+        Candidates not reported are circled (dashed amber).
+    dimmed : bool, keyword-only
+        Part of the image was not compared (dimmed).
+    """
+    entries = []
+    cues = {r.cue for r in regions}
+    for cue, colour in CUE_RGB.items():
+        if cue in cues:
+            entries.append(LegendEntry(swatch="fill", colour=colour, text=f"changed: {cue}"))
+    if any(r.cue not in CUE_RGB for r in regions):
+        entries.append(LegendEntry(swatch="fill", colour=CHANGE_RGB, text="changed" if len(entries) == 0 else "changed: no cue"))
+    if regions:
+        entries.append(LegendEntry(swatch="number", colour=LABEL_RGB, text="region number"))
+    if set_aside:
+        entries.append(LegendEntry(swatch="outline", colour=SET_ASIDE_RGB, text="set aside (edge)"))
+    if candidates:
+        entries.append(LegendEntry(swatch="dashed", colour=CANDIDATE_RGB, text="candidate, not reported"))
+    if dimmed:
+        entries.append(LegendEntry(swatch="dim", colour=(90, 90, 90), text="not compared"))
+    if not entries:
+        entries.append(LegendEntry(swatch="outline", colour=(150, 150, 150), text="no change reported"))
+    return entries
+
+
+LEGEND_STONE_RGB = (120, 120, 120)
+"""Background of the legend's swatches: a mid grey, like the stone the overlay is drawn on."""
+
+
+def _draw_swatch(band: np.ndarray, entry: LegendEntry, x: int, y: int, side: int) -> None:
+    """The swatch of ``entry`` in the square of side ``side`` at (x, y) (top-left), in place."""
+    box = (slice(y, y + side), slice(x, x + side))
+    stone = np.array(LEGEND_STONE_RGB, np.float32)
+    if entry.swatch == "fill":
+        band[box] = (0.55 * stone + 0.45 * np.array(entry.colour)).astype(np.uint8)
+        cv2.rectangle(band, (x, y), (x + side - 1, y + side - 1), entry.colour, 2)
+    elif entry.swatch == "outline":
+        band[box] = LEGEND_STONE_RGB
+        cv2.rectangle(band, (x + 1, y + 1), (x + side - 2, y + side - 2), entry.colour, 1)
+    elif entry.swatch == "dashed":
+        band[box] = LEGEND_STONE_RGB
+        _dashed_circle(band, (x + side // 2, y + side // 2), max(3, side // 2 - 2), entry.colour, dashes=5)
+    elif entry.swatch == "dim":
+        band[box] = (stone * 0.35).astype(np.uint8)
+    else:  # number
+        band[box] = (60, 60, 60)
+        scale = side / 30
+        cv2.putText(band, "1", (x + side // 4, y + side - side // 6), cv2.FONT_HERSHEY_SIMPLEX, scale, entry.colour,
+                    2, cv2.LINE_AA)
+
+
+def with_legend(overlay: np.ndarray, entries: list[LegendEntry]) -> np.ndarray:
+    """``overlay`` with a legend band appended below it (the image's own pixels are untouched).
+
+    The band is white, its entries (swatch + text) laid out left to right and wrapped
+    onto further rows when the image is narrow; type scales with the image width.
+
+    Returns
+    -------
+    ndarray, (H + band) x W x 3 uint8 RGB; rows ``0..H-1`` are ``overlay`` itself.
+    """
+    w = overlay.shape[1]
+    scale = max(0.4, w / 1600)
+    side = int(round(22 * scale / 0.6))
+    gap = side // 2
+    sizes = [cv2.getTextSize(e.text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] + side + 2 * gap for e in entries]
+    rows, row, used = [], [], gap
+    for entry, size in zip(entries, sizes):
+        if row and used + size > w:
+            rows.append(row)
+            row, used = [], gap
+        row.append((entry, used))
+        used += size
+    rows.append(row)
+    row_h = side + gap
+    band = np.full((gap + len(rows) * row_h, w, 3), 255, np.uint8)
+    for r, items in enumerate(rows):
+        y = gap + r * row_h
+        for entry, x in items:
+            _draw_swatch(band, entry, x, y, side)
+            cv2.putText(band, entry.text, (x + side + gap // 2, y + side - side // 4), cv2.FONT_HERSHEY_SIMPLEX, scale,
+                        (40, 40, 40), 1, cv2.LINE_AA)
+    return np.vstack([overlay, band])
+
+
 def score_heatmap(score: np.ndarray, valid: np.ndarray, *, high: float | None = None) -> np.ndarray:
     """Change score as an RGB heat map (magma), saturating at ``high`` (default: 99.9th percentile)."""
     values = score[valid] if valid.any() else score.ravel()
@@ -162,12 +270,40 @@ def score_heatmap(score: np.ndarray, valid: np.ndarray, *, high: float | None = 
     return rgb
 
 
+FDF_ARROW_FRACTION = 0.04
+"""A displacement of the 3 px success limit (or the field's median, if larger) is drawn this share of the image width."""
+FDF_SCALE_FLOOR_PX = 3.0
+"""Fields whose median is below this (rACR's success limit) keep the magnification of a field of this size, so a
+0.2 px field is drawn small and calm (its noise is not blown up into chaos)."""
+
+
+def fdf_magnification(median_px: float, width_px: int) -> float:
+    """How many times the FDF arrows are magnified on the figure.
+
+    Parameters
+    ----------
+    median_px : float
+        Median displacement length of the field (px).
+    width_px : int
+        Image width (px).
+
+    Returns
+    -------
+    float
+        A whole number >= 1: ``FDF_ARROW_FRACTION * width / max(median, FDF_SCALE_FLOOR_PX)``, so the
+        median arrow is at most ~4 % of the width and a field below the success limit looks as small
+        as it is.
+    """
+    reference = max(float(median_px) if np.isfinite(median_px) else 0.0, FDF_SCALE_FLOOR_PX)
+    return float(max(1.0, round(FDF_ARROW_FRACTION * width_px / reference)))
+
+
 def fdf_quiver_png(ref_image: np.ndarray, points_ref: np.ndarray, points_cur: np.ndarray, *, afd_px: float,
                    inliers: int, method: str, max_arrows: int = 400) -> bytes:
     """FDF quiver figure: displacement vectors drawn on the reference image, AFD in the title.
 
-    Arrows are magnified so that the median one is ~4 % of the image width; the
-    magnification is printed on the figure (a 2 px vector would be invisible otherwise).
+    Arrows are magnified (:func:`fdf_magnification`); the magnification is stated in the
+    title and by a key arrow of 1 px (or of the success limit) drawn at that scale.
     """
     rgb = to_display_rgb(ref_image)
     h, w = rgb.shape[:2]
@@ -179,77 +315,152 @@ def fdf_quiver_png(ref_image: np.ndarray, points_ref: np.ndarray, points_cur: np
         pts = points_ref
     lengths = np.linalg.norm(disp, axis=1)
     median = float(np.median(lengths)) if lengths.size else 0.0
-    magnify = max(1.0, round(0.04 * w / median)) if median > 0 else 1.0
+    magnify = fdf_magnification(median, w)
     fig, ax = plt.subplots(figsize=(6.4, 6.4 * h / w))
     ax.imshow(rgb, cmap="gray")
     if len(pts):
-        ax.quiver(pts[:, 0], pts[:, 1], disp[:, 0] * magnify, disp[:, 1] * magnify, angles="xy", scale_units="xy",
-                  scale=1, color="#ffd400", width=0.004, headwidth=4)
-    ax.set_title(f"FDF ({method}): AFD = {afd_px:.2f} px, {inliers} vectors, arrows x{magnify:g}", fontsize=10)
+        arrows = ax.quiver(pts[:, 0], pts[:, 1], disp[:, 0] * magnify, disp[:, 1] * magnify, angles="xy",
+                           scale_units="xy", scale=1, color="#ffd400", width=0.004, headwidth=4)
+        key_px = 1.0 if median < FDF_SCALE_FLOOR_PX else FDF_SCALE_FLOOR_PX
+        ax.quiverkey(arrows, 0.80, -0.05, key_px * magnify, f"{key_px:g} px displacement", labelpos="E",
+                     coordinates="axes", fontproperties={"size": 8})
+    ax.set_title(f"FDF ({method}): AFD = {afd_px:.2f} px, {inliers} vectors\n"
+                 f"arrows drawn x{magnify:g} (median {median:.2f} px)", fontsize=10)
     ax.set_axis_off()
     return _figure_png(fig)
 
 
-def convergence_png(log_rows: list[dict]) -> bytes:
-    """Relocation convergence curves (as rACR Fig. 8): AFD and pose error per adjustment.
+CONVERGENCE_PANELS = (
+    ("afd_est_px", "afd_px_true", "AFD (px)", 3.0),
+    ("offset_mm", "pose_err_mm_true", "remaining translation (mm)", None),
+    ("offset_deg", "pose_err_deg_true", "remaining rotation (deg)", None),
+)
+"""Convergence panels: the loop's own estimate column, the simulator-truth column, the axis label and the
+success line (rACR's 3 px AFD rule). The estimate is what the tool knew; truth exists only on the simulator."""
+
+ESTIMATE_STYLE = {"color": "#1f5fa8", "marker": "o", "linestyle": "-", "markersize": 3.5}
+TRUTH_STYLE = {"color": "#7f7f7f", "marker": "x", "linestyle": "--", "markersize": 4, "linewidth": 1}
+
+
+def _column(log_rows: list[dict], key: str) -> np.ndarray | None:
+    """One column of the log as floats (NaN where missing), or None when no row has it."""
+    values = [row.get(key) for row in log_rows]
+    if all(v is None for v in values):
+        return None
+    return np.array([np.nan if v is None else float(v) for v in values])
+
+
+def _log_scale_if_wide(ax, values: list[np.ndarray]) -> None:
+    """A log y axis with plain-number labels when the plotted values span more than 50x."""
+    finite = np.concatenate([v[np.isfinite(v)] for v in values])
+    if finite.size == 0 or finite.min() <= 0 or finite.max() / finite.min() <= 50:
+        return
+    ax.set_yscale("log")
+    # Plain numbers, no minor-tick labels ("6 x 10^0" clutters a small panel).
+    ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+
+
+def convergence_figure(log_rows: list[dict]):
+    """The relocation convergence figure (as rACR Fig. 8), one panel per quantity.
 
     Parameters
     ----------
     log_rows : list of dict
-        One per adjustment, keys among ``iteration``, ``t_wall_s``, ``afd_px`` /
-        ``afd_px_true``, ``pose_err_mm_true`` / ``pose_err_mm`` / ``offset_mm`` (the loop's own
-        estimate), ``pose_err_deg_true`` / ``pose_err_deg`` / ``offset_deg``.
+        One per adjustment, keys among ``iteration``, the loop's own estimates
+        ``afd_est_px``, ``offset_mm``, ``offset_deg``, and the simulator's truth
+        ``afd_px_true``, ``pose_err_mm_true``, ``pose_err_deg_true`` (evaluation only).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Each panel plots the tool's estimate ("estimate", solid blue); the simulator's
+        truth, when the log holds it, is added as a dashed grey line labelled
+        "simulator truth". Adjustments are whole numbers on the x axis.
+
+    Raises
+    ------
+    ValueError
+        When the log has none of these columns.
     """
-    def series(*keys):
-        for key in keys:
-            values = [row.get(key) for row in log_rows]
-            if any(v is not None for v in values):
-                return key, np.array([np.nan if v is None else float(v) for v in values])
-        return None, None
-
     iterations = np.array([row.get("iteration", i) for i, row in enumerate(log_rows)], dtype=float)
-    panels = [
-        (series("afd_px", "afd_px_true"), "AFD (px)", 3.0, "success AFD < 3 px"),
-        (series("pose_err_mm", "pose_err_mm_true", "offset_mm"), "translation error (mm)", None, None),
-        (series("pose_err_deg", "pose_err_deg_true", "offset_deg"), "rotation error (deg)", None, None),
-    ]
-    panels = [p for p in panels if p[0][0] is not None]
+    panels = []
+    for est_key, true_key, ylabel, line in CONVERGENCE_PANELS:
+        est, true = _column(log_rows, est_key), _column(log_rows, true_key)
+        if est is not None or true is not None:
+            panels.append((est, true, ylabel, line))
     if not panels:
-        raise ValueError("relocation log has no AFD or pose error column")
+        raise ValueError("relocation log has no AFD or pose column")
     fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels), 3.0), squeeze=False)
-    for ax, ((key, values), ylabel, line, line_label) in zip(axes[0], panels):
-        ax.plot(iterations, values, "o-", color="#1f5fa8", markersize=3)
+    for ax, (est, true, ylabel, line) in zip(axes[0], panels):
+        if est is not None:
+            ax.plot(iterations, est, label="estimate (the tool's own)", **ESTIMATE_STYLE)
+        if true is not None:
+            ax.plot(iterations, true, label="simulator truth", **TRUTH_STYLE)
         if line is not None:
-            ax.axhline(line, color="#c0392b", linestyle="--", linewidth=1, label=line_label)
-            ax.legend(fontsize=8)
+            ax.axhline(line, color="#c0392b", linestyle=":", linewidth=1, label=f"success limit {line:g} px")
         ax.set_xlabel("adjustment")
-        note = " [simulator truth]" if key.endswith("_true") else (" [estimated offset]" if key.startswith("offset") else "")
-        ax.set_ylabel(ylabel + note, fontsize=8)
-        if np.nanmin(values) > 0 and np.nanmax(values) / max(np.nanmin(values), 1e-9) > 50:
-            ax.set_yscale("log")
-            # Plain numbers, no minor-tick labels ("6 x 10^0" clutters a small panel).
-            ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
-            ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+        _log_scale_if_wide(ax, [v for v in (est, true) if v is not None])
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
     fig.tight_layout()
-    return _figure_png(fig)
+    return fig
 
 
-def history_png(dates: list[str], changed_mm2: list[float | None], changed_px: list[int], afd_px: list[float | None]) -> bytes:
-    """Station history: changed area and AFD per visit."""
+def convergence_png(log_rows: list[dict]) -> bytes:
+    """PNG bytes of :func:`convergence_figure`."""
+    return _figure_png(convergence_figure(log_rows))
+
+
+HISTORY_MIN_SLOTS = 3
+"""The history chart is at least this many visits wide, so that one visit is a bar, not a wall."""
+
+
+def _area_label(area: float, area_px: int, use_mm2: bool) -> str:
+    """A bar's label: the area to the precision its pixels allow, "–" when unknown."""
+    if not np.isfinite(area):
+        return "–"
+    return area_mm2_text(float(area), area_px) if use_mm2 else f"{int(area)} px"
+
+
+def history_figure(dates: list[str], changed_mm2: list[float | None], changed_px: list[int],
+                   afd_px: list[float | None]):
+    """Station history: changed area (bars) and AFD after relocation (dots) per visit.
+
+    Both y axes start at 0: the area axis reaches at least 1 (an unchanged visit is a
+    flat zero, not a zoom on nothing) and the AFD axis at least the 3 px success limit,
+    drawn dotted. The x axis is at least ``HISTORY_MIN_SLOTS`` visits wide.
+    """
     fig, ax = plt.subplots(figsize=(7.0, 2.8))
     x = np.arange(len(dates))
     use_mm2 = any(v is not None for v in changed_mm2)
-    area = [np.nan if v is None else v for v in (changed_mm2 if use_mm2 else changed_px)]
-    ax.bar(x, area, color="#c2185b", alpha=0.8)
-    ax.set_ylabel("changed area (mm²)" if use_mm2 else "changed area (px)", fontsize=9)
-    ax.set_xticks(x, dates, rotation=20, fontsize=7, ha="right")
+    area = np.array([np.nan if v is None else float(v) for v in (changed_mm2 if use_mm2 else changed_px)])
+    bars = ax.bar(x, area, width=0.6, color="#c2185b", alpha=0.8)
+    ax.bar_label(bars, labels=[_area_label(a, p, use_mm2) for a, p in zip(area, changed_px)], fontsize=7,
+                 color="#c2185b", padding=2)
+    ax.set_ylabel("changed area (mm²)" if use_mm2 else "changed area (px)", fontsize=9, color="#c2185b")
+    top = np.nanmax(area) if np.isfinite(area).any() else 0.0
+    ax.set_ylim(0, max(1.0, 1.15 * top))
+    pad = max(0.0, (HISTORY_MIN_SLOTS - len(dates)) / 2)
+    ax.set_xlim(-0.6 - pad, len(dates) - 0.4 + pad)
+    ax.set_xticks(x, dates, rotation=20 if len(dates) > 1 else 0, fontsize=7, ha="right" if len(dates) > 1 else "center")
     ax2 = ax.twinx()
-    ax2.plot(x, [np.nan if v is None else v for v in afd_px], "o-", color="#1f5fa8")
-    ax2.set_ylabel("AFD after relocation (px)", fontsize=9, color="#1f5fa8")
+    afd = np.array([np.nan if v is None else float(v) for v in afd_px])
+    ax2.plot(x, afd, "o-", color="#1f5fa8")
+    ax2.axhline(3.0, color="#1f5fa8", linestyle=":", linewidth=1)
+    afd_top = np.nanmax(afd) if np.isfinite(afd).any() else 0.0
+    ax2.set_ylim(0, max(3.3, 1.15 * afd_top))
+    ax2.set_ylabel("AFD after relocation (px)\n(dotted: 3 px success limit)", fontsize=8, color="#1f5fa8")
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    return _figure_png(fig)
+    return fig
+
+
+def history_png(dates: list[str], changed_mm2: list[float | None], changed_px: list[int], afd_px: list[float | None]) -> bytes:
+    """PNG bytes of :func:`history_figure`."""
+    return _figure_png(history_figure(dates, changed_mm2, changed_px, afd_px))
 
 
 def region_closeup(ref_image: np.ndarray, cur_image: np.ndarray, labels: np.ndarray, region: ChangeRegion, *,
@@ -282,3 +493,27 @@ def region_closeup(ref_image: np.ndarray, cur_image: np.ndarray, labels: np.ndar
     cv2.drawContours(tiles[2], contours, -1, CHANGE_RGB, 2)
     gap = np.full((tile_px, 6, 3), 255, np.uint8)
     return np.hstack([tiles[0], gap, tiles[1], gap, tiles[2]])
+
+
+def result_overlay(image: np.ndarray, result, *, legend: bool = True) -> np.ndarray:
+    """The change map of a comparison as the reports show it: :func:`change_overlay` of its regions,
+    set-aside regions, candidates and compared area, with the legend of what is drawn appended below.
+
+    Parameters
+    ----------
+    image : ndarray, the reference image shown (one lighting).
+    result : ChangeResult, the comparison.
+    legend : bool, keyword-only; append the legend band (:func:`with_legend`).
+    """
+    valid = result.valid if result.comparable else None
+    overlay = change_overlay(image, result.labels, result.regions, valid=valid, set_aside=result.edge_explained,
+                             candidates=result.candidates)
+    if not legend:
+        return overlay
+    entries = overlay_legend_entries(
+        result.regions,
+        set_aside=result.edge_explained is not None and bool(result.edge_explained.any()),
+        candidates=bool(result.candidates),
+        dimmed=valid is not None and not bool(valid.all()),
+    )
+    return with_legend(overlay, entries)

@@ -11,6 +11,7 @@ import numpy as np
 from fgcd_cli import __version__
 from fgcd_cli.changes.detect import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
+from fgcd_cli.report.areas import area_mm2_text
 from fgcd_cli.report.candidates import (
     candidate_dict,
     candidate_text,
@@ -21,13 +22,13 @@ from fgcd_cli.report.candidates import (
 )
 from fgcd_cli.report.figures import (
     CUE_NAMES,
-    change_overlay,
     convergence_png,
     data_uri,
     fdf_quiver_png,
     history_png,
     png_bytes,
     region_closeup,
+    result_overlay,
     score_heatmap,
     to_display_rgb,
 )
@@ -153,7 +154,8 @@ def _verdict(result: ChangeResult) -> str:
         return _no_change_verdict(result)
     total_px = sum(r.area_px for r in result.regions)
     mm2 = [r.area_mm2 for r in result.regions]
-    area = f"{sum(mm2):.1f} mm² ({total_px} px)" if all(v is not None for v in mm2) else f"{total_px} px (no metric scale given)"
+    area = (f"{area_mm2_text(sum(mm2), total_px)} ({total_px} px)" if all(v is not None for v in mm2)
+            else f"{total_px} px (no metric scale given)")
     return (f'<div class="verdict"><b>{n} changed region{"s" if n > 1 else ""}</b>, total area {area}, '
             f"{result.changed_fraction * 100:.2f} % of the compared surface. Region 1 is the largest.</div>")
 
@@ -233,8 +235,7 @@ def render_diff_report(
 
     if result.comparable:
         parts.append("<h2>Where it changed</h2><div class=\"pair\">")
-        overlay = change_overlay(ref_image, result.labels, result.regions, valid=result.valid,
-                                 set_aside=result.edge_explained, candidates=result.candidates)
+        overlay = result_overlay(ref_image, result)
         cues = sorted({r.cue for r in result.regions if r.cue in CUE_NAMES}, key=list(CUE_NAMES).index)
         tint = ("tinted by cue: " + ", ".join(f"{CUE_NAMES[c]} = {c}" for c in cues)
                 + (", magenta = no cue" if any(r.cue is None for r in result.regions) else "")) if cues else "magenta"
@@ -258,7 +259,7 @@ def render_diff_report(
             for r in result.regions[:max_table_rows]:
                 x, y, w, h = r.bbox_xywh
                 rows.append(
-                    f"<tr><td>{r.id}</td><td>{r.area_px}</td>" + (f"<td>{_fmt(r.area_mm2)}</td>" if has_mm2 else "") +
+                    f"<tr><td>{r.id}</td><td>{r.area_px}</td>" + (f"<td>{area_mm2_text(r.area_mm2, r.area_px, unit=False)}</td>" if has_mm2 else "") +
                     f"<td>{r.centroid_xy[0]:.0f}, {r.centroid_xy[1]:.0f}</td><td>{w} × {h}</td>"
                     f"<td>{r.max_score / high:.1f}</td>"
                     f"<td>{html.escape(region_significance_text(r.log10_nfa, epsilon=epsilon).removeprefix('NFA '))}</td>"
@@ -281,7 +282,7 @@ def render_diff_report(
                              "(registered, light-normalized) | reference with the region outlined.</p>"
                              '<div class="closeups">')
                 for r in result.regions[:max_closeups]:
-                    area = f"{r.area_mm2:.1f} mm²" if r.area_mm2 is not None else f"{r.area_px} px"
+                    area = area_mm2_text(r.area_mm2, r.area_px) if r.area_mm2 is not None else f"{r.area_px} px"
                     tile = region_closeup(ref_image, shown_cur, result.labels, r)
                     extra = (f", NFA {nfa_text(r.log10_nfa)}" if r.log10_nfa is not None else "") + \
                         (f", {r.cue}" if r.cue else "")
@@ -360,7 +361,7 @@ def render_station_history(*, station: str, site: str, reference_date: str, refe
     else:
         last = visits[-1]
         if last.comparable:
-            area = f"{last.changed_mm2:.1f} mm²" if last.changed_mm2 is not None else f"{last.changed_px} px"
+            area = area_mm2_text(last.changed_mm2, last.changed_px) if last.changed_mm2 is not None else f"{last.changed_px} px"
             cls = "verdict" if last.regions else "verdict none"
             parts.append(f'<div class="{cls}">Latest visit {html.escape(last.date)}: <b>{last.regions} changed region(s)</b>, '
                          f"{area} against the reference.</div>")
@@ -373,7 +374,7 @@ def render_station_history(*, station: str, site: str, reference_date: str, refe
                                           [v.changed_px for v in comparable], [v.afd_px for v in comparable]), "history"))
         rows = []
         for v in visits:
-            area_mm2 = _fmt(v.changed_mm2, 1)
+            area_mm2 = area_mm2_text(v.changed_mm2, v.changed_px, unit=False) if v.changed_mm2 else _fmt(v.changed_mm2, 1)
             status = "compared" if v.comparable else f"not compared: {html.escape(v.reason)}"
             rows.append(f"<tr><td class=\"l\">{html.escape(v.date)}</td><td class=\"l\">{status}</td><td>{v.regions}</td>"
                         f"<td>{v.changed_px}</td><td>{area_mm2}</td><td>{_fmt(v.afd_px)}</td></tr>")

@@ -11,7 +11,7 @@ import numpy as np
 from fgcd_cli.changes.detect import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
 from fgcd_cli.report.candidates import candidate_dict, nfa_value
-from fgcd_cli.report.figures import change_overlay, fdf_quiver_png, png_bytes
+from fgcd_cli.report.figures import fdf_quiver_png, png_bytes, result_overlay
 from fgcd_cli.report.html import render_diff_report
 
 SCORE_PNG_FULL_SCALE = 4.0
@@ -71,7 +71,8 @@ def diff_products(
     """All output files of a comparison, by file name.
 
     Returns a dict with ``change_score.png`` (16-bit), ``change_score.npy`` (float32),
-    ``change_mask.png`` (0/255), ``overlay.png``, ``regions.json``, ``report.html``
+    ``change_mask.png`` (0/255), ``overlay.png`` (the change map, its legend in a band
+    below the image), ``regions.json``, ``report.html``
     and, when ``fdf`` is given, ``fdf.png``.
     """
     files: dict[str, bytes] = {}
@@ -86,8 +87,8 @@ def diff_products(
     files["change_score.npy"] = buffer.getvalue()
     files["change_mask.png"] = png_bytes((result.mask * 255).astype(np.uint8))
     ref_shown = ref_images[shown_lighting]
-    files["overlay.png"] = png_bytes(change_overlay(ref_shown, result.labels, result.regions, valid=result.valid if result.comparable else None,
-                                                      set_aside=result.edge_explained, candidates=result.candidates))
+    # The change map with its legend below it: rows 0..H-1 are pixel-aligned with the reference image.
+    files["overlay.png"] = png_bytes(result_overlay(ref_shown, result))
     files["regions.json"] = json.dumps(summary, indent=1, default=float).encode()
     if fdf is not None:
         files["fdf.png"] = fdf_quiver_png(ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px,

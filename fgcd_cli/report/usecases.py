@@ -130,7 +130,14 @@ def _shared_lightings(reference, visit) -> list[str]:
     return shared
 
 
-def _relocation_log(visit) -> list[dict] | None:
+def relocation_log_rows(visit) -> list[dict] | None:
+    """The visit's relocation log as plot rows: each logged row, its simulator truth (if any) under ``*_true`` keys.
+
+    The loop's own estimates keep their names (``afd_est_px``, ``offset_mm``, ``offset_deg``);
+    the ``truth`` entry a simulated run logs (``pose_err_mm``, ``pose_err_deg``, ``afd_px``)
+    becomes ``pose_err_mm_true``, ``pose_err_deg_true``, ``afd_px_true``, so that no
+    figure can show truth under an estimate's name. None without a log.
+    """
     if not visit.has("relocation.jsonl"):
         return None
     rows = []
@@ -138,7 +145,7 @@ def _relocation_log(visit) -> list[dict] | None:
         if line.strip():
             row = json.loads(line)
             truth = row.pop("truth", None) or {}
-            rows.append({**row, **truth})
+            rows.append({**row, **{f"{key}_true": value for key, value in truth.items()}})
     return rows or None
 
 
@@ -236,7 +243,7 @@ def run_campaign(
                        "edges set aside (cyan outlines)" if edge_check else "off"),
     }
     files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf,
-                          relocation_log=_relocation_log(observation), metadata=metadata,
+                          relocation_log=relocation_log_rows(observation), metadata=metadata,
                           title=f"Station {station}: change report",
                           subtitle=f"{camp.site} · reference vs visit {observation.name}")
     for name, data in files.items():
