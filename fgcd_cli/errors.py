@@ -1,9 +1,15 @@
 """The error hierarchy of fgcd. Exit codes are assigned only at the CLI boundary.
 
-Every message is one line a person can act on.
+Every message is one line a person can act on. ``run_record`` holds what the
+running command has done so far, for the line printed when it is interrupted.
 """
 
 from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Iterator
 
 
 class FgcdError(Exception):
@@ -46,3 +52,126 @@ class HardwareError(FgcdError):
     """A platform or camera failed; wraps ``drivers.platform.PlatformError``."""
 
     exit_code = 7
+
+
+class ConfirmationNeeded(UserInputError):
+    """A motion needs a confirmation but there is no terminal to ask on (pass ``--yes``)."""
+
+    @classmethod
+    def for_prompt(cls) -> "ConfirmationNeeded":
+        """The error for a confirmation asked with no terminal on stdin."""
+        return cls("confirmation needs a terminal: run the command in a terminal or pass --yes; nothing was moved")
+
+
+# ----------------------------------------------------------------------------- what a run has done
+# Rule: a command that is stopped early (Ctrl-C) says in one line whether a
+# platform was moving and what was and was not written. Commands (and the use
+# cases they call) describe themselves in ``run_record``; the CLI boundary
+# (``cli/app.py``) turns it into that line. A command that says nothing gets a
+# generic line that is true of every fgcd command: motions go through the
+# MotionGuard, which stops the platform on Ctrl-C, and every file is written
+# atomically.
+
+
+@dataclass
+class RunRecord:
+    """What the running command has done so far, read when it stops early.
+
+    Attributes
+    ----------
+    platform_known : bool
+        The command said whether it drives a platform.
+    platform : str or None
+        Name of the platform the command has connected to (None: none).
+    moving : bool
+        A motion was in progress (set by :meth:`motion`).
+    writes_known : bool
+        The command said what it writes.
+    written : list of str
+        Outputs completed so far (paths or short descriptions).
+    pending : list of str
+        Outputs in progress; an interrupted one is not written (atomic writes).
+    """
+
+    platform_known: bool = False
+    platform: str | None = None
+    moving: bool = False
+    writes_known: bool = False
+    written: list[str] = field(default_factory=list)
+    pending: list[str] = field(default_factory=list)
+
+    def reset(self) -> None:
+        """Forget everything (a new command starts)."""
+        fresh = RunRecord()
+        for f in fields(self):
+            setattr(self, f.name, getattr(fresh, f.name))
+
+    def no_platform(self) -> None:
+        """The command drives no platform."""
+        self.platform_known = True
+        self.platform = None
+
+    def platform_connected(self, name: str) -> None:
+        """The command is connected to the platform ``name`` (not moving yet)."""
+        self.platform_known = True
+        self.platform = name
+
+    @contextmanager
+    def motion(self) -> Iterator[None]:
+        """Mark a motion in progress; Ctrl-C inside the block leaves it marked (it was moving)."""
+        self.moving = True
+        try:
+            yield
+        except KeyboardInterrupt:
+            raise
+        except BaseException:
+            self.moving = False
+            raise
+        self.moving = False
+
+    def no_writes(self) -> None:
+        """The command writes nothing (so far)."""
+        self.writes_known = True
+
+    def wrote(self, what: str | Path) -> None:
+        """An output was completed (a path, or a short description)."""
+        self.writes_known = True
+        self.written.append(str(what))
+
+    @contextmanager
+    def writing(self, what: str | Path) -> Iterator[None]:
+        """Mark an output in progress; it becomes written when the block completes."""
+        self.writes_known = True
+        self.pending.append(str(what))
+        yield
+        self.pending.remove(str(what))
+        self.written.append(str(what))
+
+    def platform_clause(self) -> str:
+        """Whether a platform was moving, in a few words."""
+        if not self.platform_known:
+            return "any motion in progress was stopped by the motion guard"
+        if self.platform is None:
+            return "no platform was in use"
+        if self.moving:
+            return f"the {self.platform} platform was stopped mid-motion"
+        return f"the {self.platform} platform was not moving"
+
+    def writes_clause(self) -> str:
+        """What was and was not written, in a few words."""
+        if not self.writes_known:
+            return "files already complete were kept and none was left half-written"
+        clauses = []
+        if self.written:
+            shown = ", ".join(self.written[:3]) + (f" and {len(self.written) - 3} more" if len(self.written) > 3 else "")
+            clauses.append(f"wrote {shown}")
+        if self.pending:
+            clauses.append(f"not written: {', '.join(self.pending)}")
+        return "; ".join(clauses) or "nothing was written"
+
+    def interrupted_line(self) -> str:
+        """The one line printed after Ctrl-C."""
+        return f"interrupted by the user (Ctrl-C): {self.platform_clause()}; {self.writes_clause()}"
+
+
+run_record = RunRecord()

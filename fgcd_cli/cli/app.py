@@ -1,15 +1,23 @@
-"""The ``fgcd`` command: one typer app, errors mapped to exit codes here only."""
+"""The ``fgcd`` command: one typer app, errors mapped to exit codes here only.
+
+Every failure is one line on stderr and a documented exit code; with ``--json``
+the same line is also printed on stdout as ``{"error": ..., "code": ...}``
+unless the command already printed its JSON result (one object on stdout).
+"""
 
 from __future__ import annotations
 
 import os
 import sys
+from dataclasses import dataclass
+from typing import Sequence
 
 import typer
+import typer.main
 
 from fgcd_cli import __version__
-from fgcd_cli.cli.output import state
-from fgcd_cli.errors import FgcdError
+from fgcd_cli.cli.output import state, stdin_is_terminal, to_json
+from fgcd_cli.errors import ConfirmationNeeded, FgcdError, run_record
 
 app = typer.Typer(
     name="fgcd",
@@ -20,16 +28,22 @@ app = typer.Typer(
 )
 
 
+def _print_version(value: bool) -> None:
+    # Eager: runs while the options are parsed, before click asks for a command.
+    if value:
+        print(f"fgcd {__version__}")
+        raise typer.Exit(0)
+
+
 @app.callback()
 def _root(
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Print debugging detail."),
-    version: bool = typer.Option(False, "--version", help="Print the version and exit."),
+    version: bool = typer.Option(
+        False, "--version", help="Print the version and exit.", is_eager=True, callback=_print_version
+    ),
 ) -> None:
     """fgcd: fine-grained change detection with active camera relocalization."""
     state.verbose = verbose
-    if version:
-        print(f"fgcd {__version__}")
-        raise typer.Exit(0)
 
 
 def _register() -> None:
@@ -61,11 +75,33 @@ def _register() -> None:
     app.add_typer(platform_cmd.app, name="platform")
 
 
-_register()
+try:
+    _register()
+except KeyboardInterrupt:  # Ctrl-C while the commands load: nothing has run yet
+    print("interrupted (Ctrl-C): while starting; nothing was moved or written", file=sys.stderr)
+    sys.exit(130)
 
-# Exit codes for failures that do not come from fgcd_cli.errors.
+# Exit codes (README "Errors"); FgcdError subclasses carry their own (2-7).
+EXIT_ABORTED = 1  # no answer at a confirmation prompt (end of input on a terminal)
+EXIT_OS = 1  # an operating-system error outside fgcd's own checks
+EXIT_USAGE = 2
 EXIT_PLATFORM = 7
+EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
+
+
+@dataclass(frozen=True)
+class Failure:
+    """How a command ended when it did not succeed: one line and an exit code."""
+
+    prefix: str
+    message: str
+    code: int
+
+    @property
+    def line(self) -> str:
+        """The one line printed on stderr (whitespace folded, whatever the message)."""
+        return " ".join(f"{self.prefix}: {self.message}".split())
 
 
 def _platform_error_type():
@@ -77,20 +113,10 @@ def _platform_error_type():
         return ()
 
 
-def _one_line(text: object) -> str:
-    return " ".join(str(text).split())
-
-
-def _fail(prefix: str, exc: object, code: int) -> None:
-    # Plain print: one unwrapped line whatever the terminal width.
-    print(f"{prefix}: {_one_line(exc)}", file=sys.stderr)
-    sys.exit(code)
-
-
 def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
     try:
-        _main()
+        sys.exit(run(app, sys.argv[1:]))
     except SystemExit as exc:
         if _abandoned_native_threads():
             # A hung UR controller left ur_rtde threads reconnecting forever inside
@@ -107,32 +133,135 @@ def _abandoned_native_threads() -> bool:
     return bool(getattr(ur, "_ABANDONED", None))
 
 
-def _main() -> None:
-    platform_error = _platform_error_type()
+def run(typer_app: typer.Typer, args: Sequence[str]) -> int:
+    """Run one command line and return its exit code; failures are printed as one line.
+
+    Parameters
+    ----------
+    typer_app : typer.Typer
+        The application (``app``; tests pass small ones).
+    args : sequence of str
+        The arguments after the program name.
+
+    Returns
+    -------
+    int
+        0 on success, else the documented exit code.
+    """
+    run_record.reset()
+    state.reset()
     try:
-        # without standalone mode typer *returns* the exit code of typer.Exit / Ctrl-C
-        code = app(standalone_mode=False)
-        if isinstance(code, int) and code:
-            sys.exit(code)
-    except FgcdError as exc:
-        _fail("error", exc, exc.exit_code)
-    except platform_error as exc:  # type: ignore[misc]
-        _fail("platform error", exc, EXIT_PLATFORM)
-    except KeyboardInterrupt:
-        _fail("interrupted", "stopped by the user", EXIT_INTERRUPTED)
-    except typer.Exit as exc:
-        sys.exit(exc.exit_code)
-    except typer.Abort:
-        _fail("aborted", "by the user", 1)
-    except Exception as exc:
-        # typer vendors click: usage errors carry show() and exit_code.
-        if hasattr(exc, "show") and hasattr(exc, "exit_code") and hasattr(exc, "format_message"):
-            _fail("usage error", exc.format_message(), int(exc.exit_code))
-        if isinstance(exc, OSError):
-            _fail("error", f"{exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}", 1)
-        if state.verbose:
+        return _invoke(typer_app, args)
+    except BrokenPipeError:
+        # The reader went away (`fgcd ... | head`): nothing left to tell it.
+        _silence_stdout()
+        return EXIT_OS
+    except BaseException as exc:  # noqa: BLE001 - every failure becomes one line
+        failure = _classify(exc)
+        if failure is None:
             raise
-        _fail("internal error", f"{type(exc).__name__}: {exc} (run with --verbose for details)", 70)
+    _report(failure, as_json=_wants_json(args))
+    return failure.code
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _invoke(typer_app: typer.Typer, args: Sequence[str]) -> int:
+    """Parse and run the command; exceptions (including Ctrl-C) propagate unchanged.
+
+    typer's own runner turns Ctrl-C into a silent exit 130; the click command is
+    driven directly so that the interruption can be reported.
+    """
+    command = typer.main.get_command(typer_app)
+    try:
+        with command.make_context("fgcd", list(args)) as ctx:
+            command.invoke(ctx)
+    except typer.Exit as exc:
+        return int(exc.exit_code or 0)
+    except _NO_ARGS_IS_HELP as exc:
+        # `fgcd` or `fgcd campaign` alone: the help is the answer, not an error.
+        print(exc.format_message())
+    return 0
+
+
+def _no_args_is_help_type():
+    try:
+        from typer._click.exceptions import NoArgsIsHelpError
+    except ImportError:  # pragma: no cover - typer releases that use click itself
+        from click.exceptions import NoArgsIsHelpError
+    return NoArgsIsHelpError
+
+
+_NO_ARGS_IS_HELP = _no_args_is_help_type()
+
+
+def _wants_json(args: Sequence[str]) -> bool:
+    """True when ``--json`` is among the options (before a ``--`` separator)."""
+    options = list(args)[: list(args).index("--")] if "--" in args else list(args)
+    return "--json" in options
+
+
+def _report(failure: Failure, *, as_json: bool) -> None:
+    """Print the failure: one line on stderr; with --json also one object on stdout."""
+    if as_json and not state.emitted:
+        print(to_json({"error": failure.line, "code": failure.code}))
+    # Plain print: one unwrapped line whatever the terminal width.
+    print(failure.line, file=sys.stderr)
+
+
+def _classify(exc: BaseException) -> Failure | None:
+    """The failure an exception means, or None for one that must propagate (a bug with --verbose)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return _interrupted()
+    if isinstance(exc, FgcdError):
+        return Failure("error", str(exc), exc.exit_code)
+    if isinstance(exc, _platform_error_type()):
+        return Failure("platform error", str(exc), EXIT_PLATFORM)
+    if isinstance(exc, typer.Abort):
+        return _aborted(exc)
+    if isinstance(exc, (SystemExit, GeneratorExit)):
+        return None
+    # typer vendors click: usage errors carry show(), exit_code and format_message().
+    if hasattr(exc, "show") and hasattr(exc, "exit_code") and hasattr(exc, "format_message"):
+        return Failure("usage error", _usage_message(exc), int(exc.exit_code))
+    if isinstance(exc, OSError):
+        return Failure("error", f"{exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}", EXIT_OS)
+    if state.verbose or not isinstance(exc, Exception):
+        return None
+    return Failure("internal error", f"{type(exc).__name__}: {exc} (run with --verbose for details)", EXIT_INTERNAL)
+
+
+def _interrupted() -> Failure:
+    """Ctrl-C: whether the platform was stopped and what was (not) written."""
+    return Failure(
+        "interrupted (Ctrl-C)", f"{run_record.platform_clause()}; {run_record.writes_clause()}", EXIT_INTERRUPTED
+    )
+
+
+def _aborted(exc: BaseException) -> Failure:
+    """A confirmation prompt ended without an answer: Ctrl-C, no terminal, or end of input."""
+    # typer.confirm turns Ctrl-C and end of input into Abort; the cause stays in __context__.
+    if isinstance(exc.__context__, KeyboardInterrupt):
+        return _interrupted()
+    if not stdin_is_terminal():
+        return Failure("error", str(ConfirmationNeeded.for_prompt()), ConfirmationNeeded.exit_code)
+    return Failure("aborted", "no answer at the confirmation prompt; nothing was done after it", EXIT_ABORTED)
+
+
+def _usage_message(exc: BaseException) -> str:
+    """The usage error and where to read the command's help."""
+    message = exc.format_message() or "invalid command line"  # type: ignore[attr-defined]
+    ctx = getattr(exc, "ctx", None)
+    if ctx is not None and getattr(ctx, "command_path", None):
+        return f"{message} (see '{ctx.command_path} --help')"
+    return message
 
 
 if __name__ == "__main__":

@@ -10,10 +10,13 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+import sys
 from typing import Any, Callable
 
 import numpy as np
 from rich.console import Console
+
+from fgcd_cli.errors import ConfirmationNeeded
 
 console = Console(highlight=False, soft_wrap=True)
 err_console = Console(stderr=True, highlight=False, soft_wrap=True)
@@ -21,9 +24,15 @@ err_console = Console(stderr=True, highlight=False, soft_wrap=True)
 
 @dataclass
 class OutputState:
-    """Global output options set by the root callback."""
+    """Global output options set by the root callback, and whether a JSON result was printed."""
 
     verbose: bool = False
+    emitted: bool = False  # a JSON result is on stdout: an error must not print a second object
+
+    def reset(self) -> None:
+        """Defaults again (a new command line starts)."""
+        self.verbose = False
+        self.emitted = False
 
 
 state = OutputState()
@@ -66,7 +75,8 @@ def to_json(data: Any) -> str:
 def emit(data: dict, *, as_json: bool, render: Callable[[Console], None] | None = None) -> None:
     """Print a command's result: JSON for scripts, rich for people."""
     if as_json:
-        print(to_json(data))
+        print(to_json(data), flush=True)
+        state.emitted = True
         return
     if render is not None:
         render(console)
@@ -84,3 +94,44 @@ def debug(message: str) -> None:
     """Printed only with --verbose."""
     if state.verbose:
         err_console.print(f"[dim]{message}[/dim]")
+
+
+def confirmer(*, yes: bool) -> Callable[[str], bool] | None:
+    """The confirmation callback of a command that moves a platform.
+
+    Parameters
+    ----------
+    yes : bool
+        ``--yes`` was given: no question is asked (returns None).
+
+    Returns
+    -------
+    callable(str) -> bool or None
+        Asks on the terminal (prompt on stderr, so ``--json`` stdout stays one
+        object; default no).
+
+    Raises
+    ------
+    ConfirmationNeeded
+        No ``--yes`` and stdin is not a terminal: refused up front, before
+        anything is opened or moved.
+    """
+    if yes:
+        return None
+    if not stdin_is_terminal():
+        raise ConfirmationNeeded.for_prompt()
+
+    def confirm(text: str) -> bool:
+        import typer
+
+        return typer.confirm(text, default=False, err=True)
+
+    return confirm
+
+
+def stdin_is_terminal() -> bool:
+    """True when stdin is an open terminal (a person can answer a prompt)."""
+    try:
+        return sys.stdin is not None and sys.stdin.isatty()
+    except (ValueError, OSError):  # closed or detached stdin
+        return False

@@ -1,8 +1,10 @@
 """``fgcd platform check | move | home``: talk to a real platform (GRBL stage, UR arm, a person).
 
 Platform failures (``drivers.platform.PlatformError``) propagate to ``main()``,
-which prints one line and exits with code 7; Ctrl-C stops the platform first
-(the guard trips) and exits with code 130.
+which prints one line and exits with code 7; a missing ``--port``/``--host`` is
+bad input (exit 2). Ctrl-C stops the platform first (the guard trips, and the
+platform is told to stop again on the way out) and exits with code 130 with one
+line saying whether it was moving; these commands write nothing.
 """
 
 from __future__ import annotations
@@ -16,14 +18,8 @@ from scipy.spatial.transform import Rotation
 
 from drivers.connect import DRIVERS, open_platform
 from drivers.platform import GuardLimits, MotionGuard
-from fgcd_cli.cli.output import debug, emit
-from fgcd_cli.errors import FgcdError, HardwareError, UserInputError
-
-
-class Interrupted(FgcdError):
-    """Ctrl-C during a platform command; the platform was stopped first."""
-
-    exit_code = 130
+from fgcd_cli.cli.output import confirmer, debug, emit
+from fgcd_cli.errors import HardwareError, UserInputError, run_record
 
 app = typer.Typer(help="Check, move and home a motion platform (GRBL stage, UR arm, manual).", no_args_is_help=True)
 
@@ -38,26 +34,38 @@ def _options(timeout_s: float | None) -> tuple[dict, dict]:
     return grbl, ur
 
 
-@contextmanager
-def _opened(driver: str, port: str | None, baud: int, host: str | None, timeout_s: float | None):
+def _check_connection_options(driver: str, *, port: str | None, host: str | None, timeout_s: float | None) -> None:
+    """Refuse bad options before anything is opened (exit 2): driver, address, timeout."""
     if driver == "sim":
         raise UserInputError("the sim platform lives in a simulated rig: use 'fgcd sim' commands")
     if driver not in DRIVERS:
         raise UserInputError(f"unknown driver '{driver}' (choose from grbl, ur, manual)")
-    if timeout_s is not None and timeout_s <= 0:
-        raise UserInputError("--timeout must be positive")
+    # Rule: the address a driver needs is an option the user forgot, not a hardware fault.
+    if driver == "grbl" and not port:
+        raise UserInputError("the grbl driver needs --port (e.g. --port /dev/ttyUSB0)")
+    if driver == "ur" and not host:
+        raise UserInputError("the ur driver needs --host (the controller's address, e.g. --host 192.168.0.10)")
+    if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
+        raise UserInputError("--timeout must be a positive number of seconds")
+
+
+@contextmanager
+def _opened(driver: str, port: str | None, baud: int, host: str | None, timeout_s: float | None):
+    _check_connection_options(driver, port=port, host=host, timeout_s=timeout_s)
+    run_record.no_writes()
     grbl_options, ur_options = _options(timeout_s)
     platform = open_platform(
         driver, port=port, baud=baud, host=host, grbl_options=grbl_options, ur_options=ur_options, connect=False
     )
     try:
         platform.connect()
+        run_record.platform_connected(platform.name)
         yield platform
     except KeyboardInterrupt:
-        # typer returns 130 instead of raising when not standalone: raise an fgcd error
-        # so main() prints one line and exits non-zero. The guard/driver already stopped.
+        # The guard/driver already stopped a motion; stop again in case Ctrl-C came
+        # between two commands. main() prints the line and exits 130.
         platform.stop()
-        raise Interrupted("interrupted by the user (Ctrl-C): the platform was stopped") from None
+        raise
     finally:
         platform.close()
 
@@ -157,10 +165,12 @@ def move(
     limits = GuardLimits(
         max_step_m=max_step_mm / 1000.0, max_step_rad=math.radians(max_step_deg), speed_fraction=speed_fraction
     )
+    confirm = confirmer(yes=yes)
     with _opened(driver, port, baud, host, timeout) as platform:
-        guard = MotionGuard(platform, limits, confirm=None if yes else (lambda text: typer.confirm(text)))
+        guard = MotionGuard(platform, limits, confirm=confirm)
         debug(f"moving {platform.name} by ({dx:.3f}, {dy:.3f}, {dz:.3f}) mm, ({rx:.3f}, {ry:.3f}, {rz:.3f}) deg")
-        result = guard.move_by(T_flange_delta)
+        with run_record.motion():
+            result = guard.move_by(T_flange_delta)
     error_mm = float(np.linalg.norm(result.T_base_flange_reached[:3, 3] - result.T_base_flange_commanded[:3, 3])) * 1000
     data = {
         "driver": driver,
@@ -192,9 +202,11 @@ def home(
     as_json: bool = JsonOpt,
 ) -> None:
     """Run the platform's homing cycle (GRBL $H; clears an alarm)."""
+    confirm = confirmer(yes=yes)
     with _opened(driver, port, baud, host, timeout) as platform:
-        if not yes and not typer.confirm(f"Home '{platform.name}' now? The axes will move to their switches."):
+        if confirm is not None and not confirm(f"Home '{platform.name}' now? The axes will move to their switches."):
             raise UserInputError("homing not confirmed")
-        platform.home()
+        with run_record.motion():
+            platform.home()
         pose = _pose_dict(platform.flange_pose())
     emit({"driver": driver, "homed": True, "pose": pose}, as_json=as_json)

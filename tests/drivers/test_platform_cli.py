@@ -87,7 +87,7 @@ def test_ctrl_c_during_move_stops_stage_and_exits_130(emulator):
             proc.wait()
     assert proc.returncode == 130
     lines = [line for line in stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and "interrupted by the user" in lines[0], stderr
+    assert lines == ["interrupted (Ctrl-C): the grbl platform was stopped mid-motion; nothing was written"], stderr
     stopped = emulator.position()
     time.sleep(0.3)
     assert emulator.position() == stopped and stopped[0] > -45.0
@@ -108,6 +108,20 @@ def test_check_in_alarm_is_unhealthy_and_fails():
 def test_bad_driver_is_user_error():
     run = fgcd("platform", "check", "--driver", "kuka")
     assert run.returncode == 2 and "unknown driver 'kuka'" in run.stderr
+
+
+@pytest.mark.parametrize("driver,option", [("grbl", "--port"), ("ur", "--host")])
+def test_missing_address_is_bad_input(driver, option):
+    # Issue 24 item 16: a forgotten --port/--host is bad input (2), not a hardware fault (7).
+    run = fgcd("platform", "check", "--driver", driver)
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 2, run.stderr
+    assert len(lines) == 1 and f"needs {option}" in lines[0], run.stderr
+
+
+def test_home_without_terminal_or_yes_is_refused():
+    run = fgcd("platform", "home", "--driver", "grbl", "--port", "/dev/null", stdin=subprocess.DEVNULL)
+    assert run.returncode == 2 and "needs a terminal" in run.stderr and "--yes" in run.stderr, run.stderr
 
 
 def test_check_and_move_ur_against_fake_controller():

@@ -1,0 +1,221 @@
+"""The CLI boundary: --version, plain `fgcd`, --json errors, prompts without a terminal, Ctrl-C.
+
+Issue 24 items 6 and 9. In-process tests drive ``app.run`` with small typer apps
+(the same code path as ``main``); subprocess tests drive the real entry point.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import typer
+
+from fgcd_cli import __version__
+from fgcd_cli.cli.app import run
+from fgcd_cli.errors import run_record
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.timeout(120)
+
+
+def fgcd(*args, stdin=subprocess.DEVNULL) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)],
+        capture_output=True, text=True, cwd=ROOT, stdin=stdin, timeout=60,
+    )
+
+
+def _lines(text: str) -> list[str]:
+    return [line for line in text.splitlines() if line.strip()]
+
+
+# ----------------------------------------------------------------------------- item 9: version, help
+def test_version_prints_the_version():
+    r = fgcd("--version")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"fgcd {__version__}"
+    assert r.stderr == ""
+
+
+@pytest.mark.parametrize("args", [[], ["campaign"]], ids=["fgcd", "fgcd campaign"])
+def test_no_command_prints_help_and_exits_cleanly(args):
+    r = fgcd(*args)
+    assert r.returncode == 0, r.stderr
+    assert "Usage:" in r.stdout and "Commands" in r.stdout
+    assert r.stderr == ""
+
+
+# ----------------------------------------------------------------------------- item 9: --json errors
+def test_json_error_is_one_object_on_stdout(tmp_path):
+    r = fgcd("campaign", "list", tmp_path / "missing", "--json")
+    assert r.returncode == 3
+    data = json.loads(r.stdout)
+    assert data == {"error": f"error: {tmp_path / 'missing'}: no such directory", "code": 3}
+    assert _lines(r.stderr) == [data["error"]]
+
+
+def test_json_usage_error_is_one_object_on_stdout():
+    r = fgcd("campaign", "init", "--json")
+    assert r.returncode == 2
+    data = json.loads(r.stdout)
+    assert data["code"] == 2 and "Missing argument" in data["error"]
+    assert len(_lines(r.stderr)) == 1
+
+
+def test_json_result_then_error_stays_one_object(capsys):
+    # A command that printed its JSON result and then fails: no second object on stdout.
+    app = typer.Typer()
+
+    @app.command()
+    def cmd(as_json: bool = typer.Option(False, "--json")) -> None:
+        from fgcd_cli.cli.output import emit
+        from fgcd_cli.errors import DataIntegrityError
+
+        emit({"ok": False}, as_json=as_json)
+        raise DataIntegrityError("1 damaged file")
+
+    assert run(app, ["--json"]) == 4
+    out, err = capsys.readouterr()
+    assert json.loads(out) == {"ok": False}
+    assert _lines(err) == ["error: 1 damaged file"]
+
+
+# ----------------------------------------------------------------------------- item 9: no terminal, no --yes
+def _confirming_app() -> typer.Typer:
+    app = typer.Typer()
+
+    @app.command()
+    def cmd() -> None:
+        if typer.confirm("Move?"):
+            print("moved")
+
+    return app
+
+
+def test_prompt_without_terminal_says_terminal_or_yes(capsys, monkeypatch):
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # not a terminal, end of input
+    assert run(_confirming_app(), []) == 2
+    _, err = capsys.readouterr()
+    lines = _lines(err)
+    assert len(lines) == 1 and "needs a terminal" in lines[0] and "--yes" in lines[0], err
+
+
+def test_platform_move_without_terminal_or_yes_is_refused_before_connecting():
+    # /dev/null is no GRBL stage: the refusal must come first, as bad input (exit 2).
+    r = fgcd("platform", "move", "--driver", "grbl", "--port", "/dev/null", "--dx", "1")
+    assert r.returncode == 2, r.stderr
+    lines = _lines(r.stderr)
+    assert len(lines) == 1 and "needs a terminal" in lines[0] and "--yes" in lines[0], r.stderr
+
+
+# ----------------------------------------------------------------------------- item 6: Ctrl-C
+def test_ctrl_c_in_a_command_that_says_nothing_gets_a_generic_honest_line(capsys):
+    app = typer.Typer()
+
+    @app.command()
+    def cmd() -> None:
+        raise KeyboardInterrupt
+
+    assert run(app, []) == 130
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = _lines(err)
+    assert len(lines) == 1, err
+    assert lines[0].startswith("interrupted (Ctrl-C):")
+    assert "motion guard" in lines[0] and "half-written" in lines[0]
+
+
+def test_ctrl_c_says_what_was_and_was_not_written(capsys):
+    app = typer.Typer()
+
+    @app.command()
+    def cmd() -> None:
+        run_record.no_platform()
+        with run_record.writing("a.png"):
+            pass
+        with run_record.writing("the visit"):
+            raise KeyboardInterrupt
+
+    assert run(app, []) == 130
+    _, err = capsys.readouterr()
+    assert _lines(err) == ["interrupted (Ctrl-C): no platform was in use; wrote a.png; not written: the visit"]
+
+
+def test_ctrl_c_with_json_prints_the_error_object(capsys):
+    app = typer.Typer()
+
+    @app.command()
+    def cmd(as_json: bool = typer.Option(False, "--json")) -> None:
+        run_record.no_platform()
+        run_record.no_writes()
+        raise KeyboardInterrupt
+
+    assert run(app, ["--json"]) == 130
+    out, _ = capsys.readouterr()
+    assert json.loads(out) == {"error": "interrupted (Ctrl-C): no platform was in use; nothing was written", "code": 130}
+
+
+def test_ctrl_c_at_a_prompt_is_an_interruption(capsys, monkeypatch):
+    class CtrlC(io.StringIO):
+        def readline(self, *args):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(sys, "stdin", CtrlC())
+    assert run(_confirming_app(), []) == 130
+    _, err = capsys.readouterr()
+    assert _lines(err)[-1].startswith("interrupted (Ctrl-C):"), err
+
+
+def test_the_record_starts_empty_for_each_command_line(capsys):
+    app = typer.Typer()
+
+    @app.command()
+    def cmd(fail: bool = typer.Option(False, "--fail")) -> None:
+        if fail:
+            raise KeyboardInterrupt
+        run_record.wrote("old.txt")
+
+    assert run(app, []) == 0
+    assert run(app, ["--fail"]) == 130
+    assert "old.txt" not in capsys.readouterr().err
+
+
+def test_ctrl_c_while_a_person_moves_the_mount_says_stopped_and_nothing_written():
+    # The manual driver waits for the person's "Done?": Ctrl-C there, end to end.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "manual", "--dx", "5", "--yes"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+    )
+    seen = bytearray()
+    prompted = threading.Event()
+
+    def read() -> None:
+        while chunk := proc.stdout.read1(256):
+            seen.extend(chunk)
+            if b"Done?" in seen:
+                prompted.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert prompted.wait(60), bytes(seen)
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+        stderr = proc.stderr.read().decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert _lines(stderr) == [
+        "interrupted (Ctrl-C): the manual platform was stopped mid-motion; nothing was written"
+    ], stderr
