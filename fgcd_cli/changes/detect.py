@@ -9,7 +9,7 @@ import numpy as np
 from scipy import ndimage
 
 from fgcd_cli.changes.cue_labels import CueMaps, label_regions, relief_colour_cues
-from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, relative_to_median
+from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.dense import DenseAlignment, refine_dense, warp_with_flow
 from fgcd_cli.changes.illumination import normalize_shading
 from fgcd_cli.changes.images import image_health, to_gray, validate_stacks
@@ -82,35 +82,6 @@ def empty_result(shape: tuple[int, int], reason: str, registration: Registration
         threshold=None,
         settings=settings,
     )
-
-
-def _edge_explained(labels: np.ndarray, n_regions: int, *, refs, normalized_images, medians, valid,
-                    seed_level: float, shift_radius_px: int, smooth_sigma_px: float, edge_check_px: int,
-                    edge_contrast: float, band_fraction: float) -> tuple[np.ndarray, int]:
-    """Pixels of the regions the region-level edge check explains (HxW bool), and their number.
-
-    ``normalized_images`` and ``medians`` are the light-normalised current images and
-    the per-lighting medians of the detection cue, so that the edge-tolerant score
-    compares with the detection's seed threshold.
-    """
-    check_bands = [edge_band(ref, radius_px=edge_check_px, contrast=edge_contrast) for ref in refs]
-    tolerant = [
-        relative_to_median(edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
-                                                    edge_radius_px=edge_check_px, band=band), valid, median=median)
-        for ref, normalized, band, median in zip(refs, normalized_images, check_bands, medians)
-    ]
-    tolerant_score = np.mean(tolerant, axis=0).astype(np.float32)
-    if smooth_sigma_px > 0:
-        tolerant_score = cv2.GaussianBlur(tolerant_score, (0, 0), smooth_sigma_px)
-    in_band = np.logical_or.reduce(check_bands)
-    explained = np.zeros(labels.shape, bool)
-    n_explained = 0
-    for region_id in range(1, n_regions + 1):
-        pixels = labels == region_id
-        if in_band[pixels].mean() >= band_fraction and tolerant_score[pixels].max() < seed_level:
-            explained |= pixels
-            n_explained += 1
-    return explained, n_explained
 
 
 def regions_with_significance(mask, score, significance: Decision, pixel_area_mm2):
@@ -251,15 +222,13 @@ def detect_changes(
         for pairs known to be relocated only to a few mm (campaign diffs use the
         region-level ``edge_check_px`` below instead).
     edge_check_px, edge_check_band_fraction : int, float
-        Region-level edge check (0 disables): a region lying for at least
-        ``edge_check_band_fraction`` of its pixels in the reference's strong-edge
-        band (grown by ``edge_check_px``) is dropped when the two-sided envelope
-        difference over ``edge_check_px`` (the edge tolerance above) nowhere
-        reaches the seed threshold inside it: a thin structure that a sub-pixel
-        viewpoint difference thinned, moved or (in point-sampled renders) made
-        appear in other pixels. Unlike ``edge_tolerance_px`` it leaves the pixels
-        of every other region untouched. The dropped regions are counted in
-        ``settings["edge_explained_regions"]``.
+        Region-level edge check (0 disables), :mod:`fgcd_cli.changes.edge_check`:
+        a region mostly in the reference's strong-edge band, explained by a shift
+        of up to ``edge_check_px`` and shaped like a band along the edge is set
+        aside (its pixels leave the mask; it stays a candidate). Unlike
+        ``edge_tolerance_px`` it leaves the pixels of every other region
+        untouched. Counts: ``settings["edge_explained_regions"]`` (set aside) and
+        ``settings["edge_compact_kept_regions"]`` (compact, kept).
     robust_gain_rounds : int
         Re-estimations of the light-gain field without the pixels the previous
         score flags as suspect (0: one plain estimate, the change biases it).
@@ -370,11 +339,15 @@ def detect_changes(
     regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     explained = None
     if edge_check_px > 0 and regions:
-        explained, settings["edge_explained_regions"] = _edge_explained(
+        check = edge_explained_regions(
             labels, len(regions), refs=refs, normalized_images=normalized_images, medians=medians, valid=valid,
-            seed_level=significance.seed_level if decision == "acontrario" else threshold.high, shift_radius_px=shift_radius_px, smooth_sigma_px=smooth_sigma_px,
-            edge_check_px=edge_check_px, edge_contrast=edge_contrast, band_fraction=edge_check_band_fraction,
+            seed_level=significance.seed_level if decision == "acontrario" else threshold.high,
+            shift_radius_px=shift_radius_px, smooth_sigma_px=smooth_sigma_px, edge_check_px=edge_check_px,
+            edge_contrast=edge_contrast, band_fraction=edge_check_band_fraction,
         )
+        explained = check.explained
+        settings["edge_explained_regions"] = check.n_explained
+        settings["edge_compact_kept_regions"] = check.n_compact_kept
         if explained.any():
             mask &= ~explained
             regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)

@@ -1,0 +1,74 @@
+"""Region-level edge check: shifted edges are set aside, compact blobs beside edges are not."""
+
+import cv2
+import numpy as np
+import pytest
+
+import fgcd_cli.changes.edge_check as edge_check
+from fgcd_cli.changes import detect_changes
+from fgcd_cli.changes.edge_check import along_edge_elongation, max_hidden_blob_px
+from fgcd_cli.metrics.change_scores import binary_scores
+
+from .conftest import textured_scene
+
+SCALE = 4  # drawn 4x finer, then area-sampled like a camera pixel
+
+
+def _two_grooves(*, gap_px: int = 7, stain_value: float | None = None, radius_px: float = 3.0):
+    """Textured stone with two thin dark grooves ``gap_px`` apart (carved letters), and
+    optionally a round stain of ``radius_px`` between them. Returns the image and the stain truth."""
+    size = 256
+    texture = cv2.resize(textured_scene(size), (size * SCALE, size * SCALE), interpolation=cv2.INTER_LINEAR)
+    fine = 0.35 + 0.3 * texture
+    for x in (100, 100 + gap_px):
+        fine[:, x * SCALE + 1:x * SCALE + 4] = 0.05
+    truth_fine = np.zeros(fine.shape, np.uint8)
+    if stain_value is not None:
+        centre = (int((100 + gap_px / 2 + 0.4) * SCALE), 128 * SCALE)
+        cv2.circle(truth_fine, centre, int(radius_px * SCALE), 1, -1)
+        fine[truth_fine > 0] = stain_value
+    image = cv2.resize(np.clip(fine, 0, 1).astype(np.float32), (size, size), interpolation=cv2.INTER_AREA)
+    truth = cv2.resize(truth_fine.astype(np.float32), (size, size), interpolation=cv2.INTER_AREA) > 0.5
+    return image, truth
+
+
+def _revisit(image):
+    return np.clip(image * 0.9 + 0.03, 0, 1)
+
+
+@pytest.mark.parametrize("stain_value", [0.1, 0.9], ids=["dark stain", "whitish efflorescence"])
+def test_compact_stain_between_grooves_is_reported(stain_value, monkeypatch):
+    ref, _ = _two_grooves()
+    cur, truth = _two_grooves(stain_value=stain_value)
+    assert 20 <= truth.sum() <= 40  # a stain a few pixels across, as small as the grooves' tolerance
+    result = detect_changes([ref], [_revisit(cur)], edge_check_px=2)
+    assert len(result.regions) == 1
+    assert result.settings["edge_explained_regions"] == 0 and result.settings["edge_compact_kept_regions"] == 1
+    assert binary_scores(result.mask, truth).recall > 0.9
+    # Without the shape rule the envelope of the grooves explains the stain: it would be set aside.
+    monkeypatch.setattr(edge_check, "MIN_ALONG_ACROSS", 0.0)
+    hidden = detect_changes([ref], [_revisit(cur)], edge_check_px=2)
+    assert hidden.regions == [] and hidden.settings["edge_explained_regions"] == 1
+
+
+def test_elongation_is_one_for_a_disc_and_length_over_width_for_a_band():
+    gray = np.zeros((80, 80), np.float32)
+    gray[:, 40:] = 1.0  # a vertical step edge
+    disc = np.zeros(gray.shape, np.uint8)
+    cv2.circle(disc, (40, 40), 8, 1, -1)
+    assert along_edge_elongation(disc > 0, gray) == pytest.approx(1.0, abs=0.1)
+    band = np.zeros(gray.shape, bool)
+    band[10:70, 38:42] = True  # 60 px along the edge, 4 px across
+    # uniform band: sqrt(var_along / var_across) = 60 / 4 (variances (L²-1)/12)
+    assert along_edge_elongation(band, gray) == pytest.approx(np.sqrt((60 ** 2 - 1) / (4 ** 2 - 1)), rel=0.01)
+    across = np.zeros(gray.shape, bool)
+    across[38:42, 10:70] = True  # the same band lying across the edge is not a shifted edge
+    assert along_edge_elongation(across, gray) < 0.1
+
+
+def test_hidden_blob_bound_grows_with_the_tolerance_and_the_smoothing():
+    base = max_hidden_blob_px(edge_check_px=2, smooth_sigma_px=2.0)
+    # diameter 2 * ((2 * 2 + 1) + 4 * 2) = 26 px
+    assert base == pytest.approx(np.pi * 13 ** 2)
+    assert max_hidden_blob_px(edge_check_px=3, smooth_sigma_px=2.0) > base
+    assert max_hidden_blob_px(edge_check_px=2, smooth_sigma_px=3.0) > base
