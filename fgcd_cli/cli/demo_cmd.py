@@ -10,6 +10,36 @@ from fgcd_cli.cli.capture_cmd import print_record
 from fgcd_cli.cli.output import emit, info
 
 
+def summary_lines(summary: dict, *, summary_path: Path) -> list[str]:
+    """The demo's closing summary as rich-markup lines (one per topic).
+
+    The truth line counts injected changes, as the revisit line announced them
+    (``count_changes_found``): "3 of 4 injected changes found".
+    """
+    r = summary["relocation"]
+    truth = r.get("final_truth") or {}
+    lines = [
+        f"[bold]Demo campaign[/bold] in {summary['campaign']}",
+        f"  reference: {summary['reference']['cloud_points']} cloud points",
+        f"  relocation: {'converged' if r['converged'] else 'NOT converged'} in {r['adjustments']} adjustments, "
+        f"{r['session_s']} s on the rig; simulator truth: {truth.get('pose_err_mm', float('nan')):.2f} mm, "
+        f"AFD {truth.get('afd_px', float('nan')):.2f} px",
+    ]
+    d = summary.get("diff", {})
+    aside = d.get("set_aside_regions")
+    aside_text = f" ({aside} more along edges set aside, cyan in the report)" if aside else ""
+    lines.append(f"  changes: {d.get('regions', '?')} regions found{aside_text}; report: {d.get('report', '?')}")
+    ev = d.get("evaluation")
+    if ev:
+        injected = ev.get("injected_changes", ev["true_changes"])
+        hidden = injected - ev["true_changes"]
+        view = f" ({hidden} out of the reference's view)" if hidden > 0 else ""
+        lines.append(f"  [dim]simulator truth: {ev['true_changes_found']} of {injected} injected changes found{view}, "
+                     f"{ev['false_regions']} false regions, pixel F1 {ev['f1']:.2f}[/dim]")
+    lines.append(f"  summary: {summary_path}")
+    return lines
+
+
 def demo(
     out: Path = typer.Option(Path("runs/demo"), "--out", "-o", help="Directory for the campaign and the summary."),
     scene: str = typer.Option("relief_panel", "--scene", help="Simulator scene (fgcd sim scenes)."),
@@ -19,6 +49,7 @@ def demo(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Run a complete simulated campaign: calibrate, capture, relocate under other light, diff, report."""
+    from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.demo import DemoConfig, run_demo
     from fgcd_cli.errors import UserInputError
 
@@ -29,25 +60,14 @@ def demo(
         from datetime import datetime, timezone
 
         out = out / datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    summary = run_demo(out, config=DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse), say=info,
-                       on_record=print_record)
+    # Every step of the demo reports through on_progress: a live bar with its elapsed time, so
+    # no step runs silently; lines (info, print_record) print above it.
+    with step_progress(enabled=not as_json) as bar:
+        summary = run_demo(out, config=DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse),
+                           say=info, on_record=print_record, on_progress=bar)
 
     def render(c) -> None:
-        r = summary["relocation"]
-        truth = r.get("final_truth") or {}
-        c.print(f"[bold]Demo campaign[/bold] in {summary['campaign']}")
-        c.print(f"  reference: {summary['reference']['cloud_points']} cloud points")
-        c.print(f"  relocation: {'converged' if r['converged'] else 'NOT converged'} in {r['adjustments']} adjustments, "
-                f"{r['session_s']} s on the rig; true error {truth.get('pose_err_mm', float('nan')):.2f} mm, "
-                f"AFD {truth.get('afd_px', float('nan')):.2f} px")
-        d = summary.get("diff", {})
-        aside = d.get("set_aside_regions")
-        aside_text = f" ({aside} more along edges set aside, cyan in the report)" if aside else ""
-        c.print(f"  changes: {d.get('regions', '?')} regions found{aside_text}; report: {d.get('report', '?')}")
-        ev = d.get("evaluation")
-        if ev:
-            c.print(f"  [dim]truth: {ev['true_changes_found']} of {ev['true_changes']} injected changes found, "
-                    f"{ev['false_regions']} false regions, pixel F1 {ev['f1']:.2f}[/dim]")
-        c.print(f"  summary: {out / 'summary.json'}")
+        for line in summary_lines(summary, summary_path=out / "summary.json"):
+            c.print(line)
 
     emit(summary, as_json=as_json, render=render)
