@@ -303,7 +303,7 @@ def fdf_quiver_png(ref_image: np.ndarray, points_ref: np.ndarray, points_cur: np
     """FDF quiver figure: displacement vectors drawn on the reference image, AFD in the title.
 
     Arrows are magnified (:func:`fdf_magnification`); the magnification is stated in the
-    title and by a key arrow of 1 px (or of the success limit) drawn at that scale.
+    title and by a key arrow of the 3 px success limit drawn at that scale (lower left corner).
     """
     rgb = to_display_rgb(ref_image)
     h, w = rgb.shape[:2]
@@ -321,9 +321,11 @@ def fdf_quiver_png(ref_image: np.ndarray, points_ref: np.ndarray, points_cur: np
     if len(pts):
         arrows = ax.quiver(pts[:, 0], pts[:, 1], disp[:, 0] * magnify, disp[:, 1] * magnify, angles="xy",
                            scale_units="xy", scale=1, color="#ffd400", width=0.004, headwidth=4)
-        key_px = 1.0 if median < FDF_SCALE_FLOOR_PX else FDF_SCALE_FLOOR_PX
-        ax.quiverkey(arrows, 0.80, -0.05, key_px * magnify, f"{key_px:g} px displacement", labelpos="E",
-                     coordinates="axes", fontproperties={"size": 8})
+        # the key: an arrow of the success limit at the drawing's scale, in the image's lower left corner
+        key = ax.quiverkey(arrows, 0.05, 0.05, FDF_SCALE_FLOOR_PX * magnify,
+                           f"{FDF_SCALE_FLOOR_PX:g} px (success limit)", labelpos="E", coordinates="axes",
+                           labelcolor="white", fontproperties={"size": 8, "weight": "bold"})
+        key.set_zorder(5)
     ax.set_title(f"FDF ({method}): AFD = {afd_px:.2f} px, {inliers} vectors\n"
                  f"arrows drawn x{magnify:g} (median {median:.2f} px)", fontsize=10)
     ax.set_axis_off()
