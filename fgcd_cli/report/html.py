@@ -177,6 +177,15 @@ def _candidates_table(result: ChangeResult) -> str:
             "pixels scoring at least the level at which the region was found; area: pixels at that level.</p>")
 
 
+def _convergence_caption(relocation_log: list[dict]) -> str:
+    """Caption of the convergence figure: what its lines are, truth named only when it is plotted."""
+    caption = ("Convergence of the relocation, per adjustment (as rACR Fig. 8): solid blue, the tool's own "
+               "estimates of what remained")
+    if any(key.endswith("_true") for row in relocation_log for key in row):
+        caption += "; dashed grey, the simulator's truth (evaluation only, never seen by the tool)"
+    return caption
+
+
 def render_diff_report(
     *,
     ref_image: np.ndarray,
@@ -306,7 +315,7 @@ def render_diff_report(
             try:
                 parts.append('<div class="pair"><figure class="wide">' +
                              _img(convergence_png(relocation_log), "relocation convergence") +
-                             "<figcaption>Convergence of the relocation, per adjustment (as rACR Fig. 8)</figcaption></figure></div>")
+                             f"<figcaption>{html.escape(_convergence_caption(relocation_log))}</figcaption></figure></div>")
             except ValueError as exc:  # a log without any plottable column
                 parts.append(f'<p class="small">Relocation log not plotted: {html.escape(str(exc))}.</p>')
 
@@ -374,7 +383,7 @@ def render_station_history(*, station: str, site: str, reference_date: str, refe
                                           [v.changed_px for v in comparable], [v.afd_px for v in comparable]), "history"))
         rows = []
         for v in visits:
-            area_mm2 = area_mm2_text(v.changed_mm2, v.changed_px, unit=False) if v.changed_mm2 else _fmt(v.changed_mm2, 1)
+            area_mm2 = area_mm2_text(v.changed_mm2, v.changed_px, unit=False)
             status = "compared" if v.comparable else f"not compared: {html.escape(v.reason)}"
             rows.append(f"<tr><td class=\"l\">{html.escape(v.date)}</td><td class=\"l\">{status}</td><td>{v.regions}</td>"
                         f"<td>{v.changed_px}</td><td>{area_mm2}</td><td>{_fmt(v.afd_px)}</td></tr>")

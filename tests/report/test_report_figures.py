@@ -165,3 +165,13 @@ def test_fdf_arrows_of_a_sub_pixel_field_stay_small():
     assert fdf_magnification(0.2, width) == fdf_magnification(3.0, width)
     large = 20.0 * fdf_magnification(20.0, width)
     assert abs(large - 0.04 * width) <= 0.01 * width  # a large field still gets readable arrows
+
+
+def test_report_names_simulator_truth_only_when_the_log_holds_it():
+    ref, cur, result = _coarse_pixel_result()
+    estimates = relocation_log_rows(_Visit(_logged_rows(with_truth=False)))
+    with_truth = relocation_log_rows(_Visit(_logged_rows(with_truth=True)))
+    plain = diff_products(ref_images=[ref], cur_images=[cur], result=result, relocation_log=estimates)["report.html"]
+    simulated = diff_products(ref_images=[ref], cur_images=[cur], result=result, relocation_log=with_truth)["report.html"]
+    assert b"the tool&#x27;s own estimates" in plain and b"simulator" not in plain
+    assert b"the simulator&#x27;s truth" in simulated
