@@ -1,16 +1,25 @@
-"""`fgcd campaign verify`: check every manifest and checksum, name each problem."""
+"""`fgcd campaign verify`: check every manifest and checksum, name each problem.
+
+Rule: verify checks everything it can. A damaged file is named and the check
+goes on: a malformed or missing ``campaign.toml`` does not stop the stations
+from being checked, and a damaged ``station.json`` does not stop that station's
+observations from being checked (only the index comparison needs it).
+"""
 
 from __future__ import annotations
 
 import json
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from fgcd_cli.campaign.atomic import TMP_PREFIX, sha256_file
-from fgcd_cli.campaign.store import MANIFEST, Campaign, load_rig_record
-from fgcd_cli.errors import DataIntegrityError
+from fgcd_cli.campaign.store import CAMPAIGN_FILE, FORMAT_VERSION, MANIFEST, Campaign, Station, load_rig_record, open_campaign
+from fgcd_cli.errors import CampaignError, DataIntegrityError
 
-__all__ = ["Problem", "VerifyReport", "verify_campaign"]
+__all__ = ["Problem", "VerifyReport", "verify_campaign", "verify_campaign_dir"]
+
+STATION_FILE = "station.json"
 
 
 @dataclass(frozen=True)
@@ -18,7 +27,7 @@ class Problem:
     """One damaged, missing or unexpected file."""
 
     path: str
-    kind: str  # missing | checksum | size | manifest | station | unindexed | unlisted | incomplete-write
+    kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write
     detail: str
     severity: str = "error"  # error | warning
 
@@ -76,7 +85,12 @@ def _verify_observation(obs_path: Path, report: VerifyReport) -> None:
         if "bytes" in entry and size != entry["bytes"]:
             report.problems.append(Problem(str(p), "size", f"size {size} B, manifest says {entry['bytes']} B"))
             continue
-        if sha256_file(p) != entry.get("sha256"):
+        try:
+            digest = sha256_file(p)
+        except OSError as exc:
+            report.problems.append(Problem(str(p), "unreadable", f"cannot be read ({exc.strerror or exc})"))
+            continue
+        if digest != entry.get("sha256"):
             report.problems.append(Problem(str(p), "checksum", "sha256 does not match the manifest"))
     listed = set(files) | {MANIFEST}
     for p in sorted(obs_path.rglob("*")):
@@ -87,47 +101,139 @@ def _verify_observation(obs_path: Path, report: VerifyReport) -> None:
                 report.problems.append(Problem(str(p), kind, "file not in the manifest", "warning"))
 
 
+def verify_campaign_dir(path: Path) -> VerifyReport:
+    """Verify the campaign in ``path``, even when its ``campaign.toml`` is damaged.
+
+    Parameters
+    ----------
+    path : Path
+        The campaign directory.
+
+    Returns
+    -------
+    VerifyReport
+        Every problem found; a damaged or missing ``campaign.toml`` is one of them.
+
+    Raises
+    ------
+    CampaignError
+        ``path`` is not a campaign at all (no ``campaign.toml`` and no
+        ``stations/``), or its ``campaign.toml`` was written by a newer fgcd
+        (its format is unknown here, which is not damage).
+    """
+    path = Path(path)
+    try:
+        return verify_campaign(open_campaign(path))
+    except CampaignError as exc:
+        problem = _campaign_file_problem(path, exc)
+    report = verify_campaign(Campaign(path, {}))
+    report.problems.insert(0, problem)
+    return report
+
+
+def _campaign_file_problem(path: Path, exc: CampaignError) -> Problem:
+    """The damage ``open_campaign`` ran into, or ``exc`` again when it is not damage."""
+    cfile = path / CAMPAIGN_FILE
+    if not cfile.exists():
+        if not (path / "stations").is_dir():
+            raise exc  # not a campaign: nothing to verify
+        return Problem(str(cfile), "missing", f"{CAMPAIGN_FILE} is gone (the campaign's site and rig settings)")
+    if _written_by_newer_fgcd(cfile):
+        raise exc
+    return Problem(str(cfile), "campaign", str(exc).removeprefix(f"{cfile}: "))
+
+
+def _written_by_newer_fgcd(cfile: Path) -> bool:
+    """True when ``campaign.toml`` parses and declares a format newer than this fgcd's."""
+    try:
+        version = tomllib.loads(cfile.read_text(encoding="utf-8")).get("campaign", {}).get("format_version")
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, AttributeError):
+        return False
+    return isinstance(version, int) and version > FORMAT_VERSION
+
+
 def verify_campaign(campaign: Campaign) -> VerifyReport:
     """Check every observation's manifest and checksums, and leftovers of killed writes."""
     report = VerifyReport(str(campaign.path))
     for sname in campaign.station_names():
-        try:
-            st = campaign.station(sname)
-        except DataIntegrityError as exc:
-            # station.json damaged: name it and go on with the other stations.
-            report.problems.append(Problem(str(campaign.path / "stations" / sname / "station.json"), "station", str(exc)))
-            continue
-        candidates = [st.reference_path] if st.reference_path.exists() else []
-        vdir = st.path / "visits"
-        if vdir.is_dir():
-            candidates += sorted(p for p in vdir.iterdir() if p.is_dir() and not p.name.startswith("."))
-        for obs in candidates:
-            _verify_observation(obs, report)
-        index = st.indexed_observations()
-        if index is not None:
-            present = {obs.relative_to(st.path).as_posix() for obs in candidates}
-            for rel in index:
-                if rel not in present:
-                    report.problems.append(
-                        Problem(str(st.path / rel), "missing", "observation recorded in station.json is gone")
-                    )
-            for rel in sorted(present - set(index)):
-                report.problems.append(
-                    Problem(str(st.path / rel), "unindexed", "observation not recorded in station.json", "warning")
-                )
-        for parent in [st.path, vdir]:
-            if parent.is_dir():
-                for p in parent.iterdir():
-                    if p.name.startswith(TMP_PREFIX):
-                        report.problems.append(
-                            Problem(str(p), "incomplete-write", "left by an interrupted write; safe to delete", "warning")
-                        )
-    rig = campaign.path / "rig"
-    if rig.is_dir():
-        for p in sorted(rig.rglob("*.json")):
-            report.files_checked += 1
-            try:
-                load_rig_record(p)
-            except DataIntegrityError as exc:
-                report.problems.append(Problem(str(p), "checksum", f"rig record: {str(exc).removeprefix(str(p) + ': ')}"))
+        _verify_station(_open_station(campaign, sname, report), report)
+    _verify_rig(campaign.path / "rig", report)
     return report
+
+
+def _open_station(campaign: Campaign, name: str, report: VerifyReport) -> Station:
+    """The station, with an empty record when its ``station.json`` is damaged (named in the report)."""
+    path = campaign.path / "stations" / name
+    info, problem = _read_station_info(path / STATION_FILE)
+    if problem is not None:
+        report.problems.append(problem)
+    return Station(campaign, name, path, info)
+
+
+def _read_station_info(sfile: Path) -> tuple[dict, Problem | None]:
+    """``station.json`` as a dict, or ``{}`` and the problem that makes it unusable."""
+    if not sfile.exists():
+        return {}, Problem(str(sfile), "station", f"{STATION_FILE} missing (the station's record of its observations)")
+    try:
+        info = json.loads(sfile.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        return {}, Problem(str(sfile), "station", f"not valid JSON ({exc})")
+    except OSError as exc:
+        return {}, Problem(str(sfile), "station", f"cannot be read ({exc.strerror or exc})")
+    if not isinstance(info, dict):
+        return {}, Problem(str(sfile), "station", "not a JSON object")
+    index = info.get("observations")
+    if index is not None and not (isinstance(index, list) and all(isinstance(r, str) for r in index)):
+        # The index cannot be trusted: compare nothing against it, check the observations anyway.
+        info = {k: v for k, v in info.items() if k != "observations"}
+        return info, Problem(str(sfile), "station", "'observations' is not a list of observation paths")
+    return info, None
+
+
+def _observation_dirs(st: Station) -> list[Path]:
+    """The reference and visit directories present on disk."""
+    candidates = [st.reference_path] if st.reference_path.exists() else []
+    vdir = st.path / "visits"
+    if vdir.is_dir():
+        candidates += sorted(p for p in vdir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    return candidates
+
+
+def _verify_station(st: Station, report: VerifyReport) -> None:
+    """Every observation of the station, its index (when readable) and write leftovers."""
+    candidates = _observation_dirs(st)
+    for obs in candidates:
+        _verify_observation(obs, report)
+    index = st.indexed_observations()
+    if index is not None:
+        present = {obs.relative_to(st.path).as_posix() for obs in candidates}
+        for rel in index:
+            if rel not in present:
+                report.problems.append(
+                    Problem(str(st.path / rel), "missing", "observation recorded in station.json is gone")
+                )
+        for rel in sorted(present - set(index)):
+            report.problems.append(
+                Problem(str(st.path / rel), "unindexed", "observation not recorded in station.json", "warning")
+            )
+    for parent in [st.path, st.path / "visits"]:
+        if parent.is_dir():
+            for p in parent.iterdir():
+                if p.name.startswith(TMP_PREFIX):
+                    report.problems.append(
+                        Problem(str(p), "incomplete-write", "left by an interrupted write; safe to delete", "warning")
+                    )
+
+
+def _verify_rig(rig: Path, report: VerifyReport) -> None:
+    """Every rig record's embedded checksum."""
+    if not rig.is_dir():
+        return
+    for p in sorted(rig.rglob("*.json")):
+        report.files_checked += 1
+        try:
+            load_rig_record(p)
+        except DataIntegrityError as exc:
+            report.problems.append(Problem(str(p), "checksum", f"rig record: {str(exc).removeprefix(str(p) + ': ')}"))
+        except OSError as exc:
+            report.problems.append(Problem(str(p), "unreadable", f"rig record cannot be read ({exc.strerror or exc})"))

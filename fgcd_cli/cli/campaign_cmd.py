@@ -7,9 +7,10 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from fgcd_cli.campaign import init_campaign, open_campaign, verify_campaign
+from fgcd_cli.campaign import init_campaign, open_campaign
+from fgcd_cli.campaign.verify import verify_campaign_dir
 from fgcd_cli.cli.output import emit
-from fgcd_cli.errors import DataIntegrityError, UserInputError
+from fgcd_cli.errors import DataIntegrityError, UserInputError, run_record
 
 app = typer.Typer(help="Create, inspect and verify campaigns (a site, its stations and observations).", no_args_is_help=True)
 
@@ -133,8 +134,10 @@ def verify_cmd(
     campaign: Path = typer.Argument(..., help="Campaign directory."),
     as_json: bool = JSON_OPT,
 ) -> None:
-    """Check every manifest and checksum; exit non-zero and name each damaged file."""
-    report = verify_campaign(open_campaign(campaign))
+    """Check every manifest and checksum; name each damaged file and exit 4 if any (3: not a campaign)."""
+    run_record.no_platform()
+    run_record.no_writes()
+    report = verify_campaign_dir(campaign)
 
     def render(c) -> None:
         for p in report.problems:

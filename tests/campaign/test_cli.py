@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fgcd_cli.campaign import init_campaign
 
@@ -68,3 +69,91 @@ def test_bad_option_is_a_usage_error():
     r = fgcd("campaign", "init")
     assert r.returncode == 2
     assert "Traceback" not in r.stderr
+
+
+# ----------------------------------------------------------------------------- issue 24 item 10
+def _campaign_with_observations(root: Path):
+    """A campaign with one station: a reference and one visit, each with one image."""
+    camp = init_campaign(root, site="x")
+    st = camp.create_station("s")
+    with st.write_reference() as w:
+        w.add_image("front", np.zeros((8, 8), np.uint8))
+        ref = w.commit()
+    with st.new_visit() as w:
+        w.add_image("front", np.ones((8, 8), np.uint8))
+        visit = w.commit()
+    return camp, st, ref, visit
+
+
+def _damage(path: Path) -> None:
+    """Same size, different bytes: only the checksum can tell."""
+    os.chmod(path, 0o644)
+    data = path.read_bytes()
+    path.write_bytes(data[:-4] + bytes(b ^ 0xFF for b in data[-4:]))
+
+
+def _verify_json(root: Path):
+    r = fgcd("campaign", "verify", root, "--json")
+    assert "Traceback" not in r.stderr
+    return r, json.loads(r.stdout)
+
+
+def test_verify_corrupt_campaign_toml_is_damage_and_the_rest_is_still_checked(tmp_path):
+    root = tmp_path / "c"
+    _, _, ref, _ = _campaign_with_observations(root)
+    (root / "campaign.toml").write_text("[campaign\nsite = ")
+    _damage(ref.path / "images" / "front.png")
+    r, data = _verify_json(root)
+    assert r.returncode == 4, r.stderr
+    errors = {(p["path"], p["kind"]) for p in data["problems"] if p["severity"] == "error"}
+    assert errors == {(str(root / "campaign.toml"), "campaign"), (str(ref.path / "images" / "front.png"), "checksum")}
+    assert data["observations"] == 2
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_verify_missing_campaign_toml_in_a_campaign_is_damage(tmp_path):
+    root = tmp_path / "c"
+    _campaign_with_observations(root)
+    (root / "campaign.toml").unlink()
+    r, data = _verify_json(root)
+    assert r.returncode == 4, r.stderr
+    assert [(p["path"], p["kind"]) for p in data["problems"]] == [(str(root / "campaign.toml"), "missing")]
+    assert data["observations"] == 2
+
+
+def test_verify_campaign_toml_from_a_newer_fgcd_is_not_damage(tmp_path):
+    root = tmp_path / "c"
+    _campaign_with_observations(root)
+    text = (root / "campaign.toml").read_text().replace("format_version = 1", "format_version = 99")
+    (root / "campaign.toml").write_text(text)
+    r = fgcd("campaign", "verify", root)
+    assert r.returncode == 3 and "not supported" in r.stderr, r.stderr
+
+
+def test_verify_broken_station_json_still_checks_that_stations_observations(tmp_path):
+    root = tmp_path / "c"
+    _, st, _, visit = _campaign_with_observations(root)
+    (st.path / "station.json").write_text("{ broken")
+    _damage(visit.path / "images" / "front.png")
+    r, data = _verify_json(root)
+    assert r.returncode == 4, r.stderr
+    assert [(p["path"], p["kind"]) for p in data["problems"]] == [
+        (str(st.path / "station.json"), "station"),
+        (str(visit.path / "images" / "front.png"), "checksum"),
+    ]
+    assert data["observations"] == 2  # the intact reference and the visit were both read
+
+
+@pytest.mark.parametrize("content", ['["reference"]', '"s"', '{"observations": "reference"}', None],
+                         ids=["array", "string", "bad-index", "missing"])
+def test_verify_names_a_malformed_or_missing_station_json(tmp_path, content):
+    root = tmp_path / "c"
+    _, st, _, _ = _campaign_with_observations(root)
+    if content is None:
+        (st.path / "station.json").unlink()
+    else:
+        (st.path / "station.json").write_text(content)
+    r, data = _verify_json(root)
+    assert r.returncode == 4, r.stderr
+    assert [p["path"] for p in data["problems"] if p["severity"] == "error"] == [str(st.path / "station.json")]
+    assert data["observations"] == 2
