@@ -9,7 +9,7 @@ simulator it also returns the evaluation hooks (ground truth), which only
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -18,7 +18,21 @@ from fgcd_cli.errors import HardwareError, UserInputError
 from fgcd_cli.geometry.camera import PinholeCamera
 from fgcd_cli.relocation.capture import RigHandles
 
-__all__ = ["OpenedRig", "SimScenario", "open_rig", "pinhole_from_intrinsics", "vse_factory_for"]
+__all__ = [
+    "DRIVERS",
+    "OpenedRig",
+    "SimScenario",
+    "check_driver",
+    "check_lighting",
+    "check_scenario",
+    "check_scene",
+    "open_rig",
+    "pinhole_from_intrinsics",
+    "vse_factory_for",
+]
+
+#: Platform drivers a command can open.
+DRIVERS = ("sim", "grbl", "ur", "manual")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -58,6 +72,58 @@ class SimScenario:
     start_offset_deg: float = 0.0
     session_seed: int = 0
     noise: str = "default"
+
+
+def check_driver(driver: str) -> str:
+    """``driver`` if it is one of :data:`DRIVERS`; UserInputError naming them otherwise."""
+    if driver not in DRIVERS:
+        raise UserInputError(f"unknown driver '{driver}' (choose from {', '.join(DRIVERS)})")
+    return driver
+
+
+def check_scene(scene: str) -> str:
+    """``scene`` if the simulator has it; UserInputError naming the known scenes otherwise."""
+    from drivers.sim.scenes import SceneNotFound, scene_spec
+
+    try:
+        scene_spec(scene)
+    except SceneNotFound:
+        from drivers.sim.scenes import list_scenes
+
+        known = ", ".join(s.name for s in list_scenes()) or "none"
+        raise UserInputError(f"unknown scene '{scene}' (choose from {known}; `fgcd sim scenes`)") from None
+    except (OSError, ValueError) as exc:
+        raise UserInputError(f"scene '{scene}' cannot be read: {exc}") from None
+    return scene
+
+
+def check_lighting(name: str, *, option: str = "--light") -> str:
+    """The canonical name of a simulator lighting preset; UserInputError naming the valid ones otherwise."""
+    from drivers.sim.lights import lighting_preset, list_lighting_presets
+
+    try:
+        return lighting_preset(name).name
+    except ValueError as exc:
+        # the parametrised presets are listed by their pattern, not by an example
+        fixed = [n for n, _ in list_lighting_presets() if ":" not in n and n != "front"]
+        known = ", ".join(["front", "led:H (H = 1..12)", "sun:az=A,el=E", "sun:day=D,hour=H", *fixed])
+        reason = str(exc).split(";")[0]
+        raise UserInputError(f"{option}: {reason} (valid: {known}; `fgcd sim lights`)") from None
+
+
+def check_scenario(scenario: SimScenario) -> SimScenario:
+    """``scenario`` with its lighting's canonical name, once every value is valid (UserInputError otherwise)."""
+    check_scene(scenario.scene)
+    lighting = check_lighting(scenario.lighting)
+    if scenario.changes < 0:
+        raise UserInputError(f"--changes must be 0 or more, got {scenario.changes}")
+    for option, value in (("--start-offset-mm", scenario.start_offset_mm), ("--start-offset-deg", scenario.start_offset_deg)):
+        if not math.isfinite(value) or value < 0:
+            raise UserInputError(f"{option} must be a finite number >= 0, got {value}")
+    lo, hi = scenario.change_size_mm
+    if not (0 < lo <= hi and math.isfinite(hi)):
+        raise UserInputError(f"change sizes must satisfy 0 < min <= max mm, got {lo}, {hi}")
+    return replace(scenario, lighting=lighting)
 
 
 @dataclass
@@ -128,11 +194,13 @@ def open_sim_rig(
     confirm: Callable[[str], bool] | None = None,
     vse_variant: str = "mono",
     on_event: Callable[[str], None] | None = None,
+    on_progress: Callable[[int, int, str], None] | None = None,
 ) -> OpenedRig:
-    """A simulated rig for one session of a scenario."""
+    """A simulated rig for one session of a scenario (``on_progress``: see :class:`RigHandles`)."""
     from drivers.platform import GuardLimits, MotionGuard
     from drivers.sim.rig import build_sim_rig
 
+    scenario = check_scenario(scenario)
     rig = build_sim_rig(
         scene=scenario.scene,
         lighting=scenario.lighting,
@@ -161,6 +229,7 @@ def open_sim_rig(
         vse_factory=vse_factory_for(cam, source, variant=vse_variant),
         lights=rig.lights,
         on_event=on_event,
+        on_progress=on_progress,
     )
     return OpenedRig(handles=handles, close=rig.platform.close, sim=rig, info={"scenario": scenario.__dict__})
 
@@ -178,8 +247,9 @@ def open_rig(
     confirm: Callable[[str], bool] | None = None,
     vse_variant: str = "mono",
     on_event: Callable[[str], None] | None = None,
+    on_progress: Callable[[int, int, str], None] | None = None,
 ) -> OpenedRig:
-    """Open the rig a command asked for."""
+    """Open the rig a command asked for (``on_event``, ``on_progress``: see :class:`RigHandles`)."""
     if driver == "sim":
         return open_sim_rig(
             scenario or SimScenario(),
@@ -188,9 +258,9 @@ def open_rig(
             confirm=confirm,
             vse_variant=vse_variant,
             on_event=on_event,
+            on_progress=on_progress,
         )
-    if driver not in ("grbl", "ur", "manual"):
-        raise UserInputError(f"unknown driver '{driver}' (sim, grbl, ur, manual)")
+    check_driver(driver)
     if intrinsics is None:
         raise UserInputError("no camera intrinsics in the campaign rig: run `fgcd calibrate intrinsics` first")
     from drivers.cameras import OpenCVCamera
@@ -220,5 +290,6 @@ def open_rig(
         vse_factory=vse_factory_for(intrinsics, camera, variant=vse_variant),
         lights=None,
         on_event=on_event,
+        on_progress=on_progress,
     )
     return OpenedRig(handles=handles, close=close)

@@ -94,6 +94,7 @@ def run_target_free(
     max_step_deg: float = 1.0,
     refine: bool = True,
     progress: Callable[[str], None] | None = None,
+    on_progress: Callable[[int, int, str], None] | None = None,
 ) -> TargetFreeRun:
     """Command exploration motions, track them with the VSE, solve ``X`` and ``s``.
 
@@ -122,6 +123,9 @@ def run_target_free(
         cannot be matched the linear solution is kept with a note.
     progress : callable(str), optional
         Receives one line per stop.
+    on_progress : callable(done, total, label), optional
+        Receives the frames done along the whole path after each frame, then
+        ``(0, 0, label)`` when the image refinement (length unknown) starts.
 
     Returns
     -------
@@ -136,6 +140,7 @@ def run_target_free(
         A motion failed or was refused (the platform stays where it stopped).
     """
     say = progress or (lambda _msg: None)
+    tick = on_progress or (lambda _done, _total, _label: None)
     if motions is None:
         axes = _rotation_axes(guard)
         if len(axes) < 2:
@@ -168,19 +173,22 @@ def run_target_free(
         last_pose[0] = flange_at[float(frame.timestamp_s)] = np.asarray(guard.platform.flange_pose(), dtype=float)
         return engine.process(frame.image, frame.timestamp_s)
 
-    T_prev = T_start
-    for index, T_rel in enumerate(motions):
-        T_target = T_start @ np.asarray(T_rel, dtype=float)
-        steps = interpolate_steps(T_prev, T_target, max_step_m=max_step_m, max_step_deg=max_step_deg) if index else []
+    targets = [T_start @ np.asarray(T_rel, dtype=float) for T_rel in motions]
+    legs = [interpolate_steps(a, b, max_step_m=max_step_m, max_step_deg=max_step_deg) if index else []
+            for index, (a, b) in enumerate(zip([T_start] + targets[:-1], targets))]
+    total_frames = sum(len(steps) for steps in legs) + len(legs) * max(1, settle_frames)
+    for index, steps in enumerate(legs):
+        label = f"hand-eye motions (stop {index + 1}/{len(motions)})"
         for T_step in steps:
             guard.move_to(T_step)
             state = feed()
+            tick(frames, total_frames, label)
             if refine:
                 path_T.append(last_pose[0])
                 path_images.append(gray_u8(last_image[0]))
-        T_prev = T_target
         for _ in range(max(1, settle_frames)):
             state = feed()
+            tick(frames, total_frames, label)
         if state.status == "failed":
             raise CalibrationError(f"the VSE cannot track this scene: {state.message}")
         tracked = state.status == "tracking" and state.T_map_cam is not None
@@ -212,6 +220,7 @@ def run_target_free(
     if refine:
         from fgcd_cli.calibration.handeye_ba import PathViews, refine_target_free
 
+        tick(0, 0, f"image refinement over {len(path_T)} views")
         path = PathViews(T_base_flange=path_T, images=path_images, stop_index=stop_index)
         try:
             result = refine_target_free(result, hand, eye, stop_images, camera.K, dist=camera.dist,
@@ -257,6 +266,7 @@ def run_target(
     methods: Sequence[str] = ("TSAI", "PARK", "HORAUD", "ANDREFF", "DANIILIDIS"),
     min_corners: int = 12,
     progress: Callable[[str], None] | None = None,
+    on_progress: Callable[[int, int, str], None] | None = None,
 ) -> TargetRun:
     """Visit stops looking at a fixed ChArUco board and solve ``AX = XB``.
 
@@ -280,6 +290,8 @@ def run_target(
         Views with fewer board corners are skipped.
     progress : callable(str), optional
         Receives one line per stop.
+    on_progress : callable(done, total, label), optional
+        Receives the stops done before each stop's motion, and at the end.
 
     Returns
     -------
@@ -293,8 +305,10 @@ def run_target(
     hand: list[np.ndarray] = []
     boards: list[np.ndarray] = []
     skipped: dict[int, str] = {}
+    tick = on_progress or (lambda _done, _total, _label: None)
     T_prev = T_start
     for index, T_rel in enumerate(motions):
+        tick(index, len(motions), f"hand-eye with the board (stop {index + 1}/{len(motions)})")
         T_target = T_start @ np.asarray(T_rel, dtype=float)
         if index:
             for T_step in interpolate_steps(T_prev, T_target, max_step_m=step_m, max_step_deg=step_deg):
@@ -310,6 +324,7 @@ def run_target(
         hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
         boards.append(T_cam_target)
         say(f"stop {index + 1}/{len(motions)}: {det.n_corners} corners")
+    tick(len(motions), len(motions), "back to the start pose")
     # Return to the start pose (the same small steps).
     for T_step in interpolate_steps(T_prev, T_start, max_step_m=step_m, max_step_deg=step_deg):
         guard.move_to(T_step)

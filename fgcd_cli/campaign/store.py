@@ -25,6 +25,7 @@ import re
 import shutil
 import tomllib
 import uuid
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -539,6 +540,38 @@ class Station:
         atomic_write_json(self.path / "station.json", self.info)
 
 
+def _read_station_info(sfile: Path) -> dict:
+    """The content of a ``station.json`` ({} if absent); DataIntegrityError naming it when damaged."""
+    if not sfile.exists():
+        return {}
+    try:
+        info = json.loads(sfile.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DataIntegrityError(f"{sfile}: damaged station record, not valid JSON ({exc}); "
+                                 "run `fgcd campaign verify`") from None
+    except OSError as exc:
+        raise DataIntegrityError(f"{sfile}: damaged station record, cannot be read ({exc.strerror or exc})") from None
+    if not isinstance(info, dict):
+        raise DataIntegrityError(f"{sfile}: damaged station record, not a JSON object; run `fgcd campaign verify`")
+    return info
+
+
+def _remove_unused_station(station: Station) -> None:
+    """Remove a station directory that holds nothing but its ``station.json`` and write leftovers."""
+    if station.has_reference() or station.visit_names():
+        return
+    leftovers = {"station.json", "visits", "reference"}
+    for entry in station.path.iterdir():
+        if entry.name not in leftovers and not entry.name.startswith(TMP_PREFIX):
+            return
+        if entry.name in ("visits", "reference") and any(
+            not p.name.startswith(TMP_PREFIX) for p in entry.iterdir()
+        ):
+            return
+    shutil.rmtree(station.path, ignore_errors=True)
+    fsync_dir(station.path.parent)
+
+
 # ----------------------------------------------------------------------------- campaign
 @dataclass
 class Campaign:
@@ -566,20 +599,23 @@ class Campaign:
         return sorted(p.name for p in sdir.iterdir() if p.is_dir() and not p.name.startswith("."))
 
     def station(self, name: str) -> Station:
-        """An existing station."""
+        """An existing station; DataIntegrityError when its ``station.json`` is damaged."""
         name = _check_name(name, "station")
         path = self.path / "stations" / name
         if not path.is_dir():
             known = ", ".join(self.station_names()) or "none"
             raise CampaignError(f"campaign has no station '{name}' (stations: {known})")
-        info: dict = {}
-        sfile = path / "station.json"
-        if sfile.exists():
-            try:
-                info = json.loads(sfile.read_text(encoding="utf-8"))
-            except json.JSONDecodeError as exc:
-                raise DataIntegrityError(f"{sfile}: not valid JSON ({exc})") from None
-        return Station(self, name, path, info)
+        return Station(self, name, path, _read_station_info(path / "station.json"))
+
+    def existing_station(self, name: str) -> Station | None:
+        """The station if it exists, None if not; DataIntegrityError when it is damaged. Writes nothing."""
+        name = _check_name(name, "station")
+        path = self.path / "stations" / name
+        if path.is_dir():
+            return self.station(name)
+        if path.exists():
+            raise CampaignError(f"{path} exists but is not a station directory")
+        return None
 
     def create_station(self, name: str, *, description: str = "", **info: Any) -> Station:
         """Create a station (error if it exists)."""
@@ -593,11 +629,31 @@ class Campaign:
         return Station(self, name, path, data)
 
     def station_or_create(self, name: str, **info: Any) -> Station:
-        """The station, created if missing."""
+        """The station, created if missing.
+
+        A station that exists but cannot be read is reported as damaged
+        (DataIntegrityError), never re-created over.
+        """
+        station = self.existing_station(name)
+        return station if station is not None else self.create_station(name, **info)
+
+    @contextmanager
+    def station_for_writing(self, name: str, **info: Any) -> Iterator[Station]:
+        """The station, created if missing, for a command that may fail.
+
+        Rule: a failed command leaves nothing behind. A station this call
+        created is removed again when the block raises (Ctrl-C included),
+        provided it still holds no committed observation.
+        """
+        name = _check_name(name, "station")
+        existed = (self.path / "stations" / name).exists()
+        station = self.station_or_create(name, **info)
         try:
-            return self.station(name)
-        except CampaignError:
-            return self.create_station(name, **info)
+            yield station
+        except BaseException:
+            if not existed:
+                _remove_unused_station(station)
+            raise
 
     # -- rig calibration records
     def rig_path(self, name: str) -> Path:

@@ -220,6 +220,74 @@ def _render_handeye(console, data: dict) -> None:
         console.print(f"stored in {data['stored']}")
 
 
+def _check_handeye_options(*, mode: str, driver: str, scene: str, seed: int, board_file: Optional[Path],
+                           translation_mm: float, rotation_deg: float):
+    """Refuse bad hand-eye options before anything is opened or moved; the simulated world when ``driver`` is sim."""
+    from fgcd_cli.rigs import SimScenario, check_driver, check_scenario
+
+    if mode not in ("target", "target-free"):
+        raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
+    check_driver(driver)
+    if mode == "target" and driver == "sim":
+        raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
+    if mode == "target" and board_file is None:
+        raise UserInputError("--mode target needs --board <sidecar.json> describing the printed board")
+    if mode == "target-free":
+        from fgcd_cli.calibration.motions import exploration_motions
+
+        # refuse bad motion sizes before connecting to a platform
+        exploration_motions(translation_m=translation_mm / 1000, rotation_deg=rotation_deg)
+    return check_scenario(SimScenario(scene=scene, seed=seed)) if driver == "sim" else None
+
+
+def _handeye_intrinsics(camp, *, driver: str, as_json: bool):
+    """The campaign's intrinsics for a hand-eye run, or None with one warning (simulator only).
+
+    Rule: a real camera's hand-eye needs calibrated intrinsics, refused up front
+    in one line; the simulator's camera has nominal ones, used after a warning.
+    """
+    from fgcd_cli.calibration.rig import load_intrinsics
+
+    intr = load_intrinsics(camp) if camp is not None else None
+    if intr is not None:
+        return intr
+    if driver != "sim":
+        where = "this campaign has none" if camp is not None else "give -c CAMPAIGN"
+        raise UserInputError(f"hand-eye with a real camera needs calibrated intrinsics ({where}): "
+                             "run `fgcd calibrate intrinsics --images DIR -c CAMPAIGN` first")
+    if not as_json:
+        info("warning: no calibrated intrinsics (-c CAMPAIGN): using the simulated camera's nominal ones; a focal "
+             "length 1 % off puts the hand-eye centimetres off (docs/calibration.md, §2)")
+    return None
+
+
+def _run_handeye(handles, *, mode: str, board_file: Optional[Path], translation_mm: float, rotation_deg: float,
+                 say, bar):
+    """Run the hand-eye procedure on an opened rig; ``(result, JSON data)``."""
+    from fgcd_cli.calibration.procedure import run_target, run_target_free
+
+    if mode == "target-free":
+        from fgcd_cli.vse import MonocularVSE
+
+        if say is not None:
+            say("target-free hand-eye: the platform makes small motions while the VSE tracks…")
+        run = run_target_free(
+            handles.guard, handles.camera_source, lambda cam: MonocularVSE(cam), camera=handles.intrinsics,
+            translation_m=translation_mm / 1000, rotation_deg=rotation_deg, progress=say, on_progress=bar,
+        )
+        result, data = run.result, run.result.to_dict()
+    else:
+        from fgcd_cli.calibration.board import load_board_sidecar
+
+        run = run_target(
+            handles.guard, handles.camera_source, load_board_sidecar(board_file), camera=handles.intrinsics,
+            rotation_deg=rotation_deg if rotation_deg != 8.0 else 15.0, progress=say, on_progress=bar,
+        )
+        result, data = run.result.best, run.result.to_dict()
+    data["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
+    return result, data
+
+
 @app.command("hand-eye")
 def handeye_cmd(
     mode: str = typer.Option("target-free", "--mode", help="target (ChArUco board) or target-free (VSE, rACR)."),
@@ -237,62 +305,34 @@ def handeye_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
-    from fgcd_cli.calibration.procedure import run_target, run_target_free
-    from fgcd_cli.calibration.rig import load_intrinsics, save_handeye
+    from fgcd_cli.calibration.rig import save_handeye
+    from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.rigs import SimScenario, open_rig
 
-    if mode not in ("target", "target-free"):
-        raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
-    if mode == "target" and driver == "sim":
-        raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
-    if mode == "target-free":
-        from fgcd_cli.calibration.motions import exploration_motions
-
-        # refuse bad motion sizes before connecting to a platform
-        exploration_motions(translation_m=translation_mm / 1000, rotation_deg=rotation_deg)
+    scenario = _check_handeye_options(mode=mode, driver=driver, scene=scene, seed=seed, board_file=board_file,
+                                      translation_mm=translation_mm, rotation_deg=rotation_deg)
     camp = _open_campaign(campaign)
-    intr = load_intrinsics(camp) if camp is not None else None
-    if intr is None and not as_json:
-        info("warning: no calibrated intrinsics (-c CAMPAIGN): using the camera's nominal ones; a focal length "
-             "1 % off puts the hand-eye centimetres off (docs/calibration.md, §2)")
+    intr = _handeye_intrinsics(camp, driver=driver, as_json=as_json)
     confirm = None if yes else (lambda text: typer.confirm(text, default=False, err=True))
-    opened = open_rig(
-        driver=driver,
-        T_flange_cam=None,
-        intrinsics=intr.camera if intr is not None else None,
-        scenario=SimScenario(scene=scene, seed=seed),
-        port=port or (camp.rig_config.get("port") if camp is not None else None),
-        host=host or (camp.rig_config.get("host") if camp is not None else None),
-        camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
-        confirm=confirm,
-    )
-    progress = None if as_json else info
-    try:
-        h = opened.handles
-        if mode == "target-free":
-            from fgcd_cli.vse import MonocularVSE
-
-            if not as_json:
-                info("target-free hand-eye: the platform makes small motions while the VSE tracks…")
-            run = run_target_free(
-                h.guard, h.camera_source, lambda cam: MonocularVSE(cam), camera=h.intrinsics,
-                translation_m=translation_mm / 1000, rotation_deg=rotation_deg, progress=progress,
-            )
-            result, data = run.result, run.result.to_dict()
-            data["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
-        else:
-            if board_file is None:
-                raise UserInputError("--mode target needs --board <sidecar.json> describing the printed board")
-            from fgcd_cli.calibration.board import load_board_sidecar
-
-            run = run_target(
-                h.guard, h.camera_source, load_board_sidecar(board_file), camera=h.intrinsics,
-                rotation_deg=rotation_deg if rotation_deg != 8.0 else 15.0, progress=progress,
-            )
-            result, data = run.result.best, run.result.to_dict()
-            data["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
-    finally:
-        opened.close()
+    with step_progress(enabled=not as_json) as bar:
+        if bar is not None:
+            bar(0, 0, "opening the rig")
+            confirm = bar.paused(confirm)
+        opened = open_rig(
+            driver=driver,
+            T_flange_cam=None,
+            intrinsics=intr.camera if intr is not None else None,
+            scenario=scenario or SimScenario(),
+            port=port or (camp.rig_config.get("port") if camp is not None else None),
+            host=host or (camp.rig_config.get("host") if camp is not None else None),
+            camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
+            confirm=confirm,
+        )
+        try:
+            result, data = _run_handeye(opened.handles, mode=mode, board_file=board_file, translation_mm=translation_mm,
+                                        rotation_deg=rotation_deg, say=None if as_json else info, bar=bar)
+        finally:
+            opened.close()
     data["mode"] = mode
     data["driver"] = driver
     if camp is not None:

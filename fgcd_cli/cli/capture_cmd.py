@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -43,12 +44,40 @@ def rig_calibration(campaign) -> tuple[np.ndarray | None, PinholeCamera | None]:
     return T, cam
 
 
+def campaign_world(campaign) -> dict:
+    """The campaign's default simulated world (``[rig.sim]`` of campaign.toml), never written by a capture."""
+    sim = campaign.rig_config.get("sim", {})
+    sim = sim if isinstance(sim, dict) else {}
+    return {"scene": str(sim.get("scene", "stele")), "seed": _int_or(sim.get("seed"), 0),
+            "noise": str(sim.get("noise", "default"))}
+
+
+def station_world(campaign, reference) -> dict:
+    """The simulated world a station's reference was captured in.
+
+    Rule: the world belongs to the station. Its reference records the scene,
+    seed and noise it was captured in; the campaign's ``[rig.sim]`` is only the
+    default for references that do not say (written before the rule).
+    """
+    world = campaign_world(campaign)
+    recorded = reference.metadata.get("scenario")
+    if isinstance(recorded, dict):
+        world.update({k: recorded[k] for k in ("scene", "seed", "noise") if recorded.get(k) is not None})
+    return world
+
+
+def _int_or(value, default: int) -> int:
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return default
+
+
 def sim_scenario_from_campaign(campaign, **overrides):
-    """The simulated world recorded in campaign.toml ``[rig.sim]``, with overrides."""
+    """The campaign's default simulated world (``[rig.sim]``) as a scenario, with overrides."""
     from fgcd_cli.rigs import SimScenario
 
-    sim = dict(campaign.rig_config.get("sim", {}))
-    base = {"scene": sim.get("scene", "stele"), "seed": int(sim.get("seed", 0)), "noise": sim.get("noise", "default")}
+    base = campaign_world(campaign)
     base.update({k: v for k, v in overrides.items() if v is not None})
     return SimScenario(**base)
 
@@ -72,56 +101,165 @@ def print_record(rec) -> None:
     )
 
 
+@dataclass(frozen=True, kw_only=True)
+class CapturePlan:
+    """Everything a capture needs, checked before anything is created, opened or moved.
+
+    Attributes
+    ----------
+    driver : str
+        Platform driver (``fgcd_cli.rigs.DRIVERS``).
+    lightings : list of str
+        Lightings of the reference images (canonical preset names on the simulator).
+    scenario : SimScenario or None
+        The simulated world of the station (simulator only).
+    T_flange_cam : (4, 4) ndarray
+        The campaign's hand-eye.
+    camera : PinholeCamera or None
+        The campaign's intrinsics (required on hardware).
+    """
+
+    driver: str
+    lightings: list[str]
+    scenario: object | None
+    T_flange_cam: np.ndarray
+    camera: PinholeCamera | None
+
+
+def check_station_can_take_a_reference(campaign, name: str) -> None:
+    """Refuse a damaged station or one that already has its (immutable) reference; writes nothing."""
+    from fgcd_cli.errors import ImmutableDataError
+
+    st = campaign.existing_station(name)  # DataIntegrityError when station.json is damaged
+    if st is None:
+        return
+    if st.reference_path.exists():
+        raise ImmutableDataError(f"station '{st.name}' already has a reference observation (immutable): "
+                                 "create a new station to capture another reference")
+
+
+def _image_lightings(text: str, *, sim: bool) -> list[str]:
+    """The comma-separated lightings of the reference images, checked (simulator: known presets)."""
+    from fgcd_cli.rigs import check_lighting
+
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    if not names:
+        raise UserInputError("--lightings names no lighting")
+    if sim:
+        names = [check_lighting(n, option="--lightings") for n in names]
+    if len(set(names)) != len(names):
+        raise UserInputError(f"--lightings names a lighting twice: {text}")
+    return names
+
+
+def plan_capture(campaign, *, station: str, driver: str | None, scene: str | None, seed: int | None, light: str,
+                 lightings: str | None) -> CapturePlan:
+    """Check every option of a capture, in the order a person fixes them; nothing is written.
+
+    Station (name, damage, existing reference) -> driver -> world (scene,
+    lights) -> calibration. The simulated world is the station's: ``--scene``
+    and ``--seed`` override the campaign's default ``[rig.sim]`` for this
+    station only, and are recorded in its reference.
+    """
+    from fgcd_cli.rigs import SimScenario, check_driver, check_scenario
+
+    check_station_can_take_a_reference(campaign, station)
+    driver = check_driver(driver or campaign.rig_config.get("driver", "sim"))
+    scenario = None
+    if driver == "sim":
+        world = campaign_world(campaign)
+        scenario = check_scenario(SimScenario(scene=scene or world["scene"], seed=world["seed"] if seed is None else seed,
+                                              noise=world["noise"], lighting=light))
+    elif scene is not None or seed is not None:
+        raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, not {driver}")
+    names = _image_lightings(lightings or light, sim=driver == "sim")
+    T_flange_cam, cam = rig_calibration(campaign)
+    if T_flange_cam is None:
+        raise CampaignError("no hand-eye calibration in the campaign: run `fgcd calibrate hand-eye` first")
+    if driver != "sim" and cam is None:
+        raise CampaignError("no camera intrinsics in the campaign: run `fgcd calibrate intrinsics -c CAMPAIGN` first")
+    return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam)
+
+
 def capture(
     campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign directory."),
     station: str = typer.Option(..., "--station", "-s", help="Station to capture (created if missing)."),
     driver: str = typer.Option(None, "--driver", help="sim, grbl, ur or manual (default: the campaign's)."),
-    scene: str = typer.Option(None, "--scene", help="Simulator scene (sim driver)."),
-    seed: int = typer.Option(None, "--seed", help="Simulator world seed (sim driver)."),
-    light: str = typer.Option("front", "--light", help="Lighting of the capture (sim)."),
+    scene: str = typer.Option(None, "--scene", help="Simulator scene of this station (default: the campaign's "
+                                                     "[rig.sim] scene; `fgcd sim scenes`)."),
+    seed: int = typer.Option(None, "--seed", help="Simulator world seed of this station (default: the campaign's; "
+                                                   "the seed the hand-eye was calibrated with)."),
+    light: str = typer.Option("front", "--light", help="Lighting of the capture (sim; `fgcd sim lights`)."),
     lightings: str = typer.Option(None, "--lightings", help="Comma-separated lightings for the reference images (default: --light)."),
     port: str = typer.Option(None, "--port", help="Serial port (grbl)."),
     host: str = typer.Option(None, "--host", help="Robot address (ur)."),
     yes: bool = typer.Option(False, "--yes", help="Answer the first-motion confirmation (scripts)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """Capture the reference observation of a station (immutable once written)."""
+    """Capture the reference observation of a station (immutable once written).
+
+    Every option is checked before anything is written; a capture that fails
+    leaves no station behind, and never changes campaign.toml.
+    """
+    from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.metrics.sim_eval import reference_truth
     from fgcd_cli.relocation.capture import capture_reference
     from fgcd_cli.rigs import open_rig
 
     camp = open_campaign(campaign)
-    driver = driver or camp.rig_config.get("driver", "sim")
-    st = camp.station_or_create(station)
-    if st.has_reference():
-        from fgcd_cli.errors import ImmutableDataError
-
-        raise ImmutableDataError(f"station '{station}' already has a reference observation (immutable)")
-    T_flange_cam, cam = rig_calibration(camp)
-    if T_flange_cam is None:
-        raise CampaignError("no hand-eye calibration in the campaign: run `fgcd calibrate hand-eye` first")
-    scenario = None
-    if driver == "sim":
-        sim_cfg = dict(camp.rig_config.get("sim", {}))
-        if scene is not None or seed is not None or not sim_cfg:
-            sim_cfg.update({"scene": scene or sim_cfg.get("scene", "stele"), "seed": seed if seed is not None else sim_cfg.get("seed", 0)})
-            camp.update_config("rig", {"sim": sim_cfg})
-        scenario = sim_scenario_from_campaign(camp, lighting=light)
-    names = [x.strip() for x in (lightings or light).split(",") if x.strip()]
-    rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port or camp.rig_config.get("port"), host=host or camp.rig_config.get("host"),
-                   confirm=_confirm_factory(yes), on_event=info)
-    try:
-        result = capture_reference(
-            rig.handles, st, lightings=names, metadata={"driver": driver, "scenario": rig.info.get("scenario")},
-            evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
-        )
-    finally:
-        rig.close()
+    plan = plan_capture(camp, station=station, driver=driver, scene=scene, seed=seed, light=light, lightings=lightings)
+    confirm = _confirm_factory(yes)
+    with step_progress(enabled=not as_json) as progress, camp.station_for_writing(station) as st:
+        if progress is not None:
+            progress(0, 0, "opening the rig")
+            confirm = progress.paused(confirm)
+        rig = open_rig(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
+                       scenario=plan.scenario, port=port or camp.rig_config.get("port"),
+                       host=host or camp.rig_config.get("host"), confirm=confirm, on_event=info, on_progress=progress)
+        try:
+            result = capture_reference(
+                rig.handles, st, lightings=plan.lightings,
+                metadata={"driver": plan.driver, "scenario": rig.info.get("scenario")},
+                evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
+            )
+        finally:
+            rig.close()
     data = {"station": station, "reference": result.observation_path, "cloud_points": result.cloud_points,
-            "scale": result.scale.scale, "images": result.images}
+            "scale": result.scale.scale, "images": result.images,
+            "scene": plan.scenario.scene if plan.scenario is not None else None}
     emit(data, as_json=as_json, render=lambda c: c.print(
         f"Reference of [bold]{station}[/bold] written to {result.observation_path} "
         f"({result.cloud_points} cloud points, scale {result.scale.scale:.4f} m/unit, images: {', '.join(result.images)})"))
+
+
+def check_relocation_options(*, changes: int, eta: float, max_adjustments: int, start_offset_mm: float,
+                             start_offset_deg: float) -> None:
+    """Refuse out-of-range relocation options up front (UserInputError naming the valid range)."""
+    if changes < 0:
+        raise UserInputError(f"--changes must be 0 or more, got {changes}")
+    if not (math.isfinite(eta) and eta > 0):
+        raise UserInputError(f"--eta must be a number > 0, got {eta}")
+    if max_adjustments < 1:
+        raise UserInputError(f"--max-adjustments must be 1 or more, got {max_adjustments}")
+    for option, value in (("--start-offset-mm", start_offset_mm), ("--start-offset-deg", start_offset_deg)):
+        if not (math.isfinite(value) and value >= 0):
+            raise UserInputError(f"{option} must be a number >= 0, got {value}")
+
+
+def visit_scenario(campaign, reference, *, light: str, changes: int, start_offset_mm: float, start_offset_deg: float,
+                   session_seed: int):
+    """The simulated session of a visit: the station's own world (see :func:`station_world`), checked."""
+    from fgcd_cli.rigs import SimScenario, check_scenario, check_scene
+
+    world = station_world(campaign, reference)
+    try:
+        check_scene(world["scene"])
+    except UserInputError as exc:
+        raise CampaignError(f"the reference of {reference.path} was captured in a world this simulator lacks: {exc}") \
+            from None
+    return check_scenario(SimScenario(scene=world["scene"], seed=world["seed"], noise=world["noise"], lighting=light,
+                                      changes=changes, start_offset_mm=start_offset_mm,
+                                      start_offset_deg=start_offset_deg, session_seed=session_seed))
 
 
 def relocate(
@@ -152,21 +290,27 @@ def relocate(
     from fgcd_cli.relocation.capture import relocate_and_capture
     from fgcd_cli.relocation.coarse import CoarseConfig
     from fgcd_cli.relocation.loop import RelocationConfig
-    from fgcd_cli.rigs import open_rig
+    from fgcd_cli.rigs import check_driver, check_lighting, open_rig
 
+    # option values first (exit 2), then the campaign (exit 3)
+    driver = check_driver(driver) if driver is not None else None
+    check_relocation_options(changes=changes, eta=eta, max_adjustments=max_adjustments,
+                             start_offset_mm=start_offset_mm, start_offset_deg=start_offset_deg)
     camp = open_campaign(campaign)
-    driver = driver or camp.rig_config.get("driver", "sim")
+    driver = check_driver(driver or camp.rig_config.get("driver", "sim"))
+    if driver == "sim":
+        light = check_lighting(light)
     st = camp.station(station)
     ref = st.reference()
+    scenario = None
+    if driver == "sim":
+        scenario = visit_scenario(camp, ref, light=light, changes=changes, start_offset_mm=start_offset_mm,
+                                  start_offset_deg=start_offset_deg, session_seed=session_seed)
     T_flange_cam, cam = rig_calibration(camp)
     if T_flange_cam is None and not no_handeye:
         raise CampaignError("no hand-eye calibration in the campaign: calibrate, or use --no-handeye")
     if no_handeye:
         T_flange_cam = np.eye(4)
-    scenario = None
-    if driver == "sim":
-        scenario = sim_scenario_from_campaign(camp, lighting=light, changes=changes, start_offset_mm=start_offset_mm,
-                                              start_offset_deg=start_offset_deg, session_seed=session_seed)
     config = RelocationConfig(mode="serial" if serial else "parallel", eta=eta, max_adjustments=max_adjustments,
                               image_refine=not no_image_refine, image_fallback=not no_image_refine)
     rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port or camp.rig_config.get("port"), host=host or camp.rig_config.get("host"),

@@ -48,6 +48,9 @@ class RigHandles:
     lights : object with ``set(name)`` or None
     vse_factory : callable() -> VseThread (not started)
     on_event : callable(str) or None
+        Progress lines for people.
+    on_progress : callable(done, total, label) or None
+        Progress of long steps (``total <= 0``: length unknown).
     """
 
     guard: object
@@ -57,10 +60,17 @@ class RigHandles:
     vse_factory: Callable[[], object]
     lights: object | None = None
     on_event: Callable[[str], None] | None = None
+    on_progress: Callable[[int, int, str], None] | None = None
 
     def say(self, text: str) -> None:
+        """One progress line for people (no-op without ``on_event``)."""
         if self.on_event:
             self.on_event(text)
+
+    def progress(self, done: int, total: int, label: str) -> None:
+        """Progress of a long step (no-op without ``on_progress``)."""
+        if self.on_progress:
+            self.on_progress(done, total, label)
 
 
 @dataclass
@@ -80,11 +90,13 @@ class CaptureResult:
 def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> dict[str, np.ndarray]:
     """Images at the current pose, one per lighting, averaged over a few frames (noise)."""
     images: dict[str, np.ndarray] = {}
-    for name in lightings:
+    frames = max(1, average)
+    for k, name in enumerate(lightings):
         if rig.lights is not None and name != "ambient":
             rig.lights.set(name)
         acc = None
-        for _ in range(max(1, average)):
+        for i in range(frames):
+            rig.progress(k * frames + i, len(lightings) * frames, "images under each lighting")
             frame = rig.camera_source.grab()
             img = frame.rgb if getattr(frame, "rgb", None) is not None else frame.image
             img = np.asarray(img, dtype=np.float64)
@@ -110,7 +122,7 @@ def _start_session(
     """
     vse = rig.vse_factory()
     vse.start()
-    session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event,
+    session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event, on_progress=rig.on_progress,
                          frame_synthesis_s=getattr(rig.camera_source, "synthetic_overhead_s", None))
     T_base_flange_home = rig.guard.platform.flange_pose()
     last_error: AlgorithmError | None = None
@@ -168,9 +180,11 @@ def capture_reference(
     evaluation: dict | None = None,
 ) -> CaptureResult:
     """Capture the immutable reference observation of ``station`` at the platform's current pose."""
+    rig.progress(0, 0, "starting the VSE")
     session, vse, scale, T_base_flange_ref = _start_session(rig, explore_m=explore_m)
     try:
-        session.move_to_flange(T_base_flange_ref)
+        session.move_to_flange(T_base_flange_ref, label="back to the reference pose")
+        rig.progress(0, 0, "letting the reference cloud mature")
         state = session.tracking_state()
         # a few more frames at the reference pose let the semi-dense cloud mature
         state = session.settle(frames=6)
@@ -195,6 +209,7 @@ def capture_reference(
             "platform_s": session.timing.platform_s,
             **(metadata or {}),
         }
+        rig.progress(0, 0, "writing the reference")
         with station.write_reference(meta) as w:
             for name, img in images.items():
                 w.add_image(name, img)

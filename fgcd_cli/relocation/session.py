@@ -140,6 +140,9 @@ class VseSession:
         Wall time after which a silent VSE is an error.
     on_event : callable(str), optional
         Progress lines for people.
+    on_progress : callable(done, total, label), optional
+        Progress of long steps (exploration, motions in sub-steps), reported
+        after each sub-step; ``total <= 0`` means the length is unknown.
     frame_synthesis_s : callable() -> float, optional
         Cumulative seconds the camera has spent synthesising frames (the
         simulator's ``synthetic_overhead_s``). When given, frame waits count
@@ -158,6 +161,7 @@ class VseSession:
     on_event: Callable[[str], None] | None = None
     frame_synthesis_s: Callable[[], float] | None = None
     camera_fps: float = 30.0
+    on_progress: Callable[[int, int, str], None] | None = None
     timing: SessionTiming = field(default_factory=SessionTiming)
 
     # -- VSE access
@@ -199,33 +203,52 @@ class VseSession:
                 raise AlgorithmError(f"the VSE is not tracking ({st.status}: {st.message})")
 
     # -- motion
-    def move_by(self, M_flange: np.ndarray) -> float:
-        """Move by ``M_flange`` (flange frame) in sub-steps; returns the platform time spent."""
-        xi = log_se3(M_flange)
+    def substeps(self, M_flange: np.ndarray) -> int:
+        """Number of sub-steps :meth:`move_by` cuts the motion ``M_flange`` into."""
+        M_flange = np.asarray(M_flange, dtype=float)
         trans = float(np.linalg.norm(M_flange[:3, 3]))
         rot = rotation_angle_rad(M_flange[:3, :3])
-        n = max(1, int(math.ceil(max(trans / self.substep_m, rot / self.substep_rad))))
-        step = exp_se3(xi / n)
+        return max(1, int(math.ceil(max(trans / self.substep_m, rot / self.substep_rad))))
+
+    def progress(self, done: int, total: int, label: str) -> None:
+        """Report the progress of a long step (no-op without ``on_progress``)."""
+        if self.on_progress is not None:
+            self.on_progress(done, total, label)
+
+    def move_by(self, M_flange: np.ndarray, *, progress: tuple[int, int, str] | None = None) -> float:
+        """Move by ``M_flange`` (flange frame) in sub-steps; returns the platform time spent.
+
+        ``progress = (done, total, label)``: the sub-steps already done of a
+        longer step and its total; each sub-step of this motion is reported.
+        """
+        n = self.substeps(M_flange)
+        step = exp_se3(log_se3(np.asarray(M_flange, dtype=float)) / n)
+        done, total, label = progress if progress is not None else (0, n, "")
         spent = 0.0
-        for _ in range(n):
+        for i in range(n):
             result = self.guard.move_by(step)
             spent += float(getattr(result, "duration_s", 0.0))
             self.timing.moves += 1
             self.settle(frames=1)
+            if progress is not None:
+                self.progress(done + i + 1, total, label)
         self.timing.platform_s += spent
         return spent
 
-    def move_to_flange(self, T_base_flange_target: np.ndarray) -> float:
-        """Move the flange to an absolute pose in sub-steps."""
+    def move_to_flange(self, T_base_flange_target: np.ndarray, *, label: str | None = None) -> float:
+        """Move the flange to an absolute pose in sub-steps (reported under ``label`` when given)."""
         current = self.guard.platform.flange_pose()
-        return self.move_by(invert_pose(current) @ np.asarray(T_base_flange_target, dtype=float))
+        M = invert_pose(current) @ np.asarray(T_base_flange_target, dtype=float)
+        return self.move_by(M, progress=None if label is None else (0, self.substeps(M), label))
 
     # -- exploration and scale
     def explore(self, motions: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Run an exploration; return the flange and VSE poses at each tracked waypoint."""
         flange, cams = [], []
+        counts = [self.substeps(M) for M in motions]
+        total = sum(counts)
         for i, M in enumerate(motions):
-            self.move_by(M)
+            self.move_by(M, progress=(sum(counts[:i]), total, f"exploring ({i + 1}/{len(motions)})"))
             st = self.settle(frames=self.settle_frames + 1)
             if st.status == "failed":
                 raise AlgorithmError(f"the VSE cannot track this scene: {st.message}")
