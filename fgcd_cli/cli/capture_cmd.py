@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import typer
@@ -13,6 +14,9 @@ from fgcd_cli.campaign import open_campaign
 from fgcd_cli.cli.output import emit, info
 from fgcd_cli.errors import CampaignError, UserInputError
 from fgcd_cli.geometry.camera import PinholeCamera
+
+if TYPE_CHECKING:
+    from fgcd_cli.rigs import SimScenario
 
 
 def _confirm_factory(yes: bool):
@@ -73,15 +77,6 @@ def _int_or(value, default: int) -> int:
         return default
 
 
-def sim_scenario_from_campaign(campaign, **overrides):
-    """The campaign's default simulated world (``[rig.sim]``) as a scenario, with overrides."""
-    from fgcd_cli.rigs import SimScenario
-
-    base = campaign_world(campaign)
-    base.update({k: v for k, v in overrides.items() if v is not None})
-    return SimScenario(**base)
-
-
 def visit_lightings(visit_light: str, reference_lightings: list[str], *, controllable: bool) -> list[str]:
     """Images of a visit: under the day's light, and under the reference's lightings when the rig controls its lights."""
     names = [visit_light]
@@ -121,7 +116,7 @@ class CapturePlan:
 
     driver: str
     lightings: list[str]
-    scenario: object | None
+    scenario: SimScenario | None
     T_flange_cam: np.ndarray
     camera: PinholeCamera | None
 
@@ -161,13 +156,19 @@ def plan_capture(campaign, *, station: str, driver: str | None, scene: str | Non
     and ``--seed`` override the campaign's default ``[rig.sim]`` for this
     station only, and are recorded in its reference.
     """
-    from fgcd_cli.rigs import SimScenario, check_driver, check_scenario
+    from fgcd_cli.rigs import SimScenario, check_driver, check_scenario, check_scene
 
     check_station_can_take_a_reference(campaign, station)
     driver = check_driver(driver or campaign.rig_config.get("driver", "sim"))
     scenario = None
     if driver == "sim":
         world = campaign_world(campaign)
+        if scene is None:
+            try:
+                check_scene(world["scene"])
+            except UserInputError as exc:
+                raise CampaignError(f"campaign.toml [rig.sim] names a world this simulator lacks: {exc}; "
+                                    "give --scene") from None
         scenario = check_scenario(SimScenario(scene=scene or world["scene"], seed=world["seed"] if seed is None else seed,
                                               noise=world["noise"], lighting=light))
     elif scene is not None or seed is not None:
