@@ -90,7 +90,8 @@ class RunRecord:
     written : list of str
         Outputs completed so far (paths or short descriptions).
     pending : list of str
-        Outputs in progress; an interrupted one is not written (atomic writes).
+        Outputs in progress, as the clause printed if the command stops now
+        (``not written: ...`` or ``not completed: ...``).
     """
 
     platform_known: bool = False
@@ -139,12 +140,23 @@ class RunRecord:
         self.written.append(str(what))
 
     @contextmanager
-    def writing(self, what: str | Path) -> Iterator[None]:
-        """Mark an output in progress; it becomes written when the block completes."""
+    def writing(self, what: str | Path, *, whole: bool = True) -> Iterator[None]:
+        """Mark an output in progress; it becomes written when the block completes.
+
+        Parameters
+        ----------
+        what : str or Path
+            The output (a path, or a short description).
+        whole : bool
+            True when the output appears all at once (one atomic file, an
+            observation); False for several files written one after the other,
+            of which an interruption may leave some.
+        """
         self.writes_known = True
-        self.pending.append(str(what))
+        item = f"not written: {what}" if whole else f"not completed: {what} (some of its files may be there, each one whole)"
+        self.pending.append(item)
         yield
-        self.pending.remove(str(what))
+        self.pending.remove(item)
         self.written.append(str(what))
 
     def platform_clause(self) -> str:
@@ -166,12 +178,8 @@ class RunRecord:
             shown = ", ".join(self.written[:3]) + (f" and {len(self.written) - 3} more" if len(self.written) > 3 else "")
             clauses.append(f"wrote {shown}")
         if self.pending:
-            clauses.append(f"not written: {', '.join(self.pending)}")
+            clauses += self.pending
         return "; ".join(clauses) or "nothing was written"
-
-    def interrupted_line(self) -> str:
-        """The one line printed after Ctrl-C."""
-        return f"interrupted by the user (Ctrl-C): {self.platform_clause()}; {self.writes_clause()}"
 
 
 run_record = RunRecord()

@@ -219,3 +219,44 @@ def test_ctrl_c_while_a_person_moves_the_mount_says_stopped_and_nothing_written(
     assert _lines(stderr) == [
         "interrupted (Ctrl-C): the manual platform was stopped mid-motion; nothing was written"
     ], stderr
+
+
+def test_ctrl_c_during_a_bare_diff_names_the_incomplete_outputs(capsys, monkeypatch, tmp_path):
+    import fgcd_cli.report.usecases as usecases
+    from fgcd_cli.cli.app import app
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(usecases, "run_bare", interrupted)
+    out = tmp_path / "out"
+    assert run(app, ["diff", "--ref", "a.png", "--cur", "b.png", "-o", str(out)]) == 130
+    lines = _lines(capsys.readouterr().err)
+    assert len(lines) == 1 and lines[0].startswith("interrupted (Ctrl-C): no platform was in use; not completed: "), lines
+    assert str(out) in lines[0]
+
+
+def test_record_clauses_for_a_platform_that_was_not_moving():
+    from fgcd_cli.errors import RunRecord
+
+    record = RunRecord()
+    record.platform_connected("grbl")
+    record.no_writes()
+    assert (record.platform_clause(), record.writes_clause()) == ("the grbl platform was not moving", "nothing was written")
+    for k in range(5):
+        record.wrote(f"f{k}")
+    assert record.writes_clause() == "wrote f0, f1, f2 and 2 more"
+
+
+def test_ctrl_c_during_verify_says_nothing_moved_or_written(capsys, monkeypatch, tmp_path):
+    import fgcd_cli.cli.campaign_cmd as campaign_cmd
+    from fgcd_cli.cli.app import app
+
+    def interrupted(path):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(campaign_cmd, "verify_campaign_dir", interrupted)
+    assert run(app, ["campaign", "verify", str(tmp_path)]) == 130
+    assert _lines(capsys.readouterr().err) == [
+        "interrupted (Ctrl-C): no platform was in use; nothing was written"
+    ]

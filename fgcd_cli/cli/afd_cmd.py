@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from fgcd_cli.cli.output import emit
+from fgcd_cli.errors import run_record
 
 
 def afd(
@@ -29,6 +30,8 @@ def afd(
 
     if grid and pairs is not None:
         raise UserInputError("give either --grid or --pairs, not both")
+    run_record.no_platform()
+    run_record.no_writes()
     ref_image, cur_image = read_image(ref), read_image(cur)
     if pairs is not None:
         result = compute_fdf(ref_image, cur_image, method="pairs", pairs=read_pairs_csv(pairs))
@@ -37,8 +40,9 @@ def afd(
     data = result.as_dict()
     data["reference"], data["current"] = str(ref), str(cur)
     if output is not None:
-        atomic_write_bytes(output, fdf_quiver_png(ref_image, result.points_ref, result.points_cur, afd_px=result.afd_px,
-                                                  inliers=result.inliers, method=result.method))
+        with run_record.writing(output):
+            atomic_write_bytes(output, fdf_quiver_png(ref_image, result.points_ref, result.points_cur,
+                                                      afd_px=result.afd_px, inliers=result.inliers, method=result.method))
         data["figure"] = str(output)
 
     def render(console):

@@ -84,7 +84,6 @@ except KeyboardInterrupt:  # Ctrl-C while the commands load: nothing has run yet
 # Exit codes (README "Errors"); FgcdError subclasses carry their own (2-7).
 EXIT_ABORTED = 1  # no answer at a confirmation prompt (end of input on a terminal)
 EXIT_OS = 1  # an operating-system error outside fgcd's own checks
-EXIT_USAGE = 2
 EXIT_PLATFORM = 7
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130

@@ -17,6 +17,12 @@ app = typer.Typer(help="Create, inspect and verify campaigns (a site, its statio
 JSON_OPT = typer.Option(False, "--json", help="Print one JSON object instead of text.")
 
 
+def _reads_only() -> None:
+    """Tell the interruption line that this command moves and writes nothing."""
+    run_record.no_platform()
+    run_record.no_writes()
+
+
 @app.command("init")
 def init_cmd(
     directory: Path = typer.Argument(..., help="Campaign directory to create."),
@@ -32,7 +38,9 @@ def init_cmd(
         raise UserInputError(f"unknown driver '{driver}' (use sim, grbl, ur or manual)")
     rig = {"driver": driver}
     rig.update({k: v for k, v in (("port", port), ("host", host)) if v})
-    camp = init_campaign(directory, site=site, description=description, rig=rig)
+    run_record.no_platform()
+    with run_record.writing(f"the campaign in {directory}"):
+        camp = init_campaign(directory, site=site, description=description, rig=rig)
     emit(
         {"campaign": str(camp.path), "site": camp.site, "created": True},
         as_json=as_json,
@@ -48,7 +56,9 @@ def add_station_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Add a station (a viewpoint to monitor) to a campaign."""
-    st = open_campaign(campaign).create_station(name, description=description)
+    run_record.no_platform()
+    with run_record.writing(f"station '{name}'"):
+        st = open_campaign(campaign).create_station(name, description=description)
     emit({"station": st.name, "path": str(st.path)}, as_json=as_json,
          render=lambda c: c.print(f"Added station [bold]{st.name}[/bold]"))
 
@@ -68,6 +78,7 @@ def list_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """List the stations of a campaign with their reference and visits."""
+    _reads_only()
     camp = open_campaign(campaign)
     stations = [_station_summary(camp.station(n)) for n in camp.station_names()]
 
@@ -91,6 +102,7 @@ def show_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Show a campaign's configuration, or one station's observations."""
+    _reads_only()
     camp = open_campaign(campaign)
     if station is None:
         data = {"campaign": str(camp.path), "config": camp.config, "stations": camp.station_names(),
@@ -135,8 +147,7 @@ def verify_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Check every manifest and checksum; name each damaged file and exit 4 if any (3: not a campaign)."""
-    run_record.no_platform()
-    run_record.no_writes()
+    _reads_only()
     report = verify_campaign_dir(campaign)
 
     def render(c) -> None:

@@ -9,6 +9,7 @@ from typing import Optional
 import typer
 
 from fgcd_cli.cli.output import emit, info
+from fgcd_cli.errors import run_record
 
 HELP = "Find fine-grained changes between reference and current images; write maps, regions and a report."
 
@@ -115,15 +116,22 @@ def diff(
             raise UserInputError("give either --campaign/--station or --ref/--cur, not both")
         if campaign is None or station is None:
             raise UserInputError("campaign mode needs both --campaign and --station")
-        data = run_campaign(campaign, station, visit=visit, eval_mask=eval_mask, mm_per_px=mm_per_px,
-                            register=not no_register, output=output, edge_check_px=edge_check,
-                            progress=None if as_json else info)
+        run_record.no_platform()
+        where = output or f"visit {visit or '(latest)'} of station '{station}'"
+        with run_record.writing(f"the change maps and report in {where}", whole=False):
+            data = run_campaign(campaign, station, visit=visit, eval_mask=eval_mask, mm_per_px=mm_per_px,
+                                register=not no_register, output=output, edge_check_px=edge_check,
+                                progress=None if as_json else info)
     else:
         if not ref or not cur:
             raise UserInputError("give --ref and --cur images (or --campaign and --station)")
         if output is None:
             raise UserInputError("give an output folder with -o DIR")
-        with tile_progress_bar(enabled=not as_json) as tile_progress:
+        run_record.no_platform()
+        with (
+            run_record.writing(f"the change maps and report in {output}", whole=False),
+            tile_progress_bar(enabled=not as_json) as tile_progress,
+        ):
             data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
                             register=not no_register, edge_check_px=edge_check or 0, ambient_index=ambient_index,
                             progress=None if as_json else info, tile_progress=tile_progress)

@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from fgcd_cli.cli.output import emit, info
+from fgcd_cli.errors import run_record
 
 
 def report(
@@ -19,7 +20,10 @@ def report(
     """Station history: every visit compared with the reference (visits not yet compared are compared now)."""
     from fgcd_cli.report.usecases import station_history
 
-    data = station_history(campaign, station, output=output, progress=None if as_json else info)
+    run_record.no_platform()
+    # Visits not yet compared get their change maps first, one file at a time.
+    with run_record.writing(f"the history report of station '{station}'", whole=False):
+        data = station_history(campaign, station, output=output, progress=None if as_json else info)
 
     def render(console):
         console.print(f"station {station}: {len(data['visits'])} visit(s)")
