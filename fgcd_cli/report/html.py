@@ -76,8 +76,9 @@ def _fmt(value, digits: int = 2) -> str:
 
 
 def _human_date(text: str) -> str:
-    """``20250601T000000Z`` or ISO 8601 as ``2025-06-01 00:00 UTC``; anything else unchanged."""
-    for fmt in ("%Y%m%dT%H%M%SZ", "%Y-%m-%dT%H:%M:%S%z", "%Y-%m-%dT%H:%M:%S.%f%z"):
+    """``20250601T000000Z``, ``20250601T000000123Z`` (visit names) or ISO 8601 as ``2025-06-01 00:00 UTC``;
+    anything else unchanged."""
+    for fmt in ("%Y%m%dT%H%M%SZ", "%Y%m%dT%H%M%S%fZ", "%Y-%m-%dT%H:%M:%S%z", "%Y-%m-%dT%H:%M:%S.%f%z"):
         try:
             stamp = datetime.strptime(str(text), fmt)
         except ValueError:

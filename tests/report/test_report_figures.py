@@ -175,3 +175,10 @@ def test_report_names_simulator_truth_only_when_the_log_holds_it():
     simulated = diff_products(ref_images=[ref], cur_images=[cur], result=result, relocation_log=with_truth)["report.html"]
     assert b"the tool&#x27;s own estimates" in plain and b"simulator" not in plain
     assert b"the simulator&#x27;s truth" in simulated
+
+
+def test_history_dates_visit_names_with_milliseconds():
+    from fgcd_cli.report.html import _human_date
+
+    assert _human_date("20261125T175551460Z") == "2026-11-25 17:55 UTC"  # the store names visits to the millisecond
+    assert _human_date("20250601T000000Z") == "2025-06-01 00:00 UTC"
