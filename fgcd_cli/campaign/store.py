@@ -14,6 +14,11 @@ every file) written last; a reference observation is immutable once written
 (its files are read-only and any second write is refused). Visits accept later
 *derived* products (change maps, reports) which are added to the manifest
 atomically.
+
+Image files carry portable names (the lighting ``led:3`` is stored as
+``images/led-3.png``: FAT, exFAT and NTFS media refuse ``:``) and the
+manifest's ``images`` entry maps each name to its file; observations written
+before that (``images/led:3.png``, no mapping) are read as they are.
 """
 
 from __future__ import annotations
