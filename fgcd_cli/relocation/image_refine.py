@@ -40,7 +40,14 @@ from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import compute_fdf
 from fgcd_cli.geometry.se3 import make_pose, pose_distance
 
-__all__ = ["ImageRefineConfig", "ImageRefinement", "local_contrast", "reference_depth_lookup", "refine_from_reference_image"]
+__all__ = [
+    "ImageRefineConfig",
+    "ImageRefinement",
+    "local_contrast",
+    "pnp_translation_sigma_m",
+    "reference_depth_lookup",
+    "refine_from_reference_image",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -114,6 +121,10 @@ class ImageRefinement:
     reference_image: str = ""
     matcher: str = ""
     """"sift" or "grid" (phase correlation of gradient-magnitude patches)."""
+    offset_sigma_mm: float = math.nan
+    """1-sigma uncertainty of the camera position this correction implies, mm: the RMS
+    radius ``sqrt(trace(Cov_t))`` of the PnP translation's covariance (see
+    :func:`pnp_translation_sigma_m`). NaN when no PnP solution was found."""
 
 
 def reference_depth_lookup(
@@ -263,7 +274,54 @@ def _refine_one(ref, cur, K, camera, ref_points, T_ref_camref, config: ImageRefi
 def _replace_reason(res: ImageRefinement, reason: str) -> ImageRefinement:
     return ImageRefinement(ok=res.ok, reason=reason, M_cam=res.M_cam, measured_afd_px=res.measured_afd_px,
                            matches=res.matches, inliers=res.inliers, rms_px=res.rms_px,
-                           reference_image=res.reference_image, matcher=res.matcher)
+                           reference_image=res.reference_image, matcher=res.matcher,
+                           offset_sigma_mm=res.offset_sigma_mm)
+
+
+def pnp_translation_sigma_m(points_3d: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
+                            K: np.ndarray) -> float:
+    """1-sigma uncertainty of a PnP translation from its own reprojection residuals, metres.
+
+    Gauss-Newton covariance of the six pose parameters,
+    ``Cov = s^2 (J^T J)^-1`` with ``s^2 = sum(r^2) / (2n - 6)`` the residual
+    variance per image coordinate and ``J`` (2n, 6) the reprojection Jacobian with
+    respect to ``(rvec, tvec)``. The rotation-translation coupling of a nearly
+    planar scene (a sideways shift that a small turn almost hides) appears as a
+    large marginal translation variance, which is the point.
+
+    Parameters
+    ----------
+    points_3d : (n, 3) ndarray
+        Inlier points in the reference camera frame, metres.
+    pixels : (n, 2) ndarray
+        Their matched pixels in the current image.
+    rvec, tvec : (3,) ndarray
+        The PnP pose (reference camera into current camera).
+    K : (3, 3) ndarray
+        Pinhole matrix.
+
+    Returns
+    -------
+    float
+        ``sqrt(trace(Cov_t))``: the RMS radius of the translation error, metres
+        (invariant to the frame it is expressed in). The camera centre
+        ``-R^T t`` has the same uncertainty up to the rotation uncertainty times
+        the (near-zero) offset. ``inf`` when fewer than 4 points or the
+        system is singular.
+    """
+    n = len(points_3d)
+    if n < 4:
+        return math.inf
+    proj, jac = cv2.projectPoints(np.asarray(points_3d, dtype=np.float64), np.asarray(rvec, dtype=np.float64),
+                                  np.asarray(tvec, dtype=np.float64), K, None)
+    r = (proj.reshape(-1, 2) - np.asarray(pixels, dtype=np.float64)).ravel()
+    J = jac[:, :6]  # columns: d/d rvec (3), d/d tvec (3)
+    s2 = float(r @ r) / max(1, 2 * n - 6)
+    try:
+        cov = s2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:])))))
 
 
 def _refine_matches(p_ref, p_cur, K, camera, ref_points, T_ref_camref, config: ImageRefineConfig, name: str, *,
@@ -297,6 +355,7 @@ def _refine_matches(p_ref, p_cur, K, camera, ref_points, T_ref_camref, config: I
     # i.e. the reference camera seen from the current one = the motion the camera must make.
     M_cam = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel())
     mm, deg = pose_distance(np.eye(4), M_cam)
+    sigma_mm = 1000.0 * pnp_translation_sigma_m(X[inl], p_cur[inl], rvec, tvec, K)
     if len(inl) / n < config.min_inlier_ratio:
         return fail(f"{len(inl)} PnP inliers of {n} matches (below {config.min_inlier_ratio:.0%})", n, len(inl), afd, rms)
     if rms > config.max_rms_px:
@@ -310,5 +369,5 @@ def _refine_matches(p_ref, p_cur, K, camera, ref_points, T_ref_camref, config: I
         if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
             return fail(f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust", n, len(inl), afd, rms)
     return ImageRefinement(ok=True, reason="ok", M_cam=M_cam, measured_afd_px=afd, matches=n, inliers=len(inl),
-                           rms_px=rms, reference_image=name, matcher=matcher)
+                           rms_px=rms, reference_image=name, matcher=matcher, offset_sigma_mm=sigma_mm)
 

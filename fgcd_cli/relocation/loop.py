@@ -41,8 +41,12 @@ __all__ = [
     "AlignmentWorker",
     "AdjustmentRecord",
     "RelocationResult",
+    "Residual",
     "align_once",
+    "estimates_agree",
+    "reference_depth_m",
     "run_relocation",
+    "tolerance_mm",
 ]
 
 
@@ -118,7 +122,7 @@ class RelocationConfig:
     image_refine: bool = True
     """After the 3D loop converges, refine from the reference images
     (:mod:`fgcd_cli.relocation.image_refine`) when the evidence is strong."""
-    image_refine_steps: int = 3
+    image_refine_steps: int = 4
     image_stop_afd_px: float = 0.5
     """The image stage stops when its correction moves the reference image by less than this.
     The same 0.5 px as ``stop_afd_px``: the image measurement itself is only good to about
@@ -138,6 +142,20 @@ class RelocationConfig:
     """Pause at once after this many consecutive estimates flagged as degenerate
     geometry (plane, sphere, body of revolution): a property of the scene, which
     waiting does not cure, unlike too few inliers in a young map."""
+    tolerance_mm: float | None = None
+    """Largest remaining camera offset (mm) any stage may stop on. ``None``: the model of
+    :func:`tolerance_mm` (the sideways camera shift that moves the object's image by
+    ``stop_afd_px`` at the reference camera's distance; docs/relocation.md, "Stop rules")."""
+    vse_sigma_rel: float = 0.01
+    """1-sigma uncertainty of a 3D (cloud-alignment) estimate of the camera position, as a
+    fraction of the camera distance: two monocular sessions place their cameras relative to
+    their clouds to about 1 % of the depth (docs/relocation.md, "Final image stage")."""
+    agreement_k: float = 2.0
+    """Two estimates agree when their camera positions differ by at most ``k`` times the
+    RMS radius of their combined uncertainty (:func:`estimates_agree`)."""
+    agreement_wait_s: float = 30.0
+    """Longest wait for a 3D estimate of the view after the last image motion, to check
+    agreement; without one, the check is reported as not done."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -340,6 +358,13 @@ class AdjustmentRecord:
     estimate_vse_frame: int | None = None
     """3D stages: the alignment estimate used (its publication number and the VSE frame it saw);
     in parallel mode a motion may reuse an estimate of the view before the previous motion."""
+    offset_sigma_mm: float | None = None
+    """1-sigma uncertainty of ``offset_mm`` (RMS radius of the camera position's uncertainty):
+    PnP residual covariance for the image stage, ``vse_sigma_rel`` x distance for 3D stages."""
+    tolerance_mm: float | None = None
+    """The stop tolerance on ``offset_mm`` the run used (:func:`tolerance_mm`)."""
+    agreement: dict | None = None
+    """Image stage: the 3D estimate of the same view it was compared with, and the verdict."""
 
     def to_json(self) -> str:
         return json.dumps(self.__dict__, ensure_ascii=False)
@@ -359,11 +384,159 @@ class RelocationResult:
     platform_s: float = 0.0
     synthetic_s: float = 0.0
     """Frame-synthesis time left out of ``session_s`` (simulator rendering; 0 on hardware)."""
+    residual: "Residual | None" = None
+    """The final remaining offset as the tool estimates it, with its uncertainty."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Residual:
+    """The remaining camera offset at the end of a run, as the tool's own estimate says.
+
+    Attributes
+    ----------
+    offset_mm : float
+        Distance between the current and the reference camera centres, mm.
+    sigma_mm : float
+        Its 1-sigma uncertainty (RMS radius of the position's uncertainty), mm.
+    tolerance_mm : float
+        The stop tolerance the run used, mm.
+    source : str
+        "image" (PnP on the reference images) or "3d" (cloud alignment).
+    agreement : str
+        How the other estimator compared ("agree", "disagree", "not checked: ...").
+    """
+
+    offset_mm: float
+    sigma_mm: float
+    tolerance_mm: float
+    source: str
+    agreement: str = "not checked"
+
+    def text(self) -> str:
+        """One phrase for people: ``residual 0.99 ± 0.23 mm (image estimate; tolerance 1.36 mm)``."""
+        return (f"residual {self.offset_mm:.2f} ± {self.sigma_mm:.2f} mm ({self.source} estimate; "
+                f"tolerance {self.tolerance_mm:.2f} mm; 3D/image: {self.agreement})")
+
+    def to_dict(self) -> dict:
+        """Plain data for JSON output."""
+        return dict(self.__dict__)
+
+
+def reference_depth_m(ref_points: np.ndarray, T_ref_camref: np.ndarray) -> float:
+    """Median depth of the reference cloud in front of the reference camera, metres.
+
+    Parameters
+    ----------
+    ref_points : (N, 3) ndarray
+        Reference cloud, metres, ``ref`` frame.
+    T_ref_camref : (4, 4) ndarray
+        Reference camera pose.
+
+    Returns
+    -------
+    float
+        NaN when no point is in front of the camera.
+    """
+    P = np.asarray(ref_points, dtype=float).reshape(-1, 3)
+    T = np.asarray(T_ref_camref, dtype=float)
+    z = (P - T[:3, 3]) @ T[:3, 2]
+    z = z[z > 1e-6]
+    return float(np.median(z)) if len(z) else math.nan
+
+
+def tolerance_mm(ref_points: np.ndarray, T_ref_camref: np.ndarray, camera, *, stop_afd_px: float) -> float:
+    """Stop tolerance on the remaining camera offset, mm (docs/relocation.md, "Stop rules").
+
+    Model: a sideways camera shift ``d`` at distance ``Z`` moves the object's image by
+    ``f d / Z`` pixels, so the image-space stop rule (``stop_afd_px``) corresponds to
+    ``d = stop_afd_px * Z / f``: the pixel footprint on the object times the pixel
+    tolerance. A shift that a small turn hides (a nearly flat object) escapes the AFD,
+    not this rule.
+
+    Parameters
+    ----------
+    ref_points : (N, 3) ndarray
+        Reference cloud, metres.
+    T_ref_camref : (4, 4) ndarray
+        Reference camera pose.
+    camera : PinholeCamera or None
+        Intrinsics (``fx``, ``fy`` in pixels).
+    stop_afd_px : float
+        The image-space stop rule, pixels.
+
+    Returns
+    -------
+    float
+        Millimetres; ``inf`` without a camera or a cloud in front of it (no model: the
+        paper's ``g <= eta`` rule stands alone).
+    """
+    if camera is None:
+        return math.inf
+    z = reference_depth_m(ref_points, T_ref_camref)
+    f = 0.5 * (float(camera.fx) + float(camera.fy))
+    if not math.isfinite(z) or f <= 0:
+        return math.inf
+    return 1000.0 * stop_afd_px * z / f
+
+
+def estimates_agree(offset_a_mm: np.ndarray, sigma_a_mm: float, offset_b_mm: np.ndarray, sigma_b_mm: float, *,
+                    k: float) -> tuple[bool, float, float]:
+    """Whether two estimates of the camera position agree within their uncertainties.
+
+    Parameters
+    ----------
+    offset_a_mm, offset_b_mm : (3,) ndarray
+        Camera centre minus the reference camera centre, ``ref`` frame, mm.
+    sigma_a_mm, sigma_b_mm : float
+        Their RMS-radius uncertainties, mm; a non-finite one (an estimator that gave
+        none) counts as 0, so the bound rests on the other.
+    k : float
+        Allowed multiple of the combined RMS radius ``sqrt(sa^2 + sb^2)``. For an
+        isotropic error, ``|e| > 2 x RMS radius`` has probability ~0.7 % (chi-square, 3 dof).
+
+    Returns
+    -------
+    agree : bool
+    distance_mm : float
+        ``|a - b|``.
+    bound_mm : float
+        ``k sqrt(sa^2 + sb^2)``.
+    """
+    d = float(np.linalg.norm(np.asarray(offset_a_mm, dtype=float) - np.asarray(offset_b_mm, dtype=float)))
+    sa, sb = (float(x) if math.isfinite(float(x)) else 0.0 for x in (sigma_a_mm, sigma_b_mm))
+    bound = k * math.hypot(sa, sb)
+    return bool(d <= bound), d, bound
+
+
+def _offset_vector_mm(T_ref_cam: np.ndarray, T_ref_camref: np.ndarray) -> np.ndarray:
+    """Current minus reference camera centre, ``ref`` frame, mm, shape (3,)."""
+    return 1000.0 * (np.asarray(T_ref_cam, dtype=float)[:3, 3] - np.asarray(T_ref_camref, dtype=float)[:3, 3])
+
+
+@dataclass
+class _LoopShared:
+    """What the 3D loop leaves for the image stage: its latest estimate and the tolerances."""
+
+    tol_mm: float
+    sigma3d_mm: float
+    last_T_ref_cur: Sim3 | None = None
+    moved_at_frame: int = -1
+
+
+def _say(session, text: str) -> None:
+    """A progress line through the session's plain callback (the CLI renders it)."""
+    if getattr(session, "on_event", None):
+        session.on_event(text)
 
 
 def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, init, config, evaluate,
-               on_record, worker, records, t_start) -> RelocationResult:
-    """The 3D rACR loop: align, adjust, until converged; raises AlgorithmError when it pauses."""
+               on_record, worker, records, t_start, shared: _LoopShared) -> RelocationResult:
+    """The 3D rACR loop: align, adjust, until converged; raises AlgorithmError when it pauses.
+
+    It stops when the paper's rule (``g <= eta``) or the image-space rule (estimated AFD
+    ``<= stop_afd_px``) holds *and* the estimated remaining offset is within the tolerance
+    (:func:`tolerance_mm`): a stage never stops while its own estimate says more remains.
+    """
     result = RelocationResult(False, "not started", 0)
     current_init = init
     last_serial = 0
@@ -385,7 +558,7 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
         return estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, camera)
 
     def stops(adj: Adjustment, afd_est_px: float) -> bool:
-        return adj.g <= config.eta or afd_est_px <= config.stop_afd_px
+        return (adj.g <= config.eta or afd_est_px <= config.stop_afd_px) and adj.offset_mm <= shared.tol_mm
 
     for iteration in range(1, config.max_adjustments + 1):
         state = session.tracking_state()
@@ -398,10 +571,12 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             if latest is not None and latest.serial >= last_serial:
                 est = latest
             else:
+                _say(session, f"adjustment {iteration}: waiting for an alignment of the current view")
                 est = _wait_for_estimate(worker, last_serial, config, session)
             state = session.vse.latest() if session.vse.latest().status == "tracking" else state
         else:
             t0 = time.monotonic()
+            _say(session, f"adjustment {iteration}: aligning the current cloud to the reference")
             if len(state.cloud) < config.min_points:
                 raise AlgorithmError(f"the VSE cloud has only {len(state.cloud)} points: cannot align")
             ests = align_once(
@@ -423,12 +598,14 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
         afd_est = afd_of(adj)
         while config.mode == "parallel" and est.vse_frame < moved_at_frame and stops(adj, afd_est):
             # About to stop on an estimate of the view before the last motion: confirm it first.
+            _say(session, f"adjustment {iteration}: confirming the stop on an alignment of the current view")
             est = _wait_for_estimate(worker, est.serial, config, session)
             state = session.vse.latest() if session.vse.latest().status == "tracking" else state
             adj = adjustment_for(est, state)
             afd_est = afd_of(adj)
         last_serial = est.serial
         current_init = est.T_ref_cur
+        shared.last_T_ref_cur = est.T_ref_cur
         rec = AdjustmentRecord(
             iteration=iteration,
             t_wall_s=time.monotonic() - t_start,
@@ -450,6 +627,8 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             truth=evaluate() if evaluate else None,
             estimate_serial=est.serial,
             estimate_vse_frame=est.vse_frame,
+            offset_sigma_mm=shared.sigma3d_mm,
+            tolerance_mm=shared.tol_mm,
         )
         records.append(rec)
         if on_record:
@@ -478,18 +657,25 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             growths = 0
         if best_offset is None or adj.offset_mm < best_offset[0]:
             best_offset = (adj.offset_mm, adj.offset_deg)
-        if adj.g <= config.eta:
+        # Stop rules (docs/relocation.md, "Stop rules"): the paper's g <= eta or the
+        # image-space AFD rule, and in both cases the estimated offset within the tolerance.
+        within = adj.offset_mm <= shared.tol_mm
+        if adj.g <= config.eta and within:
             result = RelocationResult(True, f"g = {adj.g:.2e} <= eta = {config.eta:.0e}", iteration)
             break
-        if rec.afd_est_px <= config.stop_afd_px:
+        if rec.afd_est_px <= config.stop_afd_px and within:
             result = RelocationResult(
                 True,
-                f"estimated AFD {rec.afd_est_px:.2f} px <= {config.stop_afd_px} px (g = {adj.g:.2e})",
+                f"estimated AFD {rec.afd_est_px:.2f} px <= {config.stop_afd_px} px and offset "
+                f"{adj.offset_mm:.2f} mm <= {shared.tol_mm:.2f} mm (g = {adj.g:.2e})",
                 iteration,
             )
             break
+        mm_cmd, deg_cmd = pose_distance(np.eye(4), adj.M_flange_commanded)
+        _say(session, f"adjustment {iteration}: moving {mm_cmd:.1f} mm / {deg_cmd:.2f} deg")
         session.move_by(adj.M_flange_commanded)
         moved_at_frame = session.vse.latest().frames_processed
+        shared.moved_at_frame = moved_at_frame
     else:
         result = RelocationResult(False, f"not converged after {config.max_adjustments} adjustments", config.max_adjustments)
     return result
@@ -556,12 +742,22 @@ def run_relocation(
             min_points=config.min_points,
         ).start()
     can_image = bool(reference_images) and grab_current is not None
+    tol = config.tolerance_mm if config.tolerance_mm is not None else tolerance_mm(
+        reference.points, reference.T_ref_camref, camera, stop_afd_px=config.stop_afd_px)
+    depth = reference_depth_m(reference.points, reference.T_ref_camref)
+    shared = _LoopShared(tol_mm=tol, sigma3d_mm=1000.0 * config.vse_sigma_rel * depth if math.isfinite(depth) else math.inf)
+
+    def fresh_3d(after_frame: int):
+        """A trustworthy 3D estimate of a view after ``after_frame``: (T_ref_cam, note) or (None, why)."""
+        return _fresh_3d_estimate(session=session, worker=worker, config=config, shared=shared, scale=scale,
+                                  reference=reference, ref_index=ref_index, camera=camera, after_frame=after_frame)
+
     try:
         try:
             result = _racr_loop(session=session, reference=reference, ref_index=ref_index, camera=camera,
                                 scale=scale, T_flange_cam=T_flange_cam, init=init, config=config,
                                 evaluate=evaluate, on_record=on_record, worker=worker, records=records,
-                                t_start=t_start)
+                                t_start=t_start, shared=shared)
         except AlgorithmError as paused:
             # The 3D loop paused (degenerate geometry, too few inliers, divergence). Without
             # the fallback, or when it finds no strong evidence either, the pause stands.
@@ -574,11 +770,17 @@ def run_relocation(
         image_kwargs = dict(session=session, reference=reference, camera=camera, scale=scale,
                             T_flange_cam=T_flange_cam, config=config, records=records,
                             reference_images=reference_images, grab_current=grab_current,
-                            evaluate=evaluate, on_record=on_record, t_start=t_start)
+                            evaluate=evaluate, on_record=on_record, t_start=t_start, shared=shared,
+                            fresh_3d=fresh_3d)
         if result.converged and config.image_refine and can_image:
             result = _image_stage(result=result, fallback=False, **image_kwargs)
         elif not result.converged and config.image_fallback and can_image:
             result = _image_stage(result=result, fallback=True, **image_kwargs)
+        elif result.converged and records:
+            last = records[-1]
+            result.residual = Residual(offset_mm=last.offset_mm, sigma_mm=shared.sigma3d_mm, tolerance_mm=tol,
+                                       source="3d", agreement="not checked: no image stage")
+            result.reason = f"{result.reason}; {result.residual.text()}"
     finally:
         if worker is not None:
             worker.stop()
@@ -591,20 +793,75 @@ def run_relocation(
     return result
 
 
+def _fresh_3d_estimate(*, session, worker, config, shared: _LoopShared, scale, reference, ref_index, camera,
+                       after_frame: int):
+    """The 3D estimate of the current camera from a view after ``after_frame``.
+
+    Parallel mode waits (at most ``config.agreement_wait_s``) for the alignment thread
+    to publish a trustworthy estimate of such a view; serial mode aligns once now,
+    from the 3D loop's last estimate.
+
+    Returns
+    -------
+    T_ref_cam : (4, 4) ndarray or None
+        The current camera in the reference frame, or None.
+    note : str
+        Why there is none (empty when there is one).
+    """
+    if shared.last_T_ref_cur is None:
+        return None, "no trustworthy 3D estimate in this run"
+    if config.mode == "parallel":
+        if worker is None:
+            return None, "the 3D alignment was stopped"
+        _say(session, "waiting for a 3D estimate of this view to compare with the image estimate")
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < config.agreement_wait_s:
+            est = worker.latest_ok()
+            if worker.error:
+                return None, f"alignment thread stopped: {worker.error}"
+            if est is not None and est.vse_frame > after_frame:
+                break
+            time.sleep(0.05)
+        else:
+            return None, f"no 3D estimate of this view within {config.agreement_wait_s:.0f} s"
+        session.timing.wait_s += time.monotonic() - t0
+    else:
+        _say(session, "aligning the current cloud to compare with the image estimate")
+        state = session.tracking_state()
+        t0 = time.monotonic()
+        ests = align_once(state=state, scale=scale, reference=reference, ref_index=ref_index, camera=camera,
+                          init=shared.last_T_ref_cur, fine=config.fine)
+        session.timing.wait_s += time.monotonic() - t0
+        oks = [e for e in ests if e.ok]
+        if not oks:
+            return None, f"3D alignment untrustworthy: {ests[-1].reason}"
+        est = oks[-1]
+    state = session.vse.latest()
+    if state.status != "tracking" or state.T_map_cam is None:
+        return None, f"the VSE is not tracking ({state.status})"
+    from fgcd_cli.relocation.adjustment import camera_in_reference
+
+    return camera_in_reference(est.T_ref_cur, _scaled_pose(state.T_map_cam, scale)), ""
+
+
 def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, records, result, reference_images,
-                 grab_current, evaluate, on_record, t_start, fallback: bool) -> RelocationResult:
+                 grab_current, evaluate, on_record, t_start, fallback: bool, shared: _LoopShared,
+                 fresh_3d) -> RelocationResult:
     """Image-based steps from the reference images (see :mod:`.image_refine`).
 
     Each step matches the current image with the reference images, solves the
     camera motion by PnP on the reference cloud and moves (through the guard,
-    clamped to the largest step); it stops when the correction is below
-    ``image_stop_afd_px``.
+    clamped to the largest step). It stops only when the correction moves the
+    reference image by less than ``image_stop_afd_px`` *and* the camera offset it
+    measures is within the tolerance (:func:`tolerance_mm`); and, after a converged
+    3D loop, only when a 3D estimate of the same view agrees with it within their
+    uncertainties (:func:`estimates_agree`). Disagreement takes another step;
+    running out of steps pauses (not converged) with the reason.
 
-    After a converged 3D loop (``fallback=False``) it is the final refinement:
-    weak evidence leaves the rACR result as it is (the record says why). When
-    the 3D loop paused (``fallback=True``) it is the only estimate left: the
-    relocation converges only if the image evidence brings the correction below
-    ``stop_afd_px``; otherwise it pauses, naming both reasons.
+    After a converged 3D loop (``fallback=False``), weak image evidence before any
+    image motion leaves the rACR result as it is (the record says why; the residual
+    is the 3D estimate's, with its larger uncertainty). When the 3D loop paused
+    (``fallback=True``) the image estimate is the only one left.
     """
     from fgcd_cli.geometry.se3 import invert_pose
     from fgcd_cli.relocation.adjustment import clamp_motion
@@ -616,9 +873,15 @@ def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, rec
     label = "image fallback" if fallback else "image stage"
     reason = result.reason
     steps = config.image_fallback_steps if fallback else config.image_refine_steps
-    final_afd = math.inf
+    tol = shared.tol_mm
+    residual: Residual | None = None
+    moved = False  # an image motion was made since the last estimate that reached the tolerance
+    after_frame = shared.moved_at_frame
+    done = False
     for step in range(steps):
         state = session.settle(frames=2)
+        _say(session, f"{label} {step + 1}/{steps}: matching the current image with {len(reference_images)} "
+                      "reference image(s)")
         t0 = time.monotonic()
         ref = refine_from_reference_image(reference_images=reference_images, current_image=grab_current(),
                                           camera=camera, ref_points=reference.points,
@@ -627,6 +890,7 @@ def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, rec
         info = {"matches": ref.matches, "inliers": ref.inliers, "rms_px": ref.rms_px,
                 "measured_afd_px": ref.measured_afd_px, "reference_image": ref.reference_image,
                 "matcher": ref.matcher, "fallback": fallback}
+        sigma = math.nan
         if ref.ok:
             T_ref_cam = np.asarray(reference.T_ref_camref, dtype=float) @ invert_pose(ref.M_cam)
             M_flange = X @ ref.M_cam @ invert_pose(X)
@@ -634,12 +898,17 @@ def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, rec
             g = float(np.linalg.norm(M_flange - np.eye(4)))
             off_mm, off_deg = pose_distance(T_ref_cam, reference.T_ref_camref)
             afd = estimated_afd_px(reference.points, reference.T_ref_camref, T_ref_cam, camera)
+            sigma = ref.offset_sigma_mm
         elif last is not None:
             T_ref_cam, M_cmd, clamped = np.asarray(last.T_ref_cam), np.eye(4), False
             g, off_mm, off_deg, afd = last.g, last.offset_mm, last.offset_deg, last.afd_est_px
         else:  # nothing is known about the current pose
             T_ref_cam, M_cmd, clamped = np.full((4, 4), np.nan), np.eye(4), False
             g = off_mm = off_deg = afd = math.nan
+        within = ref.ok and afd <= config.image_stop_afd_px and off_mm <= tol
+        agreement = None
+        if within and not fallback:
+            agreement = _agreement(fresh_3d, after_frame, T_ref_cam, sigma, reference, shared, config)
         rec = AdjustmentRecord(
             iteration=first_iteration + step + 1, t_wall_s=time.monotonic() - t_start,
             t_session_s=session.timing.total_s, stage="image", g=g, offset_mm=off_mm, offset_deg=off_deg,
@@ -647,25 +916,71 @@ def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, rec
             clamped=clamped, vse_status=state.status, vse_points=len(state.cloud), alignment_ok=ref.ok,
             alignment_reason=ref.reason, scale=scale, sigma=last.sigma if last is not None else math.nan,
             afd_est_px=afd, truth=evaluate() if evaluate else None, image=info,
+            offset_sigma_mm=sigma if ref.ok else (last.offset_sigma_mm if last is not None else None),
+            tolerance_mm=tol, agreement=agreement,
         )
         records.append(rec)
         if on_record:
             on_record(rec)
         if not ref.ok:
             reason = f"{result.reason}; {label}: {ref.reason}"
+            if not fallback and not moved and last is not None:
+                # weak evidence before any image motion: the converged 3D result stands
+                residual = Residual(offset_mm=last.offset_mm, sigma_mm=shared.sigma3d_mm, tolerance_mm=tol,
+                                    source="3d", agreement=f"not checked: {label} declined")
+                done = True
             break
-        final_afd = afd
-        if afd <= config.image_stop_afd_px:
-            reason = f"{result.reason}; {label}: correction {afd:.2f} px <= {config.image_stop_afd_px} px"
+        if within and (agreement is None or agreement["agree"] is not False):
+            verdict = "not checked" if agreement is None else (
+                "agree" if agreement["agree"] else f"not checked: {agreement['note']}")
+            if fallback:
+                verdict = "not checked: the 3D loop paused"
+            residual = Residual(offset_mm=off_mm, sigma_mm=sigma, tolerance_mm=tol, source="image", agreement=verdict)
+            reason = (f"{result.reason}; {label}: correction {afd:.2f} px <= {config.image_stop_afd_px} px and "
+                      f"{off_mm:.2f} mm <= {tol:.2f} mm")
+            done = True
             break
+        if within:  # the image says done, the 3D estimate of the same view disagrees: measure again
+            reason = (f"{result.reason}; {label}: the 3D and image estimates disagree by "
+                      f"{agreement['distance_mm']:.1f} mm (> {agreement['bound_mm']:.1f} mm)")
+        else:
+            reason = (f"{result.reason}; {label}: after {step + 1} step(s) it still measures {off_mm:.2f} ± "
+                      f"{sigma:.2f} mm / {afd:.2f} px (tolerance {tol:.2f} mm, {config.image_stop_afd_px} px)")
+        _say(session, f"{label} {step + 1}/{steps}: moving {off_mm:.1f} mm / {off_deg:.2f} deg")
         session.move_by(M_cmd)
-        final_afd = math.inf  # moved: the remaining correction is not measured yet
-        reason = f"{result.reason}; {label}: moved {step + 1} time(s)"
+        moved = True
+        after_frame = session.vse.latest().frames_processed
+    if done and residual is not None:
+        out = RelocationResult(True, f"{reason}; {residual.text()}", records[-1].iteration)
+        out.residual = residual
+        return out
+    # Out of steps, or the image evidence failed after an image motion: the remaining
+    # offset is not known to be within the tolerance. Never "converged" on that.
     if not fallback:
-        return RelocationResult(True, reason, records[-1].iteration)
-    if final_afd <= config.stop_afd_px:
-        return RelocationResult(True, reason, records[-1].iteration)
+        out = RelocationResult(False, f"motion paused: {reason}", records[-1].iteration if records else 0)
+        last_rec = records[-1] if records else None
+        if last_rec is not None and last_rec.alignment_ok:
+            out.residual = Residual(offset_mm=last_rec.offset_mm, sigma_mm=float(last_rec.offset_sigma_mm or math.nan),
+                                    tolerance_mm=tol, source="image", agreement="not checked")
+        return out
     raise AlgorithmError(f"motion paused: {reason}")
+
+
+def _agreement(fresh_3d, after_frame: int, T_ref_cam_img: np.ndarray, sigma_img_mm: float, reference,
+               shared: _LoopShared, config: RelocationConfig) -> dict:
+    """Compare the image estimate with a 3D estimate of the same view (:func:`estimates_agree`).
+
+    Returns a dict for the log: ``agree`` (True, False, or None when no 3D estimate
+    of this view was available), the distance and bound in mm, the 3D offset, a note.
+    """
+    T_3d, note = fresh_3d(after_frame)
+    if T_3d is None:
+        return {"agree": None, "note": note}
+    d_img = _offset_vector_mm(T_ref_cam_img, reference.T_ref_camref)
+    d_3d = _offset_vector_mm(T_3d, reference.T_ref_camref)
+    ok, dist, bound = estimates_agree(d_img, sigma_img_mm, d_3d, shared.sigma3d_mm, k=config.agreement_k)
+    return {"agree": ok, "distance_mm": dist, "bound_mm": bound, "offset_3d_mm": float(np.linalg.norm(d_3d)),
+            "sigma_3d_mm": shared.sigma3d_mm, "note": ""}
 
 
 def _wait_for_estimate(worker: AlignmentWorker, last_serial: int, config: RelocationConfig, session: VseSession) -> AlignmentEstimate:
