@@ -8,6 +8,7 @@ unless the command already printed its JSON result (one object on stdout).
 from __future__ import annotations
 
 import os
+import select
 import sys
 from dataclasses import dataclass
 from typing import Sequence
@@ -151,16 +152,26 @@ def run(typer_app: typer.Typer, args: Sequence[str]) -> int:
     state.reset()
     try:
         return _invoke(typer_app, args)
-    except BrokenPipeError:
-        # The reader went away (`fgcd ... | head`): nothing left to tell it.
-        _silence_stdout()
-        return EXIT_OS
     except BaseException as exc:  # noqa: BLE001 - every failure becomes one line
+        if isinstance(exc, BrokenPipeError) and _stdout_reader_gone():
+            # The reader went away (`fgcd ... | head`): nothing left to tell it.
+            _silence_stdout()
+            return EXIT_OS
         failure = _classify(exc)
         if failure is None:
             raise
     _report(failure, as_json=_wants_json(args))
     return failure.code
+
+
+def _stdout_reader_gone() -> bool:
+    """True when stdout is a pipe whose reader has closed it (not a socket of a driver)."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLERR)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def _silence_stdout() -> None:
