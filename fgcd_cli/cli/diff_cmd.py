@@ -16,9 +16,11 @@ HELP = "Find fine-grained changes between reference and current images; write ma
 
 def _region_line(region: dict, *, epsilon: float) -> str:
     """``#1: 340 px, 3.40 mm² at (200, 60), NFA 1e-12, relief`` (the cue only when known)."""
+    from fgcd_cli.report.areas import area_mm2_text
     from fgcd_cli.report.candidates import region_significance_text
 
-    mm2 = f", {region['area_mm2']:.2f} mm²" if region.get("area_mm2") is not None else ""
+    mm2 = (f", {area_mm2_text(region['area_mm2'], region['area_px'])}" if region.get("area_mm2") is not None
+           else "")
     x, y = region["centroid_xy"]
     cue = f", [bold]{region['cue']}[/bold]" if region.get("cue") else ""
     significance = region_significance_text(region.get("log10_nfa"), epsilon=epsilon)
@@ -49,6 +51,12 @@ def _render(data: dict):
                 console.print(f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area")
             for r in data["regions"][:10]:
                 console.print("  " + _region_line(r, epsilon=epsilon))
+            set_aside = int((data.get("settings") or {}).get("edge_explained_regions") or 0)
+            if set_aside:
+                from fgcd_cli.report.candidates import set_aside_text
+
+                console.print(f"{n} change{'s' if n != 1 else ''}{set_aside_text(set_aside)} "
+                              "(cyan in the report; --edge-check 0 reports it)", markup=False)
             for w in data.get("warnings", []):
                 console.print(f"[yellow]warning[/yellow]: {w}")
         if "afd" in data:

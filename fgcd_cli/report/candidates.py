@@ -104,3 +104,10 @@ def no_change_line(candidates: list[dict], *, epsilon: float = 1.0) -> str:
         return (f"no change reported, but the strongest candidate is significant: {candidate_text(strongest)}"
                 " (not kept by the threshold rule; check it by eye)")
     return f"no significant change; strongest candidate {candidate_text(strongest)}"
+
+
+def set_aside_text(n_set_aside: int) -> str:
+    """``"; 1 candidate set aside along an edge"`` (empty for none): what a verdict adds for the edge check."""
+    if n_set_aside <= 0:
+        return ""
+    return f"; {n_set_aside} candidate{'s' if n_set_aside > 1 else ''} set aside along an edge"

@@ -19,6 +19,7 @@ from fgcd_cli.report.candidates import (
     nfa_text,
     p_text,
     region_significance_text,
+    set_aside_text,
 )
 from fgcd_cli.report.figures import (
     CUE_NAMES,
@@ -146,6 +147,20 @@ def _no_change_verdict(result: ChangeResult) -> str:
 
 
 def _verdict(result: ChangeResult) -> str:
+    return _verdict_body(result).replace("</div>", _set_aside_banner(result) + "</div>", 1)
+
+
+def _set_aside_banner(result: ChangeResult) -> str:
+    """The verdict's note on regions the edge check set aside: they stay candidates, never silently gone."""
+    n = int(result.settings.get("edge_explained_regions") or 0) if result.comparable else 0
+    if n == 0:
+        return ""
+    return (f' <span class="cand"><b>{len(result.regions)} change{"s" if len(result.regions) != 1 else ""}'
+            f'{html.escape(set_aside_text(n))}</b> (cyan outlines on the change map): a sub-pixel difference of '
+            "viewpoint may explain it; check by eye.</span>")
+
+
+def _verdict_body(result: ChangeResult) -> str:
     if not result.comparable:
         reason = result.reason.removeprefix("cannot compare: ")
         return (f'<div class="verdict cannot"><b>Not compared:</b> {html.escape(reason)}. '

@@ -122,7 +122,7 @@ def run_bare(
 def _shared_lightings(reference, visit) -> list[str]:
     ref_names = list(reference.metadata.get("lightings") or reference.image_names())
     visit_names = set(visit.image_names())
-    shared = [n for n in ref_names if n in visit_names and reference.has(f"images/{n}.png")]
+    shared = [n for n in ref_names if n in visit_names and reference.has_image(n)]
     if not shared:
         raise CampaignError(
             f"visit {visit.name} has no image with the reference's lightings ({', '.join(ref_names) or 'none'})"

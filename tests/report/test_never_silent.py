@@ -160,7 +160,7 @@ def test_cli_region_lines_show_significance_and_cue():
                      mean_score=6.0, max_score=7.0),
     ]
     printed = _printed(result_summary(_result(regions=regions, labels=labels)) | {"output": "out"})
-    assert "#1: 100 px, 0.25 mm² at (64, 14), NFA 1e-12, both" in printed
+    assert "#1: 100 px, 0.250 mm² at (64, 14), NFA 1e-12, both" in printed  # to the 0.0025 mm² of a pixel
     assert "#2: 36 px at (12, 82), not significant (NFA ≥ 1)" in printed
     assert "strongest candidate" not in printed
 
@@ -182,3 +182,27 @@ def test_diff_json_output_is_one_object_with_candidates(tmp_path):
                             "-o", str(out)], capture_output=True, text=True, timeout=300)
     if not data["regions"]:
         assert human.stdout.startswith("no significant change; ")
+
+
+def _set_aside_result() -> ChangeResult:
+    """No reported region; the edge check set one region aside."""
+    result = _result()
+    result.edge_explained = np.zeros((SIZE, SIZE), bool)
+    result.edge_explained[30:34, 40:70] = True
+    result.settings["edge_explained_regions"] = 1
+    return result
+
+
+def test_set_aside_region_is_named_in_the_verdict_and_the_cli_summary():
+    result = _set_aside_result()
+    html = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=result)["report.html"].decode()
+    verdict = re.search(r'<div class="verdict[^"]*">(.*?)</div>', html, re.S).group(1)
+    assert "0 changes; 1 candidate set aside along an edge" in verdict
+    printed = _printed({**result_summary(result), "output": "out"})
+    assert "0 changes; 1 candidate set aside along an edge" in printed
+
+
+def test_verdict_has_no_set_aside_note_when_the_check_set_nothing_aside():
+    html = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=_result())["report.html"].decode()
+    assert "set aside along an edge" not in html
+    assert "set aside" not in _printed({**result_summary(_result()), "output": "out"})
