@@ -513,6 +513,10 @@ def _offset_vector_mm(T_ref_cam: np.ndarray, T_ref_camref: np.ndarray) -> np.nda
     return 1000.0 * (np.asarray(T_ref_cam, dtype=float)[:3, 3] - np.asarray(T_ref_camref, dtype=float)[:3, 3])
 
 
+#: Longest silence (s) while the loop waits for an alignment: a progress line at least this often.
+HEARTBEAT_S = 5.0
+
+
 @dataclass
 class _LoopShared:
     """What the 3D loop leaves for the image stage: its latest estimate and the tolerances."""
@@ -673,7 +677,8 @@ def _racr_loop(*, session, reference, ref_index, camera, scale, T_flange_cam, in
             break
         mm_cmd, deg_cmd = pose_distance(np.eye(4), adj.M_flange_commanded)
         _say(session, f"adjustment {iteration}: moving {mm_cmd:.1f} mm / {deg_cmd:.2f} deg")
-        session.move_by(adj.M_flange_commanded)
+        session.move_by(adj.M_flange_commanded, progress=(0, session.substeps(adj.M_flange_commanded),
+                                                          f"adjustment {iteration}: moving"))
         moved_at_frame = session.vse.latest().frames_processed
         shared.moved_at_frame = moved_at_frame
     else:
@@ -947,7 +952,7 @@ def _image_stage(*, session, reference, camera, scale, T_flange_cam, config, rec
             reason = (f"{result.reason}; {label}: after {step + 1} step(s) it still measures {off_mm:.2f} ± "
                       f"{sigma:.2f} mm / {afd:.2f} px (tolerance {tol:.2f} mm, {config.image_stop_afd_px} px)")
         _say(session, f"{label} {step + 1}/{steps}: moving {off_mm:.1f} mm / {off_deg:.2f} deg")
-        session.move_by(M_cmd)
+        session.move_by(M_cmd, progress=(0, session.substeps(M_cmd), f"{label} {step + 1}: moving"))
         moved = True
         after_frame = session.vse.latest().frames_processed
     if done and residual is not None:
@@ -988,7 +993,13 @@ def _wait_for_estimate(worker: AlignmentWorker, last_serial: int, config: Reloca
     t0 = time.monotonic()
     seen_bad: set[int] = set()  # serials of untrustworthy estimates since we started waiting
     seen_degenerate: set[int] = set()  # ... of those flagged degenerate geometry
+    next_note = t0 + HEARTBEAT_S
     while True:
+        if time.monotonic() >= next_note:  # never silent for long (issue 24, item 7)
+            est = worker.latest()
+            _say(session, f"  still aligning ({time.monotonic() - t0:.0f} s; latest estimate: "
+                          + ("none yet" if est is None else f"{est.stage}, {'ok' if est.ok else est.reason}") + ")")
+            next_note += HEARTBEAT_S
         if worker.error:
             raise AlgorithmError(f"alignment thread stopped: {worker.error}")
         est = worker.latest()

@@ -464,8 +464,8 @@ def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(mon
     frames_after_motion = []
     original_move = session.move_by
 
-    def move_and_note(M):
-        out = original_move(M)
+    def move_and_note(M, **kw):
+        out = original_move(M, **kw)
         frames_after_motion.append(vse.latest().frames_processed)
         return out
 

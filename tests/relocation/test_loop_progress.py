@@ -1,0 +1,39 @@
+"""The loop is never silent for long (issue 24, item 7): a line per step and while it waits."""
+
+import time
+
+from fgcd_cli.geometry import Sim3
+from fgcd_cli.relocation import loop as loop_mod
+from fgcd_cli.relocation.loop import AlignmentEstimate, RelocationConfig, run_relocation
+from tests.relocation.test_loop import _exact_session, make_case
+
+
+def test_every_step_and_every_wait_says_something(monkeypatch):
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _T_ref_base = make_case(proportional=0.2)
+
+    def slow_exact(*, serial=0, state=None, **kw):
+        time.sleep(0.3)
+        return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
+                                  vse_frame=state.frames_processed, seconds=0.3, serial=serial)]
+
+    monkeypatch.setattr(loop_mod, "align_once", slow_exact)
+    monkeypatch.setattr(loop_mod, "HEARTBEAT_S", 0.1)
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    lines: list[tuple[float, str]] = []
+    progress: list[tuple[int, int, str]] = []
+    session.on_event = lambda text: lines.append((time.monotonic(), text))
+    session.on_progress = lambda done, total, label: progress.append((done, total, label))
+    t0 = time.monotonic()
+    res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12))
+    vse.stop()
+    assert res.converged
+    texts = [t for _, t in lines]
+    assert any("waiting for an alignment" in t for t in texts)
+    assert any("still aligning" in t for t in texts)  # the heartbeat while an alignment takes longer
+    moves = [t for t in texts if ": moving" in t]
+    assert len(moves) == platform.moves  # one line per motion
+    assert progress and all(label.startswith("adjustment") for _, _, label in progress)
+    # never the issue's ~3 s of silence, with a 0.1 s heartbeat and 0.3 s alignments (loose: a loaded machine)
+    stamps = [t0] + [t for t, _ in lines]
+    assert max(b - a for a, b in zip(stamps, stamps[1:])) < 3.0
