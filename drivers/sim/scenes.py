@@ -1,12 +1,13 @@
-"""Scene catalogue: small TOML specs under ``campaigns/scenes/`` built deterministically.
+"""Scene catalogue: small TOML specs (``drivers/sim/scene_specs/``) built deterministically.
 
 A spec names a builder (``drivers/sim/scene_builders.py``), its parameters, the
 default camera (eye and target, metres, world frame z up) and the lamp used at
 night. ``load_scene(name, seed=...)`` returns the same :class:`Scene` for the
 same spec and seed (results are cached, scenes are treated as read-only).
 
-The spec folder is ``$FGCD_SCENES_DIR`` if set, else ``campaigns/scenes`` of
-the repository.
+The spec folder is ``$FGCD_SCENES_DIR`` if set, else the ``scene_specs`` data
+folder shipped inside this package, found through :mod:`importlib.resources` so
+that a wheel install finds it as an editable one does.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import os
 import tomllib
 from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +35,9 @@ def scenes_dir() -> Path:
     env = os.environ.get("FGCD_SCENES_DIR")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[2] / "campaigns" / "scenes"
+    # setuptools installs package data as plain files (wheels are not zip-imported),
+    # so the resource folder is a directory on disk.
+    return Path(str(resources.files("drivers.sim").joinpath("scene_specs")))
 
 
 def _spec_files() -> dict[str, Path]:
