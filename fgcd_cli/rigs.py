@@ -9,24 +9,28 @@ simulator it also returns the evaluation hooks (ground truth), which only
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
-from fgcd_cli.errors import HardwareError, UserInputError
+from fgcd_cli.errors import HardwareError, UserInputError, run_record
 from fgcd_cli.geometry.camera import PinholeCamera
 from fgcd_cli.relocation.capture import RigHandles
+from fgcd_cli.relocation.session import recorded_motion
 
 __all__ = [
     "DRIVERS",
     "OpenedRig",
     "SimScenario",
+    "check_connection",
     "check_driver",
     "check_lighting",
     "check_scenario",
     "check_scene",
     "open_rig",
+    "opened",
     "pinhole_from_intrinsics",
     "vse_factory_for",
 ]
@@ -81,6 +85,19 @@ def check_driver(driver: str) -> str:
     return driver
 
 
+def check_connection(driver: str, *, port: str | None, host: str | None) -> None:
+    """Refuse a hardware driver without the address it needs (UserInputError, before anything is opened).
+
+    Rule: the address a driver needs is an option the user forgot, not a
+    hardware fault (the same rule as ``fgcd platform``).
+    """
+    if driver == "grbl" and not port:
+        raise UserInputError("the grbl driver needs --port (e.g. --port /dev/ttyUSB0, or port in campaign.toml [rig])")
+    if driver == "ur" and not host:
+        raise UserInputError("the ur driver needs --host (the controller's address, e.g. --host 192.168.0.10, "
+                             "or host in campaign.toml [rig])")
+
+
 def check_scene(scene: str) -> str:
     """``scene`` if the simulator has it; UserInputError naming the known scenes otherwise."""
     from drivers.sim.scenes import SceneNotFound, scene_spec
@@ -126,6 +143,33 @@ def check_scenario(scenario: SimScenario) -> SimScenario:
     return replace(scenario, lighting=lighting)
 
 
+def _recording(confirm: Callable[[str], bool] | None) -> Callable[[str], bool] | None:
+    """``confirm`` asked with the run record saying the platform is not moving (nothing moves before the answer)."""
+    if confirm is None:
+        return None
+
+    def ask(text: str) -> bool:
+        was = run_record.moving
+        run_record.moving = False
+        answer = confirm(text)  # Ctrl-C here: not moving, as recorded
+        run_record.moving = was
+        return answer
+
+    return ask
+
+
+def _recorded_guard(platform, limits, confirm):
+    """A MotionGuard whose motions mark ``run_record`` (the Ctrl-C line says whether the platform was moving)."""
+    from drivers.platform import MotionGuard
+
+    class RecordedMotionGuard(MotionGuard):
+        def move_to(self, T_base_flange_target):  # noqa: D102 - MotionGuard.move_to, recorded
+            with recorded_motion():
+                return super().move_to(T_base_flange_target)
+
+    return RecordedMotionGuard(platform, limits, confirm=_recording(confirm))
+
+
 @dataclass
 class OpenedRig:
     """A rig ready for the use cases, plus what to close and (sim only) evaluation hooks."""
@@ -134,6 +178,36 @@ class OpenedRig:
     close: Callable[[], None]
     sim: object | None = None  # the SimRig, for evaluation code only
     info: dict = field(default_factory=dict)
+
+    @property
+    def platform_name(self) -> str | None:
+        """Name of the rig's platform (``sim``, ``grbl``, ``ur``, ``manual``), None when unknown."""
+        platform = getattr(getattr(self.handles, "guard", None), "platform", None)
+        return getattr(platform, "name", None)
+
+    def stop(self, reason: str = "interrupted by the user (Ctrl-C)") -> None:
+        """Stop the platform and refuse further motion (trips the guard)."""
+        guard = getattr(self.handles, "guard", None)
+        if guard is not None and hasattr(guard, "trip"):
+            guard.trip(reason)
+
+
+@contextmanager
+def opened(rig: OpenedRig) -> Iterator[OpenedRig]:
+    """``rig`` for a block: on Ctrl-C the platform is stopped first, and the rig is always closed.
+
+    A Ctrl-C between two motions (while the VSE settles, an alignment runs)
+    does not pass through the guard: the block stops the platform itself.
+    """
+    try:
+        yield rig
+    except KeyboardInterrupt:
+        stop = getattr(rig, "stop", None)  # any object with close() (stand-ins in tests)
+        if stop is not None:
+            stop()
+        raise
+    finally:
+        rig.close()
 
 
 def pinhole_from_intrinsics(intr) -> PinholeCamera:
@@ -197,7 +271,7 @@ def open_sim_rig(
     on_progress: Callable[[int, int, str], None] | None = None,
 ) -> OpenedRig:
     """A simulated rig for one session of a scenario (``on_progress``: see :class:`RigHandles`)."""
-    from drivers.platform import GuardLimits, MotionGuard
+    from drivers.platform import GuardLimits
     from drivers.sim.rig import build_sim_rig
 
     scenario = check_scenario(scenario)
@@ -219,8 +293,8 @@ def open_sim_rig(
     # The simulated platform's speed model is already the rACR paper's slow stage
     # (1.5 s per cm, ~6.7 mm/s): run it at that speed, not at the guard's default
     # half speed meant for fast industrial arms, so simulated times compare with the paper's.
-    guard = MotionGuard(rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12), speed_fraction=1.0),
-                        confirm=confirm)
+    guard = _recorded_guard(rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12),
+                                                      speed_fraction=1.0), confirm)
     handles = RigHandles(
         guard=guard,
         camera_source=source,
@@ -261,11 +335,12 @@ def open_rig(
             on_progress=on_progress,
         )
     check_driver(driver)
+    check_connection(driver, port=port, host=host)
     if intrinsics is None:
         raise UserInputError("no camera intrinsics in the campaign rig: run `fgcd calibrate intrinsics` first")
     from drivers.cameras import OpenCVCamera
     from drivers.connect import open_platform
-    from drivers.platform import GuardLimits, MotionGuard
+    from drivers.platform import GuardLimits
 
     try:
         platform = open_platform(driver, port=port, baud=baud, host=host)
@@ -273,7 +348,7 @@ def open_rig(
         raw_camera = OpenCVCamera(camera_index, width=intrinsics.width, height=intrinsics.height)
     except OSError as exc:
         raise HardwareError(f"cannot open the rig: {exc}") from None
-    guard = MotionGuard(platform, GuardLimits(), confirm=confirm)
+    guard = _recorded_guard(platform, GuardLimits(), confirm)
     intrinsics, camera = undistorted(intrinsics, raw_camera)
 
     def close() -> None:

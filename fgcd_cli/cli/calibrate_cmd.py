@@ -11,8 +11,8 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from fgcd_cli.cli.output import emit, info
-from fgcd_cli.errors import UserInputError
+from fgcd_cli.cli.output import confirmer, emit, info
+from fgcd_cli.errors import UserInputError, run_record
 
 app = typer.Typer(help="Calibrate the rig: ChArUco board, camera intrinsics, hand-eye and map scale.", no_args_is_help=True)
 
@@ -307,35 +307,40 @@ def handeye_cmd(
     """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
     from fgcd_cli.calibration.rig import save_handeye
     from fgcd_cli.cli.progress import step_progress
-    from fgcd_cli.rigs import SimScenario, open_rig
+    from fgcd_cli.rigs import SimScenario, check_connection, open_rig, opened
 
+    # no terminal and no --yes: refused first (exit 2), before anything is opened or moved
+    confirm = confirmer(yes=yes)
     scenario = _check_handeye_options(mode=mode, driver=driver, scene=scene, seed=seed, board_file=board_file,
                                       translation_mm=translation_mm, rotation_deg=rotation_deg)
     camp = _open_campaign(campaign)
+    port = port or (camp.rig_config.get("port") if camp is not None else None)
+    host = host or (camp.rig_config.get("host") if camp is not None else None)
+    check_connection(driver, port=port, host=host)
     intr = _handeye_intrinsics(camp, driver=driver, as_json=as_json)
-    confirm = None if yes else (lambda text: typer.confirm(text, default=False, err=True))
+    run_record.no_writes()
     with step_progress(enabled=not as_json) as bar:
         if bar is not None:
             bar(0, 0, "opening the rig")
             confirm = bar.paused(confirm)
-        opened = open_rig(
+        rig = open_rig(
             driver=driver,
             T_flange_cam=None,
             intrinsics=intr.camera if intr is not None else None,
             scenario=scenario or SimScenario(),
-            port=port or (camp.rig_config.get("port") if camp is not None else None),
-            host=host or (camp.rig_config.get("host") if camp is not None else None),
+            port=port,
+            host=host,
             camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
             confirm=confirm,
         )
-        try:
-            result, data = _run_handeye(opened.handles, mode=mode, board_file=board_file, translation_mm=translation_mm,
+        run_record.platform_connected(rig.platform_name or driver)
+        with opened(rig):
+            result, data = _run_handeye(rig.handles, mode=mode, board_file=board_file, translation_mm=translation_mm,
                                         rotation_deg=rotation_deg, say=None if as_json else info, bar=bar)
-        finally:
-            opened.close()
     data["mode"] = mode
     data["driver"] = driver
     if camp is not None:
-        data["stored"] = save_handeye(camp, result, extra={"mode": mode, "driver": driver})
+        with run_record.writing(camp.rig_path("handeye")):
+            data["stored"] = save_handeye(camp, result, extra={"mode": mode, "driver": driver})
     emit(data, as_json=as_json, render=lambda c: _render_handeye(c, data))
 

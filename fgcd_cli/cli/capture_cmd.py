@@ -11,22 +11,12 @@ import numpy as np
 import typer
 
 from fgcd_cli.campaign import open_campaign
-from fgcd_cli.cli.output import emit, info
-from fgcd_cli.errors import CampaignError, UserInputError
+from fgcd_cli.cli.output import confirmer, emit, info
+from fgcd_cli.errors import CampaignError, UserInputError, run_record
 from fgcd_cli.geometry.camera import PinholeCamera
 
 if TYPE_CHECKING:
     from fgcd_cli.rigs import SimScenario
-
-
-def _confirm_factory(yes: bool):
-    if yes:
-        return None
-
-    def confirm(text: str) -> bool:
-        return typer.confirm(text, default=False)
-
-    return confirm
 
 
 def rig_calibration(campaign) -> tuple[np.ndarray | None, PinholeCamera | None]:
@@ -205,32 +195,48 @@ def capture(
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.metrics.sim_eval import reference_truth
     from fgcd_cli.relocation.capture import capture_reference
-    from fgcd_cli.rigs import open_rig
+    from fgcd_cli.rigs import open_rig, opened
 
+    # Rule: a motion that needs confirming without a terminal is refused before anything is created.
+    confirm = confirmer(yes=yes)
     camp = open_campaign(campaign)
     plan = plan_capture(camp, station=station, driver=driver, scene=scene, seed=seed, light=light, lightings=lightings)
-    confirm = _confirm_factory(yes)
+    port, host = connection(camp, plan.driver, port=port, host=host)
+    run_record.no_writes()
     with step_progress(enabled=not as_json) as progress, camp.station_for_writing(station) as st:
+        say = info
         if progress is not None:
             progress(0, 0, "opening the rig")
-            confirm = progress.paused(confirm)
+            confirm, say = progress.paused(confirm), progress.lines(info)
         rig = open_rig(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                       scenario=plan.scenario, port=port or camp.rig_config.get("port"),
-                       host=host or camp.rig_config.get("host"), confirm=confirm, on_event=info, on_progress=progress)
-        try:
+                       scenario=plan.scenario, port=port, host=host, confirm=confirm, on_event=say,
+                       on_progress=progress)
+        run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
+        with opened(rig):
             result = capture_reference(
                 rig.handles, st, lightings=plan.lightings,
                 metadata={"driver": plan.driver, "scenario": rig.info.get("scenario")},
                 evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
             )
-        finally:
-            rig.close()
     data = {"station": station, "reference": result.observation_path, "cloud_points": result.cloud_points,
             "scale": result.scale.scale, "images": result.images,
             "scene": plan.scenario.scene if plan.scenario is not None else None}
     emit(data, as_json=as_json, render=lambda c: c.print(
         f"Reference of [bold]{station}[/bold] written to {result.observation_path} "
         f"({result.cloud_points} cloud points, scale {result.scale.scale:.4f} m/unit, images: {', '.join(result.images)})"))
+
+
+def connection(campaign, driver: str, *, port: str | None, host: str | None) -> tuple[str | None, str | None]:
+    """``(port, host)`` of a hardware driver (options first, then campaign.toml [rig]); UserInputError when missing.
+
+    Checked before anything is created or opened, like ``fgcd platform``.
+    """
+    from fgcd_cli.rigs import check_connection
+
+    port = port or campaign.rig_config.get("port")
+    host = host or campaign.rig_config.get("host")
+    check_connection(driver, port=port, host=host)
+    return port, host
 
 
 def check_relocation_options(*, changes: int, eta: float, max_adjustments: int, start_offset_mm: float,
@@ -291,9 +297,11 @@ def relocate(
     from fgcd_cli.relocation.capture import relocate_and_capture
     from fgcd_cli.relocation.coarse import CoarseConfig
     from fgcd_cli.relocation.loop import RelocationConfig
-    from fgcd_cli.rigs import check_driver, check_lighting, open_rig
+    from fgcd_cli.cli.progress import step_progress
+    from fgcd_cli.rigs import check_driver, check_lighting, open_rig, opened
 
-    # option values first (exit 2), then the campaign (exit 3)
+    # no terminal and no --yes: refused first (exit 2); option values (exit 2), then the campaign (exit 3)
+    confirm = confirmer(yes=yes)
     driver = check_driver(driver) if driver is not None else None
     check_relocation_options(changes=changes, eta=eta, max_adjustments=max_adjustments,
                              start_offset_mm=start_offset_mm, start_offset_deg=start_offset_deg)
@@ -301,6 +309,7 @@ def relocate(
     driver = check_driver(driver or camp.rig_config.get("driver", "sim"))
     if driver == "sim":
         light = check_lighting(light)
+    port, host = connection(camp, driver, port=port, host=host)
     st = camp.station(station)
     ref = st.reference()
     scenario = None
@@ -314,19 +323,26 @@ def relocate(
         T_flange_cam = np.eye(4)
     config = RelocationConfig(mode="serial" if serial else "parallel", eta=eta, max_adjustments=max_adjustments,
                               image_refine=not no_image_refine, image_fallback=not no_image_refine)
-    rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port or camp.rig_config.get("port"), host=host or camp.rig_config.get("host"),
-                   confirm=_confirm_factory(yes), on_event=info)
-    evaluator = RelocationEvaluator.from_reference(rig.sim, ref) if rig.sim is not None else None
-    try:
-        result = relocate_and_capture(
-            rig.handles, st, config=config, lightings=visit_lightings(light, ref.metadata.get("lightings", []), controllable=driver == "sim"),
-            metadata={"driver": driver, "scenario": rig.info.get("scenario"), "no_handeye": no_handeye},
-            evaluate=evaluator.evaluate if evaluator else None, on_record=print_record,
-            evaluation=evaluator.summary if evaluator else None,
-            coarse=None if no_coarse else CoarseConfig(),
-        )
-    finally:
-        rig.close()
+    run_record.no_writes()
+    # The steps report through plain callbacks: a live bar on stderr (not with --json), lines above it.
+    with step_progress(enabled=not as_json) as bar:
+        say = info
+        if bar is not None:
+            bar(0, 0, "opening the rig")
+            confirm, say = bar.paused(confirm), bar.lines(info)
+        rig = open_rig(driver=driver, T_flange_cam=T_flange_cam, intrinsics=cam, scenario=scenario, port=port,
+                       host=host, confirm=confirm, on_event=say, on_progress=bar)
+        run_record.platform_connected(getattr(rig, "platform_name", None) or driver)
+        with opened(rig):
+            evaluator = RelocationEvaluator.from_reference(rig.sim, ref) if rig.sim is not None else None
+            result = relocate_and_capture(
+                rig.handles, st, config=config,
+                lightings=visit_lightings(light, ref.metadata.get("lightings", []), controllable=driver == "sim"),
+                metadata={"driver": driver, "scenario": rig.info.get("scenario"), "no_handeye": no_handeye},
+                evaluate=evaluator.evaluate if evaluator else None, on_record=print_record,
+                evaluation=evaluator.summary if evaluator else None,
+                coarse=None if no_coarse else CoarseConfig(),
+            )
     reloc = result.relocation
     coarse = result.coarse
     data = {

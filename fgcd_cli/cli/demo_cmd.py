@@ -53,8 +53,15 @@ def demo(
     from fgcd_cli.demo import DemoConfig, run_demo
     from fgcd_cli.errors import UserInputError
 
+    from fgcd_cli.rigs import check_lighting, check_scene
+
+    # every option with a closed set of values, before anything is created or calibrated
     if vse not in ("mono", "rgbd"):
         raise UserInputError(f"unknown --vse '{vse}' (mono or rgbd)")
+    check_scene(scene)
+    visit_light = check_lighting(visit_light, option="--visit-light")
+    if changes < 0:
+        raise UserInputError(f"--changes must be 0 or more, got {changes}")
 
     if out.exists() and any(out.iterdir()):
         from datetime import datetime, timezone

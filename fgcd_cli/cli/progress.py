@@ -5,7 +5,8 @@ Algorithms never import rich: they report through a plain callback
 wraps its work in :func:`step_progress` and hands the callback down. The bar
 lives on stderr (``--json`` stdout stays one object), shares the console of
 :func:`fgcd_cli.cli.output.info` so progress lines print above it, and is
-transient: once a command ends, only its lines and result remain.
+transient: once a command ends, only its lines and result remain. When stderr
+is not a terminal nothing is drawn (the lines still are).
 """
 
 from __future__ import annotations
@@ -31,9 +32,11 @@ class StepBar:
         self._progress = progress
         self._task = None
         self._label: str | None = None
+        self._counting = False  # a counted step is under way (not yet at its total)
 
     def __call__(self, done: int, total: int, label: str) -> None:
         known = total is not None and total > 0
+        self._counting = known and done < total
         step = label.split(" (")[0]
         if step != self._label:
             if self._task is not None:
@@ -42,6 +45,24 @@ class StepBar:
             self._label = step
         self._progress.update(self._task, completed=done if known else 0, total=total if known else None,
                               count=f"{done}/{total}" if known else "", description=label)
+
+    def lines(self, say: Callable[[str], None]) -> Callable[[str], None]:
+        """``say`` whose lines also name the bar's step while no counted step is under way.
+
+        A use case's lines (``adjustment 3: waiting for an alignment``) say
+        what it does between counted steps: the bar then shows that line with
+        its own elapsed time instead of a finished step's. Indented lines are
+        details of the current step and leave the bar alone; so does any line
+        said in the middle of a counted step (``exploring 3/12``).
+        """
+
+        def wrapped(text: str) -> None:
+            say(text)
+            if text[:1].isspace() or self._counting:
+                return
+            self(0, 0, text.strip())
+
+        return wrapped
 
     def paused(self, ask: Callable[[str], bool] | None) -> Callable[[str], bool] | None:
         """``ask`` run with the bar hidden (a question on the terminal is not drawn over)."""
@@ -81,5 +102,7 @@ def step_progress(*, enabled: bool) -> Iterator[StepBar | None]:
 
     columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                TextColumn("{task.fields[count]}"), TimeElapsedColumn())
-    with Progress(*columns, console=err_console, transient=True) as progress:
+    # Not a terminal (a log file, a pipe): the steps are followed but nothing is drawn (a live
+    # display there would only leave a blank line before the result or the error line).
+    with Progress(*columns, console=err_console, transient=True, disable=not err_console.is_terminal) as progress:
         yield StepBar(progress)

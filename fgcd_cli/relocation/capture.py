@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.errors import AlgorithmError, run_record
 from fgcd_cli.geometry.camera import PinholeCamera
 from fgcd_cli.geometry.sim3 import Sim3
 from fgcd_cli.relocation.loop import (
@@ -210,7 +210,7 @@ def capture_reference(
             **(metadata or {}),
         }
         rig.progress(0, 0, "writing the reference")
-        with station.write_reference(meta) as w:
+        with run_record.writing(f"the reference of station '{station.name}'"), station.write_reference(meta) as w:
             for name, img in images.items():
                 w.add_image(name, img)
             w.add_cloud(points, colors=np.asarray(cloud.intensities, dtype=np.float32))
@@ -278,8 +278,10 @@ def relocate_and_capture(
     reference = load_reference(station)
     ref_index = ReferenceIndex(reference.points, intensities=reference.intensities,
                                view=(reference.T_ref_camref, rig.intrinsics))
+    rig.progress(0, 0, "starting the VSE")
     session, vse, scale, _ = _start_session(rig, explore_m=explore_m, legs=explore_legs)
     try:
+        rig.progress(0, 0, "initial alignment to the reference")
         first = session.tracking_state()
         T_cur_cam0 = np.array(first.T_map_cam, dtype=float)
         T_cur_cam0[:3, 3] *= scale.scale
@@ -299,6 +301,7 @@ def relocate_and_capture(
             coarse_result, init = _maybe_coarse(rig, session, reference, ref_index, station, scale.scale, init,
                                                 coarse, evaluate, first_trusted=first_trusted)
         rig.say(f"relocating ({config.mode}) to the reference of station '{station.name}'")
+        rig.progress(0, 0, "relocating")
         try:
             result = run_relocation(
                 session=session,
@@ -318,6 +321,7 @@ def relocate_and_capture(
             # the loop paused: what the coarse stage did before stays available to the caller
             exc.coarse_result = coarse_result
             raise
+        rig.progress(0, 0, "settling at the reached pose")
         state = session.settle(frames=2)
         points = np.asarray(state.cloud.points, dtype=float) * scale.scale
         images = grab_images(rig, lightings)
@@ -343,8 +347,9 @@ def relocate_and_capture(
             "intrinsics": rig.intrinsics.to_dict(),
             **(metadata or {}),
         }
+        rig.progress(0, 0, "writing the visit")
         stamp_writer = station.new_visit(meta)
-        with stamp_writer as w:
+        with run_record.writing(f"the visit of station '{station.name}'"), stamp_writer as w:
             for name, img in images.items():
                 w.add_image(name, img)
             w.add_cloud(points, colors=np.asarray(state.cloud.intensities, dtype=np.float32))
@@ -390,6 +395,7 @@ def _maybe_coarse(rig, session, reference, ref_index, station, scale: float, ini
         # When the image localizer puts the camera near, the loop and its image fallback take it
         # from there (measured, that statue: the stage found nothing to verify in 4 views on its
         # distorted session cloud and cost 50 s before the fallback relocated anyway).
+        rig.progress(0, 0, "locating the camera in the reference images")
         t0 = time.monotonic()
         T_img, _info = image_estimate(reference_images=_reference_images(station), current_image=_grab_gray(rig),
                                       camera=rig.intrinsics, reference=reference)
@@ -407,6 +413,7 @@ def _maybe_coarse(rig, session, reference, ref_index, station, scale: float, ini
     if near:
         return None, init
     rig.say(f"{source} {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
+    rig.progress(0, 0, "active coarse stage")
     result = run_coarse_stage(session=session, reference=reference, ref_index=ref_index, camera=rig.intrinsics,
                               scale=scale, T_flange_cam=rig.T_flange_cam, init=init,
                               reference_images=_reference_images(station), grab_current=lambda: _grab_gray(rig),

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable, Protocol, Sequence
+from typing import Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
-from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.errors import AlgorithmError, run_record
 from fgcd_cli.geometry.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
 
 __all__ = [
@@ -24,7 +25,23 @@ __all__ = [
     "ScaleEstimate",
     "VseSession",
     "exploration_pattern",
+    "recorded_motion",
 ]
+
+
+@contextmanager
+def recorded_motion() -> Iterator[None]:
+    """Mark a motion in progress in ``run_record`` (the line printed on Ctrl-C says the platform was moving).
+
+    Nested marks are one motion: a motion cut into guarded sub-steps is in
+    progress from its first sub-step to its last, and the inner marks of
+    its sub-steps leave the outer one standing.
+    """
+    if run_record.moving:
+        yield
+        return
+    with run_record.motion():
+        yield
 
 
 class VseThreadLike(Protocol):
@@ -225,13 +242,15 @@ class VseSession:
         step = exp_se3(log_se3(np.asarray(M_flange, dtype=float)) / n)
         done, total, label = progress if progress is not None else (0, n, "")
         spent = 0.0
-        for i in range(n):
-            result = self.guard.move_by(step)
-            spent += float(getattr(result, "duration_s", 0.0))
-            self.timing.moves += 1
-            self.settle(frames=1)
-            if progress is not None:
-                self.progress(done + i + 1, total, label)
+        # the whole sub-stepped motion is one motion in progress for the Ctrl-C line
+        with recorded_motion():
+            for i in range(n):
+                result = self.guard.move_by(step)
+                spent += float(getattr(result, "duration_s", 0.0))
+                self.timing.moves += 1
+                self.settle(frames=1)
+                if progress is not None:
+                    self.progress(done + i + 1, total, label)
         self.timing.platform_s += spent
         return spent
 
