@@ -156,6 +156,23 @@ def test_ctrl_c_during_a_capture_says_nothing_written_and_leaves_no_station(camp
     assert "new" not in _stations(camp)
 
 
+def test_ctrl_c_during_a_handeye_run_names_the_platform_and_keeps_the_old_calibration(camp, stand_in_rig,
+                                                                                       monkeypatch, capsys):
+    import fgcd_cli.cli.calibrate_cmd as calibrate_cmd
+
+    def interrupted(handles, **kwargs):
+        assert handles.guard.platform.name == "sim"
+        with run_record.motion():
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate_cmd, "_run_handeye", interrupted)
+    assert run(app, ["calibrate", "hand-eye", "--driver", "sim", "-c", str(camp.path), "--yes"]) == 130
+    assert _lines(capsys.readouterr().err)[-1] == \
+        "interrupted (Ctrl-C): the sim platform was stopped mid-motion; nothing was written"
+    assert stand_in_rig["tripped"] and stand_in_rig["closed"]
+    assert open_campaign(camp.path).read_rig("handeye")["T_flange_cam"] == np.eye(4).tolist()
+
+
 class _Guard:
     """A guard whose ``k``-th motion is interrupted (Ctrl-C)."""
 
