@@ -303,6 +303,56 @@ def test_the_reference_is_named_not_written_when_ctrl_c_comes_while_writing(monk
     run_record.reset()
 
 
+def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypatch):
+    import fgcd_cli.alignment as alignment
+    import fgcd_cli.relocation.capture as capture_uc
+    from fgcd_cli.relocation.session import ScaleEstimate
+
+    class Cloud:
+        points = np.zeros((10, 3))
+        intensities = np.ones(10)
+
+        def __len__(self):
+            return 10
+
+    state = SimpleNamespace(status="tracking", T_map_cam=np.eye(4), cloud=Cloud())
+    session = SimpleNamespace(tracking_state=lambda: state, settle=lambda **k: state)
+    scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=3, residual_rms_mm=0.0, method="test")
+    reference = SimpleNamespace(points=np.zeros((10, 3)), intensities=np.ones(10), T_ref_camref=np.eye(4))
+    result = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, platform_s=1.0,
+                             synthetic_s=0.0, records=[])
+    monkeypatch.setattr(capture_uc, "load_reference", lambda station: reference)
+    monkeypatch.setattr(alignment, "ReferenceIndex", lambda *a, **k: None)
+    monkeypatch.setattr(alignment, "initial_guess", lambda **k: SimpleNamespace(T_ref_cur=np.eye(4), source="test",
+                                                                                 fast=None))
+    monkeypatch.setattr(capture_uc, "_start_session",
+                        lambda rig, **k: (session, SimpleNamespace(stop=lambda: None), scale, np.eye(4)))
+    monkeypatch.setattr(capture_uc, "run_relocation", lambda **k: result)
+    monkeypatch.setattr(capture_uc, "_reference_images", lambda station: {})
+    monkeypatch.setattr(capture_uc, "grab_images", lambda rig, lightings: {"front": np.zeros((4, 4), np.float32)})
+
+    class Writer:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def add_image(self, name, img):
+            raise KeyboardInterrupt
+
+    station = SimpleNamespace(name="north-wall", new_visit=lambda meta: Writer())
+    rig = capture_uc.RigHandles(guard=SimpleNamespace(platform=SimpleNamespace(flange_pose=lambda: np.eye(4))),
+                                camera_source=None, intrinsics=SimpleNamespace(to_dict=lambda: {}),
+                                T_flange_cam=np.eye(4), vse_factory=lambda: None)
+    run_record.reset()
+    with pytest.raises(KeyboardInterrupt):
+        capture_uc.relocate_and_capture(rig, station, config=SimpleNamespace(mode="parallel"), lightings=["front"],
+                                        coarse=None)
+    assert run_record.writes_clause() == "not written: the visit of station 'north-wall'"
+    run_record.reset()
+
+
 def test_ctrl_c_during_a_simulated_capture_end_to_end(camp):
     """SIGINT to a running `fgcd capture` (simulator) once it explores: one line, exit 130, no station left."""
     proc = subprocess.Popen(
