@@ -394,8 +394,12 @@ def test_ctrl_c_during_a_simulated_capture_end_to_end(camp):
     (["relocate", "-s", "s", "--driver", "grbl"], "--port"),
     (["relocate", "-s", "s", "--driver", "ur"], "--host"),
 ])
-def test_a_hardware_driver_without_its_address_is_bad_input(camp, args, option, capsys):
-    camp.write_rig("intrinsics", {"camera": {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}})
+@pytest.mark.parametrize("intrinsics", [True, False])
+def test_a_hardware_driver_without_its_address_is_bad_input(camp, args, option, intrinsics, capsys):
+    # the missing address is the first thing to fix: said before the missing intrinsics
+    if intrinsics:
+        camp.write_rig("intrinsics", {"camera": {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640,
+                                                 "height": 480}})
     before = _stations(camp)
     assert run(app, [args[0], "-c", str(camp.path), *args[1:], "--yes"]) == 2
     one_line(capsys.readouterr().err, option)

@@ -102,6 +102,8 @@ class CapturePlan:
         The campaign's hand-eye.
     camera : PinholeCamera or None
         The campaign's intrinsics (required on hardware).
+    port, host : str or None
+        Address of a GRBL stage / UR arm (option, else campaign.toml ``[rig]``).
     """
 
     driver: str
@@ -109,6 +111,8 @@ class CapturePlan:
     scenario: SimScenario | None
     T_flange_cam: np.ndarray
     camera: PinholeCamera | None
+    port: str | None = None
+    host: str | None = None
 
 
 def check_station_can_take_a_reference(campaign, name: str) -> None:
@@ -138,11 +142,11 @@ def _image_lightings(text: str, *, sim: bool) -> list[str]:
 
 
 def plan_capture(campaign, *, station: str, driver: str | None, scene: str | None, seed: int | None, light: str,
-                 lightings: str | None) -> CapturePlan:
+                 lightings: str | None, port: str | None = None, host: str | None = None) -> CapturePlan:
     """Check every option of a capture, in the order a person fixes them; nothing is written.
 
-    Station (name, damage, existing reference) -> driver -> world (scene,
-    lights) -> calibration. The simulated world is the station's: ``--scene``
+    Station (name, damage, existing reference) -> driver -> world (scene)
+    -> the driver's address -> lights -> calibration. The simulated world is the station's: ``--scene``
     and ``--seed`` override the campaign's default ``[rig.sim]`` for this
     station only, and are recorded in its reference.
     """
@@ -163,13 +167,15 @@ def plan_capture(campaign, *, station: str, driver: str | None, scene: str | Non
                                               noise=world["noise"], lighting=light))
     elif scene is not None or seed is not None:
         raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, not {driver}")
+    port, host = connection(campaign, driver, port=port, host=host)
     names = _image_lightings(lightings or light, sim=driver == "sim")
     T_flange_cam, cam = rig_calibration(campaign)
     if T_flange_cam is None:
         raise CampaignError("no hand-eye calibration in the campaign: run `fgcd calibrate hand-eye` first")
     if driver != "sim" and cam is None:
         raise CampaignError("no camera intrinsics in the campaign: run `fgcd calibrate intrinsics -c CAMPAIGN` first")
-    return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam)
+    return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam,
+                       port=port, host=host)
 
 
 def capture(
@@ -200,8 +206,8 @@ def capture(
     # Rule: a motion that needs confirming without a terminal is refused before anything is created.
     confirm = confirmer(yes=yes)
     camp = open_campaign(campaign)
-    plan = plan_capture(camp, station=station, driver=driver, scene=scene, seed=seed, light=light, lightings=lightings)
-    port, host = connection(camp, plan.driver, port=port, host=host)
+    plan = plan_capture(camp, station=station, driver=driver, scene=scene, seed=seed, light=light, lightings=lightings,
+                        port=port, host=host)
     run_record.no_writes()
     with step_progress(enabled=not as_json) as progress, camp.station_for_writing(station) as st:
         say = info
@@ -209,7 +215,7 @@ def capture(
             progress(0, 0, "opening the rig")
             confirm, say = progress.paused(confirm), progress.lines(info)
         rig = open_rig(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                       scenario=plan.scenario, port=port, host=host, confirm=confirm, on_event=say,
+                       scenario=plan.scenario, port=plan.port, host=plan.host, confirm=confirm, on_event=say,
                        on_progress=progress)
         run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
         with opened(rig):
