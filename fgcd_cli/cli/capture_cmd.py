@@ -354,6 +354,7 @@ def relocate(
     data = {
         "station": station, "visit": result.observation_path, "converged": reloc.converged, "reason": reloc.reason,
         "adjustments": reloc.adjustments, "wall_s": reloc.wall_s, "session_s": reloc.session_s,
+        "residual": reloc.residual.to_dict() if reloc.residual else None,
         "final_truth": reloc.records[-1].truth if reloc.records else None,
         "coarse": None if coarse is None else {"handed_over": coarse.handed_over, "reason": coarse.reason,
                                                "actions": [s.action for s in coarse.steps]},

@@ -337,6 +337,7 @@ def relocate_and_capture(
                 "platform_s": result.platform_s,
                 "synthetic_s": result.synthetic_s,
                 "mode": config.mode,
+                "residual": result.residual.to_dict() if result.residual else None,
             },
             "coarse": None if coarse_result is None else {
                 "handed_over": coarse_result.handed_over, "reason": coarse_result.reason,
