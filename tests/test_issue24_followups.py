@@ -108,7 +108,8 @@ def stand_in_rig(monkeypatch):
 
 
 def _result(path="visit"):
-    reloc = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[])
+    reloc = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[],
+                            residual=None)
     return SimpleNamespace(observation_path=path, relocation=reloc, coarse=None, cloud_points=0, images=["front"],
                            scale=SimpleNamespace(scale=1.0))
 
@@ -320,7 +321,7 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
     scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=3, residual_rms_mm=0.0, method="test")
     reference = SimpleNamespace(points=np.zeros((10, 3)), intensities=np.ones(10), T_ref_camref=np.eye(4))
     result = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, platform_s=1.0,
-                             synthetic_s=0.0, records=[])
+                             synthetic_s=0.0, records=[], residual=None)
     monkeypatch.setattr(capture_uc, "load_reference", lambda station: reference)
     monkeypatch.setattr(alignment, "ReferenceIndex", lambda *a, **k: None)
     monkeypatch.setattr(alignment, "initial_guess", lambda **k: SimpleNamespace(T_ref_cur=np.eye(4), source="test",
