@@ -253,6 +253,37 @@ def _grab_gray(rig: RigHandles, *, average: int = 2) -> np.ndarray:
     return (acc / max(1, average)).astype(np.float32)
 
 
+def measurement_lighting(rig: RigHandles, reference_lightings: list[str]) -> str | None:
+    """The reference lighting the image stage measures under, when the rig can switch to it.
+
+    Feature positions on a relief move with the light direction (shadows and
+    shading), which biases a pose measured across lightings by a millimetre or
+    two; under the reference's own light the image stage compares like with like
+    (docs/relocation.md, "Final image stage"). ``None`` on rigs without switchable
+    lights: the image stage then measures under the day's light.
+    """
+    if rig.lights is None:
+        return None
+    available = set(rig.lights.available()) if hasattr(rig.lights, "available") else None
+    for name in reference_lightings:
+        if name != "ambient" and (available is None or name in available):
+            return name
+    return None
+
+
+def _grab_gray_under(rig: RigHandles, vse, lighting: str | None) -> np.ndarray:
+    """The current grey image under ``lighting`` (the VSE held meanwhile), lights restored after."""
+    if lighting is None or rig.lights is None or rig.lights.current == lighting:
+        return _grab_gray(rig)
+    previous = rig.lights.current
+    with vse.held():
+        rig.lights.set(lighting)
+        try:
+            return _grab_gray(rig)
+        finally:
+            rig.lights.set(previous)
+
+
 def relocate_and_capture(
     rig: RigHandles,
     station,
@@ -300,6 +331,12 @@ def relocate_and_capture(
             first_trusted = guess.fast is not None and guess.fast.health.ok
             coarse_result, init = _maybe_coarse(rig, session, reference, ref_index, station, scale.scale, init,
                                                 coarse, evaluate, first_trusted=first_trusted)
+        reference_images = _reference_images(station)
+        same_light = measurement_lighting(rig, list(reference_images))
+        if same_light is not None:
+            # like with like: the image stage compares with the reference image of that light only
+            reference_images = {same_light: reference_images[same_light]}
+            rig.say(f"the image stage measures under the reference's light ({same_light})")
         rig.say(f"relocating ({config.mode}) to the reference of station '{station.name}'")
         rig.progress(0, 0, "relocating")
         try:
@@ -314,8 +351,8 @@ def relocate_and_capture(
                 config=config,
                 evaluate=evaluate,
                 on_record=on_record,
-                reference_images=_reference_images(station),
-                grab_current=lambda: _grab_gray(rig),
+                reference_images=reference_images,
+                grab_current=lambda: _grab_gray_under(rig, vse, same_light),
             )
         except AlgorithmError as exc:
             # the loop paused: what the coarse stage did before stays available to the caller

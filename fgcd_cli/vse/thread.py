@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
+from contextlib import contextmanager
 from typing import Callable
 
 from fgcd_cli.vse.types import FrameSource, VseState
@@ -43,6 +44,8 @@ class VseThread:
         self._latest: VseState = engine.state()
         self._stop = threading.Event()
         self._reset_requested = threading.Event()
+        self._hold = threading.Event()
+        self._holding = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: str | None = None
 
@@ -55,6 +58,25 @@ class VseThread:
         self._thread = threading.Thread(target=self._run, name="vse", daemon=True)
         self._thread.start()
         return self
+
+    @contextmanager
+    def held(self, *, timeout_s: float = 30.0):
+        """Keep the worker from grabbing frames while the caller uses the camera.
+
+        For a measurement under another light (the rig switches its lights, grabs,
+        switches back): the engine must not see those frames, whose brightness
+        change it would take for motion. Returns once the worker waits between
+        frames (a frame it is processing finishes first); a stopped worker is not
+        waited for. Raises TimeoutError when it does not reach that point in
+        ``timeout_s``.
+        """
+        self._hold.set()
+        try:
+            if self.running and not self._holding.wait(timeout_s):
+                raise TimeoutError(f"the VSE did not pause within {timeout_s:.0f} s")
+            yield self
+        finally:
+            self._hold.clear()
 
     def stop(self, timeout: float = 60.0) -> None:
         """Ask the worker to stop and wait for it (at most ``timeout`` seconds).
@@ -117,6 +139,12 @@ class VseThread:
     def _run(self) -> None:
         errors = 0
         while not self._stop.is_set():
+            if self._hold.is_set():
+                self._holding.set()
+                while self._hold.is_set() and not self._stop.is_set():
+                    time.sleep(0.005)
+                self._holding.clear()
+                continue
             if self._reset_requested.is_set():
                 self._do_reset()
             try:
