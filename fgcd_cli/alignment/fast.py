@@ -243,9 +243,10 @@ def fast_align(
             path = "warm"
             if (not converged or moved > config.warm_check_scale_change) and config.estimate_scale \
                     and config.minimum_check_step > 0:
-                # The joint iteration also stalls at a wrong scale after moving it a few
-                # per cent (measured on VSE clouds: 1.7-4.5 % moved, 4-10 % off, inlier ratio
-                # fine). The loop's steady state moves it far less, so this costs nothing there.
+                # Rule: a warm start whose scale moved by more than the check threshold is
+                # checked against its neighbouring scales, because the joint iteration can
+                # stall at a wrong scale with a fine inlier ratio (docs/alignment.md, "Fast
+                # alignment"). The loop's steady state moves the scale far less: no cost there.
                 better, its = _scale_neighbour(cur, weights_all, ref, normals, order, T_out, probe, config)
                 iterations += its
                 path = "warm, checked" if better is None else "warm -> cold"
@@ -276,8 +277,9 @@ def fast_align(
             if out[0] is not None:
                 tried.append((math.log(s_c), _search_score(out[0], probe, ref, config), out[0]))
         # Refine the best scale by parabolic interpolation of the score in log-scale:
-        # the grid is 5-14 % coarse, and from there the joint scale step creeps along
-        # nearly flat surfaces and stalls 4-10 % off (measured on the relief study).
+        # the grid is coarse, and from a grid point the joint scale step creeps along
+        # nearly flat surfaces and stalls short of the optimum (docs/alignment.md,
+        # "Fast alignment").
         for _ in range(config.scale_refinements):
             if len(tried) < 3:
                 break

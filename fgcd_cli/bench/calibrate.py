@@ -20,7 +20,7 @@ the keyframes (:func:`_true_map_scale`; the per-keyframe values agree within a
 few tenths of a percent). Scales fitted to the VSE's camera *positions* are kept
 for reference (``scale_true_poses``: Sim(3) with the rotation from the
 orientations; ``scale_true_centres``: Umeyama over the centres alone, the
-definition used before 2026-11-23): the stop positions carry errors of 5-13 mm
+former definition): the stop positions carry errors of 5-13 mm
 over a 3 cm motion span, so such fits depend on the regression direction by
 +-8 % in one session and are no truth at the 0.5 % level.
 """

@@ -102,12 +102,11 @@ def stop_features(images: Sequence[np.ndarray], *, n_features: int = 1500) -> li
 
     The images are equalised locally (CLAHE) first. Why: SIFT drops extrema
     below a fixed contrast, and on dim stone lit by a lamp that moves with the
-    camera the raw images keep ~500 matched points, mostly large blobs of
-    shading whose centres shift as the light moves with the camera (0.3-2 px
-    between stops, measured against the simulator's geometry); those shifts
-    biased ``X`` by ~3 mm on a perfect platform. Equalised, the same images give
-    ~2 300 points, mostly small-scale texture, and the bias fell to 0.6 mm
-    (docs/benchmarks.md, "Calibration", 2026-11-25).
+    camera the raw images keep mostly large blobs of shading whose centres shift
+    as the light moves with the camera, which biases ``X``; equalised images keep
+    mostly small-scale texture, which does not move with the light
+    (docs/calibration.md, "Target-free"; measurements in docs/benchmarks.md,
+    "Calibration").
     """
     sift = cv2.SIFT_create(nfeatures=n_features)
     clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
@@ -417,8 +416,9 @@ class _HandPoses:
     (rotations about the first view's orientation scaled by ``s``; positions as
     reported): a rotary stage or arm whose rotations are a fraction of a percent
     longer or shorter than it reports. The images measure the camera's rotations
-    far better than that, and left unmodelled a 0.13 % rotation scale error
-    biased ``t_X`` by 2 mm in the simulator (seed 2 of ``fgcd bench calibrate``).
+    far better than that; left unmodelled, a rotation scale error of about a
+    tenth of a percent biases ``t_X`` by millimetres (docs/calibration.md,
+    "Target-free").
     """
 
     def __init__(self, T_base_flange: np.ndarray):

@@ -138,10 +138,10 @@ class IntrinsicsResult:
         )
 
 
-#: Above this one-sigma focal uncertainty (percent) the result suggests more views. In the
-#: simulator, 20-view sets of 0.064 and 0.090 % had fx errors of 0.14 and 0.18 % (2 sigma), and
-#: the 0.18 % put a target-free hand-eye 2.2 mm further off (docs/benchmarks.md, Calibration,
-#: 2026-11-25); the sets below 0.05 % were within 0.04 %.
+#: Above this one-sigma focal uncertainty (percent) the result suggests more views: a focal
+#: error of a few tenths of a percent already moves a target-free hand-eye by millimetres
+#: (docs/calibration.md, "2. Camera intrinsics"; the measurements are in docs/benchmarks.md,
+#: "Calibration").
 FOCAL_STD_HINT_PCT = 0.06
 
 

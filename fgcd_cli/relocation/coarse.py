@@ -68,9 +68,9 @@ class CoarseConfig:
     (a revisit start within rACR's usual few centimetres never triggers it)."""
     handover_m: float = 0.04
     handover_deg: float = 4.0
-    """A verified estimate within this of the reference pose hands over to the rACR loop (inside
-    the paper's 5 cm / 5 deg by a verified estimate's typical error of 5-15 mm, measured on the
-    simulator; the loop itself starts from 20-40 mm routinely)."""
+    """A verified estimate within this of the reference pose hands over to the rACR loop: the
+    paper's 5 cm / 5 deg less the typical error of a verified estimate (docs/relocation.md,
+    "Far starts"), still inside the range the loop starts from routinely."""
     verify_m: float = 0.05
     verify_deg: float = 5.0
     """Camera uncertainty that verifies an estimate (the paper's 5 cm / 5 deg, lambda_cu)."""

@@ -4,7 +4,7 @@ Written by hand rather than with ``scipy.optimize.least_squares``: a windowed
 bundle adjustment has few cameras (<= ~20) and many points, so a
 Levenberg-Marquardt with the Schur complement on a small dense camera system
 and analytic Jacobians runs in tens of milliseconds where the finite-difference
-``least_squares(jac_sparsity=...)`` took seconds (notes/algorithms.md).
+``least_squares(jac_sparsity=...)`` takes seconds (docs/vse.md, "Design and why").
 
 Poses are optimised as ``T_cam_map`` (map-to-camera) with a left perturbation
 ``T <- exp_se3(delta) @ T``, ``delta = (rho, phi)``. Observations are
