@@ -176,6 +176,22 @@ def relocation_residual_mm(visit) -> float | None:
     return float(last["offset_mm"])  # the row's estimate; its "truth" entry is never read here
 
 
+def relocation_residual_text(visit) -> str:
+    """The relocation's stated residual for the report: ``0.27 ± 0.12 mm (image estimate; ...)``.
+
+    The visit manifest's ``relocation.residual`` (offset, uncertainty, tolerance,
+    estimator, agreement) when the run stated one, else the last logged offset
+    estimate alone; never the simulator's truth.
+    """
+    stated = (visit.metadata.get("relocation") or {}).get("residual")
+    if isinstance(stated, dict) and stated.get("offset_mm") is not None:
+        return (f"{stated['offset_mm']:.2f} ± {stated.get('sigma_mm', float('nan')):.2f} mm "
+                f"({stated.get('source', '?')} estimate; tolerance {stated.get('tolerance_mm', float('nan')):.2f} mm; "
+                f"3D/image: {stated.get('agreement', 'not checked')})")
+    residual_mm = relocation_residual_mm(visit)
+    return f"{residual_mm:.2f} mm (no uncertainty logged)" if residual_mm is not None else "not logged"
+
+
 def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
     """mm² per reference pixel from the reference's metric cloud and camera, when stored."""
     from fgcd_cli.geometry.camera import PinholeCamera
@@ -222,7 +238,6 @@ def run_campaign(
         area = _reference_pixel_area(reference, shape)
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
     mask = read_mask(eval_mask) if eval_mask is not None else None
-    residual_mm = relocation_residual_mm(observation)
     edge_check = _edge_check(EDGE_CHECK_PX if edge_check_px is None else edge_check_px)
     _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
@@ -238,7 +253,7 @@ def run_campaign(
         "lightings": lightings,
         "metric scale": scale_note,
         "relocation": reloc,
-        "relocation residual (its own estimate)": (f"{residual_mm:.2f} mm" if residual_mm is not None else "not logged"),
+        "relocation residual (its own estimate)": relocation_residual_text(observation),
         "edge check": (f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
                        "edges set aside (cyan outlines)" if edge_check else "off"),
     }
