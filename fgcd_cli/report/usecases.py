@@ -183,11 +183,14 @@ def relocation_residual_text(visit) -> str:
     estimator, agreement) when the run stated one, else the last logged offset
     estimate alone; never the simulator's truth.
     """
+    from fgcd_cli.relocation.loop import Residual
+
     stated = (visit.metadata.get("relocation") or {}).get("residual")
-    if isinstance(stated, dict) and stated.get("offset_mm") is not None:
-        return (f"{stated['offset_mm']:.2f} ± {stated.get('sigma_mm', float('nan')):.2f} mm "
-                f"({stated.get('source', '?')} estimate; tolerance {stated.get('tolerance_mm', float('nan')):.2f} mm; "
-                f"3D/image: {stated.get('agreement', 'not checked')})")
+    if isinstance(stated, dict):
+        try:
+            return Residual(**stated).text().removeprefix("residual ")
+        except TypeError:
+            pass  # a record from another version: fall back to the logged estimate
     residual_mm = relocation_residual_mm(visit)
     return f"{residual_mm:.2f} mm (no uncertainty logged)" if residual_mm is not None else "not logged"
 
