@@ -14,12 +14,20 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from fgcd_cli.campaign.atomic import TMP_PREFIX, sha256_file
-from fgcd_cli.campaign.store import CAMPAIGN_FILE, FORMAT_VERSION, MANIFEST, Campaign, Station, load_rig_record, open_campaign
+from fgcd_cli.campaign.records import load_rig_record
+from fgcd_cli.campaign.schema import (
+    CAMPAIGN_FILE,
+    FORMAT_VERSION,
+    MANIFEST,
+    RIG_DIR,
+    STATION_FILE,
+    STATIONS_DIR,
+    VISITS_DIR,
+)
+from fgcd_cli.campaign.store import Campaign, Station, open_campaign
 from fgcd_cli.errors import CampaignError, DataIntegrityError
 
 __all__ = ["Problem", "VerifyReport", "verify_campaign", "verify_campaign_dir"]
-
-STATION_FILE = "station.json"
 
 
 @dataclass(frozen=True)
@@ -135,7 +143,7 @@ def _campaign_file_problem(path: Path, exc: CampaignError) -> Problem:
     """The damage ``open_campaign`` ran into, or ``exc`` again when it is not damage."""
     cfile = path / CAMPAIGN_FILE
     if not cfile.exists():
-        if not (path / "stations").is_dir():
+        if not (path / STATIONS_DIR).is_dir():
             raise exc  # not a campaign: nothing to verify
         return Problem(str(cfile), "missing", f"{CAMPAIGN_FILE} is gone (the campaign's site and rig settings)")
     if _written_by_newer_fgcd(cfile):
@@ -157,13 +165,13 @@ def verify_campaign(campaign: Campaign) -> VerifyReport:
     report = VerifyReport(str(campaign.path))
     for sname in campaign.station_names():
         _verify_station(_open_station(campaign, sname, report), report)
-    _verify_rig(campaign.path / "rig", report)
+    _verify_rig(campaign.path / RIG_DIR, report)
     return report
 
 
 def _open_station(campaign: Campaign, name: str, report: VerifyReport) -> Station:
     """The station, with an empty record when its ``station.json`` is damaged (named in the report)."""
-    path = campaign.path / "stations" / name
+    path = campaign.path / STATIONS_DIR / name
     info, problem = _read_station_info(path / STATION_FILE)
     if problem is not None:
         report.problems.append(problem)
@@ -193,7 +201,7 @@ def _read_station_info(sfile: Path) -> tuple[dict, Problem | None]:
 def _observation_dirs(st: Station) -> list[Path]:
     """The reference and visit directories present on disk."""
     candidates = [st.reference_path] if st.reference_path.exists() else []
-    vdir = st.path / "visits"
+    vdir = st.path / VISITS_DIR
     if vdir.is_dir():
         candidates += sorted(p for p in vdir.iterdir() if p.is_dir() and not p.name.startswith("."))
     return candidates
@@ -216,7 +224,7 @@ def _verify_station(st: Station, report: VerifyReport) -> None:
             report.problems.append(
                 Problem(str(st.path / rel), "unindexed", "observation not recorded in station.json", "warning")
             )
-    for parent in [st.path, st.path / "visits"]:
+    for parent in [st.path, st.path / VISITS_DIR]:
         if parent.is_dir():
             for p in parent.iterdir():
                 if p.name.startswith(TMP_PREFIX):
