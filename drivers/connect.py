@@ -6,75 +6,115 @@ The simulator's platform is built elsewhere (from a rig) and passed in as
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
+from enum import StrEnum
 from typing import Callable
 
 from drivers.platform import Platform, PlatformConnectionError
 
-__all__ = ["DRIVERS", "open_platform"]
-
-DRIVERS = ("sim", "grbl", "ur", "manual")
+__all__ = ["DRIVERS", "Driver", "PlatformSpec", "open_platform"]
 
 
-def open_platform(
-    driver: str,
-    *,
-    port: str | None = None,
-    baud: int = 115200,
-    host: str | None = None,
-    grbl_options: dict | None = None,
-    ur_options: dict | None = None,
-    ask: Callable[[str], str] | None = None,
-    say: Callable[[str], None] | None = None,
-    sim_rig: Platform | None = None,
-    connect: bool = True,
-) -> Platform:
+class Driver(StrEnum):
+    """Platform driver names (as typed after ``--driver``)."""
+
+    SIM = "sim"
+    GRBL = "grbl"
+    UR = "ur"
+    MANUAL = "manual"
+
+
+DRIVERS = tuple(d.value for d in Driver)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlatformSpec:
+    """How to reach a platform: everything :func:`open_platform` needs besides the driver name.
+
+    Attributes
+    ----------
+    port, baud : str or None, int
+        GRBL serial device and baud rate.
+    host : str or None
+        UR controller address.
+    grbl_options, ur_options : dict, optional
+        Extra fields of :class:`drivers.grbl.GrblConfig` / :class:`drivers.ur.URConfig`.
+    ask, say : callables, optional
+        For the manual driver (``input`` / ``print`` by default).
+    sim_rig : Platform, optional
+        The simulator's platform object (built from a rig elsewhere).
+    connect : bool
+        Call ``connect()`` before returning.
+    """
+
+    port: str | None = None
+    baud: int = 115200
+    host: str | None = None
+    grbl_options: dict | None = None
+    ur_options: dict | None = None
+    ask: Callable[[str], str] | None = None
+    say: Callable[[str], None] | None = None
+    sim_rig: Platform | None = None
+    connect: bool = True
+
+
+_SPEC_FIELDS = frozenset(f.name for f in fields(PlatformSpec))
+
+
+def open_platform(driver: str, *, spec: PlatformSpec | None = None, **options) -> Platform:
     """Build (and by default connect) the platform named by ``driver``.
 
     Parameters
     ----------
     driver : {"sim", "grbl", "ur", "manual"}
-    port, baud : GRBL serial device and baud rate.
-    host : UR controller address.
-    grbl_options, ur_options : dict, optional
-        Extra fields of :class:`drivers.grbl.GrblConfig` / :class:`drivers.ur.URConfig`.
-    ask, say : callables for the manual driver (``input`` / ``print`` by default).
-    sim_rig : Platform, optional
-        The simulator's platform object (built from a rig elsewhere).
-    connect : bool
-        Call ``connect()`` before returning.
+    spec : PlatformSpec, optional
+        Connection options; alternatively give its fields as keywords
+        (``open_platform("grbl", port=..., baud=...)``), not both.
 
     Raises
     ------
     PlatformConnectionError
         Unknown driver or missing connection option.
+    TypeError
+        An unknown option, or both ``spec`` and options.
     """
-    if driver == "sim":
-        if sim_rig is None:
+    if spec is None:
+        unknown = set(options) - _SPEC_FIELDS
+        if unknown:
+            raise TypeError(f"open_platform() got unexpected keyword arguments {', '.join(sorted(unknown))}")
+        spec = PlatformSpec(**options)
+    elif options:
+        raise TypeError("open_platform() takes either spec= or its fields as keywords, not both")
+    platform = _build(driver, spec)
+    if spec.connect:
+        platform.connect()
+    return platform
+
+
+def _build(driver: str, spec: PlatformSpec) -> Platform:
+    if driver == Driver.SIM:
+        if spec.sim_rig is None:
             raise PlatformConnectionError("the sim driver needs a simulated rig (sim_rig)")
-        platform = sim_rig
-    elif driver == "grbl":
-        if not port:
+        return spec.sim_rig
+    if driver == Driver.GRBL:
+        if not spec.port:
             raise PlatformConnectionError("the grbl driver needs --port (e.g. /dev/ttyUSB0)")
         from drivers.grbl import GrblConfig, GrblPlatform
 
-        platform = GrblPlatform(GrblConfig(port=port, baud=baud, **(grbl_options or {})))
-    elif driver == "ur":
-        if not host:
+        return GrblPlatform(GrblConfig(port=spec.port, baud=spec.baud, **(spec.grbl_options or {})))
+    if driver == Driver.UR:
+        if not spec.host:
             raise PlatformConnectionError("the ur driver needs --host (the controller's address)")
         from drivers.ur import URConfig, URPlatform
 
-        platform = URPlatform(URConfig(host=host, **(ur_options or {})))
-    elif driver == "manual":
+        return URPlatform(URConfig(host=spec.host, **(spec.ur_options or {})))
+    if driver == Driver.MANUAL:
         from drivers.manual import ManualPlatform
 
         kwargs = {}
-        if ask is not None:
-            kwargs["ask"] = ask
-        if say is not None:
-            kwargs["say"] = say
-        platform = ManualPlatform(**kwargs)
-    else:
-        raise PlatformConnectionError(f"unknown platform driver '{driver}' (choose from {', '.join(DRIVERS)})")
-    if connect:
-        platform.connect()
-    return platform
+        if spec.ask is not None:
+            kwargs["ask"] = spec.ask
+        if spec.say is not None:
+            kwargs["say"] = spec.say
+        return ManualPlatform(**kwargs)
+    raise PlatformConnectionError(f"unknown platform driver '{driver}' (choose from {', '.join(DRIVERS)})")

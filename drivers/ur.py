@@ -1,7 +1,7 @@
 """Universal Robots arm through the ``ur_rtde`` client (RTDE, dashboard, control script).
 
-Behaviours of ``ur_rtde`` 1.6.5 this driver guards against (see the project's
-hardware notes):
+Behaviours of ``ur_rtde`` 1.6.5 this driver guards against (``docs/hardware.md``,
+"Universal Robots arm"):
 
 * the interface constructors and ``reconnect()`` have no timeout and hold the
   GIL: a peer that accepts TCP but never answers freezes the interpreter. So a
@@ -48,7 +48,10 @@ from drivers.platform import (
 #: destructor's disconnect, which can block without a timeout) touches them again.
 _ABANDONED: list = []
 
-__all__ = ["URConfig", "URPlatform", "preflight", "pose_to_vector", "vector_to_pose", "safety_problem"]
+__all__ = [
+    "URConfig", "URPlatform", "preflight", "pose_to_vector", "vector_to_pose", "safety_problem",
+    "has_abandoned_interfaces",
+]
 
 #: Variables the receive interface asks for (less traffic than the default set).
 RECEIVE_VARIABLES = [
@@ -76,6 +79,15 @@ _SAFETY_BITS = {
 # ur_rtde's accepted ranges for moveL (rtde_control_interface.h).
 _UR_TOOL_SPEED_MAX = 3.0
 _UR_TOOL_ACC_MAX = 150.0
+
+
+def has_abandoned_interfaces() -> bool:
+    """True when a hung controller's ur_rtde interfaces were abandoned in this process.
+
+    Their native threads may keep reconnecting forever, so a normal interpreter
+    exit would wait for them: the CLI ends the process with ``os._exit`` instead.
+    """
+    return bool(_ABANDONED)
 
 
 def pose_to_vector(T: np.ndarray) -> list[float]:
@@ -181,10 +193,9 @@ class URConfig:
         stale (the controller streams at 125 or 500 Hz): the link is treated as lost.
     stop_timeout_s : float
         ``stop()`` returns after at most this long: ur_rtde can block inside
-        ``stopL`` for minutes while it tries to reconnect to a controller that
-        is gone (measured: > 90 s on a loaded machine), and a stop must never
-        hang the tool (the controller stops the arm by itself when its
-        connection drops).
+        ``stopL`` without a timeout while it tries to reconnect to a controller
+        that is gone, and a stop must never hang the tool (the controller stops
+        the arm by itself when its connection drops).
     """
 
     host: str
@@ -239,8 +250,8 @@ class URPlatform:
     def reconnect(self) -> None:
         """Drop the old interfaces and connect afresh (pre-flight first).
 
-        ur_rtde's own ``reconnect()`` has no timeout and was seen failing with
-        "Bad file descriptor" after a dropped link; new interfaces are reliable.
+        ur_rtde's own ``reconnect()`` has no timeout and can fail after a
+        dropped link; new interfaces do not depend on the old link's state.
         """
         self.close()
         self.connect()
@@ -255,8 +266,8 @@ class URPlatform:
         self._rtde_c = self._rtde_r = None
         if c is not None and self._hung(r):
             # A hung controller: ur_rtde's stopL/disconnect on such a link block with
-            # no timeout (seen for tens of seconds). Never touch these interfaces again;
-            # keep them referenced so their destructors do not run either.
+            # no timeout. Never touch these interfaces again; keep them referenced so
+            # their destructors do not run either.
             _ABANDONED.append((c, r))
             return
         try:
