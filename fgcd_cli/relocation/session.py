@@ -17,8 +17,10 @@ from typing import Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
+from drivers.platform import MotionGuard
 from fgcd_cli.errors import AlgorithmError, run_record
 from fgcd_cli.geometry.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
+from fgcd_cli.relocation.waiting import wait_for_state
 
 __all__ = [
     "SessionTiming",
@@ -45,7 +47,11 @@ def recorded_motion() -> Iterator[None]:
 
 
 class VseThreadLike(Protocol):
-    """What the session needs of :class:`fgcd_cli.vse.thread.VseThread`."""
+    """What the session needs of :class:`fgcd_cli.vse.thread.VseThread`.
+
+    A thread that also has ``wait_for(predicate, timeout)`` (the real one) is waited on
+    through its condition; a stand-in without it is polled (:func:`.waiting.wait_for_state`).
+    """
 
     def latest(self): ...  # noqa: D102
 
@@ -169,7 +175,7 @@ class VseSession:
         Frame rate of the modelled streaming camera.
     """
 
-    guard: object
+    guard: MotionGuard
     vse: VseThreadLike
     substep_m: float = 0.005
     substep_rad: float = math.radians(1.0)
@@ -188,14 +194,11 @@ class VseSession:
         synth0 = self.frame_synthesis_s() if self.frame_synthesis_s is not None else 0.0
         t0 = time.monotonic()
         start = self.vse.latest().frames_processed
-        while True:
-            st = self.vse.latest()
-            if st.frames_processed >= start + need:
-                self._count_frame_wait(time.monotonic() - t0, synth0, need)
-                return st
-            if time.monotonic() - t0 > self.frame_timeout_s:
-                raise AlgorithmError(f"the VSE processed no new frame in {self.frame_timeout_s:.0f} s")
-            time.sleep(0.005)
+        st = wait_for_state(self.vse, lambda s: s.frames_processed >= start + need, self.frame_timeout_s)
+        if st is None:
+            raise AlgorithmError(f"the VSE processed no new frame in {self.frame_timeout_s:.0f} s")
+        self._count_frame_wait(time.monotonic() - t0, synth0, need)
+        return st
 
     def _count_frame_wait(self, wall_s: float, synth0: float, frames: int) -> None:
         """Add a frame wait to the timing, without the camera's frame synthesis (if known)."""

@@ -17,7 +17,6 @@ import pytest
 from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_cli.geometry import Sim3
 from fgcd_cli.geometry.se3 import exp_se3, invert_pose, pose_distance
-from fgcd_cli.relocation import loop as loop_mod
 from fgcd_cli.relocation.loop import AlignmentEstimate, ReferenceData, RelocationConfig, run_relocation
 from fgcd_cli.relocation.session import VseSession
 
@@ -140,14 +139,14 @@ def test_perfect_platform_and_alignment_reach_reference_in_one_adjustment(monkey
         return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
                                   vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
 
-    monkeypatch.setattr(loop_mod, "align_once", exact_align_once)
     vse = ExactVse(platform, X, T_map_base, s)
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
     truth = lambda: {"mm": pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]}
     res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), evaluate=truth)
+                         init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), evaluate=truth,
+                         aligner=exact_align_once)
     vse.stop()
     assert res.converged
     assert res.adjustments == 2  # one motion, then g ~ 0 confirms arrival
@@ -158,15 +157,13 @@ def test_perfect_platform_and_alignment_reach_reference_in_one_adjustment(monkey
 
 def test_erring_platform_converges_in_a_few_adjustments(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case(proportional=0.05)
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+    aligner = _exact_aligner(T_ref_cur)
     vse = ExactVse(platform, X, T_map_base, s)
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
     res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(eta=1e-4, max_adjustments=10))
+                         init=Sim3(), config=RelocationConfig(eta=1e-4, max_adjustments=10), aligner=aligner)
     vse.stop()
     assert res.converged
     # a 5 % proportional error shrinks the offset ~20x per adjustment: 35 mm -> <0.1 mm in <= 4
@@ -177,9 +174,11 @@ def test_erring_platform_converges_in_a_few_adjustments(monkeypatch):
 
 def test_failed_alignment_pauses_motion(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _ = make_case()
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+
+    def aligner(*, serial=0, state=None, **kw):
+        return [AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
+                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+
     vse = ExactVse(platform, X, T_map_base, s)
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse)
@@ -187,10 +186,10 @@ def test_failed_alignment_pauses_motion(monkeypatch):
     from fgcd_cli.errors import AlgorithmError
     with pytest.raises(AlgorithmError, match="plane"):
         run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="serial"))
+                       init=Sim3(), config=RelocationConfig(mode="serial"), aligner=aligner)
     with pytest.raises(AlgorithmError, match="plane"):
         run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5))
+                       init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5), aligner=aligner)
     vse.stop()
     assert platform.moves == 0
 
@@ -210,15 +209,10 @@ def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
 def _biased_case_with_image_stage(monkeypatch, refine):
     """3D estimates off by 8 mm / 0.3 deg (a biased alignment); the image stage is ``refine``."""
     from fgcd_cli.geometry import PinholeCamera
-    from fgcd_cli.relocation import image_refine as image_mod
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
     bias = Sim3.from_pose(exp_se3([0.008, 0.0, 0.0, 0.0, 0.005, 0.0]))
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=bias @ T_ref_cur, stage="fast", ok=True, reason="biased",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
-    monkeypatch.setattr(image_mod, "refine_from_reference_image", lambda **kw: refine(true_cam()))
     camera = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
     u, v = np.meshgrid(np.linspace(-0.4, 0.4, 9), np.linspace(-0.3, 0.3, 7))
     pts_cam = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 1.5)])
@@ -230,7 +224,9 @@ def _biased_case_with_image_stage(monkeypatch, refine):
     res = run_relocation(session=session, reference=ref, ref_index=None, camera=camera, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6),
                          reference_images={"front": np.zeros((480, 640), np.float32)},
-                         grab_current=lambda: np.zeros((480, 640), np.float32))
+                         grab_current=lambda: np.zeros((480, 640), np.float32),
+                         aligner=_exact_aligner(bias @ T_ref_cur, reason="biased"),
+                         image_refiner=lambda **kw: refine(true_cam()))
     vse.stop()
     return res, pose_distance(true_cam(), T_ref_camref)
 
@@ -268,11 +264,12 @@ def test_weak_image_evidence_leaves_the_3d_result(monkeypatch):
     assert 5.0 < mm < 12.0  # the biased 3D result stands: no motion on weak evidence
 
 
-def _exact_estimates(monkeypatch, T_ref_cur):
-    """The alignment replaced by an exact stand-in returning ``T_ref_cur``."""
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+def _exact_aligner(T_ref_cur, *, reason="exact"):
+    """An exact stand-in for the alignment (an :class:`~fgcd_cli.relocation.aligner.Aligner`) returning ``T_ref_cur``."""
+    def aligner(*, serial=0, state=None, **kw):
+        return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason=reason,
+                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+    return aligner
 
 
 def _exact_session(platform, X, T_map_base, s, T_ref_camref):
@@ -290,13 +287,14 @@ def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
     from fgcd_cli.errors import AlgorithmError
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
-    _exact_estimates(monkeypatch, T_ref_cur)
+    aligner = _exact_aligner(T_ref_cur)
     X_wrong = X @ exp_se3([0, 0, 0, math.radians(150), 0, 0])
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     start_mm = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]
     with pytest.raises(AlgorithmError, match="diverging"):
         run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X_wrong,
-                       init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6, max_adjustments=12))
+                       init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6, max_adjustments=12),
+                       aligner=aligner)
     vse.stop()
     assert platform.moves <= 4  # stopped within a few adjustments, not after the 12 allowed
     end_mm = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]
@@ -305,10 +303,10 @@ def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
 
 def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case(proportional=0.3)
-    _exact_estimates(monkeypatch, T_ref_cur)
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-4, max_adjustments=12))
+                         init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-4, max_adjustments=12),
+                         aligner=_exact_aligner(T_ref_cur))
     vse.stop()
     assert res.converged  # a 30 % sloppy platform still shrinks the offset every time
 
@@ -316,14 +314,14 @@ def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
 def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, untrusted_min_wait_s=0.2):
     """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``."""
     from fgcd_cli.geometry import PinholeCamera
-    from fgcd_cli.relocation import image_refine as image_mod
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial, degenerate=True)])
+
+    def degenerate(*, serial=0, state=None, **kw):
+        return [AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
+                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial, degenerate=True)]
+
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
-    monkeypatch.setattr(image_mod, "refine_from_reference_image", lambda **kw: refine(true_cam(), T_ref_camref))
     camera = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
     u, v = np.meshgrid(np.linspace(-0.4, 0.4, 9), np.linspace(-0.3, 0.3, 7))
     pts_cam = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 1.5)])
@@ -337,7 +335,8 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, 
         res = run_relocation(session=session, reference=ref, ref_index=None, camera=camera, scale=s,
                              T_flange_cam=X, init=Sim3(), config=config,
                              reference_images={"front": np.zeros((480, 640), np.float32)},
-                             grab_current=lambda: np.zeros((480, 640), np.float32))
+                             grab_current=lambda: np.zeros((480, 640), np.float32), aligner=degenerate,
+                             image_refiner=lambda **kw: refine(true_cam(), T_ref_camref))
     finally:
         vse.stop()
     return res, platform, pose_distance(true_cam(), T_ref_camref)
@@ -392,15 +391,17 @@ def test_untrustworthy_estimates_pause_before_the_timeout(monkeypatch):
     from fgcd_cli.errors import AlgorithmError
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _ = make_case()
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="inlier ratio 41% < 60%",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+
+    def untrustworthy(*, serial=0, state=None, **kw):
+        return [AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="inlier ratio 41% < 60%",
+                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     t0 = time.monotonic()
     with pytest.raises(AlgorithmError, match="untrustworthy in .* estimates in a row.*inlier ratio"):
         run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                        init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=60.0,
-                                                            untrusted_min_wait_s=0.5))
+                                                            untrusted_min_wait_s=0.5), aligner=untrustworthy)
     vse.stop()
     assert time.monotonic() - t0 < 30.0  # far below the 60 s timeout
     assert platform.moves == 0
@@ -410,7 +411,6 @@ def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monk
     """Ctrl-C in the middle of the parallel loop: the platform is told to stop, the guard refuses
     every further motion, the alignment thread ends, and the interrupt reaches the caller."""
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _ = make_case()
-    _exact_estimates(monkeypatch, T_ref_cur)
     stops = []
     monkeypatch.setattr(platform, "stop", lambda: stops.append(True))
 
@@ -422,7 +422,8 @@ def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monk
     before = {t.name for t in threading.enumerate()}
     with pytest.raises(KeyboardInterrupt):
         run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-6))
+                       init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-6),
+                       aligner=_exact_aligner(T_ref_cur))
     vse.stop()
     assert stops, "the platform was not told to stop"
     assert session.guard.tripped and "Ctrl-C" in session.guard.tripped
@@ -440,11 +441,10 @@ def test_an_estimate_far_beyond_any_revisit_start_pauses_before_moving(monkeypat
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
     wrong = Sim3.from_pose(exp_se3([0.8, -0.5, 0.3, 0.0, 0.0, 0.0])) @ T_ref_cur  # ~1 m off
-    _exact_estimates(monkeypatch, wrong)
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     with pytest.raises(AlgorithmError, match="beyond the 250 mm"):
         run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6))
+                       init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), aligner=_exact_aligner(wrong))
     vse.stop()
     assert platform.moves == 0
 
@@ -459,7 +459,6 @@ def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(mon
         return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
                                   vse_frame=state.frames_processed, seconds=0.4, serial=serial)]
 
-    monkeypatch.setattr(loop_mod, "align_once", slow_exact)
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     frames_after_motion = []
     original_move = session.move_by
@@ -471,7 +470,8 @@ def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(mon
 
     session.move_by = move_and_note
     res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12))
+                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12),
+                         aligner=slow_exact)
     vse.stop()
     assert res.converged
     serials = [r.estimate_serial for r in res.records]

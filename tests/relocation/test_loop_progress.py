@@ -3,7 +3,6 @@
 import time
 
 from fgcd_cli.geometry import Sim3
-from fgcd_cli.relocation import loop as loop_mod
 from fgcd_cli.relocation.loop import AlignmentEstimate, RelocationConfig, run_relocation
 from tests.relocation.test_loop import _exact_session, make_case
 
@@ -16,8 +15,6 @@ def test_every_step_and_every_wait_says_something(monkeypatch):
         return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
                                   vse_frame=state.frames_processed, seconds=0.3, serial=serial)]
 
-    monkeypatch.setattr(loop_mod, "align_once", slow_exact)
-    monkeypatch.setattr(loop_mod, "HEARTBEAT_S", 0.1)
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     lines: list[tuple[float, str]] = []
     progress: list[tuple[int, int, str]] = []
@@ -25,7 +22,9 @@ def test_every_step_and_every_wait_says_something(monkeypatch):
     session.on_progress = lambda done, total, label: progress.append((done, total, label))
     t0 = time.monotonic()
     res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12))
+                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12,
+                                                                 heartbeat_s=0.1),
+                         aligner=slow_exact)
     vse.stop()
     assert res.converged
     texts = [t for _, t in lines]

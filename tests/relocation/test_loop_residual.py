@@ -16,8 +16,6 @@ from drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.geometry import PinholeCamera, Sim3
 from fgcd_cli.geometry.se3 import exp_se3, invert_pose, make_pose, pose_distance
-from fgcd_cli.relocation import image_refine as image_mod
-from fgcd_cli.relocation import loop as loop_mod
 from fgcd_cli.relocation.image_refine import ImageRefinement, pnp_translation_sigma_m
 from fgcd_cli.relocation.loop import (
     AlignmentEstimate,
@@ -65,11 +63,12 @@ def _run(monkeypatch, *, bias_3d: np.ndarray, refine, start_offset: np.ndarray |
     platform = ErringPlatform(T0)
     # the estimate says "at the reference" when the camera is truly at T_ref_camref @ bias_3d
     B = Sim3.from_pose(T_ref_camref @ invert_pose(bias_3d) @ invert_pose(T_ref_camref))
-    monkeypatch.setattr(loop_mod, "align_once", lambda *, serial=0, state=None, **kw: [
-        AlignmentEstimate(T_ref_cur=B @ T_ref_cur, stage="fast", ok=True, reason="biased",
-                          vse_frame=state.frames_processed, seconds=0.0, serial=serial)])
+
+    def biased(*, serial=0, state=None, **kw):
+        return [AlignmentEstimate(T_ref_cur=B @ T_ref_cur, stage="fast", ok=True, reason="biased",
+                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
-    monkeypatch.setattr(image_mod, "refine_from_reference_image", lambda **kw: refine(true_cam(), T_ref_camref))
     vse = ExactVse(platform, X, T_map_base, s)
     session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)), vse=vse,
                          substep_m=1.0, substep_rad=1.0)
@@ -79,7 +78,8 @@ def _run(monkeypatch, *, bias_3d: np.ndarray, refine, start_offset: np.ndarray |
     try:
         res = run_relocation(session=session, reference=ref, ref_index=None, camera=CAMERA, scale=s, T_flange_cam=X,
                              init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6, **(config_kw or {})),
-                             evaluate=lambda: {"pose_err_mm": pose_distance(true_cam(), T_ref_camref)[0]}, **kw)
+                             evaluate=lambda: {"pose_err_mm": pose_distance(true_cam(), T_ref_camref)[0]},
+                             aligner=biased, image_refiner=lambda **kw: refine(true_cam(), T_ref_camref), **kw)
     finally:
         vse.stop()
     return res, platform, pose_distance(true_cam(), T_ref_camref)[0]

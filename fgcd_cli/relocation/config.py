@@ -1,0 +1,130 @@
+"""Inputs of the rACR loop: the reference it drives to and its options."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcd_cli.relocation.enums import LoopMode
+
+__all__ = ["HEARTBEAT_S", "ReferenceData", "RelocationConfig"]
+
+#: Longest silence (s) while the loop waits for an alignment: a progress line at least this often.
+HEARTBEAT_S = 5.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReferenceData:
+    """What relocation needs of a reference observation (all in the ref frame, metres).
+
+    Attributes
+    ----------
+    points : (N, 3) ndarray
+        Reference metric cloud.
+    intensities : (N,) ndarray
+        Grey value of each point in [0, 1].
+    T_ref_camref : (4, 4) ndarray
+        The reference camera pose.
+    """
+
+    points: np.ndarray
+    intensities: np.ndarray
+    T_ref_camref: np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class RelocationConfig:
+    """Options of the loop.
+
+    Attributes
+    ----------
+    mode : LoopMode
+        ``"parallel"``: three threads with latest-value hand-over; ``"serial"``:
+        everything in turn. A plain string is accepted and checked when the loop starts.
+    eta : float
+        Stop when ``g = ||M_B - I||_F <= eta`` (paper: 1e-4).
+    max_adjustments : int
+        Give up after this many adjustments.
+    max_step_m, max_step_rad : float
+        Largest motion of one adjustment (also enforced by the guard).
+    fine : bool
+        Run the fine-grained stage after the fast one (``-F`` ablation when False).
+    min_points : int
+        Current cloud size needed before aligning.
+    estimate_timeout_s : float
+        Longest wait for a fresh alignment before pausing with an error.
+    stop_afd_px : float
+        Also stop when the remaining motion, as estimated, would move the
+        reference image by less than this many pixels on average (the
+        estimated AFD). ``g <= eta`` is the paper's rule; with monocular
+        estimates whose noise is above ``eta`` this image-space rule is what
+        ends a relocation, at the accuracy the paper scores (AFD in pixels).
+    heartbeat_s : float
+        Longest silence while the loop waits for an alignment: a progress line at
+        least this often.
+    """
+
+    mode: LoopMode | str = LoopMode.PARALLEL
+    eta: float = 1e-4
+    max_adjustments: int = 12
+    max_step_m: float = 0.05
+    max_step_rad: float = math.radians(10.0)
+    fine: bool = True
+    min_points: int = 500
+    estimate_timeout_s: float = 120.0
+    stop_afd_px: float = 0.5
+    divergence_factor: float = 1.5
+    divergence_margin_mm: float = 10.0
+    divergence_margin_deg: float = 1.0
+    divergence_patience: int = 2
+    """Pause with an error when the estimated offset exceeds ``factor x best + margin``
+    this many adjustments in a row (the loop should shrink it every time)."""
+    max_offset_m: float = 0.25
+    max_offset_deg: float = 20.0
+    """Pause (and let the image fallback try) when an estimate puts the camera farther than this
+    from the reference pose: rACR starts a revisit within a few centimetres (the exploration moves
+    4 cm), so such an estimate is a confidently wrong alignment, or a start that needs the active
+    coarse stage first (docs/relocation.md, "Far starts"). Trusting it would move the camera
+    the wrong way until the divergence rule fires."""
+    image_refine: bool = True
+    """After the 3D loop converges, refine from the reference images
+    (:mod:`fgcd_cli.relocation.image_refine`) when the evidence is strong."""
+    image_refine_steps: int = 4
+    image_stop_afd_px: float = 0.5
+    """The image stage stops when its correction moves the reference image by less than this.
+    The same 0.5 px as ``stop_afd_px``: the image measurement itself is only good to about
+    0.3 px across lightings, so a lower bar makes the stage chase its own noise, each step
+    costing seconds and millimetres of motion for no gain (docs/benchmarks.md)."""
+    image_fallback: bool = True
+    """When the 3D alignment stays untrustworthy (degenerate geometry such as a
+    flat wall, too few inliers, divergence), try the image stage before pausing:
+    it needs no alignment of the current cloud, only the reference images and
+    cloud. It acts only on strong evidence; otherwise the loop pauses as before."""
+    image_fallback_steps: int = 6
+    untrusted_patience: int = 6
+    untrusted_min_wait_s: float = 20.0
+    """Pause early (instead of waiting ``estimate_timeout_s``) after this many
+    consecutive untrustworthy estimates, once at least this long was waited."""
+    degenerate_patience: int = 3
+    """Pause at once after this many consecutive estimates flagged as degenerate
+    geometry (plane, sphere, body of revolution): a property of the scene, which
+    waiting does not cure, unlike too few inliers in a young map."""
+    tolerance_mm: float | None = None
+    """Largest remaining camera offset (mm) any stage may stop on. ``None``: the model of
+    :func:`fgcd_cli.relocation.stop_rule.tolerance_mm` (the sideways camera shift that moves
+    the object's image by ``stop_afd_px`` at the reference camera's distance;
+    docs/relocation.md, "Stop rules")."""
+    vse_sigma_rel: float = 0.01
+    """1-sigma uncertainty of a 3D (cloud-alignment) estimate of the camera position, as a
+    fraction of the camera distance: two monocular sessions place their cameras relative to
+    their clouds to about 1 % of the depth (docs/relocation.md, "Final image stage")."""
+    agreement_k: float = 2.0
+    """Two estimates agree when their camera positions differ by at most ``k`` times the
+    RMS radius of their combined uncertainty
+    (:func:`fgcd_cli.relocation.stop_rule.estimates_agree`)."""
+    agreement_wait_s: float = 30.0
+    """Longest wait for a 3D estimate of the view after the last image motion, to check
+    agreement; without one, the check is reported as not done."""
+    heartbeat_s: float = HEARTBEAT_S

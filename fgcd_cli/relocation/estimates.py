@@ -1,0 +1,166 @@
+"""Getting a 3D estimate for the loop: waiting for the alignment thread, or aligning in turn.
+
+Parallel mode waits on the alignment thread's condition (never by sleeping in a
+loop) and pauses when its estimates stay untrustworthy; serial mode aligns
+once, now. Every wait is counted in the session's time on the rig
+(``SessionTiming.wait_s``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.relocation.adjustment import camera_in_reference
+from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
+from fgcd_cli.relocation.context import LoopContext, LoopState
+from fgcd_cli.relocation.enums import LoopMode
+from fgcd_cli.relocation.worker import AlignmentWorker
+
+__all__ = ["align_now", "fresh_3d_estimate", "wait_for_estimate"]
+
+#: Slack added to a deadline so that a wake-up at the deadline finds it passed, seconds.
+_DEADLINE_SLACK_S = 0.01
+
+
+class _Patience:
+    """Counts the untrustworthy estimates published while the loop waits (``RelocationConfig`` patience rules)."""
+
+    def __init__(self):
+        self.bad: set[int] = set()  # serials of untrustworthy estimates since the wait started
+        self.degenerate: set[int] = set()  # ... of those flagged degenerate geometry, in a row
+
+    def check(self, est: AlignmentEstimate, waited: float, ctx: LoopContext) -> None:
+        """Note an untrustworthy estimate; raise AlgorithmError when a patience rule runs out."""
+        config = ctx.config
+        self.bad.add(est.serial)
+        if est.degenerate:
+            self.degenerate.add(est.serial)
+        else:
+            self.degenerate.clear()
+        if len(self.degenerate) >= config.degenerate_patience:
+            ctx.session.timing.wait_s += waited
+            raise AlgorithmError(f"alignment found degenerate geometry in {len(self.degenerate)} estimates in a "
+                                 f"row ({waited:.0f} s), motion paused: {est.reason}")
+        if len(self.bad) >= config.untrusted_patience and waited >= config.untrusted_min_wait_s:
+            ctx.session.timing.wait_s += waited
+            raise AlgorithmError(f"alignment untrustworthy in {len(self.bad)} estimates in a row "
+                                 f"({waited:.0f} s), motion paused: {est.reason}")
+
+
+def _heartbeat(ctx: LoopContext, worker: AlignmentWorker, waited: float) -> None:
+    est = worker.latest()
+    ctx.say(f"  still aligning ({waited:.0f} s; latest estimate: "
+            + ("none yet" if est is None else f"{est.stage}, {'ok' if est.ok else est.reason}") + ")")
+
+
+def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: int) -> AlignmentEstimate:
+    """The newest trustworthy alignment published after ``last_serial``; pause on failures.
+
+    Raises
+    ------
+    AlgorithmError
+        The alignment thread failed, its estimates stayed untrustworthy (``degenerate_patience``,
+        ``untrusted_patience`` after ``untrusted_min_wait_s``), or none came within ``estimate_timeout_s``.
+    """
+    config = ctx.config
+    t0 = time.monotonic()
+    patience = _Patience()
+    next_note = t0 + config.heartbeat_s  # never silent for long (issue 24, item 7)
+    while True:
+        if time.monotonic() >= next_note:
+            _heartbeat(ctx, worker, time.monotonic() - t0)
+            next_note += config.heartbeat_s
+        if worker.error:
+            raise AlgorithmError(f"alignment thread stopped: {worker.error}")
+        est = worker.latest()
+        if est is not None and est.serial > last_serial and est.ok:
+            ctx.session.timing.wait_s += time.monotonic() - t0
+            return est
+        waited = time.monotonic() - t0
+        if est is not None and est.serial > last_serial:
+            patience.check(est, waited, ctx)
+        if waited > config.estimate_timeout_s:
+            ctx.session.timing.wait_s += waited
+            why = est.reason if est is not None else "no estimate yet"
+            raise AlgorithmError(f"no trustworthy alignment within {config.estimate_timeout_s:.0f} s, motion paused: {why}")
+        # sleep until the next publication or the next deadline (heartbeat, patience, timeout)
+        deadlines = [next_note, t0 + config.estimate_timeout_s + _DEADLINE_SLACK_S]
+        if waited < config.untrusted_min_wait_s:
+            deadlines.append(t0 + config.untrusted_min_wait_s)
+        seen = est.serial if est is not None else -1
+        worker.wait_until(lambda e: e is not None and e.serial != seen, min(deadlines) - time.monotonic())
+
+
+def align_now(ctx: LoopContext, state, init, serial: int, *, t0: float | None = None) -> AlignmentEstimate:
+    """Serial mode: align ``state`` now; the last trustworthy estimate, else AlgorithmError (motion paused).
+
+    The time from ``t0`` (default: now) counts as waiting in the session's time on the rig.
+    """
+    t0 = time.monotonic() if t0 is None else t0
+    if len(state.cloud) < ctx.config.min_points:
+        raise AlgorithmError(f"the VSE cloud has only {len(state.cloud)} points: cannot align")
+    ests = ctx.aligner(state=state, problem=ctx.problem(), init=init, serial=serial)
+    ctx.session.timing.wait_s += time.monotonic() - t0
+    oks = [e for e in ests if e.ok]
+    est = oks[-1] if oks else ests[-1]
+    if not est.ok:
+        raise AlgorithmError(f"alignment failed, motion paused: {est.reason}")
+    return est
+
+
+def _wait_for_view_after(ctx: LoopContext, worker: AlignmentWorker, after_frame: int):
+    """Parallel mode: a trustworthy estimate of a view after ``after_frame`` (waits at most ``agreement_wait_s``)."""
+    wait_s = ctx.config.agreement_wait_s
+    ctx.say("waiting for a 3D estimate of this view to compare with the image estimate")
+    t0 = time.monotonic()
+    worker.wait_until(lambda e: e is not None and e.ok and e.vse_frame > after_frame, wait_s)
+    if worker.error:
+        return None, f"alignment thread stopped: {worker.error}"
+    est = worker.latest_ok()
+    if est is None or est.vse_frame <= after_frame:
+        return None, f"no 3D estimate of this view within {wait_s:.0f} s"
+    ctx.session.timing.wait_s += time.monotonic() - t0
+    return est, ""
+
+
+def fresh_3d_estimate(ctx: LoopContext, st: LoopState, after_frame: int) -> tuple[np.ndarray | None, str]:
+    """The 3D estimate of the current camera from a view after ``after_frame``.
+
+    Parallel mode waits (at most ``config.agreement_wait_s``) for the alignment thread
+    to publish a trustworthy estimate of such a view; serial mode aligns once now,
+    from the 3D loop's last estimate.
+
+    Returns
+    -------
+    T_ref_cam : (4, 4) ndarray or None
+        The current camera in the reference frame, or None.
+    note : str
+        Why there is none (empty when there is one).
+    """
+    session = ctx.session
+    if st.last_T_ref_cur is None:
+        return None, "no trustworthy 3D estimate in this run"
+    if ctx.config.mode == LoopMode.PARALLEL:
+        if st.worker is None:
+            return None, "the 3D alignment was stopped"
+        est, note = _wait_for_view_after(ctx, st.worker, after_frame)
+        if est is None:
+            return None, note
+    else:
+        ctx.say("aligning the current cloud to compare with the image estimate")
+        state = session.tracking_state()
+        t0 = time.monotonic()
+        ests = ctx.aligner(state=state, problem=ctx.problem(), init=st.last_T_ref_cur)
+        session.timing.wait_s += time.monotonic() - t0
+        oks = [e for e in ests if e.ok]
+        if not oks:
+            return None, f"3D alignment untrustworthy: {ests[-1].reason}"
+        est = oks[-1]
+    state = session.vse.latest()
+    if state.status != "tracking" or state.T_map_cam is None:
+        return None, f"the VSE is not tracking ({state.status})"
+    return camera_in_reference(est.T_ref_cur, scaled_pose(state.T_map_cam, ctx.scale)), ""
+
