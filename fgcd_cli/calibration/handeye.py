@@ -24,14 +24,14 @@ about at least two non-parallel axes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from enum import StrEnum
 from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fgcd_cli.calibration.errors import CalibrationError
+from fgcd_cli.calibration.handeye_result import HandEyeResult, ScaleResult, utc_now
 from fgcd_cli.calibration.samples import (
     check_rotation_diversity,
     motion_pairs,
@@ -45,193 +45,35 @@ from fgcd_cli.geometry.se3 import invert_pose, log_so3, make_pose, pose_distance
 __all__ = [
     "HandEyeResult",
     "ScaleResult",
+    "HandEyeMethod",
+    "Regress",
     "solve_handeye_scale",
     "estimate_scale",
     "pair_residuals",
     "per_sample_residuals",
     "utc_now",
     "rotation_from_axes",
-    "camera_poses_in_base",
     "flange_motion_for_camera_motion",
 ]
+
+
+class HandEyeMethod(StrEnum):
+    """Target-free solvers (the ``method`` of a :class:`HandEyeResult`; with a target it is the OpenCV solver's name)."""
+
+    RACR_LINEAR = "racr-linear"
+    RACR_LINEAR_IMAGE_BA = "racr-linear+image-ba"
+
+
+class Regress(StrEnum):
+    """Which side of ``s u = b`` carries the noise in :func:`estimate_scale`."""
+
+    PLATFORM = "platform"
+    VSE = "vse"
+
 
 #: A VSE session that translated less than this (in its own units, relative to the
 #: hand's metric motion) cannot observe the scale.
 _MIN_RELATIVE_CONDITION = 1e-6
-
-
-def utc_now() -> str:
-    """Current UTC time as ISO 8601 text (seconds)."""
-    return datetime.now(timezone.utc).replace(microsecond=0).isoformat()
-
-
-@dataclass(frozen=True, kw_only=True)
-class HandEyeResult:
-    """A hand-eye calibration, with what a person needs to judge it.
-
-    Attributes
-    ----------
-    T_flange_cam : (4, 4) ndarray
-        Hand-eye transform ``X`` (camera pose in the flange frame), metres.
-    scale : float or None
-        Map scale ``s`` in metres per VSE unit (target-free mode), None with a target.
-    method : str
-        Solver name (``"racr-linear"``, ``"TSAI"``...).
-    n_samples, n_pairs : int
-        Platform stops used and motion pairs formed from them.
-    pairs : list of (int, int)
-        The motion pairs, in the order of the residuals.
-    residuals_mm, residuals_deg : (P,) ndarray
-        Per-pair disagreement between ``M_B X`` and ``X M_A``: millimetres, degrees.
-    sample_residuals_mm, sample_residuals_deg : (N,) ndarray
-        Per-sample mean residual of the pairs involving that sample (find the bad stop).
-    axis_spread_deg : float
-        Spread of the rotation axes of the motions (0 = parallel, 90 = orthogonal).
-    max_rotation_deg : float
-        Largest flange rotation between two samples.
-    created_utc : str
-        When the result was computed.
-    notes : list of str
-        Warnings for the user (weak geometry, large residuals).
-    refinement : dict
-        Target-free mode: what the image refinement did (points, reprojection RMS,
-        one-sigma uncertainty of ``X``, the linear solution it started from); empty
-        when it did not run.
-    """
-
-    T_flange_cam: np.ndarray
-    scale: float | None
-    method: str
-    n_samples: int
-    n_pairs: int
-    pairs: list[tuple[int, int]]
-    residuals_mm: np.ndarray
-    residuals_deg: np.ndarray
-    sample_residuals_mm: np.ndarray
-    sample_residuals_deg: np.ndarray
-    axis_spread_deg: float
-    max_rotation_deg: float
-    created_utc: str = field(default_factory=utc_now)
-    notes: list[str] = field(default_factory=list)
-    refinement: dict = field(default_factory=dict)
-
-    @property
-    def rms_mm(self) -> float:
-        """Root mean square of the per-pair translation residuals, mm."""
-        return float(np.sqrt(np.mean(np.square(self.residuals_mm)))) if len(self.residuals_mm) else 0.0
-
-    @property
-    def rms_deg(self) -> float:
-        """Root mean square of the per-pair rotation residuals, degrees."""
-        return float(np.sqrt(np.mean(np.square(self.residuals_deg)))) if len(self.residuals_deg) else 0.0
-
-    @property
-    def worst_sample(self) -> int:
-        """Index of the sample with the largest mean translation residual."""
-        return int(np.argmax(self.sample_residuals_mm))
-
-    def to_dict(self) -> dict:
-        """JSON-friendly form (poses as nested lists, metres)."""
-        return {
-            "kind": "handeye",
-            "T_flange_cam": np.asarray(self.T_flange_cam).tolist(),
-            "scale": self.scale,
-            "method": self.method,
-            "n_samples": self.n_samples,
-            "n_pairs": self.n_pairs,
-            "pairs": [list(p) for p in self.pairs],
-            "residuals_mm": np.asarray(self.residuals_mm).tolist(),
-            "residuals_deg": np.asarray(self.residuals_deg).tolist(),
-            "sample_residuals_mm": np.asarray(self.sample_residuals_mm).tolist(),
-            "sample_residuals_deg": np.asarray(self.sample_residuals_deg).tolist(),
-            "rms_mm": self.rms_mm,
-            "rms_deg": self.rms_deg,
-            "axis_spread_deg": self.axis_spread_deg,
-            "max_rotation_deg": self.max_rotation_deg,
-            "created_utc": self.created_utc,
-            "notes": list(self.notes),
-            "refinement": dict(self.refinement),
-        }
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "HandEyeResult":
-        """Inverse of :meth:`to_dict`."""
-        return cls(
-            T_flange_cam=np.array(data["T_flange_cam"], dtype=float),
-            scale=None if data.get("scale") is None else float(data["scale"]),
-            method=str(data["method"]),
-            n_samples=int(data["n_samples"]),
-            n_pairs=int(data["n_pairs"]),
-            pairs=[(int(i), int(j)) for i, j in data.get("pairs", [])],
-            residuals_mm=np.array(data.get("residuals_mm", []), dtype=float),
-            residuals_deg=np.array(data.get("residuals_deg", []), dtype=float),
-            sample_residuals_mm=np.array(data.get("sample_residuals_mm", []), dtype=float),
-            sample_residuals_deg=np.array(data.get("sample_residuals_deg", []), dtype=float),
-            axis_spread_deg=float(data.get("axis_spread_deg", float("nan"))),
-            max_rotation_deg=float(data.get("max_rotation_deg", float("nan"))),
-            created_utc=str(data.get("created_utc", "")),
-            notes=list(data.get("notes", [])),
-            refinement=dict(data.get("refinement", {})),
-        )
-
-
-@dataclass(frozen=True, kw_only=True)
-class ScaleResult:
-    """Map scale of one VSE session with the hand-eye known.
-
-    Attributes
-    ----------
-    scale : float
-        Metres per VSE unit.
-    scale_std : float
-        One-sigma uncertainty of ``scale`` from the least-squares residuals (inflated by
-        ``sqrt(pairs / (samples - 1))``: pairs sharing a sample share its error).
-    n_pairs : int
-        Motion pairs used.
-    residuals_mm : (P,) ndarray
-        Per-pair translation disagreement after scaling, millimetres.
-    rotation_residuals_deg : (P,) ndarray
-        Per-pair rotation disagreement ``M_B X`` vs ``X M_A`` (checks the hand-eye), degrees.
-    created_utc : str
-        When it was computed.
-    """
-
-    scale: float
-    scale_std: float
-    n_pairs: int
-    residuals_mm: np.ndarray
-    rotation_residuals_deg: np.ndarray
-    created_utc: str = field(default_factory=utc_now)
-
-    @property
-    def rms_mm(self) -> float:
-        """Root mean square translation residual, mm."""
-        return float(np.sqrt(np.mean(np.square(self.residuals_mm))))
-
-    def to_dict(self) -> dict:
-        """JSON-friendly form."""
-        return {
-            "kind": "scale",
-            "scale": self.scale,
-            "scale_std": self.scale_std,
-            "n_pairs": self.n_pairs,
-            "residuals_mm": np.asarray(self.residuals_mm).tolist(),
-            "rotation_residuals_deg": np.asarray(self.rotation_residuals_deg).tolist(),
-            "rms_mm": self.rms_mm,
-            "created_utc": self.created_utc,
-        }
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "ScaleResult":
-        """Inverse of :meth:`to_dict`."""
-        return cls(
-            scale=float(data["scale"]),
-            scale_std=float(data["scale_std"]),
-            n_pairs=int(data["n_pairs"]),
-            residuals_mm=np.array(data["residuals_mm"], dtype=float),
-            rotation_residuals_deg=np.array(data["rotation_residuals_deg"], dtype=float),
-            created_utc=str(data.get("created_utc", "")),
-        )
 
 
 # ----------------------------------------------------------------------------- residuals
@@ -373,7 +215,7 @@ def solve_handeye_scale(
     return HandEyeResult(
         T_flange_cam=X,
         scale=scale,
-        method="racr-linear",
+        method=str(HandEyeMethod.RACR_LINEAR),
         n_samples=len(hand),
         n_pairs=len(index_pairs),
         pairs=index_pairs,
@@ -440,16 +282,15 @@ def estimate_scale(
     ``u = R_X t_VSE`` (VSE, map units) and ``b`` the metric camera motion known
     from the platform and ``X``.
 
-    ``regress="platform"`` (default, unchanged since the first version) fits ``s``
-    to minimise the metric residuals: ``s = sum(u . b) / sum(u . u)``. With
-    independent VSE pose noise this is biased low (noise in the regressor): -3 %
-    with 3 mm / 0.2 deg of noise on 3 cm motions. ``regress="vse"`` fits ``1/s``
-    instead, ``s = sum(b . b) / sum(u . b)``, unbiased for such noise (-0.1 %;
-    ``tests/calibration/test_handeye.py``). Neither is unbiased for the monocular
-    VSE's structured pose errors measured in the simulator (stop positions 5-13 mm
-    off over a 3 cm span): there the two were 8 % below and 7 % above the map's
-    depth scale in one session, which is why the target-free calibration takes the
-    scale from the map depths (:func:`fgcd_cli.calibration.handeye_ba.scale_from_depths`).
+    ``regress="platform"`` (the default) fits ``s`` to minimise the metric
+    residuals: ``s = sum(u . b) / sum(u . u)``. With independent VSE pose noise
+    this is biased low (noise in the regressor, attenuation bias).
+    ``regress="vse"`` fits ``1/s`` instead, ``s = sum(b . b) / sum(u . b)``,
+    unbiased for such noise (``tests/calibration/test_handeye.py``). Neither is
+    unbiased for the monocular VSE's structured pose errors, which is why the
+    target-free calibration takes the scale from the map depths
+    (:func:`fgcd_cli.calibration.depth_scale.scale_from_depths`;
+    docs/calibration.md, "Target-free").
 
     Parameters
     ----------
@@ -492,35 +333,38 @@ def estimate_scale(
             "the camera did not translate between samples: the map scale is unobservable "
             "(move the platform a few centimetres and check that the VSE is tracking)"
         )
-    if regress not in ("platform", "vse"):
+    if regress not in tuple(Regress):
         raise UserInputError(f"unknown regression '{regress}' (platform or vse)")
-    ub = float(u @ b)
-    if not ub > 0:
-        raise CalibrationError(
-            f"the map scale came out non-positive ({ub:.3g}): the VSE camera motion opposes the platform motion"
-        )
     # pairs of N samples share their samples' errors: N - 1 of them are independent
     shared = math.sqrt(max(1.0, len(index_pairs) / max(len(hand) - 1, 1)))
-    dof = max(len(u) - 1, 1)
-    if regress == "platform":
-        scale = ub / uu
-        r = scale * u - b  # metres
-        scale_std = float(math.sqrt(float(r @ r) / dof / uu)) * shared
-    else:
-        bb = float(b @ b)
-        scale = bb / ub
-        r = u - b / scale  # map units
-        scale_std = float(math.sqrt(float(r @ r) / dof / bb)) * scale**2 * shared
+    scale, scale_std = _fit_scale(u, b, Regress(regress), shared)
     res_mm, res_deg = pair_residuals(X, MB, [_scaled_motion(A, scale) for A in MA])
     return ScaleResult(
         scale=scale, scale_std=scale_std, n_pairs=len(index_pairs), residuals_mm=res_mm, rotation_residuals_deg=res_deg
     )
 
 
-def camera_poses_in_base(T_base_flange: Sequence[np.ndarray], T_flange_cam: np.ndarray) -> list[np.ndarray]:
-    """``T_base_cam = T_base_flange @ X`` for every sample (a convenience for callers)."""
-    X = np.asarray(T_flange_cam, dtype=float)
-    return [np.asarray(T, dtype=float) @ X for T in T_base_flange]
+def _fit_scale(u: np.ndarray, b: np.ndarray, regress: Regress, shared: float) -> tuple[float, float]:
+    """``s`` of ``s u = b`` by least squares on the side ``regress`` names, and its one-sigma.
+
+    ``u`` are the VSE translations rotated into the flange (map units), ``b`` the
+    metric camera motions (metres); ``shared`` inflates the sigma for pairs sharing samples.
+    """
+    uu = float(u @ u)
+    ub = float(u @ b)
+    if not ub > 0:
+        raise CalibrationError(
+            f"the map scale came out non-positive ({ub:.3g}): the VSE camera motion opposes the platform motion"
+        )
+    dof = max(len(u) - 1, 1)
+    if regress == Regress.PLATFORM:
+        scale = ub / uu
+        r = scale * u - b  # metres
+        return scale, float(math.sqrt(float(r @ r) / dof / uu)) * shared
+    bb = float(b @ b)
+    scale = bb / ub
+    r = u - b / scale  # map units
+    return scale, float(math.sqrt(float(r @ r) / dof / bb)) * scale**2 * shared
 
 
 def flange_motion_for_camera_motion(T_flange_cam: np.ndarray, T_cam_motion: np.ndarray) -> np.ndarray:
