@@ -1,0 +1,236 @@
+"""Camera uncertainty of an estimated pose (paper 001, §3.2, geometric variant).
+
+The reference cloud is rendered at the estimated camera pose, the observed
+session cloud (in the current camera frame) is registered to the rendering,
+and the residual motion says how wrong the estimate is. Directions the geometry
+does not constrain (a body of revolution turning about its axis, a plane
+sliding along itself) are found from the point-to-plane information and set
+apart. The registration is geometric (point-to-plane ICP in Open3D), not the
+paper's coloured ICP: a revisit is under another light, and the reference
+cloud's intensities are the reference lighting's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcd_cli.geometry.se3 import pose_distance
+from fgcd_cli.relocation.coarse_config import CoarseConfig
+
+__all__ = ["CameraUncertainty", "camera_uncertainty", "in_view", "render_visible_points"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class CameraUncertainty:
+    """Residual motion between the observation and the reference rendered at an estimate.
+
+    Attributes
+    ----------
+    translation_m, rotation_deg : float
+        Size of the residual motion (inf when the registration had too little to work on).
+    fitness : float
+        Fraction of the observed points with a rendered point within the final radius.
+    rmse_m : float
+        RMS distance of those correspondences.
+    observed, rendered : int
+        Point counts that entered the registration.
+    T_correction : (4, 4) ndarray
+        Residual motion in the estimated camera frame: ``T_ref_cam_true ≈ T_ref_cam_est @ T_correction``.
+    """
+
+    translation_m: float
+    rotation_deg: float
+    fitness: float
+    rmse_m: float
+    observed: int
+    rendered: int
+    T_correction: np.ndarray
+    weak_directions: int = 0
+    """Directions of the residual registration the geometry does not constrain (a body of
+    revolution turning about its axis, a plane sliding along itself)."""
+    constrained_translation_m: float = math.inf
+    constrained_rotation_deg: float = math.inf
+    """The residual motion without its part along the weak directions."""
+    T_correction_constrained: np.ndarray | None = None
+
+    def verified(self, config: CoarseConfig, *, geometric_source: bool = True) -> bool:
+        """True when the estimate is within the verification limits on enough overlap.
+
+        An estimate from the geometry itself (the 3D alignment) is verified only where the
+        geometry pins every direction: along a weak one, neither the alignment nor the residual
+        registration sees an error, so a small residual says nothing there. An image estimate is
+        checked on the constrained part: along the weak directions its texture correspondences
+        are the evidence, and the registration's slide there is not a measurement
+        (docs/relocation.md, "Far starts"; the measurements in docs/benchmarks.md).
+        """
+        if self.fitness < config.min_fitness:
+            return False
+        if geometric_source:
+            return (self.weak_directions == 0 and self.translation_m <= config.verify_m
+                    and self.rotation_deg <= config.verify_deg)
+        return self.constrained_translation_m <= config.verify_m and self.constrained_rotation_deg <= config.verify_deg
+
+    def correction(self, *, geometric_source: bool = True) -> np.ndarray:
+        """The residual motion to apply to the estimate (the constrained part for an image estimate)."""
+        if geometric_source or self.T_correction_constrained is None:
+            return self.T_correction
+        return self.T_correction_constrained
+
+    def to_dict(self) -> dict:
+        return {"translation_mm": self.translation_m * 1e3, "rotation_deg": self.rotation_deg,
+                "fitness": self.fitness, "rmse_mm": self.rmse_m * 1e3, "observed": self.observed,
+                "rendered": self.rendered, "weak_directions": self.weak_directions,
+                "constrained_translation_mm": self.constrained_translation_m * 1e3,
+                "constrained_rotation_deg": self.constrained_rotation_deg}
+
+
+
+def render_visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera, *, stride_px: int = 4,
+                          depth_tolerance_rel: float = 0.02) -> np.ndarray:
+    """The reference cloud as a depth camera at ``T_ref_cam`` would see it.
+
+    Parameters
+    ----------
+    points_ref : (N, 3) ndarray
+        Reference cloud, metres, ``ref`` frame.
+    T_ref_cam : (4, 4) ndarray
+        Camera pose in the ``ref`` frame.
+    camera : PinholeCamera
+        Intrinsics (``fx fy cx cy width height``).
+    stride_px : int
+        Pixel bin of the z-buffer; a sparse cloud leaves holes in a full-resolution buffer
+        through which hidden points would show.
+    depth_tolerance_rel : float
+        A point within this fraction of its bin's front-most depth is kept (same surface).
+
+    Returns
+    -------
+    (M, 3) ndarray
+        Visible points in the camera frame, metres.
+    """
+    Xc, uv = in_view(points_ref, T_ref_cam, camera)
+    if len(Xc) == 0:
+        return np.zeros((0, 3))
+    z = Xc[:, 2]
+    s = max(1, int(stride_px))
+    cols = int(math.ceil(camera.width / s))
+    col = np.clip(uv[:, 0], 0, camera.width - 1) // s
+    row = np.clip(uv[:, 1], 0, camera.height - 1) // s
+    cell = row.astype(np.int64) * cols + col.astype(np.int64)
+    zmin = np.full(int(cell.max()) + 1, np.inf)
+    np.minimum.at(zmin, cell, z)
+    keep = z <= zmin[cell] * (1.0 + depth_tolerance_rel)
+    return Xc[keep]
+
+
+def in_view(points: np.ndarray, T_frame_cam: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 3) of a frame seen by a camera at ``T_frame_cam``: the ones in front of it and inside
+    its image, in the camera frame (M, 3), with their pixels (M, 2)."""
+    P = np.asarray(points, dtype=float)
+    T = np.asarray(T_frame_cam, dtype=float)
+    Xc = (P - T[:3, 3]) @ T[:3, :3]
+    uv, inside = camera.project(Xc)
+    return Xc[inside], uv[inside]
+
+
+def camera_uncertainty(
+    observed_cam: np.ndarray,
+    points_ref: np.ndarray,
+    T_ref_cam_est: np.ndarray,
+    camera,
+    *,
+    config: CoarseConfig = CoarseConfig(),
+    seed: int = 0,
+) -> CameraUncertainty:
+    """Camera uncertainty of an estimated pose (paper 001, §3.2, geometric variant).
+
+    Parameters
+    ----------
+    observed_cam : (N, 3) ndarray
+        What the camera observes, in its own frame, metres (the session cloud, metric).
+    points_ref : (M, 3) ndarray
+        Reference cloud, ``ref`` frame, metres.
+    T_ref_cam_est : (4, 4) ndarray
+        The estimate to check.
+    camera : PinholeCamera
+    config : CoarseConfig
+    seed : int
+        Subsampling seed.
+
+    Returns
+    -------
+    CameraUncertainty
+        The residual registration, coarse to fine (radii 15, 5, 2 % of the median depth),
+        from the identity. Infinite when either side has fewer than 100 points.
+    """
+    import open3d as o3d
+
+    rendered = render_visible_points(points_ref, T_ref_cam_est, camera, stride_px=config.render_stride_px)
+    obs = np.asarray(observed_cam, dtype=float)
+    rng = np.random.default_rng(seed)
+    if len(obs) > config.max_points:
+        obs = obs[rng.choice(len(obs), config.max_points, replace=False)]
+    if len(rendered) > 2 * config.max_points:
+        rendered = rendered[rng.choice(len(rendered), 2 * config.max_points, replace=False)]
+    if len(obs) < 100 or len(rendered) < 100:
+        return CameraUncertainty(translation_m=math.inf, rotation_deg=math.inf, fitness=0.0, rmse_m=math.inf,
+                                 observed=len(obs), rendered=len(rendered), T_correction=np.eye(4))
+    depth = float(np.median(obs[:, 2]))
+    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(obs))
+    dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rendered))
+    dst.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.05 * depth, max_nn=30))
+    dst.orient_normals_towards_camera_location(np.zeros(3))
+    T = np.eye(4)
+    result = None
+    for radius_rel, iterations in ((0.15, 30), (0.05, 30), (0.02, 30)):
+        result = o3d.pipelines.registration.registration_icp(
+            src, dst, radius_rel * depth, T,
+            o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=iterations),
+        )
+        T = np.asarray(result.transformation)
+    # ``T`` maps observed (true camera frame) points onto the rendering (estimated camera frame):
+    # T_estcam_truecam, i.e. the true camera in the estimated camera's frame.
+    mm, deg = pose_distance(np.eye(4), T)
+    weak, T_constrained = _constrained_part(T, obs, rendered, np.asarray(dst.normals), radius=0.02 * depth,
+                                            depth=depth, weak_ratio=config.weak_ratio)
+    c_mm, c_deg = pose_distance(np.eye(4), T_constrained)
+    return CameraUncertainty(translation_m=mm / 1e3, rotation_deg=deg, fitness=float(result.fitness),
+                             rmse_m=float(result.inlier_rmse), observed=len(obs), rendered=len(rendered),
+                             T_correction=T.copy(), weak_directions=weak, constrained_translation_m=c_mm / 1e3,
+                             constrained_rotation_deg=c_deg, T_correction_constrained=T_constrained)
+
+
+def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray, normals: np.ndarray, *,
+                      radius: float, depth: float, weak_ratio: float) -> tuple[int, np.ndarray]:
+    """The residual motion ``T`` without its part along the registration's weak directions.
+
+    Point-to-plane information ``H = sum J^T J`` with ``J = [n, (p x n) / depth]`` over the
+    final correspondences (twist ``(t, depth * phi)``: rotations as motions at the scene's
+    depth); eigen-directions below ``weak_ratio`` of the strongest are weak. Returns their
+    count and ``exp`` of the twist projected onto the others. Written by hand: Open3D's
+    information matrix is the point-to-point one, which does not see a surface sliding
+    along itself.
+    """
+    from scipy.spatial import cKDTree
+
+    from fgcd_cli.geometry.se3 import exp_se3, log_se3
+
+    p = observed @ T[:3, :3].T + T[:3, 3]
+    dist, idx = cKDTree(rendered).query(p, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    if ok.sum() < 50:
+        return 6, np.eye(4)
+    n = normals[idx[ok]]
+    J = np.hstack([n, np.cross(p[ok], n) / depth])
+    evals, evecs = np.linalg.eigh(J.T @ J)
+    strong = evals >= weak_ratio * evals.max()
+    xi = log_se3(T)
+    v = np.concatenate([xi[:3], xi[3:] * depth])
+    E = evecs[:, strong]
+    v_c = E @ (E.T @ v)
+    return int((~strong).sum()), exp_se3(np.concatenate([v_c[:3], v_c[3:] / depth]))
+
