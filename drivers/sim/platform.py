@@ -23,7 +23,8 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -37,9 +38,18 @@ from drivers.platform import (
 )
 from drivers.sim.transforms import exp_so3, invert_pose, log_so3, make_pose, rot_angle
 
-__all__ = ["SimClock", "PlatformErrorModel", "SimPlatform", "ERROR_PRESETS", "FAULTS"]
+__all__ = ["SimClock", "PlatformErrorModel", "SimPlatform", "SimPlatformConfig", "SimFault", "ERROR_PRESETS", "FAULTS"]
 
-FAULTS = ("timeout", "estop", "disconnect")
+
+class SimFault(StrEnum):
+    """Faults :meth:`SimPlatform.inject_fault` can make a motion fail with."""
+
+    TIMEOUT = "timeout"
+    ESTOP = "estop"
+    DISCONNECT = "disconnect"
+
+
+FAULTS = tuple(f.value for f in SimFault)
 
 
 class SimClock:
@@ -106,6 +116,39 @@ ERROR_PRESETS = {
 }
 
 
+@dataclass(frozen=True, kw_only=True)
+class SimPlatformConfig:
+    """Motion model and limits of a :class:`SimPlatform`.
+
+    Attributes
+    ----------
+    workspace_min_m, workspace_max_m : array-like of 3 or None
+        Box for the flange origin in the base frame (default: home +- 0.25 m).
+    seconds_per_m : float
+        Translation time model (150 s/m = 1.5 s per cm, rACR's platform).
+    rotation_deg_per_s : float
+    settle_s : float
+        Added to every motion.
+    dof : 6 or 3 (an XYZ gantry keeps its orientation).
+    realtime_factor : float or None
+        If set, motions also take ``duration / realtime_factor`` of wall time.
+    timeout_s : float
+        A motion longer than this (simulated) raises PlatformTimeout.
+    name : str
+        The platform's driver name.
+    """
+
+    workspace_min_m: np.ndarray | tuple[float, float, float] | None = None
+    workspace_max_m: np.ndarray | tuple[float, float, float] | None = None
+    seconds_per_m: float = 150.0
+    rotation_deg_per_s: float = 5.0
+    settle_s: float = 0.2
+    dof: int = 6
+    realtime_factor: float | None = None
+    timeout_s: float = 600.0
+    name: str = "sim"
+
+
 class SimPlatform:
     """Simulated 6-DoF (or 3-DoF gantry) platform implementing ``drivers.platform.Platform``.
 
@@ -118,42 +161,35 @@ class SimPlatform:
     session_seed : int, optional
         Seeds the per-motion noise separately (same platform, another session).
     clock : SimClock, optional (a new one by default).
-    workspace_min_m, workspace_max_m : box for the flange origin in the base frame
-        (default: home +- 0.25 m).
-    seconds_per_m : float
-        Translation time model (150 s/m = 1.5 s per cm, rACR's platform).
-    rotation_deg_per_s : float
-    settle_s : float
-        Added to every motion.
-    dof : 6 or 3 (an XYZ gantry keeps its orientation).
-    realtime_factor : float or None
-        If set, motions also take ``duration / realtime_factor`` of wall time.
-    timeout_s : float
-        A motion longer than this (simulated) raises PlatformTimeout.
+    config : SimPlatformConfig, optional
+        Motion model and limits; alternatively its fields as keywords
+        (``SimPlatform(dof=3, timeout_s=3.0)``), not both.
     """
 
     def __init__(self, *, T_base_flange_home: np.ndarray | None = None, errors: PlatformErrorModel | str = "default",
-                 seed: int = 0, clock: SimClock | None = None,
-                 workspace_min_m=None, workspace_max_m=None, seconds_per_m: float = 150.0,
-                 rotation_deg_per_s: float = 5.0, settle_s: float = 0.2, dof: int = 6,
-                 realtime_factor: float | None = None, timeout_s: float = 600.0, name: str = "sim",
-                 session_seed: int | None = None):
-        self.name = name
+                 seed: int = 0, clock: SimClock | None = None, session_seed: int | None = None,
+                 config: SimPlatformConfig | None = None, **overrides):
+        if config is None:
+            config = SimPlatformConfig(**overrides)
+        elif overrides:
+            raise TypeError("SimPlatform takes either config= or its fields as keywords, not both")
+        if config.dof not in (3, 6):
+            raise ValueError("dof must be 3 or 6")
+        self.config = config
+        self.name = config.name
         self.errors = ERROR_PRESETS[errors] if isinstance(errors, str) else errors
         self.clock = clock or SimClock()
         self._rng = np.random.default_rng([seed, 0x51A7])
         self._home = np.eye(4) if T_base_flange_home is None else np.asarray(T_base_flange_home, float).copy()
         h = self._home[:3, 3]
-        self._ws_min = np.asarray(workspace_min_m if workspace_min_m is not None else h - 0.25, float)
-        self._ws_max = np.asarray(workspace_max_m if workspace_max_m is not None else h + 0.25, float)
-        self.seconds_per_m = float(seconds_per_m)
-        self.rotation_rad_per_s = math.radians(rotation_deg_per_s)
-        self.settle_s = float(settle_s)
-        if dof not in (3, 6):
-            raise ValueError("dof must be 3 or 6")
-        self.dof = dof
-        self.realtime_factor = realtime_factor
-        self.timeout_s = float(timeout_s)
+        self._ws_min = np.asarray(config.workspace_min_m if config.workspace_min_m is not None else h - 0.25, float)
+        self._ws_max = np.asarray(config.workspace_max_m if config.workspace_max_m is not None else h + 0.25, float)
+        self.seconds_per_m = float(config.seconds_per_m)
+        self.rotation_rad_per_s = math.radians(config.rotation_deg_per_s)
+        self.settle_s = float(config.settle_s)
+        self.dof = config.dof
+        self.realtime_factor = config.realtime_factor
+        self.timeout_s = float(config.timeout_s)
         e = self.errors
         # fixed per instance: proportional error and misalignment (the stage's kinematic calibration error)
         self._M = np.eye(3) + np.diag(self._rng.normal(0, e.scale_error, 3))
@@ -224,18 +260,18 @@ class SimPlatform:
             dist = float(np.linalg.norm(T_cmd[:3, 3] - self._cmd[:3, 3]))
             ang = rot_angle(self._cmd[:3, :3].T @ T_cmd[:3, :3])
             duration = max(dist * self.seconds_per_m, ang / self.rotation_rad_per_s) / speed_fraction + self.settle_s
-            if fault == "disconnect":
+            if fault == SimFault.DISCONNECT:
                 self._connected = False
                 raise PlatformConnectionError("connection to the simulated platform lost")
-            if fault == "estop":
+            if fault == SimFault.ESTOP:
                 # pressed half way: the platform stops there, half the motion's time has passed
                 self._estop = True
                 self._run_motion(T_cmd, duration, partial=0.5)
                 raise SafetyStop("emergency stop pressed during the motion (simulated)")
-            if fault == "timeout" or duration > self.timeout_s:
+            if fault == SimFault.TIMEOUT or duration > self.timeout_s:
                 # the host waits timeout_s: a too-long motion gets as far as it can in that time,
                 # an injected timeout (stalled axis) stops half way; either way timeout_s have passed
-                part = 0.5 if fault == "timeout" else self.timeout_s / duration
+                part = 0.5 if fault == SimFault.TIMEOUT else self.timeout_s / duration
                 self._run_motion(T_cmd, duration, partial=part)
                 stalled = self.timeout_s - part * duration
                 if stalled > 0:
@@ -267,6 +303,7 @@ class SimPlatform:
         """Make the motion after ``after_moves`` successful motions fail with ``kind``."""
         if kind not in FAULTS:
             raise ValueError(f"unknown fault {kind!r}; known: {', '.join(FAULTS)}")
+        kind = SimFault(kind)
         with self._lock:
             self._pending_faults.append((kind, self.move_count + after_moves))
 
@@ -276,7 +313,7 @@ class SimPlatform:
             self._estop = False
             self._pending_faults.clear()
 
-    def _take_fault(self) -> str | None:
+    def _take_fault(self) -> SimFault | None:
         for i, (kind, at) in enumerate(self._pending_faults):
             if self.move_count >= at:
                 del self._pending_faults[i]

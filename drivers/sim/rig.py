@@ -9,13 +9,13 @@ import numpy as np
 from drivers.cameras import CameraIntrinsics
 from drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, SimCamera, perturbed_intrinsics
 from drivers.sim.groundtruth import GroundTruth
-from drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform
+from drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
 from drivers.sim.render import CameraEffects, Renderer
 from drivers.sim.scenes import load_scene
 from drivers.sim.transforms import exp_so3, invert_pose, make_pose
 from drivers.sim.world import SimLights, SimWorld
 
-__all__ = ["SimRig", "build_sim_rig", "random_hand_eye"]
+__all__ = ["SimRig", "SimRigConfig", "build_sim_rig", "random_hand_eye"]
 
 
 @dataclass
@@ -68,25 +68,16 @@ def random_hand_eye(rng: np.random.Generator) -> np.ndarray:
     return make_pose(exp_so3(axis * np.radians(rng.uniform(5.0, 30.0))), t)
 
 
-def build_sim_rig(*, scene: str, lighting: str = "front", seed: int = 0, noise: str | PlatformErrorModel = "default",
-                  T_flange_cam: np.ndarray | None = None, intrinsics_error: str | float = "default",
-                  intrinsics_nominal: CameraIntrinsics = DEFAULT_INTRINSICS, effects: CameraEffects | None = None,
-                  supersample: int = 1, with_depth: bool = False, with_rgb: bool = False,
-                  exposure: float | str = "auto", dof: int = 6, realtime_factor: float | None = None,
-                  workspace_half_m: float = 0.25, scene_seed: int = 0, session_seed: int = 0) -> SimRig:
-    """Build a rig in scene ``scene``.
+@dataclass(frozen=True, kw_only=True)
+class SimRigConfig:
+    """Options of :func:`build_sim_rig` besides the scene.
 
-    The platform base is placed so that the flange's home pose puts the camera at
-    the scene's default camera pose (``scene.default_T_world_cam``); the base
-    frame itself is rotated arbitrarily (seeded) so nothing can rely on it being
-    aligned with the world.
-
-    Parameters
+    Attributes
     ----------
-    scene : scene name (``drivers.sim.scenes.list_scenes``).
     lighting : initial lighting preset.
     seed : the world: hand-eye, base placement, the platform's kinematic errors, true intrinsics.
     session_seed : this session's random draws: platform repeatability noise, sensor noise.
+    scene_seed : seed of the scene generation.
     noise : platform error preset (``none default precise sloppy``) or a PlatformErrorModel.
     T_flange_cam : hand-eye; random (5-15 cm, 5-30 deg) if None.
     intrinsics_error : ``none``, ``default``, ``large`` or a scale factor.
@@ -97,34 +88,74 @@ def build_sim_rig(*, scene: str, lighting: str = "front", seed: int = 0, noise: 
     with_depth, with_rgb : extra frame outputs.
     exposure : ``"auto"`` or a fixed value.
     dof : 6 or 3.
-    realtime_factor : see SimPlatform.
+    realtime_factor : see SimPlatformConfig.
     workspace_half_m : half-size of the platform workspace box around home.
-    scene_seed : seed of the scene generation.
     """
-    rng = np.random.default_rng([seed, 0x816])
-    sc = load_scene(scene, seed=scene_seed)
-    world = SimWorld(scene=sc, renderer=Renderer(sc, supersample=supersample))
-    X = random_hand_eye(rng) if T_flange_cam is None else np.asarray(T_flange_cam, float)
+
+    lighting: str = "front"
+    seed: int = 0
+    session_seed: int = 0
+    scene_seed: int = 0
+    noise: str | PlatformErrorModel = "default"
+    T_flange_cam: np.ndarray | None = None
+    intrinsics_error: str | float = "default"
+    intrinsics_nominal: CameraIntrinsics = DEFAULT_INTRINSICS
+    effects: CameraEffects | None = None
+    supersample: int = 1
+    with_depth: bool = False
+    with_rgb: bool = False
+    exposure: float | str = "auto"
+    dof: int = 6
+    realtime_factor: float | None = None
+    workspace_half_m: float = 0.25
+
+
+def build_sim_rig(*, scene: str, config: SimRigConfig | None = None, **overrides) -> SimRig:
+    """Build a rig in scene ``scene``.
+
+    The platform base is placed so that the flange's home pose puts the camera at
+    the scene's default camera pose (``scene.default_T_world_cam``); the base
+    frame itself is rotated arbitrarily (seeded) so nothing can rely on it being
+    aligned with the world.
+
+    Parameters
+    ----------
+    scene : scene name (``drivers.sim.scenes.list_scenes``).
+    config : SimRigConfig, optional
+        The rig's options; alternatively its fields as keywords
+        (``build_sim_rig(scene="plane", seed=4)``), not both.
+    """
+    if config is None:
+        config = SimRigConfig(**overrides)
+    elif overrides:
+        raise TypeError("build_sim_rig takes either config= or its fields as keywords, not both")
+    c = config
+    rng = np.random.default_rng([c.seed, 0x816])
+    sc = load_scene(scene, seed=c.scene_seed)
+    world = SimWorld(scene=sc, renderer=Renderer(sc, supersample=c.supersample))
+    X = random_hand_eye(rng) if c.T_flange_cam is None else np.asarray(c.T_flange_cam, float)
     clock = SimClock()
     # home flange pose in the base frame: a plausible arm pose (flange ~0.6 m out, 0.4 m up)
     T_base_flange_home = make_pose(exp_so3(rng.normal(0, 0.3, 3)), [0.6, 0.0, 0.4] + rng.normal(0, 0.05, 3))
     T_world_base = sc.default_T_world_cam @ invert_pose(X) @ invert_pose(T_base_flange_home)
     h = T_base_flange_home[:3, 3]
-    platform = SimPlatform(T_base_flange_home=T_base_flange_home, errors=noise, seed=int(rng.integers(1 << 31)),
-                           session_seed=session_seed,
-                           clock=clock, workspace_min_m=h - workspace_half_m, workspace_max_m=h + workspace_half_m,
-                           dof=dof, realtime_factor=realtime_factor)
-    intr_true = perturbed_intrinsics(intrinsics_nominal, intrinsics_error, rng)
+    motion = SimPlatformConfig(workspace_min_m=h - c.workspace_half_m, workspace_max_m=h + c.workspace_half_m,
+                               dof=c.dof, realtime_factor=c.realtime_factor)
+    platform = SimPlatform(T_base_flange_home=T_base_flange_home, errors=c.noise, seed=int(rng.integers(1 << 31)),
+                           session_seed=c.session_seed, clock=clock, config=motion)
+    intr_true = perturbed_intrinsics(c.intrinsics_nominal, c.intrinsics_error, rng)
+    effects = c.effects
     if effects is None:
-        effects = DEFAULT_EFFECTS if noise != "none" else CameraEffects(gamma=DEFAULT_EFFECTS.gamma,
-                                                                         vignetting=DEFAULT_EFFECTS.vignetting)
-    lights = SimLights(lighting)
+        effects = DEFAULT_EFFECTS if c.noise != "none" else CameraEffects(gamma=DEFAULT_EFFECTS.gamma,
+                                                                           vignetting=DEFAULT_EFFECTS.vignetting)
+    lights = SimLights(c.lighting)
 
     gt = GroundTruth(world=world, platform=platform, T_world_base=T_world_base, T_flange_cam=X,
                      intrinsics_true=intr_true)
     camera_seed = int(rng.integers(1 << 31))
     camera = SimCamera(world=world, pose_fn=gt.T_world_cam_true, lights=lights, intrinsics_true=intr_true,
-                       intrinsics_nominal=intrinsics_nominal, effects=effects, exposure=exposure,
-                       with_depth=with_depth, with_rgb=with_rgb, clock=clock, seed=camera_seed + 7919 * session_seed)
+                       intrinsics_nominal=c.intrinsics_nominal, effects=effects, exposure=c.exposure,
+                       with_depth=c.with_depth, with_rgb=c.with_rgb, clock=clock,
+                       seed=camera_seed + 7919 * c.session_seed)
     platform.connect()
     return SimRig(platform=platform, camera=camera, lights=lights, clock=clock, ground_truth=gt, world=world)
