@@ -13,7 +13,8 @@ pixel and box-filters it (anti-aliased edges); depth, normals, labels, change
 masks and change ids always come from the pixel centres.
 
 The camera response (exposure, vignetting, noise, gamma) is applied by
-:func:`apply_camera_response`.
+:func:`drivers.sim.sensor.apply_camera_response` (re-exported here with
+:class:`CameraEffects`, :func:`auto_exposure` and ``LUMA``).
 """
 
 from __future__ import annotations
@@ -29,36 +30,36 @@ from drivers.cameras import CameraIntrinsics
 from drivers.sim.changes import evaluate_changes
 from drivers.sim.lights import Lighting, lighting_preset
 from drivers.sim.scene import Scene
+from drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
 
 __all__ = ["Renderer", "RenderResult", "CameraEffects", "apply_camera_response", "auto_exposure", "LUMA"]
 
-LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 _MISS = np.uint32(0xFFFFFFFF)
 
 
 @dataclass(frozen=True, kw_only=True)
-class CameraEffects:
-    """Sensor and lens effects applied after shading.
+class _Surface:
+    """Visible surface samples of one ray batch, the input of shading (float32 arrays).
 
     Attributes
     ----------
-    gamma : float
-        Display gamma (output = linear ** (1/gamma)); 1 keeps the image linear.
-    vignetting : float
-        Relative fall-off at the image corner (0 = none; 0.3 = corners 30 % darker).
-    read_noise : float
-        Std of additive noise in linear output units.
-    shot_noise : float
-        Std of signal-dependent noise: sigma^2 = read^2 + shot^2 * value.
-    max_exposure : float
-        Largest exposure (gain) auto-exposure may use.
+    points : (N, 3) world points, m.
+    shade_n, geo_n : (N, 3) shading and geometric unit normals.
+    albedo : (N, 3) linear RGB albedo.
+    depth : (N,) ray distance, m.
+    cavity : (N,) ambient occlusion factor in [0, 1].
+    shadow_lift : (N,) m or None
+        Shadow rays start that much further along the geometric normal (back on
+        the mesh surface for relief-only changes).
     """
 
-    gamma: float = 2.2
-    vignetting: float = 0.0
-    read_noise: float = 0.0
-    shot_noise: float = 0.0
-    max_exposure: float = 64.0
+    points: np.ndarray
+    shade_n: np.ndarray
+    geo_n: np.ndarray
+    albedo: np.ndarray
+    depth: np.ndarray
+    cavity: np.ndarray
+    shadow_lift: np.ndarray | None = None
 
 
 @dataclass(kw_only=True)
@@ -113,38 +114,6 @@ class _PartData:
     pyramid: list[np.ndarray]
     texel_size_m: float
     label: int
-
-
-def auto_exposure(linear_gray: np.ndarray, valid: np.ndarray | None = None, *, target: float = 0.18,
-                  max_exposure: float = 64.0) -> float:
-    """Exposure that maps the median lit value to ``target`` without clipping most highlights."""
-    v = linear_gray[valid] if valid is not None and valid.any() else linear_gray.ravel()
-    if v.size == 0:
-        return 1.0
-    p50 = float(np.percentile(v, 50))
-    p99 = float(np.percentile(v, 99.5))
-    e = target / max(p50, 1e-6)
-    e = min(e, 0.9 / max(p99, 1e-6))
-    return float(min(max(e, 1e-3), max_exposure))
-
-
-def apply_camera_response(linear: np.ndarray, *, exposure: float, effects: CameraEffects,
-                          rng: np.random.Generator | None = None) -> np.ndarray:
-    """Exposure, vignetting, noise and gamma: linear radiance -> image in [0, 1] (float32)."""
-    v = linear.astype(np.float32) * np.float32(exposure)
-    h, w = v.shape[:2]
-    if effects.vignetting > 0:
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / (((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2)
-        vig = 1.0 - effects.vignetting * r2
-        v = v * (vig[..., None] if v.ndim == 3 else vig)
-    if (effects.read_noise > 0 or effects.shot_noise > 0) and rng is not None:
-        sigma = np.sqrt(effects.read_noise**2 + effects.shot_noise**2 * np.maximum(v, 0))
-        v = v + sigma * rng.standard_normal(v.shape, dtype=np.float32)
-    v = np.clip(v, 0.0, 1.0)
-    if effects.gamma != 1.0:
-        v = v ** np.float32(1.0 / effects.gamma)
-    return v.astype(np.float32)
 
 
 class Renderer:
@@ -324,13 +293,10 @@ class Renderer:
             return np.asarray(self.scene.lamp_position, float)
         return np.asarray(light.position, float)
 
-    def _shade(self, points, shade_n, geo_n, albedo, depth, lighting: Lighting, T_world_cam, cavity,
-               shadow_lift=None):
-        """Linear RGB radiance (N, 3) float32 of surface samples (all inputs float32).
-
-        ``shadow_lift`` (N,) metres, optional: shadow rays start that much further
-        along the geometric normal (back on the mesh surface for relief-only changes).
-        """
+    def _shade(self, surf: _Surface, lighting: Lighting, T_world_cam) -> np.ndarray:
+        """Linear RGB radiance (N, 3) float32 of surface samples (all inputs float32)."""
+        points, shade_n, geo_n, albedo = surf.points, surf.shade_n, surf.geo_n, surf.albedo
+        depth, cavity, shadow_lift = surf.depth, surf.cavity, surf.shadow_lift
         up = np.asarray(self.scene.up, np.float32)
         if lighting.sky_weight > 0:
             sky = (1.0 - lighting.sky_weight) + lighting.sky_weight * (0.5 + 0.5 * (shade_n @ up))
@@ -404,7 +370,9 @@ class Renderer:
                 ids_local[k] = np.where(eff.footprint >= 0.5, eff.change_index + 1, 0)
         radiance = None
         if want_albedo and lighting is not None:
-            radiance = self._shade(points, shade_n, geo_n, albedo, t, lighting, T_world_cam, cavity, shadow_lift)
+            surf = _Surface(points=points, shade_n=shade_n, geo_n=geo_n, albedo=albedo, depth=t, cavity=cavity,
+                            shadow_lift=shadow_lift)
+            radiance = self._shade(surf, lighting, T_world_cam)
         return dict(n=len(dirs_cam), idx=idx, t=t, labels=labels, normals=shade_n, radiance=radiance, ids=ids_local)
 
     # ------------------------------------------------------------------ public

@@ -56,11 +56,6 @@ def _bump(Xg, Yg, cx, cy, a, b, h):
     return h * np.sqrt(np.clip(r, 0, None))
 
 
-def _image_to_grid(img: np.ndarray, shape) -> np.ndarray:
-    """Resize an image (row 0 = top) to a height grid (row 0 = bottom)."""
-    return np.flipud(cv2.resize(img.astype(np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_AREA))
-
-
 def _grid_to_texture(grid: np.ndarray, size) -> np.ndarray:
     """Resize a grid (row 0 = bottom) to texture layout (row 0 = top)."""
     return cv2.resize(np.flipud(grid).astype(np.float32), (size[1], size[0]), interpolation=cv2.INTER_LINEAR)
@@ -87,7 +82,10 @@ def _text_mask(rng, n_lines: int) -> np.ndarray:
     return canvas.astype(np.float32) / 255.0
 
 
-def _panel_relief_part(*, name, width, height, cell, Hgrid, tex, origin, label=OBJECT_LABEL, frame_depth=0.0):
+def _panel_relief_part(*, name, width, height, Hgrid, tex, origin, label=OBJECT_LABEL, frame_depth=0.0):
+    """A relief panel: height grid ``Hgrid`` (m, row 0 at the bottom) over a ``width`` x ``height`` m
+    rectangle in the x-z plane at ``origin``, textured with ``tex``; ``frame_depth`` > 0 folds the
+    border back by that much (m)."""
     if frame_depth > 0:  # fold the border back so the panel reads as a slab
         Hgrid = Hgrid.copy()
         Hgrid[[0, -1], :] = -frame_depth
@@ -138,7 +136,7 @@ def build_stele(p: dict, rng) -> dict:
     dirt = _grid_to_texture(np.clip(-Hgrid / carve, 0, 1), (th, tw))
     grime = np.linspace(0.85, 1.0, th, dtype=np.float32)[::-1][:, None]  # darker at the foot
     tex = tex * (1 - 0.45 * dirt[..., None]) * grime[..., None]
-    front = _panel_relief_part(name="stele", width=W, height=Hh, cell=cell, Hgrid=Hgrid, tex=np.clip(tex, 0, 1),
+    front = _panel_relief_part(name="stele", width=W, height=Hh, Hgrid=Hgrid, tex=np.clip(tex, 0, 1),
                                origin=(-W / 2, -D / 2, base_h))
     sides_tex = stone(rng, size=512, photo_name="gravel", colour=p.get("colour", (0.74, 0.66, 0.54)))
     v, t, uv = box(center=(0, 0, base_h + Hh / 2), size=(W, D, Hh), skip=("-y", "-z"), uv_repeat_m=0.5)
@@ -197,7 +195,7 @@ def build_relief_panel(p: dict, rng) -> dict:
     tex = blend_detail(tex, rng, amount=0.07, base_sigma=2.0)
     soot = _grid_to_texture(niche, (th, tw)) * 0.15
     tex = tex * (1 - soot[..., None])
-    panel = _panel_relief_part(name="relief", width=W, height=Hh, cell=cell, Hgrid=Hgrid, tex=np.clip(tex, 0, 1),
+    panel = _panel_relief_part(name="relief", width=W, height=Hh, Hgrid=Hgrid, tex=np.clip(tex, 0, 1),
                                origin=(-W / 2, -0.06, 0.3), frame_depth=0.06)
     return {"parts": [panel, _back_wall(rng, y=0.0), _floor(rng)]}
 
@@ -232,7 +230,7 @@ def build_mural(p: dict, rng) -> dict:
     Hgrid = p.get("relief_mm", 1.5) / 1000 * fractal_noise(Xg.shape, rng, base_sigma=25, wrap=False)
     th, tw = int(Hh / 0.0015), int(W / 0.0015)
     tex = _aged_painting(rng, th, tw)
-    part = _panel_relief_part(name="mural", width=W, height=Hh, cell=cell, Hgrid=Hgrid, tex=tex,
+    part = _panel_relief_part(name="mural", width=W, height=Hh, Hgrid=Hgrid, tex=tex,
                               origin=(-W / 2, 0.0, 0.4))
     return {"parts": [part, _floor(rng)]}
 
@@ -315,7 +313,7 @@ def build_bricks(p: dict, rng) -> dict:
     mortar_s = mortar_c[ty.astype(int) % 512, tx.astype(int) % 512]
     tex = np.where(brick_t[..., None], tex, mortar_s).astype(np.float32)
     tex = blend_detail(np.clip(tex, 0, 1), rng, amount=0.05, base_sigma=1.5)
-    part = _panel_relief_part(name="bricks", width=W, height=Hh, cell=cell, Hgrid=Hgrid, tex=tex,
+    part = _panel_relief_part(name="bricks", width=W, height=Hh, Hgrid=Hgrid, tex=tex,
                               origin=(-W / 2, 0.0, 0.0))
     return {"parts": [part, _floor(rng)]}
 
