@@ -2,10 +2,10 @@
 
 Why this stage exists. The rACR loop (3D alignment of the two VSE clouds) is
 robust to lighting, but its accuracy is bounded by the two monocular clouds'
-own distortions: on a flat stele seen from 1.75 m, both sessions place their
-camera correctly relative to their cloud only to ~1 % of the depth (bas-relief
-ambiguity of few-cm motions), which leaves 1–2 px of true AFD while the loop's
-own estimate says 0.3 px (measured: ``docs/relocation.md``).
+own distortions: two monocular sessions place their camera relative to their
+cloud only to about 1 % of the depth (bas-relief ambiguity of few-cm motions),
+which can leave pixels of true AFD while the loop's own estimate says a
+fraction of one (``docs/relocation.md``, "Final image stage").
 
 Once the loop has converged, the camera is within a few pixels of the
 reference view, which is where feature matching *across lightings* works best
@@ -223,7 +223,8 @@ def refine_from_reference_image(
             if ref.shape != cur.shape:
                 res = refused(f"reference image {name!r} is {ref.shape}, current {cur.shape}", name)
             else:
-                res = _refine_one(ref, cur, K, camera, ref_points, T_ref_camref, config, name)
+                res = _refine_one(ref, cur, _ReferenceView(K=K, camera=camera, ref_points=ref_points,
+                                                           T_ref_camref=T_ref_camref, config=config, name=name))
         if best is None or (res.ok, res.inliers) > (best.ok, best.inliers):
             best = res
     return best if best is not None else refused("no reference image")
@@ -242,21 +243,32 @@ def local_contrast(gray: np.ndarray, *, clip_limit: float = 3.0, tiles: int = 8)
     (H, W) float32 ndarray in [0, 1]
 
     Why: SIFT's detector drops extrema below a fixed contrast (0.04 of the
-    range). Dim, low-contrast stone under a side light leaves only 30–90
-    keypoint matches between a reference and a current view 30 mm / 3° apart;
-    equalised locally the same pair gives 2 400–3 900 matches, of which > 95 %
-    are epipolar inliers (bricks and stupa scenes, front light vs. LED, and
-    sun at two seasons; measured while developing the image fallback).
+    range), which dim, low-contrast stone under a side light barely reaches;
+    equalised locally, the same pair of views gives tens of times more matches,
+    nearly all of them epipolar inliers (docs/benchmarks.md).
     """
     u8 = np.clip(np.asarray(gray, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
     clahe = cv2.createCLAHE(clipLimit=float(clip_limit), tileGridSize=(int(tiles), int(tiles)))
     return clahe.apply(u8).astype(np.float32) / 255.0
 
 
-def _refine_one(ref, cur, K, camera, ref_points, T_ref_camref, config: ImageRefineConfig, name: str) -> ImageRefinement:
+@dataclass(frozen=True, kw_only=True)
+class _ReferenceView:
+    """One reference image's geometry: the pinhole matrix ``K`` (3, 3), the camera, the reference cloud
+    (N, 3) metres, the reference camera pose (4, 4), the options and the image's name."""
+
+    K: np.ndarray
+    camera: object
+    ref_points: np.ndarray
+    T_ref_camref: np.ndarray
+    config: ImageRefineConfig
+    name: str
+
+
+def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
+    config = view.config
     p_ref, p_cur = match_sift(local_contrast(ref), local_contrast(cur), ratio=config.ratio)
-    sift = _refine_matches(p_ref, p_cur, K, camera, ref_points, T_ref_camref, config,
-                           name, matcher="sift", min_inliers=config.min_inliers)
+    sift = _refine_matches(p_ref, p_cur, view, matcher="sift", min_inliers=config.min_inliers)
     if sift.ok:
         return sift
     # Strong lighting change (another sun): lighting-robust grid correspondences
@@ -266,8 +278,7 @@ def _refine_one(ref, cur, K, camera, ref_points, T_ref_camref, config: ImageRefi
                           ransac_px=3.0)
     except FgcdError as exc:
         return _replace_reason(sift, f"{sift.reason}; grid: {exc}")
-    grid = _refine_matches(fdf.points_ref, fdf.points_cur, K, camera, ref_points, T_ref_camref, config, name,
-                           matcher="grid", min_inliers=config.min_grid_inliers)
+    grid = _refine_matches(fdf.points_ref, fdf.points_cur, view, matcher="grid", min_inliers=config.min_grid_inliers)
     return grid if grid.ok else _replace_reason(sift, f"SIFT: {sift.reason}; grid: {grid.reason}")
 
 
@@ -324,15 +335,17 @@ def pnp_translation_sigma_m(points_3d: np.ndarray, pixels: np.ndarray, rvec: np.
     return float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:])))))
 
 
-def _refine_matches(p_ref, p_cur, K, camera, ref_points, T_ref_camref, config: ImageRefineConfig, name: str, *,
-                    matcher: str, min_inliers: int) -> ImageRefinement:
+def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inliers: int) -> ImageRefinement:
+    """PnP of matched pixels ``p_ref`` (reference image) and ``p_cur`` (current image), (M, 2) each."""
+    K, camera, config, name = view.K, view.camera, view.config, view.name
+
     def fail(reason: str, matches: int = 0, inliers: int = 0, afd: float = math.nan, rms: float = math.nan):
         return ImageRefinement(ok=False, reason=reason, M_cam=None, measured_afd_px=afd, matches=matches,
                                inliers=inliers, rms_px=rms, reference_image=name, matcher=matcher)
 
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} feature matches with the reference image", len(p_ref))
-    z = reference_depth_lookup(ref_points, T_ref_camref, camera, p_ref, radius_px=config.depth_search_px)
+    z = reference_depth_lookup(view.ref_points, view.T_ref_camref, camera, p_ref, radius_px=config.depth_search_px)
     has = np.isfinite(z)
     p_ref, p_cur, z = p_ref[has], p_cur[has], z[has]
     if len(p_ref) < min_inliers:
