@@ -23,6 +23,7 @@ import tempfile
 from pathlib import Path
 
 from fgcd_cli.bench.relocate import Case, _run_case
+from fgcd_cli.relocation.enums import LoopMode
 
 __all__ = ["CASES", "run"]
 
@@ -62,7 +63,7 @@ def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[
     from fgcd_cli.relocation.coarse import CoarseConfig
 
     chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK))]
-    runs = [("coarse", "parallel", CoarseConfig())] + ([("baseline", "parallel", None)] if baseline else [])
+    runs = [("coarse", LoopMode.PARALLEL, CoarseConfig())] + ([("baseline", LoopMode.PARALLEL, None)] if baseline else [])
     results = []
     with tempfile.TemporaryDirectory(prefix="fgcd-bench-coarse-") as tmp:
         for case in chosen:

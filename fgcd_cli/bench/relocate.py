@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcd_cli.campaign import init_campaign
+from fgcd_cli.relocation.enums import CoarseAction, EstimateStage, LoopMode
 
 __all__ = ["CASES", "run"]
 
@@ -73,7 +74,7 @@ CASES: list[Case] = [
 QUICK = ["indoor-1", "indoor-2", "outdoor-1"]
 
 
-def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tuple] | None = None) -> dict:
+def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: list[tuple] | None = None) -> dict:
     """Calibrate, capture the reference, then relocate once per mode.
 
     ``runs`` (label, mode, coarse config or None), when given, replaces ``modes``: the
@@ -108,7 +109,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tu
         return out
     from fgcd_cli.relocation.coarse import CoarseConfig
 
-    runs = runs if runs is not None else [(m, m, CoarseConfig()) for m in modes]
+    runs = runs if runs is not None else [(str(m), m, CoarseConfig()) for m in modes]
     for i, (label, mode, coarse) in enumerate(runs):
         scen = SimScenario(scene=case.scene, seed=case.seed, lighting=case.visit_light, changes=3, change_seed=7,
                            start_offset_mm=case.offset_mm, start_offset_deg=case.offset_deg, session_seed=1 + i)
@@ -129,10 +130,10 @@ def _run_case(case: Case, workdir: Path, *, modes: list[str], say, runs: list[tu
                 **_residual_summary(r.residual),
             }
             # The 3D loop's own end (before the final image stage), from the log's evaluation records.
-            racr = [rec for rec in r.records if rec.stage != "image" and rec.truth]
+            racr = [rec for rec in r.records if rec.stage != EstimateStage.IMAGE and rec.truth]
             if racr:
                 out[label]["afd_px_racr_only"] = racr[-1].truth["afd_px"]
-            image = [rec for rec in r.records if rec.stage == "image"]
+            image = [rec for rec in r.records if rec.stage == EstimateStage.IMAGE]
             out[label]["image_fallback"] = any(rec.image and rec.image.get("fallback") for rec in image)
             out[label]["coarse"] = _coarse_summary(vis.coarse)
             out[label]["image_stage"] = ("not run" if not image else
@@ -153,8 +154,8 @@ def _residual_summary(residual) -> dict:
     if residual is None:
         return {"residual_mm": None, "residual_sigma_mm": None, "tolerance_mm": None, "residual_source": None}
     return {"residual_mm": residual.offset_mm, "residual_sigma_mm": residual.sigma_mm,
-            "tolerance_mm": residual.tolerance_mm, "residual_source": residual.source,
-            "residual_agreement": residual.agreement}
+            "tolerance_mm": residual.tolerance_mm, "residual_source": str(residual.source),
+            "residual_agreement": str(residual.agreement)}
 
 
 def _coarse_summary(result) -> dict | None:
@@ -164,8 +165,8 @@ def _coarse_summary(result) -> dict | None:
     last = result.steps[-1] if result.steps else None
     truth = last.truth if last is not None else None
     return {"handed_over": result.handed_over, "reason": result.reason, "steps": len(result.steps),
-            "moves": sum(s.action == "move" for s in result.steps),
-            "looks": sum(s.action == "look" for s in result.steps),
+            "moves": sum(s.action == CoarseAction.MOVE for s in result.steps),
+            "looks": sum(s.action == CoarseAction.LOOK for s in result.steps),
             "start_err_mm": result.steps[0].truth["pose_err_mm"] if result.steps and result.steps[0].truth else None,
             "start_err_deg": result.steps[0].truth["pose_err_deg"] if result.steps and result.steps[0].truth else None,
             "end_err_mm": truth["pose_err_mm"] if truth else None,
@@ -198,16 +199,16 @@ def _summarise(results: list[dict], mode: str) -> dict:
 def run(*, quick: bool, serial: bool = True, say=lambda _m: None, cases: list[str] | None = None) -> dict:
     """Run the benchmark; returns ``{"summary": ..., "cases": [...]}``."""
     chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK))]
-    modes = ["parallel", "serial"] if serial else ["parallel"]
+    modes = [LoopMode.PARALLEL, LoopMode.SERIAL] if serial else [LoopMode.PARALLEL]
     results = []
     with tempfile.TemporaryDirectory(prefix="fgcd-bench-relocate-") as tmp:
         for case in chosen:
             say(f"case {case.name}: {case.scene}, {case.reference_light} -> {case.visit_light}")
             results.append(_run_case(case, Path(tmp), modes=modes, say=say))
-    par = _summarise(results, "parallel")
+    par = _summarise(results, LoopMode.PARALLEL)
     summary = dict(par)
     if serial:
-        ser = _summarise(results, "serial")
+        ser = _summarise(results, LoopMode.SERIAL)
         summary.update({f"serial_{k}": v for k, v in ser.items() if k != "cases"})
         summary["parallel_speedup"] = (
             ser["mean_sim_time_s"] / par["mean_sim_time_s"] if par["mean_sim_time_s"] > 0 else float("nan")
