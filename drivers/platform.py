@@ -17,6 +17,8 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from fgcd_core.se3 import rotation_angle_rad
+
 __all__ = [
     "PlatformError",
     "PlatformConnectionError",
@@ -29,7 +31,6 @@ __all__ = [
     "Platform",
     "GuardLimits",
     "MotionGuard",
-    "rotation_angle",
     "compose_flange_delta",
     "needed_axes",
     "AXES",
@@ -143,12 +144,6 @@ class Platform(Protocol):
 
 
 # ----------------------------------------------------------------------------- helpers
-def rotation_angle(R: np.ndarray) -> float:
-    """Angle in radians of a 3x3 rotation matrix."""
-    c = (float(np.trace(R[:3, :3])) - 1.0) / 2.0
-    return math.acos(max(-1.0, min(1.0, c)))
-
-
 def compose_flange_delta(T_base_flange: np.ndarray, T_flange_delta: np.ndarray) -> np.ndarray:
     """Target of a relative motion expressed in the current flange frame."""
     return np.asarray(T_base_flange, dtype=float) @ np.asarray(T_flange_delta, dtype=float)
@@ -284,7 +279,7 @@ class MotionGuard:
         target = _check_pose(T_base_flange_target, "target pose")
         current = _check_pose(self.platform.flange_pose(), "reported flange pose")
         step_m = float(np.linalg.norm(target[:3, 3] - current[:3, 3]))
-        step_rad = rotation_angle(current[:3, :3].T @ target[:3, :3])
+        step_rad = rotation_angle_rad(current[:3, :3].T @ target[:3, :3])
         if step_m > self.limits.max_step_m + 1e-12:
             raise MotionRejected(
                 f"motion refused: step {step_m * 1000:.1f} mm exceeds the limit "

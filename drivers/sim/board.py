@@ -12,21 +12,25 @@ Two uses:
 
 Board frame (OpenCV's ChArUco convention): origin at the outer corner of the
 first square, x along a row of squares, y down the columns, z into the board;
-metres. The board is described by plain numbers (no ``fgcd_cli`` import).
+metres. The board's geometry is :class:`fgcd_core.board.CharucoSpec`, the one
+calibration detects; the simulator adds only the printed margin.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from drivers.sim.meshes import MeshPart, quad
 from drivers.sim.scene import Scene
+from fgcd_core.board import CharucoSpec
+from fgcd_core.camera import CameraIntrinsics
 
 __all__ = [
     "SimBoard",
+    "BoardViewOptions",
     "board_texture",
     "board_mesh_part",
     "add_board_to_scene",
@@ -41,29 +45,60 @@ BOARD_LABEL = 50
 
 
 @dataclass(frozen=True, kw_only=True)
-class SimBoard:
-    """ChArUco board geometry (same fields as ``fgcd_cli.calibration.board.BoardSpec``)."""
+class SimBoard(CharucoSpec):
+    """A printed ChArUco board: its geometry (:class:`~fgcd_core.board.CharucoSpec`) and white margin.
 
-    squares_x: int = 10
-    squares_y: int = 7
-    square_m: float = 0.025
-    marker_m: float = 0.018
-    dictionary: str = "DICT_5X5_100"
+    Attributes
+    ----------
+    margin_m : float
+        White margin around the squares, metres.
+    """
+
     margin_m: float = 0.01
 
-    def cv_board(self):
-        """OpenCV board object."""
-        return cv2.aruco.CharucoBoard(
-            (self.squares_x, self.squares_y),
-            self.square_m,
-            self.marker_m,
-            cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)),
-        )
 
-    @property
-    def size_m(self) -> tuple[float, float]:
-        """Board size without margin (width, height), metres."""
-        return self.squares_x * self.square_m, self.squares_y * self.square_m
+@dataclass(frozen=True, kw_only=True)
+class BoardViewOptions:
+    """Sensor and sampling of :func:`render_board_view`.
+
+    Attributes
+    ----------
+    noise_sigma : float
+        Gaussian sensor noise, in [0, 1] intensity units.
+    blur_sigma_px : float
+        Optical blur (Gaussian), pixels; 0 for none.
+    background : float
+        Intensity around the board, in [0, 1].
+    supersample : int
+        Rays per pixel along each axis (anti-aliasing).
+    """
+
+    noise_sigma: float = 1.5 / 255.0
+    blur_sigma_px: float = 0.6
+    background: float = 0.45
+    supersample: int = 3
+
+
+_INTRINSICS_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "dist")
+_OPTION_KEYS = ("noise_sigma", "blur_sigma_px", "background", "supersample")
+
+
+def _camera_from(camera: CameraIntrinsics | None, values: dict) -> CameraIntrinsics:
+    """``camera``, or intrinsics from the keyword form ``fx=, fy=, cx=, cy=, width=, height=[, dist=]``."""
+    if camera is not None:
+        if values:
+            raise TypeError(f"give either a camera or {', '.join(values)}, not both")
+        return camera
+    return CameraIntrinsics(**values)
+
+
+def _split_keywords(extra: dict) -> tuple[dict, dict]:
+    """The keyword form's intrinsics and view options; anything else is a TypeError."""
+    unknown = set(extra) - set(_INTRINSICS_KEYS) - set(_OPTION_KEYS)
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s): {', '.join(sorted(unknown))}")
+    return ({k: extra[k] for k in _INTRINSICS_KEYS if k in extra},
+            {k: extra[k] for k in _OPTION_KEYS if k in extra})
 
 
 def board_texture(board: SimBoard, *, px_per_square: int = 64) -> tuple[np.ndarray, float, float]:
@@ -80,9 +115,7 @@ def board_texture(board: SimBoard, *, px_per_square: int = 64) -> tuple[np.ndarr
     """
     m_per_px = board.square_m / px_per_square
     margin_px = int(round(board.margin_m / m_per_px))
-    w = board.squares_x * px_per_square + 2 * margin_px
-    h = board.squares_y * px_per_square + 2 * margin_px
-    img = board.cv_board().generateImage((w, h), marginSize=margin_px, borderBits=1)
+    img = board.image(px_per_square=px_per_square, margin_px=margin_px)
     tex = 0.04 + (0.9 - 0.04) * (img.astype(np.float32) / 255.0)
     return tex, m_per_px, margin_px * m_per_px
 
@@ -121,21 +154,17 @@ def add_board_to_scene(scene: Scene, board: SimBoard, T_world_board: np.ndarray)
 def render_board_view(
     board: SimBoard,
     T_cam_board: np.ndarray,
+    camera: CameraIntrinsics | None = None,
     *,
-    fx: float,
-    fy: float,
-    cx: float,
-    cy: float,
-    width: int,
-    height: int,
-    dist=(0.0, 0.0, 0.0, 0.0, 0.0),
-    noise_sigma: float = 1.5 / 255.0,
-    blur_sigma_px: float = 0.6,
-    background: float = 0.45,
-    supersample: int = 3,
+    options: BoardViewOptions | None = None,
     rng: np.random.Generator | None = None,
+    **keywords,
 ) -> np.ndarray:
     """Grayscale uint8 image of the board seen by a pinhole camera with distortion.
+
+    Every supersampled pixel's ray is undistorted and intersected with the
+    board plane; the board texture is sampled there, box-filtered down to the
+    pixel grid, then blurred, noised and quantised (:func:`_sensor`).
 
     Parameters
     ----------
@@ -143,39 +172,62 @@ def render_board_view(
         Board geometry.
     T_cam_board : (4, 4) ndarray
         Board pose in the camera frame (OpenCV camera axes), metres.
-    fx, fy, cx, cy, width, height, dist
+    camera : CameraIntrinsics
         True intrinsics and OpenCV distortion ``(k1, k2, p1, p2, k3)``.
-    noise_sigma : float
-        Gaussian sensor noise, in [0, 1] intensity units.
-    blur_sigma_px : float
-        Optical blur (Gaussian), pixels.
-    background : float
-        Intensity around the board.
-    supersample : int
-        Rays per pixel along each axis (anti-aliasing).
+    options : BoardViewOptions, optional
+        Sensor noise, blur, background and supersampling (defaults: :class:`BoardViewOptions`).
     rng : numpy Generator, optional
-        Noise source.
+        Noise source (default: seeded with 0).
+    **keywords
+        The older keyword form: ``fx, fy, cx, cy, width, height, dist`` instead
+        of ``camera``, and any :class:`BoardViewOptions` field.
 
     Returns
     -------
     (height, width) uint8 ndarray
     """
+    intr, opts = _split_keywords(keywords)
+    camera = _camera_from(camera, intr)
+    if opts:
+        options = replace(options or BoardViewOptions(), **opts)
+    options = options or BoardViewOptions()
     rng = np.random.default_rng(0) if rng is None else rng
-    tex, m_per_px, margin_m = board_texture(board)
-    ss = int(supersample)
-    us = (np.arange(width * ss) + 0.5) / ss - 0.5
-    vs = (np.arange(height * ss) + 0.5) / ss - 0.5
+    ss = int(options.supersample)
+    xy = _undistorted_grid(camera, ss)
+    sampled = _sample_board(board, T_cam_board, xy, (camera.height * ss, camera.width * ss), options.background)
+    img = cv2.resize(sampled, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return _sensor(img, options, rng)
+
+
+def _undistorted_grid(camera: CameraIntrinsics, ss: int) -> np.ndarray:
+    """Normalised coordinates ``(x, y)``, shape (H*ss*W*ss, 2), of a supersampled pixel grid's rays.
+
+    Sample ``i`` of pixel ``u`` sits at ``u + (i + 0.5) / ss - 0.5`` (pixel centres at integers).
+    """
+    us = (np.arange(camera.width * ss) + 0.5) / ss - 0.5
+    vs = (np.arange(camera.height * ss) + 0.5) / ss - 0.5
     uu, vv = np.meshgrid(us, vs)
     pix = np.stack([uu.ravel(), vv.ravel()], axis=1).reshape(-1, 1, 2)
-    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-    dist = np.asarray(dist, dtype=float)
+    K = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1.0]])
+    dist = np.asarray(camera.dist, dtype=float)
     if np.any(dist != 0):
-        xy = cv2.undistortPointsIter(
+        return cv2.undistortPointsIter(
             pix, K, dist, None, None, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-9)
         ).reshape(-1, 2)
-    else:
-        xy = np.column_stack([(pix[:, 0, 0] - cx) / fx, (pix[:, 0, 1] - cy) / fy])
-    # Plane z_board = 0: normalised (x, y, 1) ~ [r1 r2 t] (bx, by, 1); invert that homography.
+    return np.column_stack([(pix[:, 0, 0] - camera.cx) / camera.fx, (pix[:, 0, 1] - camera.cy) / camera.fy])
+
+
+def _sample_board(
+    board: SimBoard, T_cam_board: np.ndarray, xy: np.ndarray, shape: tuple[int, int], background: float
+) -> np.ndarray:
+    """Board albedo seen along normalised rays ``xy`` (N, 2), as a float32 image of ``shape``.
+
+    On the plane z_board = 0 a normalised ray ``(x, y, 1)`` is proportional to
+    ``[r1 r2 t] (bx, by, 1)``; inverting that homography gives the board point.
+    Rays that meet the plane behind the camera, and rays off the board, see
+    ``background``.
+    """
+    tex, m_per_px, margin_m = board_texture(board)
     T = np.asarray(T_cam_board, dtype=float)
     H = np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]])
     rays = np.column_stack([xy, np.ones(len(xy))])
@@ -189,42 +241,45 @@ def render_board_view(
     map_y = ((by + margin_m) / m_per_px - 0.5).astype(np.float32)
     map_x[~front] = -1e6
     map_y[~front] = -1e6
-    sampled = cv2.remap(
+    return cv2.remap(
         tex,
-        map_x.reshape(height * ss, width * ss),
-        map_y.reshape(height * ss, width * ss),
+        map_x.reshape(shape),
+        map_y.reshape(shape),
         interpolation=cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=float(background),
     )
-    img = cv2.resize(sampled, (width, height), interpolation=cv2.INTER_AREA)
-    if blur_sigma_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), blur_sigma_px)
-    img = img + rng.normal(0.0, noise_sigma, img.shape).astype(np.float32)
+
+
+def _sensor(img: np.ndarray, options: BoardViewOptions, rng: np.random.Generator) -> np.ndarray:
+    """Optical blur, additive Gaussian noise, and rounding to uint8 of a [0, 1] float image."""
+    if options.blur_sigma_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), options.blur_sigma_px)
+    img = img + rng.normal(0.0, options.noise_sigma, img.shape).astype(np.float32)
     return np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
 
 def random_board_poses(
     board: SimBoard,
     n: int,
+    camera: CameraIntrinsics | None = None,
     *,
-    fx: float,
-    fy: float,
-    cx: float,
-    cy: float,
-    width: int,
-    height: int,
     distance_m: tuple[float, float] = (0.3, 0.6),
     max_tilt_deg: float = 40.0,
     rng: np.random.Generator | None = None,
+    **intrinsics,
 ) -> list[np.ndarray]:
     """Board poses ``T_cam_board`` covering the image (centre, edges, corners) with varied tilts.
 
     Each pose puts the board centre on the ray of a pixel drawn on a 3 x 3 grid
     of image regions in turn, at a random distance, tilted up to ``max_tilt_deg``
     about a random in-plane axis and rolled up to 30 degrees; poses whose board
-    would be less than half visible are redrawn.
+    would show fewer than two of its four corners in the image are redrawn.
+    The camera is taken without distortion here. ``camera`` may be given in
+    the older keyword form ``fx=, fy=, cx=, cy=, width=, height=``.
     """
+    camera = _camera_from(camera, intrinsics)
+    fx, fy, cx, cy, width, height = camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height
     rng = np.random.default_rng(0) if rng is None else rng
     w_m, h_m = board.size_m
     centre_local = np.array([w_m / 2, h_m / 2, 0.0])
@@ -293,18 +348,15 @@ class SimBoardCamera:
         self.poses_true: list[np.ndarray] = []
         self._t = 0.0
 
-    def _params(self) -> dict:
-        i = self.intrinsics_true
-        return dict(fx=i.fx, fy=i.fy, cx=i.cx, cy=i.cy, width=i.width, height=i.height)
-
     def grab(self):
         """Next view: the board at a new pose (cycling over image regions and tilts)."""
         # Draw one pose at a time, cycling the image cells like random_board_poses does for a list.
         k = len(self.poses_true)
-        T = random_board_poses(self.board, k + 1, **self._params(), rng=np.random.default_rng([int(self._rng.integers(1 << 31)), k]))[k]
+        pose_rng = np.random.default_rng([int(self._rng.integers(1 << 31)), k])
+        T = random_board_poses(self.board, k + 1, self.intrinsics_true, rng=pose_rng)[k]
         self.poses_true.append(T)
-        image = render_board_view(self.board, T, **self._params(), dist=self.intrinsics_true.dist,
-                                  supersample=self._supersample, rng=self._rng)
+        image = render_board_view(self.board, T, self.intrinsics_true,
+                                  options=BoardViewOptions(supersample=self._supersample), rng=self._rng)
         self._t += 0.5
         return self._frame_type(image, self._t)
 

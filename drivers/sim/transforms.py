@@ -1,58 +1,43 @@
-"""Small pose helpers for the simulator (drivers may not import fgcd_cli.geometry)."""
+"""Pose helpers for the simulator, on top of :mod:`fgcd_core.se3` (the world may not import ``fgcd_cli``).
+
+``make_pose``, ``invert_pose`` and ``exp_so3`` are :mod:`fgcd_core.se3`'s.
+``look_at`` fixes the simulator's up direction (+z, the worlds' vertical).
+``log_so3`` and ``rot_angle`` keep the simulated platform's own numerics:
+``log_so3`` reads the rotation with scipy directly (no SVD projection first),
+``rot_angle`` is ``arccos((trace R - 1) / 2)``, whose resolution near 0 is
+about 1e-8 rad; the platform's motion timing and its 1e-9 rad "no rotation"
+test are computed with them (``drivers/sim/platform.py``).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["make_pose", "invert_pose", "look_at", "pose_from_xyz_rpy", "rot_angle", "exp_so3", "log_so3"]
+from fgcd_core.se3 import exp_so3, invert_pose, make_pose
+from fgcd_core.se3 import look_at as _look_at
+
+__all__ = ["make_pose", "invert_pose", "look_at", "rot_angle", "exp_so3", "log_so3"]
+
+#: The simulator's worlds are z-up.
+WORLD_UP = (0.0, 0.0, 1.0)
 
 
-def make_pose(R: np.ndarray, t) -> np.ndarray:
-    """4x4 pose from a 3x3 rotation and a translation (metres)."""
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.asarray(t, dtype=float).ravel()
-    return T
+def look_at(eye, target, up=WORLD_UP) -> np.ndarray:
+    """``T_world_cam`` of an OpenCV camera at ``eye`` looking at ``target``, image up along ``up``.
 
-
-def invert_pose(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4x4 pose."""
-    R = T[:3, :3]
-    return make_pose(R.T, -R.T @ T[:3, 3])
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """``T_world_cam`` of an OpenCV camera at ``eye`` looking at ``target``.
-
-    Camera z points to the target, camera y points "down" (against ``up``).
+    Looking straight along ``up``, camera x is taken perpendicular to world x
+    (see :func:`fgcd_core.se3.look_at`).
     """
-    eye = np.asarray(eye, dtype=float)
-    z = np.asarray(target, dtype=float) - eye
-    z /= np.linalg.norm(z)
-    up = np.asarray(up, dtype=float)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:  # looking along up: pick any perpendicular
-        x = np.cross(z, np.array([1.0, 0.0, 0.0]))
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return make_pose(np.stack([x, y, z], axis=1), eye)
-
-
-def exp_so3(rotvec) -> np.ndarray:
-    return Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_matrix()
+    return _look_at(eye, target, up=up, fallback_up=(1.0, 0.0, 0.0))
 
 
 def log_so3(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (radians) of a rotation matrix, read by scipy without projecting it first."""
     return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
 
 
 def rot_angle(R: np.ndarray) -> float:
-    """Rotation angle in radians."""
+    """Rotation angle in radians, ``arccos((trace R - 1) / 2)`` (clipped to [0, pi])."""
     c = (float(np.trace(R[:3, :3])) - 1.0) / 2.0
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
-def pose_from_xyz_rpy(xyz_m, rpy_rad) -> np.ndarray:
-    """Pose from a translation (m) and a rotation vector... here XYZ Euler angles (rad, extrinsic)."""
-    return make_pose(Rotation.from_euler("xyz", np.asarray(rpy_rad, dtype=float)).as_matrix(), xyz_m)

@@ -19,23 +19,10 @@ import numpy as np
 
 from fgcd_cli.campaign.atomic import atomic_write_bytes, atomic_write_json
 from fgcd_cli.errors import UserInputError
+from fgcd_core.board import DICTIONARIES, CharucoSpec
+from fgcd_core.imaging import U8Rounding, to_gray_u8
 
 __all__ = ["BoardSpec", "BoardDetection", "DICTIONARIES", "write_printable_board", "load_board_sidecar"]
-
-#: Supported ArUco dictionaries (name -> OpenCV constant).
-DICTIONARIES: dict[str, int] = {
-    name: getattr(cv2.aruco, name)
-    for name in (
-        "DICT_4X4_50",
-        "DICT_4X4_100",
-        "DICT_5X5_50",
-        "DICT_5X5_100",
-        "DICT_5X5_250",
-        "DICT_6X6_50",
-        "DICT_6X6_250",
-        "DICT_APRILTAG_36h11",
-    )
-}
 
 MM_PER_INCH = 25.4
 
@@ -65,82 +52,25 @@ class BoardDetection:
 
 
 @dataclass(frozen=True, kw_only=True)
-class BoardSpec:
-    """Geometry of a ChArUco board.
+class BoardSpec(CharucoSpec):
+    """Geometry of a ChArUco board (:class:`fgcd_core.board.CharucoSpec`), checked on construction,
+    with its detection and persistence.
 
-    Attributes
-    ----------
-    squares_x, squares_y : int
-        Chessboard squares along x (columns) and y (rows).
-    square_m : float
-        Side of one chessboard square, metres (measure the print!).
-    marker_m : float
-        Side of one ArUco marker, metres (< square_m).
-    dictionary : str
-        ArUco dictionary name, e.g. ``"DICT_5X5_100"``.
-    legacy_pattern : bool
-        OpenCV < 4.6 board layout (only for boards printed by old tools).
+    Raises
+    ------
+    UserInputError
+        The geometry is not a usable board (:meth:`CharucoSpec.problem`).
     """
 
-    squares_x: int = 10
-    squares_y: int = 7
-    square_m: float = 0.025
-    marker_m: float = 0.018
-    dictionary: str = "DICT_5X5_100"
-    legacy_pattern: bool = False
-
     def __post_init__(self) -> None:
-        if self.squares_x < 3 or self.squares_y < 3:
-            raise UserInputError("a ChArUco board needs at least 3 x 3 squares")
-        if not (0 < self.marker_m < self.square_m):
-            raise UserInputError(
-                f"marker size {self.marker_m * 1000:.1f} mm must be positive and smaller than the square "
-                f"{self.square_m * 1000:.1f} mm"
-            )
-        if self.dictionary not in DICTIONARIES:
-            raise UserInputError(f"unknown ArUco dictionary '{self.dictionary}'; choose from {', '.join(DICTIONARIES)}")
-        n_markers = (self.squares_x * self.squares_y) // 2
-        dict_size = int(self.dictionary.rsplit("_", 1)[-1]) if self.dictionary[-1].isdigit() else 587
-        if n_markers > dict_size:
-            raise UserInputError(f"{n_markers} markers do not fit dictionary {self.dictionary}")
-
-    # -- OpenCV objects
-    def cv_board(self) -> "cv2.aruco.CharucoBoard":
-        """The OpenCV board object."""
-        board = cv2.aruco.CharucoBoard(
-            (self.squares_x, self.squares_y),
-            self.square_m,
-            self.marker_m,
-            cv2.aruco.getPredefinedDictionary(DICTIONARIES[self.dictionary]),
-        )
-        board.setLegacyPattern(self.legacy_pattern)
-        return board
-
-    @property
-    def size_m(self) -> tuple[float, float]:
-        """Printed board size (width, height) in metres, without margin."""
-        return self.squares_x * self.square_m, self.squares_y * self.square_m
-
-    @property
-    def n_corners(self) -> int:
-        """Number of inner chessboard corners."""
-        return (self.squares_x - 1) * (self.squares_y - 1)
-
-    def corner_points(self) -> np.ndarray:
-        """Board-frame coordinates of every chessboard corner, shape (n_corners, 3), metres."""
-        return np.asarray(self.cv_board().getChessboardCorners(), dtype=float).reshape(-1, 3)
-
-    # -- images
-    def image(self, *, px_per_square: int = 100, margin_px: int = 0) -> np.ndarray:
-        """Board image (uint8 grayscale, white margin), one square = ``px_per_square`` pixels."""
-        w = self.squares_x * px_per_square + 2 * margin_px
-        h = self.squares_y * px_per_square + 2 * margin_px
-        return self.cv_board().generateImage((w, h), marginSize=margin_px, borderBits=1)
+        problem = self.problem()
+        if problem is not None:
+            raise UserInputError(problem)
 
     # -- detection
     def detect(self, image: np.ndarray) -> BoardDetection:
-        """Find ChArUco corners in an image (uint8 or float in [0, 1], gray or RGB)."""
-        gray = _to_gray_u8(image)
+        """Find ChArUco corners in an image (uint8 or float in [0, 1], gray or RGB; Rec. 601 luma)."""
+        gray = to_gray_u8(image, rounding=U8Rounding.HALF_UP_F64)
         detector = cv2.aruco.CharucoDetector(self.cv_board())
         corners, ids, marker_corners, marker_ids = detector.detectBoard(gray)
         n_markers = 0 if marker_ids is None else len(marker_ids)
@@ -195,15 +125,6 @@ class BoardSpec:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise UserInputError(f"board description is incomplete or malformed: {exc}") from exc
-
-
-def _to_gray_u8(image: np.ndarray) -> np.ndarray:
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = img[..., :3].mean(axis=2) if img.dtype != np.uint8 else cv2.cvtColor(img[..., :3], cv2.COLOR_RGB2GRAY)
-    if img.dtype != np.uint8:
-        img = np.clip(np.asarray(img, dtype=float) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    return img
 
 
 def write_printable_board(board: BoardSpec, path: Path, *, dpi: int = 300, margin_mm: float = 10.0) -> dict:

@@ -1,4 +1,4 @@
-"""SE(3)/Sim(3), rotations and the pinhole camera model."""
+"""SE(3)/Sim(3), rotations and the pinhole camera model (re-exported from :mod:`fgcd_core`)."""
 
 from fgcd_cli.geometry.camera import PinholeCamera
 from fgcd_cli.geometry.se3 import (
