@@ -1,0 +1,117 @@
+"""The seams of the renovated relocation package (#20): defaults, enum values, injection, condition waits."""
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs, run_coarse_stage
+from fgcd_cli.relocation.enums import Agreement, CoarseAction, EstimateSource, EstimateStage, LoopMode
+from fgcd_cli.relocation.loop import LoopContext, RelocationConfig, run_relocation
+from fgcd_cli.relocation.waiting import wait_for_state
+from fgcd_cli.relocation.worker import AlignmentWorker
+
+
+def test_relocation_config_defaults_are_the_old_ones():
+    c = RelocationConfig()
+    assert (c.mode, c.eta, c.max_adjustments, c.max_step_m, c.max_step_rad, c.fine, c.min_points) == (
+        "parallel", 1e-4, 12, 0.05, math.radians(10.0), True, 500)
+    assert (c.estimate_timeout_s, c.stop_afd_px, c.divergence_factor, c.divergence_margin_mm,
+            c.divergence_margin_deg, c.divergence_patience, c.max_offset_m, c.max_offset_deg) == (
+        120.0, 0.5, 1.5, 10.0, 1.0, 2, 0.25, 20.0)
+    assert (c.image_refine, c.image_refine_steps, c.image_stop_afd_px, c.image_fallback, c.image_fallback_steps,
+            c.untrusted_patience, c.untrusted_min_wait_s, c.degenerate_patience, c.tolerance_mm) == (
+        True, 4, 0.5, True, 6, 6, 20.0, 3, None)
+    assert (c.vse_sigma_rel, c.agreement_k, c.agreement_wait_s, c.heartbeat_s) == (0.01, 2.0, 30.0, 5.0)
+
+
+def test_coarse_config_defaults_are_the_old_ones():
+    c = CoarseConfig()
+    assert (c.trigger_m, c.trigger_deg, c.handover_m, c.handover_deg, c.verify_m, c.verify_deg, c.weak_ratio,
+            c.min_fitness, c.step_m, c.step_deg, c.look_deg, c.max_steps, c.max_looks, c.render_stride_px,
+            c.max_points) == (0.10, 8.0, 0.04, 4.0, 0.05, 5.0, 0.015, 0.5, 0.08, 8.0, 4.0, 10, 3, 4, 6000)
+
+
+def test_enum_values_are_the_logged_strings():
+    assert [m.value for m in LoopMode] == ["parallel", "serial"]
+    assert [s.value for s in EstimateStage] == ["fast", "fine", "image"]
+    assert [s.value for s in EstimateSource] == ["image", "3d", ""]
+    assert [a.value for a in CoarseAction] == ["move", "look", "handover", "pause"]
+    assert Agreement.NOT_CHECKED.because("no image stage") == "not checked: no image stage"
+    assert f"{EstimateSource.THREE_D} estimate" == "3d estimate" and EstimateStage.IMAGE == "image"
+
+
+def test_an_unknown_mode_is_refused_before_anything_starts():
+    from fgcd_cli.errors import AlgorithmError
+
+    with pytest.raises(AlgorithmError, match="unknown relocation mode 'sideways'"):
+        run_relocation(session=None, reference=None, ref_index=None, camera=None, scale=1.0,
+                       T_flange_cam=np.eye(4), init=None, config=RelocationConfig(mode="sideways"))
+
+
+def test_the_keyword_adapters_build_their_contexts():
+    with pytest.raises(TypeError):
+        run_relocation(session=None, unknown_option=1)
+    with pytest.raises(TypeError):
+        run_coarse_stage(session=None, unknown_option=1)
+    ctx = LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
+                      init=None, image_refiner=lambda **kw: "measured")
+    assert ctx.refiner()() == "measured" and not ctx.can_image
+    assert CoarseInputs(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
+                        init=None, reference_images=None, grab_current=None).config == CoarseConfig()
+
+
+class _CondVse:
+    """A VSE with a condition (as ``VseThread.wait_for``) publishing a frame every 10 ms."""
+
+    def __init__(self):
+        self.frames, self.cond, self.calls = 0, threading.Condition(), 0
+        self.stop_ev = threading.Event()
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _run(self):
+        while not self.stop_ev.is_set():
+            time.sleep(0.01)
+            with self.cond:
+                self.frames += 1
+                self.cond.notify_all()
+
+    def latest(self):
+        return self.frames
+
+    def wait_for(self, predicate, timeout):
+        self.calls += 1
+        with self.cond:
+            return self.frames if self.cond.wait_for(lambda: predicate(self.frames), timeout) else None
+
+
+def test_waits_use_the_vse_condition_and_time_out():
+    vse = _CondVse()
+    try:
+        start = vse.latest()
+        assert wait_for_state(vse, lambda n: n >= start + 3, 5.0) >= start + 3 and vse.calls == 1
+        assert wait_for_state(vse, lambda n: False, 0.05) is None
+    finally:
+        vse.stop_ev.set()
+
+
+def test_the_worker_wakes_its_reader_on_publication():
+    from types import SimpleNamespace
+
+    state = SimpleNamespace(status="tracking", cloud=np.zeros((10, 3)), frames_processed=0)
+    vse = SimpleNamespace(latest=lambda: state)
+
+    def aligner(*, state, serial=0, **kw):
+        time.sleep(0.05)
+        return [SimpleNamespace(serial=serial, ok=True, T_ref_cur=None)]
+
+    worker = AlignmentWorker(vse=vse, problem=None, init=None, min_points=1, aligner=aligner).start()
+    try:
+        t0 = time.monotonic()
+        assert worker.wait_until(lambda e: e is not None and e.serial == 1, 10.0)
+        assert time.monotonic() - t0 < 5.0 and worker.latest().serial == 1
+        assert not worker.wait_until(lambda e: e.serial == 99, 0.05)  # one frame only: no newer estimate
+    finally:
+        worker.stop()
