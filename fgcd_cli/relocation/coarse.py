@@ -38,6 +38,8 @@ from drivers.platform import MotionRejected
 from fgcd_cli.geometry.se3 import invert_pose, pose_distance
 from fgcd_cli.geometry.sim3 import Sim3
 from fgcd_cli.relocation.adjustment import clamp_motion
+from fgcd_cli.relocation.config import ReferenceData
+from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult, CoarseStep
 from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
 from fgcd_cli.relocation.protocols import CameraModel
@@ -135,8 +137,8 @@ class CoarseInputs:
         Progress lines for people.
     """
 
-    session: object
-    reference: object
+    session: VseSession
+    reference: ReferenceData
     ref_index: object
     camera: CameraModel
     scale: float
