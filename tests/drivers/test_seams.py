@@ -1,0 +1,80 @@
+"""Renovation seams (#20): config dataclasses keep the old defaults, the GRBL grammar is pure."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from drivers.connect import DRIVERS, PlatformSpec, open_platform
+from drivers.grbl.protocol import (
+    GrblState,
+    LineKind,
+    alarm_text,
+    classify_line,
+    parse_setting,
+    parse_status,
+)
+from drivers.manual import ManualPlatform
+from drivers.ur import has_abandoned_interfaces
+
+
+def test_platform_spec_defaults_and_both_call_forms():
+    spec = PlatformSpec()
+    assert (spec.port, spec.baud, spec.host, spec.connect, spec.sim_rig) == (None, 115200, None, True, None)
+    assert DRIVERS == ("sim", "grbl", "ur", "manual")
+    manual = ManualPlatform()
+    assert open_platform("sim", sim_rig=manual, connect=False) is manual
+    assert open_platform("sim", spec=PlatformSpec(sim_rig=manual, connect=False)) is manual
+    with pytest.raises(TypeError):
+        open_platform("sim", spec=PlatformSpec(sim_rig=manual), connect=False)
+    with pytest.raises(TypeError):
+        open_platform("sim", sim_rigg=manual)
+
+
+def test_ur_abandoned_accessor():
+    assert has_abandoned_interfaces() is False
+
+
+def test_grbl_line_classes():
+    assert classify_line("") is LineKind.EMPTY
+    assert classify_line("ok") is LineKind.ANSWER
+    assert classify_line("error:20") is LineKind.ANSWER
+    assert classify_line("okay") is LineKind.NOISE
+    assert classify_line("<Idle|MPos:0,0,0|FS:0,0>") is LineKind.STATUS
+    assert classify_line("ALARM:2") is LineKind.ALARM
+    assert classify_line("Grbl 1.1h ['$' for help]") is LineKind.BANNER
+    assert classify_line("[MSG:Caution: Unlocked]") is LineKind.MESSAGE
+    assert classify_line("$110=500.000") is LineKind.SETTING
+    assert parse_setting("$130=-2.5") == (130, -2.5)
+    assert alarm_text(0).startswith("GRBL Alarm (alarm state)")
+    assert alarm_text(2).startswith("GRBL ALARM:2 (soft limit")
+
+
+def test_grbl_status_parsing_keeps_wco_for_wpos():
+    wco = {"X": 0.0, "Y": 0.0, "Z": 0.0}
+    status, wco = parse_status("<Idle|MPos:1,2,3|FS:0,0|WCO:0.5,0.25,0>", "XYZ", wco, received_at=1.0)
+    assert status.state == GrblState.IDLE == "Idle" and status.mpos == {"X": 1.0, "Y": 2.0, "Z": 3.0}
+    status, wco = parse_status("<Hold:0|WPos:1,2,3|F:100>", "XYZ", wco, received_at=2.0)
+    assert (status.state, status.substate, status.feed_mm_min) == ("Hold", 0, 100.0)
+    assert status.mpos == {"X": 1.5, "Y": 2.25, "Z": 3.0}
+    assert parse_status("<Idle|FS:0,0>", "XYZ", wco, received_at=3.0)[0] is None
+    assert parse_status("<Idle|MPos:a,b,c>", "XYZ", wco, received_at=3.0)[0] is None
+
+
+def test_sim_configs_keep_old_defaults():
+    from drivers.sim.platform import SimFault, SimPlatform, SimPlatformConfig
+    from drivers.sim.rig import SimRigConfig
+
+    c = SimPlatformConfig()
+    assert (c.seconds_per_m, c.rotation_deg_per_s, c.settle_s, c.dof, c.realtime_factor, c.timeout_s, c.name) == (
+        150.0, 5.0, 0.2, 6, None, 600.0, "sim")
+    p = SimPlatform(dof=3, timeout_s=3.0)
+    assert (p.dof, p.timeout_s, p.rotation_rad_per_s) == (3, 3.0, math.radians(5.0))
+    with pytest.raises(ValueError):
+        SimPlatform(dof=4)
+    assert [f.value for f in SimFault] == ["timeout", "estop", "disconnect"]
+    r = SimRigConfig()
+    assert (r.lighting, r.seed, r.noise, r.intrinsics_error, r.supersample, r.exposure, r.dof,
+            r.workspace_half_m, r.scene_seed, r.session_seed) == ("front", 0, "default", "default", 1, "auto", 6,
+                                                                  0.25, 0, 0)
