@@ -222,7 +222,7 @@ def test_ctrl_c_while_a_person_moves_the_mount_says_stopped_and_nothing_written(
 
 
 def test_ctrl_c_during_a_bare_diff_names_the_incomplete_outputs(capsys, monkeypatch, tmp_path):
-    import fgcd_cli.report.usecases as usecases
+    import fgcd_cli.app.diff as usecases
     from fgcd_cli.cli.app import app
 
     def interrupted(*args, **kwargs):

@@ -6,9 +6,9 @@ from types import SimpleNamespace
 import numpy as np
 from rich.console import Console
 
-import fgcd_cli.demo as demo_mod
+import fgcd_cli.app.demo as demo_mod
 from fgcd_cli.cli.demo_cmd import summary_lines
-from fgcd_cli.demo import DemoConfig, count_changes_found, run_demo
+from fgcd_cli.app.demo import DemoConfig, count_changes_found, run_demo
 from fgcd_cli.metrics.sim_eval import score_change_detection
 
 
@@ -66,7 +66,7 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
             return result(*args, **kwargs) if callable(result) else result
         return run
 
-    def relocate(rig, station, **kwargs):
+    def relocate(rig, station, *args, **kwargs):
         with station.new_visit({"lightings": ["front"]}) as w:
             w.add_image("front", np.zeros((4, 4), np.uint8))
             w.commit()
@@ -80,9 +80,10 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
         return SimpleNamespace(observation_path="r", cloud_points=10, scale=SimpleNamespace(scale=1.0))
 
     import fgcd_cli.metrics.sim_eval as sim_eval
-    import fgcd_cli.relocation.capture as capture
-    import fgcd_cli.report.usecases as usecases
-    import fgcd_cli.rigs as rigs
+    import fgcd_cli.app.capture as capture
+    import fgcd_cli.app.diff as usecases
+    import fgcd_cli.app.relocate as relocate_uc
+    import fgcd_cli.app.rig as rigs
 
     monkeypatch.setattr(demo_mod, "calibrate_sim_intrinsics", long_step("intrinsics", None))
     monkeypatch.setattr(demo_mod, "calibrate_sim_handeye", long_step("hand-eye", {"T_flange_cam": np.eye(4).tolist()}))
@@ -91,7 +92,7 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
     monkeypatch.setattr(sim_eval.RelocationEvaluator, "from_reference",
                         classmethod(lambda cls, sim, ref: SimpleNamespace(evaluate=None, summary=None)))
     monkeypatch.setattr(capture, "capture_reference", long_step("capture", capture_ref))
-    monkeypatch.setattr(capture, "relocate_and_capture", long_step("relocate", relocate))
+    monkeypatch.setattr(relocate_uc, "relocate_and_capture", long_step("relocate", relocate))
     monkeypatch.setattr(usecases, "run_campaign", long_step("diff", {}))
 
     run_demo(tmp_path / "d", config=DemoConfig(), say=lambda text: events.append(("say", text)),

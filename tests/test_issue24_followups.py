@@ -88,11 +88,14 @@ def test_no_terminal_and_no_yes_is_refused_before_anything_is_created(camp, comm
 @pytest.fixture
 def stand_in_rig(monkeypatch):
     """``open_rig`` replaced by a stand-in that records its options and asks the first-motion question."""
+    import fgcd_cli.app.rig as app_rig
     import fgcd_cli.rigs as rigs
 
     seen: dict = {}
 
-    def open_rig(**kwargs):
+    def open_rig(request=None, *, hooks=None, **kwargs):
+        if request is not None:  # the use cases' typed form: RigRequest + RigHooks
+            kwargs = {**request.__dict__, **hooks.__dict__}
         seen.update(kwargs)
         if kwargs.get("confirm") is not None:
             seen["answer"] = kwargs["confirm"]("First motion of this session on 'sim': move flange by (1, 0, 0) mm. "
@@ -104,6 +107,7 @@ def stand_in_rig(monkeypatch):
                               info={"scenario": None})
 
     monkeypatch.setattr(rigs, "open_rig", open_rig)
+    monkeypatch.setattr(app_rig, "open_rig", open_rig)
     return seen
 
 
@@ -116,7 +120,7 @@ def _result(path="visit"):
 
 def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, monkeypatch, capsys):
     import fgcd_cli.cli.output as output
-    import fgcd_cli.relocation.capture as capture_uc
+    import fgcd_cli.app.relocate as capture_uc
 
     monkeypatch.setattr(output, "stdin_is_terminal", lambda: True)
     monkeypatch.setattr(sys, "stdin", io.StringIO("y\n"))
@@ -131,7 +135,7 @@ def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, monkey
 # ----------------------------------------------------------------------------- 2: Ctrl-C line
 def test_ctrl_c_during_a_relocation_names_the_platform_and_the_unwritten_visit(camp, stand_in_rig, monkeypatch,
                                                                                capsys):
-    import fgcd_cli.relocation.capture as capture_uc
+    import fgcd_cli.app.relocate as capture_uc
 
     def interrupted(rig, station, **kwargs):
         with run_record.motion():
@@ -145,7 +149,7 @@ def test_ctrl_c_during_a_relocation_names_the_platform_and_the_unwritten_visit(c
 
 
 def test_ctrl_c_during_a_capture_says_nothing_written_and_leaves_no_station(camp, stand_in_rig, monkeypatch, capsys):
-    import fgcd_cli.relocation.capture as capture_uc
+    import fgcd_cli.app.capture as capture_uc
 
     def interrupted(rig, station, **kwargs):
         raise KeyboardInterrupt
@@ -264,7 +268,7 @@ def test_the_rig_guard_marks_its_motions_and_not_its_question():
 
 
 def test_the_reference_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypatch):
-    import fgcd_cli.relocation.capture as capture_uc
+    import fgcd_cli.app.capture as capture_uc
     from fgcd_cli.relocation.session import ScaleEstimate
 
     class Cloud:
@@ -279,7 +283,7 @@ def test_the_reference_is_named_not_written_when_ctrl_c_comes_while_writing(monk
     session = SimpleNamespace(move_to_flange=lambda *a, **k: 0.0, tracking_state=lambda: state,
                               settle=lambda **k: state, timing=SimpleNamespace(platform_s=0.0))
     scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=3, residual_rms_mm=0.0, method="test")
-    monkeypatch.setattr(capture_uc, "_start_session",
+    monkeypatch.setattr(capture_uc, "start_session",
                         lambda rig, **k: (session, SimpleNamespace(stop=lambda: None), scale, np.eye(4)))
     monkeypatch.setattr(capture_uc, "grab_images", lambda rig, lightings: {"front": np.zeros((4, 4), np.float32)})
 
@@ -306,7 +310,7 @@ def test_the_reference_is_named_not_written_when_ctrl_c_comes_while_writing(monk
 
 def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypatch):
     import fgcd_cli.alignment as alignment
-    import fgcd_cli.relocation.capture as capture_uc
+    import fgcd_cli.app.relocate as capture_uc
     from fgcd_cli.relocation.session import ScaleEstimate
 
     class Cloud:
@@ -326,10 +330,10 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
     monkeypatch.setattr(alignment, "ReferenceIndex", lambda *a, **k: None)
     monkeypatch.setattr(alignment, "initial_guess", lambda **k: SimpleNamespace(T_ref_cur=np.eye(4), source="test",
                                                                                  fast=None))
-    monkeypatch.setattr(capture_uc, "_start_session",
+    monkeypatch.setattr(capture_uc, "start_session",
                         lambda rig, **k: (session, SimpleNamespace(stop=lambda: None), scale, np.eye(4)))
     monkeypatch.setattr(capture_uc, "run_relocation", lambda **k: result)
-    monkeypatch.setattr(capture_uc, "_reference_images", lambda station: {})
+    monkeypatch.setattr(capture_uc, "reference_images", lambda station: {})
     monkeypatch.setattr(capture_uc, "grab_images", lambda rig, lightings: {"front": np.zeros((4, 4), np.float32)})
 
     class Writer:
@@ -421,7 +425,7 @@ def test_handeye_on_hardware_without_its_address_is_bad_input(camp, driver, opti
     (["--changes", "-1"], ("--changes",)),
 ])
 def test_demo_checks_its_options_before_it_starts(tmp_path, monkeypatch, capsys, args, mentions):
-    import fgcd_cli.demo as demo_mod
+    import fgcd_cli.app.demo as demo_mod
 
     def never(*a, **k):
         raise AssertionError("the demo started with a bad option")
@@ -435,7 +439,7 @@ def test_demo_checks_its_options_before_it_starts(tmp_path, monkeypatch, capsys,
 
 # ----------------------------------------------------------------------------- 5: relocation progress
 def test_relocate_hands_a_progress_callback_to_the_rig(camp, stand_in_rig, monkeypatch, capsys):
-    import fgcd_cli.relocation.capture as capture_uc
+    import fgcd_cli.app.relocate as capture_uc
 
     monkeypatch.setattr(capture_uc, "relocate_and_capture", lambda *a, **k: _result())
     assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--yes"]) == 0

@@ -50,10 +50,10 @@ def demo(
 ) -> None:
     """Run a complete simulated campaign: calibrate, capture, relocate under other light, diff, report."""
     from fgcd_cli.cli.progress import step_progress
-    from fgcd_cli.demo import DemoConfig, run_demo
+    from fgcd_cli.app import demo as demo_uc
     from fgcd_cli.errors import UserInputError
 
-    from fgcd_cli.rigs import check_lighting, check_scene
+    from fgcd_cli.app.scenario import check_lighting, check_scene
 
     # every option with a closed set of values, before anything is created or calibrated
     if vse not in ("mono", "rgbd"):
@@ -70,7 +70,7 @@ def demo(
     # Every step of the demo reports through on_progress: a live bar with its elapsed time, so
     # no step runs silently; lines (info, print_record) print above it.
     with step_progress(enabled=not as_json) as bar:
-        summary = run_demo(out, config=DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse),
+        summary = demo_uc.run_demo(out, config=demo_uc.DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse),
                            say=info, on_record=print_record, on_progress=bar)
 
     def render(c) -> None:

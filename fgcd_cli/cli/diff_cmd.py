@@ -116,7 +116,7 @@ def diff(
     they cannot be compared honestly (black, textureless, not overlapping): the
     report and regions.json are still written and say why; 2 for bad input.
     """
-    from fgcd_cli.report.usecases import run_bare, run_campaign
+    from fgcd_cli.app import diff as diff_uc
     from fgcd_cli.errors import UserInputError
 
     if campaign is not None or station is not None:
@@ -127,7 +127,7 @@ def diff(
         run_record.no_platform()
         where = output or f"visit {visit or '(latest)'} of station '{station}'"
         with run_record.writing(f"the change maps and report in {where}", whole=False):
-            data = run_campaign(campaign, station, visit=visit, eval_mask=eval_mask, mm_per_px=mm_per_px,
+            data = diff_uc.run_campaign(campaign, station, visit=visit, eval_mask=eval_mask, mm_per_px=mm_per_px,
                                 register=not no_register, output=output, edge_check_px=edge_check,
                                 progress=None if as_json else info)
     else:
@@ -140,9 +140,10 @@ def diff(
             run_record.writing(f"the change maps and report in {output}", whole=False),
             tile_progress_bar(enabled=not as_json) as tile_progress,
         ):
-            data = run_bare(ref, cur, output, eval_mask=eval_mask, truth=truth, mm_per_px=mm_per_px,
-                            register=not no_register, edge_check_px=edge_check or 0, ambient_index=ambient_index,
-                            progress=None if as_json else info, tile_progress=tile_progress)
+            request = diff_uc.BareDiffRequest(ref=ref, cur=cur, output=output, eval_mask=eval_mask, truth=truth,
+                                              mm_per_px=mm_per_px, register=not no_register,
+                                              edge_check_px=edge_check or 0, ambient_index=ambient_index)
+            data = diff_uc.run_bare(request=request, progress=None if as_json else info, tile_progress=tile_progress)
     emit(data, as_json=as_json, render=_render(data))
     if not data["comparable"]:
         from fgcd_cli.errors import AlgorithmError

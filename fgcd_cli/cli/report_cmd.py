@@ -18,7 +18,7 @@ def report(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Station history: every visit compared with the reference (visits not yet compared are compared now)."""
-    from fgcd_cli.report.usecases import station_history
+    from fgcd_cli.app.report import station_history
 
     run_record.no_platform()
     # Visits not yet compared get their change maps first, one file at a time.

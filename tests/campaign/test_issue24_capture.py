@@ -67,16 +67,16 @@ def fake_capture(monkeypatch):
     """The rig and the capture use case replaced by fast stand-ins; records the scenario the rig was opened with."""
     from types import SimpleNamespace
 
+    import fgcd_cli.app.capture as capture_uc
+    import fgcd_cli.app.rig as rigs
     import fgcd_cli.metrics.sim_eval as sim_eval
-    import fgcd_cli.relocation.capture as capture_uc
-    import fgcd_cli.rigs as rigs
 
     seen: dict = {"fail": None}
 
-    def open_rig(**kwargs):
-        seen["scenario"] = kwargs.get("scenario")
+    def open_rig(request, **kwargs):
+        seen["scenario"] = request.scenario
         return SimpleNamespace(handles=None, close=lambda: None, sim=None,
-                               info={"scenario": kwargs["scenario"].__dict__ if kwargs.get("scenario") else None})
+                               info={"scenario": request.scenario.__dict__ if request.scenario else None})
 
     def capture_reference(handles, station, *, lightings, metadata=None, evaluation=None):
         if seen["fail"] is not None:

@@ -95,7 +95,7 @@ def test_diff_edge_check_option(tmp_path):
 def test_large_frames_take_the_tiled_path_with_the_same_change(image_files, tmp_path, monkeypatch):
     # A frame above LARGE_FRAME_PX goes through detect_changes_tiled; lowered here so the
     # 256 px pair takes that path: the same change is found at the same place.
-    from fgcd_cli.report import usecases
+    from fgcd_cli.app import diff as usecases
 
     monkeypatch.setattr(usecases, "LARGE_FRAME_PX", 10_000)
     calls = []

@@ -1,0 +1,278 @@
+"""The capture use case: check a capture's options, open the rig, and write a station's immutable reference.
+
+``plan_capture`` checks every option before anything is created, opened or
+moved; ``run_capture`` opens the rig and runs ``capture_reference``: start the
+VSE, explore, estimate the map scale, come back to the chosen pose, and write
+the reference observation (metric cloud, reference camera pose, keyframes,
+images under each lighting).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
+from fgcd_cli.app.scenario import (
+    Driver,
+    SimScenario,
+    check_connection,
+    check_driver,
+    check_lighting,
+    check_scenario,
+    check_scene,
+)
+from fgcd_cli.app.session import grab_images, metric_keyframes, start_session
+from fgcd_cli.campaign import schema
+from fgcd_cli.campaign.records import campaign_world, rig_calibration
+from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError, run_record
+from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_cli.relocation.coarse import CoarseResult
+from fgcd_cli.relocation.loop import RelocationResult
+from fgcd_cli.relocation.session import ScaleEstimate
+
+__all__ = ["CapturePlan", "CaptureRequest", "CaptureResult", "CaptureOutcome", "capture_reference", "connection",
+           "plan_capture", "run_capture"]
+
+
+@dataclass
+class CaptureResult:
+    """Summary of a capture or a visit."""
+
+    observation_path: str
+    scale: ScaleEstimate
+    cloud_points: int
+    images: list[str]
+    relocation: RelocationResult | None = None
+    extra: dict = field(default_factory=dict)
+    coarse: CoarseResult | None = None
+    """The active coarse stage's outcome, when it ran (far starts only)."""
+
+
+def capture_reference(
+    rig: RigHandles,
+    station,
+    *,
+    lightings: list[str],
+    explore_m: float = 0.05,
+    metadata: dict | None = None,
+    evaluation: dict | None = None,
+) -> CaptureResult:
+    """Capture the immutable reference observation of ``station`` at the platform's current pose."""
+    rig.progress(0, 0, "starting the VSE")
+    session, vse, scale, T_base_flange_ref = start_session(rig, explore_m=explore_m)
+    try:
+        session.move_to_flange(T_base_flange_ref, label="back to the reference pose")
+        rig.progress(0, 0, "letting the reference cloud mature")
+        state = session.tracking_state()
+        # a few more frames at the reference pose let the semi-dense cloud mature
+        state = session.settle(frames=6)
+        if state.status != "tracking":
+            raise AlgorithmError(f"the VSE lost track at the reference pose ({state.message})")
+        T_ref_camref = np.array(state.T_map_cam, dtype=float)
+        T_ref_camref[:3, 3] *= scale.scale
+        cloud = state.cloud
+        if len(cloud) < 1000:
+            raise AlgorithmError(f"the reference cloud has only {len(cloud)} points: scene too weakly textured for rACR")
+        points = np.asarray(cloud.points, dtype=float) * scale.scale
+        kf_poses, kf_images = metric_keyframes(state, scale.scale)
+        images = grab_images(rig, lightings)
+        meta = {
+            "lightings": lightings,
+            "scale": scale.__dict__,
+            "T_flange_cam": np.asarray(rig.T_flange_cam).tolist(),
+            "T_base_flange": np.asarray(rig.guard.platform.flange_pose()).tolist(),
+            "intrinsics": rig.intrinsics.to_dict(),
+            "cloud_points": int(len(points)),
+            "keyframes": int(len(kf_poses)),
+            "platform_s": session.timing.platform_s,
+            **(metadata or {}),
+        }
+        rig.progress(0, 0, "writing the reference")
+        with run_record.writing(f"the reference of station '{station.name}'"), station.write_reference(meta) as w:
+            for name, img in images.items():
+                w.add_image(name, img)
+            w.add_cloud(points, colors=np.asarray(cloud.intensities, dtype=np.float32))
+            w.add_array(schema.ARRAY_CLOUD_INTENSITIES, np.asarray(cloud.intensities, dtype=np.float32))
+            w.add_array(schema.ARRAY_T_REF_CAMREF, T_ref_camref)
+            w.add_array(schema.ARRAY_KEYFRAME_POSES, kf_poses)
+            w.add_array(schema.ARRAY_KEYFRAME_IMAGES, kf_images.astype(np.float32))
+            if evaluation is not None:
+                w.add_json(schema.SIM_TRUTH, evaluation)
+            obs = w.commit()
+    finally:
+        vse.stop()
+    return CaptureResult(str(obs.path), scale, int(len(points)), list(images))
+
+
+@dataclass(frozen=True, kw_only=True)
+class CapturePlan:
+    """Everything a capture needs, checked before anything is created, opened or moved.
+
+    Attributes
+    ----------
+    driver : str
+        Platform driver (``fgcd_cli.app.scenario.DRIVERS``).
+    lightings : list of str
+        Lightings of the reference images (canonical preset names on the simulator).
+    scenario : SimScenario or None
+        The simulated world of the station (simulator only).
+    T_flange_cam : (4, 4) ndarray
+        The campaign's hand-eye.
+    camera : PinholeCamera or None
+        The campaign's intrinsics (required on hardware).
+    port, host : str or None
+        Address of a GRBL stage / UR arm (option, else campaign.toml ``[rig]``).
+    station : str
+        The station to capture.
+    """
+
+    driver: str
+    lightings: list[str]
+    scenario: SimScenario | None
+    T_flange_cam: np.ndarray
+    camera: PinholeCamera | None
+    port: str | None = None
+    host: str | None = None
+    station: str = ""
+
+
+def check_station_can_take_a_reference(campaign, name: str) -> None:
+    """Refuse a damaged station or one that already has its (immutable) reference; writes nothing."""
+    st = campaign.existing_station(name)  # DataIntegrityError when station.json is damaged
+    if st is None:
+        return
+    if st.reference_path.exists():
+        raise ImmutableDataError(f"station '{st.name}' already has a reference observation (immutable): "
+                                 "create a new station to capture another reference")
+
+
+def _image_lightings(text: str, *, sim: bool) -> list[str]:
+    """The comma-separated lightings of the reference images, checked (simulator: known presets)."""
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    if not names:
+        raise UserInputError("--lightings names no lighting")
+    if sim:
+        names = [check_lighting(n, option="--lightings") for n in names]
+    if len(set(names)) != len(names):
+        raise UserInputError(f"--lightings names a lighting twice: {text}")
+    return names
+
+
+@dataclass(frozen=True, kw_only=True)
+class CaptureRequest:
+    """The options of a capture, as given (``fgcd capture``); :func:`plan_capture` checks them.
+
+    Attributes
+    ----------
+    station : str
+        Station to capture (created if missing).
+    driver : str or None
+        Platform driver (None: the campaign's ``[rig] driver``, else ``sim``).
+    scene, seed : str, int or None
+        The station's simulated world (None: the campaign's ``[rig.sim]``).
+    light : str
+        Lighting of the capture (simulator).
+    lightings : str or None
+        Comma-separated lightings of the reference images (None: ``light``).
+    port, host : str or None
+        Address of a GRBL stage / UR arm (None: campaign.toml ``[rig]``).
+    """
+
+    station: str
+    driver: str | None = None
+    scene: str | None = None
+    seed: int | None = None
+    light: str = "front"
+    lightings: str | None = None
+    port: str | None = None
+    host: str | None = None
+
+
+def plan_capture(campaign, request: CaptureRequest | None = None, **options) -> CapturePlan:
+    """Check every option of a capture, in the order a person fixes them; nothing is written.
+
+    Station (name, damage, existing reference) -> driver -> world (scene)
+    -> the driver's address -> lights -> calibration. The simulated world is the station's: ``--scene``
+    and ``--seed`` override the campaign's default ``[rig.sim]`` for this
+    station only, and are recorded in its reference. The former keyword form
+    ``plan_capture(campaign, station=..., driver=..., ...)`` builds the request from ``options``.
+    """
+    r = request if request is not None else CaptureRequest(**options)
+    check_station_can_take_a_reference(campaign, r.station)
+    driver = check_driver(r.driver or campaign.rig_config.get("driver", Driver.SIM))
+    scenario = None
+    if driver == Driver.SIM:
+        world = campaign_world(campaign)
+        if r.scene is None:
+            try:
+                check_scene(world["scene"])
+            except UserInputError as exc:
+                raise CampaignError(f"campaign.toml [rig.sim] names a world this simulator lacks: {exc}; "
+                                    "give --scene") from None
+        scenario = check_scenario(SimScenario(scene=r.scene or world["scene"],
+                                              seed=world["seed"] if r.seed is None else r.seed,
+                                              noise=world["noise"], lighting=r.light))
+    elif r.scene is not None or r.seed is not None:
+        raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, not {driver}")
+    port, host = connection(campaign, driver, port=r.port, host=r.host)
+    names = _image_lightings(r.lightings or r.light, sim=driver == Driver.SIM)
+    T_flange_cam, cam = rig_calibration(campaign)
+    if T_flange_cam is None:
+        raise CampaignError("no hand-eye calibration in the campaign: run `fgcd calibrate hand-eye` first")
+    if driver != Driver.SIM and cam is None:
+        raise CampaignError("no camera intrinsics in the campaign: run `fgcd calibrate intrinsics -c CAMPAIGN` first")
+    return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam,
+                       port=port, host=host, station=r.station)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CaptureOutcome:
+    """What a capture wrote (``fgcd capture``'s result)."""
+
+    station: str
+    result: CaptureResult
+    scene: str | None
+
+    def to_dict(self) -> dict:
+        """The JSON object ``fgcd capture --json`` prints."""
+        r = self.result
+        return {"station": self.station, "reference": r.observation_path, "cloud_points": r.cloud_points,
+                "scale": r.scale.scale, "images": r.images, "scene": self.scene}
+
+
+def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) -> CaptureOutcome:
+    """Open the plan's rig and capture the reference of ``plan.station`` (created if missing).
+
+    Rule: a capture that fails leaves no station behind, and never changes campaign.toml.
+    """
+    from fgcd_cli.app import rig as rig_uc
+    from fgcd_cli.metrics.sim_eval import reference_truth
+
+    run_record.no_writes()
+    with campaign.station_for_writing(plan.station) as st:
+        rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
+                                         scenario=plan.scenario, port=plan.port, host=plan.host), hooks=hooks)
+        run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
+        with rig_uc.opened(rig):
+            result = capture_reference(
+                rig.handles, st, lightings=plan.lightings,
+                metadata={"driver": plan.driver, "scenario": rig.info.get("scenario")},
+                evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
+            )
+    return CaptureOutcome(station=plan.station, result=result,
+                          scene=plan.scenario.scene if plan.scenario is not None else None)
+
+
+def connection(campaign, driver: str, *, port: str | None, host: str | None) -> tuple[str | None, str | None]:
+    """``(port, host)`` of a hardware driver (options first, then campaign.toml [rig]); UserInputError when missing.
+
+    Checked before anything is created or opened, like ``fgcd platform``.
+    """
+    port = port or campaign.rig_config.get("port")
+    host = host or campaign.rig_config.get("host")
+    check_connection(driver, port=port, host=host)
+    return port, host
+
+

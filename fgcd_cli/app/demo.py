@@ -1,0 +1,320 @@
+"""The demo use case (``fgcd demo``): a complete campaign on the simulator, step by step.
+
+calibrate (target-free hand-eye + scale) → capture a reference under one light
+→ change the lighting and inject fine-grained changes → relocate from a
+displaced start with the rACR loop → diff → report. Every step uses the same
+use cases as the field commands.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from fgcd_cli.campaign import init_campaign, schema
+from fgcd_cli.errors import CampaignError
+
+__all__ = ["DemoConfig", "count_changes_found", "run_demo"]
+
+ProgressCallback = Callable[[int, int, str], None]
+"""``on_progress(done, total, label)``: progress of a long step (``total <= 0``: length unknown).
+The demo reports every step through it, so that the CLI can show each one live (no silence)."""
+
+
+def _tick(on_progress: ProgressCallback | None, done: int, total: int, label: str) -> None:
+    if on_progress is not None:
+        on_progress(done, total, label)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DemoConfig:
+    """Scenario of the demo."""
+
+    scene: str = "relief_panel"
+    seed: int = 0
+    reference_light: str = "front"
+    visit_light: str = "led:3"
+    changes: int = 4
+    change_size_mm: tuple[float, float] = (15.0, 35.0)
+    start_offset_mm: float = 25.0
+    start_offset_deg: float = 2.5
+    station: str = "niche-figure"
+    vse: str = "mono"
+
+
+def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None],
+                             on_progress: ProgressCallback | None = None):
+    """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
+    from drivers.sim.board import SimBoard
+    from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
+    from fgcd_cli.calibration.rig import save_intrinsics
+    from fgcd_cli.app.rig import open_sim_rig
+
+    board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
+    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)
+    try:
+        source = rig.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
+                                               square_m=board.square_m, marker_m=board.marker_m,
+                                               dictionary=board.dictionary), seed=scenario.seed)
+        images = []
+        for k in range(views):
+            _tick(on_progress, k, views, "rendering board views")
+            images.append(source.grab().image)
+    finally:
+        rig.close()
+    _tick(on_progress, 0, 0, "calibrating the intrinsics (ChArUco)")
+    result = calibrate_intrinsics(images, board, names=[f"view_{i:02d}" for i in range(views)])
+    save_intrinsics(campaign, result)
+    say(f"intrinsics: fx {result.camera.fx:.1f} px, RMS {result.rms_px:.3f} px over {result.n_views} views")
+    return result.camera
+
+
+def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], camera=None,
+                          on_progress: ProgressCallback | None = None) -> dict:
+    """Target-free hand-eye + scale on the simulated rig; stored in the campaign rig."""
+    from fgcd_cli.calibration.procedure import run_target_free
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.vse import MonocularVSE
+
+    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=camera, on_event=say, on_progress=on_progress)
+    try:
+        run = run_target_free(
+            rig.handles.guard,
+            rig.handles.camera_source,
+            lambda cam: MonocularVSE(cam),
+            camera=rig.handles.intrinsics,
+            progress=say,
+            on_progress=on_progress,
+        )
+    finally:
+        rig.close()
+    record = run.result.to_dict()
+    campaign.write_rig("handeye", record)
+    return record
+
+
+def change_ids_in_reference(sim_rig, T_world_camref: np.ndarray, camera_used) -> np.ndarray:
+    """Which injected change each pixel of the stored reference image shows (HxW int32, 0 = none).
+
+    Evaluation only. Like :func:`fgcd_cli.metrics.sim_eval.change_truth_in_reference`, but
+    keeping each change's identity (1 + its index among the injected changes), remapped
+    like the stored images with a nearest-neighbour lookup so that identities never mix.
+    """
+    gt = sim_rig.ground_truth
+    ids = gt.change_ids(np.asarray(T_world_camref, dtype=float), gt.intrinsics_true())
+    if camera_used is not None and camera_used.has_distortion:
+        from fgcd_cli.vse.undistort import Undistorter
+
+        ids = Undistorter(camera_used).depth(ids.astype(np.float32))
+    return np.rint(ids).astype(np.int32)
+
+
+def count_changes_found(found: np.ndarray, truth_ids: np.ndarray, *, injected: int) -> dict:
+    """How many injected changes a change mask found, counted by change, not by blob.
+
+    A change seen as several pieces (a crack broken by the relief, a stain cut by a
+    shadow) is still one change, found when any of its pixels is found.
+
+    Parameters
+    ----------
+    found : ndarray, HxW bool; the tool's change mask (reference image).
+    truth_ids : ndarray, HxW int; 0 where no change, else the change's identity (1-based).
+    injected : int, keyword-only; changes injected into the world (some may be out of view).
+
+    Returns
+    -------
+    dict with ``injected_changes``, ``true_changes`` (injected changes in view of the
+    reference image) and ``true_changes_found``.
+    """
+    found = np.asarray(found, dtype=bool)
+    ids = np.asarray(truth_ids)
+    in_view = set(np.unique(ids[ids > 0]).tolist())
+    hit = set(np.unique(ids[found & (ids > 0)]).tolist())
+    return {"injected_changes": int(injected), "true_changes": len(in_view), "true_changes_found": len(hit)}
+
+
+def _evaluate_changes(visit, station, *, scenario, X: np.ndarray, camera, injected: int) -> dict:
+    """Score the visit's change mask against the simulator's truth (the tool never saw it)."""
+    import cv2
+
+    from fgcd_cli.metrics.sim_eval import score_change_detection
+    from fgcd_cli.app.rig import open_sim_rig
+
+    found = cv2.imdecode(np.frombuffer(visit.bytes(schema.change_relpath(schema.CHANGE_MASK_PNG)), np.uint8), cv2.IMREAD_UNCHANGED) > 0
+    truth_ref = station.reference().json(schema.SIM_TRUTH)
+    rig = open_sim_rig(scenario, T_flange_cam=X, intrinsics=camera)
+    try:
+        ids = change_ids_in_reference(rig.sim, np.array(truth_ref["T_world_cam"]), camera)
+    finally:
+        rig.close()
+    # pixel scores and false regions from the shared scorer; changes counted by identity
+    return {**score_change_detection(found, ids > 0), **count_changes_found(found, ids, injected=injected)}
+
+
+def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[[str], None] = print,
+             on_record=None, on_progress: ProgressCallback | None = None) -> dict:
+    """Run the whole simulated campaign into ``out_dir``; returns a summary.
+
+    Parameters
+    ----------
+    out_dir : Path
+        Created; receives ``campaign/`` and ``summary.json``.
+    config : DemoConfig, keyword-only
+    say : callable(str), keyword-only
+        One line per milestone.
+    on_record : callable(AdjustmentRecord), keyword-only, optional
+        Each relocation adjustment, as it is made.
+    on_progress : callable(done, total, label), keyword-only, optional
+        Every step, as it runs (``total <= 0``: length unknown); no step is left
+        without one, so a live display is never silent.
+
+    Returns
+    -------
+    dict
+        The summary also written to ``summary.json``: ``campaign``, ``handeye``,
+        ``reference``, ``relocation``, ``diff``, ``wall_s``.
+    """
+    out_dir = Path(out_dir)
+    camp_dir = out_dir / "campaign"
+    if camp_dir.exists():
+        raise CampaignError(f"{camp_dir} already exists: choose another --out directory")
+    t0 = time.monotonic()
+    camp = init_campaign(camp_dir, site=f"Simulated {config.scene} (fgcd demo)",
+                         rig={"driver": "sim", "sim": {"scene": config.scene, "seed": config.seed}})
+    station = camp.create_station(config.station, description="simulated heritage object")
+    run = _DemoRun(config=config, campaign=camp, station=station, say=say, on_record=on_record,
+                   on_progress=on_progress)
+    summary: dict = {"campaign": str(camp_dir)}
+    summary["handeye"] = _calibrate(run)
+    summary["reference"] = _capture(run)
+    summary["relocation"] = _relocate(run)
+    summary["diff"] = _diff(run, camp_dir)
+    summary["wall_s"] = round(time.monotonic() - t0, 1)
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    return summary
+
+
+@dataclass
+class _DemoRun:
+    """The demo's state between its steps (the calibration and the revisit's world are set as they run)."""
+
+    config: DemoConfig
+    campaign: object
+    station: object
+    say: Callable[[str], None]
+    on_record: Callable | None
+    on_progress: ProgressCallback | None
+    X: np.ndarray | None = None
+    camera: object = None
+    visit_scenario: object = None
+
+    def tick(self, label: str) -> None:
+        """A step starts (unknown length)."""
+        _tick(self.on_progress, 0, 0, label)
+
+
+def _calibrate(run: _DemoRun) -> dict:
+    """Step 1: intrinsics and target-free hand-eye + scale, stored in the campaign rig; their summary."""
+    from fgcd_cli.app.scenario import SimScenario
+
+    config = run.config
+    run.say("1/5 calibrating hand-eye and map scale (target-free, rACR §3.2)")
+    base = SimScenario(scene=config.scene, seed=config.seed, lighting=config.reference_light, session_seed=100)
+    run.tick("building the simulated world")
+    run.camera = calibrate_sim_intrinsics(run.campaign, base, say=run.say, on_progress=run.on_progress)
+    run.tick("hand-eye: starting the VSE")
+    he = calibrate_sim_handeye(run.campaign, base, say=run.say, camera=run.camera, on_progress=run.on_progress)
+    run.X = np.array(he["T_flange_cam"], dtype=float)
+    return {k: he.get(k) for k in ("rms_rotation_deg", "rms_translation_mm", "n_samples") if k in he}
+
+
+def _capture(run: _DemoRun) -> dict:
+    """Step 2: the reference under the reference light; its summary."""
+    from fgcd_cli.app import capture as capture_uc
+    from fgcd_cli.app import rig as rig_uc
+    from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.metrics.sim_eval import reference_truth
+
+    config = run.config
+    run.say(f"2/5 capturing the reference under '{config.reference_light}'")
+    run.tick("opening the simulated rig")
+    rig = rig_uc.open_sim_rig(SimScenario(scene=config.scene, seed=config.seed, lighting=config.reference_light,
+                                          session_seed=0),
+                              T_flange_cam=run.X, intrinsics=run.camera, on_event=run.say, on_progress=run.on_progress,
+                              vse_variant=config.vse)
+    run.tick("capturing the reference")
+    try:
+        cap = capture_uc.capture_reference(rig.handles, run.station, lightings=[config.reference_light],
+                                           metadata={"driver": "sim", "scenario": rig.info["scenario"]},
+                                           evaluation=reference_truth(rig.sim))
+    finally:
+        rig.close()
+    return {"path": cap.observation_path, "cloud_points": cap.cloud_points, "scale": cap.scale.scale}
+
+
+def _relocate(run: _DemoRun) -> dict:
+    """Steps 3 and 4: the revisit's world (other light, injected changes, displaced start), relocation; its summary."""
+    from fgcd_cli.app import relocate as relocate_uc
+    from fgcd_cli.app import rig as rig_uc
+    from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.metrics.sim_eval import RelocationEvaluator
+    from fgcd_cli.relocation.loop import RelocationConfig
+
+    config = run.config
+    run.say(f"3/5 revisit: light '{config.visit_light}', {config.changes} injected changes, start displaced by "
+            f"{config.start_offset_mm:.0f} mm / {config.start_offset_deg:.1f} deg")
+    run.tick("changing the light, injecting the changes")
+    run.visit_scenario = SimScenario(scene=config.scene, seed=config.seed, lighting=config.visit_light,
+                                     changes=config.changes, change_seed=7, change_size_mm=config.change_size_mm,
+                                     start_offset_mm=config.start_offset_mm, start_offset_deg=config.start_offset_deg,
+                                     session_seed=1)
+    rig = rig_uc.open_sim_rig(run.visit_scenario, T_flange_cam=run.X, intrinsics=run.camera, on_event=run.say,
+                              on_progress=run.on_progress, vse_variant=config.vse)
+    evaluator = RelocationEvaluator.from_reference(rig.sim, run.station.reference())
+    run.say("4/5 relocating (parallel rACR loop)")
+    run.tick("relocating (parallel rACR loop)")
+    try:
+        vis = relocate_uc.relocate_and_capture(
+            rig.handles, run.station,
+            relocate_uc.RelocateRequest(config=RelocationConfig(),
+                                        lightings=[config.visit_light, config.reference_light],
+                                        metadata={"driver": "sim", "scenario": rig.info["scenario"]}),
+            hooks=relocate_uc.RelocateHooks(evaluate=evaluator.evaluate, on_record=run.on_record,
+                                            evaluation=evaluator.summary))
+    finally:
+        rig.close()
+    reloc = vis.relocation
+    return {
+        "converged": reloc.converged, "reason": reloc.reason, "adjustments": reloc.adjustments,
+        "session_s": round(reloc.session_s, 1), "wall_s": round(reloc.wall_s, 1),
+        "final_truth": reloc.records[-1].truth if reloc.records else None, "visit": vis.observation_path,
+    }
+
+
+def _diff(run: _DemoRun, camp_dir: Path) -> dict:
+    """Step 5: change detection and report, scored against the simulator's truth; their summary."""
+    from fgcd_cli.app import diff as diff_uc
+
+    config = run.config
+    run.say("5/5 change detection and report")
+    run.tick("change detection and report")
+    diff = diff_uc.run_campaign(camp_dir, config.station)
+    visit = run.station.visit()
+    summary = {
+        "regions": len(diff.get("regions", [])),
+        "set_aside_regions": (diff.get("settings") or {}).get("edge_explained_regions", 0),
+        "changed_fraction": diff.get("changed_fraction"),
+        "comparable": diff.get("comparable"),
+        "report": str(visit.path / schema.REPORT_HTML),
+    }
+    mask_file = schema.change_relpath(schema.CHANGE_MASK_PNG)
+    if visit.has(mask_file):
+        run.tick("scoring against the simulator's truth")
+        summary["evaluation"] = _evaluate_changes(visit, run.station, scenario=run.visit_scenario, X=run.X,
+                                                  camera=run.camera, injected=config.changes)
+    return summary

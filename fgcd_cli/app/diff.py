@@ -1,0 +1,310 @@
+"""The diff use case (``fgcd diff``): compare a visit with its station's reference, or two sets of image files, and write the products.
+
+Plain functions (no typer); the CLI parses options and renders what they return.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from fgcd_cli.campaign import schema
+from fgcd_cli.campaign.atomic import atomic_write_bytes
+from fgcd_cli.changes import detect_changes
+from fgcd_cli.changes.images import to_float_image, to_gray
+from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
+from fgcd_cli.changes.regions import pixel_area_from_cloud
+from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
+from fgcd_cli.metrics.afd import FdfResult, compute_fdf
+from fgcd_cli.report.products import diff_products, result_summary
+
+Progress = Callable[[str], None] | None
+TileProgress = Callable[[int, int, str], None] | None
+
+LARGE_FRAME_PX = 8_000_000
+"""Frames above this many pixels are compared tile by tile in bounded memory
+(:func:`fgcd_cli.changes.tiled.detect_changes_tiled`; ``docs/change-detection.md``)."""
+
+
+def _say(progress: Progress, message: str) -> None:
+    if progress is not None:
+        progress(message)
+
+
+def measure_fdf(ref_image: np.ndarray, cur_image: np.ndarray) -> FdfResult | None:
+    """FDF with the authors' SIFT protocol, falling back to the grid variant; None if both fail."""
+    ref = to_gray(to_float_image(ref_image, name="reference image"))
+    cur = to_gray(to_float_image(cur_image, name="current image"))
+    if ref.shape != cur.shape:
+        return None
+    for method in ("sift", "grid"):
+        try:
+            return compute_fdf(ref, cur, method=method)
+        except AlgorithmError:
+            continue
+    return None
+
+
+def _write_dir(output: Path, files: dict[str, bytes]) -> None:
+    output.mkdir(parents=True, exist_ok=True)
+    for name, data in files.items():
+        atomic_write_bytes(output / name, data)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BareDiffRequest:
+    """A comparison of image files (``fgcd diff --ref ... --cur ...``).
+
+    Attributes
+    ----------
+    ref, cur : list of str
+        Image files or glob patterns, one per lighting, in the same order.
+    output : Path
+        Directory the products are written to.
+    eval_mask : Path or None
+        Mask of the pixels to compare.
+    truth : Path or None
+        Mask of the true changes (scores the result).
+    mm_per_px : float or None
+        Scale of the reference image, millimetres per pixel.
+    register : bool
+        Register the current images onto the reference first.
+    edge_check_px : int
+        Region-level edge check shift, pixels (0: off).
+    ambient_index : int or None
+        0-based index of the ambient-only image (left out of photometric stereo).
+    """
+
+    ref: list[str]
+    cur: list[str]
+    output: Path
+    eval_mask: Path | None = None
+    truth: Path | None = None
+    mm_per_px: float | None = None
+    register: bool = True
+    edge_check_px: int = 0
+    ambient_index: int | None = None
+
+
+def run_bare(ref: list[str] | None = None, cur: list[str] | None = None, output: Path | None = None, *,
+             request: BareDiffRequest | None = None, progress: Progress = None, tile_progress: TileProgress = None,
+             **options) -> dict:
+    """Compare image files (one per lighting) and write the products into ``output``.
+
+    ``ambient_index`` (0-based) names the image taken under ambient light only; it is
+    left out of the photometric-stereo fit that labels regions relief / colour. The former
+    form ``run_bare(ref, cur, output, eval_mask=..., ...)`` builds the request from ``options``.
+    """
+    if request is None:
+        request = BareDiffRequest(ref=ref, cur=cur, output=output, **options)
+    r = request
+    output, eval_mask, truth, mm_per_px, register = r.output, r.eval_mask, r.truth, r.mm_per_px, r.register
+    edge_check_px, ambient_index = r.edge_check_px, r.ambient_index
+    ref, cur = r.ref, r.cur
+    ref_paths = expand_image_args(ref, what="--ref")
+    cur_paths = expand_image_args(cur, what="--cur")
+    if ambient_index is not None and not 0 <= ambient_index < len(ref_paths):
+        raise UserInputError(f"--ambient-index {ambient_index} is outside 0..{len(ref_paths) - 1}")
+    ref_images = [read_image(p) for p in ref_paths]
+    cur_images = [read_image(p) for p in cur_paths]
+    mask = read_mask(eval_mask) if eval_mask is not None else None
+    area = None
+    if mm_per_px is not None:
+        if not mm_per_px > 0:
+            raise UserInputError("--mm-per-px must be positive")
+        area = np.full(ref_images[0].shape[:2], mm_per_px**2)
+    _say(progress, f"comparing {len(ref_images)} lighting(s)…")
+    large = ref_images[0].shape[0] * ref_images[0].shape[1] > LARGE_FRAME_PX
+    if large:
+        from fgcd_cli.changes.tiled import detect_changes_tiled
+
+        _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
+                       "(no edge check, no FDF on frames this large)")
+        result = detect_changes_tiled(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
+                                      ambient_index=ambient_index, progress=tile_progress)
+        fdf = None
+    else:
+        result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
+                                edge_check_px=_edge_check(edge_check_px), ambient_index=ambient_index)
+        fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
+    metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
+    if mm_per_px is not None:
+        metadata["scale (mm per px)"] = mm_per_px
+    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, metadata=metadata,
+                          title="Change report", subtitle=f"{ref_paths[0].resolve().parent} — reference vs current")
+    _write_dir(output, files)
+    data = result_summary(result, fdf)
+    data["output"] = str(output)
+    if truth is not None:
+        from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores
+
+        truth_mask = read_mask(truth)
+        if truth_mask.shape != result.mask.shape:
+            raise UserInputError("--truth mask must have the reference image's size")
+        b = binary_scores(result.mask, truth_mask, eval_mask=mask)
+        s = sweep_scores(result.score, truth_mask, eval_mask=mask)
+        data["scores"] = {"precision": b.precision, "recall": b.recall, "f1": b.f1, "iou": b.iou,
+                          "best_f1": s.best_f1, "average_precision": s.average_precision}
+    return data
+
+
+def _shared_lightings(reference, visit) -> list[str]:
+    ref_names = list(reference.metadata.get("lightings") or reference.image_names())
+    visit_names = set(visit.image_names())
+    shared = [n for n in ref_names if n in visit_names and reference.has_image(n)]
+    if not shared:
+        raise CampaignError(
+            f"visit {visit.name} has no image with the reference's lightings ({', '.join(ref_names) or 'none'})"
+        )
+    return shared
+
+
+def relocation_log_rows(visit) -> list[dict] | None:
+    """The visit's relocation log as plot rows: each logged row, its simulator truth (if any) under ``*_true`` keys.
+
+    The loop's own estimates keep their names (``afd_est_px``, ``offset_mm``, ``offset_deg``);
+    the ``truth`` entry a simulated run logs (``pose_err_mm``, ``pose_err_deg``, ``afd_px``)
+    becomes ``pose_err_mm_true``, ``pose_err_deg_true``, ``afd_px_true``, so that no
+    figure can show truth under an estimate's name. None without a log.
+    """
+    if not visit.has(schema.RELOCATION_LOG):
+        return None
+    rows = []
+    for line in visit.bytes(schema.RELOCATION_LOG).decode("utf-8").splitlines():
+        if line.strip():
+            row = json.loads(line)
+            truth = row.pop("truth", None) or {}
+            rows.append({**row, **{f"{key}_true": value for key, value in truth.items()}})
+    return rows or None
+
+
+# A relocated visit is never at the reference pose to the pixel: parallax, occlusion
+# and resampling differences at strong edges remain that the flat registration
+# cannot absorb. Campaign diffs set aside regions that lie along strong reference
+# edges and that a shift of up to this many pixels explains (region-level edge
+# check, docs/change-detection.md); they stay visible in the report.
+EDGE_CHECK_PX = 2
+
+
+def _edge_check(px: int) -> int:
+    if not 0 <= px <= 8:
+        raise UserInputError(f"--edge-check must be between 0 (off) and 8 px, got {px}")
+    return int(px)
+
+
+def relocation_residual_mm(visit) -> float | None:
+    """The relocation's own estimate of the remaining camera offset (mm, last logged iteration), if logged."""
+    if not visit.has(schema.RELOCATION_LOG):
+        return None
+    last = None
+    for line in visit.bytes(schema.RELOCATION_LOG).decode("utf-8").splitlines():
+        if line.strip():
+            last = json.loads(line)
+    if not last or last.get("offset_mm") is None:
+        return None
+    return float(last["offset_mm"])  # the row's estimate; its "truth" entry is never read here
+
+
+def relocation_residual_text(visit) -> str:
+    """The relocation's stated residual for the report: ``0.27 ± 0.12 mm (image estimate; ...)``.
+
+    The visit manifest's ``relocation.residual`` (offset, uncertainty, tolerance,
+    estimator, agreement) when the run stated one, else the last logged offset
+    estimate alone; never the simulator's truth.
+    """
+    from fgcd_cli.relocation.loop import Residual
+
+    stated = (visit.metadata.get("relocation") or {}).get("residual")
+    if isinstance(stated, dict):
+        try:
+            return Residual(**stated).text().removeprefix("residual ")
+        except TypeError:
+            pass  # a record from another version: fall back to the logged estimate
+    residual_mm = relocation_residual_mm(visit)
+    return f"{residual_mm:.2f} mm (no uncertainty logged)" if residual_mm is not None else "not logged"
+
+
+def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
+    """mm² per reference pixel from the reference's metric cloud and camera, when stored."""
+    from fgcd_cli.geometry.camera import PinholeCamera
+
+    meta = reference.metadata
+    if not (reference.has(schema.array_relpath(schema.ARRAY_CLOUD_POINTS))
+            and reference.has(schema.array_relpath(schema.ARRAY_T_REF_CAMREF)) and meta.get("intrinsics")):
+        return None
+    camera = PinholeCamera.from_dict(meta["intrinsics"])
+    K = camera.K.copy()
+    if (camera.width, camera.height) != (shape[1], shape[0]):
+        K[0] *= shape[1] / camera.width
+        K[1] *= shape[0] / camera.height
+    area = pixel_area_from_cloud(reference.array(schema.ARRAY_CLOUD_POINTS), reference.array(schema.ARRAY_T_REF_CAMREF), K, shape)
+    return area if np.isfinite(area).any() else None
+
+
+def run_campaign(
+    campaign: Path,
+    station: str,
+    *,
+    visit: str | None = None,
+    eval_mask: Path | None = None,
+    mm_per_px: float | None = None,
+    register: bool = True,
+    output: Path | None = None,
+    edge_check_px: int | None = None,
+    progress: Progress = None,
+) -> dict:
+    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``)."""
+    from fgcd_cli.campaign import open_campaign
+
+    camp = open_campaign(campaign)
+    st = camp.station(station)
+    reference = st.reference()
+    observation = st.visit(visit)
+    lightings = _shared_lightings(reference, observation)
+    ref_images = [reference.image(n) for n in lightings]
+    cur_images = [observation.image(n) for n in lightings]
+    shape = ref_images[0].shape[:2]
+    if mm_per_px is not None:
+        area = np.full(shape, mm_per_px**2)
+        scale_note = f"{mm_per_px} mm per px (given)"
+    else:
+        area = _reference_pixel_area(reference, shape)
+        scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
+    mask = read_mask(eval_mask) if eval_mask is not None else None
+    edge_check = _edge_check(EDGE_CHECK_PX if edge_check_px is None else edge_check_px)
+    _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
+    # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
+    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
+                            edge_check_px=edge_check,
+                            ambient_index=lightings.index("ambient") if "ambient" in lightings else None)
+    fdf = measure_fdf(ref_images[0], cur_images[0])
+    reloc = observation.metadata.get("relocation") or {}
+    metadata = {
+        "site": camp.site,
+        "station": station,
+        "visit": observation.name,
+        "lightings": lightings,
+        "metric scale": scale_note,
+        "relocation": reloc,
+        "relocation residual (its own estimate)": relocation_residual_text(observation),
+        "edge check": (f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
+                       "edges set aside (cyan outlines)" if edge_check else "off"),
+    }
+    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf,
+                          relocation_log=relocation_log_rows(observation), metadata=metadata,
+                          title=f"Station {station}: change report",
+                          subtitle=f"{camp.site} · reference vs visit {observation.name}")
+    for name, data in files.items():
+        observation.add_derived(schema.change_relpath(name), data)
+    if fdf is not None:
+        observation.add_derived(schema.AFD_JSON, json.dumps(fdf.as_dict(), indent=1).encode())
+    if output is not None:
+        _write_dir(output, files)
+    data = result_summary(result, fdf)
+    data["output"] = str(output or observation.path)
+    data["visit"] = observation.name
+    return data

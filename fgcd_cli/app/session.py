@@ -1,0 +1,156 @@
+"""The steps capture and revisit share on a rig: starting a VSE session with its map scale, grabbing images."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fgcd_cli.app.rig import RigHandles
+from fgcd_cli.campaign import schema
+from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.relocation.loop import ReferenceData
+from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
+
+__all__ = ["MAX_SCALE_RESIDUAL_MM", "grab_gray", "grab_gray_under", "grab_images", "load_reference",
+           "measurement_lighting", "metric_keyframes", "reference_images", "start_session"]
+
+
+def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> dict[str, np.ndarray]:
+    """Images at the current pose, one per lighting, averaged over a few frames (noise)."""
+    images: dict[str, np.ndarray] = {}
+    frames = max(1, average)
+    for k, name in enumerate(lightings):
+        if rig.lights is not None and name != "ambient":
+            rig.lights.set(name)
+        acc = None
+        for i in range(frames):
+            rig.progress(k * frames + i, len(lightings) * frames, "images under each lighting")
+            frame = rig.camera_source.grab()
+            img = frame.rgb if getattr(frame, "rgb", None) is not None else frame.image
+            img = np.asarray(img, dtype=np.float64)
+            if img.max() > 1.5:
+                img = img / 255.0
+            acc = img if acc is None else acc + img
+        images[name] = (acc / max(1, average)).astype(np.float32)
+    return images
+
+
+#: A session whose scale fit leaves more than this residual (mm) is explored again.
+MAX_SCALE_RESIDUAL_MM = 12.0
+
+
+def start_session(
+    rig: RigHandles, *, explore_m: float, attempts: int = 2, legs: int = 6
+) -> tuple[VseSession, object, ScaleEstimate, np.ndarray]:
+    """Start the VSE, explore and estimate the map scale; explore again once on a bad start.
+
+    A monocular engine occasionally initialises on a wrong solution (a map whose
+    motion opposes the platform's, or a large scale residual); the session then
+    resets the engine and explores again rather than building on it.
+    """
+    vse = rig.vse_factory()
+    vse.start()
+    session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event, on_progress=rig.on_progress,
+                         frame_synthesis_s=rig.frame_synthesis_s)
+    T_base_flange_home = rig.guard.platform.flange_pose()
+    last_error: AlgorithmError | None = None
+    try:
+        for attempt in range(1, attempts + 1):
+            rig.say("exploring to initialise the VSE and its scale" + (f" (attempt {attempt})" if attempt > 1 else ""))
+            try:
+                flange, cams = session.explore(exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2))
+                if getattr(vse.latest(), "scale_is_metric", False):
+                    # a depth camera's map is metric: the platform motions only confirm it
+                    check = session.estimate_scale(rig.T_flange_cam, flange, cams)
+                    scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=check.n_samples,
+                                          residual_rms_mm=check.residual_rms_mm,
+                                          method=f"metric depth (platform check {check.scale:.4f})")
+                else:
+                    scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
+                if scale.residual_rms_mm > MAX_SCALE_RESIDUAL_MM:
+                    raise AlgorithmError(
+                        f"the VSE motion disagrees with the platform by {scale.residual_rms_mm:.1f} mm RMS"
+                    )
+            except AlgorithmError as exc:
+                last_error = exc
+                rig.say(f"bad VSE start: {exc}; resetting the engine")
+                session.move_to_flange(T_base_flange_home)
+                vse.reset()
+                continue
+            rig.say(
+                f"map scale {scale.scale:.4f} m/unit (±{scale.scale_std / scale.scale * 100:.2f} %), "
+                f"residual {scale.residual_rms_mm:.2f} mm"
+            )
+            return session, vse, scale, T_base_flange_home
+        raise AlgorithmError(f"the VSE could not start after {attempts} explorations: {last_error}")
+    except BaseException:
+        vse.stop()
+        raise
+
+
+def metric_keyframes(state, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """The VSE keyframes' poses with metric translations (``scale`` m per map unit) and their images."""
+    poses = []
+    for kf in state.keyframes:
+        T = np.array(kf.T_map_cam, dtype=float)
+        T[:3, 3] *= scale
+        poses.append(T)
+    images = np.stack([kf.image for kf in state.keyframes]) if state.keyframes else np.zeros((0, 1, 1), np.float32)
+    return np.array(poses).reshape(-1, 4, 4), images
+
+
+def grab_gray(rig: RigHandles, *, average: int = 2) -> np.ndarray:
+    """The current undistorted grey image, averaged over a few frames (noise)."""
+    acc = None
+    for _ in range(max(1, average)):
+        img = np.asarray(rig.camera_source.grab().image, dtype=np.float64)
+        if img.max() > 1.5:
+            img = img / 255.0
+        acc = img if acc is None else acc + img
+    return (acc / max(1, average)).astype(np.float32)
+
+
+def measurement_lighting(rig: RigHandles, reference_lightings: list[str]) -> str | None:
+    """The reference lighting the image stage measures under, when the rig can switch to it.
+
+    Feature positions on a relief move with the light direction (shadows and
+    shading), which biases a pose measured across lightings by a millimetre or
+    two; under the reference's own light the image stage compares like with like
+    (docs/relocation.md, "Final image stage"). ``None`` on rigs without switchable
+    lights: the image stage then measures under the day's light.
+    """
+    if rig.lights is None:
+        return None
+    available = set(rig.lights.available())
+    for name in reference_lightings:
+        if name != "ambient" and name in available:
+            return name
+    return None
+
+
+def grab_gray_under(rig: RigHandles, vse, lighting: str | None) -> np.ndarray:
+    """The current grey image under ``lighting`` (the VSE held meanwhile), lights restored after."""
+    if lighting is None or rig.lights is None or rig.lights.current == lighting:
+        return grab_gray(rig)
+    previous = rig.lights.current
+    with vse.held():
+        rig.lights.set(lighting)
+        try:
+            return grab_gray(rig)
+        finally:
+            rig.lights.set(previous)
+
+
+def load_reference(station) -> ReferenceData:
+    """The reference cloud and camera of a station, as relocation needs them."""
+    ref = station.reference()
+    return ReferenceData(
+        points=ref.array(schema.ARRAY_CLOUD_POINTS),
+        intensities=ref.array(schema.ARRAY_CLOUD_INTENSITIES),
+        T_ref_camref=ref.array(schema.ARRAY_T_REF_CAMREF),
+    )
+
+
+def reference_images(station) -> dict[str, np.ndarray]:
+    """The reference observation's images (undistorted, one per lighting)."""
+    ref = station.reference()
+    return {name: ref.image(name) for name in ref.image_names()}
