@@ -11,19 +11,20 @@ pins a near-planar object in practice: a shallow relief, mortar joints, the
 object's sides and plinth. So a poorly conditioned result is not called
 degenerate at once: the caller may *probe* its weak directions (perturb the
 result along each and let the alignment run again; see
-:func:`fgcd_cli.alignment.fast.probe_weak_directions`). Only if a perturbation
+:func:`fgcd_cli.alignment.weak_probe.probe_weak_directions`). Only if a perturbation
 stays where it was put is the geometry degenerate.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from fgcd_cli.alignment.results import AlignmentHealth, ResidualStats
+from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, ResidualStats
 
-__all__ = ["similarity_conditioning", "residual_stats", "assess"]
+__all__ = ["similarity_conditioning", "residual_stats", "HealthEvidence", "HealthLimits", "assess"]
 
 _PARAM_NAMES = ("tx", "ty", "tz", "rx", "ry", "rz", "scale")
 
@@ -98,75 +99,100 @@ def residual_stats(distances: np.ndarray, *, inlier_threshold: float) -> Residua
     )
 
 
-def assess(
-    *,
-    distances: np.ndarray,
-    matched_points: np.ndarray,
-    matched_normals: np.ndarray,
-    converged: bool,
-    inlier_threshold: float,
-    overlap_threshold: float,
-    min_inlier_ratio: float,
-    min_overlap: float,
-    min_condition_ratio: float,
-    scale: float,
-    scale_bounds: tuple[float, float],
-    probe: Callable[[np.ndarray, np.ndarray], tuple[float, ...]] | None = None,
-    probe_return: float = 0.5,
-    probe_directions: int = 3,
-) -> AlignmentHealth:
-    """Combine the checks into one :class:`AlignmentHealth`.
+@dataclass(frozen=True, kw_only=True)
+class HealthEvidence:
+    """What an alignment result is judged on.
 
-    Parameters
+    Attributes
     ----------
     distances : (N,) ndarray
         Distance of every current point to its nearest reference point after
         alignment, metres (``inf`` when none within the search radius).
     matched_points, matched_normals : (K, 3) ndarray
-        Reference points (and normals) matched by inliers, for the conditioning.
+        Reference points (and unit normals) matched by inliers, for the conditioning.
+    converged : bool
+        The iteration stopped on its tolerances.
     scale : float
-        Result scale relative to the prior; must lie within ``scale_bounds``.
+        Result scale relative to the prior.
+    """
+
+    distances: np.ndarray
+    matched_points: np.ndarray
+    matched_normals: np.ndarray
+    converged: bool
+    scale: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class HealthLimits:
+    """Thresholds of :func:`assess`.
+
+    Attributes
+    ----------
+    inlier_threshold, overlap_threshold : float
+        Distances (m) within which a current point is an inlier / overlaps.
+    min_inlier_ratio, min_overlap : float
+        Smallest accepted fractions of current points.
+    min_condition_ratio : float
+        Smallest accepted :func:`similarity_conditioning` ratio.
+    scale_bounds : (2,) tuple of float
+        Allowed range of the relative scale.
+    probe_return : float
+        A probed direction is free when more than this fraction of its perturbation stays.
+    probe_directions : int
+        At most this many weak directions are probed.
+    """
+
+    inlier_threshold: float
+    overlap_threshold: float
+    min_inlier_ratio: float
+    min_overlap: float
+    min_condition_ratio: float
+    scale_bounds: tuple[float, float]
+    probe_return: float = 0.5
+    probe_directions: int = 3
+
+
+def assess(
+    evidence: HealthEvidence,
+    limits: HealthLimits,
+    *,
+    probe: Callable[[np.ndarray, np.ndarray], tuple[float, ...]] | None = None,
+) -> AlignmentHealth:
+    """Combine the checks into one :class:`AlignmentHealth`.
+
+    Parameters
+    ----------
+    evidence : HealthEvidence
+    limits : HealthLimits
     probe : callable(points, directions) -> tuple of float, optional
         Called when the conditioning is below the limit, with the matched
         points (K, 3) and the weakest eigenvectors (7, D) (at most
-        ``probe_directions``, weakest first, in the parameter order of
+        ``limits.probe_directions``, weakest first, in the parameter order of
         :func:`similarity_conditioning`); returns, per direction, the
         fraction of a perturbation along it that the alignment left
         unrecovered. The geometry is degenerate only if one of them exceeds
-        ``probe_return``.
+        ``limits.probe_return``.
     """
-    d = np.asarray(distances, dtype=float)
+    d = np.asarray(evidence.distances, dtype=float)
     n = max(1, len(d))
-    overlap = float(np.count_nonzero(d < overlap_threshold) / n)
-    inlier_ratio = float(np.count_nonzero(d < inlier_threshold) / n)
-    ratio, w, V = similarity_conditioning(matched_points, matched_normals)
-    weak = weak_direction_names(w, V, limit=min_condition_ratio) if ratio < min_condition_ratio else ()
+    overlap = float(np.count_nonzero(d < limits.overlap_threshold) / n)
+    inlier_ratio = float(np.count_nonzero(d < limits.inlier_threshold) / n)
+    ratio, w, V = similarity_conditioning(evidence.matched_points, evidence.matched_normals)
+    weak = weak_direction_names(w, V, limit=limits.min_condition_ratio) if ratio < limits.min_condition_ratio else ()
     remaining: tuple[float, ...] = ()
-    if weak and probe is not None and len(matched_points) >= 7:
-        remaining = tuple(float(r) for r in probe(np.asarray(matched_points, dtype=float),
-                                                  V[:, : min(len(weak), probe_directions)]))
-        degenerate = not remaining or max(remaining) > probe_return
+    if weak and probe is not None and len(evidence.matched_points) >= 7:
+        remaining = tuple(float(r) for r in probe(np.asarray(evidence.matched_points, dtype=float),
+                                                  V[:, : min(len(weak), limits.probe_directions)]))
+        degenerate = not remaining or max(remaining) > limits.probe_return
     else:
         degenerate = bool(weak)
-    problems = []
-    if not converged:
-        problems.append("did not converge")
-    if overlap < min_overlap:
-        problems.append(f"overlap {overlap:.0%} < {min_overlap:.0%}")
-    if inlier_ratio < min_inlier_ratio:
-        problems.append(f"inlier ratio {inlier_ratio:.0%} < {min_inlier_ratio:.0%}")
-    if degenerate:
-        probed = (f"; perturbations along them kept {', '.join(f'{r:.0%}' for r in remaining)}"
-                  if remaining else "")
-        problems.append(
-            f"degenerate geometry (condition {ratio:.1e} < {min_condition_ratio:.0e}; weak: {'; '.join(weak)}{probed})"
-        )
-    if not (scale_bounds[0] <= scale <= scale_bounds[1]):
-        problems.append(f"scale changed by a factor {scale:.3f}, outside [{scale_bounds[0]:.3f}, {scale_bounds[1]:.3f}]")
+    problems = _problems(evidence, limits, overlap=overlap, inlier_ratio=inlier_ratio,
+                         degenerate=(ratio, weak, remaining) if degenerate else None)
     return AlignmentHealth(
         ok=not problems,
-        reason="ok" if not problems else "; ".join(problems),
-        converged=converged,
+        reason=HEALTH_OK if not problems else "; ".join(problems),
+        converged=evidence.converged,
         overlap=overlap,
         inlier_ratio=inlier_ratio,
         condition_ratio=ratio,
@@ -174,3 +200,27 @@ def assess(
         weak_directions=weak,
         weak_probe=remaining,
     )
+
+
+def _problems(evidence: HealthEvidence, limits: HealthLimits, *, overlap: float, inlier_ratio: float,
+              degenerate: tuple | None) -> list[str]:
+    """The failed checks, in the order of :attr:`AlignmentHealth.reason`."""
+    problems = []
+    if not evidence.converged:
+        problems.append("did not converge")
+    if overlap < limits.min_overlap:
+        problems.append(f"overlap {overlap:.0%} < {limits.min_overlap:.0%}")
+    if inlier_ratio < limits.min_inlier_ratio:
+        problems.append(f"inlier ratio {inlier_ratio:.0%} < {limits.min_inlier_ratio:.0%}")
+    if degenerate is not None:
+        ratio, weak, remaining = degenerate
+        probed = (f"; perturbations along them kept {', '.join(f'{r:.0%}' for r in remaining)}"
+                  if remaining else "")
+        problems.append(
+            f"degenerate geometry (condition {ratio:.1e} < {limits.min_condition_ratio:.0e}; "
+            f"weak: {'; '.join(weak)}{probed})"
+        )
+    lo, hi = limits.scale_bounds
+    if not (lo <= evidence.scale <= hi):
+        problems.append(f"scale changed by a factor {evidence.scale:.3f}, outside [{lo:.3f}, {hi:.3f}]")
+    return problems

@@ -9,12 +9,30 @@ whether to trust it.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from enum import StrEnum
 
 import numpy as np
 
 from fgcd_cli.geometry import Sim3
 
-__all__ = ["AlignmentHealth", "ResidualStats", "AlignmentResult", "FineAlignmentResult"]
+__all__ = ["HEALTH_OK", "StartPath", "AlignmentHealth", "ResidualStats", "AlignmentResult", "FineAlignmentResult"]
+
+HEALTH_OK = "ok"
+""":attr:`AlignmentHealth.reason` of a result that passed every check (otherwise the failed checks)."""
+
+
+class StartPath(StrEnum):
+    """Which path of :func:`~fgcd_cli.alignment.fast_align` ran (docs/alignment.md, "Fast alignment")."""
+
+    WARM = "warm"
+    """The prior fitted: the finest level only."""
+    WARM_CHECKED = "warm, checked"
+    """A warm run that moved the scale by more than ``warm_check_scale_change`` or did not
+    converge, confirmed by the scale-minimum check."""
+    WARM_TO_COLD = "warm -> cold"
+    """A warm run handed over to the cold-start search."""
+    COLD = "cold"
+    """Shift and scale search, then all levels."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -40,7 +58,7 @@ class AlignmentHealth:
     ok : bool
         All checks passed.
     reason : str
-        Human-readable summary ("ok" or what failed).
+        Human-readable summary (:data:`HEALTH_OK` or what failed).
     converged : bool
         The iteration stopped on its tolerances, not on the iteration limit.
     overlap : float
@@ -87,11 +105,8 @@ class AlignmentResult:
         ICP iterations over all resolution levels.
     seconds : float
         Wall-clock time of the call.
-    start : str
-        Which path ran: ``"warm"`` (finest level only), ``"warm, checked"`` (a warm run
-        that moved the scale by more than ``warm_check_scale_change`` or did not converge,
-        confirmed by the scale-minimum check), ``"warm -> cold"`` (a warm run handed over
-        to the cold-start search) or ``"cold"``.
+    start : StartPath
+        Which path ran (its value: ``"warm"``, ``"warm, checked"``, ``"warm -> cold"`` or ``"cold"``).
     """
 
     T_ref_cur: Sim3
@@ -99,7 +114,7 @@ class AlignmentResult:
     health: AlignmentHealth
     iterations: int
     seconds: float
-    start: str = "cold"
+    start: StartPath = StartPath.COLD
 
     def to_dict(self) -> dict:
         """JSON-friendly form."""
@@ -109,7 +124,7 @@ class AlignmentResult:
             "health": asdict(self.health),
             "iterations": self.iterations,
             "seconds": self.seconds,
-            "start": self.start,
+            "start": str(self.start),
         }
 
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
-from fgcd_cli.alignment.fast import _scale_neighbour
+from fgcd_cli.alignment.cold_start import scale_neighbour
+from fgcd_cli.alignment.icp_levels import LevelInputs
 from fgcd_cli.alignment.synthetic import ReliefScene
 from fgcd_cli.geometry import Sim3, exp_se3
 
@@ -76,11 +77,12 @@ def test_scale_neighbour_finds_a_better_scale_only_off_the_minimum(study):
     config = FastAlignConfig()
     order = np.random.default_rng(0).permutation(len(cur))
     probe = cur[order[:1000]]
-    better, _ = _scale_neighbour(cur, None, ref, ref.normals, order, T_true, probe, config)
+    inputs = LevelInputs(cur=cur, weights=None, ref=ref, order=order)
+    better, _ = scale_neighbour(inputs, T_true, probe, config)
     assert better is None  # at the truth no neighbour fits clearly better
     c = T_true.apply(cur.mean(axis=0))
     off = Sim3(np.eye(3), c - 0.93 * c, 0.93) @ T_true  # 7 % too small, about the cloud's centre
-    better, _ = _scale_neighbour(cur, None, ref, ref.normals, order, off, probe, config)
+    better, _ = scale_neighbour(inputs, off, probe, config)
     assert better is not None
     assert better.scale / off.scale == pytest.approx(1 + config.minimum_check_step)
 
