@@ -1,4 +1,8 @@
-"""Ground truth stays in the simulator: algorithm packages never import drivers.sim."""
+"""Ground truth stays in the simulator: algorithm packages never import drivers.sim.
+
+The static checks of every import direction are in tests/test_architecture.py;
+this file also checks the transitive, run-time form.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +12,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-ALGORITHM_PACKAGES = ("vse", "calibration", "alignment", "relocation", "changes")
+ALGORITHM_PACKAGES = ("geometry", "vse", "calibration", "alignment", "relocation", "changes", "metrics")
 
 
 def sim_imports(package_dir: Path) -> list[str]:
@@ -60,20 +64,20 @@ def test_checker_detects_planted_violations(tmp_path):
 
 
 def test_algorithm_packages_exist():
-    """The static check passes vacuously on a missing folder: make sure the five are where it looks."""
+    """The static check passes vacuously on a missing folder: make sure the packages are where it looks."""
     for package in ALGORITHM_PACKAGES:
         assert (ROOT / "fgcd_cli" / package / "__init__.py").is_file(), package
 
 
 def test_importing_the_algorithm_packages_does_not_load_the_simulator():
-    """Transitively too: every module of the five packages imported, ``drivers.sim`` is not in sys.modules."""
+    """Transitively too: every module of these packages and of ``fgcd_core`` imported, ``drivers.sim`` is not loaded."""
     import subprocess
     import sys
 
     code = (
         "import importlib, pkgutil, sys\n"
-        f"for p in {ALGORITHM_PACKAGES!r}:\n"
-        "    pkg = importlib.import_module('fgcd_cli.' + p)\n"
+        f"for p in {tuple('fgcd_cli.' + p for p in ALGORITHM_PACKAGES) + ('fgcd_core',)!r}:\n"
+        "    pkg = importlib.import_module(p)\n"
         "    for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):\n"
         "        importlib.import_module(m.name)\n"
         "print(sorted(m for m in sys.modules if m == 'drivers.sim' or m.startswith('drivers.sim.')))\n"

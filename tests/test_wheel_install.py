@@ -38,11 +38,13 @@ def _run_installed(target: Path, code: str) -> subprocess.CompletedProcess:
 
 def test_wheel_lists_the_scenes_and_renders_a_frame(installed):
     listing = _run_installed(installed, (
-        "import json; import fgcd_cli, drivers.sim.scenes as s; "
-        "print(json.dumps({'module': fgcd_cli.__file__, 'scenes': [i.name for i in s.list_scenes()]}))"))
+        "import json; import fgcd_cli, fgcd_core, drivers.sim.scenes as s; "
+        "print(json.dumps({'module': fgcd_cli.__file__, 'core': fgcd_core.__file__, "
+        "'scenes': [i.name for i in s.list_scenes()]}))"))
     assert listing.returncode == 0, listing.stderr
     data = json.loads(listing.stdout)
     assert data["module"].startswith(str(installed)), data["module"]  # the wheel's copy, not the repository's
+    assert data["core"].startswith(str(installed)), data["core"]  # the bottom layer ships too
     shipped = sorted(p.stem for p in (ROOT / "drivers" / "sim" / "scene_specs").glob("*.toml"))
     assert data["scenes"] == shipped and "stele" in shipped
 

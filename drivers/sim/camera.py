@@ -8,16 +8,24 @@ from __future__ import annotations
 
 import threading
 import time
-
+from dataclasses import dataclass, replace
+from enum import StrEnum
 from typing import Callable
 
 import numpy as np
 
-from drivers.cameras import CameraIntrinsics, Frame
+from drivers.cameras import CameraError, CameraIntrinsics, Frame
 from drivers.sim.render import CameraEffects
 from drivers.sim.world import SimLights, SimWorld
 
-__all__ = ["SimCamera", "DEFAULT_INTRINSICS", "perturbed_intrinsics", "DEFAULT_EFFECTS"]
+__all__ = [
+    "SimCamera",
+    "SimCameraOptions",
+    "IntrinsicsErrorLevel",
+    "DEFAULT_INTRINSICS",
+    "perturbed_intrinsics",
+    "DEFAULT_EFFECTS",
+]
 
 #: Nominal 640x480 camera with a ~56 deg horizontal field of view.
 DEFAULT_INTRINSICS = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
@@ -26,16 +34,28 @@ DEFAULT_INTRINSICS = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, wi
 DEFAULT_EFFECTS = CameraEffects(gamma=2.2, vignetting=0.15, read_noise=0.002, shot_noise=0.006, max_exposure=32.0)
 
 
+class IntrinsicsErrorLevel(StrEnum):
+    """How far a simulated camera's true intrinsics are from its nominal ones (:func:`perturbed_intrinsics`)."""
+
+    NONE = "none"
+    DEFAULT = "default"
+    LARGE = "large"
+
+
+#: Error scale of each named level (a number given instead scales the default directly).
+_LEVEL_SCALE = {IntrinsicsErrorLevel.DEFAULT: 1.0, IntrinsicsErrorLevel.LARGE: 3.0}
+
+
 def perturbed_intrinsics(nominal: CameraIntrinsics, level: str | float, rng: np.random.Generator) -> CameraIntrinsics:
     """True intrinsics differing from ``nominal``.
 
-    ``level``: ``"none"``, ``"default"`` (focal ~1 %, principal point ~4 px, mild
-    radial distortion k1 ~ -0.05), ``"large"`` (3 %, 10 px, k1 ~ -0.15), or a float
-    scaling the default.
+    ``level``: ``"none"``, ``"default"`` (focal sigma 1 %, principal point sigma
+    4 px, radial distortion k1 about -0.05), ``"large"`` (the default's errors
+    times 3: 3 %, 12 px, k1 about -0.15), or a float scaling the default.
     """
-    if level == "none" or level == 0:
+    if level == IntrinsicsErrorLevel.NONE or level == 0:
         return nominal
-    scale = {"default": 1.0, "large": 3.0}.get(level, level) if isinstance(level, str) else float(level)
+    scale = _LEVEL_SCALE.get(level, level) if isinstance(level, str) else float(level)
     if isinstance(scale, str):
         raise ValueError(f"unknown intrinsics error level {level!r}: use none, default, large or a number")
     f = 1.0 + rng.normal(0, 0.01 * scale)
@@ -50,6 +70,38 @@ def perturbed_intrinsics(nominal: CameraIntrinsics, level: str | float, rng: np.
     )
 
 
+@dataclass(frozen=True, kw_only=True)
+class SimCameraOptions:
+    """What a :class:`SimCamera` is, besides the world it looks at.
+
+    Attributes
+    ----------
+    intrinsics_true : CameraIntrinsics
+        What the renderer uses.
+    intrinsics_nominal : CameraIntrinsics, optional
+        What the camera advertises (default: the true ones).
+    effects : CameraEffects
+        Sensor noise, vignetting, gamma.
+    exposure : ``"auto"`` or float
+        Automatic or fixed exposure.
+    with_depth, with_rgb : bool
+        Also return z-depth (an RGB-D camera) / the colour image.
+    frame_period_s : float
+        Simulated time each grab takes (advances the clock).
+    seed : int
+        Noise seed.
+    """
+
+    intrinsics_true: CameraIntrinsics = DEFAULT_INTRINSICS
+    intrinsics_nominal: CameraIntrinsics | None = None
+    effects: CameraEffects = DEFAULT_EFFECTS
+    exposure: float | str = "auto"
+    with_depth: bool = False
+    with_rgb: bool = False
+    frame_period_s: float = 0.0
+    seed: int = 0
+
+
 class SimCamera:
     """A camera in the simulated world (implements ``drivers.cameras.CameraSource``).
 
@@ -58,35 +110,28 @@ class SimCamera:
     world : SimWorld
     pose_fn : callable returning the true ``T_world_cam`` now.
     lights : SimLights
-    intrinsics_true : what the renderer uses.
-    intrinsics_nominal : what the camera advertises.
-    effects : CameraEffects (noise, vignetting, gamma).
-    exposure : ``"auto"`` or a fixed float.
-    with_depth : also return z-depth (an RGB-D camera).
-    with_rgb : also return the colour image.
+    options : SimCameraOptions, optional
+        Intrinsics, sensor, outputs and seed; any of its fields may also be
+        given as a keyword (``SimCamera(..., seed=3)``), overriding ``options``.
     clock : object with ``now()``/``advance()``; timestamps come from it.
-    frame_period_s : simulated time each grab takes.
-    seed : noise seed.
     """
 
     def __init__(self, *, world: SimWorld, pose_fn: Callable[[], np.ndarray], lights: SimLights,
-                 intrinsics_true: CameraIntrinsics = DEFAULT_INTRINSICS,
-                 intrinsics_nominal: CameraIntrinsics | None = None,
-                 effects: CameraEffects = DEFAULT_EFFECTS, exposure: float | str = "auto",
-                 with_depth: bool = False, with_rgb: bool = False, clock=None, frame_period_s: float = 0.0,
-                 seed: int = 0):
+                 options: SimCameraOptions | None = None, clock=None, **overrides):
+        o = replace(options or SimCameraOptions(), **overrides)
+        self.options = o
         self.world = world
         self._pose_fn = pose_fn
         self.lights = lights
-        self._intr_true = intrinsics_true
-        self._intr_nominal = intrinsics_nominal or intrinsics_true
-        self.effects = effects
-        self.exposure = exposure
-        self.with_depth = with_depth
-        self.with_rgb = with_rgb
+        self._intr_true = o.intrinsics_true
+        self._intr_nominal = o.intrinsics_nominal or o.intrinsics_true
+        self.effects = o.effects
+        self.exposure = o.exposure
+        self.with_depth = o.with_depth
+        self.with_rgb = o.with_rgb
         self.clock = clock
-        self.frame_period_s = float(frame_period_s)
-        self._rng = np.random.default_rng([seed, 0xCA3])
+        self.frame_period_s = float(o.frame_period_s)
+        self._rng = np.random.default_rng([o.seed, 0xCA3])
         self.last_exposure: float | None = None
         self._closed = False
         # rendering time, for the rig-time model: finished renders, and the start of those in
@@ -101,8 +146,6 @@ class SimCamera:
 
     def grab(self) -> Frame:
         if self._closed:
-            from drivers.cameras import CameraError
-
             raise CameraError("simulated camera is closed")
         T = self._pose_fn()
         want = ("gray", "rgb") if self.with_rgb else ("gray",)

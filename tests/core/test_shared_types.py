@@ -1,0 +1,129 @@
+"""fgcd_core's shared types replace the old copies without changing a number or a file format."""
+
+import importlib.util
+import json
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgcd_core.board import CharucoSpec
+from fgcd_core.camera import CameraIntrinsics, PinholeCamera
+from fgcd_core.se3 import look_at, rotation_angle_rad
+
+_spec = importlib.util.spec_from_file_location("legacy_gray", Path(__file__).with_name("legacy_gray.py"))
+legacy = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(legacy)
+
+RNG = np.random.default_rng(3)
+EYES = [RNG.normal(size=3) for _ in range(20)] + [np.array([0.0, -1.2, 1.1]), np.array([0.0, 0.0, -0.6])]
+TARGETS = [RNG.normal(size=3) for _ in range(20)] + [np.array([0.0, 0.0, 1.1]), np.zeros(3)]
+
+
+def test_look_at_matches_both_old_copies():
+    from drivers.sim.transforms import look_at as sim_look_at
+
+    for eye, target in zip(EYES, TARGETS):
+        assert np.array_equal(sim_look_at(eye, target), legacy.transforms_look_at(eye, target))
+        assert np.array_equal(look_at(eye, target, up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0)),
+                              legacy.transforms_look_at(eye, target))
+        assert np.array_equal(look_at(eye, target, up=(0.0, -1.0, 0.0), fallback_up=(0.0, 0.0, 1.0)),
+                              legacy.synthetic_look_at(eye, target))
+    # looking along up: each copy's own fallback axis
+    assert np.array_equal(sim_look_at((0, 0, 1), (0, 0, 0)), legacy.transforms_look_at((0, 0, 1), (0, 0, 0)))
+    assert np.array_equal(look_at((0, 0, 0), (0, 1, 0), up=(0.0, -1.0, 0.0), fallback_up=(0.0, 0.0, 1.0)),
+                          legacy.synthetic_look_at((0, 0, 0), (0, 1, 0)))
+
+
+def test_look_at_needs_up_and_refuses_a_silent_fallback():
+    with pytest.raises(TypeError):
+        look_at(np.zeros(3), np.ones(3))  # up is required
+    with pytest.raises(ValueError):
+        look_at((0, 0, 1), (0, 0, 0), up=(0.0, 0.0, 1.0))
+
+
+def test_guard_rotation_angle_agrees_with_the_old_acos_form():
+    """drivers.platform's guard now uses rotation_angle_rad (atan2); the old acos agrees to 1e-7 rad."""
+    from fgcd_core.se3 import exp_so3
+
+    for phi in RNG.normal(size=(50, 3)):
+        R = exp_so3(phi)
+        old = float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+        assert abs(rotation_angle_rad(R) - old) < 1e-7
+
+
+def test_one_intrinsics_type_with_both_old_interfaces():
+    from drivers.cameras import CameraIntrinsics as DriversIntrinsics
+    from fgcd_cli.geometry.camera import PinholeCamera as GeometryPinhole
+
+    assert DriversIntrinsics is CameraIntrinsics is PinholeCamera is GeometryPinhole
+    cam = CameraIntrinsics(fx=600.0, fy=601.0, cx=319.5, cy=239.5, width=640, height=480, dist=(-0.05, 0.01, 0, 0, 0))
+    for name in ("K", "dist_array", "has_distortion", "scaled", "to_dict", "from_dict", "from_K", "project",
+                 "normalized_rays", "unproject", "backproject_depth"):
+        assert hasattr(cam, name), name
+    assert np.array_equal(cam.dist_array, np.array([-0.05, 0.01, 0.0, 0.0, 0.0]))
+    # the JSON both old types wrote, key for key
+    assert json.dumps(cam.to_dict()) == (
+        '{"fx": 600.0, "fy": 601.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480, '
+        '"dist": [-0.05, 0.01, 0.0, 0.0, 0.0]}')
+    assert CameraIntrinsics.from_dict(cam.to_dict()) == cam
+    assert type(CameraIntrinsics(fx=1, fy=1, cx=0, cy=0, width=4.0, height=3.0).width) is int
+
+
+def test_board_geometry_is_shared():
+    from drivers.sim.board import SimBoard
+    from fgcd_cli.calibration.board import BoardSpec
+
+    sim, spec = SimBoard(), BoardSpec()
+    assert isinstance(sim, CharucoSpec) and isinstance(spec, CharucoSpec)
+    base = {f.name for f in fields(CharucoSpec)}
+    assert {f.name for f in fields(SimBoard)} == base | {"margin_m"}
+    assert {f.name for f in fields(BoardSpec)} == base
+    assert (sim.squares_x, sim.squares_y, sim.square_m, sim.marker_m, sim.dictionary, sim.margin_m) == (
+        10, 7, 0.025, 0.018, "DICT_5X5_100", 0.01)
+    assert np.array_equal(sim.corner_points(), spec.corner_points())
+    assert np.array_equal(sim.image(px_per_square=40), spec.image(px_per_square=40))
+
+
+def test_board_view_keyword_form_equals_camera_form():
+    from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
+
+    board = SimBoard(squares_x=5, squares_y=4)
+    cam = CameraIntrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240,
+                           dist=(-0.05, 0.01, 0.0, 0.0, 0.0))
+    kw = dict(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy, width=cam.width, height=cam.height)
+    poses = random_board_poses(board, 2, **kw, rng=np.random.default_rng(1))
+    poses2 = random_board_poses(board, 2, cam, rng=np.random.default_rng(1))
+    assert all(np.array_equal(a, b) for a, b in zip(poses, poses2))
+    old = render_board_view(board, poses[0], **kw, dist=cam.dist, supersample=2, rng=np.random.default_rng(5))
+    new = render_board_view(board, poses[0], cam, options=BoardViewOptions(supersample=2),
+                            rng=np.random.default_rng(5))
+    assert old.dtype == np.uint8 and old.shape == (240, 320) and np.array_equal(old, new)
+    assert BoardViewOptions() == BoardViewOptions(noise_sigma=1.5 / 255.0, blur_sigma_px=0.6, background=0.45,
+                                                  supersample=3)
+    with pytest.raises(TypeError):
+        render_board_view(board, poses[0], cam, fx=1.0)
+    with pytest.raises(TypeError):
+        render_board_view(board, poses[0], cam, supersampling=2)
+
+
+def test_sim_camera_options_keep_the_old_defaults():
+    from drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, IntrinsicsErrorLevel, SimCameraOptions
+
+    o = SimCameraOptions()
+    assert (o.intrinsics_true, o.intrinsics_nominal, o.effects, o.exposure, o.with_depth, o.with_rgb,
+            o.frame_period_s, o.seed) == (DEFAULT_INTRINSICS, None, DEFAULT_EFFECTS, "auto", False, False, 0.0, 0)
+    assert [str(x) for x in IntrinsicsErrorLevel] == ["none", "default", "large"]
+
+
+def test_fgcd_core_imports_nothing_of_fgcd():
+    import subprocess
+    import sys
+
+    code = ("import sys, fgcd_core.se3, fgcd_core.sim3, fgcd_core.camera, fgcd_core.board, fgcd_core.imaging; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('fgcd_cli', 'drivers')))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       cwd=Path(__file__).resolve().parents[2])
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
