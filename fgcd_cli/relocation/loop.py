@@ -12,7 +12,7 @@
 
 Hand-over between threads is "latest value" under a lock: nobody waits for
 anybody except the adjustment thread, which needs one estimate newer than its
-previous motion. ``mode="serial"`` runs the same steps one after the other
+previous motion and waits for it on the alignment thread's condition variable. ``mode="serial"`` runs the same steps one after the other
 (the paper's Table 5 baseline). A failing VSE or alignment pauses motion
 instead of guessing; the image stage (:mod:`fgcd_cli.relocation.image_stage`)
 refines a converged result, or falls back when the 3D loop paused.
