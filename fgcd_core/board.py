@@ -7,7 +7,7 @@ square, x along a row of squares, y down the columns, z into the board; metres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
@@ -74,6 +74,10 @@ class CharucoSpec:
         if n_markers > dict_size:
             return f"{n_markers} markers do not fit dictionary {self.dictionary}"
         return None
+
+    def charuco_fields(self) -> dict:
+        """The geometry alone, as keywords: ``SimBoard(**spec.charuco_fields(), margin_m=...)``."""
+        return {f.name: getattr(self, f.name) for f in fields(CharucoSpec)}
 
     def cv_board(self) -> "cv2.aruco.CharucoBoard":
         """The OpenCV board object."""

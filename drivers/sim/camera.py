@@ -172,9 +172,9 @@ class SimCamera:
         """Wall seconds spent so far synthesising frames (the render in progress included).
 
         A real camera streams frames while the software works; this camera renders
-        each frame on demand in the grabbing thread (~0.2 s on 2 cores), which a
-        rig's time budget must not count. ``time.monotonic`` seconds, comparable
-        between calls.
+        each frame on demand in the grabbing thread, which a rig's time budget must
+        not count (docs/relocation.md, "Time"; render times in docs/benchmarks.md,
+        "Simulator renderer"). ``time.monotonic`` seconds, comparable between calls.
         """
         with self._render_lock:
             now = time.monotonic()

@@ -86,6 +86,32 @@ def test_board_geometry_is_shared():
     assert np.array_equal(sim.image(px_per_square=40), spec.image(px_per_square=40))
 
 
+def test_board_geometry_converts_between_the_two_sides():
+    from drivers.sim.board import SimBoard
+    from fgcd_cli.calibration.board import BoardSpec
+
+    spec = BoardSpec(squares_x=9, squares_y=6, legacy_pattern=True)
+    sim = SimBoard(**spec.charuco_fields(), margin_m=0.02)
+    assert sim.charuco_fields() == spec.charuco_fields() and sim.margin_m == 0.02
+    assert BoardSpec(**sim.charuco_fields()) == spec
+
+
+def test_geometry_modules_re_export_fgcd_core():
+    import fgcd_cli.geometry as geometry
+    import fgcd_cli.geometry.se3 as old_se3
+    import fgcd_cli.geometry.sim3 as old_sim3
+    import fgcd_core.se3 as se3
+    import fgcd_core.sim3 as sim3
+
+    for name in se3.__all__:
+        assert getattr(old_se3, name) is getattr(se3, name), name
+    for name in sim3.__all__:
+        assert getattr(old_sim3, name) is getattr(sim3, name), name
+    for name in geometry.__all__:
+        assert getattr(geometry, name) is getattr(se3, name, None) or getattr(geometry, name) in (
+            sim3.Sim3, sim3.umeyama, PinholeCamera), name
+
+
 def test_board_view_keyword_form_equals_camera_form():
     from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 
