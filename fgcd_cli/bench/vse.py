@@ -29,7 +29,7 @@ import numpy as np
 from fgcd_cli.geometry.camera import PinholeCamera
 from fgcd_cli.geometry.se3 import exp_se3, interpolate_pose, invert_pose, transform_points
 from fgcd_cli.geometry.sim3 import umeyama
-from fgcd_cli.vse import MonocularVSE, SparseVSE, VseConfig
+from fgcd_cli.vse import VseConfig, VseStatus, VseVariant, make_engine
 
 __all__ = ["run", "exploration_waypoints", "evaluate"]
 
@@ -84,7 +84,7 @@ def evaluate(states, truth: list[np.ndarray], gt, camera: PinholeCamera, *, fram
     from drivers.cameras import CameraIntrinsics
 
     final = states[-1]
-    tracked = [i for i, s in enumerate(states) if s.status == "tracking" and s.T_map_cam is not None]
+    tracked = [i for i, s in enumerate(states) if s.status == VseStatus.TRACKING and s.T_map_cam is not None]
     out = {"status": final.status, "message": final.message, "frames": len(states), "tracked_frames": len(tracked),
            "keyframes": len(final.keyframes), "cloud_points": len(final.cloud),
            "track_fps": final.track_fps, "overall_fps": final.overall_fps,
@@ -156,7 +156,8 @@ def run(*, quick: bool, variant: str = "mono") -> dict:
         ``track_fps``; medians over the textured scenes, worst ATE as ``ate_mm_max``),
         ``scenes`` (per scene and engine), ``targets``, ``settings``.
     """
-    variants = {"mono": ["mono"], "sparse": ["sparse"], "both": ["mono", "sparse"]}.get(variant)
+    variants = {"mono": [VseVariant.MONO], "sparse": [VseVariant.SPARSE],
+                "both": [VseVariant.MONO, VseVariant.SPARSE]}.get(variant)
     if variants is None:
         raise ValueError("variant must be mono, sparse or both")
     legs = 3 if quick else 6
@@ -166,7 +167,7 @@ def run(*, quick: bool, variant: str = "mono") -> dict:
     for scene in scenes:
         camera, images, truth, gt = _render_sequence(scene, legs=legs, step_m=step_m, step_deg=step_deg)
         for v in variants:
-            eng = MonocularVSE(camera, config=VseConfig()) if v == "mono" else SparseVSE(camera, config=VseConfig())
+            eng = make_engine(v, camera, config=VseConfig())
             states, secs = _run_engine(eng, images)
             row = {"scene": scene, "variant": v, "textured": scene in TEXTURED_SCENES, "seconds": secs}
             row.update(evaluate(states, truth, gt, camera))
@@ -189,8 +190,8 @@ def run(*, quick: bool, variant: str = "mono") -> dict:
         }
 
     summary = agg(variants[0])
-    if "sparse" in variants and variants[0] != "sparse":
-        summary.update({f"sparse_{k}": val for k, val in agg("sparse").items()})
+    if VseVariant.SPARSE in variants and variants[0] != VseVariant.SPARSE:
+        summary.update({f"sparse_{k}": val for k, val in agg(VseVariant.SPARSE).items()})
     summary["hard_scenes"] = {f"{r['scene']}/{r['variant']}": f"{r['status']}, {r['cloud_points']} points"
                               for r in rows if not r["textured"]}
     return {

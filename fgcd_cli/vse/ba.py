@@ -19,8 +19,8 @@ import numpy as np
 
 from fgcd_cli.geometry.se3 import exp_se3
 
-__all__ = ["BundleResult", "bundle_adjust", "bundle_adjust_rejecting_outliers", "outlier_threshold_px", "refine_pose",
-           "projection_residuals"]
+__all__ = ["BundleResult", "BundleAdjustConfig", "OutlierRejectionConfig", "bundle_adjust",
+           "bundle_adjust_rejecting_outliers", "outlier_threshold_px", "refine_pose", "projection_residuals"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -95,6 +95,96 @@ def _robust_cost(r: np.ndarray, delta: float) -> float:
     return float(np.sum(np.where(n <= delta, 0.5 * n**2, delta * (n - 0.5 * delta))))
 
 
+@dataclass(frozen=True, kw_only=True)
+class BundleAdjustConfig:
+    """Options of :func:`bundle_adjust`.
+
+    Attributes
+    ----------
+    iterations : int
+        Maximum Levenberg-Marquardt iterations.
+    huber_px : float
+        Huber threshold of the robust loss, pixels.
+    """
+
+    iterations: int = 10
+    huber_px: float = 1.5
+
+
+@dataclass(frozen=True, kw_only=True)
+class OutlierRejectionConfig:
+    """Options of :func:`bundle_adjust_rejecting_outliers`.
+
+    Attributes
+    ----------
+    iterations, huber_px
+        As :class:`BundleAdjustConfig`, for each solve.
+    outlier_sigmas, outlier_min_px, outlier_max_px
+        The threshold of :func:`outlier_threshold_px` (``sigmas``, ``min_px``, ``max_px``).
+    max_rounds : int
+        Solves at most (1: one solve and a fixed-threshold test).
+    """
+
+    iterations: int = 10
+    huber_px: float = 1.0
+    outlier_sigmas: float = 4.0
+    outlier_min_px: float = 0.5
+    outlier_max_px: float = 6.0
+    max_rounds: int = 4
+
+
+def _with_overrides(config, default_type, overrides: dict):
+    """``config`` (or the defaults) with the keyword options of the former call form applied."""
+    base = default_type() if config is None else config
+    return replace(base, **overrides) if overrides else base
+
+
+def _normal_equations(Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray, r: np.ndarray, obs_cam: np.ndarray,
+                      obs_pt: np.ndarray, C: int, P: int):
+    """Weighted Gauss-Newton blocks ``(Hcc (C,6,6), Hpp (P,3,3), Hcp (P,C,6,3), bc (C,6), bp (P,3))``."""
+    wJc = Jc * w[:, None, None]
+    wJp = Jp * w[:, None, None]
+    Hcc = np.zeros((C, 6, 6))
+    np.add.at(Hcc, obs_cam, np.einsum("mki,mkj->mij", wJc, Jc))
+    Hpp = np.zeros((P, 3, 3))
+    np.add.at(Hpp, obs_pt, np.einsum("mki,mkj->mij", wJp, Jp))
+    Hcp = np.zeros((P, C, 6, 3))
+    np.add.at(Hcp, (obs_pt, obs_cam), np.einsum("mki,mkj->mij", wJc, Jp))
+    bc = np.zeros((C, 6))
+    np.add.at(bc, obs_cam, -np.einsum("mki,mk->mi", wJc, r))
+    bp = np.zeros((P, 3))
+    np.add.at(bp, obs_pt, -np.einsum("mki,mk->mi", wJp, r))
+    return Hcc, Hpp, Hcp, bc, bp
+
+
+def _damped_step(blocks: tuple, free: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """Camera (C, 6) and point (P, 3) steps of the damped system, points eliminated (Schur complement)."""
+    Hcc, Hpp, Hcp, bc, bp = blocks
+    C = len(Hcc)
+    Hcc_d = Hcc.copy()
+    idx = np.arange(6)
+    Hcc_d[:, idx, idx] = Hcc_d[:, idx, idx] * (1.0 + lam) + 1e-9
+    Hcc_d[~free] = np.eye(6)
+    Hpp_d = Hpp.copy()
+    idx3 = np.arange(3)
+    Hpp_d[:, idx3, idx3] = Hpp_d[:, idx3, idx3] * (1.0 + lam) + 1e-9
+    Hpp_inv = np.linalg.inv(Hpp_d)
+    E = np.einsum("pcij,pjk->pcik", Hcp, Hpp_inv)  # (P, C, 6, 3)
+    S = np.zeros((C, 6, C, 6))
+    S[np.arange(C), :, np.arange(C), :] = Hcc_d
+    S -= np.einsum("pcij,pdkj->cidk", E, Hcp)
+    rhs = bc - np.einsum("pcij,pj->ci", E, bp)
+    S2 = S.reshape(6 * C, 6 * C)
+    rhs[~free] = 0.0
+    try:
+        dc = np.linalg.solve(S2, rhs.reshape(-1)).reshape(C, 6)
+    except np.linalg.LinAlgError:
+        dc = np.linalg.lstsq(S2, rhs.reshape(-1), rcond=None)[0].reshape(C, 6)
+    dc[~free] = 0.0
+    dp = np.einsum("pij,pj->pi", Hpp_inv, bp - np.einsum("pcji,cj->pi", Hcp, dc))
+    return dc, dp
+
+
 def bundle_adjust(
     T_cam_map: np.ndarray,
     points: np.ndarray,
@@ -104,8 +194,8 @@ def bundle_adjust(
     K: np.ndarray,
     *,
     fixed_cams: np.ndarray | None = None,
-    iterations: int = 10,
-    huber_px: float = 1.5,
+    config: BundleAdjustConfig | None = None,
+    **overrides,
 ) -> BundleResult:
     """Levenberg-Marquardt bundle adjustment with a Schur complement.
 
@@ -123,15 +213,15 @@ def bundle_adjust(
         Pinhole intrinsics.
     fixed_cams : (C,) bool ndarray, optional
         Cameras held fixed (gauge); by default the first one.
-    iterations : int
-        Maximum LM iterations.
-    huber_px : float
-        Huber threshold of the robust loss, pixels.
+    config : BundleAdjustConfig, optional
+        Options; ``iterations=``, ``huber_px=`` may also be given as keywords.
 
     Returns
     -------
     BundleResult
     """
+    cfg = _with_overrides(config, BundleAdjustConfig, overrides)
+    huber_px = cfg.huber_px
     T = np.array(T_cam_map, dtype=float)
     X = np.array(points, dtype=float)
     C, P = len(T), len(X)
@@ -146,49 +236,12 @@ def bundle_adjust(
     r, Xc = projection_residuals(T, X, obs_cam, obs_pt, obs_uv, K)
     cost = _robust_cost(r, huber_px)
     it = 0
-    for it in range(1, iterations + 1):
-        w = _huber_weights(r, huber_px)
+    for it in range(1, cfg.iterations + 1):
         Jc, Jp = _jacobians(Xc, T[obs_cam, :3, :3], K)
         Jc[~free[obs_cam]] = 0.0
-        wJc = Jc * w[:, None, None]
-        wJp = Jp * w[:, None, None]
-        Hcc_obs = np.einsum("mki,mkj->mij", wJc, Jc)
-        Hpp_obs = np.einsum("mki,mkj->mij", wJp, Jp)
-        Hcp_obs = np.einsum("mki,mkj->mij", wJc, Jp)
-        bc_obs = -np.einsum("mki,mk->mi", wJc, r)
-        bp_obs = -np.einsum("mki,mk->mi", wJp, r)
-        Hcc = np.zeros((C, 6, 6))
-        np.add.at(Hcc, obs_cam, Hcc_obs)
-        Hpp = np.zeros((P, 3, 3))
-        np.add.at(Hpp, obs_pt, Hpp_obs)
-        Hcp = np.zeros((P, C, 6, 3))
-        np.add.at(Hcp, (obs_pt, obs_cam), Hcp_obs)
-        bc = np.zeros((C, 6))
-        np.add.at(bc, obs_cam, bc_obs)
-        bp = np.zeros((P, 3))
-        np.add.at(bp, obs_pt, bp_obs)
+        blocks = _normal_equations(Jc, Jp, _huber_weights(r, huber_px), r, obs_cam, obs_pt, C, P)
         while True:
-            Hcc_d = Hcc.copy()
-            idx = np.arange(6)
-            Hcc_d[:, idx, idx] = Hcc_d[:, idx, idx] * (1.0 + lam) + 1e-9
-            Hcc_d[~free] = np.eye(6)
-            Hpp_d = Hpp.copy()
-            idx3 = np.arange(3)
-            Hpp_d[:, idx3, idx3] = Hpp_d[:, idx3, idx3] * (1.0 + lam) + 1e-9
-            Hpp_inv = np.linalg.inv(Hpp_d)
-            E = np.einsum("pcij,pjk->pcik", Hcp, Hpp_inv)  # (P, C, 6, 3)
-            S = np.zeros((C, 6, C, 6))
-            S[np.arange(C), :, np.arange(C), :] = Hcc_d
-            S -= np.einsum("pcij,pdkj->cidk", E, Hcp)
-            rhs = bc - np.einsum("pcij,pj->ci", E, bp)
-            S2 = S.reshape(6 * C, 6 * C)
-            rhs[~free] = 0.0
-            try:
-                dc = np.linalg.solve(S2, rhs.reshape(-1)).reshape(C, 6)
-            except np.linalg.LinAlgError:
-                dc = np.linalg.lstsq(S2, rhs.reshape(-1), rcond=None)[0].reshape(C, 6)
-            dc[~free] = 0.0
-            dp = np.einsum("pij,pj->pi", Hpp_inv, bp - np.einsum("pcji,cj->pi", Hcp, dc))
+            dc, dp = _damped_step(blocks, free, lam)
             T_new = T.copy()
             for c in np.flatnonzero(free):
                 T_new[c] = exp_se3(dc[c]) @ T[c]
@@ -236,12 +289,8 @@ def bundle_adjust_rejecting_outliers(
     K: np.ndarray,
     *,
     fixed_cams: np.ndarray | None = None,
-    iterations: int = 10,
-    huber_px: float = 1.0,
-    outlier_sigmas: float = 4.0,
-    outlier_min_px: float = 0.5,
-    outlier_max_px: float = 6.0,
-    max_rounds: int = 4,
+    config: OutlierRejectionConfig | None = None,
+    **overrides,
 ) -> tuple[BundleResult, np.ndarray]:
     """Bundle adjustment that rejects the observations beyond the residuals' own noise level.
 
@@ -249,12 +298,20 @@ def bundle_adjust_rejecting_outliers(
     track that slides along an occluding contour (a corner on the stele's
     outline over the background) is fitted within ~1 px by a wrong landmark
     depth and a shifted pose, and the Huber loss alone leaves it its pull
-    (6-leg stele sequence: 5.5 mm ATE with a fixed 6 px rejection, 0.8 mm with
-    this). Each round solves from the input values without the observations
-    judged outliers by the previous round, and judges all observations afresh
-    (a first solution pulled by the outliers misjudges some inliers), until the
-    set no longer changes or ``max_rounds``. Points whose every observation is
-    rejected keep their input position.
+    (docs/vse.md, "The stele's 6-leg drift"). Each round solves from the input
+    values without the observations judged outliers by the previous round, and
+    judges all observations afresh (a first solution pulled by the outliers
+    misjudges some inliers), until the set no longer changes or ``max_rounds``.
+    Points whose every observation is rejected keep their input position.
+
+    Parameters
+    ----------
+    T_cam_map, points, obs_cam, obs_pt, obs_uv, K, fixed_cams
+        As :func:`bundle_adjust`.
+    config : OutlierRejectionConfig, optional
+        Options; its fields may also be given as keywords (``iterations=``,
+        ``huber_px=``, ``outlier_sigmas=``, ``outlier_min_px=``,
+        ``outlier_max_px=``, ``max_rounds=``).
 
     Returns
     -------
@@ -264,21 +321,24 @@ def bundle_adjust_rejecting_outliers(
     outlier : (M,) bool ndarray
         The observations beyond the threshold at that solution (when the
         rounds converged, exactly those it was computed without; with
-        ``max_rounds=1``, the former single solve and fixed-threshold test).
+        ``max_rounds=1``, the single solve and fixed-threshold test).
     """
+    cfg = _with_overrides(config, OutlierRejectionConfig, overrides)
+    solve = BundleAdjustConfig(iterations=cfg.iterations, huber_px=cfg.huber_px)
     obs_cam, obs_pt, obs_uv = np.asarray(obs_cam), np.asarray(obs_pt), np.asarray(obs_uv, dtype=float)
     X_in = np.asarray(points, dtype=float)
     bad = np.zeros(len(obs_cam), bool)
     res, new = None, bad
-    for _ in range(max_rounds):
+    for _ in range(cfg.max_rounds):
         res = bundle_adjust(T_cam_map, X_in, obs_cam[~bad], obs_pt[~bad], obs_uv[~bad], K, fixed_cams=fixed_cams,
-                            iterations=iterations, huber_px=huber_px)
+                            config=solve)
         seen = np.bincount(obs_pt[~bad], minlength=len(X_in)) > 0
         X = np.where(seen[:, None], res.points, X_in)
         r = np.linalg.norm(projection_residuals(res.T_cam_map, X, obs_cam, obs_pt, obs_uv, K)[0], axis=1)
         res = replace(res, points=X, residual_px=r)
         # judged afresh each round: a first solution pulled by the outliers misjudges some inliers
-        thr = outlier_threshold_px(r[~bad], sigmas=outlier_sigmas, min_px=outlier_min_px, max_px=outlier_max_px)
+        thr = outlier_threshold_px(r[~bad], sigmas=cfg.outlier_sigmas, min_px=cfg.outlier_min_px,
+                                   max_px=cfg.outlier_max_px)
         new = r > thr
         if np.array_equal(new, bad) or (~new).sum() < 10:
             break

@@ -1,16 +1,10 @@
 """Semi-dense depth of a keyframe by epipolar search in neighbouring keyframes.
 
 The method follows LSD-SLAM/DSO: high-gradient pixels of the reference
-keyframe are searched along their epipolar line in each neighbour keyframe
-(sum of squared differences of a mean-free 5x5 pattern over a sampled
-inverse-depth range), refined to sub-pixel precision by Gauss-Newton on the
-same cost along the line, given an inverse-depth variance from the photometric
-and geometric error (Engel et al. 2013), and fused over the neighbours with an
-outlier-rejecting inverse-variance mean. Rectified ``StereoSGBM`` was the
-alternative; the epipolar search works for any relative motion (including
-forward motion, where rectification degenerates) and yields a per-pixel
-uncertainty, so it is written here, vectorised with ``cv2.remap`` for sampling.
-Finally each keyframe's depths are fused with the other keyframes' estimates
+keyframe (:func:`select_pixels`) are searched along their epipolar line in
+each neighbour keyframe (:func:`~fgcd_cli.vse.epipolar.epipolar_search`) and
+fused over the neighbours with an outlier-rejecting inverse-variance mean
+(:func:`fuse_estimates`). Finally each keyframe's depths are fused with the other keyframes' estimates
 of the same surface points (:func:`fuse_across_keyframes`): a depth found from
 one reference keyframe keeps that reference's pattern noise however many
 neighbours it was matched in, while another keyframe's estimate has its own.
@@ -21,21 +15,16 @@ All images are undistorted float32 in [0, 1]; poses are 4x4; inverse depths in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
-__all__ = ["SemiDenseDepth", "select_pixels", "epipolar_search", "fuse_estimates", "keyframe_depth", "fuse_across_keyframes"]
+from fgcd_cli.vse.epipolar import (PATTERN, EpipolarSearchConfig, GradientImage, epipolar_search,  # noqa: F401
+                                   image_gradients)
 
-# 5x5 pattern (25 pixels). A 13-pixel diamond was used first: over the short
-# keyframe baselines of an exploration (1-2 % of the depth) the match error is
-# dominated by the noise of the reference pattern itself (it is shared by every
-# neighbour, so fusing more neighbours does not average it out); 25 pixels cut
-# the median depth error on the stele from 0.63 % to 0.44 % with exact poses
-# (measured, see docs/vse.md). Rotations between keyframes are a few degrees,
-# so the larger support costs no accuracy.
-PATTERN = np.array([(x, y) for y in range(-2, 3) for x in range(-2, 3)], dtype=float)
+__all__ = ["SemiDenseDepth", "EpipolarSearchConfig", "KeyframeDepthConfig", "GradientImage", "select_pixels",
+           "image_gradients", "epipolar_search", "fuse_estimates", "keyframe_depth", "fuse_across_keyframes"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,166 +106,6 @@ def select_pixels(image: np.ndarray, *, grad_threshold: float, max_points: int, 
     return np.column_stack([u[order], v[order]]).astype(int)
 
 
-def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``img`` at float coordinates of any shape (NaN outside)."""
-    shape = x.shape
-    n = x.size
-    cols = 1024
-    rows = (n + cols - 1) // cols
-    mx = np.full(rows * cols, -10.0, np.float32)
-    my = np.full(rows * cols, -10.0, np.float32)
-    mx[:n] = x.ravel()
-    my[:n] = y.ravel()
-    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    return out.ravel()[:n].reshape(shape)
-
-
-def epipolar_search(
-    ref_img: np.ndarray,
-    ref_grad: tuple[np.ndarray, np.ndarray],
-    nb_img: np.ndarray,
-    nb_grad: tuple[np.ndarray, np.ndarray],
-    T_nb_ref: np.ndarray,
-    K: np.ndarray,
-    pixels: np.ndarray,
-    inv_depth_range: tuple[float, float],
-    *,
-    noise_sigma: float = 2.0 / 255.0,
-    geometric_sigma_px: float = 0.1,
-    max_samples: int = 160,
-    uniqueness: float = 0.7,
-    max_cost_per_px: float = (12.0 / 255.0) ** 2,
-    chunk: int = 2048,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse depth of reference pixels from one neighbour keyframe.
-
-    Parameters
-    ----------
-    ref_img, nb_img : (H, W) float32 ndarrays
-        Undistorted reference and neighbour images, [0, 1].
-    ref_grad, nb_grad : pairs of (H, W) float32 ndarrays
-        Their x and y gradients (per pixel, central differences).
-    T_nb_ref : (4, 4) ndarray
-        Pose of the reference camera in the neighbour camera frame (map units).
-    K : (3, 3) ndarray
-        Pinhole intrinsics of both images.
-    pixels : (N, 2) int ndarray
-        Reference pixels ``(u, v)``.
-    inv_depth_range : (float, float)
-        Search interval of inverse depth.
-    noise_sigma : float
-        Image noise, grey levels on the [0, 1] scale.
-    geometric_sigma_px : float
-        Error of the epipolar line position from pose and calibration errors, pixels.
-
-    Returns
-    -------
-    inv_depth : (N,) ndarray
-        NaN where the search failed (out of view, ambiguous, bad match).
-    inv_depth_sigma : (N,) ndarray
-    """
-    n = len(pixels)
-    out_rho = np.full(n, np.nan)
-    out_sig = np.full(n, np.nan)
-    if n == 0:
-        return out_rho, out_sig
-    Kinv = np.linalg.inv(K)
-    R, t = T_nb_ref[:3, :3], T_nb_ref[:3, 3]
-    lo, hi = float(inv_depth_range[0]), float(inv_depth_range[1])
-    P = len(PATTERN)
-    h, w = nb_img.shape
-    for s in range(0, n, chunk):
-        pix = pixels[s : s + chunk].astype(float)
-        m = len(pix)
-        ph = np.column_stack([pix, np.ones(m)])
-        A = (K @ R @ (Kinv @ ph.T)).T  # (m, 3)
-        B = K @ t  # (3,)
-
-        def proj(rho):
-            a = A if rho.ndim == 1 else A[:, None, :]
-            q = a + rho[..., None] * B
-            return q[..., :2] / q[..., 2:3], q[..., 2]
-
-        p_lo, z_lo = proj(np.full(m, lo))
-        p_hi, z_hi = proj(np.full(m, hi))
-        length = np.linalg.norm(p_hi - p_lo, axis=1)
-        finite_len = length[np.isfinite(length)]
-        if finite_len.size == 0:
-            continue
-        M = int(np.clip(np.ceil(np.percentile(finite_len, 95) / 0.8) + 1, 8, max_samples))
-        rhos = np.linspace(lo, hi, M)
-        step = (hi - lo) / (M - 1)
-        q, zq = proj(np.broadcast_to(rhos, (m, M)))  # (m, M, 2), (m, M)
-        # reference pattern (mean-free)
-        rx = pix[:, 0:1] + PATTERN[None, :, 0]
-        ry = pix[:, 1:2] + PATTERN[None, :, 1]
-        ref_v = _sample(ref_img, rx, ry)  # (m, P)
-        ref_v = ref_v - ref_v.mean(axis=1, keepdims=True)
-        sx = q[..., 0][..., None] + PATTERN[None, None, :, 0]
-        sy = q[..., 1][..., None] + PATTERN[None, None, :, 1]
-        nb_v = _sample(nb_img, sx, sy)  # (m, M, P)
-        nb_v = nb_v - nb_v.mean(axis=2, keepdims=True)
-        cost = np.sum((nb_v - ref_v[:, None, :]) ** 2, axis=2)
-        cost[~np.isfinite(cost) | (zq <= 0)] = np.inf
-        best = np.argmin(cost, axis=1)
-        bcost = cost[np.arange(m), best]
-        # uniqueness: best cost outside +-2 samples of the minimum
-        idx = np.arange(M)[None, :]
-        far = np.abs(idx - best[:, None]) > 2
-        second = np.where(far, cost, np.inf).min(axis=1)
-        ok = (
-            np.isfinite(bcost)
-            & (best > 0)
-            & (best < M - 1)
-            & (bcost < uniqueness * second)
-            & (bcost < max_cost_per_px * P)
-        )
-        rho = lo + best * step
-        # Gauss-Newton along the line in inverse depth (3 iterations)
-        gxr = ref_grad[0][pix[:, 1].astype(int), pix[:, 0].astype(int)]
-        gyr = ref_grad[1][pix[:, 1].astype(int), pix[:, 0].astype(int)]
-        for _ in range(3):
-            qq, _z = proj(rho)
-            dq = (proj(rho + 1e-3 * step)[0] - proj(rho - 1e-3 * step)[0]) / (2e-3 * step)  # (m, 2) px per unit rho
-            sx = qq[:, 0:1] + PATTERN[None, :, 0]
-            sy = qq[:, 1:2] + PATTERN[None, :, 1]
-            val = _sample(nb_img, sx, sy)
-            gx = _sample(nb_grad[0], sx, sy)
-            gy = _sample(nb_grad[1], sx, sy)
-            r = (val - val.mean(axis=1, keepdims=True)) - ref_v
-            J = gx * dq[:, 0:1] + gy * dq[:, 1:2]
-            J = J - J.mean(axis=1, keepdims=True)
-            H = np.sum(J * J, axis=1)
-            g = np.sum(J * r, axis=1)
-            d = -g / np.maximum(H, 1e-20)
-            d = np.clip(d, -step, step)
-            d[~np.isfinite(d)] = 0.0
-            rho = rho + d
-        ok &= np.isfinite(rho) & (rho > 0)
-        # variance: photometric (noise through the gradient along the line) + geometric
-        dq_norm = np.linalg.norm(dq, axis=1)
-        line = dq / np.maximum(dq_norm, 1e-12)[:, None]
-        H_px = H / np.maximum(dq_norm, 1e-12) ** 2  # sum (g . l)^2, intensity^2 per px^2
-        sig_photo_px = noise_sigma * np.sqrt(2.0) / np.sqrt(np.maximum(H_px, 1e-20))
-        g_along = np.abs(gxr * line[:, 0] + gyr * line[:, 1])
-        g_perp = np.abs(-gxr * line[:, 1] + gyr * line[:, 0])
-        sig_geo_px = geometric_sigma_px * g_perp / np.maximum(g_along, 1e-6)
-        sig_px = np.sqrt(sig_photo_px**2 + sig_geo_px**2 + 0.05**2)
-        sig_rho = sig_px / np.maximum(dq_norm, 1e-12)
-        # final check on the refined cost
-        qq, zz = proj(rho)
-        sx = qq[:, 0:1] + PATTERN[None, :, 0]
-        sy = qq[:, 1:2] + PATTERN[None, :, 1]
-        val = _sample(nb_img, sx, sy)
-        rc = np.sum(((val - val.mean(axis=1, keepdims=True)) - ref_v) ** 2, axis=1)
-        ok &= np.isfinite(rc) & (rc < max_cost_per_px * P) & (zz > 0)
-        ok &= (qq[:, 0] > 2) & (qq[:, 0] < w - 3) & (qq[:, 1] > 2) & (qq[:, 1] < h - 3)
-        out_rho[s : s + m][ok] = rho[ok]
-        out_sig[s : s + m][ok] = sig_rho[ok]
-    return out_rho, out_sig
-
-
 def fuse_estimates(rho: np.ndarray, sigma: np.ndarray, *, gate: float = 2.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Outlier-rejecting inverse-variance fusion of per-neighbour estimates.
 
@@ -314,11 +143,32 @@ def fuse_estimates(rho: np.ndarray, sigma: np.ndarray, *, gate: float = 2.5) -> 
     return fused, sig, n_views
 
 
-def image_gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Central-difference gradients (per pixel) of a float32 image."""
-    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
-    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
-    return gx, gy
+@dataclass(frozen=True, kw_only=True)
+class KeyframeDepthConfig:
+    """Options of :func:`keyframe_depth`.
+
+    Attributes
+    ----------
+    grad_threshold : float
+        Minimum gradient of a candidate pixel, grey levels (0-255) per pixel (:func:`select_pixels`).
+    max_points : int
+        Most candidate pixels.
+    cell_px : int
+        At most one candidate pixel per ``cell_px`` square.
+    min_views : int
+        Agreeing neighbours a pixel needs (capped at the number of neighbours).
+    max_rel_sigma : float
+        Maximum depth sigma over depth of a kept point.
+    noise_sigma : float
+        Image noise, grey levels on the [0, 1] scale (:class:`EpipolarSearchConfig`).
+    """
+
+    grad_threshold: float = 6.0
+    max_points: int = 12000
+    cell_px: int = 3
+    min_views: int = 2
+    max_rel_sigma: float = 0.02
+    noise_sigma: float = 2.0 / 255.0
 
 
 def keyframe_depth(
@@ -327,12 +177,8 @@ def keyframe_depth(
     K: np.ndarray,
     inv_depth_range: tuple[float, float],
     *,
-    grad_threshold: float = 6.0,
-    max_points: int = 12000,
-    cell_px: int = 3,
-    min_views: int = 2,
-    max_rel_sigma: float = 0.02,
-    noise_sigma: float = 2.0 / 255.0,
+    config: KeyframeDepthConfig | None = None,
+    **overrides,
 ) -> SemiDenseDepth:
     """Semi-dense depth of a reference keyframe from its neighbours.
 
@@ -346,32 +192,30 @@ def keyframe_depth(
         Pinhole intrinsics.
     inv_depth_range : (float, float)
         Inverse-depth search interval (from the sparse map).
-    cell_px : int
-        At most one candidate pixel per ``cell_px`` square.
-    min_views : int
-        Agreeing neighbours a pixel needs (capped at the number of neighbours).
-    max_rel_sigma : float
-        Maximum depth sigma over depth of a kept point.
+    config : KeyframeDepthConfig, optional
+        Options; its fields may also be given as keywords (``grad_threshold=``, ...).
 
     Returns
     -------
     SemiDenseDepth
     """
-    pixels = select_pixels(ref_img, grad_threshold=grad_threshold, max_points=max_points, cell_px=cell_px)
-    empty = SemiDenseDepth(pixels=np.zeros((0, 2)), inv_depth=np.zeros(0), inv_depth_sigma=np.zeros(0),
-                           n_views=np.zeros(0, int), intensities=np.zeros(0, np.float32))
+    cfg = config if config is not None else KeyframeDepthConfig()
+    if overrides:
+        cfg = replace(cfg, **overrides)
+    pixels = select_pixels(ref_img, grad_threshold=cfg.grad_threshold, max_points=cfg.max_points, cell_px=cfg.cell_px)
     if len(pixels) == 0 or not neighbors:
-        return empty
-    ref_grad = image_gradients(ref_img)
+        return SemiDenseDepth(pixels=np.zeros((0, 2)), inv_depth=np.zeros(0), inv_depth_sigma=np.zeros(0),
+                              n_views=np.zeros(0, int), intensities=np.zeros(0, np.float32))
+    ref = GradientImage.of(ref_img)
+    search = EpipolarSearchConfig(noise_sigma=cfg.noise_sigma)
     rhos, sigs = [], []
     for nb_img, T_nb_ref in neighbors:
-        r, s = epipolar_search(ref_img, ref_grad, nb_img, image_gradients(nb_img), T_nb_ref, K, pixels,
-                               inv_depth_range, noise_sigma=noise_sigma)
+        r, s = epipolar_search(ref, GradientImage.of(nb_img), T_nb_ref, K, pixels, inv_depth_range, config=search)
         rhos.append(r)
         sigs.append(s)
     rho, sig, nv = fuse_estimates(np.column_stack(rhos), np.column_stack(sigs))
-    need = min(min_views, len(neighbors))
-    keep = np.isfinite(rho) & (rho > 0) & (nv >= need) & (sig / np.maximum(rho, 1e-12) < max_rel_sigma)
+    need = min(cfg.min_views, len(neighbors))
+    keep = np.isfinite(rho) & (rho > 0) & (nv >= need) & (sig / np.maximum(rho, 1e-12) < cfg.max_rel_sigma)
     px = pixels[keep]
     return SemiDenseDepth(
         pixels=px.astype(float),
@@ -380,6 +224,32 @@ def keyframe_depth(
         n_views=nv[keep],
         intensities=ref_img[px[:, 1], px[:, 0]].astype(np.float32),
     )
+
+
+def _in_reference(K: np.ndarray, other: tuple, radius_px: float, tree):
+    """Another keyframe's points that project within ``radius_px`` of a reference pixel:
+    ``(idx, rho, sigma, dist)`` with the reference pixel index, the inverse depth and its sigma
+    in the reference camera and the pixel distance; None when there are none."""
+    opx, orho, osig, T_ref_o = other
+    if len(opx) == 0:
+        return None
+    rays = (np.linalg.inv(K) @ np.column_stack([opx, np.ones(len(opx))]).T).T
+    Xo = rays / orho[:, None]
+    Xr = Xo @ T_ref_o[:3, :3].T + T_ref_o[:3, 3]
+    z = Xr[:, 2]
+    front = z > 1e-9
+    if not np.any(front):
+        return None
+    Xr, z, zo, osig_f = Xr[front], z[front], 1.0 / orho[front], osig[front]
+    uv = (Xr @ K.T)[:, :2] / z[:, None]
+    r_new = 1.0 / z
+    # sigma in the reference camera: same depth sigma (the views are nearly parallel), rescaled
+    s_new = osig_f * zo**2 / z**2
+    dist, idx = tree.query(uv, distance_upper_bound=radius_px)
+    hit = np.isfinite(dist)
+    if not np.any(hit):
+        return None
+    return idx[hit], r_new[hit], s_new[hit], dist[hit]
 
 
 def fuse_across_keyframes(
@@ -431,28 +301,12 @@ def fuse_across_keyframes(
     n_fused = np.zeros(n, int)
     if n == 0 or not others:
         return rho.copy(), sig.copy(), n_fused
-    Kinv = np.linalg.inv(K)
     tree = cKDTree(px)
-    for opx, orho, osig, T_ref_o in others:
-        if len(opx) == 0:
+    for other in others:
+        found = _in_reference(K, other, radius_px, tree)
+        if found is None:
             continue
-        rays = (Kinv @ np.column_stack([opx, np.ones(len(opx))]).T).T
-        Xo = rays / orho[:, None]
-        Xr = Xo @ T_ref_o[:3, :3].T + T_ref_o[:3, 3]
-        z = Xr[:, 2]
-        front = z > 1e-9
-        if not np.any(front):
-            continue
-        Xr, z, zo, osig_f = Xr[front], z[front], 1.0 / orho[front], osig[front]
-        uv = (Xr @ K.T)[:, :2] / z[:, None]
-        r_new = 1.0 / z
-        # sigma in the reference camera: same depth sigma (the views are nearly parallel), rescaled
-        s_new = osig_f * zo**2 / z**2
-        dist, idx = tree.query(uv, distance_upper_bound=radius_px)
-        hit = np.isfinite(dist)
-        if not np.any(hit):
-            continue
-        idx, r_new, s_new, dist = idx[hit], r_new[hit], s_new[hit], dist[hit]
+        idx, r_new, s_new, dist = found
         agree = np.abs(r_new - rho[idx]) <= gate * np.sqrt(s_new**2 + sig[idx] ** 2)
         idx, r_new, s_new, dist = idx[agree], r_new[agree], s_new[agree], dist[agree]
         # one contribution per reference pixel and keyframe: the nearest agreeing projection

@@ -7,7 +7,8 @@ that other threads may hold for as long as they like while the engine moves on.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Protocol, runtime_checkable
+from enum import StrEnum
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -21,7 +22,15 @@ __all__ = [
     "FrameSource",
 ]
 
-VseStatus = Literal["initializing", "tracking", "lost", "failed"]
+
+
+class VseStatus(StrEnum):
+    """Tracking status of an engine (a ``str``: compares, formats and serialises as its value)."""
+
+    INITIALIZING = "initializing"
+    TRACKING = "tracking"
+    LOST = "lost"
+    FAILED = "failed"
 
 
 @runtime_checkable
