@@ -70,7 +70,7 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
     if not near or not first_trusted:
         # A second opinion: a far 3D estimate may be a confidently wrong fit, a near one from an
         # untrustworthy fit may be a slide. When the image localizer puts the camera near, the loop
-        # and its image fallback take it from there (docs/relocation.md, active coarse stage).
+        # and its image fallback take it from there (docs/relocation.md, "Far starts").
         rig.progress(0, 0, "locating the camera in the reference images")
         t0 = time.monotonic()
         T_img, _info = image_estimate(reference_images=reference_images(start.station), current_image=grab_gray(rig),

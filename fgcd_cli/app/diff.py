@@ -20,6 +20,7 @@ from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
 from fgcd_cli.metrics.afd import FdfResult, compute_fdf
+from fgcd_cli.report.html import ReportContext
 from fgcd_cli.report.products import diff_products, result_summary
 
 Progress = Callable[[str], None] | None
@@ -134,8 +135,9 @@ def run_bare(ref: list[str] | None = None, cur: list[str] | None = None, output:
     metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
     if mm_per_px is not None:
         metadata["scale (mm per px)"] = mm_per_px
-    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, metadata=metadata,
-                          title="Change report", subtitle=f"{ref_paths[0].resolve().parent} — reference vs current")
+    context = ReportContext(metadata=metadata, title="Change report",
+                            subtitle=f"{ref_paths[0].resolve().parent} — reference vs current")
+    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, context=context)
     _write_dir(output, files)
     data = result_summary(result, fdf)
     data["output"] = str(output)
@@ -245,20 +247,51 @@ def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | Non
     return area if np.isfinite(area).any() else None
 
 
-def run_campaign(
-    campaign: Path,
-    station: str,
-    *,
-    visit: str | None = None,
-    eval_mask: Path | None = None,
-    mm_per_px: float | None = None,
-    register: bool = True,
-    output: Path | None = None,
-    edge_check_px: int | None = None,
-    progress: Progress = None,
-) -> dict:
-    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``)."""
+@dataclass(frozen=True, kw_only=True)
+class CampaignDiffRequest:
+    """A comparison of a station's visit with its reference (``fgcd diff -c ... -s ...``).
+
+    Attributes
+    ----------
+    campaign : Path
+    station : str
+    visit : str or None
+        The visit's name (None: the latest).
+    eval_mask : Path or None
+        Mask of the pixels to compare.
+    mm_per_px : float or None
+        Scale of the reference image, millimetres per pixel (None: from the reference's metric cloud).
+    register : bool
+        Register the current images onto the reference first.
+    output : Path or None
+        A folder that also receives the products (they are always stored in the visit).
+    edge_check_px : int or None
+        Region-level edge check shift, pixels (None: :data:`EDGE_CHECK_PX`; 0: off).
+    """
+
+    campaign: Path
+    station: str
+    visit: str | None = None
+    eval_mask: Path | None = None
+    mm_per_px: float | None = None
+    register: bool = True
+    output: Path | None = None
+    edge_check_px: int | None = None
+
+
+def run_campaign(campaign: Path | None = None, station: str | None = None, *,
+                 request: CampaignDiffRequest | None = None, progress: Progress = None, **options) -> dict:
+    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``).
+
+    The former form ``run_campaign(campaign, station, visit=..., ...)`` builds the request from ``options``.
+    """
     from fgcd_cli.campaign import open_campaign
+
+    if request is None:
+        request = CampaignDiffRequest(campaign=campaign, station=station, **options)
+    r = request
+    campaign, station, visit, eval_mask, mm_per_px = r.campaign, r.station, r.visit, r.eval_mask, r.mm_per_px
+    register, output, edge_check_px = r.register, r.output, r.edge_check_px
 
     camp = open_campaign(campaign)
     st = camp.station(station)
@@ -294,10 +327,10 @@ def run_campaign(
         "edge check": (f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
                        "edges set aside (cyan outlines)" if edge_check else "off"),
     }
-    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf,
-                          relocation_log=relocation_log_rows(observation), metadata=metadata,
-                          title=f"Station {station}: change report",
-                          subtitle=f"{camp.site} · reference vs visit {observation.name}")
+    context = ReportContext(relocation_log=relocation_log_rows(observation), metadata=metadata,
+                            title=f"Station {station}: change report",
+                            subtitle=f"{camp.site} · reference vs visit {observation.name}")
+    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, context=context)
     for name, data in files.items():
         observation.add_derived(schema.change_relpath(name), data)
     if fdf is not None:

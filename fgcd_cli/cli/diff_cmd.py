@@ -127,9 +127,10 @@ def diff(
         run_record.no_platform()
         where = output or f"visit {visit or '(latest)'} of station '{station}'"
         with run_record.writing(f"the change maps and report in {where}", whole=False):
-            data = diff_uc.run_campaign(campaign, station, visit=visit, eval_mask=eval_mask, mm_per_px=mm_per_px,
-                                register=not no_register, output=output, edge_check_px=edge_check,
-                                progress=None if as_json else info)
+            request = diff_uc.CampaignDiffRequest(campaign=campaign, station=station, visit=visit, eval_mask=eval_mask,
+                                                  mm_per_px=mm_per_px, register=not no_register, output=output,
+                                                  edge_check_px=edge_check)
+            data = diff_uc.run_campaign(request=request, progress=None if as_json else info)
     else:
         if not ref or not cur:
             raise UserInputError("give --ref and --cur images (or --campaign and --station)")

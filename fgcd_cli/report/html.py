@@ -202,6 +202,32 @@ def _convergence_caption(relocation_log: list[dict]) -> str:
     return caption
 
 
+@dataclass(frozen=True, kw_only=True)
+class ReportContext:
+    """What a diff report shows beside the comparison itself.
+
+    Attributes
+    ----------
+    relocation_log : list of dict or None
+        One row per relocation adjustment (the convergence figure).
+    metadata : dict or None
+        Capture metadata shown as a table.
+    title, subtitle : str
+        The page's heading.
+    max_table_rows : int
+        Regions listed in the table (all of them are in regions.json).
+    max_closeups : int
+        Regions enlarged (0: no close-ups).
+    """
+
+    relocation_log: list[dict] | None = None
+    metadata: dict | None = None
+    title: str = "Change report"
+    subtitle: str = ""
+    max_table_rows: int = 50
+    max_closeups: int = 12
+
+
 def render_diff_report(
     *,
     ref_image: np.ndarray,
@@ -209,12 +235,8 @@ def render_diff_report(
     result: ChangeResult,
     cur_registered: np.ndarray | None = None,
     fdf: FdfResult | None = None,
-    relocation_log: list[dict] | None = None,
-    metadata: dict | None = None,
-    title: str = "Change report",
-    subtitle: str = "",
-    max_table_rows: int = 50,
-    max_closeups: int = 12,
+    context: ReportContext | None = None,
+    **context_fields,
 ) -> str:
     """HTML text of the report of one comparison (reference vs current observation).
 
@@ -226,12 +248,26 @@ def render_diff_report(
         into the reference frame, shown instead of ``cur_image`` when given.
     result : ChangeResult from :func:`fgcd_cli.changes.detect_changes`.
     fdf : FdfResult, optional; the FDF quiver and AFD of this pair.
-    relocation_log : list of dict, optional; one row per relocation adjustment.
-    metadata : dict, optional; capture metadata shown as a table.
+    context : ReportContext, optional; relocation log, metadata, title and limits. The
+        former keywords (``relocation_log=``, ``metadata=``, ``title=``, ...) build it.
     """
-    parts = [f"<h1>{html.escape(title)}</h1>"]
-    if subtitle:
-        parts.append(f'<div class="sub">{html.escape(subtitle)}</div>')
+    ctx = context if context is not None else ReportContext(**context_fields)
+    shown_cur = cur_registered if cur_registered is not None else cur_image
+    parts = _summary_section(result, fdf, ctx)
+    parts += _images_section(ref_image, shown_cur, registered=cur_registered is not None)
+    if result.comparable:
+        parts += _changes_section(ref_image, shown_cur, result, ctx)
+    if fdf is not None or ctx.relocation_log:
+        parts += _relocation_section(ref_image, fdf, ctx.relocation_log)
+    parts.append("<h2>Capture and processing details</h2>" + _kv_table(_details(result, fdf, ctx.metadata)))
+    return _page(ctx.title, "".join(parts))
+
+
+def _summary_section(result: ChangeResult, fdf: FdfResult | None, ctx: ReportContext) -> list[str]:
+    """Title, verdict, warnings, the regions set aside and the camera return (AFD)."""
+    parts = [f"<h1>{html.escape(ctx.title)}</h1>"]
+    if ctx.subtitle:
+        parts.append(f'<div class="sub">{html.escape(ctx.subtitle)}</div>')
     parts.append(_verdict(result))
     for warning in result.warnings:
         parts.append(f'<div class="warn">⚠ {html.escape(warning)}</div>')
@@ -249,92 +285,117 @@ def render_diff_report(
             f'<p>Camera return: AFD = <b>{fdf.afd_px:.2f} px</b> ({fdf.method}, {fdf.inliers} vectors), '
             f"{quality} the 3 px success limit of the rACR paper. Residual motion is compensated before comparing.</p>"
         )
+    return parts
 
-    shown_cur = cur_registered if cur_registered is not None else cur_image
-    parts.append("<h2>Reference and current images</h2><div class=\"pair\">")
-    parts.append(_figure(png_bytes(to_display_rgb(ref_image)), "Reference observation"))
-    cur_caption = ("Current observation, registered onto the reference and light-normalized" if cur_registered is not None
+
+def _images_section(ref_image: np.ndarray, shown_cur: np.ndarray, *, registered: bool) -> list[str]:
+    """The reference and current images side by side."""
+    cur_caption = ("Current observation, registered onto the reference and light-normalized" if registered
                    else "Current observation as captured (not registered)")
-    parts.append(_figure(png_bytes(to_display_rgb(shown_cur)), cur_caption))
+    return ["<h2>Reference and current images</h2><div class=\"pair\">",
+            _figure(png_bytes(to_display_rgb(ref_image)), "Reference observation"),
+            _figure(png_bytes(to_display_rgb(shown_cur)), cur_caption),
+            "</div>"]
+
+
+def _changes_section(ref_image: np.ndarray, shown_cur: np.ndarray, result: ChangeResult,
+                     ctx: ReportContext) -> list[str]:
+    """Where it changed: the change map and score, the regions table, close-ups, candidates."""
+    set_aside = int(result.settings.get("edge_explained_regions") or 0)
+    parts = ["<h2>Where it changed</h2><div class=\"pair\">"]
+    overlay = result_overlay(ref_image, result)
+    cues = sorted({r.cue for r in result.regions if r.cue in CUE_NAMES}, key=list(CUE_NAMES).index)
+    tint = ("tinted by cue: " + ", ".join(f"{CUE_NAMES[c]} = {c}" for c in cues)
+            + (", magenta = no cue" if any(r.cue is None for r in result.regions) else "")) if cues else "magenta"
+    parts.append(_figure(png_bytes(overlay), f"Changed regions ({tint}; numbered) on the reference; "
+                         + ("cyan outline = set aside as an edge effect; " if set_aside else "")
+                         + ("dashed amber circles c1, c2, … = strongest candidates, not reported; "
+                            if result.candidates else "")
+                         + "dimmed = not compared"))
+    parts.append(_figure(png_bytes(score_heatmap(result.score, result.valid, high=result.detection_level)),
+                         "Change score (bright = strong difference; saturates at the detection threshold)"))
     parts.append("</div>")
+    if result.regions:
+        parts += _regions_table(result, ctx.max_table_rows)
+        if ctx.max_closeups > 0:
+            parts += _closeups(ref_image, shown_cur, result, ctx.max_closeups)
+    if result.candidates:
+        parts.append(_candidates_table(result))
+    return parts
 
-    if result.comparable:
-        parts.append("<h2>Where it changed</h2><div class=\"pair\">")
-        overlay = result_overlay(ref_image, result)
-        cues = sorted({r.cue for r in result.regions if r.cue in CUE_NAMES}, key=list(CUE_NAMES).index)
-        tint = ("tinted by cue: " + ", ".join(f"{CUE_NAMES[c]} = {c}" for c in cues)
-                + (", magenta = no cue" if any(r.cue is None for r in result.regions) else "")) if cues else "magenta"
-        parts.append(_figure(png_bytes(overlay), f"Changed regions ({tint}; numbered) on the reference; "
-                             + ("cyan outline = set aside as an edge effect; " if set_aside else "")
-                             + ("dashed amber circles c1, c2, … = strongest candidates, not reported; "
-                                if result.candidates else "")
-                             + "dimmed = not compared"))
-        high = result.detection_level
-        parts.append(_figure(png_bytes(score_heatmap(result.score, result.valid, high=high)),
-                             "Change score (bright = strong difference; saturates at the detection threshold)"))
-        parts.append("</div>")
-        if result.regions:
-            has_mm2 = any(r.area_mm2 is not None for r in result.regions)
-            header = "<tr><th>#</th><th>area (px)</th>" + ("<th>area (mm²)</th>" if has_mm2 else "") + \
-                "<th>centre x, y (px)</th><th>size w × h (px)</th><th>strength (× threshold)</th>" \
-                '<th>significance (NFA)</th><th class="l">cue</th></tr>'
-            epsilon = _epsilon(result)
-            rows = []
-            high = result.detection_level or 1.0
-            for r in result.regions[:max_table_rows]:
-                x, y, w, h = r.bbox_xywh
-                rows.append(
-                    f"<tr><td>{r.id}</td><td>{r.area_px}</td>" + (f"<td>{area_mm2_text(r.area_mm2, r.area_px, unit=False)}</td>" if has_mm2 else "") +
-                    f"<td>{r.centroid_xy[0]:.0f}, {r.centroid_xy[1]:.0f}</td><td>{w} × {h}</td>"
-                    f"<td>{r.max_score / high:.1f}</td>"
-                    f"<td>{html.escape(region_significance_text(r.log10_nfa, epsilon=epsilon).removeprefix('NFA '))}</td>"
-                    f'<td class="l">{html.escape(r.cue or "–")}</td></tr>'
-                )
-            more = len(result.regions) - max_table_rows
-            parts.append(f"<h2>Changed regions</h2><table>{header}{''.join(rows)}</table>")
-            if more > 0:
-                parts.append(f'<p class="small">… and {more} smaller regions (all in regions.json).</p>')
-            parts.append('<p class="small">Positions are pixels of the reference image (x to the right, y down). '
-                         "Strength: the region's largest change score over the level at which the decision starts a "
-                         f"region (a-contrario: the pair's top {100 * float(result.settings.get('seed_p', 0.005)):g} % of scores; "
-                         "a region also needs its significance, so a weak but extended one may be below 1; "
-                         "hysteresis: its high threshold). Significance: the number of false alarms (NFA), how many regions "
-                         "at least as extreme are expected per image on an unchanged pair (a-contrario; "
-                         f"below {epsilon:g} = significant). Cue: what changed, relief (surface normals) or colour "
-                         "(albedo) or both, when the photometric cues were computed.</p>")
-            if max_closeups > 0:
-                parts.append("<h2>Close-ups</h2><p class=\"small\">Each region enlarged: reference | current "
-                             "(registered, light-normalized) | reference with the region outlined.</p>"
-                             '<div class="closeups">')
-                for r in result.regions[:max_closeups]:
-                    area = area_mm2_text(r.area_mm2, r.area_px) if r.area_mm2 is not None else f"{r.area_px} px"
-                    tile = region_closeup(ref_image, shown_cur, result.labels, r)
-                    extra = (f", NFA {nfa_text(r.log10_nfa)}" if r.log10_nfa is not None else "") + \
-                        (f", {r.cue}" if r.cue else "")
-                    parts.append(_figure(png_bytes(tile), f"Region {r.id}: {area}, strength {r.max_score / high:.1f}{extra}"))
-                parts.append("</div>")
-                if len(result.regions) > max_closeups:
-                    parts.append(f'<p class="small">Close-ups of the {max_closeups} largest regions only.</p>')
 
-        if result.candidates:
-            parts.append(_candidates_table(result))
+def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
+    """The changed regions as a table (largest first), with what its columns mean."""
+    has_mm2 = any(r.area_mm2 is not None for r in result.regions)
+    header = "<tr><th>#</th><th>area (px)</th>" + ("<th>area (mm²)</th>" if has_mm2 else "") + \
+        "<th>centre x, y (px)</th><th>size w × h (px)</th><th>strength (× threshold)</th>" \
+        '<th>significance (NFA)</th><th class="l">cue</th></tr>'
+    epsilon = _epsilon(result)
+    rows = []
+    high = result.detection_level or 1.0
+    for r in result.regions[:max_rows]:
+        x, y, w, h = r.bbox_xywh
+        rows.append(
+            f"<tr><td>{r.id}</td><td>{r.area_px}</td>" + (f"<td>{area_mm2_text(r.area_mm2, r.area_px, unit=False)}</td>" if has_mm2 else "") +
+            f"<td>{r.centroid_xy[0]:.0f}, {r.centroid_xy[1]:.0f}</td><td>{w} × {h}</td>"
+            f"<td>{r.max_score / high:.1f}</td>"
+            f"<td>{html.escape(region_significance_text(r.log10_nfa, epsilon=epsilon).removeprefix('NFA '))}</td>"
+            f'<td class="l">{html.escape(r.cue or "–")}</td></tr>'
+        )
+    more = len(result.regions) - max_rows
+    parts = [f"<h2>Changed regions</h2><table>{header}{''.join(rows)}</table>"]
+    if more > 0:
+        parts.append(f'<p class="small">… and {more} smaller regions (all in regions.json).</p>')
+    parts.append('<p class="small">Positions are pixels of the reference image (x to the right, y down). '
+                 "Strength: the region's largest change score over the level at which the decision starts a "
+                 f"region (a-contrario: the pair's top {100 * float(result.settings.get('seed_p', 0.005)):g} % of scores; "
+                 "a region also needs its significance, so a weak but extended one may be below 1; "
+                 "hysteresis: its high threshold). Significance: the number of false alarms (NFA), how many regions "
+                 "at least as extreme are expected per image on an unchanged pair (a-contrario; "
+                 f"below {epsilon:g} = significant). Cue: what changed, relief (surface normals) or colour "
+                 "(albedo) or both, when the photometric cues were computed.</p>")
+    return parts
 
-    if fdf is not None or relocation_log:
-        parts.append("<h2>Camera relocation</h2><div class=\"pair\">")
-        if fdf is not None:
-            parts.append(_figure(
-                fdf_quiver_png(ref_image, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px, inliers=fdf.inliers, method=fdf.method),
-                "Feature displacement field from reference to current image (before registration)"))
-        parts.append("</div>")
-        if relocation_log:
-            # Full width: three panels side by side are unreadable at half the page.
-            try:
-                parts.append('<div class="pair"><figure class="wide">' +
-                             _img(convergence_png(relocation_log), "relocation convergence") +
-                             f"<figcaption>{html.escape(_convergence_caption(relocation_log))}</figcaption></figure></div>")
-            except ValueError as exc:  # a log without any plottable column
-                parts.append(f'<p class="small">Relocation log not plotted: {html.escape(str(exc))}.</p>')
 
+def _closeups(ref_image: np.ndarray, shown_cur: np.ndarray, result: ChangeResult, max_closeups: int) -> list[str]:
+    """Each of the largest regions enlarged: reference | current | reference with the region outlined."""
+    high = result.detection_level or 1.0
+    parts = ["<h2>Close-ups</h2><p class=\"small\">Each region enlarged: reference | current "
+             "(registered, light-normalized) | reference with the region outlined.</p>"
+             '<div class="closeups">']
+    for r in result.regions[:max_closeups]:
+        area = area_mm2_text(r.area_mm2, r.area_px) if r.area_mm2 is not None else f"{r.area_px} px"
+        tile = region_closeup(ref_image, shown_cur, result.labels, r)
+        extra = (f", NFA {nfa_text(r.log10_nfa)}" if r.log10_nfa is not None else "") + \
+            (f", {r.cue}" if r.cue else "")
+        parts.append(_figure(png_bytes(tile), f"Region {r.id}: {area}, strength {r.max_score / high:.1f}{extra}"))
+    parts.append("</div>")
+    if len(result.regions) > max_closeups:
+        parts.append(f'<p class="small">Close-ups of the {max_closeups} largest regions only.</p>')
+    return parts
+
+
+def _relocation_section(ref_image: np.ndarray, fdf: FdfResult | None, relocation_log: list[dict] | None) -> list[str]:
+    """Camera relocation: the FDF quiver and the convergence of the relocation log."""
+    parts = ["<h2>Camera relocation</h2><div class=\"pair\">"]
+    if fdf is not None:
+        parts.append(_figure(
+            fdf_quiver_png(ref_image, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px, inliers=fdf.inliers, method=fdf.method),
+            "Feature displacement field from reference to current image (before registration)"))
+    parts.append("</div>")
+    if relocation_log:
+        # Full width: three panels side by side are unreadable at half the page.
+        try:
+            parts.append('<div class="pair"><figure class="wide">' +
+                         _img(convergence_png(relocation_log), "relocation convergence") +
+                         f"<figcaption>{html.escape(_convergence_caption(relocation_log))}</figcaption></figure></div>")
+        except ValueError as exc:  # a log without any plottable column
+            parts.append(f'<p class="small">Relocation log not plotted: {html.escape(str(exc))}.</p>')
+    return parts
+
+
+def _details(result: ChangeResult, fdf: FdfResult | None, metadata: dict | None) -> dict:
+    """Capture and processing details: the metadata, registration, threshold and settings."""
     details = {}
     if metadata:
         details.update(metadata)
@@ -353,8 +414,7 @@ def render_diff_report(
     details["settings"] = result.settings
     if fdf is not None:
         details["afd settings"] = fdf.settings
-    parts.append("<h2>Capture and processing details</h2>" + _kv_table(details))
-    return _page(title, "".join(parts))
+    return details
 
 
 @dataclass(kw_only=True)

@@ -8,11 +8,12 @@ from dataclasses import asdict
 
 import numpy as np
 
+from fgcd_cli.campaign import schema
 from fgcd_cli.changes.detect import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
 from fgcd_cli.report.candidates import candidate_dict, nfa_value
 from fgcd_cli.report.figures import fdf_quiver_png, png_bytes, result_overlay
-from fgcd_cli.report.html import render_diff_report
+from fgcd_cli.report.html import ReportContext, render_diff_report
 
 SCORE_PNG_FULL_SCALE = 4.0
 """``change_score.png`` maps score 0..(4 x detection threshold) to 0..65535 (recorded in regions.json)."""
@@ -62,40 +63,42 @@ def diff_products(
     cur_images: list[np.ndarray],
     result: ChangeResult,
     fdf: FdfResult | None = None,
-    relocation_log: list[dict] | None = None,
-    metadata: dict | None = None,
-    title: str = "Change report",
-    subtitle: str = "",
+    context: ReportContext | None = None,
     shown_lighting: int = 0,
+    **context_fields,
 ) -> dict[str, bytes]:
     """All output files of a comparison, by file name.
 
     Returns a dict with ``change_score.png`` (16-bit), ``change_score.npy`` (float32),
     ``change_mask.png`` (0/255), ``overlay.png`` (the change map, its legend in a band
     below the image), ``regions.json``, ``report.html``
-    and, when ``fdf`` is given, ``fdf.png``.
+    and, when ``fdf`` is given, ``fdf.png``. ``context`` (relocation log, metadata, title,
+    subtitle; :class:`fgcd_cli.report.html.ReportContext`) is built from the former keywords
+    ``relocation_log=``, ``metadata=``, ``title=``, ``subtitle=`` when not given.
     """
+    ctx = context if context is not None else ReportContext(**context_fields)
+    metadata = ctx.metadata
     files: dict[str, bytes] = {}
     summary = result_summary(result, fdf)
     if metadata:
         summary["metadata"] = metadata
     full_scale = SCORE_PNG_FULL_SCALE * result.threshold.high if result.threshold else 1.0
     score16 = np.clip(result.score / full_scale * 65535.0 + 0.5, 0, 65535).astype(np.uint16)
-    files["change_score.png"] = png_bytes(score16)
+    files[schema.CHANGE_SCORE_PNG] = png_bytes(score16)
     buffer = io.BytesIO()
     np.save(buffer, result.score.astype(np.float32))
-    files["change_score.npy"] = buffer.getvalue()
-    files["change_mask.png"] = png_bytes((result.mask * 255).astype(np.uint8))
+    files[schema.CHANGE_SCORE_NPY] = buffer.getvalue()
+    files[schema.CHANGE_MASK_PNG] = png_bytes((result.mask * 255).astype(np.uint8))
     ref_shown = ref_images[shown_lighting]
     # The change map with its legend below it: rows 0..H-1 are pixel-aligned with the reference image.
-    files["overlay.png"] = png_bytes(result_overlay(ref_shown, result))
-    files["regions.json"] = json.dumps(summary, indent=1, default=float).encode()
+    files[schema.OVERLAY_PNG] = png_bytes(result_overlay(ref_shown, result))
+    files[schema.REGIONS_JSON] = json.dumps(summary, indent=1, default=float).encode()
     if fdf is not None:
-        files["fdf.png"] = fdf_quiver_png(ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px,
+        files[schema.FDF_PNG] = fdf_quiver_png(ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px,
                                           inliers=fdf.inliers, method=fdf.method)
-    files["report.html"] = render_diff_report(
+    files[schema.REPORT_HTML] = render_diff_report(
         ref_image=ref_shown, cur_image=cur_images[shown_lighting], result=result, fdf=fdf,
         cur_registered=result.current_registered[shown_lighting] if result.current_registered else None,
-        relocation_log=relocation_log, metadata=metadata, title=title, subtitle=subtitle,
+        context=ctx,
     ).encode()
     return files

@@ -4,6 +4,7 @@ from fgcd_cli.app.diff import (  # noqa: F401 - re-exports
     EDGE_CHECK_PX,
     LARGE_FRAME_PX,
     BareDiffRequest,
+    CampaignDiffRequest,
     measure_fdf,
     relocation_log_rows,
     relocation_residual_mm,
