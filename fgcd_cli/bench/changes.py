@@ -30,6 +30,7 @@ import numpy as np
 
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.baseline_iccv import iccv2015_score
+from fgcd_cli.changes.config import DecisionRule
 from fgcd_cli.changes.detect import decide
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.registration import warp_to_reference
@@ -39,10 +40,10 @@ DATASET = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "fgcd
 
 # Leave-one-group-out grid of the decision's two data-chosen constants (a-contrario:
 # seed_p, extent_fraction; epsilon = 1 is fixed by its meaning, not chosen).
-GRID = tuple(("acontrario", seed_p, extent) for seed_p in (0.002, 0.005, 0.01) for extent in (0.2, 0.3, 0.4))
-QUICK_GRID = tuple(("acontrario", seed_p, extent) for seed_p in (0.005, 0.01) for extent in (0.2, 0.3))
+GRID = tuple((DecisionRule.ACONTRARIO, seed_p, extent) for seed_p in (0.002, 0.005, 0.01) for extent in (0.2, 0.3, 0.4))
+QUICK_GRID = tuple((DecisionRule.ACONTRARIO, seed_p, extent) for seed_p in (0.005, 0.01) for extent in (0.2, 0.3))
 # The former tuned rule (median + k sigma, hysteresis), scored the same way as a reference.
-HYSTERESIS_GRID = tuple(("hysteresis", k, 0.0) for k in (14.0, 20.0, 28.0))
+HYSTERESIS_GRID = tuple((DecisionRule.HYSTERESIS, k, 0.0) for k in (14.0, 20.0, 28.0))
 # The score's own data-set constants (light-gain window, smoothing; px), varied one at a time
 # around the shipped (12, 2) in the full run: the threshold-free figures are then also
 # reported with these chosen leave one group out (``logo_*_all_constants``).
@@ -52,7 +53,7 @@ SCORE_GRID = ((12.0, 2.0), (6.0, 2.0), (24.0, 2.0), (12.0, 1.0), (12.0, 3.0))
 def detector_options(key: tuple) -> dict:
     """``decide`` keyword options of one grid point."""
     rule, a, b = key
-    if rule == "hysteresis":
+    if rule == DecisionRule.HYSTERESIS:
         return {"decision": rule, "k_high": a, "k_low": a / 2.0}
     return {"decision": rule, "seed_p": a, "extent_fraction": b}
 

@@ -54,6 +54,7 @@ Replaced or left out
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -195,17 +196,33 @@ def _low_rank_sparse(m: np.ndarray, rank: int, threshold: float) -> tuple[np.nda
     return low, s
 
 
+@dataclass(frozen=True, kw_only=True)
+class ICCV2015Config:
+    """Settings of the ICCV 2015 baseline (:func:`iccv2015_details`)."""
+
+    n_normal_bins: int = 16
+    """Number of normal groups of the lighting correction (spherical k-means on the reference
+    pseudo-normals), >= 1. 1: one global gain per lighting."""
+    rank: int = 3
+    """Rank of the no-change part of the ``2K x N`` matrix (reference and corrected current images
+    as rows): 3 for Lambertian surfaces under directional lights; an ambient image adds one."""
+    spatial_sigma_px: float | None = 40.0
+    """Gaussian sigma (pixels) of the smooth spatial log gain fitted together with the group gains
+    (near lights); None: group gains only."""
+    sparse_threshold: float = 2.0
+    """Soft threshold of the sparse part, in robust sigmas (1.4826 MAD) of each column's residual."""
+    smooth_sigma_px: float = 2.0
+    """Gaussian sigma (pixels) applied to the averaged error map; 0: none."""
+
+
 def iccv2015_details(
     ref_images: list[np.ndarray],
     cur_images: list[np.ndarray],
     *,
     valid: np.ndarray,
     ambient_index: int | None = 0,
-    n_normal_bins: int = 16,
-    rank: int = 3,
-    spatial_sigma_px: float | None = 40.0,
-    sparse_threshold: float = 2.0,
-    smooth_sigma_px: float = 2.0,
+    config: ICCV2015Config | None = None,
+    **overrides,
 ) -> ICCV2015Result:
     """ICCV 2015 baseline change score with its intermediate results.
 
@@ -222,32 +239,66 @@ def iccv2015_details(
         normals (it still enters the correction, the separation and the
         average); None if all images are directional. At least 3 directional
         images are needed.
-    n_normal_bins : int
-        Number of normal groups of the lighting correction (spherical k-means
-        on the reference pseudo-normals), >= 1. 1: one global gain per lighting.
-    rank : int
-        Rank of the no-change part of the ``2K x N`` matrix (reference and
-        corrected current images as rows); 4 = 3 (Lambertian, directional
-        lights) + 1 (ambient).
-    spatial_sigma_px : float or None
-        Gaussian sigma (pixels) of the smooth spatial log gain fitted together
-        with the group gains (near lights); None: group gains only.
-    sparse_threshold : float
-        Soft threshold of the sparse part, in robust sigmas (1.4826 MAD) of
-        each column's residual.
-    smooth_sigma_px : float
-        Gaussian sigma (pixels) applied to the averaged error map; 0: none.
+    config : ICCV2015Config, optional
+        The settings; ``**overrides`` replace its fields by name (``rank=4``...).
 
     Returns
     -------
     ICCV2015Result
     """
+    config = dataclasses.replace(config or ICCV2015Config(), **overrides)
+    refs, curs, valid = _checked_inputs(ref_images, cur_images, valid, config)
+    shape = refs[0].shape[:2]
+    h, w = shape
+    k_count = len(refs)
+    index = np.flatnonzero(valid.ravel())
+    n_groups = config.n_normal_bins + 1  # the last group: unknown normals
+    if index.size < 10 * n_groups:
+        return ICCV2015Result(
+            score=np.zeros(shape, np.float32), error_maps=np.zeros((k_count, h, w), np.float32),
+            normal_groups=np.full(shape, -1, np.int32), group_log_gains=np.zeros((k_count, n_groups)))
+
+    # 1. Normals of the reference, in the basis shared with the current observation.
+    fit_ref, _ = joint_photometric_stereo(refs, curs, valid=valid, ambient_index=ambient_index)
+    normals = fit_ref.normals.reshape(-1, 3)[index]
+    known = np.all(np.isfinite(normals), axis=1)
+    group = np.full(index.size, config.n_normal_bins, np.int32)
+    group[known] = _normal_groups(normals[known].astype(np.float64), config.n_normal_bins)
+
+    # 2. Normal-aware lighting correction of the current images (log domain).
+    x = np.stack([to_gray(im).ravel()[index] for im in refs])  # K x N
+    y = np.stack([to_gray(im).ravel()[index] for im in curs])
+    levels = np.maximum(np.median(x, axis=1), 1e-4)  # K
+    corrected, gains = _corrected_current(x, y, group, levels, index=index, shape=shape, config=config)
+
+    # 3. Low-rank + sparse separation of [reference | corrected current], one row per pixel.
+    m = np.concatenate([x, corrected], axis=0) / np.concatenate([levels, levels])[:, None]  # 2K x N
+    _, sparse = _low_rank_sparse(m, config.rank, config.sparse_threshold)
+    errors = np.abs(sparse[k_count:] - sparse[:k_count])  # K x N
+
+    # 4. Error maps, averaged over the lightings and smoothed.
+    error_maps = np.zeros((k_count, h * w), np.float32)
+    error_maps[:, index] = errors
+    error_maps = error_maps.reshape(k_count, h, w)
+    score = error_maps.mean(axis=0)
+    if config.smooth_sigma_px > 0:
+        weight = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), config.smooth_sigma_px)
+        score = cv2.GaussianBlur(score, (0, 0), config.smooth_sigma_px) / np.maximum(weight, 1e-6)
+    score = np.where(valid, score, 0.0).astype(np.float32)
+    groups_map = np.full(h * w, -1, np.int32)
+    groups_map[index] = group
+    return ICCV2015Result(score=score, error_maps=error_maps, normal_groups=groups_map.reshape(h, w),
+                          group_log_gains=gains)
+
+
+def _checked_inputs(ref_images, cur_images, valid, config: ICCV2015Config):
+    """The stacks as float32 [0, 1] and the valid mask as bool; raises UserInputError for bad input."""
     if len(ref_images) != len(cur_images):
         raise UserInputError(f"{len(ref_images)} reference image(s) but {len(cur_images)} current image(s)")
-    if n_normal_bins < 1:
-        raise UserInputError(f"n_normal_bins must be >= 1, got {n_normal_bins}")
-    if rank < 1:
-        raise UserInputError(f"rank must be >= 1, got {rank}")
+    if config.n_normal_bins < 1:
+        raise UserInputError(f"n_normal_bins must be >= 1, got {config.n_normal_bins}")
+    if config.rank < 1:
+        raise UserInputError(f"rank must be >= 1, got {config.rank}")
     refs = [to_float_image(im, name=f"reference image {i + 1}") for i, im in enumerate(ref_images)]
     curs = [to_float_image(im, name=f"current image {i + 1}") for i, im in enumerate(cur_images)]
     shape = refs[0].shape[:2]
@@ -257,62 +308,31 @@ def iccv2015_details(
     valid = np.asarray(valid, bool)
     if valid.shape != shape:
         raise UserInputError(f"valid mask is {valid.shape}, images are {shape}")
-    h, w = shape
-    k_count = len(refs)
-    index = np.flatnonzero(valid.ravel())
-    n_groups = n_normal_bins + 1  # the last group: unknown normals
-    empty = ICCV2015Result(
-        score=np.zeros(shape, np.float32), error_maps=np.zeros((k_count, h, w), np.float32),
-        normal_groups=np.full(shape, -1, np.int32), group_log_gains=np.zeros((k_count, n_groups)))
-    if index.size < 10 * n_groups:
-        return empty
+    return refs, curs, valid
 
-    # 1. Normals of the reference, in the basis shared with the current observation.
-    fit_ref, _ = joint_photometric_stereo(refs, curs, valid=valid, ambient_index=ambient_index)
-    normals = fit_ref.normals.reshape(-1, 3)[index]
-    known = np.all(np.isfinite(normals), axis=1)
-    group = np.full(index.size, n_normal_bins, np.int32)
-    group[known] = _normal_groups(normals[known].astype(np.float64), n_normal_bins)
+
+def _corrected_current(x, y, group, levels, *, index, shape, config: ICCV2015Config):
+    """The current grey levels (K x N) corrected by a log gain per lighting and normal group (and, with
+    ``spatial_sigma_px``, a smooth spatial log gain fitted alternately); returns them and the group gains."""
+    n_groups = config.n_normal_bins + 1
     order = np.argsort(group, kind="stable")
     starts = np.searchsorted(group[order], np.arange(n_groups + 1))
-
-    # 2. Normal-aware lighting correction of the current images (log domain).
-    x = np.stack([to_gray(im).ravel()[index] for im in refs])  # K x N
-    y = np.stack([to_gray(im).ravel()[index] for im in curs])
-    levels = np.maximum(np.median(x, axis=1), 1e-4)  # K
+    k_count = x.shape[0]
     eps = (_EPS_FRACTION * levels)[:, None]
     log_ratio = np.log(y + eps) - np.log(x + eps)
     gains = np.zeros((k_count, n_groups))
     corrected = np.empty_like(y)
     for k in range(k_count):
         field = np.zeros(index.size, np.float32)
-        for _ in range(_CORRECTION_ROUNDS if spatial_sigma_px else 1):
+        for _ in range(_CORRECTION_ROUNDS if config.spatial_sigma_px else 1):
             g = _group_medians(log_ratio[k] - field, order, starts)
             fallback = float(np.median(log_ratio[k] - field))
             g = np.where(np.isfinite(g), g, fallback)
-            if spatial_sigma_px:
-                field = _smooth_field(log_ratio[k] - g[group], index, shape, spatial_sigma_px)
+            if config.spatial_sigma_px:
+                field = _smooth_field(log_ratio[k] - g[group], index, shape, config.spatial_sigma_px)
         gains[k] = g
         corrected[k] = (y[k] + eps[k]) * np.exp(-(g[group] + field)) - eps[k]
-
-    # 3. Low-rank + sparse separation of [reference | corrected current], one row per pixel.
-    m = np.concatenate([x, corrected], axis=0) / np.concatenate([levels, levels])[:, None]  # 2K x N
-    _, sparse = _low_rank_sparse(m, rank, sparse_threshold)
-    errors = np.abs(sparse[k_count:] - sparse[:k_count])  # K x N
-
-    # 4. Error maps, averaged over the lightings and smoothed.
-    error_maps = np.zeros((k_count, h * w), np.float32)
-    error_maps[:, index] = errors
-    error_maps = error_maps.reshape(k_count, h, w)
-    score = error_maps.mean(axis=0)
-    if smooth_sigma_px > 0:
-        weight = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), smooth_sigma_px)
-        score = cv2.GaussianBlur(score, (0, 0), smooth_sigma_px) / np.maximum(weight, 1e-6)
-    score = np.where(valid, score, 0.0).astype(np.float32)
-    groups_map = np.full(h * w, -1, np.int32)
-    groups_map[index] = group
-    return ICCV2015Result(score=score, error_maps=error_maps, normal_groups=groups_map.reshape(h, w),
-                          group_log_gains=gains)
+    return corrected, gains
 
 
 def iccv2015_score(
@@ -321,11 +341,8 @@ def iccv2015_score(
     *,
     valid: np.ndarray,
     ambient_index: int | None = 0,
-    n_normal_bins: int = 16,
-    rank: int = 3,
-    spatial_sigma_px: float | None = 40.0,
-    sparse_threshold: float = 2.0,
-    smooth_sigma_px: float = 2.0,
+    config: ICCV2015Config | None = None,
+    **overrides,
 ) -> np.ndarray:
     """Change score of the ICCV 2015 baseline (Feng et al.; see the module docstring).
 
@@ -337,8 +354,5 @@ def iccv2015_score(
         Change score >= 0, larger = more likely changed (fraction of the
         median reference level, averaged over the lightings); 0 outside ``valid``.
     """
-    return iccv2015_details(
-        ref_images, cur_images, valid=valid, ambient_index=ambient_index, n_normal_bins=n_normal_bins,
-        rank=rank, spatial_sigma_px=spatial_sigma_px, sparse_threshold=sparse_threshold,
-        smooth_sigma_px=smooth_sigma_px,
-    ).score
+    return iccv2015_details(ref_images, cur_images, valid=valid, ambient_index=ambient_index, config=config,
+                            **overrides).score

@@ -48,7 +48,7 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.photometric import joint_photometric_stereo, relief_and_colour_cues
-from fgcd_cli.changes.regions import ChangeRegion
+from fgcd_cli.changes.regions import ChangeRegion, CueLabel
 from fgcd_cli.errors import AlgorithmError, UserInputError
 
 SUPPORT_LOG10_P = 2.0
@@ -59,7 +59,7 @@ BOTH_RATIO = 0.5
 
 CONVENTIONAL_TILT_DEG = 45.0
 """Light tilt from the optical axis assumed when the lights are not given (the uncalibrated
-fit's convention, :data:`fgcd_cli.changes.photometric._LIGHT_TILT_DEG`)."""
+fit's convention, :data:`fgcd_cli.changes.photometric_basis.LIGHT_TILT_DEG`)."""
 
 
 @dataclass(kw_only=True)
@@ -180,6 +180,6 @@ def label_regions(regions: list[ChangeRegion], labels: np.ndarray, cues: CueMaps
         cues.magnitude[region.id] = (relief, colour)
         strong, weak = max(relief, colour), min(relief, colour)
         if min(evidence) >= SUPPORT_LOG10_P and weak >= BOTH_RATIO * strong:
-            region.cue = "both"
+            region.cue = CueLabel.BOTH
         else:
-            region.cue = "relief" if relief >= colour else "colour"
+            region.cue = CueLabel.RELIEF if relief >= colour else CueLabel.COLOUR

@@ -14,17 +14,17 @@ Rules the implementation follows:
   images (:func:`lighting_invariant`): a gain that is smooth at the scale of the
   normalisation (exposure, light fall-off, white balance, daylight) cancels in
   ``log I - local mean``, and dividing by the local standard deviation equalises
-  contrast. DIS normalises each patch's mean, not its contrast: under a blotchy
-  gain (scale ~15 px) raw-intensity matches lose half their forward-backward
-  consistency. (On the seven real pairs the final field is the same either way.)
+  contrast. DIS normalises each patch's mean, not its contrast, so a blotchy gain
+  would cost raw-intensity matches their forward-backward consistency
+  (``docs/benchmarks.md``).
 - **Raw matches.** OpenCV's DIS optical flow (Kroeger, Timofte, Dai, Van Gool,
   "Fast Optical Flow using Dense Inverse Search", ECCV 2016;
   ``cv2.DISOpticalFlow_create``), preset MEDIUM, forward (reference -> current)
   and backward (current -> reference), on 8-bit versions of those images.
 - **The flow must not swallow changes.** DIS follows anything that looks like
-  motion: on the real painted blocks its raw flow on the changed pixels is 3.5-10x
-  larger than around them, and a loss that grew by 5 px between the visits is
-  shrunk back by it (a quarter to a half of the difference vanishes). The field is
+  motion, a change included: its raw flow on changed pixels is larger than around
+  them, and resampling through it would shrink a grown loss back
+  (``docs/benchmarks.md``). The field is
   therefore replaced by a robust, low-order, large-scale fit: confidence-weighted
   local-quadratic normalized convolution (Knutsson & Westin, "Normalized and
   differential convolution", CVPR 1993; Farnebaeck, "Polynomial expansion for
@@ -54,8 +54,8 @@ Rules the implementation follows:
   ``fb_px`` (the two directions disagree: occlusion or a fold of the field).
   A raw flow that is inconsistent (no match) or that departs from the fit only
   lowers the confidence: a change and an occlusion at a depth edge look alike to
-  the flow, and masking such pixels hid 8-27 % of the true change pixels of the
-  real painted blocks while it masked under 1.3 % of all pixels.
+  the flow, and masking such pixels would hide true change pixels
+  (``docs/benchmarks.md``).
 
 Convention: ``flow[y, x] = (dx, dy)`` means that reference pixel ``(x, y)`` is
 seen at ``(x + dx, y + dy)`` in the homography-warped current image, so
@@ -64,65 +64,20 @@ seen at ``(x + dx, y + dy)`` in the homography-warped current image, so
 
 from __future__ import annotations
 
-import math
+import dataclasses
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
-MAX_CHANGE_PX = 60.0
-"""Diameter (px) of the largest compact change the refinement must leave intact."""
-
-CHANGE_SHARE = 0.25
-"""Largest share of the smoothing window a change of ``MAX_CHANGE_PX`` may hold at its centre."""
-
-FIT_ORDER = 2
-"""Degree of the local polynomial fitted to the flow (0, 1 or 2)."""
-
-RIDGE = 0.05
-"""Ridge on the non-constant coefficients of the local fit, as a fraction of the window's
-weight. It keeps a one-sided window (frame border, edge of ``valid``) from extrapolating;
-where the support surrounds the pixel it hardly matters (0.02 instead of 0.1 moves the
-fit of a 3 px bump by at most 0.03 px)."""
-
-
-def smoothing_scale_px(change_px: float = MAX_CHANGE_PX, *, share: float = CHANGE_SHARE,
-                       order: int = FIT_ORDER) -> float:
-    """Gaussian scale of the flow fit that keeps a change of ``change_px`` from steering it.
-
-    With uniform weights, a local polynomial fit with a Gaussian window ``g`` of
-    scale ``sigma`` is a linear filter (its equivalent kernel). At the centre of a
-    disc of diameter ``D`` (``U = (D/2)^2 / (2 sigma^2)``), the disc's share of that
-    kernel is ``1 - exp(-U)`` for a local constant or linear fit (the slope terms
-    vanish at the centre by symmetry) and ``1 - (1 - U) exp(-U)`` for a local
-    quadratic (kernel ``g(r) (2 - r^2 / (2 sigma^2))``). Setting the share to
-    ``share`` and solving for ``sigma`` gives the scale.
-
-    Parameters
-    ----------
-    change_px : float
-        Diameter of the largest compact change to keep, pixels.
-    share : float
-        Largest share of the fit that change may hold, in (0, 1).
-    order : int
-        Degree of the local fit: 0, 1 or 2.
-
-    Returns
-    -------
-    float, Gaussian sigma in pixels (60 px, 25 %: 39.6 px for order 0-1, 57.0 px for order 2).
-    """
-    if not 0.0 < share < 1.0:
-        raise ValueError(f"share must lie in (0, 1), got {share}")
-    if order <= 1:
-        u = math.log(1.0 / (1.0 - share))
-    else:
-        # (1 - U) exp(-U) = 1 - share, decreasing in U on [0, 1]: bisection.
-        lo, hi = 0.0, 1.0
-        for _ in range(60):
-            u = 0.5 * (lo + hi)
-            lo, hi = (u, hi) if (1.0 - u) * math.exp(-u) > 1.0 - share else (lo, u)
-    return float(change_px / 2.0 / math.sqrt(2.0 * u))
-
+from fgcd_cli.changes.dense_fit import (  # noqa: F401  (public names of this module)
+    CHANGE_SHARE,
+    FIT_ORDER,
+    MAX_CHANGE_PX,
+    RIDGE,
+    robust_smooth,
+    smoothing_scale_px,
+)
 
 @dataclass(kw_only=True)
 class DenseAlignment:
@@ -190,9 +145,8 @@ def apply_flow(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
     Notes
     -----
     Applied to the homography-warped image, this is a second interpolation: the
-    extra blur costs the gradient cues as much as a small parallax does (on the
-    statue group the gradient difference ends 6 % above that of a single
-    interpolation, 4 % above no refinement at all). To resample the
+    extra blur costs the gradient cues as much as a small parallax does
+    (``docs/benchmarks.md``). To resample the
     current image for comparison, use :func:`warp_with_flow` (one interpolation).
     """
     h, w = flow.shape[:2]
@@ -232,148 +186,51 @@ def _texture_confidence(gray: np.ndarray, *, window_px: float, gradient_half: fl
     return energy / (energy + gradient_half**2)
 
 
-def _gaussian_moment_kernels(sigma: float, max_power: int) -> list[np.ndarray]:
-    """1-D kernels ``g(d) * (d / sigma)^p`` for p = 0..max_power (g: Gaussian, sum 1)."""
-    radius = int(math.ceil(3.0 * sigma))
-    d = np.arange(-radius, radius + 1, dtype=np.float64)
-    g = np.exp(-0.5 * (d / sigma) ** 2)
-    g /= g.sum()
-    return [(g * (d / sigma) ** p).astype(np.float32) for p in range(max_power + 1)]
+@dataclass(frozen=True, kw_only=True)
+class DenseConfig:
+    """Options of :func:`refine_dense` (the rules of the module docstring)."""
 
+    max_flow_px: float = 5.0
+    """Cap on the residual flow, pixels. After a homography fitted by ECC, the parallax of a relief
+    or a statue seen from a slightly different pose is 0.5-5 px; more means another depth layer or
+    a failed registration, which a smooth field should not explain. Beyond: clipped and not compared."""
+    smooth_px: float = smoothing_scale_px()
+    """Gaussian scale of the robust local fit, pixels. Default from :func:`smoothing_scale_px`: a
+    60 px change holds at most 25 % of the local-quadratic fit at its centre (57 px)."""
+    fb_px: float = 1.0
+    """Forward-backward error of the smoothed fields above which a pixel is not compared, pixels:
+    the change cues tolerate a 1 px shift, so a 1 px disagreement is where the alignment stops
+    being usable. Half of it is the raw forward-backward error at which a match keeps half its weight."""
+    robust_px: float = 1.0
+    """Cauchy scale of the IRLS weights on |raw flow - fit|, pixels: the same 1 px tolerance; a raw
+    flow 3 px off the fit keeps 10 % of its weight."""
+    robust_iterations: int = 3
+    """Robust re-weightings (IRLS) after the non-robust start; the field converges within them."""
+    texture_half: float = 0.016
+    """Root-mean-square gradient of the log image (log units per pixel) at which the texture
+    confidence is 1/2: 0.016 is ~2 grey levels per pixel at mid-grey in 8 bits, the texture floor
+    of :func:`fgcd_cli.changes.images.image_health`."""
+    normalise_px: float = 4.0
+    """Scale of the local contrast normalisation feeding DIS, pixels: half the 8 px DIS patch, so
+    each patch sees a normalised neighbourhood."""
+    order: int = FIT_ORDER
+    """Degree of the local polynomial (0, 1, 2); with a non-default order, pass
+    ``smooth_px=smoothing_scale_px(order=order)`` to keep the same guarantee."""
 
-def _monomials(order: int) -> list[tuple[int, int]]:
-    """Exponents (px, py) of the 2-D polynomial basis up to ``order``, constant first."""
-    return [(px, total - px) for total in range(order + 1) for px in range(total, -1, -1)]
-
-
-def _local_poly_fit(values: np.ndarray, weight: np.ndarray, sigma: float, order: int,
-                    ridge: float) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted local polynomial fit (normalized convolution, Gaussian applicability).
-
-    For every pixel ``i`` solves ``min sum_j w_j g(x_j - x_i) (v_j - p_i((x_j - x_i)/sigma))^2``
-    over polynomials ``p_i`` of degree ``order`` and returns ``p_i(0)`` per channel.
-    The weighted moments are separable correlations with ``g(d) (d/sigma)^p``.
-    ``ridge`` (a fraction of the local weight) pulls the non-constant coefficients
-    to 0 where the support is one-sided or sparse, so the fit degrades to a local
-    mean instead of extrapolating.
-
-    Parameters
-    ----------
-    values : ndarray, HxWxK float32
-    weight : ndarray, HxW float32 >= 0
-    sigma : float, pixels of this grid
-    order : int, 0, 1 or 2
-    ridge : float
-
-    Returns
-    -------
-    fit : ndarray, HxWxK float32 (NaN where the window holds no weight)
-    support : ndarray, HxW float32, the Gaussian-weighted mean weight in the window
-    """
-    kernels = _gaussian_moment_kernels(sigma, 2 * order)
-
-    def corr(image: np.ndarray, px: int, py: int) -> np.ndarray:
-        out = cv2.sepFilter2D(image, cv2.CV_32F, kernels[px], kernels[py], borderType=cv2.BORDER_CONSTANT)
-        return out.astype(np.float64)
-
-    basis = _monomials(order)
-    n = len(basis)
-    w = np.ascontiguousarray(weight, dtype=np.float32)
-    moments: dict[tuple[int, int], np.ndarray] = {}
-    h, wd = w.shape
-    A = np.empty((h, wd, n, n))
-    for i, (ax, ay) in enumerate(basis):
-        for j, (bx, by) in enumerate(basis):
-            key = (ax + bx, ay + by)
-            if key not in moments:
-                moments[key] = corr(w, *key)
-            A[..., i, j] = moments[key]
-    s00 = moments[(0, 0)]
-    for i in range(1, n):
-        A[..., i, i] += ridge * s00
-    n_values = values.shape[2]
-    b = np.empty((h, wd, n, n_values))
-    for c in range(n_values):
-        wv = np.ascontiguousarray(w * values[..., c])
-        for i, (ax, ay) in enumerate(basis):
-            b[..., i, c] = corr(wv, ax, ay)
-    empty = s00 < 1e-6
-    A[empty] = np.eye(n)
-    fit = np.linalg.solve(A, b)[..., 0, :].astype(np.float32)
-    fit[empty] = np.nan
-    return fit, s00.astype(np.float32)
-
-
-def _block_mean(image: np.ndarray, factor: int) -> np.ndarray:
-    """Mean over ``factor`` x ``factor`` blocks (the size must be a multiple of ``factor``)."""
-    if factor == 1:
-        return image.astype(np.float32)
-    h, w = image.shape[:2]
-    return cv2.resize(image.astype(np.float32), (w // factor, h // factor), interpolation=cv2.INTER_AREA)
-
-
-def _robust_smooth(
-    flow: np.ndarray,
-    weight: np.ndarray,
-    *,
-    sigma_px: float,
-    robust_px: float,
-    iterations: int,
-    order: int,
-) -> np.ndarray:
-    """Robust large-scale fit of a raw flow field: IRLS around a local polynomial normalized convolution.
-
-    Works on a grid ``factor`` times coarser (weighted block means), ``factor``
-    chosen so that ``sigma_px`` spans about 8 cells: the fit is smooth at that
-    scale, so bilinear upsampling loses nothing and the cost stays ~20 ms.
-
-    The start is the non-robust fit at twice the scale: there a change of the
-    largest kept size holds ~7 % of the window instead of 25 %, so the start sits
-    on the surroundings' motion, and the Cauchy weights of the following
-    iterations then reject the change's flow instead of following it. Where the
-    window holds little trusted weight (flat or masked areas), the fit falls back
-    to the coarser one, then to the global weighted mean.
-
-    Parameters
-    ----------
-    flow : ndarray, HxWx2 float32, raw flow (px)
-    weight : ndarray, HxW float32 in [0, 1], data confidence
-    sigma_px : float, Gaussian applicability, full-resolution pixels
-    robust_px : float, Cauchy scale of the residual |raw - fit| (px)
-    iterations : int, robust re-weightings after the start
-    order : int, degree of the local polynomial
-
-    Returns
-    -------
-    ndarray, HxWx2 float32, the smooth field at full resolution (px).
-    """
-    h, w = weight.shape
-    factor = max(1, int(sigma_px // 8))
-    ph, pw = -h % factor, -w % factor
-    wpad = cv2.copyMakeBorder(weight.astype(np.float32), 0, ph, 0, pw, cv2.BORDER_CONSTANT, value=0)
-    fpad = cv2.copyMakeBorder(flow.astype(np.float32), 0, ph, 0, pw, cv2.BORDER_REFLECT)
-    w_grid = _block_mean(wpad, factor)
-    f_grid = _block_mean(fpad * wpad[..., None], factor) / np.maximum(w_grid, 1e-6)[..., None]
-    sigma = sigma_px / factor
-    total = float(w_grid.sum())
-    global_mean = (f_grid * w_grid[..., None]).sum(axis=(0, 1)) / total if total > 0 else np.zeros(2)
-
-    def blend(fit: np.ndarray, support: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-        # Support = Gaussian-weighted mean weight in the window; at 5 % the two count equally.
-        alpha = (support / (support + 0.05))[..., None]
-        fit = np.where(np.isfinite(fit), fit, fallback)
-        return (alpha * fit + (1.0 - alpha) * fallback).astype(np.float32)
-
-    coarse, support = _local_poly_fit(f_grid, w_grid, 2.0 * sigma, order, RIDGE)
-    coarse = blend(coarse, support, np.broadcast_to(global_mean.astype(np.float32), f_grid.shape))
-    fit = coarse
-    for _ in range(iterations):
-        residual = np.hypot(f_grid[..., 0] - fit[..., 0], f_grid[..., 1] - fit[..., 1])
-        robust = 1.0 / (1.0 + (residual / robust_px) ** 2)
-        fine, support = _local_poly_fit(f_grid, w_grid * robust, sigma, order, RIDGE)
-        fit = blend(fine, support, coarse)
-    full = cv2.resize(fit, (w + pw, h + ph), interpolation=cv2.INTER_LINEAR)[:h, :w]
-    return np.ascontiguousarray(full)
+    def settings(self) -> dict:
+        """The options as :attr:`DenseAlignment.settings` records them."""
+        return {
+            "model": "DIS optical flow (Kroeger et al. 2016), preset MEDIUM, forward and backward, on "
+                     "local-contrast-normalised log images; robust local polynomial normalized convolution",
+            "max_flow_px": self.max_flow_px,
+            "smooth_px": self.smooth_px,
+            "fb_px": self.fb_px,
+            "robust_px": self.robust_px,
+            "robust_iterations": self.robust_iterations,
+            "texture_half": self.texture_half,
+            "normalise_px": self.normalise_px,
+            "order": self.order,
+        }
 
 
 def refine_dense(
@@ -381,14 +238,8 @@ def refine_dense(
     cur_warped_gray: np.ndarray,
     *,
     valid: np.ndarray | None = None,
-    max_flow_px: float = 5.0,
-    smooth_px: float = smoothing_scale_px(),
-    fb_px: float = 1.0,
-    robust_px: float = 1.0,
-    robust_iterations: int = 3,
-    texture_half: float = 0.016,
-    normalise_px: float = 4.0,
-    order: int = FIT_ORDER,
+    config: DenseConfig | None = None,
+    **overrides,
 ) -> DenseAlignment:
     """Dense residual alignment of a homography-warped current image onto the reference.
 
@@ -403,40 +254,10 @@ def refine_dense(
         Pixels that carry data in both images (the warp's valid mask). Outside:
         no weight in the fit, not compared. None: every pixel. Intersect it with
         the evaluation mask when that mask cuts an object out of a background at
-        another depth: on the statue group the background sits ~2 px off the
-        statue's homography and otherwise drags the fit near the silhouette
-        (95th percentile of the flow on the statue 0.36 px instead of 0.13 px).
-    max_flow_px : float
-        Cap on the residual flow, pixels. After a homography fitted by ECC, the
-        parallax of a relief or a statue seen from a slightly different pose is
-        0.5-5 px; more means another depth layer or a failed registration, which
-        a smooth field should not explain. Beyond: clipped and not compared.
-    smooth_px : float
-        Gaussian scale of the robust local fit, pixels. Default from
-        :func:`smoothing_scale_px`: a 60 px change holds at most 25 % of the
-        local-quadratic fit at its centre (57 px).
-    fb_px : float
-        Forward-backward error of the smoothed fields above which a pixel is not
-        compared, pixels: the change cues tolerate a 1 px shift, so a 1 px
-        disagreement is where the alignment stops being usable. Half of it is the
-        raw forward-backward error at which a match keeps half its weight.
-    robust_px : float
-        Cauchy scale of the IRLS weights on |raw flow - fit|, pixels: the same
-        1 px tolerance; a raw flow 3 px off the fit keeps 10 % of its weight.
-    robust_iterations : int
-        Robust re-weightings: a fourth moves the field by at most 0.02 px on
-        the real groups.
-    texture_half : float
-        Root-mean-square gradient of the log image (log units per pixel) at which
-        the texture confidence is 1/2: 0.016 is ~2 grey levels per pixel at
-        mid-grey in 8 bits, the texture floor of
-        :func:`fgcd_cli.changes.images.image_health`.
-    normalise_px : float
-        Scale of the local contrast normalisation feeding DIS, pixels: half the
-        8 px DIS patch, so each patch sees a normalised neighbourhood.
-    order : int
-        Degree of the local polynomial (0, 1, 2); with a non-default order, pass
-        ``smooth_px=smoothing_scale_px(order=order)`` to keep the same guarantee.
+        another depth: a background off the object's homography otherwise drags
+        the fit near the silhouette.
+    config : DenseConfig, optional
+        The options (default: the shipped ones); ``**overrides`` replace its fields by name.
 
     Returns
     -------
@@ -444,62 +265,53 @@ def refine_dense(
         ``flow`` (HxWx2 float32, px), ``confidence`` (HxW float32, 0..1),
         ``not_compared`` (HxW bool), all in the reference frame.
     """
+    config = dataclasses.replace(config or DenseConfig(), **overrides)
     if ref_gray.ndim != 2 or ref_gray.shape != cur_warped_gray.shape:
         raise ValueError(f"expected two HxW grey images of one size, got {ref_gray.shape} and {cur_warped_gray.shape}")
-    if order not in (0, 1, 2):
-        raise ValueError(f"order must be 0, 1 or 2, got {order}")
+    if config.order not in (0, 1, 2):
+        raise ValueError(f"order must be 0, 1 or 2, got {config.order}")
     h, w = ref_gray.shape
     valid_mask = np.ones((h, w), bool) if valid is None else np.asarray(valid, bool)
-    settings = {
-        "model": "DIS optical flow (Kroeger et al. 2016), preset MEDIUM, forward and backward, on "
-                 "local-contrast-normalised log images; robust local polynomial normalized convolution",
-        "max_flow_px": max_flow_px,
-        "smooth_px": smooth_px,
-        "fb_px": fb_px,
-        "robust_px": robust_px,
-        "robust_iterations": robust_iterations,
-        "texture_half": texture_half,
-        "normalise_px": normalise_px,
-        "order": order,
-    }
-    ref8 = lighting_invariant(ref_gray, sigma_px=normalise_px)
-    cur8 = lighting_invariant(cur_warped_gray, sigma_px=normalise_px)
+    ref8 = lighting_invariant(ref_gray, sigma_px=config.normalise_px)
+    cur8 = lighting_invariant(cur_warped_gray, sigma_px=config.normalise_px)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     forward = dis.calc(ref8, cur8, None)
     backward = dis.calc(cur8, ref8, None)
-
-    # Raw evidence: forward-backward consistency, texture in both images, inside valid,
-    # and not absurdly long (a match twice the cap away is no parallax evidence).
     texture = np.minimum(
-        _texture_confidence(ref_gray, window_px=normalise_px, gradient_half=texture_half),
-        _texture_confidence(cur_warped_gray, window_px=normalise_px, gradient_half=texture_half),
+        _texture_confidence(ref_gray, window_px=config.normalise_px, gradient_half=config.texture_half),
+        _texture_confidence(cur_warped_gray, window_px=config.normalise_px, gradient_half=config.texture_half),
     )
     valid_f = valid_mask.astype(np.float32)
+    consistent_f, weight_f = _evidence(forward, backward, texture, valid_f, config)
+    _, weight_b = _evidence(backward, forward, texture, valid_f, config)
+    fit = dict(sigma_px=config.smooth_px, robust_px=config.robust_px, iterations=config.robust_iterations,
+               order=config.order)
+    smooth_f = robust_smooth(forward, weight_f, **fit)
+    smooth_b = robust_smooth(backward, weight_b, **fit)
 
-    def evidence(flow: np.ndarray, other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        consistent = 1.0 / (1.0 + (_forward_backward_error(flow, other) / (0.5 * fb_px)) ** 2)
-        in_cap = np.hypot(flow[..., 0], flow[..., 1]) <= 2.0 * max_flow_px
-        return consistent, (consistent * texture * valid_f * in_cap).astype(np.float32)
-
-    consistent_f, weight_f = evidence(forward, backward)
-    _, weight_b = evidence(backward, forward)
-    fit = dict(sigma_px=smooth_px, robust_px=robust_px, iterations=robust_iterations, order=order)
-    smooth_f = _robust_smooth(forward, weight_f, **fit)
-    smooth_b = _robust_smooth(backward, weight_b, **fit)
-
+    max_flow_px = config.max_flow_px
     magnitude = np.hypot(smooth_f[..., 0], smooth_f[..., 1])
     beyond_cap = magnitude > max_flow_px
     flow = (smooth_f * np.minimum(1.0, max_flow_px / np.maximum(magnitude, 1e-6))[..., None]).astype(np.float32)
     fb_smooth = _forward_backward_error(smooth_f, smooth_b)
     sampled_valid = apply_flow(valid_f, flow) > 0.999 if valid is not None else np.ones((h, w), bool)
-    not_compared = ~valid_mask | ~sampled_valid | beyond_cap | (fb_smooth > fb_px)
+    not_compared = ~valid_mask | ~sampled_valid | beyond_cap | (fb_smooth > config.fb_px)
 
     deviation = np.hypot(forward[..., 0] - smooth_f[..., 0], forward[..., 1] - smooth_f[..., 1])
-    agreement = 1.0 / (1.0 + (deviation / robust_px) ** 2)
+    agreement = 1.0 / (1.0 + (deviation / config.robust_px) ** 2)
     confidence = np.clip(consistent_f * texture * agreement, 0.0, 1.0).astype(np.float32)
     confidence[not_compared] = 0.0
     return DenseAlignment(flow=flow, confidence=confidence, not_compared=not_compared,
-                          max_flow_px=float(max_flow_px), settings=settings)
+                          max_flow_px=float(max_flow_px), settings=config.settings())
+
+
+def _evidence(flow: np.ndarray, other: np.ndarray, texture: np.ndarray, valid_f: np.ndarray,
+              config: DenseConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Raw evidence of a flow: forward-backward consistency, and the fit weight (consistency, texture in
+    both images, inside valid, and not absurdly long: a match twice the cap away is no parallax evidence)."""
+    consistent = 1.0 / (1.0 + (_forward_backward_error(flow, other) / (0.5 * config.fb_px)) ** 2)
+    in_cap = np.hypot(flow[..., 0], flow[..., 1]) <= 2.0 * config.max_flow_px
+    return consistent, (consistent * texture * valid_f * in_cap).astype(np.float32)
 
 
 def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -538,3 +350,4 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
     ch, cw = src.shape[:2]
     valid = (den > 0) & (map_x >= 0) & (map_x <= cw - 1) & (map_y >= 0) & (map_y <= ch - 1)
     return warped, valid
+

@@ -35,8 +35,10 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from fgcd_cli.changes.config import EdgeCheckConfig, ScoreConfig
 from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, relative_to_median
 from fgcd_cli.changes.images import to_gray
+from fgcd_cli.changes.score import PairScore
 
 MIN_ALONG_ACROSS = 2.0
 """Rule 3: a band along an edge is at least twice as long as it is wide (a blob: ~1)."""
@@ -107,26 +109,27 @@ def max_hidden_blob_px(*, edge_check_px: int, smooth_sigma_px: float) -> float:
     return float(np.pi * diameter ** 2 / 4.0)
 
 
-def edge_explained_regions(labels: np.ndarray, n_regions: int, *, refs: list[np.ndarray],
-                           normalized_images: list[np.ndarray], medians: list[float], valid: np.ndarray,
-                           seed_level: float, shift_radius_px: int, smooth_sigma_px: float,
-                           edge_check_px: int, edge_contrast: float, band_fraction: float) -> EdgeCheck:
+def edge_explained_regions(labels: np.ndarray, n_regions: int, *, refs: list[np.ndarray], scored: PairScore,
+                           valid: np.ndarray, seed_level: float, score: ScoreConfig,
+                           config: EdgeCheckConfig) -> EdgeCheck:
     """Apply rules 1-3 of the module docstring to every region of ``labels``.
 
     Parameters
     ----------
     labels : (H, W) int32, region ids 1..n_regions (0 elsewhere).
-    refs, normalized_images : lists of (H, W[, 3]) float32 in [0, 1], the reference
-        images and the light-normalised, registered current images (one per lighting).
-    medians : per-lighting medians of the detection cue, so that the edge-tolerant
-        score is in the units of the detection's ``seed_level``.
+    refs : list of (H, W[, 3]) float32 in [0, 1], the reference images (one per lighting).
+    scored : PairScore, the detection's score: its light-normalised, registered current
+        images, and its per-lighting medians of the cue, so that the edge-tolerant score
+        is in the units of the detection's ``seed_level``.
     valid : (H, W) bool, the compared pixels.
     seed_level : float, the score level at which the detection seeds regions.
-    shift_radius_px, smooth_sigma_px : the detection's shift tolerance (px) and
-        score smoothing (px), applied the same way here.
-    edge_check_px, edge_contrast, band_fraction : tolerated edge shift (px), strong-edge
-        contrast (see :func:`fgcd_cli.changes.cues.edge_band`), rule 1's fraction.
+    score : ScoreConfig, the detection's shift tolerance (px), score smoothing (px) and
+        strong-edge contrast (see :func:`fgcd_cli.changes.cues.edge_band`), applied the same way here.
+    config : EdgeCheckConfig, the tolerated edge shift (px) and rule 1's fraction.
     """
+    normalized_images, medians = scored.normalized, scored.medians
+    shift_radius_px, smooth_sigma_px, edge_contrast = score.shift_radius_px, score.smooth_sigma_px, score.edge_contrast
+    edge_check_px, band_fraction = config.edge_check_px, config.edge_check_band_fraction
     check_bands = [edge_band(ref, radius_px=edge_check_px, contrast=edge_contrast) for ref in refs]
     tolerant = [
         relative_to_median(edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,

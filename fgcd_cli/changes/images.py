@@ -42,11 +42,11 @@ def to_float_image(image: np.ndarray, *, name: str = "image") -> np.ndarray:
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """Luminance of a float image (HxW float32); grey images pass through."""
+    """Grey level of a float image, the mean of its channels (HxW float32); grey images pass through."""
     if image.ndim == 2:
         return image.astype(np.float32)
-    # Rec. 601 luma weights on whatever channel order the caller uses: the result
-    # only feeds registration and structure cues, where the order barely matters.
+    # The unweighted mean of the channels (not a luma: no channel order is assumed);
+    # it only feeds registration, the dense flow and the structure cues.
     return image.mean(axis=2).astype(np.float32)
 
 
@@ -76,6 +76,24 @@ def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) 
         if im.ndim != refs[0].ndim:
             raise UserInputError("mixing colour and grey images: give all images in colour or all in grey")
     return refs, curs
+
+
+def check_side_inputs(shape: tuple[int, int], lightings: int, *, eval_mask: np.ndarray | None,
+                      pixel_area_mm2: np.ndarray | None, registration_lighting: int) -> np.ndarray | None:
+    """Check the maps and the lighting index that come with an HxW stack; returns the evaluation mask as bool.
+
+    Raises :class:`UserInputError` when a map is not HxW or the lighting index is out of range.
+    """
+    if eval_mask is not None:
+        eval_mask = np.asarray(eval_mask).astype(bool)
+        if eval_mask.shape != shape:
+            raise UserInputError(f"evaluation mask is {eval_mask.shape[1]}x{eval_mask.shape[0]} px, "
+                                 f"images are {shape[1]}x{shape[0]} px")
+    if pixel_area_mm2 is not None and np.asarray(pixel_area_mm2).shape != shape:
+        raise UserInputError("pixel area map must have the reference image's size")
+    if not 0 <= registration_lighting < lightings:
+        raise UserInputError(f"registration lighting {registration_lighting} out of range 0..{lightings - 1}")
+    return eval_mask
 
 
 def image_health(image: np.ndarray) -> str | None:

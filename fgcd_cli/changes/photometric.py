@@ -31,27 +31,20 @@ normal ~(0, 0, -1); a light on the camera side has l_z < 0.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from fgcd_cli.changes.images import to_float_image
-from fgcd_cli.errors import AlgorithmError, UserInputError
+from fgcd_cli.changes.photometric_basis import align_basis, canonical_basis, factorize_lights
+from fgcd_cli.changes.photometric_stack import DARK_LEVEL, Stack, prepare_stack
+from fgcd_cli.errors import UserInputError
 
 # Rules of the robust per-pixel fit (both cases).
-_SATURATION = 0.98  # a sample (channel) at or above this level is clipped and never fitted
 _OUTLIER_FRACTION = 0.3  # Tukey cut-off of a sample's residual, relative to the pixel's RMS level
 _IRLS_ITERATIONS = 3
 _MIN_CONDITION = 1e-4  # det / (trace/3)^3 of the weighted 3x3 system below this: the pixel is unknown
-_DARK_LEVEL = 0.01  # a pixel whose brightest directional sample is below this is unknown
 
-# Rules of the uncalibrated factorization.
-_SVD_SAMPLES = 60_000  # reliable pixels (all stacks together) entering the SVD
-_SVD_TRIM = 0.1  # fraction of worst-fitting rows dropped before the second SVD
-_FRAME_SAMPLES = 200_000  # pixels used for the frame conventions and the basis alignment
-_LIGHT_TILT_DEG = 45.0  # relief-depth convention: median angle of the lights from the optical axis
-_ALIGN_ITERATIONS = 6
 
 
 @dataclass(kw_only=True)
@@ -94,147 +87,6 @@ class PhotometricStereo:
     used: np.ndarray
 
 
-@dataclass(kw_only=True)
-class _Stack:
-    """The directional lightings of one observation, on its valid pixels (N of them)."""
-
-    shape: tuple[int, int]
-    index: np.ndarray  # (N,) flat indices of the valid pixels
-    grey: np.ndarray  # (K', N) float32, falloff-corrected
-    saturated: np.ndarray  # (K', N) bool: the grey sample is clipped
-    colour: np.ndarray | None  # (3, K', N) float32, falloff-corrected; None for grey input
-    channel_saturated: np.ndarray | None  # (3, K', N) bool
-    used: np.ndarray  # (K,) bool
-
-
-# --------------------------------------------------------------------------- input
-
-
-def _falloff_gains(grey: np.ndarray, weight: np.ndarray, index: np.ndarray, shape: tuple[int, int],
-                   sigma_px: float) -> np.ndarray:
-    """Smooth brightness gain of each lighting relative to the mean directional image (near lights).
-
-    Per lighting k and pixel x0, ``g_k(x0)`` is the intercept of the locally linear
-    gain ``a + b . (x - x0)`` that best maps the mean directional image onto
-    ``I_k`` in a Gaussian window of ``sigma_px`` (weighted least squares, pixels
-    with a clipped sample left out). The ratio cancels the albedo; the linear
-    term keeps a light falloff ramp unbiased up to the image border, where a
-    plain ratio of blurs is not. Each gain is divided by its median, so that the
-    lights keep their relative intensities. Relief finer than ~sigma survives;
-    shape at larger scales is flattened towards the image-wide mean normal.
-
-    grey (K', N) on the valid pixels ``index``; weight (H*W,) 0/1. Returns (K', N) float32.
-    """
-    h, w = shape
-    factor = max(1, int(sigma_px / 6.0))  # the gain is smooth: work on a grid ~6 cells per sigma
-    hs, ws = max(1, h // factor), max(1, w // factor)
-    sigma = sigma_px * ws / w
-
-    def down(values: np.ndarray) -> np.ndarray:
-        full = np.zeros(h * w, np.float32)
-        full[index] = values
-        full *= weight
-        return cv2.resize(full.reshape(h, w), (ws, hs), interpolation=cv2.INTER_AREA).astype(np.float64)
-
-    def blur(image: np.ndarray) -> np.ndarray:
-        return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
-
-    ys, xs = np.mgrid[0:hs, 0:ws].astype(np.float64)
-    mean = grey.mean(axis=0)
-    u = down(mean * mean)
-    s0, s_x, s_y = blur(u), blur(u * xs), blur(u * ys)
-    m = np.empty((hs, ws, 3, 3))
-    m[..., 0, 0] = s0
-    m[..., 0, 1] = m[..., 1, 0] = s_x - xs * s0
-    m[..., 0, 2] = m[..., 2, 0] = s_y - ys * s0
-    m[..., 1, 1] = blur(u * xs * xs) - 2 * xs * s_x + xs * xs * s0
-    m[..., 2, 2] = blur(u * ys * ys) - 2 * ys * s_y + ys * ys * s0
-    m[..., 1, 2] = m[..., 2, 1] = blur(u * xs * ys) - xs * s_y - ys * s_x + xs * ys * s0
-    # A small ridge on the slopes: where the window holds pixels on one line only, the gain
-    # falls back to the plain weighted ratio.
-    support = s0 > 1e-6 * max(float(s0.max()), 1e-30)
-    ridge = 0.01 * sigma * sigma * np.where(support, s0, 1.0)
-    m[..., 1, 1] += ridge
-    m[..., 2, 2] += ridge
-    m[~support] = np.eye(3)
-    gains = np.empty_like(grey)
-    for k in range(grey.shape[0]):
-        v = down(grey[k] * mean)
-        t0 = blur(v)
-        rhs = np.stack([t0, blur(v * xs) - xs * t0, blur(v * ys) - ys * t0], axis=-1)
-        a = np.linalg.solve(m, rhs[..., None])[..., 0, 0]
-        a = np.where(support, a, np.nan)
-        fill = np.nanmedian(a) if np.isfinite(a).any() else 1.0
-        a = np.where(np.isfinite(a), a, fill).astype(np.float32)
-        gain = cv2.resize(a, (w, h), interpolation=cv2.INTER_LINEAR).ravel()[index]
-        median = float(np.median(gain)) if gain.size else 1.0
-        gains[k] = np.clip(gain / max(median, 1e-6), 0.05, 20.0)
-    return gains.astype(np.float32)
-
-
-def _prepare(images, *, valid, ambient_index, falloff_sigma_px, name) -> _Stack:
-    """Validate one stack and extract its directional lightings on the valid pixels."""
-    if len(images) < 3:
-        raise UserInputError(f"{name}: photometric stereo needs at least 3 images, got {len(images)}")
-    floats = [to_float_image(im, name=f"{name} image {i + 1}") for i, im in enumerate(images)]
-    shape = floats[0].shape
-    for i, im in enumerate(floats):
-        if im.shape != shape:
-            raise UserInputError(f"{name} image {i + 1} has shape {im.shape}, image 1 has {shape}: all must match")
-    h, w = shape[:2]
-    used = np.ones(len(floats), bool)
-    if ambient_index is not None:
-        if not -len(floats) <= ambient_index < len(floats):
-            raise UserInputError(f"{name}: ambient_index {ambient_index} is outside 0..{len(floats) - 1}")
-        used[ambient_index] = False
-    if used.sum() < 3:
-        raise UserInputError(f"{name}: photometric stereo needs at least 3 directional lightings, got {used.sum()}")
-    if valid is None:
-        valid_mask = np.ones((h, w), bool)
-    else:
-        valid_mask = np.asarray(valid, bool)
-        if valid_mask.shape != (h, w):
-            raise UserInputError(f"{name}: valid mask is {valid_mask.shape}, images are {(h, w)}")
-    directional = [floats[k] for k in np.flatnonzero(used)]
-    index = np.flatnonzero(valid_mask.ravel())
-    everything = index.size == h * w
-
-    def pick(flat: np.ndarray) -> np.ndarray:
-        return flat if everything else flat[index]
-
-    colour = channel_saturated = None
-    if len(shape) == 3:
-        colour = np.stack([np.stack([pick(im[:, :, c].ravel()) for im in directional]) for c in range(3)])
-        channel_saturated = colour >= _SATURATION
-        # Bright paint clips one channel under most lights: a pixel's grey is the mean of
-        # its channels never clipped, the same channels in every lighting (so that the
-        # pixel stays Lambertian, with the mean albedo of those channels).
-        clean = ~channel_saturated.any(axis=1)  # (3, N)
-        count = clean.sum(axis=0)
-        some = count > 0
-        share = np.where(some, clean / np.maximum(count, 1), 1.0 / 3.0).astype(np.float32)
-        grey = colour[0] * share[0] + colour[1] * share[1] + colour[2] * share[2]
-        saturated = channel_saturated.any(axis=0) & ~some
-        clipped_anywhere = ~clean.all(axis=0)
-    else:
-        grey = np.stack([pick(im.ravel()) for im in directional])
-        saturated = grey >= _SATURATION
-        clipped_anywhere = saturated.any(axis=0)
-
-    if falloff_sigma_px:
-        weight = np.zeros(h * w, np.float32)
-        weight[index] = ~clipped_anywhere
-        gains = _falloff_gains(grey, weight, index, (h, w), falloff_sigma_px)
-        grey /= gains
-        if colour is not None:
-            colour /= gains[None]
-    return _Stack(shape=(h, w), index=index, grey=grey.astype(np.float32), saturated=saturated,
-                  colour=colour, channel_saturated=channel_saturated, used=used)
-
-
-# --------------------------------------------------------------------------- per-pixel fit
-
-
 def _weighted_ls(lights: np.ndarray, weights: np.ndarray, intensity: np.ndarray):
     """``min_b sum_k w_k (I_k - l_k . b)^2`` for every pixel at once, by the 3x3 adjugate.
 
@@ -260,7 +112,7 @@ def _weighted_ls(lights: np.ndarray, weights: np.ndarray, intensity: np.ndarray)
     return b, ok
 
 
-def _robust_fit(stack: _Stack, lights: np.ndarray, shadow_fraction: float):
+def _robust_fit(stack: Stack, lights: np.ndarray, shadow_fraction: float):
     """Per-pixel robust least squares of ``b`` (Woodham 1980 with IRLS).
 
     Rules, per pixel: a clipped sample never enters; a sample darker than
@@ -279,7 +131,7 @@ def _robust_fit(stack: _Stack, lights: np.ndarray, shadow_fraction: float):
     usable = ~stack.saturated
     level = np.array([np.median(g[u]) if u.any() else 1.0 for g, u in zip(grey, usable)], np.float32)
     relative = np.where(usable, grey / np.maximum(level, 1e-6)[:, None], 0.0)
-    hard = usable & (relative >= shadow_fraction * relative.max(axis=0)) & (grey.max(axis=0) >= _DARK_LEVEL)
+    hard = usable & (relative >= shadow_fraction * relative.max(axis=0)) & (grey.max(axis=0) >= DARK_LEVEL)
     weights = hard.astype(np.float32)
     cutoff = _OUTLIER_FRACTION * (np.sqrt(np.mean(grey * grey, axis=0)) + 1e-4)
     b, ok = _weighted_ls(lights, weights, grey)
@@ -295,7 +147,7 @@ def _robust_fit(stack: _Stack, lights: np.ndarray, shadow_fraction: float):
     return b, weights
 
 
-def _finish(stack: _Stack, b: np.ndarray, weights: np.ndarray, lights: np.ndarray,
+def _finish(stack: Stack, b: np.ndarray, weights: np.ndarray, lights: np.ndarray,
             light_rows: np.ndarray | None) -> PhotometricStereo:
     """Normals, per-channel albedo and residual images from the fitted ``b`` (3, N)."""
     h, w = stack.shape
@@ -350,183 +202,7 @@ def _finish(stack: _Stack, b: np.ndarray, weights: np.ndarray, lights: np.ndarra
 # --------------------------------------------------------------------------- uncalibrated
 
 
-def _factorize_lights(stacks: list[_Stack], shadow_fraction: float) -> np.ndarray:
-    """Lights (K', 3) up to an invertible 3x3, from the rank-3 SVD of reliable pixels (Hayakawa 1994).
-
-    The pixels of all stacks enter one matrix (one rig, one set of lights).
-    Reliable: no clipped sample, no sample darker than ``shadow_fraction`` x the
-    brightest (per-lighting median levels divided out), not dark. Each row is
-    scaled to unit norm so that every pixel counts once whatever its albedo; a
-    second SVD leaves out the ``_SVD_TRIM`` worst-fitting rows (cast shadows,
-    highlights). The returned columns are orthonormal: ``B = I L`` on clean pixels.
-    """
-    rng = np.random.default_rng(0)
-    rows = []
-    for st in stacks:
-        grey = st.grey
-        rel = grey / np.maximum(np.median(grey, axis=1), 1e-6)[:, None]
-        reliable = ~st.saturated.any(axis=0) & (rel.min(axis=0) >= shadow_fraction * rel.max(axis=0))
-        reliable &= grey.max(axis=0) >= 5 * _DARK_LEVEL
-        idx = np.flatnonzero(reliable)
-        if idx.size > _SVD_SAMPLES // len(stacks):
-            idx = np.sort(rng.choice(idx, _SVD_SAMPLES // len(stacks), replace=False))
-        rows.append(grey[:, idx].T)
-    m = np.concatenate(rows).astype(np.float64)
-    if m.shape[0] < 10 * m.shape[1]:
-        raise AlgorithmError(
-            f"uncalibrated photometric stereo: only {m.shape[0]} reliable pixels (unshadowed, unclipped); "
-            "give the light directions or a larger valid region"
-        )
-    m /= np.linalg.norm(m, axis=1, keepdims=True)
-    _, _, vt = np.linalg.svd(m, full_matrices=False)
-    misfit = np.linalg.norm(m - (m @ vt[:3].T) @ vt[:3], axis=1)
-    keep = misfit <= np.quantile(misfit, 1.0 - _SVD_TRIM)
-    _, _, vt = np.linalg.svd(m[keep], full_matrices=False)
-    return vt[:3].T.copy()
-
-
-def _unit_rows(b: np.ndarray) -> np.ndarray:
-    return b / np.linalg.norm(b, axis=1, keepdims=True)
-
-
-def _curl_div(b: np.ndarray, shape: tuple[int, int], index: np.ndarray):
-    """Curl ``q_x - p_y`` and divergence ``p_x + q_y`` of the gradient field of pseudo-normal rows b (N, 3).
-
-    ``(p, q) = (n_x, n_y) / -n_z = (dZ/dx, dZ/dy)`` for a depth map Z. Only pixels
-    whose 5x5 neighbourhood has a non-grazing normal count (flattened arrays).
-    """
-    h, w = shape
-    nz = -b[:, 2]
-    ok = np.isfinite(nz) & (nz > 0.2 * np.linalg.norm(b, axis=1))
-    safe = np.where(ok, nz, 1.0)
-    lim = 3.0  # slopes beyond ~72 degrees are clipped: at grazing normals they are mostly noise
-    p = np.zeros(h * w, np.float32)
-    q = np.zeros(h * w, np.float32)
-    known = np.zeros(h * w, np.uint8)
-    p[index] = np.clip(np.where(ok, b[:, 0] / safe, 0.0), -lim, lim)
-    q[index] = np.clip(np.where(ok, b[:, 1] / safe, 0.0), -lim, lim)
-    known[index] = ok
-    p = cv2.GaussianBlur(p.reshape(h, w), (0, 0), 1.0)
-    q = cv2.GaussianBlur(q.reshape(h, w), (0, 0), 1.0)
-    support = cv2.erode(known.reshape(h, w), np.ones((5, 5), np.uint8)).astype(bool)
-    p_y, p_x = np.gradient(p)
-    q_y, q_x = np.gradient(q)
-    return (q_x - p_y)[support].astype(np.float64), (p_x + q_y)[support].astype(np.float64)
-
-
-def _canonical_basis(b: np.ndarray, shape: tuple[int, int], index: np.ndarray, lights: np.ndarray) -> np.ndarray:
-    """The 3x3 ``A`` (``B <- B A``, ``L <- L A^-T``) that fixes the uncalibrated frame.
-
-    b (N, 3) pseudo-normal rows of the valid pixels (NaN where unknown); lights (K', 3).
-
-    1. the mean unit pseudo-normal is turned to (0, 0, -1): the object faces the camera;
-    2. a shear makes the median surface gradient zero (the GBR's mean slope);
-    3. the tangential spread of the unit normals is whitened (made isotropic);
-    4. the in-plane rotation and mirror left by 3 are those that make the gradient
-       field most integrable (smallest curl): with ``curl(R_phi h) = cos(phi) curl h
-       + sin(phi) div h`` this is the smallest eigenvector of a 2x2 matrix. It ties
-       the normal axes to the image axes (x right, y down);
-    5. the concave/convex sign, which no shading or shadow can tell (GBR), is set so
-       that the relief is convex towards the camera on average (mean divergence > 0);
-    6. the relief depth (GBR's lambda) is set so that the median light is
-       ``_LIGHT_TILT_DEG`` from the optical axis, and the overall scale so that the
-       median ``|l|`` is 1 (albedo in image-intensity units).
-    Only step 4 is a measurement; 1-3 and 5-6 are conventions.
-    """
-    finite = np.all(np.isfinite(b), axis=1)
-    sample = np.flatnonzero(finite)
-    if sample.size > _FRAME_SAMPLES:
-        sample = np.random.default_rng(1).choice(sample, _FRAME_SAMPLES, replace=False)
-    rows = b[sample].astype(np.float64)
-    rows = rows[np.linalg.norm(rows, axis=1) > 1e-8]
-    if rows.shape[0] < 30:
-        raise AlgorithmError("uncalibrated photometric stereo: too few pixels with a normal to fix the frame")
-    # 1. mean direction -> -z
-    mean = _unit_rows(rows).mean(axis=0)
-    mean /= np.linalg.norm(mean)
-    e1 = np.cross(np.eye(3)[np.argmin(np.abs(mean))], mean)
-    e1 /= np.linalg.norm(e1)
-    a = np.column_stack([e1, np.cross(mean, e1), -mean])
-    # 2. median gradient -> 0: p' = p - p0  <=>  b_x' = b_x + p0 b_z
-    cur = rows @ a
-    nz = -cur[:, 2]
-    front = nz > 0.2 * np.linalg.norm(cur, axis=1)
-    shear = np.eye(3)
-    if np.count_nonzero(front) >= 30:
-        shear[2, 0] = np.median(cur[front, 0] / nz[front])
-        shear[2, 1] = np.median(cur[front, 1] / nz[front])
-    a = a @ shear
-    # 3. whiten the tangential spread (twice: unit vectors are not linear in b)
-    for _ in range(2):
-        t = _unit_rows(rows @ a)[:, :2]
-        r = np.linalg.norm(t, axis=1)
-        t = t[r <= np.quantile(r, 0.98)]
-        vals, vecs = np.linalg.eigh(np.cov(t.T) + 1e-12 * np.eye(2))
-        vals = np.maximum(vals, 0.01 * vals.max())  # a nearly 1-D relief (a cylinder) is not blown up
-        step = np.eye(3)
-        step[:2, :2] = (vecs @ np.diag(np.sqrt(vals.mean() / vals)) @ vecs.T).T
-        a = a @ step
-    # 4. in-plane rotation and mirror by integrability
-    best = None
-    for flip in (np.eye(3), np.diag([1.0, -1.0, 1.0])):
-        curl, div = _curl_div((b @ (a @ flip)).astype(np.float32), shape, index)
-        gram = np.array([[curl @ curl, curl @ div], [curl @ div, div @ div]])
-        vals, vecs = np.linalg.eigh(gram)
-        ratio = vals[0] / max(vals[1], 1e-30)
-        if best is None or ratio < best[0]:
-            best = (ratio, flip, vecs[:, 0])
-    _, flip, (c, s) = best
-    rot = np.eye(3)
-    rot[:2, :2] = [[c, s], [-s, c]]  # rows: b_xy' = b_xy R^T with R = [[c, -s], [s, c]]
-    a = a @ flip @ rot
-    # 5. convex towards the camera on average
-    _, div = _curl_div((b @ a).astype(np.float32), shape, index)
-    if div.size and float(np.mean(div)) < 0.0:
-        a = a @ np.diag([-1.0, -1.0, 1.0])
-    # 6. relief depth from the lights' tilt, then the overall scale
-    lt = lights @ np.linalg.inv(a).T
-    towards = -lt[:, 2]
-    if np.median(towards) > 0:
-        tan_tilt = float(np.median(np.linalg.norm(lt[:, :2], axis=1) / np.maximum(towards, 1e-9)))
-        lam = tan_tilt / np.tan(np.radians(_LIGHT_TILT_DEG))
-        if np.isfinite(lam) and lam > 1e-6:
-            a = a @ np.diag([lam, lam, 1.0])
-    lt = lights @ np.linalg.inv(a).T
-    return a * float(np.median(np.linalg.norm(lt, axis=1)))
-
-
-def _align_basis(b_cur: np.ndarray, b_ref: np.ndarray) -> np.ndarray:
-    """Robust 3x3 ``X`` with ``b_cur X ~ b_ref`` (rows: the same pixels in both).
-
-    Weighted least squares iterated with Tukey's biweight of the relative row
-    residual (cut-off 4.685 robust sigmas): changed pixels, a few percent, drop
-    out; an exposure or slight light change, linear in b, is absorbed.
-    """
-    ok = np.all(np.isfinite(b_cur), axis=1) & np.all(np.isfinite(b_ref), axis=1)
-    idx = np.flatnonzero(ok)
-    if idx.size < 30:
-        return np.eye(3)
-    if idx.size > _FRAME_SAMPLES:
-        idx = np.random.default_rng(2).choice(idx, _FRAME_SAMPLES, replace=False)
-    src = b_cur[idx].astype(np.float64)
-    dst = b_ref[idx].astype(np.float64)
-    size = np.linalg.norm(dst, axis=1)
-    size += 1e-3 * np.median(size)
-    weights = np.ones(idx.size)
-    x = np.eye(3)
-    for _ in range(_ALIGN_ITERATIONS + 1):
-        ws = src * weights[:, None]
-        x = np.linalg.solve(ws.T @ src + 1e-12 * np.eye(3), ws.T @ dst)
-        err = np.linalg.norm(src @ x - dst, axis=1) / size
-        u = err / (4.685 * 1.4826 * np.median(err) + 1e-12)
-        weights = np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
-    return x
-
-
-# --------------------------------------------------------------------------- public API
-
-
-def _given_lights(light_dirs, stack: _Stack) -> tuple[np.ndarray, np.ndarray]:
+def _given_lights(light_dirs, stack: Stack) -> tuple[np.ndarray, np.ndarray]:
     rows = np.asarray(light_dirs, np.float64)
     if rows.shape != (stack.used.size, 3):
         raise UserInputError(f"light_dirs must be {stack.used.size}x3 (one row per image), got {rows.shape}")
@@ -572,9 +248,8 @@ def photometric_stereo(
         kept; shape at larger scales is flattened towards the image-wide mean
         normal and its shading, like shading common to all lightings (e.g.
         daylight cast shadows), stays in the albedo. None for distant lights or
-        whole-object shape. The default 40 px was chosen on the real groups by
-        the look of the normal maps and the rank-3 residual (with no correction
-        Dp-1's normals drift by ~6 degrees across the image).
+        whole-object shape. The default 40 px is the scale of near-light
+        fall-off on the real groups (``docs/benchmarks.md``).
 
     Returns
     -------
@@ -594,16 +269,26 @@ def photometric_stereo(
     this matters for change detection: angles between two fits in one basis
     (:func:`joint_photometric_stereo`) are meaningful, absolute slopes are not.
     """
-    stack = _prepare(images, valid=valid, ambient_index=ambient_index, falloff_sigma_px=falloff_sigma_px,
+    stack = prepare_stack(images, valid=valid, ambient_index=ambient_index, falloff_sigma_px=falloff_sigma_px,
                      name="photometric stereo")
     if light_dirs is not None:
         lights, rows = _given_lights(light_dirs, stack)
         b, weights = _robust_fit(stack, lights, shadow_fraction)
         return _finish(stack, b, weights, lights, rows)
-    lights = _factorize_lights([stack], shadow_fraction)
+    lights = factorize_lights([stack], shadow_fraction)
     b, weights = _robust_fit(stack, lights, shadow_fraction)
-    a = _canonical_basis(b.T, stack.shape, stack.index, lights)
+    a = canonical_basis(b.T, stack.shape, stack.index, lights)
     return _finish(stack, (b.T @ a).T.astype(np.float32), weights, lights @ np.linalg.inv(a).T, None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointFitConfig:
+    """Options of :func:`joint_photometric_stereo` besides the data (see its Parameters)."""
+
+    shadow_fraction: float = 0.2
+    falloff_sigma_px: float | None = 40.0
+    same_lights: bool = True
+    align: bool = True
 
 
 def joint_photometric_stereo(
@@ -613,10 +298,8 @@ def joint_photometric_stereo(
     valid: np.ndarray | None = None,
     ambient_index: int | None = 0,
     light_dirs: np.ndarray | None = None,
-    shadow_fraction: float = 0.2,
-    falloff_sigma_px: float | None = 40.0,
-    same_lights: bool = True,
-    align: bool = True,
+    config: JointFitConfig | None = None,
+    **overrides,
 ) -> tuple[PhotometricStereo, PhotometricStereo]:
     """Photometric stereo of a reference and a registered current observation, in one basis.
 
@@ -627,8 +310,11 @@ def joint_photometric_stereo(
         already registered onto the reference frame.
     valid : ndarray, HxW bool, optional
         Pixels valid in both (e.g. the registered overlap); None: all.
-    ambient_index, light_dirs, shadow_fraction, falloff_sigma_px
+    ambient_index, light_dirs
         As in :func:`photometric_stereo`; ``light_dirs`` applies to both stacks.
+    config : JointFitConfig, optional; ``**overrides`` replace its fields by name:
+    shadow_fraction, falloff_sigma_px
+        As in :func:`photometric_stereo`.
     same_lights : bool
         Uncalibrated only. True (one rig): one light matrix is factorized from
         the pixels of both stacks together. False: each stack is factorized
@@ -645,13 +331,15 @@ def joint_photometric_stereo(
         Both in the reference basis. Uncalibrated: pseudo-normals whose frame
         conventions (:func:`photometric_stereo`, Notes) are computed on the reference.
     """
+    config = dataclasses.replace(config or JointFitConfig(), **overrides)
+    shadow_fraction, same_lights, align = config.shadow_fraction, config.same_lights, config.align
     if len(ref_images) != len(cur_images):
         raise UserInputError(f"{len(ref_images)} reference image(s) but {len(cur_images)} current image(s)")
     if not same_lights and not align and light_dirs is None:
         raise UserInputError("same_lights=False needs align=True: separate factorizations share no basis")
-    options = dict(valid=valid, ambient_index=ambient_index, falloff_sigma_px=falloff_sigma_px)
-    ref = _prepare(ref_images, name="reference", **options)
-    cur = _prepare(cur_images, name="current", **options)
+    options = dict(valid=valid, ambient_index=ambient_index, falloff_sigma_px=config.falloff_sigma_px)
+    ref = prepare_stack(ref_images, name="reference", **options)
+    cur = prepare_stack(cur_images, name="current", **options)
     if ref.shape != cur.shape:
         raise UserInputError(f"reference images are {ref.shape}, current images are {cur.shape}: sizes must match")
     rows = None
@@ -659,20 +347,20 @@ def joint_photometric_stereo(
         lights_ref, rows = _given_lights(light_dirs, ref)
         lights_cur = lights_ref
     elif same_lights:
-        lights_ref = lights_cur = _factorize_lights([ref, cur], shadow_fraction)
+        lights_ref = lights_cur = factorize_lights([ref, cur], shadow_fraction)
     else:
-        lights_ref = _factorize_lights([ref], shadow_fraction)
-        lights_cur = _factorize_lights([cur], shadow_fraction)
+        lights_ref = factorize_lights([ref], shadow_fraction)
+        lights_cur = factorize_lights([cur], shadow_fraction)
     b_ref, w_ref = _robust_fit(ref, lights_ref, shadow_fraction)
     b_cur, w_cur = _robust_fit(cur, lights_cur, shadow_fraction)
     b_ref, b_cur = b_ref.T, b_cur.T
     if light_dirs is None:
-        a = _canonical_basis(b_ref, ref.shape, ref.index, lights_ref)
+        a = canonical_basis(b_ref, ref.shape, ref.index, lights_ref)
         a_inv_t = np.linalg.inv(a).T
         b_ref, lights_ref = b_ref @ a, lights_ref @ a_inv_t
         b_cur, lights_cur = b_cur @ a, lights_cur @ a_inv_t
     if align:
-        x = _align_basis(b_cur, b_ref)
+        x = align_basis(b_cur, b_ref)
         b_cur, lights_cur = b_cur @ x, lights_cur @ np.linalg.inv(x).T
     return (
         _finish(ref, b_ref.T.astype(np.float32), w_ref, lights_ref, rows),
@@ -734,3 +422,4 @@ def relief_and_colour_cues(
         eps = eps_fraction * float(np.median(r[sel])) + 1e-12
         colour += np.abs(np.log((gain * k + eps) / (r + eps))).astype(np.float32)
     return relief, np.where(known, colour, 0.0).astype(np.float32)
+

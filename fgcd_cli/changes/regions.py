@@ -3,10 +3,25 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
 from skimage.morphology import remove_small_holes, remove_small_objects
+
+if TYPE_CHECKING:
+    from fgcd_cli.changes.significance import Decision
+
+
+class CueLabel(StrEnum):
+    """What changed in a region, from the photometric-stereo cues (:mod:`fgcd_cli.changes.cue_labels`)."""
+
+    RELIEF = "relief"
+    """Surface normals changed: pits, flakes, cracks."""
+    COLOUR = "colour"
+    """Albedo changed: stains, salts, fading."""
+    BOTH = "both"
 
 
 @dataclass(kw_only=True)
@@ -24,9 +39,8 @@ class ChangeRegion:
     max_score: float
     log10_nfa: float | None = None
     """log10 of the region's number of false alarms (a-contrario significance; < 0 is significant at epsilon = 1)."""
-    cue: str | None = None
-    """What changed, from the photometric-stereo cues: ``"relief"`` (surface normals: pits, flakes, cracks),
-    ``"colour"`` (albedo: stains, salts, fading), ``"both"``, or None when the cues were not computed."""
+    cue: CueLabel | None = None
+    """What changed, from the photometric-stereo cues (:class:`CueLabel`), or None when the cues were not computed."""
 
 
 def clean_mask(mask: np.ndarray, *, min_region_px: int, max_hole_px: int) -> np.ndarray:
@@ -216,3 +230,56 @@ def pixel_area_from_cloud(
         weight = ndimage.gaussian_filter(known.astype(np.float64), smooth_px)
         depth = np.where(known, ndimage.gaussian_filter(filled, smooth_px) / np.maximum(weight, 1e-9), np.nan)
     return pixel_area_from_depth(depth, K)
+
+
+def regions_with_significance(mask, score, significance: Decision, pixel_area_mm2):
+    """Regions of the final mask (as :func:`fgcd_cli.changes.regions.extract_regions`: numbered by
+    decreasing area), each with the log10 NFA of the most significant a-contrario seed it holds.
+
+    The per-region sums run over the list of mask pixels rather than whole-frame arrays
+    (a change mask covers a few percent of a large frame).
+    """
+    raw_labels, count = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return [], np.zeros(mask.shape, np.int32)
+    pixels = np.flatnonzero(raw_labels)
+    raw = raw_labels.ravel()[pixels]
+    areas = np.bincount(raw, minlength=count + 1)[1:].astype(np.float64)
+    order = np.argsort(-areas, kind="stable")
+    relabel = np.zeros(count + 1, np.int32)
+    relabel[order + 1] = np.arange(1, count + 1)
+    labels = relabel[raw_labels]
+    del raw_labels
+    ids = relabel[raw]
+    counts = np.bincount(ids, minlength=count + 1)[1:]
+    ys, xs = np.divmod(pixels, mask.shape[1])
+    values = score.ravel()[pixels]
+    means = np.bincount(ids, weights=values, minlength=count + 1)[1:] / counts.astype(np.float64)
+    cy = np.bincount(ids, weights=ys.astype(np.float64), minlength=count + 1)[1:] / counts
+    cx = np.bincount(ids, weights=xs.astype(np.float64), minlength=count + 1)[1:] / counts
+    by_id = np.argsort(ids, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    maxima = np.maximum.reduceat(values[by_id], starts)
+    y_lo, y_hi = np.minimum.reduceat(ys[by_id], starts), np.maximum.reduceat(ys[by_id], starts)
+    x_lo, x_hi = np.minimum.reduceat(xs[by_id], starts), np.maximum.reduceat(xs[by_id], starts)
+    area_mm2 = [None] * count
+    if pixel_area_mm2 is not None:
+        area_map = np.asarray(pixel_area_mm2).ravel()[pixels]
+        known = np.bincount(ids, weights=np.isfinite(area_map).astype(np.float64), minlength=count + 1)[1:]
+        metric = np.bincount(ids, weights=np.nan_to_num(area_map.astype(np.float64), nan=0.0), minlength=count + 1)[1:]
+        # Extrapolate over pixels without 3D data at the region's mean pixel area.
+        area_mm2 = [float(metric[i] * counts[i] / known[i]) if known[i] > 0 else None for i in range(count)]
+    nfa = [None] * count
+    if significance.seed_index is not None:
+        seeds = significance.seed_index.ravel()[pixels]
+        for region_id, seed in set(zip(ids[seeds > 0].tolist(), seeds[seeds > 0].tolist())):
+            value = significance.regions[seed - 1].log10_nfa
+            nfa[region_id - 1] = value if nfa[region_id - 1] is None else min(nfa[region_id - 1], value)
+    regions = [
+        ChangeRegion(id=i + 1, area_px=int(counts[i]), area_mm2=area_mm2[i],
+                     bbox_xywh=(int(x_lo[i]), int(y_lo[i]), int(x_hi[i] - x_lo[i] + 1), int(y_hi[i] - y_lo[i] + 1)),
+                     centroid_xy=(float(cx[i]), float(cy[i])), mean_score=float(means[i]), max_score=float(maxima[i]),
+                     log10_nfa=None if nfa[i] is None else float(nfa[i]))
+        for i in range(count)
+    ]
+    return regions, labels

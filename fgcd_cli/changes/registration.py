@@ -1,9 +1,10 @@
 """Residual registration of a current image onto the reference image, robust to lighting.
 
-Per the measured notes (``algorithms.md``, fine-grained change detection): ECC on
-raw intensities under a spatially varying light gain lands 2-6 px off, ECC on
-gradient-magnitude images 0.02-0.05 px. So: SIFT homography for the start (when
-features match), then coarse-to-fine ECC on gradient magnitudes.
+Rule (``docs/change-detection.md``, "Change detection pipeline"): a spatially
+varying light gain biases ECC on raw intensities by pixels, while gradient
+magnitudes are nearly insensitive to it (``docs/benchmarks.md``). So: SIFT
+homography for the start (when features match), then coarse-to-fine ECC on
+gradient magnitudes.
 
 Convention: ``H_cur_ref`` (3x3) maps homogeneous reference pixel coordinates
 (x right, y down, pixel centres at integers) to current-image pixel coordinates.
@@ -12,9 +13,21 @@ Convention: ``H_cur_ref`` (3x3) maps homogeneous reference pixel coordinates
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import cv2
 import numpy as np
+
+
+class RegistrationInit(StrEnum):
+    """How the ECC refinement was started (``Registration.init``)."""
+
+    SIFT = "sift"
+    """From the SIFT + RANSAC homography."""
+    IDENTITY = "identity"
+    """From the identity (features did not match)."""
+    NONE = "none"
+    """No registration was asked for (the identity homography, not refined)."""
 
 
 @dataclass(kw_only=True)
@@ -31,8 +44,8 @@ class Registration:
     overlap_fraction: float = 0.0
     """Fraction of reference pixels that land inside the current image."""
     sift_inliers: int = 0
-    init: str = "identity"
-    """How the ECC was started: "sift" or "identity"."""
+    init: RegistrationInit = RegistrationInit.IDENTITY
+    """How the ECC was started."""
     settings: dict = field(default_factory=dict)
 
 
@@ -198,13 +211,13 @@ def register_to_reference(
     H_sift, inliers = ransac_homography(points_ref, points_cur)
     n_inliers = int(inliers.sum())
     if H_sift is not None and n_inliers >= min_sift_inliers:
-        H_init, init = H_sift, "sift"
+        H_init, init = H_sift, RegistrationInit.SIFT
     else:
-        H_init, init = np.eye(3), "identity"
+        H_init, init = np.eye(3), RegistrationInit.IDENTITY
     try:
         H, correlation = ecc_gradient(ref_gray, cur_gray, H_init)
     except cv2.error:
-        if init == "sift":
+        if init == RegistrationInit.SIFT:
             H, correlation = H_sift, float("nan")
         else:
             return Registration(

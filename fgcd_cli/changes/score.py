@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from fgcd_cli.changes.config import RegionConfig, ScoreConfig
 from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, local_ncc_dissimilarity, relative_to_median
 from fgcd_cli.changes.illumination import normalize_local_gain
 from fgcd_cli.changes.images import to_gray
@@ -27,6 +28,14 @@ class ScoreOptions:
     suspect_k_high: float = 20.0
     """Hysteresis constants that flag the pixels left out of the gain re-estimation."""
     suspect_k_low: float = 10.0
+
+    @classmethod
+    def from_config(cls, score: ScoreConfig, *, suspect: RegionConfig) -> ScoreOptions:
+        """The score options of a detector configuration (the suspect threshold is the decision's hysteresis)."""
+        return cls(gain_sigma_px=score.gain_sigma_px, shift_radius_px=score.shift_radius_px,
+                   structure_weight=score.structure_weight, smooth_sigma_px=score.smooth_sigma_px,
+                   robust_gain_rounds=score.robust_gain_rounds, edge_tolerance_px=score.edge_tolerance_px,
+                   edge_contrast=score.edge_contrast, suspect_k_high=suspect.k_high, suspect_k_low=suspect.k_low)
 
 
 @dataclass(kw_only=True)

@@ -46,6 +46,7 @@ changes``; see ``docs/change-detection.md``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -156,18 +157,36 @@ def _log_region_probability(lam: float, sizes: np.ndarray, excess: np.ndarray, a
     return -lam * n_eff + np.log(np.maximum(tail, 1e-300))
 
 
+@dataclass(frozen=True, kw_only=True)
+class AcontrarioConfig:
+    """Constants of :func:`acontrario_decision` (the module docstring gives the model)."""
+
+    epsilon: float = 1.0
+    """Expected number of false regions per image tolerated under the pair's own no-change model
+    (1: at most one false region expected per image)."""
+    seed_p: float = 0.005
+    """Lowest level tested, as an empirical survival probability."""
+    extent_fraction: float = 0.2
+    """In [0, 1): a region grows into connected pixels whose excess over the median score is at
+    least this fraction of its peak excess (0: the component at its level)."""
+    level_step: float = 0.25
+    """Spacing of the ladder of levels, in ``-log p`` (0.25: ~28 % apart in probability)."""
+    max_candidates: int = 5
+    """Non-significant regions kept for "no significant change; strongest candidate ..."."""
+    area_rounds: int = 3
+    """Re-estimations of the cluster area without the clusters found significant."""
+    null_rounds: int = 2
+    """Re-estimations of the null distribution without the regions found (and their correlation
+    radius); 0 keeps the null of all compared pixels."""
+
+
 def acontrario_decision(
     score: np.ndarray,
     valid: np.ndarray,
     *,
-    epsilon: float = 1.0,
-    seed_p: float = 0.005,
-    extent_fraction: float = 0.2,
-    level_step: float = 0.25,
-    max_candidates: int = 5,
-    area_rounds: int = 3,
     min_cluster_area_px: float = 1.0,
-    null_rounds: int = 2,
+    config: AcontrarioConfig | None = None,
+    **overrides,
 ) -> Decision:
     """Significant change regions of a score map, by their number of false alarms.
 
@@ -177,32 +196,18 @@ def acontrario_decision(
         Change score, larger = more likely changed (any monotone scale).
     valid : ndarray, HxW bool
         Compared pixels: they define the background distribution and may be flagged.
-    epsilon : float
-        Expected number of false regions per image tolerated under the pair's own
-        no-change model (1: at most one false region expected per image).
-    seed_p : float
-        Lowest level tested, as an empirical survival probability.
-    extent_fraction : float in [0, 1)
-        A region grows into connected pixels whose excess over the median score is at
-        least this fraction of its peak excess (0: the component at its level).
-    level_step : float
-        Spacing of the ladder of levels, in ``-log p`` (0.25: ~28 % apart in probability).
-    max_candidates : int
-        Non-significant regions kept for "no significant change; strongest candidate ...".
-    area_rounds : int
-        Re-estimations of the cluster area without the clusters found significant.
     min_cluster_area_px : float
         Lower bound of the cluster area: a score smoothed with a Gaussian of sigma
         ``s`` px has a correlation area of at least ``4 pi s^2`` px whatever its
         exceedance clusters look like (the caller passes it).
-    null_rounds : int
-        Re-estimations of the null distribution without the regions found (and their
-        correlation radius); 0 keeps the null of all compared pixels.
+    config : AcontrarioConfig, optional
+        The test's constants; ``**overrides`` replace its fields by name (``epsilon=...``).
 
     Returns
     -------
     Decision
     """
+    config = dataclasses.replace(config or AcontrarioConfig(), **overrides)
     valid = np.asarray(valid, bool)
     score = np.asarray(score, np.float32)
     n_valid = int(valid.sum())
@@ -215,28 +220,17 @@ def acontrario_decision(
     # noise-free pair is "significant" whenever it is spatially structured.
     halfnormal = halfnormal_neglog_survival(score / max(median, 1e-12))
     background = valid
-    significant = np.zeros(valid.shape, bool)
+    scan = _Scan(significant=np.zeros(valid.shape, bool))
     null_round = 0
     while True:
-        neglogp = np.minimum(empirical_neglog_survival(score, valid, sample=background), halfnormal)
-        seed_level = float(np.quantile(score[background], 1.0 - seed_p))
-        area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
-        levels = np.arange(-np.log(seed_p), float(neglogp.max()) + 1e-9, level_step)
-        for _ in range(area_rounds + 1):
-            n_tests = n_valid / area * max(len(levels), 1)
-            regions, candidates, significant, seed_index = _scan_levels(
-                score, neglogp, valid, levels, area=area, n_tests=n_tests, epsilon=epsilon,
-                max_candidates=max_candidates)
-            used_area = area
-            area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
-            if area == used_area:
-                break
-        mask = grow_to_extent(significant, score, valid, background=median, fraction=extent_fraction)
+        scan = _scan_with_null(score, valid, background, halfnormal, previous=scan,
+                               min_cluster_area_px=min_cluster_area_px, config=config)
+        mask = grow_to_extent(scan.significant, score, valid, background=median, fraction=config.extent_fraction)
         # The null is the distribution of the *unchanged* pixels: once regions are found,
         # it is re-estimated without them (grown by the correlation radius), so that a
         # strong or extended change no longer fattens the tail that weaker ones are
         # judged against. Stops when the found set no longer grows.
-        if null_round >= null_rounds or not mask.any():
+        if null_round >= config.null_rounds or not mask.any():
             break
         grow = int(np.ceil(np.sqrt(min_cluster_area_px / np.pi)))
         changed = ndimage.binary_dilation(mask, structure=_EIGHT, iterations=max(grow, 1))
@@ -246,11 +240,49 @@ def acontrario_decision(
         background = new_background
         null_round += 1
     return Decision(
-        mask=mask, regions=regions, candidates=candidates, cluster_area_px=used_area, n_tests=float(n_tests),
-        seed_level=seed_level, median=median, seed_index=seed_index,
-        settings={"epsilon": epsilon, "seed_p": seed_p, "extent_fraction": extent_fraction, "level_step": level_step,
-                  "levels": int(len(levels)), "null_rounds": null_round},
+        mask=mask, regions=scan.regions, candidates=scan.candidates, cluster_area_px=scan.area,
+        n_tests=float(scan.n_tests), seed_level=scan.seed_level, median=median, seed_index=scan.seed_index,
+        settings={"epsilon": config.epsilon, "seed_p": config.seed_p, "extent_fraction": config.extent_fraction,
+                  "level_step": config.level_step, "levels": scan.levels, "null_rounds": null_round},
     )
+
+
+@dataclass(kw_only=True)
+class _Scan:
+    """One scan of the ladder of levels under one null (see :func:`_scan_with_null`)."""
+
+    significant: np.ndarray
+    regions: list[SignificantRegion] = field(default_factory=list)
+    candidates: list[SignificantRegion] = field(default_factory=list)
+    seed_index: np.ndarray | None = None
+    area: float = 1.0
+    """The cluster area the scan used."""
+    n_tests: float = 0.0
+    seed_level: float = 0.0
+    levels: int = 0
+
+
+def _scan_with_null(score, valid, background, halfnormal, *, previous: _Scan, min_cluster_area_px: float,
+                    config: AcontrarioConfig) -> _Scan:
+    """Scan the levels under the null of the ``background`` pixels, re-estimating the cluster area
+    without the clusters found significant until it settles (at most ``area_rounds`` times)."""
+    n_valid = int(valid.sum())
+    significant = previous.significant
+    neglogp = np.minimum(empirical_neglog_survival(score, valid, sample=background), halfnormal)
+    seed_level = float(np.quantile(score[background], 1.0 - config.seed_p))
+    area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
+    levels = np.arange(-np.log(config.seed_p), float(neglogp.max()) + 1e-9, config.level_step)
+    for _ in range(config.area_rounds + 1):
+        n_tests = n_valid / area * max(len(levels), 1)
+        regions, candidates, significant, seed_index = _scan_levels(
+            score, neglogp, valid, levels, area=area, n_tests=n_tests, epsilon=config.epsilon,
+            max_candidates=config.max_candidates)
+        used_area = area
+        area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
+        if area == used_area:
+            break
+    return _Scan(significant=significant, regions=regions, candidates=candidates, seed_index=seed_index,
+                 area=used_area, n_tests=n_tests, seed_level=seed_level, levels=int(len(levels)))
 
 
 def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates):

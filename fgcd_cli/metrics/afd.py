@@ -1,6 +1,6 @@
 """FDF (feature displacement field) and AFD (average feature displacement) between two images.
 
-The authors' protocol (rACR, paper 000; ``algorithms.md`` "FDF / AFD"): SIFT on
+The authors' protocol (rACR, paper 000; ``docs/change-detection.md``, "FDF / AFD"): SIFT on
 both grayscale images, ratio-test matching, RANSAC homography, keep the inliers;
 FDF is the field of inlier displacement vectors, AFD their mean length in pixels
 of the input image. AFD depends on every one of these settings, so each value
@@ -13,7 +13,9 @@ given by a person.
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 
 import cv2
@@ -135,19 +137,53 @@ def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_respons
     return points_ref, points_cur, candidates
 
 
+class FdfMethod(StrEnum):
+    """How the displacement field is measured (``FdfResult.method``)."""
+
+    SIFT = "sift"
+    """The authors' protocol: SIFT, ratio test, RANSAC homography."""
+    GRID = "grid"
+    """Phase correlation of gradient-magnitude patches on a regular grid, RANSAC homography over the cells."""
+    PAIRS = "pairs"
+    """Point pairs given by a person, as they are."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class FdfConfig:
+    """Settings of :func:`compute_fdf` (AFD depends on every one of them, so each result records them)."""
+
+    method: FdfMethod = FdfMethod.SIFT
+    ratio: float = 0.75
+    """Lowe ratio test threshold (SIFT)."""
+    ransac_px: float = 3.0
+    """RANSAC homography inlier threshold, pixels."""
+    max_features: int = 4000
+    """SIFT keypoints per image."""
+    min_inliers: int = 12
+    """Fewest SIFT inliers for a trustworthy AFD (3x the homography's minimal set). With fewer,
+    RANSAC has fitted chance matches (``docs/benchmarks.md``). The grid variant needs 8 agreeing
+    cells and at least half of the correlated ones."""
+    grid_cells: int = 8
+    """Grid variant: cells per side."""
+    patch_px: int = 96
+    """Grid variant: patch size, pixels."""
+    min_response: float = 0.1
+    """Grid variant: minimal phase-correlation peak."""
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "method", FdfMethod(self.method))
+        except ValueError:
+            raise UserInputError(f"unknown FDF method {self.method!r} (use sift, grid or pairs)") from None
+
+
 def compute_fdf(
     ref_gray: np.ndarray,
     cur_gray: np.ndarray,
     *,
-    method: str = "sift",
-    ratio: float = 0.75,
-    ransac_px: float = 3.0,
-    max_features: int = 4000,
-    min_inliers: int = 12,
-    grid_cells: int = 8,
-    patch_px: int = 96,
-    min_response: float = 0.1,
     pairs: tuple[np.ndarray, np.ndarray] | None = None,
+    config: FdfConfig | None = None,
+    **overrides,
 ) -> FdfResult:
     """Feature displacement field and AFD from the reference to the current image.
 
@@ -155,26 +191,11 @@ def compute_fdf(
     ----------
     ref_gray, cur_gray : ndarray, HxW (or HxWx3, converted to grey), uint8/uint16/float in [0, 1]
         The two images must have the same size (AFD is in pixels of that size).
-    method : {"sift", "grid", "pairs"}
-        ``"sift"``: the authors' protocol. ``"grid"``: ``grid_cells`` x ``grid_cells``
-        patches of ``patch_px`` pixels, phase correlation on gradient magnitudes,
-        RANSAC homography over the cells. ``"pairs"``: the given point pairs as they are.
-    ratio : float
-        Lowe ratio test threshold (SIFT).
-    ransac_px : float
-        RANSAC homography inlier threshold, pixels.
-    max_features : int
-        SIFT keypoints per image.
-    min_inliers : int
-        Fewest SIFT inliers for a trustworthy AFD (3x the homography's minimal
-        set). With fewer, RANSAC has fitted chance matches: on cross-lighting
-        real pairs 5-6 "inliers" of ~25 matches gave AFDs of 50-450 px where the
-        true value is 2-4 px. The grid variant needs 8 agreeing cells and at
-        least half of the correlated ones.
-    grid_cells, patch_px, min_response : grid-variant settings (cells per side,
-        patch size in pixels, minimal phase-correlation peak).
     pairs : (Nx2, Nx2) arrays, required for ``method="pairs"``
         Reference and current pixel coordinates (x, y).
+    config : FdfConfig, optional
+        The method and its settings; ``**overrides`` replace its fields by name
+        (``method="grid"``, ``ratio=0.8``...).
 
     Returns
     -------
@@ -187,45 +208,64 @@ def compute_fdf(
         raise UserInputError(
             f"reference is {ref.shape[1]}x{ref.shape[0]} px, current {cur.shape[1]}x{cur.shape[0]} px: AFD needs equal sizes"
         )
-    if method in ("sift", "grid"):
+    method = overrides.get("method", config.method if config is not None else FdfMethod.SIFT)
+    if method not in tuple(FdfMethod):
+        raise UserInputError(f"unknown FDF method {method!r} (use sift, grid or pairs)")
+    if method in (FdfMethod.SIFT, FdfMethod.GRID):
         for label, image in (("reference", ref), ("current", cur)):
             problem = image_health(image)
             if problem:
                 raise AlgorithmError(f"cannot measure AFD: {label} {problem} "
                                      "(neither SIFT nor the grid variant can; point pairs picked by hand can: --pairs)")
-    if method == "sift":
-        settings = {"detector": "SIFT (OpenCV)", "ratio": ratio, "model": "homography", "ransac_px": ransac_px,
-                    "max_features": max_features}
-        points_ref, points_cur = match_sift(ref, cur, ratio=ratio, max_features=max_features)
-        _, inliers = ransac_homography(points_ref, points_cur, ransac_px=ransac_px)
-        if inliers.sum() < min_inliers:
-            raise AlgorithmError(
-                f"AFD: only {int(inliers.sum())} SIFT inliers out of {len(points_ref)} matches (need {min_inliers}); "
-                "try the lighting-robust grid variant (--grid) or give point pairs (--pairs)"
-            )
-        return _result(points_ref[inliers], points_cur[inliers], candidates=len(points_ref), method=method,
-                       settings=settings, shape=ref.shape)
-    if method == "grid":
-        settings = {"detector": "phase correlation of gradient-magnitude patches", "grid_cells": grid_cells,
-                    "patch_px": patch_px, "min_response": min_response, "model": "homography", "ransac_px": ransac_px}
-        points_ref, points_cur, candidates = _grid_fdf(ref, cur, grid_cells=grid_cells, patch_px=patch_px,
-                                                       min_response=min_response, ransac_px=ransac_px)
-        if len(points_ref) < 8 or len(points_ref) < 0.5 * candidates:
-            raise AlgorithmError(
-                f"AFD (grid): only {len(points_ref)} of {candidates} correlated cells ({grid_cells**2} in the grid) "
-                "agree on one motion; no reliable displacement (do the images overlap?)"
-            )
-        return _result(points_ref, points_cur, candidates=candidates, method=method, settings=settings, shape=ref.shape)
-    if method == "pairs":
-        if pairs is None:
-            raise UserInputError("method 'pairs' needs point pairs")
-        points_ref = np.asarray(pairs[0], dtype=np.float64).reshape(-1, 2)
-        points_cur = np.asarray(pairs[1], dtype=np.float64).reshape(-1, 2)
-        if len(points_ref) != len(points_cur) or len(points_ref) == 0:
-            raise UserInputError("point pairs: need the same, non-zero number of reference and current points")
-        return _result(points_ref, points_cur, candidates=len(points_ref), method=method,
-                       settings={"source": "user-supplied pairs"}, shape=ref.shape)
-    raise UserInputError(f"unknown FDF method {method!r} (use sift, grid or pairs)")
+    config = dataclasses.replace(config or FdfConfig(), **overrides)
+    if config.method == FdfMethod.SIFT:
+        return _sift_fdf(ref, cur, config)
+    if config.method == FdfMethod.GRID:
+        return _grid_result(ref, cur, config)
+    return _pairs_fdf(ref, pairs)
+
+
+def _sift_fdf(ref: np.ndarray, cur: np.ndarray, config: FdfConfig) -> FdfResult:
+    """The authors' protocol: SIFT matches, RANSAC homography, its inliers."""
+    settings = {"detector": "SIFT (OpenCV)", "ratio": config.ratio, "model": "homography",
+                "ransac_px": config.ransac_px, "max_features": config.max_features}
+    points_ref, points_cur = match_sift(ref, cur, ratio=config.ratio, max_features=config.max_features)
+    _, inliers = ransac_homography(points_ref, points_cur, ransac_px=config.ransac_px)
+    if inliers.sum() < config.min_inliers:
+        raise AlgorithmError(
+            f"AFD: only {int(inliers.sum())} SIFT inliers out of {len(points_ref)} matches (need {config.min_inliers}); "
+            "try the lighting-robust grid variant (--grid) or give point pairs (--pairs)"
+        )
+    return _result(points_ref[inliers], points_cur[inliers], candidates=len(points_ref), method=FdfMethod.SIFT.value,
+                   settings=settings, shape=ref.shape)
+
+
+def _grid_result(ref: np.ndarray, cur: np.ndarray, config: FdfConfig) -> FdfResult:
+    """The grid variant: correlated cells that agree on one homography (8 at least, half of the correlated)."""
+    settings = {"detector": "phase correlation of gradient-magnitude patches", "grid_cells": config.grid_cells,
+                "patch_px": config.patch_px, "min_response": config.min_response, "model": "homography",
+                "ransac_px": config.ransac_px}
+    points_ref, points_cur, candidates = _grid_fdf(ref, cur, grid_cells=config.grid_cells, patch_px=config.patch_px,
+                                                   min_response=config.min_response, ransac_px=config.ransac_px)
+    if len(points_ref) < 8 or len(points_ref) < 0.5 * candidates:
+        raise AlgorithmError(
+            f"AFD (grid): only {len(points_ref)} of {candidates} correlated cells ({config.grid_cells**2} in the grid) "
+            "agree on one motion; no reliable displacement (do the images overlap?)"
+        )
+    return _result(points_ref, points_cur, candidates=candidates, method=FdfMethod.GRID.value, settings=settings,
+                   shape=ref.shape)
+
+
+def _pairs_fdf(ref: np.ndarray, pairs: tuple[np.ndarray, np.ndarray] | None) -> FdfResult:
+    """Point pairs given by a person, as they are."""
+    if pairs is None:
+        raise UserInputError("method 'pairs' needs point pairs")
+    points_ref = np.asarray(pairs[0], dtype=np.float64).reshape(-1, 2)
+    points_cur = np.asarray(pairs[1], dtype=np.float64).reshape(-1, 2)
+    if len(points_ref) != len(points_cur) or len(points_ref) == 0:
+        raise UserInputError("point pairs: need the same, non-zero number of reference and current points")
+    return _result(points_ref, points_cur, candidates=len(points_ref), method=FdfMethod.PAIRS.value,
+                   settings={"source": "user-supplied pairs"}, shape=ref.shape)
 
 
 def read_pairs_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

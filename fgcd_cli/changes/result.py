@@ -1,0 +1,130 @@
+"""What the change detector returns (:class:`ChangeResult`), and the parts of it both detectors build alike."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgcd_cli.changes.config import DecisionRule, DetectionConfig
+from fgcd_cli.changes.cue_labels import CueMaps
+from fgcd_cli.changes.dense import DenseAlignment
+from fgcd_cli.changes.regions import ChangeRegion
+from fgcd_cli.changes.registration import Registration, RegistrationInit
+from fgcd_cli.changes.significance import Decision, SignificantRegion
+from fgcd_cli.changes.threshold import ThresholdInfo
+
+CUES_COMPUTED = "relief and colour (photometric stereo)"
+"""``settings["cues"]`` when the cue maps were computed."""
+
+
+@dataclass(kw_only=True)
+class ChangeResult:
+    """Everything :func:`fgcd_cli.changes.detect.detect_changes` found, in the reference image's frame."""
+
+    comparable: bool
+    """False when the pair cannot be compared honestly (see ``reason``); then the maps are empty."""
+    reason: str = ""
+    score: np.ndarray
+    """HxW float32 fused change score (dimensionless, background median ~1; 0 outside ``valid``)."""
+    mask: np.ndarray
+    """HxW bool, changed pixels after threshold and cleaning."""
+    labels: np.ndarray
+    """HxW int32, region id per pixel (0 = unchanged)."""
+    valid: np.ndarray
+    """HxW bool, pixels that were compared (evaluation mask ∩ seen in the current image)."""
+    regions: list[ChangeRegion]
+    registration: Registration | None
+    threshold: ThresholdInfo | None
+    current_registered: list[np.ndarray] = field(default_factory=list)
+    """Current images resampled into the reference frame, light-normalized (float32)."""
+    settings: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    edge_explained: np.ndarray | None = None
+    """HxW bool, pixels of the regions the region-level edge check set aside (``edge_check_px``), or None."""
+    candidates: list[SignificantRegion] = field(default_factory=list)
+    """The strongest a-contrario regions that were not reported (for "no significant change; strongest candidate ...")."""
+    not_compared: np.ndarray | None = None
+    """HxW bool, pixels of the evaluation area the dense refinement could not align (left out, not changed)."""
+    dense: DenseAlignment | None = None
+    """The dense parallax refinement after the homography, when it ran."""
+    cue_maps: CueMaps | None = None
+    """Relief and colour cue maps (photometric stereo), when they were computed."""
+
+    @property
+    def detection_level(self) -> float | None:
+        """Score at which the decision starts a region: the a-contrario seed level (the ``seed_p``
+        quantile of the pair's null), or the hysteresis rule's high threshold; None without a decision."""
+        if self.settings.get("decision") == DecisionRule.ACONTRARIO and self.settings.get("seed_level") is not None:
+            return float(self.settings["seed_level"])
+        return self.threshold.high if self.threshold is not None else None
+
+    @property
+    def changed_fraction(self) -> float:
+        """Fraction of compared pixels flagged as changed."""
+        return float(self.mask[self.valid].mean()) if self.valid.any() else 0.0
+
+
+def empty_result(shape: tuple[int, int], reason: str, registration: Registration | None, settings: dict) -> ChangeResult:
+    """The result of a pair that cannot be compared honestly (``comparable=False``, empty HxW maps)."""
+    return ChangeResult(
+        comparable=False,
+        reason=reason,
+        score=np.zeros(shape, np.float32),
+        mask=np.zeros(shape, bool),
+        labels=np.zeros(shape, np.int32),
+        valid=np.zeros(shape, bool),
+        regions=[],
+        registration=registration,
+        threshold=None,
+        settings=settings,
+    )
+
+
+def detection_settings(config: DetectionConfig, *, lightings: int, shading: bool) -> dict:
+    """The options a result records in ``settings`` (keys in the order reports print them)."""
+    score, regions = config.score, config.regions
+    return {
+        "lightings": lightings,
+        "gain_sigma_px": score.gain_sigma_px,
+        "shift_radius_px": score.shift_radius_px,
+        "structure_weight": score.structure_weight,
+        "smooth_sigma_px": score.smooth_sigma_px,
+        "k_high": regions.k_high,
+        "k_low": regions.k_low,
+        "min_region_px": regions.min_region_px,
+        "max_hole_px": regions.max_hole_px,
+        "registration_lighting": config.registration.registration_lighting,
+        "robust_gain_rounds_max": score.robust_gain_rounds,
+        "edge_fraction": regions.edge_fraction,
+        "edge_radius_px": regions.edge_radius_px,
+        "edge_tolerance_px": score.edge_tolerance_px,
+        "edge_contrast": score.edge_contrast,
+        "edge_check_px": config.edge_check.edge_check_px,
+        "shading_normalization": shading,
+        "decision": regions.decision.value,
+        "epsilon": regions.epsilon,
+        "seed_p": regions.seed_p,
+        "extent_fraction": regions.extent_fraction,
+        "dense": config.registration.dense,
+    }
+
+
+def result_warnings(mask: np.ndarray, valid: np.ndarray, registration: Registration, *, register: bool) -> list[str]:
+    """Warnings a conservator should read with the map (too much flagged, registration without features)."""
+    warnings = []
+    fraction = float(mask[valid].mean())
+    if fraction > 0.25:
+        warnings.append(
+            f"{fraction * 100:.0f} % of the compared area flagged: lighting or viewpoint may differ too much for a fine-grained comparison"
+        )
+    if registration.init == RegistrationInit.IDENTITY and register:
+        warnings.append("features did not match; registration started from the identity (gradient ECC only)")
+    return warnings
+
+
+def unreported_candidates(significance: Decision, mask: np.ndarray, *, count: int = 5) -> list[SignificantRegion]:
+    """The ``count`` most significant a-contrario regions whose centroid is not in the final mask."""
+    return sorted((c for c in significance.candidates + significance.regions
+                   if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]),
+                  key=lambda c: c.log10_nfa)[:count]
