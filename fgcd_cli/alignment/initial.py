@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import dataclass, replace
+from enum import StrEnum
 
 import numpy as np
 
@@ -15,7 +16,18 @@ from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentResult
 from fgcd_cli.geometry import Sim3
 
-__all__ = ["InitialGuess", "camera_prior", "initial_guess", "global_registration"]
+__all__ = ["GuessSource", "InitialGuess", "camera_prior", "initial_guess", "global_registration"]
+
+
+class GuessSource(StrEnum):
+    """Where an :class:`InitialGuess` came from."""
+
+    FIRST_CAMERA = "first_camera"
+    """The prior alone (no clouds given)."""
+    FIRST_CAMERA_FAST = "first_camera+fast"
+    """The prior refined by a fast alignment."""
+    GLOBAL = "global"
+    """The multi-start fallback."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -26,16 +38,14 @@ class InitialGuess:
     ----------
     T_ref_cur : Sim3
         The best starting similarity (already refined by a fast alignment when clouds were given).
-    source : str
-        ``"first_camera"`` (the prior), ``"first_camera+fast"`` (prior refined), or
-        ``"global"`` (multi-start fallback).
+    source : GuessSource
     fast : AlignmentResult or None
         The fast alignment that validated it (None without clouds).
     seconds : float
     """
 
     T_ref_cur: Sim3
-    source: str
+    source: GuessSource
     fast: AlignmentResult | None
     seconds: float
 
@@ -83,23 +93,22 @@ def global_registration(
     centroids matched and the scale from the ratio of RMS radii (or, with
     ``around``, composed with that prior). Each start runs the two coarse levels;
     the start with the highest inlier ratio (ties: lower residual) is refined at
-    full resolution. FPFH + RANSAC was measured slower (~7.5 s) and failed on
-    symmetric scenes, and its radii are not scale invariant, so it is not used.
+    full resolution. FPFH + RANSAC is not used: it is slower, fails on symmetric
+    scenes (docs/benchmarks.md) and its radii are not scale invariant.
     """
     cur = np.asarray(cur_points, dtype=float)
     ref = as_reference(reference)
     base = initial_scale(cur, ref) if around is None else around
     c = cur.mean(axis=0)
+    levels = config.levels
+    # The 24 starts only rank rotations: no shift search, scale refinement or minimum check
+    # there (they would multiply the cost by ~10); the final run below has them.
     coarse = replace(
         config,
-        level_points=config.level_points[:2],
-        level_radius_rel=config.level_radius_rel[:2],
-        level_iterations=tuple(min(20, n) for n in config.level_iterations[:2]),
-        # The 24 starts only rank rotations: no shift search, scale refinement or minimum check
-        # there (they would multiply the cost by ~10); the final run below has them.
-        shift_steps=0,
-        scale_refinements=0,
-        minimum_check_step=0.0,
+        levels=replace(levels, points=levels.points[:2], radius_rel=levels.radius_rel[:2],
+                       iterations=tuple(min(20, n) for n in levels.iterations[:2])),
+        cold=replace(config.cold, shift_steps=0, scale_refinements=0),
+        minimum_check=replace(config.minimum_check, step=0.0),
     )
     best = None
     for Q in _rotations_24():
@@ -157,21 +166,21 @@ def initial_guess(
                 scale = d_ref / d_cur
     prior = camera_prior(T_ref_camref, T_cur_cam0, scale=scale)
     if not have_clouds:
-        return InitialGuess(T_ref_cur=prior, source="first_camera", fast=None, seconds=time.perf_counter() - t0)
+        return InitialGuess(T_ref_cur=prior, source=GuessSource.FIRST_CAMERA, fast=None,
+                            seconds=time.perf_counter() - t0)
     fast = fast_align(cur_points, ref, init=prior, config=config)
     # Degenerate geometry (a plane, a sphere) is not cured by other starts: they only find
-    # other, equally good-looking fits (measured before the weak-direction probe: a stele
-    # whose prior fit was 0.5 px from the truth went to a 180-degree flip at 0.54 scale).
-    only_degenerate = (fast.health.degenerate and fast.health.inlier_ratio >= config.min_inlier_ratio
-                       and fast.health.overlap >= config.min_overlap)
+    # other, equally good-looking fits (docs/alignment.md, "Initial guess and global fallback").
+    only_degenerate = (fast.health.degenerate and fast.health.inlier_ratio >= config.health.min_inlier_ratio
+                       and fast.health.overlap >= config.health.min_overlap)
     if fast.health.ok or not global_fallback or only_degenerate:
-        return InitialGuess(T_ref_cur=fast.T_ref_cur, source="first_camera+fast", fast=fast,
+        return InitialGuess(T_ref_cur=fast.T_ref_cur, source=GuessSource.FIRST_CAMERA_FAST, fast=fast,
                             seconds=time.perf_counter() - t0)
     glob = global_registration(cur_points, ref, config=config, around=prior)
     chosen = glob if (glob.health.ok or glob.health.inlier_ratio > fast.health.inlier_ratio) else fast
     return InitialGuess(
         T_ref_cur=chosen.T_ref_cur,
-        source="global" if chosen is glob else "first_camera+fast",
+        source=GuessSource.GLOBAL if chosen is glob else GuessSource.FIRST_CAMERA_FAST,
         fast=chosen,
         seconds=time.perf_counter() - t0,
     )

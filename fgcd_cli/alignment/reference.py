@@ -19,8 +19,8 @@ def local_roughness(points: np.ndarray, *, samples: int = 1000, neighbours: int 
     A noise estimate of a cloud that needs no alignment (it also contains the
     surface's curvature at the neighbourhood scale, small for dense clouds).
     Semi-dense VSE points are locally coherent along image edges, so small
-    neighbourhoods (16) underestimate their noise (measured 0.8 mm against 3-9 mm
-    off a true plane); 50 neighbours see it.
+    neighbourhoods (16) underestimate their noise several times over
+    (docs/benchmarks.md); 50 neighbours see it.
     """
     pts = np.asarray(points, dtype=float)
     if len(pts) <= neighbours:
@@ -159,7 +159,7 @@ class ReferenceIndex:
         The cloud is voxel-downsampled (voxel = a third of the radius
         ``max(10 x roughness, 5 x spacing, 5 % of the width)``) and normals
         estimated on 30 neighbours there: on a noisy plane, fine-scale normals
-        scatter (measured: 73 deg median on a VSE plane) and would hide the degeneracy.
+        scatter by tens of degrees (docs/benchmarks.md) and would hide the degeneracy.
 
         Returns
         -------

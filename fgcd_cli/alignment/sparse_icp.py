@@ -6,8 +6,8 @@ The paper's Eq. (13) is solved with sparse ICP: minimise ``sum_i |z_i|^p``
 of correspondences (non-repeated points, outliers, the non-overlapping part)
 keep large residuals without pulling the fit. The point-to-plane form is used
 because point-to-point ICP slides very slowly along the nearly flat surfaces of
-reliefs and murals (measured: > 90 iterations from 3 degrees), which the 10 Hz
-target cannot afford. There is no maintained PyPI package for sparse ICP and each
+reliefs and murals (tens of iterations more from a few degrees off;
+docs/benchmarks.md), which the 10 Hz target cannot afford. There is no maintained PyPI package for sparse ICP and each
 ADMM step is a shrink plus a 6x6 linear solve, so it is written here, with the
 shrink operator of the authors' reference implementation.
 """
@@ -63,9 +63,9 @@ def shrink(h: np.ndarray, *, mu: float, p: float) -> np.ndarray:
 def gram(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``A.T @ B`` for tall, narrow matrices, without BLAS.
 
-    OpenBLAS's threaded GEMM on these shapes collapses when the machine's cores are
-    busy (measured 75 ms instead of 1 ms for 9000 x 36 on 2 loaded cores);
-    ``einsum`` without BLAS takes a steady few milliseconds.
+    OpenBLAS's threaded GEMM on these shapes slows down by orders of magnitude when
+    the machine's cores are busy (docs/benchmarks.md); ``einsum`` without BLAS takes
+    a steady few milliseconds.
     """
     return np.einsum("ni,nj->ij", A, B, optimize=False)
 

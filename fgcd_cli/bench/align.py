@@ -72,9 +72,8 @@ def _cloud_depth_ratio(state, truth_by_frame, T_world_map: Sim3, renderer, intr,
     """Median ratio of the cloud's depths to the true depths, over the session's keyframes.
 
     The monocular VSE's cloud can be a little shallower or deeper than its own
-    trajectory (measured: -1.8 % on the reference session); that is the VSE's
-    error, not the alignment's, so the benchmark defines each session's metric
-    frame by its cloud.
+    trajectory (docs/benchmarks.md); that is the VSE's error, not the alignment's,
+    so the benchmark defines each session's metric frame by its cloud.
     """
     P = T_world_map.apply(np.asarray(state.cloud.points, dtype=float))
     ratios = []
@@ -204,7 +203,7 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
                                   config=FastAlignConfig(estimate_scale=False))
             row.update(_score("fast", fast.T_ref_cur, vse_poses, truths_ref, T_true, fast.health.ok))
             row["fast_seconds"] = fast.seconds
-            row["fast_start"] = fast.start
+            row["fast_start"] = str(fast.start)
             row.update(_score("S", no_scale.T_ref_cur, vse_poses, truths_ref, T_true, no_scale.health.ok))
             if fast.health.ok and k < (3 if quick else 5):
                 fine = fine_align(ref_points=ref_index, cur_keyframes=keyframes, camera=camera, init=fast.T_ref_cur,
@@ -247,7 +246,7 @@ def _degenerate_case(scene_name, intr, camera, rng, *, frames: int) -> dict:
     if len(ref_state.keyframes) < 2 or len(cur_state.keyframes) < 2:
         return {"scene": scene_name, "vse_failed": True}
     # Each session's metric frame is defined by its cloud (renderer depths), as in the main part:
-    # the VSE cloud and its own trajectory differ in scale by 1-4 % on these walls.
+    # the VSE cloud and its own trajectory differ in scale on these walls too (docs/benchmarks.md).
     _, ref_pts, T_world_ref, _, _ = _metric_session(ref_state, ref_truth, scale_error=0.0,
                                                     renderer=renderer, intr=intr, camera=camera)
     kfs, cur_pts, T_world_cur, kf_truth, _ = _metric_session(cur_state, cur_truth, scale_error=0.01,
