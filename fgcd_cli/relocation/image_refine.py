@@ -35,10 +35,10 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.images import to_float_image, to_gray
-from fgcd_cli.changes.registration import match_sift
 from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import compute_fdf
 from fgcd_cli.geometry.se3 import make_pose, pose_distance
+from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
 
 __all__ = [
     "ImageRefineConfig",
@@ -247,9 +247,12 @@ def local_contrast(gray: np.ndarray, *, clip_limit: float = 3.0, tiles: int = 8)
     equalised locally, the same pair of views gives tens of times more matches,
     nearly all of them epipolar inliers (docs/benchmarks.md).
     """
-    u8 = np.clip(np.asarray(gray, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    clahe = cv2.createCLAHE(clipLimit=float(clip_limit), tileGridSize=(int(tiles), int(tiles)))
-    return clahe.apply(u8).astype(np.float32) / 255.0
+    return to_gray_f32(_local_contrast_u8(gray, clip_limit=clip_limit, tiles=tiles))
+
+
+def _local_contrast_u8(gray: np.ndarray, *, clip_limit: float = 3.0, tiles: int = 8) -> np.ndarray:
+    """:func:`local_contrast` as 8-bit levels, (H, W) uint8 (what SIFT detects on)."""
+    return clahe(to_gray_u8(np.asarray(gray, dtype=np.float32)), clip_limit=float(clip_limit), tiles=int(tiles))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -267,7 +270,7 @@ class _ReferenceView:
 
 def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
     config = view.config
-    p_ref, p_cur = match_sift(local_contrast(ref), local_contrast(cur), ratio=config.ratio)
+    p_ref, p_cur = match_sift(_local_contrast_u8(ref), _local_contrast_u8(cur), ratio=config.ratio)
     sift = _refine_matches(p_ref, p_cur, view, matcher="sift", min_inliers=config.min_inliers)
     if sift.ok:
         return sift
