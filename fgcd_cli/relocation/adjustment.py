@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_cli.geometry.se3 import exp_se3, invert_pose, log_se3, pose_distance, rotation_angle_rad
-from fgcd_cli.geometry.sim3 import Sim3
+from fgcd_core.se3 import exp_se3, invert_pose, log_se3, pose_distance, rotation_angle_rad
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["Adjustment", "camera_in_reference", "compute_adjustment", "clamp_motion"]
 

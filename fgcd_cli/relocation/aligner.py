@@ -13,9 +13,9 @@ from typing import Protocol
 
 import numpy as np
 
-from fgcd_cli.geometry.sim3 import Sim3
 from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.enums import EstimateStage
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["AlignmentEstimate", "AlignmentProblem", "Aligner", "align_once", "local_cloud", "scaled_pose"]
 

@@ -35,8 +35,6 @@ from typing import Callable
 import numpy as np
 
 from drivers.platform import MotionRejected
-from fgcd_cli.geometry.se3 import invert_pose, pose_distance
-from fgcd_cli.geometry.sim3 import Sim3
 from fgcd_cli.relocation.adjustment import clamp_motion
 from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult, CoarseStep
 from fgcd_cli.relocation.config import ReferenceData
@@ -44,6 +42,8 @@ from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
 from fgcd_cli.relocation.protocols import CameraModel
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.uncertainty import CameraUncertainty, camera_uncertainty, in_view, render_visible_points
+from fgcd_core.se3 import invert_pose, pose_distance
+from fgcd_core.sim3 import Sim3
 
 __all__ = [
     "CameraUncertainty",

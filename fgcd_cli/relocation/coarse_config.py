@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from fgcd_cli.geometry.sim3 import Sim3
 from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["CoarseConfig", "CoarseResult", "CoarseStep"]
 

@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from fgcd_cli.geometry.sim3 import Sim3
 from fgcd_cli.relocation.aligner import Aligner, AlignmentProblem, align_once
 from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.log import AdjustmentRecord
 from fgcd_cli.relocation.protocols import CameraModel, ImageRefiner
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import reference_depth_m, tolerance_mm
+from fgcd_core.sim3 import Sim3
 
 if TYPE_CHECKING:
     from fgcd_cli.relocation.worker import AlignmentWorker

@@ -37,8 +37,8 @@ import numpy as np
 from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import compute_fdf
-from fgcd_cli.geometry.se3 import make_pose, pose_distance
 from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
+from fgcd_core.se3 import make_pose, pose_distance
 
 __all__ = [
     "ImageRefineConfig",

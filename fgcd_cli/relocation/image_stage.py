@@ -25,13 +25,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.geometry.se3 import invert_pose, pose_distance
 from fgcd_cli.relocation.adjustment import clamp_motion
 from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import Agreement, EstimateSource, EstimateStage
 from fgcd_cli.relocation.estimates import fresh_3d_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.stop_rule import Residual, estimated_afd_px, estimates_agree, offset_vector_mm
+from fgcd_core.se3 import invert_pose, pose_distance
 
 __all__ = ["image_stage"]
 

@@ -10,7 +10,7 @@ __all__ = ["CameraModel", "ImageRefiner"]
 
 
 class CameraModel(Protocol):
-    """Undistorted pinhole intrinsics (``fgcd_cli.geometry.PinholeCamera`` fits).
+    """Undistorted pinhole intrinsics (``fgcd_core.camera.PinholeCamera`` fits).
 
     ``fx fy cx cy`` in pixels, ``width height`` in pixels; ``project`` maps (N, 3)
     camera-frame points (metres) to (N, 2) pixels and an (N,) mask of points in

@@ -14,7 +14,6 @@ import time
 import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.geometry.se3 import pose_distance
 from fgcd_cli.relocation.adjustment import Adjustment, compute_adjustment
 from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
 from fgcd_cli.relocation.context import LoopContext, LoopState
@@ -22,6 +21,7 @@ from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.estimates import align_now, wait_for_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.stop_rule import estimated_afd_px
+from fgcd_core.se3 import pose_distance
 
 __all__ = ["racr_loop"]
 

@@ -19,8 +19,8 @@ import numpy as np
 
 from drivers.platform import MotionGuard
 from fgcd_cli.errors import AlgorithmError, run_record
-from fgcd_cli.geometry.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
 from fgcd_cli.relocation.waiting import wait_for_state
+from fgcd_core.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
 
 __all__ = [
     "SessionTiming",

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_cli.geometry.se3 import invert_pose, transform_points
 from fgcd_cli.relocation.enums import Agreement, EstimateSource
+from fgcd_core.se3 import invert_pose, transform_points
 
 __all__ = [
     "Residual",

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_cli.geometry.se3 import pose_distance
 from fgcd_cli.relocation.coarse_config import CoarseConfig
+from fgcd_core.se3 import pose_distance
 
 __all__ = ["CameraUncertainty", "camera_uncertainty", "in_view", "render_visible_points"]
 
@@ -217,7 +217,7 @@ def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray,
     """
     from scipy.spatial import cKDTree
 
-    from fgcd_cli.geometry.se3 import exp_se3, log_se3
+    from fgcd_core.se3 import exp_se3, log_se3
 
     p = observed @ T[:3, :3].T + T[:3, 3]
     dist, idx = cKDTree(rendered).query(p, distance_upper_bound=radius)

@@ -12,9 +12,9 @@ import threading
 import time
 from typing import Callable
 
-from fgcd_cli.geometry.sim3 import Sim3
 from fgcd_cli.relocation.aligner import Aligner, AlignmentEstimate, AlignmentProblem, align_once
 from fgcd_cli.relocation.waiting import wait_for_state
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["AlignmentWorker"]
 
