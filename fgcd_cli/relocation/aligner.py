@@ -15,6 +15,7 @@ import numpy as np
 
 from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.enums import EstimateStage
+from fgcd_cli.relocation.protocols import CameraModel
 from fgcd_core.sim3 import Sim3
 
 __all__ = ["AlignmentEstimate", "AlignmentProblem", "Aligner", "align_once", "local_cloud", "scaled_pose"]
@@ -73,7 +74,7 @@ class AlignmentProblem:
 
     reference: ReferenceData
     ref_index: object
-    camera: object
+    camera: CameraModel | None
     scale: float
     fine: bool = True
     recent_keyframes: int = 6

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcd_cli.relocation.enums import Agreement, EstimateSource
+from fgcd_cli.relocation.protocols import CameraModel
 from fgcd_core.se3 import invert_pose, transform_points
 
 __all__ = [
@@ -85,7 +86,8 @@ def reference_depth_m(ref_points: np.ndarray, T_ref_camref: np.ndarray) -> float
     return float(np.median(z)) if len(z) else math.nan
 
 
-def tolerance_mm(ref_points: np.ndarray, T_ref_camref: np.ndarray, camera, *, stop_afd_px: float) -> float:
+def tolerance_mm(ref_points: np.ndarray, T_ref_camref: np.ndarray, camera: CameraModel | None, *,
+                 stop_afd_px: float) -> float:
     """Stop tolerance on the remaining camera offset, mm (docs/relocation.md, "Stop rules").
 
     Model: a sideways camera shift ``d`` at distance ``Z`` moves the object's image by
@@ -155,7 +157,8 @@ def offset_vector_mm(T_ref_cam: np.ndarray, T_ref_camref: np.ndarray) -> np.ndar
 
 
 def estimated_afd_px(
-    ref_points: np.ndarray, T_ref_camref: np.ndarray, T_ref_cam: np.ndarray, camera, *, max_points: int = 3000
+    ref_points: np.ndarray, T_ref_camref: np.ndarray, T_ref_cam: np.ndarray, camera: CameraModel | None, *,
+    max_points: int = 3000,
 ) -> float:
     """Mean image displacement (px) between the reference camera and the estimated current one.
 
