@@ -17,12 +17,15 @@ from drivers.platform import MotionGuard
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import HandEyeResult, solve_handeye_scale
-from fgcd_cli.calibration.handeye_ba import gray_u8
+from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_handeye_target
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
+from fgcd_cli.calibration.target_free import PathViews, refine_target_free
+from fgcd_cli.calibration.tracks import gray_u8
 from fgcd_cli.geometry.camera import PinholeCamera
 
-__all__ = ["TargetFreeRun", "TargetRun", "run_target_free", "run_target", "CameraSourceLike", "VseEngineLike"]
+__all__ = ["TargetFreeRun", "TargetRun", "TargetFreeRunConfig", "TargetRunConfig", "run_target_free", "run_target",
+           "CameraSourceLike", "VseEngineLike"]
 
 
 class CameraSourceLike(Protocol):
@@ -80,21 +83,51 @@ def _rotation_axes(guard: MotionGuard) -> str:
     return "".join(a for a in "xyz" if f"r{a}" in caps.controllable)
 
 
+def _with_options(config, cls, options: dict):
+    """``config`` (default ``cls()``) with the former keyword options applied over it."""
+    return replace(config or cls(), **options)
+
+
+@dataclass(frozen=True, kw_only=True)
+class TargetFreeRunConfig:
+    """Options of :func:`run_target_free`.
+
+    Attributes
+    ----------
+    motions : sequence of (4, 4) ndarray, optional
+        Stops relative to the start flange pose; default :func:`exploration_motions`.
+    translation_m, rotation_deg : float
+        Size of the default motions, metres and degrees.
+    settle_frames : int
+        Frames given to the VSE at each stop before its pose is read.
+    max_step_m, max_step_deg : float
+        Largest platform step between two frames (keeps the tracker locked).
+    refine : bool
+        Refine ``X`` by a bundle adjustment over the images of every rest pose of the
+        path with the camera poses tied to the reported flange poses, then
+        re-estimate the scale (:func:`fgcd_cli.calibration.target_free.refine_target_free`);
+        if the images cannot be matched the linear solution is kept with a note.
+    """
+
+    motions: Sequence[np.ndarray] | None = None
+    translation_m: float = 0.03
+    rotation_deg: float = 8.0
+    settle_frames: int = 3
+    max_step_m: float = 0.005
+    max_step_deg: float = 1.0
+    refine: bool = True
+
+
 def run_target_free(
     guard: MotionGuard,
     camera_source: CameraSourceLike,
     vse_engine_factory: Callable[[PinholeCamera], VseEngineLike],
     *,
     camera: PinholeCamera,
-    motions: Sequence[np.ndarray] | None = None,
-    translation_m: float = 0.03,
-    rotation_deg: float = 8.0,
-    settle_frames: int = 3,
-    max_step_m: float = 0.005,
-    max_step_deg: float = 1.0,
-    refine: bool = True,
+    config: TargetFreeRunConfig | None = None,
     progress: Callable[[str], None] | None = None,
     on_progress: Callable[[int, int, str], None] | None = None,
+    **options,
 ) -> TargetFreeRun:
     """Command exploration motions, track them with the VSE, solve ``X`` and ``s``.
 
@@ -108,24 +141,15 @@ def run_target_free(
         Builds a fresh monocular VSE (e.g. ``fgcd_cli.vse.MonocularVSE``).
     camera : PinholeCamera
         Calibrated intrinsics.
-    motions : sequence of (4, 4) ndarray, optional
-        Stops relative to the start flange pose; default :func:`exploration_motions`.
-    translation_m, rotation_deg : float
-        Size of the default motions.
-    settle_frames : int
-        Frames given to the VSE at each stop before its pose is read.
-    max_step_m, max_step_deg : float
-        Largest platform step between two frames (keeps the tracker locked).
-    refine : bool
-        Refine ``X`` by a bundle adjustment over the stop images with the camera
-        poses tied to the reported flange poses, then re-estimate the scale
-        (:func:`fgcd_cli.calibration.handeye_ba.refine_target_free`); if the images
-        cannot be matched the linear solution is kept with a note.
+    config : TargetFreeRunConfig, optional
+        Motions, settling, step sizes, refinement.
     progress : callable(str), optional
         Receives one line per stop.
     on_progress : callable(done, total, label), optional
         Receives the frames done along the whole path after each frame, then
         ``(0, 0, label)`` when the image refinement (length unknown) starts.
+    **options
+        The fields of :class:`TargetFreeRunConfig` as keywords (the former call form), over ``config``.
 
     Returns
     -------
@@ -139,119 +163,174 @@ def run_target_free(
     drivers.platform.PlatformError
         A motion failed or was refused (the platform stays where it stopped).
     """
+    config = _with_options(config, TargetFreeRunConfig, options)
     say = progress or (lambda _msg: None)
     tick = on_progress or (lambda _done, _total, _label: None)
-    if motions is None:
-        axes = _rotation_axes(guard)
-        if len(axes) < 2:
-            raise CalibrationError(
-                f"platform '{guard.platform.name}' rotates about {len(axes)} axis(es) only: target-free hand-eye "
-                "needs rotations about two axes (use a 6-DoF arm, or enter the hand-eye measured by hand)"
-            )
-        motions = exploration_motions(translation_m=translation_m, rotation_deg=rotation_deg, rotation_axes=axes)
-    engine = vse_engine_factory(camera)
+    motions = _target_free_motions(guard, config)
+    session = _TargetFreeSession(guard, camera_source, vse_engine_factory(camera), keep_path=config.refine)
     T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
-    hand: list[np.ndarray] = []
-    eye: list[np.ndarray] = []
-    stop_images: list[np.ndarray] = []
-    last_image: list[Any] = [None]
-    flange_at: dict[float, np.ndarray] = {}  # reported flange pose of every frame, by timestamp
-    last_pose: list[Any] = [None]
-    # every rest pose along the path with its image (grey, 8 bit), for the image refinement
-    path_T: list[np.ndarray] = []
-    path_images: list[np.ndarray] = []
-    stop_index: list[int] = []
-    skipped: dict[int, str] = {}
-    frames = 0
-    state = None
-
-    def feed() -> Any:
-        nonlocal frames
-        frame = camera_source.grab()
-        frames += 1
-        last_image[0] = frame.image
-        last_pose[0] = flange_at[float(frame.timestamp_s)] = np.asarray(guard.platform.flange_pose(), dtype=float)
-        return engine.process(frame.image, frame.timestamp_s)
-
     targets = [T_start @ np.asarray(T_rel, dtype=float) for T_rel in motions]
-    legs = [interpolate_steps(a, b, max_step_m=max_step_m, max_step_deg=max_step_deg) if index else []
+    legs = [interpolate_steps(a, b, max_step_m=config.max_step_m, max_step_deg=config.max_step_deg) if index else []
             for index, (a, b) in enumerate(zip([T_start] + targets[:-1], targets))]
-    total_frames = sum(len(steps) for steps in legs) + len(legs) * max(1, settle_frames)
+    settle = max(1, config.settle_frames)
+    total_frames = sum(len(steps) for steps in legs) + len(legs) * settle
     for index, steps in enumerate(legs):
         label = f"hand-eye motions (stop {index + 1}/{len(motions)})"
+        session.visit(steps, settle, lambda: tick(session.frames, total_frames, label))
+        where = f"stop {index + 1}/{len(motions)}"
+        if session.record_stop(index):
+            say(f"{where}: sample {len(session.hand)} recorded")
+        else:
+            say(f"{where}: no VSE pose ({session.state.status})")
+    if len(session.hand) < 3:
+        raise CalibrationError(
+            f"the VSE gave a pose at only {len(session.hand)} of {len(motions)} stops: point the camera at a "
+            "textured, static surface 0.3-2 m away and try again"
+        )
+    result = solve_handeye_scale(session.hand, session.eye, pairs="all")
+    if config.refine:
+        result = _refine(result, session, camera, say, tick)
+    return TargetFreeRun(result=result, T_base_flange=session.hand, T_map_cam=session.eye, skipped=session.skipped,
+                         frames=session.frames, engine=session.engine)
+
+
+def _target_free_motions(guard: MotionGuard, config: TargetFreeRunConfig) -> Sequence[np.ndarray]:
+    """The configured stops, or the default exploration about the axes the platform can turn."""
+    if config.motions is not None:
+        return config.motions
+    axes = _rotation_axes(guard)
+    if len(axes) < 2:
+        raise CalibrationError(
+            f"platform '{guard.platform.name}' rotates about {len(axes)} axis(es) only: target-free hand-eye "
+            "needs rotations about two axes (use a 6-DoF arm, or enter the hand-eye measured by hand)"
+        )
+    return exploration_motions(translation_m=config.translation_m, rotation_deg=config.rotation_deg,
+                               rotation_axes=axes)
+
+
+class _TargetFreeSession:
+    """The samples of a target-free run as the platform moves: stops, VSE poses, and every rest pose's view.
+
+    Every rest pose along the path is kept with its image (grey, 8 bit) for the image
+    refinement when ``keep_path``; a stop the VSE missed is still a view (the
+    refinement needs no VSE pose).
+    """
+
+    def __init__(self, guard: MotionGuard, camera_source: CameraSourceLike, engine: Any, *, keep_path: bool):
+        self.guard, self.camera_source, self.engine, self.keep_path = guard, camera_source, engine, keep_path
+        self.frames = 0
+        self.state: Any = None
+        self.last_image: Any = None
+        self.last_pose: Any = None
+        self.flange_at: dict[float, np.ndarray] = {}  # reported flange pose of every frame, by timestamp
+        self.hand: list[np.ndarray] = []
+        self.eye: list[np.ndarray] = []
+        self.stop_images: list[np.ndarray] = []
+        self.path_T: list[np.ndarray] = []
+        self.path_images: list[np.ndarray] = []
+        self.stop_index: list[int] = []
+        self.skipped: dict[int, str] = {}
+
+    def feed(self) -> None:
+        """One frame to the VSE, with the flange pose reported when it was grabbed."""
+        frame = self.camera_source.grab()
+        self.frames += 1
+        self.last_image = frame.image
+        self.last_pose = self.flange_at[float(frame.timestamp_s)] = np.asarray(
+            self.guard.platform.flange_pose(), dtype=float)
+        self.state = self.engine.process(frame.image, frame.timestamp_s)
+
+    def visit(self, steps: Sequence[np.ndarray], settle: int, tick: Callable[[], None]) -> None:
+        """Step to the next stop (a frame after each step) and let the VSE settle there."""
         for T_step in steps:
-            guard.move_to(T_step)
-            state = feed()
-            tick(frames, total_frames, label)
-            if refine:
-                path_T.append(last_pose[0])
-                path_images.append(gray_u8(last_image[0]))
-        for _ in range(max(1, settle_frames)):
-            state = feed()
-            tick(frames, total_frames, label)
+            self.guard.move_to(T_step)
+            self.feed()
+            tick()
+            if self.keep_path:
+                self.path_T.append(self.last_pose)
+                self.path_images.append(gray_u8(self.last_image))
+        for _ in range(settle):
+            self.feed()
+            tick()
+        if steps and self.keep_path:
+            # the last step ended at the stop: the stop's own view replaces it (same rest pose)
+            self.path_T.pop()
+            self.path_images.pop()
+
+    def record_stop(self, index: int) -> bool:
+        """The stop's sample if the VSE tracks; whether it did (the reason is kept in ``skipped`` if not)."""
+        state = self.state
         if state.status == "failed":
             raise CalibrationError(f"the VSE cannot track this scene: {state.message}")
         tracked = state.status == "tracking" and state.T_map_cam is not None
         if tracked:
-            hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
-            eye.append(np.asarray(state.T_map_cam, dtype=float))
-            stop_images.append(np.asarray(last_image[0]))
-        if refine:
-            # the last step ended at the stop: the stop's own view replaces it (same rest pose);
-            # the refinement needs no VSE pose, so a stop the VSE missed is still a view
-            if steps:
-                path_T.pop()
-                path_images.pop()
-            path_T.append(hand[-1] if tracked else last_pose[0])
-            path_images.append(gray_u8(last_image[0]))
+            self.hand.append(np.asarray(self.guard.platform.flange_pose(), dtype=float))
+            self.eye.append(np.asarray(state.T_map_cam, dtype=float))
+            self.stop_images.append(np.asarray(self.last_image))
+        if self.keep_path:
+            self.path_T.append(self.hand[-1] if tracked else self.last_pose)
+            self.path_images.append(gray_u8(self.last_image))
             if tracked:
-                stop_index.append(len(path_T) - 1)
-        if tracked:
-            say(f"stop {index + 1}/{len(motions)}: sample {len(hand)} recorded")
-        else:
-            skipped[index] = f"VSE {state.status}: {state.message}"
-            say(f"stop {index + 1}/{len(motions)}: no VSE pose ({state.status})")
-    if len(hand) < 3:
-        raise CalibrationError(
-            f"the VSE gave a pose at only {len(hand)} of {len(motions)} stops: point the camera at a textured, "
-            "static surface 0.3-2 m away and try again"
+                self.stop_index.append(len(self.path_T) - 1)
+        if not tracked:
+            self.skipped[index] = f"VSE {state.status}: {state.message}"
+        return tracked
+
+    def keyframe_depths(self) -> list[KeyframeDepths]:
+        """The VSE keyframes with their cloud points and the flange pose of their frame."""
+        cloud = getattr(self.state, "cloud", None)
+        if cloud is None or len(getattr(cloud, "points", ())) == 0:
+            return []
+        out = []
+        for kf in getattr(self.state, "keyframes", ()):
+            T_flange = self.flange_at.get(float(kf.timestamp_s))
+            sel = np.asarray(cloud.keyframe_ids) == kf.id
+            if T_flange is None or not np.any(sel):
+                continue
+            out.append(KeyframeDepths(T_base_flange=T_flange, T_map_cam=np.asarray(kf.T_map_cam, dtype=float),
+                                      pixels=np.asarray(cloud.pixels)[sel], points_map=np.asarray(cloud.points)[sel]))
+        return out
+
+
+def _refine(result: HandEyeResult, session: _TargetFreeSession, camera: PinholeCamera, say, tick) -> HandEyeResult:
+    """The image refinement of the linear result; the linear result with a note if the images cannot be matched."""
+    tick(0, 0, f"image refinement over {len(session.path_T)} views")
+    path = PathViews(T_base_flange=session.path_T, images=session.path_images, stop_index=session.stop_index)
+    try:
+        result = refine_target_free(result, session.hand, session.eye, session.stop_images, camera.K,
+                                    dist=camera.dist, keyframes=session.keyframe_depths(), path=path)
+        ref = result.refinement
+        say(
+            f"image refinement: {ref.get('views', len(session.hand))} views, {ref['points']} points, "
+            f"{ref['rms_px']:.2f} px RMS, X moved {ref['change_mm']:.1f} mm / {ref['change_deg']:.2f} deg"
         )
-    result = solve_handeye_scale(hand, eye, pairs="all")
-    if refine:
-        from fgcd_cli.calibration.handeye_ba import PathViews, refine_target_free
-
-        tick(0, 0, f"image refinement over {len(path_T)} views")
-        path = PathViews(T_base_flange=path_T, images=path_images, stop_index=stop_index)
-        try:
-            result = refine_target_free(result, hand, eye, stop_images, camera.K, dist=camera.dist,
-                                        keyframes=_keyframe_depths(state, flange_at), path=path)
-            say(
-                f"image refinement: {result.refinement.get('views', len(hand))} views, "
-                f"{result.refinement['points']} points, {result.refinement['rms_px']:.2f} px RMS, "
-                f"X moved {result.refinement['change_mm']:.1f} mm / {result.refinement['change_deg']:.2f} deg"
-            )
-        except CalibrationError as exc:
-            result = replace(result, notes=list(result.notes) + [f"image refinement skipped: {exc}"])
-            say(f"image refinement skipped: {exc}")
-    return TargetFreeRun(result=result, T_base_flange=hand, T_map_cam=eye, skipped=skipped, frames=frames, engine=engine)
+    except CalibrationError as exc:
+        result = replace(result, notes=list(result.notes) + [f"image refinement skipped: {exc}"])
+        say(f"image refinement skipped: {exc}")
+    return result
 
 
-def _keyframe_depths(state: Any, flange_at: dict[float, np.ndarray]) -> list:
-    """The VSE keyframes with their cloud points and the flange pose of their frame."""
-    from fgcd_cli.calibration.handeye_ba import KeyframeDepths
+@dataclass(frozen=True, kw_only=True)
+class TargetRunConfig:
+    """Options of :func:`run_target`.
 
-    cloud = getattr(state, "cloud", None)
-    if cloud is None or len(getattr(cloud, "points", ())) == 0:
-        return []
-    out = []
-    for kf in getattr(state, "keyframes", ()):
-        T_flange = flange_at.get(float(kf.timestamp_s))
-        sel = np.asarray(cloud.keyframe_ids) == kf.id
-        if T_flange is None or not np.any(sel):
-            continue
-        out.append(KeyframeDepths(T_base_flange=T_flange, T_map_cam=np.asarray(kf.T_map_cam, dtype=float),
-                                  pixels=np.asarray(cloud.pixels)[sel], points_map=np.asarray(cloud.points)[sel]))
-    return out
+    Attributes
+    ----------
+    motions : sequence of (4, 4) ndarray, optional
+        Stops relative to the start flange pose; default :func:`target_motions`.
+    rotation_deg, translation_m : float
+        Size of the default motions, degrees and metres.
+    methods : tuple of str
+        Solvers to compare (:data:`fgcd_cli.calibration.handeye_target.OPENCV_METHODS`).
+    min_corners : int
+        Views with fewer board corners are skipped.
+    """
+
+    motions: Sequence[np.ndarray] | None = None
+    rotation_deg: float = 15.0
+    translation_m: float = 0.04
+    methods: Sequence[str] = ("TSAI", "PARK", "HORAUD", "ANDREFF", "DANIILIDIS")
+    min_corners: int = 12
 
 
 def run_target(
@@ -260,15 +339,15 @@ def run_target(
     board: BoardSpec,
     *,
     camera: PinholeCamera,
-    motions: Sequence[np.ndarray] | None = None,
-    rotation_deg: float = 15.0,
-    translation_m: float = 0.04,
-    methods: Sequence[str] = ("TSAI", "PARK", "HORAUD", "ANDREFF", "DANIILIDIS"),
-    min_corners: int = 12,
+    config: TargetRunConfig | None = None,
     progress: Callable[[str], None] | None = None,
     on_progress: Callable[[int, int, str], None] | None = None,
+    **options,
 ) -> TargetRun:
     """Visit stops looking at a fixed ChArUco board and solve ``AX = XB``.
+
+    The platform moves in steps within 95 % of the guard's limits and returns to
+    the start pose at the end.
 
     Parameters
     ----------
@@ -280,58 +359,59 @@ def run_target(
         The board as printed, fixed in the scene, visible from the start pose.
     camera : PinholeCamera
         Calibrated intrinsics.
-    motions : sequence of (4, 4) ndarray, optional
-        Stops relative to the start flange pose; default :func:`target_motions`.
-    rotation_deg, translation_m : float
-        Size of the default motions.
-    methods : sequence of str
-        Solvers to compare.
-    min_corners : int
-        Views with fewer board corners are skipped.
+    config : TargetRunConfig, optional
+        Motions, solvers, corner threshold.
     progress : callable(str), optional
         Receives one line per stop.
     on_progress : callable(done, total, label), optional
         Receives the stops done before each stop's motion, and at the end.
+    **options
+        The fields of :class:`TargetRunConfig` as keywords (the former call form), over ``config``.
 
     Returns
     -------
     TargetRun
     """
+    config = _with_options(config, TargetRunConfig, options)
     say = progress or (lambda _msg: None)
-    motions = list(motions) if motions is not None else target_motions(rotation_deg=rotation_deg, translation_m=translation_m)
-    T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
-    step_m = guard.limits.max_step_m * 0.95
-    step_deg = np.degrees(guard.limits.max_step_rad) * 0.95
-    hand: list[np.ndarray] = []
-    boards: list[np.ndarray] = []
-    skipped: dict[int, str] = {}
     tick = on_progress or (lambda _done, _total, _label: None)
+    motions = (list(config.motions) if config.motions is not None
+               else target_motions(rotation_deg=config.rotation_deg, translation_m=config.translation_m))
+    T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
+    steps = {"max_step_m": guard.limits.max_step_m * 0.95, "max_step_deg": np.degrees(guard.limits.max_step_rad) * 0.95}
+    run = TargetRun(result=None, T_base_flange=[], T_cam_target=[])
     T_prev = T_start
     for index, T_rel in enumerate(motions):
         tick(index, len(motions), f"hand-eye with the board (stop {index + 1}/{len(motions)})")
         T_target = T_start @ np.asarray(T_rel, dtype=float)
         if index:
-            for T_step in interpolate_steps(T_prev, T_target, max_step_m=step_m, max_step_deg=step_deg):
+            for T_step in interpolate_steps(T_prev, T_target, **steps):
                 guard.move_to(T_step)
         T_prev = T_target
-        frame = camera_source.grab()
-        det = board.detect(frame.image)
-        T_cam_target = board.estimate_pose(det, camera.K, camera.dist) if det.n_corners >= min_corners else None
-        if T_cam_target is None:
-            skipped[index] = f"board not seen ({det.n_corners} corners)"
-            say(f"stop {index + 1}/{len(motions)}: board not seen ({det.n_corners} corners)")
-            continue
-        hand.append(np.asarray(guard.platform.flange_pose(), dtype=float))
-        boards.append(T_cam_target)
-        say(f"stop {index + 1}/{len(motions)}: {det.n_corners} corners")
+        _board_sample(run, guard, camera_source.grab(), board, camera, config.min_corners, index,
+                      lambda text: say(f"stop {index + 1}/{len(motions)}: {text}"))
     tick(len(motions), len(motions), "back to the start pose")
     # Return to the start pose (the same small steps).
-    for T_step in interpolate_steps(T_prev, T_start, max_step_m=step_m, max_step_deg=step_deg):
+    for T_step in interpolate_steps(T_prev, T_start, **steps):
         guard.move_to(T_step)
-    if len(hand) < 3:
+    if len(run.T_base_flange) < 3:
         raise CalibrationError(
-            f"the board was seen at only {len(hand)} of {len(motions)} stops: place it 0.3-0.8 m in front of the "
-            "camera, fully visible from the start pose, or reduce --rotation-deg"
+            f"the board was seen at only {len(run.T_base_flange)} of {len(motions)} stops: place it 0.3-0.8 m in "
+            "front of the camera, fully visible from the start pose, or reduce --rotation-deg"
         )
-    result = solve_handeye_target(hand, boards, methods=methods)
-    return TargetRun(result=result, T_base_flange=hand, T_cam_target=boards, skipped=skipped)
+    run.result = solve_handeye_target(run.T_base_flange, run.T_cam_target, methods=config.methods)
+    return run
+
+
+def _board_sample(run: TargetRun, guard: MotionGuard, frame: Any, board: BoardSpec, camera: PinholeCamera,
+                  min_corners: int, index: int, say: Callable[[str], None]) -> None:
+    """The stop's sample (flange pose, board pose) when the board is seen with enough corners, else a skip."""
+    det = board.detect(frame.image)
+    T_cam_target = board.estimate_pose(det, camera.K, camera.dist) if det.n_corners >= min_corners else None
+    if T_cam_target is None:
+        run.skipped[index] = f"board not seen ({det.n_corners} corners)"
+        say(f"board not seen ({det.n_corners} corners)")
+        return
+    run.T_base_flange.append(np.asarray(guard.platform.flange_pose(), dtype=float))
+    run.T_cam_target.append(T_cam_target)
+    say(f"{det.n_corners} corners")

@@ -176,7 +176,7 @@ def test_calibration_package_never_imports_the_simulator():
 def test_run_target_free_gives_the_refinement_every_rest_pose_of_the_path(monkeypatch):
     """The image refinement sees the stops and every step between them, each once, with the
     pose reported when its frame was taken; the stops are marked in the path."""
-    import fgcd_cli.calibration.handeye_ba as handeye_ba
+    import fgcd_cli.calibration.procedure as procedure
 
     seen = {}
 
@@ -186,7 +186,7 @@ def test_run_target_free_gives_the_refinement_every_rest_pose_of_the_path(monkey
 
         return replace(linear, refinement={"points": 0, "rms_px": 0.0, "change_mm": 0.0, "change_deg": 0.0})
 
-    monkeypatch.setattr(handeye_ba, "refine_target_free", spy)
+    monkeypatch.setattr(procedure, "refine_target_free", spy)
     platform = IdealPlatform()
     X = make_pose(exp_so3([0.1, -0.3, 0.2]), [0.03, -0.05, 0.08])
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
