@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgcd_cli.errors import UserInputError
+from fgcd_core.imaging import GrayChannels, to_gray_f32
 
 
 def to_float_image(image: np.ndarray, *, name: str = "image") -> np.ndarray:
@@ -42,11 +43,17 @@ def to_float_image(image: np.ndarray, *, name: str = "image") -> np.ndarray:
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """Grey level of a float image, the mean of its channels (HxW float32); grey images pass through."""
+    """Grey level of a float image in [0, 1], the mean of its channels (HxW float32); grey images are copied.
+
+    The unweighted channel mean (not a luma: no channel order is assumed); it only feeds
+    registration, the dense flow and the structure cues. float32 colour images go through
+    :func:`fgcd_core.imaging.to_gray_f32` (``GrayChannels.MEAN``, the same float32 sums); other
+    float dtypes are averaged in their own precision.
+    """
     if image.ndim == 2:
         return image.astype(np.float32)
-    # The unweighted mean of the channels (not a luma: no channel order is assumed);
-    # it only feeds registration, the dense flow and the structure cues.
+    if image.dtype == np.float32 and image.shape[2] == 3:
+        return to_gray_f32(image, channels=GrayChannels.MEAN)
     return image.mean(axis=2).astype(np.float32)
 
 

@@ -18,6 +18,9 @@ from enum import StrEnum
 import cv2
 import numpy as np
 
+from fgcd_core.imaging import U8Rounding, to_gray_u8
+from fgcd_core.imaging import match_sift as core_match_sift
+
 
 class RegistrationInit(StrEnum):
     """How the ECC refinement was started (``Registration.init``)."""
@@ -69,8 +72,10 @@ def gradient_magnitude(gray: np.ndarray, *, sigma_px: float = 1.0) -> np.ndarray
 
 
 def to_uint8(gray: np.ndarray) -> np.ndarray:
-    """float [0, 1] -> uint8 for OpenCV feature detectors."""
-    return np.clip(gray * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    """float [0, 1] grey -> uint8 for OpenCV feature detectors: ``floor(x * 255 + 0.5)`` clipped,
+    evaluated in the image's own float precision (:func:`fgcd_core.imaging.to_gray_u8`)."""
+    rounding = U8Rounding.HALF_UP_F64 if np.asarray(gray).dtype == np.float64 else U8Rounding.HALF_UP_F32
+    return to_gray_u8(gray, rounding=rounding)
 
 
 def match_sift(
@@ -94,19 +99,7 @@ def match_sift(
     -------
     points_ref, points_cur : ndarray, Nx2 float64, pixels (x, y)
     """
-    sift = cv2.SIFT_create(nfeatures=int(max_features))
-    kp_ref, desc_ref = sift.detectAndCompute(to_uint8(ref_gray), None)
-    kp_cur, desc_cur = sift.detectAndCompute(to_uint8(cur_gray), None)
-    empty = np.zeros((0, 2))
-    if desc_ref is None or desc_cur is None or len(kp_ref) < 2 or len(kp_cur) < 2:
-        return empty, empty.copy()
-    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc_ref, desc_cur, k=2)
-    good = [pair[0] for pair in knn if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance]
-    if not good:
-        return empty, empty.copy()
-    points_ref = np.array([kp_ref[m.queryIdx].pt for m in good], dtype=np.float64)
-    points_cur = np.array([kp_cur[m.trainIdx].pt for m in good], dtype=np.float64)
-    return points_ref, points_cur
+    return core_match_sift(to_uint8(ref_gray), to_uint8(cur_gray), ratio=ratio, max_features=max_features)
 
 
 def ransac_homography(

@@ -64,18 +64,15 @@ from fgcd_cli.changes.result import (
     unreported_candidates,
 )
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
-from fgcd_cli.changes.tiled_decision import decide_tiled, significance_coarse
+from fgcd_cli.changes.tiled_decision import decide_tiled
 from fgcd_cli.changes.tiled_geometry import Geometry, Tile, scale_matrix, tile_grid
 from fgcd_cli.changes.tiled_input import check_stacks, load_images
-from fgcd_cli.changes.tiled_schedule import median_float16, opencv_threads, release_free_memory, run_tiles
+from fgcd_cli.changes.tiled_schedule import opencv_threads
 from fgcd_cli.changes.tiled_score import TiledScore
 from fgcd_cli.changes.tiled_working import Small, cue_maps_small, label_cues_small, working_resolution
 from fgcd_cli.errors import UserInputError
 
-__all__ = ["detect_changes_tiled", "load_images", "tile_grid", "significance_coarse", "Tile"]
-
-# The names the tile modules had inside this module (tests/changes/test_tiled_equivalence.py).
-_TiledScore, _median_float16, _run_tiles, _release_free_memory = TiledScore, median_float16, run_tiles, release_free_memory
+__all__ = ["detect_changes_tiled", "load_images", "tile_grid"]
 
 Progress = Callable[[int, int, str], None]
 

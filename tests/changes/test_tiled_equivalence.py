@@ -8,11 +8,12 @@ import pytest
 from scipy import ndimage
 
 from fgcd_cli.changes.cues import _min_shifted_difference, shift_tolerant_difference
-from fgcd_cli.changes.detect import regions_with_significance
 from fgcd_cli.changes.illumination import normalize_local_gain, prepare_gain_weight
 from fgcd_cli.changes.significance import acontrario_decision, grow_to_extent
-from fgcd_cli.changes.regions import extract_regions
-from fgcd_cli.changes.tiled import _TiledScore, _median_float16, _run_tiles, tile_grid
+from fgcd_cli.changes.regions import extract_regions, regions_with_significance
+from fgcd_cli.changes.tiled_geometry import tile_grid
+from fgcd_cli.changes.tiled_schedule import median_float16, run_tiles
+from fgcd_cli.changes.tiled_score import TiledScore
 from skimage.morphology import reconstruction
 
 RNG_SEED = 7
@@ -141,9 +142,9 @@ def test_float16_median_is_numpys():
     rng = np.random.default_rng(RNG_SEED)
     for size in (1, 2, 7, 1000, 1001):
         values = (rng.random(size) * 3).astype(np.float16)
-        assert _median_float16(values) == float(np.median(values.astype(np.float32)))
+        assert median_float16(values) == float(np.median(values.astype(np.float32)))
     signed = np.array([-1.0, 0.5, 2.0, -0.25], np.float16)
-    assert _median_float16(signed) == float(np.median(signed.astype(np.float32)))
+    assert median_float16(signed) == float(np.median(signed.astype(np.float32)))
 
 
 def test_run_tiles_prepares_each_tile_once_and_reports_in_order():
@@ -160,7 +161,7 @@ def test_run_tiles_prepares_each_tile_once_and_reports_in_order():
 
     for workers in (1, 2):
         prepared.clear(), worked.clear(), finished.clear()
-        _run_tiles(tiles, 3, prepare, work, lambda tile: finished.append(tile.index), workers)
+        run_tiles(tiles, 3, prepare, work, lambda tile: finished.append(tile.index), workers)
         assert sorted(prepared) == list(range(len(tiles)))
         assert sorted(worked) == [(t, k) for t in range(len(tiles)) for k in range(3)]
         assert finished == list(range(len(tiles)))
@@ -170,13 +171,13 @@ def test_run_tiles_prepares_each_tile_once_and_reports_in_order():
             raise RuntimeError("tile 2 failed")
 
     with pytest.raises(RuntimeError, match="tile 2"):
-        _run_tiles(tiles, 3, prepare, failing, lambda tile: None, 2)
+        run_tiles(tiles, 3, prepare, failing, lambda tile: None, 2)
 
 
 def test_first_pass_reads_only_the_narrow_reach_and_later_passes_the_overlap():
     tiles = tile_grid((1000, 1200), 400, 147)
     shape = (1000, 1200)
-    scorer = _TiledScore.__new__(_TiledScore)
+    scorer = TiledScore.__new__(TiledScore)
     scorer.shape, scorer.gain_sigma_px, scorer.shift_radius_px = shape, 12.0, 1
     reach = 48 + 1  # the 97-tap kernel's half width and the shift
     for tile in tiles:

@@ -1,0 +1,87 @@
+"""The grey conversion, 8-bit rounding and SIFT matching of the change detector, now through fgcd_core.imaging,
+give what the detector's own copies gave (the copies are kept here, verbatim, as the reference)."""
+
+import cv2
+import numpy as np
+
+from fgcd_cli.changes.images import to_gray
+from fgcd_cli.changes.registration import match_sift, to_uint8
+from fgcd_cli.changes.tiled_input import as_float, gray_mean
+
+from .conftest import textured_scene, translate
+
+
+def _old_to_gray(image):
+    if image.ndim == 2:
+        return image.astype(np.float32)
+    return image.mean(axis=2).astype(np.float32)
+
+
+def _old_tiled_gray(image):
+    if image.ndim == 2:
+        return image
+    if image.shape[2] == 3 and image.dtype == np.float32:
+        return (image[:, :, 0] + image[:, :, 1] + image[:, :, 2]) / np.float32(3)
+    return image.mean(axis=2).astype(np.float32)
+
+
+def _old_to_uint8(gray):
+    return np.clip(gray * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _old_match_sift(ref_gray, cur_gray, *, ratio=0.75, max_features=4000):
+    sift = cv2.SIFT_create(nfeatures=int(max_features))
+    kp_ref, desc_ref = sift.detectAndCompute(_old_to_uint8(ref_gray), None)
+    kp_cur, desc_cur = sift.detectAndCompute(_old_to_uint8(cur_gray), None)
+    empty = np.zeros((0, 2))
+    if desc_ref is None or desc_cur is None or len(kp_ref) < 2 or len(kp_cur) < 2:
+        return empty, empty.copy()
+    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc_ref, desc_cur, k=2)
+    good = [pair[0] for pair in knn if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance]
+    if not good:
+        return empty, empty.copy()
+    return (np.array([kp_ref[m.queryIdx].pt for m in good], dtype=np.float64),
+            np.array([kp_cur[m.trainIdx].pt for m in good], dtype=np.float64))
+
+
+def _same(a, b):
+    assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+
+
+def _images():
+    rng = np.random.default_rng(5)
+    rgb32 = rng.random((64, 80, 3), dtype=np.float32)
+    return {"rgb32": rgb32, "grey32": rgb32[:, :, 1].copy(), "rgb64": rgb32.astype(np.float64) ** 1.3,
+            "grey64": rgb32[:, :, 0].astype(np.float64) ** 0.7, "rgba32": rng.random((64, 80, 4), dtype=np.float32),
+            "edges32": np.array([[0.0, 1.0, 0.5 / 255.0, 1.5 / 255.0], [-0.1, 1.2, 0.25, 0.75]], np.float32)}
+
+
+def test_grey_conversions_are_the_old_ones():
+    for name, image in _images().items():
+        if name != "edges32":
+            _same(to_gray(image), _old_to_gray(image))
+    u8 = (np.random.default_rng(1).random((40, 30, 3)) * 255).astype(np.uint8)
+    for small in (u8, u8[:, :, 0], np.random.default_rng(2).random((40, 30, 3)).astype(np.float32)):
+        _same(gray_mean(as_float(small)), _old_tiled_gray(as_float(small)))
+
+
+def test_eight_bit_rounding_is_the_old_one():
+    for image in _images().values():
+        if image.ndim == 2:
+            _same(to_uint8(image), _old_to_uint8(image))
+
+
+def test_sift_matches_are_the_old_ones():
+    ref = textured_scene(256)
+    cur = translate(ref, 3.2, -1.7)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # SIFT's keypoint order follows OpenCV's thread scheduling: compare single-threaded
+    try:
+        old, new = _old_match_sift(ref, cur), match_sift(ref, cur)
+        assert len(old[0]) > 50
+        _same(new[0], old[0])
+        _same(new[1], old[1])
+        for a, b in zip(match_sift(np.zeros_like(ref), cur), _old_match_sift(np.zeros_like(ref), cur)):
+            _same(a, b)
+    finally:
+        cv2.setNumThreads(before)
