@@ -79,6 +79,7 @@ from fgcd_cli.changes.dense_fit import (  # noqa: F401  (public names of this mo
     smoothing_scale_px,
 )
 
+
 @dataclass(kw_only=True)
 class DenseAlignment:
     """Result of :func:`refine_dense`, in the reference frame."""
@@ -350,4 +351,3 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
     ch, cw = src.shape[:2]
     valid = (den > 0) & (map_x >= 0) & (map_x <= cw - 1) & (map_y >= 0) & (map_y <= ch - 1)
     return warped, valid
-

@@ -66,7 +66,6 @@ def smoothing_scale_px(change_px: float = MAX_CHANGE_PX, *, share: float = CHANG
     return float(change_px / 2.0 / math.sqrt(2.0 * u))
 
 
-
 def _gaussian_moment_kernels(sigma: float, max_power: int) -> list[np.ndarray]:
     """1-D kernels ``g(d) * (d / sigma)^p`` for p = 0..max_power (g: Gaussian, sum 1)."""
     radius = int(math.ceil(3.0 * sigma))
@@ -209,5 +208,3 @@ def robust_smooth(
         fit = blend(fine, support, coarse)
     full = cv2.resize(fit, (w + pw, h + ph), interpolation=cv2.INTER_LINEAR)[:h, :w]
     return np.ascontiguousarray(full)
-
-

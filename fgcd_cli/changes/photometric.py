@@ -46,7 +46,6 @@ _IRLS_ITERATIONS = 3
 _MIN_CONDITION = 1e-4  # det / (trace/3)^3 of the weighted 3x3 system below this: the pixel is unknown
 
 
-
 @dataclass(kw_only=True)
 class PhotometricStereo:
     """Photometric stereo of one observation (one camera pose, K lightings).
@@ -422,4 +421,3 @@ def relief_and_colour_cues(
         eps = eps_fraction * float(np.median(r[sel])) + 1e-12
         colour += np.abs(np.log((gain * k + eps) / (r + eps))).astype(np.float32)
     return relief, np.where(known, colour, 0.0).astype(np.float32)
-

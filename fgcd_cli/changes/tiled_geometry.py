@@ -23,7 +23,6 @@ def scale_matrix(fx: float, fy: float) -> np.ndarray:
     return np.array([[fx, 0.0, 0.5 * fx - 0.5], [0.0, fy, 0.5 * fy - 0.5], [0.0, 0.0, 1.0]])
 
 
-
 @dataclass(kw_only=True)
 class Tile:
     index: int

@@ -100,7 +100,6 @@ def as_float(small: np.ndarray) -> np.ndarray:
     return crop_float(small, 0, small.shape[0], 0, small.shape[1]) if small.dtype == np.uint8 else small
 
 
-
 def gray_mean(image: np.ndarray) -> np.ndarray:
     """Channel mean of an :func:`as_float` image (float32 [0, 1], grey or RGB), as
     :func:`fgcd_cli.changes.images.to_gray` computes it (grey images are returned as they are)."""

@@ -138,4 +138,3 @@ class TiledScore:
 
 _FUSE_ROWS = 128
 """Rows per band of the fusion sum (its arrays then stay in cache)."""
-

@@ -72,7 +72,6 @@ def working_resolution(ref_images, cur_images, size_wh, *, eval_mask, config: Re
     return Small(refs=smalls[:n], curs=smalls[n:], registration=reg_small, dense_fit=dense_fit)
 
 
-
 def cue_maps_small(small: Small, valid, dense_fit, *, gain_sigma_px: float, config: CueConfig):
     """Relief and colour cue maps from photometric stereo at the working resolution, and the compared pixels there."""
     hs, ws = small.refs[0].shape[:2]
@@ -107,4 +106,3 @@ def label_cues_small(cue_maps, valid_small, regions, labels, size_wh, *, smooth_
             labels_small[min(hs - 1, int((cy + 0.5) / fy)), min(ws - 1, int((cx + 0.5) / fx))] = region.id
     label_regions(regions, labels_small, cue_maps, valid=valid_small | (labels_small > 0),
                   smooth_sigma_px=max(smooth_sigma_px / max(fx, fy), 0.5))
-
