@@ -122,6 +122,11 @@ class VisualSlamEngine:
         """The latest published snapshot (cheap; safe to hold)."""
         return self._state
 
+    @property
+    def metric(self) -> bool:
+        """Map units are metres; :meth:`process` then needs a depth image with every frame."""
+        return self.depth_source.metric
+
     def process(self, frame_image: np.ndarray, timestamp_s: float, depth: np.ndarray | None = None) -> VseState:
         """Process one frame synchronously and return the new state.
 

@@ -13,7 +13,7 @@ import time
 from contextlib import contextmanager
 from typing import Callable
 
-from fgcd_cli.vse.types import FrameSource, VseState
+from fgcd_cli.vse.types import FrameSource, VseState, VseStatus
 
 __all__ = ["VseThread"]
 
@@ -23,8 +23,9 @@ class VseThread:
 
     Parameters
     ----------
-    engine : MonocularVSE, SparseVSE or RgbdVSE
-        The engine (``process(image, timestamp_s[, depth=...])``, ``state()``, ``reset()``).
+    engine : VisualSlamEngine
+        The engine (``process(image, timestamp_s[, depth=...])``, ``state()``, ``reset()``); a
+        ``metric`` one (RGB-D) is given each frame's ``depth``.
     source : FrameSource
         Anything with ``grab() -> frame`` (``frame.image``, ``frame.timestamp_s``,
         optional ``frame.depth``), e.g. a ``drivers.cameras`` camera.
@@ -162,7 +163,7 @@ class VseThread:
                 break
             try:
                 depth = getattr(frame, "depth", None)
-                if getattr(self.engine, "_metric", False):
+                if getattr(self.engine, "metric", False):
                     state = self.engine.process(frame.image, frame.timestamp_s, depth=depth)
                 else:
                     state = self.engine.process(frame.image, frame.timestamp_s)
@@ -178,4 +179,4 @@ class VseThread:
 def _failed(prev: VseState, message: str) -> VseState:
     from dataclasses import replace
 
-    return replace(prev, status="failed", message=message)
+    return replace(prev, status=VseStatus.FAILED, message=message)

@@ -88,7 +88,7 @@ def test_variants_are_compositions_of_parts(small_camera, variant, cls, frontend
     assert isinstance(eng.frontend, frontend) and isinstance(eng.depth_source, source)
     assert isinstance(eng.cloud_builder, cloud)
     assert eng.state().status == VseStatus.INITIALIZING
-    assert eng.state().scale_is_metric is (variant == VseVariant.RGBD)
+    assert eng.state().scale_is_metric is eng.metric is (variant == VseVariant.RGBD)
 
 
 def test_frontends_state_what_depends_on_keypoint_precision():
