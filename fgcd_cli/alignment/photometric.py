@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from fgcd_cli.geometry import PinholeCamera
+from fgcd_core.imaging import to_gray_f32
 
 __all__ = ["KeyframeImage", "prepare_keyframe", "sample", "project_with_jacobian", "visible_nearest"]
 
@@ -26,22 +27,14 @@ class KeyframeImage:
         self.height, self.width = stack.shape[:2]
 
 
-def _as_float_gray(image: np.ndarray) -> np.ndarray:
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-    if img.dtype == np.uint8:
-        return img.astype(np.float32) / 255.0
-    return img.astype(np.float32)
-
-
 def prepare_keyframe(image: np.ndarray, *, blur_sigma: float) -> KeyframeImage:
     """Blur a grey image (uint8, or float in [0, 1]; RGB is converted) and compute its gradients.
 
+    Grey levels in [0, 1] by :func:`fgcd_core.imaging.to_gray_f32` (Rec. 601 luma for RGB).
     The gradient is the central difference (``cv2.Sobel`` with ``ksize=1`` halved),
     consistent with bilinear sampling of the blurred image.
     """
-    img = _as_float_gray(image)
+    img = to_gray_f32(image)
     if blur_sigma > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur_sigma)
     gu = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=1) * 0.5

@@ -8,20 +8,23 @@ by the alignment algorithms themselves; ground truth is explicit in every return
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import gaussian_filter, map_coordinates
 
-from fgcd_cli.geometry import PinholeCamera, Sim3, exp_se3, invert_pose, make_pose
+from fgcd_cli.geometry import PinholeCamera, Sim3, exp_se3, invert_pose
+from fgcd_core import se3
 
 __all__ = [
     "ReliefScene",
     "sample_plane",
     "sample_sphere",
     "random_similarity",
+    "SCENE_UP",
     "look_at",
     "SyntheticSession",
+    "SessionConfig",
     "make_session",
 ]
 
@@ -176,17 +179,17 @@ def random_similarity(
     return Sim3(T[:3, :3], T[:3, 3], 1.0 + sign * scale_rel)
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, *, up=(0.0, -1.0, 0.0)) -> np.ndarray:
-    """Camera pose ``T_world_cam`` (OpenCV axes: z forward, y down) at ``eye`` looking at ``target``."""
-    eye = np.asarray(eye, dtype=float)
-    z = np.asarray(target, dtype=float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, dtype=float))
-    if np.linalg.norm(x) < 1e-9:
-        x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return make_pose(np.column_stack([x, y, z]), eye)
+#: World direction that appears upwards in images of the synthetic scenes.
+SCENE_UP = (0.0, -1.0, 0.0)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, *, up=SCENE_UP) -> np.ndarray:
+    """Camera pose ``T_world_cam`` (OpenCV axes: z forward, y down) at ``eye`` looking at ``target``.
+
+    :func:`fgcd_core.se3.look_at` with the synthetic scenes' ``up`` (``-y``); a view along
+    ``up`` uses ``+z`` instead.
+    """
+    return se3.look_at(eye, target, up=up, fallback_up=(0.0, 0.0, 1.0))
 
 
 @dataclass(kw_only=True)
@@ -215,47 +218,73 @@ class SyntheticSession:
     T_ref_cam_true: list
 
 
+@dataclass(frozen=True, kw_only=True)
+class SessionConfig:
+    """Options of :func:`make_session`.
+
+    Camera centres lie on a circle (radius ``baseline``) at ``distance`` in front of
+    ``centre``, all looking at it. Pose errors are independent per keyframe
+    (rotation ``pose_noise_deg``, translation ``pose_noise_m`` per axis, Gaussian);
+    depth noise is relative (``depth_noise_rel`` of the depth).
+    """
+
+    n_keyframes: int = 6
+    distance: float = 0.6
+    """Metres."""
+    baseline: float = 0.08
+    """Metres."""
+    pose_noise_deg: float = 0.15
+    pose_noise_m: float = 0.0015
+    depth_noise_rel: float = 0.003
+    points_per_keyframe: int = 4000
+    centre: tuple[float, float] = (0.0, 0.0)
+    """(x, y) of the viewed point on the relief, metres."""
+
+
 def make_session(
     scene: ReliefScene,
     *,
     camera: PinholeCamera,
     T_ref_cur: Sim3,
     rng: np.random.Generator,
-    n_keyframes: int = 6,
-    distance: float = 0.6,
-    baseline: float = 0.08,
-    pose_noise_deg: float = 0.15,
-    pose_noise_m: float = 0.0015,
-    depth_noise_rel: float = 0.003,
-    points_per_keyframe: int = 4000,
-    centre=(0.0, 0.0),
+    config: SessionConfig | None = None,
+    **options,
 ) -> SyntheticSession:
     """Render keyframes around a frontal view of the relief and build the current cloud.
 
-    Camera centres lie on a small circle (radius ``baseline``) at ``distance``
-    in front of ``centre``, all looking at it. Pose errors are independent per
-    keyframe (rotation ``pose_noise_deg``, translation ``pose_noise_m`` per axis,
-    Gaussian); depth noise is relative (``depth_noise_rel`` of the depth).
+    Parameters
+    ----------
+    scene : ReliefScene
+    camera : PinholeCamera
+    T_ref_cur : Sim3
+        True map -> reference similarity.
+    rng : numpy.random.Generator
+        Pose errors, depth noise and pixel choice.
+    config : SessionConfig, optional
+        The session's geometry and noise; the fields of :class:`SessionConfig` may also
+        be given as keywords (``n_keyframes=5``), overriding ``config``.
     """
+    cfg = replace(config or SessionConfig(), **options)
+    centre = cfg.centre
     target = np.array([centre[0], centre[1], 0.0])
     kfs, truths, pts, ids = [], [], [], []
-    for k in range(n_keyframes):
-        ang = 2 * np.pi * k / n_keyframes
-        eye = target + np.array([baseline * np.cos(ang), baseline * np.sin(ang), -distance])
+    for k in range(cfg.n_keyframes):
+        ang = 2 * np.pi * k / cfg.n_keyframes
+        eye = target + np.array([cfg.baseline * np.cos(ang), cfg.baseline * np.sin(ang), -cfg.distance])
         T_ref_cam = look_at(eye, target)
         img, depth = scene.render(camera, T_ref_cam)
         T_cur_cam_true = T_ref_cur.inverse().transform_pose(T_ref_cam)
-        noise = exp_se3(np.concatenate([rng.normal(0, pose_noise_m, 3) / T_ref_cur.scale,
-                                        np.radians(rng.normal(0, pose_noise_deg, 3))]))
+        noise = exp_se3(np.concatenate([rng.normal(0, cfg.pose_noise_m, 3) / T_ref_cur.scale,
+                                        np.radians(rng.normal(0, cfg.pose_noise_deg, 3))]))
         T_cur_cam = T_cur_cam_true @ noise
         # Semi-dense: pixels with strong gradient, as a direct VSE keeps them.
         gy, gx = np.gradient(img.astype(float))
         g = np.hypot(gx, gy)
         valid = depth > 0
         cand = np.flatnonzero(valid.ravel() & (g.ravel() > np.percentile(g[valid], 60)))
-        pick = rng.choice(cand, min(points_per_keyframe, len(cand)), replace=False)
+        pick = rng.choice(cand, min(cfg.points_per_keyframe, len(cand)), replace=False)
         v, u = np.unravel_index(pick, depth.shape)
-        z = depth[v, u] * (1.0 + rng.normal(0, depth_noise_rel, len(pick)))
+        z = depth[v, u] * (1.0 + rng.normal(0, cfg.depth_noise_rel, len(pick)))
         X = camera.unproject(np.column_stack([u, v]).astype(float), z)
         pts.append((X / T_ref_cur.scale) @ T_cur_cam[:3, :3].T + T_cur_cam[:3, 3])
         ids.append(np.full(len(pick), k))
