@@ -15,7 +15,8 @@ for every sample; its spread around the mean is the per-sample residual.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from typing import Sequence
 
 import cv2
@@ -33,15 +34,28 @@ from fgcd_cli.calibration.samples import (
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.geometry.se3 import log_so3, make_pose, pose_distance, project_to_so3
 
-__all__ = ["TargetHandEyeResult", "solve_handeye_target", "OPENCV_METHODS", "target_sample_residuals"]
+__all__ = ["TargetHandEyeResult", "TargetSolver", "solve_handeye_target", "OPENCV_METHODS", "target_sample_residuals"]
+
+
+class TargetSolver(StrEnum):
+    """OpenCV's hand-eye solvers by name (the ``method`` of a board hand-eye)."""
+
+    TSAI = "TSAI"
+    PARK = "PARK"
+    HORAUD = "HORAUD"
+    ANDREFF = "ANDREFF"
+    DANIILIDIS = "DANIILIDIS"
+
 
 OPENCV_METHODS: dict[str, int] = {
-    "TSAI": cv2.CALIB_HAND_EYE_TSAI,
-    "PARK": cv2.CALIB_HAND_EYE_PARK,
-    "HORAUD": cv2.CALIB_HAND_EYE_HORAUD,
-    "ANDREFF": cv2.CALIB_HAND_EYE_ANDREFF,
-    "DANIILIDIS": cv2.CALIB_HAND_EYE_DANIILIDIS,
+    TargetSolver.TSAI: cv2.CALIB_HAND_EYE_TSAI,
+    TargetSolver.PARK: cv2.CALIB_HAND_EYE_PARK,
+    TargetSolver.HORAUD: cv2.CALIB_HAND_EYE_HORAUD,
+    TargetSolver.ANDREFF: cv2.CALIB_HAND_EYE_ANDREFF,
+    TargetSolver.DANIILIDIS: cv2.CALIB_HAND_EYE_DANIILIDIS,
 }
+#: Solvers disagreeing by more than this (mm, degrees) mean the motions are too weak.
+AGREEMENT_NOTE_MM, AGREEMENT_NOTE_DEG = 5.0, 0.5
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -149,6 +163,56 @@ def solve_handeye_target(
     CalibrationError
         Fewer than 3 samples, degenerate rotations, or every solver failed.
     """
+    _check_inputs(T_base_flange, T_cam_target, methods)
+    hand = validate_poses(T_base_flange, "flange pose")
+    board = validate_poses(T_cam_target, "board pose")
+    index_pairs = motion_pairs(len(hand), "all")
+    MB = relative_motions(hand, index_pairs)
+    # Camera motion between samples from the fixed board: inv(T_cam_i_target) ... = T_cam_i_target inv(T_cam_j_target).
+    MA = [board[i] @ np.linalg.inv(board[j]) for i, j in index_pairs]
+    rotating = check_rotation_diversity([M[:3, :3] for M in MB])
+    common = {
+        "n_samples": len(hand),
+        "n_pairs": len(index_pairs),
+        "pairs": index_pairs,
+        "axis_spread_deg": rotation_axis_spread_deg([M[:3, :3] for m, M in zip(rotating, MB) if m]),
+        "max_rotation_deg": max(math.degrees(float(np.linalg.norm(log_so3(M[:3, :3])))) for M in MB),
+    }
+    per_method: dict[str, HandEyeResult] = {}
+    failed: dict[str, str] = {}
+    for name in methods:
+        name = name.upper()
+        X = _opencv_solve(hand, board, name, failed)
+        if X is None:
+            continue
+        res_mm, res_deg, _ = target_sample_residuals(X, hand, board)
+        pair_mm, pair_deg = pair_residuals(X, MB, MA)
+        per_method[name] = HandEyeResult(
+            T_flange_cam=X, scale=None, method=name, residuals_mm=pair_mm, residuals_deg=pair_deg,
+            sample_residuals_mm=res_mm, sample_residuals_deg=res_deg, **common,
+        )
+    if not per_method:
+        raise CalibrationError("every hand-eye solver failed: " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
+    rms = {
+        name: float(np.sqrt(np.mean(np.square(r.sample_residuals_mm)))) for name, r in per_method.items()
+    }
+    best_name = min(rms, key=rms.get)
+    agreement_mm, agreement_deg = _agreement(per_method)
+    best = replace(per_method[best_name], notes=_notes(agreement_mm, agreement_deg, failed))
+    _, _, T_base_target = target_sample_residuals(best.T_flange_cam, hand, board)
+    return TargetHandEyeResult(
+        best=best,
+        per_method=per_method,
+        failed=failed,
+        agreement_mm=agreement_mm,
+        agreement_deg=agreement_deg,
+        T_base_target=T_base_target,
+    )
+
+
+def _check_inputs(T_base_flange: Sequence[np.ndarray], T_cam_target: Sequence[np.ndarray],
+                  methods: Sequence[str]) -> None:
+    """Refuse mismatched lengths, fewer than 3 samples and unknown solver names."""
     if len(T_base_flange) != len(T_cam_target):
         raise UserInputError(
             f"{len(T_base_flange)} flange poses but {len(T_cam_target)} board poses: need one of each per sample"
@@ -160,55 +224,27 @@ def solve_handeye_target(
     unknown = [m for m in methods if m.upper() not in OPENCV_METHODS]
     if unknown or not methods:
         raise UserInputError(f"unknown hand-eye method(s) {unknown}; choose from {', '.join(OPENCV_METHODS)}")
-    hand = validate_poses(T_base_flange, "flange pose")
-    board = validate_poses(T_cam_target, "board pose")
-    index_pairs = motion_pairs(len(hand), "all")
-    MB = relative_motions(hand, index_pairs)
-    # Camera motion between samples from the fixed board: inv(T_cam_i_target) ... = T_cam_i_target inv(T_cam_j_target).
-    MA = [board[i] @ np.linalg.inv(board[j]) for i, j in index_pairs]
-    rotating = check_rotation_diversity([M[:3, :3] for M in MB])
-    spread = rotation_axis_spread_deg([M[:3, :3] for m, M in zip(rotating, MB) if m])
-    max_rot = max(math.degrees(float(np.linalg.norm(log_so3(M[:3, :3])))) for M in MB)
 
+
+def _opencv_solve(hand: list[np.ndarray], board: list[np.ndarray], name: str, failed: dict[str, str]) -> np.ndarray | None:
+    """``X`` from one OpenCV solver, or None with the reason recorded in ``failed``."""
     R_g2b = [T[:3, :3] for T in hand]
     t_g2b = [T[:3, 3].reshape(3, 1) for T in hand]
     R_t2c = [T[:3, :3] for T in board]
     t_t2c = [T[:3, 3].reshape(3, 1) for T in board]
-    per_method: dict[str, HandEyeResult] = {}
-    failed: dict[str, str] = {}
-    for name in methods:
-        name = name.upper()
-        try:
-            R, t = cv2.calibrateHandEye(R_g2b, t_g2b, R_t2c, t_t2c, method=OPENCV_METHODS[name])
-        except cv2.error as exc:
-            failed[name] = str(exc).strip().splitlines()[-1] if str(exc).strip() else "OpenCV error"
-            continue
-        if R is None or t is None or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-            failed[name] = "no finite solution"
-            continue
-        X = make_pose(project_to_so3(R), np.asarray(t, dtype=float).reshape(3))
-        res_mm, res_deg, _ = target_sample_residuals(X, hand, board)
-        pair_mm, pair_deg = pair_residuals(X, MB, MA)
-        per_method[name] = HandEyeResult(
-            T_flange_cam=X,
-            scale=None,
-            method=name,
-            n_samples=len(hand),
-            n_pairs=len(index_pairs),
-            pairs=index_pairs,
-            residuals_mm=pair_mm,
-            residuals_deg=pair_deg,
-            sample_residuals_mm=res_mm,
-            sample_residuals_deg=res_deg,
-            axis_spread_deg=spread,
-            max_rotation_deg=max_rot,
-        )
-    if not per_method:
-        raise CalibrationError("every hand-eye solver failed: " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
-    rms = {
-        name: float(np.sqrt(np.mean(np.square(r.sample_residuals_mm)))) for name, r in per_method.items()
-    }
-    best_name = min(rms, key=rms.get)
+    try:
+        R, t = cv2.calibrateHandEye(R_g2b, t_g2b, R_t2c, t_t2c, method=OPENCV_METHODS[name])
+    except cv2.error as exc:
+        failed[name] = str(exc).strip().splitlines()[-1] if str(exc).strip() else "OpenCV error"
+        return None
+    if R is None or t is None or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        failed[name] = "no finite solution"
+        return None
+    return make_pose(project_to_so3(R), np.asarray(t, dtype=float).reshape(3))
+
+
+def _agreement(per_method: dict[str, HandEyeResult]) -> tuple[float, float]:
+    """Largest difference between any two solvers' ``X``: mm, degrees."""
     names = list(per_method)
     agreement_mm = 0.0
     agreement_deg = 0.0
@@ -217,22 +253,17 @@ def solve_handeye_target(
             d_mm, d_deg = pose_distance(per_method[names[a]].T_flange_cam, per_method[names[b]].T_flange_cam)
             agreement_mm = max(agreement_mm, d_mm)
             agreement_deg = max(agreement_deg, d_deg)
-    best = per_method[best_name]
+    return agreement_mm, agreement_deg
+
+
+def _notes(agreement_mm: float, agreement_deg: float, failed: dict[str, str]) -> list[str]:
+    """Warnings: solvers that disagree (weak motions), solvers that failed."""
     notes = []
-    if agreement_deg > 0.5 or agreement_mm > 5.0:
+    if agreement_deg > AGREEMENT_NOTE_DEG or agreement_mm > AGREEMENT_NOTE_MM:
         notes.append(
             f"solvers disagree by up to {agreement_mm:.1f} mm / {agreement_deg:.2f} deg: "
             "add samples with larger rotations about different axes"
         )
     if failed:
         notes.append("failed solvers: " + ", ".join(failed))
-    best = HandEyeResult(**{**best.__dict__, "notes": notes})
-    _, _, T_base_target = target_sample_residuals(best.T_flange_cam, hand, board)
-    return TargetHandEyeResult(
-        best=best,
-        per_method=per_method,
-        failed=failed,
-        agreement_mm=agreement_mm,
-        agreement_deg=agreement_deg,
-        T_base_target=T_base_target,
-    )
+    return notes

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Sequence
 
 import cv2
@@ -24,14 +25,24 @@ from fgcd_cli.calibration.handeye import utc_now
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.geometry.camera import PinholeCamera
 
-__all__ = ["IntrinsicsResult", "calibrate_intrinsics", "DISTORTION_MODELS", "coverage_feedback"]
+__all__ = ["IntrinsicsResult", "DistortionModel", "calibrate_intrinsics", "DISTORTION_MODELS", "coverage_feedback"]
+
+
+class DistortionModel(StrEnum):
+    """Lens distortion models (the coefficients estimated)."""
+
+    NONE = "none"
+    K1K2 = "k1k2"
+    K1K2P1P2 = "k1k2p1p2"
+    K1K2P1P2K3 = "k1k2p1p2k3"
+
 
 #: Distortion models: name -> OpenCV flags. PinholeCamera carries (k1, k2, p1, p2, k3).
 DISTORTION_MODELS: dict[str, int] = {
-    "none": cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST,
-    "k1k2": cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST,
-    "k1k2p1p2": cv2.CALIB_FIX_K3,
-    "k1k2p1p2k3": 0,
+    DistortionModel.NONE: cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST,
+    DistortionModel.K1K2: cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST,
+    DistortionModel.K1K2P1P2: cv2.CALIB_FIX_K3,
+    DistortionModel.K1K2P1P2K3: 0,
 }
 
 #: Fewest corners for a view to count (a homography needs 4; margin for noise).
@@ -232,6 +243,51 @@ def calibrate_intrinsics(
     if len(names) != len(images):
         raise UserInputError("one name per image is needed")
     width, height = _image_size(images)
+    kept, rejected = _detect_views(images, names, board)
+    flags = DISTORTION_MODELS[distortion_model]
+    fit = _calibrate(kept, board, (width, height), flags)
+    errors = fit["per_view"]
+    threshold = max(max_view_error_factor * float(np.median(errors)), max_view_error_px)
+    bad = [i for i, e in enumerate(errors) if e > threshold]
+    if bad and len(kept) - len(bad) >= MIN_VIEWS:
+        for i in bad:
+            rejected[kept[i][0]] = f"reprojection error {errors[i]:.2f} px above {threshold:.2f} px (blur or bent board?)"
+        kept = [kv for i, kv in enumerate(kept) if i not in set(bad)]
+        fit = _calibrate(kept, board, (width, height), flags)
+
+    K, dist = fit["K"], fit["dist"]
+    d5 = tuple(float(v) for v in (list(np.ravel(dist)[:5]) + [0.0] * 5)[:5])
+    camera = PinholeCamera.from_K(K, width, height, d5)
+    all_corners = np.concatenate([det.corners_px for _, det in kept])
+    coverage_pct, feedback = coverage_feedback(all_corners, width, height)
+    max_tilt = max(math.degrees(math.acos(min(1.0, abs(float(cv2.Rodrigues(r)[0][2, 2]))))) for r in fit["rvecs"])
+    feedback += _fit_feedback(fit, len(kept), max_tilt)
+    std = fit["std"]
+    return IntrinsicsResult(
+        camera=camera,
+        distortion_model=distortion_model,
+        rms_px=float(fit["rms"]),
+        per_view_error_px={name: float(e) for (name, _), e in zip(kept, fit["per_view"])},
+        rejected=rejected,
+        n_views=len(kept),
+        n_corners=int(len(all_corners)),
+        std_px={"fx": float(std[0]), "fy": float(std[1]), "cx": float(std[2]), "cy": float(std[3])},
+        coverage_pct=coverage_pct,
+        max_tilt_deg=float(max_tilt),
+        feedback=feedback,
+        board=board.to_dict(),
+    )
+
+
+def _detect_views(images: Sequence[np.ndarray], names: list[str],
+                  board: BoardSpec) -> tuple[list[tuple[str, BoardDetection]], dict[str, str]]:
+    """The views with enough non-collinear corners, and the others with the reason.
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than :data:`MIN_VIEWS` views kept.
+    """
     cv_board = board.cv_board()
     rejected: dict[str, str] = {}
     kept: list[tuple[str, BoardDetection]] = []
@@ -252,34 +308,21 @@ def calibrate_intrinsics(
             f"the board was found in only {len(kept)} of {len(images)} images (need at least {MIN_VIEWS}, "
             "15-30 is a good target): check the board description (squares, dictionary) and the lighting"
         )
+    return kept, rejected
 
-    flags = DISTORTION_MODELS[distortion_model]
-    fit = _calibrate(kept, board, (width, height), flags)
-    errors = fit["per_view"]
-    threshold = max(max_view_error_factor * float(np.median(errors)), max_view_error_px)
-    bad = [i for i, e in enumerate(errors) if e > threshold]
-    if bad and len(kept) - len(bad) >= MIN_VIEWS:
-        for i in bad:
-            rejected[kept[i][0]] = f"reprojection error {errors[i]:.2f} px above {threshold:.2f} px (blur or bent board?)"
-        kept = [kv for i, kv in enumerate(kept) if i not in set(bad)]
-        fit = _calibrate(kept, board, (width, height), flags)
 
-    K, dist = fit["K"], fit["dist"]
-    d5 = tuple(float(v) for v in (list(np.ravel(dist)[:5]) + [0.0] * 5)[:5])
-    camera = PinholeCamera.from_K(K, width, height, d5)
-    all_corners = np.concatenate([det.corners_px for _, det in kept])
-    coverage_pct, feedback = coverage_feedback(all_corners, width, height)
-    tilts = [math.degrees(math.acos(min(1.0, abs(float(cv2.Rodrigues(r)[0][2, 2]))))) for r in fit["rvecs"]]
-    max_tilt = max(tilts)
+def _fit_feedback(fit: dict, n_views: int, max_tilt: float) -> list[str]:
+    """What the views lack beyond coverage: tilt, number, sharpness, a well-determined focal length."""
+    feedback = []
     if max_tilt < 20.0:
         feedback.append(
             f"tilt the board more (largest tilt {max_tilt:.0f} deg): views at 20-45 deg fix the focal length"
         )
-    if len(kept) < 12:
-        feedback.append(f"only {len(kept)} good views: 15-30 give a stable result")
+    if n_views < 12:
+        feedback.append(f"only {n_views} good views: 15-30 give a stable result")
     if fit["rms"] > 1.0:
         feedback.append(f"RMS error {fit['rms']:.2f} px is high: check focus, motion blur and board flatness")
-    std = fit["std"]
+    K, std = fit["K"], fit["std"]
     focal_std_pct = 100.0 * max(float(std[0]) / float(K[0, 0]), float(std[1]) / float(K[1, 1]))
     if focal_std_pct > FOCAL_STD_HINT_PCT:
         # a focal error eps moves a target-free hand-eye by ~eps x the scene distance (docs/calibration.md §3)
@@ -287,20 +330,7 @@ def calibrate_intrinsics(
             f"focal length known to +-{focal_std_pct:.2f} % (1 sigma); a target-free hand-eye inherits ~1 mm per "
             f"0.1 % at 0.6 m: add views tilted 30-45 deg in several directions"
         )
-    return IntrinsicsResult(
-        camera=camera,
-        distortion_model=distortion_model,
-        rms_px=float(fit["rms"]),
-        per_view_error_px={name: float(e) for (name, _), e in zip(kept, fit["per_view"])},
-        rejected=rejected,
-        n_views=len(kept),
-        n_corners=int(len(all_corners)),
-        std_px={"fx": float(std[0]), "fy": float(std[1]), "cx": float(std[2]), "cy": float(std[3])},
-        coverage_pct=coverage_pct,
-        max_tilt_deg=float(max_tilt),
-        feedback=feedback,
-        board=board.to_dict(),
-    )
+    return feedback
 
 
 def _calibrate(kept: list[tuple[str, BoardDetection]], board: BoardSpec, size: tuple[int, int], flags: int) -> dict:
