@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
-from fgcd_cli.geometry.camera import PinholeCamera
-from fgcd_cli.geometry.se3 import exp_se3, interpolate_pose, invert_pose, transform_points
-from fgcd_cli.geometry.sim3 import umeyama
 from fgcd_cli.vse import VseConfig, VseStatus, VseVariant, make_engine
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import exp_se3, interpolate_pose, invert_pose, transform_points
+from fgcd_core.sim3 import umeyama
 
 __all__ = ["run", "exploration_waypoints", "evaluate"]
 

@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING, Protocol
 import cv2
 import numpy as np
 
-from fgcd_cli.geometry.se3 import invert_pose, rotation_angle_rad, transform_points
 from fgcd_cli.vse.landmarks import KeyframeRecord, median_depth
 from fgcd_cli.vse.semidense import SemiDenseDepth, fuse_across_keyframes, keyframe_depth, select_pixels
 from fgcd_cli.vse.types import MapCloud, VseConfig
+from fgcd_core.se3 import invert_pose, rotation_angle_rad, transform_points
 
 if TYPE_CHECKING:
     from fgcd_cli.vse.engine import VisualSlamEngine

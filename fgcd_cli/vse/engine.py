@@ -37,17 +37,17 @@ from enum import StrEnum
 import cv2
 import numpy as np
 
-from fgcd_cli.geometry.camera import PinholeCamera
-from fgcd_cli.geometry.se3 import invert_pose, make_pose, rotation_angle_rad, transform_points
 from fgcd_cli.vse.ba import outlier_threshold_px, projection_residuals, refine_pose
 from fgcd_cli.vse.cloud import CloudBuilder, DepthImageCloud, LandmarkCloud, SemiDenseCloud
 from fgcd_cli.vse.depth_source import DepthImage, DepthSource, Triangulation
-from fgcd_cli.vse.features import to_gray_f32, to_gray_u8
 from fgcd_cli.vse.frontend import KltTracking, OrbTracking, Tracks, TrackingFrontend
 from fgcd_cli.vse.landmarks import KeyframeRecord, LandmarkMap, median_depth
 from fgcd_cli.vse.mapping import windowed_bundle_adjustment
 from fgcd_cli.vse.relocalizer import Relocalizer
 from fgcd_cli.vse.types import Keyframe, MapCloud, VseConfig, VseState, VseStatus
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.imaging import to_gray_f32, to_gray_u8
+from fgcd_core.se3 import invert_pose, make_pose, rotation_angle_rad, transform_points
 
 __all__ = ["VisualSlamEngine", "MonocularVSE", "SparseVSE", "RgbdVSE", "VseVariant", "make_engine"]
 

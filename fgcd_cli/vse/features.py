@@ -10,27 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["to_gray_u8", "to_gray_f32", "KltFrontend", "OrbFrontend", "occupancy_mask", "orb_describe"]
-
-
-def to_gray_u8(image: np.ndarray) -> np.ndarray:
-    """Grayscale uint8 (H, W) view of a uint8/float image (RGB is converted)."""
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img if img.dtype == np.uint8 else img.astype(np.float32), cv2.COLOR_RGB2GRAY)
-    if img.dtype == np.uint8:
-        return img
-    return np.clip(np.asarray(img, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-
-
-def to_gray_f32(image: np.ndarray) -> np.ndarray:
-    """Grayscale float32 (H, W) in [0, 1]."""
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img if img.dtype == np.uint8 else img.astype(np.float32), cv2.COLOR_RGB2GRAY)
-    if img.dtype == np.uint8:
-        return img.astype(np.float32) / 255.0
-    return np.asarray(img, dtype=np.float32)
+__all__ = ["KltFrontend", "OrbFrontend", "occupancy_mask", "orb_describe"]
 
 
 def occupancy_mask(shape: tuple[int, int], points: np.ndarray, radius_px: float, border_px: int) -> np.ndarray:

@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from fgcd_cli.geometry.se3 import make_pose
 from fgcd_cli.vse.frontend import Tracks
 from fgcd_cli.vse.landmarks import lift_with_depth
 from fgcd_cli.vse.twoview import planar_two_view, rotation_only_residual_px, triangulate_pair
 from fgcd_cli.vse.types import VseStatus
+from fgcd_core.se3 import make_pose
 
 if TYPE_CHECKING:
     from fgcd_cli.vse.engine import VisualSlamEngine

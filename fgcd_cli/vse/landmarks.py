@@ -8,10 +8,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from fgcd_cli.geometry.camera import PinholeCamera
-from fgcd_cli.geometry.se3 import invert_pose, transform_points
 from fgcd_cli.vse.semidense import SemiDenseDepth
 from fgcd_cli.vse.twoview import ray_angles_rad, triangulate_pair
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import invert_pose, transform_points
 
 __all__ = ["LandmarkMap", "KeyframeRecord", "median_depth", "triangulate_new", "lift_with_depth"]
 

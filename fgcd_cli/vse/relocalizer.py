@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from fgcd_cli.geometry.se3 import invert_pose, make_pose
 from fgcd_cli.vse.frontend import Tracks
 from fgcd_cli.vse.landmarks import KeyframeRecord, LandmarkMap
 from fgcd_cli.vse.types import VseStatus
+from fgcd_core.se3 import invert_pose, make_pose
 
 if TYPE_CHECKING:
     from fgcd_cli.vse.engine import VisualSlamEngine

@@ -9,7 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from fgcd_cli.geometry.se3 import invert_pose, make_pose, transform_points
+from fgcd_core.se3 import invert_pose, make_pose, transform_points
 
 __all__ = ["ray_angles_rad", "triangulate_pair", "rotation_only_residual_px", "planar_two_view"]
 

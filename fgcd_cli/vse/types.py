@@ -229,10 +229,11 @@ class VseState:
 
     Attributes
     ----------
-    status : {"initializing", "tracking", "lost", "failed"}
-        ``lost`` means the last frame could not be located (the engine keeps
-        trying to relocalise against its keyframes); ``failed`` means the scene
-        cannot be tracked at all (e.g. no texture) and the cloud stays empty.
+    status : VseStatus
+        ``initializing``, ``tracking``, ``lost`` or ``failed``. ``lost`` means the
+        last frame could not be located (the engine keeps trying to relocalise
+        against its keyframes); ``failed`` means the scene cannot be tracked at
+        all (e.g. no texture) and the cloud stays empty.
     message : str
         One line for a person explaining the status.
     T_map_cam : (4, 4) ndarray or None

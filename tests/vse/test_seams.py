@@ -2,6 +2,7 @@
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -101,3 +102,37 @@ def test_frontends_state_what_depends_on_keypoint_precision():
 def test_unknown_variant_is_refused(small_camera):
     with pytest.raises(ValueError):
         make_engine("stereo", small_camera)
+
+
+def _former_vse_gray_u8(image):
+    """fgcd_cli.vse.features.to_gray_u8 as it was, the engine's reference."""
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img if img.dtype == np.uint8 else img.astype(np.float32), cv2.COLOR_RGB2GRAY)
+    if img.dtype == np.uint8:
+        return img
+    return np.clip(np.asarray(img, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _former_vse_gray_f32(image):
+    """fgcd_cli.vse.features.to_gray_f32 as it was."""
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img if img.dtype == np.uint8 else img.astype(np.float32), cv2.COLOR_RGB2GRAY)
+    if img.dtype == np.uint8:
+        return img.astype(np.float32) / 255.0
+    return np.asarray(img, dtype=np.float32)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32, np.float64])
+@pytest.mark.parametrize("colour", [False, True])
+def test_engine_grey_conversion_is_the_former_one_on_its_frame_dtypes(dtype, colour):
+    from fgcd_core.imaging import to_gray_f32, to_gray_u8
+
+    rng = np.random.default_rng(1)
+    shape = (37, 53, 3) if colour else (37, 53)
+    img = rng.integers(0, 256, shape).astype(np.uint8) if dtype == np.uint8 else rng.random(shape).astype(dtype)
+    u8, f32 = to_gray_u8(img), to_gray_f32(img)
+    np.testing.assert_array_equal(u8, _former_vse_gray_u8(img))
+    np.testing.assert_array_equal(f32, _former_vse_gray_f32(img))
+    assert u8.dtype == np.uint8 and f32.dtype == np.float32
