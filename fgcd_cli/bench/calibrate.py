@@ -16,13 +16,12 @@ Ground truth (true intrinsics, hand-eye, camera poses) is read here only to
 render the board and to score. The map scale's truth is the scale of the VSE's
 *map*: for every keyframe, the median ratio of the true depth (rendered at the
 keyframe's true pose) to the map depth of its cloud points, then the median over
-the keyframes (:func:`_true_map_scale`; the per-keyframe values agree within a
-few tenths of a percent). Scales fitted to the VSE's camera *positions* are kept
-for reference (``scale_true_poses``: Sim(3) with the rotation from the
-orientations; ``scale_true_centres``: Umeyama over the centres alone, the
-former definition): the stop positions carry errors of 5-13 mm
-over a 3 cm motion span, so such fits depend on the regression direction by
-+-8 % in one session and are no truth at the 0.5 % level.
+the keyframes (:func:`_true_map_scale`). Scales fitted to the VSE's camera
+*positions* are kept for reference (``scale_true_poses``: Sim(3) with the
+rotation from the orientations; ``scale_true_centres``: Umeyama over the centres
+alone, the former definition); they are no truth: the stop positions' errors are
+a sizeable fraction of the small motion span, so such fits depend on the
+regression direction (docs/benchmarks.md, "Calibration").
 """
 
 from __future__ import annotations
@@ -35,9 +34,9 @@ import numpy as np
 from drivers.platform import MotionGuard
 from drivers.sim.board import SimBoard, random_board_poses, render_board_view
 from drivers.sim.rig import build_sim_rig
+from fgcd_cli.app.calibrate import HandEyeRig, run_handeye
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
-from fgcd_cli.calibration.procedure import run_target_free
 from fgcd_cli.calibration.handeye_target import solve_handeye_target
 from fgcd_cli.calibration.motions import interpolate_steps, target_motions
 from fgcd_cli.geometry.camera import PinholeCamera
@@ -176,8 +175,6 @@ def _true_map_scale(state, poses: dict, gt, camera: PinholeCamera) -> tuple[floa
 
 
 def _target_free_stage(rig, calibrated: PinholeCamera) -> dict:
-    from fgcd_cli.vse import MonocularVSE
-
     gt = rig.ground_truth
     guard = MotionGuard(rig.platform)
     t0 = time.perf_counter()
@@ -186,11 +183,11 @@ def _target_free_stage(rig, calibrated: PinholeCamera) -> dict:
     # the VSE works on undistorted frames, as in the field commands (fgcd_cli.rigs)
     ideal, source = undistorted(calibrated, rig.camera)
     log = _PoseLog(source, gt)
-    run = run_target_free(guard, log, lambda cam: MonocularVSE(cam), camera=ideal)
+    run = run_handeye(HandEyeRig(guard=guard, camera_source=log, intrinsics=ideal)).run
     X_true = gt.T_flange_cam_true()
     mm, deg = pose_distance(run.result.T_flange_cam, X_true)
     # True camera poses of the stops: reported flange poses through the true hand-eye
-    # (encoder errors are ~0.01 mm, 0.001 deg at the default noise).
+    # (the simulated encoders' errors are negligible next to the hand-eye's).
     true_cams = [T @ X_true for T in run.T_base_flange]
     s_true, s_true_spread = _true_map_scale(run.engine.state(), log.poses, gt, ideal)
     s_poses = _true_scale(run.T_map_cam, true_cams)
@@ -242,8 +239,8 @@ def run(*, quick: bool = False) -> dict:
         t0 = time.perf_counter()
         rig = build_sim_rig(scene="stele", seed=seed, noise=noise)
         true = _pinhole(rig.ground_truth.intrinsics_true())
-        # the same 20 board views in both runs, so that the quick run is a subset of the full one
-        # (the hand-eye follows the intrinsics' error; 12 views made the quick figures another protocol)
+        # the same board views in both runs, so that the quick run is a subset of the full one
+        # (the hand-eye follows the intrinsics' error)
         calibrated, intr = _intrinsics_stage(true, seed, INTRINSICS_VIEWS)
         target = _target_stage(rig, calibrated, true, seed)
         rig.close()

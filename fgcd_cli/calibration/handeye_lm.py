@@ -7,29 +7,47 @@ solves a 6x6 (7x7) system.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from fgcd_cli.calibration.handeye_model import HandPoses, Observations, huber_cost, linearise
 from fgcd_cli.calibration.handeye_schur import normal_equations, point_sums, reduced_system
 from fgcd_cli.geometry.se3 import exp_se3
 
-__all__ = ["lm_handeye"]
+__all__ = ["lm_handeye", "Adjusted"]
+
+
+class Adjusted(NamedTuple):
+    """The adjusted hand-eye model.
+
+    Attributes
+    ----------
+    X : (4, 4) ndarray
+        Hand-eye ``T_flange_cam``.
+    P : (L, 3) ndarray
+        Landmarks, base frame, metres.
+    rotation_scale : float
+        The platform's rotation scale (1.0 when not estimated).
+    S : (p, p) ndarray
+        The reduced normal matrix of the hand-eye parameters (undamped, without the
+        Huber weights) for the covariance.
+    """
+
+    X: np.ndarray
+    P: np.ndarray
+    rotation_scale: float
+    S: np.ndarray
 
 
 def lm_handeye(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, *,
-               rotation_scale: float | None = None, iterations: int = 40, huber_px: float = 1.0):
+               rotation_scale: float | None = None, iterations: int = 40, huber_px: float = 1.0) -> Adjusted:
     """Levenberg-Marquardt over ``X`` (right perturbation ``X exp(d)``), the landmarks and, if
     ``rotation_scale`` is given (its start value), the platform's rotation scale.
 
     Returns
     -------
-    X : (4, 4) ndarray
-    P : (L, 3) ndarray
-    s : float
-        The rotation scale (1.0 when not estimated).
-    S : (p, p) ndarray
-        The reduced normal matrix of the hand-eye parameters (undamped, without the
-        Huber weights) for the covariance.
+    Adjusted
     """
     with_scale = rotation_scale is not None
     scale = float(rotation_scale) if with_scale else 1.0
@@ -68,4 +86,4 @@ def lm_handeye(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs
             break
     Hxx, _gx, Hxp, Hpp, _gp = normal_equations(r, A, B, np.ones(len(obs.cam)), G)
     S, _, _ = reduced_system(Hxx, Hxp, Hpp, 0.0)
-    return X, P, scale, S
+    return Adjusted(X, P, scale, S)

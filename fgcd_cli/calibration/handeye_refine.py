@@ -26,7 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye_lm import lm_handeye
+from fgcd_cli.calibration.handeye_lm import Adjusted, lm_handeye
 from fgcd_cli.calibration.handeye_model import HandPoses, Observations, initial_landmarks, residuals
 from fgcd_cli.calibration.tracks import MatchConfig, feature_tracks
 from fgcd_cli.geometry.se3 import pose_distance
@@ -216,8 +216,8 @@ def refine_handeye_tracks(
     s0 = 1.0 if config.estimate_rotation_scale and turned else None
     X, P, s_rot, _ = lm_handeye(poses, K, X0, pts0, obs, rotation_scale=s0)
     P, obs = _drop_outliers(poses, K, X, P, obs, s_rot, config)
-    X, P, s_rot, S = lm_handeye(poses, K, X, P, obs, rotation_scale=None if s0 is None else s_rot)
-    return _result(poses, K, X, X0, P, obs, s_rot, S, estimated=s0 is not None)
+    adjusted = lm_handeye(poses, K, X, P, obs, rotation_scale=None if s0 is None else s_rot)
+    return _result(poses, K, X0, adjusted, obs, estimated=s0 is not None)
 
 
 def _drop_outliers(poses: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, s_rot: float,
@@ -236,9 +236,10 @@ def _drop_outliers(poses: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray
     return P[used], obs.subset(keep, remap)
 
 
-def _result(poses: HandPoses, K: np.ndarray, X: np.ndarray, X0: np.ndarray, P: np.ndarray, obs: Observations,
-            s_rot: float, S: np.ndarray, *, estimated: bool) -> BAHandEyeResult:
+def _result(poses: HandPoses, K: np.ndarray, X0: np.ndarray, adjusted: Adjusted, obs: Observations, *,
+            estimated: bool) -> BAHandEyeResult:
     """Residual statistics, covariance and notes of the adjusted model."""
+    X, P, s_rot, S = adjusted
     n = len(poses.T)
     r = residuals(poses.inv(s_rot), K, X, P, obs)
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))

@@ -18,7 +18,7 @@ import numpy as np
 
 from fgcd_cli.calibration.depth_scale import KeyframeDepths, scale_from_depths
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import HandEyeMethod, estimate_scale, pair_residuals, per_sample_residuals
+from fgcd_cli.calibration.handeye import HandEyeMethod, Regress, estimate_scale, pair_residuals, per_sample_residuals
 from fgcd_cli.calibration.handeye_refine import BAHandEyeResult, refine_handeye_images
 from fgcd_cli.calibration.samples import relative_motions
 
@@ -127,15 +127,8 @@ def refine_target_free(
     config = replace(options.pop("config", None) or TargetFreeConfig(), **options)
     ba, views, stop_rms = _adjust(linear, T_base_flange, images, K, dist, path, config)
     # the VSE side carries the noise: fit 1/s (unbiased for independent pose noise, see estimate_scale)
-    sc = estimate_scale(ba.T_flange_cam, T_base_flange, T_map_cam, pairs=linear.pairs, regress="vse")
-    scale, scale_method, depth_info = sc.scale, ScaleMethod.MOTIONS, {}
-    if keyframes:
-        try:
-            d_scale, d_spread, d_n = scale_from_depths(ba.points_base, ba.T_flange_cam, keyframes, K)
-            scale, scale_method = d_scale, ScaleMethod.DEPTHS
-            depth_info = {"scale_depth_spread": d_spread, "scale_depth_matches": d_n}
-        except CalibrationError as exc:
-            depth_info = {"scale_depth_error": str(exc)}
+    sc = estimate_scale(ba.T_flange_cam, T_base_flange, T_map_cam, pairs=linear.pairs, regress=Regress.VSE)
+    scale, scale_method, depth_info = _depth_scale(ba, keyframes, K, sc.scale)
     MB = relative_motions(list(T_base_flange), linear.pairs)
     MA = relative_motions(list(T_map_cam), linear.pairs)
     MA_metric = [np.block([[A[:3, :3], scale * A[:3, 3:4]], [A[3:4, :]]]) for A in MA]
@@ -162,6 +155,18 @@ def refine_target_free(
         notes=list(linear.notes) + list(ba.notes),
         refinement=refinement,
     )
+
+
+def _depth_scale(ba: BAHandEyeResult, keyframes: Sequence[KeyframeDepths] | None, K: np.ndarray,
+                 motions_scale: float) -> tuple[float, ScaleMethod, dict]:
+    """The scale from the map depths when keyframes are given and match, else ``motions_scale``; with its record."""
+    if not keyframes:
+        return motions_scale, ScaleMethod.MOTIONS, {}
+    try:
+        d_scale, d_spread, d_n = scale_from_depths(ba.points_base, ba.T_flange_cam, keyframes, K)
+    except CalibrationError as exc:
+        return motions_scale, ScaleMethod.MOTIONS, {"scale_depth_error": str(exc)}
+    return d_scale, ScaleMethod.DEPTHS, {"scale_depth_spread": d_spread, "scale_depth_matches": d_n}
 
 
 def _adjust(linear, T_base_flange, images, K, dist, path: PathViews | None,

@@ -225,14 +225,16 @@ def _check_handeye_options(*, mode: str, driver: str, scene: str, seed: int, boa
     """Refuse bad hand-eye options before anything is opened or moved; the simulated world when ``driver`` is sim."""
     from fgcd_cli.rigs import SimScenario, check_driver, check_scenario
 
-    if mode not in ("target", "target-free"):
+    from fgcd_cli.app.calibrate import HandEyeMode
+
+    if mode not in tuple(HandEyeMode):
         raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
     check_driver(driver)
-    if mode == "target" and driver == "sim":
+    if mode == HandEyeMode.TARGET and driver == "sim":
         raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
-    if mode == "target" and board_file is None:
+    if mode == HandEyeMode.TARGET and board_file is None:
         raise UserInputError("--mode target needs --board <sidecar.json> describing the printed board")
-    if mode == "target-free":
+    if mode == HandEyeMode.TARGET_FREE:
         from fgcd_cli.calibration.motions import exploration_motions
 
         # refuse bad motion sizes before connecting to a platform
@@ -263,29 +265,18 @@ def _handeye_intrinsics(camp, *, driver: str, as_json: bool):
 
 def _run_handeye(handles, *, mode: str, board_file: Optional[Path], translation_mm: float, rotation_deg: float,
                  say, bar):
-    """Run the hand-eye procedure on an opened rig; ``(result, JSON data)``."""
-    from fgcd_cli.calibration.procedure import run_target, run_target_free
+    """The hand-eye use case on an opened rig; ``(result, JSON data)``."""
+    from fgcd_cli.app.calibrate import HandEyeMode, HandEyeRequest, run_handeye
 
-    if mode == "target-free":
-        from fgcd_cli.vse import MonocularVSE
-
-        if say is not None:
-            say("target-free hand-eye: the platform makes small motions while the VSE tracks…")
-        run = run_target_free(
-            handles.guard, handles.camera_source, lambda cam: MonocularVSE(cam), camera=handles.intrinsics,
-            translation_m=translation_mm / 1000, rotation_deg=rotation_deg, progress=say, on_progress=bar,
-        )
-        result, data = run.result, run.result.to_dict()
-    else:
-        from fgcd_cli.calibration.board import load_board_sidecar
-
-        run = run_target(
-            handles.guard, handles.camera_source, load_board_sidecar(board_file), camera=handles.intrinsics,
-            rotation_deg=rotation_deg if rotation_deg != 8.0 else 15.0, progress=say, on_progress=bar,
-        )
-        result, data = run.result.best, run.result.to_dict()
-    data["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
-    return result, data
+    if mode == HandEyeMode.TARGET_FREE and say is not None:
+        say("target-free hand-eye: the platform makes small motions while the VSE tracks…")
+    calibration = run_handeye(
+        handles,
+        HandEyeRequest(mode=HandEyeMode(mode), translation_mm=translation_mm, rotation_deg=rotation_deg,
+                       board_file=board_file),
+        say=say, on_progress=bar,
+    )
+    return calibration.result, calibration.record
 
 
 @app.command("hand-eye")

@@ -1,0 +1,190 @@
+"""Use case: hand-eye calibration on an opened rig, with a board or target-free (rACR §3.2).
+
+One flow for `fgcd calibrate hand-eye`, `fgcd demo` and `fgcd bench calibrate`:
+the platform makes the procedure's motions behind its guard, the camera sees a
+board (``target``) or the monocular VSE tracks the scene (``target-free``: hand-eye
+and map scale, refined on the images of every rest pose; docs/calibration.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Any, Callable
+
+from fgcd_cli.calibration.handeye import HandEyeResult
+from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
+from fgcd_cli.geometry.camera import PinholeCamera
+
+__all__ = ["HandEyeMode", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "run_handeye", "calibrate_sim_handeye"]
+
+ProgressCallback = Callable[[int, int, str], None]
+
+#: Rotation about each axis of the target-free exploration, degrees (the CLI's ``--rotation-deg`` default).
+TARGET_FREE_ROTATION_DEG = 8.0
+#: Rotation about each axis of the board procedure when the target-free default was left as is, degrees.
+TARGET_ROTATION_DEG = 15.0
+
+
+class HandEyeMode(StrEnum):
+    """How the camera motion is measured: a ChArUco board, or the VSE (target-free, with the map scale)."""
+
+    TARGET = "target"
+    TARGET_FREE = "target-free"
+
+
+@dataclass(frozen=True, kw_only=True)
+class HandEyeRequest:
+    """What a hand-eye calibration should do.
+
+    Attributes
+    ----------
+    mode : HandEyeMode
+    translation_mm : float
+        Exploration translation (target-free), millimetres.
+    rotation_deg : float
+        Rotation about each axis, degrees; in ``target`` mode the target-free
+        default (:data:`TARGET_FREE_ROTATION_DEG`) stands for the board procedure's
+        own (:data:`TARGET_ROTATION_DEG`).
+    board_file : Path, optional
+        Board sidecar JSON (``target`` mode).
+    refine : bool
+        Target-free: refine ``X`` on the images and re-estimate the scale.
+    """
+
+    mode: HandEyeMode = HandEyeMode.TARGET_FREE
+    translation_mm: float = 30.0
+    rotation_deg: float = TARGET_FREE_ROTATION_DEG
+    board_file: Path | None = None
+    refine: bool = True
+
+
+@dataclass(frozen=True, kw_only=True)
+class HandEyeRig:
+    """What the hand-eye needs of a rig (:class:`fgcd_cli.app.rig.RigHandles` has it too).
+
+    Attributes
+    ----------
+    guard : drivers.platform.MotionGuard
+    camera_source : object with ``grab()``
+    intrinsics : PinholeCamera
+        Intrinsics of the frames ``camera_source`` gives (undistorted: the ideal pinhole).
+    """
+
+    guard: Any
+    camera_source: Any
+    intrinsics: PinholeCamera
+
+
+@dataclass(frozen=True, kw_only=True)
+class HandEyeCalibration:
+    """Outcome of :func:`run_handeye`.
+
+    Attributes
+    ----------
+    result : HandEyeResult
+        The hand-eye to store (target: the best solver's).
+    record : dict
+        The JSON form: the result (target: with every solver's), ``skipped_stops``.
+    run : TargetFreeRun or TargetRun
+        The procedure's samples (target-free: the VSE engine, still tracking).
+    """
+
+    result: HandEyeResult
+    record: dict
+    run: TargetFreeRun | TargetRun
+
+
+def _monocular_vse(camera: PinholeCamera):
+    from fgcd_cli.vse import MonocularVSE
+
+    return MonocularVSE(camera)
+
+
+def run_handeye(
+    rig: Any,
+    request: HandEyeRequest | None = None,
+    *,
+    say: Callable[[str], None] | None = None,
+    on_progress: ProgressCallback | None = None,
+    vse_factory: Callable[[PinholeCamera], Any] | None = None,
+) -> HandEyeCalibration:
+    """Run the hand-eye procedure of ``request`` on an opened rig.
+
+    Parameters
+    ----------
+    rig : HandEyeRig or RigHandles
+        ``guard``, ``camera_source``, ``intrinsics``.
+    request : HandEyeRequest, optional
+        Default: target-free with the default motions.
+    say : callable(str), optional
+        One line per stop.
+    on_progress : callable(done, total, label), optional
+        Progress of the motions, then of the refinement (``total <= 0``: length unknown).
+    vse_factory : callable(PinholeCamera) -> engine, optional
+        The target-free VSE (default :class:`fgcd_cli.vse.MonocularVSE`).
+
+    Returns
+    -------
+    HandEyeCalibration
+
+    Raises
+    ------
+    CalibrationError
+        Degenerate motions, a VSE that cannot track, a board not seen.
+    drivers.platform.PlatformError
+        A motion failed or was refused.
+    """
+    from fgcd_cli.calibration.procedure import run_target, run_target_free
+
+    request = request or HandEyeRequest()
+    if request.mode == HandEyeMode.TARGET_FREE:
+        run = run_target_free(
+            rig.guard, rig.camera_source, vse_factory or _monocular_vse, camera=rig.intrinsics,
+            translation_m=request.translation_mm / 1000, rotation_deg=request.rotation_deg, refine=request.refine,
+            progress=say, on_progress=on_progress,
+        )
+        result, record = run.result, run.result.to_dict()
+    else:
+        from fgcd_cli.calibration.board import load_board_sidecar
+
+        rotation = request.rotation_deg if request.rotation_deg != TARGET_FREE_ROTATION_DEG else TARGET_ROTATION_DEG
+        run = run_target(rig.guard, rig.camera_source, load_board_sidecar(request.board_file), camera=rig.intrinsics,
+                         rotation_deg=rotation, progress=say, on_progress=on_progress)
+        result, record = run.result.best, run.result.to_dict()
+    record["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
+    return HandEyeCalibration(result=result, record=record, run=run)
+
+
+def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], camera: PinholeCamera | None = None,
+                          on_progress: ProgressCallback | None = None) -> dict:
+    """Target-free hand-eye + scale on the simulated rig of ``scenario``; stored in the campaign rig.
+
+    Parameters
+    ----------
+    campaign : Campaign
+        Receives ``rig/handeye.json`` (the result's JSON form).
+    scenario : SimScenario
+        The simulated world.
+    say : callable(str)
+        Progress lines (the rig's events and one line per stop).
+    camera : PinholeCamera, optional
+        Calibrated intrinsics (the simulated camera's nominal ones when None).
+    on_progress : callable(done, total, label), optional
+
+    Returns
+    -------
+    dict
+        The stored record.
+    """
+    from fgcd_cli.app.rig import open_sim_rig
+
+    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=camera, on_event=say, on_progress=on_progress)
+    try:
+        calibration = run_handeye(rig.handles, HandEyeRequest(), say=say, on_progress=on_progress)
+    finally:
+        rig.close()
+    record = calibration.result.to_dict()
+    campaign.write_rig("handeye", record)
+    return record
