@@ -132,8 +132,9 @@ class VisualSlamEngine:
 
         Parameters
         ----------
-        frame_image : (H, W) uint8/float32 or (H, W, 3) ndarray
-            The camera image (raw, with the camera's distortion).
+        frame_image : (H, W) or (H, W, 3|4) ndarray
+            The camera image (raw, with the camera's distortion): uint8, or
+            float32/float64 in [0, 1] (grey conversion: :mod:`fgcd_core.imaging`).
         timestamp_s : float
             Capture time, seconds.
         depth : (H, W) ndarray, optional

@@ -143,7 +143,7 @@ class VseConfig:
     init_min_inliers: int = 60
     init_planar_ratio: float = 0.9
     """Initialise from the homography when it explains this fraction of the
-    essential matrix's inliers (a plane-like scene, see ``_planar_two_view``)."""
+    essential matrix's inliers (a plane-like scene, see ``twoview.planar_two_view``)."""
     init_fail_frames: int = 40
     min_tracked_landmarks: int = 25
     reproj_inlier_px: float = 2.0
