@@ -66,7 +66,7 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
             return result(*args, **kwargs) if callable(result) else result
         return run
 
-    def relocate(rig, station, *args, **kwargs):
+    def relocate(rig, station, **kwargs):
         with station.new_visit({"lightings": ["front"]}) as w:
             w.add_image("front", np.zeros((4, 4), np.uint8))
             w.commit()

@@ -94,7 +94,7 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], cam
     finally:
         rig.close()
     record = run.result.to_dict()
-    campaign.write_rig("handeye", record)
+    campaign.write_rig(schema.RIG_HANDEYE, record)
     return record
 
 
@@ -281,9 +281,9 @@ def _relocate(run: _DemoRun) -> dict:
     try:
         vis = relocate_uc.relocate_and_capture(
             rig.handles, run.station,
-            relocate_uc.RelocateRequest(config=RelocationConfig(),
-                                        lightings=[config.visit_light, config.reference_light],
-                                        metadata={"driver": "sim", "scenario": rig.info["scenario"]}),
+            request=relocate_uc.RelocateRequest(config=RelocationConfig(),
+                                                lightings=[config.visit_light, config.reference_light],
+                                                metadata={"driver": "sim", "scenario": rig.info["scenario"]}),
             hooks=relocate_uc.RelocateHooks(evaluate=evaluator.evaluate, on_record=run.on_record,
                                             evaluation=evaluator.summary))
     finally:

@@ -415,7 +415,7 @@ def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
             metadata={"driver": plan.driver, "scenario": rig.info.get("scenario"), "no_handeye": r.no_handeye},
             coarse=None if r.no_coarse else CoarseConfig(),
         )
-        result = relocate_and_capture(rig.handles, plan.station, request, hooks=RelocateHooks(
+        result = relocate_and_capture(rig.handles, plan.station, request=request, hooks=RelocateHooks(
             evaluate=evaluator.evaluate if evaluator else None, on_record=on_record,
             evaluation=evaluator.summary if evaluator else None))
     return RevisitOutcome(station=r.station, result=result)
