@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 from fgcd_cli.calibration.handeye import HandEyeResult
 from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
-from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 
 __all__ = ["HandEyeMode", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "run_handeye", "calibrate_sim_handeye"]
 

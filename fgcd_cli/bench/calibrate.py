@@ -39,9 +39,9 @@ from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
 from fgcd_cli.calibration.handeye_target import solve_handeye_target
 from fgcd_cli.calibration.motions import interpolate_steps, target_motions
-from fgcd_cli.geometry.camera import PinholeCamera
-from fgcd_cli.geometry.se3 import invert_pose, make_pose, pose_distance
-from fgcd_cli.geometry.sim3 import umeyama
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import invert_pose, make_pose, pose_distance
+from fgcd_core.sim3 import umeyama
 
 __all__ = ["run", "TARGETS", "RIGS"]
 
@@ -121,7 +121,7 @@ def _true_scale(T_map_cam: list[np.ndarray], T_world_cam: list[np.ndarray]) -> f
     (the VSE orientations are good to a few tenths of a degree); scale and offset
     then follow by linear least squares over the camera centres.
     """
-    from fgcd_cli.geometry.se3 import project_to_so3
+    from fgcd_core.se3 import project_to_so3
 
     R = project_to_so3(sum(t[:3, :3] @ e[:3, :3].T for e, t in zip(T_map_cam, T_world_cam)))
     v = np.array([R @ e[:3, 3] for e in T_map_cam])

@@ -15,7 +15,7 @@ import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye_model import project
-from fgcd_cli.geometry.se3 import invert_pose
+from fgcd_core.se3 import invert_pose
 
 __all__ = ["KeyframeDepths", "scale_from_depths"]
 

@@ -40,7 +40,7 @@ from fgcd_cli.calibration.samples import (
     validate_poses,
 )
 from fgcd_cli.errors import UserInputError
-from fgcd_cli.geometry.se3 import invert_pose, log_so3, make_pose, pose_distance
+from fgcd_core.se3 import invert_pose, log_so3, make_pose, pose_distance
 
 __all__ = [
     "HandEyeResult",

@@ -3,6 +3,13 @@
 Huber IRLS on the norm of each observation's reprojection error; the landmark
 blocks are eliminated (:mod:`fgcd_cli.calibration.handeye_schur`), so each step
 solves a 6x6 (7x7) system.
+
+Why not :func:`scipy.optimize.least_squares`: with the same model and an
+analytic sparse Jacobian ('trf', ``x_scale='jac'``), its sparse trust-region
+steps (LSMR, no Schur elimination) reach this solver's hand-eye only with a
+tight LSMR tolerance, several times to fifty times slower; with LSMR's default
+tolerance it stops short of the minimum by millimetres (measurements in
+docs/benchmarks.md, "Calibration").
 """
 
 from __future__ import annotations
@@ -13,7 +20,7 @@ import numpy as np
 
 from fgcd_cli.calibration.handeye_model import HandPoses, Observations, huber_cost, linearise
 from fgcd_cli.calibration.handeye_schur import normal_equations, point_sums, reduced_system
-from fgcd_cli.geometry.se3 import exp_se3
+from fgcd_core.se3 import exp_se3
 
 __all__ = ["lm_handeye", "Adjusted"]
 

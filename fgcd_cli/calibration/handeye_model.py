@@ -9,7 +9,7 @@ pixels (hand-eye by structure from motion: Andreff, Horaud and Espiau 2001;
 docs/calibration.md, "Target-free").
 
 Parameterisation: ``X`` is perturbed on the right, ``X exp(d)`` with
-``d = (rho, phi)`` (translation first, :func:`fgcd_cli.geometry.se3.exp_se3`).
+``d = (rho, phi)`` (translation first, :func:`fgcd_core.se3.exp_se3`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.tracks import triangulate_dlt
-from fgcd_cli.geometry.se3 import exp_so3, invert_pose, log_so3, make_pose
+from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose
 
 __all__ = ["HandPoses", "Observations", "project", "residuals", "linearise", "initial_landmarks", "huber_cost",
            "INIT_MAX_PX"]

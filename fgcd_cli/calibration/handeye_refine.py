@@ -29,7 +29,7 @@ from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye_lm import Adjusted, lm_handeye
 from fgcd_cli.calibration.handeye_model import HandPoses, Observations, initial_landmarks, residuals
 from fgcd_cli.calibration.tracks import MatchConfig, feature_tracks
-from fgcd_cli.geometry.se3 import pose_distance
+from fgcd_core.se3 import pose_distance
 
 __all__ = ["BAHandEyeResult", "RefineConfig", "refine_handeye_images", "refine_handeye_tracks"]
 

@@ -32,7 +32,7 @@ from fgcd_cli.calibration.samples import (
     validate_poses,
 )
 from fgcd_cli.errors import UserInputError
-from fgcd_cli.geometry.se3 import log_so3, make_pose, pose_distance, project_to_so3
+from fgcd_core.se3 import log_so3, make_pose, pose_distance, project_to_so3
 
 __all__ = ["TargetHandEyeResult", "TargetSolver", "solve_handeye_target", "OPENCV_METHODS", "target_sample_residuals"]
 

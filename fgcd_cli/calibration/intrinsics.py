@@ -23,7 +23,7 @@ from fgcd_cli.calibration.board import BoardDetection, BoardSpec
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import utc_now
 from fgcd_cli.errors import UserInputError
-from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 
 __all__ = ["IntrinsicsResult", "DistortionModel", "calibrate_intrinsics", "DISTORTION_MODELS", "coverage_feedback"]
 

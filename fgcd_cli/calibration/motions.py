@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from fgcd_cli.errors import UserInputError
-from fgcd_cli.geometry.se3 import exp_so3, invert_pose, log_so3, make_pose
+from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose
 
 __all__ = ["exploration_motions", "target_motions", "interpolate_steps"]
 

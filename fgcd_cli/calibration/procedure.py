@@ -22,7 +22,7 @@ from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_hande
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
 from fgcd_cli.calibration.target_free import PathViews, refine_target_free
 from fgcd_cli.calibration.tracks import gray_u8
-from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 
 __all__ = ["TargetFreeRun", "TargetRun", "TargetFreeRunConfig", "TargetRunConfig", "run_target_free", "run_target",
            "CameraSourceLike", "VseEngineLike"]

@@ -9,7 +9,7 @@ from __future__ import annotations
 from fgcd_cli.calibration.handeye import HandEyeResult
 from fgcd_cli.calibration.intrinsics import IntrinsicsResult
 from fgcd_cli.errors import CampaignError
-from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 
 __all__ = ["save_intrinsics", "load_intrinsics", "load_camera", "save_handeye", "load_handeye"]
 

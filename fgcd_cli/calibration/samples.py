@@ -22,7 +22,7 @@ import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.errors import UserInputError
-from fgcd_cli.geometry.se3 import invert_pose, is_pose, log_so3
+from fgcd_core.se3 import invert_pose, is_pose, log_so3
 
 __all__ = [
     "validate_poses",

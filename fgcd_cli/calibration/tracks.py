@@ -14,6 +14,8 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from fgcd_core.imaging import DescriptorMatcher, clahe, match_descriptors, sift_features
+
 __all__ = [
     "MatchConfig",
     "Features",
@@ -27,6 +29,11 @@ __all__ = [
     "feature_tracks",
     "triangulate_dlt",
 ]
+
+#: Local equalisation before SIFT (OpenCV CLAHE clip limit, tiles per side): see :func:`stop_features`.
+CLAHE_CLIP, CLAHE_TILES = 3.0, 8
+#: An image pair with fewer one-to-one ratio-test matches is not matched.
+MIN_PAIR_MATCHES = 20
 
 #: Keypoints ``(N, 2)`` in pixels and their SIFT descriptors ``(N, 128)`` of one image.
 Features = tuple[np.ndarray, np.ndarray]
@@ -89,14 +96,8 @@ def stop_features(images: Sequence[np.ndarray], *, n_features: int = 1500) -> li
     (docs/calibration.md, "Target-free"; measurements in docs/benchmarks.md,
     "Calibration").
     """
-    sift = cv2.SIFT_create(nfeatures=n_features)
-    clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
-    out = []
-    for img in images:
-        kp, desc = sift.detectAndCompute(clahe.apply(gray_u8(img)), None)
-        xy = np.array([k.pt for k in kp], dtype=float).reshape(-1, 2)
-        out.append((xy, desc if desc is not None else np.zeros((0, 128), np.float32)))
-    return out
+    return [sift_features(clahe(gray_u8(img), clip_limit=CLAHE_CLIP, tiles=CLAHE_TILES), n_features=n_features)
+            for img in images]
 
 
 def undistort_features(features: list[Features], K: np.ndarray, dist: Sequence[float] | None) -> list[Features]:
@@ -127,17 +128,9 @@ def pair_matches(f_a: Features, f_b: Features, *, ratio: float, ransac_px: float
     if len(xy_a) < 8 or len(xy_b) < 8:
         return np.zeros((0, 2), int)
     # approximate nearest neighbours (kd-trees) instead of brute force: the same matches at a
-    # fraction of the cost on ~1500 x 1500 SIFT descriptors
-    matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
-    knn = matcher.knnMatch(np.asarray(d_a, np.float32), np.asarray(d_b, np.float32), k=2)
-    good = [(m[0].queryIdx, m[0].trainIdx) for m in knn if len(m) == 2 and m[0].distance < ratio * m[1].distance]
-    if len(good) < 20:
-        return np.zeros((0, 2), int)
-    idx = np.array(good, dtype=int)
-    # one-to-one: drop keypoints of b matched twice
-    _, first, counts = np.unique(idx[:, 1], return_index=True, return_counts=True)
-    idx = idx[first[counts == 1]]
-    if len(idx) < 20:
+    # fraction of the cost; one-to-one: keypoints of b matched twice are dropped
+    idx = match_descriptors(d_a, d_b, ratio=ratio, matcher=DescriptorMatcher.FLANN, one_to_one=True)
+    if len(idx) < MIN_PAIR_MATCHES:
         return np.zeros((0, 2), int)
     _F, mask = cv2.findFundamentalMat(xy_a[idx[:, 0]], xy_b[idx[:, 1]], cv2.FM_RANSAC, ransac_px, 0.999)
     if mask is None:

@@ -177,7 +177,7 @@ def intrinsics_cmd(
 
 
 def _render_handeye(console, data: dict) -> None:
-    from fgcd_cli.geometry.se3 import log_so3
+    from fgcd_core.se3 import log_so3
 
     X = np.array(data["T_flange_cam"])
     rv = np.degrees(log_so3(X[:3, :3]))
