@@ -15,13 +15,14 @@ import numpy as np
 
 from drivers.platform import MotionGuard
 from fgcd_cli.calibration.board import BoardSpec
+from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import HandEyeResult, solve_handeye_scale
-from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_handeye_target
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
 from fgcd_cli.calibration.target_free import PathViews, refine_target_free
 from fgcd_cli.calibration.tracks import gray_u8
+from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
 
 __all__ = ["TargetFreeRun", "TargetRun", "TargetFreeRunConfig", "TargetRunConfig", "run_target_free", "run_target",
@@ -260,9 +261,9 @@ class _TargetFreeSession:
     def record_stop(self, index: int) -> bool:
         """The stop's sample if the VSE tracks; whether it did (the reason is kept in ``skipped`` if not)."""
         state = self.state
-        if state.status == "failed":
+        if state.status == VseStatus.FAILED:
             raise CalibrationError(f"the VSE cannot track this scene: {state.message}")
-        tracked = state.status == "tracking" and state.T_map_cam is not None
+        tracked = state.status == VseStatus.TRACKING and state.T_map_cam is not None
         if tracked:
             self.hand.append(np.asarray(self.guard.platform.flange_pose(), dtype=float))
             self.eye.append(np.asarray(state.T_map_cam, dtype=float))
