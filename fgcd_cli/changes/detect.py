@@ -294,7 +294,7 @@ def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None 
     return region_mask(acontrario, raw_mask, score, valid, threshold=threshold, config=config), threshold, significance
 
 
-def region_mask(acontrario_mask: np.ndarray | None, hysteresis_mask: np.ndarray, score: np.ndarray,
+def region_mask(acontrario_mask: np.ndarray | None, hysteresis_mask: np.ndarray | None, score: np.ndarray,
                 valid: np.ndarray, *, threshold: ThresholdInfo, config: RegionConfig) -> np.ndarray:
     """The decision rule's mask, cleaned, inside ``valid``.
 

@@ -37,17 +37,18 @@ def decide_tiled(score, valid, aside: ThreadPoolExecutor, cue_job: Callable | No
 
     significance = significance_coarse(score, valid, config=config, decision_px=decision_px,
                                        smooth_sigma_px=smooth_sigma_px, on_grid=start_beside)
-    raw_mask, threshold = beside["threshold"].result()
+    hysteresis, threshold = beside["threshold"].result()
     acontrario = None
     if config.decision == DecisionRule.ACONTRARIO:
+        hysteresis = None  # only the hysteresis rule reads it: one full-frame mask less in memory
         # Seeds found at the decision resolution, grown to their extent on the full-resolution score.
         if significance.settings["scale"] == 1.0 or significance.seed_index is None:
             acontrario = significance.mask
         else:
             acontrario = grow_to_extent(significance.seed_index > 0, score, valid, background=threshold.median,
                                         fraction=config.extent_fraction)
-    mask = region_mask(acontrario, raw_mask, score, valid, threshold=threshold, config=config)
-    del raw_mask, acontrario
+    mask = region_mask(acontrario, hysteresis, score, valid, threshold=threshold, config=config)
+    del hysteresis, acontrario
     regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     return mask, regions, labels, threshold, significance, beside.get("cues")
 
