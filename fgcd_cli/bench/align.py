@@ -41,6 +41,7 @@ from fgcd_cli.alignment import (
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity
 from fgcd_cli.geometry import PinholeCamera, Sim3, exp_se3, pose_distance
 from fgcd_cli.geometry.se3 import project_to_so3
+from fgcd_cli.vse.types import VseStatus
 
 SUCCESS_ROT_DEG = 1.0
 SUCCESS_TRANS_MM = 20.0
@@ -175,7 +176,7 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
         state, truth = _vse_session(renderer, intr, camera, T_start, lighting=lighting,
                                     frames=30 if quick else 40, radius=0.05, rng=rng)
         vse_seconds += time.perf_counter() - t
-        if state.status != "tracking" or len(state.keyframes) < 2:
+        if state.status != VseStatus.TRACKING or len(state.keyframes) < 2:
             rows.append({"lighting": lighting, "vse_failed": True, "status": state.status})
             continue
         keyframes, cur_points, T_world_cur, kf_truth, cur_ratio = _metric_session(

@@ -80,7 +80,8 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     ``runs`` (label, mode, coarse config or None), when given, replaces ``modes``: the
     coarse-stage benchmark relocates the same reference with and without the stage.
     """
-    from fgcd_cli.demo import calibrate_sim_handeye, calibrate_sim_intrinsics
+    from fgcd_cli.app.calibrate import calibrate_sim_handeye
+    from fgcd_cli.demo import calibrate_sim_intrinsics
     from drivers.platform import PlatformError
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth

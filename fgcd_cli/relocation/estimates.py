@@ -18,6 +18,7 @@ from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
 from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.worker import AlignmentWorker
+from fgcd_cli.vse.types import VseStatus
 
 __all__ = ["align_now", "fresh_3d_estimate", "wait_for_estimate"]
 
@@ -160,7 +161,7 @@ def fresh_3d_estimate(ctx: LoopContext, st: LoopState, after_frame: int) -> tupl
             return None, f"3D alignment untrustworthy: {ests[-1].reason}"
         est = oks[-1]
     state = session.vse.latest()
-    if state.status != "tracking" or state.T_map_cam is None:
+    if state.status != VseStatus.TRACKING or state.T_map_cam is None:
         return None, f"the VSE is not tracking ({state.status})"
     return camera_in_reference(est.T_ref_cur, scaled_pose(state.T_map_cam, ctx.scale)), ""
 

@@ -22,6 +22,7 @@ from fgcd_cli.relocation.estimates import align_now, wait_for_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.stop_rule import estimated_afd_px
 from fgcd_core.se3 import pose_distance
+from fgcd_cli.vse.types import VseStatus
 
 __all__ = ["racr_loop"]
 
@@ -70,7 +71,7 @@ def _stops(ctx: LoopContext, st: LoopState, adj: Adjustment, afd_est_px: float) 
 
 def _tracking_or(session, state):
     """The VSE's latest state when it tracks, else ``state``."""
-    return session.vse.latest() if session.vse.latest().status == "tracking" else state
+    return session.vse.latest() if session.vse.latest().status == VseStatus.TRACKING else state
 
 
 def _estimate(ctx: LoopContext, st: LoopState, iteration: int, last_serial: int, current_init):

@@ -21,6 +21,7 @@ from drivers.platform import MotionGuard
 from fgcd_cli.errors import AlgorithmError, run_record
 from fgcd_cli.relocation.waiting import wait_for_state
 from fgcd_core.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
+from fgcd_cli.vse.types import VseStatus
 
 __all__ = [
     "SessionTiming",
@@ -215,9 +216,9 @@ class VseSession:
         t0 = time.monotonic()
         while True:
             st = self.settle()
-            if st.status == "tracking" and st.T_map_cam is not None:
+            if st.status == VseStatus.TRACKING and st.T_map_cam is not None:
                 return st
-            if st.status == "failed":
+            if st.status == VseStatus.FAILED:
                 raise AlgorithmError(f"the VSE cannot track this scene: {st.message}")
             if time.monotonic() - t0 > timeout_s:
                 raise AlgorithmError(f"the VSE is not tracking ({st.status}: {st.message})")
@@ -272,9 +273,9 @@ class VseSession:
         for i, M in enumerate(motions):
             self.move_by(M, progress=(sum(counts[:i]), total, f"exploring ({i + 1}/{len(motions)})"))
             st = self.settle(frames=self.settle_frames + 1)
-            if st.status == "failed":
+            if st.status == VseStatus.FAILED:
                 raise AlgorithmError(f"the VSE cannot track this scene: {st.message}")
-            if st.status == "tracking" and st.T_map_cam is not None:
+            if st.status == VseStatus.TRACKING and st.T_map_cam is not None:
                 flange.append(self.guard.platform.flange_pose())
                 cams.append(np.asarray(st.T_map_cam, dtype=float))
             if self.on_event:

@@ -15,6 +15,7 @@ from typing import Callable
 from fgcd_cli.relocation.aligner import Aligner, AlignmentEstimate, AlignmentProblem, align_once
 from fgcd_cli.relocation.waiting import wait_for_state
 from fgcd_core.sim3 import Sim3
+from fgcd_cli.vse.types import VseStatus
 
 __all__ = ["AlignmentWorker"]
 
@@ -82,7 +83,7 @@ class AlignmentWorker:
                                        timeout=max(0.0, timeout_s))
 
     def _ready(self, state, last_frame: int) -> bool:
-        return (state.status == "tracking" and len(state.cloud) >= self._min_points
+        return (state.status == VseStatus.TRACKING and len(state.cloud) >= self._min_points
                 and state.frames_processed != last_frame)
 
     def _wait_for_vse(self, last_frame: int) -> None:
