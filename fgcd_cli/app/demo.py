@@ -16,10 +16,11 @@ from typing import Callable
 
 import numpy as np
 
+from fgcd_cli.app.calibrate import calibrate_sim_handeye  # the hand-eye use case (target-free + scale)
 from fgcd_cli.campaign import init_campaign, schema
 from fgcd_cli.errors import CampaignError
 
-__all__ = ["DemoConfig", "count_changes_found", "run_demo"]
+__all__ = ["DemoConfig", "calibrate_sim_handeye", "count_changes_found", "run_demo"]
 
 ProgressCallback = Callable[[int, int, str], None]
 """``on_progress(done, total, label)``: progress of a long step (``total <= 0``: length unknown).
@@ -72,30 +73,6 @@ def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callab
     save_intrinsics(campaign, result)
     say(f"intrinsics: fx {result.camera.fx:.1f} px, RMS {result.rms_px:.3f} px over {result.n_views} views")
     return result.camera
-
-
-def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], camera=None,
-                          on_progress: ProgressCallback | None = None) -> dict:
-    """Target-free hand-eye + scale on the simulated rig; stored in the campaign rig."""
-    from fgcd_cli.calibration.procedure import run_target_free
-    from fgcd_cli.app.rig import open_sim_rig
-    from fgcd_cli.vse import MonocularVSE
-
-    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=camera, on_event=say, on_progress=on_progress)
-    try:
-        run = run_target_free(
-            rig.handles.guard,
-            rig.handles.camera_source,
-            lambda cam: MonocularVSE(cam),
-            camera=rig.handles.intrinsics,
-            progress=say,
-            on_progress=on_progress,
-        )
-    finally:
-        rig.close()
-    record = run.result.to_dict()
-    campaign.write_rig(schema.RIG_HANDEYE, record)
-    return record
 
 
 def change_ids_in_reference(sim_rig, T_world_camref: np.ndarray, camera_used) -> np.ndarray:
