@@ -7,7 +7,7 @@ together on numpy 2 (sophuspy: SE(3) only), so the small exp/log here sit on
 top of :mod:`scipy.spatial.transform`.
 
 This module is the bottom layer's: both ``drivers`` and ``fgcd_cli`` import it
-(``fgcd_cli.geometry.se3`` re-exports it).
+(the one implementation; ``fgcd_core`` re-exports its names).
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ from rich.console import Console
 
 import fgcd_cli.app.demo as demo_mod
 from fgcd_cli.cli.demo_cmd import summary_lines
-from fgcd_cli.app.demo import DemoConfig, count_changes_found, run_demo
+from fgcd_cli.app.demo import DemoConfig, run_demo
+from fgcd_cli.metrics.sim_eval import count_changes_found
 from fgcd_cli.metrics.sim_eval import score_change_detection
 
 

@@ -89,7 +89,7 @@ def test_no_terminal_and_no_yes_is_refused_before_anything_is_created(camp, comm
 def stand_in_rig(monkeypatch):
     """``open_rig`` replaced by a stand-in that records its options and asks the first-motion question."""
     import fgcd_cli.app.rig as app_rig
-    import fgcd_cli.rigs as rigs
+    import fgcd_cli.app.rig as rigs
 
     seen: dict = {}
 
@@ -210,7 +210,7 @@ class _Vse:
 
 @pytest.mark.parametrize("where", ["in a sub-step", "between sub-steps"])
 def test_a_sub_stepped_motion_is_in_progress_until_its_last_sub_step(where):
-    from fgcd_cli.geometry.se3 import exp_se3
+    from fgcd_core.se3 import exp_se3
     from fgcd_cli.relocation.session import VseSession
 
     run_record.reset()
@@ -225,7 +225,7 @@ def test_a_sub_stepped_motion_is_in_progress_until_its_last_sub_step(where):
 
 
 def test_the_rig_guard_marks_its_motions_and_not_its_question():
-    from fgcd_cli.rigs import _recorded_guard
+    from fgcd_cli.app.rig import _recorded_guard
 
     asked = []
 

@@ -32,7 +32,7 @@ from fgcd_cli.alignment.icp_levels import LevelInputs, LevelRun, finest, run_lev
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentResult, StartPath
 from fgcd_cli.alignment.weak_probe import probe_weak_directions
-from fgcd_cli.geometry import Sim3
+from fgcd_core import Sim3
 
 __all__ = ["FastAlignConfig", "fast_align", "initial_scale", "as_reference", "evaluate_alignment",
            "probe_weak_directions"]

@@ -45,7 +45,7 @@ from fgcd_cli.alignment.lm import levenberg_marquardt
 from fgcd_cli.alignment.photometric import prepare_keyframe, sample, visible_nearest
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, FineAlignmentResult, ResidualStats
-from fgcd_cli.geometry import PinholeCamera, Sim3, exp_se3
+from fgcd_core import PinholeCamera, Sim3, exp_se3
 
 __all__ = ["FineAlignConfig", "fine_align"]
 

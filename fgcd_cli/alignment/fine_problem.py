@@ -20,7 +20,7 @@ from scipy import sparse
 
 from fgcd_cli.alignment.photometric import KeyframeImage, project_with_jacobian, sample
 from fgcd_cli.alignment.sparse_icp import gram
-from fgcd_cli.geometry import PinholeCamera, Sim3
+from fgcd_core import PinholeCamera, Sim3
 
 __all__ = ["Block", "PhotometricObservations", "GeometricMatches", "FineProblem", "huber_weights"]
 

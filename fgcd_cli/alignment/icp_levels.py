@@ -24,7 +24,7 @@ from fgcd_cli.alignment.sparse_icp import (
     sparse_point_to_point_step,
     trimmed_point_to_plane_step,
 )
-from fgcd_cli.geometry import Sim3, make_pose
+from fgcd_core import Sim3, make_pose
 
 __all__ = ["LevelInputs", "LevelRun", "run_levels", "finest", "LOST_CORRESPONDENCES"]
 

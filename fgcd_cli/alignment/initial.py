@@ -14,7 +14,7 @@ import numpy as np
 from fgcd_cli.alignment.fast import FastAlignConfig, as_reference, fast_align, initial_scale
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentResult
-from fgcd_cli.geometry import Sim3
+from fgcd_core import Sim3
 
 __all__ = ["GuessSource", "InitialGuess", "camera_prior", "initial_guess", "global_registration"]
 

@@ -1,6 +1,6 @@
 """Typed results of the alignment stage.
 
-Every result carries ``T_ref_cur`` (a :class:`~fgcd_cli.geometry.Sim3` mapping
+Every result carries ``T_ref_cur`` (a :class:`~fgcd_core.sim3.Sim3` mapping
 the current session's map frame into the reference frame:
 ``p_ref = T_ref_cur.apply(p_cur)``) and a :class:`AlignmentHealth` that says
 whether to trust it.
@@ -13,7 +13,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from fgcd_cli.geometry import Sim3
+from fgcd_core import Sim3
 
 __all__ = ["HEALTH_OK", "StartPath", "AlignmentHealth", "ResidualStats", "AlignmentResult", "FineAlignmentResult"]
 

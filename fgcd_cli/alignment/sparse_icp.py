@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcd_cli.geometry import exp_se3, umeyama
+from fgcd_core import exp_se3, umeyama
 
 __all__ = [
     "shrink",

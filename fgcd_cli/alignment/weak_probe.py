@@ -16,7 +16,7 @@ import numpy as np
 from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.alignment.icp_levels import LevelInputs, finest, run_levels
 from fgcd_cli.alignment.reference import ReferenceIndex
-from fgcd_cli.geometry import Sim3, exp_se3
+from fgcd_core import Sim3, exp_se3
 
 __all__ = ["probe_weak_directions"]
 

@@ -17,7 +17,8 @@ from fgcd_cli.calibration.handeye import HandEyeResult
 from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
 from fgcd_core.camera import PinholeCamera
 
-__all__ = ["HandEyeMode", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "run_handeye", "calibrate_sim_handeye"]
+__all__ = ["HandEyeMode", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "run_handeye", "calibrate_sim_handeye",
+           "calibrate_sim_intrinsics"]
 
 ProgressCallback = Callable[[int, int, str], None]
 
@@ -188,3 +189,35 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], cam
     record = calibration.result.to_dict()
     campaign.write_rig("handeye", record)
     return record
+
+
+def _tick_progress(on_progress: ProgressCallback | None, done: int, total: int, label: str) -> None:
+    if on_progress is not None:
+        on_progress(done, total, label)
+
+
+def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None],
+                             on_progress: ProgressCallback | None = None):
+    """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
+    from drivers.sim.board import SimBoard
+    from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
+    from fgcd_cli.calibration.rig import save_intrinsics
+    from fgcd_cli.app.rig import open_sim_rig
+
+    board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
+    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)
+    try:
+        source = rig.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
+                                               square_m=board.square_m, marker_m=board.marker_m,
+                                               dictionary=board.dictionary), seed=scenario.seed)
+        images = []
+        for k in range(views):
+            _tick_progress(on_progress, k, views, "rendering board views")
+            images.append(source.grab().image)
+    finally:
+        rig.close()
+    _tick_progress(on_progress, 0, 0, "calibrating the intrinsics (ChArUco)")
+    result = calibrate_intrinsics(images, board, names=[f"view_{i:02d}" for i in range(views)])
+    save_intrinsics(campaign, result)
+    say(f"intrinsics: fx {result.camera.fx:.1f} px, RMS {result.rms_px:.3f} px over {result.n_views} views")
+    return result.camera

@@ -27,7 +27,7 @@ from fgcd_cli.app.session import grab_images, metric_keyframes, start_session
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import campaign_world, rig_calibration
 from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError, run_record
-from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 from fgcd_cli.relocation.coarse import CoarseResult
 from fgcd_cli.relocation.loop import RelocationResult
 from fgcd_cli.relocation.session import ScaleEstimate

@@ -57,7 +57,7 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
     starts from: the stage's verified one, or the first one when the stage could not verify
     any (the loop then pauses on the far estimate and its image fallback tries, as before).
     """
-    from fgcd_cli.geometry.se3 import pose_distance
+    from fgcd_core.se3 import pose_distance
     from fgcd_cli.relocation.adjustment import camera_in_reference
 
     rig, session, reference = start.rig, start.session, start.reference

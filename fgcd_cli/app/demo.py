@@ -16,11 +16,12 @@ from typing import Callable
 
 import numpy as np
 
-from fgcd_cli.app.calibrate import calibrate_sim_handeye  # the hand-eye use case (target-free + scale)
+from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics  # the calibration use cases
 from fgcd_cli.campaign import init_campaign, schema
+from fgcd_cli.metrics.sim_eval import change_ids_in_reference, count_changes_found  # evaluation only
 from fgcd_cli.errors import CampaignError
 
-__all__ = ["DemoConfig", "calibrate_sim_handeye", "count_changes_found", "run_demo"]
+__all__ = ["DemoConfig", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "run_demo"]
 
 ProgressCallback = Callable[[int, int, str], None]
 """``on_progress(done, total, label)``: progress of a long step (``total <= 0``: length unknown).
@@ -46,73 +47,6 @@ class DemoConfig:
     start_offset_deg: float = 2.5
     station: str = "niche-figure"
     vse: str = "mono"
-
-
-def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None],
-                             on_progress: ProgressCallback | None = None):
-    """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
-    from drivers.sim.board import SimBoard
-    from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
-    from fgcd_cli.calibration.rig import save_intrinsics
-    from fgcd_cli.app.rig import open_sim_rig
-
-    board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
-    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)
-    try:
-        source = rig.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
-                                               square_m=board.square_m, marker_m=board.marker_m,
-                                               dictionary=board.dictionary), seed=scenario.seed)
-        images = []
-        for k in range(views):
-            _tick(on_progress, k, views, "rendering board views")
-            images.append(source.grab().image)
-    finally:
-        rig.close()
-    _tick(on_progress, 0, 0, "calibrating the intrinsics (ChArUco)")
-    result = calibrate_intrinsics(images, board, names=[f"view_{i:02d}" for i in range(views)])
-    save_intrinsics(campaign, result)
-    say(f"intrinsics: fx {result.camera.fx:.1f} px, RMS {result.rms_px:.3f} px over {result.n_views} views")
-    return result.camera
-
-
-def change_ids_in_reference(sim_rig, T_world_camref: np.ndarray, camera_used) -> np.ndarray:
-    """Which injected change each pixel of the stored reference image shows (HxW int32, 0 = none).
-
-    Evaluation only. Like :func:`fgcd_cli.metrics.sim_eval.change_truth_in_reference`, but
-    keeping each change's identity (1 + its index among the injected changes), remapped
-    like the stored images with a nearest-neighbour lookup so that identities never mix.
-    """
-    gt = sim_rig.ground_truth
-    ids = gt.change_ids(np.asarray(T_world_camref, dtype=float), gt.intrinsics_true())
-    if camera_used is not None and camera_used.has_distortion:
-        from fgcd_cli.vse.undistort import Undistorter
-
-        ids = Undistorter(camera_used).depth(ids.astype(np.float32))
-    return np.rint(ids).astype(np.int32)
-
-
-def count_changes_found(found: np.ndarray, truth_ids: np.ndarray, *, injected: int) -> dict:
-    """How many injected changes a change mask found, counted by change, not by blob.
-
-    A change seen as several pieces (a crack broken by the relief, a stain cut by a
-    shadow) is still one change, found when any of its pixels is found.
-
-    Parameters
-    ----------
-    found : ndarray, HxW bool; the tool's change mask (reference image).
-    truth_ids : ndarray, HxW int; 0 where no change, else the change's identity (1-based).
-    injected : int, keyword-only; changes injected into the world (some may be out of view).
-
-    Returns
-    -------
-    dict with ``injected_changes``, ``true_changes`` (injected changes in view of the
-    reference image) and ``true_changes_found``.
-    """
-    found = np.asarray(found, dtype=bool)
-    ids = np.asarray(truth_ids)
-    in_view = set(np.unique(ids[ids > 0]).tolist())
-    hit = set(np.unique(ids[found & (ids > 0)]).tolist())
-    return {"injected_changes": int(injected), "true_changes": len(in_view), "true_changes_found": len(hit)}
 
 
 def _evaluate_changes(visit, station, *, scenario, X: np.ndarray, camera, injected: int) -> dict:

@@ -232,7 +232,7 @@ def relocation_residual_text(visit) -> str:
 
 def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
     """mm² per reference pixel from the reference's metric cloud and camera, when stored."""
-    from fgcd_cli.geometry.camera import PinholeCamera
+    from fgcd_core.camera import PinholeCamera
 
     meta = reference.metadata
     if not (reference.has(schema.array_relpath(schema.ARRAY_CLOUD_POINTS))

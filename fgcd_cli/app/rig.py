@@ -16,7 +16,7 @@ from typing import Callable, Iterator, Protocol
 import numpy as np
 
 from fgcd_cli.errors import HardwareError, UserInputError, run_record
-from fgcd_cli.geometry.camera import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 from fgcd_cli.app.scenario import (  # noqa: F401 - part of this module's interface
     DRIVERS,
     Driver,
@@ -177,18 +177,8 @@ def opened(rig: OpenedRig) -> Iterator[OpenedRig]:
 
 
 def pinhole_from_intrinsics(intr) -> PinholeCamera:
-    """``PinholeCamera`` from ``drivers.cameras.CameraIntrinsics`` (or a dict)."""
-    if isinstance(intr, dict):
-        return PinholeCamera.from_dict(intr)
-    return PinholeCamera(
-        fx=float(intr.fx),
-        fy=float(intr.fy),
-        cx=float(intr.cx),
-        cy=float(intr.cy),
-        width=int(intr.width),
-        height=int(intr.height),
-        dist=tuple(float(d) for d in intr.dist),
-    )
+    """The camera's nominal intrinsics as a ``PinholeCamera`` (the one intrinsics type of :mod:`fgcd_core.camera`), or from a dict."""
+    return PinholeCamera.from_dict(intr) if isinstance(intr, dict) else intr
 
 
 def undistorted(camera: PinholeCamera, source):
@@ -217,7 +207,7 @@ def vse_factory_for(camera: PinholeCamera, source, *, variant: str = "mono") -> 
 
 
 def _random_offset(rng: np.random.Generator, mm: float, deg: float) -> np.ndarray:
-    from fgcd_cli.geometry.se3 import exp_se3
+    from fgcd_core.se3 import exp_se3
 
     d = rng.normal(size=3)
     d /= np.linalg.norm(d)

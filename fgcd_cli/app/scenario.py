@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from enum import StrEnum
 
 from fgcd_cli.errors import UserInputError
+from drivers.connect import DRIVERS, Driver  # the drivers a command can open (re-exported for the CLI)
 
 __all__ = [
     "DRIVERS",
@@ -24,17 +24,6 @@ __all__ = [
 ]
 
 
-class Driver(StrEnum):
-    """Platform drivers a command can open (the values are the ``--driver`` names)."""
-
-    SIM = "sim"
-    GRBL = "grbl"
-    UR = "ur"
-    MANUAL = "manual"
-
-
-#: Platform drivers a command can open.
-DRIVERS = tuple(d.value for d in Driver)
 
 
 @dataclass(frozen=True, kw_only=True)

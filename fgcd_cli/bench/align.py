@@ -39,8 +39,8 @@ from fgcd_cli.alignment import (
     fine_align,
 )
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity
-from fgcd_cli.geometry import PinholeCamera, Sim3, exp_se3, pose_distance
-from fgcd_cli.geometry.se3 import project_to_so3
+from fgcd_core import PinholeCamera, Sim3, exp_se3, pose_distance
+from fgcd_core.se3 import project_to_so3
 from fgcd_cli.vse.types import VseStatus
 
 SUCCESS_ROT_DEG = 1.0

@@ -178,9 +178,9 @@ def _target_free_stage(rig, calibrated: PinholeCamera) -> dict:
     gt = rig.ground_truth
     guard = MotionGuard(rig.platform)
     t0 = time.perf_counter()
-    from fgcd_cli.rigs import undistorted
+    from fgcd_cli.app.rig import undistorted
 
-    # the VSE works on undistorted frames, as in the field commands (fgcd_cli.rigs)
+    # the VSE works on undistorted frames, as in the field commands (fgcd_cli.app.rig)
     ideal, source = undistorted(calibrated, rig.camera)
     log = _PoseLog(source, gt)
     run = run_handeye(HandEyeRig(guard=guard, camera_source=log, intrinsics=ideal)).run

@@ -22,7 +22,7 @@ from drivers.sim.changes import random_changes
 from drivers.sim.render import CameraEffects, Renderer
 from drivers.sim.scenes import load_scene
 from fgcd_cli.changes import detect_changes, pixel_area_from_depth
-from fgcd_cli.geometry.se3 import exp_se3
+from fgcd_core.se3 import exp_se3
 from fgcd_cli.metrics.change_scores import binary_scores
 
 LIGHTINGS = ("led:2", "led:6", "led:10")
@@ -58,7 +58,7 @@ def _render_set(renderer, T, intr, *, changes, effects, exposure, rng):
 
 RELOCATED_SCENE = "relief_panel"
 RELOCATED_TRANSLATION_MM = 3.0
-RELOCATED_EDGE_CHECK_PX = 2  # the region-level edge check ``fgcd diff`` on a campaign uses (report.usecases.EDGE_CHECK_PX)
+RELOCATED_EDGE_CHECK_PX = 2  # the region-level edge check ``fgcd diff`` on a campaign uses (app.diff.EDGE_CHECK_PX)
 
 
 def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:

@@ -80,14 +80,15 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     ``runs`` (label, mode, coarse config or None), when given, replaces ``modes``: the
     coarse-stage benchmark relocates the same reference with and without the stage.
     """
-    from fgcd_cli.app.calibrate import calibrate_sim_handeye
-    from fgcd_cli.demo import calibrate_sim_intrinsics
+    from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
     from drivers.platform import PlatformError
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
-    from fgcd_cli.relocation.capture import capture_reference, relocate_and_capture
+    from fgcd_cli.app.capture import capture_reference
+    from fgcd_cli.app.relocate import relocate_and_capture
     from fgcd_cli.relocation.loop import RelocationConfig
-    from fgcd_cli.rigs import SimScenario, open_sim_rig
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
 
     camp = init_campaign(workdir / case.name, site=case.name, rig={"driver": "sim"})
     st = camp.create_station("s")

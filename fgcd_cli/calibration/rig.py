@@ -8,13 +8,14 @@ from __future__ import annotations
 
 from fgcd_cli.calibration.handeye import HandEyeResult
 from fgcd_cli.calibration.intrinsics import IntrinsicsResult
+from fgcd_cli.campaign import schema
 from fgcd_cli.errors import CampaignError
 from fgcd_core.camera import PinholeCamera
 
 __all__ = ["save_intrinsics", "load_intrinsics", "load_camera", "save_handeye", "load_handeye"]
 
-INTRINSICS = "intrinsics"
-HANDEYE = "handeye"
+INTRINSICS = schema.RIG_INTRINSICS
+HANDEYE = schema.RIG_HANDEYE
 
 
 def save_intrinsics(campaign, result: IntrinsicsResult) -> str:

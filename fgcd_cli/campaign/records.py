@@ -79,7 +79,7 @@ def rig_calibration(campaign):
     camera : PinholeCamera or None
         ``rig/intrinsics.json``'s camera model (its ``camera`` entry, or the record itself).
     """
-    from fgcd_cli.geometry.camera import PinholeCamera
+    from fgcd_core.camera import PinholeCamera
 
     he = campaign.read_rig(RIG_HANDEYE)
     intr = campaign.read_rig(RIG_INTRINSICS)

@@ -130,7 +130,7 @@ def main() -> None:
 
 def _abandoned_native_threads() -> bool:
     ur = sys.modules.get("drivers.ur")
-    return bool(getattr(ur, "_ABANDONED", None))
+    return ur is not None and ur.has_abandoned_interfaces()
 
 
 def run(typer_app: typer.Typer, args: Sequence[str]) -> int:

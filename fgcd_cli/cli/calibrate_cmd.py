@@ -123,7 +123,8 @@ def intrinsics_cmd(
     camp = _open_campaign(campaign)
     if sim:
         from drivers.sim.board import SimBoard
-        from fgcd_cli.rigs import SimScenario, open_sim_rig
+        from fgcd_cli.app.rig import open_sim_rig
+        from fgcd_cli.app.scenario import SimScenario
 
         board_file = None
         board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
@@ -223,7 +224,7 @@ def _render_handeye(console, data: dict) -> None:
 def _check_handeye_options(*, mode: str, driver: str, scene: str, seed: int, board_file: Optional[Path],
                            translation_mm: float, rotation_deg: float):
     """Refuse bad hand-eye options before anything is opened or moved; the simulated world when ``driver`` is sim."""
-    from fgcd_cli.rigs import SimScenario, check_driver, check_scenario
+    from fgcd_cli.app.scenario import SimScenario, check_driver, check_scenario
 
     from fgcd_cli.app.calibrate import HandEyeMode
 
@@ -298,7 +299,8 @@ def handeye_cmd(
     """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
     from fgcd_cli.calibration.rig import save_handeye
     from fgcd_cli.cli.progress import step_progress
-    from fgcd_cli.rigs import SimScenario, check_connection, open_rig, opened
+    from fgcd_cli.app.rig import open_rig, opened
+    from fgcd_cli.app.scenario import SimScenario, check_connection
 
     # no terminal and no --yes: refused first (exit 2), before anything is opened or moved
     confirm = confirmer(yes=yes)

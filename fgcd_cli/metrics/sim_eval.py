@@ -11,9 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_cli.geometry.se3 import pose_distance
+from fgcd_cli.campaign.schema import SIM_TRUTH
+from fgcd_core.se3 import pose_distance
 
-__all__ = ["reference_truth", "RelocationEvaluator"]
+__all__ = ["reference_truth", "RelocationEvaluator", "change_ids_in_reference", "count_changes_found"]
 
 
 def reference_truth(sim_rig) -> dict:
@@ -36,9 +37,9 @@ class RelocationEvaluator:
     @classmethod
     def from_reference(cls, sim_rig, reference_observation) -> "RelocationEvaluator | None":
         """Build from a reference observation captured on the simulator (None otherwise)."""
-        if not reference_observation.has("evaluation/sim_truth.json"):
+        if not reference_observation.has(SIM_TRUTH):
             return None
-        truth = reference_observation.json("evaluation/sim_truth.json")
+        truth = reference_observation.json(SIM_TRUTH)
         return cls(sim_rig, np.array(truth["T_world_cam"], dtype=float))
 
     def evaluate(self) -> dict:
@@ -88,3 +89,43 @@ def score_change_detection(found_mask: np.ndarray, truth_mask: np.ndarray) -> di
     out.update({"true_changes": int(n_true), "true_changes_found": int(hit), "found_regions": int(n_found),
                 "false_regions": int(false)})
     return out
+
+
+def change_ids_in_reference(sim_rig, T_world_camref: np.ndarray, camera_used) -> np.ndarray:
+    """Which injected change each pixel of the stored reference image shows (HxW int32, 0 = none).
+
+    Evaluation only. Like :func:`change_truth_in_reference`, but
+    keeping each change's identity (1 + its index among the injected changes), remapped
+    like the stored images with a nearest-neighbour lookup so that identities never mix.
+    """
+    gt = sim_rig.ground_truth
+    ids = gt.change_ids(np.asarray(T_world_camref, dtype=float), gt.intrinsics_true())
+    if camera_used is not None and camera_used.has_distortion:
+        from fgcd_cli.vse.undistort import Undistorter
+
+        ids = Undistorter(camera_used).depth(ids.astype(np.float32))
+    return np.rint(ids).astype(np.int32)
+
+
+def count_changes_found(found: np.ndarray, truth_ids: np.ndarray, *, injected: int) -> dict:
+    """How many injected changes a change mask found, counted by change, not by blob.
+
+    A change seen as several pieces (a crack broken by the relief, a stain cut by a
+    shadow) is still one change, found when any of its pixels is found.
+
+    Parameters
+    ----------
+    found : ndarray, HxW bool; the tool's change mask (reference image).
+    truth_ids : ndarray, HxW int; 0 where no change, else the change's identity (1-based).
+    injected : int, keyword-only; changes injected into the world (some may be out of view).
+
+    Returns
+    -------
+    dict with ``injected_changes``, ``true_changes`` (injected changes in view of the
+    reference image) and ``true_changes_found``.
+    """
+    found = np.asarray(found, dtype=bool)
+    ids = np.asarray(truth_ids)
+    in_view = set(np.unique(ids[ids > 0]).tolist())
+    hit = set(np.unique(ids[found & (ids > 0)]).tolist())
+    return {"injected_changes": int(injected), "true_changes": len(in_view), "true_changes_found": len(hit)}

@@ -79,7 +79,7 @@ class VisualSlamEngine:
     def __init__(self, camera: PinholeCamera, *, config: VseConfig = VseConfig(), frontend: TrackingFrontend,
                  depth_source: DepthSource, cloud: CloudBuilder) -> None:
         if not isinstance(camera, PinholeCamera):
-            raise TypeError("camera must be a fgcd_cli.geometry.PinholeCamera")
+            raise TypeError("camera must be a fgcd_core.camera.PinholeCamera")
         self.camera = camera
         self.config = config
         self.K = camera.K

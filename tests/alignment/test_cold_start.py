@@ -16,7 +16,7 @@ from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
 from fgcd_cli.alignment.cold_start import scale_neighbour
 from fgcd_cli.alignment.icp_levels import LevelInputs
 from fgcd_cli.alignment.synthetic import ReliefScene
-from fgcd_cli.geometry import Sim3, exp_se3
+from fgcd_core import Sim3, exp_se3
 
 WIDTH = 0.6
 NOISE = 0.002  # current-cloud noise per axis, metres

@@ -9,7 +9,7 @@ from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
 from fgcd_cli.alignment.health import similarity_conditioning
 from fgcd_cli.alignment.sparse_icp import scale_step_point_to_plane, shrink, shrink_threshold
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity, sample_plane, sample_sphere
-from fgcd_cli.geometry import Sim3
+from fgcd_core import Sim3
 
 NOISE = 0.002  # metres, current-cloud noise per axis
 

@@ -8,7 +8,7 @@ import pytest
 from fgcd_cli.alignment import ReferenceIndex, fast_align
 from fgcd_cli.alignment.fine import FineAlignConfig, fine_align
 from fgcd_cli.alignment.synthetic import ReliefScene, make_session, random_similarity
-from fgcd_cli.geometry import PinholeCamera, Sim3, pose_distance
+from fgcd_core import PinholeCamera, Sim3, pose_distance
 
 CAMERA = PinholeCamera(fx=400, fy=400, cx=159.5, cy=119.5, width=320, height=240)
 

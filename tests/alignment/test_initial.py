@@ -7,7 +7,7 @@ import pytest
 
 from fgcd_cli.alignment import ReferenceIndex, camera_prior, initial_guess
 from fgcd_cli.alignment.synthetic import ReliefScene, look_at, random_similarity
-from fgcd_cli.geometry import exp_se3, pose_distance
+from fgcd_core import exp_se3, pose_distance
 
 
 @pytest.fixture(scope="module")

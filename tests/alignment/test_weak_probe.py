@@ -12,7 +12,7 @@ import numpy as np
 
 from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
 from fgcd_cli.alignment.synthetic import look_at
-from fgcd_cli.geometry import PinholeCamera, Sim3, exp_se3
+from fgcd_core import PinholeCamera, Sim3, exp_se3
 
 NOISE = 0.002  # m per axis, both clouds
 

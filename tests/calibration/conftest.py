@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcd_cli.geometry.se3 import exp_se3, exp_so3, invert_pose, make_pose
+from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose
 
 
 def _perturb(T: np.ndarray, rng: np.random.Generator, sigma_m: float, sigma_rad: float) -> np.ndarray:

@@ -18,7 +18,7 @@ from fgcd_cli.calibration.handeye import (
 from fgcd_cli.calibration.handeye_target import solve_handeye_target
 from fgcd_cli.calibration.samples import rotation_axis_spread_deg
 from fgcd_cli.errors import UserInputError
-from fgcd_cli.geometry.se3 import exp_so3, invert_pose, log_so3, make_pose, pose_distance
+from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose, pose_distance
 
 # Default noise of the noisy cases: platform 0.2 mm / 0.02 deg, VSE 0.3 mm / 0.05 deg per pose.
 NOISE = dict(

@@ -16,7 +16,7 @@ from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import solve_handeye_scale
 from fgcd_cli.calibration.handeye_ba import KeyframeDepths, refine_handeye_tracks, refine_target_free
 from fgcd_cli.calibration.motions import exploration_motions
-from fgcd_cli.geometry.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
+from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
 
 K = np.array([[600.0, 0, 320.0], [0, 600.0, 240.0], [0, 0, 1.0]])
 W, H = 640, 480
@@ -63,7 +63,7 @@ def test_tracks_recover_x_from_a_wrong_start_within_the_reported_sigma():
 
 def _rotations_scaled(hand, scale):
     """Flange poses whose rotations about the first pose are ``scale`` times the given ones."""
-    from fgcd_cli.geometry.se3 import log_so3
+    from fgcd_core.se3 import log_so3
 
     R0 = hand[0][:3, :3]
     return [make_pose(R0 @ exp_so3(scale * log_so3(R0.T @ T[:3, :3])), T[:3, 3]) for T in hand]

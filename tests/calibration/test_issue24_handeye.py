@@ -15,7 +15,7 @@ import pytest
 from drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.calibration.procedure import run_target_free
 from fgcd_cli.campaign import init_campaign
-from fgcd_cli.geometry.se3 import exp_so3, make_pose
+from fgcd_core.se3 import exp_so3, make_pose
 
 ROOT = Path(__file__).parents[2]
 

@@ -18,7 +18,7 @@ from fgcd_cli.calibration.intrinsics import DISTORTION_MODELS, DistortionModel
 from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig, run_target_free
 from fgcd_cli.calibration.target_free import ScaleMethod, TargetFreeConfig
 from fgcd_cli.calibration.tracks import MatchConfig, pair_list
-from fgcd_cli.geometry.se3 import exp_so3, make_pose
+from fgcd_core.se3 import exp_so3, make_pose
 
 
 def test_config_defaults_are_the_former_keyword_defaults():

@@ -55,7 +55,7 @@ def test_guard_rotation_angle_agrees_with_the_old_acos_form():
 
 def test_one_intrinsics_type_with_both_old_interfaces():
     from drivers.cameras import CameraIntrinsics as DriversIntrinsics
-    from fgcd_cli.geometry.camera import PinholeCamera as GeometryPinhole
+    from fgcd_core.camera import PinholeCamera as GeometryPinhole
 
     assert DriversIntrinsics is CameraIntrinsics is PinholeCamera is GeometryPinhole
     cam = CameraIntrinsics(fx=600.0, fy=601.0, cx=319.5, cy=239.5, width=640, height=480, dist=(-0.05, 0.01, 0, 0, 0))
@@ -94,22 +94,6 @@ def test_board_geometry_converts_between_the_two_sides():
     sim = SimBoard(**spec.charuco_fields(), margin_m=0.02)
     assert sim.charuco_fields() == spec.charuco_fields() and sim.margin_m == 0.02
     assert BoardSpec(**sim.charuco_fields()) == spec
-
-
-def test_geometry_modules_re_export_fgcd_core():
-    import fgcd_cli.geometry as geometry
-    import fgcd_cli.geometry.se3 as old_se3
-    import fgcd_cli.geometry.sim3 as old_sim3
-    import fgcd_core.se3 as se3
-    import fgcd_core.sim3 as sim3
-
-    for name in se3.__all__:
-        assert getattr(old_se3, name) is getattr(se3, name), name
-    for name in sim3.__all__:
-        assert getattr(old_sim3, name) is getattr(sim3, name), name
-    for name in geometry.__all__:
-        assert getattr(geometry, name) is getattr(se3, name, None) or getattr(geometry, name) in (
-            sim3.Sim3, sim3.umeyama, PinholeCamera), name
 
 
 def test_board_view_keyword_form_equals_camera_form():

@@ -7,8 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fgcd_cli.geometry import Sim3, umeyama
-from fgcd_cli.geometry.se3 import (
+from fgcd_core import Sim3, umeyama
+from fgcd_core.se3 import (
     exp_se3,
     interpolate_pose,
     invert_pose,

@@ -14,8 +14,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.geometry import PinholeCamera, exp_se3
-from fgcd_cli.geometry.se3 import invert_pose, pose_distance
+from fgcd_core import PinholeCamera, exp_se3
+from fgcd_core.se3 import invert_pose, pose_distance
 from fgcd_cli.relocation.coarse import CoarseConfig, camera_uncertainty, render_visible_points
 
 CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=320.0, cy=240.0, width=640, height=480)
@@ -130,7 +130,7 @@ X_HANDEYE = exp_se3(np.r_[0.03, -0.05, 0.12, np.radians([1.0, 2.0, 90.0])])
 
 
 def test_a_far_verified_start_is_walked_to_the_reference_in_bounded_steps(reference_points):
-    from fgcd_cli.geometry.sim3 import Sim3
+    from fgcd_core.sim3 import Sim3
 
     T_start = exp_se3(np.r_[0.16, -0.08, 0.05, np.radians([3.0, 9.0, -2.0])])  # 185 mm / ~10 deg away
     T_map_ref = exp_se3(np.r_[0.4, 0.1, -0.2, 0.3, -0.2, 0.1])
@@ -163,7 +163,7 @@ def _metric(T_map_cam: np.ndarray, scale: float) -> np.ndarray:
 
 
 def test_an_unverifiable_observation_only_looks_around_then_pauses():
-    from fgcd_cli.geometry.sim3 import Sim3
+    from fgcd_core.sim3 import Sim3
 
     # the camera sees a flat wall 0.6 m nearer than the relief: nothing the reference can explain
     rng = np.random.default_rng(6)

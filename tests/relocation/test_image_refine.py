@@ -8,8 +8,8 @@ import pytest
 from drivers.cameras import CameraIntrinsics
 from drivers.sim.render import Renderer
 from drivers.sim.scenes import load_scene
-from fgcd_cli.geometry import PinholeCamera
-from fgcd_cli.geometry.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_core import PinholeCamera
+from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from fgcd_cli.relocation.image_refine import (
     ImageRefineConfig,
     reference_depth_lookup,

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
-from fgcd_cli.geometry import Sim3
-from fgcd_cli.geometry.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_core import Sim3
+from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from fgcd_cli.relocation.loop import AlignmentEstimate, ReferenceData, RelocationConfig, run_relocation
 from fgcd_cli.relocation.session import VseSession
 
@@ -45,7 +45,7 @@ class ErringPlatform:
 
     def move_to(self, T, *, speed_fraction=1.0):
         M = invert_pose(self.reported) @ T
-        from fgcd_cli.geometry.se3 import log_se3
+        from fgcd_core.se3 import log_se3
         xi = log_se3(M) * (1.0 + self.proportional * self.rng.uniform(-1, 1, 6))
         self.true = self.true @ exp_se3(xi)
         self.reported = np.array(T, dtype=float)
@@ -195,7 +195,7 @@ def test_failed_alignment_pauses_motion(monkeypatch):
 
 
 def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
-    from fgcd_cli.geometry import PinholeCamera
+    from fgcd_core import PinholeCamera
     from fgcd_cli.relocation.loop import estimated_afd_px
 
     cam = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
@@ -208,7 +208,7 @@ def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
 
 def _biased_case_with_image_stage(monkeypatch, refine):
     """3D estimates off by 8 mm / 0.3 deg (a biased alignment); the image stage is ``refine``."""
-    from fgcd_cli.geometry import PinholeCamera
+    from fgcd_core import PinholeCamera
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
     bias = Sim3.from_pose(exp_se3([0.008, 0.0, 0.0, 0.0, 0.005, 0.0]))
@@ -313,7 +313,7 @@ def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
 
 def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, untrusted_min_wait_s=0.2):
     """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``."""
-    from fgcd_cli.geometry import PinholeCamera
+    from fgcd_core import PinholeCamera
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
 

@@ -2,7 +2,7 @@
 
 import time
 
-from fgcd_cli.geometry import Sim3
+from fgcd_core import Sim3
 from fgcd_cli.relocation.loop import AlignmentEstimate, RelocationConfig, run_relocation
 from tests.relocation.test_loop import _exact_session, make_case
 

@@ -14,8 +14,8 @@ import pytest
 
 from drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.geometry import PinholeCamera, Sim3
-from fgcd_cli.geometry.se3 import exp_se3, invert_pose, make_pose, pose_distance
+from fgcd_core import PinholeCamera, Sim3
+from fgcd_core.se3 import exp_se3, invert_pose, make_pose, pose_distance
 from fgcd_cli.relocation.image_refine import ImageRefinement, pnp_translation_sigma_m
 from fgcd_cli.relocation.loop import (
     AlignmentEstimate,

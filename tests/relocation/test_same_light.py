@@ -4,7 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from fgcd_cli.relocation import capture as capture_uc
+from fgcd_cli.app import session as capture_uc
 
 
 class _Lights:
@@ -53,7 +53,7 @@ def test_lighting_is_the_references_first_switchable_one():
 
 def test_image_is_grabbed_under_the_reference_light_with_the_vse_held_and_the_day_light_restored():
     lights, vse = _Lights("led:3"), _Vse()
-    image = capture_uc._grab_gray_under(_rig(lights), vse, "front")
+    image = capture_uc.grab_gray_under(_rig(lights), vse, "front")
     assert np.allclose(image, 0.5)  # grabbed under "front"
     assert lights.history == ["front", "led:3"] and lights.current == "led:3"
     assert vse.holds == 1
@@ -61,6 +61,6 @@ def test_image_is_grabbed_under_the_reference_light_with_the_vse_held_and_the_da
 
 def test_no_switch_when_already_under_that_light_or_without_lights():
     lights, vse = _Lights("front"), _Vse()
-    capture_uc._grab_gray_under(_rig(lights), vse, "front")
+    capture_uc.grab_gray_under(_rig(lights), vse, "front")
     assert lights.history == [] and vse.holds == 0
-    assert np.allclose(capture_uc._grab_gray_under(_rig(None), vse, None), 0.5)
+    assert np.allclose(capture_uc.grab_gray_under(_rig(None), vse, None), 0.5)

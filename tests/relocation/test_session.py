@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from fgcd_cli.geometry.se3 import rotation_angle_rad
+from fgcd_core.se3 import rotation_angle_rad
 from fgcd_cli.relocation.session import exploration_pattern
 
 

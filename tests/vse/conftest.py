@@ -13,8 +13,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from fgcd_cli.geometry.camera import PinholeCamera
-from fgcd_cli.geometry.se3 import exp_so3, make_pose
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import exp_so3, make_pose
 
 
 class SyntheticWorld:

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from fgcd_cli.geometry.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
+from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
 from fgcd_cli.vse.ba import bundle_adjust, projection_residuals, refine_pose
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])

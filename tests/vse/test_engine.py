@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from fgcd_cli.geometry.se3 import invert_pose, pose_distance
-from fgcd_cli.geometry.sim3 import umeyama
+from fgcd_core.se3 import invert_pose, pose_distance
+from fgcd_core.sim3 import umeyama
 from fgcd_cli.vse import MonocularVSE, RgbdVSE, SparseVSE, VseConfig
 
 

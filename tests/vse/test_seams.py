@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.geometry.se3 import exp_se3
+from fgcd_core.se3 import exp_se3
 from fgcd_cli.vse import MonocularVSE, RgbdVSE, SparseVSE, VisualSlamEngine, VseConfig, VseStatus, VseVariant, make_engine
 from fgcd_cli.vse.ba import (BundleAdjustConfig, OutlierRejectionConfig, bundle_adjust,
                              bundle_adjust_rejecting_outliers)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcd_cli.geometry.se3 import make_pose
+from fgcd_core.se3 import make_pose
 from fgcd_cli.vse.semidense import fuse_across_keyframes
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
