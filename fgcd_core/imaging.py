@@ -24,6 +24,7 @@ __all__ = [
     "GrayChannels",
     "U8Rounding",
     "DescriptorMatcher",
+    "to_float01",
     "to_gray_f32",
     "to_gray_u8",
     "clahe",
@@ -104,6 +105,23 @@ def _luma_f32(img: np.ndarray) -> np.ndarray:
     if out.ndim == 3:
         out = out[:, :, :3] @ _LUMA_601
     return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def to_float01(image: np.ndarray) -> np.ndarray:
+    """An image (grey or colour, channels kept) as float32 in [0, 1] by its declared dtype.
+
+    uint8 is divided by 255 and uint16 by 65535; float images are taken as already in
+    [0, 1] (cast, not clipped). Other dtypes raise ``TypeError``.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) ndarray
+
+    Returns
+    -------
+    (H, W) or (H, W, C) float32 ndarray
+    """
+    return _scaled_f32(_checked(image))
 
 
 def to_gray_f32(image: np.ndarray, *, channels: GrayChannels = GrayChannels.LUMA_601) -> np.ndarray:

@@ -9,6 +9,7 @@ from fgcd_cli.campaign import schema
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.loop import ReferenceData
 from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
+from fgcd_core.imaging import to_float01
 
 __all__ = ["MAX_SCALE_RESIDUAL_MM", "grab_gray", "grab_gray_under", "grab_images", "load_reference",
            "measurement_lighting", "metric_keyframes", "reference_images", "start_session"]
@@ -26,9 +27,7 @@ def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> d
             rig.progress(k * frames + i, len(lightings) * frames, "images under each lighting")
             frame = rig.camera_source.grab()
             img = frame.rgb if getattr(frame, "rgb", None) is not None else frame.image
-            img = np.asarray(img, dtype=np.float64)
-            if img.max() > 1.5:
-                img = img / 255.0
+            img = to_float01(np.asarray(img)).astype(np.float64)  # by the frame's declared dtype
             acc = img if acc is None else acc + img
         images[name] = (acc / max(1, average)).astype(np.float32)
     return images
@@ -102,9 +101,7 @@ def grab_gray(rig: RigHandles, *, average: int = 2) -> np.ndarray:
     """The current undistorted grey image, averaged over a few frames (noise)."""
     acc = None
     for _ in range(max(1, average)):
-        img = np.asarray(rig.camera_source.grab().image, dtype=np.float64)
-        if img.max() > 1.5:
-            img = img / 255.0
+        img = to_float01(np.asarray(rig.camera_source.grab().image)).astype(np.float64)
         acc = img if acc is None else acc + img
     return (acc / max(1, average)).astype(np.float32)
 

@@ -14,7 +14,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from fgcd_core.imaging import DescriptorMatcher, clahe, match_descriptors, sift_features
+from fgcd_core.imaging import DescriptorMatcher, U8Rounding, clahe, match_descriptors, sift_features, to_gray_u8
 
 __all__ = [
     "MatchConfig",
@@ -73,16 +73,8 @@ class MatchConfig:
 
 
 def gray_u8(image: np.ndarray) -> np.ndarray:
-    """An image as 8-bit grey (float images in [0, 1] or [0, 255])."""
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img.astype(np.float32) if img.dtype != np.uint8 else img, cv2.COLOR_RGB2GRAY)
-    if img.dtype != np.uint8:
-        img = img.astype(np.float32)
-        if img.size and float(np.nanmax(img)) <= 1.0 + 1e-6:
-            img = img * 255.0
-        img = np.clip(img, 0, 255).astype(np.uint8)
-    return img
+    """A camera frame as 8-bit grey (Rec. 601 luma for colour; floats in [0, 1] scaled and truncated)."""
+    return to_gray_u8(np.asarray(image), rounding=U8Rounding.TRUNCATE_F32)
 
 
 def stop_features(images: Sequence[np.ndarray], *, n_features: int = 1500) -> list[Features]:

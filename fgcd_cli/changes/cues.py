@@ -8,6 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from fgcd_cli.changes.images import to_gray
+
 
 _STRIP_ROWS = 32
 """Rows processed at a time by the shift-tolerant difference (its arrays then stay in cache)."""
@@ -166,9 +168,7 @@ def edge_band(ref_image: np.ndarray, *, radius_px: int = 2, contrast: float = 3.
 
     Returns HxW bool.
     """
-    gray = np.asarray(ref_image, np.float32)
-    if gray.ndim == 3:
-        gray = gray.mean(axis=2)
+    gray = to_gray(np.asarray(ref_image, np.float32))
     kernel = np.ones((3, 3), np.uint8)
     local_range = cv2.dilate(gray, kernel) - cv2.erode(gray, kernel)
     edges = local_range > contrast * max(float(np.median(local_range)), 1e-6)
