@@ -12,7 +12,7 @@ from drivers.sim.groundtruth import GroundTruth
 from drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
 from drivers.sim.render import CameraEffects, Renderer
 from drivers.sim.scenes import load_scene
-from drivers.sim.transforms import exp_so3, invert_pose, make_pose
+from fgcd_core.se3 import exp_so3, invert_pose, make_pose
 from drivers.sim.world import SimLights, SimWorld
 
 __all__ = ["SimRig", "SimRigConfig", "build_sim_rig", "random_hand_eye"]

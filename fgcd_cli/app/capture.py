@@ -28,9 +28,10 @@ from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import campaign_world, rig_calibration
 from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError, run_record
 from fgcd_core.camera import PinholeCamera
-from fgcd_cli.relocation.coarse import CoarseResult
-from fgcd_cli.relocation.loop import RelocationResult
+from fgcd_cli.relocation.coarse_config import CoarseResult
+from fgcd_cli.relocation.log import RelocationResult
 from fgcd_cli.relocation.session import ScaleEstimate
+from fgcd_cli.vse.types import VseStatus
 
 __all__ = ["CapturePlan", "CaptureRequest", "CaptureResult", "CaptureOutcome", "capture_reference", "connection",
            "plan_capture", "run_capture"]
@@ -68,7 +69,7 @@ def capture_reference(
         state = session.tracking_state()
         # a few more frames at the reference pose let the semi-dense cloud mature
         state = session.settle(frames=6)
-        if state.status != "tracking":
+        if state.status != VseStatus.TRACKING:
             raise AlgorithmError(f"the VSE lost track at the reference pose ({state.message})")
         T_ref_camref = np.array(state.T_map_cam, dtype=float)
         T_ref_camref[:3, 3] *= scale.scale

@@ -30,8 +30,11 @@ from fgcd_cli.app.session import (
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import rig_calibration, station_world
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError, run_record
-from fgcd_cli.relocation.coarse import CoarseConfig, CoarseResult
-from fgcd_cli.relocation.loop import AdjustmentRecord, RelocationConfig, RelocationResult, run_relocation
+from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult
+from fgcd_cli.relocation.config import RelocationConfig
+from fgcd_cli.relocation.enums import LoopMode
+from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
+from fgcd_cli.relocation.loop import run_relocation
 
 __all__ = ["RelocateHooks", "RelocateRequest", "RevisitOutcome", "RevisitPlan", "RevisitRequest", "check_relocation_options",
            "load_reference", "plan_revisit", "reference_images", "relocate_and_capture", "run_revisit", "visit_lightings",
@@ -389,7 +392,7 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         raise CampaignError("no hand-eye calibration in the campaign: calibrate, or use --no-handeye")
     if r.no_handeye:
         T_flange_cam = np.eye(4)
-    config = RelocationConfig(mode="serial" if r.serial else "parallel", eta=r.eta, max_adjustments=r.max_adjustments,
+    config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, eta=r.eta, max_adjustments=r.max_adjustments,
                               image_refine=not r.no_image_refine, image_fallback=not r.no_image_refine)
     return RevisitPlan(request=replace(r, light=light), driver=driver, station=st, reference=ref, scenario=scenario,
                        T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host)

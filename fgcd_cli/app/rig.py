@@ -195,13 +195,12 @@ def vse_factory_for(camera: PinholeCamera, source, *, variant: str = "mono") -> 
     """A factory of (not yet started) VSE threads over ``source``."""
 
     def make():
-        from fgcd_cli.vse import MonocularVSE, RgbdVSE, SparseVSE
+        from fgcd_cli.vse.engine import VseVariant, make_engine
         from fgcd_cli.vse.thread import VseThread
 
-        engines = {"mono": MonocularVSE, "sparse": SparseVSE, "rgbd": RgbdVSE}
-        if variant not in engines:
-            raise UserInputError(f"unknown VSE variant '{variant}' (mono, sparse, rgbd)")
-        return VseThread(engines[variant](camera), source)
+        if variant not in set(VseVariant):
+            raise UserInputError(f"unknown VSE variant '{variant}' ({', '.join(VseVariant)})")
+        return VseThread(make_engine(variant, camera), source)
 
     return make
 

@@ -154,12 +154,13 @@ def relocate(
 ) -> None:
     """The rACR loop on simulated indoor/outdoor cases: success (true AFD < 3 px), AFD, adjustments, time."""
     from fgcd_cli.bench.relocate import run
+    from fgcd_cli.relocation.enums import LoopMode
 
     data = run(quick=quick, serial=not no_serial, say=info, cases=case)
 
     def show(console):
         for r in data["cases"]:
-            for mode in ("parallel", "serial"):
+            for mode in tuple(LoopMode):
                 if mode in r:
                     m = r[mode]
                     if "error" in m:
