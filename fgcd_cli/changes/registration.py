@@ -168,6 +168,30 @@ def ecc_gradient(
     return H / H[2, 2], float(correlation)
 
 
+def gradient_correlation(ref_gray: np.ndarray, cur_gray: np.ndarray, H_cur_ref: np.ndarray) -> float:
+    """ECC's criterion at a given homography: the zero-mean normalised correlation of the
+    gradient-magnitude images over the reference pixels the current image covers.
+
+    Parameters
+    ----------
+    ref_gray, cur_gray : ndarray, HxW float32 in [0, 1].
+    H_cur_ref : ndarray, 3x3, reference pixel -> current pixel.
+
+    Returns
+    -------
+    float in [-1, 1] (``nan`` when fewer than 16 pixels overlap or a side is flat).
+    """
+    warped, valid = warp_to_reference(gradient_magnitude(cur_gray), H_cur_ref, ref_gray.shape)
+    if np.count_nonzero(valid) < 16:
+        return float("nan")
+    a = gradient_magnitude(ref_gray)[valid].astype(np.float64)
+    b = warped[valid].astype(np.float64)
+    a -= a.mean()
+    b -= b.mean()
+    norm = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return float(a @ b / norm) if norm > 0 else float("nan")
+
+
 def register_to_reference(
     ref_gray: np.ndarray,
     cur_gray: np.ndarray,
@@ -217,6 +241,12 @@ def register_to_reference(
                 H_cur_ref=np.eye(3), ok=False, reason="registration failed: ECC did not converge and no features matched",
                 sift_inliers=n_inliers, init=init, settings=settings,
             )
+    if init == RegistrationInit.SIFT and np.isfinite(correlation) and correlation < min_correlation:
+        # ECC can wander off a good start (it then ends below the bar instead of raising):
+        # the same criterion judges the SIFT homography, and the better of the two is kept.
+        sift_correlation = gradient_correlation(ref_gray, cur_gray, H_sift)
+        if np.isfinite(sift_correlation) and sift_correlation > correlation:
+            H, correlation = H_sift, sift_correlation
     overlap = overlap_fraction(H, ref_gray.shape)
     result = Registration(
         H_cur_ref=H, ok=True, ecc_correlation=correlation, overlap_fraction=overlap,

@@ -26,3 +26,21 @@ def test_warp_returns_reference_frame_and_valid_mask(scene_pair):
 def test_overlap_fraction_of_half_shift():
     H = np.array([[1.0, 0, 100.0], [0, 1, 0], [0, 0, 1]])
     assert abs(overlap_fraction(H, (200, 200)) - 0.5) < 0.03
+
+
+def test_ecc_that_wanders_off_a_good_sift_start_does_not_make_the_pair_incomparable(monkeypatch):
+    """ECC ending below the correlation bar is judged against the SIFT homography by the same criterion."""
+    import numpy as _np
+
+    from fgcd_cli.changes import registration as reg
+    from changes.conftest import textured_scene, translate
+
+    ref = textured_scene(256)
+    cur = translate(ref, 1.5, 0.8)
+    wandered = _np.array([[1.0, 0.0, 40.0], [0.0, 1.0, -30.0], [0.0, 0.0, 1.0]])
+    monkeypatch.setattr(reg, "ecc_gradient", lambda *a, **k: (wandered, 0.10))
+    result = reg.register_to_reference(ref, cur)
+    assert result.ok, result.reason
+    # the SIFT homography is kept: the 1.5 / 0.8 px shift, not the wandered 40 / -30 px
+    assert abs(result.H_cur_ref[0, 2] - 1.5) < 0.2 and abs(result.H_cur_ref[1, 2] - 0.8) < 0.2
+    assert result.ecc_correlation > 0.3
