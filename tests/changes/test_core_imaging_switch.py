@@ -1,5 +1,8 @@
 """The grey conversion, 8-bit rounding and SIFT matching of the change detector, now through fgcd_core.imaging,
-give what the detector's own copies gave (the copies are kept here, verbatim, as the reference)."""
+give what the detector's own copies gave (tests/core/legacy_gray.py keeps them, verbatim, as the reference)."""
+
+import importlib.util
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -10,38 +13,10 @@ from fgcd_cli.changes.tiled_input import as_float, gray_mean
 
 from .conftest import textured_scene, translate
 
-
-def _old_to_gray(image):
-    if image.ndim == 2:
-        return image.astype(np.float32)
-    return image.mean(axis=2).astype(np.float32)
-
-
-def _old_tiled_gray(image):
-    if image.ndim == 2:
-        return image
-    if image.shape[2] == 3 and image.dtype == np.float32:
-        return (image[:, :, 0] + image[:, :, 1] + image[:, :, 2]) / np.float32(3)
-    return image.mean(axis=2).astype(np.float32)
-
-
-def _old_to_uint8(gray):
-    return np.clip(gray * 255.0 + 0.5, 0, 255).astype(np.uint8)
-
-
-def _old_match_sift(ref_gray, cur_gray, *, ratio=0.75, max_features=4000):
-    sift = cv2.SIFT_create(nfeatures=int(max_features))
-    kp_ref, desc_ref = sift.detectAndCompute(_old_to_uint8(ref_gray), None)
-    kp_cur, desc_cur = sift.detectAndCompute(_old_to_uint8(cur_gray), None)
-    empty = np.zeros((0, 2))
-    if desc_ref is None or desc_cur is None or len(kp_ref) < 2 or len(kp_cur) < 2:
-        return empty, empty.copy()
-    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc_ref, desc_cur, k=2)
-    good = [pair[0] for pair in knn if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance]
-    if not good:
-        return empty, empty.copy()
-    return (np.array([kp_ref[m.queryIdx].pt for m in good], dtype=np.float64),
-            np.array([kp_cur[m.trainIdx].pt for m in good], dtype=np.float64))
+# the former copies, kept verbatim once, in tests/core/legacy_gray.py
+_spec = importlib.util.spec_from_file_location("legacy_gray", Path(__file__).resolve().parents[1] / "core" / "legacy_gray.py")
+legacy = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(legacy)
 
 
 def _same(a, b):
@@ -59,16 +34,16 @@ def _images():
 def test_grey_conversions_are_the_old_ones():
     for name, image in _images().items():
         if name != "edges32":
-            _same(to_gray(image), _old_to_gray(image))
+            _same(to_gray(image), legacy.changes_images_to_gray(image))
     u8 = (np.random.default_rng(1).random((40, 30, 3)) * 255).astype(np.uint8)
     for small in (u8, u8[:, :, 0], np.random.default_rng(2).random((40, 30, 3)).astype(np.float32)):
-        _same(gray_mean(as_float(small)), _old_tiled_gray(as_float(small)))
+        _same(gray_mean(as_float(small)), legacy.changes_tiled_gray(as_float(small)))
 
 
 def test_eight_bit_rounding_is_the_old_one():
     for image in _images().values():
         if image.ndim == 2:
-            _same(to_uint8(image), _old_to_uint8(image))
+            _same(to_uint8(image), legacy.registration_to_uint8(image))
 
 
 def test_sift_matches_are_the_old_ones():
@@ -77,11 +52,11 @@ def test_sift_matches_are_the_old_ones():
     before = cv2.getNumThreads()
     cv2.setNumThreads(1)  # SIFT's keypoint order follows OpenCV's thread scheduling: compare single-threaded
     try:
-        old, new = _old_match_sift(ref, cur), match_sift(ref, cur)
+        old, new = legacy.registration_match_sift(ref, cur), match_sift(ref, cur)
         assert len(old[0]) > 50
         _same(new[0], old[0])
         _same(new[1], old[1])
-        for a, b in zip(match_sift(np.zeros_like(ref), cur), _old_match_sift(np.zeros_like(ref), cur)):
+        for a, b in zip(match_sift(np.zeros_like(ref), cur), legacy.registration_match_sift(np.zeros_like(ref), cur)):
             _same(a, b)
     finally:
         cv2.setNumThreads(before)

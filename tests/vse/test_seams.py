@@ -1,8 +1,9 @@
 """The engine's parts and option dataclasses: former defaults, former call forms, variants by object."""
 
+import importlib.util
 import json
+from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -104,24 +105,10 @@ def test_unknown_variant_is_refused(small_camera):
         make_engine("stereo", small_camera)
 
 
-def _former_vse_gray_u8(image):
-    """fgcd_cli.vse.features.to_gray_u8 as it was, the engine's reference."""
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img if img.dtype == np.uint8 else img.astype(np.float32), cv2.COLOR_RGB2GRAY)
-    if img.dtype == np.uint8:
-        return img
-    return np.clip(np.asarray(img, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-
-
-def _former_vse_gray_f32(image):
-    """fgcd_cli.vse.features.to_gray_f32 as it was."""
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img if img.dtype == np.uint8 else img.astype(np.float32), cv2.COLOR_RGB2GRAY)
-    if img.dtype == np.uint8:
-        return img.astype(np.float32) / 255.0
-    return np.asarray(img, dtype=np.float32)
+# the former copies, kept verbatim once, in tests/core/legacy_gray.py
+_spec = importlib.util.spec_from_file_location("legacy_gray", Path(__file__).resolve().parents[1] / "core" / "legacy_gray.py")
+legacy = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(legacy)
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32, np.float64])
@@ -133,6 +120,6 @@ def test_engine_grey_conversion_is_the_former_one_on_its_frame_dtypes(dtype, col
     shape = (37, 53, 3) if colour else (37, 53)
     img = rng.integers(0, 256, shape).astype(np.uint8) if dtype == np.uint8 else rng.random(shape).astype(dtype)
     u8, f32 = to_gray_u8(img), to_gray_f32(img)
-    np.testing.assert_array_equal(u8, _former_vse_gray_u8(img))
-    np.testing.assert_array_equal(f32, _former_vse_gray_f32(img))
+    np.testing.assert_array_equal(u8, legacy.vse_features_to_gray_u8(img))
+    np.testing.assert_array_equal(f32, legacy.vse_features_to_gray_f32(img))
     assert u8.dtype == np.uint8 and f32.dtype == np.float32
