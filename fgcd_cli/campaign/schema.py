@@ -70,6 +70,11 @@ CHANGE_MASK_PNG = "change_mask.png"
 OVERLAY_PNG = "overlay.png"
 REGIONS_JSON = "regions.json"
 FDF_PNG = "fdf.png"
+ANALYSIS_JSON = "analysis.json"
+"""``changes/analysis.json``: the record of an archive analysis (detector version, input and product checksums),
+written last, so that its presence with matching checksums means the visit's products are complete."""
+SITE_REPORT = "site.html"
+"""A campaign's site page (``fgcd archive history``), next to its ``campaign.toml``."""
 
 # ----------------------------------------------------------------------------- rig records
 RIG_HANDEYE = "handeye"
