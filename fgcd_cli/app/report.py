@@ -45,8 +45,14 @@ def station_history(campaign: Path, station: str, *, output: Path | None = None,
         ))
     lightings = list(reference.metadata.get("lightings") or reference.image_names())
     reference_png = png_bytes(to_display_rgb(reference.image(lightings[0]))) if lightings else None
+    from fgcd_cli.app.archive_history import station_tracks
+    from fgcd_cli.report.site import tracks_section
+
+    tracks = station_tracks(camp.path, station)  # each region followed across the visits (docs/archive.md)
     html_text = render_station_history(station=station, site=camp.site, reference_date=str(reference.manifest.get("created", "")),
-                                       reference_png=reference_png, visits=summaries)
+                                       reference_png=reference_png, visits=summaries,
+                                       tracks_html=tracks_section(tracks) if summaries else "")
     target = output if output is not None else st.path / schema.HISTORY_REPORT
     atomic_write_bytes(target, html_text.encode())
-    return {"station": station, "visits": [s.__dict__ | {"overlay_png": None} for s in summaries], "output": str(target)}
+    return {"station": station, "visits": [s.__dict__ | {"overlay_png": None} for s in summaries], "output": str(target),
+            "tracks": [t.to_dict() for t in tracks.tracks]}

@@ -74,6 +74,9 @@ def _register() -> None:
     from fgcd_cli.cli import platform_cmd
 
     app.add_typer(platform_cmd.app, name="platform")
+    from fgcd_cli.cli import archive_cmd
+
+    app.add_typer(archive_cmd.app, name="archive")
 
 
 try:

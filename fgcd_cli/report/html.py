@@ -434,8 +434,11 @@ class VisitSummary:
 
 
 def render_station_history(*, station: str, site: str, reference_date: str, reference_png: bytes | None,
-                           visits: list[VisitSummary]) -> str:
-    """HTML text of a station's history across visits (one row and one thumbnail per visit)."""
+                           visits: list[VisitSummary], tracks_html: str = "") -> str:
+    """HTML text of a station's history across visits (one row and one thumbnail per visit).
+
+    ``tracks_html``: the regions followed across visits (:func:`fgcd_cli.report.site.tracks_section`).
+    """
     visits = [VisitSummary(**{**v.__dict__, "date": _human_date(v.date)}) for v in visits]
     reference_date = _human_date(reference_date)
     parts = [f"<h1>Station {html.escape(station)}: history</h1>",
@@ -457,6 +460,8 @@ def render_station_history(*, station: str, site: str, reference_date: str, refe
             parts.append("<h2>Change over time</h2>")
             parts.append(_img(history_png([v.date for v in comparable], [v.changed_mm2 for v in comparable],
                                           [v.changed_px for v in comparable], [v.afd_px for v in comparable]), "history"))
+        if tracks_html:
+            parts.append("<h2>Regions over time</h2>" + tracks_html)
         rows = []
         for v in visits:
             area_mm2 = area_mm2_text(v.changed_mm2, v.changed_px, unit=False)

@@ -45,12 +45,12 @@ def _tracks_table(history) -> str:
             + "".join(rows) + "</table>")
 
 
-def tracks_section(history) -> str:
-    """HTML of one station's tracks: the area-vs-date chart and the table (also used by ``fgcd report``)."""
+def tracks_section(history, *, figures: str = "") -> str:
+    """HTML of one station's tracks: the area-vs-date chart (after ``figures``) and the table (also ``fgcd report``)."""
     chart = track_area_png(history.tracks, history.dates, unit=history.unit)
     missing = (f'<p class="small">Not analysed yet (run <code>fgcd archive analyze</code>): '
                f"{html.escape(', '.join(history.not_analysed))}</p>" if history.not_analysed else "")
-    return ('<div class="pair">' + _figure(chart, f"Station {history.station}: area of each region per visit")
+    return ('<div class="pair">' + figures + _figure(chart, f"Area of each region per visit ({history.unit})")
             + "</div>" + _tracks_table(history) + missing)
 
 
@@ -72,10 +72,9 @@ def _station_block(s) -> str:
     parts = [f'<h2 id="st-{html.escape(s.station)}">Station {html.escape(s.station)}</h2>',
              f'<div class="sub">new: {s.count_new()} region(s), {_area(s.new_area, s.unit)} · growing: '
              f"{s.count_growing()} region(s), +{_area(s.grown_area, s.unit)} since the visit before</div>"]
-    if s.overlay_png:
-        parts.append('<div class="pair">' + _figure(s.overlay_png, f"Latest change map ({_human_date(s.analysed[-1])})")
-                     + "</div>")
-    parts.append(tracks_section(s))
+    overlay = (_figure(s.overlay_png, f"Latest change map ({_human_date(s.analysed[-1])})")
+               if s.overlay_png and s.analysed else "")
+    parts.append(tracks_section(s, figures=overlay))
     return "".join(parts)
 
 

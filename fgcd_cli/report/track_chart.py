@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import datetime
+from datetime import datetime, timedelta
 
 import matplotlib.dates as mdates
 from fgcd_cli.report.charts import figure_png, plt
@@ -34,7 +34,9 @@ def track_area_figure(tracks: list, dates: dict[str, datetime], *, unit: str, ma
             ax.plot(x, y, "o-", color=_COLOURS[i % len(_COLOURS)], markersize=4,
                     label=f"region {track.id} ({track.status.value})")
     if dates:
-        ax.set_xlim(min(dates.values()), max(dates.values()))
+        first, last = min(dates.values()), max(dates.values())
+        pad = max((last - first) * 0.06, timedelta(days=5))  # the first and last points stay inside the frame
+        ax.set_xlim(first - pad, last + pad)
     ax.xaxis.set_major_formatter(mdates.DateFormatter("%Y-%m-%d"))
     ax.tick_params(axis="x", labelsize=7, rotation=20)
     top = max([a or 0.0 for t in shown for a in t.areas.values()] + [0.0])
