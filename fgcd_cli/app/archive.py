@@ -138,7 +138,7 @@ def dask_client(*, scheduler: str | None, workers: int) -> Iterator:
 
     The LocalCluster's workers are separate processes (one thread each: the diff
     is CPU-bound and holds the GIL in places), listen on 127.0.0.1 only and serve
-    no dashboard. Closed on exit, Ctrl-C included.
+    no dashboard (the scheduler's HTTP endpoint takes a free local port). Closed on exit, Ctrl-C included.
     """
     try:
         from distributed import Client, LocalCluster
@@ -155,8 +155,10 @@ def dask_client(*, scheduler: str | None, workers: int) -> Iterator:
         finally:
             client.close()
         return
+    # The scheduler's HTTP endpoint (health, metrics) is served even with the dashboard off: on a free local port.
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, \
+            Client(cluster) as client:
         yield client
 
 

@@ -1,0 +1,161 @@
+"""`fgcd archive analyze` on three small simulated campaigns, on a real Dask cluster (worker processes, 127.0.0.1).
+
+The archive must give each visit the regions `fgcd diff -c` gives it (the same
+use case, run serially here on a copy), skip what is up to date, redo only a
+visit whose results were deleted, report a visit with a damaged image while the
+others complete, and finish the rest after a run killed midway.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+distributed = pytest.importorskip("distributed")
+
+from fgcd_cli.app.archive import ArchiveRequest, analyze_archive, plan_archive  # noqa: E402
+from fgcd_cli.app.archive_task import VisitStatus  # noqa: E402
+from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign  # noqa: E402
+from fgcd_cli.archive.discovery import archive_visits, find_campaigns  # noqa: E402
+from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, Freshness  # noqa: E402
+from fgcd_cli.bench.archive_data import SyntheticArchiveConfig, build_synthetic_archive  # noqa: E402
+from fgcd_cli.campaign import open_campaign, schema  # noqa: E402
+
+REGIONS = schema.change_relpath(schema.REGIONS_JSON)
+# 256 x 192 px at 800 px focal: the benchmark's 1.5 mm per pixel on a smaller field, a few seconds per visit.
+CONFIG = SyntheticArchiveConfig(campaigns=3, stations=1, visits=2, changes=1, width=256, height=192, focal_px=800.0)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as local:
+        yield local
+
+
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory):
+    """Three campaigns x 1 station x 2 visits (the second with one change), never analysed."""
+    root = tmp_path_factory.mktemp("archive") / "pristine"
+    build_synthetic_archive(root, CONFIG)
+    return root
+
+
+@pytest.fixture(scope="module")
+def expected(pristine, tmp_path_factory):
+    """Each visit's regions from the diff use case itself, run serially on a copy."""
+    copy = tmp_path_factory.mktemp("serial") / "archive"
+    shutil.copytree(pristine, copy)
+    out = {}
+    for key in archive_visits(find_campaigns([copy])):
+        data = run_campaign(request=CampaignDiffRequest(campaign=Path(key.campaign), station=key.station,
+                                                        visit=key.visit))
+        out[(Path(key.campaign).name, key.station, key.visit)] = _regions(data)
+    return out
+
+
+def _regions(summary: dict) -> list[tuple]:
+    return [(r["area_px"], tuple(r["bbox_xywh"]), r["area_mm2"]) for r in summary["regions"]]
+
+
+def _stored_regions(root: Path) -> dict:
+    out = {}
+    for key in archive_visits(find_campaigns([root])):
+        visit = open_campaign(Path(key.campaign)).station(key.station).visit(key.visit)
+        out[(Path(key.campaign).name, key.station, key.visit)] = _regions(visit.json(REGIONS))
+    return out
+
+
+def _copy(pristine: Path, tmp_path: Path, *only: str) -> Path:
+    root = tmp_path / "archive"
+    if only:
+        for name in only:
+            shutil.copytree(pristine / name, root / name)
+    else:
+        shutil.copytree(pristine, root)
+    return root
+
+
+def test_two_workers_match_the_diff_skip_when_up_to_date_and_redo_only_what_was_deleted(
+        pristine, expected, cluster, tmp_path):
+    root = _copy(pristine, tmp_path)
+    request = ArchiveRequest(roots=[root], scheduler=cluster.scheduler_address)
+    first = analyze_archive(request)
+    assert (first.count(VisitStatus.DONE), first.count(VisitStatus.FAILED)) == (6, 0)
+    assert first.workers == 2 and first.scheduler.startswith("tcp://127.0.0.1:")
+    assert _stored_regions(root) == expected
+    assert sum(len(r) for r in expected.values()) >= 3  # the changed visits do show regions
+    again = analyze_archive(request)
+    assert again.count(VisitStatus.SKIPPED) == 6
+    victim = root / "site-1" / "stations" / "S01" / "visits" / sorted(os.listdir(
+        root / "site-1" / "stations" / "S01" / "visits"))[-1]
+    shutil.rmtree(victim / schema.CHANGES_DIR)
+    _, planned = plan_archive(request)
+    assert [p.key.visit for p in planned if p.needs_work] == [victim.name]
+    third = analyze_archive(request)
+    redone = [o for o in third.outcomes if o.status == VisitStatus.DONE]
+    assert [(Path(o.key.campaign).name, o.key.visit) for o in redone] == [("site-1", victim.name)]
+    assert third.count(VisitStatus.SKIPPED) == 5 and _stored_regions(root) == expected
+
+
+def test_one_worker_reports_a_damaged_image_and_completes_the_other_visit(pristine, expected, tmp_path):
+    root = _copy(pristine, tmp_path, "site-2")
+    visits = root / "site-2" / "stations" / "S01" / "visits"
+    first, second = sorted(os.listdir(visits))
+    image = visits / first / "images" / "led-6.png"
+    data = bytearray(image.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # one flipped byte: the PNG may still decode, its checksum no longer matches
+    image.write_bytes(bytes(data))
+    result = analyze_archive(ArchiveRequest(roots=[root], workers=1))
+    assert result.workers == 1
+    status = {o.key.visit: o for o in result.outcomes}
+    assert status[first].status == VisitStatus.FAILED
+    assert "led-6.png" in status[first].reason and "checksum" in status[first].reason
+    assert "\n" not in status[first].reason
+    assert status[second].status == VisitStatus.DONE
+    stored = open_campaign(root / "site-2").station("S01").visit(second).json(REGIONS)
+    assert _regions(stored) == expected[("site-2", "S01", second)]
+    assert not (visits / first / ANALYSIS_RELPATH).exists()
+
+
+def test_cli_dry_run_lists_the_work_and_bad_roots_are_one_line(pristine, tmp_path):
+    env = {**os.environ, "COLUMNS": "200"}
+    fgcd = str(Path(sys.executable).parent / "fgcd")
+    out = subprocess.run([fgcd, "archive", "analyze", str(pristine), "--dry-run", "--json"], capture_output=True,
+                         text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert (data["campaigns"], data["visits"], data["to_do"]) == (3, 6, 6)
+    assert {p["state"] for p in data["planned"]} == {Freshness.NOT_ANALYSED.value}
+    bad = subprocess.run([fgcd, "archive", "analyze", str(tmp_path / "nowhere")], capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "Traceback" not in bad.stderr
+
+
+@pytest.mark.slow
+def test_a_run_killed_midway_is_finished_by_the_next(pristine, expected, cluster, tmp_path):
+    root = _copy(pristine, tmp_path)
+    fgcd = str(Path(sys.executable).parent / "fgcd")
+    proc = subprocess.Popen([fgcd, "archive", "analyze", str(root), "--workers", "1", "--json"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    records = lambda: sorted(root.glob(f"*/stations/*/visits/*/{ANALYSIS_RELPATH}"))  # noqa: E731
+    deadline = time.monotonic() + 240
+    while not records() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)  # the whole run: client, scheduler and worker processes
+    proc.wait(timeout=30)
+    finished_before = len(records())
+    assert 1 <= finished_before < 6
+    result = analyze_archive(ArchiveRequest(roots=[root], scheduler=cluster.scheduler_address))
+    assert result.count(VisitStatus.FAILED) == 0
+    assert result.count(VisitStatus.SKIPPED) == finished_before
+    assert result.count(VisitStatus.DONE) == 6 - finished_before
+    assert _stored_regions(root) == expected
