@@ -92,7 +92,7 @@ def test_two_workers_match_the_diff_skip_when_up_to_date_and_redo_only_what_was_
     assert (first.count(VisitStatus.DONE), first.count(VisitStatus.FAILED)) == (6, 0)
     assert first.workers == 2 and first.scheduler.startswith("tcp://127.0.0.1:")
     assert _stored_regions(root) == expected
-    assert sum(len(r) for r in expected.values()) >= 3  # the changed visits do show regions
+    assert sum(bool(r) for r in expected.values()) >= 2  # not a vacuous comparison: changed visits show regions
     again = analyze_archive(request)
     assert again.count(VisitStatus.SKIPPED) == 6
     victim = root / "site-1" / "stations" / "S01" / "visits" / sorted(os.listdir(
