@@ -211,3 +211,25 @@ def coarse(
             console.print(f"[bold]{k}[/bold] = {v:.3f}" + (f"  (target {t})" if t is not None else ""))
 
     emit(data, as_json=as_json, render=show)
+
+
+@app.command("archive")
+def archive(
+    quick: bool = typer.Option(False, "--quick", help="2 campaigns x 2 stations x 3 visits (else 3 x 3 x 4)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Archive analysis on Dask: visits per minute with 1 and 2 workers, scheduler overhead, re-run when unchanged."""
+    from fgcd_cli.bench.archive import run
+
+    if not as_json:
+        info("building a synthetic archive and analysing it on Dask…")
+    data = run(quick=quick)
+
+    def show(console):
+        for name, r in data["runs"].items():
+            console.print(f"{name:<16} {r['visits']} visits on {r['workers']} worker(s): {r['done']} done, "
+                          f"{r['skipped']} skipped in {r['run_s']:.1f} s (+{r['cluster_start_s']:.1f} s start-up)")
+        for key, value in data["summary"].items():
+            console.print(f"[bold]{key}[/bold] = {value:.3f}")
+
+    emit(data, as_json=as_json, render=show)
