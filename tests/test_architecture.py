@@ -27,6 +27,7 @@ ALGORITHM_PACKAGES = (
     "fgcd_cli.relocation",
     "fgcd_cli.changes",
     "fgcd_cli.metrics",
+    "fgcd_cli.archive",
 )
 #: What no algorithm package may import: the simulator's truth, use cases, outputs, benchmarks, the CLI and its libraries.
 ALGORITHM_FORBIDDEN = (

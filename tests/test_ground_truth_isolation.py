@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-ALGORITHM_PACKAGES = ("vse", "calibration", "alignment", "relocation", "changes", "metrics")
+ALGORITHM_PACKAGES = ("vse", "calibration", "alignment", "relocation", "changes", "metrics", "archive")
 
 
 def sim_imports(package_dir: Path) -> list[str]:
