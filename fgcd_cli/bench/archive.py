@@ -75,7 +75,8 @@ def run(*, quick: bool) -> dict:
         one = _timed_run(root, workers=1, force=True)
         regions_1w = _regions(root)
         two = _timed_run(root, workers=2, force=True)
-        same = regions_1w == _regions(root)
+        regions_2w = _regions(root)
+        differ = sorted(k for k in regions_1w if regions_1w[k] != regions_2w.get(k))
         rerun = _timed_run(root, workers=2, force=False)
     overhead = _scheduler_overhead_ms(TRIVIAL_TASKS // (4 if quick else 1))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
@@ -85,7 +86,8 @@ def run(*, quick: bool) -> dict:
                     "lightings": 3, "build_s": build_s},
         "runs": {"1_worker": one, "2_workers": two, "rerun_unchanged": rerun},
         "scheduler": overhead,
-        "regions_identical_1w_2w": same,
+        "regions_identical_1w_2w": not differ,
+        "regions_differ_1w_2w": {k: {"1w": regions_1w[k], "2w": regions_2w.get(k)} for k in differ},
         "machine": {"cpu_count": os.cpu_count(), "load_avg_1min": load},
         "summary": {
             "visits_per_minute_1w": one["visits_per_minute"],
