@@ -21,7 +21,9 @@ _STATUS_ORDER = {"new": 0, "growing": 1, "shrinking": 2, "stable": 3, "gone": 4}
 
 def growth_text(value: float | None, unit: str) -> str:
     """``+12.3 mm²/year``, or ``–`` when a region was seen at one visit only."""
-    return "–" if value is None or not np.isfinite(value) else f"{value:+.1f} {unit}/year"
+    if value is None or not np.isfinite(value):
+        return "–"
+    return f"{round(value, 1) + 0.0:+.1f} {unit}/year"  # + 0.0: no "-0.0" for a stable region
 
 
 def _area(value: float | None, unit: str) -> str:

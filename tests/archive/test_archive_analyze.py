@@ -125,6 +125,21 @@ def test_two_workers_match_the_diff_skip_when_up_to_date_and_redo_only_what_was_
     redone = [o for o in third.outcomes if o.status == VisitStatus.DONE]
     assert [(Path(o.key.campaign).name, o.key.visit) for o in redone] == [("site-1", victim.name)]
     assert third.count(VisitStatus.SKIPPED) == 5 and _same_regions(_stored_regions(root), expected)
+    _check_history(root, _stored_regions(root))
+
+
+def _check_history(root: Path, stored: dict) -> None:
+    """Each region of a station's changed (second) visit starts a track there; every campaign has its site page."""
+    from fgcd_cli.app.archive_history import HistoryRequest, archive_history
+
+    sites = archive_history(HistoryRequest(roots=[root]))
+    assert len(sites) == 3 and all(Path(site.page).is_file() for site in sites)
+    for site in sites:
+        (station,) = site.stations
+        first, second = station.analysed
+        if not stored[(Path(site.campaign).name, "S01", first)]:
+            assert len(station.tracks) == len(stored[(Path(site.campaign).name, "S01", second)])
+            assert all(t.first_seen == second and t.status.value == "new" for t in station.tracks)
 
 
 def test_one_worker_reports_a_damaged_image_and_completes_the_other_visit(pristine, expected, tmp_path):

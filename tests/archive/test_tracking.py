@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 from datetime import datetime, timedelta, timezone
 
+import cv2
 import numpy as np
 import pytest
 
@@ -69,9 +72,8 @@ def test_regions_farther_apart_than_the_match_tolerance_are_two_tracks():
     assert len(tracks) == 2 and tracks[0].status == TrackStatus.GONE and tracks[1].status == TrackStatus.NEW
 
 
-def test_site_page_ranks_the_station_with_growing_damage_first():
+def _stations():
     from fgcd_cli.app.archive_history import StationHistory, _latest_gains
-    from fgcd_cli.report.site import render_site_page
 
     def station(name, visits):
         h = StationHistory(campaign="c", station=name, analysed=[v.visit for v in visits],
@@ -81,6 +83,36 @@ def test_site_page_ranks_the_station_with_growing_damage_first():
 
     calm = station("calm", [_visit(0, [(50, 50, 6)]), _visit(1, [(50, 50, 6)])])
     worse = station("worse", [_visit(0, [(50, 50, 4)]), _visit(1, [(50, 50, 9)])])
+    return calm, worse
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium not installed")
+def test_site_page_renders_in_chromium(tmp_path):
+    from fgcd_cli.report.site import render_site_page
+
+    calm, worse = _stations()
+    page = tmp_path / "site.html"
+    page.write_text(render_site_page(site="test", stations=[worse, calm]), encoding="utf-8")
+    shot = tmp_path / "shot.png"
+    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={shot}", "--window-size=1400,2000", page.as_uri()]
+    subprocess.run(cmd, capture_output=True, timeout=120)
+    image = cv2.imread(str(shot))
+    assert image is not None and image.shape[:2] == (2000, 1400)
+    assert np.count_nonzero(image.max(axis=2) < 100) > 5000  # not blank: dark text, table rules, chart axes
+    # the first region's line of the area-vs-date chart (#c2185b) is drawn
+    b, g, r = (image[..., i].astype(int) for i in range(3))
+    assert np.count_nonzero((abs(r - 194) < 30) & (g < 70) & (abs(b - 91) < 40)) > 30
+
+
+def test_site_page_ranks_the_station_with_growing_damage_first():
+    from fgcd_cli.report.site import render_site_page
+
+    calm, worse = _stations()
     ranked = sorted([calm, worse], key=lambda s: -s.rank_score)
     assert [s.station for s in ranked] == ["worse", "calm"] and calm.rank_score == 0.0
     page = render_site_page(site="test", stations=ranked)
