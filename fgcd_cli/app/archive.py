@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 from fgcd_cli.app.archive_task import VisitOutcome, VisitStatus, analyze_visit, visit_freshness
 from fgcd_cli.archive.discovery import VisitKey, archive_visits, find_campaigns
 from fgcd_cli.archive.freshness import AnalysisOptions, Freshness
-from fgcd_cli.errors import FgcdError, HardwareError, UserInputError
+from fgcd_cli.errors import FgcdError, UserInputError
 
 __all__ = ["ArchiveRequest", "ArchiveResult", "PlannedVisit", "analyze_archive", "plan_archive", "dask_client"]
 
@@ -60,11 +60,12 @@ class PlannedVisit:
     key: VisitKey
     state: Freshness | None
     problem: str = ""
+    forced: bool = False
 
     @property
     def needs_work(self) -> bool:
         """True when the analysis would (re)do this visit."""
-        return self.state != Freshness.UP_TO_DATE
+        return self.forced or self.state != Freshness.UP_TO_DATE
 
     def to_dict(self) -> dict:
         """JSON-ready form."""
@@ -125,10 +126,9 @@ def plan_archive(request: ArchiveRequest) -> tuple[int, list[PlannedVisit]]:
     planned = []
     for key in archive_visits(campaigns):
         try:
-            state = Freshness.NOT_ANALYSED if request.force else visit_freshness(key, request.options)
-            planned.append(PlannedVisit(key=key, state=state))
+            planned.append(PlannedVisit(key=key, state=visit_freshness(key, request.options), forced=request.force))
         except FgcdError as exc:
-            planned.append(PlannedVisit(key=key, state=None, problem=str(exc).splitlines()[0]))
+            planned.append(PlannedVisit(key=key, state=None, problem=str(exc).splitlines()[0], forced=request.force))
     return len(campaigns), planned
 
 
@@ -147,9 +147,10 @@ def dask_client(*, scheduler: str | None, workers: int) -> Iterator:
     logging.getLogger("distributed").setLevel(logging.ERROR)
     if scheduler is not None:
         try:
-            client = Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError) as exc:
-            raise HardwareError(f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+            client = Client(scheduler, timeout="5s")
+        except (OSError, TimeoutError) as exc:  # a network failure: the operating-system exit code (README)
+            reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise FgcdError(f"cannot reach the Dask scheduler at {scheduler} ({reason})") from None
         try:
             yield client
         finally:

@@ -119,11 +119,10 @@ def _visit_regions(visit) -> VisitRegions:
 
 
 def _latest_gains(history: StationHistory) -> None:
-    latest = next((v for v in reversed(history.analysed)), None)
+    """New and grown area at the latest comparable visit, from the tracks' statuses."""
     for track in history.tracks:
-        area = track.areas.get(latest) or 0.0
-        if track.status == TrackStatus.NEW and track.first_seen == latest:
-            history.new_area += area
+        if track.status == TrackStatus.NEW:
+            history.new_area += track.areas.get(track.first_seen) or 0.0
         elif track.status == TrackStatus.GROWING and track.change_since_previous:
             history.grown_area += track.change_since_previous
 

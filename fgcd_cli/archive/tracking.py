@@ -159,20 +159,23 @@ def _boundary_area(track: RegionTrack, visit: str, per_px: float) -> float:
     return float(np.count_nonzero(ring)) * per_px
 
 
-def _summarise(track: RegionTrack, dates: dict[str, datetime], per_px: float) -> None:
+def _summarise(track: RegionTrack, dates: dict[str, datetime], per_px: float, latest: str | None) -> None:
+    """Growth rate, change since the previous comparable visit and status at ``latest`` (the last comparable visit)."""
     known = [(v, a) for v, a in track.areas.items() if a is not None]
     if len(known) >= 2:
         t = np.array([(dates[v] - dates[known[0][0]]).total_seconds() / _SECONDS_PER_YEAR for v, _ in known])
         a = np.array([a for _, a in known])
         track.growth_per_year = float(np.polyfit(t, a, 1)[0]) if np.ptp(t) > 0 else None
-    latest = known[-1][1] if known else 0.0
-    if len(known) < 2:
-        track.status = TrackStatus.NEW if latest > 0 else TrackStatus.GONE
+    if track.first_seen == latest:
+        track.status = TrackStatus.NEW
         return
-    previous_visit, previous = known[-2]
-    track.change_since_previous = latest - previous
+    if len(known) < 2:  # seen once, no comparable visit since: nothing says it changed
+        track.status = TrackStatus.STABLE
+        return
+    (previous_visit, previous), (_, area) = known[-2], known[-1]
+    track.change_since_previous = area - previous
     tolerance = _boundary_area(track, previous_visit, per_px)
-    if latest <= 0:
+    if area <= 0:
         track.status = TrackStatus.GONE
     elif track.change_since_previous > tolerance:
         track.status = TrackStatus.GROWING
@@ -210,6 +213,7 @@ def track_regions(visits: list[VisitRegions]) -> list[RegionTrack]:
         _assign(visit, tracks, metric, unit)
     dates = {v.visit: v.date for v in visits}
     per_px = _mean_area_per_px(visits, metric)
+    latest = next((v.visit for v in reversed(visits) if v.comparable), None)
     for track in tracks:
-        _summarise(track, dates, per_px)
+        _summarise(track, dates, per_px, latest)
     return tracks

@@ -175,6 +175,10 @@ def test_cli_dry_run_lists_the_work_and_bad_roots_are_one_line(pristine, tmp_pat
     bad = subprocess.run([fgcd, "archive", "analyze", str(tmp_path / "nowhere")], capture_output=True, text=True,
                          timeout=120, env=env)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "Traceback" not in bad.stderr
+    # nobody listens on port 9 (discard): an unreachable scheduler is one line and the operating-system code
+    lost = subprocess.run([fgcd, "archive", "analyze", str(pristine), "--scheduler", "tcp://127.0.0.1:9"],
+                          capture_output=True, text=True, timeout=120, env=env)
+    assert lost.returncode == 1 and "Dask scheduler" in lost.stderr and lost.stderr.strip().count("\n") == 0
 
 
 @pytest.mark.slow
