@@ -101,12 +101,16 @@ class SiteHistory:
 
 
 def visit_date(visit) -> datetime:
-    """A visit's date: its UTC-stamp name (``20240301T000000000Z``), else its manifest's ``created``."""
+    """A visit's date: its UTC-stamp name (``20240301T000000000Z``), else its manifest's ``created``, else its mtime."""
     try:
         return datetime.strptime(visit.name[:15], "%Y%m%dT%H%M%S").replace(tzinfo=timezone.utc)
     except ValueError:
+        pass
+    try:
         created = datetime.fromisoformat(str(visit.manifest.get("created")))
-        return created if created.tzinfo else created.replace(tzinfo=timezone.utc)
+    except ValueError:  # neither: the manifest's file time, the last witness of when the visit was written
+        return datetime.fromtimestamp((visit.path / schema.MANIFEST).stat().st_mtime, tz=timezone.utc)
+    return created if created.tzinfo else created.replace(tzinfo=timezone.utc)
 
 
 def _visit_regions(visit) -> VisitRegions:

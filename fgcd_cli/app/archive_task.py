@@ -10,6 +10,7 @@ so that the other visits go on (docs/archive.md, "Failures").
 from __future__ import annotations
 
 import json
+import logging
 import resource
 import time
 from dataclasses import dataclass
@@ -29,6 +30,10 @@ from fgcd_cli.archive.freshness import (
 from fgcd_cli.errors import FgcdError
 
 __all__ = ["VisitStatus", "VisitOutcome", "analyze_visit", "visit_freshness"]
+
+# This module is imported by every worker that runs a visit: from then on the worker logs errors only,
+# so that the tasks Ctrl-C cancels are not warnings on the user's terminal.
+logging.getLogger("distributed.worker").setLevel(logging.ERROR)
 
 
 class VisitStatus(StrEnum):
@@ -103,7 +108,8 @@ def _analyze(key: VisitKey, options: AnalysisOptions, force: bool, t0: float) ->
         register=options.register, edge_check_px=options.edge_check_px))
     _, visit = _open(key)  # the manifest now lists the products
     record = analysis_record(visit, inputs=inputs, options=options, seconds=time.perf_counter() - t0)
-    visit.add_derived(ANALYSIS_RELPATH, (json.dumps(record, indent=1) + "\n").encode("utf-8"))  # last: its presence means "complete"
+    # last: its presence (with matching product checksums) means "complete"
+    visit.add_derived(ANALYSIS_RELPATH, (json.dumps(record, indent=1) + "\n").encode("utf-8"))
     return VisitOutcome(key=key, status=VisitStatus.DONE, reason="forced" if force else state.value,
                         regions=len(data.get("regions") or []), seconds=time.perf_counter() - t0,
                         worker_peak_rss_mb=_peak_rss_mb())

@@ -98,7 +98,8 @@ def verify_inputs(reference, visit, inputs: dict[str, str]) -> None:
         try:
             actual = sha256_file(path)
         except OSError as exc:
-            raise DataIntegrityError(f"{path}: cannot be read ({exc.strerror or exc}); run `fgcd campaign verify`") from None
+            raise DataIntegrityError(f"{path}: cannot be read ({exc.strerror or exc}); "
+                                     "run `fgcd campaign verify`") from None
         if actual != expected:
             raise DataIntegrityError(f"{path}: damaged, does not match its checksum; run `fgcd campaign verify`")
 

@@ -64,7 +64,7 @@ def _timed_run(root: Path, *, workers: int, force: bool) -> dict:
 
 
 def run(*, quick: bool) -> dict:
-    """Build the synthetic archive, analyse it with 1 and 2 workers, re-run it unchanged; the summary keys of issue 22."""
+    """Build a synthetic archive, analyse it with 1 and 2 workers, re-run it unchanged (summary: issue 22's keys)."""
     config = (SyntheticArchiveConfig(campaigns=2, stations=2, visits=3) if quick
               else SyntheticArchiveConfig(campaigns=3, stations=3, visits=4))
     with tempfile.TemporaryDirectory(prefix="fgcd-bench-archive-") as tmp:

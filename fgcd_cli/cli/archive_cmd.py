@@ -37,7 +37,8 @@ def analyze(
 
         def render_plan(console):
             for p in planned:
-                state = (p.state.value if p.state else f"cannot be read: {p.problem}") + ("; --force" if p.forced else "")
+                state = p.state.value if p.state else f"cannot be read: {p.problem}"
+                state += "; --force" if p.forced else ""
                 console.print(f"{'analyse' if p.needs_work else 'skip   '}  {p.key.label}  ({state})")
             console.print(f"{data['to_do']} of {data['visits']} visit(s) in {campaigns} campaign(s) to analyse")
 

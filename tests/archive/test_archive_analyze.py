@@ -200,3 +200,30 @@ def test_a_run_killed_midway_is_finished_by_the_next(pristine, expected, cluster
     assert result.count(VisitStatus.SKIPPED) == finished_before
     assert result.count(VisitStatus.DONE) == 6 - finished_before
     assert _same_regions(_stored_regions(root), expected)
+
+
+@pytest.mark.slow
+def test_ctrl_c_cancels_the_rest_in_one_line_and_the_next_run_finishes(pristine, expected, cluster, tmp_path):
+    root = _copy(pristine, tmp_path)
+    fgcd = str(Path(sys.executable).parent / "fgcd")
+    proc = subprocess.Popen([fgcd, "archive", "analyze", str(root), "--workers", "1"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 240
+    while not list(root.glob(f"*/stations/*/visits/*/{ANALYSIS_RELPATH}")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert err.strip().count("\n") == 0 and err.startswith("interrupted") and "Traceback" not in err
+    result = analyze_archive(ArchiveRequest(roots=[root], scheduler=cluster.scheduler_address))
+    assert result.count(VisitStatus.FAILED) == 0 and result.count(VisitStatus.SKIPPED) >= 1
+    assert _same_regions(_stored_regions(root), expected)
+
+
+@pytest.mark.slow
+def test_one_worker_matches_the_diff_on_every_visit(pristine, expected, tmp_path):
+    root = _copy(pristine, tmp_path)
+    result = analyze_archive(ArchiveRequest(roots=[root], workers=1))
+    assert result.workers == 1 and result.count(VisitStatus.DONE) == 6
+    assert _same_regions(_stored_regions(root), expected)
