@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import time
+import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +27,8 @@ from fgcd_cli.errors import FgcdError, UserInputError
 __all__ = ["ArchiveRequest", "ArchiveResult", "PlannedVisit", "analyze_archive", "plan_archive", "dask_client"]
 
 ProgressCallback = Callable[[int, int, str], None]
+WORKER_WAIT_S = 30.0
+"""How long an existing scheduler may take to show its first worker, s."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -152,6 +155,11 @@ def dask_client(*, scheduler: str | None, workers: int) -> Iterator:
             reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             raise FgcdError(f"cannot reach the Dask scheduler at {scheduler} ({reason})") from None
         try:
+            try:  # a scheduler without workers would hold the tasks for ever
+                client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+            except TimeoutError:
+                raise FgcdError(f"the Dask scheduler at {scheduler} has no worker (waited {WORKER_WAIT_S:.0f} s); "
+                                f"start some with `dask worker {scheduler}`") from None
             yield client
         finally:
             client.close()
@@ -179,8 +187,9 @@ def _run_tasks(client, keys: list[VisitKey], request: ArchiveRequest, on_progres
     from distributed import as_completed
 
     counts = {status: 0 for status in VisitStatus}
+    run = uuid.uuid4().hex[:8]  # task keys unique to this run: another client of the same cluster has its own
     futures = {client.submit(analyze_visit, key, request.options, request.force, pure=False,
-                             key=f"fgcd-visit-{i}-{key.label}"): key for i, key in enumerate(keys)}
+                             key=f"fgcd-visit-{run}-{i}-{key.label}"): key for i, key in enumerate(keys)}
     outcomes: dict[VisitKey, VisitOutcome] = {}
     try:
         for future in as_completed(list(futures)):
