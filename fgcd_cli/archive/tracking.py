@@ -3,7 +3,8 @@
 Every visit's diff is in the reference image's frame, so one damage seen at two
 visits covers the same reference pixels. Rules:
 
-- A region's footprint is its pixels of the visit's change mask within its box.
+- A region's footprint is the connected component of the visit's change mask
+  that fills most of its box.
 - A region joins the track whose footprint so far (the union over the visits it
   was seen at), dilated by :data:`MATCH_DILATION_PX`, it overlaps most; a region
   overlapping no track starts a new one. Two regions of one visit may join one
@@ -111,11 +112,14 @@ class RegionTrack:
                 "status": self.status.value, "change_since_previous": self.change_since_previous}
 
 
-def _footprint(region: dict, mask: np.ndarray) -> np.ndarray:
+def _footprint(region: dict, labels: np.ndarray) -> np.ndarray:
+    """The region's pixels: the connected component of the change mask that fills most of its box."""
     x, y, w, h = (int(v) for v in region["bbox_xywh"])
-    out = np.zeros(mask.shape, bool)
-    out[y:y + h, x:x + w] = mask[y:y + h, x:x + w]
-    return out
+    inside = labels[y:y + h, x:x + w]
+    ids, counts = np.unique(inside[inside > 0], return_counts=True)
+    if len(ids) == 0:
+        return np.zeros(labels.shape, bool)
+    return labels == ids[np.argmax(counts)]
 
 
 def _area(region: dict, metric: bool) -> float:
@@ -123,10 +127,16 @@ def _area(region: dict, metric: bool) -> float:
 
 
 def _match(footprint: np.ndarray, tracks: list[RegionTrack]) -> RegionTrack | None:
+    """The track whose footprint, dilated by MATCH_DILATION_PX, overlaps ``footprint`` most (None: none does)."""
+    ys, xs = np.nonzero(footprint)
+    if len(ys) == 0:
+        return None
+    m = MATCH_DILATION_PX  # only track pixels within m px of the region's box can reach it
+    window = (slice(max(ys.min() - m, 0), ys.max() + m + 1), slice(max(xs.min() - m, 0), xs.max() + m + 1))
     best, best_overlap = None, 0
     for track in tracks:
-        near = ndimage.binary_dilation(track.footprint, iterations=MATCH_DILATION_PX)
-        overlap = int(np.count_nonzero(near & footprint))
+        near = ndimage.binary_dilation(track.footprint[window], iterations=m)
+        overlap = int(np.count_nonzero(near & footprint[window]))
         if overlap > best_overlap:
             best, best_overlap = track, overlap
     return best
@@ -135,8 +145,9 @@ def _match(footprint: np.ndarray, tracks: list[RegionTrack]) -> RegionTrack | No
 def _assign(visit: VisitRegions, tracks: list[RegionTrack], metric: bool, unit: str) -> None:
     """Give each region of ``visit`` to a track (a new one when it overlaps none); record the tracks' areas."""
     seen: dict[int, float] = {}
+    labels, _ = ndimage.label(visit.mask, structure=np.ones((3, 3), bool))
     for region in visit.regions:
-        footprint = _footprint(region, visit.mask)
+        footprint = _footprint(region, labels)
         track = _match(footprint, tracks)
         if track is None:
             track = RegionTrack(id=len(tracks) + 1, first_seen=visit.visit, unit=unit,
