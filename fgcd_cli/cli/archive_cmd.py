@@ -16,7 +16,8 @@ app = typer.Typer(help="A site's whole archive: batch analysis on Dask, change o
 
 @app.command("analyze")
 def analyze(
-    roots: List[Path] = typer.Argument(..., metavar="ROOT...", help="Folders holding campaigns (searched recursively)."),
+    roots: List[Path] = typer.Argument(..., metavar="root",
+                                    help="Folders holding campaigns (searched recursively)."),
     workers: int = typer.Option(2, "--workers", "-w", help="Worker processes of the embedded Dask LocalCluster."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                             help="An existing Dask scheduler, tcp://HOST:PORT (default: embedded)."),
@@ -69,7 +70,8 @@ def analyze(
 
 @app.command("history")
 def history(
-    roots: List[Path] = typer.Argument(..., metavar="ROOT...", help="Folders holding campaigns (searched recursively)."),
+    roots: List[Path] = typer.Argument(..., metavar="root",
+                                    help="Folders holding campaigns (searched recursively)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Track each change region across visits; write each campaign's site page (<campaign>/site.html)."""
