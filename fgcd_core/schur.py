@@ -111,16 +111,16 @@ def block_normal_equations(r: np.ndarray, Jc: np.ndarray, Jp: np.ndarray, w: np.
     -------
     BlockNormalEquations
     """
-    wJc = Jc * w[:, None, None]
-    wJp = Jp * w[:, None, None]
+    wJcT = np.transpose(Jc * w[:, None, None], (0, 2, 1))  # (M, k, 2)
+    wJpT = np.transpose(Jp * w[:, None, None], (0, 2, 1))  # (M, 3, 2)
     pair = obs_pt * n_cameras + obs_cam
-    Hcp = _sum_into(pair, n_points * n_cameras, np.einsum("mki,mkj->mij", wJc, Jp))
+    Hcp = _sum_into(pair, n_points * n_cameras, np.matmul(wJcT, Jp))
     return BlockNormalEquations(
-        Hcc=_sum_into(obs_cam, n_cameras, np.einsum("mki,mkj->mij", wJc, Jc)),
-        Hpp=_sum_into(obs_pt, n_points, np.einsum("mki,mkj->mij", wJp, Jp)),
+        Hcc=_sum_into(obs_cam, n_cameras, np.matmul(wJcT, Jc)),
+        Hpp=_sum_into(obs_pt, n_points, np.matmul(wJpT, Jp)),
         Hcp=Hcp.reshape(n_points, n_cameras, Jc.shape[2], 3),
-        bc=_sum_into(obs_cam, n_cameras, -np.einsum("mki,mk->mi", wJc, r)),
-        bp=_sum_into(obs_pt, n_points, -np.einsum("mki,mk->mi", wJp, r)),
+        bc=_sum_into(obs_cam, n_cameras, -np.matmul(wJcT, r[:, :, None])[:, :, 0]),
+        bp=_sum_into(obs_pt, n_points, -np.matmul(wJpT, r[:, :, None])[:, :, 0]),
     )
 
 
@@ -168,11 +168,11 @@ def reduced_camera_system(eq: BlockNormalEquations, lam: float, damping: SchurDa
     Hpp_inv = np.linalg.inv(_damped_diagonal(eq.Hpp, lam, point_extra, damping.rule))
     if free is not None:
         Hcc_d[~free] = np.eye(k)
-    E = np.einsum("pcij,pjk->pcik", eq.Hcp, Hpp_inv)
+    E = np.matmul(eq.Hcp, Hpp_inv[:, None])
     S = np.zeros((C, k, C, k))
     S[np.arange(C), :, np.arange(C), :] = Hcc_d
-    S -= np.einsum("pcij,pdkj->cidk", E, eq.Hcp)
-    rhs = eq.bc - np.einsum("pcij,pj->ci", E, eq.bp)
+    S -= np.einsum("pcij,pdkj->cidk", E, eq.Hcp, optimize=True)
+    rhs = eq.bc - np.einsum("pcij,pj->ci", E, eq.bp, optimize=True)
     if free is not None:
         rhs[~free] = 0.0
     return S.reshape(C * k, C * k), rhs.reshape(-1), Hpp_inv, E
@@ -207,5 +207,5 @@ def schur_step(eq: BlockNormalEquations, lam: float, damping: SchurDamping,
         dc = np.linalg.lstsq(S, rhs, rcond=None)[0].reshape(C, k)
     if free is not None:
         dc[~free] = 0.0
-    dp = np.einsum("pij,pj->pi", Hpp_inv, eq.bp - np.einsum("pcji,cj->pi", eq.Hcp, dc))
+    dp = np.matmul(Hpp_inv, (eq.bp - np.einsum("pcji,cj->pi", eq.Hcp, dc, optimize=True))[:, :, None])[:, :, 0]
     return dc, dp

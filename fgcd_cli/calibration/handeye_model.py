@@ -23,7 +23,7 @@ from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.tracks import triangulate_dlt
 from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose
 
-__all__ = ["HandPoses", "Observations", "project", "residuals", "linearise", "initial_landmarks", "huber_cost",
+__all__ = ["HandPoses", "Observations", "project", "residuals", "linearise", "initial_landmarks",
            "INIT_MAX_PX"]
 
 #: A triangulated track whose initial reprojection error exceeds this (pixels) is left out.
@@ -151,12 +151,6 @@ def linearise(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs:
         A = np.concatenate([A, np.einsum("mij,mj->mi", A, twist)[:, :, None]], axis=2)
     B = np.einsum("mij,mjk->mik", Jp, R)  # (M, 2, 3)
     return r, A, B
-
-
-def huber_cost(r: np.ndarray, huber_px: float) -> float:
-    """Huber cost of the observations' reprojection error norms ``|r_k|``, pixels squared."""
-    e = np.linalg.norm(r, axis=1)
-    return float(np.sum(np.where(e <= huber_px, 0.5 * e**2, huber_px * (e - 0.5 * huber_px))))
 
 
 def initial_landmarks(
