@@ -24,7 +24,8 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["LMSchedule", "LMOutcome", "LeastSquaresProblem", "levenberg_marquardt", "huber_weights", "huber_cost"]
+__all__ = ["LMSchedule", "LMOutcome", "LeastSquaresProblem", "levenberg_marquardt", "huber_weights", "huber_rho",
+           "huber_cost"]
 
 State = TypeVar("State")
 
@@ -143,7 +144,7 @@ def levenberg_marquardt(problem: LeastSquaresProblem[State], state: State, sched
     lam = s.initial_damping
     iterations = attempts = 0
     converged = stop = False
-    while not stop and not _reached(iterations, s.max_iterations):
+    while not (stop or _reached(iterations, s.max_iterations) or _reached(attempts, s.max_attempts)):
         iterations += 1
         system = problem.linearise(state)
         rejections = 0
@@ -187,8 +188,8 @@ def huber_weights(norms: np.ndarray, delta: float) -> np.ndarray:
     return np.where(norms <= delta, 1.0, delta / np.maximum(norms, 1e-12))
 
 
-def huber_cost(norms: np.ndarray, delta: float) -> float:
-    """Huber cost ``sum rho(|r|)``: ``|r|^2 / 2`` up to ``delta``, ``delta (|r| - delta / 2)`` beyond.
+def huber_rho(norms: np.ndarray, delta: float) -> np.ndarray:
+    """Huber loss of each residual norm: ``|r|^2 / 2`` up to ``delta``, ``delta (|r| - delta / 2)`` beyond.
 
     Parameters
     ----------
@@ -196,5 +197,14 @@ def huber_cost(norms: np.ndarray, delta: float) -> float:
         Norm of each residual block.
     delta : float
         Huber threshold, same unit.
+
+    Returns
+    -------
+    (M,) ndarray
     """
-    return float(np.sum(np.where(norms <= delta, 0.5 * norms**2, delta * (norms - 0.5 * delta))))
+    return np.where(norms <= delta, 0.5 * norms**2, delta * (norms - 0.5 * delta))
+
+
+def huber_cost(norms: np.ndarray, delta: float) -> float:
+    """Huber cost ``sum rho(|r|)`` of :func:`huber_rho`."""
+    return float(np.sum(huber_rho(norms, delta)))
