@@ -21,7 +21,8 @@ import numpy as np
 
 from fgcd_core.lm import LMSchedule, huber_cost, huber_weights, levenberg_marquardt
 from fgcd_core.schur import BlockNormalEquations, Damping, SchurDamping, block_normal_equations, schur_step
-from fgcd_core.se3 import exp_se3
+from fgcd_core.camera import MIN_DEPTH_M, pinhole_pixels
+from fgcd_core.se3 import exp_se3, transform_each
 
 __all__ = ["BundleResult", "BundleAdjustConfig", "OutlierRejectionConfig", "bundle_adjust",
            "bundle_adjust_rejecting_outliers", "outlier_threshold_px", "refine_pose", "projection_residuals"]
@@ -56,15 +57,9 @@ def projection_residuals(
     T_cam_map: np.ndarray, points: np.ndarray, obs_cam: np.ndarray, obs_pt: np.ndarray, obs_uv: np.ndarray, K: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Residuals ``projected - observed`` (M, 2) in pixels and camera-frame points (M, 3)."""
-    R = T_cam_map[obs_cam, :3, :3]
-    t = T_cam_map[obs_cam, :3, 3]
-    Xc = np.einsum("mij,mj->mi", R, points[obs_pt]) + t
-    z = Xc[:, 2]
-    zs = np.where(z > 1e-9, z, 1e-9)
-    u = K[0, 0] * Xc[:, 0] / zs + K[0, 2]
-    v = K[1, 1] * Xc[:, 1] / zs + K[1, 2]
-    r = np.column_stack([u, v]) - obs_uv
-    r[z <= 1e-9] = 1e3
+    Xc = transform_each(T_cam_map[obs_cam], points[obs_pt])
+    r = pinhole_pixels(K, Xc) - obs_uv
+    r[Xc[:, 2] <= MIN_DEPTH_M] = 1e3  # behind the camera: a residual far in the Huber tail
     return r, Xc
 
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from fgcd_core.camera import pinhole_pixels
 from fgcd_cli.vse.epipolar import (PATTERN, EpipolarSearchConfig, GradientImage, epipolar_search,  # noqa: F401
                                    image_gradients)
 
@@ -241,7 +242,7 @@ def _in_reference(K: np.ndarray, other: tuple, radius_px: float, tree):
     if not np.any(front):
         return None
     Xr, z, zo, osig_f = Xr[front], z[front], 1.0 / orho[front], osig[front]
-    uv = (Xr @ K.T)[:, :2] / z[:, None]
+    uv = pinhole_pixels(K, Xr)
     r_new = 1.0 / z
     # sigma in the reference camera: same depth sigma (the views are nearly parallel), rescaled
     s_new = osig_f * zo**2 / z**2
