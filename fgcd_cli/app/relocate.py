@@ -34,7 +34,7 @@ from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult
 from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
-from fgcd_cli.relocation.loop import run_relocation
+from fgcd_cli.relocation.loop import LoopContext, relocate
 
 __all__ = ["RelocateHooks", "RelocateRequest", "RevisitOutcome", "RevisitPlan", "RevisitRequest", "check_relocation_options",
            "load_reference", "plan_revisit", "reference_images", "relocate_and_capture", "run_revisit", "visit_lightings",
@@ -121,7 +121,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest | No
         rig.say(f"relocating ({request.config.mode}) to the reference of station '{station.name}'")
         rig.progress(0, 0, "relocating")
         try:
-            result = run_relocation(
+            result = relocate(LoopContext(
                 session=session,
                 reference=reference,
                 ref_index=ref_index,
@@ -134,7 +134,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest | No
                 on_record=hooks.on_record,
                 reference_images=ref_images,
                 grab_current=lambda: grab_gray_under(rig, vse, same_light),
-            )
+            ))
         except AlgorithmError as exc:
             # the loop paused: what the coarse stage did before stays available to the caller
             exc.coarse_result = coarse_result

@@ -21,6 +21,7 @@ from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import HandEyeMethod, Regress, estimate_scale, pair_residuals, per_sample_residuals
 from fgcd_cli.calibration.handeye_refine import BAHandEyeResult, refine_handeye_images
 from fgcd_cli.calibration.samples import relative_motions
+from fgcd_cli.calibration.tracks import MatchConfig
 
 __all__ = ["PathViews", "TargetFreeConfig", "ScaleMethod", "refine_target_free"]
 
@@ -175,11 +176,12 @@ def _adjust(linear, T_base_flange, images, K, dist, path: PathViews | None,
     if path is not None and len(path.images) > len(images):
         if len(path.stop_index) != len(images) or len(path.T_base_flange) != len(path.images):
             raise CalibrationError("the path views do not match the stop samples")
-        ba = refine_handeye_images(path.T_base_flange, path.images, K, linear.T_flange_cam, dist=dist,
-                                   n_features=config.n_features, match_window=config.match_window,
-                                   anchors=path.stop_index)
+        match = MatchConfig(n_features=config.n_features, match_window=config.match_window,
+                            anchors=tuple(int(a) for a in path.stop_index))
+        ba = refine_handeye_images(path.T_base_flange, path.images, K, linear.T_flange_cam, dist=dist, match=match)
         return ba, len(path.images), np.asarray(ba.per_image_rms_px)[list(path.stop_index)]
-    ba = refine_handeye_images(T_base_flange, images, K, linear.T_flange_cam, dist=dist, n_features=config.n_features)
+    ba = refine_handeye_images(T_base_flange, images, K, linear.T_flange_cam, dist=dist,
+                               match=MatchConfig(n_features=config.n_features))
     return ba, len(images), np.asarray(ba.per_image_rms_px)
 
 

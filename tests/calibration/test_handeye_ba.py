@@ -1,4 +1,4 @@
-"""Target-free hand-eye refined on the stop images (fgcd_cli.calibration.handeye_ba).
+"""Target-free hand-eye refined on the stop images (fgcd_cli.calibration.target_free, handeye_refine).
 
 Ground truth is synthetic: feature tracks projected from known points, or images
 of a textured plane rendered through exact homographies, with a known ``X``.
@@ -14,7 +14,9 @@ import pytest
 
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import solve_handeye_scale
-from fgcd_cli.calibration.handeye_ba import KeyframeDepths, refine_handeye_tracks, refine_target_free
+from fgcd_cli.calibration.depth_scale import KeyframeDepths
+from fgcd_cli.calibration.handeye_refine import RefineConfig, refine_handeye_tracks
+from fgcd_cli.calibration.target_free import refine_target_free
 from fgcd_cli.calibration.motions import exploration_motions
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
 
@@ -76,7 +78,8 @@ def test_a_platform_rotation_scale_error_is_estimated_with_x():
     true_scale = 1.003
     tracks = _tracks(_rotations_scaled(reported, true_scale), noise_px=0.1, seed=2)
     res = refine_handeye_tracks(reported, tracks, K, _x_init())
-    fixed = refine_handeye_tracks(reported, tracks, K, _x_init(), estimate_rotation_scale=False)
+    fixed = refine_handeye_tracks(reported, tracks, K, _x_init(),
+                                  config=RefineConfig(estimate_rotation_scale=False))
     mm, deg = pose_distance(res.T_flange_cam, X_TRUE)
     assert abs(res.rotation_scale - true_scale) < 4 * res.rotation_scale_std and res.rotation_scale_std < 2e-4
     assert mm < 4 * res.std_mm + 0.05 and deg < 4 * res.std_deg + 0.005
