@@ -19,7 +19,7 @@ from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
-from fgcd_cli.metrics.afd import FdfResult, compute_fdf
+from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.report.products import diff_products, result_summary
 
@@ -44,7 +44,7 @@ def measure_fdf(ref_image: np.ndarray, cur_image: np.ndarray) -> FdfResult | Non
         return None
     for method in ("sift", "grid"):
         try:
-            return compute_fdf(ref, cur, method=method)
+            return compute_fdf(ref, cur, config=FdfConfig(method=method))
         except AlgorithmError:
             continue
     return None

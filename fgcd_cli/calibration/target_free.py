@@ -89,7 +89,7 @@ def refine_target_free(
     dist: Sequence[float] | None = None,
     keyframes: Sequence[KeyframeDepths] | None = None,
     path: PathViews | None = None,
-    **options,
+    config: TargetFreeConfig | None = None,
 ):
     """The target-free result with ``X`` refined on the stop images and the scale re-estimated.
 
@@ -109,8 +109,8 @@ def refine_target_free(
     path : PathViews, optional
         All the views along the platform's path (stops included); when given, the
         adjustment runs over them instead of over the stops alone.
-    **options
-        ``config=TargetFreeConfig(...)`` and/or its fields (``n_features``, ``match_window``).
+    config : TargetFreeConfig, optional
+        Features and matching window (default: :class:`TargetFreeConfig`).
 
     Returns
     -------
@@ -125,7 +125,7 @@ def refine_target_free(
     CalibrationError
         The images could not be matched (the caller keeps the linear result).
     """
-    config = replace(options.pop("config", None) or TargetFreeConfig(), **options)
+    config = config or TargetFreeConfig()
     ba, views, stop_rms = _adjust(linear, T_base_flange, images, K, dist, path, config)
     # the VSE side carries the noise: fit 1/s (unbiased for independent pose noise, see estimate_scale)
     sc = estimate_scale(ba.T_flange_cam, T_base_flange, T_map_cam, pairs=linear.pairs, regress=Regress.VSE)
