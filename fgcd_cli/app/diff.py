@@ -12,6 +12,7 @@ from typing import Callable
 
 import numpy as np
 
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes
 from fgcd_cli.changes import detect_changes
@@ -125,12 +126,15 @@ def run_bare(ref: list[str] | None = None, cur: list[str] | None = None, output:
 
         _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
                        "(no edge check, no FDF on frames this large)")
-        result = detect_changes_tiled(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                                      ambient_index=ambient_index, progress=tile_progress)
+        result = detect_changes_tiled(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, progress=tile_progress,
+                                      config=DetectionConfig.from_options(register=register,
+                                                                          ambient_index=ambient_index))
         fdf = None
     else:
-        result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                                edge_check_px=_edge_check(edge_check_px), ambient_index=ambient_index)
+        result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,
+                                config=DetectionConfig.from_options(register=register,
+                                                                    edge_check_px=_edge_check(edge_check_px),
+                                                                    ambient_index=ambient_index))
         fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
     metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
     if mm_per_px is not None:
@@ -311,9 +315,9 @@ def run_campaign(campaign: Path | None = None, station: str | None = None, *,
     edge_check = _edge_check(EDGE_CHECK_PX if edge_check_px is None else edge_check_px)
     _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
-    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                            edge_check_px=edge_check,
-                            ambient_index=lightings.index("ambient") if "ambient" in lightings else None)
+    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,
+                            config=DetectionConfig.from_options(register=register, edge_check_px=edge_check,
+                                                                ambient_index=lightings.index("ambient") if "ambient" in lightings else None))
     fdf = measure_fdf(ref_images[0], cur_images[0])
     reloc = observation.metadata.get("relocation") or {}
     metadata = {

@@ -290,8 +290,8 @@ def _refine(result: HandEyeResult, session: _TargetFreeSession, camera: PinholeC
     tick(0, 0, f"image refinement over {len(session.path_T)} views")
     path = PathViews(T_base_flange=session.path_T, images=session.path_images, stop_index=session.stop_index)
     try:
-        result = refine_target_free(result, session.hand, session.eye, session.stop_images, camera.K,
-                                    dist=camera.dist, keyframes=session.keyframe_depths(), path=path)
+        result = refine_target_free(result, session.hand, session.eye, session.stop_images, camera,
+                                    keyframes=session.keyframe_depths(), path=path)
         ref = result.refinement
         say(
             f"image refinement: {ref.get('views', len(session.hand))} views, {ref['points']} points, "

@@ -22,6 +22,7 @@ from fgcd_cli.calibration.handeye import HandEyeMethod, Regress, estimate_scale,
 from fgcd_cli.calibration.handeye_refine import BAHandEyeResult, refine_handeye_images
 from fgcd_cli.calibration.samples import relative_motions
 from fgcd_cli.calibration.tracks import MatchConfig
+from fgcd_core.camera import PinholeCamera
 
 __all__ = ["PathViews", "TargetFreeConfig", "ScaleMethod", "refine_target_free"]
 
@@ -84,9 +85,8 @@ def refine_target_free(
     T_base_flange: Sequence[np.ndarray],
     T_map_cam: Sequence[np.ndarray],
     images: Sequence[np.ndarray],
-    K: np.ndarray,
+    camera: PinholeCamera,
     *,
-    dist: Sequence[float] | None = None,
     keyframes: Sequence[KeyframeDepths] | None = None,
     path: PathViews | None = None,
     config: TargetFreeConfig | None = None,
@@ -101,8 +101,8 @@ def refine_target_free(
         The samples (reported flange poses, VSE camera poses in map units).
     images : sequence of N images
         Camera image at each stop.
-    K, dist :
-        Intrinsics of the images (``dist`` None or zeros for undistorted images).
+    camera : PinholeCamera
+        Intrinsics of the images (zero distortion for undistorted images).
     keyframes : sequence of KeyframeDepths, optional
         The VSE's keyframes with their cloud; when given (and matched), the scale
         is the ratio of metric to map depths (:func:`scale_from_depths`).
@@ -126,6 +126,7 @@ def refine_target_free(
         The images could not be matched (the caller keeps the linear result).
     """
     config = config or TargetFreeConfig()
+    K, dist = camera.K, camera.dist
     ba, views, stop_rms = _adjust(linear, T_base_flange, images, K, dist, path, config)
     # the VSE side carries the noise: fit 1/s (unbiased for independent pose noise, see estimate_scale)
     sc = estimate_scale(ba.T_flange_cam, T_base_flange, T_map_cam, pairs=linear.pairs, regress=Regress.VSE)

@@ -18,6 +18,7 @@ from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.handeye_refine import RefineConfig, refine_handeye_tracks
 from fgcd_cli.calibration.target_free import TargetFreeConfig, refine_target_free
 from fgcd_cli.calibration.motions import exploration_motions
+from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
 
 K = np.array([[600.0, 0, 320.0], [0, 600.0, 240.0], [0, 0, 1.0]])
@@ -184,9 +185,10 @@ def test_refinement_fixes_the_hand_eye_and_scale_of_noisy_vse_poses(plane_case):
         uv = pc[:, :2] / pc[:, 2:] * 600.0 + K[:2, 2]
         keyframes.append(KeyframeDepths(T_base_flange=T, T_map_cam=T_map_cam, pixels=uv, points_map=P_map))
     # fewer features: a fast test
-    refined = refine_target_free(linear, hand, eye, images, K, keyframes=keyframes,
+    camera = PinholeCamera.from_K(K, W, H)
+    refined = refine_target_free(linear, hand, eye, images, camera, keyframes=keyframes,
                                  config=TargetFreeConfig(n_features=800))
-    by_motion = refine_target_free(linear, hand, eye, images, K, config=TargetFreeConfig(n_features=800))
+    by_motion = refine_target_free(linear, hand, eye, images, camera, config=TargetFreeConfig(n_features=800))
     lin_mm, _ = pose_distance(linear.T_flange_cam, X_TRUE)
     mm, deg = pose_distance(refined.T_flange_cam, X_TRUE)
     assert lin_mm > 5.0  # the case is hard for the linear solve
