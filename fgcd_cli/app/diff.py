@@ -92,17 +92,12 @@ class BareDiffRequest:
     ambient_index: int | None = None
 
 
-def run_bare(ref: list[str] | None = None, cur: list[str] | None = None, output: Path | None = None, *,
-             request: BareDiffRequest | None = None, progress: Progress = None, tile_progress: TileProgress = None,
-             **options) -> dict:
+def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progress: TileProgress = None) -> dict:
     """Compare image files (one per lighting) and write the products into ``output``.
 
     ``ambient_index`` (0-based) names the image taken under ambient light only; it is
-    left out of the photometric-stereo fit that labels regions relief / colour. The former
-    form ``run_bare(ref, cur, output, eval_mask=..., ...)`` builds the request from ``options``.
+    left out of the photometric-stereo fit that labels regions relief / colour.
     """
-    if request is None:
-        request = BareDiffRequest(ref=ref, cur=cur, output=output, **options)
     r = request
     output, eval_mask, truth, mm_per_px, register = r.output, r.eval_mask, r.truth, r.mm_per_px, r.register
     edge_check_px, ambient_index = r.edge_check_px, r.ambient_index
@@ -283,16 +278,10 @@ class CampaignDiffRequest:
     edge_check_px: int | None = None
 
 
-def run_campaign(campaign: Path | None = None, station: str | None = None, *,
-                 request: CampaignDiffRequest | None = None, progress: Progress = None, **options) -> dict:
-    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``).
-
-    The former form ``run_campaign(campaign, station, visit=..., ...)`` builds the request from ``options``.
-    """
+def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> dict:
+    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``)."""
     from fgcd_cli.campaign import open_campaign
 
-    if request is None:
-        request = CampaignDiffRequest(campaign=campaign, station=station, **options)
     r = request
     campaign, station, visit, eval_mask, mm_per_px = r.campaign, r.station, r.visit, r.eval_mask, r.mm_per_px
     register, output, edge_check_px = r.register, r.output, r.edge_check_px

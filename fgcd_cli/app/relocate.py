@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -89,23 +89,15 @@ class RelocateHooks:
     evaluation: Callable[[], dict] | None = None
 
 
-_HOOK_FIELDS = frozenset(f.name for f in fields(RelocateHooks))
-
-
-def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest | None = None, *,
-                         hooks: RelocateHooks | None = None, **options) -> CaptureResult:
+def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
+                         hooks: RelocateHooks | None = None) -> CaptureResult:
     """Relocate to the station's reference pose with rACR, then write a visit.
 
     When the first estimate puts the camera farther than ``coarse.trigger_*`` from the
     reference pose, the active coarse stage (:mod:`fgcd_cli.relocation.coarse`, paper 001)
     runs first; ``coarse=None`` leaves it out (the loop then pauses on such a start).
-    The former keyword form ``relocate_and_capture(rig, station, config=..., lightings=...,
-    evaluate=..., ...)`` builds the request and hooks from ``options``.
     """
-    if request is None:
-        request = RelocateRequest(**{k: v for k, v in options.items() if k not in _HOOK_FIELDS})
-    if hooks is None:
-        hooks = RelocateHooks(**{k: v for k, v in options.items() if k in _HOOK_FIELDS})
+    hooks = hooks or RelocateHooks()
     from fgcd_cli.alignment import ReferenceIndex
 
     reference = load_reference(station)

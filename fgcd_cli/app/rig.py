@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Callable, Iterator, Protocol
 
 import numpy as np
@@ -304,21 +304,9 @@ class RigHooks:
     on_progress: Callable[[int, int, str], None] | None = None
 
 
-_HOOK_FIELDS = frozenset(f.name for f in fields(RigHooks))
-
-
-def open_rig(request: RigRequest | None = None, *, hooks: RigHooks | None = None, **options) -> OpenedRig:
-    """Open the rig a command asked for (``hooks``: see :class:`RigHandles`).
-
-    The former keyword form ``open_rig(driver=..., T_flange_cam=..., confirm=..., ...)``
-    still works: ``options`` are the fields of :class:`RigRequest` and :class:`RigHooks`.
-    """
-    if request is None:
-        request = RigRequest(**{k: v for k, v in options.items() if k not in _HOOK_FIELDS})
-    elif options.keys() - _HOOK_FIELDS:
-        raise TypeError(f"open_rig: options {sorted(options.keys() - _HOOK_FIELDS)} given with a request")
-    if hooks is None:
-        hooks = RigHooks(**{k: v for k, v in options.items() if k in _HOOK_FIELDS})
+def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig:
+    """Open the rig a command asked for (``hooks``: see :class:`RigHandles`)."""
+    hooks = hooks or RigHooks()
     if request.driver == Driver.SIM:
         return open_sim_rig(
             request.scenario or SimScenario(),
