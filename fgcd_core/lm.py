@@ -9,11 +9,11 @@ moves the state and the cost; the driver owns the accept / reject rule, the
 damping schedule and the stop rules (Nocedal & Wright, *Numerical
 Optimization*, §10.3; Triggs et al., "Bundle adjustment, a modern synthesis",
 §4.3). Each solver keeps its own :class:`LMSchedule` (docs/architecture.md,
-"Solvers").
+"Modules").
 
 Hand-written rather than :func:`scipy.optimize.least_squares`: measured on the
 hand-eye problem, its sparse trust-region steps were 10-50x slower or stopped
-short of the minimum (docs/benchmarks.md, "Calibration").
+short of the minimum (docs/benchmarks.md, "Measurements that were code comments").
 """
 
 from __future__ import annotations
