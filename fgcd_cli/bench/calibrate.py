@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from drivers.platform import MotionGuard
-from drivers.sim.board import SimBoard, random_board_poses, render_board_view
+from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 from drivers.sim.rig import build_sim_rig
 from fgcd_cli.app.calibrate import HandEyeRig, run_handeye
 from fgcd_cli.calibration.board import BoardSpec
@@ -73,9 +73,8 @@ def _board_spec(board: SimBoard) -> BoardSpec:
 def _intrinsics_stage(true: PinholeCamera, seed: int, n_views: int) -> tuple[PinholeCamera, dict]:
     board = SimBoard()
     rng = np.random.default_rng([seed, 1])
-    cam = dict(fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, width=true.width, height=true.height)
-    poses = random_board_poses(board, n_views, **cam, rng=rng)
-    images = [render_board_view(board, T, **cam, dist=true.dist, supersample=2, rng=rng) for T in poses]
+    poses = random_board_poses(board, n_views, true, rng=rng)
+    images = [render_board_view(board, T, true, options=BoardViewOptions(supersample=2), rng=rng) for T in poses]
     res = calibrate_intrinsics(images, _board_spec(board))
     return res.camera, {"err_pct": _intrinsics_error_pct(res.camera, true), "rms_px": res.rms_px, "views": res.n_views}
 
@@ -91,7 +90,6 @@ def _target_stage(rig, calibrated: PinholeCamera, true: PinholeCamera, seed: int
     T_world_board = gt.T_world_cam_true() @ T_cam0_board
     guard = MotionGuard(rig.platform)
     T_start = rig.platform.flange_pose()
-    cam = dict(fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, width=true.width, height=true.height)
     hand, boards = [], []
     T_prev = T_start
     for T_rel in target_motions(rotation_deg=15.0):
@@ -100,7 +98,7 @@ def _target_stage(rig, calibrated: PinholeCamera, true: PinholeCamera, seed: int
             guard.move_to(T_step)
         T_prev = T_target
         T_cam_board = invert_pose(gt.T_world_cam_true()) @ T_world_board
-        image = render_board_view(board, T_cam_board, **cam, dist=true.dist, supersample=2, rng=rng)
+        image = render_board_view(board, T_cam_board, true, options=BoardViewOptions(supersample=2), rng=rng)
         det = spec.detect(image)
         T_est = spec.estimate_pose(det, calibrated.K, calibrated.dist) if det.n_corners >= 12 else None
         if T_est is not None:
