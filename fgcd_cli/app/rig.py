@@ -227,17 +227,12 @@ def open_sim_rig(
 ) -> OpenedRig:
     """A simulated rig for one session of a scenario (``on_progress``: see :class:`RigHandles`)."""
     from drivers.platform import GuardLimits
-    from drivers.sim.rig import build_sim_rig
+    from drivers.sim.rig import SimRigConfig, build_sim_rig
 
     scenario = check_scenario(scenario)
-    rig = build_sim_rig(
-        scene=scenario.scene,
-        lighting=scenario.lighting,
-        seed=scenario.seed,
-        noise=scenario.noise,
-        session_seed=scenario.session_seed,
-        with_depth=vse_variant == "rgbd",
-    )
+    rig = build_sim_rig(scene=scenario.scene,
+                        config=SimRigConfig(lighting=scenario.lighting, seed=scenario.seed, noise=scenario.noise,
+                                            session_seed=scenario.session_seed, with_depth=vse_variant == "rgbd"))
     if scenario.changes > 0:
         rig.inject_changes(n=scenario.changes, seed=scenario.change_seed, size_mm=tuple(scenario.change_size_mm))
     if scenario.start_offset_mm > 0 or scenario.start_offset_deg > 0:
@@ -327,11 +322,11 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
     if request.intrinsics is None:
         raise UserInputError("no camera intrinsics in the campaign rig: run `fgcd calibrate intrinsics` first")
     from drivers.cameras import OpenCVCamera
-    from drivers.connect import open_platform
+    from drivers.connect import PlatformSpec, open_platform
     from drivers.platform import GuardLimits
 
     try:
-        platform = open_platform(driver, port=request.port, baud=request.baud, host=request.host)
+        platform = open_platform(driver, spec=PlatformSpec(port=request.port, baud=request.baud, host=request.host))
         platform.connect()
         raw_camera = OpenCVCamera(request.camera_index, width=request.intrinsics.width,
                                   height=request.intrinsics.height)

@@ -33,7 +33,7 @@ import numpy as np
 
 from drivers.platform import MotionGuard
 from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
-from drivers.sim.rig import build_sim_rig
+from drivers.sim.rig import SimRigConfig, build_sim_rig
 from fgcd_cli.app.calibrate import HandEyeRig, run_handeye
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
@@ -235,14 +235,14 @@ def run(*, quick: bool = False) -> dict:
     rigs_out = []
     for seed, noise in QUICK_RIGS if quick else RIGS:
         t0 = time.perf_counter()
-        rig = build_sim_rig(scene="stele", seed=seed, noise=noise)
+        rig = build_sim_rig(scene="stele", config=SimRigConfig(seed=seed, noise=noise))
         true = _pinhole(rig.ground_truth.intrinsics_true())
         # the same board views in both runs, so that the quick run is a subset of the full one
         # (the hand-eye follows the intrinsics' error)
         calibrated, intr = _intrinsics_stage(true, seed, INTRINSICS_VIEWS)
         target = _target_stage(rig, calibrated, true, seed)
         rig.close()
-        rig = build_sim_rig(scene="stele", seed=seed, noise=noise)
+        rig = build_sim_rig(scene="stele", config=SimRigConfig(seed=seed, noise=noise))
         try:
             free = _target_free_stage(rig, calibrated)
         except Exception as exc:  # a failed session is a benchmark result, reported as such
