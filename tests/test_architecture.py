@@ -216,10 +216,9 @@ ALLOWED_KEYWORD_CATCH_ALLS = {
 
 
 def test_options_travel_in_config_objects_not_keyword_catch_alls():
-    """One call form per function in the core and the brain: no ``**overrides`` beside a config dataclass or a
-    typed request."""
+    """One call form per function: no ``**overrides`` beside a config dataclass or a typed request."""
     found = []
-    for top in ("fgcd_core", "fgcd_cli"):
+    for top in TOP_PACKAGES:
         for path in sorted((ROOT / top).rglob("*.py")):
             rel = path.relative_to(ROOT).as_posix()
             for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
