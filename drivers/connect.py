@@ -1,4 +1,4 @@
-"""One factory for every platform driver: ``open_platform("grbl", port=...)``.
+"""One factory for every platform driver: ``open_platform("grbl", spec=PlatformSpec(port=...))``.
 
 The simulator's platform is built elsewhere (from a rig) and passed in as
 ``sim_rig``; this module never imports ``drivers.sim``.
@@ -6,7 +6,7 @@ The simulator's platform is built elsewhere (from a rig) and passed in as
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Callable
 
@@ -58,33 +58,21 @@ class PlatformSpec:
     connect: bool = True
 
 
-_SPEC_FIELDS = frozenset(f.name for f in fields(PlatformSpec))
-
-
-def open_platform(driver: str, *, spec: PlatformSpec | None = None, **options) -> Platform:
+def open_platform(driver: str, *, spec: PlatformSpec | None = None) -> Platform:
     """Build (and by default connect) the platform named by ``driver``.
 
     Parameters
     ----------
     driver : {"sim", "grbl", "ur", "manual"}
     spec : PlatformSpec, optional
-        Connection options; alternatively give its fields as keywords
-        (``open_platform("grbl", port=..., baud=...)``), not both.
+        Connection options (default: :class:`PlatformSpec`, which connects).
 
     Raises
     ------
     PlatformConnectionError
         Unknown driver or missing connection option.
-    TypeError
-        An unknown option, or both ``spec`` and options.
     """
-    if spec is None:
-        unknown = set(options) - _SPEC_FIELDS
-        if unknown:
-            raise TypeError(f"open_platform() got unexpected keyword arguments {', '.join(sorted(unknown))}")
-        spec = PlatformSpec(**options)
-    elif options:
-        raise TypeError("open_platform() takes either spec= or its fields as keywords, not both")
+    spec = spec or PlatformSpec()
     platform = _build(driver, spec)
     if spec.connect:
         platform.connect()

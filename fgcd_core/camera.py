@@ -17,7 +17,32 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["PinholeCamera", "CameraIntrinsics"]
+__all__ = ["PinholeCamera", "CameraIntrinsics", "pinhole_pixels"]
+
+#: Depth (metres) below which :func:`pinhole_pixels` divides by this value instead
+MIN_DEPTH_M = 1e-9
+
+
+def pinhole_pixels(K: np.ndarray, points_cam: np.ndarray) -> np.ndarray:
+    """The one ideal (undistorted) pinhole projection ``u = fx x / z + cx``, ``v = fy y / z + cy``.
+
+    Parameters
+    ----------
+    K : (3, 3) ndarray
+        Intrinsics (no skew).
+    points_cam : (N, 3) ndarray
+        Camera-frame points, metres.
+
+    Returns
+    -------
+    (N, 2) ndarray
+        Pixels. A depth of magnitude below :data:`MIN_DEPTH_M` is taken as
+        ``MIN_DEPTH_M`` (no division by zero); points behind the camera project
+        through the centre, so callers judge them by their depth.
+    """
+    z = points_cam[:, 2]
+    zs = np.where(np.abs(z) < MIN_DEPTH_M, MIN_DEPTH_M, z)
+    return np.column_stack([K[0, 0] * points_cam[:, 0] / zs + K[0, 2], K[1, 1] * points_cam[:, 1] / zs + K[1, 2]])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -145,9 +170,7 @@ class PinholeCamera:
                 )
                 uv[front] = pts.reshape(-1, 2)
         else:
-            zf = z[front]
-            uv[front, 0] = self.fx * P[front, 0] / zf + self.cx
-            uv[front, 1] = self.fy * P[front, 1] / zf + self.cy
+            uv[front] = pinhole_pixels(self.K, P[front])
         in_view = (
             front
             & (uv[:, 0] >= -0.5)

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 __all__ = [
     "skew",
+    "transform_each",
     "make_pose",
     "invert_pose",
     "is_pose",
@@ -186,6 +187,11 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=float)
     points = np.asarray(points, dtype=float)
     return points @ T[:3, :3].T + T[:3, 3]
+
+
+def transform_each(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply transform ``T[m]`` (M, 4, 4) to point ``points[m]`` (M, 3); returns (M, 3)."""
+    return np.einsum("mij,mj->mi", T[:, :3, :3], points) + T[:, :3, 3]
 
 
 def look_at(

@@ -148,3 +148,82 @@ def test_checker_sees_every_import_form(tmp_path):
         f.unlink()
     (pkg / "ok.py").write_text("import numpy\nfrom drivers.platform import MotionGuard\nfrom . import sub\n")
     assert offenders(tmp_path, ("fgcd_cli.alignment",), ALGORITHM_FORBIDDEN) == []
+
+
+#: The code rules of docs/architecture.md ("Code rules the layers keep").
+MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 500
+MAX_PARAMETERS = 8
+
+
+def _parameters(node: ast.FunctionDef | ast.AsyncFunctionDef) -> list[str]:
+    """Every parameter but ``self`` / ``cls``, ``*args`` and ``**kwargs`` included."""
+    a = node.args
+    names = [x.arg for x in a.posonlyargs + a.args + a.kwonlyargs if x.arg not in ("self", "cls")]
+    return names + [f"*{v.arg}" for v in (a.vararg,) if v] + [f"**{v.arg}" for v in (a.kwarg,) if v]
+
+
+def size_offenders(root: Path) -> list[str]:
+    """Modules over the line limit, functions over the line or parameter limit (typer commands in ``fgcd_cli.cli``
+    exempt from the parameter limit: their options are the command line's)."""
+    out = []
+    for top in TOP_PACKAGES:
+        for path in sorted((root / top).rglob("*.py")):
+            rel = path.relative_to(root)
+            source = path.read_text(encoding="utf-8")
+            if len(source.splitlines()) > MAX_MODULE_LINES:
+                out.append(f"{rel}: {len(source.splitlines())} lines")
+            cli = _matches(module_name(path, root), ("fgcd_cli.cli",))
+            for node in ast.walk(ast.parse(source, filename=str(path))):
+                if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    continue
+                length = node.end_lineno - node.lineno + 1
+                if length > MAX_FUNCTION_LINES:
+                    out.append(f"{rel}:{node.lineno} {node.name}: {length} lines")
+                if not cli and len(_parameters(node)) > MAX_PARAMETERS:
+                    out.append(f"{rel}:{node.lineno} {node.name}: {len(_parameters(node))} parameters")
+    return out
+
+
+def test_modules_and_functions_keep_their_size_and_parameter_limits():
+    assert not size_offenders(ROOT)
+
+
+def test_size_checker_sees_each_rule(tmp_path):
+    pkg = tmp_path / "fgcd_core"
+    pkg.mkdir()
+    for top in ("drivers", "fgcd_cli"):
+        (tmp_path / top).mkdir()
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    (pkg / "long.py").write_text(f"def long():\n{body}\n")
+    params = ", ".join(f"p{i}" for i in range(MAX_PARAMETERS)) + ", **extra"
+    (pkg / "wide.py").write_text(f"class A:\n    def wide(self, {params}):\n        pass\n")
+    (pkg / "big.py").write_text("x = 1\n" * (MAX_MODULE_LINES + 1))
+    (pkg / "ok.py").write_text(f"def fine(self, {', '.join(f'p{i}' for i in range(MAX_PARAMETERS))}):\n    pass\n")
+    found = size_offenders(tmp_path)
+    assert any("long.py:1 long" in f for f in found)
+    assert any(f"wide.py:2 wide: {MAX_PARAMETERS + 1} parameters" in f for f in found)
+    assert any(f"big.py: {MAX_MODULE_LINES + 1} lines" in f for f in found)
+    assert not any("ok.py" in f for f in found)
+
+
+#: The only ``**`` parameters: pass-through of write options, a station's free-form record,
+#: and the one builder of a detector config from flat option names (the CLI's options).
+ALLOWED_KEYWORD_CATCH_ALLS = {
+    "fgcd_cli/campaign/atomic.py": {"atomic_write_text", "atomic_write_json"},
+    "fgcd_cli/campaign/store.py": {"create_station", "station_or_create", "station_for_writing"},
+    "fgcd_cli/changes/config.py": {"from_options"},
+}
+
+
+def test_options_travel_in_config_objects_not_keyword_catch_alls():
+    """One call form per function: no ``**overrides`` beside a config dataclass or a typed request."""
+    found = []
+    for top in TOP_PACKAGES:
+        for path in sorted((ROOT / top).rglob("*.py")):
+            rel = path.relative_to(ROOT).as_posix()
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if (isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.args.kwarg is not None
+                        and node.name not in ALLOWED_KEYWORD_CATCH_ALLS.get(rel, ())):
+                    found.append(f"{rel}:{node.lineno} {node.name}(**{node.args.kwarg.arg})")
+    assert not found

@@ -332,7 +332,7 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
                                                                                  fast=None))
     monkeypatch.setattr(capture_uc, "start_session",
                         lambda rig, **k: (session, SimpleNamespace(stop=lambda: None), scale, np.eye(4)))
-    monkeypatch.setattr(capture_uc, "run_relocation", lambda **k: result)
+    monkeypatch.setattr(capture_uc, "relocate", lambda ctx: result)
     monkeypatch.setattr(capture_uc, "reference_images", lambda station: {})
     monkeypatch.setattr(capture_uc, "grab_images", lambda rig, lightings: {"front": np.zeros((4, 4), np.float32)})
 
@@ -352,8 +352,8 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
                                 T_flange_cam=np.eye(4), vse_factory=lambda: None)
     run_record.reset()
     with pytest.raises(KeyboardInterrupt):
-        capture_uc.relocate_and_capture(rig, station, config=SimpleNamespace(mode="parallel"), lightings=["front"],
-                                        coarse=None)
+        capture_uc.relocate_and_capture(rig, station, capture_uc.RelocateRequest(
+            config=SimpleNamespace(mode="parallel"), lightings=["front"], coarse=None))
     assert run_record.writes_clause() == "not written: the visit of station 'north-wall'"
     run_record.reset()
 

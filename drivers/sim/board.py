@@ -18,7 +18,7 @@ calibration detects; the simulator adds only the printed margin.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -79,28 +79,6 @@ class BoardViewOptions:
     supersample: int = 3
 
 
-_INTRINSICS_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "dist")
-_OPTION_KEYS = ("noise_sigma", "blur_sigma_px", "background", "supersample")
-
-
-def _camera_from(camera: CameraIntrinsics | None, values: dict) -> CameraIntrinsics:
-    """``camera``, or intrinsics from the keyword form ``fx=, fy=, cx=, cy=, width=, height=[, dist=]``."""
-    if camera is not None:
-        if values:
-            raise TypeError(f"give either a camera or {', '.join(values)}, not both")
-        return camera
-    return CameraIntrinsics(**values)
-
-
-def _split_keywords(extra: dict) -> tuple[dict, dict]:
-    """The keyword form's intrinsics and view options; anything else is a TypeError."""
-    unknown = set(extra) - set(_INTRINSICS_KEYS) - set(_OPTION_KEYS)
-    if unknown:
-        raise TypeError(f"unexpected keyword argument(s): {', '.join(sorted(unknown))}")
-    return ({k: extra[k] for k in _INTRINSICS_KEYS if k in extra},
-            {k: extra[k] for k in _OPTION_KEYS if k in extra})
-
-
 def board_texture(board: SimBoard, *, px_per_square: int = 64) -> tuple[np.ndarray, float, float]:
     """Board albedo with its white margin.
 
@@ -154,11 +132,10 @@ def add_board_to_scene(scene: Scene, board: SimBoard, T_world_board: np.ndarray)
 def render_board_view(
     board: SimBoard,
     T_cam_board: np.ndarray,
-    camera: CameraIntrinsics | None = None,
+    camera: CameraIntrinsics,
     *,
     options: BoardViewOptions | None = None,
     rng: np.random.Generator | None = None,
-    **keywords,
 ) -> np.ndarray:
     """Grayscale uint8 image of the board seen by a pinhole camera with distortion.
 
@@ -178,18 +155,11 @@ def render_board_view(
         Sensor noise, blur, background and supersampling (defaults: :class:`BoardViewOptions`).
     rng : numpy Generator, optional
         Noise source (default: seeded with 0).
-    **keywords
-        The older keyword form: ``fx, fy, cx, cy, width, height, dist`` instead
-        of ``camera``, and any :class:`BoardViewOptions` field.
 
     Returns
     -------
     (height, width) uint8 ndarray
     """
-    intr, opts = _split_keywords(keywords)
-    camera = _camera_from(camera, intr)
-    if opts:
-        options = replace(options or BoardViewOptions(), **opts)
     options = options or BoardViewOptions()
     rng = np.random.default_rng(0) if rng is None else rng
     ss = int(options.supersample)
@@ -262,12 +232,11 @@ def _sensor(img: np.ndarray, options: BoardViewOptions, rng: np.random.Generator
 def random_board_poses(
     board: SimBoard,
     n: int,
-    camera: CameraIntrinsics | None = None,
+    camera: CameraIntrinsics,
     *,
     distance_m: tuple[float, float] = (0.3, 0.6),
     max_tilt_deg: float = 40.0,
     rng: np.random.Generator | None = None,
-    **intrinsics,
 ) -> list[np.ndarray]:
     """Board poses ``T_cam_board`` covering the image (centre, edges, corners) with varied tilts.
 
@@ -275,10 +244,8 @@ def random_board_poses(
     of image regions in turn, at a random distance, tilted up to ``max_tilt_deg``
     about a random in-plane axis and rolled up to 30 degrees; poses whose board
     would show fewer than two of its four corners in the image are redrawn.
-    The camera is taken without distortion here. ``camera`` may be given in
-    the older keyword form ``fx=, fy=, cx=, cy=, width=, height=``.
+    The camera is taken without distortion here.
     """
-    camera = _camera_from(camera, intrinsics)
     fx, fy, cx, cy, width, height = camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height
     rng = np.random.default_rng(0) if rng is None else rng
     w_m, h_m = board.size_m

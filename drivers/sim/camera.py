@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Callable
 
@@ -111,14 +111,13 @@ class SimCamera:
     pose_fn : callable returning the true ``T_world_cam`` now.
     lights : SimLights
     options : SimCameraOptions, optional
-        Intrinsics, sensor, outputs and seed; any of its fields may also be
-        given as a keyword (``SimCamera(..., seed=3)``), overriding ``options``.
+        Intrinsics, sensor, outputs and seed (default: :class:`SimCameraOptions`).
     clock : object with ``now()``/``advance()``; timestamps come from it.
     """
 
     def __init__(self, *, world: SimWorld, pose_fn: Callable[[], np.ndarray], lights: SimLights,
-                 options: SimCameraOptions | None = None, clock=None, **overrides):
-        o = replace(options or SimCameraOptions(), **overrides)
+                 options: SimCameraOptions | None = None, clock=None):
+        o = options or SimCameraOptions()
         self.options = o
         self.world = world
         self._pose_fn = pose_fn

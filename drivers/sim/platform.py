@@ -162,17 +162,13 @@ class SimPlatform:
         Seeds the per-motion noise separately (same platform, another session).
     clock : SimClock, optional (a new one by default).
     config : SimPlatformConfig, optional
-        Motion model and limits; alternatively its fields as keywords
-        (``SimPlatform(dof=3, timeout_s=3.0)``), not both.
+        Motion model and limits (default: :class:`SimPlatformConfig`).
     """
 
     def __init__(self, *, T_base_flange_home: np.ndarray | None = None, errors: PlatformErrorModel | str = "default",
                  seed: int = 0, clock: SimClock | None = None, session_seed: int | None = None,
-                 config: SimPlatformConfig | None = None, **overrides):
-        if config is None:
-            config = SimPlatformConfig(**overrides)
-        elif overrides:
-            raise TypeError("SimPlatform takes either config= or its fields as keywords, not both")
+                 config: SimPlatformConfig | None = None):
+        config = config or SimPlatformConfig()
         if config.dof not in (3, 6):
             raise ValueError("dof must be 3 or 6")
         self.config = config

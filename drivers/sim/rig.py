@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.cameras import CameraIntrinsics
-from drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, SimCamera, perturbed_intrinsics
+from drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, SimCamera, SimCameraOptions, perturbed_intrinsics
 from drivers.sim.groundtruth import GroundTruth
 from drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
 from drivers.sim.render import CameraEffects, Renderer
@@ -110,7 +110,7 @@ class SimRigConfig:
     workspace_half_m: float = 0.25
 
 
-def build_sim_rig(*, scene: str, config: SimRigConfig | None = None, **overrides) -> SimRig:
+def build_sim_rig(*, scene: str, config: SimRigConfig | None = None) -> SimRig:
     """Build a rig in scene ``scene``.
 
     The platform base is placed so that the flange's home pose puts the camera at
@@ -122,14 +122,9 @@ def build_sim_rig(*, scene: str, config: SimRigConfig | None = None, **overrides
     ----------
     scene : scene name (``drivers.sim.scenes.list_scenes``).
     config : SimRigConfig, optional
-        The rig's options; alternatively its fields as keywords
-        (``build_sim_rig(scene="plane", seed=4)``), not both.
+        The rig's options (default: :class:`SimRigConfig`).
     """
-    if config is None:
-        config = SimRigConfig(**overrides)
-    elif overrides:
-        raise TypeError("build_sim_rig takes either config= or its fields as keywords, not both")
-    c = config
+    c = config or SimRigConfig()
     rng = np.random.default_rng([c.seed, 0x816])
     sc = load_scene(scene, seed=c.scene_seed)
     world = SimWorld(scene=sc, renderer=Renderer(sc, supersample=c.supersample))
@@ -153,9 +148,9 @@ def build_sim_rig(*, scene: str, config: SimRigConfig | None = None, **overrides
     gt = GroundTruth(world=world, platform=platform, T_world_base=T_world_base, T_flange_cam=X,
                      intrinsics_true=intr_true)
     camera_seed = int(rng.integers(1 << 31))
-    camera = SimCamera(world=world, pose_fn=gt.T_world_cam_true, lights=lights, intrinsics_true=intr_true,
-                       intrinsics_nominal=c.intrinsics_nominal, effects=effects, exposure=c.exposure,
-                       with_depth=c.with_depth, with_rgb=c.with_rgb, clock=clock,
-                       seed=camera_seed + 7919 * c.session_seed)
+    options = SimCameraOptions(intrinsics_true=intr_true, intrinsics_nominal=c.intrinsics_nominal, effects=effects,
+                               exposure=c.exposure, with_depth=c.with_depth, with_rgb=c.with_rgb,
+                               seed=camera_seed + 7919 * c.session_seed)
+    camera = SimCamera(world=world, pose_fn=gt.T_world_cam_true, lights=lights, clock=clock, options=options)
     platform.connect()
     return SimRig(platform=platform, camera=camera, lights=lights, clock=clock, ground_truth=gt, world=world)

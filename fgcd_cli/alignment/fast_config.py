@@ -2,11 +2,8 @@
 
 :class:`FastAlignConfig` holds one section per stage (pyramid levels, rigid
 step, scale step, convergence, warm start, cold start, scale-minimum check,
-health, weak-direction probe). The flat names of the former single-level
-config still work, for construction and reading alike:
-``FastAlignConfig(estimate_scale=False).estimate_scale`` is
-``FastAlignConfig(scale=ScaleStepConfig(estimate=False)).scale.estimate``, and
-``dataclasses.replace(config, shift_steps=0)`` changes ``config.cold.shift_steps``.
+health, weak-direction probe), e.g.
+``FastAlignConfig(scale=ScaleStepConfig(estimate=False)).scale.estimate``.
 The rationale of each default is in ``docs/alignment.md`` ("Fast alignment");
 its measurements are in ``docs/benchmarks.md``.
 
@@ -16,7 +13,7 @@ Distances given as ``*_rel`` are fractions of the reference cloud's width.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
@@ -243,68 +240,12 @@ class WeakProbeConfig:
     iterations: int = 15
 
 
-#: Flat option name of the former single-level config -> (section, field).
-FLAT_NAMES: dict[str, tuple[str, str]] = {
-    "level_points": ("levels", "points"),
-    "level_radius_rel": ("levels", "radius_rel"),
-    "level_iterations": ("levels", "iterations"),
-    "level_metric": ("levels", "metric"),
-    "robust": ("rigid", "robust"),
-    "sparse_p": ("rigid", "sparse_p"),
-    "admm_iterations": ("rigid", "admm_iterations"),
-    "inlier_factor": ("rigid", "inlier_factor"),
-    "min_inlier_spacing": ("rigid", "min_inlier_spacing"),
-    "estimate_scale": ("scale", "estimate"),
-    "scale_from_level": ("scale", "from_level"),
-    "max_scale_step": ("scale", "max_step"),
-    "max_scale_drift": ("scale", "max_drift"),
-    "trim_factor": ("scale", "trim_factor"),
-    "tau_T": ("convergence", "tau_T"),
-    "tau_sigma": ("convergence", "tau_sigma"),
-    "stall_rel": ("convergence", "stall_rel"),
-    "warm_rel": ("warm", "rel"),
-    "warm_max_scale_change": ("warm", "max_scale_change"),
-    "warm_max_rotation_deg": ("warm", "max_rotation_deg"),
-    "warm_check_scale_change": ("warm", "check_scale_change"),
-    "scale_candidates": ("cold", "scale_candidates"),
-    "search_score": ("cold", "search_score"),
-    "scale_refinements": ("cold", "scale_refinements"),
-    "search_iterations": ("cold", "search_iterations"),
-    "shift_steps": ("cold", "shift_steps"),
-    "shift_rel": ("cold", "shift_rel"),
-    "shift_points": ("cold", "shift_points"),
-    "shift_radius_rel": ("cold", "shift_radius_rel"),
-    "shift_iterations": ("cold", "shift_iterations"),
-    "minimum_check_step": ("minimum_check", "step"),
-    "minimum_check_margin": ("minimum_check", "margin"),
-    "minimum_check_iterations": ("minimum_check", "iterations"),
-    "health_points": ("health", "points"),
-    "inlier_rel": ("health", "inlier_rel"),
-    "inlier_noise_factor": ("health", "inlier_noise_factor"),
-    "overlap_rel": ("health", "overlap_rel"),
-    "min_inlier_ratio": ("health", "min_inlier_ratio"),
-    "min_overlap": ("health", "min_overlap"),
-    "min_condition_ratio": ("health", "min_condition_ratio"),
-    "condition_noise_factor": ("health", "condition_noise_factor"),
-    "scale_bounds": ("health", "scale_bounds"),
-    "weak_probe": ("probe", "enabled"),
-    "weak_probe_rel": ("probe", "rel"),
-    "weak_probe_directions": ("probe", "directions"),
-    "weak_probe_return": ("probe", "return_fraction"),
-    "weak_probe_points": ("probe", "points"),
-    "weak_probe_iterations": ("probe", "iterations"),
-}
-
-
-@dataclass(frozen=True, kw_only=True, init=False)
+@dataclass(frozen=True, kw_only=True)
 class FastAlignConfig:
     """Options of :func:`~fgcd_cli.alignment.fast.fast_align`, one section per stage.
 
-    Construct with sections (``FastAlignConfig(cold=ColdStartConfig(shift_steps=0))``) or,
-    as before the grouping, with the flat names of :data:`FLAT_NAMES`
-    (``FastAlignConfig(shift_steps=0)``); flat names override the sections given with them,
-    so ``dataclasses.replace(config, shift_steps=0)`` works too. Flat names can be read as
-    attributes (``config.shift_steps``).
+    Construct with sections: ``FastAlignConfig(cold=ColdStartConfig(shift_steps=0))``;
+    change one option with ``replace(config, cold=replace(config.cold, shift_steps=0))``.
     """
 
     levels: PyramidConfig = field(default_factory=PyramidConfig)
@@ -318,43 +259,3 @@ class FastAlignConfig:
     probe: WeakProbeConfig = field(default_factory=WeakProbeConfig)
     seed: int = 0
     """Seed of the random point subsets (fixed: results are reproducible)."""
-
-    def __init__(
-        self,
-        *,
-        levels: PyramidConfig | None = None,
-        rigid: RigidStepConfig | None = None,
-        scale: ScaleStepConfig | None = None,
-        convergence: ConvergenceConfig | None = None,
-        warm: WarmStartConfig | None = None,
-        cold: ColdStartConfig | None = None,
-        minimum_check: MinimumCheckConfig | None = None,
-        health: HealthConfig | None = None,
-        probe: WeakProbeConfig | None = None,
-        seed: int = 0,
-        **flat: Any,
-    ) -> None:
-        sections = {"levels": levels, "rigid": rigid, "scale": scale, "convergence": convergence,
-                    "warm": warm, "cold": cold, "minimum_check": minimum_check, "health": health,
-                    "probe": probe}
-        overrides: dict[str, dict[str, Any]] = {}
-        for name, value in flat.items():
-            if name not in FLAT_NAMES:
-                raise TypeError(f"FastAlignConfig got an unexpected keyword argument {name!r}")
-            section, key = FLAT_NAMES[name]
-            overrides.setdefault(section, {})[key] = value
-        for f in fields(self):
-            if f.name == "seed":
-                continue
-            value = sections[f.name] if sections[f.name] is not None else f.default_factory()
-            if f.name in overrides:
-                value = replace(value, **overrides[f.name])
-            _frozen_set(self, f.name, value)
-        _frozen_set(self, "seed", seed)
-
-    def __getattr__(self, name: str) -> Any:
-        # Only called when normal lookup fails: the flat names of the former config.
-        if name not in FLAT_NAMES:
-            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
-        section, key = FLAT_NAMES[name]
-        return getattr(getattr(self, section), key)

@@ -41,7 +41,7 @@ import numpy as np
 from fgcd_cli.alignment.evaluation import evaluate_alignment
 from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.alignment.fine_problem import Block, FineProblem, GeometricMatches, PhotometricObservations
-from fgcd_cli.alignment.lm import levenberg_marquardt
+from fgcd_cli.alignment.lm import minimise_subset
 from fgcd_cli.alignment.photometric import prepare_keyframe, sample, visible_nearest
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, FineAlignmentResult, ResidualStats
@@ -297,7 +297,7 @@ def _refine_level(state: _FineState, ctx: _FineInputs, geo: GeometricMatches | N
         # Moving all keyframes together is (nearly) a change of the similarity,
         # observed by E_p only through parallax: fix that gauge (zero mean
         # correction) and leave it to the similarity step, where E_g sees it.
-        state.poses, it, _ = levenberg_marquardt(
+        state.poses, it, _ = minimise_subset(
             lambda poses, jac: problem.cost(S, poses, block=Block.KEYFRAMES if jac else None, with_geometry=False),
             lambda poses, delta: [T @ exp_se3(delta[6 * u : 6 * u + 6]) for u, T in enumerate(poses)],
             state.poses, iterations=config.keyframe_iterations, free=np.arange(6 * K),
@@ -306,7 +306,7 @@ def _refine_level(state: _FineState, ctx: _FineInputs, geo: GeometricMatches | N
         state.iterations += it
     poses = state.poses
     free_sim = np.arange(7) if config.estimate_scale else np.arange(6)
-    state.S, it, _ = levenberg_marquardt(
+    state.S, it, _ = minimise_subset(
         lambda S, jac: problem.cost(S, poses, block=Block.SIMILARITY if jac else None, with_geometry=True),
         lambda S, delta: Sim3.exp(delta) @ S,
         state.S, iterations=config.similarity_iterations, free=free_sim,

@@ -20,7 +20,7 @@ from scipy import sparse
 
 from fgcd_cli.alignment.photometric import KeyframeImage, project_with_jacobian, sample
 from fgcd_cli.alignment.sparse_icp import gram
-from fgcd_core import PinholeCamera, Sim3
+from fgcd_core import PinholeCamera, Sim3, lm
 
 __all__ = ["Block", "PhotometricObservations", "GeometricMatches", "FineProblem", "huber_weights"]
 
@@ -40,9 +40,7 @@ class Block(StrEnum):
 def huber_weights(r: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """IRLS weights and Huber costs of residuals ``r`` scaled by ``sigma``."""
     a = np.abs(r) / sigma
-    w = np.where(a <= _HUBER_K, 1.0, _HUBER_K / np.maximum(a, 1e-12))
-    cost = np.where(a <= _HUBER_K, 0.5 * a * a, _HUBER_K * (a - 0.5 * _HUBER_K))
-    return w, cost
+    return lm.huber_weights(a, _HUBER_K), lm.huber_rho(a, _HUBER_K)
 
 
 @dataclass(frozen=True, kw_only=True)

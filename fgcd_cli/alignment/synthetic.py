@@ -8,7 +8,7 @@ by the alignment algorithms themselves; ground truth is explicit in every return
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import gaussian_filter, map_coordinates
@@ -248,7 +248,6 @@ def make_session(
     T_ref_cur: Sim3,
     rng: np.random.Generator,
     config: SessionConfig | None = None,
-    **options,
 ) -> SyntheticSession:
     """Render keyframes around a frontal view of the relief and build the current cloud.
 
@@ -261,10 +260,9 @@ def make_session(
     rng : numpy.random.Generator
         Pose errors, depth noise and pixel choice.
     config : SessionConfig, optional
-        The session's geometry and noise; the fields of :class:`SessionConfig` may also
-        be given as keywords (``n_keyframes=5``), overriding ``config``.
+        The session's geometry and noise (default: :class:`SessionConfig`).
     """
-    cfg = replace(config or SessionConfig(), **options)
+    cfg = config or SessionConfig()
     centre = cfg.centre
     target = np.array([centre[0], centre[1], 0.0])
     kfs, truths, pts, ids = [], [], [], []

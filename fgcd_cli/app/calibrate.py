@@ -137,13 +137,14 @@ def run_handeye(
     drivers.platform.PlatformError
         A motion failed or was refused.
     """
-    from fgcd_cli.calibration.procedure import run_target, run_target_free
+    from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig, run_target, run_target_free
 
     request = request or HandEyeRequest()
     if request.mode == HandEyeMode.TARGET_FREE:
         run = run_target_free(
             rig.guard, rig.camera_source, vse_factory or _monocular_vse, camera=rig.intrinsics,
-            translation_m=request.translation_mm / 1000, rotation_deg=request.rotation_deg, refine=request.refine,
+            config=TargetFreeRunConfig(translation_m=request.translation_mm / 1000, rotation_deg=request.rotation_deg,
+                                       refine=request.refine),
             progress=say, on_progress=on_progress,
         )
         result, record = run.result, run.result.to_dict()
@@ -152,7 +153,7 @@ def run_handeye(
 
         rotation = request.rotation_deg if request.rotation_deg != TARGET_FREE_ROTATION_DEG else TARGET_ROTATION_DEG
         run = run_target(rig.guard, rig.camera_source, load_board_sidecar(request.board_file), camera=rig.intrinsics,
-                         rotation_deg=rotation, progress=say, on_progress=on_progress)
+                         config=TargetRunConfig(rotation_deg=rotation), progress=say, on_progress=on_progress)
         result, record = run.result.best, run.result.to_dict()
     record["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
     return HandEyeCalibration(result=result, record=record, run=run)

@@ -191,16 +191,15 @@ class CaptureRequest:
     host: str | None = None
 
 
-def plan_capture(campaign, request: CaptureRequest | None = None, **options) -> CapturePlan:
+def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
     """Check every option of a capture, in the order a person fixes them; nothing is written.
 
     Station (name, damage, existing reference) -> driver -> world (scene)
     -> the driver's address -> lights -> calibration. The simulated world is the station's: ``--scene``
     and ``--seed`` override the campaign's default ``[rig.sim]`` for this
-    station only, and are recorded in its reference. The former keyword form
-    ``plan_capture(campaign, station=..., driver=..., ...)`` builds the request from ``options``.
+    station only, and are recorded in its reference.
     """
-    r = request if request is not None else CaptureRequest(**options)
+    r = request
     check_station_can_take_a_reference(campaign, r.station)
     driver = check_driver(r.driver or campaign.rig_config.get("driver", Driver.SIM))
     scenario = None

@@ -10,7 +10,7 @@ import numpy as np
 
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import grab_gray, reference_images
-from fgcd_cli.relocation.coarse import CoarseConfig, CoarseResult, image_estimate, run_coarse_stage
+from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs, CoarseResult, image_estimate, run_coarse
 from fgcd_cli.relocation.loop import ReferenceData
 
 __all__ = ["CoarseStart", "maybe_coarse"]
@@ -90,10 +90,10 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
         return None, init
     rig.say(f"{source} {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
     rig.progress(0, 0, "active coarse stage")
-    result = run_coarse_stage(session=session, reference=reference, ref_index=start.ref_index, camera=rig.intrinsics,
+    result = run_coarse(CoarseInputs(session=session, reference=reference, ref_index=start.ref_index, camera=rig.intrinsics,
                               scale=start.scale, T_flange_cam=rig.T_flange_cam, init=init,
                               reference_images=reference_images(start.station), grab_current=lambda: grab_gray(rig),
-                              config=config, evaluate=start.evaluate, say=rig.say)
+                              config=config, evaluate=start.evaluate, say=rig.say))
     if not result.handed_over:
         rig.say(f"{result.reason}; the rACR loop starts from the first estimate")
         return result, init

@@ -214,7 +214,7 @@ def _diff(run: _DemoRun, camp_dir: Path) -> dict:
     config = run.config
     run.say("5/5 change detection and report")
     run.tick("change detection and report")
-    diff = diff_uc.run_campaign(camp_dir, config.station)
+    diff = diff_uc.run_campaign(diff_uc.CampaignDiffRequest(campaign=camp_dir, station=config.station))
     visit = run.station.visit()
     summary = {
         "regions": len(diff.get("regions", [])),

@@ -12,6 +12,7 @@ from typing import Callable
 
 import numpy as np
 
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes
 from fgcd_cli.changes import detect_changes
@@ -19,7 +20,7 @@ from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
-from fgcd_cli.metrics.afd import FdfResult, compute_fdf
+from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.report.products import diff_products, result_summary
 
@@ -44,7 +45,7 @@ def measure_fdf(ref_image: np.ndarray, cur_image: np.ndarray) -> FdfResult | Non
         return None
     for method in ("sift", "grid"):
         try:
-            return compute_fdf(ref, cur, method=method)
+            return compute_fdf(ref, cur, config=FdfConfig(method=method))
         except AlgorithmError:
             continue
     return None
@@ -91,17 +92,12 @@ class BareDiffRequest:
     ambient_index: int | None = None
 
 
-def run_bare(ref: list[str] | None = None, cur: list[str] | None = None, output: Path | None = None, *,
-             request: BareDiffRequest | None = None, progress: Progress = None, tile_progress: TileProgress = None,
-             **options) -> dict:
+def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progress: TileProgress = None) -> dict:
     """Compare image files (one per lighting) and write the products into ``output``.
 
     ``ambient_index`` (0-based) names the image taken under ambient light only; it is
-    left out of the photometric-stereo fit that labels regions relief / colour. The former
-    form ``run_bare(ref, cur, output, eval_mask=..., ...)`` builds the request from ``options``.
+    left out of the photometric-stereo fit that labels regions relief / colour.
     """
-    if request is None:
-        request = BareDiffRequest(ref=ref, cur=cur, output=output, **options)
     r = request
     output, eval_mask, truth, mm_per_px, register = r.output, r.eval_mask, r.truth, r.mm_per_px, r.register
     edge_check_px, ambient_index = r.edge_check_px, r.ambient_index
@@ -125,12 +121,15 @@ def run_bare(ref: list[str] | None = None, cur: list[str] | None = None, output:
 
         _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
                        "(no edge check, no FDF on frames this large)")
-        result = detect_changes_tiled(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                                      ambient_index=ambient_index, progress=tile_progress)
+        result = detect_changes_tiled(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, progress=tile_progress,
+                                      config=DetectionConfig.from_options(register=register,
+                                                                          ambient_index=ambient_index))
         fdf = None
     else:
-        result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                                edge_check_px=_edge_check(edge_check_px), ambient_index=ambient_index)
+        result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,
+                                config=DetectionConfig.from_options(register=register,
+                                                                    edge_check_px=_edge_check(edge_check_px),
+                                                                    ambient_index=ambient_index))
         fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
     metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
     if mm_per_px is not None:
@@ -279,16 +278,10 @@ class CampaignDiffRequest:
     edge_check_px: int | None = None
 
 
-def run_campaign(campaign: Path | None = None, station: str | None = None, *,
-                 request: CampaignDiffRequest | None = None, progress: Progress = None, **options) -> dict:
-    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``).
-
-    The former form ``run_campaign(campaign, station, visit=..., ...)`` builds the request from ``options``.
-    """
+def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> dict:
+    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``)."""
     from fgcd_cli.campaign import open_campaign
 
-    if request is None:
-        request = CampaignDiffRequest(campaign=campaign, station=station, **options)
     r = request
     campaign, station, visit, eval_mask, mm_per_px = r.campaign, r.station, r.visit, r.eval_mask, r.mm_per_px
     register, output, edge_check_px = r.register, r.output, r.edge_check_px
@@ -311,9 +304,9 @@ def run_campaign(campaign: Path | None = None, station: str | None = None, *,
     edge_check = _edge_check(EDGE_CHECK_PX if edge_check_px is None else edge_check_px)
     _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
-    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, register=register,
-                            edge_check_px=edge_check,
-                            ambient_index=lightings.index("ambient") if "ambient" in lightings else None)
+    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,
+                            config=DetectionConfig.from_options(register=register, edge_check_px=edge_check,
+                                                                ambient_index=lightings.index("ambient") if "ambient" in lightings else None))
     fdf = measure_fdf(ref_images[0], cur_images[0])
     reloc = observation.metadata.get("relocation") or {}
     metadata = {

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -34,7 +34,7 @@ from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult
 from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
-from fgcd_cli.relocation.loop import run_relocation
+from fgcd_cli.relocation.loop import LoopContext, relocate
 
 __all__ = ["RelocateHooks", "RelocateRequest", "RevisitOutcome", "RevisitPlan", "RevisitRequest", "check_relocation_options",
            "load_reference", "plan_revisit", "reference_images", "relocate_and_capture", "run_revisit", "visit_lightings",
@@ -89,23 +89,15 @@ class RelocateHooks:
     evaluation: Callable[[], dict] | None = None
 
 
-_HOOK_FIELDS = frozenset(f.name for f in fields(RelocateHooks))
-
-
-def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest | None = None, *,
-                         hooks: RelocateHooks | None = None, **options) -> CaptureResult:
+def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
+                         hooks: RelocateHooks | None = None) -> CaptureResult:
     """Relocate to the station's reference pose with rACR, then write a visit.
 
     When the first estimate puts the camera farther than ``coarse.trigger_*`` from the
     reference pose, the active coarse stage (:mod:`fgcd_cli.relocation.coarse`, paper 001)
     runs first; ``coarse=None`` leaves it out (the loop then pauses on such a start).
-    The former keyword form ``relocate_and_capture(rig, station, config=..., lightings=...,
-    evaluate=..., ...)`` builds the request and hooks from ``options``.
     """
-    if request is None:
-        request = RelocateRequest(**{k: v for k, v in options.items() if k not in _HOOK_FIELDS})
-    if hooks is None:
-        hooks = RelocateHooks(**{k: v for k, v in options.items() if k in _HOOK_FIELDS})
+    hooks = hooks or RelocateHooks()
     from fgcd_cli.alignment import ReferenceIndex
 
     reference = load_reference(station)
@@ -121,7 +113,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest | No
         rig.say(f"relocating ({request.config.mode}) to the reference of station '{station.name}'")
         rig.progress(0, 0, "relocating")
         try:
-            result = run_relocation(
+            result = relocate(LoopContext(
                 session=session,
                 reference=reference,
                 ref_index=ref_index,
@@ -134,7 +126,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest | No
                 on_record=hooks.on_record,
                 reference_images=ref_images,
                 grab_current=lambda: grab_gray_under(rig, vse, same_light),
-            )
+            ))
         except AlgorithmError as exc:
             # the loop paused: what the coarse stage did before stays available to the caller
             exc.coarse_result = coarse_result

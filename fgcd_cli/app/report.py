@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fgcd_cli.app.diff import Progress, run_campaign
+from fgcd_cli.app.diff import CampaignDiffRequest, Progress, run_campaign
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes
 
@@ -27,7 +27,7 @@ def station_history(campaign: Path, station: str, *, output: Path | None = None,
     for name in st.visit_names():
         observation = st.visit(name)
         if not observation.has(_REGIONS):
-            run_campaign(campaign, station, visit=name, progress=progress)
+            run_campaign(CampaignDiffRequest(campaign=campaign, station=station, visit=name), progress=progress)
             observation = st.visit(name)
         summary = observation.json(_REGIONS)
         regions = summary.get("regions", [])

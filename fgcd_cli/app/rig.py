@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Callable, Iterator, Protocol
 
 import numpy as np
@@ -227,17 +227,12 @@ def open_sim_rig(
 ) -> OpenedRig:
     """A simulated rig for one session of a scenario (``on_progress``: see :class:`RigHandles`)."""
     from drivers.platform import GuardLimits
-    from drivers.sim.rig import build_sim_rig
+    from drivers.sim.rig import SimRigConfig, build_sim_rig
 
     scenario = check_scenario(scenario)
-    rig = build_sim_rig(
-        scene=scenario.scene,
-        lighting=scenario.lighting,
-        seed=scenario.seed,
-        noise=scenario.noise,
-        session_seed=scenario.session_seed,
-        with_depth=vse_variant == "rgbd",
-    )
+    rig = build_sim_rig(scene=scenario.scene,
+                        config=SimRigConfig(lighting=scenario.lighting, seed=scenario.seed, noise=scenario.noise,
+                                            session_seed=scenario.session_seed, with_depth=vse_variant == "rgbd"))
     if scenario.changes > 0:
         rig.inject_changes(n=scenario.changes, seed=scenario.change_seed, size_mm=tuple(scenario.change_size_mm))
     if scenario.start_offset_mm > 0 or scenario.start_offset_deg > 0:
@@ -304,21 +299,9 @@ class RigHooks:
     on_progress: Callable[[int, int, str], None] | None = None
 
 
-_HOOK_FIELDS = frozenset(f.name for f in fields(RigHooks))
-
-
-def open_rig(request: RigRequest | None = None, *, hooks: RigHooks | None = None, **options) -> OpenedRig:
-    """Open the rig a command asked for (``hooks``: see :class:`RigHandles`).
-
-    The former keyword form ``open_rig(driver=..., T_flange_cam=..., confirm=..., ...)``
-    still works: ``options`` are the fields of :class:`RigRequest` and :class:`RigHooks`.
-    """
-    if request is None:
-        request = RigRequest(**{k: v for k, v in options.items() if k not in _HOOK_FIELDS})
-    elif options.keys() - _HOOK_FIELDS:
-        raise TypeError(f"open_rig: options {sorted(options.keys() - _HOOK_FIELDS)} given with a request")
-    if hooks is None:
-        hooks = RigHooks(**{k: v for k, v in options.items() if k in _HOOK_FIELDS})
+def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig:
+    """Open the rig a command asked for (``hooks``: see :class:`RigHandles`)."""
+    hooks = hooks or RigHooks()
     if request.driver == Driver.SIM:
         return open_sim_rig(
             request.scenario or SimScenario(),
@@ -339,11 +322,11 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
     if request.intrinsics is None:
         raise UserInputError("no camera intrinsics in the campaign rig: run `fgcd calibrate intrinsics` first")
     from drivers.cameras import OpenCVCamera
-    from drivers.connect import open_platform
+    from drivers.connect import PlatformSpec, open_platform
     from drivers.platform import GuardLimits
 
     try:
-        platform = open_platform(driver, port=request.port, baud=request.baud, host=request.host)
+        platform = open_platform(driver, spec=PlatformSpec(port=request.port, baud=request.baud, host=request.host))
         platform.connect()
         raw_camera = OpenCVCamera(request.camera_index, width=request.intrinsics.width,
                                   height=request.intrinsics.height)

@@ -38,6 +38,7 @@ from fgcd_cli.alignment import (
     fast_align,
     fine_align,
 )
+from fgcd_cli.alignment.fast_config import ScaleStepConfig
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity
 from fgcd_core import PinholeCamera, Sim3, exp_se3, pose_distance
 from fgcd_core.se3 import project_to_so3
@@ -201,7 +202,7 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
             fast = fast_align(cur_points, ref_index, init=init)
             # rACR-S: the session scale is taken as exact (sigma_p = 1), only R, t are estimated.
             no_scale = fast_align(cur_points, ref_index, init=Sim3(init.R, init.t, 1.0),
-                                  config=FastAlignConfig(estimate_scale=False))
+                                  config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)))
             row.update(_score("fast", fast.T_ref_cur, vse_poses, truths_ref, T_true, fast.health.ok))
             row["fast_seconds"] = fast.seconds
             row["fast_start"] = str(fast.start)

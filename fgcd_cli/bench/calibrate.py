@@ -32,8 +32,8 @@ import time
 import numpy as np
 
 from drivers.platform import MotionGuard
-from drivers.sim.board import SimBoard, random_board_poses, render_board_view
-from drivers.sim.rig import build_sim_rig
+from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
+from drivers.sim.rig import SimRigConfig, build_sim_rig
 from fgcd_cli.app.calibrate import HandEyeRig, run_handeye
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
@@ -73,9 +73,8 @@ def _board_spec(board: SimBoard) -> BoardSpec:
 def _intrinsics_stage(true: PinholeCamera, seed: int, n_views: int) -> tuple[PinholeCamera, dict]:
     board = SimBoard()
     rng = np.random.default_rng([seed, 1])
-    cam = dict(fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, width=true.width, height=true.height)
-    poses = random_board_poses(board, n_views, **cam, rng=rng)
-    images = [render_board_view(board, T, **cam, dist=true.dist, supersample=2, rng=rng) for T in poses]
+    poses = random_board_poses(board, n_views, true, rng=rng)
+    images = [render_board_view(board, T, true, options=BoardViewOptions(supersample=2), rng=rng) for T in poses]
     res = calibrate_intrinsics(images, _board_spec(board))
     return res.camera, {"err_pct": _intrinsics_error_pct(res.camera, true), "rms_px": res.rms_px, "views": res.n_views}
 
@@ -91,7 +90,6 @@ def _target_stage(rig, calibrated: PinholeCamera, true: PinholeCamera, seed: int
     T_world_board = gt.T_world_cam_true() @ T_cam0_board
     guard = MotionGuard(rig.platform)
     T_start = rig.platform.flange_pose()
-    cam = dict(fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, width=true.width, height=true.height)
     hand, boards = [], []
     T_prev = T_start
     for T_rel in target_motions(rotation_deg=15.0):
@@ -100,7 +98,7 @@ def _target_stage(rig, calibrated: PinholeCamera, true: PinholeCamera, seed: int
             guard.move_to(T_step)
         T_prev = T_target
         T_cam_board = invert_pose(gt.T_world_cam_true()) @ T_world_board
-        image = render_board_view(board, T_cam_board, **cam, dist=true.dist, supersample=2, rng=rng)
+        image = render_board_view(board, T_cam_board, true, options=BoardViewOptions(supersample=2), rng=rng)
         det = spec.detect(image)
         T_est = spec.estimate_pose(det, calibrated.K, calibrated.dist) if det.n_corners >= 12 else None
         if T_est is not None:
@@ -237,14 +235,14 @@ def run(*, quick: bool = False) -> dict:
     rigs_out = []
     for seed, noise in QUICK_RIGS if quick else RIGS:
         t0 = time.perf_counter()
-        rig = build_sim_rig(scene="stele", seed=seed, noise=noise)
+        rig = build_sim_rig(scene="stele", config=SimRigConfig(seed=seed, noise=noise))
         true = _pinhole(rig.ground_truth.intrinsics_true())
         # the same board views in both runs, so that the quick run is a subset of the full one
         # (the hand-eye follows the intrinsics' error)
         calibrated, intr = _intrinsics_stage(true, seed, INTRINSICS_VIEWS)
         target = _target_stage(rig, calibrated, true, seed)
         rig.close()
-        rig = build_sim_rig(scene="stele", seed=seed, noise=noise)
+        rig = build_sim_rig(scene="stele", config=SimRigConfig(seed=seed, noise=noise))
         try:
             free = _target_free_stage(rig, calibrated)
         except Exception as exc:  # a failed session is a benchmark result, reported as such

@@ -30,7 +30,7 @@ import numpy as np
 
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.baseline_iccv import iccv2015_score
-from fgcd_cli.changes.config import DecisionRule
+from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig
 from fgcd_cli.changes.detect import decide
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.registration import warp_to_reference
@@ -51,7 +51,7 @@ SCORE_GRID = ((12.0, 2.0), (6.0, 2.0), (24.0, 2.0), (12.0, 1.0), (12.0, 3.0))
 
 
 def detector_options(key: tuple) -> dict:
-    """``decide`` keyword options of one grid point."""
+    """The :class:`RegionConfig` fields of one grid point."""
     rule, a, b = key
     if rule == DecisionRule.HYSTERESIS:
         return {"decision": rule, "k_high": a, "k_low": a / 2.0}
@@ -93,7 +93,7 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
     sweep = sweep_scores(result.score, truth, eval_mask=mask)
     rows = {}
     for key in grid:
-        changed, _, _ = decide(result.score, result.valid, **detector_options(key))
+        changed, _, _ = decide(result.score, result.valid, config=RegionConfig(**detector_options(key)))
         auto = binary_scores(changed, truth, eval_mask=mask)
         rows[key] = {
             "best_f1": sweep.best_f1, "ap": sweep.average_precision, "auto_f1": auto.f1,
@@ -102,7 +102,7 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
         }
     # Baselines on the same registered pair: without the dense refinement, and the
     # ICCV 2015 method's key ideas (normal-aware correction, low rank + sparse).
-    no_dense = detect_changes(ref, cur, eval_mask=mask, dense=False, cues=False)
+    no_dense = detect_changes(ref, cur, eval_mask=mask, config=DetectionConfig.from_options(dense=False, cues=False))
     no_dense_sweep = sweep_scores(no_dense.score, truth, eval_mask=mask)
     registered = [warp_to_reference(to_float_image(c), result.registration.H_cur_ref, truth.shape)[0] for c in cur]
     iccv = iccv2015_score([to_float_image(r) for r in ref], registered, valid=result.valid,
@@ -113,8 +113,9 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
         if (gain_sigma, smooth_sigma) == SCORE_GRID[0]:
             variants[(gain_sigma, smooth_sigma)] = {"best_f1": sweep.best_f1, "ap": sweep.average_precision}
             continue
-        variant = detect_changes(ref, cur, eval_mask=mask, cues=False, gain_sigma_px=gain_sigma,
-                                 smooth_sigma_px=smooth_sigma)
+        variant = detect_changes(ref, cur, eval_mask=mask,
+                                 config=DetectionConfig.from_options(cues=False, gain_sigma_px=gain_sigma,
+                                                                     smooth_sigma_px=smooth_sigma))
         variant_sweep = sweep_scores(variant.score, truth, eval_mask=mask)
         variants[(gain_sigma, smooth_sigma)] = {"best_f1": variant_sweep.best_f1, "ap": variant_sweep.average_precision}
     return {"group": folder.name, "kind": folder.parent.name, "lightings": lightings,
@@ -232,7 +233,7 @@ def _write_overlays(folders, scored, deployed, overlay_dir: Path) -> None:
         cur = [_read_rgb(folder / f"1-{k}.png") for k in lightings]
         truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
         mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
-        result = detect_changes(ref, cur, eval_mask=mask, **detector_options(deployed))
+        result = detect_changes(ref, cur, eval_mask=mask, config=DetectionConfig.from_options(**detector_options(deployed)))
         overlay = change_overlay(ref[0], result.labels, result.regions, valid=result.valid,
                                  candidates=result.candidates)
         contours, _ = cv2.findContours((truth & mask).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)

@@ -21,6 +21,7 @@ from drivers.cameras import CameraIntrinsics
 from drivers.sim.changes import random_changes
 from drivers.sim.render import CameraEffects, Renderer
 from drivers.sim.scenes import load_scene
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes import detect_changes, pixel_area_from_depth
 from fgcd_core.se3 import exp_se3
 from fgcd_cli.metrics.change_scores import binary_scores
@@ -102,7 +103,7 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
                                      effects=cur_effects, exposure=ref_exposure * 0.8, rng=rng)
             for setting, check in (("campaign", RELOCATED_EDGE_CHECK_PX), ("plain", 0)):
                 result = detect_changes(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=area,
-                                        edge_check_px=check)
+                                        config=DetectionConfig.from_options(edge_check_px=check))
                 row = {"scene": RELOCATED_SCENE, "seed": seed, "changed": changed, "setting": setting,
                        "edge_check_px": check, "comparable": result.comparable, "regions": len(result.regions),
                        "set_aside_regions": result.settings.get("edge_explained_regions", 0)}
@@ -163,7 +164,7 @@ def run_sim(*, quick: bool, seeds: tuple[int, ...] | None = None, scenes: tuple[
                 cur_images = _render_set(renderer, T_cur, intr, changes=changes if changed else None,
                                          effects=cur_effects, exposure=cur_exposure, rng=rng)
                 result = detect_changes(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=area,
-                                        **(detector_options or {}))
+                                        config=DetectionConfig.from_options(**(detector_options or {})))
                 seconds = time.perf_counter() - t0
                 row = {"scene": scene_name, "seed": seed, "changed": changed, "comparable": result.comparable,
                        "reason": result.reason, "regions": len(result.regions), "seconds": seconds,

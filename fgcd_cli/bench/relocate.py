@@ -85,7 +85,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
     from fgcd_cli.app.capture import capture_reference
-    from fgcd_cli.app.relocate import relocate_and_capture
+    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
     from fgcd_cli.relocation.loop import RelocationConfig
     from fgcd_cli.app.rig import open_sim_rig
     from fgcd_cli.app.scenario import SimScenario
@@ -119,8 +119,11 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
         ev = RelocationEvaluator.from_reference(rig.sim, st.reference())
         try:
             t0 = time.monotonic()
-            vis = relocate_and_capture(rig.handles, st, config=RelocationConfig(mode=mode), lightings=[case.visit_light, case.reference_light],
-                                       evaluate=ev.evaluate, evaluation=ev.summary, coarse=coarse)
+            vis = relocate_and_capture(
+                rig.handles, st,
+                RelocateRequest(config=RelocationConfig(mode=mode), lightings=[case.visit_light, case.reference_light],
+                                coarse=coarse),
+                hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary))
             r = vis.relocation
             truth = ev.evaluate()
             out[label] = {

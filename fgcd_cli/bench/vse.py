@@ -47,9 +47,9 @@ def exploration_waypoints(*, translation_m: float = 0.03, rotation_deg: float = 
 
 def _render_sequence(scene: str, *, legs: int, step_m: float, step_deg: float, seed: int = 0):
     from drivers.platform import MotionGuard
-    from drivers.sim.rig import build_sim_rig
+    from drivers.sim.rig import SimRigConfig, build_sim_rig
 
-    rig = build_sim_rig(scene=scene, lighting="front", seed=seed, intrinsics_error="none")
+    rig = build_sim_rig(scene=scene, config=SimRigConfig(lighting="front", seed=seed, intrinsics_error="none"))
     try:
         intr = rig.camera.intrinsics_nominal
         camera = PinholeCamera(fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy, width=intr.width, height=intr.height,

@@ -14,8 +14,8 @@ from typing import Sequence
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye_model import project
-from fgcd_core.se3 import invert_pose
+from fgcd_core.camera import pinhole_pixels
+from fgcd_core.se3 import invert_pose, transform_points
 
 __all__ = ["KeyframeDepths", "scale_from_depths"]
 
@@ -107,7 +107,8 @@ def _depth_ratios(P: np.ndarray, X: np.ndarray, kf: KeyframeDepths, K: np.ndarra
     from scipy.spatial import cKDTree
 
     T_cam_base = invert_pose(np.asarray(kf.T_base_flange, dtype=float) @ X)
-    uv, z_metric = project(np.repeat(T_cam_base[None], len(P), axis=0), K, P)
+    pc = transform_points(T_cam_base, P)
+    uv, z_metric = pinhole_pixels(K, pc), pc[:, 2]
     T_cam_map = invert_pose(np.asarray(kf.T_map_cam, dtype=float))
     z_map = (np.asarray(kf.points_map, dtype=float) @ T_cam_map[:3, :3].T + T_cam_map[:3, 3])[:, 2]
     dist, nn = cKDTree(np.asarray(kf.pixels, dtype=float)).query(uv, distance_upper_bound=max_px)

@@ -1,28 +1,41 @@
 """Levenberg-Marquardt over the hand-eye model with the landmarks eliminated (Schur complement).
 
-Huber IRLS on the norm of each observation's reprojection error; the landmark
-blocks are eliminated (:mod:`fgcd_cli.calibration.handeye_schur`), so each step
-solves a 6x6 (7x7) system.
+The problem of :func:`lm_handeye` runs on fgcd's one damped least-squares driver
+(:mod:`fgcd_core.lm`) and its one Schur-complement solve (:mod:`fgcd_core.schur`):
+a single camera block (the hand-eye's 6 parameters, 7 with the rotation scale)
+that every observation sees, and one 3-vector block per landmark, so each step
+solves a 6x6 (7x7) reduced system. Huber IRLS on the norm of each observation's
+reprojection error.
 
 Why not :func:`scipy.optimize.least_squares`: with the same model and an
 analytic sparse Jacobian ('trf', ``x_scale='jac'``), its sparse trust-region
 steps (LSMR, no Schur elimination) reach this solver's hand-eye only with a
 tight LSMR tolerance, several times to fifty times slower; with LSMR's default
 tolerance it stops short of the minimum by millimetres (measurements in
-docs/benchmarks.md, "Calibration").
+docs/benchmarks.md, "Measurements that were code comments", hand-eye solver).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
 
-from fgcd_cli.calibration.handeye_model import HandPoses, Observations, huber_cost, linearise
-from fgcd_cli.calibration.handeye_schur import normal_equations, point_sums, reduced_system
+from fgcd_cli.calibration.handeye_model import HandPoses, Observations, linearise
+from fgcd_core.lm import LMSchedule, huber_cost, huber_weights, levenberg_marquardt
+from fgcd_core.schur import (BlockNormalEquations, Damping, SchurDamping, block_normal_equations,
+                             reduced_camera_system, schur_step)
 from fgcd_core.se3 import exp_se3
 
 __all__ = ["lm_handeye", "Adjusted"]
+
+#: Levenberg damping (``+ lambda I``); the landmark blocks get a tiny relative floor, as a
+#: point seen only from one camera centre (a pure rotation) has no depth information
+_DAMPING = SchurDamping(rule=Damping.LEVENBERG, point_floor=1e-12, point_floor_relative=1e-9)
+#: lambda / 3 after a success, x 10 after a failure, at most 8 tries per linearisation
+_SCHEDULE = LMSchedule(initial_damping=1e-3, decrease=3.0, min_damping=1e-9, increase=10.0, max_damping=np.inf,
+                       max_rejections=8, relative_decrease=1e-10, min_step=1e-10)
 
 
 class Adjusted(NamedTuple):
@@ -47,6 +60,53 @@ class Adjusted(NamedTuple):
     S: np.ndarray
 
 
+class _HandEyeState(NamedTuple):
+    """Hand-eye, landmarks, rotation scale, and the residuals and Jacobians there."""
+
+    X: np.ndarray
+    P: np.ndarray
+    scale: float
+    r: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class _HandEyeProblem:
+    """The hand-eye adjustment as a :class:`fgcd_core.lm.LeastSquaresProblem`; the hand-eye is camera block 0."""
+
+    hand: HandPoses
+    K: np.ndarray
+    obs: Observations
+    with_scale: bool
+    huber_px: float
+
+    def state(self, X: np.ndarray, P: np.ndarray, scale: float) -> _HandEyeState:
+        r, A, B = linearise(self.hand, self.K, X, P, self.obs, scale, with_scale=self.with_scale)
+        return _HandEyeState(X, P, scale, r, A, B)
+
+    def normal_equations(self, s: _HandEyeState, w: np.ndarray) -> BlockNormalEquations:
+        return block_normal_equations(s.r, s.A, s.B, w, np.zeros(len(w), dtype=np.int64), self.obs.pt, n_cameras=1,
+                                      n_points=len(s.P))
+
+    def cost(self, s: _HandEyeState) -> float:
+        return huber_cost(np.linalg.norm(s.r, axis=1), self.huber_px)
+
+    def linearise(self, s: _HandEyeState) -> BlockNormalEquations:
+        return self.normal_equations(s, huber_weights(np.linalg.norm(s.r, axis=1), self.huber_px))
+
+    def step(self, eq: BlockNormalEquations, lam: float):
+        return schur_step(eq, lam, _DAMPING)
+
+    def apply(self, s: _HandEyeState, step) -> _HandEyeState:
+        dx = step[0][0]
+        scale = s.scale + float(dx[6]) if self.with_scale else s.scale
+        return self.state(s.X @ exp_se3(dx[:6]), s.P + step[1], scale)
+
+    def step_size(self, step) -> float:
+        return float(np.linalg.norm(step[0]))
+
+
 def lm_handeye(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, *,
                rotation_scale: float | None = None, iterations: int = 40, huber_px: float = 1.0) -> Adjusted:
     """Levenberg-Marquardt over ``X`` (right perturbation ``X exp(d)``), the landmarks and, if
@@ -57,40 +117,8 @@ def lm_handeye(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs
     Adjusted
     """
     with_scale = rotation_scale is not None
-    scale = float(rotation_scale) if with_scale else 1.0
-    G = point_sums(obs.pt, len(P))
-    lam = 1e-3
-    r, A, B = linearise(hand, K, X, P, obs, scale, with_scale=with_scale)
-    cost = huber_cost(r, huber_px)
-    for _ in range(iterations):
-        e = np.linalg.norm(r, axis=1)
-        w = np.where(e <= huber_px, 1.0, huber_px / np.maximum(e, 1e-12))
-        Hxx, gx, Hxp, Hpp, gp = normal_equations(r, A, B, w, G)
-        improved = converged = False
-        for _try in range(8):
-            S, Hpp_inv, HxpHinv = reduced_system(Hxx, Hxp, Hpp, lam)
-            bx = gx - np.einsum("mij,mj->i", HxpHinv, gp, optimize=True)
-            try:
-                dx = np.linalg.solve(S, -bx)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            dp = -np.matmul(Hpp_inv, (gp + np.einsum("mji,j->mi", Hxp, dx))[:, :, None])[:, :, 0]
-            X_new = X @ exp_se3(dx[:6])
-            s_new = scale + float(dx[6]) if with_scale else scale
-            P_new = P + dp
-            r_new, A_new, B_new = linearise(hand, K, X_new, P_new, obs, s_new, with_scale=with_scale)
-            c_new = huber_cost(r_new, huber_px)
-            if c_new < cost:
-                X, P, scale, r, A, B = X_new, P_new, s_new, r_new, A_new, B_new
-                converged = cost - c_new < 1e-10 * cost or float(np.linalg.norm(dx)) < 1e-10
-                cost = c_new
-                lam = max(lam / 3.0, 1e-9)
-                improved = True
-                break
-            lam *= 10.0
-        if not improved or converged:
-            break
-    Hxx, _gx, Hxp, Hpp, _gp = normal_equations(r, A, B, np.ones(len(obs.cam)), G)
-    S, _, _ = reduced_system(Hxx, Hxp, Hpp, 0.0)
-    return Adjusted(X, P, scale, S)
+    problem = _HandEyeProblem(hand=hand, K=K, obs=obs, with_scale=with_scale, huber_px=huber_px)
+    start = problem.state(X, P, float(rotation_scale) if with_scale else 1.0)
+    s = levenberg_marquardt(problem, start, replace(_SCHEDULE, max_iterations=iterations)).state
+    S, _rhs, _Hpp_inv, _E = reduced_camera_system(problem.normal_equations(s, np.ones(len(obs.cam))), 0.0, _DAMPING)
+    return Adjusted(s.X, s.P, s.scale, S)

@@ -21,9 +21,10 @@ import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.tracks import triangulate_dlt
-from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose
+from fgcd_core.camera import MIN_DEPTH_M, pinhole_pixels
+from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose, transform_each
 
-__all__ = ["HandPoses", "Observations", "project", "residuals", "linearise", "initial_landmarks", "huber_cost",
+__all__ = ["HandPoses", "Observations", "residuals", "linearise", "initial_landmarks",
            "INIT_MAX_PX"]
 
 #: A triangulated track whose initial reprojection error exceeds this (pixels) is left out.
@@ -91,21 +92,10 @@ class Observations:
         return Observations(self.cam[keep], remap[self.pt[keep]], self.uv[keep])
 
 
-def project(T_cam_base: np.ndarray, K: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels ``(M, 2)`` and depths ``(M,)`` of base-frame points ``P`` (M, 3) seen by cameras ``T_cam_base`` (M, 4, 4)."""
-    pc = np.einsum("mij,mj->mi", T_cam_base[:, :3, :3], P) + T_cam_base[:, :3, 3]
-    z = pc[:, 2]
-    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
-    u = K[0, 0] * pc[:, 0] / zs + K[0, 2]
-    v = K[1, 1] * pc[:, 1] / zs + K[1, 2]
-    return np.column_stack([u, v]), z
-
-
 def residuals(inv_hand: np.ndarray, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations) -> np.ndarray:
     """Reprojection residuals ``(M, 2)``, pixels, with camera poses ``inv(X) @ inv(T_base_flange)``."""
     T_cam_base = np.einsum("ij,mjk->mik", invert_pose(X), inv_hand)
-    proj, _ = project(T_cam_base[obs.cam], K, P[obs.pt])
-    return proj - obs.uv
+    return pinhole_pixels(K, transform_each(T_cam_base[obs.cam], P[obs.pt])) - obs.uv
 
 
 def linearise(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, scale: float, *,
@@ -126,10 +116,9 @@ def linearise(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs:
     Xi = invert_pose(X)
     T_cam_base = np.einsum("ij,mjk->mik", Xi, hand.inv(scale))
     R = T_cam_base[oc, :3, :3]
-    pc = np.einsum("mij,mj->mi", R, P[op]) + T_cam_base[oc, :3, 3]
-    z = pc[:, 2]
-    z = np.where(np.abs(z) < 1e-9, 1e-9, z)
-    r = np.column_stack([fx * pc[:, 0] / z + K[0, 2], fy * pc[:, 1] / z + K[1, 2]]) - ouv
+    pc = transform_each(T_cam_base[oc], P[op])
+    r = pinhole_pixels(K, pc) - ouv
+    z = np.where(np.abs(pc[:, 2]) < MIN_DEPTH_M, MIN_DEPTH_M, pc[:, 2])
     Jp = np.zeros((len(oc), 2, 3))
     Jp[:, 0, 0] = fx / z
     Jp[:, 0, 2] = -fx * pc[:, 0] / z**2
@@ -151,12 +140,6 @@ def linearise(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs:
         A = np.concatenate([A, np.einsum("mij,mj->mi", A, twist)[:, :, None]], axis=2)
     B = np.einsum("mij,mjk->mik", Jp, R)  # (M, 2, 3)
     return r, A, B
-
-
-def huber_cost(r: np.ndarray, huber_px: float) -> float:
-    """Huber cost of the observations' reprojection error norms ``|r_k|``, pixels squared."""
-    e = np.linalg.norm(r, axis=1)
-    return float(np.sum(np.where(e <= huber_px, 0.5 * e**2, huber_px * (e - 0.5 * huber_px))))
 
 
 def initial_landmarks(
@@ -195,7 +178,8 @@ def initial_landmarks(
         P = triangulate_dlt([Pmats[i] for i in cam_idx], uv)
         if not np.all(np.isfinite(P)):
             continue
-        proj, z = project(cams0[cam_idx], K, np.repeat(P[None], len(members), axis=0))
+        pc = transform_each(cams0[cam_idx], np.repeat(P[None], len(members), axis=0))
+        proj, z = pinhole_pixels(K, pc), pc[:, 2]
         if np.any(z <= 0) or np.max(np.linalg.norm(proj - np.asarray(uv), axis=1)) > INIT_MAX_PX:
             continue
         j = len(pts)

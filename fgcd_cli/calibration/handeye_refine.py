@@ -113,7 +113,6 @@ def refine_handeye_images(
     dist: Sequence[float] | None = None,
     match: MatchConfig | None = None,
     config: RefineConfig | None = None,
-    **options,
 ) -> BAHandEyeResult:
     """Refine the hand-eye on the view images with the camera poses tied to the flange poses.
 
@@ -135,10 +134,6 @@ def refine_handeye_images(
         Feature matching (ratio, RANSAC threshold, features, match window, anchors).
     config : RefineConfig, optional
         Adjustment options.
-    **options
-        The former keywords (``ratio``, ``ransac_px``, ``n_features``, ``max_points``,
-        ``match_window``, ``anchors``, ``reject_px``, ``min_points``,
-        ``estimate_rotation_scale``), each going to ``match`` or ``config``.
 
     Returns
     -------
@@ -149,28 +144,10 @@ def refine_handeye_images(
     CalibrationError
         Too few matched points between the images (low texture, too large motions).
     """
-    match, config = _split_options(match, config, options)
     if len(T_base_flange) != len(images):
         raise CalibrationError(f"{len(T_base_flange)} flange poses but {len(images)} stop images")
     tracks = feature_tracks(images, K, dist=dist, config=match)
     return refine_handeye_tracks(T_base_flange, tracks, K, T_flange_cam_init, config=config)
-
-
-def _split_options(match: MatchConfig | None, config: RefineConfig | None, options: dict):
-    """The two configs with the former keyword options applied over them."""
-    from dataclasses import fields, replace
-
-    match_keys = {f.name for f in fields(MatchConfig)}
-    config_keys = {f.name for f in fields(RefineConfig)}
-    unknown = set(options) - match_keys - config_keys
-    if unknown:
-        raise TypeError(f"unexpected keyword argument(s) {sorted(unknown)}")
-    m_opts = {k: v for k, v in options.items() if k in match_keys}
-    if "anchors" in m_opts:
-        m_opts["anchors"] = tuple(int(a) for a in (m_opts["anchors"] or ()))
-    match = replace(match or MatchConfig(), **m_opts)
-    config = replace(config or RefineConfig(), **{k: v for k, v in options.items() if k in config_keys})
-    return match, config
 
 
 def refine_handeye_tracks(
@@ -180,7 +157,6 @@ def refine_handeye_tracks(
     T_flange_cam_init: np.ndarray,
     *,
     config: RefineConfig | None = None,
-    **options,
 ) -> BAHandEyeResult:
     """Bundle adjustment of ``X`` and the scene points from feature tracks across the views.
 
@@ -196,12 +172,9 @@ def refine_handeye_tracks(
     T_flange_cam_init : (4, 4) ndarray
         Initial hand-eye.
     config : RefineConfig, optional
-    **options
-        ``reject_px``, ``min_points``, ``estimate_rotation_scale`` (the former keywords) over ``config``.
+        Adjustment options (default: :class:`RefineConfig`).
     """
-    from dataclasses import replace
-
-    config = replace(config or RefineConfig(), **options)
+    config = config or RefineConfig()
     hand = np.stack([np.asarray(T, dtype=float) for T in T_base_flange])
     K = np.asarray(K, dtype=float)
     X0 = np.asarray(T_flange_cam_init, dtype=float)

@@ -84,11 +84,6 @@ def _rotation_axes(guard: MotionGuard) -> str:
     return "".join(a for a in "xyz" if f"r{a}" in caps.controllable)
 
 
-def _with_options(config, cls, options: dict):
-    """``config`` (default ``cls()``) with the former keyword options applied over it."""
-    return replace(config or cls(), **options)
-
-
 @dataclass(frozen=True, kw_only=True)
 class TargetFreeRunConfig:
     """Options of :func:`run_target_free`.
@@ -128,7 +123,6 @@ def run_target_free(
     config: TargetFreeRunConfig | None = None,
     progress: Callable[[str], None] | None = None,
     on_progress: Callable[[int, int, str], None] | None = None,
-    **options,
 ) -> TargetFreeRun:
     """Command exploration motions, track them with the VSE, solve ``X`` and ``s``.
 
@@ -149,8 +143,6 @@ def run_target_free(
     on_progress : callable(done, total, label), optional
         Receives the frames done along the whole path after each frame, then
         ``(0, 0, label)`` when the image refinement (length unknown) starts.
-    **options
-        The fields of :class:`TargetFreeRunConfig` as keywords (the former call form), over ``config``.
 
     Returns
     -------
@@ -164,7 +156,7 @@ def run_target_free(
     drivers.platform.PlatformError
         A motion failed or was refused (the platform stays where it stopped).
     """
-    config = _with_options(config, TargetFreeRunConfig, options)
+    config = config or TargetFreeRunConfig()
     say = progress or (lambda _msg: None)
     tick = on_progress or (lambda _done, _total, _label: None)
     motions = _target_free_motions(guard, config)
@@ -298,8 +290,8 @@ def _refine(result: HandEyeResult, session: _TargetFreeSession, camera: PinholeC
     tick(0, 0, f"image refinement over {len(session.path_T)} views")
     path = PathViews(T_base_flange=session.path_T, images=session.path_images, stop_index=session.stop_index)
     try:
-        result = refine_target_free(result, session.hand, session.eye, session.stop_images, camera.K,
-                                    dist=camera.dist, keyframes=session.keyframe_depths(), path=path)
+        result = refine_target_free(result, session.hand, session.eye, session.stop_images, camera,
+                                    keyframes=session.keyframe_depths(), path=path)
         ref = result.refinement
         say(
             f"image refinement: {ref.get('views', len(session.hand))} views, {ref['points']} points, "
@@ -343,7 +335,6 @@ def run_target(
     config: TargetRunConfig | None = None,
     progress: Callable[[str], None] | None = None,
     on_progress: Callable[[int, int, str], None] | None = None,
-    **options,
 ) -> TargetRun:
     """Visit stops looking at a fixed ChArUco board and solve ``AX = XB``.
 
@@ -366,14 +357,12 @@ def run_target(
         Receives one line per stop.
     on_progress : callable(done, total, label), optional
         Receives the stops done before each stop's motion, and at the end.
-    **options
-        The fields of :class:`TargetRunConfig` as keywords (the former call form), over ``config``.
 
     Returns
     -------
     TargetRun
     """
-    config = _with_options(config, TargetRunConfig, options)
+    config = config or TargetRunConfig()
     say = progress or (lambda _msg: None)
     tick = on_progress or (lambda _done, _total, _label: None)
     motions = (list(config.motions) if config.motions is not None

@@ -21,6 +21,8 @@ from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import HandEyeMethod, Regress, estimate_scale, pair_residuals, per_sample_residuals
 from fgcd_cli.calibration.handeye_refine import BAHandEyeResult, refine_handeye_images
 from fgcd_cli.calibration.samples import relative_motions
+from fgcd_cli.calibration.tracks import MatchConfig
+from fgcd_core.camera import PinholeCamera
 
 __all__ = ["PathViews", "TargetFreeConfig", "ScaleMethod", "refine_target_free"]
 
@@ -83,12 +85,11 @@ def refine_target_free(
     T_base_flange: Sequence[np.ndarray],
     T_map_cam: Sequence[np.ndarray],
     images: Sequence[np.ndarray],
-    K: np.ndarray,
+    camera: PinholeCamera,
     *,
-    dist: Sequence[float] | None = None,
     keyframes: Sequence[KeyframeDepths] | None = None,
     path: PathViews | None = None,
-    **options,
+    config: TargetFreeConfig | None = None,
 ):
     """The target-free result with ``X`` refined on the stop images and the scale re-estimated.
 
@@ -100,16 +101,16 @@ def refine_target_free(
         The samples (reported flange poses, VSE camera poses in map units).
     images : sequence of N images
         Camera image at each stop.
-    K, dist :
-        Intrinsics of the images (``dist`` None or zeros for undistorted images).
+    camera : PinholeCamera
+        Intrinsics of the images (zero distortion for undistorted images).
     keyframes : sequence of KeyframeDepths, optional
         The VSE's keyframes with their cloud; when given (and matched), the scale
         is the ratio of metric to map depths (:func:`scale_from_depths`).
     path : PathViews, optional
         All the views along the platform's path (stops included); when given, the
         adjustment runs over them instead of over the stops alone.
-    **options
-        ``config=TargetFreeConfig(...)`` and/or its fields (``n_features``, ``match_window``).
+    config : TargetFreeConfig, optional
+        Features and matching window (default: :class:`TargetFreeConfig`).
 
     Returns
     -------
@@ -124,7 +125,8 @@ def refine_target_free(
     CalibrationError
         The images could not be matched (the caller keeps the linear result).
     """
-    config = replace(options.pop("config", None) or TargetFreeConfig(), **options)
+    config = config or TargetFreeConfig()
+    K, dist = camera.K, camera.dist
     ba, views, stop_rms = _adjust(linear, T_base_flange, images, K, dist, path, config)
     # the VSE side carries the noise: fit 1/s (unbiased for independent pose noise, see estimate_scale)
     sc = estimate_scale(ba.T_flange_cam, T_base_flange, T_map_cam, pairs=linear.pairs, regress=Regress.VSE)
@@ -175,11 +177,12 @@ def _adjust(linear, T_base_flange, images, K, dist, path: PathViews | None,
     if path is not None and len(path.images) > len(images):
         if len(path.stop_index) != len(images) or len(path.T_base_flange) != len(path.images):
             raise CalibrationError("the path views do not match the stop samples")
-        ba = refine_handeye_images(path.T_base_flange, path.images, K, linear.T_flange_cam, dist=dist,
-                                   n_features=config.n_features, match_window=config.match_window,
-                                   anchors=path.stop_index)
+        match = MatchConfig(n_features=config.n_features, match_window=config.match_window,
+                            anchors=tuple(int(a) for a in path.stop_index))
+        ba = refine_handeye_images(path.T_base_flange, path.images, K, linear.T_flange_cam, dist=dist, match=match)
         return ba, len(path.images), np.asarray(ba.per_image_rms_px)[list(path.stop_index)]
-    ba = refine_handeye_images(T_base_flange, images, K, linear.T_flange_cam, dist=dist, n_features=config.n_features)
+    ba = refine_handeye_images(T_base_flange, images, K, linear.T_flange_cam, dist=dist,
+                               match=MatchConfig(n_features=config.n_features))
     return ba, len(images), np.asarray(ba.per_image_rms_px)
 
 

@@ -54,7 +54,6 @@ Replaced or left out
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -222,7 +221,6 @@ def iccv2015_details(
     valid: np.ndarray,
     ambient_index: int | None = 0,
     config: ICCV2015Config | None = None,
-    **overrides,
 ) -> ICCV2015Result:
     """ICCV 2015 baseline change score with its intermediate results.
 
@@ -240,13 +238,13 @@ def iccv2015_details(
         average); None if all images are directional. At least 3 directional
         images are needed.
     config : ICCV2015Config, optional
-        The settings; ``**overrides`` replace its fields by name (``rank=4``...).
+        The settings (default: :class:`ICCV2015Config`).
 
     Returns
     -------
     ICCV2015Result
     """
-    config = dataclasses.replace(config or ICCV2015Config(), **overrides)
+    config = config or ICCV2015Config()
     refs, curs, valid = _checked_inputs(ref_images, cur_images, valid, config)
     shape = refs[0].shape[:2]
     h, w = shape
@@ -342,7 +340,6 @@ def iccv2015_score(
     valid: np.ndarray,
     ambient_index: int | None = 0,
     config: ICCV2015Config | None = None,
-    **overrides,
 ) -> np.ndarray:
     """Change score of the ICCV 2015 baseline (Feng et al.; see the module docstring).
 
@@ -354,5 +351,4 @@ def iccv2015_score(
         Change score >= 0, larger = more likely changed (fraction of the
         median reference level, averaged over the lightings); 0 outside ``valid``.
     """
-    return iccv2015_details(ref_images, cur_images, valid=valid, ambient_index=ambient_index, config=config,
-                            **overrides).score
+    return iccv2015_details(ref_images, cur_images, valid=valid, ambient_index=ambient_index, config=config).score

@@ -64,7 +64,6 @@ seen at ``(x + dx, y + dy)`` in the homography-warped current image, so
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import cv2
@@ -240,7 +239,6 @@ def refine_dense(
     *,
     valid: np.ndarray | None = None,
     config: DenseConfig | None = None,
-    **overrides,
 ) -> DenseAlignment:
     """Dense residual alignment of a homography-warped current image onto the reference.
 
@@ -258,7 +256,7 @@ def refine_dense(
         another depth: a background off the object's homography otherwise drags
         the fit near the silhouette.
     config : DenseConfig, optional
-        The options (default: the shipped ones); ``**overrides`` replace its fields by name.
+        The options (default: the shipped ones).
 
     Returns
     -------
@@ -266,7 +264,7 @@ def refine_dense(
         ``flow`` (HxWx2 float32, px), ``confidence`` (HxW float32, 0..1),
         ``not_compared`` (HxW bool), all in the reference frame.
     """
-    config = dataclasses.replace(config or DenseConfig(), **overrides)
+    config = config or DenseConfig()
     if ref_gray.ndim != 2 or ref_gray.shape != cur_warped_gray.shape:
         raise ValueError(f"expected two HxW grey images of one size, got {ref_gray.shape} and {cur_warped_gray.shape}")
     if config.order not in (0, 1, 2):

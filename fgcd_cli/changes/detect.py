@@ -8,7 +8,6 @@ section it needs; :func:`detect_changes` chains them.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -16,7 +15,6 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.config import (
-    OPTION_SECTION,
     CueConfig,
     DecisionRule,
     DetectionConfig,
@@ -40,7 +38,7 @@ from fgcd_cli.changes.result import (
     unreported_candidates,
 )
 from fgcd_cli.changes.score import PairScore, ScoreOptions, score_pair
-from fgcd_cli.changes.significance import Decision, acontrario_decision
+from fgcd_cli.changes.significance import Decision, acontrario_config, acontrario_decision
 from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
 from fgcd_cli.errors import UserInputError
 
@@ -56,8 +54,6 @@ __all__ = [
 
 Progress = Callable[[int, int, str], None]
 
-_UNTILED_OPTIONS = frozenset(name for name, section in OPTION_SECTION.items() if section != "tiling")
-
 
 def detect_changes(
     ref_images: list[np.ndarray],
@@ -69,7 +65,6 @@ def detect_changes(
     shading_cur: list[np.ndarray] | None = None,
     config: DetectionConfig | None = None,
     progress: Progress | None = None,
-    **overrides,
 ) -> ChangeResult:
     """Find fine-grained changes between a reference and a current observation.
 
@@ -87,11 +82,9 @@ def detect_changes(
         (:func:`fgcd_cli.changes.illumination.shading_from_normals`); when given, the
         current images are re-lit to the reference lighting before the local gain correction.
     config : DetectionConfig, optional
-        Every option, by stage (default: the shipped detector).
+        Every option, by stage (default: the shipped detector); build one from flat option
+        names with :meth:`DetectionConfig.from_options` (``from_options(k_high=14, dense=False)``).
     progress : callable ``progress(done, total, label)``, optional, called after each step.
-    **overrides
-        Any field of a :class:`DetectionConfig` section by its own name (``k_high=14``,
-        ``dense=False``, ``edge_check_px=2``...), replacing the value in ``config``.
 
     Returns
     -------
@@ -99,7 +92,7 @@ def detect_changes(
         ``comparable`` is False (with a reason) for black, textureless or non-overlapping
         pairs. Raises :class:`UserInputError` for inconsistent input.
     """
-    config = DetectionConfig.from_options(config, allowed=_UNTILED_OPTIONS, **overrides)
+    config = DetectionConfig() if config is None else config
     settings = detection_settings(config, lightings=len(ref_images), shading=shading_ref is not None)
     step = _Steps(progress, total=4)
     refs, curs, eval_mask = _check_inputs(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=pixel_area_mm2,
@@ -264,8 +257,8 @@ def decide_regions(score: np.ndarray, valid: np.ndarray, *, pixel_area_mm2, conf
     return Regions(mask=mask, regions=regions, labels=labels, threshold=threshold, significance=significance)
 
 
-def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None = None, smooth_sigma_px: float = 2.0,
-           **overrides) -> tuple[np.ndarray, ThresholdInfo, Decision]:
+def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None = None,
+           smooth_sigma_px: float = 2.0) -> tuple[np.ndarray, ThresholdInfo, Decision]:
     """The changed pixels of a fused score map.
 
     Both rules are evaluated: the hysteresis threshold is kept as a reference (and
@@ -277,7 +270,6 @@ def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None 
     score, valid : ndarray, HxW float32 / bool, the fused score and the compared pixels.
     config : RegionConfig, optional (default: the shipped one)
     smooth_sigma_px : float, the score's smoothing (its correlation area bounds the a-contrario cluster area).
-    **overrides : fields of :class:`RegionConfig` by name (``decision=...``, ``k_high=...``).
 
     Returns
     -------
@@ -285,10 +277,9 @@ def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None 
     threshold : ThresholdInfo, the hysteresis threshold's statistics
     significance : Decision, the a-contrario scan
     """
-    config = dataclasses.replace(config or RegionConfig(), **overrides)
+    config = config or RegionConfig()
     raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=config.k_high, k_low=config.k_low)
-    significance = acontrario_decision(score, valid, epsilon=config.epsilon, seed_p=config.seed_p,
-                                       extent_fraction=config.extent_fraction,
+    significance = acontrario_decision(score, valid, config=acontrario_config(config),
                                        min_cluster_area_px=4.0 * np.pi * smooth_sigma_px**2)
     acontrario = significance.mask if config.decision == DecisionRule.ACONTRARIO else None
     return region_mask(acontrario, raw_mask, score, valid, threshold=threshold, config=config), threshold, significance

@@ -43,18 +43,15 @@ def to_float_image(image: np.ndarray, *, name: str = "image") -> np.ndarray:
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """Grey level of a float image in [0, 1], the mean of its channels (HxW float32); grey images are copied.
+    """The detector's grey level (HxW float32, a new array) of an image from :func:`to_float_image`.
 
-    The unweighted channel mean (not a luma: no channel order is assumed); it only feeds
-    registration, the dense flow and the structure cues. float32 colour images go through
-    :func:`fgcd_core.imaging.to_gray_f32` (``GrayChannels.MEAN``, the same float32 sums); other
-    float dtypes are averaged in their own precision.
+    The rule is the unweighted mean of R, G and B (no channel order is assumed; it
+    only feeds registration, the dense flow and the structure cues), computed by
+    :func:`fgcd_core.imaging.to_gray_f32` with ``GrayChannels.MEAN``
+    (docs/change-detection.md, "Change detection pipeline").
     """
-    if image.ndim == 2:
-        return image.astype(np.float32)
-    if image.dtype == np.float32 and image.shape[2] == 3:
-        return to_gray_f32(image, channels=GrayChannels.MEAN)
-    return image.mean(axis=2).astype(np.float32)
+    gray = to_gray_f32(image, channels=GrayChannels.MEAN)
+    return gray.copy() if np.shares_memory(gray, image) else gray
 
 
 def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:

@@ -31,7 +31,6 @@ normal ~(0, 0, -1); a light on the camera side has l_z < 0.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -298,7 +297,6 @@ def joint_photometric_stereo(
     ambient_index: int | None = 0,
     light_dirs: np.ndarray | None = None,
     config: JointFitConfig | None = None,
-    **overrides,
 ) -> tuple[PhotometricStereo, PhotometricStereo]:
     """Photometric stereo of a reference and a registered current observation, in one basis.
 
@@ -311,7 +309,7 @@ def joint_photometric_stereo(
         Pixels valid in both (e.g. the registered overlap); None: all.
     ambient_index, light_dirs
         As in :func:`photometric_stereo`; ``light_dirs`` applies to both stacks.
-    config : JointFitConfig, optional; ``**overrides`` replace its fields by name:
+    config : JointFitConfig, optional (default: the shipped one); its fields:
     shadow_fraction, falloff_sigma_px
         As in :func:`photometric_stereo`.
     same_lights : bool
@@ -330,7 +328,7 @@ def joint_photometric_stereo(
         Both in the reference basis. Uncalibrated: pseudo-normals whose frame
         conventions (:func:`photometric_stereo`, Notes) are computed on the reference.
     """
-    config = dataclasses.replace(config or JointFitConfig(), **overrides)
+    config = config or JointFitConfig()
     shadow_fraction, same_lights, align = config.shadow_fraction, config.same_lights, config.align
     if len(ref_images) != len(cur_images):
         raise UserInputError(f"{len(ref_images)} reference image(s) but {len(cur_images)} current image(s)")

@@ -10,6 +10,8 @@ import numpy as np
 from scipy import ndimage
 from skimage.morphology import remove_small_holes, remove_small_objects
 
+from fgcd_core.camera import pinhole_pixels
+
 if TYPE_CHECKING:
     from fgcd_cli.changes.significance import Decision
 
@@ -217,8 +219,7 @@ def pixel_area_from_cloud(
     points = np.asarray(points_ref, dtype=np.float64)
     cam = points @ T_cam_ref[:3, :3].T + T_cam_ref[:3, 3]
     cam = cam[cam[:, 2] > 1e-6]
-    u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]
-    v = K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+    u, v = pinhole_pixels(K, cam).T
     inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
     if inside.sum() < 10:
         return np.full(shape, np.nan)

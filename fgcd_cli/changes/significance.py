@@ -46,11 +46,12 @@ changes``; see ``docs/change-detection.md``.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage, special
+
+from fgcd_cli.changes.config import RegionConfig
 
 _EIGHT = np.ones((3, 3), bool)
 
@@ -180,13 +181,18 @@ class AcontrarioConfig:
     radius); 0 keeps the null of all compared pixels."""
 
 
+def acontrario_config(regions: RegionConfig) -> AcontrarioConfig:
+    """The test's constants a detector's :class:`~fgcd_cli.changes.config.RegionConfig` sets
+    (``epsilon``, ``seed_p``, ``extent_fraction``); the others keep their defaults."""
+    return AcontrarioConfig(epsilon=regions.epsilon, seed_p=regions.seed_p, extent_fraction=regions.extent_fraction)
+
+
 def acontrario_decision(
     score: np.ndarray,
     valid: np.ndarray,
     *,
     min_cluster_area_px: float = 1.0,
     config: AcontrarioConfig | None = None,
-    **overrides,
 ) -> Decision:
     """Significant change regions of a score map, by their number of false alarms.
 
@@ -201,13 +207,13 @@ def acontrario_decision(
         ``s`` px has a correlation area of at least ``4 pi s^2`` px whatever its
         exceedance clusters look like (the caller passes it).
     config : AcontrarioConfig, optional
-        The test's constants; ``**overrides`` replace its fields by name (``epsilon=...``).
+        The test's constants (default: :class:`AcontrarioConfig`).
 
     Returns
     -------
     Decision
     """
-    config = dataclasses.replace(config or AcontrarioConfig(), **overrides)
+    config = config or AcontrarioConfig()
     valid = np.asarray(valid, bool)
     score = np.asarray(score, np.float32)
     n_valid = int(valid.sum())

@@ -79,8 +79,6 @@ Progress = Callable[[int, int, str], None]
 _UNSUPPORTED = ("structure_weight", "edge_tolerance_px", "edge_contrast", "edge_check_px", "edge_check_band_fraction")
 """Options of ``detect_changes`` this path does not implement (module docstring)."""
 
-_TILED_OPTIONS = frozenset(name for name in OPTION_SECTION if name not in _UNSUPPORTED)
-
 
 def detect_changes_tiled(
     ref_images: Sequence[np.ndarray],
@@ -90,7 +88,6 @@ def detect_changes_tiled(
     pixel_area_mm2: np.ndarray | None = None,
     config: DetectionConfig | None = None,
     progress: Progress | None = None,
-    **overrides,
 ) -> ChangeResult:
     """:func:`fgcd_cli.changes.detect.detect_changes` for large frames, in bounded memory.
 
@@ -107,8 +104,6 @@ def detect_changes_tiled(
     progress : callable ``progress(done, total, label)``, optional
         Called after every tile of every pass (``label`` names the pass and the tile),
         and once per whole-frame stage.
-    **overrides
-        Fields of the config's sections by name (``tile_px=1024``, ``k_high=14``...).
 
     Returns
     -------
@@ -117,7 +112,7 @@ def detect_changes_tiled(
         ``dense`` and ``cue_maps`` are at the working resolution
         (``settings["work_scale"]`` gives the factor).
     """
-    config = _tiled_config(config, overrides)
+    config = _tiled_config(config)
     shape, _ = check_stacks(ref_images, cur_images)
     n = len(ref_images)
     eval_mask = check_side_inputs(shape, n, eval_mask=eval_mask, pixel_area_mm2=pixel_area_mm2,
@@ -155,9 +150,9 @@ def detect_changes_tiled(
     )
 
 
-def _tiled_config(config: DetectionConfig | None, overrides: dict) -> DetectionConfig:
-    """The configuration with its overrides; refuses what this path does not implement."""
-    config = DetectionConfig.from_options(config, allowed=_TILED_OPTIONS, **overrides)
+def _tiled_config(config: DetectionConfig | None) -> DetectionConfig:
+    """The configuration (default: the shipped one); refuses what this path does not implement."""
+    config = DetectionConfig() if config is None else config
     defaults = DetectionConfig()
     for name in _UNSUPPORTED:
         section = OPTION_SECTION[name]

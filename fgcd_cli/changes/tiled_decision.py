@@ -12,7 +12,7 @@ import numpy as np
 from fgcd_cli.changes.config import DecisionRule, RegionConfig
 from fgcd_cli.changes.detect import region_mask
 from fgcd_cli.changes.regions import regions_with_significance
-from fgcd_cli.changes.significance import acontrario_decision, grow_to_extent
+from fgcd_cli.changes.significance import acontrario_config, acontrario_decision, grow_to_extent
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
 from fgcd_cli.changes.tiled_schedule import release_free_memory
 
@@ -70,8 +70,7 @@ def significance_coarse(score, valid, *, config: RegionConfig, decision_px: int,
     on_grid = on_grid or (lambda: None)
     if scale <= 1.0:
         on_grid()
-        result = acontrario_decision(score, valid, epsilon=config.epsilon, seed_p=config.seed_p,
-                                     extent_fraction=config.extent_fraction,
+        result = acontrario_decision(score, valid, config=acontrario_config(config),
                                      min_cluster_area_px=4.0 * np.pi * smooth_sigma_px**2)
         result.settings["scale"] = 1.0
         return result
@@ -84,8 +83,7 @@ def significance_coarse(score, valid, *, config: RegionConfig, decision_px: int,
     on_grid()
     # Correlation area of the smoothing at this scale, at least one pixel.
     sigma = smooth_sigma_px / max(fx, fy)
-    result = acontrario_decision(small, small_valid, epsilon=config.epsilon, seed_p=config.seed_p,
-                                 extent_fraction=config.extent_fraction,
+    result = acontrario_decision(small, small_valid, config=acontrario_config(config),
                                  min_cluster_area_px=max(1.0, 4.0 * np.pi * sigma**2))
     seed_index = np.zeros((h, w), np.int32)
     if result.seed_index is not None:

@@ -25,7 +25,7 @@ def afd(
     from fgcd_cli.campaign.atomic import atomic_write_bytes
     from fgcd_cli.changes.io import read_image
     from fgcd_cli.errors import UserInputError
-    from fgcd_cli.metrics.afd import compute_fdf, read_pairs_csv
+    from fgcd_cli.metrics.afd import FdfConfig, compute_fdf, read_pairs_csv
     from fgcd_cli.report.figures import fdf_quiver_png
 
     if grid and pairs is not None:
@@ -34,9 +34,10 @@ def afd(
     run_record.no_writes()
     ref_image, cur_image = read_image(ref), read_image(cur)
     if pairs is not None:
-        result = compute_fdf(ref_image, cur_image, method="pairs", pairs=read_pairs_csv(pairs))
+        result = compute_fdf(ref_image, cur_image, config=FdfConfig(method="pairs"), pairs=read_pairs_csv(pairs))
     else:
-        result = compute_fdf(ref_image, cur_image, method="grid" if grid else "sift", ratio=ratio, ransac_px=ransac_px)
+        result = compute_fdf(ref_image, cur_image,
+                             config=FdfConfig(method="grid" if grid else "sift", ratio=ratio, ransac_px=ransac_px))
     data = result.as_dict()
     data["reference"], data["current"] = str(ref), str(cur)
     if output is not None:

@@ -299,7 +299,7 @@ def handeye_cmd(
     """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
     from fgcd_cli.calibration.rig import save_handeye
     from fgcd_cli.cli.progress import step_progress
-    from fgcd_cli.app.rig import open_rig, opened
+    from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
     from fgcd_cli.app.scenario import SimScenario, check_connection
 
     # no terminal and no --yes: refused first (exit 2), before anything is opened or moved
@@ -317,14 +317,16 @@ def handeye_cmd(
             bar(0, 0, "opening the rig")
             confirm = bar.paused(confirm)
         rig = open_rig(
-            driver=driver,
-            T_flange_cam=None,
-            intrinsics=intr.camera if intr is not None else None,
-            scenario=scenario or SimScenario(),
-            port=port,
-            host=host,
-            camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
-            confirm=confirm,
+            RigRequest(
+                driver=driver,
+                T_flange_cam=None,
+                intrinsics=intr.camera if intr is not None else None,
+                scenario=scenario or SimScenario(),
+                port=port,
+                host=host,
+                camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
+            ),
+            hooks=RigHooks(confirm=confirm),
         )
         run_record.platform_connected(rig.platform_name or driver)
         with opened(rig):

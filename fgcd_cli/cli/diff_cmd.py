@@ -130,7 +130,7 @@ def diff(
             request = diff_uc.CampaignDiffRequest(campaign=campaign, station=station, visit=visit, eval_mask=eval_mask,
                                                   mm_per_px=mm_per_px, register=not no_register, output=output,
                                                   edge_check_px=edge_check)
-            data = diff_uc.run_campaign(request=request, progress=None if as_json else info)
+            data = diff_uc.run_campaign(request, progress=None if as_json else info)
     else:
         if not ref or not cur:
             raise UserInputError("give --ref and --cur images (or --campaign and --station)")
@@ -144,7 +144,7 @@ def diff(
             request = diff_uc.BareDiffRequest(ref=ref, cur=cur, output=output, eval_mask=eval_mask, truth=truth,
                                               mm_per_px=mm_per_px, register=not no_register,
                                               edge_check_px=edge_check or 0, ambient_index=ambient_index)
-            data = diff_uc.run_bare(request=request, progress=None if as_json else info, tile_progress=tile_progress)
+            data = diff_uc.run_bare(request, progress=None if as_json else info, tile_progress=tile_progress)
     emit(data, as_json=as_json, render=_render(data))
     if not data["comparable"]:
         from fgcd_cli.errors import AlgorithmError

@@ -16,7 +16,7 @@ import numpy as np
 import typer
 from scipy.spatial.transform import Rotation
 
-from drivers.connect import DRIVERS, open_platform
+from drivers.connect import DRIVERS, PlatformSpec, open_platform
 from drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.cli.output import confirmer, debug, emit
 from fgcd_cli.errors import HardwareError, UserInputError, run_record
@@ -54,9 +54,8 @@ def _opened(driver: str, port: str | None, baud: int, host: str | None, timeout_
     _check_connection_options(driver, port=port, host=host, timeout_s=timeout_s)
     run_record.no_writes()
     grbl_options, ur_options = _options(timeout_s)
-    platform = open_platform(
-        driver, port=port, baud=baud, host=host, grbl_options=grbl_options, ur_options=ur_options, connect=False
-    )
+    platform = open_platform(driver, spec=PlatformSpec(port=port, baud=baud, host=host, grbl_options=grbl_options,
+                                                       ur_options=ur_options, connect=False))
     try:
         platform.connect()
         run_record.platform_connected(platform.name)

@@ -13,7 +13,6 @@ given by a person.
 from __future__ import annotations
 
 import csv
-import dataclasses
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -183,7 +182,6 @@ def compute_fdf(
     *,
     pairs: tuple[np.ndarray, np.ndarray] | None = None,
     config: FdfConfig | None = None,
-    **overrides,
 ) -> FdfResult:
     """Feature displacement field and AFD from the reference to the current image.
 
@@ -194,8 +192,7 @@ def compute_fdf(
     pairs : (Nx2, Nx2) arrays, required for ``method="pairs"``
         Reference and current pixel coordinates (x, y).
     config : FdfConfig, optional
-        The method and its settings; ``**overrides`` replace its fields by name
-        (``method="grid"``, ``ratio=0.8``...).
+        The method and its settings (default: SIFT, :class:`FdfConfig`).
 
     Returns
     -------
@@ -208,16 +205,14 @@ def compute_fdf(
         raise UserInputError(
             f"reference is {ref.shape[1]}x{ref.shape[0]} px, current {cur.shape[1]}x{cur.shape[0]} px: AFD needs equal sizes"
         )
-    method = overrides.get("method", config.method if config is not None else FdfMethod.SIFT)
-    if method not in tuple(FdfMethod):
-        raise UserInputError(f"unknown FDF method {method!r} (use sift, grid or pairs)")
+    config = config or FdfConfig()
+    method = config.method
     if method in (FdfMethod.SIFT, FdfMethod.GRID):
         for label, image in (("reference", ref), ("current", cur)):
             problem = image_health(image)
             if problem:
                 raise AlgorithmError(f"cannot measure AFD: {label} {problem} "
                                      "(neither SIFT nor the grid variant can; point pairs picked by hand can: --pairs)")
-    config = dataclasses.replace(config or FdfConfig(), **overrides)
     if config.method == FdfMethod.SIFT:
         return _sift_fdf(ref, cur, config)
     if config.method == FdfMethod.GRID:

@@ -55,7 +55,6 @@ __all__ = [
     "image_estimate",
     "render_visible_points",
     "run_coarse",
-    "run_coarse_stage",
 ]
 
 
@@ -309,14 +308,3 @@ def run_coarse(inp: CoarseInputs) -> CoarseResult:
         ``handed_over`` with the verified ``init`` for the rACR loop, or the reason it paused.
     """
     return _CoarseRun(inp).run()
-
-
-def run_coarse_stage(**fields) -> CoarseResult:
-    """:func:`run_coarse` with the inputs given as keywords (the fields of :class:`CoarseInputs`).
-
-    The call form of the callers that predate :class:`CoarseInputs`:
-    ``run_coarse_stage(session=..., reference=..., ref_index=..., camera=..., scale=...,
-    T_flange_cam=..., init=..., reference_images=..., grab_current=..., config=...,
-    evaluate=..., say=...)``.
-    """
-    return run_coarse(CoarseInputs(**fields))

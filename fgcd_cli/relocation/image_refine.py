@@ -36,7 +36,7 @@ import numpy as np
 
 from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.errors import FgcdError, UserInputError
-from fgcd_cli.metrics.afd import compute_fdf
+from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
 from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
 from fgcd_core.se3 import make_pose, pose_distance
 
@@ -277,8 +277,8 @@ def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
     # Strong lighting change (another sun): lighting-robust grid correspondences
     # (phase correlation of gradient-magnitude patches, the FDF grid variant).
     try:
-        fdf = compute_fdf(ref, cur, method="grid", grid_cells=config.grid_cells, patch_px=config.grid_patch_px,
-                          ransac_px=3.0)
+        fdf = compute_fdf(ref, cur, config=FdfConfig(method="grid", grid_cells=config.grid_cells,
+                                                    patch_px=config.grid_patch_px, ransac_px=3.0))
     except FgcdError as exc:
         return _replace_reason(sift, f"{sift.reason}; grid: {exc}")
     grid = _refine_matches(fdf.points_ref, fdf.points_cur, view, matcher="grid", min_inliers=config.min_grid_inliers)

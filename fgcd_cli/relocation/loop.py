@@ -60,7 +60,6 @@ __all__ = [
     "estimates_agree",
     "reference_depth_m",
     "relocate",
-    "run_relocation",
     "tolerance_mm",
 ]
 
@@ -141,14 +140,3 @@ def relocate(ctx: LoopContext) -> RelocationResult:
     result.platform_s = timing.platform_s
     result.synthetic_s = timing.synthetic_s
     return result
-
-
-def run_relocation(**fields) -> RelocationResult:
-    """:func:`relocate` with the context given as keywords (the fields of :class:`LoopContext`).
-
-    The call form of the callers that predate :class:`LoopContext`:
-    ``run_relocation(session=..., reference=..., ref_index=..., camera=..., scale=...,
-    T_flange_cam=..., init=..., config=..., evaluate=..., on_record=...,
-    reference_images=..., grab_current=...)``.
-    """
-    return relocate(LoopContext(**fields))

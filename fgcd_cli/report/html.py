@@ -236,7 +236,6 @@ def render_diff_report(
     cur_registered: np.ndarray | None = None,
     fdf: FdfResult | None = None,
     context: ReportContext | None = None,
-    **context_fields,
 ) -> str:
     """HTML text of the report of one comparison (reference vs current observation).
 
@@ -248,10 +247,9 @@ def render_diff_report(
         into the reference frame, shown instead of ``cur_image`` when given.
     result : ChangeResult from :func:`fgcd_cli.changes.detect_changes`.
     fdf : FdfResult, optional; the FDF quiver and AFD of this pair.
-    context : ReportContext, optional; relocation log, metadata, title and limits. The
-        former keywords (``relocation_log=``, ``metadata=``, ``title=``, ...) build it.
+    context : ReportContext, optional; relocation log, metadata, title and limits.
     """
-    ctx = context if context is not None else ReportContext(**context_fields)
+    ctx = context if context is not None else ReportContext()
     shown_cur = cur_registered if cur_registered is not None else cur_image
     parts = _summary_section(result, fdf, ctx)
     parts += _images_section(ref_image, shown_cur, registered=cur_registered is not None)

@@ -65,7 +65,6 @@ def diff_products(
     fdf: FdfResult | None = None,
     context: ReportContext | None = None,
     shown_lighting: int = 0,
-    **context_fields,
 ) -> dict[str, bytes]:
     """All output files of a comparison, by file name.
 
@@ -73,10 +72,9 @@ def diff_products(
     ``change_mask.png`` (0/255), ``overlay.png`` (the change map, its legend in a band
     below the image), ``regions.json``, ``report.html``
     and, when ``fdf`` is given, ``fdf.png``. ``context`` (relocation log, metadata, title,
-    subtitle; :class:`fgcd_cli.report.html.ReportContext`) is built from the former keywords
-    ``relocation_log=``, ``metadata=``, ``title=``, ``subtitle=`` when not given.
+    subtitle; :class:`fgcd_cli.report.html.ReportContext`) defaults to an empty one.
     """
-    ctx = context if context is not None else ReportContext(**context_fields)
+    ctx = context if context is not None else ReportContext()
     metadata = ctx.metadata
     files: dict[str, bytes] = {}
     summary = result_summary(result, fdf)

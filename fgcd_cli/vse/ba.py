@@ -1,10 +1,11 @@
 """Bundle adjustment and motion-only pose refinement (pinhole, Huber loss).
 
-Written by hand rather than with ``scipy.optimize.least_squares``: a windowed
-bundle adjustment has few cameras (<= ~20) and many points, so a
-Levenberg-Marquardt with the Schur complement on a small dense camera system
-and analytic Jacobians runs in tens of milliseconds where the finite-difference
-``least_squares(jac_sparsity=...)`` takes seconds (docs/vse.md, "Design and why").
+The solver is fgcd's one Levenberg-Marquardt (:mod:`fgcd_core.lm`) with the one
+Schur-complement solve (:mod:`fgcd_core.schur`), not ``scipy.optimize.least_squares``:
+a windowed bundle adjustment has few cameras (<= ~20) and many points, so the
+reduced camera system is small and dense and, with analytic Jacobians, a solve
+takes tens of milliseconds where ``least_squares(jac_sparsity=...)`` takes
+seconds (docs/vse.md, "Design and why").
 
 Poses are optimised as ``T_cam_map`` (map-to-camera) with a left perturbation
 ``T <- exp_se3(delta) @ T``, ``delta = (rho, phi)``. Observations are
@@ -14,10 +15,14 @@ undistorted pixels (ideal pinhole with ``fx, fy, cx, cy``).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
-from fgcd_core.se3 import exp_se3
+from fgcd_core.lm import LMSchedule, huber_cost, huber_weights, levenberg_marquardt
+from fgcd_core.schur import BlockNormalEquations, Damping, SchurDamping, block_normal_equations, schur_step
+from fgcd_core.camera import MIN_DEPTH_M, pinhole_pixels
+from fgcd_core.se3 import exp_se3, transform_each
 
 __all__ = ["BundleResult", "BundleAdjustConfig", "OutlierRejectionConfig", "bundle_adjust",
            "bundle_adjust_rejecting_outliers", "outlier_threshold_px", "refine_pose", "projection_residuals"]
@@ -52,15 +57,9 @@ def projection_residuals(
     T_cam_map: np.ndarray, points: np.ndarray, obs_cam: np.ndarray, obs_pt: np.ndarray, obs_uv: np.ndarray, K: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Residuals ``projected - observed`` (M, 2) in pixels and camera-frame points (M, 3)."""
-    R = T_cam_map[obs_cam, :3, :3]
-    t = T_cam_map[obs_cam, :3, 3]
-    Xc = np.einsum("mij,mj->mi", R, points[obs_pt]) + t
-    z = Xc[:, 2]
-    zs = np.where(z > 1e-9, z, 1e-9)
-    u = K[0, 0] * Xc[:, 0] / zs + K[0, 2]
-    v = K[1, 1] * Xc[:, 1] / zs + K[1, 2]
-    r = np.column_stack([u, v]) - obs_uv
-    r[z <= 1e-9] = 1e3
+    Xc = transform_each(T_cam_map[obs_cam], points[obs_pt])
+    r = pinhole_pixels(K, Xc) - obs_uv
+    r[Xc[:, 2] <= MIN_DEPTH_M] = 1e3  # behind the camera: a residual far in the Huber tail
     return r, Xc
 
 
@@ -83,16 +82,6 @@ def _jacobians(Xc: np.ndarray, R: np.ndarray, K: np.ndarray) -> tuple[np.ndarray
     Jc = Jproj @ dX
     Jp = Jproj @ R
     return Jc, Jp
-
-
-def _huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
-    n = np.linalg.norm(r, axis=1)
-    return np.where(n <= delta, 1.0, delta / np.maximum(n, 1e-12))
-
-
-def _robust_cost(r: np.ndarray, delta: float) -> float:
-    n = np.linalg.norm(r, axis=1)
-    return float(np.sum(np.where(n <= delta, 0.5 * n**2, delta * (n - 0.5 * delta))))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -133,56 +122,60 @@ class OutlierRejectionConfig:
     max_rounds: int = 4
 
 
-def _with_overrides(config, default_type, overrides: dict):
-    """``config`` (or the defaults) with the keyword options of the former call form applied."""
-    base = default_type() if config is None else config
-    return replace(base, **overrides) if overrides else base
+class _BAState(NamedTuple):
+    """Poses, points, and the residuals and camera-frame points at them."""
+
+    T: np.ndarray
+    X: np.ndarray
+    r: np.ndarray
+    Xc: np.ndarray
 
 
-def _normal_equations(Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray, r: np.ndarray, obs_cam: np.ndarray,
-                      obs_pt: np.ndarray, C: int, P: int):
-    """Weighted Gauss-Newton blocks ``(Hcc (C,6,6), Hpp (P,3,3), Hcp (P,C,6,3), bc (C,6), bp (P,3))``."""
-    wJc = Jc * w[:, None, None]
-    wJp = Jp * w[:, None, None]
-    Hcc = np.zeros((C, 6, 6))
-    np.add.at(Hcc, obs_cam, np.einsum("mki,mkj->mij", wJc, Jc))
-    Hpp = np.zeros((P, 3, 3))
-    np.add.at(Hpp, obs_pt, np.einsum("mki,mkj->mij", wJp, Jp))
-    Hcp = np.zeros((P, C, 6, 3))
-    np.add.at(Hcp, (obs_pt, obs_cam), np.einsum("mki,mkj->mij", wJc, Jp))
-    bc = np.zeros((C, 6))
-    np.add.at(bc, obs_cam, -np.einsum("mki,mk->mi", wJc, r))
-    bp = np.zeros((P, 3))
-    np.add.at(bp, obs_pt, -np.einsum("mki,mk->mi", wJp, r))
-    return Hcc, Hpp, Hcp, bc, bp
+@dataclass(frozen=True, kw_only=True)
+class _BundleProblem:
+    """The bundle adjustment as a :class:`fgcd_core.lm.LeastSquaresProblem` (Huber IRLS, Schur solve)."""
+
+    obs_cam: np.ndarray
+    obs_pt: np.ndarray
+    obs_uv: np.ndarray
+    K: np.ndarray
+    free: np.ndarray
+    huber_px: float
+
+    def state(self, T: np.ndarray, X: np.ndarray) -> _BAState:
+        r, Xc = projection_residuals(T, X, self.obs_cam, self.obs_pt, self.obs_uv, self.K)
+        return _BAState(T, X, r, Xc)
+
+    def cost(self, s: _BAState) -> float:
+        return huber_cost(np.linalg.norm(s.r, axis=1), self.huber_px)
+
+    def linearise(self, s: _BAState) -> BlockNormalEquations:
+        Jc, Jp = _jacobians(s.Xc, s.T[self.obs_cam, :3, :3], self.K)
+        Jc[~self.free[self.obs_cam]] = 0.0
+        w = huber_weights(np.linalg.norm(s.r, axis=1), self.huber_px)
+        return block_normal_equations(s.r, Jc, Jp, w, self.obs_cam, self.obs_pt, n_cameras=len(s.T),
+                                      n_points=len(s.X))
+
+    def step(self, eq: BlockNormalEquations, lam: float):
+        return schur_step(eq, lam, _DAMPING, self.free)
+
+    def apply(self, s: _BAState, step) -> _BAState:
+        dc, dp = step
+        T_new = s.T.copy()
+        for c in np.flatnonzero(self.free):
+            T_new[c] = exp_se3(dc[c]) @ s.T[c]
+        return self.state(T_new, s.X + dp)
+
+    def step_size(self, step) -> float:
+        return float(np.linalg.norm(step[0]))
 
 
-def _damped_step(blocks: tuple, free: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
-    """Camera (C, 6) and point (P, 3) steps of the damped system, points eliminated (Schur complement)."""
-    Hcc, Hpp, Hcp, bc, bp = blocks
-    C = len(Hcc)
-    Hcc_d = Hcc.copy()
-    idx = np.arange(6)
-    Hcc_d[:, idx, idx] = Hcc_d[:, idx, idx] * (1.0 + lam) + 1e-9
-    Hcc_d[~free] = np.eye(6)
-    Hpp_d = Hpp.copy()
-    idx3 = np.arange(3)
-    Hpp_d[:, idx3, idx3] = Hpp_d[:, idx3, idx3] * (1.0 + lam) + 1e-9
-    Hpp_inv = np.linalg.inv(Hpp_d)
-    E = np.einsum("pcij,pjk->pcik", Hcp, Hpp_inv)  # (P, C, 6, 3)
-    S = np.zeros((C, 6, C, 6))
-    S[np.arange(C), :, np.arange(C), :] = Hcc_d
-    S -= np.einsum("pcij,pdkj->cidk", E, Hcp)
-    rhs = bc - np.einsum("pcij,pj->ci", E, bp)
-    S2 = S.reshape(6 * C, 6 * C)
-    rhs[~free] = 0.0
-    try:
-        dc = np.linalg.solve(S2, rhs.reshape(-1)).reshape(C, 6)
-    except np.linalg.LinAlgError:
-        dc = np.linalg.lstsq(S2, rhs.reshape(-1), rcond=None)[0].reshape(C, 6)
-    dc[~free] = 0.0
-    dp = np.einsum("pij,pj->pi", Hpp_inv, bp - np.einsum("pcji,cj->pi", Hcp, dc))
-    return dc, dp
+#: Marquardt damping of both blocks plus a tiny absolute floor (a point seen in two nearly
+#: parallel rays keeps an invertible block).
+_DAMPING = SchurDamping(rule=Damping.MARQUARDT, camera_floor=1e-9, point_floor=1e-9)
+#: lambda / 5 after a success, x 10 after a failure, converged below a 1e-6 relative decrease
+_SCHEDULE = LMSchedule(initial_damping=1e-3, decrease=5.0, min_damping=1e-7, increase=10.0, max_damping=1e6,
+                       relative_decrease=1e-6)
 
 
 def bundle_adjust(
@@ -195,7 +188,6 @@ def bundle_adjust(
     *,
     fixed_cams: np.ndarray | None = None,
     config: BundleAdjustConfig | None = None,
-    **overrides,
 ) -> BundleResult:
     """Levenberg-Marquardt bundle adjustment with a Schur complement.
 
@@ -214,56 +206,27 @@ def bundle_adjust(
     fixed_cams : (C,) bool ndarray, optional
         Cameras held fixed (gauge); by default the first one.
     config : BundleAdjustConfig, optional
-        Options; ``iterations=``, ``huber_px=`` may also be given as keywords.
+        Options (default: :class:`BundleAdjustConfig`).
 
     Returns
     -------
     BundleResult
     """
-    cfg = _with_overrides(config, BundleAdjustConfig, overrides)
-    huber_px = cfg.huber_px
+    cfg = BundleAdjustConfig() if config is None else config
     T = np.array(T_cam_map, dtype=float)
     X = np.array(points, dtype=float)
-    C, P = len(T), len(X)
-    obs_cam = np.asarray(obs_cam, dtype=np.int64)
-    obs_pt = np.asarray(obs_pt, dtype=np.int64)
-    obs_uv = np.asarray(obs_uv, dtype=float)
     if fixed_cams is None:
-        fixed_cams = np.zeros(C, dtype=bool)
+        fixed_cams = np.zeros(len(T), dtype=bool)
         fixed_cams[0] = True
-    free = ~np.asarray(fixed_cams, dtype=bool)
-    lam = 1e-3
-    r, Xc = projection_residuals(T, X, obs_cam, obs_pt, obs_uv, K)
-    cost = _robust_cost(r, huber_px)
-    it = 0
-    for it in range(1, cfg.iterations + 1):
-        Jc, Jp = _jacobians(Xc, T[obs_cam, :3, :3], K)
-        Jc[~free[obs_cam]] = 0.0
-        blocks = _normal_equations(Jc, Jp, _huber_weights(r, huber_px), r, obs_cam, obs_pt, C, P)
-        while True:
-            dc, dp = _damped_step(blocks, free, lam)
-            T_new = T.copy()
-            for c in np.flatnonzero(free):
-                T_new[c] = exp_se3(dc[c]) @ T[c]
-            X_new = X + dp
-            r_new, Xc_new = projection_residuals(T_new, X_new, obs_cam, obs_pt, obs_uv, K)
-            cost_new = _robust_cost(r_new, huber_px)
-            if cost_new < cost:
-                T, X, r, Xc = T_new, X_new, r_new, Xc_new
-                converged = (cost - cost_new) < 1e-6 * cost
-                cost = cost_new
-                lam = max(lam / 5.0, 1e-7)
-                break
-            lam *= 10.0
-            if lam > 1e6:
-                converged = True
-                break
-        if converged:
-            break
-    res = np.linalg.norm(r, axis=1)
-    inl = res < 3 * huber_px
+    problem = _BundleProblem(obs_cam=np.asarray(obs_cam, dtype=np.int64), obs_pt=np.asarray(obs_pt, dtype=np.int64),
+                             obs_uv=np.asarray(obs_uv, dtype=float), K=K, free=~np.asarray(fixed_cams, dtype=bool),
+                             huber_px=cfg.huber_px)
+    out = levenberg_marquardt(problem, problem.state(T, X), replace(_SCHEDULE, max_iterations=cfg.iterations))
+    res = np.linalg.norm(out.state.r, axis=1)
+    inl = res < 3 * cfg.huber_px
     rms = float(np.sqrt(np.mean(res[inl] ** 2))) if np.any(inl) else float("inf")
-    return BundleResult(T_cam_map=T, points=X, residual_px=res, rms_px=rms, iterations=it)
+    return BundleResult(T_cam_map=out.state.T, points=out.state.X, residual_px=res, rms_px=rms,
+                        iterations=out.iterations)
 
 
 def outlier_threshold_px(residual_px: np.ndarray, *, sigmas: float = 4.0, min_px: float = 0.5,
@@ -290,7 +253,6 @@ def bundle_adjust_rejecting_outliers(
     *,
     fixed_cams: np.ndarray | None = None,
     config: OutlierRejectionConfig | None = None,
-    **overrides,
 ) -> tuple[BundleResult, np.ndarray]:
     """Bundle adjustment that rejects the observations beyond the residuals' own noise level.
 
@@ -309,9 +271,7 @@ def bundle_adjust_rejecting_outliers(
     T_cam_map, points, obs_cam, obs_pt, obs_uv, K, fixed_cams
         As :func:`bundle_adjust`.
     config : OutlierRejectionConfig, optional
-        Options; its fields may also be given as keywords (``iterations=``,
-        ``huber_px=``, ``outlier_sigmas=``, ``outlier_min_px=``,
-        ``outlier_max_px=``, ``max_rounds=``).
+        Options (default: :class:`OutlierRejectionConfig`).
 
     Returns
     -------
@@ -323,7 +283,7 @@ def bundle_adjust_rejecting_outliers(
         rounds converged, exactly those it was computed without; with
         ``max_rounds=1``, the single solve and fixed-threshold test).
     """
-    cfg = _with_overrides(config, OutlierRejectionConfig, overrides)
+    cfg = OutlierRejectionConfig() if config is None else config
     solve = BundleAdjustConfig(iterations=cfg.iterations, huber_px=cfg.huber_px)
     obs_cam, obs_pt, obs_uv = np.asarray(obs_cam), np.asarray(obs_pt), np.asarray(obs_uv, dtype=float)
     X_in = np.asarray(points, dtype=float)
@@ -381,7 +341,7 @@ def refine_pose(
     pt = np.arange(n)
     for _ in range(iterations):
         r, Xc = projection_residuals(T[None], points, cam, pt, uv, K)
-        w = _huber_weights(r, huber_px)
+        w = huber_weights(np.linalg.norm(r, axis=1), huber_px)
         Jc, _ = _jacobians(Xc, np.repeat(T[None, :3, :3], n, axis=0), K)
         H = np.einsum("mki,mkj->ij", Jc * w[:, None, None], Jc) + 1e-9 * np.eye(6)
         b = -np.einsum("mki,mk->i", Jc * w[:, None, None], r)

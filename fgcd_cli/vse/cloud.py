@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 
 from fgcd_cli.vse.landmarks import KeyframeRecord, median_depth
-from fgcd_cli.vse.semidense import SemiDenseDepth, fuse_across_keyframes, keyframe_depth, select_pixels
+from fgcd_cli.vse.semidense import (KeyframeDepthConfig, SemiDenseDepth, fuse_across_keyframes, keyframe_depth,
+                                    select_pixels)
 from fgcd_cli.vse.types import MapCloud, VseConfig
 from fgcd_core.se3 import invert_pose, rotation_angle_rad, transform_points
 
@@ -241,8 +242,9 @@ def semidense_of_keyframe(eng: VisualSlamEngine, k: int, nbs: list[int]) -> Semi
     neighbors = [(eng.kfs[j].undist, eng.kfs[j].T_cam_map @ invert_pose(kf.T_cam_map)) for j in nbs]
     return keyframe_depth(
         kf.undist, neighbors, eng.K, (lo, hi),
-        grad_threshold=cfg.semidense_grad_threshold, max_points=cfg.semidense_max_points_per_kf,
-        cell_px=cfg.semidense_cell_px, min_views=cfg.semidense_min_views, max_rel_sigma=2.0 * cfg.semidense_max_rel_sigma,
+        config=KeyframeDepthConfig(grad_threshold=cfg.semidense_grad_threshold,
+                                   max_points=cfg.semidense_max_points_per_kf, cell_px=cfg.semidense_cell_px,
+                                   min_views=cfg.semidense_min_views, max_rel_sigma=2.0 * cfg.semidense_max_rel_sigma),
     )
 
 

@@ -16,7 +16,7 @@ Images are undistorted float32 in [0, 1]; poses are 4x4; inverse depths in
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import cv2
@@ -228,7 +228,6 @@ def epipolar_search(
     inv_depth_range: tuple[float, float],
     *,
     config: EpipolarSearchConfig | None = None,
-    **overrides,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inverse depth of reference pixels from one neighbour keyframe.
 
@@ -249,7 +248,7 @@ def epipolar_search(
     inv_depth_range : (float, float)
         Search interval of inverse depth, 1/map units.
     config : EpipolarSearchConfig, optional
-        Options; its fields may also be given as keywords.
+        Options (default: :class:`EpipolarSearchConfig`).
 
     Returns
     -------
@@ -258,8 +257,6 @@ def epipolar_search(
     inv_depth_sigma : (N,) ndarray
     """
     cfg = config if config is not None else EpipolarSearchConfig()
-    if overrides:
-        cfg = replace(cfg, **overrides)
     n = len(pixels)
     out_rho = np.full(n, np.nan)
     out_sig = np.full(n, np.nan)

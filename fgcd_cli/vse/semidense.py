@@ -15,11 +15,12 @@ All images are undistorted float32 in [0, 1]; poses are 4x4; inverse depths in
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from fgcd_core.camera import pinhole_pixels
 from fgcd_cli.vse.epipolar import (PATTERN, EpipolarSearchConfig, GradientImage, epipolar_search,  # noqa: F401
                                    image_gradients)
 
@@ -178,7 +179,6 @@ def keyframe_depth(
     inv_depth_range: tuple[float, float],
     *,
     config: KeyframeDepthConfig | None = None,
-    **overrides,
 ) -> SemiDenseDepth:
     """Semi-dense depth of a reference keyframe from its neighbours.
 
@@ -193,15 +193,13 @@ def keyframe_depth(
     inv_depth_range : (float, float)
         Inverse-depth search interval (from the sparse map).
     config : KeyframeDepthConfig, optional
-        Options; its fields may also be given as keywords (``grad_threshold=``, ...).
+        Options (default: :class:`KeyframeDepthConfig`).
 
     Returns
     -------
     SemiDenseDepth
     """
     cfg = config if config is not None else KeyframeDepthConfig()
-    if overrides:
-        cfg = replace(cfg, **overrides)
     pixels = select_pixels(ref_img, grad_threshold=cfg.grad_threshold, max_points=cfg.max_points, cell_px=cfg.cell_px)
     if len(pixels) == 0 or not neighbors:
         return SemiDenseDepth(pixels=np.zeros((0, 2)), inv_depth=np.zeros(0), inv_depth_sigma=np.zeros(0),
@@ -241,7 +239,7 @@ def _in_reference(K: np.ndarray, other: tuple, radius_px: float, tree):
     if not np.any(front):
         return None
     Xr, z, zo, osig_f = Xr[front], z[front], 1.0 / orho[front], osig[front]
-    uv = (Xr @ K.T)[:, :2] / z[:, None]
+    uv = pinhole_pixels(K, Xr)
     r_new = 1.0 / z
     # sigma in the reference camera: same depth sigma (the views are nearly parallel), rescaled
     s_new = osig_f * zo**2 / z**2

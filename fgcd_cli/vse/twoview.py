@@ -9,6 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from fgcd_core.camera import pinhole_pixels
 from fgcd_core.se3 import invert_pose, make_pose, transform_points
 
 __all__ = ["ray_angles_rad", "triangulate_pair", "rotation_only_residual_px", "planar_two_view"]
@@ -56,9 +57,7 @@ def triangulate_pair(K: np.ndarray, T0: np.ndarray, T1: np.ndarray, uv0: np.ndar
     good = np.isfinite(X).all(axis=1) & (z0 > 0) & (z1 > 0)
     for T, uv in ((T0, uv0), (T1, uv1)):
         Xc = transform_points(T, X)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            pr = (Xc[:, :2] / Xc[:, 2:3]) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-        good &= np.linalg.norm(pr - uv, axis=1) < reproj_inlier_px
+        good &= np.linalg.norm(pinhole_pixels(K, Xc) - uv, axis=1) < reproj_inlier_px
     return X, good, angles[good]
 
 

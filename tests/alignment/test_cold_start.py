@@ -84,7 +84,7 @@ def test_scale_neighbour_finds_a_better_scale_only_off_the_minimum(study):
     off = Sim3(np.eye(3), c - 0.93 * c, 0.93) @ T_true  # 7 % too small, about the cloud's centre
     better, _ = scale_neighbour(inputs, off, probe, config)
     assert better is not None
-    assert better.scale / off.scale == pytest.approx(1 + config.minimum_check_step)
+    assert better.scale / off.scale == pytest.approx(1 + config.minimum_check.step)
 
 
 def test_stalled_scale_is_flagged_although_every_point_is_an_inlier(study):
@@ -92,11 +92,13 @@ def test_stalled_scale_is_flagged_although_every_point_is_an_inlier(study):
     cur = T_true.inverse().apply(p_ref)
     # A cold start (12 cm off along the normal) whose scale cannot move: no search, no drift.
     # It ends 8 % off in scale; on this thick reference the inlier ratio stays near 1.
-    stuck = replace(FastAlignConfig(), scale_candidates=(1.0,), shift_steps=0, max_scale_drift=0.0)
+    base = FastAlignConfig()
+    stuck = replace(base, cold=replace(base.cold, scale_candidates=(1.0,), shift_steps=0),
+                    scale=replace(base.scale, max_drift=0.0))
     init = _perturbed(T_true, rot_deg=2.0, shift_m=T_true.R @ np.array([0.0, 0.0, 0.12]), scale=0.92)
     result = fast_align(cur, ref, init=init, config=stuck)
     assert abs(result.T_ref_cur.scale / T_true.scale - 1) > 0.02  # really wrong
-    assert result.health.inlier_ratio >= stuck.min_inlier_ratio  # the inlier check alone would pass it
+    assert result.health.inlier_ratio >= stuck.health.min_inlier_ratio  # the inlier check alone would pass it
     assert not result.health.ok
     assert "residual minimum" in result.health.reason
 
@@ -104,14 +106,15 @@ def test_stalled_scale_is_flagged_although_every_point_is_an_inlier(study):
 # A warm start whose joint iteration stalls at a wrong scale. The stall is forced by bounding the
 # run's scale drift (2.5 %), the way a warm run on a VSE cloud stopped after moving the scale
 # 1.7-4.5 % (docs/alignment.md): it starts 8 % too small, moves 2.5 % and stops ~5.5 % off.
-STALL = dict(max_scale_drift=0.025)
+STALL = dict(scale=replace(FastAlignConfig().scale, max_drift=0.025))
 
 
 def test_warm_run_that_stalls_at_a_wrong_scale_is_redone_cold(study):
     ref, p_ref, T_true = study
     cur = T_true.inverse().apply(p_ref)
     init = _perturbed(T_true, rot_deg=1.0, shift_m=(0.0, 0.0, 0.0), scale=0.92)
-    unchecked = replace(FastAlignConfig(), warm_check_scale_change=1.0, warm_max_scale_change=1.0, **STALL)
+    unchecked = replace(FastAlignConfig(), warm=replace(FastAlignConfig().warm, check_scale_change=1.0, max_scale_change=1.0),
+                        **STALL)
     stalled = fast_align(cur, ref, init=init, config=unchecked)
     assert stalled.start == "warm"  # the case: it looks warm...
     assert abs(stalled.T_ref_cur.scale / T_true.scale - 1) > 0.03  # ...stalls well off in scale...

@@ -11,11 +11,63 @@ import numpy as np
 import pytest
 
 from fgcd_cli.alignment import FastAlignConfig
-from fgcd_cli.alignment.fast_config import FLAT_NAMES, ColdStartConfig, IcpMetric, RobustKernel, SearchScore
+from fgcd_cli.alignment.fast_config import ColdStartConfig, IcpMetric, RobustKernel, SearchScore, WeakProbeConfig
 from fgcd_cli.alignment.health import HealthEvidence, HealthLimits, assess
 from fgcd_cli.alignment.initial import GuessSource
 from fgcd_cli.alignment.results import HEALTH_OK, StartPath
 from fgcd_cli.alignment.synthetic import SessionConfig, make_session
+
+#: Flat option name of the former single-level config -> (section, field), the record of the grouping.
+FORMER_NAMES: dict[str, tuple[str, str]] = {
+    "level_points": ("levels", "points"),
+    "level_radius_rel": ("levels", "radius_rel"),
+    "level_iterations": ("levels", "iterations"),
+    "level_metric": ("levels", "metric"),
+    "robust": ("rigid", "robust"),
+    "sparse_p": ("rigid", "sparse_p"),
+    "admm_iterations": ("rigid", "admm_iterations"),
+    "inlier_factor": ("rigid", "inlier_factor"),
+    "min_inlier_spacing": ("rigid", "min_inlier_spacing"),
+    "estimate_scale": ("scale", "estimate"),
+    "scale_from_level": ("scale", "from_level"),
+    "max_scale_step": ("scale", "max_step"),
+    "max_scale_drift": ("scale", "max_drift"),
+    "trim_factor": ("scale", "trim_factor"),
+    "tau_T": ("convergence", "tau_T"),
+    "tau_sigma": ("convergence", "tau_sigma"),
+    "stall_rel": ("convergence", "stall_rel"),
+    "warm_rel": ("warm", "rel"),
+    "warm_max_scale_change": ("warm", "max_scale_change"),
+    "warm_max_rotation_deg": ("warm", "max_rotation_deg"),
+    "warm_check_scale_change": ("warm", "check_scale_change"),
+    "scale_candidates": ("cold", "scale_candidates"),
+    "search_score": ("cold", "search_score"),
+    "scale_refinements": ("cold", "scale_refinements"),
+    "search_iterations": ("cold", "search_iterations"),
+    "shift_steps": ("cold", "shift_steps"),
+    "shift_rel": ("cold", "shift_rel"),
+    "shift_points": ("cold", "shift_points"),
+    "shift_radius_rel": ("cold", "shift_radius_rel"),
+    "shift_iterations": ("cold", "shift_iterations"),
+    "minimum_check_step": ("minimum_check", "step"),
+    "minimum_check_margin": ("minimum_check", "margin"),
+    "minimum_check_iterations": ("minimum_check", "iterations"),
+    "health_points": ("health", "points"),
+    "inlier_rel": ("health", "inlier_rel"),
+    "inlier_noise_factor": ("health", "inlier_noise_factor"),
+    "overlap_rel": ("health", "overlap_rel"),
+    "min_inlier_ratio": ("health", "min_inlier_ratio"),
+    "min_overlap": ("health", "min_overlap"),
+    "min_condition_ratio": ("health", "min_condition_ratio"),
+    "condition_noise_factor": ("health", "condition_noise_factor"),
+    "scale_bounds": ("health", "scale_bounds"),
+    "weak_probe": ("probe", "enabled"),
+    "weak_probe_rel": ("probe", "rel"),
+    "weak_probe_directions": ("probe", "directions"),
+    "weak_probe_return": ("probe", "return_fraction"),
+    "weak_probe_points": ("probe", "points"),
+    "weak_probe_iterations": ("probe", "iterations"),
+}
 
 #: The defaults of the flat FastAlignConfig before the grouping (issue #20).
 OLD_DEFAULTS = dict(
@@ -34,31 +86,28 @@ OLD_DEFAULTS = dict(
 )
 
 
-def test_fast_config_keeps_every_flat_default():
+def test_fast_config_keeps_every_flat_default_in_its_section():
     config = FastAlignConfig()
-    assert set(FLAT_NAMES) | {"seed"} == set(OLD_DEFAULTS)
+    assert set(FORMER_NAMES) | {"seed"} == set(OLD_DEFAULTS)
     for name, value in OLD_DEFAULTS.items():
-        assert getattr(config, name) == value, name
+        section, key = FORMER_NAMES.get(name, (None, name))
+        assert getattr(config if section is None else getattr(config, section), key) == value, name
 
 
-def test_flat_keywords_and_replace_reach_their_sections():
-    config = FastAlignConfig(shift_steps=0, weak_probe=False, robust="trimmed", seed=3)
+def test_sections_are_the_one_way_to_set_an_option():
+    config = FastAlignConfig(cold=ColdStartConfig(shift_steps=0), probe=WeakProbeConfig(enabled=False), seed=3)
     assert config.cold.shift_steps == 0 and config.probe.enabled is False and config.seed == 3
-    assert config.rigid.robust is RobustKernel.TRIMMED
-    assert config == FastAlignConfig(cold=ColdStartConfig(shift_steps=0), weak_probe=False, robust="trimmed", seed=3)
-    changed = replace(config, level_points=(100,), max_scale_drift=0.0)
-    assert changed.levels.points == (100,) and changed.scale.max_drift == 0.0
-    assert changed.cold.shift_steps == 0 and changed.levels.iterations == (60, 20, 40)
+    assert config.rigid.robust is RobustKernel.SPARSE and config.levels.iterations == (60, 20, 40)
     with pytest.raises(TypeError):
-        FastAlignConfig(no_such_option=1)
+        FastAlignConfig(shift_steps=0)  # a former flat name
     with pytest.raises(AttributeError):
-        _ = config.no_such_option
+        _ = config.shift_steps
 
 
 def test_modes_and_statuses_keep_their_string_values():
-    assert FastAlignConfig().level_metric == ("point", "plane", "plane")
-    assert all(isinstance(m, IcpMetric) for m in FastAlignConfig().level_metric)
-    assert FastAlignConfig().search_score == "median" and SearchScore("truncated") is SearchScore.TRUNCATED
+    assert FastAlignConfig().levels.metric == ("point", "plane", "plane")
+    assert all(isinstance(m, IcpMetric) for m in FastAlignConfig().levels.metric)
+    assert FastAlignConfig().cold.search_score == "median" and SearchScore("truncated") is SearchScore.TRUNCATED
     assert [str(p) for p in StartPath] == ["warm", "warm, checked", "warm -> cold", "cold"]
     encoded = json.dumps([StartPath.WARM_TO_COLD, GuessSource.FIRST_CAMERA_FAST])
     assert encoded == '["warm -> cold", "first_camera+fast"]'

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
+from fgcd_cli.alignment.fast_config import ScaleStepConfig
 from fgcd_cli.alignment.health import similarity_conditioning
 from fgcd_cli.alignment.sparse_icp import scale_step_point_to_plane, shrink, shrink_threshold
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity, sample_plane, sample_sphere
@@ -69,7 +70,7 @@ def test_without_scale_keeps_initial_scale(scene, reference):
     init = random_similarity(rng, rotation_deg=3.0, translation_m=0.02, scale_rel=0.0) @ T_true
     init = Sim3(init.R, init.t, 1.03 * T_true.scale)
     result = fast_align(T_true.inverse().apply(p_ref), reference, init=init,
-                        config=FastAlignConfig(estimate_scale=False))
+                        config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)))
     assert result.T_ref_cur.scale == init.scale
     with_scale = fast_align(T_true.inverse().apply(p_ref), reference, init=init)
     assert abs(with_scale.T_ref_cur.scale / T_true.scale - 1) < 0.005
@@ -100,7 +101,7 @@ def test_degenerate_geometry_is_flagged(shape):
 
 def test_relief_is_well_conditioned(scene, reference):
     ratio, _, _ = similarity_conditioning(reference.points, reference.normals)
-    assert ratio > 10 * FastAlignConfig().min_condition_ratio
+    assert ratio > 10 * FastAlignConfig().health.min_condition_ratio
 
 
 def test_plane_and_sphere_weak_directions():

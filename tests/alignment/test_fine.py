@@ -7,7 +7,7 @@ import pytest
 
 from fgcd_cli.alignment import ReferenceIndex, fast_align
 from fgcd_cli.alignment.fine import FineAlignConfig, fine_align
-from fgcd_cli.alignment.synthetic import ReliefScene, make_session, random_similarity
+from fgcd_cli.alignment.synthetic import ReliefScene, SessionConfig, make_session, random_similarity
 from fgcd_core import PinholeCamera, Sim3, pose_distance
 
 CAMERA = PinholeCamera(fx=400, fy=400, cx=159.5, cy=119.5, width=320, height=240)
@@ -20,8 +20,8 @@ def setup():
     pts, normals, intensities = scene.sample(40000, rng=rng)
     ref = ReferenceIndex(pts, normals=normals, intensities=intensities)
     T_true = random_similarity(rng, rotation_deg=30, translation_m=0.3, scale_rel=0.03)
-    session = make_session(scene, camera=CAMERA, T_ref_cur=T_true, rng=rng, n_keyframes=5,
-                           pose_noise_deg=0.15, pose_noise_m=0.0015)
+    session = make_session(scene, camera=CAMERA, T_ref_cur=T_true, rng=rng,
+                           config=SessionConfig(n_keyframes=5, pose_noise_deg=0.15, pose_noise_m=0.0015))
     init = random_similarity(rng, rotation_deg=2, translation_m=0.02, scale_rel=0.02) @ T_true
     fast = fast_align(session.cur_points, ref, init=init)
     return scene, ref, session, fast
@@ -56,8 +56,9 @@ def test_fine_does_not_drift_from_the_truth():
     pts, normals, intensities = scene.sample(30000, rng=rng)
     ref = ReferenceIndex(pts, normals=normals, intensities=intensities)
     T_true = Sim3(np.eye(3), np.zeros(3), 1.0)
-    session = make_session(scene, camera=CAMERA, T_ref_cur=T_true, rng=rng, n_keyframes=4,
-                           pose_noise_deg=0.0, pose_noise_m=0.0, depth_noise_rel=0.001)
+    session = make_session(scene, camera=CAMERA, T_ref_cur=T_true, rng=rng,
+                           config=SessionConfig(n_keyframes=4, pose_noise_deg=0.0, pose_noise_m=0.0,
+                                                depth_noise_rel=0.001))
     result = fine_align(ref_points=ref, cur_keyframes=session.keyframes, camera=CAMERA, init=T_true,
                         cur_points=session.cur_points, config=FineAlignConfig(blur_sigmas=(1.0,)))
     E = result.T_ref_cur @ T_true.inverse()

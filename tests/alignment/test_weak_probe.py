@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
+from fgcd_cli.alignment.fast_config import WeakProbeConfig
 from fgcd_cli.alignment.synthetic import look_at
 from fgcd_core import PinholeCamera, Sim3, exp_se3
 
@@ -46,10 +47,10 @@ def test_mortar_joints_pin_a_wall_that_smoothed_normals_call_flat():
     result, rms_mm = _align_wall(joints=True)
     h = result.health
     # Smoothed normals alone call it degenerate...
-    assert h.condition_ratio < FastAlignConfig().min_condition_ratio
+    assert h.condition_ratio < FastAlignConfig().health.min_condition_ratio
     assert h.weak_directions
     # ...but every probed perturbation comes back, and the result is where the joints are.
-    assert h.weak_probe and max(h.weak_probe) < FastAlignConfig().weak_probe_return
+    assert h.weak_probe and max(h.weak_probe) < FastAlignConfig().probe.return_fraction
     assert h.ok and not h.degenerate
     # The start was ~15 mm off (RMS over the points); the noise is 2 mm per axis over 15k points.
     assert rms_mm < 4.0
@@ -59,12 +60,12 @@ def test_a_plain_wall_stays_degenerate():
     result, rms_mm = _align_wall(joints=False)
     h = result.health
     assert h.degenerate and not h.ok
-    assert h.weak_probe and max(h.weak_probe) > FastAlignConfig().weak_probe_return
+    assert h.weak_probe and max(h.weak_probe) > FastAlignConfig().probe.return_fraction
     assert "perturbations along them kept" in h.reason
 
 
 def test_without_the_probe_the_joints_are_called_degenerate():
-    result, _ = _align_wall(joints=True, config=FastAlignConfig(weak_probe=False))
+    result, _ = _align_wall(joints=True, config=FastAlignConfig(probe=WeakProbeConfig(enabled=False)))
     assert result.health.degenerate and result.health.weak_probe == ()
 
 
@@ -114,4 +115,4 @@ def test_view_rim_tells_an_outline_from_the_edge_of_the_view_and_a_limb():
 def test_probe_reports_one_value_per_probed_direction():
     result, _ = _align_wall(joints=True)
     assert len(result.health.weak_probe) == min(len(result.health.weak_directions),
-                                                FastAlignConfig().weak_probe_directions)
+                                                FastAlignConfig().probe.directions)

@@ -69,7 +69,7 @@ def test_sim_intrinsics_calibrate_the_camera_of_the_rig_of_that_seed(tmp_path):
     in cy for seed 2; 8 board views calibrate to ~0.1 % and ~1 px, so the
     tolerances (0.25 %, 3 px) separate the two.
     """
-    from drivers.sim.rig import build_sim_rig
+    from drivers.sim.rig import SimRigConfig, build_sim_rig
 
     init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
     r = fgcd("calibrate", "intrinsics", "--sim", "--seed", 2, "--sim-views", 8, "-c", tmp_path / "c", "--json")
@@ -77,7 +77,7 @@ def test_sim_intrinsics_calibrate_the_camera_of_the_rig_of_that_seed(tmp_path):
     cam = json.loads(r.stdout)["camera"]
     stored = json.loads((tmp_path / "c" / "rig" / "intrinsics.json").read_text())["camera"]
     assert stored["fx"] == cam["fx"]
-    rig = build_sim_rig(scene="stele", seed=2)
+    rig = build_sim_rig(scene="stele", config=SimRigConfig(seed=2))
     try:
         true = rig.ground_truth.intrinsics_true()
     finally:

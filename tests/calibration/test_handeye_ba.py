@@ -1,4 +1,4 @@
-"""Target-free hand-eye refined on the stop images (fgcd_cli.calibration.handeye_ba).
+"""Target-free hand-eye refined on the stop images (fgcd_cli.calibration.target_free, handeye_refine).
 
 Ground truth is synthetic: feature tracks projected from known points, or images
 of a textured plane rendered through exact homographies, with a known ``X``.
@@ -14,8 +14,11 @@ import pytest
 
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import solve_handeye_scale
-from fgcd_cli.calibration.handeye_ba import KeyframeDepths, refine_handeye_tracks, refine_target_free
+from fgcd_cli.calibration.depth_scale import KeyframeDepths
+from fgcd_cli.calibration.handeye_refine import RefineConfig, refine_handeye_tracks
+from fgcd_cli.calibration.target_free import TargetFreeConfig, refine_target_free
 from fgcd_cli.calibration.motions import exploration_motions
+from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
 
 K = np.array([[600.0, 0, 320.0], [0, 600.0, 240.0], [0, 0, 1.0]])
@@ -76,7 +79,8 @@ def test_a_platform_rotation_scale_error_is_estimated_with_x():
     true_scale = 1.003
     tracks = _tracks(_rotations_scaled(reported, true_scale), noise_px=0.1, seed=2)
     res = refine_handeye_tracks(reported, tracks, K, _x_init())
-    fixed = refine_handeye_tracks(reported, tracks, K, _x_init(), estimate_rotation_scale=False)
+    fixed = refine_handeye_tracks(reported, tracks, K, _x_init(),
+                                  config=RefineConfig(estimate_rotation_scale=False))
     mm, deg = pose_distance(res.T_flange_cam, X_TRUE)
     assert abs(res.rotation_scale - true_scale) < 4 * res.rotation_scale_std and res.rotation_scale_std < 2e-4
     assert mm < 4 * res.std_mm + 0.05 and deg < 4 * res.std_deg + 0.005
@@ -181,8 +185,10 @@ def test_refinement_fixes_the_hand_eye_and_scale_of_noisy_vse_poses(plane_case):
         uv = pc[:, :2] / pc[:, 2:] * 600.0 + K[:2, 2]
         keyframes.append(KeyframeDepths(T_base_flange=T, T_map_cam=T_map_cam, pixels=uv, points_map=P_map))
     # fewer features: a fast test
-    refined = refine_target_free(linear, hand, eye, images, K, n_features=800, keyframes=keyframes)
-    by_motion = refine_target_free(linear, hand, eye, images, K, n_features=800)
+    camera = PinholeCamera.from_K(K, W, H)
+    refined = refine_target_free(linear, hand, eye, images, camera, keyframes=keyframes,
+                                 config=TargetFreeConfig(n_features=800))
+    by_motion = refine_target_free(linear, hand, eye, images, camera, config=TargetFreeConfig(n_features=800))
     lin_mm, _ = pose_distance(linear.T_flange_cam, X_TRUE)
     mm, deg = pose_distance(refined.T_flange_cam, X_TRUE)
     assert lin_mm > 5.0  # the case is hard for the linear solve

@@ -6,11 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.sim.board import SimBoard, random_board_poses, render_board_view
+from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 from fgcd_cli.calibration.board import BoardSpec, load_board_sidecar, write_printable_board
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.intrinsics import IntrinsicsResult, calibrate_intrinsics, coverage_feedback
 from fgcd_cli.errors import UserInputError
+from fgcd_core.camera import PinholeCamera
 
 CAM = dict(fx=620.0, fy=618.0, cx=322.0, cy=238.0, width=640, height=480)
 DIST = (-0.12, 0.05, 0.001, -0.0005, 0.0)
@@ -19,9 +20,10 @@ SPEC = BoardSpec()
 
 
 def _views(n, seed, dist=DIST, **pose_kw):
-    poses = random_board_poses(SIM_BOARD, n, **CAM, rng=np.random.default_rng(seed), **pose_kw)
+    poses = random_board_poses(SIM_BOARD, n, PinholeCamera(**CAM), rng=np.random.default_rng(seed), **pose_kw)
     return [
-        render_board_view(SIM_BOARD, T, **CAM, dist=dist, supersample=2, rng=np.random.default_rng(seed * 100 + i))
+        render_board_view(SIM_BOARD, T, PinholeCamera(**CAM, dist=dist), options=BoardViewOptions(supersample=2),
+                          rng=np.random.default_rng(seed * 100 + i))
         for i, T in enumerate(poses)
     ], poses
 

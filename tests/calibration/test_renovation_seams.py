@@ -15,7 +15,7 @@ from fgcd_cli.calibration.handeye import HandEyeMethod, Regress
 from fgcd_cli.calibration.handeye_refine import RefineConfig
 from fgcd_cli.calibration.handeye_target import OPENCV_METHODS, TargetSolver
 from fgcd_cli.calibration.intrinsics import DISTORTION_MODELS, DistortionModel
-from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig, run_target_free
+from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig, run_target, run_target_free
 from fgcd_cli.calibration.target_free import ScaleMethod, TargetFreeConfig
 from fgcd_cli.calibration.tracks import MatchConfig, pair_list
 from fgcd_core.se3 import exp_so3, make_pose
@@ -54,10 +54,10 @@ def test_match_pairs_window_and_anchors():
     assert pair_list(6, 1, anchors=(0, 3, 5, 9)) == [(0, 1), (0, 3), (0, 5), (1, 2), (2, 3), (3, 4), (3, 5), (4, 5)]
 
 
-def test_procedures_take_a_config_or_the_former_keywords():
-    for func in (run_target_free,):
+def test_procedures_take_their_options_as_one_config():
+    for func in (run_target_free, run_target):
         params = inspect.signature(func).parameters
-        assert "config" in params and any(p.kind is p.VAR_KEYWORD for p in params.values())
+        assert "config" in params and not any(p.kind is p.VAR_KEYWORD for p in params.values())
     with pytest.raises(TypeError):
         TargetFreeRunConfig(nonsense=1)
 

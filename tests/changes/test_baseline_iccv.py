@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.changes.baseline_iccv import iccv2015_details, iccv2015_score
+from fgcd_cli.changes.baseline_iccv import ICCV2015Config, iccv2015_details, iccv2015_score
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.metrics.change_scores import sweep_scores
 
@@ -131,7 +131,8 @@ def test_normal_groups_follow_the_normal_dependent_ratio(scene):
     # correction must explain clearly more of the per-pixel ratio than one gain per lighting.
     normals = _normals(_height(False))
     moved = _render(_albedo(), normals, _moved_lights(), CURRENT_GAINS, CURRENT_AMBIENT, noise_seed=4)
-    details = iccv2015_details(scene["ref"], moved, valid=scene["valid"], spatial_sigma_px=None)
+    details = iccv2015_details(scene["ref"], moved, valid=scene["valid"],
+                               config=ICCV2015Config(spatial_sigma_px=None))
     groups = details.normal_groups
     big = [g for g in range(16) if np.count_nonzero(groups == g) > 300]
     assert len(big) >= 8
@@ -150,7 +151,8 @@ def test_normal_groups_follow_the_normal_dependent_ratio(scene):
 def test_group_gains_recover_the_light_gains(scene):
     # Same light directions, other intensities: every normal group of lighting k should get the
     # log of the current/reference intensity ratio (ambient included in the directional images).
-    details = iccv2015_details(scene["ref"], scene["unchanged"], valid=scene["valid"], spatial_sigma_px=None)
+    details = iccv2015_details(scene["ref"], scene["unchanged"], valid=scene["valid"],
+                               config=ICCV2015Config(spatial_sigma_px=None))
     groups = details.normal_groups
     assert groups.min() >= 0 and groups.max() <= 16
     big = [g for g in range(16) if np.count_nonzero(groups == g) > 500]
@@ -180,4 +182,4 @@ def test_rejects_bad_input(scene):
     with pytest.raises(UserInputError):
         iccv2015_score(scene["ref"], scene["cur"], valid=scene["valid"][:-1])
     with pytest.raises(UserInputError):
-        iccv2015_score(scene["ref"], scene["cur"], valid=scene["valid"], rank=0)
+        iccv2015_score(scene["ref"], scene["cur"], valid=scene["valid"], config=ICCV2015Config(rank=0))

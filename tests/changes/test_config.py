@@ -52,10 +52,10 @@ def test_unknown_options_and_rules_are_refused():
     with pytest.raises(UserInputError, match="unknown decision rule"):
         DetectionConfig.from_options(decision="otsu")
     image = np.zeros((8, 8), np.float32)
-    with pytest.raises(TypeError, match="tile_px"):
-        detect_changes([image], [image], tile_px=256)  # a tiling option of the untiled detector
-    with pytest.raises(TypeError, match="edge_check_px"):
-        detect_changes_tiled([image], [image], edge_check_px=2)  # not implemented tile by tile
+    with pytest.raises(TypeError):
+        detect_changes([image], [image], k_high=14.0)  # options go in the config, not beside it
+    with pytest.raises(UserInputError, match="edge_check_px is not supported tile by tile"):
+        detect_changes_tiled([image], [image], config=DetectionConfig.from_options(edge_check_px=2))
     with pytest.raises(UserInputError, match="not supported tile by tile"):
         detect_changes_tiled([image], [image], config=DetectionConfig.from_options(structure_weight=0.5))
 
@@ -88,12 +88,13 @@ def test_other_configs_keep_the_old_keyword_defaults():
         FdfConfig(method="orb")
 
 
-def test_decide_takes_a_section_or_its_old_keywords():
+def test_decide_takes_its_section():
     rng = np.random.default_rng(0)
     score = np.abs(rng.normal(size=(96, 96))).astype(np.float32)
     score[40:52, 40:52] += 30.0
     valid = np.ones(score.shape, bool)
-    by_keywords = decide(score, valid, decision="hysteresis", k_high=14.0, k_low=7.0)
     by_config = decide(score, valid, config=DetectionConfig.from_options(
         decision="hysteresis", k_high=14.0, k_low=7.0).regions)
-    assert np.array_equal(by_keywords[0], by_config[0]) and by_keywords[0][45, 45]
+    assert by_config[0][45, 45] and not by_config[0][5, 5]
+    with pytest.raises(TypeError):
+        decide(score, valid, k_high=14.0)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from fgcd_cli.changes.dense import (
+    DenseConfig,
     apply_flow,
     lighting_invariant,
     refine_dense,
@@ -223,11 +224,11 @@ def test_flow_beyond_the_cap_is_not_compared():
     ref = textured_scene(SIZE)
     M = np.float32([[1, 0, 7.0], [0, 1, 0]])  # content moves right: ref pixel x seen at x + 7
     cur = cv2.warpAffine(ref, M, (SIZE, SIZE), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-    result = refine_dense(ref, cur, max_flow_px=5.0)
+    result = refine_dense(ref, cur, config=DenseConfig(max_flow_px=5.0))
     inner = _interior()
     assert result.not_compared[inner].mean() > 0.95
     assert float(result.magnitude.max()) <= 5.0 + 1e-4  # clipped: nothing wild reaches the resampling
-    relaxed = refine_dense(ref, cur, max_flow_px=10.0)
+    relaxed = refine_dense(ref, cur, config=DenseConfig(max_flow_px=10.0))
     assert relaxed.not_compared[inner].mean() < 0.01
     assert np.abs(relaxed.flow[inner][:, 0] - 7.0).mean() < 0.1
 

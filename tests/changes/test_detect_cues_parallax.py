@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.detect import ChangeResult, detect_changes
 
 from .conftest import textured_scene
@@ -243,7 +244,8 @@ def test_renderer_matches_the_stated_case(scene):
 @pytest.mark.parametrize("calibrated", [False, True], ids=["uncalibrated", "calibrated"])
 def test_pit_is_found_and_labelled_relief(scene, calibrated):
     cur = render(scene["depth"] + scene["pit_depth"], scene["albedo"], rng=np.random.default_rng(1))
-    result = detect_changes(scene["ref"], cur, light_dirs=calibrated_lights() if calibrated else None)
+    result = detect_changes(scene["ref"], cur,
+                            config=DetectionConfig.from_options(light_dirs=calibrated_lights() if calibrated else None))
     region, _ = assert_found(result, scene["pit"], PIT_RADIUS_PX)
     check_pit_label(result, scene, region)
 
@@ -251,7 +253,8 @@ def test_pit_is_found_and_labelled_relief(scene, calibrated):
 @pytest.mark.parametrize("calibrated", [False, True], ids=["uncalibrated", "calibrated"])
 def test_stain_is_found_and_labelled_colour(scene, calibrated):
     cur = render(scene["depth"], stained(scene), rng=np.random.default_rng(2))
-    result = detect_changes(scene["ref"], cur, light_dirs=calibrated_lights() if calibrated else None)
+    result = detect_changes(scene["ref"], cur,
+                            config=DetectionConfig.from_options(light_dirs=calibrated_lights() if calibrated else None))
     region, _ = assert_found(result, scene["stain"], STAIN_RADIUS_PX)
     check_stain_label(result, region)
 
@@ -308,7 +311,8 @@ def peak_bias_px(smooth_px: float) -> float:
 def parallax_pair(scene) -> dict:
     clean = render(scene["depth"], scene["albedo"])
     cur = shifted_view(clean, np.random.default_rng(4))
-    return dict(cur=cur, dense=detect_changes(scene["ref"], cur), homography=detect_changes(scene["ref"], cur, dense=False))
+    return dict(cur=cur, dense=detect_changes(scene["ref"], cur), homography=detect_changes(scene["ref"], cur,
+                                                                                            config=DetectionConfig.from_options(dense=False)))
 
 
 def test_parallax_is_aligned_not_flagged(scene, parallax_pair):

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import fgcd_cli.changes.edge_check as edge_check
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.edge_check import along_edge_elongation, max_hidden_blob_px
 from fgcd_cli.metrics.change_scores import binary_scores
@@ -41,13 +42,13 @@ def test_compact_stain_between_grooves_is_reported(stain_value, monkeypatch):
     ref, _ = _two_grooves()
     cur, truth = _two_grooves(stain_value=stain_value)
     assert 20 <= truth.sum() <= 40  # a stain a few pixels across, as small as the grooves' tolerance
-    result = detect_changes([ref], [_revisit(cur)], edge_check_px=2)
+    result = detect_changes([ref], [_revisit(cur)], config=DetectionConfig.from_options(edge_check_px=2))
     assert len(result.regions) == 1
     assert result.settings["edge_explained_regions"] == 0 and result.settings["edge_compact_kept_regions"] == 1
     assert binary_scores(result.mask, truth).recall > 0.9
     # Without the shape rule the envelope of the grooves explains the stain: it would be set aside.
     monkeypatch.setattr(edge_check, "MIN_ALONG_ACROSS", 0.0)
-    hidden = detect_changes([ref], [_revisit(cur)], edge_check_px=2)
+    hidden = detect_changes([ref], [_revisit(cur)], config=DetectionConfig.from_options(edge_check_px=2))
     assert hidden.regions == [] and hidden.settings["edge_explained_regions"] == 1
 
 

@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, envelope_distance, shift_tolerant_difference
 from fgcd_cli.metrics.change_scores import binary_scores
@@ -61,7 +62,7 @@ def test_half_pixel_shift_of_a_thin_edge_is_explained():
 def test_half_pixel_shifted_edge_is_not_a_change():
     ref, _ = _niche_scene(0)
     cur, _ = _niche_scene(2)
-    result = detect_changes([ref], [_revisit(cur)], edge_tolerance_px=2)
+    result = detect_changes([ref], [_revisit(cur)], config=DetectionConfig.from_options(edge_tolerance_px=2))
     assert result.comparable, result.reason
     assert result.regions == []
     without = detect_changes([ref], [_revisit(cur)])  # default: off
@@ -76,7 +77,7 @@ def test_half_pixel_shifted_edge_is_not_a_change():
 def test_stain_next_to_an_edge_is_still_found(setting, min_recall):
     ref, _ = _niche_scene(0)
     cur, truth = _niche_scene(2, stain=True)
-    result = detect_changes([ref], [_revisit(cur)], **setting)
+    result = detect_changes([ref], [_revisit(cur)], config=DetectionConfig.from_options(**setting))
     assert result.comparable, result.reason
     assert len(result.regions) == 1
     scores = binary_scores(result.mask, truth)
@@ -88,7 +89,7 @@ def test_stain_next_to_an_edge_is_still_found(setting, min_recall):
 def test_edge_check_sets_the_shifted_groove_aside_and_keeps_it_visible():
     ref, _ = _niche_scene(0)
     cur, _ = _niche_scene(2)
-    result = detect_changes([ref], [_revisit(cur)], edge_check_px=2)
+    result = detect_changes([ref], [_revisit(cur)], config=DetectionConfig.from_options(edge_check_px=2))
     assert result.comparable, result.reason
     assert result.regions == []
     assert result.settings["edge_explained_regions"] >= 1
@@ -104,7 +105,7 @@ def test_edge_check_keeps_a_new_thin_crack_away_from_reference_edges():
     truth[60:200, 139:143] = True
     plain = detect_changes([ref], [_revisit(cur)])
     assert any(r.bbox_xywh[0] > 130 for r in plain.regions)  # the plain detector finds it (and the groove)
-    result = detect_changes([ref], [_revisit(cur)], edge_check_px=2)
+    result = detect_changes([ref], [_revisit(cur)], config=DetectionConfig.from_options(edge_check_px=2))
     assert len(result.regions) == 1
     assert binary_scores(result.mask, truth).recall > 0.8
 

@@ -8,6 +8,7 @@ import pytest
 from skimage import data
 
 from fgcd_cli.changes.photometric import (
+    JointFitConfig,
     PhotometricStereo,
     joint_photometric_stereo,
     photometric_stereo,
@@ -282,7 +283,7 @@ def test_joint_uncalibrated_separates_relief_from_colour(seed):
 def test_joint_separate_factorizations_are_aligned():
     """same_lights=False: each stack has its own 3x3 ambiguity; the robust alignment removes it."""
     scene = pit_and_stain_scene(5, size=192)
-    ref, cur = joint_photometric_stereo(scene["ref"], scene["cur"], same_lights=False)
+    ref, cur = joint_photometric_stereo(scene["ref"], scene["cur"], config=JointFitConfig(same_lights=False))
     relief, _ = relief_and_colour_cues(ref, cur, valid=np.ones(scene["pit"].shape, bool))
     elsewhere = ~(scene["pit"] | scene["stain"])
     assert np.degrees(np.median(relief[elsewhere])) < 1.5
@@ -292,7 +293,7 @@ def test_joint_separate_factorizations_are_aligned():
 def test_colour_cue_gain_without_basis_alignment():
     """align=False: the exposure stays in the current albedo; the cue's robust gain removes it."""
     scene = pit_and_stain_scene(7, size=192)
-    ref, cur = joint_photometric_stereo(scene["ref"], scene["cur"], align=False)
+    ref, cur = joint_photometric_stereo(scene["ref"], scene["cur"], config=JointFitConfig(align=False))
     ratio = np.median(cur.albedo / np.maximum(ref.albedo, 1e-6), axis=(0, 1))
     np.testing.assert_allclose(ratio, 1.2 * WHITE_BALANCE, rtol=0.03)
     _, colour = relief_and_colour_cues(ref, cur, valid=np.ones(scene["pit"].shape, bool))

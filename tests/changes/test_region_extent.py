@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.illumination import normalize_local_gain
 from fgcd_cli.changes.regions import refine_to_local_peak
@@ -47,7 +48,7 @@ def test_weighted_gain_still_removes_a_smooth_light_ramp():
 @pytest.mark.parametrize("decision", ["acontrario", "hysteresis"])
 def test_strong_change_region_matches_its_footprint(decision):
     ref, cur, truth = _dark_spot_pair()
-    result = detect_changes([ref], [cur], register=False, decision=decision)
+    result = detect_changes([ref], [cur], config=DetectionConfig.from_options(register=False, decision=decision))
     scores = binary_scores(result.mask, truth)
     assert scores.recall > 0.9
     # The 10 px disc may come out up to 1.5 px wider in radius (the score is smoothed
@@ -55,7 +56,9 @@ def test_strong_change_region_matches_its_footprint(decision):
     assert scores.precision > (10 / 11.5) ** 2, f"region {result.mask.sum()} px for a {truth.sum()} px change"
     if decision == "hysteresis":
         # Without the two fixes the same change comes out about twice too large.
-        loose = detect_changes([ref], [cur], register=False, decision=decision, robust_gain_rounds=0, edge_fraction=0.0)
+        loose = detect_changes([ref], [cur],
+                               config=DetectionConfig.from_options(register=False, decision=decision,
+                                                                   robust_gain_rounds=0, edge_fraction=0.0))
         assert loose.mask.sum() > 1.5 * result.mask.sum()
 
 

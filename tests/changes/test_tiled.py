@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from skimage import data
 
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.tiled import detect_changes_tiled, load_images, tile_grid
 from fgcd_cli.errors import UserInputError
@@ -50,8 +51,9 @@ def _pair(*, changed: bool = True, shift=SHIFT):
 def changed_pair():
     refs, curs, truth = _pair()
     calls = []
-    plain = detect_changes(refs, curs, **FAST)
-    tiled = detect_changes_tiled(refs, curs, tile_px=TILE, progress=lambda *a: calls.append(a), **FAST)
+    plain = detect_changes(refs, curs, config=DetectionConfig.from_options(**FAST))
+    tiled = detect_changes_tiled(refs, curs, progress=lambda *a: calls.append(a),
+                                 config=DetectionConfig.from_options(tile_px=TILE, **FAST))
     return {"refs": refs, "curs": curs, "truth": truth, "plain": plain, "tiled": tiled, "calls": calls}
 
 
@@ -75,8 +77,8 @@ def test_tiled_finds_the_same_changes_as_untiled(changed_pair):
 def test_score_maps_agree_everywhere():
     # Without registration (no jitter between the two runs), tiling alone is compared.
     refs, curs, _ = _pair(shift=(0, 0))
-    plain = detect_changes(refs, curs, register=False, **FAST)
-    tiled = detect_changes_tiled(refs, curs, tile_px=TILE, register=False, **FAST)
+    plain = detect_changes(refs, curs, config=DetectionConfig.from_options(register=False, **FAST))
+    tiled = detect_changes_tiled(refs, curs, config=DetectionConfig.from_options(tile_px=TILE, register=False, **FAST))
     both = plain.valid & tiled.valid
     assert binary_scores(tiled.valid, plain.valid).iou > 0.999
     relative = np.abs(tiled.score - plain.score)[both] / np.maximum(plain.score[both], 1e-3)
@@ -91,7 +93,7 @@ def test_score_maps_agree_everywhere():
 
 def test_no_seams_on_an_unchanged_pair():
     refs, curs, _ = _pair(changed=False)
-    result = detect_changes_tiled(refs, curs, tile_px=TILE, **FAST)
+    result = detect_changes_tiled(refs, curs, config=DetectionConfig.from_options(tile_px=TILE, **FAST))
     assert result.comparable, result.reason
     score, valid = result.score, result.valid
     seam = np.zeros((H, W), bool)
@@ -123,7 +125,7 @@ def test_progress_is_called_once_per_tile_in_order(changed_pair):
 
 def test_working_resolution_registration_is_scaled_to_full_resolution():
     refs, curs, truth = _pair()
-    result = detect_changes_tiled(refs, curs, tile_px=600, work_px=600, **FAST)
+    result = detect_changes_tiled(refs, curs, config=DetectionConfig.from_options(tile_px=600, work_px=600, **FAST))
     assert result.settings["work_scale"] == pytest.approx(2.0)
     # Content moved by SHIFT: reference pixel x is seen at x + SHIFT in the current image.
     H_full = result.registration.H_cur_ref

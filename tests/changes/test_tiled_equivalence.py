@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from fgcd_cli.changes.cues import _min_shifted_difference, shift_tolerant_difference
 from fgcd_cli.changes.illumination import normalize_local_gain, prepare_gain_weight
-from fgcd_cli.changes.significance import acontrario_decision, grow_to_extent
+from fgcd_cli.changes.significance import AcontrarioConfig, acontrario_decision, grow_to_extent
 from fgcd_cli.changes.regions import extract_regions, regions_with_significance
 from fgcd_cli.changes.tiled_geometry import tile_grid
 from fgcd_cli.changes.tiled_schedule import median_float16, run_tiles
@@ -123,7 +123,7 @@ def test_grow_to_extent_equals_a_reconstruction_per_seed():
 def test_regions_from_the_mask_pixels_equal_the_extracted_ones():
     rng = np.random.default_rng(RNG_SEED)
     score, valid = _score_with_blobs(rng)
-    decision = acontrario_decision(score, valid, epsilon=1.0, seed_p=0.005, extent_fraction=0.3,
+    decision = acontrario_decision(score, valid, config=AcontrarioConfig(epsilon=1.0, seed_p=0.005, extent_fraction=0.3),
                                    min_cluster_area_px=4 * np.pi * 4)
     mask = decision.mask.copy()
     mask[50:53, 50:80] = True  # a region without a seed

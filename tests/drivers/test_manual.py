@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drivers.connect import open_platform
+from drivers.connect import PlatformSpec, open_platform
 from drivers.manual import ManualPlatform, instructions_for
 from drivers.platform import GuardLimits, MotionGuard, MotionInterrupted, PlatformConnectionError
 
@@ -59,7 +59,7 @@ def test_refusal_keeps_pose_and_interrupts():
 
 
 def test_factory_builds_drivers_and_reports_missing_options():
-    manual = open_platform("manual", ask=lambda p: "", say=lambda s: None)
+    manual = open_platform("manual", spec=PlatformSpec(ask=lambda p: "", say=lambda s: None))
     assert manual.name == "manual"
     with pytest.raises(PlatformConnectionError, match="needs --port"):
         open_platform("grbl")
@@ -69,5 +69,5 @@ def test_factory_builds_drivers_and_reports_missing_options():
         open_platform("kuka")
     with pytest.raises(PlatformConnectionError, match="sim_rig"):
         open_platform("sim")
-    assert open_platform("sim", sim_rig=manual, connect=False) is manual
+    assert open_platform("sim", spec=PlatformSpec(sim_rig=manual, connect=False)) is manual
     assert math.isclose(manual.capabilities().max_linear_speed_m_s, 0.01)

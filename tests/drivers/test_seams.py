@@ -19,17 +19,16 @@ from drivers.manual import ManualPlatform
 from drivers.ur import has_abandoned_interfaces
 
 
-def test_platform_spec_defaults_and_both_call_forms():
+def test_platform_spec_defaults_and_the_one_call_form():
     spec = PlatformSpec()
     assert (spec.port, spec.baud, spec.host, spec.connect, spec.sim_rig) == (None, 115200, None, True, None)
     assert DRIVERS == ("sim", "grbl", "ur", "manual")
     manual = ManualPlatform()
-    assert open_platform("sim", sim_rig=manual, connect=False) is manual
     assert open_platform("sim", spec=PlatformSpec(sim_rig=manual, connect=False)) is manual
     with pytest.raises(TypeError):
-        open_platform("sim", spec=PlatformSpec(sim_rig=manual), connect=False)
+        open_platform("sim", sim_rig=manual, connect=False)  # the options travel in the spec
     with pytest.raises(TypeError):
-        open_platform("sim", sim_rigg=manual)
+        PlatformSpec(sim_rigg=manual)
 
 
 def test_ur_abandoned_accessor():
@@ -69,10 +68,10 @@ def test_sim_configs_keep_old_defaults():
     c = SimPlatformConfig()
     assert (c.seconds_per_m, c.rotation_deg_per_s, c.settle_s, c.dof, c.realtime_factor, c.timeout_s, c.name) == (
         150.0, 5.0, 0.2, 6, None, 600.0, "sim")
-    p = SimPlatform(dof=3, timeout_s=3.0)
+    p = SimPlatform(config=SimPlatformConfig(dof=3, timeout_s=3.0))
     assert (p.dof, p.timeout_s, p.rotation_rad_per_s) == (3, 3.0, math.radians(5.0))
     with pytest.raises(ValueError):
-        SimPlatform(dof=4)
+        SimPlatform(config=SimPlatformConfig(dof=4))
     assert [f.value for f in SimFault] == ["timeout", "estop", "disconnect"]
     r = SimRigConfig()
     assert (r.lighting, r.seed, r.noise, r.intrinsics_error, r.supersample, r.exposure, r.dof,

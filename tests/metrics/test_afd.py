@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from fgcd_cli.errors import AlgorithmError, UserInputError
-from fgcd_cli.metrics.afd import compute_fdf, read_pairs_csv
+from fgcd_cli.metrics.afd import FdfConfig, compute_fdf, read_pairs_csv
 
 from changes.conftest import textured_scene, translate
 
@@ -18,7 +18,7 @@ def pair():
 
 
 def test_sift_afd_of_a_pure_translation(pair):
-    result = compute_fdf(*pair, method="sift")
+    result = compute_fdf(*pair, config=FdfConfig(method="sift"))
     # SIFT keypoints localize to ~0.1 px on a textured image; the mean over
     # hundreds of inliers is much tighter.
     assert result.afd_px == pytest.approx(TRUE_AFD, abs=0.1)
@@ -28,7 +28,7 @@ def test_sift_afd_of_a_pure_translation(pair):
 
 
 def test_grid_afd_under_gain_ramp(pair):
-    result = compute_fdf(*pair, method="grid", grid_cells=6, patch_px=64)
+    result = compute_fdf(*pair, config=FdfConfig(method="grid", grid_cells=6, patch_px=64))
     # Per patch the phase-correlation shift scatters by ~0.4 px on this fine
     # texture; over >= 20 patches the mean vector is good to 3 * 0.4 / sqrt(20) ~ 0.25 px.
     assert result.inliers >= 20
@@ -40,7 +40,7 @@ def test_user_pairs(tmp_path, pair):
     path = tmp_path / "pairs.csv"
     path.write_text("x_ref,y_ref,x_cur,y_cur\n10,10,13,14\n20,20,20,20\n")
     points = read_pairs_csv(path)
-    result = compute_fdf(*pair, method="pairs", pairs=points)
+    result = compute_fdf(*pair, config=FdfConfig(method="pairs"), pairs=points)
     assert result.afd_px == pytest.approx(2.5)
     assert result.inliers == 2
 
@@ -55,7 +55,7 @@ def test_bad_pairs_file(tmp_path):
 def test_textureless_pair_is_an_algorithm_error():
     flat = np.full((128, 128), 0.5, np.float32)
     with pytest.raises(AlgorithmError, match="grid"):
-        compute_fdf(flat, flat, method="sift")
+        compute_fdf(flat, flat, config=FdfConfig(method="sift"))
 
 
 def test_size_mismatch(pair):

@@ -118,12 +118,12 @@ class _FakeSession:
 
 def _stage(session, reference_points, init, **config):
     from fgcd_cli.alignment import ReferenceIndex
-    from fgcd_cli.relocation.coarse import run_coarse_stage
+    from fgcd_cli.relocation.coarse import CoarseInputs, run_coarse
 
     ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
-    return run_coarse_stage(session=session, reference=ref, ref_index=ReferenceIndex(reference_points), camera=CAMERA,
+    return run_coarse(CoarseInputs(session=session, reference=ref, ref_index=ReferenceIndex(reference_points), camera=CAMERA,
                             scale=session.scale, T_flange_cam=session.X, init=init, reference_images=None,
-                            grab_current=None, config=CoarseConfig(**config))
+                            grab_current=None, config=CoarseConfig(**config)))
 
 
 X_HANDEYE = exp_se3(np.r_[0.03, -0.05, 0.12, np.radians([1.0, 2.0, 90.0])])

@@ -17,7 +17,7 @@ import pytest
 from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core import Sim3
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
-from fgcd_cli.relocation.loop import AlignmentEstimate, ReferenceData, RelocationConfig, run_relocation
+from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
 from fgcd_cli.relocation.session import VseSession
 
 
@@ -144,9 +144,9 @@ def test_perfect_platform_and_alignment_reach_reference_in_one_adjustment(monkey
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
     truth = lambda: {"mm": pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]}
-    res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), evaluate=truth,
-                         aligner=exact_align_once)
+                         aligner=exact_align_once))
     vse.stop()
     assert res.converged
     assert res.adjustments == 2  # one motion, then g ~ 0 confirms arrival
@@ -162,8 +162,8 @@ def test_erring_platform_converges_in_a_few_adjustments(monkeypatch):
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
-    res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(eta=1e-4, max_adjustments=10), aligner=aligner)
+    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                         init=Sim3(), config=RelocationConfig(eta=1e-4, max_adjustments=10), aligner=aligner))
     vse.stop()
     assert res.converged
     # a 5 % proportional error shrinks the offset ~20x per adjustment: 35 mm -> <0.1 mm in <= 4
@@ -185,11 +185,11 @@ def test_failed_alignment_pauses_motion(monkeypatch):
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
     from fgcd_cli.errors import AlgorithmError
     with pytest.raises(AlgorithmError, match="plane"):
-        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="serial"), aligner=aligner)
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                       init=Sim3(), config=RelocationConfig(mode="serial"), aligner=aligner))
     with pytest.raises(AlgorithmError, match="plane"):
-        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5), aligner=aligner)
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                       init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5), aligner=aligner))
     vse.stop()
     assert platform.moves == 0
 
@@ -221,12 +221,12 @@ def _biased_case_with_image_stage(monkeypatch, refine):
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
-    res = run_relocation(session=session, reference=ref, ref_index=None, camera=camera, scale=s, T_flange_cam=X,
+    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=camera, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6),
                          reference_images={"front": np.zeros((480, 640), np.float32)},
                          grab_current=lambda: np.zeros((480, 640), np.float32),
                          aligner=_exact_aligner(bias @ T_ref_cur, reason="biased"),
-                         image_refiner=lambda **kw: refine(true_cam()))
+                         image_refiner=lambda **kw: refine(true_cam())))
     vse.stop()
     return res, pose_distance(true_cam(), T_ref_camref)
 
@@ -292,9 +292,9 @@ def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     start_mm = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]
     with pytest.raises(AlgorithmError, match="diverging"):
-        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X_wrong,
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X_wrong,
                        init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6, max_adjustments=12),
-                       aligner=aligner)
+                       aligner=aligner))
     vse.stop()
     assert platform.moves <= 4  # stopped within a few adjustments, not after the 12 allowed
     end_mm = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]
@@ -304,9 +304,9 @@ def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
 def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case(proportional=0.3)
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
-    res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-4, max_adjustments=12),
-                         aligner=_exact_aligner(T_ref_cur))
+                         aligner=_exact_aligner(T_ref_cur)))
     vse.stop()
     assert res.converged  # a 30 % sloppy platform still shrinks the offset every time
 
@@ -332,11 +332,11 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, 
     ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
     config = RelocationConfig(mode=mode, eta=1e-6, estimate_timeout_s=120.0, untrusted_min_wait_s=untrusted_min_wait_s)
     try:
-        res = run_relocation(session=session, reference=ref, ref_index=None, camera=camera, scale=s,
+        res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=camera, scale=s,
                              T_flange_cam=X, init=Sim3(), config=config,
                              reference_images={"front": np.zeros((480, 640), np.float32)},
                              grab_current=lambda: np.zeros((480, 640), np.float32), aligner=degenerate,
-                             image_refiner=lambda **kw: refine(true_cam(), T_ref_camref))
+                             image_refiner=lambda **kw: refine(true_cam(), T_ref_camref)))
     finally:
         vse.stop()
     return res, platform, pose_distance(true_cam(), T_ref_camref)
@@ -399,9 +399,9 @@ def test_untrustworthy_estimates_pause_before_the_timeout(monkeypatch):
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     t0 = time.monotonic()
     with pytest.raises(AlgorithmError, match="untrustworthy in .* estimates in a row.*inlier ratio"):
-        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                        init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=60.0,
-                                                            untrusted_min_wait_s=0.5), aligner=untrustworthy)
+                                                            untrusted_min_wait_s=0.5), aligner=untrustworthy))
     vse.stop()
     assert time.monotonic() - t0 < 30.0  # far below the 60 s timeout
     assert platform.moves == 0
@@ -421,9 +421,9 @@ def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monk
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     before = {t.name for t in threading.enumerate()}
     with pytest.raises(KeyboardInterrupt):
-        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                        init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-6),
-                       aligner=_exact_aligner(T_ref_cur))
+                       aligner=_exact_aligner(T_ref_cur)))
     vse.stop()
     assert stops, "the platform was not told to stop"
     assert session.guard.tripped and "Ctrl-C" in session.guard.tripped
@@ -443,8 +443,8 @@ def test_an_estimate_far_beyond_any_revisit_start_pauses_before_moving(monkeypat
     wrong = Sim3.from_pose(exp_se3([0.8, -0.5, 0.3, 0.0, 0.0, 0.0])) @ T_ref_cur  # ~1 m off
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     with pytest.raises(AlgorithmError, match="beyond the 250 mm"):
-        run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), aligner=_exact_aligner(wrong))
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                       init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), aligner=_exact_aligner(wrong)))
     vse.stop()
     assert platform.moves == 0
 
@@ -469,9 +469,9 @@ def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(mon
         return out
 
     session.move_by = move_and_note
-    res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12),
-                         aligner=slow_exact)
+                         aligner=slow_exact))
     vse.stop()
     assert res.converged
     serials = [r.estimate_serial for r in res.records]

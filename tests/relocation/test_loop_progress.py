@@ -3,7 +3,7 @@
 import time
 
 from fgcd_core import Sim3
-from fgcd_cli.relocation.loop import AlignmentEstimate, RelocationConfig, run_relocation
+from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, RelocationConfig, relocate
 from tests.relocation.test_loop import _exact_session, make_case
 
 
@@ -21,10 +21,10 @@ def test_every_step_and_every_wait_says_something(monkeypatch):
     session.on_event = lambda text: lines.append((time.monotonic(), text))
     session.on_progress = lambda done, total, label: progress.append((done, total, label))
     t0 = time.monotonic()
-    res = run_relocation(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12,
                                                                  heartbeat_s=0.1),
-                         aligner=slow_exact)
+                         aligner=slow_exact))
     vse.stop()
     assert res.converged
     texts = [t for _, t in lines]

@@ -22,8 +22,9 @@ from fgcd_cli.relocation.loop import (
     ReferenceData,
     RelocationConfig,
     estimated_afd_px,
+    LoopContext,
     estimates_agree,
-    run_relocation,
+    relocate,
     tolerance_mm,
 )
 from fgcd_cli.relocation.session import VseSession
@@ -76,10 +77,10 @@ def _run(monkeypatch, *, bias_3d: np.ndarray, refine, start_offset: np.ndarray |
     kw = dict(reference_images={"front": np.zeros((480, 640), np.float32)},
               grab_current=lambda: np.zeros((480, 640), np.float32)) if image else {}
     try:
-        res = run_relocation(session=session, reference=ref, ref_index=None, camera=CAMERA, scale=s, T_flange_cam=X,
+        res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=CAMERA, scale=s, T_flange_cam=X,
                              init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6, **(config_kw or {})),
                              evaluate=lambda: {"pose_err_mm": pose_distance(true_cam(), T_ref_camref)[0]},
-                             aligner=biased, image_refiner=lambda **kw: refine(true_cam(), T_ref_camref), **kw)
+                             aligner=biased, image_refiner=lambda **kw: refine(true_cam(), T_ref_camref), **kw))
     finally:
         vse.stop()
     return res, platform, pose_distance(true_cam(), T_ref_camref)[0]

@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs, run_coarse_stage
+from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs
 from fgcd_cli.relocation.enums import Agreement, CoarseAction, EstimateSource, EstimateStage, LoopMode
-from fgcd_cli.relocation.loop import LoopContext, RelocationConfig, run_relocation
+from fgcd_cli.relocation.loop import LoopContext, RelocationConfig, relocate
 from fgcd_cli.relocation.waiting import wait_for_state
 from fgcd_cli.relocation.worker import AlignmentWorker
 
@@ -47,15 +47,15 @@ def test_an_unknown_mode_is_refused_before_anything_starts():
     from fgcd_cli.errors import AlgorithmError
 
     with pytest.raises(AlgorithmError, match="unknown relocation mode 'sideways'"):
-        run_relocation(session=None, reference=None, ref_index=None, camera=None, scale=1.0,
-                       T_flange_cam=np.eye(4), init=None, config=RelocationConfig(mode="sideways"))
+        relocate(LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0,
+                             T_flange_cam=np.eye(4), init=None, config=RelocationConfig(mode="sideways")))
 
 
-def test_the_keyword_adapters_build_their_contexts():
+def test_the_contexts_refuse_unknown_inputs_and_inject_their_parts():
     with pytest.raises(TypeError):
-        run_relocation(session=None, unknown_option=1)
+        LoopContext(session=None, unknown_option=1)
     with pytest.raises(TypeError):
-        run_coarse_stage(session=None, unknown_option=1)
+        CoarseInputs(session=None, unknown_option=1)
     ctx = LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
                       init=None, image_refiner=lambda **kw: "measured")
     assert ctx.refiner()() == "measured" and not ctx.can_image

@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
 from fgcd_cli.campaign import init_campaign, open_campaign  # noqa: E402
-from fgcd_cli.app.diff import run_campaign
+from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign
 from fgcd_cli.app.report import station_history  # noqa: E402
 
 
@@ -38,7 +38,7 @@ def test_campaign_diff_and_history(tmp_path):
             w.add_image("L2", _u8(cur * 0.6))
             w.add_bytes("relocation.jsonl", log.encode())
             w.commit()
-    data = run_campaign(tmp_path / "camp", "S1", mm_per_px=0.5)
+    data = run_campaign(CampaignDiffRequest(campaign=tmp_path / "camp", station="S1", mm_per_px=0.5))
     assert data["visit"] == "20250601T000000Z" and data["comparable"]
     region = data["regions"][0]
     assert abs(region["centroid_xy"][0] - 50) < 3 and abs(region["centroid_xy"][1] - 140) < 3

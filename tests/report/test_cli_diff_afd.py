@@ -99,7 +99,8 @@ def test_large_frames_take_the_tiled_path_with_the_same_change(image_files, tmp_
 
     monkeypatch.setattr(usecases, "LARGE_FRAME_PX", 10_000)
     calls = []
-    data = usecases.run_bare([str(image_files / "ref-*.png")], [str(image_files / "cur-*.png")], tmp_path / "out",
+    data = usecases.run_bare(usecases.BareDiffRequest(ref=[str(image_files / "ref-*.png")],
+                                                      cur=[str(image_files / "cur-*.png")], output=tmp_path / "out"),
                              tile_progress=lambda done, total, label: calls.append((done, total)))
     assert data["comparable"] and "work_scale" in data["settings"]
     cx, cy = data["regions"][0]["centroid_xy"]

@@ -25,6 +25,7 @@ from fgcd_cli.report.figures import (  # noqa: E402
     history_figure,
     overlay_legend_entries,
 )
+from fgcd_cli.report.html import ReportContext  # noqa: E402
 from fgcd_cli.report.products import diff_products  # noqa: E402
 from fgcd_cli.app.diff import relocation_log_rows  # noqa: E402
 
@@ -171,8 +172,10 @@ def test_report_names_simulator_truth_only_when_the_log_holds_it():
     ref, cur, result = _coarse_pixel_result()
     estimates = relocation_log_rows(_Visit(_logged_rows(with_truth=False)))
     with_truth = relocation_log_rows(_Visit(_logged_rows(with_truth=True)))
-    plain = diff_products(ref_images=[ref], cur_images=[cur], result=result, relocation_log=estimates)["report.html"]
-    simulated = diff_products(ref_images=[ref], cur_images=[cur], result=result, relocation_log=with_truth)["report.html"]
+    plain = diff_products(ref_images=[ref], cur_images=[cur], result=result,
+                          context=ReportContext(relocation_log=estimates))["report.html"]
+    simulated = diff_products(ref_images=[ref], cur_images=[cur], result=result,
+                              context=ReportContext(relocation_log=with_truth))["report.html"]
     assert b"the tool&#x27;s own estimates" in plain and b"simulator" not in plain
     assert b"the simulator&#x27;s truth" in simulated
 

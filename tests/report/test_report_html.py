@@ -15,6 +15,7 @@ from changes.conftest import textured_scene, translate  # noqa: E402
 
 from fgcd_cli.changes import detect_changes  # noqa: E402
 from fgcd_cli.metrics.afd import compute_fdf  # noqa: E402
+from fgcd_cli.report.html import ReportContext  # noqa: E402
 from fgcd_cli.report.products import diff_products  # noqa: E402
 
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
@@ -31,8 +32,9 @@ def products():
     fdf = compute_fdf(ref, cur)
     log = [{"iteration": i, "t_wall_s": i * 0.5, "g": 1.0, "afd_px_true": 40 * 0.5**i, "pose_err_mm_true": 20 * 0.5**i,
             "pose_err_deg_true": 2 * 0.5**i} for i in range(8)]
-    files = diff_products(ref_images=[rgb(ref)], cur_images=[rgb(cur)], result=result, fdf=fdf, relocation_log=log,
-                          metadata={"station": "S1", "lightings": ["ambient"]}, title="Test report")
+    files = diff_products(ref_images=[rgb(ref)], cur_images=[rgb(cur)], result=result, fdf=fdf,
+                          context=ReportContext(relocation_log=log, metadata={"station": "S1", "lightings": ["ambient"]},
+                                                title="Test report"))
     return result, files
 
 

@@ -281,9 +281,9 @@ def _footprint_image(ch, x, z):
 
 
 def test_rig_home_pose_camera_and_ground_truth():
-    from drivers.sim.rig import build_sim_rig
+    from drivers.sim.rig import SimRigConfig, build_sim_rig
 
-    rig = build_sim_rig(scene="plane", noise="none", intrinsics_error="none", seed=4)
+    rig = build_sim_rig(scene="plane", config=SimRigConfig(noise="none", intrinsics_error="none", seed=4))
     gt = rig.ground_truth
     T0 = rig.world.scene.default_T_world_cam
     np.testing.assert_allclose(gt.T_world_cam_true(), T0, atol=1e-9)
@@ -334,23 +334,23 @@ def test_rig_home_pose_camera_and_ground_truth():
 
 
 def test_rig_intrinsics_error_and_depth_output():
-    from drivers.sim.rig import build_sim_rig
+    from drivers.sim.rig import SimRigConfig, build_sim_rig
 
-    rig = build_sim_rig(scene="plane", seed=1, with_depth=True)
+    rig = build_sim_rig(scene="plane", config=SimRigConfig(seed=1, with_depth=True))
     true, nom = rig.ground_truth.intrinsics_true(), rig.camera.intrinsics_nominal
     assert true != nom and abs(true.fx / nom.fx - 1) < 0.05 and true.dist[0] < 0
     f = rig.camera.grab()
     assert f.depth is not None and np.all(f.depth > 0.5)
     # same seed, same noisy frame
-    g = build_sim_rig(scene="plane", seed=1).camera.grab()
+    g = build_sim_rig(scene="plane", config=SimRigConfig(seed=1)).camera.grab()
     np.testing.assert_array_equal(f.image, g.image)
 
 
 def test_rig_sessions_changes_and_displaced_base():
-    from drivers.sim.rig import build_sim_rig
+    from drivers.sim.rig import SimRigConfig, build_sim_rig
 
-    a = build_sim_rig(scene="plane", seed=2, session_seed=0)
-    b = build_sim_rig(scene="plane", seed=2, session_seed=1)
+    a = build_sim_rig(scene="plane", config=SimRigConfig(seed=2, session_seed=0))
+    b = build_sim_rig(scene="plane", config=SimRigConfig(seed=2, session_seed=1))
     # same world: same hand-eye, base and intrinsics; another session: other noise
     np.testing.assert_array_equal(a.ground_truth.T_flange_cam_true(), b.ground_truth.T_flange_cam_true())
     np.testing.assert_array_equal(a.ground_truth.T_world_base_true(), b.ground_truth.T_world_base_true())

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.platform import MotionGuard, GuardLimits, MotionRejected, Platform, PlatformConnectionError, \
     PlatformTimeout, SafetyStop
-from drivers.sim.platform import PlatformErrorModel, SimPlatform
+from drivers.sim.platform import PlatformErrorModel, SimPlatform, SimPlatformConfig
 from drivers.sim.transforms import exp_so3, make_pose, rot_angle
 
 ZERO = dict(scale_error=0, axis_misalignment_rad=0, rotation_scale_error=0, noise_m=0, noise_rad=0, backlash_m=0,
@@ -143,7 +143,7 @@ def test_faults_raise_the_right_errors():
 
 
 def test_three_dof_gantry_reports_unreachable_rotation():
-    p = SimPlatform(T_base_flange_home=np.eye(4), errors="none", dof=3)
+    p = SimPlatform(T_base_flange_home=np.eye(4), errors="none", config=SimPlatformConfig(dof=3))
     p.connect()
     res = p.move_to(make_pose(exp_so3([0, 0, 0.1]), [0.01, 0, 0]))
     assert res.unreachable == ("rx", "ry", "rz")
@@ -178,7 +178,7 @@ def test_faults_take_the_time_they_would_on_the_rig():
         p.move_to(_target(p, [0.01, 0, 0]))
     assert p.clock.now() - t0 == pytest.approx(p.timeout_s)  # the host waited the whole timeout
     # a motion longer than the timeout gets as far as its speed allows in that time
-    q = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", timeout_s=3.0)
+    q = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", config=SimPlatformConfig(timeout_s=3.0))
     q.connect()
     t0 = q.clock.now()
     with pytest.raises(PlatformTimeout):
@@ -191,7 +191,7 @@ def test_realtime_factor_runs_the_clock_faster_than_wall_time_and_stop_halts():
     import threading
     import time
 
-    p = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", realtime_factor=20.0)
+    p = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", config=SimPlatformConfig(realtime_factor=20.0))
     p.connect()
     w0, t0 = time.perf_counter(), p.clock.now()
     res = p.move_to(_target(p, [0.01, 0, 0]))  # 1.7 s simulated

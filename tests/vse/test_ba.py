@@ -3,7 +3,8 @@
 import numpy as np
 
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
-from fgcd_cli.vse.ba import bundle_adjust, projection_residuals, refine_pose
+from fgcd_cli.vse.ba import (BundleAdjustConfig, OutlierRejectionConfig, bundle_adjust, projection_residuals,
+                             refine_pose)
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
@@ -26,7 +27,7 @@ def test_bundle_adjustment_recovers_perturbed_poses_and_points():
         T0[c] = exp_se3(rng.normal(0, [2e-3, 2e-3, 2e-3, 5e-3, 5e-3, 5e-3])) @ T[c]
     X0 = X + rng.normal(0, 0.005, X.shape)
     fixed = np.array([True, True, False, False, False])
-    res = bundle_adjust(T0, X0, cam, pt, uv_noisy, K, fixed_cams=fixed, iterations=15)
+    res = bundle_adjust(T0, X0, cam, pt, uv_noisy, K, fixed_cams=fixed, config=BundleAdjustConfig(iterations=15))
     # residual at the optimum is the pixel noise (0.1 px)
     assert res.rms_px < 0.15
     for c in range(len(T)):
@@ -43,7 +44,8 @@ def test_bundle_adjustment_down_weights_outliers():
     bad = rng.choice(len(uv), 40, replace=False)
     uv_bad = uv.copy()
     uv_bad[bad] += rng.uniform(20, 40, (40, 2))
-    res = bundle_adjust(T, X, cam, pt, uv_bad, K, fixed_cams=np.array([True, True, False, False, False]), iterations=30)
+    res = bundle_adjust(T, X, cam, pt, uv_bad, K, fixed_cams=np.array([True, True, False, False, False]),
+                        config=BundleAdjustConfig(iterations=30))
     good = np.setdiff1d(np.arange(len(uv)), bad)
     # Huber bounds the pull of each outlier to 1.5 px of weight: the inliers stay near exact
     assert np.median(res.residual_px[good]) < 0.1
@@ -113,9 +115,12 @@ def test_bundle_adjustment_rejects_tracks_sliding_along_occluding_contours():
     def worst_mm(T_est):
         return max(pose_distance(invert_pose(T_est[c]), invert_pose(T[c]))[0] for c in range(n_cams))
 
-    oracle = bundle_adjust(T0, X0[:n_pts], cam[~slide], pt[~slide], uv[~slide], K, fixed_cams=fixed, iterations=40)
-    plain = bundle_adjust(T0, X0, cam, pt, uv, K, fixed_cams=fixed, iterations=40, huber_px=1.0)
-    robust, bad = bundle_adjust_rejecting_outliers(T0, X0, cam, pt, uv, K, fixed_cams=fixed, iterations=40)
+    oracle = bundle_adjust(T0, X0[:n_pts], cam[~slide], pt[~slide], uv[~slide], K, fixed_cams=fixed,
+                           config=BundleAdjustConfig(iterations=40))
+    plain = bundle_adjust(T0, X0, cam, pt, uv, K, fixed_cams=fixed,
+                          config=BundleAdjustConfig(iterations=40, huber_px=1.0))
+    robust, bad = bundle_adjust_rejecting_outliers(T0, X0, cam, pt, uv, K, fixed_cams=fixed,
+                                                   config=OutlierRejectionConfig(iterations=40))
     e_oracle, e_plain, e_robust = worst_mm(oracle.T_cam_map), worst_mm(plain.T_cam_map), worst_mm(robust.T_cam_map)
     # the sliding tracks (errors up to 7 px) are what the former 6 px rule kept: tens of mm
     assert np.max(plain.residual_px[slide]) < 6.0 and e_plain > 10 * e_oracle

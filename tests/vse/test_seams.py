@@ -49,21 +49,15 @@ def _ba_problem():
     return T0, X + rng.normal(0, 0.004, X.shape), cam, pt, uv, K
 
 
-def test_former_keyword_call_forms_equal_the_config_forms():
+def test_bundle_adjust_takes_its_options_as_one_config():
+    """One call form: the options are a config dataclass; the former flat keywords are refused."""
     T0, X0, cam, pt, uv, K = _ba_problem()
-    a = bundle_adjust(T0, X0, cam, pt, uv, K, iterations=7, huber_px=1.2)
-    b = bundle_adjust(T0, X0, cam, pt, uv, K, config=BundleAdjustConfig(iterations=7, huber_px=1.2))
-    np.testing.assert_array_equal(a.T_cam_map, b.T_cam_map)
-    np.testing.assert_array_equal(a.points, b.points)
-    (ra, ba_), (rb, bb) = (
-        bundle_adjust_rejecting_outliers(T0, X0, cam, pt, uv, K, iterations=6, outlier_min_px=0.3, max_rounds=2),
-        bundle_adjust_rejecting_outliers(T0, X0, cam, pt, uv, K,
-                                         config=OutlierRejectionConfig(iterations=6, outlier_min_px=0.3, max_rounds=2)),
-    )
-    np.testing.assert_array_equal(ra.points, rb.points)
-    np.testing.assert_array_equal(ba_, bb)
+    res = bundle_adjust(T0, X0, cam, pt, uv, K, config=BundleAdjustConfig(iterations=7, huber_px=1.2))
+    assert res.iterations <= 7
     with pytest.raises(TypeError):
-        bundle_adjust(T0, X0, cam, pt, uv, K, huber=1.0)
+        bundle_adjust(T0, X0, cam, pt, uv, K, iterations=7)
+    with pytest.raises(TypeError):
+        bundle_adjust_rejecting_outliers(T0, X0, cam, pt, uv, K, max_rounds=2)
 
 
 def test_keyframe_depth_keywords_equal_the_config(world, small_camera, helpers):
@@ -71,12 +65,11 @@ def test_keyframe_depth_keywords_equal_the_config(world, small_camera, helpers):
     i0, _ = world.render(small_camera, T0)
     i1, _ = world.render(small_camera, T1)
     nbs = [(i1, np.linalg.inv(T1) @ T0)]
-    a = keyframe_depth(i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45), max_points=2000, min_views=1)
     b = keyframe_depth(i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45),
                        config=KeyframeDepthConfig(max_points=2000, min_views=1))
-    assert len(a.inv_depth) > 100
-    np.testing.assert_array_equal(a.inv_depth, b.inv_depth)
-    np.testing.assert_array_equal(a.pixels, b.pixels)
+    assert len(b.inv_depth) > 100 and len(b.pixels) <= 2000
+    with pytest.raises(TypeError):
+        keyframe_depth(i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45), max_points=2000)
 
 
 @pytest.mark.parametrize(("variant", "cls", "frontend", "source", "cloud"), [
