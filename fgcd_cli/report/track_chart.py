@@ -52,6 +52,6 @@ def track_area_figure(tracks: list, dates: dict[str, datetime], *, unit: str, ma
     return fig
 
 
-def track_area_png(tracks: list, dates: dict[str, datetime], *, unit: str, **options) -> bytes:
-    """PNG bytes of :func:`track_area_figure`."""
-    return figure_png(track_area_figure(tracks, dates, unit=unit, **options))
+def track_area_png(tracks: list, dates: dict[str, datetime], *, unit: str) -> bytes:
+    """PNG bytes of :func:`track_area_figure` at its default size."""
+    return figure_png(track_area_figure(tracks, dates, unit=unit))
