@@ -300,6 +300,7 @@ class RevisitPlan:
     config: RelocationConfig
     port: str | None = None
     host: str | None = None
+    lights: object | None = None  # drivers.lights.LightsSpec of campaign.toml [rig.lights]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -369,7 +370,7 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     Order: option values (exit 2), then the campaign (exit 3): driver, values, campaign,
     the campaign's driver, light, connection, station and reference, world, calibration.
     """
-    from fgcd_cli.app.capture import connection
+    from fgcd_cli.app.capture import connection, rig_lights
     from fgcd_cli.campaign import open_campaign
 
     r = request
@@ -394,8 +395,9 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         T_flange_cam = np.eye(4)
     config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, eta=r.eta, max_adjustments=r.max_adjustments,
                               image_refine=not r.no_image_refine, image_fallback=not r.no_image_refine)
+    lights = rig_lights(camp, visit_lightings(light, ref.metadata.get("lightings", []), controllable=True))
     return RevisitPlan(request=replace(r, light=light), driver=driver, station=st, reference=ref, scenario=scenario,
-                       T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host)
+                       T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host, lights=lights)
 
 
 def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
@@ -407,14 +409,15 @@ def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
     r = plan.request
     run_record.no_writes()
     rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                                     scenario=plan.scenario, port=plan.port, host=plan.host), hooks=hooks)
+                                     scenario=plan.scenario, port=plan.port, host=plan.host, lights=plan.lights),
+                          hooks=hooks)
     run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
     with rig_uc.opened(rig):
         evaluator = RelocationEvaluator.from_reference(rig.sim, plan.reference) if rig.sim is not None else None
         request = RelocateRequest(
             config=plan.config,
             lightings=visit_lightings(r.light, plan.reference.metadata.get("lightings", []),
-                                      controllable=plan.driver == Driver.SIM),
+                                      controllable=rig.handles.lights is not None),
             metadata={"driver": plan.driver, "scenario": rig.info.get("scenario"), "no_handeye": r.no_handeye},
             coarse=None if r.no_coarse else CoarseConfig(),
         )
