@@ -272,13 +272,18 @@ class CaptureOutcome:
 def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) -> CaptureOutcome:
     """Open the plan's rig and capture the reference of ``plan.station`` (created if missing).
 
-    Rule: a capture that fails leaves no station behind, and never changes campaign.toml.
+    Rule: a capture that fails leaves no station behind, and never changes campaign.toml; it holds
+    the station's lock (:mod:`fgcd_cli.campaign.lock`) throughout.
     """
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.metrics.sim_eval import reference_truth
 
+    from fgcd_cli.campaign.lock import station_lock
+
     run_record.no_writes()
-    with campaign.station_for_writing(plan.station) as st:
+    with station_lock(campaign.path, plan.station, command="capture"), \
+            campaign.station_for_writing(plan.station) as st:
+        check_station_can_take_a_reference(campaign, plan.station)  # again, under the lock
         rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
                                          scenario=plan.scenario, port=plan.port, host=plan.host,
                                          lights=plan.lights), hooks=hooks)

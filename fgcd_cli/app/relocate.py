@@ -402,7 +402,16 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
 
 def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
                 on_record: Callable[[AdjustmentRecord], None] | None = None) -> RevisitOutcome:
-    """Open the plan's rig, relocate to the station's reference and write the visit."""
+    """Open the plan's rig, relocate to the station's reference and write the visit (under the station's lock)."""
+    from fgcd_cli.campaign.lock import station_lock
+
+    with station_lock(plan.station.path.parents[1], plan.request.station, command="relocate"):
+        return _revisit_locked(plan, hooks=hooks, on_record=on_record)
+
+
+def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
+                    on_record: Callable[[AdjustmentRecord], None] | None) -> RevisitOutcome:
+    """:func:`run_revisit` under the station's lock."""
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
 

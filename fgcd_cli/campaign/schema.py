@@ -34,6 +34,8 @@ STATIONS_DIR = "stations"
 RIG_DIR = "rig"
 RIG_HISTORY_DIR = "history"
 STATION_FILE = "station.json"
+#: Per-station lock files of running captures and revisits (``<campaign>/.locks/<station>.lock``).
+LOCKS_DIR = ".locks"
 HISTORY_REPORT = "history.html"
 """A station's history report (``fgcd report``), next to its ``station.json``."""
 
