@@ -52,6 +52,8 @@ CLOUD = "cloud"
 CLOUD_FILE = f"{CLOUD}.ply"
 RELOCATION_LOG = "relocation.jsonl"
 COARSE_LOG = "coarse.jsonl"
+#: The journal of a revisit in progress, in the station's visits folder (``fgcd relocate --resume``).
+VISIT_JOURNAL = ".in-progress.jsonl"
 SIM_TRUTH = "evaluation/sim_truth.json"
 """The simulator's truth of an observation (evaluation only; the tool never reads it)."""
 

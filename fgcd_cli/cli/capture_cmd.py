@@ -87,6 +87,8 @@ def relocate(
     max_adjustments: int = typer.Option(12, "--max-adjustments"),
     port: str = typer.Option(None, "--port"),
     host: str = typer.Option(None, "--host"),
+    resume: bool = typer.Option(False, "--resume", help="Continue the station's interrupted visit from its journal "
+                                                        "(or start over cleanly), and say which."),
     yes: bool = typer.Option(False, "--yes", help="Answer the first-motion confirmation (scripts)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
@@ -101,7 +103,7 @@ def relocate(
         station=station, driver=driver, light=light, changes=changes, start_offset_mm=start_offset_mm,
         start_offset_deg=start_offset_deg, session_seed=session_seed, serial=serial, no_handeye=no_handeye,
         no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments, port=port,
-        host=host))
+        host=host, resume=resume))
     # The steps report through plain callbacks: a live bar on stderr (not with --json), lines above it.
     with step_progress(enabled=not as_json) as bar:
         say, ask = info, ask_line

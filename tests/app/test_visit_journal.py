@@ -1,0 +1,100 @@
+"""`fgcd relocate --resume`: the journal of a visit in progress, the decision to continue or start over,
+and the guarded return to where the interrupted visit stopped."""
+
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from drivers.manual import ManualPlatform
+from drivers.platform import GuardLimits, MotionGuard
+from fgcd_cli.app.visit_journal import JournalWriter, ResumeMode, decide_resume, journal_path, return_to
+from fgcd_core.se3 import exp_se3, pose_distance
+
+OPTIONS = {"driver": "sim", "light": "led:3"}
+
+
+@pytest.fixture
+def station(tmp_path):
+    return SimpleNamespace(name="s1", path=tmp_path / "stations" / "s1")
+
+
+def _record(i):
+    return SimpleNamespace(to_json=lambda: json.dumps({"iteration": i, "g": 0.1 / i}))
+
+
+def _pose(x_mm):
+    T = np.eye(4)
+    T[0, 3] = x_mm / 1000
+    return T
+
+
+def _interrupted(station, n):
+    new = decide_resume(station, resume=False, options=OPTIONS)
+    journal = JournalWriter(station, options=OPTIONS, decision=new)
+    for i in range(1, n + 1):
+        journal.record(_record(i), _pose(i))
+    return journal
+
+
+def test_resume_continues_after_the_last_recorded_adjustment(station):
+    _interrupted(station, 3)
+    decision = decide_resume(station, resume=True, options=OPTIONS)
+    assert decision.mode == ResumeMode.CONTINUED and "after its 3 adjustment(s)" in decision.reason
+    assert [r["iteration"] for r in decision.records] == [1, 2, 3]
+    np.testing.assert_allclose(decision.T_base_flange, _pose(3))
+    # continuing appends: the journal keeps the earlier adjustments
+    JournalWriter(station, options=OPTIONS, decision=decision).record(_record(4), _pose(4))
+    assert len(decide_resume(station, resume=True, options=OPTIONS).records) == 4
+
+
+def test_a_line_cut_by_a_killed_process_is_dropped_not_fatal(station):
+    _interrupted(station, 2)
+    with open(journal_path(station), "a", encoding="utf-8") as f:
+        f.write('{"record": {"itera')  # SIGKILL mid-write
+    decision = decide_resume(station, resume=True, options=OPTIONS)
+    assert decision.mode == ResumeMode.CONTINUED and len(decision.records) == 2
+
+
+@pytest.mark.parametrize("damage, mode, words", [
+    (None, ResumeMode.STARTED_OVER, "no interrupted visit"),
+    (b"\x00garbage\n{}\n", ResumeMode.STARTED_OVER, "damaged"),
+    ("options", ResumeMode.STARTED_OVER, "another light"),
+    ("empty", ResumeMode.STARTED_OVER, "no adjustment yet"),
+])
+def test_resume_starts_over_cleanly_and_says_why(station, damage, mode, words):
+    if damage == "options":
+        _interrupted(station, 2)
+        decision = decide_resume(station, resume=True, options={**OPTIONS, "light": "front"})
+    elif damage == "empty":
+        _interrupted(station, 0)
+        decision = decide_resume(station, resume=True, options=OPTIONS)
+    else:
+        if damage is not None:
+            journal_path(station).parent.mkdir(parents=True)
+            journal_path(station).write_bytes(damage)
+        decision = decide_resume(station, resume=True, options=OPTIONS)
+    assert decision.mode == mode and words in decision.reason and decision.records == []
+    # starting over truncates the old journal
+    JournalWriter(station, options=OPTIONS, decision=decision)
+    assert decide_resume(station, resume=True, options=OPTIONS).reason.endswith("no adjustment yet: starting over")
+
+
+def test_without_resume_a_left_journal_is_named_and_replaced(station):
+    _interrupted(station, 2)
+    decision = decide_resume(station, resume=False, options=OPTIONS)
+    assert decision.mode == ResumeMode.NEW and "--resume would continue it" in decision.reason
+
+
+def test_return_to_moves_in_guarded_steps_to_the_recorded_pose():
+    platform = ManualPlatform(ask=lambda text: "", say=lambda text: None)
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.01, max_step_rad=math.radians(2)))
+    target = exp_se3(np.r_[0.025, -0.01, 0.005, 0.0, 0.05, 0.0])  # 27.4 mm, 2.9 deg
+    steps = return_to(guard, target)
+    assert steps == 4  # ceil(27.4 / 9) = 4 translation steps; ceil(2.86 / 1.8) = 2 rotation steps
+    mm, deg = pose_distance(platform.flange_pose(), target)
+    assert mm < 1e-6 and deg < 1e-6
