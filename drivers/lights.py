@@ -84,12 +84,12 @@ class ManualLights:
     def __init__(self, channels=(), *, ask: Callable[[str], str] = input) -> None:
         self._channels = [c for c in channels if c != AMBIENT]
         self._ask = ask
-        self._current = AMBIENT
+        self._current: str | None = None  # unknown until the person confirms a first switch
 
     @property
     def current(self) -> str:
-        """The lighting the person confirmed last."""
-        return self._current
+        """The lighting the person confirmed last (``unknown`` before the first)."""
+        return self._current or "unknown"
 
     def available(self) -> list[str]:
         """``ambient`` and the configured channels."""

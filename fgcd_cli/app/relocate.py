@@ -435,16 +435,17 @@ def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
                           hooks=hooks)
     run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
     with rig_uc.opened(rig):
-        rig.handles.say(decision.reason)
+        say = getattr(rig.handles, "say", None) or (lambda text: None)  # stand-in rigs may lack it
+        say(decision.reason)
         journal = JournalWriter(plan.station, options=options, decision=decision)
         if decision.mode == ResumeMode.CONTINUED:
-            rig.handles.say(f"back to where the interrupted visit stopped "
-                            f"({return_to(rig.handles.guard, decision.T_base_flange)} guarded steps)")
+            say(f"back to where the interrupted visit stopped "
+                f"({return_to(rig.handles.guard, decision.T_base_flange)} guarded steps)")
         evaluator = RelocationEvaluator.from_reference(rig.sim, plan.reference) if rig.sim is not None else None
         request = RelocateRequest(
             config=plan.config,
             lightings=visit_lightings(r.light, plan.reference.metadata.get("lightings", []),
-                                      controllable=rig.handles.lights is not None),
+                                      controllable=getattr(rig.handles, "lights", None) is not None),
             metadata={"driver": plan.driver, "scenario": rig.info.get("scenario"), "no_handeye": r.no_handeye,
                       "resume": decision.to_dict()},
             coarse=None if r.no_coarse else CoarseConfig(),

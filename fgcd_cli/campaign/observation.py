@@ -15,6 +15,7 @@ before that (``images/led:3.png``, no mapping) are read as they are.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
@@ -78,9 +79,14 @@ class Observation:
             raise CampaignError(f"{self.path / relpath}: not part of this observation")
         p = self.path / relpath
         try:
-            return p.read_bytes()
+            data = p.read_bytes()
         except FileNotFoundError:
             raise DataIntegrityError(f"{p}: missing (run `fgcd campaign verify`)") from None
+        # Rule: data whose checksum no longer matches its manifest is never used (docs/hardware.md, Faults).
+        expected = self.files()[relpath].get("sha256") if isinstance(self.files()[relpath], dict) else None
+        if expected is not None and hashlib.sha256(data).hexdigest() != expected:
+            raise DataIntegrityError(f"{p}: damaged (checksum differs from the manifest; run `fgcd campaign verify`)")
+        return data
 
     def image_files(self) -> dict[str, str]:
         """Image name (a lighting, e.g. ``led:3``) -> its file, relative to the observation.
