@@ -165,8 +165,11 @@ class GrblEmulator(GrblCommandsMixin):
         self._write_raw(data)
 
     def unplug(self) -> None:
-        """The USB cable is pulled: the pty hangs up under the driver."""
-        self._stop.set()
+        """The USB cable is pulled: the pty hangs up under the driver.
+
+        The board keeps executing what its planner holds (a real GRBL is not
+        reset by a pulled cable), then stays idle: :meth:`moving` tells.
+        """
         for fd in (self._master, self._slave):
             try:
                 os.close(fd)
@@ -180,6 +183,11 @@ class GrblEmulator(GrblCommandsMixin):
             on = self.spindle != "M5"
             duty = min(1.0, self.spindle_speed / max(float(self.settings[30]), 1e-9)) if on else 0.0
             return {"spindle": on, "spindle_pwm": duty, "flood": self.flood, "mist": self.mist}
+
+    def moving(self) -> bool:
+        """True while the board executes a motion (not held, not in alarm)."""
+        with self._lock:
+            return (self.current is not None or bool(self.queue)) and not self.hold and self.state != "Alarm"
 
     def position(self) -> list[float]:
         """Current machine position (thread-safe copy)."""
