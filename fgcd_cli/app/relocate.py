@@ -395,6 +395,8 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     port, host = connection(camp, driver, port=r.port, host=r.host)
     st = camp.station(r.station)
     ref = st.reference()
+    for relpath in ref.files():  # Rule: a damaged reference is refused before anything is opened or moved
+        ref.bytes(relpath)  # DataIntegrityError (exit 4) naming the damaged file
     scenario = None
     if driver == Driver.SIM:
         scenario = visit_scenario(camp, ref, light=light, changes=r.changes, start_offset_mm=r.start_offset_mm,

@@ -5,6 +5,7 @@ and the checksums of the observations written before the fault (``fgcd bench fau
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import signal
 import subprocess
@@ -15,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from fgcd_cli.campaign.schema import STATIONS_DIR
+from fgcd_cli.campaign.schema import MANIFEST, STATION_FILE, STATIONS_DIR
 from fgcd_cli.campaign.verify import verify_campaign_dir
 
 __all__ = ["FaultOutcome", "FgcdRun", "committed_digests", "campaign_problems", "run_fgcd", "wait_until"]
@@ -149,13 +150,29 @@ def wait_until(condition: Callable[[], bool], *, timeout_s: float, proc: subproc
 
 
 def committed_digests(campaign: Path) -> dict[str, str]:
-    """sha256 of every file under ``stations/`` except write leftovers, lock and journal files (dot names)."""
+    """sha256 of every captured file under ``stations/``, and of each manifest's captured entries.
+
+    Left out: write leftovers, lock and journal files (dot names), and a diff's
+    derived products (listed ``derived`` in a manifest, or unlisted), which every
+    ``fgcd diff`` may recompute (docs/campaign.md); a manifest counts by its
+    captured entries and metadata, which no command may change.
+    """
     out = {}
     root = Path(campaign) / STATIONS_DIR
-    for path in sorted(root.rglob("*")):
-        rel = path.relative_to(root)
-        if path.is_file() and not any(part.startswith(".") for part in rel.parts):
-            out[rel.as_posix()] = hashlib.sha256(path.read_bytes()).hexdigest()
+    for manifest in sorted(root.rglob(MANIFEST)):
+        rel_obs = manifest.parent.relative_to(root)
+        if any(part.startswith(".") for part in rel_obs.parts):
+            continue
+        data = json.loads(manifest.read_text(encoding="utf-8"))
+        captured = {k: v for k, v in data.get("files", {}).items() if not v.get("derived", False)}
+        out[f"{rel_obs.as_posix()}/{MANIFEST}#captured"] = hashlib.sha256(
+            json.dumps([captured, data.get("metadata")], sort_keys=True).encode()).hexdigest()
+        for relpath in captured:
+            path = manifest.parent / relpath
+            out[f"{rel_obs.as_posix()}/{relpath}"] = (hashlib.sha256(path.read_bytes()).hexdigest()
+                                                      if path.is_file() else "missing")
+    for station_file in sorted(root.glob(f"*/{STATION_FILE}")):
+        out[station_file.relative_to(root).as_posix()] = hashlib.sha256(station_file.read_bytes()).hexdigest()
     return out
 
 

@@ -150,15 +150,24 @@ class Observation:
         if entry is not None and not entry.get("derived", False):
             raise ImmutableDataError(f"{self.path / relpath}: captured data cannot be replaced")
         target = self.path / relpath
+        files = dict(self.manifest.get("files", {}))
+        if entry is not None:
+            # Rule: the manifest never lists a checksum its file does not have, even if the process
+            # dies between the two writes: the old entry goes first (the file is then merely unlisted).
+            files.pop(relpath)
+            self._write_manifest(files)
         atomic_write_bytes(target, data)
-        manifest = dict(self.manifest)
-        files = dict(manifest.get("files", {}))
         files[relpath] = {"sha256": sha256_bytes(data), "bytes": len(data), "derived": True}
+        self._write_manifest(files)
+        return target
+
+    def _write_manifest(self, files: dict) -> None:
+        """The manifest with ``files``, written atomically."""
+        manifest = dict(self.manifest)
         manifest["files"] = files
         manifest["updated"] = now_iso()
         atomic_write_json(self.path / MANIFEST, manifest)
         self.manifest = manifest
-        return target
 
 
 class ObservationWriter:
