@@ -61,7 +61,7 @@ def install_enospc(budget_bytes: int, under: str) -> None:
 
 
 if __name__ == "__main__":
-    install_enospc(int(os.environ["FGCD_BENCH_ENOSPC_AFTER"]), os.environ["FGCD_BENCH_ENOSPC_UNDER"])
-    from fgcd_cli.cli.app import main
+    import runpy
 
-    main()
+    install_enospc(int(os.environ["FGCD_BENCH_ENOSPC_AFTER"]), os.environ["FGCD_BENCH_ENOSPC_UNDER"])
+    runpy.run_module("fgcd_cli.cli.app", run_name="__main__", alter_sys=True)  # the fgcd command itself
