@@ -33,6 +33,8 @@ __all__ = ["DATA_FAULTS", "data_fault", "prepare_campaign"]
 
 DATA_FAULTS = ("sigint_during_write", "sigkill_during_write", "enospc_during_write", "two_relocates_at_once",
                "damaged_reference")
+#: Faults on a whole simulated ``fgcd capture`` (about 90 s each on 2 busy cores): fewer of them per run.
+CAPTURE_FAULTS = ("signal_during_capture", "enospc_during_capture")
 #: Documented exit codes (README, "Errors").
 EXIT_OS, EXIT_CAMPAIGN, EXIT_INTEGRITY, EXIT_ALGORITHM, EXIT_INTERRUPTED = 1, 3, 4, 6, 130
 
@@ -189,8 +191,56 @@ def _damaged_reference(seed: int, campaign: Path) -> FaultOutcome:
         shutil.move(backup, victim)
 
 
+def calibrate_campaign(campaign: Path) -> None:
+    """The bench campaign's hand-eye from a real ``fgcd calibrate hand-eye`` (simulator), once: captures need it."""
+    from fgcd_cli.campaign import open_campaign
+
+    marker = campaign / ".bench-calibrated"
+    if marker.exists():
+        return
+    run = run_fgcd(["calibrate", "hand-eye", "-c", str(campaign), "--driver", "sim", "--scene", "stele", "--seed",
+                    "0", "--yes", "--json"], timeout_s=1800)
+    if run.code != 0 or open_campaign(campaign).read_rig("handeye") is None:
+        raise RuntimeError(f"the bench campaign's hand-eye calibration failed: {(run.lines or ['?'])[-1]}")
+    marker.write_text("ok\n")
+
+
+def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
+    """``fgcd capture`` of a new station, signalled (SIGINT or SIGKILL) or starved of disk at a seeded moment."""
+    rng = np.random.default_rng(seed)
+    station = f"c{seed}"
+    before = committed_digests(campaign)
+    args = ["capture", "-c", str(campaign), "-s", station, "--lightings", "led:3,led:9", "--yes", "--json"]
+    if fault == "enospc_during_capture":
+        budget = int(rng.integers(0, 6_000_000))
+        run = run_fgcd(args, launcher=["fgcd_cli.bench.fault_launch"], timeout_s=900,
+                       env={"FGCD_BENCH_ENOSPC_AFTER": str(budget),
+                            "FGCD_BENCH_ENOSPC_UNDER": str(campaign / schema.STATIONS_DIR)})
+        return _outcome(fault, seed, "capture (disk full)", run, (0, EXIT_OS), campaign=campaign, before=before,
+                        budget_bytes=budget)
+    sig = signal.SIGKILL if rng.random() < 0.5 else signal.SIGINT
+    during_write = seed % 2 == 0
+    delay = float(rng.uniform(1.0, 40.0))
+    left = _temporaries(campaign)
+
+    def inject(proc) -> None:
+        if during_write:
+            wait_until(lambda: bool(_temporaries(campaign) - left), timeout_s=900, proc=proc)
+        else:
+            time.sleep(delay)
+        send_signal(proc, sig)
+
+    run = run_fgcd(args, inject=inject, timeout_s=900)
+    expected = (0, EXIT_INTERRUPTED) if sig == signal.SIGINT else (0, -signal.SIGKILL)
+    return _outcome(fault, seed, f"capture ({sig.name})", run, expected, campaign=campaign, before=before,
+                    moment="during the reference write" if during_write else f"at {delay:.1f} s")
+
+
 def data_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     """Run one campaign fault."""
+    if fault in CAPTURE_FAULTS:
+        calibrate_campaign(campaign)
+        return _capture_fault(fault, seed, campaign)
     if fault in ("sigint_during_write", "sigkill_during_write"):
         return _signal_fault(fault, seed, campaign)
     if fault == "enospc_during_write":

@@ -1,10 +1,10 @@
 """``fgcd bench faults``: a seeded fault campaign against real fgcd processes (docs/hardware.md, "Faults").
 
-Fourteen fault classes, each injected at a random moment drawn from the run's
+Sixteen fault classes, each injected at a random moment drawn from the run's
 seed: mid-move motion faults on the GRBL emulator and the fake UR controller
 (:mod:`fgcd_cli.bench.fault_motion`), and campaign faults — SIGINT and SIGKILL
-at random moments and during store writes, a full disk, two revisits of one
-station at once, a damaged reference (:mod:`fgcd_cli.bench.fault_data`). Each
+at random moments and during store writes (``fgcd diff``, ``fgcd capture``), a
+full disk, two revisits of one station at once, a damaged reference (:mod:`fgcd_cli.bench.fault_data`). Each
 outcome is judged by :class:`fgcd_cli.bench.fault_checks.FaultOutcome`.
 
 Summary keys: ``faults_tried``, ``fault_classes``, ``platform_left_moving``,
@@ -20,13 +20,14 @@ from pathlib import Path
 from typing import Callable
 
 from fgcd_cli.bench.fault_checks import FaultOutcome
-from fgcd_cli.bench.fault_data import DATA_FAULTS, data_fault, prepare_campaign
+from fgcd_cli.bench.fault_data import CAPTURE_FAULTS, DATA_FAULTS, data_fault, prepare_campaign
 from fgcd_cli.bench.fault_motion import GRBL_FAULTS, UR_FAULTS, grbl_fault, ur_fault
 
 __all__ = ["FAULT_CLASSES", "run", "run_fault", "summarize"]
 
-FAULT_CLASSES = GRBL_FAULTS + UR_FAULTS + DATA_FAULTS
-#: Faults per class: the full run tries 15 x 14 = 210, the quick one 3 x 14 = 42.
+FAULT_CLASSES = GRBL_FAULTS + UR_FAULTS + DATA_FAULTS + CAPTURE_FAULTS
+#: Faults per class: the full run tries 15 x 14 + 3 x 2 = 216, the quick one 3 x 14 + 1 x 2 = 44
+#: (a simulated capture takes about 90 s: its classes run a fifth as often).
 PER_CLASS_FULL, PER_CLASS_QUICK = 15, 3
 
 
@@ -85,12 +86,12 @@ def run(*, quick: bool = False, seed: int = 0, classes: tuple[str, ...] | None =
     with tempfile.TemporaryDirectory(prefix="fgcd-faults-") as tmp:
         campaign = prepare_campaign(Path(workdir or tmp))
         outcomes: list[FaultOutcome] = []
-        total = count * len(chosen)
-        for k in range(count):
-            for fault in chosen:
-                if on_progress is not None:
-                    on_progress(len(outcomes), total, fault)
-                outcomes.append(run_fault(fault, 1000 * seed + k, campaign))
+        plan = [(fault, k) for k in range(count) for fault in chosen
+                if fault not in CAPTURE_FAULTS or k < max(1, count // 5) or per_class is not None]
+        for fault, k in plan:
+            if on_progress is not None:
+                on_progress(len(outcomes), len(plan), fault)
+            outcomes.append(run_fault(fault, 1000 * seed + k, campaign))
     summary = summarize(outcomes)
     summary["seconds"] = round(time.monotonic() - started, 1)
     by_class = {c: summarize([o for o in outcomes if o.fault == c]) for c in chosen}

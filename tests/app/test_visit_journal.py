@@ -4,6 +4,7 @@ and the guarded return to where the interrupted visit stopped."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import math
 from types import SimpleNamespace
 
@@ -98,3 +99,36 @@ def test_return_to_moves_in_guarded_steps_to_the_recorded_pose():
     assert steps == 4  # ceil(27.4 / 9) = 4 translation steps; ceil(2.86 / 1.8) = 2 rotation steps
     mm, deg = pose_distance(platform.flange_pose(), target)
     assert mm < 1e-6 and deg < 1e-6
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
+    """Ctrl-C after the first adjustment of a simulated revisit, then `--resume`: continued, log kept."""
+    from drivers.sim.rig import build_sim_rig
+    from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
+    from fgcd_cli.app.relocate import RevisitRequest, plan_revisit, run_revisit
+    from fgcd_cli.campaign import init_campaign, open_campaign
+    from fgcd_cli.campaign.schema import RELOCATION_LOG
+
+    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
+    # stands in for `fgcd calibrate hand-eye` (tested elsewhere): the simulated rig's mounting
+    camp.write_rig("handeye", {"T_flange_cam": build_sim_rig(scene="stele", seed=0).ground_truth
+                               .T_flange_cam_true().tolist()})
+    run_capture(camp, plan_capture(camp, CaptureRequest(station="s1", lightings="led:3")))
+
+    def interrupt(record):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_revisit(plan_revisit(camp.path, RevisitRequest(station="s1")), on_record=interrupt)
+    station = open_campaign(camp.path).station("s1")
+    assert station.visits() == []  # nothing committed
+    left = decide_resume(station, resume=True, options={"driver": "sim", "light": "led:3"})
+    assert left.mode == ResumeMode.CONTINUED and len(left.records) == 1
+
+    outcome = run_revisit(plan_revisit(camp.path, RevisitRequest(station="s1", resume=True)))
+    assert outcome.resume.mode == ResumeMode.CONTINUED
+    log_lines = (Path(outcome.result.observation_path) / RELOCATION_LOG).read_text().splitlines()
+    assert len(log_lines) == 1 + outcome.result.relocation.adjustments  # the earlier adjustment first
+    assert not journal_path(station).exists()

@@ -42,4 +42,4 @@ def test_the_judge_counts_what_went_wrong():
     s = summarize([good, moving, chatty])
     assert (s["faults_tried"], s["fault_classes"], s["platform_left_moving"], s["tracebacks"],
             s["stderr_not_one_line"], s["faults_ok"]) == (3, 2, 1, 1, 1, 1)
-    assert len(FAULT_CLASSES) == 14
+    assert len(FAULT_CLASSES) == 16
