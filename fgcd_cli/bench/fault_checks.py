@@ -21,6 +21,10 @@ from fgcd_cli.campaign.verify import verify_campaign_dir
 
 __all__ = ["FaultOutcome", "FgcdRun", "committed_digests", "campaign_problems", "run_fgcd", "wait_until"]
 
+#: How the CLI's one failure line starts (``fgcd_cli/cli/app.py``, Failure prefixes).
+FAILURE_PREFIXES = ("error:", "platform error:", "interrupted (Ctrl-C):", "internal error:", "usage error:",
+                    "aborted:")
+
 #: The repository root (the fgcd children run from here, like the tests).
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -37,6 +41,23 @@ class FgcdRun:
     def lines(self) -> list[str]:
         """Non-empty stderr lines."""
         return [line for line in self.stderr.splitlines() if line.strip()]
+
+    @property
+    def error_lines(self) -> list[str]:
+        """The stderr lines that report how the command failed (progress lines are not counted).
+
+        The CLI's failure line starts with one of the prefixes of ``cli/app.py`` (``error:``,
+        ``platform error:``, ``interrupted (Ctrl-C):``...); any other line carrying ``Error``
+        or ``error`` also counts (a library's message reaching the terminal).
+        """
+        return [line for line in self.lines
+                if line.startswith(FAILURE_PREFIXES) or "Error" in line or "error" in line.split(":")[0]]
+
+    @property
+    def failure_lines(self) -> int:
+        """How many lines report the failure; one more when the last stderr line is not one of them."""
+        errors = self.error_lines
+        return len(errors) + (1 if errors and self.lines[-1] != errors[-1] else 0)
 
     @property
     def traceback(self) -> bool:
@@ -60,6 +81,8 @@ class FaultOutcome:
     expected : tuple of int
         The documented codes for this fault (README, "Errors"; docs/hardware.md, "Faults").
     stderr_lines : int
+        Lines reporting the failure (:attr:`FgcdRun.failure_lines`): 1 for a failure, 0 for a success;
+        progress lines above them are not counted.
     traceback : bool
     platform_left_moving : bool
         The emulator's own state says it still moves after the command ended.

@@ -87,9 +87,9 @@ def _outcome(fault, seed, command, run, expected, *, campaign, before, allowed=f
     problems = campaign_problems(campaign, allowed=set(allowed))
     killed = run.code == -signal.SIGKILL
     return FaultOutcome(fault=fault, seed=seed, command=command, code=run.code, expected=expected,
-                        stderr_lines=len(run.lines), traceback=run.traceback, campaign_inconsistent=bool(problems),
+                        stderr_lines=run.failure_lines, traceback=run.traceback, campaign_inconsistent=bool(problems),
                         earlier_data_changed=bool(changed), one_line_expected=run.code != 0 and not killed,
-                        detail="; ".join(problems + changed) or (run.lines or [""])[-1], extra=extra)
+                        detail="; ".join(problems + changed) or (run.error_lines or run.lines or [""])[-1], extra=extra)
 
 
 def _temporaries(campaign: Path) -> set[Path]:
@@ -101,7 +101,7 @@ def _signal_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     """SIGINT or SIGKILL to ``fgcd diff`` at a random moment, or (every other seed) during a store write."""
     rng = np.random.default_rng(seed)
     sig = signal.SIGINT if fault == "sigint_during_write" else signal.SIGKILL
-    during_write = seed % 2 == 0
+    during_write = seed % 2 == 0  # otherwise any moment (store writes of station.json and manifests included)
     delay = float(rng.uniform(0.3, 6.0))
     before = committed_digests(campaign)
 
@@ -154,12 +154,12 @@ def _two_relocates(seed: int, campaign: Path) -> FaultOutcome:
     run = second.get("run")
     if run is None:
         return FaultOutcome(fault="two_relocates_at_once", seed=seed, command="relocate x2", code=first.code,
-                            expected=(EXIT_CAMPAIGN,), stderr_lines=len(first.lines), traceback=first.traceback,
+                            expected=(EXIT_CAMPAIGN,), stderr_lines=first.failure_lines, traceback=first.traceback,
                             detail="the first relocate never held the lock: " + (first.lines or [""])[-1])
     outcome = _outcome("two_relocates_at_once", seed, "relocate (second, while the first runs)", run,
                        (EXIT_CAMPAIGN,), campaign=campaign, before=before, first_code=first.code)
     outcome.traceback = outcome.traceback or first.traceback
-    if first.code not in (EXIT_INTERRUPTED, EXIT_ALGORITHM, 0) or len(first.lines) > 2:
+    if first.code not in (EXIT_INTERRUPTED, EXIT_ALGORITHM, 0) or first.failure_lines > 1:
         outcome.detail = f"the first relocate ended with {first.code}: {first.lines[-1:]}"
         outcome.expected = ()
     return outcome
@@ -208,7 +208,7 @@ def calibrate_campaign(campaign: Path) -> None:
 def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     """``fgcd capture`` of a new station, signalled (SIGINT or SIGKILL) or starved of disk at a seeded moment."""
     rng = np.random.default_rng(seed)
-    station = f"c{seed}"
+    station = f"{fault.split('_')[0]}-{seed}"  # a new station per fault
     before = committed_digests(campaign)
     args = ["capture", "-c", str(campaign), "-s", station, "--lightings", "led:3,led:9", "--yes", "--json"]
     if fault == "enospc_during_capture":
@@ -224,8 +224,8 @@ def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     left = _temporaries(campaign)
 
     def inject(proc) -> None:
-        if during_write:
-            wait_until(lambda: bool(_temporaries(campaign) - left), timeout_s=900, proc=proc)
+        if during_write:  # the observation's temporary folder (files are station.json's, manifests)
+            wait_until(lambda: any(p.is_dir() for p in _temporaries(campaign) - left), timeout_s=900, proc=proc)
         else:
             time.sleep(delay)
         send_signal(proc, sig)

@@ -78,8 +78,8 @@ def grbl_fault(fault: str, seed: int) -> FaultOutcome:
         if run.code == 0 and fault != "grbl_garbage":
             expected = (0, EXIT_PLATFORM)
         return FaultOutcome(fault=fault, seed=seed, command="platform move --driver grbl", code=run.code,
-                            expected=expected, stderr_lines=len(run.lines), traceback=run.traceback,
-                            platform_left_moving=moving, detail=(run.lines or [""])[-1],
+                            expected=expected, stderr_lines=run.failure_lines, traceback=run.traceback,
+                            platform_left_moving=moving, detail=(run.error_lines or run.lines or [""])[-1],
                             one_line_expected=run.code != 0, extra={"at_s": round(delay, 3)})
     finally:
         emu.close()
@@ -102,5 +102,5 @@ def ur_fault(fault: str, seed: int, fake) -> FaultOutcome:
                    inject=inject, timeout_s=120)
     moving = not wait_until(lambda: fake.state()["moving"] == 0, timeout_s=0.5)
     return FaultOutcome(fault=fault, seed=seed, command="platform move --driver ur", code=run.code,
-                        expected=(EXIT_PLATFORM,), stderr_lines=len(run.lines), traceback=run.traceback,
-                        platform_left_moving=moving, detail=(run.lines or [""])[-1], extra={"at_s": round(delay, 3)})
+                        expected=(EXIT_PLATFORM,), stderr_lines=run.failure_lines, traceback=run.traceback,
+                        platform_left_moving=moving, detail=(run.error_lines or run.lines or [""])[-1], extra={"at_s": round(delay, 3)})
