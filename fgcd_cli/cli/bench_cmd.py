@@ -215,7 +215,7 @@ def coarse(
 
 @app.command("faults")
 def faults(
-    quick: bool = typer.Option(False, "--quick", help="3 faults per class instead of 15 (a capture fault: 1 instead of 3)."),
+    quick: bool = typer.Option(False, "--quick", help="3 faults per class instead of 15, without the whole-capture classes."),
     seed: int = typer.Option(0, "--seed", help="Seed of the fault moments and kinds."),
     fault: Optional[list[str]] = typer.Option(None, "--fault", help="Only these fault classes (repeatable)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
