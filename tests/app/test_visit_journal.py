@@ -132,3 +132,16 @@ def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
     log_lines = (Path(outcome.result.observation_path) / RELOCATION_LOG).read_text().splitlines()
     assert len(log_lines) == 1 + outcome.result.relocation.adjustments  # the earlier adjustment first
     assert not journal_path(station).exists()
+
+
+def test_campaign_verify_warns_of_an_interrupted_visit(tmp_path):
+    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.verify import verify_campaign_dir
+
+    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
+    station = camp.station_or_create("s1")
+    _interrupted(station, 1)
+    report = verify_campaign_dir(camp.path)
+    assert report.ok  # a warning, not damage
+    assert [p.kind for p in report.problems] == ["interrupted-visit"]
+    assert "--resume" in report.problems[0].detail
