@@ -208,11 +208,13 @@ def test_size_checker_sees_each_rule(tmp_path):
 
 
 #: The only ``**`` parameters: pass-through of write options, a station's free-form record,
-#: and the one builder of a detector config from flat option names (the CLI's options).
+#: the one builder of a detector config from flat option names (the CLI's options), and the
+#: fault bench's stand-in for ``os.fdopen`` (it must accept what ``os.fdopen`` accepts).
 ALLOWED_KEYWORD_CATCH_ALLS = {
     "fgcd_cli/campaign/atomic.py": {"atomic_write_text", "atomic_write_json"},
     "fgcd_cli/campaign/store.py": {"create_station", "station_or_create", "station_for_writing"},
     "fgcd_cli/changes/config.py": {"from_options"},
+    "fgcd_cli/bench/fault_launch.py": {"fdopen"},
 }
 
 

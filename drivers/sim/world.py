@@ -15,8 +15,11 @@ __all__ = ["SimWorld", "SimLights"]
 class SimLights:
     """Switchable lighting of a rig (what a rig with controllable lights offers).
 
-    ``set(name)`` takes any preset of :func:`drivers.sim.lights.lighting_preset`.
+    ``set(name)`` takes any preset of :func:`drivers.sim.lights.lighting_preset`
+    (a :class:`drivers.lights.Lights`).
     """
+
+    name = "sim"
 
     def __init__(self, name: str = "front"):
         self._lighting = lighting_preset(name)
@@ -35,6 +38,9 @@ class SimLights:
     @staticmethod
     def available() -> list[str]:
         return [n for n, _ in list_lighting_presets()]
+
+    def close(self) -> None:
+        """Nothing to release."""
 
 
 @dataclass

@@ -324,6 +324,13 @@ def main(argv: list[str] | None = None) -> int:
             ctrl.speed_factor = 0.1
         elif command == "quit":
             break
+        elif command == "state":  # for fault campaigns: is the arm moving, and its safety bits
+            if not ctrl.frozen:  # a frozen controller's motion does not progress
+                ctrl.step()
+            with ctrl.lock:
+                moving = int(ctrl.motion is not None and not ctrl.frozen)
+                print(f"ACK state moving={moving} safety={ctrl.safety_bits}", flush=True)
+            continue
         print(f"ACK {command}", flush=True)
     for server in servers:
         server.close()
@@ -372,6 +379,13 @@ class FakeURProcess:
         self.process.stdin.write(command + "\n")
         self.process.stdin.flush()
         self.process.stdout.readline()
+
+    def state(self) -> dict[str, int]:
+        """``{"moving": 0|1, "safety": bits}``: the fake arm's own motion and safety state."""
+        self.process.stdin.write("state\n")
+        self.process.stdin.flush()
+        words = self.process.stdout.readline().split()[2:]
+        return {k: int(v) for k, v in (w.split("=") for w in words)}
 
     def stop(self) -> None:
         """Kill the child process (by its own pid) and wait for it."""

@@ -79,7 +79,9 @@ class GrblCommandsMixin:
             return "ok"
         if text == "$G":
             mode = "G90" if self.absolute else "G91"
-            self._send(f"[GC:G0 G54 G17 G21 {mode} G94 M5 M9 T0 F{self.feed_mm_min or 0:.0f} S0]")
+            coolant = " ".join(w for w, on in (("M7", self.mist), ("M8", self.flood)) if on) or "M9"
+            self._send(f"[GC:G0 G54 G17 G21 {mode} G94 {self.spindle} {coolant} T0 F{self.feed_mm_min or 0:.0f} "
+                       f"S{self.spindle_speed:g}]")
             return "ok"
         if text == "$X":
             with self._lock:
@@ -168,6 +170,11 @@ class GrblCommandsMixin:
         words = parse_words(text)
         if isinstance(words, str):
             return words
+        words, accessories = _split_accessories(words)
+        if accessories:
+            reply = self._accessories(accessories)
+            if reply != "ok" or not words:
+                return reply
         motion = None
         dwell = None
         axis_values: dict[int, float] = {}
@@ -186,7 +193,7 @@ class GrblCommandsMixin:
                         continue
                     else:
                         return "error:20"
-                elif letter == "M" and value in (0.0, 2.0, 5.0, 9.0, 30.0):
+                elif letter == "M" and value in (0.0, 2.0, 30.0):
                     continue
                 elif letter == "F":
                     feed = value
@@ -234,3 +241,41 @@ class GrblCommandsMixin:
             time.sleep(dwell * self.time_scale)
             return "ok"
         return self._enqueue(seg)
+
+    def _accessories(self, words: list[tuple[str, float]]) -> str:
+        """Spindle (M3/M4/M5, S) and coolant (M7/M8/M9) words: applied once the planner is empty (GRBL syncs them)."""
+        for letter, value in words:
+            if letter == "M" and value not in (3.0, 4.0, 5.0, 7.0, 8.0, 9.0):
+                return "error:20"
+            if letter == "S" and value < 0:
+                return "error:4"
+        if self.check_mode:
+            return "ok"
+        while not self._stop.is_set():
+            with self._lock:
+                if self.state == "Alarm":
+                    return "error:9"
+                if self.current is None and not self.queue:
+                    for letter, value in words:
+                        self._apply_accessory(letter, value)
+                    return "ok"
+            time.sleep(0.005)
+        return "ok"
+
+    def _apply_accessory(self, letter: str, value: float) -> None:
+        if letter == "S":
+            self.spindle_speed = value
+        elif value in (3.0, 4.0, 5.0):
+            self.spindle = f"M{value:g}"
+        elif value == 7.0:
+            self.mist = True
+        elif value == 8.0:
+            self.flood = True
+        elif value == 9.0:
+            self.mist = self.flood = False
+
+
+def _split_accessories(words: list[tuple[str, float]]) -> tuple[list, list]:
+    """``(other words, spindle and coolant words)`` of a G-code line."""
+    accessory = [(l, v) for l, v in words if l == "S" or (l == "M" and v in (3.0, 4.0, 5.0, 7.0, 8.0, 9.0))]
+    return [w for w in words if w not in accessory], accessory

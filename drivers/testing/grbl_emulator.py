@@ -10,7 +10,9 @@ GRBL's grammar (see GRBL's ``doc/markdown/interface.md``):
   ``0x18`` (soft reset), ``0x85`` (jog cancel), never acknowledged;
 * ``$$`` settings, ``$I``, ``$G``, ``$X`` unlock, ``$H`` homing, ``$C`` check mode,
   ``$J=`` jogging, ``$N=value`` setting writes; ``G0/G1/G4/G90/G91/G21`` with
-  ``F``, axes ``X Y Z`` and optionally ``A B C`` (grblHAL style);
+  ``F``, axes ``X Y Z`` and optionally ``A B C`` (grblHAL style); spindle and
+  coolant ``M3 S…/M4/M5``, ``M7/M8/M9`` (applied once the planner is empty,
+  reported by ``$G``, the status ``A:`` field and :meth:`GrblEmulator.outputs`);
 * constant-feed motion in real time (scaled by ``time_scale``), soft limits
   (``$20``: ``ALARM:2`` for a G-code motion, ``error:15`` for a jog), alarms with
   ``[MSG:'$H'|'$X' to unlock]``;
@@ -101,6 +103,10 @@ class GrblEmulator(GrblCommandsMixin):
         self.queue: deque[Segment] = deque()
         self.current: Segment | None = None
         self.hold = False
+        self.spindle = "M5"  # M3 (CW) / M4 (CCW) / M5 (off); PWM duty spindle_speed / $30
+        self.spindle_speed = 0.0
+        self.flood = False  # M8
+        self.mist = False  # M7
         self.silent = False
         self.lines_received: list[str] = []
         self.realtime_received: list[int] = []
@@ -159,14 +165,29 @@ class GrblEmulator(GrblCommandsMixin):
         self._write_raw(data)
 
     def unplug(self) -> None:
-        """The USB cable is pulled: the pty hangs up under the driver."""
-        self._stop.set()
+        """The USB cable is pulled: the pty hangs up under the driver.
+
+        The board keeps executing what its planner holds (a real GRBL is not
+        reset by a pulled cable), then stays idle: :meth:`moving` tells.
+        """
         for fd in (self._master, self._slave):
             try:
                 os.close(fd)
             except OSError:
                 pass
         self._master = self._slave = -1
+
+    def outputs(self) -> dict[str, float | bool]:
+        """The accessory pins as the board drives them: spindle enable and PWM duty (0..1), flood, mist."""
+        with self._lock:
+            on = self.spindle != "M5"
+            duty = min(1.0, self.spindle_speed / max(float(self.settings[30]), 1e-9)) if on else 0.0
+            return {"spindle": on, "spindle_pwm": duty, "flood": self.flood, "mist": self.mist}
+
+    def moving(self) -> bool:
+        """True while the board executes a motion (not held, not in alarm)."""
+        with self._lock:
+            return (self.current is not None or bool(self.queue)) and not self.hold and self.state != "Alarm"
 
     def position(self) -> list[float]:
         """Current machine position (thread-safe copy)."""
@@ -256,6 +277,7 @@ class GrblEmulator(GrblCommandsMixin):
                 self.current = None
                 self.queue.clear()
                 self.hold = False
+                self._outputs_off()  # a reset switches spindle and coolant off
                 with self._line_ready:
                     self._pending_lines.clear()
                 self._space.notify_all()
@@ -280,7 +302,12 @@ class GrblEmulator(GrblCommandsMixin):
         if self.current is not None and not self.hold and not self.current.dwell_s:
             feed = self.current.feed_mm_min
         state = "Check" if self.check_mode and self.state == "Idle" else self.state
-        text = f"<{state}|MPos:{pos}|FS:{feed:.0f},0"
+        speed = self.spindle_speed if self.spindle != "M5" else 0.0
+        text = f"<{state}|MPos:{pos}|FS:{feed:.0f},{speed:.0f}"
+        accessories = ("S" if self.spindle == "M3" else "C" if self.spindle == "M4" else "") + \
+            ("F" if self.flood else "") + ("M" if self.mist else "")
+        if accessories:
+            text += f"|A:{accessories}"
         if self._reports % 10 == 1:
             text += "|WCO:" + ",".join(f"{v:.3f}" for v in self.wco)
         return text + ">"
@@ -317,10 +344,14 @@ class GrblEmulator(GrblCommandsMixin):
                         self.state = "Idle"
                     self._space.notify_all()
 
+    def _outputs_off(self) -> None:
+        self.spindle, self.spindle_speed, self.flood, self.mist = "M5", 0.0, False, False
+
     def _enter_alarm(self, code: int) -> None:
         self.current = None
         self.queue.clear()
         self.hold = False
+        self._outputs_off()
         self.state = "Alarm"
         self.alarm_code = code
         self._space.notify_all()

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
+from fgcd_cli.app.rig import LightsSpec, RigHandles, RigHooks, RigRequest
 from fgcd_cli.app.scenario import (
     Driver,
     SimScenario,
@@ -137,6 +137,31 @@ class CapturePlan:
     port: str | None = None
     host: str | None = None
     station: str = ""
+    lights: LightsSpec | None = None
+
+
+def rig_lights(campaign, lightings: list[str]) -> LightsSpec | None:
+    """The campaign's ``[rig.lights]`` (None when absent), checked to have every lighting asked for.
+
+    Raises
+    ------
+    CampaignError
+        ``[rig.lights]`` is malformed, or a lighting is not one of its channels.
+    """
+    from drivers.lights import AMBIENT, LightsDriver
+    from drivers.platform import PlatformError
+
+    try:
+        spec = LightsSpec.from_config(campaign.rig_config.get("lights"))
+    except PlatformError as exc:
+        raise CampaignError(f"campaign.toml {exc}") from None
+    if spec is None or spec.driver == LightsDriver.SIM or not spec.channels:
+        return spec
+    missing = [n for n in lightings if n != AMBIENT and n not in spec.channels]
+    if missing:
+        raise CampaignError(f"campaign.toml [rig.lights] wires no light {', '.join(missing)} "
+                            f"(channels: {', '.join(spec.channels)})")
+    return spec
 
 
 def check_station_can_take_a_reference(campaign, name: str) -> None:
@@ -195,7 +220,7 @@ def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
     """Check every option of a capture, in the order a person fixes them; nothing is written.
 
     Station (name, damage, existing reference) -> driver -> world (scene)
-    -> the driver's address -> lights -> calibration. The simulated world is the station's: ``--scene``
+    -> the driver's address -> lights (and ``[rig.lights]``) -> calibration. The simulated world is the station's: ``--scene``
     and ``--seed`` override the campaign's default ``[rig.sim]`` for this
     station only, and are recorded in its reference.
     """
@@ -218,13 +243,14 @@ def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
         raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, not {driver}")
     port, host = connection(campaign, driver, port=r.port, host=r.host)
     names = _image_lightings(r.lightings or r.light, sim=driver == Driver.SIM)
+    lights = rig_lights(campaign, names)
     T_flange_cam, cam = rig_calibration(campaign)
     if T_flange_cam is None:
         raise CampaignError("no hand-eye calibration in the campaign: run `fgcd calibrate hand-eye` first")
     if driver != Driver.SIM and cam is None:
         raise CampaignError("no camera intrinsics in the campaign: run `fgcd calibrate intrinsics -c CAMPAIGN` first")
     return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam,
-                       port=port, host=host, station=r.station)
+                       port=port, host=host, station=r.station, lights=lights)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -245,15 +271,21 @@ class CaptureOutcome:
 def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) -> CaptureOutcome:
     """Open the plan's rig and capture the reference of ``plan.station`` (created if missing).
 
-    Rule: a capture that fails leaves no station behind, and never changes campaign.toml.
+    Rule: a capture that fails leaves no station behind, and never changes campaign.toml; it holds
+    the station's lock (:mod:`fgcd_cli.campaign.lock`) throughout.
     """
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.metrics.sim_eval import reference_truth
 
+    from fgcd_cli.campaign.lock import station_lock
+
     run_record.no_writes()
-    with campaign.station_for_writing(plan.station) as st:
+    with station_lock(campaign.path, plan.station, command="capture"), \
+            campaign.station_for_writing(plan.station) as st:
+        check_station_can_take_a_reference(campaign, plan.station)  # again, under the lock
         rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                                         scenario=plan.scenario, port=plan.port, host=plan.host), hooks=hooks)
+                                         scenario=plan.scenario, port=plan.port, host=plan.host,
+                                         lights=plan.lights), hooks=hooks)
         run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
         with rig_uc.opened(rig):
             result = capture_reference(

@@ -19,6 +19,7 @@ from fgcd_cli.app.capture import CaptureResult
 from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
 from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
 from fgcd_cli.app.scenario import Driver, SimScenario, check_driver, check_lighting, check_scenario, check_scene
+from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
 from fgcd_cli.app.session import (
     grab_gray_under,
     grab_images,
@@ -60,6 +61,8 @@ class RelocateRequest:
     coarse : CoarseConfig or None
         The active coarse stage's options (paper 001); None leaves it out (the
         loop then pauses on a far start).
+    earlier_log : tuple of dict
+        Adjustments of an interrupted visit this one continues, written first in its log.
     """
 
     config: RelocationConfig
@@ -68,6 +71,7 @@ class RelocateRequest:
     explore_legs: int = 3
     metadata: dict | None = None
     coarse: CoarseConfig | None = field(default_factory=CoarseConfig)
+    earlier_log: tuple[dict, ...] = ()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -137,7 +141,8 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
         images = grab_images(rig, request.lightings)
         meta = _visit_metadata(rig, request, scale, result, coarse_result)
         rig.progress(0, 0, "writing the visit")
-        obs = _write_visit(station, meta, images=images, points=points, state=state, result=result,
+        log = "".join([json.dumps(e) + "\n" for e in request.earlier_log] + [r.to_json() + "\n" for r in result.records])
+        obs = _write_visit(station, meta, images=images, points=points, state=state, log=log.encode("utf-8"),
                            coarse_result=coarse_result, evaluation=hooks.evaluation)
     finally:
         vse.stop()
@@ -211,7 +216,7 @@ def _visit_metadata(rig: RigHandles, request: RelocateRequest, scale, result: Re
 
 
 def _write_visit(station, meta: dict, *, images: dict[str, np.ndarray], points: np.ndarray, state,
-                 result: RelocationResult, coarse_result: CoarseResult | None,
+                 log: bytes, coarse_result: CoarseResult | None,
                  evaluation: Callable[[], dict] | None):
     """Write the visit (images, cloud, relocation and coarse logs, truth) and return the committed observation."""
     stamp_writer = station.new_visit(meta)
@@ -219,7 +224,7 @@ def _write_visit(station, meta: dict, *, images: dict[str, np.ndarray], points: 
         for name, img in images.items():
             w.add_image(name, img)
         w.add_cloud(points, colors=np.asarray(state.cloud.intensities, dtype=np.float32))
-        w.add_bytes(schema.RELOCATION_LOG, "".join(r.to_json() + "\n" for r in result.records).encode("utf-8"))
+        w.add_bytes(schema.RELOCATION_LOG, log)
         if coarse_result is not None and coarse_result.steps:
             w.add_bytes(schema.COARSE_LOG, "".join(json.dumps(st.to_dict(), default=float) + "\n"
                                                    for st in coarse_result.steps).encode("utf-8"))
@@ -259,6 +264,9 @@ class RevisitRequest:
     max_adjustments : int
     port, host : str or None
         Address of a GRBL stage / UR arm (None: campaign.toml ``[rig]``).
+    resume : bool
+        Continue an interrupted visit from its journal, or start over cleanly
+        (:mod:`fgcd_cli.app.visit_journal`).
     """
 
     station: str
@@ -276,6 +284,7 @@ class RevisitRequest:
     max_adjustments: int = 12
     port: str | None = None
     host: str | None = None
+    resume: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -292,6 +301,7 @@ class RevisitPlan:
     config: RelocationConfig
     port: str | None = None
     host: str | None = None
+    lights: object | None = None  # drivers.lights.LightsSpec of campaign.toml [rig.lights]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -300,6 +310,7 @@ class RevisitOutcome:
 
     station: str
     result: CaptureResult
+    resume: ResumeDecision | None = None
 
     @property
     def converged(self) -> bool:
@@ -316,6 +327,7 @@ class RevisitOutcome:
             "final_truth": reloc.records[-1].truth if reloc.records else None,
             "coarse": None if coarse is None else {"handed_over": coarse.handed_over, "reason": coarse.reason,
                                                    "actions": [s.action for s in coarse.steps]},
+            "resume": None if self.resume is None else self.resume.to_dict(),
         }
 
 
@@ -361,7 +373,7 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     Order: option values (exit 2), then the campaign (exit 3): driver, values, campaign,
     the campaign's driver, light, connection, station and reference, world, calibration.
     """
-    from fgcd_cli.app.capture import connection
+    from fgcd_cli.app.capture import connection, rig_lights
     from fgcd_cli.campaign import open_campaign
 
     r = request
@@ -375,6 +387,8 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     port, host = connection(camp, driver, port=r.port, host=r.host)
     st = camp.station(r.station)
     ref = st.reference()
+    for relpath in ref.files():  # Rule: a damaged reference is refused before anything is opened or moved
+        ref.bytes(relpath)  # DataIntegrityError (exit 4) naming the damaged file
     scenario = None
     if driver == Driver.SIM:
         scenario = visit_scenario(camp, ref, light=light, changes=r.changes, start_offset_mm=r.start_offset_mm,
@@ -386,31 +400,59 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         T_flange_cam = np.eye(4)
     config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, eta=r.eta, max_adjustments=r.max_adjustments,
                               image_refine=not r.no_image_refine, image_fallback=not r.no_image_refine)
+    lights = rig_lights(camp, visit_lightings(light, ref.metadata.get("lightings", []), controllable=True))
     return RevisitPlan(request=replace(r, light=light), driver=driver, station=st, reference=ref, scenario=scenario,
-                       T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host)
+                       T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host, lights=lights)
 
 
 def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
                 on_record: Callable[[AdjustmentRecord], None] | None = None) -> RevisitOutcome:
-    """Open the plan's rig, relocate to the station's reference and write the visit."""
+    """Open the plan's rig, relocate to the station's reference and write the visit (under the station's lock)."""
+    from fgcd_cli.campaign.lock import station_lock
+
+    with station_lock(plan.station.path.parents[1], plan.request.station, command="relocate"):
+        return _revisit_locked(plan, hooks=hooks, on_record=on_record)
+
+
+def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
+                    on_record: Callable[[AdjustmentRecord], None] | None) -> RevisitOutcome:
+    """:func:`run_revisit` under the station's lock."""
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
 
     r = plan.request
+    options = {"driver": plan.driver, "light": r.light}
+    decision = decide_resume(plan.station, resume=r.resume, options=options)
     run_record.no_writes()
     rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                                     scenario=plan.scenario, port=plan.port, host=plan.host), hooks=hooks)
+                                     scenario=plan.scenario, port=plan.port, host=plan.host, lights=plan.lights),
+                          hooks=hooks)
     run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
     with rig_uc.opened(rig):
+        say = getattr(rig.handles, "say", None) or (lambda text: None)  # stand-in rigs may lack it
+        say(decision.reason)
+        journal = JournalWriter(plan.station, options=options, decision=decision)
+        if decision.mode == ResumeMode.CONTINUED:
+            say(f"back to where the interrupted visit stopped "
+                f"({return_to(rig.handles.guard, decision.T_base_flange)} guarded steps)")
         evaluator = RelocationEvaluator.from_reference(rig.sim, plan.reference) if rig.sim is not None else None
         request = RelocateRequest(
             config=plan.config,
             lightings=visit_lightings(r.light, plan.reference.metadata.get("lightings", []),
-                                      controllable=plan.driver == Driver.SIM),
-            metadata={"driver": plan.driver, "scenario": rig.info.get("scenario"), "no_handeye": r.no_handeye},
+                                      controllable=getattr(rig.handles, "lights", None) is not None),
+            metadata={"driver": plan.driver, "scenario": rig.info.get("scenario"), "no_handeye": r.no_handeye,
+                      "resume": decision.to_dict()},
             coarse=None if r.no_coarse else CoarseConfig(),
+            earlier_log=tuple(decision.records),
         )
+
+        def record(rec: AdjustmentRecord) -> None:
+            journal.record(rec, rig.handles.guard.platform.flange_pose())
+            if on_record is not None:
+                on_record(rec)
+
         result = relocate_and_capture(rig.handles, plan.station, request=request, hooks=RelocateHooks(
-            evaluate=evaluator.evaluate if evaluator else None, on_record=on_record,
+            evaluate=evaluator.evaluate if evaluator else None, on_record=record,
             evaluation=evaluator.summary if evaluator else None))
-    return RevisitOutcome(station=r.station, result=result)
+        journal.remove()
+    return RevisitOutcome(station=r.station, result=result, resume=decision)

@@ -15,6 +15,8 @@ from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
+from drivers.lights import Lights, LightsDriver, LightsSpec
+
 from fgcd_cli.errors import HardwareError, UserInputError, run_record
 from fgcd_core.camera import PinholeCamera
 from fgcd_cli.app.scenario import (  # noqa: F401 - part of this module's interface
@@ -33,6 +35,7 @@ __all__ = [
     "DRIVERS",
     "Driver",
     "Lights",
+    "LightsSpec",
     "OpenedRig",
     "RigHandles",
     "RigHooks",
@@ -50,18 +53,6 @@ __all__ = [
     "undistorted",
     "vse_factory_for",
 ]
-
-
-class Lights(Protocol):
-    """The rig's switchable lights (the simulator's; hardware rigs have none)."""
-
-    current: str
-
-    def set(self, name: str) -> None:
-        """Switch to lighting ``name``."""
-
-    def available(self) -> list[str]:
-        """The lightings this rig can switch to."""
 
 
 @dataclass
@@ -277,6 +268,11 @@ class RigRequest:
         Address of a GRBL stage / UR arm, and the OpenCV camera (hardware only).
     vse_variant : str
         ``mono``, ``sparse`` or ``rgbd``.
+    lights : LightsSpec or None
+        The rig's light driver (campaign.toml ``[rig.lights]``); None: the
+        simulator's own lights, a manual prompt on the manual driver, else none.
+        On the simulator a real driver is wired to the simulated scene
+        (:class:`drivers.sim.wiring.WiredSimLights`).
     """
 
     driver: str
@@ -288,13 +284,18 @@ class RigRequest:
     host: str | None = None
     camera_index: int | str = 0
     vse_variant: str = "mono"
+    lights: LightsSpec | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
 class RigHooks:
-    """The plain callbacks a rig reports through (see :class:`RigHandles`)."""
+    """The plain callbacks a rig reports through (see :class:`RigHandles`).
+
+    ``ask_light`` asks a person to switch a light (manual lights; ``input`` when None).
+    """
 
     confirm: Callable[[str], bool] | None = None
+    ask_light: Callable[[str], str] | None = None
     on_event: Callable[[str], None] | None = None
     on_progress: Callable[[int, int, str], None] | None = None
 
@@ -303,7 +304,7 @@ def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig
     """Open the rig a command asked for (``hooks``: see :class:`RigHandles`)."""
     hooks = hooks or RigHooks()
     if request.driver == Driver.SIM:
-        return open_sim_rig(
+        rig = open_sim_rig(
             request.scenario or SimScenario(),
             T_flange_cam=request.T_flange_cam,
             intrinsics=request.intrinsics,
@@ -312,7 +313,42 @@ def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig
             on_event=hooks.on_event,
             on_progress=hooks.on_progress,
         )
+        if request.lights is not None and request.lights.driver != LightsDriver.SIM:
+            _wire_sim_lights(rig, request.lights, hooks)
+        return rig
     return _open_hardware_rig(request, hooks)
+
+
+def _lights_for(spec: LightsSpec, hooks: RigHooks, platform=None) -> Lights:
+    """The light driver of ``spec`` (HardwareError when it cannot be opened)."""
+    from drivers.lights import open_lights
+    from drivers.platform import PlatformError
+
+    try:
+        return open_lights(spec, platform=platform, ask=hooks.ask_light or input)
+    except (PlatformError, OSError) as exc:
+        raise HardwareError(f"cannot open the lights: {exc}") from None
+
+
+def _wire_sim_lights(rig: OpenedRig, spec: LightsSpec, hooks: RigHooks) -> None:
+    """A real light driver lighting the simulated scene (docs/hardware.md, Lights); closed with the rig."""
+    from drivers.sim.wiring import WiredSimLights
+
+    try:
+        wired = WiredSimLights(_lights_for(spec, hooks), rig.handles.lights)
+    except Exception:
+        rig.close()
+        raise
+    rig.handles.lights = wired
+    close_platform = rig.close
+
+    def close() -> None:
+        try:
+            wired.close()
+        finally:
+            close_platform()
+
+    rig.close = close
 
 
 def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
@@ -334,9 +370,20 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
         raise HardwareError(f"cannot open the rig: {exc}") from None
     guard = _recorded_guard(platform, GuardLimits(), hooks.confirm)
     intrinsics, camera = undistorted(request.intrinsics, raw_camera)
+    spec = request.lights
+    if spec is None and driver == Driver.MANUAL:
+        spec = LightsSpec(driver=LightsDriver.MANUAL)  # a person is at the rig: asked to switch
+    try:
+        lights = _lights_for(spec, hooks, platform) if spec is not None else None
+    except HardwareError:
+        camera.close()
+        platform.close()
+        raise
 
     def close() -> None:
         try:
+            if lights is not None:
+                lights.close()
             camera.close()
         finally:
             platform.close()
@@ -348,7 +395,7 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
         intrinsics=intrinsics,
         T_flange_cam=np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float),
         vse_factory=vse_factory_for(intrinsics, camera, variant=request.vse_variant),
-        lights=None,
+        lights=lights,
         on_event=hooks.on_event,
         on_progress=hooks.on_progress,
     )

@@ -20,7 +20,9 @@ def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> d
     images: dict[str, np.ndarray] = {}
     frames = max(1, average)
     for k, name in enumerate(lightings):
-        if rig.lights is not None and name != "ambient":
+        # Rule: on a real light driver "ambient" switches every rig light off; on the
+        # simulator's own lights it is the session's light (docs/hardware.md, Lights).
+        if rig.lights is not None and (name != "ambient" or getattr(rig.lights, "name", "sim") != "sim"):
             rig.lights.set(name)
         acc = None
         for i in range(frames):

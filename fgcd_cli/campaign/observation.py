@@ -15,6 +15,7 @@ before that (``images/led:3.png``, no mapping) are read as they are.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
@@ -78,9 +79,14 @@ class Observation:
             raise CampaignError(f"{self.path / relpath}: not part of this observation")
         p = self.path / relpath
         try:
-            return p.read_bytes()
+            data = p.read_bytes()
         except FileNotFoundError:
             raise DataIntegrityError(f"{p}: missing (run `fgcd campaign verify`)") from None
+        # Rule: data whose checksum no longer matches its manifest is never used (docs/hardware.md, Faults).
+        expected = self.files()[relpath].get("sha256") if isinstance(self.files()[relpath], dict) else None
+        if expected is not None and hashlib.sha256(data).hexdigest() != expected:
+            raise DataIntegrityError(f"{p}: damaged (checksum differs from the manifest; run `fgcd campaign verify`)")
+        return data
 
     def image_files(self) -> dict[str, str]:
         """Image name (a lighting, e.g. ``led:3``) -> its file, relative to the observation.
@@ -144,15 +150,24 @@ class Observation:
         if entry is not None and not entry.get("derived", False):
             raise ImmutableDataError(f"{self.path / relpath}: captured data cannot be replaced")
         target = self.path / relpath
+        files = dict(self.manifest.get("files", {}))
+        if entry is not None:
+            # Rule: the manifest never lists a checksum its file does not have, even if the process
+            # dies between the two writes: the old entry goes first (the file is then merely unlisted).
+            files.pop(relpath)
+            self._write_manifest(files)
         atomic_write_bytes(target, data)
-        manifest = dict(self.manifest)
-        files = dict(manifest.get("files", {}))
         files[relpath] = {"sha256": sha256_bytes(data), "bytes": len(data), "derived": True}
+        self._write_manifest(files)
+        return target
+
+    def _write_manifest(self, files: dict) -> None:
+        """The manifest with ``files``, written atomically."""
+        manifest = dict(self.manifest)
         manifest["files"] = files
         manifest["updated"] = now_iso()
         atomic_write_json(self.path / MANIFEST, manifest)
         self.manifest = manifest
-        return target
 
 
 class ObservationWriter:

@@ -34,6 +34,8 @@ STATIONS_DIR = "stations"
 RIG_DIR = "rig"
 RIG_HISTORY_DIR = "history"
 STATION_FILE = "station.json"
+#: Per-station lock files of running captures and revisits (``<campaign>/.locks/<station>.lock``).
+LOCKS_DIR = ".locks"
 HISTORY_REPORT = "history.html"
 """A station's history report (``fgcd report``), next to its ``station.json``."""
 
@@ -50,6 +52,8 @@ CLOUD = "cloud"
 CLOUD_FILE = f"{CLOUD}.ply"
 RELOCATION_LOG = "relocation.jsonl"
 COARSE_LOG = "coarse.jsonl"
+#: The journal of a revisit in progress, in the station's visits folder (``fgcd relocate --resume``).
+VISIT_JOURNAL = ".in-progress.jsonl"
 SIM_TRUTH = "evaluation/sim_truth.json"
 """The simulator's truth of an observation (evaluation only; the tool never reads it)."""
 

@@ -249,8 +249,15 @@ class Campaign:
         provided it still holds no committed observation.
         """
         name = check_name(name, "station")
-        existed = (self.path / STATIONS_DIR / name).exists()
-        station = self.station_or_create(name, **info)
+        path = self.path / STATIONS_DIR / name
+        existed = path.exists()
+        try:
+            station = self.station_or_create(name, **info)
+        except BaseException:
+            # interrupted while creating it (Ctrl-C during the station.json write): no half-made station
+            if not existed and path.is_dir() and all(p.name.startswith(TMP_PREFIX) for p in path.iterdir()):
+                shutil.rmtree(path, ignore_errors=True)
+            raise
         try:
             yield station
         except BaseException:

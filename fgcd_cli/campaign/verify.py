@@ -23,6 +23,7 @@ from fgcd_cli.campaign.schema import (
     STATION_FILE,
     STATIONS_DIR,
     VISITS_DIR,
+    VISIT_JOURNAL,
 )
 from fgcd_cli.campaign.store import Campaign, Station, open_campaign
 from fgcd_cli.errors import CampaignError, DataIntegrityError
@@ -35,7 +36,7 @@ class Problem:
     """One damaged, missing or unexpected file."""
 
     path: str
-    kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write
+    kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write | interrupted-visit
     detail: str
     severity: str = "error"  # error | warning
 
@@ -224,6 +225,10 @@ def _verify_station(st: Station, report: VerifyReport) -> None:
             report.problems.append(
                 Problem(str(st.path / rel), "unindexed", "observation not recorded in station.json", "warning")
             )
+    journal = st.path / VISITS_DIR / VISIT_JOURNAL
+    if journal.exists():
+        report.problems.append(Problem(str(journal), "interrupted-visit", "a visit was interrupted: "
+                                       "`fgcd relocate --resume` continues it", "warning"))
     for parent in [st.path, st.path / VISITS_DIR]:
         if parent.is_dir():
             for p in parent.iterdir():

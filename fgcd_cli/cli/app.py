@@ -118,6 +118,9 @@ def _platform_error_type():
 
 def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
+    from fgcd_cli.cli.native_stderr import route_native_stderr
+
+    route_native_stderr()  # native libraries' own lines go to a log: stderr stays one line
     try:
         sys.exit(run(app, sys.argv[1:]))
     except SystemExit as exc:

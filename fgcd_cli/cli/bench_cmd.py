@@ -233,3 +233,36 @@ def archive(
             console.print(f"[bold]{key}[/bold] = {value:.3f}")
 
     emit(data, as_json=as_json, render=show)
+
+
+@app.command("faults")
+def faults(
+    quick: bool = typer.Option(False, "--quick", help="3 faults per class instead of 15, without the whole-capture classes."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the fault moments and kinds."),
+    fault: Optional[list[str]] = typer.Option(None, "--fault", help="Only these fault classes (repeatable)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Injected field faults against real fgcd processes and emulated controllers (docs/hardware.md, Faults)."""
+    from fgcd_cli.bench.faults import FAULT_CLASSES, run
+    from fgcd_cli.errors import UserInputError
+
+    unknown = [f for f in fault or [] if f not in FAULT_CLASSES]
+    if unknown:
+        raise UserInputError(f"--fault: unknown class {', '.join(unknown)} (valid: {', '.join(FAULT_CLASSES)})")
+    if not as_json:
+        info("injecting faults…")
+    data = run(quick=quick, seed=seed, classes=tuple(fault) if fault else None,
+               on_progress=None if as_json else (lambda done, total, label: info(f"{done + 1}/{total} {label}")))
+
+    def show(console):
+        for name, s in data["by_class"].items():
+            console.print(f"{name:<24} {s['faults_ok']}/{s['faults_tried']} ok")
+        for row in data["faults"]:
+            if not row["ok"]:
+                console.print(f"[red]{row['fault']} seed {row['seed']}[/red]: exit {row['code']} {row['detail']}")
+        for k, v in data["summary"].items():
+            t = data["targets"].get(k)
+            console.print(f"[bold]{k}[/bold] = {v}" + (f"  (target {'≥' if k.startswith(('faults', 'fault_')) else '='} {t})"
+                                                      if t is not None else ""))
+
+    emit(data, as_json=as_json, render=show)

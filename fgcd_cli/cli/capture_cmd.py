@@ -10,7 +10,7 @@ from fgcd_cli.app.capture import CapturePlan, connection, plan_capture  # noqa: 
 from fgcd_cli.app.relocate import check_relocation_options, visit_lightings, visit_scenario  # noqa: F401
 from fgcd_cli.campaign import open_campaign
 from fgcd_cli.campaign.records import campaign_world, rig_calibration, station_world  # noqa: F401
-from fgcd_cli.cli.output import confirmer, emit, info
+from fgcd_cli.cli.output import ask_line, confirmer, emit, info
 
 
 def print_record(rec) -> None:
@@ -33,7 +33,8 @@ def capture(
     seed: int = typer.Option(None, "--seed", help="Simulator world seed of this station (default: the campaign's; "
                                                    "the seed the hand-eye was calibrated with)."),
     light: str = typer.Option("front", "--light", help="Lighting of the capture (sim; `fgcd sim lights`)."),
-    lightings: str = typer.Option(None, "--lightings", help="Comma-separated lightings for the reference images (default: --light)."),
+    lightings: str = typer.Option(None, "--lightings", help="Comma-separated lightings of the reference images, e.g. ambient,led:3,led:9 "
+                                                                "(default: --light; hardware: the channels of [rig.lights])."),
     port: str = typer.Option(None, "--port", help="Serial port (grbl)."),
     host: str = typer.Option(None, "--host", help="Robot address (ur)."),
     yes: bool = typer.Option(False, "--yes", help="Answer the first-motion confirmation (scripts)."),
@@ -54,11 +55,12 @@ def capture(
     plan = plan_capture(camp, CaptureRequest(station=station, driver=driver, scene=scene, seed=seed, light=light,
                                              lightings=lightings, port=port, host=host))
     with step_progress(enabled=not as_json) as progress:
-        say = info
+        say, ask = info, ask_line
         if progress is not None:
             progress(0, 0, "opening the rig")
-            confirm, say = progress.paused(confirm), progress.lines(info)
-        outcome = run_capture(camp, plan, hooks=RigHooks(confirm=confirm, on_event=say, on_progress=progress))
+            confirm, say, ask = progress.paused(confirm), progress.lines(info), progress.paused(ask_line)
+        outcome = run_capture(camp, plan, hooks=RigHooks(confirm=confirm, ask_light=ask, on_event=say,
+                                                         on_progress=progress))
     result = outcome.result
     emit(outcome.to_dict(), as_json=as_json, render=lambda c: c.print(
         f"Reference of [bold]{station}[/bold] written to {result.observation_path} "
@@ -85,6 +87,8 @@ def relocate(
     max_adjustments: int = typer.Option(12, "--max-adjustments"),
     port: str = typer.Option(None, "--port"),
     host: str = typer.Option(None, "--host"),
+    resume: bool = typer.Option(False, "--resume", help="Continue the station's interrupted visit from its journal "
+                                                        "(or start over cleanly), and say which."),
     yes: bool = typer.Option(False, "--yes", help="Answer the first-motion confirmation (scripts)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
@@ -99,14 +103,14 @@ def relocate(
         station=station, driver=driver, light=light, changes=changes, start_offset_mm=start_offset_mm,
         start_offset_deg=start_offset_deg, session_seed=session_seed, serial=serial, no_handeye=no_handeye,
         no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments, port=port,
-        host=host))
+        host=host, resume=resume))
     # The steps report through plain callbacks: a live bar on stderr (not with --json), lines above it.
     with step_progress(enabled=not as_json) as bar:
-        say = info
+        say, ask = info, ask_line
         if bar is not None:
             bar(0, 0, "opening the rig")
-            confirm, say = bar.paused(confirm), bar.lines(info)
-        outcome = run_revisit(plan, hooks=RigHooks(confirm=confirm, on_event=say, on_progress=bar),
+            confirm, say, ask = bar.paused(confirm), bar.lines(info), bar.paused(ask_line)
+        outcome = run_revisit(plan, hooks=RigHooks(confirm=confirm, ask_light=ask, on_event=say, on_progress=bar),
                               on_record=print_record)
     result = outcome.result
     reloc = result.relocation

@@ -135,3 +135,12 @@ def stdin_is_terminal() -> bool:
         return sys.stdin is not None and sys.stdin.isatty()
     except (ValueError, OSError):  # closed or detached stdin
         return False
+
+
+def ask_line(text: str) -> str:
+    """A question on stderr (``--json`` stdout stays one object) and the answer line; EOFError without stdin."""
+    print(text, end="", file=sys.stderr, flush=True)
+    answer = sys.stdin.readline() if sys.stdin is not None else ""
+    if not answer:
+        raise EOFError
+    return answer

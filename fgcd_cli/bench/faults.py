@@ -1,0 +1,102 @@
+"""``fgcd bench faults``: a seeded fault campaign against real fgcd processes (docs/hardware.md, "Faults").
+
+Sixteen fault classes, each injected at a random moment drawn from the run's
+seed: mid-move motion faults on the GRBL emulator and the fake UR controller
+(:mod:`fgcd_cli.bench.fault_motion`), and campaign faults — SIGINT and SIGKILL
+at random moments and during store writes (``fgcd diff``, ``fgcd capture``), a
+full disk, two revisits of one station at once, a damaged reference (:mod:`fgcd_cli.bench.fault_data`). Each
+outcome is judged by :class:`fgcd_cli.bench.fault_checks.FaultOutcome`.
+
+Summary keys: ``faults_tried``, ``fault_classes``, ``platform_left_moving``,
+``campaign_inconsistent``, ``earlier_data_changed``, ``tracebacks`` (the four
+must be 0), ``unexpected_exit_codes``, ``stderr_not_one_line``, ``faults_ok``.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+from fgcd_cli.bench.fault_checks import FaultOutcome
+from fgcd_cli.bench.fault_data import CAPTURE_FAULTS, DATA_FAULTS, data_fault, prepare_campaign
+from fgcd_cli.bench.fault_motion import GRBL_FAULTS, UR_FAULTS, grbl_fault, ur_fault
+
+__all__ = ["FAULT_CLASSES", "run", "run_fault", "summarize"]
+
+FAULT_CLASSES = GRBL_FAULTS + UR_FAULTS + DATA_FAULTS + CAPTURE_FAULTS
+#: Faults per class: the full run tries 15 x 14 + 3 x 2 = 216 (a simulated capture takes about 90 s: its
+#: classes run a fifth as often); the quick one 3 x 14 = 42, without the capture classes.
+PER_CLASS_FULL, PER_CLASS_QUICK = 15, 3
+
+
+def run_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
+    """Inject one fault of class ``fault`` with ``seed`` and judge it."""
+    if fault in GRBL_FAULTS:
+        return grbl_fault(fault, seed)
+    if fault in UR_FAULTS:
+        from drivers.testing.fake_ur import FakeURProcess
+
+        with FakeURProcess() as fake:  # fixed ports: one at a time, a fresh controller per fault
+            return ur_fault(fault, seed, fake)
+    return data_fault(fault, seed, campaign)
+
+
+def summarize(outcomes: list[FaultOutcome]) -> dict:
+    """The summary keys of the bench over ``outcomes``."""
+    return {
+        "faults_tried": len(outcomes),
+        "fault_classes": len({o.fault for o in outcomes}),
+        "platform_left_moving": sum(o.platform_left_moving for o in outcomes),
+        "campaign_inconsistent": sum(o.campaign_inconsistent for o in outcomes),
+        "earlier_data_changed": sum(o.earlier_data_changed for o in outcomes),
+        "tracebacks": sum(o.traceback for o in outcomes),
+        "unexpected_exit_codes": sum(o.code not in o.expected for o in outcomes),
+        "stderr_not_one_line": sum((o.stderr_lines != 1) if o.one_line_expected else (o.stderr_lines > 1)
+                                   for o in outcomes),
+        "faults_ok": sum(o.ok for o in outcomes),
+    }
+
+
+def run(*, quick: bool = False, seed: int = 0, classes: tuple[str, ...] | None = None,
+        per_class: int | None = None, workdir: Path | None = None,
+        on_progress: Callable[[int, int, str], None] | None = None) -> dict:
+    """Run the fault campaign; a JSON-able dict with ``summary``, ``by_class`` and one row per fault.
+
+    Parameters
+    ----------
+    quick : bool
+        Three faults per class instead of fifteen, the capture classes left out.
+    seed : int
+        The run's seed: fault ``k`` of a class uses seed ``1000 * seed + k``.
+    classes : tuple of str, optional
+        A subset of :data:`FAULT_CLASSES`.
+    per_class : int, optional
+        Overrides the number of faults per class.
+    workdir : Path, optional
+        Where the bench campaign lives (a temporary folder by default).
+    """
+    # the quick form leaves out the whole-capture faults (about 90 s each plus one calibration) unless asked for
+    chosen = tuple(classes or (tuple(c for c in FAULT_CLASSES if c not in CAPTURE_FAULTS) if quick else FAULT_CLASSES))
+    unknown = [c for c in chosen if c not in FAULT_CLASSES]
+    if unknown:
+        raise ValueError(f"unknown fault classes {unknown} (known: {', '.join(FAULT_CLASSES)})")
+    count = per_class or (PER_CLASS_QUICK if quick else PER_CLASS_FULL)
+    started = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="fgcd-faults-") as tmp:
+        campaign = prepare_campaign(Path(workdir or tmp))
+        outcomes: list[FaultOutcome] = []
+        plan = [(fault, k) for k in range(count) for fault in chosen
+                if fault not in CAPTURE_FAULTS or k < max(1, count // 5) or per_class is not None]
+        for fault, k in plan:
+            if on_progress is not None:
+                on_progress(len(outcomes), len(plan), fault)
+            outcomes.append(run_fault(fault, 1000 * seed + k, campaign))
+    summary = summarize(outcomes)
+    summary["seconds"] = round(time.monotonic() - started, 1)
+    by_class = {c: summarize([o for o in outcomes if o.fault == c]) for c in chosen}
+    return {"bench": "faults", "quick": quick, "seed": seed, "summary": summary,
+            "targets": {"faults_tried": 200, "fault_classes": 10, "platform_left_moving": 0,
+                        "campaign_inconsistent": 0, "earlier_data_changed": 0, "tracebacks": 0},
+            "by_class": by_class, "faults": [o.to_dict() for o in outcomes]}

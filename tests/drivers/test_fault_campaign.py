@@ -1,0 +1,45 @@
+"""A seeded subset of `fgcd bench faults` in the default run: one fault of most classes, judged like the bench.
+
+Uses the fake UR controller (fixed ports): must not run in parallel with the other UR tests.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from fgcd_cli.bench.faults import FAULT_CLASSES, run, summarize
+
+pytestmark = pytest.mark.timeout(600)
+
+#: One fault each of these classes, seed 7 (about 45 s on 2 busy cores); the full bench runs all 14 classes.
+SUBSET = ("grbl_link_dropped", "grbl_hard_limit", "ur_emergency_stop", "sigkill_during_write",
+          "enospc_during_write", "two_relocates_at_once", "damaged_reference")
+
+
+def test_a_seeded_subset_of_the_fault_campaign_leaves_everything_consistent(tmp_path):
+    data = run(seed=7, classes=SUBSET, per_class=1, workdir=tmp_path)
+    bad = [row for row in data["faults"] if not row["ok"]]
+    assert not bad, bad
+    s = data["summary"]
+    assert s["faults_tried"] == len(SUBSET) and s["fault_classes"] == len(SUBSET)
+    for key in ("platform_left_moving", "campaign_inconsistent", "earlier_data_changed", "tracebacks"):
+        assert s[key] == 0, key
+    by = {row["fault"]: row for row in data["faults"]}
+    assert by["two_relocates_at_once"]["code"] == 3 and "in use by another fgcd" in by["two_relocates_at_once"]["detail"]
+    assert by["damaged_reference"]["code"] == 4 and by["damaged_reference"]["damaged"] in \
+        by["damaged_reference"]["detail"]
+
+
+def test_the_judge_counts_what_went_wrong():
+    from fgcd_cli.bench.fault_checks import FaultOutcome
+
+    good = FaultOutcome(fault="grbl_alarm", seed=0, command="x", code=7, expected=(7,), stderr_lines=1,
+                        traceback=False)
+    moving = FaultOutcome(fault="grbl_alarm", seed=1, command="x", code=7, expected=(7,), stderr_lines=1,
+                          traceback=False, platform_left_moving=True)
+    chatty = FaultOutcome(fault="ur_frozen", seed=0, command="x", code=7, expected=(7,), stderr_lines=8,
+                          traceback=True)
+    s = summarize([good, moving, chatty])
+    assert (s["faults_tried"], s["fault_classes"], s["platform_left_moving"], s["tracebacks"],
+            s["stderr_not_one_line"], s["faults_ok"]) == (3, 2, 1, 1, 1, 1)
+    assert len(FAULT_CLASSES) == 16
