@@ -82,12 +82,20 @@ _UR_TOOL_ACC_MAX = 150.0
 
 
 def has_abandoned_interfaces() -> bool:
-    """True when a hung controller's ur_rtde interfaces were abandoned in this process.
+    """True when a hung or disconnected controller's ur_rtde interfaces were abandoned in this process.
 
     Their native threads may keep reconnecting forever, so a normal interpreter
     exit would wait for them: the CLI ends the process with ``os._exit`` instead.
     """
     return bool(_ABANDONED)
+
+
+def _links_up(c, r) -> bool:
+    """True when both ur_rtde interfaces report a live connection."""
+    try:
+        return bool(c.isConnected()) and (r is None or bool(r.isConnected()))
+    except RuntimeError:
+        return False
 
 
 def pose_to_vector(T: np.ndarray) -> list[float]:
@@ -264,10 +272,11 @@ class URPlatform:
         """
         c, r = self._rtde_c, self._rtde_r
         self._rtde_c = self._rtde_r = None
-        if c is not None and self._hung(r):
-            # A hung controller: ur_rtde's stopL/disconnect on such a link block with
-            # no timeout. Never touch these interfaces again; keep them referenced so
-            # their destructors do not run either.
+        if c is not None and (self._hung(r) or not _links_up(c, r)):
+            # A hung controller or a dropped link: ur_rtde's stopL/disconnect block with
+            # no timeout on the first, and race its own native reconnect thread on the
+            # second (a crash inside the library). Never touch these interfaces again;
+            # keep them referenced so their destructors do not run either.
             _ABANDONED.append((c, r))
             return
         try:
@@ -438,23 +447,36 @@ class URPlatform:
             time.sleep(self.config.poll_s)
 
     def stop(self) -> None:
-        """stopL now (safe from any thread); the move in progress ends."""
+        """Stop the arm now (safe from any thread); the move in progress ends.
+
+        Over RTDE with ``stopL`` while the link and the control script are up;
+        otherwise (the link dropped, a hung stream, ``stopL`` not sent in time)
+        through the dashboard server's ``stop`` command on a fresh connection, which
+        stops the running program and with it the motion (UR dashboard server
+        protocol; docs/hardware.md, faults).
+        """
         self._stop_requested.set()
         c = self._rtde_c
-        if c is None or self._hung(self._rtde_r):
-            return  # nothing can be sent to a hung controller (and ur_rtde would block)
+        sent = threading.Event()
+        if c is not None and not self._hung(self._rtde_r):
 
-        def send_stop() -> None:
+            def send_stop() -> None:
+                try:
+                    if c.isConnected() and c.isProgramRunning():
+                        c.stopL(self.config.max_linear_acc_m_s2 * 2.0)
+                        sent.set()
+                except RuntimeError:
+                    pass
+
+            # In a daemon thread: ur_rtde may block in its reconnect loop (see URConfig.stop_timeout_s).
+            sender = threading.Thread(target=send_stop, name="fgcd-ur-stop", daemon=True)
+            sender.start()
+            sender.join(self.config.stop_timeout_s)
+        if not sent.is_set():
             try:
-                if c.isConnected() and c.isProgramRunning():
-                    c.stopL(self.config.max_linear_acc_m_s2 * 2.0)
-            except RuntimeError:
-                pass
-
-        # In a daemon thread: ur_rtde may block in its reconnect loop (see URConfig.stop_timeout_s).
-        sender = threading.Thread(target=send_stop, name="fgcd-ur-stop", daemon=True)
-        sender.start()
-        sender.join(self.config.stop_timeout_s)
+                self._dashboard_command("stop")
+            except PlatformConnectionError:
+                pass  # nothing reaches the controller: the caller's error says the link is lost
 
     def home(self) -> None:
         """A UR arm has no homing cycle: its home is a taught pose, reached by moves."""
@@ -464,11 +486,15 @@ class URPlatform:
 
     def unlock_protective_stop(self) -> str:
         """Ask the dashboard to release a protective stop (a person checked the cause)."""
+        return self._dashboard_command("unlock protective stop")
+
+    def _dashboard_command(self, text: str) -> str:
+        """One dashboard-server command on a fresh connection (plain socket, with a timeout); its answer."""
         try:
             with socket.create_connection((self.config.host, 29999), timeout=self.config.preflight_timeout_s) as sock:
                 sock.settimeout(self.config.preflight_timeout_s)
                 sock.recv(256)
-                sock.sendall(b"unlock protective stop\n")
+                sock.sendall(text.encode() + b"\n")
                 return sock.recv(256).decode(errors="replace").strip()
         except OSError as exc:
             raise PlatformConnectionError(f"dashboard at {self.config.host} unreachable: {exc}") from None

@@ -216,6 +216,8 @@ def _serve_dashboard(ctrl: FakeController, conn: socket.socket) -> None:
                     continue
                 if text.lower() == "unlock protective stop":
                     ctrl.set_safety(1)
+                if text.lower() == "stop":
+                    ctrl.stop_program()
                 if text.lower() == "safetystatus":
                     bits = ctrl.safety_bits
                     status = "PROTECTIVE_STOP" if bits & 4 else ("ROBOT_EMERGENCY_STOP" if bits & 0xE0 else "NORMAL")

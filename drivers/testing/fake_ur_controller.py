@@ -132,6 +132,17 @@ class FakeController:
             self.motion = None
             self.speed = np.zeros(6)
 
+    def stop_program(self) -> None:
+        """The dashboard's ``stop``: the motion ends where the arm is, the control script stops."""
+        self.step()
+        with self.lock:
+            self.motion = None
+            self.speed = np.zeros(6)
+            self.program_running = False
+            self.reg_out_int[0] = 0
+            self.cmd_state = "idle"
+            self.done_at = None
+
     # ------------------------------------------------------------------ commands
     def command(self, values: dict[str, float | int]) -> None:
         """A data package of an input recipe: ur_rtde's command protocol."""
