@@ -50,7 +50,7 @@ _ABANDONED: list = []
 
 __all__ = [
     "URConfig", "URPlatform", "preflight", "pose_to_vector", "vector_to_pose", "safety_problem",
-    "has_abandoned_interfaces",
+    "abandoned_interface_count",
 ]
 
 #: Variables the receive interface asks for (less traffic than the default set).
@@ -81,13 +81,13 @@ _UR_TOOL_SPEED_MAX = 3.0
 _UR_TOOL_ACC_MAX = 150.0
 
 
-def has_abandoned_interfaces() -> bool:
-    """True when a hung or disconnected controller's ur_rtde interfaces were abandoned in this process.
+def abandoned_interface_count() -> int:
+    """How many hung or dropped controllers' ur_rtde interface pairs this process abandoned so far.
 
-    Their native threads may keep reconnecting forever, so a normal interpreter
-    exit would wait for them: the CLI ends the process with ``os._exit`` instead.
+    Their native threads may reconnect forever, so a normal interpreter exit would wait for
+    them: a command that abandoned one (the count grew) ends its process with ``os._exit``.
     """
-    return bool(_ABANDONED)
+    return len(_ABANDONED)
 
 
 def _links_up(c, r) -> bool:

@@ -121,10 +121,13 @@ def main() -> None:
     from fgcd_cli.cli.native_stderr import route_native_stderr
 
     route_native_stderr()  # native libraries' own lines go to a log: stderr stays one line
+    abandoned_before = _abandoned_native_interfaces()
     try:
         sys.exit(run(app, sys.argv[1:]))
     except SystemExit as exc:
-        if _abandoned_native_threads():
+        # Rule: only the command that abandoned interfaces ends the process at once; a
+        # host process (a test session, a notebook) that abandoned some earlier goes on.
+        if _abandoned_native_interfaces() > abandoned_before:
             # A hung UR controller left ur_rtde threads reconnecting forever inside
             # native code: a normal interpreter exit would wait for them.
             code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
@@ -134,9 +137,9 @@ def main() -> None:
         raise
 
 
-def _abandoned_native_threads() -> bool:
+def _abandoned_native_interfaces() -> int:
     ur = sys.modules.get("drivers.ur")
-    return ur is not None and ur.has_abandoned_interfaces()
+    return 0 if ur is None else ur.abandoned_interface_count()
 
 
 def run(typer_app: typer.Typer, args: Sequence[str]) -> int:

@@ -16,7 +16,7 @@ from drivers.grbl.protocol import (
     parse_status,
 )
 from drivers.manual import ManualPlatform
-from drivers.ur import has_abandoned_interfaces
+from drivers.ur import abandoned_interface_count
 
 
 def test_platform_spec_defaults_and_the_one_call_form():
@@ -31,8 +31,46 @@ def test_platform_spec_defaults_and_the_one_call_form():
         PlatformSpec(sim_rigg=manual)
 
 
-def test_ur_abandoned_accessor():
-    assert has_abandoned_interfaces() is False
+def test_ur_abandoned_accessor(monkeypatch):
+    import drivers.ur as ur
+
+    monkeypatch.setattr(ur, "_ABANDONED", [])
+    assert abandoned_interface_count() == 0
+    ur._ABANDONED.append((None, None))
+    assert abandoned_interface_count() == 1
+
+
+def test_interfaces_abandoned_before_a_command_do_not_end_the_host_process(monkeypatch, capsys):
+    # A test session (or any host) in which a UR link was abandoned earlier: a later
+    # in-process command must return through SystemExit, not os._exit the host.
+    import drivers.ur as ur
+    from fgcd_cli.cli import app as cli_app
+
+    monkeypatch.setattr(ur, "_ABANDONED", [(None, None)])
+    monkeypatch.setattr(cli_app.os, "_exit", lambda code: pytest.fail(f"os._exit({code}) ended the host process"))
+    monkeypatch.setattr(cli_app.sys, "argv", ["fgcd", "sim", "scenes", "--json"])
+    with pytest.raises(SystemExit) as exc:
+        cli_app.main()
+    assert exc.value.code in (0, None)
+
+
+def test_a_command_that_abandons_interfaces_ends_its_process_at_once(monkeypatch):
+    import drivers.ur as ur
+    from fgcd_cli.cli import app as cli_app
+
+    monkeypatch.setattr(ur, "_ABANDONED", [])
+    exits = []
+
+    def run_abandoning(_app, _args):
+        ur._ABANDONED.append((None, None))  # what URPlatform.close does on a hung or dropped link
+        return 7
+
+    monkeypatch.setattr(cli_app, "run", run_abandoning)
+    monkeypatch.setattr(cli_app.os, "_exit", exits.append)
+    monkeypatch.setattr(cli_app.sys, "argv", ["fgcd", "platform", "check"])
+    with pytest.raises(SystemExit):
+        cli_app.main()
+    assert exits == [7]
 
 
 def test_grbl_line_classes():
