@@ -2,8 +2,10 @@
 
 Every camera of fgcd (a USB/industrial device through OpenCV, the simulator's
 camera) offers the same small interface,
-:class:`CameraSource`: ``grab()`` returns a :class:`Frame`, ``intrinsics_nominal``
-the intrinsics the camera advertises (which calibration refines), ``close()``.
+:class:`CameraSource`: ``grab()`` returns a :class:`Frame` of the stream the
+VSE tracks, ``grab_still()`` a still of the quality an observation stores (a
+still camera's capture rather than its live view), ``intrinsics_nominal`` the
+intrinsics the camera advertises (which calibration refines), ``close()``.
 
 Drivers never import ``fgcd_cli``; everything here is plain numpy data and the
 shared bottom layer :mod:`fgcd_core` (intrinsics, grey conversion).
@@ -64,7 +66,10 @@ class CameraSource(Protocol):
         """Intrinsics the camera advertises (datasheet or last calibration)."""
 
     def grab(self) -> Frame:
-        """Take one frame now."""
+        """Take one frame of the stream now."""
+
+    def grab_still(self) -> Frame:
+        """Take one still now: what a reference or a visit stores (same size and intrinsics as ``grab``)."""
 
     def close(self) -> None:
         """Release the device."""
@@ -118,6 +123,10 @@ class OpenCVCamera:
         rgb = cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if img.ndim == 3 else None
         gray = to_gray_f32(rgb if rgb is not None else img, channels=GrayChannels.LUMA_601_F32)
         return Frame(gray, time.monotonic() - self._t0, None, rgb)
+
+    def grab_still(self) -> Frame:
+        """A device read through OpenCV has one stream: a still is its next frame."""
+        return self.grab()
 
     def close(self) -> None:
         self._cap.release()

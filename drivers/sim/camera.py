@@ -90,6 +90,12 @@ class SimCameraOptions:
         Simulated time each grab takes (advances the clock).
     seed : int
         Noise seed.
+    still_supersample : int
+        Samples per pixel axis of a still (:meth:`SimCamera.grab_still`): a real
+        sensor integrates the light over each pixel's area, a point-sampled render
+        does not, and one bright or dark pixel of an edge-on surface then flips
+        with a sub-pixel move (``docs/simulator.md``, "Stills"). Stream frames
+        stay point-sampled (one ray per pixel) for speed.
     """
 
     intrinsics_true: CameraIntrinsics = DEFAULT_INTRINSICS
@@ -100,6 +106,7 @@ class SimCameraOptions:
     with_rgb: bool = False
     frame_period_s: float = 0.0
     seed: int = 0
+    still_supersample: int = 2
 
 
 class SimCamera:
@@ -133,6 +140,7 @@ class SimCamera:
         self._rng = np.random.default_rng([o.seed, 0xCA3])
         self.last_exposure: float | None = None
         self._closed = False
+        self._still_renderer = None
         # rendering time, for the rig-time model: finished renders, and the start of those in
         # progress by thread (the VSE thread and a caller grabbing images may render at once)
         self._render_lock = threading.Lock()
@@ -144,6 +152,19 @@ class SimCamera:
         return self._intr_nominal
 
     def grab(self) -> Frame:
+        return self._render_frame(self.world.renderer)
+
+    def grab_still(self) -> Frame:
+        """One still: the pixel area integrated over ``still_supersample``² samples (box filter)."""
+        s = int(self.options.still_supersample)
+        renderer = self.world.renderer
+        if s > 1 and renderer.supersample != s:
+            if self._still_renderer is None:
+                self._still_renderer = renderer.with_supersample(s)
+            renderer = self._still_renderer
+        return self._render_frame(renderer)
+
+    def _render_frame(self, renderer) -> Frame:
         if self._closed:
             raise CameraError("simulated camera is closed")
         T = self._pose_fn()
@@ -153,7 +174,7 @@ class SimCamera:
         with self._render_lock:
             self._render_started[me] = start
         try:
-            res = self.world.renderer.render(T, self._intr_true, self.lights.lighting, changes=self.world.changes,
+            res = renderer.render(T, self._intr_true, self.lights.lighting, changes=self.world.changes,
                                              exposure=self.exposure, effects=self.effects, rng=self._rng, want=want)
         finally:
             with self._render_lock:

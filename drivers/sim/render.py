@@ -19,6 +19,7 @@ The camera response (exposure, vignetting, noise, gamma) is applied by
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -174,6 +175,18 @@ class Renderer:
         self._ray_cache: dict = {}
 
     # ------------------------------------------------------------------ rays
+    def with_supersample(self, supersample: int) -> "Renderer":
+        """This renderer (same ray-casting scene and textures, shared) shading ``supersample``² rays per pixel.
+
+        The copy has its own ray cache, so that two threads can render with the two at once.
+        """
+        if supersample < 1:
+            raise ValueError("supersample must be >= 1")
+        twin = copy.copy(self)
+        twin.supersample = int(supersample)
+        twin._ray_cache = {}
+        return twin
+
     def camera_rays(self, intrinsics: CameraIntrinsics, factor: int = 1) -> np.ndarray:
         """(H*f*W*f, 3) float32 ray directions in the camera frame with z = 1 (cached).
 

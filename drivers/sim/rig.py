@@ -84,7 +84,8 @@ class SimRigConfig:
     intrinsics_nominal : what the camera advertises.
     effects : sensor effects (default: vignetting + noise + gamma); ``noise="none"``
         also makes the sensor noiseless unless effects are given.
-    supersample : renderer anti-aliasing samples per axis.
+    supersample : renderer anti-aliasing samples per axis (stream frames).
+    still_supersample : samples per pixel axis of the camera's stills (``SimCameraOptions``).
     with_depth, with_rgb : extra frame outputs.
     exposure : ``"auto"`` or a fixed value.
     dof : 6 or 3.
@@ -102,6 +103,7 @@ class SimRigConfig:
     intrinsics_nominal: CameraIntrinsics = DEFAULT_INTRINSICS
     effects: CameraEffects | None = None
     supersample: int = 1
+    still_supersample: int = 2
     with_depth: bool = False
     with_rgb: bool = False
     exposure: float | str = "auto"
@@ -150,7 +152,7 @@ def build_sim_rig(*, scene: str, config: SimRigConfig | None = None) -> SimRig:
     camera_seed = int(rng.integers(1 << 31))
     options = SimCameraOptions(intrinsics_true=intr_true, intrinsics_nominal=c.intrinsics_nominal, effects=effects,
                                exposure=c.exposure, with_depth=c.with_depth, with_rgb=c.with_rgb,
-                               seed=camera_seed + 7919 * c.session_seed)
+                               seed=camera_seed + 7919 * c.session_seed, still_supersample=c.still_supersample)
     camera = SimCamera(world=world, pose_fn=gt.T_world_cam_true, lights=lights, clock=clock, options=options)
     platform.connect()
     return SimRig(platform=platform, camera=camera, lights=lights, clock=clock, ground_truth=gt, world=world)

@@ -62,7 +62,7 @@ class RigHandles:
     Attributes
     ----------
     guard : drivers.platform.MotionGuard
-    camera_source : object with ``grab()``
+    camera_source : object with ``grab()`` (stream) and ``grab_still()`` (observation stills)
     intrinsics : PinholeCamera
     T_flange_cam : (4, 4) ndarray
         Hand-eye from calibration (identity with ``--no-handeye``).

@@ -27,7 +27,7 @@ def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> d
         acc = None
         for i in range(frames):
             rig.progress(k * frames + i, len(lightings) * frames, "images under each lighting")
-            frame = rig.camera_source.grab()
+            frame = rig.camera_source.grab_still()
             img = frame.rgb if getattr(frame, "rgb", None) is not None else frame.image
             img = to_float01(np.asarray(img)).astype(np.float64)  # by the frame's declared dtype
             acc = img if acc is None else acc + img

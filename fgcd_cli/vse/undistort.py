@@ -57,7 +57,13 @@ class UndistortedSource:
         self.undistorter = undistorter
 
     def grab(self) -> UndistortedFrame:
-        f = self.source.grab()
+        return self._undistorted(self.source.grab())
+
+    def grab_still(self) -> UndistortedFrame:
+        """A still of the wrapped camera (``drivers.cameras.CameraSource.grab_still``), undistorted."""
+        return self._undistorted(self.source.grab_still())
+
+    def _undistorted(self, f) -> UndistortedFrame:
         u = self.undistorter
         depth = getattr(f, "depth", None)
         rgb = getattr(f, "rgb", None)
