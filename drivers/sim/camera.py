@@ -21,6 +21,7 @@ from drivers.sim.world import SimLights, SimWorld
 __all__ = [
     "SimCamera",
     "SimCameraOptions",
+    "STILL_SUPERSAMPLE",
     "IntrinsicsErrorLevel",
     "DEFAULT_INTRINSICS",
     "perturbed_intrinsics",
@@ -70,6 +71,10 @@ def perturbed_intrinsics(nominal: CameraIntrinsics, level: str | float, rng: np.
     )
 
 
+#: Samples per pixel axis of a simulated still (:attr:`SimCameraOptions.still_supersample`).
+STILL_SUPERSAMPLE = 2
+
+
 @dataclass(frozen=True, kw_only=True)
 class SimCameraOptions:
     """What a :class:`SimCamera` is, besides the world it looks at.
@@ -106,7 +111,7 @@ class SimCameraOptions:
     with_rgb: bool = False
     frame_period_s: float = 0.0
     seed: int = 0
-    still_supersample: int = 2
+    still_supersample: int = STILL_SUPERSAMPLE
 
 
 class SimCamera:

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.cameras import CameraIntrinsics
-from drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, SimCamera, SimCameraOptions, perturbed_intrinsics
+from drivers.sim.camera import (DEFAULT_EFFECTS, DEFAULT_INTRINSICS, STILL_SUPERSAMPLE, SimCamera, SimCameraOptions,
+                               perturbed_intrinsics)
 from drivers.sim.groundtruth import GroundTruth
 from drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
 from drivers.sim.render import CameraEffects, Renderer
@@ -103,7 +104,7 @@ class SimRigConfig:
     intrinsics_nominal: CameraIntrinsics = DEFAULT_INTRINSICS
     effects: CameraEffects | None = None
     supersample: int = 1
-    still_supersample: int = 2
+    still_supersample: int = STILL_SUPERSAMPLE
     with_depth: bool = False
     with_rgb: bool = False
     exposure: float | str = "auto"
