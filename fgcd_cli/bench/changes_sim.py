@@ -19,7 +19,6 @@ import numpy as np
 
 from drivers.cameras import CameraIntrinsics
 from drivers.sim.changes import random_changes
-from drivers.sim.camera import STILL_SUPERSAMPLE
 from drivers.sim.render import CameraEffects, Renderer
 from drivers.sim.scenes import load_scene
 from fgcd_cli.changes.config import DetectionConfig
@@ -79,7 +78,7 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
     w, h = (480, 360) if quick else (640, 480)
     intr = CameraIntrinsics(fx=1200.0, fy=1200.0, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
     scene = load_scene(RELOCATED_SCENE)
-    renderer = Renderer(scene, supersample=STILL_SUPERSAMPLE)  # the pairs are stills (docs/simulator.md, "Stills")
+    renderer = Renderer(scene)
     T_ref = np.asarray(scene.default_T_world_cam, dtype=float)
     ref_effects = CameraEffects(read_noise=0.003, shot_noise=0.004)
     cur_effects = CameraEffects(read_noise=0.003, shot_noise=0.004, vignetting=0.2)
@@ -141,7 +140,7 @@ def run_sim(*, quick: bool, seeds: tuple[int, ...] | None = None, scenes: tuple[
     pairs, false_regions = [], []
     for scene_name in scenes:
         scene = load_scene(scene_name)
-        renderer = Renderer(scene, supersample=STILL_SUPERSAMPLE)  # the pairs are stills (docs/simulator.md, "Stills")
+        renderer = Renderer(scene)
         T_ref = np.asarray(scene.default_T_world_cam, dtype=float)
         ref_effects = CameraEffects(read_noise=0.003, shot_noise=0.004)
         cur_effects = CameraEffects(read_noise=0.003, shot_noise=0.004, vignetting=0.2)
