@@ -17,8 +17,10 @@ import numpy as np
 
 from fgcd_cli.app.capture import CaptureResult
 from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
+from fgcd_cli.app.guided_start import start_revisit_session
 from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
-from fgcd_cli.app.scenario import Driver, SimScenario, check_driver, check_lighting, check_scenario, check_scene
+from fgcd_cli.app.scenario import (Driver, SimScenario, check_driver, check_lighting, check_method, check_scenario,
+                                   check_scene)
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
 from fgcd_cli.app.session import (
     grab_gray_under,
@@ -26,7 +28,6 @@ from fgcd_cli.app.session import (
     load_reference,
     measurement_lighting,
     reference_images,
-    start_session,
 )
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import rig_calibration, station_world
@@ -61,6 +62,8 @@ class RelocateRequest:
         Exploration legs of the session start.
     metadata : dict or None
         Extra entries of the visit's manifest metadata.
+    guided : bool
+        Explore toward the image localizer's estimate of the reference (:mod:`fgcd_cli.app.guided_start`).
     coarse : CoarseConfig or None
         The active coarse stage's options (paper 001); None leaves it out (the
         loop then pauses on a far start).
@@ -76,6 +79,7 @@ class RelocateRequest:
     lightings: list[str]
     explore_m: float = 0.04
     explore_legs: int = 3
+    guided: bool = False
     metadata: dict | None = None
     coarse: CoarseConfig | None = field(default_factory=CoarseConfig)
     earlier_log: tuple[dict, ...] = ()
@@ -121,7 +125,8 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
     ref_index = ReferenceIndex(reference.points, intensities=reference.intensities,
                                view=(reference.T_ref_camref, rig.intrinsics))
     rig.progress(0, 0, "starting the VSE")
-    session, vse, scale, _ = start_session(rig, explore_m=request.explore_m, legs=request.explore_legs)
+    session, vse, scale = start_revisit_session(rig, station, reference, explore_m=request.explore_m,
+                                                legs=request.explore_legs, guided=request.guided)
     try:
         start = CoarseStart(rig=rig, session=session, reference=reference, ref_index=ref_index, station=station,
                             scale=scale.scale, evaluate=hooks.evaluate)
@@ -278,6 +283,8 @@ class RevisitRequest:
         None: the method's own budget (12 for rACR, 30 for ACR).
     method : str
         ``racr``, ``acr`` or ``acr-h`` (:class:`RelocationMethod`).
+    guided : bool
+        rACR: explore toward the image localizer's estimate of the reference.
     port, host : str or None
         Address of a GRBL stage / UR arm (None: campaign.toml ``[rig]``).
     resume : bool
@@ -302,6 +309,7 @@ class RevisitRequest:
     host: str | None = None
     resume: bool = False
     method: str = RelocationMethod.RACR
+    guided: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -362,14 +370,6 @@ def check_relocation_options(*, changes: int, eta: float, max_adjustments: int |
     for option, value in (("--start-offset-mm", start_offset_mm), ("--start-offset-deg", start_offset_deg)):
         if not (math.isfinite(value) and value >= 0):
             raise UserInputError(f"{option} must be a number >= 0, got {value}")
-
-
-def check_method(method: str) -> RelocationMethod:
-    """The relocation method named by ``--method`` (UserInputError naming the valid ones)."""
-    try:
-        return RelocationMethod(method)
-    except ValueError:
-        raise UserInputError(f"--method must be one of {', '.join(RelocationMethod)}, got {method!r}") from None
 
 
 def visit_scenario(campaign, reference, *, light: str, changes: int, start_offset_mm: float, start_offset_deg: float,
@@ -478,6 +478,7 @@ def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
             earlier_log=tuple(decision.records),
             method=plan.method,
             acr=plan.acr,
+            guided=r.guided,
         )
 
         def record(rec: AdjustmentRecord) -> None:

@@ -10,6 +10,8 @@ Experiments (each run is one relocation, :mod:`fgcd_cli.bench.paper_runs`):
   the visit under the LED at 1-12 o'clock, rACR and ACR.
 * **table3**: rACR without hand-eye (``X = I``) on the same cases (paper Table 3,
   ``rACR_w/oX``; ACR always takes ``X = I``).
+* **revisit**: rACR with the guided exploration (issue 21, item 3), parallel and
+  serial, on the same cases.
 
 Resumable: every run's result is written atomically as
 ``<out>/runs/<experiment>/<case>__<label>.json`` and a re-run skips the runs
@@ -32,7 +34,7 @@ from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
 
 __all__ = ["EXPERIMENTS", "QUICK", "plan", "run", "summarise"]
 
-EXPERIMENTS = ("table2", "table5", "fig7", "table3")
+EXPERIMENTS = ("table2", "table5", "fig7", "table3", "revisit")
 #: ``--quick``: a subset sized for <= 30 min on 2 cores (docs/benchmarks.md has the measured time).
 QUICK = {"cases": ("indoor-2", "outdoor-1"), "fig7_scenes": ("relief_panel",), "fig7_clock": (3, 6, 9)}
 FIG7_REFERENCE = "led:12"
@@ -47,17 +49,18 @@ def _world(case) -> World:
 def _case_runs(experiments: tuple[str, ...], cases) -> list[RunSpec]:
     """Table 2 (rACR and ACR), Table 5 (rACR serial), Table 3 (rACR without hand-eye) on the relocation cases."""
     runs = []
-    variants = {"table2": [("racr", RelocationMethod.RACR, LoopMode.PARALLEL, False),
-                           ("acr", RelocationMethod.ACR, LoopMode.PARALLEL, False)],
-                "table5": [("racr-serial", RelocationMethod.RACR, LoopMode.SERIAL, False)],
-                "table3": [("racr-no-handeye", RelocationMethod.RACR, LoopMode.PARALLEL, True)]}
+    racr, par, ser = RelocationMethod.RACR, LoopMode.PARALLEL, LoopMode.SERIAL
+    variants = {"table2": [("racr", racr, par, False, False), ("acr", RelocationMethod.ACR, par, False, False)],
+                "table5": [("racr-serial", racr, ser, False, False)],
+                "table3": [("racr-no-handeye", racr, par, True, False)],
+                "revisit": [("racr-guided", racr, par, False, True), ("racr-serial-guided", racr, ser, False, True)]}
     for case in cases:
         for experiment in experiments:
-            for label, method, mode, no_x in variants.get(experiment, []):
+            for label, method, mode, no_x, guided in variants.get(experiment, []):
                 runs.append(RunSpec(experiment=experiment, case=case.name, label=label, world=_world(case),
                                     reference_light=case.reference_light, visit_light=case.visit_light,
                                     offset_mm=case.offset_mm, offset_deg=case.offset_deg, method=method, mode=mode,
-                                    no_handeye=no_x))
+                                    no_handeye=no_x, guided=guided))
     return runs
 
 
@@ -175,6 +178,8 @@ def summarise(results: list[dict]) -> dict:
     ser_s = summary["racr_serial_mean_rig_s"]
     summary["parallel_over_serial_speedup"] = ser_s / par_s if par_s > 0 else math.nan
     summary.update(_method_summary(_rows(results, "table3", "racr-no-handeye"), "racr_no_handeye"))
+    summary.update(_method_summary(_rows(results, "revisit", "racr-guided"), "racr_guided"))
+    summary.update(_method_summary(_rows(results, "revisit", "racr-serial-guided"), "racr_serial_guided"))
     sweep = _rows(results, "fig7", "racr")
     summary["led_sweep_runs"] = len(sweep)
     summary["led_sweep_success_rate"] = (sum(bool(r.get("success")) for r in sweep) / len(sweep)) if sweep else math.nan

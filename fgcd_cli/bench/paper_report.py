@@ -68,6 +68,28 @@ def _summary_table(summary: dict, paper: dict) -> list[str]:
             f"{paper['acr_mean_rig_s']} | – |", ""]
 
 
+VARIANTS = (("racr", "rACR, parallel (Table 2)"), ("acr", "ACR (Table 2)"), ("racr_serial", "rACR, serial (Table 5)"),
+            ("racr_no_handeye", "rACR, X = I (Table 3)"), ("racr_guided", "rACR, parallel, guided exploration"),
+            ("racr_serial_guided", "rACR, serial, guided exploration"))
+
+
+def _variants_table(summary: dict) -> list[str]:
+    """Every variant that ran: success, AFD, adjustments, rig time and the platform's share of it."""
+    lines = ["### Every variant (means over its runs; rig time at the paper's 1.5 s/cm)", "",
+             "| variant | runs | success | mean AFD (px) | adjustments | rig time (s) | platform (s) | platform share |",
+             "|---|---|---|---|---|---|---|---|"]
+    for key, name in VARIANTS:
+        n = summary.get(f"{key}_runs", 0)
+        if not n:
+            continue
+        rig, plat = summary.get(f"{key}_mean_rig_s"), summary.get(f"{key}_mean_platform_s")
+        share = plat / rig if rig and plat is not None and rig > 0 else None
+        lines.append(f"| {name} | {n} | {_f(summary.get(f'{key}_success_rate'), '{:.0%}')} | "
+                     f"{_f(summary.get(f'{key}_mean_afd_px'))} | {_f(summary.get(f'{key}_mean_iterations'), '{:.1f}')} | "
+                     f"{_f(rig, '{:.1f}')} | {_f(plat, '{:.1f}')} | {_f(share, '{:.0%}')} |")
+    return lines + [""]
+
+
 def _table5(summary: dict, paper: dict) -> list[str]:
     s = summary
     if not s.get("racr_serial_runs"):
@@ -99,7 +121,7 @@ def markdown(data: dict) -> str:
     """The tables of ``<out>/paper.md``."""
     results, summary = data["runs"], data["summary"]
     lines = ["## fgcd bench paper", ""] + _summary_table(summary, data["paper"]) + _table2(results) + [""]
-    lines += _table5(summary, data["paper"]) + _fig7(results)
+    lines += _table5(summary, data["paper"]) + _variants_table(summary) + _fig7(results)
     errors = [r for r in results if "error" in r]
     if errors:
         lines += ["### Runs that paused", ""] + [f"- {r['experiment']} {r['case']} {r['label']}: {r['error']}"

@@ -53,6 +53,8 @@ class RunSpec:
         rACR's parallel or serial loop (ignored by ACR).
     no_handeye : bool
         rACR with ``X = I`` (paper Table 3, ``rACR_w/oX``).
+    guided : bool
+        rACR exploring toward the image localizer's estimate (issue 21, the faster revisit).
     """
 
     experiment: str
@@ -66,6 +68,7 @@ class RunSpec:
     method: RelocationMethod = RelocationMethod.RACR
     mode: LoopMode = LoopMode.PARALLEL
     no_handeye: bool = False
+    guided: bool = False
     session_seed: int = 1
 
     def path(self, out: Path) -> Path:
@@ -156,7 +159,7 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=camera)
     ev = RelocationEvaluator.from_reference(rig.sim, station.reference())
     result = {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
-              "mode": str(spec.mode), "no_handeye": spec.no_handeye, "scene": w.scene, "seed": w.seed,
+              "mode": str(spec.mode), "no_handeye": spec.no_handeye, "guided": spec.guided, "scene": w.scene, "seed": w.seed,
               "reference_light": spec.reference_light, "visit_light": spec.visit_light,
               "start_err_mm": ev.evaluate()["pose_err_mm"], "start_afd_px": ev.evaluate()["afd_px"]}
     t0 = time.monotonic()
@@ -165,7 +168,7 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
             rig.handles, station,
             RelocateRequest(config=RelocationConfig(mode=spec.mode),
                             lightings=[spec.visit_light, spec.reference_light], coarse=CoarseConfig(),
-                            method=spec.method),
+                            method=spec.method, guided=spec.guided),
             hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary))
         result.update(_outcome(spec, vis, ev.evaluate(), time.monotonic() - t0))
     except (FgcdError, PlatformError) as exc:

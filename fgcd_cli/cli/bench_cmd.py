@@ -182,7 +182,7 @@ def paper(
     quick: bool = typer.Option(False, "--quick", help="2 cases and a 3-position LED sweep on one scene (<= 30 min)."),
     out: Path = typer.Option(Path("fgcd-bench-paper"), "--out", help="Folder of the worlds, per-run JSON, tables "
                                                                       "(paper.md) and figures; a re-run resumes it."),
-    experiment: Optional[list[str]] = typer.Option(None, "--experiment", help="table2, table5, fig7, table3 "
+    experiment: Optional[list[str]] = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, revisit "
                                                                               "(repeatable; default the first three)."),
     case: Optional[list[str]] = typer.Option(None, "--case", help="Only these relocation cases (repeatable)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),

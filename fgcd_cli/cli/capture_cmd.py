@@ -90,6 +90,8 @@ def relocate(
     method: str = typer.Option("racr", "--method", help="racr (3D alignment, paper 000), or the baselines acr "
                                                          "(Tian et al.: 5-point pose, bisection on the scale, hand-eye "
                                                          "taken as identity) and acr-h (its homography-guided step)."),
+    guided: bool = typer.Option(False, "--guided", help="rACR: explore toward the image localizer's estimate of the "
+                                                        "reference pose instead of the fixed 3-leg pattern."),
     port: str = typer.Option(None, "--port"),
     host: str = typer.Option(None, "--host"),
     resume: bool = typer.Option(False, "--resume", help="Continue the station's interrupted visit from its journal "
@@ -108,7 +110,7 @@ def relocate(
         station=station, driver=driver, light=light, changes=changes, start_offset_mm=start_offset_mm,
         start_offset_deg=start_offset_deg, session_seed=session_seed, serial=serial, no_handeye=no_handeye,
         no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments, port=port,
-        host=host, resume=resume, method=method))
+        host=host, resume=resume, method=method, guided=guided))
     # The steps report through plain callbacks: a live bar on stderr (not with --json), lines above it.
     with step_progress(enabled=not as_json) as bar:
         say, ask = info, ask_line
