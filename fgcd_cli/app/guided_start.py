@@ -69,13 +69,58 @@ def guided_exploration(rig: RigHandles, station, reference, *, explore_m: float,
                       seconds)
 
 
-def start_revisit_session(rig: RigHandles, station, reference, *, explore_m: float, legs: int, guided: bool):
-    """A revisit's VSE session: ``(session, vse, scale)``, explored toward the reference when ``guided`` can."""
+#: Tracked stops after which the usual exploration may end early: the scale fit needs 3, and two
+#: legs of 2 stops leave the monocular map the baseline of two non-parallel translations.
+EARLY_STOP_STOPS = 4
+
+
+def alignment_trusted(rig: RigHandles, reference, ref_index, session, flange: list, cams: list) -> bool:
+    """True when the session's scale fits and a fast alignment of its cloud to the reference is trustworthy.
+
+    Asked once, at the usual exploration's fourth tracked stop: its last leg only returns to the
+    start, which a trustworthy alignment makes useless (the loop drives to the reference from
+    wherever the camera is). The check's computation counts as rig time.
+    """
+    from fgcd_cli.alignment import initial_guess
+    from fgcd_cli.app.session import MAX_SCALE_RESIDUAL_MM
+    from fgcd_cli.errors import AlgorithmError
+
+    if len(flange) != EARLY_STOP_STOPS:
+        return False
+    t0 = time.monotonic()
+    try:
+        scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
+        if scale.residual_rms_mm > MAX_SCALE_RESIDUAL_MM:
+            return False
+        state = session.vse.latest()
+        T_cur_cam0 = np.array(state.T_map_cam, dtype=float)
+        T_cur_cam0[:3, 3] *= scale.scale
+        guess = initial_guess(T_ref_camref=reference.T_ref_camref, T_cur_cam0=T_cur_cam0,
+                              cur_points=np.asarray(state.cloud.points, dtype=float) * scale.scale,
+                              reference=ref_index, scale=1.0, global_fallback=False)
+        return guess.fast is not None and bool(guess.fast.health.ok)
+    except AlgorithmError:
+        return False
+    finally:
+        session.timing.wait_s += time.monotonic() - t0
+
+
+def start_revisit_session(rig: RigHandles, station, reference, *, explore_m: float, legs: int, guided: bool,
+                          ref_index=None):
+    """A revisit's VSE session: ``(session, vse, scale)``.
+
+    ``guided``: explored toward the image localizer's estimate of the reference when it has one;
+    otherwise the usual pattern, ended early once the alignment is trustworthy (:func:`alignment_trusted`).
+    """
     plan = guided_exploration(rig, station, reference, explore_m=explore_m) if guided else None
+    until = None
     if plan is not None:
         rig.say(plan.reason)
+        if plan.motions is None and ref_index is not None:
+            def until(session, flange, cams):
+                return alignment_trusted(rig, reference, ref_index, session, flange, cams)
     session, vse, scale, _ = start_session(rig, explore_m=explore_m, legs=legs,
-                                           motions=plan.motions if plan is not None else None)
+                                           motions=plan.motions if plan is not None else None, until=until)
     if plan is not None:
         session.timing.wait_s += plan.seconds  # the platform stood still while the localizer ran
     return session, vse, scale

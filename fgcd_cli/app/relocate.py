@@ -126,7 +126,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
                                view=(reference.T_ref_camref, rig.intrinsics))
     rig.progress(0, 0, "starting the VSE")
     session, vse, scale = start_revisit_session(rig, station, reference, explore_m=request.explore_m,
-                                                legs=request.explore_legs, guided=request.guided)
+                                                legs=request.explore_legs, guided=request.guided, ref_index=ref_index)
     try:
         start = CoarseStart(rig=rig, session=session, reference=reference, ref_index=ref_index, station=station,
                             scale=scale.scale, evaluate=hooks.evaluate)

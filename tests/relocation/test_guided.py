@@ -122,3 +122,39 @@ def test_a_far_or_missing_estimate_keeps_the_usual_exploration(monkeypatch):
     monkeypatch.setattr(guided_start, "image_estimate", lambda **_kw: (far, {"pnp": "ok"}))
     plan = guided_start.guided_exploration(rig, None, ref, explore_m=0.04)
     assert plan.motions is None and "far start" in plan.reason
+
+
+class TrackingVse:
+    """A VSE stand-in that tracks at every frame (a new frame each time it is asked)."""
+
+    def __init__(self):
+        self.frames = 0
+
+    def latest(self):
+        self.frames += 1
+        return SimpleNamespace(frames_processed=self.frames, status="tracking", T_map_cam=np.eye(4), message="")
+
+    def stop(self):
+        pass
+
+
+def test_exploration_ends_when_until_says_so():
+    from fgcd_cli.relocation.session import VseSession, exploration_pattern
+
+    platform = BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1))
+    session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
+                         vse=TrackingVse(), frame_timeout_s=1.0)
+    motions = exploration_pattern(translation_m=0.04, legs=3, stops_per_leg=2)
+    asked = []
+
+    def until(flange, cams):
+        asked.append(len(flange))
+        return len(flange) == 4
+
+    flange, _ = session.explore(motions, until=until)
+    assert len(motions) == 6 and len(flange) == 4 and asked == [1, 2, 3, 4]
+    # without it, all six stops (the return leg included)
+    session2 = VseSession(guard=MotionGuard(BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1)),
+                                            GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
+                          vse=TrackingVse(), frame_timeout_s=1.0)
+    assert len(session2.explore(motions)[0]) == 6
