@@ -19,6 +19,10 @@ def print_record(rec) -> None:
     truth = ""
     if rec.truth:
         truth = f"  [dim]true: {rec.truth.get('pose_err_mm', float('nan')):.2f} mm, AFD {rec.truth.get('afd_px', float('nan')):.2f} px[/dim]"
+    if rec.image and "step_mm" in rec.image:  # ACR: no metric estimate of the remaining offset
+        info(f"adjustment {rec.iteration:2d} ({rec.stage})  step {rec.image['step_mm']:6.2f} mm  turn "
+             f"{rec.offset_deg:5.2f} deg  measured AFD {rec.afd_est_px:5.2f} px  inliers {rec.image['inliers']}{truth}")
+        return
     info(
         f"adjustment {rec.iteration:2d} ({rec.stage})  g = {rec.g:.2e}  remaining {rec.offset_mm:7.2f} mm "
         f"{rec.offset_deg:5.2f} deg  est. AFD {rec.afd_est_px:5.2f} px  cloud {rec.vse_points}{truth}"
