@@ -163,6 +163,10 @@ def _method_summary(rows: list[dict], prefix: str) -> dict:
         f"{prefix}_mean_iterations": _mean(r.get("adjustments") for r in ok),
         f"{prefix}_mean_rig_s": _mean(r.get("session_s") for r in ok),
         f"{prefix}_mean_platform_s": _mean(r.get("platform_s") for r in ok),
+        # AFD hides a sideways shift that a small turn compensates: the true camera-position error beside it
+        f"{prefix}_mean_pose_err_mm": _mean(r.get("pose_err_mm") for r in rows),
+        f"{prefix}_max_pose_err_mm": max((float(r["pose_err_mm"]) for r in rows if r.get("pose_err_mm") is not None),
+                                          default=math.nan),
     }
 
 

@@ -38,14 +38,16 @@ def _table2(results: list[dict]) -> list[str]:
     runs = _by(results, "table2")
     cases = list(dict.fromkeys(case for case, _ in runs))
     lines = ["### Table 2: true AFD (px) per case, rACR vs ACR (bold: failure, AFD ≥ 3 px or paused)", "",
-             "| case | scene | reference → visit light | rACR AFD | rACR adj. | rACR rig s | ACR AFD | ACR adj. | ACR rig s |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| case | scene | reference → visit light | rACR AFD | rACR error mm | rACR adj. | rACR rig s | ACR AFD | "
+             "ACR error mm | ACR adj. | ACR rig s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for case in cases:
         r, a = runs.get((case, "racr")), runs.get((case, "acr"))
         any_run = r or a
         lines.append(f"| {case} | {any_run.get('scene', '')} | {any_run.get('reference_light', '')} → "
-                     f"{any_run.get('visit_light', '')} | {_cell(r)} | {_f((r or {}).get('adjustments'), '{}')} | "
-                     f"{_f((r or {}).get('session_s'), '{:.1f}')} | {_cell(a)} | "
+                     f"{any_run.get('visit_light', '')} | {_cell(r)} | {_f((r or {}).get('pose_err_mm'), '{:.1f}')} | "
+                     f"{_f((r or {}).get('adjustments'), '{}')} | {_f((r or {}).get('session_s'), '{:.1f}')} | "
+                     f"{_cell(a)} | {_f((a or {}).get('pose_err_mm'), '{:.1f}')} | "
                      f"{_f((a or {}).get('adjustments'), '{}')} | {_f((a or {}).get('session_s'), '{:.1f}')} |")
     return lines
 
@@ -76,8 +78,9 @@ VARIANTS = (("racr", "rACR, parallel (Table 2)"), ("acr", "ACR (Table 2)"), ("ra
 def _variants_table(summary: dict) -> list[str]:
     """Every variant that ran: success, AFD, adjustments, rig time and the platform's share of it."""
     lines = ["### Every variant (means over its runs; rig time at the paper's 1.5 s/cm)", "",
-             "| variant | runs | success | mean AFD (px) | adjustments | rig time (s) | platform (s) | platform share |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| variant | runs | success | mean AFD (px) | mean / max error (mm) | adjustments | rig time (s) | platform (s) "
+             "| platform share |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for key, name in VARIANTS:
         n = summary.get(f"{key}_runs", 0)
         if not n:
@@ -85,7 +88,8 @@ def _variants_table(summary: dict) -> list[str]:
         rig, plat = summary.get(f"{key}_mean_rig_s"), summary.get(f"{key}_mean_platform_s")
         share = plat / rig if rig and plat is not None and rig > 0 else None
         lines.append(f"| {name} | {n} | {_f(summary.get(f'{key}_success_rate'), '{:.0%}')} | "
-                     f"{_f(summary.get(f'{key}_mean_afd_px'))} | {_f(summary.get(f'{key}_mean_iterations'), '{:.1f}')} | "
+                     f"{_f(summary.get(f'{key}_mean_afd_px'))} | {_f(summary.get(f'{key}_mean_pose_err_mm'), '{:.1f}')} / "
+                     f"{_f(summary.get(f'{key}_max_pose_err_mm'), '{:.1f}')} | {_f(summary.get(f'{key}_mean_iterations'), '{:.1f}')} | "
                      f"{_f(rig, '{:.1f}')} | {_f(plat, '{:.1f}')} | {_f(share, '{:.0%}')} |")
     return lines + [""]
 
@@ -108,11 +112,13 @@ def _fig7(results: list[dict]) -> list[str]:
         return []
     scenes = list(dict.fromkeys(case.rsplit("-led", 1)[0] for case, _ in runs))
     hours = sorted({int(case.rsplit("-led", 1)[1]) for case, _ in runs})
-    lines = ["### Fig. 7: true AFD (px), reference under the LED at 12 o'clock, visit at each hour (rACR / ACR)", "",
+    lines = ["### Fig. 7: true AFD (px), reference under the LED at 12 o'clock, visit at each hour (rACR / ACR; "
+             "true camera-position error in mm in brackets)", "",
              "| scene | " + " | ".join(f"{h} o'clock" for h in hours) + " |", "|---|" + "---|" * len(hours)]
     for scene in scenes:
-        cells = [f"{_cell(runs.get((f'{scene}-led{h}', 'racr')))} / {_cell(runs.get((f'{scene}-led{h}', 'acr')))}"
-                 for h in hours]
+        cells = [" / ".join(f"{_cell(runs.get((f'{scene}-led{h}', m)))} "
+                            f"({_f((runs.get((f'{scene}-led{h}', m)) or {}).get('pose_err_mm'), '{:.1f}')})"
+                            for m in ("racr", "acr")) for h in hours]
         lines.append(f"| {scene} | " + " | ".join(cells) + " |")
     return lines + [""]
 
