@@ -17,7 +17,8 @@ Resumable: every run's result is written atomically as
 ``<out>/runs/<experiment>/<case>__<label>.json`` and a re-run skips the runs
 whose file exists (the worlds, calibrated once, are reused too). The summary
 and ``<out>/paper.md`` (tables) and ``<out>/*.png`` (figures) are rebuilt from
-those files at the end of every invocation.
+*all* the run files in ``<out>`` at the end of every invocation (so several
+invocations, e.g. ``--quick`` then ``--experiment revisit``, add up).
 """
 
 from __future__ import annotations
@@ -114,6 +115,8 @@ def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = ("table2", "ta
         results.append(done)
     if on_progress is not None:
         on_progress(len(runs), len(runs), "done")
+    # the folder is the record: the summary and the report cover every run in it (earlier invocations too)
+    results = [r for r in (_load(p) for p in sorted((out / "runs").glob("*/*.json"))) if r is not None]
     summary = summarise(results)
     data = {"summary": summary, "targets": TARGETS, "paper": PAPER, "runs": results, "out": str(out)}
     write_report(data, out)
