@@ -17,8 +17,10 @@ import numpy as np
 
 from fgcd_cli.app.capture import CaptureResult
 from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
+from fgcd_cli.app.guided_start import start_revisit_session
 from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
-from fgcd_cli.app.scenario import Driver, SimScenario, check_driver, check_lighting, check_scenario, check_scene
+from fgcd_cli.app.scenario import (Driver, SimScenario, check_driver, check_lighting, check_method, check_scenario,
+                                   check_scene)
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
 from fgcd_cli.app.session import (
     grab_gray_under,
@@ -26,18 +28,20 @@ from fgcd_cli.app.session import (
     load_reference,
     measurement_lighting,
     reference_images,
-    start_session,
 )
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import rig_calibration, station_world
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError, run_record
 from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult
 from fgcd_cli.relocation.config import RelocationConfig
-from fgcd_cli.relocation.enums import LoopMode
+from fgcd_cli.relocation.acr import AcrConfig
+from fgcd_cli.relocation.acr_pose import AcrModel, AcrPoseConfig
+from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.loop import LoopContext, relocate
 
-__all__ = ["RelocateHooks", "RelocateRequest", "RevisitOutcome", "RevisitPlan", "RevisitRequest", "check_relocation_options",
+__all__ = ["RelocateHooks", "RelocateRequest", "RevisitOutcome", "RevisitPlan", "RevisitRequest", "check_method",
+           "check_relocation_options",
            "load_reference", "plan_revisit", "reference_images", "relocate_and_capture", "run_revisit", "visit_lightings",
            "visit_scenario"]
 
@@ -58,20 +62,29 @@ class RelocateRequest:
         Exploration legs of the session start.
     metadata : dict or None
         Extra entries of the visit's manifest metadata.
+    guided : bool
+        Explore toward the image localizer's estimate of the reference (:mod:`fgcd_cli.app.guided_start`).
     coarse : CoarseConfig or None
         The active coarse stage's options (paper 001); None leaves it out (the
         loop then pauses on a far start).
     earlier_log : tuple of dict
         Adjustments of an interrupted visit this one continues, written first in its log.
+    method : RelocationMethod
+        rACR, or the ACR baseline (``acr``, ``acr-h``: :mod:`fgcd_cli.app.relocate_acr`).
+    acr : AcrConfig or None
+        The ACR loop's options (None: its defaults, the model following ``method``).
     """
 
     config: RelocationConfig
     lightings: list[str]
     explore_m: float = 0.04
     explore_legs: int = 3
+    guided: bool = False
     metadata: dict | None = None
     coarse: CoarseConfig | None = field(default_factory=CoarseConfig)
     earlier_log: tuple[dict, ...] = ()
+    method: RelocationMethod = RelocationMethod.RACR
+    acr: AcrConfig | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -102,13 +115,18 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
     runs first; ``coarse=None`` leaves it out (the loop then pauses on such a start).
     """
     hooks = hooks or RelocateHooks()
+    if request.method != RelocationMethod.RACR:
+        from fgcd_cli.app.relocate_acr import acr_relocate_and_capture
+
+        return acr_relocate_and_capture(rig, station, request, hooks=hooks)
     from fgcd_cli.alignment import ReferenceIndex
 
     reference = load_reference(station)
     ref_index = ReferenceIndex(reference.points, intensities=reference.intensities,
                                view=(reference.T_ref_camref, rig.intrinsics))
     rig.progress(0, 0, "starting the VSE")
-    session, vse, scale, _ = start_session(rig, explore_m=request.explore_m, legs=request.explore_legs)
+    session, vse, scale = start_revisit_session(rig, station, reference, explore_m=request.explore_m,
+                                                legs=request.explore_legs, guided=request.guided, ref_index=ref_index)
     try:
         start = CoarseStart(rig=rig, session=session, reference=reference, ref_index=ref_index, station=station,
                             scale=scale.scale, evaluate=hooks.evaluate)
@@ -261,7 +279,12 @@ class RevisitRequest:
         Leave out the active coarse stage.
     eta : float
         Stop when ``||M_B - I|| <= eta``.
-    max_adjustments : int
+    max_adjustments : int or None
+        None: the method's own budget (12 for rACR, 30 for ACR).
+    method : str
+        ``racr``, ``acr`` or ``acr-h`` (:class:`RelocationMethod`).
+    guided : bool
+        rACR: explore toward the image localizer's estimate of the reference.
     port, host : str or None
         Address of a GRBL stage / UR arm (None: campaign.toml ``[rig]``).
     resume : bool
@@ -281,10 +304,12 @@ class RevisitRequest:
     no_image_refine: bool = False
     no_coarse: bool = False
     eta: float = 1e-4
-    max_adjustments: int = 12
+    max_adjustments: int | None = None
     port: str | None = None
     host: str | None = None
     resume: bool = False
+    method: str = RelocationMethod.RACR
+    guided: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -302,6 +327,8 @@ class RevisitPlan:
     port: str | None = None
     host: str | None = None
     lights: object | None = None  # drivers.lights.LightsSpec of campaign.toml [rig.lights]
+    method: RelocationMethod = RelocationMethod.RACR
+    acr: AcrConfig | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -331,14 +358,14 @@ class RevisitOutcome:
         }
 
 
-def check_relocation_options(*, changes: int, eta: float, max_adjustments: int, start_offset_mm: float,
+def check_relocation_options(*, changes: int, eta: float, max_adjustments: int | None, start_offset_mm: float,
                              start_offset_deg: float) -> None:
     """Refuse out-of-range relocation options up front (UserInputError naming the valid range)."""
     if changes < 0:
         raise UserInputError(f"--changes must be 0 or more, got {changes}")
     if not (math.isfinite(eta) and eta > 0):
         raise UserInputError(f"--eta must be a number > 0, got {eta}")
-    if max_adjustments < 1:
+    if max_adjustments is not None and max_adjustments < 1:
         raise UserInputError(f"--max-adjustments must be 1 or more, got {max_adjustments}")
     for option, value in (("--start-offset-mm", start_offset_mm), ("--start-offset-deg", start_offset_deg)):
         if not (math.isfinite(value) and value >= 0):
@@ -379,6 +406,7 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     r = request
     if r.driver is not None:
         check_driver(r.driver)
+    method = check_method(r.method)
     check_relocation_options(changes=r.changes, eta=r.eta, max_adjustments=r.max_adjustments,
                              start_offset_mm=r.start_offset_mm, start_offset_deg=r.start_offset_deg)
     camp = open_campaign(campaign_path)
@@ -394,15 +422,19 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         scenario = visit_scenario(camp, ref, light=light, changes=r.changes, start_offset_mm=r.start_offset_mm,
                                   start_offset_deg=r.start_offset_deg, session_seed=r.session_seed)
     T_flange_cam, cam = rig_calibration(camp)
-    if T_flange_cam is None and not r.no_handeye:
+    if T_flange_cam is None and not r.no_handeye and method == RelocationMethod.RACR:
         raise CampaignError("no hand-eye calibration in the campaign: calibrate, or use --no-handeye")
-    if r.no_handeye:
+    if r.no_handeye or T_flange_cam is None:  # ACR needs none: it takes the identity
         T_flange_cam = np.eye(4)
-    config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, eta=r.eta, max_adjustments=r.max_adjustments,
+    config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, eta=r.eta,
+                              max_adjustments=r.max_adjustments or RelocationConfig().max_adjustments,
                               image_refine=not r.no_image_refine, image_fallback=not r.no_image_refine)
+    acr = AcrConfig(pose=AcrPoseConfig(model=AcrModel(str(method))), max_adjustments=r.max_adjustments
+                    or AcrConfig().max_adjustments) if method != RelocationMethod.RACR else None
     lights = rig_lights(camp, visit_lightings(light, ref.metadata.get("lightings", []), controllable=True))
     return RevisitPlan(request=replace(r, light=light), driver=driver, station=st, reference=ref, scenario=scenario,
-                       T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host, lights=lights)
+                       T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host, lights=lights,
+                       method=method, acr=acr)
 
 
 def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
@@ -444,6 +476,9 @@ def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
                       "resume": decision.to_dict()},
             coarse=None if r.no_coarse else CoarseConfig(),
             earlier_log=tuple(decision.records),
+            method=plan.method,
+            acr=plan.acr,
+            guided=r.guided,
         )
 
         def record(rec: AdjustmentRecord) -> None:

@@ -13,6 +13,7 @@ from fgcd_cli.errors import UserInputError
 from drivers.connect import DRIVERS, Driver  # the drivers a command can open (re-exported for the CLI)
 
 __all__ = [
+    "check_method",
     "DRIVERS",
     "Driver",
     "SimScenario",
@@ -128,3 +129,13 @@ def check_scenario(scenario: SimScenario) -> SimScenario:
     if not (0 < lo <= hi and math.isfinite(hi)):
         raise UserInputError(f"change sizes must satisfy 0 < min <= max mm, got {lo}, {hi}")
     return replace(scenario, lighting=lighting)
+
+
+def check_method(method: str):
+    """The relocation method named by ``--method`` (UserInputError naming the valid ones)."""
+    from fgcd_cli.relocation.enums import RelocationMethod
+
+    try:
+        return RelocationMethod(method)
+    except ValueError:
+        raise UserInputError(f"--method must be one of {', '.join(RelocationMethod)}, got {method!r}") from None

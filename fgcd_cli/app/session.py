@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from fgcd_cli.app.rig import RigHandles
@@ -40,9 +42,14 @@ MAX_SCALE_RESIDUAL_MM = 12.0
 
 
 def start_session(
-    rig: RigHandles, *, explore_m: float, attempts: int = 2, legs: int = 6
+    rig: RigHandles, *, explore_m: float, attempts: int = 2, legs: int = 6, motions: list[np.ndarray] | None = None,
+    until: Callable[[VseSession, list, list], bool] | None = None,
 ) -> tuple[VseSession, object, ScaleEstimate, np.ndarray]:
     """Start the VSE, explore and estimate the map scale; explore again once on a bad start.
+
+    ``motions``: the exploration's relative flange motions (a revisit's guided legs,
+    :mod:`fgcd_cli.relocation.guided`); None: the usual pattern of ``legs`` legs.
+    ``until(session, flange, cams)``: True after a motion ends the exploration there.
 
     A monocular engine occasionally initialises on a wrong solution (a map whose
     motion opposes the platform's, or a large scale residual); the session then
@@ -58,7 +65,10 @@ def start_session(
         for attempt in range(1, attempts + 1):
             rig.say("exploring to initialise the VSE and its scale" + (f" (attempt {attempt})" if attempt > 1 else ""))
             try:
-                flange, cams = session.explore(exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2))
+                flange, cams = session.explore(
+                    motions if motions is not None else
+                    exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2),
+                    until=None if until is None else (lambda f, c: until(session, f, c)))
                 if getattr(vse.latest(), "scale_is_metric", False):
                     # a depth camera's map is metric: the platform motions only confirm it
                     check = session.estimate_scale(rig.T_flange_cam, flange, cams)

@@ -177,6 +177,43 @@ def relocate(
     emit(data, as_json=as_json, render=show)
 
 
+@app.command("paper")
+def paper(
+    quick: bool = typer.Option(False, "--quick", help="2 cases and a 3-position LED sweep on one scene (<= 30 min)."),
+    out: Path = typer.Option(Path("fgcd-bench-paper"), "--out", help="Folder of the worlds, per-run JSON, tables "
+                                                                      "(paper.md) and figures; a re-run resumes it."),
+    experiment: Optional[list[str]] = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, revisit "
+                                                                              "(repeatable; default the first three)."),
+    case: Optional[list[str]] = typer.Option(None, "--case", help="Only these relocation cases (repeatable)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Paper 000's experiments in the simulator: rACR beside the ACR baseline (Tables 2, 3, 5, Fig. 7)."""
+    from fgcd_cli.bench.paper import EXPERIMENTS, run
+    from fgcd_cli.cli.progress import step_progress
+    from fgcd_cli.errors import UserInputError
+
+    from fgcd_cli.bench.relocate import CASES
+
+    unknown = [e for e in experiment or [] if e not in EXPERIMENTS]
+    if unknown:
+        raise UserInputError(f"--experiment: unknown {', '.join(unknown)} (valid: {', '.join(EXPERIMENTS)})")
+    unknown = [c for c in case or [] if c not in {c.name for c in CASES}]
+    if unknown:
+        raise UserInputError(f"--case: unknown {', '.join(unknown)} (see `fgcd bench relocate`)")
+    with step_progress(enabled=True) as bar:
+        say = bar.lines(info) if bar is not None else info
+        data = run(quick=quick, out=out, experiments=tuple(experiment) if experiment else ("table2", "table5", "fig7"),
+                   cases=case, say=say, on_progress=bar)
+
+    def show(console):
+        console.print((Path(data["out"]) / "paper.md").read_text())
+        for k, v in data["summary"].items():
+            t = data["targets"].get(k)
+            console.print(f"[bold]{k}[/bold] = {v:.3f}" + (f"  (target {t})" if t is not None else ""))
+
+    emit(data, as_json=as_json, render=show)
+
+
 @app.command("coarse")
 def coarse(
     quick: bool = typer.Option(False, "--quick", help="A 2-case subset."),

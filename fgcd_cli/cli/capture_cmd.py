@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -18,6 +19,10 @@ def print_record(rec) -> None:
     truth = ""
     if rec.truth:
         truth = f"  [dim]true: {rec.truth.get('pose_err_mm', float('nan')):.2f} mm, AFD {rec.truth.get('afd_px', float('nan')):.2f} px[/dim]"
+    if rec.image and "step_mm" in rec.image:  # ACR: no metric estimate of the remaining offset
+        info(f"adjustment {rec.iteration:2d} ({rec.stage})  step {rec.image['step_mm']:6.2f} mm  turn "
+             f"{rec.offset_deg:5.2f} deg  measured AFD {rec.afd_est_px:5.2f} px  inliers {rec.image['inliers']}{truth}")
+        return
     info(
         f"adjustment {rec.iteration:2d} ({rec.stage})  g = {rec.g:.2e}  remaining {rec.offset_mm:7.2f} mm "
         f"{rec.offset_deg:5.2f} deg  est. AFD {rec.afd_est_px:5.2f} px  cloud {rec.vse_points}{truth}"
@@ -84,7 +89,13 @@ def relocate(
                                    help="Leave out the active coarse stage (paper 001) that first brings a far start "
                                         "(beyond 10 cm / 8 deg) near the reference; the loop then pauses on such a start."),
     eta: float = typer.Option(1e-4, "--eta", help="Stop when ||M_B - I|| <= eta."),
-    max_adjustments: int = typer.Option(12, "--max-adjustments"),
+    max_adjustments: Optional[int] = typer.Option(None, "--max-adjustments",
+                                                  help="Adjustment budget (default: 12 for racr, 30 for acr)."),
+    method: str = typer.Option("racr", "--method", help="racr (3D alignment, paper 000), or the baselines acr "
+                                                         "(Tian et al.: 5-point pose, bisection on the scale, hand-eye "
+                                                         "taken as identity) and acr-h (its homography-guided step)."),
+    guided: bool = typer.Option(False, "--guided", help="rACR: explore toward the image localizer's estimate of the "
+                                                        "reference pose instead of the fixed 3-leg pattern."),
     port: str = typer.Option(None, "--port"),
     host: str = typer.Option(None, "--host"),
     resume: bool = typer.Option(False, "--resume", help="Continue the station's interrupted visit from its journal "
@@ -92,7 +103,7 @@ def relocate(
     yes: bool = typer.Option(False, "--yes", help="Answer the first-motion confirmation (scripts)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """Drive the camera back to a station's reference pose (rACR) and record a visit."""
+    """Drive the camera back to a station's reference pose (rACR, or the ACR baseline) and record a visit."""
     from fgcd_cli.app.relocate import RevisitRequest, plan_revisit, run_revisit
     from fgcd_cli.app.rig import RigHooks
     from fgcd_cli.cli.progress import step_progress
@@ -103,7 +114,7 @@ def relocate(
         station=station, driver=driver, light=light, changes=changes, start_offset_mm=start_offset_mm,
         start_offset_deg=start_offset_deg, session_seed=session_seed, serial=serial, no_handeye=no_handeye,
         no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments, port=port,
-        host=host, resume=resume))
+        host=host, resume=resume, method=method, guided=guided))
     # The steps report through plain callbacks: a live bar on stderr (not with --json), lines above it.
     with step_progress(enabled=not as_json) as bar:
         say, ask = info, ask_line

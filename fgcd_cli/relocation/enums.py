@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-__all__ = ["Agreement", "CoarseAction", "EstimateStage", "EstimateSource", "LoopMode"]
+__all__ = ["Agreement", "CoarseAction", "EstimateStage", "EstimateSource", "LoopMode", "RelocationMethod"]
 
 
 class LoopMode(StrEnum):
@@ -20,6 +20,17 @@ class LoopMode(StrEnum):
     """VSE, alignment and adjustment threads with latest-value hand-over."""
     SERIAL = "serial"
     """The same steps one after the other."""
+
+
+class RelocationMethod(StrEnum):
+    """Which relocation method a revisit runs (``fgcd relocate --method``)."""
+
+    RACR = "racr"
+    """rACR (paper 000): 3D alignment of VSE clouds, then the image stage."""
+    ACR = "acr"
+    """The ACR baseline (Tian et al.): 5-point relative pose, bisection on the scale (:mod:`.acr`)."""
+    ACR_H = "acr-h"
+    """ACR with the homography-guided step (the paper's H-CR)."""
 
 
 class EstimateStage(StrEnum):

@@ -29,9 +29,14 @@ def test_cli_requests_keep_the_cli_defaults():
     c = CaptureRequest(station="s")
     assert (c.driver, c.scene, c.seed, c.light, c.lightings, c.port, c.host) == (None, None, None, "front", None, None, None)
     v = RevisitRequest(station="s")
-    assert (v.light, v.changes, v.start_offset_mm, v.start_offset_deg, v.session_seed, v.eta, v.max_adjustments) == \
-        ("led:3", 0, 30.0, 3.0, 1, 1e-4, 12)
-    assert not (v.serial or v.no_handeye or v.no_image_refine or v.no_coarse)
+    # max_adjustments None: the method's own budget (rACR 12 = RelocationConfig's, ACR 30 = AcrConfig's)
+    assert (v.light, v.changes, v.start_offset_mm, v.start_offset_deg, v.session_seed, v.eta, v.max_adjustments,
+            v.method) == ("led:3", 0, 30.0, 3.0, 1, 1e-4, None, "racr")
+    assert not (v.serial or v.no_handeye or v.no_image_refine or v.no_coarse or v.guided)
+    from fgcd_cli.relocation.acr import AcrConfig
+    from fgcd_cli.relocation.config import RelocationConfig
+
+    assert (RelocationConfig().max_adjustments, AcrConfig().max_adjustments) == (12, 30)
 
 
 def test_diff_requests_and_report_context_defaults():

@@ -1,0 +1,184 @@
+"""The pieces of ``fgcd bench paper``: a simulated world (calibrated rig + reference stations) and one relocation run.
+
+A *world* is one campaign under ``<out>/worlds/<name>``: ChArUco intrinsics and
+target-free hand-eye of a simulated scene and seed (as ``fgcd bench relocate``
+does), and one station per reference light. It is built once and reused by
+every run and every resumed invocation (a marker file says it is complete). A
+*run* relocates to one station from a displaced start with one method and
+writes a visit there; its outcome is scored against the simulator's truth
+(evaluation only, :mod:`fgcd_cli.metrics.sim_eval`).
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fgcd_cli.campaign.atomic import atomic_write_json
+from fgcd_cli.relocation.enums import EstimateStage, LoopMode, RelocationMethod
+
+__all__ = ["RunSpec", "World", "ensure_station", "ensure_world", "run_one"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class World:
+    """A simulated scene and seed, calibrated once (its campaign under ``<out>/worlds/<name>``)."""
+
+    name: str
+    scene: str
+    seed: int
+    calibration_light: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSpec:
+    """One relocation of a benchmark.
+
+    Attributes
+    ----------
+    experiment, case, label : str
+        Where the run belongs (its JSON is ``<out>/runs/<experiment>/<case>__<label>.json``).
+    world : World
+    reference_light, visit_light : str
+        The station's reference lighting and the lighting of the visit.
+    offset_mm, offset_deg : float
+        Displaced start (the same for every method of a case: the paper's "same initial pose").
+    method : RelocationMethod
+    mode : LoopMode
+        rACR's parallel or serial loop (ignored by ACR).
+    no_handeye : bool
+        rACR with ``X = I`` (paper Table 3, ``rACR_w/oX``).
+    guided : bool
+        rACR exploring toward the image localizer's estimate (issue 21, the faster revisit).
+    """
+
+    experiment: str
+    case: str
+    label: str
+    world: World
+    reference_light: str
+    visit_light: str
+    offset_mm: float
+    offset_deg: float
+    method: RelocationMethod = RelocationMethod.RACR
+    mode: LoopMode = LoopMode.PARALLEL
+    no_handeye: bool = False
+    guided: bool = False
+    session_seed: int = 1
+
+    def path(self, out: Path) -> Path:
+        """The run's result file."""
+        return out / "runs" / self.experiment / f"{self.case}__{self.label}.json"
+
+
+def _station_name(light: str) -> str:
+    return "ref-" + "".join(c if c.isalnum() else "-" for c in light)
+
+
+def ensure_world(world: World, out: Path, *, say) -> tuple[object, np.ndarray, object]:
+    """The world's campaign with its calibration, built unless complete: ``(campaign, T_flange_cam, camera)``."""
+    from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
+    from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.campaign import init_campaign, open_campaign
+    from fgcd_cli.campaign.records import rig_calibration
+
+    root = out / "worlds" / world.name
+    marker = out / "worlds" / f"{world.name}.ready.json"
+    if marker.exists():
+        camp = open_campaign(root)
+        T_flange_cam, camera = rig_calibration(camp)
+        return camp, T_flange_cam, camera
+    if root.exists():  # an interrupted set-up: start it over
+        shutil.rmtree(root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    camp = init_campaign(root, site=world.name, rig={"driver": "sim"})
+    say(f"world {world.name}: calibrating ({world.scene}, seed {world.seed})")
+    calib = SimScenario(scene=world.scene, seed=world.seed, lighting=world.calibration_light, session_seed=100)
+    camera = calibrate_sim_intrinsics(camp, calib, say=lambda _m: None)
+    he = calibrate_sim_handeye(camp, calib, say=lambda _m: None, camera=camera)
+    atomic_write_json(marker, asdict(world))
+    return camp, np.array(he["T_flange_cam"]), camera
+
+
+def ensure_station(camp, world: World, light: str, T_flange_cam: np.ndarray, camera, *, say):
+    """The world's station captured under ``light`` (the reference observation is committed atomically)."""
+    from fgcd_cli.app.capture import capture_reference
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.metrics.sim_eval import reference_truth
+
+    name = _station_name(light)
+    st = camp.station_or_create(name)
+    if st.has_reference():
+        return st
+    say(f"world {world.name}: capturing the reference under {light}")
+    rig = open_sim_rig(SimScenario(scene=world.scene, seed=world.seed, lighting=light), T_flange_cam=T_flange_cam,
+                       intrinsics=camera)
+    try:
+        capture_reference(rig.handles, st, lightings=[light], evaluation=reference_truth(rig.sim))
+    finally:
+        rig.close()
+    return st
+
+
+def _outcome(spec: RunSpec, vis, truth: dict, wall_s: float) -> dict:
+    """A finished run's figures: truth at the end, the tool's own view, times on the rig."""
+    r = vis.relocation
+    out = {"converged": r.converged, "reason": r.reason, "adjustments": r.adjustments, "afd_px": truth["afd_px"],
+           "pose_err_mm": truth["pose_err_mm"], "pose_err_deg": truth["pose_err_deg"], "session_s": r.session_s,
+           "platform_s": r.platform_s, "synthetic_s": r.synthetic_s, "wall_s": wall_s,
+           "success": bool(truth["afd_px"] < 3.0)}
+    three_d = [rec for rec in r.records if rec.stage in (EstimateStage.FAST, EstimateStage.FINE) and rec.truth]
+    if three_d:
+        out["afd_px_racr_only"] = three_d[-1].truth["afd_px"]
+    out["afd_trace_px"] = [rec.truth["afd_px"] for rec in r.records if rec.truth]
+    return out
+
+
+def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say) -> dict:
+    """Relocate once as ``spec`` says and score it; a pause or a refused motion is an outcome (``error``)."""
+    from drivers.platform import PlatformError
+    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.errors import FgcdError
+    from fgcd_cli.metrics.sim_eval import RelocationEvaluator
+    from fgcd_cli.relocation.coarse import CoarseConfig
+    from fgcd_cli.relocation.config import RelocationConfig
+
+    w = spec.world
+    scen = SimScenario(scene=w.scene, seed=w.seed, lighting=spec.visit_light, changes=3, change_seed=7,
+                       start_offset_mm=spec.offset_mm, start_offset_deg=spec.offset_deg,
+                       session_seed=spec.session_seed)
+    X = np.eye(4) if spec.no_handeye else T_flange_cam
+    rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=camera)
+    ev = RelocationEvaluator.from_reference(rig.sim, station.reference())
+    result = {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
+              "mode": str(spec.mode), "no_handeye": spec.no_handeye, "guided": spec.guided, "scene": w.scene, "seed": w.seed,
+              "reference_light": spec.reference_light, "visit_light": spec.visit_light,
+              "start_err_mm": ev.evaluate()["pose_err_mm"], "start_afd_px": ev.evaluate()["afd_px"]}
+    t0 = time.monotonic()
+    try:
+        vis = relocate_and_capture(
+            rig.handles, station,
+            RelocateRequest(config=RelocationConfig(mode=spec.mode),
+                            lightings=[spec.visit_light, spec.reference_light], coarse=CoarseConfig(),
+                            method=spec.method, guided=spec.guided),
+            hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary))
+        result.update(_outcome(spec, vis, ev.evaluate(), time.monotonic() - t0))
+    except (FgcdError, PlatformError) as exc:
+        truth = ev.evaluate()
+        result.update({"error": str(exc), "success": False, "afd_px": truth["afd_px"],
+                       "pose_err_mm": truth["pose_err_mm"], "pose_err_deg": truth["pose_err_deg"],
+                       "wall_s": time.monotonic() - t0})
+    finally:
+        rig.close()
+    say(f"{spec.experiment} {spec.case} {spec.label}: true AFD {result['afd_px']:.2f} px"
+        + (f", {result['adjustments']} adjustments, {result['session_s']:.1f} s on the rig" if "error" not in result
+           else f" (paused: {result['error'][:80]})"))
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in result.items()}

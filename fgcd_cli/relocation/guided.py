@@ -1,0 +1,92 @@
+"""A revisit's exploration toward the reference (issue 21, "a faster revisit").
+
+The exploration exists to give the monocular VSE a baseline (translation with
+parallax) and the scale fit tracked stops (docs/relocation.md, "What a session
+does"). It need not lead away from the reference. When the image localizer
+estimates the reference pose before any motion, the legs go *toward* it:
+
+    start → R + a → R − a → R        (R: the estimated reference flange pose)
+
+with ``a`` perpendicular to the way there and to the optical axis, ``|a|`` half
+the exploration amplitude, so that the two sideways legs span the same ``2|a|``
+baseline as one leg of the usual pattern. The exploration ends where the rACR
+loop would have driven the camera anyway, and the loop only refines. Rotation
+toward the reference is spread over the legs.
+
+Every waypoint is checked against the guard's workspace before the first
+motion (:func:`within_workspace`); a plan that leaves it is not used (the usual
+pattern is). The guard still checks every sub-step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fgcd_core.se3 import exp_se3, invert_pose, log_se3
+
+__all__ = ["guided_waypoints", "motions_between", "within_workspace"]
+
+
+def _sideways(d: np.ndarray, optical_axis: np.ndarray, camera_x: np.ndarray) -> np.ndarray:
+    """A unit vector perpendicular to the way there ``d`` and to the optical axis (the camera's x when ``d`` is along it)."""
+    a = np.cross(d, optical_axis)
+    n = float(np.linalg.norm(a))
+    if n < 1e-6 * max(1e-12, float(np.linalg.norm(d))) or n < 1e-9:
+        return camera_x / np.linalg.norm(camera_x)
+    return a / n
+
+
+def guided_waypoints(M_flange_ref: np.ndarray, T_flange_cam: np.ndarray, *, explore_m: float) -> list[np.ndarray]:
+    """Flange waypoints relative to the start flange (the first is the identity), ending at the estimated reference.
+
+    Parameters
+    ----------
+    M_flange_ref : (4, 4) ndarray
+        The estimated reference flange pose in the start flange's frame (the flange motion to the
+        reference: ``X · M_cam · X⁻¹``, :mod:`fgcd_cli.relocation.adjustment`), metres.
+    T_flange_cam : (4, 4) ndarray
+        Hand-eye: the optical axis and the camera's x axis in the flange frame.
+    explore_m : float
+        Exploration amplitude, metres: the two sideways legs span it.
+
+    Returns
+    -------
+    list of (4, 4) ndarray
+        ``[I, R·a⁺, R·a⁻, R]``: poses in the start flange's frame.
+    """
+    M = np.asarray(M_flange_ref, dtype=float)
+    X = np.asarray(T_flange_cam, dtype=float)
+    d = M[:3, 3]
+    a = 0.5 * explore_m * _sideways(d, X[:3, 2], X[:3, 0])
+    xi = log_se3(M)
+    # rotation toward the reference spread over the legs: 1/3, 2/3, all of it
+    waypoints = [np.eye(4)]
+    for fraction, side in ((1 / 3, +1.0), (2 / 3, -1.0)):
+        T = exp_se3(np.r_[np.zeros(3), xi[3:] * fraction])
+        T[:3, 3] = d + side * a
+        waypoints.append(T)
+    waypoints.append(M.copy())
+    return waypoints
+
+
+def motions_between(waypoints: list[np.ndarray], *, stops_per_leg: int = 2) -> list[np.ndarray]:
+    """Relative flange motions from waypoint to waypoint, each leg cut into ``stops_per_leg`` equal motions."""
+    n = max(1, int(stops_per_leg))
+    legs = [invert_pose(a) @ b for a, b in zip(waypoints[:-1], waypoints[1:])]
+    return [exp_se3(log_se3(L) / n) for L in legs for _ in range(n)]
+
+
+def within_workspace(T_base_flange_start: np.ndarray, motions: list[np.ndarray], lo_m: np.ndarray,
+                     hi_m: np.ndarray) -> bool:
+    """True when every stop of ``motions`` from ``T_base_flange_start`` lies in the box ``[lo_m, hi_m]`` (metres).
+
+    The path between two stops is a screw motion of a few centimetres; the guard checks each of its
+    sub-steps again when it moves.
+    """
+    T = np.asarray(T_base_flange_start, dtype=float)
+    lo, hi = np.asarray(lo_m, dtype=float), np.asarray(hi_m, dtype=float)
+    for M in motions:
+        T = T @ M
+        if np.any(T[:3, 3] < lo - 1e-9) or np.any(T[:3, 3] > hi + 1e-9):
+            return False
+    return True

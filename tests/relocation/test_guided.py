@@ -1,0 +1,160 @@
+"""The guided exploration: legs toward the estimated reference, the same baseline, never out of the guard's workspace."""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
+from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_cli.relocation.guided import guided_waypoints, motions_between, within_workspace
+from fgcd_cli.relocation.session import exploration_waypoints
+
+
+def random_pose(rng, t, r):
+    d, a = rng.normal(size=3), rng.normal(size=3)
+    return exp_se3(np.r_[t * d / np.linalg.norm(d), r * a / np.linalg.norm(a)])
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_waypoints_end_at_the_estimate_with_the_exploration_baseline(seed):
+    rng = np.random.default_rng(seed)
+    X = random_pose(rng, 0.1, 0.5)
+    M = random_pose(rng, rng.uniform(0.0, 0.08), math.radians(rng.uniform(0, 6)))
+    w = guided_waypoints(M, X, explore_m=0.04)
+    assert np.allclose(w[0], np.eye(4)) and np.allclose(w[-1], M)
+    # the two sideways stops span the exploration amplitude, across the way there and the optical axis
+    side = w[1][:3, 3] - w[2][:3, 3]
+    assert np.linalg.norm(side) == pytest.approx(0.04)
+    assert abs(np.dot(side, X[:3, 2])) < 1e-9
+    if np.linalg.norm(M[:3, 3]) > 1e-3:
+        assert abs(np.dot(side, M[:3, 3])) < 1e-9
+    # the motions, applied in turn, reach the estimate
+    T = np.eye(4)
+    for step in motions_between(w, stops_per_leg=2):
+        T = T @ step
+    mm, deg = pose_distance(T, M)
+    assert mm < 1e-6 and deg < 1e-6
+
+
+def test_path_is_shorter_than_the_usual_exploration_plus_the_way_back():
+    """30 mm from the reference: the guided legs (to R±a, then R) against 137 mm of usual legs plus ~30 mm of loop."""
+    M = exp_se3(np.r_[0.03, 0.0, 0.0, 0.0, 0.0, 0.0])
+    w = guided_waypoints(M, np.eye(4), explore_m=0.04)
+    path = sum(np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in zip(w[:-1], w[1:]))
+    assert path == pytest.approx(math.hypot(0.03, 0.02) + 0.04 + 0.02)  # to R+a, across to R-a, onto R
+    legs = exploration_waypoints(translation_m=0.04)[:3] + [np.eye(4)]  # a revisit's usual 3 legs
+    usual = sum(np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in zip(legs[:-1], legs[1:]))
+    assert path < usual  # and the usual exploration still leaves the loop its ~30 mm to drive
+
+
+def test_within_workspace_sees_a_stop_outside():
+    motions = [exp_se3(np.r_[0.02, 0, 0, 0, 0, 0])] * 3
+    start = np.eye(4)
+    assert within_workspace(start, motions, np.full(3, -0.1), np.full(3, 0.1))
+    assert not within_workspace(start, motions, np.full(3, -0.1), np.array([0.05, 0.1, 0.1]))
+
+
+class BoxPlatform:
+    """A platform in a box workspace that records every pose it is sent to."""
+
+    name = "box"
+
+    def __init__(self, T0, lo, hi):
+        self.T, self.lo, self.hi, self.visited = np.array(T0, float), lo, hi, []
+
+    def capabilities(self):
+        return Capabilities(dof=6, controllable=("x", "y", "z", "rx", "ry", "rz"), workspace_min_m=self.lo,
+                            workspace_max_m=self.hi, max_linear_speed_m_s=0.1, max_angular_speed_rad_s=1.0)
+
+    def flange_pose(self):
+        return self.T.copy()
+
+    def move_to(self, T, *, speed_fraction=1.0):
+        self.T = np.array(T, float)
+        self.visited.append(self.T[:3, 3].copy())
+        return MoveResult(T_base_flange_target=T, T_base_flange_reached=T, T_base_flange_commanded=T)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_guided_exploration_never_leaves_the_workspace_guard(monkeypatch, seed):
+    """The plan is used only when every stop is inside the guard's box; every motion of a used plan passes the guard."""
+    from fgcd_cli.app import guided_start
+
+    rng = np.random.default_rng(seed)
+    # the start 1-4 cm inside the workspace's +x face, the estimated reference 30-80 mm away in any direction
+    start = exp_se3(np.r_[0.3 - rng.uniform(0.01, 0.04), 0.0, 0.4, 0.0, 0.0, 0.0])
+    platform = BoxPlatform(start, (-0.3, -0.3, 0.1), (0.3, 0.3, 0.7))
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12), speed_fraction=1.0))
+    X = random_pose(rng, 0.08, 0.3)
+    M_flange = random_pose(rng, rng.uniform(0.03, 0.08), math.radians(3))
+    T_ref_camref = np.eye(4)
+    # the localizer's estimate: the current camera seen from the reference, made from the chosen flange motion
+    T_img = T_ref_camref @ invert_pose(invert_pose(X) @ M_flange @ X)
+    monkeypatch.setattr(guided_start, "image_estimate", lambda **_kw: (T_img, {"pnp": "ok"}))
+    monkeypatch.setattr(guided_start, "grab_gray", lambda rig: np.zeros((4, 4)))
+    monkeypatch.setattr(guided_start, "reference_images", lambda station: {})
+    rig = SimpleNamespace(guard=guard, T_flange_cam=X, intrinsics=None)
+    plan = guided_start.guided_exploration(rig, None, SimpleNamespace(T_ref_camref=T_ref_camref), explore_m=0.04)
+    if plan.motions is None:
+        assert "workspace" in plan.reason
+        return
+    for M in plan.motions:  # what start_session would send, sub-step by sub-step through the guard
+        guard.move_by(M)
+    lo, hi = np.array(platform.lo), np.array(platform.hi)
+    assert all(np.all(p >= lo - 1e-9) and np.all(p <= hi + 1e-9) for p in platform.visited)
+    mm, deg = pose_distance(platform.flange_pose(), start @ M_flange)
+    assert mm < 1e-6 and deg < 1e-6
+
+
+def test_a_far_or_missing_estimate_keeps_the_usual_exploration(monkeypatch):
+    from fgcd_cli.app import guided_start
+
+    platform = BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1))
+    rig = SimpleNamespace(guard=MotionGuard(platform, GuardLimits()), T_flange_cam=np.eye(4), intrinsics=None)
+    monkeypatch.setattr(guided_start, "grab_gray", lambda rig: np.zeros((4, 4)))
+    monkeypatch.setattr(guided_start, "reference_images", lambda station: {})
+    ref = SimpleNamespace(T_ref_camref=np.eye(4))
+    monkeypatch.setattr(guided_start, "image_estimate", lambda **_kw: (None, {"pnp": "only 5 inliers"}))
+    assert guided_start.guided_exploration(rig, None, ref, explore_m=0.04).motions is None
+    far = exp_se3(np.r_[0.3, 0, 0, 0, 0, 0])
+    monkeypatch.setattr(guided_start, "image_estimate", lambda **_kw: (far, {"pnp": "ok"}))
+    plan = guided_start.guided_exploration(rig, None, ref, explore_m=0.04)
+    assert plan.motions is None and "far start" in plan.reason
+
+
+class TrackingVse:
+    """A VSE stand-in that tracks at every frame (a new frame each time it is asked)."""
+
+    def __init__(self):
+        self.frames = 0
+
+    def latest(self):
+        self.frames += 1
+        return SimpleNamespace(frames_processed=self.frames, status="tracking", T_map_cam=np.eye(4), message="")
+
+    def stop(self):
+        pass
+
+
+def test_exploration_ends_when_until_says_so():
+    from fgcd_cli.relocation.session import VseSession, exploration_pattern
+
+    platform = BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1))
+    session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
+                         vse=TrackingVse(), frame_timeout_s=1.0)
+    motions = exploration_pattern(translation_m=0.04, legs=3, stops_per_leg=2)
+    asked = []
+
+    def until(flange, cams):
+        asked.append(len(flange))
+        return len(flange) == 4
+
+    flange, _ = session.explore(motions, until=until)
+    assert len(motions) == 6 and len(flange) == 4 and asked == [1, 2, 3, 4]
+    # without it, all six stops (the return leg included)
+    session2 = VseSession(guard=MotionGuard(BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1)),
+                                            GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
+                          vse=TrackingVse(), frame_timeout_s=1.0)
+    assert len(session2.explore(motions)[0]) == 6
