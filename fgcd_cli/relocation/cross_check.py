@@ -8,9 +8,11 @@ compared with the 3D geometry of the same view:
   (:func:`~fgcd_cli.relocation.stop_rule.estimates_agree`);
 * without one (the 3D loop paused, or none came in time), paper 001's camera
   uncertainty of the image estimate: the reference cloud rendered at the
-  estimate, registered with what the session observes; the residual's part the
-  geometry constrains is the distance between the two, under the same bound
-  (both clouds place the camera to ``vse_sigma_rel`` of the depth).
+  estimate, registered with what the session observes (its median depth set to
+  the rendering's: the session's scale is uncertain, so the distance to the
+  object is not judged here); the residual's part the geometry constrains is
+  the distance between the two, under the same bound (both clouds place the
+  camera to ``vse_sigma_rel`` of the depth).
 
 The result is a plain dict for the log (``AdjustmentRecord.agreement``):
 ``agree`` (True, False, or None when no geometric estimate was available),
@@ -65,6 +67,7 @@ def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np
     T_cur_cam = np.array(state.T_map_cam, dtype=float)
     T_cur_cam[:3, 3] *= ctx.scale
     observed, _ = in_view(np.asarray(state.cloud.points, dtype=float) * ctx.scale, T_cur_cam, ctx.camera)
+    observed = _depth_normalised(observed, ctx.reference.points, T_ref_cam_img, ctx.camera)
     config = CoarseConfig()
     unc = camera_uncertainty(observed, ctx.reference.points, T_ref_cam_img, ctx.camera, config=config)
     ctx.session.timing.wait_s += time.monotonic() - t0
@@ -76,6 +79,25 @@ def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np
     bound = ctx.config.agreement_k * math.hypot(sa, st.sigma3d_mm)
     return {**out, "agree": bool(dist <= bound), "distance_mm": dist, "bound_mm": bound,
             "sigma_3d_mm": st.sigma3d_mm, "weak_directions": unc.weak_directions, "note": ""}
+
+
+def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: np.ndarray, camera) -> np.ndarray:
+    """The observed cloud (N, 3), camera frame, metres, scaled about the camera so that its median depth is the
+    reference rendering's at ``T_ref_cam``.
+
+    A monocular session's scale is known only to what its exploration measured (the alignment's own scale
+    absorbs the rest, docs/relocation.md "What a session does"); a scale error moves every observed point
+    along its ray, which on a flat object is the same as a shift along the view. So this check does not
+    judge the distance to the object (the image estimate and the frames do): measured on a lettered slab,
+    a 3 % scale error made a camera truly 0.06 mm from the reference disagree by 48 mm.
+    """
+    from fgcd_cli.relocation.uncertainty import render_visible_points
+
+    rendered = render_visible_points(ref_points, T_ref_cam, camera)
+    if len(observed) == 0 or len(rendered) == 0:
+        return observed
+    z_obs, z_ren = float(np.median(observed[:, 2])), float(np.median(rendered[:, 2]))
+    return observed * (z_ren / z_obs) if z_obs > 0 and z_ren > 0 else observed
 
 
 def geometry_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_img: np.ndarray,
