@@ -1,6 +1,6 @@
 """Scene catalogue: small TOML specs (``drivers/sim/scene_specs/``) built deterministically.
 
-A spec names a builder (``drivers/sim/scene_builders.py``), its parameters, the
+A spec names a builder (``drivers/sim/scene_builders.py``, ``scene_builders_arch.py``), its parameters, the
 default camera (eye and target, metres, world frame z up) and the lamp used at
 night. ``load_scene(name, seed=...)`` returns the same :class:`Scene` for the
 same spec and seed (results are cached, scenes are treated as read-only).
@@ -21,8 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from drivers.sim.scene import OBJECT_LABEL, Scene, SceneInfo
-from drivers.sim.scene_builders import BUILDERS
+from drivers.sim.scene_builders import BUILDERS as _BASE_BUILDERS
+from drivers.sim.scene_builders_arch import ARCH_BUILDERS
 from drivers.sim.transforms import look_at
+
+BUILDERS = {**_BASE_BUILDERS, **ARCH_BUILDERS}
 
 __all__ = ["scenes_dir", "list_scenes", "load_scene", "scene_spec", "SceneNotFound", "Scene", "SceneInfo", "OBJECT_LABEL"]
 

@@ -11,6 +11,10 @@ lets its image fallback try). Summary keys:
   5 cm / 5 deg of the reference (the paper's success criterion);
 * ``success_rate`` / ``baseline_success_rate``: true AFD < 3 px at the end of
   the whole relocation, with / without the stage;
+* ``confident_wrong_runs``: runs that said "converged" while truly more than
+  1 px (AFD) or 5 mm away (truth, evaluation only);
+* ``handover_rate``: the stage handed over to the rACR loop, over the cases
+  where it ran (``coarse_ran``);
 * ``mean_coarse_steps``, ``mean_afd_px``, ``mean_sim_time_s`` (rig-time model
   of ``fgcd bench relocate``).
 """
@@ -22,7 +26,7 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from fgcd_cli.bench.relocate import Case, _run_case
+from fgcd_cli.bench.relocate import Case, _run_case, confident_wrong, handover_summary
 from fgcd_cli.relocation.enums import LoopMode
 
 __all__ = ["CASES", "run"]
@@ -36,6 +40,9 @@ CASES: list[Case] = [
     Case("far-4", "stele", 10, "sun-morning", "sun-evening", 180, 12),
     Case("far-5", "statue", 4, "front", "led:1", 160, 15),
     Case("far-6", "bricks", 5, "front", "led:4", 230, 8),
+    # scene kinds the stage was never tuned on (issue 25): an overhang seen from below, a lettered slab
+    Case("far-7", "cornice", 21, "front", "led:5", 170, 10),
+    Case("far-8", "lettered_slab", 22, "sun-noon", "sun-afternoon", 160, 12),
 ]
 QUICK = ["far-1", "far-2"]
 
@@ -46,6 +53,8 @@ def _summarise(results: list[dict], label: str) -> dict:
     mean = lambda xs: float(statistics.fmean(xs)) if xs else float("nan")  # noqa: E731
     return {
         "success_rate": sum(bool(r.get("success")) for r in rows) / max(1, len(results)),
+        "converged_runs": sum(bool(r.get("converged")) for r in rows),
+        "confident_wrong_runs": sum(confident_wrong(r) for r in rows),
         "mean_afd_px": mean([r["afd_px"] for r in rows if math.isfinite(r.get("afd_px", float("nan")))]),
         "mean_iterations": mean([r["adjustments"] for r in ok]),
         "mean_sim_time_s": mean([r["session_s"] for r in ok]),
@@ -75,7 +84,7 @@ def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[
     summary = {
         "cases": len(results),
         "coarse_success_rate": sum(_coarse_ok(r) for r in rows) / max(1, len(results)),
-        "coarse_ran": len(ran),
+        **handover_summary(rows),
         "mean_coarse_steps": (statistics.fmean([r["coarse"]["steps"] for r in ran]) if ran else float("nan")),
         **with_stage,
     }
@@ -83,6 +92,6 @@ def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[
         summary.update({f"baseline_{k}": v for k, v in _summarise(results, "baseline").items()})
     return {
         "summary": summary,
-        "targets": {"coarse_success_rate": 0.83, "success_rate": 1.0},
+        "targets": {"coarse_success_rate": 0.9, "success_rate": 0.9, "confident_wrong_runs": 0},
         "cases": results,
     }

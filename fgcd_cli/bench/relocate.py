@@ -33,7 +33,11 @@ import numpy as np
 from fgcd_cli.campaign import init_campaign
 from fgcd_cli.relocation.enums import CoarseAction, EstimateStage, LoopMode
 
-__all__ = ["CASES", "run"]
+__all__ = ["CASES", "confident_wrong", "handover_summary", "run"]
+
+#: A run that claims convergence while truly farther than this is "confidently wrong" (issue 25).
+CONFIDENT_WRONG_AFD_PX = 1.0
+CONFIDENT_WRONG_MM = 5.0
 
 
 @dataclass(frozen=True)
@@ -178,6 +182,22 @@ def _coarse_summary(result) -> dict | None:
             "end_err_deg": truth["pose_err_deg"] if truth else None}
 
 
+def confident_wrong(row: dict) -> bool:
+    """Truth-based: the run said "converged" while truly more than 1 px (AFD) or 5 mm away (issue 25)."""
+    if not row.get("converged"):
+        return False
+    afd, mm = float(row.get("afd_px", math.nan)), float(row.get("pose_err_mm", math.nan))
+    return not (afd <= CONFIDENT_WRONG_AFD_PX and mm <= CONFIDENT_WRONG_MM)
+
+
+def handover_summary(rows: list[dict]) -> dict:
+    """How often the active coarse stage ran and handed over to the rACR loop (rate over the runs where it ran)."""
+    ran = [r["coarse"] for r in rows if r.get("coarse")]
+    handed = sum(bool(c.get("handed_over")) for c in ran)
+    return {"coarse_ran": len(ran), "coarse_handed_over": handed,
+            "handover_rate": handed / len(ran) if ran else float("nan")}
+
+
 def _summarise(results: list[dict], mode: str) -> dict:
     rows = [r[mode] for r in results if mode in r]
     ok = [r for r in rows if "error" not in r]
@@ -191,6 +211,10 @@ def _summarise(results: list[dict], mode: str) -> dict:
         "max_final_error_mm": max((float(r["pose_err_mm"]) for r in rows
                                    if math.isfinite(float(r.get("pose_err_mm", math.nan)))), default=float("nan")),
         "image_stage_used": sum(r.get("image_stage") == "ok" for r in rows),
+        "converged_runs": sum(bool(r.get("converged")) for r in rows),
+        # truth: claimed converged while truly > 1 px or > 5 mm away
+        "confident_wrong_runs": sum(confident_wrong(r) for r in rows),
+        **handover_summary(rows),
         # converged in 3D (rACR proper), not rescued by the image fallback
         "racr_converged": sum(bool(r.get("converged")) and not r.get("image_fallback") for r in rows),
         "mean_iterations": mean([r["adjustments"] for r in ok]),
@@ -220,7 +244,7 @@ def run(*, quick: bool, serial: bool = True, say=lambda _m: None, cases: list[st
         )
     return {
         "summary": summary,
-        "targets": {"success_rate": 1.0, "mean_afd_px": 1.0, "mean_iterations": 5, "mean_sim_time_s": 45,
+        "targets": {"success_rate": 1.0, "confident_wrong_runs": 0, "mean_afd_px": 1.0, "mean_iterations": 5, "mean_sim_time_s": 45,
                     "parallel_speedup": 1.4, "max_final_error_mm": 2.0},
         "cases": results,
     }

@@ -41,6 +41,7 @@ from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
 from fgcd_cli.relocation.protocols import CameraModel
 from fgcd_cli.relocation.session import VseSession
+from fgcd_cli.relocation.stop_rule import reference_depth_m
 from fgcd_cli.relocation.uncertainty import CameraUncertainty, camera_uncertainty, in_view, render_visible_points
 from fgcd_core.se3 import invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
@@ -204,6 +205,26 @@ def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
     return _View(T_cur_cam=T_cur_cam, notes=notes, best=best)
 
 
+def _why_not_verified(notes: dict, config: CoarseConfig) -> str:
+    """One phrase per localizer of the last view: why its estimate did not verify."""
+    parts = []
+    for name in (EstimateSource.THREE_D, EstimateSource.IMAGE):
+        note = notes.get(name) or {}
+        unc = note.get("uncertainty")
+        if unc is None:
+            parts.append(f"{name}: no estimate ({note.get('pnp') or note.get('alignment') or 'not run'})")
+        elif unc["fitness"] < config.min_fitness:
+            parts.append(f"{name}: overlap {unc['fitness']:.0%} < {config.min_fitness:.0%}")
+        elif name == EstimateSource.THREE_D and unc["weak_directions"]:
+            parts.append(f"3d: residual {unc['translation_mm']:.0f} mm / {unc['rotation_deg']:.1f} deg, but "
+                         f"{unc['weak_directions']} direction(s) the geometry cannot check")
+        else:
+            parts.append(f"{name}: camera uncertainty {unc['constrained_translation_mm']:.0f} mm / "
+                         f"{unc['constrained_rotation_deg']:.1f} deg above {config.verify_m * 1e3:.0f} mm / "
+                         f"{config.verify_deg:.0f} deg")
+    return "; ".join(parts)
+
+
 class _CoarseRun:
     """The stage's state between steps: the last verified alignment, the looks made and the heading."""
 
@@ -216,6 +237,8 @@ class _CoarseRun:
         self.looks = 0
         self.heading = 0.0  # look-around rotation from where the stage started, radians
         self.t_s = 0.0  # the session's time on the rig when the current view was localized
+        depth = reference_depth_m(inp.reference.points, self.T_ref_camref)
+        self.handover_m, self.handover_deg = inp.config.handover_limits(depth)
 
     def _log(self, step: int, action: CoarseAction, source: EstimateSource, view: _View, truth, *,
              offset=(math.nan, math.nan), commanded=(0.0, 0.0)) -> None:
@@ -227,9 +250,8 @@ class _CoarseRun:
         """No estimate verified in the views allowed: turn back to the starting heading and give up."""
         c = self.inp.config
         self._log(step, CoarseAction.PAUSE, EstimateSource.NONE, view, truth)
-        reason = (f"coarse stage: no estimate verified in {self.looks + 1} views (camera uncertainty above "
-                  f"{c.verify_m * 1e3:.0f} mm / {c.verify_deg:.0f} deg); bring the camera nearer "
-                  "the reference pose")
+        reason = (f"coarse stage: no estimate verified in {self.looks + 1} views ({_why_not_verified(view.notes, c)}); "
+                  "bring the camera nearer the reference pose")
         try:  # back to the heading the stage started from: the loop starts where it would have
             if self.heading:
                 self.inp.session.move_by(self.X @ _yaw(-self.heading) @ invert_pose(self.X))
@@ -263,12 +285,12 @@ class _CoarseRun:
         name, T_ref_cam, unc = view.best
         self.last_3d = _sim3_from_camera(T_ref_cam, view.T_cur_cam)
         off_mm, off_deg = pose_distance(T_ref_cam, self.T_ref_camref)
-        if off_mm <= c.handover_m * 1e3 and off_deg <= c.handover_deg:
+        if off_mm <= self.handover_m * 1e3 and off_deg <= self.handover_deg:
             self._log(step, CoarseAction.HANDOVER, name, view, truth, offset=(off_mm, off_deg))
             inp.say(f"coarse step {step}: verified ({name}) {off_mm:.0f} mm / {off_deg:.1f} deg from the reference; "
                     "handing over to rACR")
-            return CoarseResult(True, f"verified {name} estimate within {c.handover_m * 1e3:.0f} mm / "
-                                f"{c.handover_deg:.0f} deg", self.last_3d, self.steps)
+            return CoarseResult(True, f"verified {name} estimate within {self.handover_m * 1e3:.0f} mm / "
+                                f"{self.handover_deg:.1f} deg", self.last_3d, self.steps)
         M_cam = invert_pose(T_ref_cam) @ self.T_ref_camref
         M_flange, _ = clamp_motion(self.X @ M_cam @ invert_pose(self.X), max_step_m=c.step_m,
                                    max_step_rad=math.radians(c.step_deg))
@@ -295,8 +317,8 @@ class _CoarseRun:
             done = self._look(step, view, truth) if view.best is None else self._advance(step, view, truth)
             if done is not None:
                 return done
-        return CoarseResult(False, f"coarse stage: not within {c.handover_m * 1e3:.0f} mm / "
-                            f"{c.handover_deg:.0f} deg of the reference after {c.max_steps} steps", None, self.steps)
+        return CoarseResult(False, f"coarse stage: not within {self.handover_m * 1e3:.0f} mm / "
+                            f"{self.handover_deg:.1f} deg of the reference after {c.max_steps} steps", None, self.steps)
 
 
 def run_coarse(inp: CoarseInputs) -> CoarseResult:

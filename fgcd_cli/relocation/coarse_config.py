@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
@@ -21,19 +22,27 @@ class CoarseConfig:
     trigger_deg: float = 8.0
     """The stage runs when the first estimate is farther than this from the reference pose
     (a revisit start within rACR's usual few centimetres never triggers it)."""
-    handover_m: float = 0.04
-    handover_deg: float = 4.0
-    """A verified estimate within this of the reference pose hands over to the rACR loop: the
-    paper's 5 cm / 5 deg less the typical error of a verified estimate (docs/relocation.md,
-    "Far starts"), still inside the range the loop starts from routinely."""
+    handover_m: float | None = None
+    handover_deg: float | None = None
+    """Overrides of the hand-over radius; None: the covariance model (:meth:`handover_limits`)."""
+    basin_m: float = 0.05
+    basin_deg: float = 5.0
+    """Where the rACR loop takes over: the paper's success region (5 cm / 5 deg, lambda_cu)."""
+    sigma_rel: float = 0.01
+    """Stated covariance model of a verified estimate (docs/relocation.md, "Far starts"): its camera
+    position is known to ``sigma_rel`` x the scene depth (1 sigma, RMS radius) and its rotation to
+    ``sigma_rel`` radians, because each monocular cloud places its camera only to ~1 % of the depth
+    (the loop's ``RelocationConfig.vse_sigma_rel``). The same model sets the weak directions."""
+    k_sigma: float = 2.0
+    """Multiple of that sigma kept between a hand-over and the basin's edge."""
     verify_m: float = 0.05
     verify_deg: float = 5.0
     """Camera uncertainty that verifies an estimate (the paper's 5 cm / 5 deg, lambda_cu)."""
-    weak_ratio: float = 0.015
-    """A direction of the residual registration whose information is below this fraction of the
-    strongest (rotations scaled by the median depth) is weak. The limit sits between the
-    directions a body of revolution leaves free (its orbit about the axis and their couplings,
-    around 1 %) and the next constrained one (tens of percent) (docs/benchmarks.md)."""
+    weak_ratio: float | None = None
+    """Override: a direction whose information is below this fraction of the strongest is weak.
+    None: the covariance model of :func:`~fgcd_cli.relocation.uncertainty.camera_uncertainty`
+    (a direction is weak when a systematic cloud error of ``sigma_rel`` x depth could slide the
+    registration along it by more than ``verify_m``)."""
     min_fitness: float = 0.5
     """Fraction of the observed points that must find a rendered point after the residual
     registration; less means the estimate and the observation barely overlap."""
@@ -47,6 +56,21 @@ class CoarseConfig:
     render_stride_px: int = 4
     """Pixel bin of the z-buffer that renders the reference cloud (its points are sparse)."""
     max_points: int = 6000
+
+    def handover_limits(self, depth_m: float) -> tuple[float, float]:
+        """The hand-over radius (metres, degrees) at a scene depth (metres).
+
+        A verified estimate within ``basin - k_sigma x sigma`` of the reference pose puts the true
+        camera inside the basin unless its error exceeds ``k_sigma`` sigma (about 5 % of the time
+        for ``k_sigma = 2`` and an isotropic 3-D error of that RMS radius, chi-square). With the
+        simulator's depths (1.3-1.75 m) that is 24-15 mm and 3.9 deg.
+        """
+        depth = depth_m if math.isfinite(depth_m) and depth_m > 0 else 0.0
+        m = self.handover_m if self.handover_m is not None else max(
+            0.0, self.basin_m - self.k_sigma * self.sigma_rel * depth)
+        deg = self.handover_deg if self.handover_deg is not None else max(
+            0.0, self.basin_deg - self.k_sigma * math.degrees(self.sigma_rel))
+        return m, deg
 
 
 @dataclass(frozen=True, kw_only=True)

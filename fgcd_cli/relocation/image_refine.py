@@ -82,8 +82,11 @@ class ImageRefineConfig:
     """A larger correction, up to these limits, is trusted only on strong
     evidence: at least ``strong_min_inliers`` PnP inliers making at least
     ``strong_min_inlier_ratio`` of the matches (a chance PnP fit on repeated or
-    weak texture gathers neither). The loop still clamps each motion to its
-    largest step and measures again after moving."""
+    weak texture gathers neither). Beyond them, a correction on strong evidence
+    is returned refused but ``oversize`` with its motion: the loop trusts it only
+    when the 3D geometry of the same view confirms it
+    (:mod:`fgcd_cli.relocation.cross_check`). The loop still clamps each motion to
+    its largest step and measures again after moving."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -125,6 +128,9 @@ class ImageRefinement:
     """1-sigma uncertainty of the camera position this correction implies, mm: the RMS
     radius ``sqrt(trace(Cov_t))`` of the PnP translation's covariance (see
     :func:`pnp_translation_sigma_m`). NaN when no PnP solution was found."""
+    oversize: bool = False
+    """Refused only for its size: strong evidence, a correction beyond ``strong_max_motion_*``.
+    ``M_cam`` and ``offset_sigma_mm`` are kept so that an independent check may confirm it."""
 
 
 def reference_depth_lookup(
@@ -272,7 +278,7 @@ def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
     config = view.config
     p_ref, p_cur = match_sift(_local_contrast_u8(ref), _local_contrast_u8(cur), ratio=config.ratio)
     sift = _refine_matches(p_ref, p_cur, view, matcher="sift", min_inliers=config.min_inliers)
-    if sift.ok:
+    if sift.ok or sift.oversize:
         return sift
     # Strong lighting change (another sun): lighting-robust grid correspondences
     # (phase correlation of gradient-magnitude patches, the FDF grid variant).
@@ -289,7 +295,7 @@ def _replace_reason(res: ImageRefinement, reason: str) -> ImageRefinement:
     return ImageRefinement(ok=res.ok, reason=reason, M_cam=res.M_cam, measured_afd_px=res.measured_afd_px,
                            matches=res.matches, inliers=res.inliers, rms_px=res.rms_px,
                            reference_image=res.reference_image, matcher=res.matcher,
-                           offset_sigma_mm=res.offset_sigma_mm)
+                           offset_sigma_mm=res.offset_sigma_mm, oversize=res.oversize)
 
 
 def pnp_translation_sigma_m(points_3d: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
@@ -383,7 +389,10 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
                         f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})",
                         n, len(inl), afd, rms)
         if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
-            return fail(f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust", n, len(inl), afd, rms)
+            return ImageRefinement(ok=False, reason=f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to "
+                                   f"trust on image evidence alone", M_cam=M_cam, measured_afd_px=afd, matches=n,
+                                   inliers=len(inl), rms_px=rms, reference_image=name, matcher=matcher,
+                                   offset_sigma_mm=sigma_mm, oversize=True)
     return ImageRefinement(ok=True, reason="ok", M_cam=M_cam, measured_afd_px=afd, matches=n, inliers=len(inl),
                            rms_px=rms, reference_image=name, matcher=matcher, offset_sigma_mm=sigma_mm)
 

@@ -2,16 +2,27 @@
 
 Each step matches the current image with the reference images, solves the
 camera motion by PnP on the reference cloud and moves (through the guard,
-clamped to the largest step). It stops only when the correction moves the
-reference image by less than ``image_stop_afd_px`` *and* the camera offset it
-measures is within the tolerance (:func:`~.stop_rule.tolerance_mm`); and, after
-a converged 3D loop, only when a 3D estimate of the same view agrees with it
-within their uncertainties (:func:`~.stop_rule.estimates_agree`).
-Disagreement takes another step; running out of steps pauses (not converged)
-with the reason (docs/relocation.md, "Final image stage").
+clamped to the largest step). No single estimator ends it (issue 25; docs/relocation.md,
+"Stop rules"). It stops only when
+
+* the correction moves the reference image by less than ``image_stop_afd_px``
+  *and* the camera offset it measures is within the tolerance
+  (:func:`~.stop_rule.tolerance_mm`);
+* the frames themselves agree: the AFD the matches show is within what a camera
+  at the stop rule would show under the matching noise
+  (:func:`~.stop_rule.frame_afd_bound_px`);
+* the 3D geometry of the same view agrees within both uncertainties
+  (:func:`~.cross_check.geometry_check`: the alignment thread's estimate, else paper
+  001's camera uncertainty). After a converged 3D loop an unavailable check counts as
+  not agreeing; in the fallback (the 3D loop paused) it is reported as not done.
+
+Disagreement takes another step; running out of steps pauses (not converged) with
+the reason. A correction beyond the image evidence's own limit is trusted only
+when the 3D geometry of the view confirms it.
 
 After a converged 3D loop (the *refinement*), weak image evidence before any
-image motion leaves the rACR result as it is (the record says why; the
+image motion leaves the camera where the 3D loop stopped, *not converged*: one
+estimator said "done" and nothing confirmed it (the record says why; the
 residual is the 3D estimate's, with its larger uncertainty). When the 3D loop
 paused (the *fallback*) the image estimate is the only one left.
 """
@@ -20,17 +31,17 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.adjustment import clamp_motion
 from fgcd_cli.relocation.context import LoopContext, LoopState
+from fgcd_cli.relocation.cross_check import geometry_check
 from fgcd_cli.relocation.enums import Agreement, EstimateSource, EstimateStage
-from fgcd_cli.relocation.estimates import fresh_3d_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
-from fgcd_cli.relocation.stop_rule import Residual, estimated_afd_px, estimates_agree, offset_vector_mm
+from fgcd_cli.relocation.stop_rule import Residual, estimated_afd_px, frame_afd_bound_px
 from fgcd_core.se3 import invert_pose, pose_distance
 
 __all__ = ["image_stage"]
@@ -72,22 +83,15 @@ def _measurement(ctx: LoopContext, ref, last: AdjustmentRecord | None) -> _Measu
                         offset_mm=math.nan, offset_deg=math.nan, afd_px=math.nan, sigma_mm=math.nan)
 
 
-def _agreement(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_img: np.ndarray,
-               sigma_img_mm: float) -> dict:
-    """Compare the image estimate with a 3D estimate of the same view (:func:`~.stop_rule.estimates_agree`).
-
-    Returns a dict for the log: ``agree`` (True, False, or None when no 3D estimate
-    of this view was available), the distance and bound in mm, the 3D offset, a note.
-    """
-    T_3d, note = fresh_3d_estimate(ctx, st, after_frame)
-    if T_3d is None:
-        return {"agree": None, "note": note}
-    T_ref_camref = ctx.reference.T_ref_camref
-    d_img = offset_vector_mm(T_ref_cam_img, T_ref_camref)
-    d_3d = offset_vector_mm(T_3d, T_ref_camref)
-    ok, dist, bound = estimates_agree(d_img, sigma_img_mm, d_3d, st.sigma3d_mm, k=ctx.config.agreement_k)
-    return {"agree": ok, "distance_mm": dist, "bound_mm": bound, "offset_3d_mm": float(np.linalg.norm(d_3d)),
-            "sigma_3d_mm": st.sigma3d_mm, "note": ""}
+def _frames(ctx: LoopContext, ref) -> dict:
+    """What the frames themselves say: the matches' mean displacement against the bound a camera at the
+    stop rule would show (:func:`~.stop_rule.frame_afd_bound_px`)."""
+    c = ctx.config
+    bound = frame_afd_bound_px(stop_afd_px=c.image_stop_afd_px, rms_px=ref.rms_px, inliers=ref.inliers,
+                               k=c.agreement_k)
+    measured = float(ref.measured_afd_px)
+    return {"measured_afd_px": measured, "bound_px": bound,
+            "agree": bool(math.isfinite(bound) and measured <= bound)}
 
 
 class _ImageStage:
@@ -102,6 +106,7 @@ class _ImageStage:
         self.steps = c.image_fallback_steps if fallback else c.image_refine_steps
         self.reason = result.reason
         self.residual: Residual | None = None
+        self.converged = False
         self.moved = False  # an image motion was made since the last estimate that reached the tolerance
         self.after_frame = st.moved_at_frame
 
@@ -116,11 +121,12 @@ class _ImageStage:
         session.timing.wait_s += time.monotonic() - t0
         return ref
 
-    def _record(self, step: int, state, ref, m: _Measurement, agreement: dict | None) -> AdjustmentRecord:
+    def _record(self, step: int, state, ref, m: _Measurement, agreement: dict | None,
+                frames: dict | None) -> AdjustmentRecord:
         ctx, last = self.ctx, self.last
         info = {"matches": ref.matches, "inliers": ref.inliers, "rms_px": ref.rms_px,
                 "measured_afd_px": ref.measured_afd_px, "reference_image": ref.reference_image,
-                "matcher": ref.matcher, "fallback": self.fallback}
+                "matcher": ref.matcher, "fallback": self.fallback, "frames": frames}
         return AdjustmentRecord(
             iteration=self.first_iteration + step + 1, t_wall_s=self.st.elapsed_s(),
             t_session_s=ctx.session.timing.total_s, stage=EstimateStage.IMAGE, g=m.g, offset_mm=m.offset_mm,
@@ -132,24 +138,56 @@ class _ImageStage:
             tolerance_mm=self.st.tol_mm, agreement=agreement,
         )
 
+    def _confirmed_if_large(self, ref):
+        """A correction refused only for its size (``oversize``) is trusted when it is within the loop's
+        revisit range and the 3D geometry of the view confirms it (:mod:`.cross_check`); else as refused."""
+        ctx, c = self.ctx, self.ctx.config
+        if ref.ok or not ref.oversize or ref.M_cam is None:
+            return ref, None
+        mm, deg = pose_distance(np.eye(4), ref.M_cam)
+        if mm > c.max_offset_m * 1e3 or deg > c.max_offset_deg:
+            return replace(ref, reason=f"{ref.reason}, and beyond the {c.max_offset_m * 1e3:.0f} mm / "
+                                       f"{c.max_offset_deg:.0f} deg revisit range"), None
+        T_ref_cam = np.asarray(ctx.reference.T_ref_camref, dtype=float) @ invert_pose(ref.M_cam)
+        check = geometry_check(ctx, self.st, self.after_frame, T_ref_cam, ref.offset_sigma_mm,
+                               use_alignment=not self.fallback)
+        if check["agree"]:
+            ctx.say(f"{self.label}: a {mm:.0f} mm correction confirmed by the {check['check']} "
+                    f"({check['distance_mm']:.1f} mm <= {check['bound_mm']:.1f} mm)")
+            return replace(ref, ok=True, reason=f"ok: {mm:.0f} mm confirmed by the {check['check']}"), check
+        why = (f"{check['check']} {check['distance_mm']:.1f} mm > {check['bound_mm']:.1f} mm"
+               if check["agree"] is False else check["note"])
+        return replace(ref, reason=f"{ref.reason}; not confirmed by the 3D geometry ({why})"), check
+
+    def _checks(self, ref, m: _Measurement) -> tuple[bool, dict | None, dict | None]:
+        """Whether every estimator lets the stage stop here: the image estimate, the frames, the 3D geometry."""
+        st, c = self.st, self.ctx.config
+        if not (ref.ok and m.afd_px <= c.image_stop_afd_px and m.offset_mm <= st.tol_mm):
+            return False, None, None
+        frames = _frames(self.ctx, ref)
+        if not frames["agree"]:
+            return False, frames, None
+        geometry = geometry_check(self.ctx, st, self.after_frame, m.T_ref_cam, m.sigma_mm,
+                                  use_alignment=not self.fallback)
+        # after a converged 3D loop an unavailable check is no confirmation; the fallback has no other estimator
+        done = geometry["agree"] is True or (geometry["agree"] is None and self.fallback)
+        return done, frames, geometry
+
     def _step(self, step: int) -> bool:
         """One measurement, and a motion unless it ends the stage; True when the stage ends."""
-        ctx, st, c = self.ctx, self.st, self.ctx.config
+        ctx = self.ctx
         state = ctx.session.settle(frames=2)
-        ref = self._refine(step)
+        ref, large = self._confirmed_if_large(self._refine(step))
         m = _measurement(ctx, ref, self.last)
-        within = ref.ok and m.afd_px <= c.image_stop_afd_px and m.offset_mm <= st.tol_mm
-        agreement = None
-        if within and not self.fallback:
-            agreement = _agreement(ctx, st, self.after_frame, m.T_ref_cam, m.sigma_mm)
-        st.add(ctx, self._record(step, state, ref, m, agreement))
+        done, frames, geometry = self._checks(ref, m)
+        self.st.add(ctx, self._record(step, state, ref, m, geometry or large, frames))
         if not ref.ok:
             self._declined(ref)
             return True
-        if within and (agreement is None or agreement["agree"] is not False):
-            self._stopped(m, agreement)
+        if done:
+            self._stopped(m, geometry)
             return True
-        self._note_why_not(step, m, agreement, within)
+        self._note_why_not(step, m, frames, geometry)
         ctx.say(f"{self.label} {step + 1}/{self.steps}: moving {m.offset_mm:.1f} mm / {m.offset_deg:.2f} deg")
         ctx.session.move_by(m.M_cmd, progress=(0, ctx.session.substeps(m.M_cmd),
                                                f"{self.label} {step + 1}: moving"))
@@ -158,35 +196,42 @@ class _ImageStage:
         return False
 
     def _declined(self, ref) -> None:
-        """No trustworthy image solution: the stage ends; a converged 3D result stands if nothing moved yet."""
+        """No trustworthy image solution: the stage ends. Before any image motion the camera stays where the 3D
+        loop stopped, with the 3D residual, but *not converged*: nothing confirmed the 3D estimate."""
         self.reason = f"{self.result.reason}; {self.label}: {ref.reason}"
         if not self.fallback and not self.moved and self.last is not None:
-            # weak evidence before any image motion: the converged 3D result stands
             self.residual = Residual(offset_mm=self.last.offset_mm, sigma_mm=self.st.sigma3d_mm,
                                      tolerance_mm=self.st.tol_mm, source=EstimateSource.THREE_D,
                                      agreement=Agreement.NOT_CHECKED.because(f"{self.label} declined"))
+            self.reason = (f"{self.reason}; the 3D estimate alone says done, with an uncertainty "
+                           f"(± {self.st.sigma3d_mm:.1f} mm) above the tolerance, and nothing confirmed it")
 
-    def _stopped(self, m: _Measurement, agreement: dict | None) -> None:
-        """The image stop rule holds and no 3D estimate contradicts it."""
+    def _stopped(self, m: _Measurement, geometry: dict | None) -> None:
+        """The image stop rule holds, the frames agree, and the 3D geometry agrees (or, in the fallback,
+        cannot be measured)."""
         c = self.ctx.config
-        if self.fallback:
-            verdict = Agreement.NOT_CHECKED.because("the 3D loop paused")
-        elif agreement is None:
-            verdict = Agreement.NOT_CHECKED
+        if geometry is not None and geometry["agree"]:
+            verdict = Agreement.AGREE if geometry["check"] == "alignment" else Agreement.AGREE.because(geometry["check"])
         else:
-            verdict = Agreement.AGREE if agreement["agree"] else Agreement.NOT_CHECKED.because(agreement["note"])
+            verdict = Agreement.NOT_CHECKED.because(geometry["note"] if geometry else "the 3D loop paused")
+        self.converged = True
         self.residual = Residual(offset_mm=m.offset_mm, sigma_mm=m.sigma_mm, tolerance_mm=self.st.tol_mm,
                                  source=EstimateSource.IMAGE, agreement=verdict)
         self.reason = (f"{self.result.reason}; {self.label}: correction {m.afd_px:.2f} px <= {c.image_stop_afd_px} px "
                        f"and {m.offset_mm:.2f} mm <= {self.st.tol_mm:.2f} mm")
 
-    def _note_why_not(self, step: int, m: _Measurement, agreement: dict | None, within: bool) -> None:
-        c, tol = self.ctx.config, self.st.tol_mm
-        if within:  # the image says done, the 3D estimate of the same view disagrees: measure again
-            self.reason = (f"{self.result.reason}; {self.label}: the 3D and image estimates disagree by "
-                           f"{agreement['distance_mm']:.1f} mm (> {agreement['bound_mm']:.1f} mm)")
+    def _note_why_not(self, step: int, m: _Measurement, frames: dict | None, geometry: dict | None) -> None:
+        c, tol, head = self.ctx.config, self.st.tol_mm, f"{self.result.reason}; {self.label}"
+        if geometry is not None and geometry["agree"] is False:  # the 3D geometry of the same view disagrees
+            self.reason = (f"{head}: the 3D and image estimates disagree by {geometry['distance_mm']:.1f} mm "
+                           f"(> {geometry['bound_mm']:.1f} mm, {geometry['check']})")
+        elif geometry is not None:
+            self.reason = f"{head}: the image estimate says done, but no 3D estimate confirms it ({geometry['note']})"
+        elif frames is not None:
+            self.reason = (f"{head}: the image estimate says {m.afd_px:.2f} px, but the frames show "
+                           f"{frames['measured_afd_px']:.2f} px (> {frames['bound_px']:.2f} px)")
         else:
-            self.reason = (f"{self.result.reason}; {self.label}: after {step + 1} step(s) it still measures "
+            self.reason = (f"{head}: after {step + 1} step(s) it still measures "
                            f"{m.offset_mm:.2f} ± {m.sigma_mm:.2f} mm / {m.afd_px:.2f} px (tolerance {tol:.2f} mm, "
                            f"{c.image_stop_afd_px} px)")
 
@@ -198,7 +243,10 @@ class _ImageStage:
             raise AlgorithmError(f"motion paused: {self.reason}")
         out = RelocationResult(False, f"motion paused: {self.reason}", records[-1].iteration if records else 0)
         last_rec = records[-1] if records else None
-        if last_rec is not None and last_rec.alignment_ok:
+        if self.residual is not None:  # declined before any image motion: the 3D loop's residual
+            out.residual = self.residual
+            out.reason = f"{out.reason}; {self.residual.text()}"
+        elif last_rec is not None and last_rec.alignment_ok:
             out.residual = Residual(offset_mm=last_rec.offset_mm,
                                     sigma_mm=float(last_rec.offset_sigma_mm or math.nan),
                                     tolerance_mm=self.st.tol_mm, source=EstimateSource.IMAGE,
@@ -209,7 +257,7 @@ class _ImageStage:
         for step in range(self.steps):
             if self._step(step):
                 break
-        if self.residual is not None:
+        if self.converged:
             out = RelocationResult(True, f"{self.reason}; {self.residual.text()}", self.st.records[-1].iteration)
             out.residual = self.residual
             return out

@@ -23,6 +23,7 @@ __all__ = [
     "Residual",
     "estimated_afd_px",
     "estimates_agree",
+    "frame_afd_bound_px",
     "offset_vector_mm",
     "reference_depth_m",
     "tolerance_mm",
@@ -149,6 +150,36 @@ def estimates_agree(offset_a_mm: np.ndarray, sigma_a_mm: float, offset_b_mm: np.
     sa, sb = (float(x) if math.isfinite(float(x)) else 0.0 for x in (sigma_a_mm, sigma_b_mm))
     bound = k * math.hypot(sa, sb)
     return bool(d <= bound), d, bound
+
+
+def frame_afd_bound_px(*, stop_afd_px: float, rms_px: float, inliers: int, k: float) -> float:
+    """Largest AFD the frames themselves may show when the camera is within the image-space stop rule, px.
+
+    Model: a match's displacement between the reference and the current image is the true
+    displacement ``d_i`` plus matching noise ``n_i`` with ``E|n|^2 = rms^2`` (the PnP inliers'
+    reprojection RMS). Then ``mean|d_i + n_i| <= sqrt(mean|d_i + n_i|^2) ~ sqrt(AFD^2 + rms^2)``
+    for displacements of similar size, and the mean over ``n`` matches scatters by about
+    ``rms / sqrt(n)``; ``k`` of those are allowed.
+
+    Parameters
+    ----------
+    stop_afd_px : float
+        The image-space stop rule, px.
+    rms_px : float
+        RMS reprojection error of the PnP inliers, px (NaN or inf: no bound can be stated).
+    inliers : int
+        Number of matches the measured AFD averages.
+    k : float
+        Allowed multiple of the mean's scatter.
+
+    Returns
+    -------
+    float
+        Pixels; NaN when ``rms_px`` or ``inliers`` give no model.
+    """
+    if not math.isfinite(rms_px) or inliers < 1:
+        return math.nan
+    return math.hypot(stop_afd_px, rms_px) + k * rms_px / math.sqrt(inliers)
 
 
 def offset_vector_mm(T_ref_cam: np.ndarray, T_ref_camref: np.ndarray) -> np.ndarray:

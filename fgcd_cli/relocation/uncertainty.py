@@ -196,7 +196,7 @@ def camera_uncertainty(
     # T_estcam_truecam, i.e. the true camera in the estimated camera's frame.
     mm, deg = pose_distance(np.eye(4), T)
     weak, T_constrained = _constrained_part(T, obs, rendered, np.asarray(dst.normals), radius=0.02 * depth,
-                                            depth=depth, weak_ratio=config.weak_ratio)
+                                            depth=depth, config=config)
     c_mm, c_deg = pose_distance(np.eye(4), T_constrained)
     return CameraUncertainty(translation_m=mm / 1e3, rotation_deg=deg, fitness=float(result.fitness),
                              rmse_m=float(result.inlier_rmse), observed=len(obs), rendered=len(rendered),
@@ -205,15 +205,20 @@ def camera_uncertainty(
 
 
 def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray, normals: np.ndarray, *,
-                      radius: float, depth: float, weak_ratio: float) -> tuple[int, np.ndarray]:
+                      radius: float, depth: float, config: CoarseConfig) -> tuple[int, np.ndarray]:
     """The residual motion ``T`` without its part along the registration's weak directions.
 
     Point-to-plane information ``H = sum J^T J`` with ``J = [n, (p x n) / depth]`` over the
-    final correspondences (twist ``(t, depth * phi)``: rotations as motions at the scene's
-    depth); eigen-directions below ``weak_ratio`` of the strongest are weak. Returns their
-    count and ``exp`` of the twist projected onto the others. Written by hand: Open3D's
-    information matrix is the point-to-point one, which does not see a surface sliding
-    along itself.
+    ``N`` final correspondences (twist ``(t, depth * phi)``: rotations as motions at the scene's
+    depth). Covariance model (docs/relocation.md, "Far starts"): the residuals are not
+    independent noise but a systematic cloud error of up to ``b = sigma_rel x depth`` (each
+    monocular cloud is placed to ~1 % of the depth). Such an error shifts the solution along an
+    eigen-direction of ``H`` by at most ``b / sqrt(lambda / N)`` (Cauchy-Schwarz on
+    ``H^-1 J^T r``), so the direction is weak when that exceeds ``verify_m``: the check cannot
+    see an error along it. ``config.weak_ratio``, when set, replaces the model by a fraction of
+    the strongest direction. Returns the weak count and ``exp`` of the twist projected onto the
+    others. Written by hand: Open3D's information matrix is the point-to-point one, which does
+    not see a surface sliding along itself.
     """
     from scipy.spatial import cKDTree
 
@@ -227,7 +232,11 @@ def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray,
     n = normals[idx[ok]]
     J = np.hstack([n, np.cross(p[ok], n) / depth])
     evals, evecs = np.linalg.eigh(J.T @ J)
-    strong = evals >= weak_ratio * evals.max()
+    if config.weak_ratio is not None:
+        strong = evals >= config.weak_ratio * evals.max()
+    else:
+        sensitivity = np.sqrt(np.clip(evals, 0.0, None) / len(J))  # RMS residual per unit motion along each
+        strong = config.sigma_rel * depth <= config.verify_m * sensitivity
     xi = log_se3(T)
     v = np.concatenate([xi[:3], xi[3:] * depth])
     E = evecs[:, strong]

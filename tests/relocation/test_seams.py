@@ -27,11 +27,13 @@ def test_relocation_config_defaults_are_the_old_ones():
     assert (c.vse_sigma_rel, c.agreement_k, c.agreement_wait_s, c.heartbeat_s) == (0.01, 2.0, 30.0, 5.0)
 
 
-def test_coarse_config_defaults_are_the_old_ones():
+def test_coarse_config_defaults_are_the_documented_ones():
     c = CoarseConfig()
     assert (c.trigger_m, c.trigger_deg, c.handover_m, c.handover_deg, c.verify_m, c.verify_deg, c.weak_ratio,
             c.min_fitness, c.step_m, c.step_deg, c.look_deg, c.max_steps, c.max_looks, c.render_stride_px,
-            c.max_points) == (0.10, 8.0, 0.04, 4.0, 0.05, 5.0, 0.015, 0.5, 0.08, 8.0, 4.0, 10, 3, 4, 6000)
+            c.max_points) == (0.10, 8.0, None, None, 0.05, 5.0, None, 0.5, 0.08, 8.0, 4.0, 10, 3, 4, 6000)
+    # issue 25: the hand-over radius and the weak directions come from a stated covariance model
+    assert (c.basin_m, c.basin_deg, c.sigma_rel, c.k_sigma) == (0.05, 5.0, 0.01, 2.0)
 
 
 def test_enum_values_are_the_logged_strings():
