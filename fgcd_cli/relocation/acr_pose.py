@@ -119,9 +119,9 @@ def _measured_afd(p_cur: np.ndarray, p_ref: np.ndarray, ransac_px: float) -> flo
 def _essential(p_cur: np.ndarray, p_ref: np.ndarray, K: np.ndarray, config: AcrPoseConfig):
     """``X_ref = R X_cur + t`` (unit t) from the 5-point essential matrix; (R, t, inliers) or a reason."""
     cv2.setRNGSeed(0)  # the same pair gives the same pose every time
-    # USAC_ACCURATE (graph-cut RANSAC with local optimisation): plain RANSAC returns the best
-    # minimal 5-point sample, whose direction was 15-110 deg off at 0.1 px noise on a revisit's
-    # few-centimetre baseline; the locally optimised model on all inliers, 0.3-3.6 deg
+    # Rule: a model locally optimised on all inliers (USAC_ACCURATE), not plain RANSAC's best
+    # minimal sample, whose translation direction is unreliable on a revisit's short baseline
+    # (docs/relocation.md, "The ACR baseline").
     E, mask = cv2.findEssentialMat(p_cur, p_ref, K, method=cv2.USAC_ACCURATE, prob=0.999, threshold=config.ransac_px)
     if E is None or mask is None or E.shape != (3, 3):
         return "no essential matrix (degenerate matches)"
