@@ -11,8 +11,15 @@ compared with the 3D geometry of the same view:
   estimate, registered with what the session observes (its median depth set to
   the rendering's: the session's scale is uncertain, so the distance to the
   object is not judged here); the residual's part the geometry constrains is
-  the distance between the two, under the same bound (both clouds place the
-  camera to ``vse_sigma_rel`` of the depth).
+  the distance between the two, under the bound of both uncertainties: the
+  image estimate's and the check's own (the covariance model along the
+  directions the view's geometry constrains: a near-plane barely constrains
+  its tilts, so a distorted monocular cloud can tilt the registration by more
+  than a cloud's 1 % placement error; never less than that).
+
+A large correction is *confirmed* only by a check that could have told it
+apart from no correction at all: the check agrees and its bound is below the
+correction's size.
 
 The result is a plain dict for the log (``AdjustmentRecord.agreement``):
 ``agree`` (True, False, or None when no geometric estimate was available),
@@ -76,9 +83,12 @@ def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np
                                f"overlap {unc.fitness:.0%})"}
     dist = 1000.0 * unc.constrained_translation_m
     sa = sigma_img_mm if math.isfinite(sigma_img_mm) else 0.0
-    bound = ctx.config.agreement_k * math.hypot(sa, st.sigma3d_mm)
+    # the check's own uncertainty: the covariance model along the directions it constrains, never less
+    # than a cloud's placement (vse_sigma_rel x depth); on a near-plane its tilts are barely constrained
+    sigma_check = max(st.sigma3d_mm, 1000.0 * unc.check_sigma_m)
+    bound = ctx.config.agreement_k * math.hypot(sa, sigma_check)
     return {**out, "agree": bool(dist <= bound), "distance_mm": dist, "bound_mm": bound,
-            "sigma_3d_mm": st.sigma3d_mm, "weak_directions": unc.weak_directions, "note": ""}
+            "sigma_3d_mm": sigma_check, "weak_directions": unc.weak_directions, "note": ""}
 
 
 def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: np.ndarray, camera) -> np.ndarray:

@@ -151,6 +151,10 @@ class _ImageStage:
         T_ref_cam = np.asarray(ctx.reference.T_ref_camref, dtype=float) @ invert_pose(ref.M_cam)
         check = geometry_check(ctx, self.st, self.after_frame, T_ref_cam, ref.offset_sigma_mm,
                                use_alignment=not self.fallback)
+        if check["agree"] and check["bound_mm"] >= mm:  # the check could not tell it from no correction at all
+            return replace(ref, reason=f"{ref.reason}; not confirmed by the 3D geometry (its {check['check']} "
+                                       f"bound {check['bound_mm']:.0f} mm does not resolve a {mm:.0f} mm "
+                                       "correction)"), check
         if check["agree"]:
             ctx.say(f"{self.label}: a {mm:.0f} mm correction confirmed by the {check['check']} "
                     f"({check['distance_mm']:.1f} mm <= {check['bound_mm']:.1f} mm)")

@@ -55,6 +55,10 @@ class CameraUncertainty:
     constrained_rotation_deg: float = math.inf
     """The residual motion without its part along the weak directions."""
     T_correction_constrained: np.ndarray | None = None
+    check_sigma_m: float = math.inf
+    """What the check itself may be off by along the directions it constrains, by the covariance model
+    (RMS over those directions of ``sigma_rel x depth / sqrt(lambda / N)``, translation part): a
+    systematic cloud error moves the registration that far without any error in the estimate."""
 
     def verified(self, config: CoarseConfig, *, geometric_source: bool = True) -> bool:
         """True when the estimate is within the verification limits on enough overlap.
@@ -84,7 +88,8 @@ class CameraUncertainty:
                 "fitness": self.fitness, "rmse_mm": self.rmse_m * 1e3, "observed": self.observed,
                 "rendered": self.rendered, "weak_directions": self.weak_directions,
                 "constrained_translation_mm": self.constrained_translation_m * 1e3,
-                "constrained_rotation_deg": self.constrained_rotation_deg}
+                "constrained_rotation_deg": self.constrained_rotation_deg,
+                "check_sigma_mm": self.check_sigma_m * 1e3}
 
 
 
@@ -195,17 +200,24 @@ def camera_uncertainty(
     # ``T`` maps observed (true camera frame) points onto the rendering (estimated camera frame):
     # T_estcam_truecam, i.e. the true camera in the estimated camera's frame.
     mm, deg = pose_distance(np.eye(4), T)
-    weak, T_constrained = _constrained_part(T, obs, rendered, np.asarray(dst.normals), radius=0.02 * depth,
-                                            depth=depth, config=config)
+    weak, T_constrained, check_sigma_m = _constrained_part(T, obs, rendered, np.asarray(dst.normals),
+                                                           radius=0.02 * depth, depth=depth, config=config)
     c_mm, c_deg = pose_distance(np.eye(4), T_constrained)
     return CameraUncertainty(translation_m=mm / 1e3, rotation_deg=deg, fitness=float(result.fitness),
                              rmse_m=float(result.inlier_rmse), observed=len(obs), rendered=len(rendered),
                              T_correction=T.copy(), weak_directions=weak, constrained_translation_m=c_mm / 1e3,
-                             constrained_rotation_deg=c_deg, T_correction_constrained=T_constrained)
+                             constrained_rotation_deg=c_deg, T_correction_constrained=T_constrained,
+                             check_sigma_m=check_sigma_m)
+
+
+def sensitivity_of(evals: np.ndarray, n: int) -> np.ndarray:
+    """RMS residual per unit motion along each eigen-direction of a point-to-plane information ``J^T J``
+    (eigenvalues ``evals`` (6,)) over ``n`` correspondences: ``sqrt(lambda / n)``."""
+    return np.sqrt(np.clip(evals, 0.0, None) / max(n, 1))
 
 
 def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray, normals: np.ndarray, *,
-                      radius: float, depth: float, config: CoarseConfig) -> tuple[int, np.ndarray]:
+                      radius: float, depth: float, config: CoarseConfig) -> tuple[int, np.ndarray, float]:
     """The residual motion ``T`` without its part along the registration's weak directions.
 
     Point-to-plane information ``H = sum J^T J`` with ``J = [n, (p x n) / depth]`` over the
@@ -216,8 +228,9 @@ def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray,
     eigen-direction of ``H`` by at most ``b / sqrt(lambda / N)`` (Cauchy-Schwarz on
     ``H^-1 J^T r``), so the direction is weak when that exceeds ``verify_m``: the check cannot
     see an error along it. ``config.weak_ratio``, when set, replaces the model by a fraction of
-    the strongest direction. Returns the weak count and ``exp`` of the twist projected onto the
-    others. Written by hand: Open3D's information matrix is the point-to-point one, which does
+    the strongest direction. Returns the weak count, ``exp`` of the twist projected onto the
+    others, and the check's own uncertainty on that part (metres): along each kept direction the
+    same bound ``b / sqrt(lambda / N)``, their translation parts summed in quadrature. Written by hand: Open3D's information matrix is the point-to-point one, which does
     not see a surface sliding along itself.
     """
     from scipy.spatial import cKDTree
@@ -228,18 +241,19 @@ def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray,
     dist, idx = cKDTree(rendered).query(p, distance_upper_bound=radius)
     ok = np.isfinite(dist)
     if ok.sum() < 50:
-        return 6, np.eye(4)
+        return 6, np.eye(4), math.inf
     n = normals[idx[ok]]
     J = np.hstack([n, np.cross(p[ok], n) / depth])
     evals, evecs = np.linalg.eigh(J.T @ J)
     if config.weak_ratio is not None:
         strong = evals >= config.weak_ratio * evals.max()
     else:
-        sensitivity = np.sqrt(np.clip(evals, 0.0, None) / len(J))  # RMS residual per unit motion along each
-        strong = config.sigma_rel * depth <= config.verify_m * sensitivity
+        strong = config.sigma_rel * depth <= config.verify_m * sensitivity_of(evals, len(J))
     xi = log_se3(T)
     v = np.concatenate([xi[:3], xi[3:] * depth])
     E = evecs[:, strong]
     v_c = E @ (E.T @ v)
-    return int((~strong).sum()), exp_se3(np.concatenate([v_c[:3], v_c[3:] / depth]))
+    bound = config.sigma_rel * depth / np.maximum(sensitivity_of(evals, len(J))[strong], 1e-12)
+    check_sigma = float(np.sqrt(np.sum((bound * np.linalg.norm(E[:3], axis=0)) ** 2)))
+    return int((~strong).sum()), exp_se3(np.concatenate([v_c[:3], v_c[3:] / depth])), check_sigma
 
