@@ -176,6 +176,7 @@ def _coarse_summary(result) -> dict | None:
     return {"handed_over": result.handed_over, "reason": result.reason, "steps": len(result.steps),
             "moves": sum(s.action == CoarseAction.MOVE for s in result.steps),
             "looks": sum(s.action == CoarseAction.LOOK for s in result.steps),
+            "descents": sum(s.action == CoarseAction.DESCEND for s in result.steps),
             "start_err_mm": result.steps[0].truth["pose_err_mm"] if result.steps and result.steps[0].truth else None,
             "start_err_deg": result.steps[0].truth["pose_err_deg"] if result.steps and result.steps[0].truth else None,
             "end_err_mm": truth["pose_err_mm"] if truth else None,

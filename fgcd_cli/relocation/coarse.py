@@ -20,9 +20,12 @@ AccurateACL's split, adapted to a platform next to one object:
   view as the localizable region (the reference cloud was built from there,
   so it is where the scene is best known): a verified estimate is followed
   along the shortest path, one bounded step at a time, re-localizing after
-  each step; without a verified estimate the camera turns a little (the
-  paper's turn-around action) to show the localizer another view, and after
-  a few unverified views the stage pauses rather than guess.
+  each step; without a verified estimate the camera descends half the way an
+  unverified (but overlapping) estimate points to, at most twice (the
+  paper's scene descent, which assumes the estimate roughly right), or else
+  turns a little (the paper's turn-around action) to show the localizer
+  another view; after a few unverified views the stage pauses rather than
+  guess. Only a verified estimate ever hands over.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from drivers.platform import MotionRejected
 from fgcd_cli.relocation.adjustment import clamp_motion
@@ -159,6 +163,8 @@ class _View:
     T_cur_cam: np.ndarray
     notes: dict
     best: tuple[EstimateSource, np.ndarray, CameraUncertainty] | None
+    unverified: tuple[EstimateSource, np.ndarray, CameraUncertainty] | None = None
+    """When nothing verified: the estimate that overlaps the observation with the smallest residual."""
 
 
 def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, last_3d: Sim3):
@@ -192,7 +198,7 @@ def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
     observed, _ = in_view(cloud, T_cur_cam, camera)
     t0 = time.monotonic()
     candidates, notes = _candidates(inp, cloud, T_cur_cam, last_3d)
-    best = None
+    best = unverified = None
     for name, T_ref_cam in candidates.items():
         unc = camera_uncertainty(observed, inp.reference.points, T_ref_cam, camera, config=config, seed=step)
         notes[name]["uncertainty"] = unc.to_dict()
@@ -201,8 +207,17 @@ def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
         if unc.verified(config, geometric_source=geometric) and (
                 best is None or unc.constrained_translation_m < best[2].constrained_translation_m):
             best = (name, T_ref_cam @ unc.correction(geometric_source=geometric), unc)
+        if unc.fitness >= config.min_fitness and (
+                unverified is None or _residual_m(unc, name) < _residual_m(unverified[2], unverified[0])):
+            unverified = (name, T_ref_cam, unc)
     session.timing.wait_s += time.monotonic() - t0
-    return _View(T_cur_cam=T_cur_cam, notes=notes, best=best)
+    return _View(T_cur_cam=T_cur_cam, notes=notes, best=best, unverified=None if best is not None else unverified)
+
+
+def _residual_m(unc: CameraUncertainty, source: EstimateSource) -> float:
+    """The residual an estimate is judged on: all of it for the geometry's own, the constrained part for an image
+    estimate (:meth:`CameraUncertainty.verified`)."""
+    return unc.translation_m if source == EstimateSource.THREE_D else unc.constrained_translation_m
 
 
 def _why_not_verified(notes: dict, config: CoarseConfig) -> str:
@@ -235,6 +250,7 @@ class _CoarseRun:
         self.steps: list[CoarseStep] = []
         self.last_3d = inp.init
         self.looks = 0
+        self.descents = 0
         self.heading = 0.0  # look-around rotation from where the stage started, radians
         self.t_s = 0.0  # the session's time on the rig when the current view was localized
         depth = reference_depth_m(inp.reference.points, self.T_ref_camref)
@@ -279,6 +295,36 @@ class _CoarseRun:
         inp.say(f"coarse step {step}: no verified estimate; looking {math.degrees(target):+.0f} deg from the start")
         return None
 
+    def _descend(self, step: int, view: _View, truth) -> CoarseResult | None:
+        """Paper 001's scene descent on an unverified estimate: it is assumed roughly right and the camera moves
+        toward the localizable region (the reference view), half the estimated way, at most one step. With the
+        true offset ``c`` and the estimate ``e``, the offset after the move is ``c - e/2``, shorter than ``c``
+        whenever ``|e| / 4 < |c| cos(angle(c, e))``: a direction within 75 deg of the truth at the right
+        distance, within 60 deg at twice it. Nothing is verified by it; the next view is localized afresh.
+        A result when the stage ends here."""
+        inp, c = self.inp, self.inp.config
+        name, T_ref_cam, unc = view.unverified
+        off_mm, off_deg = pose_distance(T_ref_cam, self.T_ref_camref)
+        M_cam = invert_pose(T_ref_cam) @ self.T_ref_camref
+        M_half = np.eye(4)  # half the translation, half the rotation angle about the same axis
+        M_half[:3, :3] = Rotation.from_rotvec(0.5 * Rotation.from_matrix(M_cam[:3, :3]).as_rotvec()).as_matrix()
+        M_half[:3, 3] = 0.5 * M_cam[:3, 3]
+        M_flange, _ = clamp_motion(self.X @ M_half @ invert_pose(self.X), max_step_m=c.step_m,
+                                   max_step_rad=math.radians(c.step_deg))
+        cmd_mm, cmd_deg = pose_distance(np.eye(4), M_flange)
+        inp.say(f"coarse step {step}: no verified estimate; descending {cmd_mm:.0f} mm toward the reference on the "
+                f"{name} estimate ({off_mm:.0f} mm / {off_deg:.1f} deg away, residual "
+                f"{_residual_m(unc, name) * 1e3:.0f} mm)")
+        try:
+            inp.session.move_by(M_flange)
+        except MotionRejected as exc:
+            return CoarseResult(False, f"coarse stage: a descent motion is refused by the platform guard ({exc})",
+                                None, self.steps)
+        self._log(step, CoarseAction.DESCEND, name, view, truth, offset=(off_mm, off_deg), commanded=(cmd_mm, cmd_deg))
+        self.descents += 1
+        inp.session.settle(frames=inp.session.settle_frames + 1)
+        return None
+
     def _advance(self, step: int, view: _View, truth) -> CoarseResult | None:
         """Hand over when the verified estimate is near enough; else one bounded step toward the reference."""
         inp, c = self.inp, self.inp.config
@@ -314,7 +360,12 @@ class _CoarseRun:
             view = _localize(inp, step, self.last_3d)
             truth = inp.evaluate() if inp.evaluate is not None else None
             self.t_s = inp.session.timing.total_s
-            done = self._look(step, view, truth) if view.best is None else self._advance(step, view, truth)
+            if view.best is not None:
+                done = self._advance(step, view, truth)
+            elif view.unverified is not None and self.descents < c.max_descents:
+                done = self._descend(step, view, truth)
+            else:
+                done = self._look(step, view, truth)
             if done is not None:
                 return done
         return CoarseResult(False, f"coarse stage: not within {self.handover_m * 1e3:.0f} mm / "

@@ -53,6 +53,9 @@ class CoarseConfig:
     """Turn-around action when no estimate is verified."""
     max_steps: int = 10
     max_looks: int = 3
+    max_descents: int = 2
+    """Scene-descent steps on an unverified estimate (paper 001's heuristic, docs/relocation.md "Far
+    starts"): half the estimated way toward the reference view, at most one step each."""
     render_stride_px: int = 4
     """Pixel bin of the z-buffer that renders the reference cloud (its points are sparse)."""
     max_points: int = 6000

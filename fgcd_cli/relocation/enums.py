@@ -71,6 +71,7 @@ class CoarseAction(StrEnum):
     """What one step of the active coarse stage did (``CoarseStep.action``)."""
 
     MOVE = "move"
+    DESCEND = "descend"
     LOOK = "look"
     HANDOVER = "handover"
     PAUSE = "pause"
