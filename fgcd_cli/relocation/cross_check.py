@@ -8,9 +8,9 @@ compared with the 3D geometry of the same view:
   (:func:`~fgcd_cli.relocation.stop_rule.estimates_agree`);
 * without one (the 3D loop paused, or none came in time), paper 001's camera
   uncertainty of the image estimate: the reference cloud rendered at the
-  estimate, registered with what the session observes (its median depth set to
-  the rendering's: the session's scale is uncertain, so the distance to the
-  object is not judged here); the residual's part the geometry constrains is
+  estimate, registered with what the session observes (its depths set to the
+  rendering's on the same pixels: the session's scale is uncertain, so
+  the distance to the object is not judged here); the residual's part the geometry constrains is
   the distance between the two, under the bound of both uncertainties: the
   image estimate's and the check's own (the covariance model along the
   directions the view's geometry constrains: a near-plane barely constrains
@@ -91,23 +91,38 @@ def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np
             "sigma_3d_mm": sigma_check, "weak_directions": unc.weak_directions, "note": ""}
 
 
-def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: np.ndarray, camera) -> np.ndarray:
-    """The observed cloud (N, 3), camera frame, metres, scaled about the camera so that its median depth is the
-    reference rendering's at ``T_ref_cam``.
+def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: np.ndarray, camera, *,
+                      stride_px: int = 4, min_pixels: int = 100) -> np.ndarray:
+    """The observed cloud (N, 3), camera frame, metres, scaled about the camera so that its depths match the
+    reference rendering's at ``T_ref_cam`` *on the same pixels* (median ratio over the pixel bins both cover).
 
     A monocular session's scale is known only to what its exploration measured (the alignment's own scale
     absorbs the rest, docs/relocation.md "What a session does"); a scale error moves every observed point
     along its ray, which on a flat object is the same as a shift along the view. So this check does not
-    judge the distance to the object (the image estimate and the frames do): measured on a lettered slab,
-    a 3 % scale error made a camera truly 0.06 mm from the reference disagree by 48 mm.
+    judge the distance to the object (the image estimate and the frames do). The ratio is taken pixel by
+    pixel because the session cloud covers only what its exploration saw: medians over different parts of
+    a leaning slab differ by more than the scale error itself. Fewer than ``min_pixels`` shared bins: the
+    ratio of the medians.
     """
     from fgcd_cli.relocation.uncertainty import render_visible_points
 
-    rendered = render_visible_points(ref_points, T_ref_cam, camera)
+    rendered = render_visible_points(ref_points, T_ref_cam, camera, stride_px=stride_px)
     if len(observed) == 0 or len(rendered) == 0:
         return observed
-    z_obs, z_ren = float(np.median(observed[:, 2])), float(np.median(rendered[:, 2]))
-    return observed * (z_ren / z_obs) if z_obs > 0 and z_ren > 0 else observed
+    uv_ren, in_ren = camera.project(rendered)
+    uv_obs, in_obs = camera.project(observed)
+    cols = int(math.ceil(camera.width / stride_px)) + 1
+    rows = int(math.ceil(camera.height / stride_px)) + 1
+    z_ren = np.full(rows * cols, np.nan)
+    cell_ren = (uv_ren[in_ren, 1] // stride_px).astype(np.int64) * cols + (uv_ren[in_ren, 0] // stride_px).astype(np.int64)
+    z_ren[np.clip(cell_ren, 0, rows * cols - 1)] = rendered[in_ren, 2]
+    cell_obs = (uv_obs[in_obs, 1] // stride_px).astype(np.int64) * cols + (uv_obs[in_obs, 0] // stride_px).astype(np.int64)
+    ratio = z_ren[np.clip(cell_obs, 0, rows * cols - 1)] / observed[in_obs, 2]
+    ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
+    if len(ratio) >= min_pixels:
+        return observed * float(np.median(ratio))
+    z_obs, z_r = float(np.median(observed[:, 2])), float(np.median(rendered[:, 2]))
+    return observed * (z_r / z_obs) if z_obs > 0 and z_r > 0 else observed
 
 
 def geometry_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_img: np.ndarray,
