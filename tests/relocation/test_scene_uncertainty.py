@@ -164,3 +164,64 @@ def test_without_a_map_the_look_keeps_the_fixed_order():
     run, session, _X = _run(None)
     assert run.steps[0].look == {"yaw_deg": pytest.approx(CoarseConfig().look_deg), "pitch_deg": 0.0,
                                  "chosen_by": "fixed order"}
+
+
+# ----------------------------------------------------------------------------- the report
+def _coarse_rows() -> list[dict]:
+    """Two coarse steps as ``coarse.jsonl`` holds them: an unverified look, then a verified move."""
+    return [{"step": 1, "action": "look", "source": "",
+             "estimates": {"3d": {"position_refcam_m": [0.18, -0.05, 0.02]}}},
+            {"step": 2, "action": "move", "source": "image",
+             "estimates": {"3d": {"position_refcam_m": [0.0, 0.0, 0.0]},
+                           "image": {"position_refcam_m": [0.15, -0.04, 0.01]}}}]
+
+
+def test_the_report_shows_the_map_with_the_coarse_estimates(recess):
+    import cv2
+
+    from fgcd_cli.changes import detect_changes
+    from fgcd_cli.report.html import ReportContext, render_diff_report
+    from fgcd_cli.report.scene_map import coarse_positions_mm
+
+    model, _config = recess
+    smap = scene_uncertainty_map(model, CAMERA, config=SceneUncertaintyConfig(cells=3, max_points=10**6))
+    xyz, verified, steps = coarse_positions_mm(_coarse_rows())
+    np.testing.assert_allclose(xyz, [[180.0, -50.0, 20.0], [150.0, -40.0, 10.0]])  # the estimate each step used
+    assert verified.tolist() == [False, True] and steps == [1, 2]
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.random((96, 96)).astype(np.float32), (0, 0), 2)
+    result = detect_changes([img], [img.copy()])
+    with_map = render_diff_report(ref_image=img, cur_image=img, result=result,
+                                  context=ReportContext(scene_map=smap, coarse_log=_coarse_rows()))
+    assert 'alt="scene uncertainty map"' in with_map and "coarse stage estimated" in with_map
+    without = render_diff_report(ref_image=img, cur_image=img, result=result, context=ReportContext())
+    assert "scene uncertainty map" not in without
+
+
+def test_the_map_is_computed_once_per_reference_and_never_overwritten(tmp_path, recess):
+    from fgcd_cli.app.scene_uncertainty import cached_scene_uncertainty, station_scene_uncertainty
+
+    model, _config = recess
+    calls = []
+
+    class _Station:  # the reference observation's parts the use case reads
+        path = tmp_path
+
+        def reference(self):
+            return SimpleNamespace(manifest={"created": "2026-01-01"}, image_names=lambda: [],
+                                   array=lambda name: {"cloud_points": model.points, "cloud_intensities": None,
+                                                       "T_ref_camref": np.eye(4)}[name])
+
+    station = _Station()
+    config = SceneUncertaintyConfig(cells=3)
+    assert cached_scene_uncertainty(station) is None  # an old campaign: nothing cached, nothing computed
+    first = station_scene_uncertainty(station, CAMERA, config=config, say=calls.append)
+    (path,) = tmp_path.glob("scene_uncertainty-*.npz")
+    stamp = path.stat().st_mtime_ns
+    second = station_scene_uncertainty(station, CAMERA, config=config, say=calls.append)
+    assert path.stat().st_mtime_ns == stamp and len(calls) == 1  # read back, not recomputed
+    np.testing.assert_array_equal(first.uncertainty, second.uncertainty)
+    assert cached_scene_uncertainty(station) is not None
+    # other options: another file, the first one untouched
+    station_scene_uncertainty(station, CAMERA, config=SceneUncertaintyConfig(cells=2), say=calls.append)
+    assert len(list(tmp_path.glob("scene_uncertainty-*.npz"))) == 2 and path.stat().st_mtime_ns == stamp
