@@ -225,3 +225,27 @@ def test_the_map_is_computed_once_per_reference_and_never_overwritten(tmp_path, 
     # other options: another file, the first one untouched
     station_scene_uncertainty(station, CAMERA, config=SceneUncertaintyConfig(cells=2), say=calls.append)
     assert len(list(tmp_path.glob("scene_uncertainty-*.npz"))) == 2 and path.stat().st_mtime_ns == stamp
+
+
+def test_a_corner_pins_every_direction_for_the_3d_localizer():
+    """Three orthogonal walls 0.6 m long meeting 0.6 m ahead: each translation and turn moves some wall
+    along its normal by more than the model's cloud error (1 % of the depth) allows, so the 3D localizer
+    succeeds (no texture: the image localizer cannot)."""
+    s = np.arange(0.0, 0.6, 0.006)
+    A, B = np.meshgrid(s, s)
+    a, b = A.ravel(), B.ravel()
+    corner = np.array([0.0, 0.0, 0.6])
+    walls = [np.column_stack([a, b, np.zeros_like(a)]), np.column_stack([a, np.zeros_like(a), b]),
+             np.column_stack([np.zeros_like(a), a, b])]
+    normals = [np.tile(n, (len(a), 1)) for n in ([0, 0, 1.0], [0, 1.0, 0], [1.0, 0, 0])]
+    # the corner opens towards the camera: walls at x, y, z >= 0 around it, turned to face the camera
+    inward = np.ones(3) / math.sqrt(3.0)  # the corner's opening, in wall coordinates: towards the camera (-z)
+    r1 = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)
+    R = np.vstack([r1, np.cross(-inward, r1), -inward])
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    points = np.vstack(walls) @ R.T + corner
+    model = SceneModel(points=points, normals=np.vstack(normals) @ R.T, keypoints=np.zeros((0, 3)),
+                       keypoint_image=np.zeros(0, dtype=int), T_ref_camref=np.eye(4), centroid=corner)
+    pred = predict_view(model, np.eye(4), CAMERA, config=SceneUncertaintyConfig(max_points=10**6))
+    assert pred.surface_points > 1000
+    assert pred.weak_directions == 0 and pred.geometry_ok and not pred.image_ok
