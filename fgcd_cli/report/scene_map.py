@@ -70,10 +70,12 @@ def scene_uncertainty_figure(scene_map, coarse_log: list[dict] | None = None):
                 label="reference camera")
         if len(xyz):
             ax.plot(xyz[:, 0], xyz[:, 1], color="#00bcd4", linewidth=1, zorder=3)
-            ax.scatter(xyz[verified, 0], xyz[verified, 1], s=36, color="#00bcd4", edgecolor="black", zorder=4,
-                       label="coarse step, verified estimate")
-            ax.scatter(xyz[~verified, 0], xyz[~verified, 1], s=36, facecolor="white", edgecolor="#00bcd4", zorder=4,
-                       label="coarse step, unverified estimate")
+            if verified.any():
+                ax.scatter(xyz[verified, 0], xyz[verified, 1], s=36, color="#00bcd4", edgecolor="black", zorder=4,
+                           label="coarse step, verified estimate")
+            if not verified.all():
+                ax.scatter(xyz[~verified, 0], xyz[~verified, 1], s=36, facecolor="white", edgecolor="#00bcd4",
+                           zorder=4, label="coarse step, unverified estimate")
             for (x, y, _z), k in zip(xyz, steps):
                 ax.annotate(str(k), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8, color="white")
         ax.set_xlim(extent[0], extent[1])
