@@ -15,6 +15,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes, sha256_bytes
 from fgcd_cli.errors import FgcdError
@@ -73,7 +75,8 @@ def station_scene_uncertainty(station, camera, *, config: SceneUncertaintyConfig
         model = build_scene_model(reference_points=reference.points, T_ref_camref=reference.T_ref_camref,
                                   camera=camera, keypoints_per_image=keypoints, config=config)
         smap = scene_uncertainty_map(model, camera, config=config, coarse=coarse)
-    except FgcdError as exc:
+    except (FgcdError, KeyError, ValueError, OSError, np.linalg.LinAlgError) as exc:
+        # guidance only: a reference that cannot give a map leaves the looks in their fixed order
         say(f"no scene uncertainty map ({exc}); the looks keep their fixed order")
         return None
     say(f"scene uncertainty map computed in {smap.seconds:.1f} s")
