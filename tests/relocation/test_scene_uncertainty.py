@@ -249,3 +249,18 @@ def test_a_corner_pins_every_direction_for_the_3d_localizer():
     pred = predict_view(model, np.eye(4), CAMERA, config=SceneUncertaintyConfig(max_points=10**6))
     assert pred.surface_points > 1000
     assert pred.weak_directions == 0 and pred.geometry_ok and not pred.image_ok
+
+
+def test_a_reference_without_a_cloud_gives_no_map_and_says_why(tmp_path):
+    from fgcd_cli.app.scene_uncertainty import station_scene_uncertainty
+    from fgcd_cli.errors import CampaignError
+
+    def missing(name):
+        raise CampaignError(f"the reference has no array {name!r}")
+
+    station = SimpleNamespace(path=tmp_path, reference=lambda: SimpleNamespace(manifest={}, array=missing,
+                                                                                image_names=lambda: []))
+    said = []
+    assert station_scene_uncertainty(station, CAMERA, say=said.append) is None
+    assert len(said) == 1 and "fixed order" in said[0] and "cloud_points" in said[0]
+    assert not list(tmp_path.glob("scene_uncertainty-*"))
