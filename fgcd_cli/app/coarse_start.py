@@ -93,8 +93,17 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
     result = run_coarse(CoarseInputs(session=session, reference=reference, ref_index=start.ref_index, camera=rig.intrinsics,
                               scale=start.scale, T_flange_cam=rig.T_flange_cam, init=init,
                               reference_images=reference_images(start.station), grab_current=lambda: grab_gray(rig),
-                              config=config, evaluate=start.evaluate, say=rig.say))
+                              config=config, evaluate=start.evaluate, say=rig.say,
+                              scene=lambda: _scene_map(start, config)))
     if not result.handed_over:
         rig.say(f"{result.reason}; the rACR loop starts from the first estimate")
         return result, init
     return result, result.init
+
+
+def _scene_map(start: CoarseStart, config: CoarseConfig):
+    """The reference's scene uncertainty map (computed on the first look that needs it, then cached)."""
+    from fgcd_cli.app.scene_uncertainty import station_scene_uncertainty
+
+    start.rig.progress(0, 0, "scene uncertainty of the reference")
+    return station_scene_uncertainty(start.station, start.rig.intrinsics, coarse=config, say=start.rig.say)

@@ -164,6 +164,14 @@ def _shared_lightings(reference, visit) -> list[str]:
     return shared
 
 
+def coarse_log_rows(visit) -> list[dict] | None:
+    """The visit's coarse stage log (``coarse.jsonl``) as rows, or None when the stage did not run."""
+    if not visit.has(schema.COARSE_LOG):
+        return None
+    lines = visit.bytes(schema.COARSE_LOG).decode("utf-8").splitlines()
+    return [json.loads(line) for line in lines if line.strip()] or None
+
+
 def relocation_log_rows(visit) -> list[dict] | None:
     """The visit's relocation log as plot rows: each logged row, its simulator truth (if any) under ``*_true`` keys.
 
@@ -320,7 +328,10 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         "edge check": (f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
                        "edges set aside (cyan outlines)" if edge_check else "off"),
     }
+    from fgcd_cli.app.scene_uncertainty import cached_scene_uncertainty
+
     context = ReportContext(relocation_log=relocation_log_rows(observation), metadata=metadata,
+                            scene_map=cached_scene_uncertainty(st), coarse_log=coarse_log_rows(observation),
                             title=f"Station {station}: change report",
                             subtitle=f"{camp.site} · reference vs visit {observation.name}")
     files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, context=context)

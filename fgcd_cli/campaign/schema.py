@@ -52,6 +52,8 @@ CLOUD = "cloud"
 CLOUD_FILE = f"{CLOUD}.ply"
 RELOCATION_LOG = "relocation.jsonl"
 COARSE_LOG = "coarse.jsonl"
+SCENE_UNCERTAINTY_PREFIX = "scene_uncertainty"
+"""Station-level cache of the reference's scene uncertainty map: ``<prefix>-<key>.npz`` beside ``reference/``."""
 #: The journal of a revisit in progress, in the station's visits folder (``fgcd relocate --resume``).
 VISIT_JOURNAL = ".in-progress.jsonl"
 SIM_TRUTH = "evaluation/sim_truth.json"

@@ -25,7 +25,10 @@ AccurateACL's split, adapted to a platform next to one object:
   paper's scene descent, which assumes the estimate roughly right), or else
   turns a little (the paper's turn-around action) to show the localizer
   another view; after a few unverified views the stage pauses rather than
-  guess. Only a verified estimate ever hands over.
+  guess. Only a verified estimate ever hands over. Which turn: the one whose
+  predicted view has the lowest scene uncertainty (paper 001, Eq. 2;
+  :mod:`fgcd_cli.relocation.scene_uncertainty`) seen from the best unverified
+  estimate of where the camera is; without one, a fixed order.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult, Coarse
 from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
 from fgcd_cli.relocation.protocols import CameraModel
+from fgcd_cli.relocation.scene_uncertainty import SceneUncertaintyMap, camera_turn, view_uncertainty
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import reference_depth_m
 from fgcd_cli.relocation.uncertainty import CameraUncertainty, camera_uncertainty, in_view, render_visible_points
@@ -98,14 +102,6 @@ def image_estimate(*, reference_images: dict[str, np.ndarray], current_image: np
     return (T_ref_camref @ invert_pose(pnp.M_cam) if pnp.ok else None), info
 
 
-def _yaw(angle_rad: float) -> np.ndarray:
-    """Rotation about the camera's vertical (y) axis through its centre, (4, 4)."""
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    M = np.eye(4)
-    M[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
-    return M
-
-
 def _sim3_from_camera(T_ref_cam: np.ndarray, T_cur_cam: np.ndarray) -> Sim3:
     """The rigid ``T_ref_cur`` that puts the session camera at ``T_ref_cam``."""
     M = np.asarray(T_ref_cam, dtype=float) @ invert_pose(np.asarray(T_cur_cam, dtype=float))
@@ -139,6 +135,9 @@ class CoarseInputs:
         Simulation only: truth for the log (evaluation code).
     say : callable(str)
         Progress lines for people.
+    scene : callable() -> SceneUncertaintyMap or None, optional
+        The reference observation's scene uncertainty map, asked for (and so computed) only when a
+        look is chosen; None, or a None map: the looks keep their fixed order.
     """
 
     session: VseSession
@@ -153,12 +152,15 @@ class CoarseInputs:
     config: CoarseConfig = CoarseConfig()
     evaluate: Callable[[], dict] | None = None
     say: Callable[[str], None] = lambda _m: None
+    scene: Callable[[], SceneUncertaintyMap | None] | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
 class _View:
-    """What one view gave: the camera in the session's metric frame (4, 4), the log notes, and the
-    best verified estimate ``(source, T_ref_cam corrected (4, 4), its uncertainty)`` if any."""
+    """What one view gave: the camera in the session's metric frame (4, 4), the log notes, the
+    best verified estimate ``(source, T_ref_cam corrected (4, 4), its uncertainty)`` if any, and
+    else the best unverified one ``(source, T_ref_cam (4, 4), its uncertainty)`` that overlaps the
+    reference (or None)."""
 
     T_cur_cam: np.ndarray
     notes: dict
@@ -203,6 +205,8 @@ def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
         unc = camera_uncertainty(observed, inp.reference.points, T_ref_cam, camera, config=config, seed=step)
         notes[name]["uncertainty"] = unc.to_dict()
         notes[name]["offset_mm"], notes[name]["offset_deg"] = pose_distance(T_ref_cam, T_ref_camref)
+        # the estimated camera centre in the reference camera frame (the scene uncertainty map's frame)
+        notes[name]["position_refcam_m"] = (invert_pose(T_ref_camref) @ T_ref_cam)[:3, 3].tolist()
         geometric = name == EstimateSource.THREE_D
         if unc.verified(config, geometric_source=geometric) and (
                 best is None or unc.constrained_translation_m < best[2].constrained_translation_m):
@@ -251,16 +255,19 @@ class _CoarseRun:
         self.last_3d = inp.init
         self.looks = 0
         self.descents = 0
-        self.heading = 0.0  # look-around rotation from where the stage started, radians
+        self.heading = (0.0, 0.0)  # look-around turn (yaw, pitch) from where the stage started, radians
+        self.seen_headings = [self.heading]
+        self.scene: SceneUncertaintyMap | None = None
+        self.scene_asked = False
         self.t_s = 0.0  # the session's time on the rig when the current view was localized
         depth = reference_depth_m(inp.reference.points, self.T_ref_camref)
         self.handover_m, self.handover_deg = inp.config.handover_limits(depth)
 
     def _log(self, step: int, action: CoarseAction, source: EstimateSource, view: _View, truth, *,
-             offset=(math.nan, math.nan), commanded=(0.0, 0.0)) -> None:
+             offset=(math.nan, math.nan), commanded=(0.0, 0.0), look: dict | None = None) -> None:
         self.steps.append(CoarseStep(step=step, t_session_s=self.t_s, action=action,
                                      source=source, estimates=view.notes, offset_mm=offset[0], offset_deg=offset[1],
-                                     commanded_mm=commanded[0], commanded_deg=commanded[1], truth=truth))
+                                     commanded_mm=commanded[0], commanded_deg=commanded[1], truth=truth, look=look))
 
     def _pause(self, step: int, view: _View, truth) -> CoarseResult:
         """No estimate verified in the views allowed: turn back to the starting heading and give up."""
@@ -269,30 +276,69 @@ class _CoarseRun:
         reason = (f"coarse stage: no estimate verified in {self.looks + 1} views ({_why_not_verified(view.notes, c)}); "
                   "bring the camera nearer the reference pose")
         try:  # back to the heading the stage started from: the loop starts where it would have
-            if self.heading:
-                self.inp.session.move_by(self.X @ _yaw(-self.heading) @ invert_pose(self.X))
+            if self.heading != (0.0, 0.0):
+                self.inp.session.move_by(self.X @ invert_pose(camera_turn(*self.heading)) @ invert_pose(self.X))
         except MotionRejected:
             pass
         return CoarseResult(False, reason, None, self.steps)
 
+    def _scene_map(self) -> SceneUncertaintyMap | None:
+        """The scene uncertainty map, asked for once (its computation is waited for on the rig)."""
+        if not self.scene_asked and self.inp.scene is not None:
+            self.scene_asked = True
+            t0 = time.monotonic()
+            self.scene = self.inp.scene()
+            self.inp.session.timing.wait_s += time.monotonic() - t0
+        return self.scene
+
+    def _choose_look(self, view: _View) -> tuple[tuple[float, float], dict]:
+        """The next look's heading ``(yaw, pitch)`` (radians, from where the stage started) and its log note.
+
+        Candidates not yet seen: the fixed order's yaw headings +a, -a, +2a, ... (``max_looks`` of
+        them) and a pitch of +a and -a. Seen from the best unverified estimate, the one whose
+        predicted view has the lowest scene uncertainty (Eq. 2 over the map's directions turned from
+        that view); ties, no estimate or no map: the first of the fixed order.
+        """
+        c = self.inp.config
+        a = math.radians(c.look_deg)
+        fixed = [(a * (1 + k // 2) * (1.0 if k % 2 == 0 else -1.0), 0.0) for k in range(c.max_looks)]
+        candidates = [h for h in fixed + [(0.0, a), (0.0, -a)] if h not in self.seen_headings]
+        chosen = candidates[0]
+        note = {"chosen_by": "fixed order"}
+        scene = self._scene_map() if view.unverified is not None else None
+        if scene is not None and scene.model is not None:
+            R_back = invert_pose(camera_turn(*self.heading))
+            scored = [(view_uncertainty(scene.model, view.unverified[1] @ R_back @ camera_turn(*h), self.inp.camera,
+                                        config=scene.config, coarse=c), h) for h in candidates]
+            (u, f_img, f_geo), chosen = min(scored, key=lambda r: r[0][0])  # min keeps the first of a tie
+            note = {"chosen_by": "scene uncertainty", "uncertainty": u, "image_fraction": f_img,
+                    "geometry_fraction": f_geo,
+                    "candidates": [{"yaw_deg": math.degrees(h[0]), "pitch_deg": math.degrees(h[1]),
+                                    "uncertainty": r[0]} for r, h in scored]}
+        return chosen, {"yaw_deg": math.degrees(chosen[0]), "pitch_deg": math.degrees(chosen[1]), **note}
+
     def _look(self, step: int, view: _View, truth) -> CoarseResult | None:
-        """The turn-around action: headings +a, -a, +2a, -2a ... about the camera's vertical axis through
-        its centre, relative to where the stage started (a pure rotation: no translation towards
-        anything unverified). A result when the stage ends here."""
+        """The turn-around action: a turn about the camera's centre (:meth:`_choose_look`), relative to
+        where the stage started (a pure rotation: no translation towards anything unverified).
+        A result when the stage ends here."""
         inp = self.inp
         if self.looks >= inp.config.max_looks:
             return self._pause(step, view, truth)
-        target = math.radians(inp.config.look_deg) * (1 + self.looks // 2) * (1.0 if self.looks % 2 == 0 else -1.0)
+        target, note = self._choose_look(view)
+        M_cam = invert_pose(camera_turn(*self.heading)) @ camera_turn(*target)
         try:
-            inp.session.move_by(self.X @ _yaw(target - self.heading) @ invert_pose(self.X))
+            inp.session.move_by(self.X @ M_cam @ invert_pose(self.X))
         except MotionRejected as exc:
             return CoarseResult(False, f"coarse stage: a look-around motion is refused by the platform "
                                 f"guard ({exc})", None, self.steps)
         self._log(step, CoarseAction.LOOK, EstimateSource.NONE, view, truth,
-                  commanded=(0.0, math.degrees(abs(target - self.heading))))
+                  commanded=(0.0, pose_distance(np.eye(4), M_cam)[1]), look=note)
         self.heading = target
+        self.seen_headings.append(target)
         self.looks += 1
-        inp.say(f"coarse step {step}: no verified estimate; looking {math.degrees(target):+.0f} deg from the start")
+        where = f"{note['yaw_deg']:+.0f} deg" + (f", pitch {note['pitch_deg']:+.0f} deg" if target[1] else "")
+        why = f" (scene uncertainty {note['uncertainty']:.2f})" if "uncertainty" in note else ""
+        inp.say(f"coarse step {step}: no verified estimate; looking {where} from the start{why}")
         return None
 
     def _descend(self, step: int, view: _View, truth) -> CoarseResult | None:

@@ -91,6 +91,10 @@ class CoarseStep:
     commanded_mm: float
     commanded_deg: float
     truth: dict | None = None
+    look: dict | None = None
+    """A look: its heading (``yaw_deg``, ``pitch_deg`` from where the stage started), how it was
+    chosen, and with the scene uncertainty map the predicted ``uncertainty`` (Eq. 2) of the chosen
+    view and of every candidate."""
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)

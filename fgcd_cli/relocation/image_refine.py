@@ -43,9 +43,11 @@ from fgcd_core.se3 import make_pose, pose_distance
 __all__ = [
     "ImageRefineConfig",
     "ImageRefinement",
+    "lift_reference_pixels",
     "local_contrast",
     "pnp_translation_sigma_m",
     "reference_depth_lookup",
+    "reference_keypoints_3d",
     "refine_from_reference_image",
 ]
 
@@ -56,6 +58,8 @@ class ImageRefineConfig:
 
     ratio: float = 0.75
     """Lowe ratio of the SIFT matching."""
+    max_features: int = 4000
+    """Strongest SIFT keypoints kept per image."""
     ransac_px: float = 2.0
     """PnP RANSAC reprojection threshold, pixels."""
     min_inliers: int = 40
@@ -182,6 +186,63 @@ def reference_depth_lookup(
     return out
 
 
+def lift_reference_pixels(pixels: np.ndarray, *, ref_points: np.ndarray, T_ref_camref: np.ndarray, camera,
+                          radius_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Reference-image pixels lifted to 3D by the reference cloud (the image localizer's 2D-3D points).
+
+    Parameters
+    ----------
+    pixels : (N, 2) ndarray
+        ``(u, v)`` pixels of the reference image.
+    ref_points : (M, 3) ndarray
+        Reference cloud, metres, ``ref`` frame.
+    T_ref_camref : (4, 4) ndarray
+        Reference camera pose.
+    camera : PinholeCamera
+    radius_px : float
+        See :func:`reference_depth_lookup`.
+
+    Returns
+    -------
+    X : (K, 3) ndarray
+        The points with a depth, on each pixel's ray, in the reference camera frame, metres.
+    has : (N,) bool ndarray
+        Which pixels got a depth (``K = has.sum()``).
+    """
+    p = np.asarray(pixels, dtype=float).reshape(-1, 2)
+    z = reference_depth_lookup(ref_points, T_ref_camref, camera, p, radius_px=radius_px)
+    has = np.isfinite(z)
+    p, z = p[has], z[has]
+    X = np.column_stack([(p[:, 0] - camera.cx) / camera.fx, (p[:, 1] - camera.cy) / camera.fy,
+                         np.ones(len(p))]) * z[:, None]
+    return X, has
+
+
+def reference_keypoints_3d(*, reference_images: dict[str, np.ndarray], camera, ref_points: np.ndarray,
+                           T_ref_camref: np.ndarray, config: ImageRefineConfig = ImageRefineConfig()) -> list[np.ndarray]:
+    """The reference keypoints the image localizer can match, lifted to 3D, per reference image.
+
+    The same detection (SIFT on the locally equalised image, ``config.max_features``) and lifting
+    (:func:`lift_reference_pixels`) as :func:`refine_from_reference_image`.
+
+    Returns
+    -------
+    list of (K_i, 3) ndarray
+        One array per reference image (in ``reference_images`` order), ``ref`` frame, metres.
+    """
+    from fgcd_core.imaging import sift_features
+
+    T = np.asarray(T_ref_camref, dtype=float)
+    out = []
+    for name, img in reference_images.items():
+        gray = to_gray(to_float_image(img, name=f"reference image {name!r}"))
+        xy, _desc = sift_features(_local_contrast_u8(gray), n_features=config.max_features)
+        X, _has = lift_reference_pixels(xy, ref_points=ref_points, T_ref_camref=T, camera=camera,
+                                        radius_px=config.depth_search_px)
+        out.append(X @ T[:3, :3].T + T[:3, 3])
+    return out
+
+
 def refine_from_reference_image(
     *,
     reference_images: dict[str, np.ndarray],
@@ -276,7 +337,8 @@ class _ReferenceView:
 
 def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
     config = view.config
-    p_ref, p_cur = match_sift(_local_contrast_u8(ref), _local_contrast_u8(cur), ratio=config.ratio)
+    p_ref, p_cur = match_sift(_local_contrast_u8(ref), _local_contrast_u8(cur), ratio=config.ratio,
+                              max_features=config.max_features)
     sift = _refine_matches(p_ref, p_cur, view, matcher="sift", min_inliers=config.min_inliers)
     if sift.ok or sift.oversize:
         return sift
@@ -354,14 +416,11 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
 
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} feature matches with the reference image", len(p_ref))
-    z = reference_depth_lookup(view.ref_points, view.T_ref_camref, camera, p_ref, radius_px=config.depth_search_px)
-    has = np.isfinite(z)
-    p_ref, p_cur, z = p_ref[has], p_cur[has], z[has]
+    X, has = lift_reference_pixels(p_ref, ref_points=view.ref_points, T_ref_camref=view.T_ref_camref, camera=camera,
+                                   radius_px=config.depth_search_px)
+    p_ref, p_cur = p_ref[has], p_cur[has]
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} of {len(has)} matches on the reference cloud", len(p_ref))
-    # 3D points in the reference camera frame, on each keypoint's ray.
-    X = np.column_stack([(p_ref[:, 0] - camera.cx) / camera.fx, (p_ref[:, 1] - camera.cy) / camera.fy,
-                         np.ones(len(p_ref))]) * z[:, None]
     ok, rvec, tvec, inl = cv2.solvePnPRansac(X, p_cur, K, None, iterationsCount=500,
                                              reprojectionError=float(config.ransac_px), confidence=0.999,
                                              flags=cv2.SOLVEPNP_SQPNP)

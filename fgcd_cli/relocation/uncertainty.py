@@ -20,7 +20,8 @@ import numpy as np
 from fgcd_cli.relocation.coarse_config import CoarseConfig
 from fgcd_core.se3 import pose_distance
 
-__all__ = ["CameraUncertainty", "camera_uncertainty", "in_view", "render_visible_points"]
+__all__ = ["CameraUncertainty", "camera_uncertainty", "in_view", "render_visible_points", "strong_directions",
+           "visible_points"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -116,9 +117,32 @@ def render_visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera,
     (M, 3) ndarray
         Visible points in the camera frame, metres.
     """
-    Xc, uv = in_view(points_ref, T_ref_cam, camera)
+    _index, Xc = visible_points(points_ref, T_ref_cam, camera, stride_px=stride_px,
+                                depth_tolerance_rel=depth_tolerance_rel)
+    return Xc
+
+
+def visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera, *, stride_px: int = 4,
+                   depth_tolerance_rel: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Which points a camera at ``T_ref_cam`` sees: in view and not hidden (z-buffer of the points themselves).
+
+    Parameters are those of :func:`render_visible_points`.
+
+    Returns
+    -------
+    index : (M,) int ndarray
+        Indices into ``points_ref`` of the visible points.
+    Xc : (M, 3) ndarray
+        Those points in the camera frame, metres.
+    """
+    P = np.asarray(points_ref, dtype=float)
+    T = np.asarray(T_ref_cam, dtype=float)
+    Xc = (P - T[:3, 3]) @ T[:3, :3]
+    uv, inside = camera.project(Xc)
+    index = np.flatnonzero(inside)
+    Xc, uv = Xc[inside], uv[inside]
     if len(Xc) == 0:
-        return np.zeros((0, 3))
+        return index, np.zeros((0, 3))
     z = Xc[:, 2]
     s = max(1, int(stride_px))
     cols = int(math.ceil(camera.width / s))
@@ -128,7 +152,7 @@ def render_visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera,
     zmin = np.full(int(cell.max()) + 1, np.inf)
     np.minimum.at(zmin, cell, z)
     keep = z <= zmin[cell] * (1.0 + depth_tolerance_rel)
-    return Xc[keep]
+    return index[keep], Xc[keep]
 
 
 def in_view(points: np.ndarray, T_frame_cam: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
@@ -218,20 +242,11 @@ def sensitivity_of(evals: np.ndarray, n: int) -> np.ndarray:
 
 def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray, normals: np.ndarray, *,
                       radius: float, depth: float, config: CoarseConfig) -> tuple[int, np.ndarray, float]:
-    """The residual motion ``T`` without its part along the registration's weak directions.
-
-    Point-to-plane information ``H = sum J^T J`` with ``J = [n, (p x n) / depth]`` over the
-    ``N`` final correspondences (twist ``(t, depth * phi)``: rotations as motions at the scene's
-    depth). Covariance model (docs/relocation.md, "Far starts"): the residuals are not
-    independent noise but a systematic cloud error of up to ``b = sigma_rel x depth`` (each
-    monocular cloud is placed to ~1 % of the depth). Such an error shifts the solution along an
-    eigen-direction of ``H`` by at most ``b / sqrt(lambda / N)`` (Cauchy-Schwarz on
-    ``H^-1 J^T r``), so the direction is weak when that exceeds ``verify_m``: the check cannot
-    see an error along it. ``config.weak_ratio``, when set, replaces the model by a fraction of
-    the strongest direction. Returns the weak count, ``exp`` of the twist projected onto the
-    others, and the check's own uncertainty on that part (metres): along each kept direction the
-    same bound ``b / sqrt(lambda / N)``, their translation parts summed in quadrature. Written by hand: Open3D's information matrix is the point-to-point one, which does
-    not see a surface sliding along itself.
+    """The residual motion ``T`` without its part along the registration's weak directions
+    (:func:`strong_directions` on the ``N`` final correspondences). Returns the weak count, ``exp`` of
+    the twist projected onto the others, and the check's own uncertainty on that part (metres): along
+    each kept direction the model's bound ``sigma_rel x depth / sqrt(lambda / N)``, their translation
+    parts summed in quadrature.
     """
     from scipy.spatial import cKDTree
 
@@ -242,18 +257,58 @@ def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray,
     ok = np.isfinite(dist)
     if ok.sum() < 50:
         return 6, np.eye(4), math.inf
-    n = normals[idx[ok]]
-    J = np.hstack([n, np.cross(p[ok], n) / depth])
-    evals, evecs = np.linalg.eigh(J.T @ J)
-    if config.weak_ratio is not None:
-        strong = evals >= config.weak_ratio * evals.max()
-    else:
-        strong = config.sigma_rel * depth <= config.verify_m * sensitivity_of(evals, len(J))
+    strong, evecs, sensitivity = strong_directions(p[ok], normals[idx[ok]], depth=depth, config=config)
     xi = log_se3(T)
     v = np.concatenate([xi[:3], xi[3:] * depth])
     E = evecs[:, strong]
     v_c = E @ (E.T @ v)
-    bound = config.sigma_rel * depth / np.maximum(sensitivity_of(evals, len(J))[strong], 1e-12)
+    bound = config.sigma_rel * depth / np.maximum(sensitivity[strong], 1e-12)
     check_sigma = float(np.sqrt(np.sum((bound * np.linalg.norm(E[:3], axis=0)) ** 2)))
     return int((~strong).sum()), exp_se3(np.concatenate([v_c[:3], v_c[3:] / depth])), check_sigma
 
+
+
+def strong_directions(points_cam: np.ndarray, normals_cam: np.ndarray, *, depth: float,
+                      config: CoarseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which directions of a point-to-plane registration the geometry constrains (the covariance model).
+
+    Parameters
+    ----------
+    points_cam : (N, 3) ndarray
+        Surface points in the camera frame, metres.
+    normals_cam : (N, 3) ndarray
+        Their unit normals, camera frame.
+    depth : float
+        Scene depth, metres (rotations are weighed as motions at this depth).
+    config : CoarseConfig
+        ``sigma_rel``, ``verify_m`` and the ``weak_ratio`` override.
+
+    Returns
+    -------
+    strong : (6,) bool ndarray
+        Per eigen-direction (ascending eigenvalue), True when constrained.
+    directions : (6, 6) ndarray
+        The eigen-directions as columns, twist ``(t, depth * phi)``.
+    sensitivity : (6,) ndarray
+        RMS residual per unit motion along each, ``sqrt(lambda / N)`` (metres per metre).
+
+    Point-to-plane information ``H = sum J^T J`` with ``J = [n, (p x n) / depth]`` (twist
+    ``(t, depth * phi)``). Covariance model (docs/relocation.md, "Far starts"): the residuals are
+    not independent noise but a systematic cloud error of up to ``b = sigma_rel x depth`` (each
+    monocular cloud is placed to ~1 % of the depth). Such an error shifts the solution along an
+    eigen-direction of ``H`` by at most ``b / sqrt(lambda / N)`` (Cauchy-Schwarz on
+    ``H^-1 J^T r``), so the direction is weak when that exceeds ``verify_m``: the check cannot see
+    an error along it. ``config.weak_ratio``, when set, replaces the model by a fraction of the
+    strongest direction. Written by hand: Open3D's information matrix is the point-to-point one,
+    which does not see a surface sliding along itself.
+    """
+    p = np.asarray(points_cam, dtype=float)
+    n = np.asarray(normals_cam, dtype=float)
+    J = np.hstack([n, np.cross(p, n) / depth])
+    evals, evecs = np.linalg.eigh(J.T @ J)
+    sensitivity = sensitivity_of(evals, len(J))
+    if config.weak_ratio is not None:
+        strong = evals >= config.weak_ratio * evals.max()
+    else:
+        strong = config.sigma_rel * depth <= config.verify_m * sensitivity
+    return strong, evecs, sensitivity

@@ -33,6 +33,7 @@ from fgcd_cli.report.figures import (
     score_heatmap,
     to_display_rgb,
 )
+from fgcd_cli.report.scene_map import scene_uncertainty_section
 
 _CSS = """
 body { font-family: 'DejaVu Sans', Helvetica, Arial, sans-serif; color: #222; margin: 0; background: #f4f2ee; }
@@ -218,6 +219,10 @@ class ReportContext:
         Regions listed in the table (all of them are in regions.json).
     max_closeups : int
         Regions enlarged (0: no close-ups).
+    scene_map : SceneUncertaintyMap or None
+        The reference's scene uncertainty map (its figure, with the coarse stage's estimates).
+    coarse_log : list of dict or None
+        The visit's ``coarse.jsonl`` rows.
     """
 
     relocation_log: list[dict] | None = None
@@ -226,6 +231,8 @@ class ReportContext:
     subtitle: str = ""
     max_table_rows: int = 50
     max_closeups: int = 12
+    scene_map: object | None = None
+    coarse_log: list[dict] | None = None
 
 
 def render_diff_report(
@@ -255,8 +262,9 @@ def render_diff_report(
     parts += _images_section(ref_image, shown_cur, registered=cur_registered is not None)
     if result.comparable:
         parts += _changes_section(ref_image, shown_cur, result, ctx)
-    if fdf is not None or ctx.relocation_log:
+    if fdf is not None or ctx.relocation_log or ctx.scene_map is not None:
         parts += _relocation_section(ref_image, fdf, ctx.relocation_log)
+        parts += scene_uncertainty_section(ctx.scene_map, ctx.coarse_log)
     parts.append("<h2>Capture and processing details</h2>" + _kv_table(_details(result, fdf, ctx.metadata)))
     return _page(ctx.title, "".join(parts))
 
