@@ -93,14 +93,16 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
     monkeypatch.setattr(sim_eval.RelocationEvaluator, "from_reference",
                         classmethod(lambda cls, sim, ref: SimpleNamespace(evaluate=None, summary=None)))
     monkeypatch.setattr(capture, "capture_reference", long_step("capture", capture_ref))
+    import fgcd_cli.app.scene_uncertainty as scene_uc
+    monkeypatch.setattr(scene_uc, "station_scene_uncertainty", long_step("scene map", None))
     monkeypatch.setattr(relocate_uc, "relocate_and_capture", long_step("relocate", relocate))
     monkeypatch.setattr(usecases, "run_campaign", long_step("diff", {}))
 
     run_demo(tmp_path / "d", config=DemoConfig(), say=lambda text: events.append(("say", text)),
              on_progress=lambda done, total, label: events.append(("progress", label)))
     steps = [i for i, (kind, _) in enumerate(events) if kind == "step"]
-    assert [events[i][1] for i in steps] == ["intrinsics", "hand-eye", "open rig", "capture", "open rig", "relocate",
-                                             "diff"]
+    assert [events[i][1] for i in steps] == ["intrinsics", "hand-eye", "open rig", "capture", "scene map", "open rig",
+                                             "relocate", "diff"]
     previous = -1
     for i in steps:
         labels = [text for kind, text in events[previous + 1:i] if kind == "progress"]

@@ -275,9 +275,9 @@ def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) ->
     the station's lock (:mod:`fgcd_cli.campaign.lock`) throughout.
     """
     from fgcd_cli.app import rig as rig_uc
-    from fgcd_cli.metrics.sim_eval import reference_truth
-
+    from fgcd_cli.app.scene_uncertainty import station_scene_uncertainty
     from fgcd_cli.campaign.lock import station_lock
+    from fgcd_cli.metrics.sim_eval import reference_truth
 
     run_record.no_writes()
     with station_lock(campaign.path, plan.station, command="capture"), \
@@ -293,6 +293,11 @@ def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) ->
                 metadata={"driver": plan.driver, "scenario": rig.info.get("scenario")},
                 evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
             )
+        # the platform is released; the reference's scene uncertainty map (paper 001), for the report and the
+        # coarse stage's looks: guidance only, a reference that cannot give one says why and is kept
+        camera = plan.camera if plan.camera is not None else (rig.handles.intrinsics if rig.handles else None)
+        if camera is not None:
+            station_scene_uncertainty(st, camera, say=hooks.on_event or (lambda _m: None))
     return CaptureOutcome(station=plan.station, result=result,
                           scene=plan.scenario.scene if plan.scenario is not None else None)
 

@@ -149,6 +149,7 @@ def _capture(run: _DemoRun) -> dict:
     from fgcd_cli.app import capture as capture_uc
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.app.scene_uncertainty import station_scene_uncertainty
     from fgcd_cli.metrics.sim_eval import reference_truth
 
     config = run.config
@@ -165,6 +166,8 @@ def _capture(run: _DemoRun) -> dict:
                                            evaluation=reference_truth(rig.sim))
     finally:
         rig.close()
+    run.tick("scene uncertainty of the reference")
+    station_scene_uncertainty(run.station, run.camera, say=run.say)
     return {"path": cap.observation_path, "cloud_points": cap.cloud_points, "scale": cap.scale.scale}
 
 
