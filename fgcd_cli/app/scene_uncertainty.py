@@ -1,7 +1,8 @@
 """The scene uncertainty map of a station's reference observation (paper 001, Eq. 2), computed once and cached.
 
 The map depends only on the reference observation, the camera and the options, so it is
-computed the first time a relocation needs it (the coarse stage's first look) and kept
+computed once: by the capture use case after the reference is written (the demo too), or, for a
+station captured before, the first time a relocation needs it (the coarse stage's first look); kept
 beside the reference observation as ``scene_uncertainty-<key>.npz``, ``key`` naming the
 reference, the intrinsics and the options: another reference or camera gets its own file, and
 an existing file is never written over. The reference observation itself is immutable.
