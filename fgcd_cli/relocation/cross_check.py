@@ -113,11 +113,13 @@ def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: n
     uv_obs, in_obs = camera.project(observed)
     cols = int(math.ceil(camera.width / stride_px)) + 1
     rows = int(math.ceil(camera.height / stride_px)) + 1
+    def cell(uv: np.ndarray) -> np.ndarray:
+        bins = (uv[:, 1] // stride_px).astype(np.int64) * cols + (uv[:, 0] // stride_px).astype(np.int64)
+        return np.clip(bins, 0, rows * cols - 1)
+
     z_ren = np.full(rows * cols, np.nan)
-    cell_ren = (uv_ren[in_ren, 1] // stride_px).astype(np.int64) * cols + (uv_ren[in_ren, 0] // stride_px).astype(np.int64)
-    z_ren[np.clip(cell_ren, 0, rows * cols - 1)] = rendered[in_ren, 2]
-    cell_obs = (uv_obs[in_obs, 1] // stride_px).astype(np.int64) * cols + (uv_obs[in_obs, 0] // stride_px).astype(np.int64)
-    ratio = z_ren[np.clip(cell_obs, 0, rows * cols - 1)] / observed[in_obs, 2]
+    z_ren[cell(uv_ren[in_ren])] = rendered[in_ren, 2]
+    ratio = z_ren[cell(uv_obs[in_obs])] / observed[in_obs, 2]
     ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
     if len(ratio) >= min_pixels:
         return observed * float(np.median(ratio))
