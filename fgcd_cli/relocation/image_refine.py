@@ -45,6 +45,7 @@ __all__ = [
     "ImageRefinement",
     "lift_reference_pixels",
     "local_contrast",
+    "pnp_jacobian",
     "pnp_translation_sigma_m",
     "reference_depth_lookup",
     "reference_keypoints_3d",
@@ -394,16 +395,23 @@ def pnp_translation_sigma_m(points_3d: np.ndarray, pixels: np.ndarray, rvec: np.
     n = len(points_3d)
     if n < 4:
         return math.inf
-    proj, jac = cv2.projectPoints(np.asarray(points_3d, dtype=np.float64), np.asarray(rvec, dtype=np.float64),
-                                  np.asarray(tvec, dtype=np.float64), K, None)
-    r = (proj.reshape(-1, 2) - np.asarray(pixels, dtype=np.float64)).ravel()
-    J = jac[:, :6]  # columns: d/d rvec (3), d/d tvec (3)
+    proj, J = pnp_jacobian(points_3d, rvec, tvec, K)
+    r = (proj - np.asarray(pixels, dtype=np.float64)).ravel()
     s2 = float(r @ r) / max(1, 2 * n - 6)
     try:
         cov = s2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return math.inf
     return float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:])))))
+
+
+def pnp_jacobian(points_3d: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
+                 K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Projections (n, 2) of ``points_3d`` (n, 3) under the pose ``(rvec, tvec)`` and the reprojection
+    Jacobian (2n, 6) with respect to ``(rvec, tvec)`` (OpenCV's ``projectPoints``, no distortion)."""
+    proj, jac = cv2.projectPoints(np.asarray(points_3d, dtype=np.float64), np.asarray(rvec, dtype=np.float64),
+                                  np.asarray(tvec, dtype=np.float64), K, None)
+    return proj.reshape(-1, 2), jac[:, :6]
 
 
 def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inliers: int) -> ImageRefinement:

@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from fgcd_cli.relocation.coarse_config import CoarseConfig
-from fgcd_cli.relocation.image_refine import ImageRefineConfig
+from fgcd_cli.relocation.image_refine import ImageRefineConfig, pnp_jacobian
 from fgcd_cli.relocation.uncertainty import strong_directions, visible_points
 
 __all__ = [
@@ -222,26 +222,19 @@ def look_at(centre: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.ndar
 def _pnp_sigma(Xc: np.ndarray, camera, pixel_sigma_px: float) -> tuple[float, float]:
     """Predicted 1-sigma PnP error from 2D-3D points ``Xc`` (K, 3) in the camera frame, metres.
 
-    Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` of the camera pose (its centre's shift and its
-    turn, in the camera frame) with ``J`` (2K, 6) the reprojection Jacobian: each pixel moves by
-    ``d(u, v)/dXc`` times ``dXc = -dc + Xc x dphi``. Returns the RMS radius of the position error
-    (metres) and of the rotation error (degrees); inf when the system is singular.
+    Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` of the pose at the camera itself (``rvec = tvec = 0``,
+    where the translation's uncertainty is the camera centre's) with ``J`` the localizer's own
+    reprojection Jacobian (:func:`~fgcd_cli.relocation.image_refine.pnp_jacobian`). Returns the RMS
+    radius of the position error (metres) and of the rotation error (degrees); inf when the system is
+    singular.
     """
-    x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
-    zeros = np.zeros_like(z)
-    A = np.stack([np.stack([camera.fx / z, zeros, -camera.fx * x / z**2], axis=1),
-                  np.stack([zeros, camera.fy / z, -camera.fy * y / z**2], axis=1)], axis=1)  # (K, 2, 3)
-    skew = np.zeros((len(Xc), 3, 3))  # [Xc]_x dphi = Xc x dphi
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -z, y, -x
-    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = z, -y, x
-    B = np.concatenate([-np.broadcast_to(np.eye(3), skew.shape), skew], axis=2)  # (K, 3, 6)
-    J = np.einsum("kij,kjl->kil", A, B).reshape(-1, 6)
+    _proj, J = pnp_jacobian(Xc, np.zeros(3), np.zeros(3), camera.K)
     H = J.T @ J
     if np.linalg.cond(H) > 1e12:
         return math.inf, math.inf
     cov = pixel_sigma_px**2 * np.linalg.inv(H)
-    return (float(math.sqrt(max(0.0, float(np.trace(cov[:3, :3]))))),
-            math.degrees(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:]))))))
+    return (float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:]))))),
+            math.degrees(math.sqrt(max(0.0, float(np.trace(cov[:3, :3]))))))
 
 
 def predict_view(model: SceneModel, T_ref_cam: np.ndarray, camera, *,

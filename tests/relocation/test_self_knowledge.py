@@ -167,8 +167,9 @@ def test_an_image_estimate_the_geometry_contradicts_never_converges():
 def test_a_distorted_cloud_within_the_model_does_not_veto_a_right_estimate():
     """Issue 25's lettered slab: the camera is truly at the reference, the image estimate and the frames say
     so, but the session cloud is tilted 3 deg: what a systematic error of 1 % of the depth can do over this
-    relief by the covariance model (one ``check_sigma``). The check's bound includes its own uncertainty,
-    so it does not turn a right "converged" into a false disagreement."""
+    relief by the covariance model (one ``check_sigma``). A positive control: a distortion within the model
+    must not turn a right "converged" into a false disagreement (it held with the earlier, narrower bound
+    too; the pixel-by-pixel scale test below is the one the slab's fix needed)."""
     res, (mm, _deg) = _relief_case(image_bias=np.eye(4), start=START, cloud_tilt_deg=3.0)
     assert not isinstance(res, Exception), res
     assert res.converged and mm < 0.01
