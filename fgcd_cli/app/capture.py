@@ -23,8 +23,7 @@ from fgcd_cli.app.scenario import (
     check_scenario,
     check_scene,
 )
-from fgcd_cli.app.reference_session import start_reference_session
-from fgcd_cli.app.session import grab_images, metric_keyframes
+from fgcd_cli.app.session import grab_images, metric_keyframes, start_session
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import campaign_world, rig_calibration
 from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError, run_record
@@ -63,8 +62,7 @@ def capture_reference(
 ) -> CaptureResult:
     """Capture the immutable reference observation of ``station`` at the platform's current pose."""
     rig.progress(0, 0, "starting the VSE")
-    started = start_reference_session(rig, explore_m=explore_m)
-    session, vse, scale, T_base_flange_ref = started.session, started.vse, started.scale, started.T_base_flange_home
+    session, vse, scale, T_base_flange_ref = start_session(rig, explore_m=explore_m)
     try:
         session.move_to_flange(T_base_flange_ref, label="back to the reference pose")
         rig.progress(0, 0, "letting the reference cloud mature")
@@ -90,8 +88,6 @@ def capture_reference(
             "cloud_points": int(len(points)),
             "keyframes": int(len(kf_poses)),
             "platform_s": session.timing.platform_s,
-            "exploration_leg_m": started.leg_m,
-            "exploration_note": started.note,
             **(metadata or {}),
         }
         rig.progress(0, 0, "writing the reference")

@@ -24,7 +24,6 @@ from fgcd_core.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
 from fgcd_cli.vse.types import VseStatus
 
 __all__ = [
-    "reference_leg_m",
     "SessionTiming",
     "ScaleEstimate",
     "VseSession",
@@ -124,37 +123,6 @@ def exploration_waypoints(
         np.zeros(6),
     ]
     return [exp_se3(w) for w in twists[: legs + 1]]
-
-
-def reference_leg_m(*, depth_m: float, fx_px: float, sigma_rel: float, disparity_sigma_px: float = 0.5) -> float:
-    """Exploration leg (metres) that places a monocular cloud's depths to ``sigma_rel`` of the depth.
-
-    Two views a baseline ``b`` apart triangulate a point at depth ``z`` to
-    ``sigma_z = z^2 sigma_d / (f b)`` (``sigma_d`` the disparity precision, the VSE's nominal
-    0.5 px of :func:`fgcd_cli.vse.cloud.landmark_cloud`), so ``sigma_z / z <= sigma_rel`` needs
-    ``b >= z sigma_d / (f sigma_rel)``. The relocation's models assume the reference cloud meets
-    ``RelocationConfig.vse_sigma_rel``; a leg shorter than this leaves the image localizer's lifted
-    points, and so its far-start estimates, biased (docs/relocation.md, "The reference cloud").
-
-    Parameters
-    ----------
-    depth_m : float
-        Median depth of the object from the camera, metres.
-    fx_px : float
-        Focal length, pixels.
-    sigma_rel : float
-        Wanted depth precision, a fraction of the depth.
-    disparity_sigma_px : float
-        Disparity precision of the VSE, pixels.
-
-    Returns
-    -------
-    float
-        The leg, metres (NaN for a depth or focal length that is not positive and finite).
-    """
-    if not (math.isfinite(depth_m) and depth_m > 0 and math.isfinite(fx_px) and fx_px > 0 and sigma_rel > 0):
-        return math.nan
-    return depth_m * disparity_sigma_px / (fx_px * sigma_rel)
 
 
 def exploration_pattern(
