@@ -222,3 +222,33 @@ def test_a_body_of_revolution_leaves_its_slide_out_of_the_verification():
     # what geometry can check is the 20 mm towards the column (within the noise and the projection's mixing)
     assert abs(unc.constrained_translation_m * 1e3 - 20.0) < 6.0
     assert unc.verified(CoarseConfig(), geometric_source=False)
+
+
+def test_a_verified_image_estimate_is_not_moved_by_the_session_scale_error(reference_points, monkeypatch):
+    """The session's scale 2 % too large (what a short exploration gives): registered at that scale, the
+    session cloud sits 2 % of 1.5 m = 30 mm off along the view from the reference rendered at the *true*
+    pose. An exact image estimate still verifies (30 mm < 50 mm), and the stage must walk to it as PnP gave
+    it: applied as a correction, that shift would leave the camera ~30 mm from the reference at hand-over."""
+    from fgcd_core.sim3 import Sim3
+    from fgcd_cli.alignment import ReferenceIndex
+    from fgcd_cli.relocation import coarse as coarse_mod
+
+    T_start = exp_se3(np.r_[0.03, -0.02, 0.02, np.radians([0.5, 1.5, 0.0])])  # 41 mm / 1.6 deg away
+    cloud = _relief(30000, np.random.default_rng(8))
+    session = _FakeSession(T_start, X_HANDEYE, cloud, np.eye(4), scale=1.0)
+    # the image localizer measures the camera exactly (a textured object near the reference)
+    monkeypatch.setattr(coarse_mod, "image_estimate",
+                        lambda **_kw: (session.T_ref_cam.copy(), {"pnp": "ok", "inliers": 500}))
+    ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
+    result = coarse_mod.run_coarse(coarse_mod.CoarseInputs(
+        session=session, reference=ref, ref_index=ReferenceIndex(reference_points), camera=CAMERA,
+        scale=1.02, T_flange_cam=X_HANDEYE, init=Sim3(np.eye(3), np.zeros(3), 1.0),
+        reference_images={"front": np.zeros((480, 640), np.float32)}, grab_current=lambda: None))
+    assert result.handed_over, result.reason
+    assert any(s.source == "image" and s.action in ("move", "handover") for s in result.steps)
+    # the scale's shift is in the check (its residual is about the 30 mm) ...
+    image_notes = [s.estimates["image"]["uncertainty"] for s in result.steps if "image" in s.estimates]
+    assert max(n["constrained_translation_mm"] for n in image_notes) > 15.0
+    # ... but not in where the camera went: it truly ends at the reference (an exact estimate, exact platform)
+    mm, deg = pose_distance(session.T_ref_cam, np.eye(4))
+    assert mm < 3.0 and deg < 0.2
