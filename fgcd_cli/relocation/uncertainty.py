@@ -54,8 +54,7 @@ class CameraUncertainty:
     revolution turning about its axis, a plane sliding along itself)."""
     constrained_translation_m: float = math.inf
     constrained_rotation_deg: float = math.inf
-    """The residual motion without its part along the weak directions."""
-    T_correction_constrained: np.ndarray | None = None
+    """The size of the residual motion without its part along the weak directions."""
     check_sigma_m: float = math.inf
     """What the check itself may be off by along the directions it constrains, by the covariance model
     (RMS over those directions of ``sigma_rel x depth / sqrt(lambda / N)``, translation part): a
@@ -240,8 +239,7 @@ def camera_uncertainty(
     return CameraUncertainty(translation_m=mm / 1e3, rotation_deg=deg, fitness=float(result.fitness),
                              rmse_m=float(result.inlier_rmse), observed=len(obs), rendered=len(rendered),
                              T_correction=T.copy(), weak_directions=weak, constrained_translation_m=c_mm / 1e3,
-                             constrained_rotation_deg=c_deg, T_correction_constrained=T_constrained,
-                             check_sigma_m=check_sigma_m)
+                             constrained_rotation_deg=c_deg, check_sigma_m=check_sigma_m)
 
 
 def sensitivity_of(evals: np.ndarray, n: int) -> np.ndarray:
