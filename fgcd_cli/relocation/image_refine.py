@@ -48,6 +48,7 @@ __all__ = [
     "pnp_jacobian",
     "pnp_translation_sigma_m",
     "reference_depth_lookup",
+    "front_layer_depth",
     "reference_keypoints_3d",
     "refine_from_reference_image",
 ]
@@ -138,6 +139,40 @@ class ImageRefinement:
     ``M_cam`` and ``offset_sigma_mm`` are kept so that an independent check may confirm it."""
 
 
+# Two depths of one surface point in the semi-dense cloud differ by less than the fusion gate (2.5,
+# :func:`~fgcd_cli.vse.semidense.fuse_estimates`) times the kept points' largest relative sigma
+# (``VseConfig.semidense_max_rel_sigma``, 2 %): a larger step between consecutive depths
+# separates two surfaces (an occlusion), a smaller one is the cloud's own noise.
+LAYER_GAP_REL = 0.05
+
+
+def front_layer_depth(z: np.ndarray, dist_px: np.ndarray, *, layer_gap_rel: float = LAYER_GAP_REL) -> float:
+    """Depth of the front-most surface among cloud points near a pixel.
+
+    Parameters
+    ----------
+    z : (K,) ndarray
+        z-depths of the points projected near the pixel, metres (K >= 1).
+    dist_px : (K,) ndarray
+        Their image distances to the pixel.
+    layer_gap_rel : float
+        A step between consecutive sorted depths above this fraction starts a surface behind.
+
+    Returns
+    -------
+    float
+        Inverse-distance weighted mean depth of the points before the first such step. Taking
+        only the points near the minimum instead would pick the cloud's noise: the nearest of a
+        few noisy depths of one surface is biased toward the camera by about a sigma.
+    """
+    order = np.argsort(z)
+    zs = z[order]
+    steps = np.flatnonzero(np.diff(zs) > layer_gap_rel * zs[:-1])
+    layer = order[: steps[0] + 1] if len(steps) else order
+    w = 1.0 / (dist_px[layer] + 0.5)
+    return float(np.sum(w * z[layer]) / np.sum(w))
+
+
 def reference_depth_lookup(
     ref_points: np.ndarray, T_ref_camref: np.ndarray, camera, pixels: np.ndarray, *, radius_px: float = 2.0
 ) -> np.ndarray:
@@ -160,8 +195,8 @@ def reference_depth_lookup(
     -------
     (M,) ndarray
         z-depth in metres, NaN where no cloud point projects close enough. Of the
-        points within the radius, the front-most layer is taken (occlusion), and
-        within it an inverse-distance weighted mean.
+        points within the radius, the front-most surface is taken (occlusion,
+        :func:`front_layer_depth`), and within it an inverse-distance weighted mean.
     """
     from scipy.spatial import cKDTree
 
@@ -179,11 +214,7 @@ def reference_depth_lookup(
         if not nbrs:
             continue
         nbrs = np.asarray(nbrs)
-        zn = z[nbrs]
-        layer = nbrs[zn <= zn.min() * 1.01]  # front-most surface only
-        d = np.linalg.norm(uv[layer] - pixels[i], axis=1)
-        w = 1.0 / (d + 0.5)
-        out[i] = float(np.sum(w * z[layer]) / np.sum(w))
+        out[i] = front_layer_depth(z[nbrs], np.linalg.norm(uv[nbrs] - pixels[i], axis=1))
     return out
 
 
