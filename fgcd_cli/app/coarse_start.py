@@ -32,6 +32,8 @@ class CoarseStart:
         Whose reference images the image localizer reads.
     scale : float
         The session's map scale, metres per map unit.
+    scale_rel_std : float
+        Its one-sigma relative error (the exploration's fit).
     evaluate : callable() -> dict, or None
         The simulator's truth at the current pose (evaluation only).
     """
@@ -42,6 +44,7 @@ class CoarseStart:
     ref_index: object
     station: object
     scale: float
+    scale_rel_std: float = 0.03
     evaluate: Callable[[], dict] | None = None
 
 
@@ -91,7 +94,8 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
     rig.say(f"{source} {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
     rig.progress(0, 0, "active coarse stage")
     result = run_coarse(CoarseInputs(session=session, reference=reference, ref_index=start.ref_index, camera=rig.intrinsics,
-                              scale=start.scale, T_flange_cam=rig.T_flange_cam, init=init,
+                              scale=start.scale, scale_rel_std=start.scale_rel_std,
+                              T_flange_cam=rig.T_flange_cam, init=init,
                               reference_images=reference_images(start.station), grab_current=lambda: grab_gray(rig),
                               config=config, evaluate=start.evaluate, say=rig.say,
                               scene=lambda: _scene_map(start, config)))

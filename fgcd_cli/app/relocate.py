@@ -129,7 +129,8 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
                                                 legs=request.explore_legs, guided=request.guided, ref_index=ref_index)
     try:
         start = CoarseStart(rig=rig, session=session, reference=reference, ref_index=ref_index, station=station,
-                            scale=scale.scale, evaluate=hooks.evaluate)
+                            scale=scale.scale, scale_rel_std=scale.scale_std / scale.scale,
+                            evaluate=hooks.evaluate)
         init, coarse_result = _initial_alignment(start, request.coarse)
         ref_images, same_light = _measurement_images(rig, station)
         rig.say(f"relocating ({request.config.mode}) to the reference of station '{station.name}'")

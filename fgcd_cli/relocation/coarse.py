@@ -55,6 +55,7 @@ from fgcd_core.se3 import invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
 
 __all__ = [
+    "check_scale",
     "CameraUncertainty",
     "CoarseConfig",
     "CoarseInputs",
@@ -124,6 +125,9 @@ class CoarseInputs:
         Undistorted intrinsics.
     scale : float
         Metres per map unit of this session.
+    scale_rel_std : float
+        One-sigma relative error of ``scale`` (the exploration's fit); the alignment's own scale is
+        used by the check within three of them (:func:`check_scale`).
     T_flange_cam : (4, 4) ndarray
         Hand-eye.
     init : Sim3
@@ -147,6 +151,7 @@ class CoarseInputs:
     scale: float
     T_flange_cam: np.ndarray
     init: Sim3
+    scale_rel_std: float = 0.03
     reference_images: dict[str, np.ndarray] | None
     grab_current: Callable[[], np.ndarray] | None
     config: CoarseConfig = CoarseConfig()
@@ -179,7 +184,7 @@ def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, las
     if not fast.health.ok and not fast.health.degenerate:
         fast = global_registration(cloud, inp.ref_index, around=last_3d)
     candidates[EstimateSource.THREE_D] = fast.T_ref_cur.transform_pose(T_cur_cam)
-    notes[EstimateSource.THREE_D] = {"alignment": fast.health.reason}
+    notes[EstimateSource.THREE_D] = {"alignment": fast.health.reason, "scale": float(fast.T_ref_cur.scale)}
     if inp.reference_images and inp.grab_current is not None:
         T_img, notes[EstimateSource.IMAGE] = image_estimate(reference_images=inp.reference_images,
                                                             current_image=inp.grab_current(), camera=inp.camera,
@@ -187,6 +192,21 @@ def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, las
         if T_img is not None:
             candidates[EstimateSource.IMAGE] = T_img
     return candidates, notes
+
+
+def check_scale(alignment_scale: float, *, scale_rel_std: float) -> float:
+    """The factor that brings the session's metric cloud to the reference's scale for the check.
+
+    The check registers shapes: a cloud 3 % too small at 1.5 m reads as a 45 mm slide along the
+    view, whatever the estimate. The session's metric scale comes from the exploration's short
+    legs (a few % of error, ``scale_rel_std``); the alignment's Sim3 scale measures the ratio of
+    the two clouds themselves (docs/relocation.md, "Far starts"). It is used when it lies within
+    three sigmas of the session's, else the alignment is suspect and the session's stands (1).
+    """
+    s = float(alignment_scale)
+    if not (math.isfinite(s) and s > 0):
+        return 1.0
+    return s if abs(math.log(s)) <= 3.0 * max(float(scale_rel_std), 0.0) else 1.0
 
 
 def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
@@ -200,6 +220,9 @@ def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
     observed, _ = in_view(cloud, T_cur_cam, camera)
     t0 = time.monotonic()
     candidates, notes = _candidates(inp, cloud, T_cur_cam, last_3d)
+    s_check = check_scale(notes[EstimateSource.THREE_D]["scale"], scale_rel_std=inp.scale_rel_std)
+    notes[EstimateSource.THREE_D]["check_scale"] = s_check
+    observed = observed * s_check
     best = unverified = None
     for name, T_ref_cam in candidates.items():
         unc = camera_uncertainty(observed, inp.reference.points, T_ref_cam, camera, config=config, seed=step)

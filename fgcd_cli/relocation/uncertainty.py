@@ -81,13 +81,14 @@ class CameraUncertainty:
         """The residual motion to apply to the estimate: all of it for the geometry's own estimate, none for
         an image estimate.
 
-        The check registers the session's cloud at the session's scale, whose error (a few % from the
-        exploration's short legs) shifts the registration along the view by that fraction of the depth:
-        about 45 mm at 1.5 m for 3 %, against 2 mm for PnP on a textured slab 92 mm from the reference.
-        The check's constrained part may reject an image estimate, but as a correction it would move a
-        good one by the scale's error (docs/benchmarks.md, "Why the statue's far start cannot be
-        verified"). A 3D estimate keeps the whole correction: it is verified only where the geometry pins
-        every direction, and there the registration is the better measurement of the two.
+        The check registers the session's cloud at a scale known to a percent or so (the alignment's,
+        :func:`~fgcd_cli.relocation.coarse.check_scale`, or the exploration's few %), whose error shifts
+        the registration along the view by that fraction of the depth: 15 mm at 1.5 m for 1 %, against
+        2 mm for PnP on a textured slab 92 mm from the reference. The check's constrained part may reject
+        an image estimate, but as a correction it would move a good one by the scale's error
+        (docs/benchmarks.md, "Why the statue's far start cannot be verified"). A 3D estimate keeps the
+        whole correction: it is verified only where the geometry pins every direction, and there the
+        registration is the better measurement of the two.
         """
         if geometric_source:
             return self.T_correction
