@@ -151,7 +151,12 @@ def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
         try:
-            time.sleep(2.5)  # connected and moving (40 mm at 10 mm/s)
+            # freeze mid-move: once the arm moves (40 mm at 10 mm/s), however long the CLI took to start
+            deadline = time.monotonic() + 20.0
+            while not fake.state()["moving"] and time.monotonic() < deadline and proc.poll() is None:
+                time.sleep(0.1)
+            assert fake.state()["moving"], "the move never started"
+            time.sleep(0.5)
             fake.send("freeze")
             t0 = time.monotonic()
             _, stderr = proc.communicate(timeout=30)
