@@ -150,6 +150,7 @@ def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, time
             body = _recv_exact(sock, size - 3)
             if not body or body[0] != 1:
                 raise PlatformConnectionError(f"{host}:{port} does not speak RTDE protocol version 2")
+            _require_state_stream(sock, host)
         with socket.create_connection((host, dashboard_port), timeout=timeout_s) as sock:
             sock.settimeout(timeout_s)
             greeting = sock.recv(256).decode(errors="replace").strip()
@@ -162,6 +163,38 @@ def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, time
         ) from None
     except (ConnectionError, OSError) as exc:
         raise PlatformConnectionError(f"cannot reach the UR controller at {host}: {exc}") from None
+
+
+def _rtde_packet(sock: socket.socket, kind: str) -> bytes:
+    """The body of the next RTDE packet of ``kind`` (others, such as text messages, are skipped)."""
+    while True:
+        size, got = struct.unpack(">HB", _recv_exact(sock, 3))
+        body = _recv_exact(sock, size - 3)
+        if got == ord(kind):
+            return body
+
+
+def _require_state_stream(sock: socket.socket, host: str) -> None:
+    """Ask for the controller's timestamp and require one state package (RTDE v2:
+    CONTROL_PACKAGE_SETUP_OUTPUTS, CONTROL_PACKAGE_START, DATA_PACKAGE, then PAUSE).
+
+    A controller that answers the protocol request but does not stream would hang the
+    receive interface's constructor, which waits for the first package with no timeout and
+    the GIL held (module docstring). The socket's timeout bounds every wait here.
+    """
+    sock.sendall(struct.pack(">HB", 3 + 8 + len(b"timestamp"), ord("O")) + struct.pack(">d", 10.0) + b"timestamp")
+    recipe = _rtde_packet(sock, "O")
+    if not recipe or b"NOT_FOUND" in recipe:
+        raise PlatformConnectionError(f"the UR controller at {host} refused an RTDE output recipe")
+    sock.sendall(struct.pack(">HB", 3, ord("S")))
+    if _rtde_packet(sock, "S")[:1] != b"\x01":
+        raise PlatformConnectionError(f"the UR controller at {host} refused to start RTDE streaming")
+    try:
+        _rtde_packet(sock, "U")
+    except socket.timeout:
+        raise PlatformTimeout(f"the UR controller at {host} answers but sends no state (it may be hung); "
+                              "check the controller before moving") from None
+    sock.sendall(struct.pack(">HB", 3, ord("P")))
 
 
 def _recv_exact(sock: socket.socket, n: int) -> bytes:

@@ -141,6 +141,21 @@ def test_ur_unreachable_host_is_one_line_error():
     assert run.returncode == 7 and "cannot reach the UR controller" in run.stderr
 
 
+def test_ur_controller_hung_before_the_move_is_one_line_and_exits():
+    # Frozen before fgcd connects: sockets open, protocol answered, no state stream.
+    with FakeURProcess() as fake:
+        fake.send("freeze")
+        proc = subprocess.run(
+            [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "ur", "--host", "127.0.0.1",
+             "--dx", "40", "--speed-fraction", "0.2", "--yes"],
+            capture_output=True, text=True, timeout=60,
+        )
+        assert not fake.state()["moving"]
+    assert proc.returncode == 7, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("platform error:") and "sends no state" in lines[0], proc.stderr
+
+
 def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
     # The controller stops streaming mid-move but keeps its sockets open: ur_rtde keeps
     # reconnecting forever in native threads; fgcd must still say why and exit.

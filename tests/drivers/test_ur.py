@@ -263,6 +263,16 @@ def test_silent_peer_times_out_in_preflight_without_freezing():
         assert time.monotonic() - t0 < 3.0
 
 
+def test_a_controller_that_answers_but_does_not_stream_times_out_in_preflight():
+    # ur_rtde's receive constructor would wait for the first state package forever (GIL held).
+    with FakeURProcess() as fake:
+        fake.send("freeze")
+        t0 = time.monotonic()
+        with pytest.raises(PlatformTimeout, match="sends no state"):
+            URPlatform(CONFIG).connect()
+        assert time.monotonic() - t0 < 3.0
+
+
 def test_refused_port_is_connection_error():
     # Nothing listens on the RTDE port once the fake is gone.
     with socket.socket() as probe:
