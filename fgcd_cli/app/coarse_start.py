@@ -33,7 +33,7 @@ class CoarseStart:
     scale : float
         The session's map scale, metres per map unit.
     scale_rel_std : float
-        Its one-sigma relative error (the exploration's fit).
+        Its one-sigma relative error (the exploration's fit); 0 takes the scale as exact.
     evaluate : callable() -> dict, or None
         The simulator's truth at the current pose (evaluation only).
     """
@@ -44,7 +44,7 @@ class CoarseStart:
     ref_index: object
     station: object
     scale: float
-    scale_rel_std: float = 0.03
+    scale_rel_std: float = 0.0
     evaluate: Callable[[], dict] | None = None
 
 

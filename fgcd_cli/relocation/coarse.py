@@ -127,7 +127,8 @@ class CoarseInputs:
         Metres per map unit of this session.
     scale_rel_std : float
         One-sigma relative error of ``scale`` (the exploration's fit); the alignment's own scale is
-        used by the check within three of them (:func:`check_scale`).
+        used by the check within three of them (:func:`check_scale`). 0: the session's scale is
+        taken as exact (a metric session, or a caller that does not know its error).
     T_flange_cam : (4, 4) ndarray
         Hand-eye.
     init : Sim3
@@ -151,7 +152,7 @@ class CoarseInputs:
     scale: float
     T_flange_cam: np.ndarray
     init: Sim3
-    scale_rel_std: float = 0.03
+    scale_rel_std: float = 0.0
     reference_images: dict[str, np.ndarray] | None
     grab_current: Callable[[], np.ndarray] | None
     config: CoarseConfig = CoarseConfig()
