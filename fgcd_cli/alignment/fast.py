@@ -211,7 +211,7 @@ def _cold_start(run: _Run, T: Sim3, path: StartPath) -> AlignmentResult:
         T_out, converged, problem = checked
     result = run.finish(T_out, converged, path)
     if problem:
-        health = replace(result.health, ok=False,
+        health = replace(result.health, ok=False, scale_measured=False,
                          reason=problem if result.health.ok else f"{result.health.reason}; {problem}")
         result = replace(result, health=health, seconds=time.perf_counter() - run.t0)
     return result

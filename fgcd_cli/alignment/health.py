@@ -24,7 +24,7 @@ import numpy as np
 
 from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, ResidualStats
 
-__all__ = ["similarity_conditioning", "residual_stats", "HealthEvidence", "HealthLimits", "assess"]
+__all__ = ["similarity_conditioning", "scale_conditioning", "residual_stats", "HealthEvidence", "HealthLimits", "assess"]
 
 _PARAM_NAMES = ("tx", "ty", "tz", "rx", "ry", "rz", "scale")
 
@@ -69,6 +69,26 @@ def similarity_conditioning(points: np.ndarray, normals: np.ndarray) -> tuple[fl
     w = np.clip(w, 0.0, None)
     ratio = float(w[0] / w[-1]) if w[-1] > 0 else 0.0
     return ratio, w, V
+
+
+def scale_conditioning(eigenvalues: np.ndarray, eigenvectors: np.ndarray) -> float:
+    """The scale's own conditioning: its marginal information over the largest eigenvalue, in [0, 1].
+
+    With ``H = V diag(w) V^T`` (:func:`similarity_conditioning`), the scale's variance after the
+    other six parameters are estimated with it is ``(H^-1)_ss = sum_k V_sk^2 / w_k``; its
+    information ``1 / (H^-1)_ss`` over ``w_max`` is to the scale what the condition ratio is to
+    all seven parameters. A plane through the centroid leaves it 0; a body of revolution, free
+    to orbit its axis, still measures it.
+    """
+    w = np.asarray(eigenvalues, dtype=float)
+    v = np.asarray(eigenvectors, dtype=float)[_PARAM_NAMES.index("scale")]
+    if len(w) == 0 or not w[-1] > 0:
+        return 0.0
+    coupled = v**2 > 1e-12
+    if np.any(coupled & (w <= 0)):
+        return 0.0
+    variance = float(np.sum(v[coupled] ** 2 / w[coupled]))
+    return float(min(1.0, 1.0 / (variance * w[-1]))) if variance > 0 else 1.0
 
 
 def weak_direction_names(eigenvalues: np.ndarray, eigenvectors: np.ndarray, *, limit: float) -> tuple[str, ...]:
@@ -189,6 +209,8 @@ def assess(
         degenerate = bool(weak)
     problems = _problems(evidence, limits, overlap=overlap, inlier_ratio=inlier_ratio,
                          degenerate=(ratio, weak, remaining) if degenerate else None)
+    scale_measured = (not _problems(evidence, limits, overlap=overlap, inlier_ratio=inlier_ratio, degenerate=None)
+                      and scale_conditioning(w, V) >= limits.min_condition_ratio)
     return AlignmentHealth(
         ok=not problems,
         reason=HEALTH_OK if not problems else "; ".join(problems),
@@ -199,6 +221,7 @@ def assess(
         degenerate=degenerate,
         weak_directions=weak,
         weak_probe=remaining,
+        scale_measured=scale_measured,
     )
 
 

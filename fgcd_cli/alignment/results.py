@@ -78,6 +78,12 @@ class AlignmentHealth:
         Per probed weak direction, the fraction of a perturbation the
         alignment left unrecovered (about 0: the direction is pinned after
         all; about 1 or more: it is free). Empty when not probed.
+    scale_measured : bool
+        Every check but the pose's conditioning passed, and the scale alone is
+        conditioned by the same standard (its marginal information,
+        :func:`~fgcd_cli.alignment.health.scale_conditioning`): the Sim3 scale is
+        a measurement of the two clouds' ratio even when the pose is free along
+        a weak direction (an orbit about a stupa's axis, a slide along a cornice).
     """
 
     ok: bool
@@ -89,6 +95,7 @@ class AlignmentHealth:
     degenerate: bool
     weak_directions: tuple[str, ...] = ()
     weak_probe: tuple[float, ...] = ()
+    scale_measured: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -185,7 +185,7 @@ def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, las
     if not fast.health.ok and not fast.health.degenerate:
         fast = global_registration(cloud, inp.ref_index, around=last_3d)
     candidates[EstimateSource.THREE_D] = fast.T_ref_cur.transform_pose(T_cur_cam)
-    notes[EstimateSource.THREE_D] = {"alignment": fast.health.reason, "healthy": bool(fast.health.ok),
+    notes[EstimateSource.THREE_D] = {"alignment": fast.health.reason, "scale_measured": bool(fast.health.scale_measured),
                                       "scale": float(fast.T_ref_cur.scale)}
     if inp.reference_images and inp.grab_current is not None:
         T_img, notes[EstimateSource.IMAGE] = image_estimate(reference_images=inp.reference_images,
@@ -196,7 +196,7 @@ def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, las
     return candidates, notes
 
 
-def check_scale(alignment_scale: float, *, scale_rel_std: float, alignment_ok: bool = False) -> float:
+def check_scale(alignment_scale: float, *, scale_rel_std: float, scale_measured: bool = False) -> float:
     """The factor that brings the session's metric cloud to the reference's scale for the check.
 
     The check registers shapes: a cloud 3 % too small at 1.5 m reads as a 45 mm slide along the
@@ -204,17 +204,17 @@ def check_scale(alignment_scale: float, *, scale_rel_std: float, alignment_ok: b
     legs (a few % of error, ``scale_rel_std``, which does not count the monocular map's drift since);
     the alignment's Sim3 scale measures the ratio of the two clouds themselves (docs/relocation.md,
     "Far starts"). It is used when it lies within three sigmas of the session's, or, for a monocular
-    session (``scale_rel_std`` > 0), whenever the alignment is healthy (``alignment_ok``: converged,
-    overlapping and well conditioned in all 7 parameters, so its scale is measured, not free); else
-    the alignment is suspect and the session's scale stands (1). Pass ``alignment_ok`` only for an
-    estimate independent of the alignment: checked at the alignment's own scale, the alignment's
-    estimate would be checked against itself.
+    session (``scale_rel_std`` > 0), whenever the alignment measured it (``scale_measured``: converged,
+    overlapping, and the scale well conditioned, :attr:`AlignmentHealth.scale_measured`, even if the
+    pose slides along a weak direction); else the alignment is suspect and the session's scale stands
+    (1). Pass ``scale_measured`` only for an estimate independent of the alignment: checked at the
+    alignment's own scale, the alignment's estimate would be checked against itself.
     """
     s = float(alignment_scale)
     if not (math.isfinite(s) and s > 0):
         return 1.0
     sigma = max(float(scale_rel_std), 0.0)
-    return s if abs(math.log(s)) <= 3.0 * sigma or (alignment_ok and sigma > 0) else 1.0
+    return s if abs(math.log(s)) <= 3.0 * sigma or (scale_measured and sigma > 0) else 1.0
 
 
 def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
@@ -233,7 +233,7 @@ def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
     for name, T_ref_cam in candidates.items():
         geometric = name == EstimateSource.THREE_D
         notes[name]["check_scale"] = s_check = check_scale(
-            align["scale"], scale_rel_std=inp.scale_rel_std, alignment_ok=align["healthy"] and not geometric)
+            align["scale"], scale_rel_std=inp.scale_rel_std, scale_measured=align["scale_measured"] and not geometric)
         unc = camera_uncertainty(observed * s_check, inp.reference.points, T_ref_cam, camera, config=config,
                                  seed=step)
         notes[name]["uncertainty"] = unc.to_dict()

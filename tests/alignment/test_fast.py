@@ -7,7 +7,7 @@ import pytest
 
 from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
 from fgcd_cli.alignment.fast_config import ScaleStepConfig
-from fgcd_cli.alignment.health import similarity_conditioning
+from fgcd_cli.alignment.health import scale_conditioning, similarity_conditioning
 from fgcd_cli.alignment.sparse_icp import scale_step_point_to_plane, shrink, shrink_threshold
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity, sample_plane, sample_sphere
 from fgcd_core import Sim3
@@ -113,6 +113,19 @@ def test_plane_and_sphere_weak_directions():
     pts, n = sample_sphere(5000, rng=rng)
     ratio, w, V = similarity_conditioning(pts, n)
     assert np.sum(w < 1e-9 * w[-1]) == 3  # rotations about the centre
+
+
+def test_the_scale_s_own_conditioning_separates_a_free_pose_from_a_free_scale(scene, reference):
+    """A sphere leaves its rotations free but its radius fixes the scale; a plane through the centroid leaves
+    the scale free; on the relief the scale is at least as well conditioned as the worst direction."""
+    rng = np.random.default_rng(6)
+    limit = FastAlignConfig().health.min_condition_ratio
+    ratio, w, V = similarity_conditioning(*sample_sphere(5000, rng=rng))
+    assert ratio < 1e-9 and scale_conditioning(w, V) > 10 * limit
+    ratio, w, V = similarity_conditioning(*sample_plane(5000, rng=rng))
+    assert scale_conditioning(w, V) < 1e-9
+    ratio, w, V = similarity_conditioning(reference.points, reference.normals)
+    assert scale_conditioning(w, V) >= ratio * (1 - 1e-9)
 
 
 def test_too_few_points_reports_failure(reference):

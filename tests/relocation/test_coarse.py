@@ -292,6 +292,6 @@ def test_the_check_takes_the_alignment_scale_within_the_session_s_error_or_when_
     assert check_scale(float("nan"), scale_rel_std=0.1) == 1.0
     assert check_scale(0.99, scale_rel_std=0.0) == 1.0  # a metric session trusts its depth
     # a healthy alignment measures the ratio for an estimate independent of it, on a monocular session
-    assert check_scale(0.93, scale_rel_std=0.01, alignment_ok=True) == 0.93
-    assert check_scale(0.93, scale_rel_std=0.0, alignment_ok=True) == 1.0
-    assert check_scale(float("nan"), scale_rel_std=0.01, alignment_ok=True) == 1.0
+    assert check_scale(0.93, scale_rel_std=0.01, scale_measured=True) == 0.93
+    assert check_scale(0.93, scale_rel_std=0.0, scale_measured=True) == 1.0
+    assert check_scale(float("nan"), scale_rel_std=0.01, scale_measured=True) == 1.0
