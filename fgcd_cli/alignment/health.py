@@ -24,7 +24,8 @@ import numpy as np
 
 from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, ResidualStats
 
-__all__ = ["similarity_conditioning", "scale_conditioning", "residual_stats", "HealthEvidence", "HealthLimits", "assess"]
+__all__ = ["similarity_conditioning", "scale_conditioning", "residual_stats", "HealthEvidence", "HealthLimits",
+           "assess"]
 
 _PARAM_NAMES = ("tx", "ty", "tz", "rx", "ry", "rz", "scale")
 

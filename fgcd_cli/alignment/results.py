@@ -84,6 +84,8 @@ class AlignmentHealth:
         :func:`~fgcd_cli.alignment.health.scale_conditioning`): the Sim3 scale is
         a measurement of the two clouds' ratio even when the pose is free along
         a weak direction (an orbit about a stupa's axis, a slide along a cornice).
+        Set by :func:`~fgcd_cli.alignment.health.assess` (the fast alignment);
+        False where it is not assessed (the fine alignment's composed health).
     """
 
     ok: bool

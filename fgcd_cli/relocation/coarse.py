@@ -127,8 +127,9 @@ class CoarseInputs:
         Metres per map unit of this session.
     scale_rel_std : float
         One-sigma relative error of ``scale`` (the exploration's fit); the alignment's own scale is
-        used by the check within three of them (:func:`check_scale`). 0: the session's scale is
-        taken as exact (a metric session, or a caller that does not know its error).
+        used by the check within three of them, or for an image estimate whenever the alignment
+        measured it (:func:`check_scale`). 0: the session's scale is taken as exact (a metric
+        session, or a caller that does not know its error).
     T_flange_cam : (4, 4) ndarray
         Hand-eye.
     init : Sim3
@@ -185,8 +186,8 @@ def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, las
     if not fast.health.ok and not fast.health.degenerate:
         fast = global_registration(cloud, inp.ref_index, around=last_3d)
     candidates[EstimateSource.THREE_D] = fast.T_ref_cur.transform_pose(T_cur_cam)
-    notes[EstimateSource.THREE_D] = {"alignment": fast.health.reason, "scale_measured": bool(fast.health.scale_measured),
-                                      "scale": float(fast.T_ref_cur.scale)}
+    notes[EstimateSource.THREE_D] = {"alignment": fast.health.reason, "scale": float(fast.T_ref_cur.scale),
+                                      "scale_measured": bool(fast.health.scale_measured)}
     if inp.reference_images and inp.grab_current is not None:
         T_img, notes[EstimateSource.IMAGE] = image_estimate(reference_images=inp.reference_images,
                                                             current_image=inp.grab_current(), camera=inp.camera,

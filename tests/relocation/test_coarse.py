@@ -264,7 +264,7 @@ def test_a_verified_image_estimate_is_not_moved_by_the_session_scale_error(refer
 def test_an_exact_image_estimate_verifies_through_a_large_session_scale_error(reference_points, monkeypatch):
     """A 5 % scale error (the statue's revisit, docs/benchmarks.md) shifts a check at the session's scale by
     5 % of 1.5 m = 75 mm, beyond the 50 mm limit, at the true pose: nothing could verify. The image estimate
-    is checked at the healthy alignment's scale, whatever sigma the session claims (1 % here: the fit does
+    is checked at the scale the alignment measured, whatever sigma the session claims (1 % here: the fit does
     not count the map's drift), and verifies; the 3D estimate, checked at its own scale only within the
     session's 3 sigma, keeps the session's. A metric session (sigma 0) keeps its own scale for both, and the
     same exact estimate is refused, not moved."""
@@ -283,7 +283,7 @@ def test_an_exact_image_estimate_verifies_through_a_large_session_scale_error(re
     assert min(n["constrained_translation_mm"] for n in image_notes) > 50.0
 
 
-def test_the_check_takes_the_alignment_scale_within_the_session_s_error_or_when_healthy():
+def test_the_check_takes_the_alignment_scale_within_the_session_s_error_or_when_measured():
     from fgcd_cli.relocation.coarse import check_scale
 
     assert check_scale(0.95, scale_rel_std=0.04) == 0.95  # 5 % against 3 x 4 %
@@ -291,7 +291,7 @@ def test_the_check_takes_the_alignment_scale_within_the_session_s_error_or_when_
     assert check_scale(1.0 / 0.93, scale_rel_std=0.02) == 1.0  # 7.3 % against 6 %
     assert check_scale(float("nan"), scale_rel_std=0.1) == 1.0
     assert check_scale(0.99, scale_rel_std=0.0) == 1.0  # a metric session trusts its depth
-    # a healthy alignment measures the ratio for an estimate independent of it, on a monocular session
+    # an alignment that measured its scale gives the ratio for an estimate independent of it (monocular session)
     assert check_scale(0.93, scale_rel_std=0.01, scale_measured=True) == 0.93
     assert check_scale(0.93, scale_rel_std=0.0, scale_measured=True) == 1.0
     assert check_scale(float("nan"), scale_rel_std=0.01, scale_measured=True) == 1.0
