@@ -33,7 +33,7 @@ from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import rig_calibration, station_world
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError, run_record
 from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult
-from fgcd_cli.relocation.config import RelocationConfig
+from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.acr import AcrConfig
 from fgcd_cli.relocation.acr_pose import AcrModel, AcrPoseConfig
 from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
@@ -99,11 +99,15 @@ class RelocateHooks:
         Each adjustment of the loop.
     evaluation : callable() -> dict, or None
         The truth written into the visit (``evaluation/sim_truth.json``).
+    reference_override : callable(ReferenceData) -> ReferenceData, or None
+        A benchmark's change of the reference cloud before rACR sees it (paper 000 Fig. 4:
+        noise on the reference points); the stored reference is never changed.
     """
 
     evaluate: Callable[[], dict] | None = None
     on_record: Callable[[AdjustmentRecord], None] | None = None
     evaluation: Callable[[], dict] | None = None
+    reference_override: Callable[[ReferenceData], ReferenceData] | None = None
 
 
 def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
@@ -122,6 +126,8 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
     from fgcd_cli.alignment import ReferenceIndex
 
     reference = load_reference(station)
+    if hooks.reference_override is not None:
+        reference = hooks.reference_override(reference)
     ref_index = ReferenceIndex(reference.points, intensities=reference.intensities,
                                view=(reference.T_ref_camref, rig.intrinsics))
     rig.progress(0, 0, "starting the VSE")

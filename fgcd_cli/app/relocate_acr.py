@@ -114,10 +114,11 @@ def acr_relocate_and_capture(rig: RigHandles, station, request: "RelocateRequest
     config = request.acr or AcrConfig()
     # the two-view model follows the method (acr: essential matrix; acr-h: homography)
     config = replace(config, pose=replace(config.pose, model=AcrModel(str(request.method))))
-    rig.say(f"relocating ({request.method}) to the reference image '{name}' of station '{station.name}' "
-            "(hand-eye taken as the identity)")
+    handeye = "the calibrated hand-eye" if config.use_handeye else "hand-eye taken as the identity"
+    rig.say(f"relocating ({request.method}) to the reference image '{name}' of station '{station.name}' ({handeye})")
     rig.progress(0, 0, "relocating")
-    result = acr_relocate(acr_rig, reference_image, rig.intrinsics.K, config=config)
+    result = acr_relocate(acr_rig, reference_image, rig.intrinsics.K, config=config,
+                          T_flange_cam=rig.T_flange_cam if config.use_handeye else None)
     images = grab_images(rig, request.lightings)
     meta = _visit_metadata(request, result, name)
     rig.progress(0, 0, "writing the visit")

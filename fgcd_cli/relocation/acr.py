@@ -62,6 +62,9 @@ class AcrConfig:
         Largest rotation of one adjustment (the loop's ``max_step_rad``).
     stop_afd_px : float
         Converged when the measured AFD is at most this (the loop's image-space rule).
+    use_handeye : bool
+        Move with the rig's calibrated hand-eye instead of the identity (the paper's
+        ``ACR_w/X``, paper 000 Table 3); the use case passes it to :func:`acr_relocate`.
     """
 
     pose: AcrPoseConfig = AcrPoseConfig()
@@ -70,6 +73,7 @@ class AcrConfig:
     min_step_m: float = 1e-4
     max_step_rad: float = math.radians(10.0)
     stop_afd_px: float = 0.5
+    use_handeye: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)

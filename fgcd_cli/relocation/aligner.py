@@ -13,6 +13,8 @@ from typing import Protocol
 
 import numpy as np
 
+from fgcd_cli.alignment.fast_config import FastAlignConfig
+from fgcd_cli.alignment.fine_config import FineAlignConfig
 from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.enums import EstimateStage
 from fgcd_cli.relocation.protocols import CameraModel
@@ -70,6 +72,8 @@ class AlignmentProblem:
         Run the fine stage after a trustworthy fast one.
     recent_keyframes : int
         Keyframes whose points make the local cloud (:func:`local_cloud`).
+    fast_config, fine_config : FastAlignConfig, FineAlignConfig
+        Options of the two stages.
     """
 
     reference: ReferenceData
@@ -78,6 +82,8 @@ class AlignmentProblem:
     scale: float
     fine: bool = True
     recent_keyframes: int = 6
+    fast_config: FastAlignConfig = FastAlignConfig()
+    fine_config: FineAlignConfig = FineAlignConfig()
 
 
 class Aligner(Protocol):
@@ -123,7 +129,7 @@ def align_once(*, state, problem: AlignmentProblem, init: Sim3, serial: int = 0)
     scale, ref_index = problem.scale, problem.ref_index
     cur_points = local_cloud(state, problem.recent_keyframes) * scale
     t0 = time.monotonic()
-    fast = fast_align(cur_points, ref_index, init=init)
+    fast = fast_align(cur_points, ref_index, init=init, config=problem.fast_config)
     out.append(AlignmentEstimate(T_ref_cur=fast.T_ref_cur, stage=EstimateStage.FAST, ok=bool(fast.health.ok),
                                  reason=fast.health.reason, vse_frame=state.frames_processed,
                                  seconds=time.monotonic() - t0, serial=serial,
@@ -138,6 +144,7 @@ def align_once(*, state, problem: AlignmentProblem, init: Sim3, serial: int = 0)
             camera=problem.camera,
             init=fast.T_ref_cur,
             cur_points=cur_points,
+            config=problem.fine_config,
         )
         out.append(AlignmentEstimate(T_ref_cur=res.T_ref_cur, stage=EstimateStage.FINE, ok=bool(res.health.ok),
                                      reason=res.health.reason, vse_frame=state.frames_processed,

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgcd_cli.alignment.fast_config import FastAlignConfig
+from fgcd_cli.alignment.fine_config import FineAlignConfig
 from fgcd_cli.relocation.enums import LoopMode
 
 __all__ = ["HEARTBEAT_S", "ReferenceData", "RelocationConfig"]
@@ -128,3 +130,7 @@ class RelocationConfig:
     """Longest wait for a 3D estimate of the view after the last image motion, to check
     agreement; without one, the check is reported as not done."""
     heartbeat_s: float = HEARTBEAT_S
+    fast_align: FastAlignConfig = FastAlignConfig()
+    """Options of every fast alignment of the loop (the paper's ``rACR-S`` ablation keeps the scale)."""
+    fine_align: FineAlignConfig = FineAlignConfig()
+    """Options of every fine alignment of the loop (the paper's alpha, and ``rACR-P``)."""

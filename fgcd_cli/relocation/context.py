@@ -94,7 +94,8 @@ class LoopContext:
     def problem(self) -> AlignmentProblem:
         """The fixed part of every alignment of this run."""
         return AlignmentProblem(reference=self.reference, ref_index=self.ref_index, camera=self.camera,
-                                scale=self.scale, fine=self.config.fine)
+                                scale=self.scale, fine=self.config.fine, fast_config=self.config.fast_align,
+                                fine_config=self.config.fine_align)
 
     def refiner(self) -> ImageRefiner:
         """The image refiner: the injected one, else the default (imported on first use: OpenCV's SIFT)."""

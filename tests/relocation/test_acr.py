@@ -153,3 +153,22 @@ def test_no_trustworthy_pose_pauses():
     with pytest.raises(AlgorithmError, match="ACR paused"):
         acr_relocate(acr, np.zeros((H, W)), K)
     assert rig.moves == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_with_the_hand_eye_the_bisection_needs_no_more_steps(seed):
+    """ACR_w/X (paper 000 Table 3): the calibrated hand-eye turns each camera step into the right flange step."""
+    def run(with_x: bool):
+        rng = np.random.default_rng(seed)
+        axis = rng.normal(size=3)
+        X = exp_se3(np.r_[0.0, 0.08, 0.05, math.radians(25.0) * axis / np.linalg.norm(axis)])
+        d, a = rng.normal(size=3), rng.normal(size=3)
+        start = np.r_[0.03 * d / np.linalg.norm(d), math.radians(3.0) * a / np.linalg.norm(a)]
+        rig = PerfectRig(X, start, scene(rng, relief_m=0.05))
+        result = acr_relocate(rig.acr_rig(), np.zeros((H, W)), K, config=AcrConfig(), T_flange_cam=X if with_x else None)
+        return result, rig.afd_px()
+
+    with_x, afd_x = run(True)
+    without, _ = run(False)
+    assert with_x.converged and afd_x <= AcrConfig().stop_afd_px
+    assert with_x.adjustments <= without.adjustments
