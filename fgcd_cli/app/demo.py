@@ -18,7 +18,7 @@ import numpy as np
 
 from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics  # the calibration use cases
 from fgcd_cli.campaign import init_campaign, schema
-from fgcd_cli.metrics.sim_eval import change_ids_in_reference, count_changes_found  # evaluation only
+from fgcd_cli.app.sim_scoring import score_visit_changes  # evaluation only
 from fgcd_cli.errors import CampaignError
 
 __all__ = ["DemoConfig", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "run_demo"]
@@ -47,24 +47,6 @@ class DemoConfig:
     start_offset_deg: float = 2.5
     station: str = "niche-figure"
     vse: str = "mono"
-
-
-def _evaluate_changes(visit, station, *, scenario, X: np.ndarray, camera, injected: int) -> dict:
-    """Score the visit's change mask against the simulator's truth (the tool never saw it)."""
-    import cv2
-
-    from fgcd_cli.metrics.sim_eval import score_change_detection
-    from fgcd_cli.app.rig import open_sim_rig
-
-    found = cv2.imdecode(np.frombuffer(visit.bytes(schema.change_relpath(schema.CHANGE_MASK_PNG)), np.uint8), cv2.IMREAD_UNCHANGED) > 0
-    truth_ref = station.reference().json(schema.SIM_TRUTH)
-    rig = open_sim_rig(scenario, T_flange_cam=X, intrinsics=camera)
-    try:
-        ids = change_ids_in_reference(rig.sim, np.array(truth_ref["T_world_cam"]), camera)
-    finally:
-        rig.close()
-    # pixel scores and false regions from the shared scorer; changes counted by identity
-    return {**score_change_detection(found, ids > 0), **count_changes_found(found, ids, injected=injected)}
 
 
 def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[[str], None] = print,
@@ -229,6 +211,6 @@ def _diff(run: _DemoRun, camp_dir: Path) -> dict:
     mask_file = schema.change_relpath(schema.CHANGE_MASK_PNG)
     if visit.has(mask_file):
         run.tick("scoring against the simulator's truth")
-        summary["evaluation"] = _evaluate_changes(visit, run.station, scenario=run.visit_scenario, X=run.X,
+        summary["evaluation"] = score_visit_changes(visit, run.station, scenario=run.visit_scenario, X=run.X,
                                                   camera=run.camera, injected=config.changes)
     return summary

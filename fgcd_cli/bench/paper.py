@@ -28,66 +28,11 @@ import math
 import statistics
 from pathlib import Path
 
-from fgcd_cli.bench.paper_runs import RunSpec, World, ensure_station, ensure_world, run_one
-from fgcd_cli.bench.relocate import CASES
+from fgcd_cli.bench.paper_plan import EXPERIMENTS, QUICK, plan
+from fgcd_cli.bench.paper_runs import RunSpec, ensure_station, ensure_world, run_one
 from fgcd_cli.campaign.atomic import atomic_write_json
-from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
 
 __all__ = ["EXPERIMENTS", "QUICK", "plan", "run", "summarise"]
-
-EXPERIMENTS = ("table2", "table5", "fig7", "table3", "revisit")
-#: ``--quick``: a subset sized for <= 30 min on 2 cores (docs/benchmarks.md has the measured time).
-QUICK = {"cases": ("indoor-2", "outdoor-1"), "fig7_scenes": ("relief_panel",), "fig7_clock": (3, 6, 9)}
-FIG7_REFERENCE = "led:12"
-FIG7_OFFSET = (30.0, 3.0)  # mm, deg: the start of the 20 cases' median
-
-
-def _world(case) -> World:
-    return World(name=f"{case.scene}-{case.seed}", scene=case.scene, seed=case.seed,
-                 calibration_light=case.reference_light)
-
-
-def _case_runs(experiments: tuple[str, ...], cases) -> list[RunSpec]:
-    """Table 2 (rACR and ACR), Table 5 (rACR serial), Table 3 (rACR without hand-eye) on the relocation cases."""
-    runs = []
-    racr, par, ser = RelocationMethod.RACR, LoopMode.PARALLEL, LoopMode.SERIAL
-    variants = {"table2": [("racr", racr, par, False, False), ("acr", RelocationMethod.ACR, par, False, False)],
-                "table5": [("racr-serial", racr, ser, False, False)],
-                "table3": [("racr-no-handeye", racr, par, True, False)],
-                "revisit": [("racr-guided", racr, par, False, True), ("racr-serial-guided", racr, ser, False, True)]}
-    for case in cases:
-        for experiment in experiments:
-            for label, method, mode, no_x, guided in variants.get(experiment, []):
-                runs.append(RunSpec(experiment=experiment, case=case.name, label=label, world=_world(case),
-                                    reference_light=case.reference_light, visit_light=case.visit_light,
-                                    offset_mm=case.offset_mm, offset_deg=case.offset_deg, method=method, mode=mode,
-                                    no_handeye=no_x, guided=guided))
-    return runs
-
-
-def _fig7_runs(scenes: tuple[str, ...], clock: tuple[int, ...]) -> list[RunSpec]:
-    """Fig. 7: each indoor scene's world (its first indoor case), reference at 12 o'clock, visit at each hour."""
-    runs = []
-    for scene in scenes:
-        case = next(c for c in CASES if c.scene == scene and c.name.startswith("indoor"))
-        for hour in clock:
-            for label, method in (("racr", RelocationMethod.RACR), ("acr", RelocationMethod.ACR)):
-                runs.append(RunSpec(experiment="fig7", case=f"{scene}-led{hour}", label=label, world=_world(case),
-                                    reference_light=FIG7_REFERENCE, visit_light=f"led:{hour}",
-                                    offset_mm=FIG7_OFFSET[0], offset_deg=FIG7_OFFSET[1], method=method))
-    return runs
-
-
-def plan(*, quick: bool, experiments: tuple[str, ...] = ("table2", "table5", "fig7"),
-         cases: list[str] | None = None) -> list[RunSpec]:
-    """Every run of the invocation, in order (worlds grouped, so each is set up once)."""
-    chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK["cases"]))]
-    runs = _case_runs(tuple(e for e in experiments if e != "fig7"), chosen)
-    if "fig7" in experiments:
-        indoor = tuple(dict.fromkeys(c.scene for c in CASES if c.name.startswith("indoor")))
-        scenes = QUICK["fig7_scenes"] if quick else indoor
-        runs += _fig7_runs(scenes, QUICK["fig7_clock"] if quick else tuple(range(1, 13)))
-    return runs
 
 
 def _load(path: Path) -> dict | None:
@@ -97,24 +42,30 @@ def _load(path: Path) -> dict | None:
         return None  # missing or torn (never: atomic writes): run it
 
 
-def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = ("table2", "table5", "fig7"),
+def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
         cases: list[str] | None = None, say=lambda _m: None, on_progress=None) -> dict:
     """Run (or resume) the experiments; returns ``{"summary", "targets", "paper", "runs", "out"}``."""
+    from fgcd_cli.bench.paper_changes import score_visits
     from fgcd_cli.bench.paper_report import write_report
 
     out = Path(out)
     runs = plan(quick=quick, experiments=experiments, cases=cases)
-    results, worlds = [], {}
+    # s55 scores Table 2's visits: it needs their runs
+    scored = plan(quick=quick, experiments=("table2",), cases=cases) if "s55" in experiments else []
+    runs += [s for s in scored if s not in runs]
+    worlds: dict = {}
+    total = len(runs) + len(scored)
     for i, spec in enumerate(runs):
         if on_progress is not None:
-            on_progress(i, len(runs), f"{spec.experiment} {spec.case} {spec.label}")
-        done = _load(spec.path(out))
-        if done is None:
-            done = _run_spec(spec, out, worlds, say)
-            atomic_write_json(spec.path(out), done)
-        results.append(done)
+            on_progress(i, total, f"{spec.experiment} {spec.case} {spec.label}")
+        if _load(spec.path(out)) is None:
+            atomic_write_json(spec.path(out), _run_spec(spec, out, worlds, say))
+    if scored:
+        if on_progress is not None:
+            on_progress(len(runs), total, "s55: change detection after each relocation")
+        score_visits(scored, out, worlds=worlds, say=say)
     if on_progress is not None:
-        on_progress(len(runs), len(runs), "done")
+        on_progress(total, total, "done")
     # the folder is the record: the summary and the report cover every run in it (earlier invocations too)
     results = [r for r in (_load(p) for p in sorted((out / "runs").glob("*/*.json"))) if r is not None]
     summary = summarise(results)
@@ -193,4 +144,28 @@ def summarise(results: list[dict]) -> dict:
     acr_sweep = _rows(results, "fig7", "acr")
     summary["acr_led_sweep_success_rate"] = (sum(bool(r.get("success")) for r in acr_sweep) / len(acr_sweep)
                                              if acr_sweep else math.nan)
+    summary.update(_more_summary(results))
     return summary
+
+
+def _more_summary(results: list[dict]) -> dict:
+    """Table 3's ACR_w/X, Table 4, Figs. 4, 6, 12 and §5.5: the keys of the runs that exist."""
+    out = {}
+    out.update(_method_summary(_rows(results, "table3", "acr-handeye"), "acr_handeye"))
+    for label in ("racr", "acr"):
+        out.update(_method_summary(_rows(results, "table4", label), f"table4_{label}"))
+    sparse = _rows(results, "fig6", "racr-sparse")
+    out.update(_method_summary(sparse, "fig6_sparse"))
+    cases = {r["case"] for r in sparse}
+    out.update(_method_summary([r for r in _rows(results, "table2", "racr") if r["case"] in cases], "fig6_semidense"))
+    for experiment in ("fig12", "fig4"):
+        for label in sorted({r["label"] for r in results if r.get("experiment") == experiment}):
+            rows = _rows(results, experiment, label)
+            key = f"{experiment}_{label.replace('-', '_')}"
+            out[f"{key}_mean_afd_px"] = _mean(r.get("afd_px") for r in rows)
+            out[f"{key}_success_rate"] = sum(bool(r.get("success")) for r in rows) / len(rows)
+    for label in ("racr", "acr"):
+        rows = _rows(results, "s55", label)
+        out[f"s55_{label}_mean_f1"] = _mean(r.get("f1") for r in rows)
+        out[f"s55_{label}_false_regions"] = sum(int(r.get("false_regions") or 0) for r in rows) if rows else math.nan
+    return out

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from fgcd_cli.bench.paper_report_more import figures as more_figures, sections as more_sections
 from fgcd_cli.campaign.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["markdown", "write_report"]
@@ -71,8 +72,10 @@ def _summary_table(summary: dict, paper: dict) -> list[str]:
 
 
 VARIANTS = (("racr", "rACR, parallel (Table 2)"), ("acr", "ACR (Table 2)"), ("racr_serial", "rACR, serial (Table 5)"),
-            ("racr_no_handeye", "rACR, X = I (Table 3)"), ("racr_guided", "rACR, parallel, guided exploration"),
-            ("racr_serial_guided", "rACR, serial, guided exploration"))
+            ("racr_no_handeye", "rACR, X = I (Table 3)"), ("acr_handeye", "ACR with the hand-eye (Table 3, ACR_w/X)"),
+            ("racr_guided", "rACR, parallel, guided exploration"),
+            ("racr_serial_guided", "rACR, serial, guided exploration"), ("table4_racr", "rACR (Table 4)"),
+            ("table4_acr", "ACR (Table 4)"), ("fig6_sparse", "rACR, sparse VSE (Fig. 6)"))
 
 
 def _variants_table(summary: dict) -> list[str]:
@@ -128,6 +131,7 @@ def markdown(data: dict) -> str:
     results, summary = data["runs"], data["summary"]
     lines = ["## fgcd bench paper", ""] + _summary_table(summary, data["paper"]) + _table2(results) + [""]
     lines += _table5(summary, data["paper"]) + _variants_table(summary) + _fig7(results)
+    lines += more_sections(data)
     errors = [r for r in results if "error" in r]
     if errors:
         lines += ["### Runs that paused", ""] + [f"- {r['experiment']} {r['case']} {r['label']}: {r['error']}"
@@ -175,7 +179,7 @@ def write_report(data: dict, out: Path) -> None:
 
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "paper.md", markdown(data))
-    for name, png in _figures(data).items():
+    for name, png in {**_figures(data), **more_figures(data)}.items():
         atomic_write_bytes(out / name, png)
     atomic_write_text(out / "summary.json", json.dumps({"summary": data["summary"], "paper": data["paper"],
                                                         "targets": data["targets"]}, indent=1))

@@ -22,7 +22,7 @@ import numpy as np
 from fgcd_cli.campaign.atomic import atomic_write_json
 from fgcd_cli.relocation.enums import EstimateStage, LoopMode, RelocationMethod
 
-__all__ = ["RunSpec", "World", "ensure_station", "ensure_world", "run_one"]
+__all__ = ["RunSpec", "World", "ensure_station", "ensure_world", "loop_config", "run_one", "station_name"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -55,6 +55,17 @@ class RunSpec:
         rACR with ``X = I`` (paper Table 3, ``rACR_w/oX``).
     guided : bool
         rACR exploring toward the image localizer's estimate (issue 21, the faster revisit).
+    vse : str
+        The VSE variant (``mono``: semi-dense, the paper's DSO; ``sparse``: ORB landmarks, paper Fig. 6).
+    alpha : float
+        Weight of the geometric term of the fine alignment (paper Eq. 11; Fig. 12a).
+    ablation : str
+        ``""``, or the paper's rACR-P (no keyframe refinement, Eq. 16), rACR-F (no fine
+        alignment) or rACR-S (no scale estimate): ``"P"``, ``"F"``, ``"S"`` (Fig. 12b).
+    reference_noise : float
+        Gaussian noise on every reference point, as a fraction of the cloud's width (paper Fig. 4).
+    acr_handeye : bool
+        ACR with the calibrated hand-eye (the paper's ``ACR_w/X``, Table 3).
     """
 
     experiment: str
@@ -69,6 +80,11 @@ class RunSpec:
     mode: LoopMode = LoopMode.PARALLEL
     no_handeye: bool = False
     guided: bool = False
+    vse: str = "mono"
+    alpha: float = 0.2
+    ablation: str = ""
+    reference_noise: float = 0.0
+    acr_handeye: bool = False
     session_seed: int = 1
 
     def path(self, out: Path) -> Path:
@@ -76,7 +92,7 @@ class RunSpec:
         return out / "runs" / self.experiment / f"{self.case}__{self.label}.json"
 
 
-def _station_name(light: str) -> str:
+def station_name(light: str) -> str:
     return "ref-" + "".join(c if c.isalnum() else "-" for c in light)
 
 
@@ -112,7 +128,7 @@ def ensure_station(camp, world: World, light: str, T_flange_cam: np.ndarray, cam
     from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.metrics.sim_eval import reference_truth
 
-    name = _station_name(light)
+    name = station_name(light)
     st = camp.station_or_create(name)
     if st.has_reference():
         return st
@@ -132,12 +148,39 @@ def _outcome(spec: RunSpec, vis, truth: dict, wall_s: float) -> dict:
     out = {"converged": r.converged, "reason": r.reason, "adjustments": r.adjustments, "afd_px": truth["afd_px"],
            "pose_err_mm": truth["pose_err_mm"], "pose_err_deg": truth["pose_err_deg"], "session_s": r.session_s,
            "platform_s": r.platform_s, "synthetic_s": r.synthetic_s, "wall_s": wall_s,
-           "success": bool(truth["afd_px"] < 3.0)}
+           "success": bool(truth["afd_px"] < 3.0), "visit": Path(vis.observation_path).name}
     three_d = [rec for rec in r.records if rec.stage in (EstimateStage.FAST, EstimateStage.FINE) and rec.truth]
     if three_d:
         out["afd_px_racr_only"] = three_d[-1].truth["afd_px"]
     out["afd_trace_px"] = [rec.truth["afd_px"] for rec in r.records if rec.truth]
     return out
+
+
+def loop_config(spec: RunSpec):
+    """The rACR loop's options for ``spec``: its mode, alpha and ablation (paper 000 §5.4)."""
+    from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
+    from fgcd_cli.alignment.fine_config import FineAlignConfig
+    from fgcd_cli.relocation.config import RelocationConfig
+
+    fast = FastAlignConfig(scale=ScaleStepConfig(estimate=False)) if spec.ablation == "S" else FastAlignConfig()
+    fine = FineAlignConfig(alpha=spec.alpha, refine_keyframes=spec.ablation != "P")
+    return RelocationConfig(mode=spec.mode, fine=spec.ablation != "F", fast_align=fast, fine_align=fine)
+
+
+def _noisy_reference(noise: float):
+    """Fig. 4's perturbation: every reference point moved by N(0, (noise x width)^2) per axis (None: none)."""
+    if noise <= 0:
+        return None
+
+    def perturb(reference):
+        from dataclasses import replace
+
+        pts = np.asarray(reference.points, dtype=float)
+        width = float(np.max(np.ptp(pts, axis=0)))
+        rng = np.random.default_rng(4)
+        return replace(reference, points=pts + rng.normal(0.0, noise * width, pts.shape))
+
+    return perturb
 
 
 def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say) -> dict:
@@ -148,28 +191,31 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
+    from fgcd_cli.relocation.acr import AcrConfig
     from fgcd_cli.relocation.coarse import CoarseConfig
-    from fgcd_cli.relocation.config import RelocationConfig
 
     w = spec.world
     scen = SimScenario(scene=w.scene, seed=w.seed, lighting=spec.visit_light, changes=3, change_seed=7,
                        start_offset_mm=spec.offset_mm, start_offset_deg=spec.offset_deg,
                        session_seed=spec.session_seed)
     X = np.eye(4) if spec.no_handeye else T_flange_cam
-    rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=camera)
+    rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=camera, vse_variant=spec.vse)
     ev = RelocationEvaluator.from_reference(rig.sim, station.reference())
     result = {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
-              "mode": str(spec.mode), "no_handeye": spec.no_handeye, "guided": spec.guided, "scene": w.scene, "seed": w.seed,
+              "mode": str(spec.mode), "no_handeye": spec.no_handeye, "guided": spec.guided, "vse": spec.vse,
+              "alpha": spec.alpha, "ablation": spec.ablation, "reference_noise": spec.reference_noise,
+              "acr_handeye": spec.acr_handeye, "world": w.name, "scene": w.scene, "seed": w.seed,
               "reference_light": spec.reference_light, "visit_light": spec.visit_light,
               "start_err_mm": ev.evaluate()["pose_err_mm"], "start_afd_px": ev.evaluate()["afd_px"]}
     t0 = time.monotonic()
     try:
         vis = relocate_and_capture(
             rig.handles, station,
-            RelocateRequest(config=RelocationConfig(mode=spec.mode),
-                            lightings=[spec.visit_light, spec.reference_light], coarse=CoarseConfig(),
-                            method=spec.method, guided=spec.guided),
-            hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary))
+            RelocateRequest(config=loop_config(spec), lightings=[spec.visit_light, spec.reference_light],
+                            coarse=CoarseConfig(), method=spec.method, guided=spec.guided,
+                            acr=AcrConfig(use_handeye=spec.acr_handeye)),
+            hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary,
+                                reference_override=_noisy_reference(spec.reference_noise)))
         result.update(_outcome(spec, vis, ev.evaluate(), time.monotonic() - t0))
     except (FgcdError, PlatformError) as exc:
         truth = ev.evaluate()

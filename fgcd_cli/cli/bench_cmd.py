@@ -179,30 +179,32 @@ def relocate(
 
 @app.command("paper")
 def paper(
-    quick: bool = typer.Option(False, "--quick", help="2 cases and a 3-position LED sweep on one scene (<= 30 min)."),
+    quick: bool = typer.Option(False, "--quick", help="One or two cases per experiment (<= 30 min)."),
     out: Path = typer.Option(Path("fgcd-bench-paper"), "--out", help="Folder of the worlds, per-run JSON, tables "
                                                                       "(paper.md) and figures; a re-run resumes it."),
-    experiment: Optional[list[str]] = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, revisit "
-                                                                              "(repeatable; default the first three)."),
+    experiment: Optional[list[str]] = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, table4, "
+                                                   "fig4, fig6, fig12, s55, revisit (repeatable; default all)."),
     case: Optional[list[str]] = typer.Option(None, "--case", help="Only these relocation cases (repeatable)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """Paper 000's experiments in the simulator: rACR beside the ACR baseline (Tables 2, 3, 5, Fig. 7)."""
+    """Paper 000's experiments in the simulator: rACR beside the ACR baseline (Tables 2-5, Figs. 4, 6, 7, 12, §5.5)."""
     from fgcd_cli.bench.paper import EXPERIMENTS, run
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.errors import UserInputError
 
+    from fgcd_cli.bench.paper_plan import TABLE4_CASES
     from fgcd_cli.bench.relocate import CASES
 
     unknown = [e for e in experiment or [] if e not in EXPERIMENTS]
     if unknown:
         raise UserInputError(f"--experiment: unknown {', '.join(unknown)} (valid: {', '.join(EXPERIMENTS)})")
-    unknown = [c for c in case or [] if c not in {c.name for c in CASES}]
+    unknown = [c for c in case or [] if c not in {c.name for c in [*CASES, *TABLE4_CASES]}]
     if unknown:
-        raise UserInputError(f"--case: unknown {', '.join(unknown)} (see `fgcd bench relocate`)")
+        raise UserInputError(f"--case: unknown {', '.join(unknown)} (see `fgcd bench relocate`; Table 4: W1-3, R1-3, "
+                             "V1-3)")
     with step_progress(enabled=True) as bar:
         say = bar.lines(info) if bar is not None else info
-        data = run(quick=quick, out=out, experiments=tuple(experiment) if experiment else ("table2", "table5", "fig7"),
+        data = run(quick=quick, out=out, experiments=tuple(experiment) if experiment else EXPERIMENTS,
                    cases=case, say=say, on_progress=bar)
 
     def show(console):

@@ -9,11 +9,19 @@ from fgcd_cli.bench import paper
 from fgcd_cli.bench.paper_report import markdown
 
 
-def test_quick_plan_covers_table2_table5_and_the_led_sweep():
+def test_quick_plan_covers_every_experiment():
     runs = paper.plan(quick=True)
     labels = {(r.experiment, r.label) for r in runs}
-    assert labels == {("table2", "racr"), ("table2", "acr"), ("table5", "racr-serial"), ("fig7", "racr"),
-                      ("fig7", "acr")}
+    assert {("table2", "racr"), ("table2", "acr"), ("table5", "racr-serial"), ("fig7", "racr"),
+            ("fig7", "acr"), ("table3", "racr-no-handeye"), ("table3", "acr-handeye"), ("table4", "racr"),
+            ("table4", "acr"), ("fig6", "racr-sparse"), ("revisit", "racr-guided")} <= labels
+    # s55 scores Table 2's visits and adds no relocation; every other experiment runs at least once
+    assert {r.experiment for r in runs} == set(paper.EXPERIMENTS) - {"s55"}
+    assert any(r.experiment == "fig12" and r.ablation for r in runs)
+    assert any(r.experiment == "fig4" and r.reference_noise > 0 for r in runs)
+    # each world's runs are together, so a world is set up once and its runs follow
+    worlds = [r.world.name for r in runs]
+    assert worlds == sorted(worlds, key=worlds.index)
     # every method of a case starts from the same pose (the paper's "same initial pose")
     t2 = [r for r in runs if r.experiment in ("table2", "table5")]
     for case in {r.case for r in t2}:
@@ -24,10 +32,42 @@ def test_quick_plan_covers_table2_table5_and_the_led_sweep():
     assert len({r.path(__import__("pathlib").Path("o")) for r in runs}) == len(runs)
 
 
-def test_full_plan_is_the_20_cases_and_72_sweep_positions():
+def test_full_plan_is_the_20_cases_the_72_sweep_positions_and_the_paper_s_other_experiments():
     runs = paper.plan(quick=False)
     assert len({r.case for r in runs if r.experiment == "table2"}) == 20
     assert len([r for r in runs if r.experiment == "fig7" and r.label == "racr"]) == 6 * 12
+    by = lambda e: [r for r in runs if r.experiment == e]  # noqa: E731
+    assert len({r.case for r in by("table4")}) == 9  # W1-3, R1-3, V1-3
+    assert len({r.case for r in by("fig6")}) == 5 and all(r.vse == "sparse" for r in by("fig6"))  # S1-5
+    assert {r.ablation for r in by("fig12")} == {"", "P", "F", "S"} and len({r.case for r in by("fig12")}) == 3
+    assert sorted({r.reference_noise for r in by("fig4")}) == [0.01, 0.02, 0.04, 0.08, 0.16]
+
+
+def test_each_variant_sets_the_loop_options_it_names():
+    from fgcd_cli.bench.paper_runs import loop_config
+
+    runs = {r.label: r for r in paper.plan(quick=False, experiments=("fig12",), cases=["indoor-2"])}
+    assert loop_config(runs["no-F"]).fine is False
+    assert loop_config(runs["no-P"]).fine_align.refine_keyframes is False
+    assert loop_config(runs["no-S"]).fast_align.scale.estimate is False
+    assert loop_config(runs["alpha-0.6"]).fine_align.alpha == 0.6
+    default = loop_config(paper.plan(quick=True, experiments=("table2",))[0])
+    assert default.fine and default.fine_align.refine_keyframes and default.fast_align.scale.estimate
+    assert default.fine_align.alpha == 0.2
+
+
+def test_the_reference_noise_has_the_stated_spread():
+    import numpy as np
+
+    from fgcd_cli.bench.paper_runs import _noisy_reference
+    from fgcd_cli.relocation.config import ReferenceData
+
+    pts = np.random.default_rng(0).uniform(0, 0.5, (20000, 3))
+    ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=np.eye(4))
+    noisy = _noisy_reference(0.04)(ref)
+    width = float(np.max(np.ptp(pts, axis=0)))
+    assert np.std(noisy.points - pts) == pytest.approx(0.04 * width, rel=0.03)
+    assert _noisy_reference(0.0) is None
 
 
 def fake_result(spec, afd):
@@ -64,7 +104,12 @@ def test_a_rerun_resumes_from_the_run_files(tmp_path, monkeypatch):
     text = (tmp_path / "paper.md").read_text()
     assert "**5.00**" in text and "316.7" in text  # ACR's failures marked; the paper's figures beside ours
     assert (tmp_path / "table2_afd.png").stat().st_size > 1000
-    assert json.loads((tmp_path / "summary.json").read_text())["summary"]["led_sweep_runs"] == 3
+    assert json.loads((tmp_path / "summary.json").read_text())["summary"]["led_sweep_runs"] == 2 * 1  # 2 hours, 1 scene
+    for section in ("Table 3", "Table 4", "Fig. 4", "Fig. 6", "Fig. 12"):
+        assert f"### {section}" in text, section
+    assert "12.35" in text and "256.4" in text  # the paper's Table 4 and Table 3 beside ours
+    assert (tmp_path / "fig12_alpha_ablations.png").stat().st_size > 1000
+    assert (tmp_path / "fig4_reference_noise.png").stat().st_size > 1000
 
 
 def test_report_marks_paused_runs():
@@ -73,3 +118,15 @@ def test_report_marks_paused_runs():
     data = {"runs": runs, "summary": paper.summarise(runs), "paper": paper.PAPER}
     text = markdown(data)
     assert "**12.00** (paused)" in text and "only 3 SIFT matches" in text
+
+
+def test_report_shows_change_detection_after_each_method():
+    runs = [{"experiment": "s55", "case": "indoor-2", "label": "racr", "afd_px": 0.2, "f1": 0.81, "false_regions": 0,
+             "scene": "relief_panel"},
+            {"experiment": "s55", "case": "indoor-2", "label": "acr", "afd_px": 4.1, "f1": 0.37, "false_regions": 5,
+             "scene": "relief_panel"}]
+    data = {"runs": runs, "summary": paper.summarise(runs), "paper": paper.PAPER}
+    text = markdown(data)
+    assert "| indoor-2 | relief_panel | 0.20 | 0.81 | 0 | 4.10 | 0.37 | 5 |" in text
+    assert data["summary"]["s55_racr_mean_f1"] == pytest.approx(0.81)
+    assert data["summary"]["s55_acr_false_regions"] == 5
