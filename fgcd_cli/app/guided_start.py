@@ -23,10 +23,11 @@ __all__ = ["GuidedPlan", "guided_exploration", "start_revisit_session", "workspa
 
 
 class GuidedPlan:
-    """The exploration chosen: ``motions`` (None: the usual pattern), why, and the seconds the choice took."""
+    """The exploration chosen: ``motions`` (None: the usual pattern), why, the seconds the choice took, and
+    whether the image estimate put the start beyond the coarse stage's trigger (``far``)."""
 
-    def __init__(self, motions: list[np.ndarray] | None, reason: str, seconds: float):
-        self.motions, self.reason, self.seconds = motions, reason, seconds
+    def __init__(self, motions: list[np.ndarray] | None, reason: str, seconds: float, *, far: bool = False):
+        self.motions, self.reason, self.seconds, self.far = motions, reason, seconds, far
 
 
 def workspace_bounds(guard) -> tuple[np.ndarray, np.ndarray]:
@@ -60,7 +61,7 @@ def guided_exploration(rig: RigHandles, station, reference, *, explore_m: float,
     mm, deg = pose_distance(np.eye(4), M_flange)
     if mm > near.trigger_m * 1e3 or deg > near.trigger_deg:
         return GuidedPlan(None, f"image estimate {mm:.0f} mm / {deg:.1f} deg away (a far start): the usual "
-                                "exploration", seconds)
+                                "exploration", seconds, far=True)
     motions = motions_between(guided_waypoints(M_flange, X, explore_m=explore_m), stops_per_leg=2)
     lo, hi = workspace_bounds(rig.guard)
     if not within_workspace(rig.guard.platform.flange_pose(), motions, lo, hi):
@@ -110,13 +111,14 @@ def start_revisit_session(rig: RigHandles, station, reference, *, explore_m: flo
     """A revisit's VSE session: ``(session, vse, scale)``.
 
     ``guided``: explored toward the image localizer's estimate of the reference when it has one;
-    otherwise the usual pattern, ended early once the alignment is trustworthy (:func:`alignment_trusted`).
+    otherwise the usual pattern, ended early once the alignment is trustworthy (:func:`alignment_trusted`),
+    except on a far start: there the whole pattern runs, as the active coarse stage expects its map.
     """
     plan = guided_exploration(rig, station, reference, explore_m=explore_m) if guided else None
     until = None
     if plan is not None:
         rig.say(plan.reason)
-        if plan.motions is None and ref_index is not None:
+        if plan.motions is None and not plan.far and ref_index is not None:
             def until(session, flange, cams):
                 return alignment_trusted(rig, reference, ref_index, session, flange, cams)
     session, vse, scale, _ = start_session(rig, explore_m=explore_m, legs=legs,

@@ -79,7 +79,7 @@ class RelocateRequest:
     lightings: list[str]
     explore_m: float = 0.04
     explore_legs: int = 3
-    guided: bool = False
+    guided: bool = True
     metadata: dict | None = None
     coarse: CoarseConfig | None = field(default_factory=CoarseConfig)
     earlier_log: tuple[dict, ...] = ()
@@ -316,7 +316,7 @@ class RevisitRequest:
     host: str | None = None
     resume: bool = False
     method: str = RelocationMethod.RACR
-    guided: bool = False
+    guided: bool = True
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -10,8 +10,14 @@ Experiments (each run is one relocation, :mod:`fgcd_cli.bench.paper_runs`):
   the visit under the LED at 1-12 o'clock, rACR and ACR.
 * **table3**: rACR without hand-eye (``X = I``) on the same cases (paper Table 3,
   ``rACR_w/oX``; ACR always takes ``X = I``).
-* **revisit**: rACR with the guided exploration (issue 21, item 3), parallel and
-  serial, on the same cases.
+* **revisit**: rACR with the usual 3-leg exploration instead of the guided one
+  (issue 21, item 3; every other rACR run explores toward the image localizer's
+  estimate), parallel and serial, on the same cases.
+* **table4**: weak texture, repetitive pattern and highly varied illumination
+  cases (:data:`~fgcd_cli.bench.paper_plan.TABLE4_CASES`), rACR and ACR.
+* **fig4**, **fig6**, **fig12**: noise on the reference points, the sparse VSE,
+  the weight alpha and the -P/-F/-S ablations, on the paper's S1-3 (S1-5).
+* **s55**: change detection after rACR and after ACR (Table 2's visits).
 
 Resumable: every run's result is written atomically as
 ``<out>/runs/<experiment>/<case>__<label>.json`` and a re-run skips the runs
@@ -136,8 +142,8 @@ def summarise(results: list[dict]) -> dict:
     ser_s = summary["racr_serial_mean_rig_s"]
     summary["parallel_over_serial_speedup"] = ser_s / par_s if par_s > 0 else math.nan
     summary.update(_method_summary(_rows(results, "table3", "racr-no-handeye"), "racr_no_handeye"))
-    summary.update(_method_summary(_rows(results, "revisit", "racr-guided"), "racr_guided"))
-    summary.update(_method_summary(_rows(results, "revisit", "racr-serial-guided"), "racr_serial_guided"))
+    summary.update(_method_summary(_rows(results, "revisit", "racr-usual"), "racr_usual"))
+    summary.update(_method_summary(_rows(results, "revisit", "racr-serial-usual"), "racr_serial_usual"))
     sweep = _rows(results, "fig7", "racr")
     summary["led_sweep_runs"] = len(sweep)
     summary["led_sweep_success_rate"] = (sum(bool(r.get("success")) for r in sweep) / len(sweep)) if sweep else math.nan

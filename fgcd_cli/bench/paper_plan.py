@@ -63,7 +63,7 @@ CASE_VARIANTS = {
     "table4": {"racr": {}, "acr": {"method": _ACR}},
     "table5": {"racr-serial": {"mode": _SER}},
     "table3": {"racr-no-handeye": {"no_handeye": True}, "acr-handeye": {"method": _ACR, "acr_handeye": True}},
-    "revisit": {"racr-guided": {"guided": True}, "racr-serial-guided": {"mode": _SER, "guided": True}},
+    "revisit": {"racr-usual": {"guided": False}, "racr-serial-usual": {"mode": _SER, "guided": False}},
     "fig6": {"racr-sparse": {"vse": "sparse"}},
     "fig12": {label: {"alpha": a, "ablation": x} for label, a, x in FIG12_VARIANTS},
     "fig4": {f"noise-{r:.2f}": {"reference_noise": r} for r in FIG4_NOISE},

@@ -73,8 +73,8 @@ def _summary_table(summary: dict, paper: dict) -> list[str]:
 
 VARIANTS = (("racr", "rACR, parallel (Table 2)"), ("acr", "ACR (Table 2)"), ("racr_serial", "rACR, serial (Table 5)"),
             ("racr_no_handeye", "rACR, X = I (Table 3)"), ("acr_handeye", "ACR with the hand-eye (Table 3, ACR_w/X)"),
-            ("racr_guided", "rACR, parallel, guided exploration"),
-            ("racr_serial_guided", "rACR, serial, guided exploration"), ("table4_racr", "rACR (Table 4)"),
+            ("racr_usual", "rACR, parallel, usual 3-leg exploration"),
+            ("racr_serial_usual", "rACR, serial, usual 3-leg exploration"), ("table4_racr", "rACR (Table 4)"),
             ("table4_acr", "ACR (Table 4)"), ("fig6_sparse", "rACR, sparse VSE (Fig. 6)"))
 
 

@@ -54,7 +54,8 @@ class RunSpec:
     no_handeye : bool
         rACR with ``X = I`` (paper Table 3, ``rACR_w/oX``).
     guided : bool
-        rACR exploring toward the image localizer's estimate (issue 21, the faster revisit).
+        rACR exploring toward the image localizer's estimate (the default; False: the usual 3-leg pattern,
+        the ``revisit`` experiment's comparison).
     vse : str
         The VSE variant (``mono``: semi-dense, the paper's DSO; ``sparse``: ORB landmarks, paper Fig. 6).
     alpha : float
@@ -79,7 +80,7 @@ class RunSpec:
     method: RelocationMethod = RelocationMethod.RACR
     mode: LoopMode = LoopMode.PARALLEL
     no_handeye: bool = False
-    guided: bool = False
+    guided: bool = True
     vse: str = "mono"
     alpha: float = 0.2
     ablation: str = ""

@@ -94,8 +94,8 @@ def relocate(
     method: str = typer.Option("racr", "--method", help="racr (3D alignment, paper 000), or the baselines acr "
                                                          "(Tian et al.: 5-point pose, bisection on the scale, hand-eye "
                                                          "taken as identity) and acr-h (its homography-guided step)."),
-    guided: bool = typer.Option(False, "--guided", help="rACR: explore toward the image localizer's estimate of the "
-                                                        "reference pose instead of the fixed 3-leg pattern."),
+    guided: bool = typer.Option(True, "--guided/--no-guided", help="rACR: explore toward the image localizer's "
+                                "estimate of the reference pose (default), or the fixed 3-leg pattern."),
     port: str = typer.Option(None, "--port"),
     host: str = typer.Option(None, "--host"),
     resume: bool = typer.Option(False, "--resume", help="Continue the station's interrupted visit from its journal "

@@ -93,6 +93,11 @@ class RelocationConfig:
     image_refine: bool = True
     """After the 3D loop converges, refine from the reference images
     (:mod:`fgcd_cli.relocation.image_refine`) when the evidence is strong."""
+    image_handover: bool = True
+    """Hand the loop to the image stage as soon as the 3D estimate's offset is within its own 1-sigma
+    uncertainty (``vse_sigma_rel`` of the depth): a motion that size is mostly the estimate's error,
+    and the image stage measures the same offset far more precisely. When the image evidence is
+    weak at that point, the 3D loop goes on to its own stop rule (docs/relocation.md, "Stop rules")."""
     image_refine_steps: int = 4
     image_stop_afd_px: float = 0.5
     """The image stage stops when its correction moves the reference image by less than this.

@@ -97,9 +97,12 @@ def _frames(ctx: LoopContext, ref) -> dict:
 class _ImageStage:
     """One run of the image stage; :meth:`run` returns the result or raises (fallback that found nothing)."""
 
-    def __init__(self, ctx: LoopContext, st: LoopState, result: RelocationResult, *, fallback: bool):
+    def __init__(self, ctx: LoopContext, st: LoopState, result: RelocationResult, *, fallback: bool,
+                 handed_over: bool = False):
         c = ctx.config
         self.ctx, self.st, self.result, self.fallback = ctx, st, result, fallback
+        self.handed_over = handed_over
+        self.handed_back = False  # declined before any motion after a hand-over: the 3D loop goes on
         self.last = st.records[-1] if st.records else None
         self.first_iteration = self.last.iteration if self.last is not None else 0
         self.label = "image fallback" if fallback else "image stage"
@@ -203,6 +206,9 @@ class _ImageStage:
         """No trustworthy image solution: the stage ends. Before any image motion the camera stays where the 3D
         loop stopped, with the 3D residual, but *not converged*: nothing confirmed the 3D estimate."""
         self.reason = f"{self.result.reason}; {self.label}: {ref.reason}"
+        if self.handed_over and not self.moved:
+            self.handed_back = True
+            return
         if not self.fallback and not self.moved and self.last is not None:
             self.residual = Residual(offset_mm=self.last.offset_mm, sigma_mm=self.st.sigma3d_mm,
                                      tolerance_mm=self.st.tol_mm, source=EstimateSource.THREE_D,
@@ -257,10 +263,12 @@ class _ImageStage:
                                     agreement=Agreement.NOT_CHECKED)
         return out
 
-    def run(self) -> RelocationResult:
+    def run(self) -> RelocationResult | None:
         for step in range(self.steps):
             if self._step(step):
                 break
+        if self.handed_back:
+            return None
         if self.converged:
             out = RelocationResult(True, f"{self.reason}; {self.residual.text()}", self.st.records[-1].iteration)
             out.residual = self.residual
@@ -268,7 +276,8 @@ class _ImageStage:
         return self._paused()
 
 
-def image_stage(ctx: LoopContext, st: LoopState, result: RelocationResult, *, fallback: bool) -> RelocationResult:
+def image_stage(ctx: LoopContext, st: LoopState, result: RelocationResult, *, fallback: bool,
+                handed_over: bool = False) -> RelocationResult | None:
     """Image-based steps from the reference images after the 3D loop (module docstring).
 
     Parameters
@@ -276,13 +285,16 @@ def image_stage(ctx: LoopContext, st: LoopState, result: RelocationResult, *, fa
     ctx, st :
         The run's inputs and shared state; records are appended to ``st.records``.
     result : RelocationResult
-        The 3D loop's outcome (converged, or the pause it ended on).
+        The 3D loop's outcome (converged, handed over, or the pause it ended on).
     fallback : bool
         True when the 3D loop paused (the image estimate is the only one left).
+    handed_over : bool
+        The 3D loop handed over before its own stop rule held (``RelocationConfig.image_handover``):
+        weak image evidence before any image motion returns None, and the 3D loop goes on.
 
     Raises
     ------
     AlgorithmError
         A fallback that found no strong evidence or ran out of steps: the pause stands.
     """
-    return _ImageStage(ctx, st, result, fallback=fallback).run()
+    return _ImageStage(ctx, st, result, fallback=fallback, handed_over=handed_over).run()

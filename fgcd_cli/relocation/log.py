@@ -72,3 +72,5 @@ class RelocationResult:
     """Frame-synthesis time left out of ``session_s`` (simulator rendering; 0 on hardware)."""
     residual: Residual | None = None
     """The final remaining offset as the tool estimates it, with its uncertainty."""
+    handed_over: bool = False
+    """The 3D loop ended because the image stage should take over (``RelocationConfig.image_handover``)."""

@@ -81,6 +81,14 @@ def _run_stages(ctx: LoopContext, st: LoopState) -> RelocationResult:
     config = ctx.config
     try:
         result = racr_loop(ctx, st)
+        if result.handed_over:
+            taken = image_stage(ctx, st, result, fallback=False, handed_over=True)
+            if taken is not None:
+                return taken
+            # the image evidence could not take over where the 3D estimate stopped resolving the offset:
+            # the 3D loop goes on to its own stop rule (then the usual refinement)
+            ctx.say("the image stage could not take over: the 3D loop goes on")
+            result = racr_loop(ctx, st, handover=False)
     except AlgorithmError as paused:
         # The 3D loop paused (degenerate geometry, too few inliers, divergence). Without
         # the fallback, or when it finds no strong evidence either, the pause stands.

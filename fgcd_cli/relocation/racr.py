@@ -69,6 +69,14 @@ def _stops(ctx: LoopContext, st: LoopState, adj: Adjustment, afd_est_px: float) 
     return (adj.g <= c.eta or afd_est_px <= c.stop_afd_px) and adj.offset_mm <= st.tol_mm
 
 
+def _hands_over(ctx: LoopContext, st: LoopState, adj: Adjustment) -> bool:
+    """The 3D estimate cannot resolve what remains (its offset within its own 1-sigma uncertainty, which is
+    above the tolerance) and the image stage can measure it (``RelocationConfig.image_handover``)."""
+    c = ctx.config
+    return (c.image_handover and c.image_refine and ctx.can_image and st.sigma3d_mm > st.tol_mm
+            and adj.offset_mm <= st.sigma3d_mm)
+
+
 def _tracking_or(session, state):
     """The VSE's latest state when it tracks, else ``state``."""
     return session.vse.latest() if session.vse.latest().status == VseStatus.TRACKING else state
@@ -95,10 +103,12 @@ def _estimate(ctx: LoopContext, st: LoopState, iteration: int, last_serial: int,
     return align_now(ctx, state, current_init, last_serial + 1, t0=t0), state
 
 
-def _confirmed(ctx: LoopContext, st: LoopState, iteration: int, est: AlignmentEstimate, state):
-    """Parallel mode, about to stop on an estimate of the view before the last motion: confirm it first."""
+def _confirmed(ctx: LoopContext, st: LoopState, iteration: int, est: AlignmentEstimate, state, handover: bool):
+    """Parallel mode, about to stop (or hand over) on an estimate of the view before the last motion: confirm it
+    first."""
     adj, afd = _adjustment(ctx, est, state)
-    while ctx.config.mode == LoopMode.PARALLEL and est.vse_frame < st.moved_at_frame and _stops(ctx, st, adj, afd):
+    while ctx.config.mode == LoopMode.PARALLEL and est.vse_frame < st.moved_at_frame and (
+            _stops(ctx, st, adj, afd) or (handover and _hands_over(ctx, st, adj))):
         ctx.say(f"adjustment {iteration}: confirming the stop on an alignment of the current view")
         est = wait_for_estimate(ctx, st.worker, est.serial)
         state = _tracking_or(ctx.session, state)
@@ -152,19 +162,24 @@ def _move(ctx: LoopContext, st: LoopState, iteration: int, adj: Adjustment) -> N
     st.moved_at_frame = session.vse.latest().frames_processed
 
 
-def racr_loop(ctx: LoopContext, st: LoopState) -> RelocationResult:
+def racr_loop(ctx: LoopContext, st: LoopState, *, handover: bool = True) -> RelocationResult:
     """The 3D rACR loop: align, adjust, until converged; raises AlgorithmError when it pauses.
 
     It stops when the paper's rule (``g <= eta``) or the image-space rule (estimated AFD
     ``<= stop_afd_px``) holds *and* the estimated remaining offset is within the tolerance
     (:func:`~fgcd_cli.relocation.stop_rule.tolerance_mm`): a stage never stops while its own
-    estimate says more remains. Every record goes to ``st.records``.
+    estimate says more remains. With ``handover``, it ends earlier, *not* converged and with
+    ``handed_over`` set, when the image stage should take over (:func:`_hands_over`). Called
+    again (after an image stage that could not take over), it continues the numbering and the
+    estimates of ``st``. Every record goes to ``st.records``.
     """
-    current_init, last_serial = ctx.init, 0
+    last = st.records[-1] if st.records else None
+    current_init = st.last_T_ref_cur if st.last_T_ref_cur is not None else ctx.init
+    last_serial = max([int(r.estimate_serial) for r in st.records if r.estimate_serial is not None], default=0)
     divergence = _Divergence()
-    for iteration in range(1, ctx.config.max_adjustments + 1):
+    for iteration in range((last.iteration + 1) if last is not None else 1, ctx.config.max_adjustments + 1):
         est, state = _estimate(ctx, st, iteration, last_serial, current_init)
-        est, state, adj, afd = _confirmed(ctx, st, iteration, est, state)
+        est, state, adj, afd = _confirmed(ctx, st, iteration, est, state, handover)
         last_serial, current_init = est.serial, est.T_ref_cur
         st.last_T_ref_cur = est.T_ref_cur
         st.add(ctx, _record(ctx, st, iteration, est, state, adj, afd))
@@ -173,6 +188,11 @@ def racr_loop(ctx: LoopContext, st: LoopState) -> RelocationResult:
         result = _stop_result(ctx, st, iteration, adj, afd)
         if result is not None:
             return result
+        if handover and _hands_over(ctx, st, adj):
+            out = RelocationResult(False, f"3D estimate {adj.offset_mm:.1f} mm within its own uncertainty "
+                                          f"(± {st.sigma3d_mm:.1f} mm): handed to the image stage", iteration)
+            out.handed_over = True
+            return out
         _move(ctx, st, iteration, adj)
     n = ctx.config.max_adjustments
     return RelocationResult(False, f"not converged after {n} adjustments", n)

@@ -14,7 +14,7 @@ def test_quick_plan_covers_every_experiment():
     labels = {(r.experiment, r.label) for r in runs}
     assert {("table2", "racr"), ("table2", "acr"), ("table5", "racr-serial"), ("fig7", "racr"),
             ("fig7", "acr"), ("table3", "racr-no-handeye"), ("table3", "acr-handeye"), ("table4", "racr"),
-            ("table4", "acr"), ("fig6", "racr-sparse"), ("revisit", "racr-guided")} <= labels
+            ("table4", "acr"), ("fig6", "racr-sparse"), ("revisit", "racr-usual")} <= labels
     # s55 scores Table 2's visits and adds no relocation; every other experiment runs at least once
     assert {r.experiment for r in runs} == set(paper.EXPERIMENTS) - {"s55"}
     assert any(r.experiment == "fig12" and r.ablation for r in runs)

@@ -206,3 +206,39 @@ def test_pnp_uncertainty_matches_the_scatter_of_noisy_solutions():
     assert predicted == pytest.approx(empirical, rel=0.35)
     # a nearly flat object: the sideways shift a turn hides is what dominates (millimetres, not microns)
     assert predicted > 1e-4
+
+
+def _declining(_T_true, _T_ref_camref):
+    return ImageRefinement(ok=False, reason="too few matches (12)", M_cam=None, measured_afd_px=math.nan, matches=12,
+                           inliers=0, rms_px=math.nan, reference_image="front", matcher="sift",
+                           offset_sigma_mm=math.nan)
+
+
+@pytest.mark.parametrize("mode", ["serial", "parallel"])
+def test_a_3d_offset_within_its_own_uncertainty_goes_to_the_image_stage_without_moving(monkeypatch, mode):
+    """10 mm from the reference, the 3D estimate (1 % of 1.5 m = 15 mm) cannot resolve the offset: the image
+    stage takes over at once; the 3D loop makes no motion."""
+    start = exp_se3([0.008, -0.006, 0.0, 0.0, 0.0, 0.0])
+    res, platform, final_mm = _run(monkeypatch, bias_3d=np.eye(4), refine=_exact_image(), start_offset=start,
+                                   mode=mode, config_kw={"agreement_wait_s": 5.0})
+    stages = [r.stage for r in res.records]
+    assert stages[0] != "image" and all(s == "image" for s in stages[1:])
+    assert res.records[0].offset_mm == pytest.approx(10.0, abs=0.05)
+    assert res.converged and res.residual.source == "image" and final_mm < 0.01
+    assert platform.moves == sum(1 for r in res.records[1:] if not np.allclose(r.M_flange_commanded, np.eye(4)))
+    # without the hand-over the 3D loop moves on the same estimate first
+    res_3d, _, _ = _run(monkeypatch, bias_3d=np.eye(4), refine=_exact_image(), start_offset=start, mode=mode,
+                        config_kw={"agreement_wait_s": 5.0, "image_handover": False})
+    assert [r.stage for r in res_3d.records].count("image") < len(res_3d.records) - 1
+
+
+def test_when_the_image_stage_cannot_take_over_the_3d_loop_goes_on(monkeypatch):
+    start = exp_se3([0.008, -0.006, 0.0, 0.0, 0.0, 0.0])
+    res, platform, final_mm = _run(monkeypatch, bias_3d=np.eye(4), refine=_declining, start_offset=start)
+    iterations = [r.iteration for r in res.records]
+    assert iterations == sorted(set(iterations))  # one numbering across the stages
+    stages = [r.stage for r in res.records]
+    assert stages[1] == "image" and stages[2] != "image"  # handed over, declined, back to the 3D loop
+    assert platform.moves >= 1 and final_mm < 0.01  # the 3D loop reached the reference
+    # as without the hand-over: a 3D stop that no image evidence confirmed is not "converged"
+    assert not res.converged and "nothing confirmed it" in res.reason
