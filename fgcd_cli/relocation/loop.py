@@ -15,7 +15,9 @@ anybody except the adjustment thread, which needs one estimate newer than its
 previous motion and waits for it on the alignment thread's condition variable. ``mode="serial"`` runs the same steps one after the other
 (the paper's Table 5 baseline). A failing VSE or alignment pauses motion
 instead of guessing; the image stage (:mod:`fgcd_cli.relocation.image_stage`)
-refines a converged result, or falls back when the 3D loop paused.
+takes over once the 3D estimate can no longer resolve the remaining offset
+(``RelocationConfig.image_handover``), refines a converged result, or falls back
+when the 3D loop paused.
 
 This module composes the stages; it also re-exports the names that used to
 live here (``from fgcd_cli.relocation.loop import ...`` keeps working).
