@@ -267,7 +267,7 @@ def build_plaster(p: dict, rng) -> dict:
     size = 1024
     base = np.full((size, size), 0.84, np.float32)
     base *= 1.0 + p.get("contrast", 0.025) * fractal_noise((size, size), rng, base_sigma=60)
-    base *= 1.0 + 0.01 * fractal_noise((size, size), rng, base_sigma=1.5)
+    base *= 1.0 + p.get("grain", 0.01) * fractal_noise((size, size), rng, base_sigma=1.5)  # millimetre grain
     tex = tinted(np.clip(base, 0, 1), (1.0, 0.98, 0.93))
     v, t, uv = heightfield(origin=(-W / 2, 0.0, 0.3), axis_u=X, axis_v=Z, size_u=W, size_v=Hh, height=Hgrid,
                            uv_repeat_m=(1.0, 1.0))

@@ -14,13 +14,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from fgcd_cli.bench.paper_runs import RunSpec, ensure_world, station_name
+from fgcd_cli.bench.paper_runs import VISIT_CHANGES, RunSpec, ensure_world, station_name, visit_scenario
 from fgcd_cli.campaign.atomic import atomic_write_json
 
-__all__ = ["INJECTED_CHANGES", "score_visits"]
-
-#: Changes the runs inject into the visit's world (``paper_runs.run_one``'s scenario).
-INJECTED_CHANGES = 3
+__all__ = ["score_visits"]
 
 
 def _load(path: Path) -> dict | None:
@@ -33,7 +30,6 @@ def _load(path: Path) -> dict | None:
 def _score(spec: RunSpec, run: dict, out: Path, worlds: dict, say) -> dict:
     """Diff one run's visit and score its change map."""
     from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign
-    from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.app.sim_scoring import score_visit_changes
 
     if spec.world.name not in worlds:
@@ -42,15 +38,13 @@ def _score(spec: RunSpec, run: dict, out: Path, worlds: dict, say) -> dict:
     station = camp.station(station_name(spec.reference_light))
     diff = run_campaign(CampaignDiffRequest(campaign=camp.path, station=station.name, visit=run["visit"]))
     w = spec.world
-    scenario = SimScenario(scene=w.scene, seed=w.seed, lighting=spec.visit_light, changes=INJECTED_CHANGES,
-                           change_seed=7, session_seed=spec.session_seed)
     row = {"experiment": "s55", "case": spec.case, "label": spec.label, "method": run.get("method"),
            "scene": w.scene, "afd_px": run.get("afd_px"), "pose_err_mm": run.get("pose_err_mm"),
            "relocation_success": run.get("success"), "comparable": diff.get("comparable"),
            "regions": len(diff.get("regions", []))}
     if diff.get("comparable", True):
-        row.update(score_visit_changes(station.visit(run["visit"]), station, scenario=scenario, X=X, camera=camera,
-                                       injected=INJECTED_CHANGES))
+        row.update(score_visit_changes(station.visit(run["visit"]), station, scenario=visit_scenario(spec), X=X,
+                                       camera=camera, injected=VISIT_CHANGES["changes"]))
     else:
         row["f1"] = 0.0  # the diff refused the pair: nothing detected is nothing found
     say(f"s55 {spec.case} {spec.label}: change F1 {row.get('f1', float('nan')):.2f} "

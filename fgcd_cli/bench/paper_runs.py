@@ -22,7 +22,8 @@ import numpy as np
 from fgcd_cli.campaign.atomic import atomic_write_json
 from fgcd_cli.relocation.enums import EstimateStage, LoopMode, RelocationMethod
 
-__all__ = ["RunSpec", "World", "ensure_station", "ensure_world", "loop_config", "run_one", "station_name"]
+__all__ = ["VISIT_CHANGES", "RunSpec", "World", "ensure_station", "ensure_world", "loop_config", "run_one",
+           "station_name", "visit_scenario"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -33,6 +34,9 @@ class World:
     scene: str
     seed: int
     calibration_light: str
+    calibration_scene: str = ""
+    """Where the rig is calibrated ("": the world's own scene). The simulated rig (hand-eye, camera) is the
+    seed's, whatever the scene; a weakly textured wall is no place for a target-free hand-eye."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -115,7 +119,8 @@ def ensure_world(world: World, out: Path, *, say) -> tuple[object, np.ndarray, o
     root.parent.mkdir(parents=True, exist_ok=True)
     camp = init_campaign(root, site=world.name, rig={"driver": "sim"})
     say(f"world {world.name}: calibrating ({world.scene}, seed {world.seed})")
-    calib = SimScenario(scene=world.scene, seed=world.seed, lighting=world.calibration_light, session_seed=100)
+    calib = SimScenario(scene=world.calibration_scene or world.scene, seed=world.seed,
+                        lighting=world.calibration_light, session_seed=100)
     camera = calibrate_sim_intrinsics(camp, calib, say=lambda _m: None)
     he = calibrate_sim_handeye(camp, calib, say=lambda _m: None, camera=camera)
     atomic_write_json(marker, asdict(world))
@@ -157,6 +162,21 @@ def _outcome(spec: RunSpec, vis, truth: dict, wall_s: float) -> dict:
     return out
 
 
+#: Changes injected into every visit's world: 3, each 10-30 mm across (10-30 px at the simulator's ~1 mm per
+#: pixel, above the detector's 30 px minimum region, like the demo's 15-35 mm), so that §5.5 scores relocation,
+#: not the detector's resolution.
+VISIT_CHANGES = {"changes": 3, "change_seed": 7, "change_size_mm": (10.0, 30.0)}
+
+
+def visit_scenario(spec: RunSpec):
+    """The simulated world of the run's visit: the visit's light, the injected changes, the displaced start."""
+    from fgcd_cli.app.scenario import SimScenario
+
+    w = spec.world
+    return SimScenario(scene=w.scene, seed=w.seed, lighting=spec.visit_light, start_offset_mm=spec.offset_mm,
+                       start_offset_deg=spec.offset_deg, session_seed=spec.session_seed, **VISIT_CHANGES)
+
+
 def loop_config(spec: RunSpec):
     """The rACR loop's options for ``spec``: its mode, alpha and ablation (paper 000 §5.4)."""
     from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
@@ -189,16 +209,13 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     from drivers.platform import PlatformError
     from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
     from fgcd_cli.app.rig import open_sim_rig
-    from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.acr import AcrConfig
     from fgcd_cli.relocation.coarse import CoarseConfig
 
     w = spec.world
-    scen = SimScenario(scene=w.scene, seed=w.seed, lighting=spec.visit_light, changes=3, change_seed=7,
-                       start_offset_mm=spec.offset_mm, start_offset_deg=spec.offset_deg,
-                       session_seed=spec.session_seed)
+    scen = visit_scenario(spec)
     X = np.eye(4) if spec.no_handeye else T_flange_cam
     rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=camera, vse_variant=spec.vse)
     ev = RelocationEvaluator.from_reference(rig.sim, station.reference())

@@ -38,6 +38,10 @@ def test_full_plan_is_the_20_cases_the_72_sweep_positions_and_the_paper_s_other_
     assert len([r for r in runs if r.experiment == "fig7" and r.label == "racr"]) == 6 * 12
     by = lambda e: [r for r in runs if r.experiment == e]  # noqa: E731
     assert len({r.case for r in by("table4")}) == 9  # W1-3, R1-3, V1-3
+    # a weakly textured wall is no place for a target-free hand-eye: the same rig is calibrated elsewhere
+    weak = [r.world for r in by("table4") if r.case.startswith("W")]
+    assert weak and all(w.calibration_scene == "relief_panel" and w.scene != w.calibration_scene for w in weak)
+    assert all(r.world.calibration_scene == "" for r in by("table2"))
     assert len({r.case for r in by("fig6")}) == 5 and all(r.vse == "sparse" for r in by("fig6"))  # S1-5
     assert {r.ablation for r in by("fig12")} == {"", "P", "F", "S"} and len({r.case for r in by("fig12")}) == 3
     assert sorted({r.reference_noise for r in by("fig4")}) == [0.01, 0.02, 0.04, 0.08, 0.16]
