@@ -163,7 +163,8 @@ def _more_summary(results: list[dict]) -> dict:
     sparse = _rows(results, "fig6", "racr-sparse")
     out.update(_method_summary(sparse, "fig6_sparse"))
     cases = {r["case"] for r in sparse}
-    out.update(_method_summary([r for r in _rows(results, "table2", "racr") if r["case"] in cases], "fig6_semidense"))
+    out.update(_method_summary([r for r in _rows(results, "pure", "racr-pure") if r["case"] in cases], "fig6_semidense"))
+    out.update(_method_summary(_rows(results, "pure", "racr-pure"), "pure_racr"))
     for experiment in ("fig12", "fig4"):
         for label in sorted({r["label"] for r in results if r.get("experiment") == experiment}):
             rows = _rows(results, experiment, label)

@@ -19,7 +19,7 @@ __all__ = ["EXPERIMENTS", "QUICK", "TABLE4_CASES", "plan"]
 EXPERIMENTS = ("table2", "table5", "fig7", "table3", "table4", "fig4", "fig6", "fig12", "s55", "revisit")
 #: ``--quick``: one or two cases per experiment, sized for <= 30 min on 2 cores (docs/benchmarks.md has the time).
 QUICK = {"cases": ("indoor-2", "outdoor-1"), "one_case": ("indoor-2",), "fig7_scenes": ("relief_panel",),
-         "fig7_clock": (3, 9), "table4": ("W1",), "fig12": ("alpha-1.0", "no-S"), "fig4": (0.08,)}
+         "fig7_clock": (9,), "table4": ("W1",), "fig12": ("alpha-1.0", "no-S"), "fig4": (0.08,)}
 FIG7_REFERENCE = "led:12"
 FIG7_OFFSET = (30.0, 3.0)  # mm, deg: the start of the 20 cases' median
 #: The paper's S1-3 (Fig. 12, Fig. 4) and S1-5 (Fig. 6): the first indoor cases.
@@ -71,10 +71,14 @@ CASE_VARIANTS = {
     "table5": {"racr-serial": {"mode": _SER}},
     "table3": {"racr-no-handeye": {"no_handeye": True}, "acr-handeye": {"method": _ACR, "acr_handeye": True}},
     "revisit": {"racr-usual": {"guided": False}, "racr-serial-usual": {"mode": _SER, "guided": False}},
-    "fig6": {"racr-sparse": {"vse": "sparse"}},
-    "fig12": {label: {"alpha": a, "ablation": x} for label, a, x in FIG12_VARIANTS},
-    "fig4": {f"noise-{r:.2f}": {"reference_noise": r} for r in FIG4_NOISE},
+    # Figs. 4, 6 and 12 measure the alignment: the paper's pure rACR, without the image stage, beside its own
+    # pure baseline ("pure", planned with any of them)
+    "pure": {"racr-pure": {"image_stage": False}},
+    "fig6": {"racr-sparse": {"vse": "sparse", "image_stage": False}},
+    "fig12": {label: {"alpha": a, "ablation": x, "image_stage": False} for label, a, x in FIG12_VARIANTS},
+    "fig4": {f"noise-{r:.2f}": {"reference_noise": r, "image_stage": False} for r in FIG4_NOISE},
 }
+PURE_FOR = ("fig4", "fig6", "fig12")
 
 
 def _cases_of(experiment: str, *, quick: bool, names: list[str] | None) -> list[Case]:
@@ -84,8 +88,9 @@ def _cases_of(experiment: str, *, quick: bool, names: list[str] | None) -> list[
         default = [c for c in pool if c.name in QUICK["table4"]] if quick else pool
     else:
         pool = list(CASES)
-        own = {"fig6": VSE_CASES, "fig12": ABLATION_CASES, "fig4": ABLATION_CASES}.get(experiment)
-        quick_names = QUICK["one_case"] if experiment in ("table3", "fig6", "fig12", "fig4", "revisit") else QUICK["cases"]
+        own = {"fig6": VSE_CASES, "fig12": ABLATION_CASES, "fig4": ABLATION_CASES, "pure": VSE_CASES}.get(experiment)
+        quick_names = (QUICK["one_case"] if experiment in ("table3", "fig6", "fig12", "fig4", "revisit", "pure")
+                       else QUICK["cases"])
         default = [c for c in pool if (c.name in quick_names if quick else (own is None or c.name in own))]
     return [c for c in pool if c.name in names] if names else default
 
@@ -114,6 +119,8 @@ def plan(*, quick: bool, experiments: tuple[str, ...] = EXPERIMENTS, cases: list
     """Every relocation of the invocation, worlds grouped so each is set up once (``s55`` adds none:
     it scores the visits of Table 2)."""
     runs: list[RunSpec] = []
+    if any(e in experiments for e in PURE_FOR):
+        experiments = ("pure", *experiments)
     for experiment in experiments:
         if experiment in CASE_VARIANTS:
             for case in _cases_of(experiment, quick=quick, names=cases):

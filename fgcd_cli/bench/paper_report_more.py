@@ -97,15 +97,15 @@ def _fig4(results: list[dict]) -> list[str]:
     runs = _by(results, "fig4")
     if not runs:
         return []
-    t2 = _by(results, "table2")
+    base = _by(results, "pure")
     cases = list(dict.fromkeys(case for case, _ in runs))
     levels = [r for r in FIG4_NOISE if any(lab == f"noise-{r:.2f}" for _, lab in runs)]
-    lines = ["### Fig. 4: rACR with noise on the reference points (σ = r × the cloud's width; final true AFD px, "
-             "in brackets the AFD after the last 3D estimate, before the image stage)", "",
+    lines = ["### Fig. 4: pure rACR (no image stage) with noise on the reference points (σ = r × the cloud's "
+             "width); true AFD (px), in brackets the true camera-position error (mm)", "",
              "| case | r = 0 | " + " | ".join(f"r = {r:.0%}" for r in levels) + " |", "|---|---|" + "---|" * len(levels)]
     for case in cases:
-        cells = [t2.get((case, "racr"))] + [runs.get((case, f"noise-{r:.2f}")) for r in levels]
-        lines.append(f"| {case} | " + " | ".join(f"{_afd(c)} ({_f((c or {}).get('afd_px_racr_only'))})"
+        cells = [base.get((case, "racr-pure"))] + [runs.get((case, f"noise-{r:.2f}")) for r in levels]
+        lines.append(f"| {case} | " + " | ".join(f"{_afd(c)} ({_f((c or {}).get('pose_err_mm'), '{:.1f}')})"
                                                   for c in cells) + " |")
     return lines + [""]
 
@@ -114,12 +114,12 @@ def _fig6(results: list[dict]) -> list[str]:
     runs = _by(results, "fig6")
     if not runs:
         return []
-    t2 = _by(results, "table2")
-    lines = ["### Fig. 6: semi-dense (direct, the paper's DSO) against sparse (ORB landmarks) VSE, true AFD (px) "
-             "and true position error (mm)", "",
+    base = _by(results, "pure")
+    lines = ["### Fig. 6: pure rACR with the semi-dense (direct, the paper's DSO) against the sparse (ORB landmarks) "
+             "VSE, true AFD (px) and true position error (mm)", "",
              "| case | scene | visit light | semi-dense AFD | mm | sparse AFD | mm |", "|---|---|---|---|---|---|---|"]
     for (case, _), sparse in runs.items():
-        dense = t2.get((case, "racr"))
+        dense = base.get((case, "racr-pure"))
         lines.append(f"| {case} | {sparse.get('scene', '')} | {sparse.get('visit_light', '')} | {_afd(dense)} | "
                      f"{_f((dense or {}).get('pose_err_mm'), '{:.1f}')} | {_afd(sparse)} | "
                      f"{_f(sparse.get('pose_err_mm'), '{:.1f}')} |")
@@ -130,12 +130,12 @@ def _fig12(results: list[dict]) -> list[str]:
     runs = _by(results, "fig12")
     if not runs:
         return []
-    t2 = _by(results, "table2")
+    base = _by(results, "pure")
     cases = list(dict.fromkeys(case for case, _ in runs))
-    variants = [("rACR (α = 0.2)", "racr", t2)] + [(label, label, runs) for label, _, _ in FIG12_VARIANTS
+    variants = [("rACR (α = 0.2)", "racr-pure", base)] + [(label, label, runs) for label, _, _ in FIG12_VARIANTS
                                                     if any(lab == label for _, lab in runs)]
-    lines = ["### Fig. 12: the weight α of Eq. 11 and the ablations (rACR-P: no keyframe refinement, Eq. 16; "
-             "-F: no fine alignment; -S: no scale estimate); true AFD (px)", "",
+    lines = ["### Fig. 12: pure rACR (no image stage), the weight α of Eq. 11 and the ablations (rACR-P: no "
+             "keyframe refinement, Eq. 16; -F: no fine alignment; -S: no scale estimate); true AFD (px)", "",
              "| variant | " + " | ".join(cases) + " | mean ± std |", "|---|" + "---|" * (len(cases) + 1)]
     for name, label, table in variants:
         cells = [table.get((c, label)) for c in cases]
@@ -173,12 +173,12 @@ def figures(data: dict) -> dict[str, bytes]:
     from fgcd_cli.report.charts import figure_png, plt
 
     results, out = data["runs"], {}
-    t2 = _by(results, "table2")
+    base = _by(results, "pure")
     f4 = _by(results, "fig4")
     if f4:
         fig, ax = plt.subplots(figsize=(5, 3.2))
         for case in dict.fromkeys(c for c, _ in f4):
-            pts = [(0.0, (t2.get((case, "racr")) or {}).get("afd_px"))] + [
+            pts = [(0.0, (base.get((case, "racr-pure")) or {}).get("afd_px"))] + [
                 (r, (f4.get((case, f"noise-{r:.2f}")) or {}).get("afd_px")) for r in FIG4_NOISE]
             pts = [(x * 100, y) for x, y in pts if y is not None]
             ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=case)
@@ -192,14 +192,14 @@ def figures(data: dict) -> dict[str, bytes]:
     if f12:
         fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(8, 3.2))
         for case in dict.fromkeys(c for c, _ in f12):
-            pts = [(0.2, (t2.get((case, "racr")) or {}).get("afd_px"))] + [
+            pts = [(0.2, (base.get((case, "racr-pure")) or {}).get("afd_px"))] + [
                 (a, (f12.get((case, label)) or {}).get("afd_px")) for label, a, x in FIG12_VARIANTS if not x]
             pts = sorted((x, y) for x, y in pts if y is not None)
             ax_a.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=case)
         ax_a.set_xlabel("α (weight of the geometric term)")
         ax_a.set_ylabel("true AFD (px)")
         ax_a.legend(fontsize=7)
-        bars = [("rACR", [r.get("afd_px") for (c, lab), r in t2.items() if lab == "racr"
+        bars = [("rACR", [r.get("afd_px") for (c, lab), r in base.items() if lab == "racr-pure"
                           and any(c == k[0] for k in f12)])]
         bars += [(f"rACR-{x}", [r.get("afd_px") for (_, lab), r in f12.items() if lab == f"no-{x}"]) for x in "PFS"]
         stats = [(name, *_mean_std(v)) for name, v in bars if v]

@@ -71,6 +71,9 @@ class RunSpec:
         Gaussian noise on every reference point, as a fraction of the cloud's width (paper Fig. 4).
     acr_handeye : bool
         ACR with the calibrated hand-eye (the paper's ``ACR_w/X``, Table 3).
+    image_stage : bool
+        rACR with its image stage (refinement, hand-over, fallback); False is the paper's pure rACR,
+        where the 3D alignment alone moves and stops the camera (Figs. 4, 6, 12 measure the alignment).
     """
 
     experiment: str
@@ -90,6 +93,7 @@ class RunSpec:
     ablation: str = ""
     reference_noise: float = 0.0
     acr_handeye: bool = False
+    image_stage: bool = True
     session_seed: int = 1
 
     def path(self, out: Path) -> Path:
@@ -185,7 +189,8 @@ def loop_config(spec: RunSpec):
 
     fast = FastAlignConfig(scale=ScaleStepConfig(estimate=False)) if spec.ablation == "S" else FastAlignConfig()
     fine = FineAlignConfig(alpha=spec.alpha, refine_keyframes=spec.ablation != "P")
-    return RelocationConfig(mode=spec.mode, fine=spec.ablation != "F", fast_align=fast, fine_align=fine)
+    return RelocationConfig(mode=spec.mode, fine=spec.ablation != "F", fast_align=fast, fine_align=fine,
+                            image_refine=spec.image_stage, image_fallback=spec.image_stage)
 
 
 def _noisy_reference(noise: float):
@@ -222,7 +227,7 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     result = {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
               "mode": str(spec.mode), "no_handeye": spec.no_handeye, "guided": spec.guided, "vse": spec.vse,
               "alpha": spec.alpha, "ablation": spec.ablation, "reference_noise": spec.reference_noise,
-              "acr_handeye": spec.acr_handeye, "world": w.name, "scene": w.scene, "seed": w.seed,
+              "acr_handeye": spec.acr_handeye, "image_stage": spec.image_stage, "world": w.name, "scene": w.scene, "seed": w.seed,
               "reference_light": spec.reference_light, "visit_light": spec.visit_light,
               "start_err_mm": ev.evaluate()["pose_err_mm"], "start_afd_px": ev.evaluate()["afd_px"]}
     t0 = time.monotonic()

@@ -16,7 +16,8 @@ def test_quick_plan_covers_every_experiment():
             ("fig7", "acr"), ("table3", "racr-no-handeye"), ("table3", "acr-handeye"), ("table4", "racr"),
             ("table4", "acr"), ("fig6", "racr-sparse"), ("revisit", "racr-usual")} <= labels
     # s55 scores Table 2's visits and adds no relocation; every other experiment runs at least once
-    assert {r.experiment for r in runs} == set(paper.EXPERIMENTS) - {"s55"}
+    # (and Figs. 4, 6, 12 bring their own pure-rACR baseline, "pure")
+    assert {r.experiment for r in runs} == set(paper.EXPERIMENTS) - {"s55"} | {"pure"}
     assert any(r.experiment == "fig12" and r.ablation for r in runs)
     assert any(r.experiment == "fig4" and r.reference_noise > 0 for r in runs)
     # each world's runs are together, so a world is set up once and its runs follow
@@ -57,7 +58,11 @@ def test_each_variant_sets_the_loop_options_it_names():
     assert loop_config(runs["alpha-0.6"]).fine_align.alpha == 0.6
     default = loop_config(paper.plan(quick=True, experiments=("table2",))[0])
     assert default.fine and default.fine_align.refine_keyframes and default.fast_align.scale.estimate
-    assert default.fine_align.alpha == 0.2
+    assert default.fine_align.alpha == 0.2 and default.image_refine and default.image_fallback
+    # the figures that measure the alignment run the paper's pure rACR, their baseline too
+    figs = paper.plan(quick=False, experiments=("fig4", "fig6", "fig12"))
+    assert all(not loop_config(r).image_refine and not loop_config(r).image_fallback for r in figs)
+    assert {r.case for r in figs if r.experiment == "pure"} == {r.case for r in figs if r.experiment != "pure"}
 
 
 def test_the_reference_noise_has_the_stated_spread():
@@ -108,7 +113,7 @@ def test_a_rerun_resumes_from_the_run_files(tmp_path, monkeypatch):
     text = (tmp_path / "paper.md").read_text()
     assert "**5.00**" in text and "316.7" in text  # ACR's failures marked; the paper's figures beside ours
     assert (tmp_path / "table2_afd.png").stat().st_size > 1000
-    assert json.loads((tmp_path / "summary.json").read_text())["summary"]["led_sweep_runs"] == 2 * 1  # 2 hours, 1 scene
+    assert json.loads((tmp_path / "summary.json").read_text())["summary"]["led_sweep_runs"] == len(paper.QUICK["fig7_clock"])  # 1 scene
     for section in ("Table 3", "Table 4", "Fig. 4", "Fig. 6", "Fig. 12"):
         assert f"### {section}" in text, section
     assert "12.35" in text and "256.4" in text  # the paper's Table 4 and Table 3 beside ours
