@@ -32,7 +32,8 @@ def test_cli_requests_keep_the_cli_defaults():
     # max_adjustments None: the method's own budget (rACR 12 = RelocationConfig's, ACR 30 = AcrConfig's)
     assert (v.light, v.changes, v.start_offset_mm, v.start_offset_deg, v.session_seed, v.eta, v.max_adjustments,
             v.method) == ("led:3", 0, 30.0, 3.0, 1, 1e-4, None, "racr")
-    assert not (v.serial or v.no_handeye or v.no_image_refine or v.no_coarse or v.guided)
+    assert not (v.serial or v.no_handeye or v.no_image_refine or v.no_coarse)
+    assert v.guided and RelocateRequest(config=None, lightings=["front"]).guided  # the CLI's --guided/--no-guided default
     from fgcd_cli.relocation.acr import AcrConfig
     from fgcd_cli.relocation.config import RelocationConfig
 
