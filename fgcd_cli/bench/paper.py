@@ -29,23 +29,15 @@ invocations, e.g. ``--quick`` then ``--experiment revisit``, add up).
 
 from __future__ import annotations
 
-import json
 import math
 import statistics
 from pathlib import Path
 
 from fgcd_cli.bench.paper_plan import EXPERIMENTS, QUICK, plan
-from fgcd_cli.bench.paper_runs import RunSpec, ensure_station, ensure_world, run_one
+from fgcd_cli.bench.paper_runs import RunSpec, ensure_station, ensure_world, load_run, run_one
 from fgcd_cli.campaign.atomic import atomic_write_json
 
 __all__ = ["EXPERIMENTS", "QUICK", "plan", "run", "summarise"]
-
-
-def _load(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None  # missing or torn (never: atomic writes): run it
 
 
 def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
@@ -64,7 +56,7 @@ def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
     for i, spec in enumerate(runs):
         if on_progress is not None:
             on_progress(i, total, f"{spec.experiment} {spec.case} {spec.label}")
-        if _load(spec.path(out)) is None:
+        if load_run(spec.path(out)) is None:
             atomic_write_json(spec.path(out), _run_spec(spec, out, worlds, say))
     if scored:
         if on_progress is not None:
@@ -73,7 +65,7 @@ def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
     if on_progress is not None:
         on_progress(total, total, "done")
     # the folder is the record: the summary and the report cover every run in it (earlier invocations too)
-    results = [r for r in (_load(p) for p in sorted((out / "runs").glob("*/*.json"))) if r is not None]
+    results = [r for r in (load_run(p) for p in sorted((out / "runs").glob("*/*.json"))) if r is not None]
     summary = summarise(results)
     data = {"summary": summary, "targets": TARGETS, "paper": PAPER, "runs": results, "out": str(out)}
     write_report(data, out)

@@ -11,20 +11,12 @@ what the relocation is worth to the conservator.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from fgcd_cli.bench.paper_runs import VISIT_CHANGES, RunSpec, ensure_world, station_name, visit_scenario
+from fgcd_cli.bench.paper_runs import VISIT_CHANGES, RunSpec, ensure_world, load_run, station_name, visit_scenario
 from fgcd_cli.campaign.atomic import atomic_write_json
 
 __all__ = ["score_visits"]
-
-
-def _load(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def _score(spec: RunSpec, run: dict, out: Path, worlds: dict, say) -> dict:
@@ -59,11 +51,11 @@ def score_visits(specs: list[RunSpec], out: Path, *, worlds: dict, say) -> list[
     """
     rows = []
     for spec in specs:
-        run = _load(spec.path(out))
+        run = load_run(spec.path(out))
         if run is None or "error" in run or not run.get("visit"):
             continue
         path = out / "runs" / "s55" / f"{spec.case}__{spec.label}.json"
-        row = _load(path)
+        row = load_run(path)
         if row is None:
             row = _score(spec, run, out, worlds, say)
             atomic_write_json(path, row)

@@ -9,34 +9,15 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from fgcd_cli.bench.paper_report_more import afd_cell, fmt, runs_by
 from fgcd_cli.bench.paper_report_more import figures as more_figures, sections as more_sections
 from fgcd_cli.campaign.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["markdown", "write_report"]
 
 
-def _f(value, fmt: str = "{:.2f}") -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "–"
-    return fmt.format(value)
-
-
-def _cell(run: dict | None) -> str:
-    """One run as a table cell: true AFD (px), marked when it failed (AFD >= 3 px or paused)."""
-    if run is None:
-        return "not run"
-    afd = _f(run.get("afd_px"))
-    if "error" in run:
-        return f"**{afd}** (paused)"
-    return afd if run.get("success") else f"**{afd}**"
-
-
-def _by(results: list[dict], experiment: str) -> dict[tuple[str, str], dict]:
-    return {(r["case"], r["label"]): r for r in results if r.get("experiment") == experiment}
-
-
 def _table2(results: list[dict]) -> list[str]:
-    runs = _by(results, "table2")
+    runs = runs_by(results, "table2")
     cases = list(dict.fromkeys(case for case, _ in runs))
     lines = ["### Table 2: true AFD (px) per case, rACR vs ACR (bold: failure, AFD ≥ 3 px or paused)", "",
              "| case | scene | reference → visit light | rACR AFD | rACR error mm | rACR adj. | rACR rig s | ACR AFD | "
@@ -46,10 +27,10 @@ def _table2(results: list[dict]) -> list[str]:
         r, a = runs.get((case, "racr")), runs.get((case, "acr"))
         any_run = r or a
         lines.append(f"| {case} | {any_run.get('scene', '')} | {any_run.get('reference_light', '')} → "
-                     f"{any_run.get('visit_light', '')} | {_cell(r)} | {_f((r or {}).get('pose_err_mm'), '{:.1f}')} | "
-                     f"{_f((r or {}).get('adjustments'), '{}')} | {_f((r or {}).get('session_s'), '{:.1f}')} | "
-                     f"{_cell(a)} | {_f((a or {}).get('pose_err_mm'), '{:.1f}')} | "
-                     f"{_f((a or {}).get('adjustments'), '{}')} | {_f((a or {}).get('session_s'), '{:.1f}')} |")
+                     f"{any_run.get('visit_light', '')} | {afd_cell(r)} | {fmt((r or {}).get('pose_err_mm'), '{:.1f}')} | "
+                     f"{fmt((r or {}).get('adjustments'), '{}')} | {fmt((r or {}).get('session_s'), '{:.1f}')} | "
+                     f"{afd_cell(a)} | {fmt((a or {}).get('pose_err_mm'), '{:.1f}')} | "
+                     f"{fmt((a or {}).get('adjustments'), '{}')} | {fmt((a or {}).get('session_s'), '{:.1f}')} |")
     return lines
 
 
@@ -61,12 +42,12 @@ def _summary_table(summary: dict, paper: dict) -> list[str]:
     return ["### Side by side with the paper (paper 000, Tables 2, 3, 5)", "",
             "| | success | mean AFD (px) | adjustments | rig time (s) | of which platform (s) |",
             "|---|---|---|---|---|---|",
-            f"| rACR, ours | {ok_r}/{n_r} | {_f(s.get('racr_mean_afd_px'))} | {_f(s.get('racr_mean_iterations'), '{:.1f}')} | "
-            f"{_f(s.get('racr_mean_rig_s'), '{:.1f}')} | {_f(s.get('racr_mean_platform_s'), '{:.1f}')} |",
+            f"| rACR, ours | {ok_r}/{n_r} | {fmt(s.get('racr_mean_afd_px'))} | {fmt(s.get('racr_mean_iterations'), '{:.1f}')} | "
+            f"{fmt(s.get('racr_mean_rig_s'), '{:.1f}')} | {fmt(s.get('racr_mean_platform_s'), '{:.1f}')} |",
             f"| rACR, paper | {paper['racr_success']} | {paper['racr_mean_afd_px']} | {paper['racr_mean_iterations']} | "
             f"{paper['racr_mean_rig_s']} | – |",
-            f"| ACR, ours | {ok_a}/{n_a} | {_f(s.get('acr_mean_afd_px'))} | {_f(s.get('acr_mean_iterations'), '{:.1f}')} | "
-            f"{_f(s.get('acr_mean_rig_s'), '{:.1f}')} | {_f(s.get('acr_mean_platform_s'), '{:.1f}')} |",
+            f"| ACR, ours | {ok_a}/{n_a} | {fmt(s.get('acr_mean_afd_px'))} | {fmt(s.get('acr_mean_iterations'), '{:.1f}')} | "
+            f"{fmt(s.get('acr_mean_rig_s'), '{:.1f}')} | {fmt(s.get('acr_mean_platform_s'), '{:.1f}')} |",
             f"| ACR, paper | {paper['acr_success']} | {paper['acr_mean_afd_px']} | {paper['acr_mean_iterations']} | "
             f"{paper['acr_mean_rig_s']} | – |", ""]
 
@@ -90,10 +71,10 @@ def _variants_table(summary: dict) -> list[str]:
             continue
         rig, plat = summary.get(f"{key}_mean_rig_s"), summary.get(f"{key}_mean_platform_s")
         share = plat / rig if rig and plat is not None and rig > 0 else None
-        lines.append(f"| {name} | {n} | {_f(summary.get(f'{key}_success_rate'), '{:.0%}')} | "
-                     f"{_f(summary.get(f'{key}_mean_afd_px'))} | {_f(summary.get(f'{key}_mean_pose_err_mm'), '{:.1f}')} / "
-                     f"{_f(summary.get(f'{key}_max_pose_err_mm'), '{:.1f}')} | {_f(summary.get(f'{key}_mean_iterations'), '{:.1f}')} | "
-                     f"{_f(rig, '{:.1f}')} | {_f(plat, '{:.1f}')} | {_f(share, '{:.0%}')} |")
+        lines.append(f"| {name} | {n} | {fmt(summary.get(f'{key}_success_rate'), '{:.0%}')} | "
+                     f"{fmt(summary.get(f'{key}_mean_afd_px'))} | {fmt(summary.get(f'{key}_mean_pose_err_mm'), '{:.1f}')} / "
+                     f"{fmt(summary.get(f'{key}_max_pose_err_mm'), '{:.1f}')} | {fmt(summary.get(f'{key}_mean_iterations'), '{:.1f}')} | "
+                     f"{fmt(rig, '{:.1f}')} | {fmt(plat, '{:.1f}')} | {fmt(share, '{:.0%}')} |")
     return lines + [""]
 
 
@@ -103,14 +84,14 @@ def _table5(summary: dict, paper: dict) -> list[str]:
         return []
     return ["### Table 5: serial vs parallel rACR (rig time, same cases)", "",
             "| | parallel (s) | serial (s) | serial / parallel |", "|---|---|---|---|",
-            f"| ours ({s['racr_serial_runs']} cases) | {_f(s['racr_serial_mean_rig_s'] / s['parallel_over_serial_speedup'], '{:.1f}') if s.get('parallel_over_serial_speedup') else '–'} | "
-            f"{_f(s.get('racr_serial_mean_rig_s'), '{:.1f}')} | {_f(s.get('parallel_over_serial_speedup'))} |",
+            f"| ours ({s['racr_serial_runs']} cases) | {fmt(s['racr_serial_mean_rig_s'] / s['parallel_over_serial_speedup'], '{:.1f}') if s.get('parallel_over_serial_speedup') else '–'} | "
+            f"{fmt(s.get('racr_serial_mean_rig_s'), '{:.1f}')} | {fmt(s.get('parallel_over_serial_speedup'))} |",
             f"| paper | {paper['parallel_rig_s']} | {paper['serial_rig_s']} | "
             f"{paper['serial_rig_s'] / paper['parallel_rig_s']:.2f} |", ""]
 
 
 def _fig7(results: list[dict]) -> list[str]:
-    runs = _by(results, "fig7")
+    runs = runs_by(results, "fig7")
     if not runs:
         return []
     scenes = list(dict.fromkeys(case.rsplit("-led", 1)[0] for case, _ in runs))
@@ -119,8 +100,8 @@ def _fig7(results: list[dict]) -> list[str]:
              "true camera-position error in mm in brackets)", "",
              "| scene | " + " | ".join(f"{h} o'clock" for h in hours) + " |", "|---|" + "---|" * len(hours)]
     for scene in scenes:
-        cells = [" / ".join(f"{_cell(runs.get((f'{scene}-led{h}', m)))} "
-                            f"({_f((runs.get((f'{scene}-led{h}', m)) or {}).get('pose_err_mm'), '{:.1f}')})"
+        cells = [" / ".join(f"{afd_cell(runs.get((f'{scene}-led{h}', m)))} "
+                            f"({fmt((runs.get((f'{scene}-led{h}', m)) or {}).get('pose_err_mm'), '{:.1f}')})"
                             for m in ("racr", "acr")) for h in hours]
         lines.append(f"| {scene} | " + " | ".join(cells) + " |")
     return lines + [""]
@@ -144,7 +125,7 @@ def _figures(data: dict) -> dict[str, bytes]:
     from fgcd_cli.report.charts import figure_png, plt
 
     out = {}
-    t2 = _by(data["runs"], "table2")
+    t2 = runs_by(data["runs"], "table2")
     cases = list(dict.fromkeys(case for case, _ in t2))
     if cases:
         fig, ax = plt.subplots(figsize=(max(5, 0.5 * len(cases) + 2), 3.2))
@@ -157,7 +138,7 @@ def _figures(data: dict) -> dict[str, bytes]:
         ax.set_ylabel("true AFD (px)")
         ax.legend(fontsize=7)
         out["table2_afd.png"] = figure_png(fig)
-    f7 = _by(data["runs"], "fig7")
+    f7 = runs_by(data["runs"], "fig7")
     if f7:
         fig, ax = plt.subplots(figsize=(5, 3.2))
         for label, colour in (("racr", "#1f5fa8"), ("acr", "#c0504d")):

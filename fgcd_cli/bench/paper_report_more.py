@@ -11,7 +11,7 @@ import statistics
 
 from fgcd_cli.bench.paper_plan import FIG4_NOISE, FIG12_VARIANTS, TABLE4_CASES
 
-__all__ = ["PAPER_MORE", "figures", "sections"]
+__all__ = ["PAPER_MORE", "afd_cell", "figures", "fmt", "runs_by", "sections"]
 
 #: Paper 000's Table 3 (total time s, adjustments) and Table 4 (mean AFD px; None: "fail").
 PAPER_MORE = {
@@ -21,21 +21,23 @@ PAPER_MORE = {
 }
 
 
-def _f(value, fmt: str = "{:.2f}") -> str:
+def fmt(value, spec: str = "{:.2f}") -> str:
+    """A number as a table cell ("–" when missing or not finite)."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
-    return fmt.format(value)
+    return spec.format(value)
 
 
-def _by(results: list[dict], experiment: str) -> dict[tuple[str, str], dict]:
+def runs_by(results: list[dict], experiment: str) -> dict[tuple[str, str], dict]:
+    """An experiment's runs by ``(case, label)``."""
     return {(r["case"], r["label"]): r for r in results if r.get("experiment") == experiment}
 
 
-def _afd(run: dict | None) -> str:
+def afd_cell(run: dict | None) -> str:
     """A run's true AFD, bold when it failed (AFD >= 3 px or paused)."""
     if run is None:
         return "not run"
-    text = _f(run.get("afd_px"))
+    text = fmt(run.get("afd_px"))
     if "error" in run:
         return f"**{text}** (paused)"
     return text if run.get("success") else f"**{text}**"
@@ -68,15 +70,15 @@ def _table3(results: list[dict], summary: dict) -> list[str]:
         ok = [r for r in runs if "error" not in r]
         p = paper.get(name, (None, None))
         lines.append(f"| {name} | {len(runs)} | {sum(bool(r.get('success')) for r in runs)}/{len(runs)} | "
-                     f"{_f(_mean_std(r.get('afd_px') for r in runs)[0])} | "
-                     f"{_f(_mean_std(r.get('adjustments') for r in ok)[0], '{:.1f}')} | "
-                     f"{_f(_mean_std(r.get('session_s') for r in ok)[0], '{:.1f}')} | {_f(p[0], '{}')} | "
-                     f"{_f(p[1], '{}')} |")
+                     f"{fmt(_mean_std(r.get('afd_px') for r in runs)[0])} | "
+                     f"{fmt(_mean_std(r.get('adjustments') for r in ok)[0], '{:.1f}')} | "
+                     f"{fmt(_mean_std(r.get('session_s') for r in ok)[0], '{:.1f}')} | {fmt(p[0], '{}')} | "
+                     f"{fmt(p[1], '{}')} |")
     return lines + [""]
 
 
 def _table4(results: list[dict]) -> list[str]:
-    runs = _by(results, "table4")
+    runs = runs_by(results, "table4")
     if not runs:
         return []
     names = [c.name for c in TABLE4_CASES]
@@ -84,8 +86,8 @@ def _table4(results: list[dict]) -> list[str]:
              "V: highly varied illumination; bold: failure)", "",
              "| method | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     for label, name in (("acr", "ACR"), ("racr", "rACR")):
-        lines.append(f"| {name}, ours | " + " | ".join(_afd(runs.get((n, label))) for n in names) + " |")
-        lines.append(f"| {name}, paper | " + " | ".join(_f(v, "{}") if v is not None else "fail"
+        lines.append(f"| {name}, ours | " + " | ".join(afd_cell(runs.get((n, label))) for n in names) + " |")
+        lines.append(f"| {name}, paper | " + " | ".join(fmt(v, "{}") if v is not None else "fail"
                                                        for v in PAPER_MORE["table4"][name]) + " |")
     cases = {c.name: c for c in TABLE4_CASES}
     lines += ["", "Cases: " + "; ".join(f"{n} {cases[n].scene} ({cases[n].reference_light} → {cases[n].visit_light})"
@@ -94,10 +96,10 @@ def _table4(results: list[dict]) -> list[str]:
 
 
 def _fig4(results: list[dict]) -> list[str]:
-    runs = _by(results, "fig4")
+    runs = runs_by(results, "fig4")
     if not runs:
         return []
-    base = _by(results, "pure")
+    base = runs_by(results, "pure")
     cases = list(dict.fromkeys(case for case, _ in runs))
     levels = [r for r in FIG4_NOISE if any(lab == f"noise-{r:.2f}" for _, lab in runs)]
     lines = ["### Fig. 4: pure rACR (no image stage) with noise on the reference points (σ = r × the cloud's "
@@ -105,32 +107,32 @@ def _fig4(results: list[dict]) -> list[str]:
              "| case | r = 0 | " + " | ".join(f"r = {r:.0%}" for r in levels) + " |", "|---|---|" + "---|" * len(levels)]
     for case in cases:
         cells = [base.get((case, "racr-pure"))] + [runs.get((case, f"noise-{r:.2f}")) for r in levels]
-        lines.append(f"| {case} | " + " | ".join(f"{_afd(c)} ({_f((c or {}).get('pose_err_mm'), '{:.1f}')})"
+        lines.append(f"| {case} | " + " | ".join(f"{afd_cell(c)} ({fmt((c or {}).get('pose_err_mm'), '{:.1f}')})"
                                                   for c in cells) + " |")
     return lines + [""]
 
 
 def _fig6(results: list[dict]) -> list[str]:
-    runs = _by(results, "fig6")
+    runs = runs_by(results, "fig6")
     if not runs:
         return []
-    base = _by(results, "pure")
+    base = runs_by(results, "pure")
     lines = ["### Fig. 6: pure rACR with the semi-dense (direct, the paper's DSO) against the sparse (ORB landmarks) "
              "VSE, true AFD (px) and true position error (mm)", "",
              "| case | scene | visit light | semi-dense AFD | mm | sparse AFD | mm |", "|---|---|---|---|---|---|---|"]
     for (case, _), sparse in runs.items():
         dense = base.get((case, "racr-pure"))
-        lines.append(f"| {case} | {sparse.get('scene', '')} | {sparse.get('visit_light', '')} | {_afd(dense)} | "
-                     f"{_f((dense or {}).get('pose_err_mm'), '{:.1f}')} | {_afd(sparse)} | "
-                     f"{_f(sparse.get('pose_err_mm'), '{:.1f}')} |")
+        lines.append(f"| {case} | {sparse.get('scene', '')} | {sparse.get('visit_light', '')} | {afd_cell(dense)} | "
+                     f"{fmt((dense or {}).get('pose_err_mm'), '{:.1f}')} | {afd_cell(sparse)} | "
+                     f"{fmt(sparse.get('pose_err_mm'), '{:.1f}')} |")
     return lines + [""]
 
 
 def _fig12(results: list[dict]) -> list[str]:
-    runs = _by(results, "fig12")
+    runs = runs_by(results, "fig12")
     if not runs:
         return []
-    base = _by(results, "pure")
+    base = runs_by(results, "pure")
     cases = list(dict.fromkeys(case for case, _ in runs))
     variants = [("rACR (α = 0.2)", "racr-pure", base)] + [(label, label, runs) for label, _, _ in FIG12_VARIANTS
                                                     if any(lab == label for _, lab in runs)]
@@ -140,12 +142,12 @@ def _fig12(results: list[dict]) -> list[str]:
     for name, label, table in variants:
         cells = [table.get((c, label)) for c in cases]
         m, s = _mean_std((c or {}).get("afd_px") for c in cells)
-        lines.append(f"| {name} | " + " | ".join(_afd(c) for c in cells) + f" | {_f(m)} ± {_f(s)} |")
+        lines.append(f"| {name} | " + " | ".join(afd_cell(c) for c in cells) + f" | {fmt(m)} ± {fmt(s)} |")
     return lines + [""]
 
 
 def _s55(results: list[dict]) -> list[str]:
-    runs = _by(results, "s55")
+    runs = runs_by(results, "s55")
     if not runs:
         return []
     cases = list(dict.fromkeys(case for case, _ in runs))
@@ -155,9 +157,9 @@ def _s55(results: list[dict]) -> list[str]:
              "|---|---|---|---|---|---|---|---|"]
     for case in cases:
         r, a = runs.get((case, "racr")) or {}, runs.get((case, "acr")) or {}
-        lines.append(f"| {case} | {(r or a).get('scene', '')} | {_f(r.get('afd_px'))} | {_f(r.get('f1'))} | "
-                     f"{_f(r.get('false_regions'), '{}')} | {_f(a.get('afd_px'))} | {_f(a.get('f1'))} | "
-                     f"{_f(a.get('false_regions'), '{}')} |")
+        lines.append(f"| {case} | {(r or a).get('scene', '')} | {fmt(r.get('afd_px'))} | {fmt(r.get('f1'))} | "
+                     f"{fmt(r.get('false_regions'), '{}')} | {fmt(a.get('afd_px'))} | {fmt(a.get('f1'))} | "
+                     f"{fmt(a.get('false_regions'), '{}')} |")
     return lines + [""]
 
 
@@ -173,8 +175,8 @@ def figures(data: dict) -> dict[str, bytes]:
     from fgcd_cli.report.charts import figure_png, plt
 
     results, out = data["runs"], {}
-    base = _by(results, "pure")
-    f4 = _by(results, "fig4")
+    base = runs_by(results, "pure")
+    f4 = runs_by(results, "fig4")
     if f4:
         fig, ax = plt.subplots(figsize=(5, 3.2))
         for case in dict.fromkeys(c for c, _ in f4):
@@ -188,7 +190,7 @@ def figures(data: dict) -> dict[str, bytes]:
         ax.set_ylabel("true AFD (px)")
         ax.legend(fontsize=7)
         out["fig4_reference_noise.png"] = figure_png(fig)
-    f12 = _by(results, "fig12")
+    f12 = runs_by(results, "fig12")
     if f12:
         fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(8, 3.2))
         for case in dict.fromkeys(c for c, _ in f12):
@@ -206,7 +208,7 @@ def figures(data: dict) -> dict[str, bytes]:
         ax_b.bar([s[0] for s in stats], [s[1] for s in stats], yerr=[s[2] for s in stats], color="#1f5fa8", capsize=3)
         ax_b.set_ylabel("true AFD (px), mean ± std")
         out["fig12_alpha_ablations.png"] = figure_png(fig)
-    s55 = _by(results, "s55")
+    s55 = runs_by(results, "s55")
     if s55:
         cases = list(dict.fromkeys(c for c, _ in s55))
         fig, ax = plt.subplots(figsize=(max(4, 0.6 * len(cases) + 2), 3.2))

@@ -22,8 +22,8 @@ import numpy as np
 from fgcd_cli.campaign.atomic import atomic_write_json
 from fgcd_cli.relocation.enums import EstimateStage, LoopMode, RelocationMethod
 
-__all__ = ["VISIT_CHANGES", "RunSpec", "World", "ensure_station", "ensure_world", "loop_config", "run_one",
-           "station_name", "visit_scenario"]
+__all__ = ["VISIT_CHANGES", "RunSpec", "World", "ensure_station", "ensure_world", "load_run", "loop_config",
+           "run_one", "station_name", "visit_scenario"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -99,6 +99,16 @@ class RunSpec:
     def path(self, out: Path) -> Path:
         """The run's result file."""
         return out / "runs" / self.experiment / f"{self.case}__{self.label}.json"
+
+
+def load_run(path: Path) -> dict | None:
+    """A run's (or a score's) result file; None when missing or torn (never, with atomic writes): run it."""
+    import json
+
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
 
 
 def station_name(light: str) -> str:
