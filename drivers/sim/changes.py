@@ -7,7 +7,11 @@ surface within the footprint:
 
 * ``crack``: a narrow branching groove (0.3-1 mm wide, 1-2 mm deep), darker;
 * ``flaking``: a shallow irregular depression (0.3-1 mm) exposing a lighter layer;
-* ``stain``: albedo only (dark brown stain or whitish efflorescence);
+* ``stain``: albedo only: a dark brown stain (water, biological) is an absorbing
+  layer that filters the stone's own albedo (multiplies it by a brown
+  transmission, so it darkens a dark stone as much, relatively, as a light one),
+  a whitish efflorescence is a scattering salt crust that covers it (the albedo
+  moves towards white);
 * ``missing``: a lost fragment, a deeper depression (2-8 mm) with fresh, lighter stone;
 * ``pit``: a small roughly round bowl (pitting), relief only: depth
   ``min(2, 0.3 * size_mm)`` mm by default, albedo unchanged;
@@ -153,19 +157,26 @@ class ChangeSpec:
 
     @property
     def target_albedo(self) -> tuple[np.ndarray, float]:
-        """(RGB the albedo moves towards, how far at footprint 1)."""
+        """(RGB the albedo moves towards, how far at footprint 1); see :attr:`albedo_filters`."""
         if self.kind in _RELIEF_ONLY:
             return np.zeros(3), 0.0
-        rng = np.random.default_rng(self.seed + 7)
         if self.kind == "crack":
             return np.array([0.08, 0.07, 0.06]), 0.75
         if self.kind == "flaking":
             return np.array([0.86, 0.82, 0.74]), 0.55
         if self.kind == "missing":
             return np.array([0.80, 0.74, 0.64]), 0.45
-        if rng.random() < 0.5:  # dark stain (biological, water)
-            return np.array([0.22, 0.17, 0.10]), 0.5
+        if self.albedo_filters:
+            # the transmission of a brown absorbing layer: at the centre (weight 0.5) it darkens a stone of
+            # albedo 0.6 as much as the opaque brown (0.22, 0.17, 0.10) of an earlier model did
+            return np.array([0.37, 0.28, 0.17]), 0.5
         return np.array([0.95, 0.95, 0.93]), 0.5  # efflorescence
+
+    @property
+    def albedo_filters(self) -> bool:
+        """True when the change multiplies the albedo (``target_albedo`` is a transmission), False when it
+        covers it (the albedo moves towards ``target_albedo``). Only a dark stain filters (module docstring)."""
+        return self.kind == "stain" and bool(np.random.default_rng(self.seed + 7).random() < 0.5)
 
     def basis(self) -> tuple[np.ndarray, np.ndarray]:
         """Tangent axes (e1, e2) of the footprint raster."""
@@ -313,8 +324,9 @@ class ChangeEffect:
     change_index : (K,) int, index (into the ``changes`` given) of the change with that footprint.
     height_m : (K,) depth of the relief, metres (inward; negative is outward).
     slope : (K, 3) gradient of the relief depth in world coordinates (tilts the normal).
-    albedo_target : (K, 3) RGB the albedo moves towards.
+    albedo_target : (K, 3) RGB the albedo moves towards (a transmission where ``albedo_filters``).
     albedo_weight : (K,) how far (0..1).
+    albedo_filters : (K,) bool, the albedo moves towards ``albedo * albedo_target`` (an absorbing layer).
     occlusion : (K,) share of the ambient light the cavity hides (0..1).
     shadow_height_m : (K,) the part of ``height_m`` that also moves the start of shadow rays.
     """
@@ -328,13 +340,20 @@ class ChangeEffect:
     albedo_weight: np.ndarray
     occlusion: np.ndarray
     shadow_height_m: np.ndarray
+    albedo_filters: np.ndarray
 
     @classmethod
     def empty(cls) -> "ChangeEffect":
         return cls(index=np.zeros(0, np.int64), footprint=np.zeros(0, np.float32),
                    change_index=np.zeros(0, np.int64), height_m=np.zeros(0), slope=np.zeros((0, 3)),
                    albedo_target=np.zeros((0, 3)), albedo_weight=np.zeros(0), occlusion=np.zeros(0),
-                   shadow_height_m=np.zeros(0))
+                   shadow_height_m=np.zeros(0), albedo_filters=np.zeros(0, bool))
+
+    def albedo_of(self, albedo: np.ndarray) -> np.ndarray:
+        """The changed albedo (K, 3) of the affected samples' albedo ``albedo`` (K, 3)."""
+        target = np.where(self.albedo_filters[:, None], albedo * self.albedo_target, self.albedo_target)
+        w = self.albedo_weight[:, None]
+        return (albedo * (1 - w) + w * target).astype(albedo.dtype)
 
 
 def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> ChangeEffect:
@@ -370,6 +389,7 @@ def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> Change
     S = np.zeros((n, 3))
     T = np.zeros((n, 3))
     W = np.zeros(n)
+    filters = np.zeros(n, bool)
     ids = np.zeros(n, np.int64)
     occ_scale = np.ones(n)
     for i, idx, F, h, slope, ch in acc.values():
@@ -377,6 +397,7 @@ def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> Change
         stronger = F > Fsum[idx]
         T[idx[stronger]] = target
         W[idx[stronger]] = weight * F[stronger]
+        filters[idx[stronger]] = ch.albedo_filters
         ids[idx[stronger]] = i
         occ_scale[idx[stronger]] = ch.occlusion_scale
         Fsum[idx] = np.maximum(Fsum[idx], F)
@@ -387,7 +408,8 @@ def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> Change
     sel = np.nonzero(Fsum > 0)[0]
     occlusion = 0.5 * np.clip(H[sel] / 0.002, 0, 1) * Fsum[sel] * occ_scale[sel]
     return ChangeEffect(index=sel, footprint=Fsum[sel], change_index=ids[sel], height_m=H[sel], slope=S[sel],
-                        albedo_target=T[sel], albedo_weight=W[sel], occlusion=occlusion, shadow_height_m=Hs[sel])
+                        albedo_target=T[sel], albedo_weight=W[sel], occlusion=occlusion, shadow_height_m=Hs[sel],
+                        albedo_filters=filters[sel])
 
 
 def _change_at(ch: ChangeSpec, points: np.ndarray, normals: np.ndarray):

@@ -378,8 +378,7 @@ class Renderer:
                     shadow_lift = np.zeros(len(idx), np.float32)
                     shadow_lift[k] = lift
                 if want_albedo:
-                    wgt = eff.albedo_weight[:, None].astype(np.float32)
-                    albedo[k] = albedo[k] * (1 - wgt) + wgt * eff.albedo_target.astype(np.float32)
+                    albedo[k] = eff.albedo_of(albedo[k])
                 ids_local[k] = np.where(eff.footprint >= 0.5, eff.change_index + 1, 0)
         radiance = None
         if want_albedo and lighting is not None:

@@ -250,6 +250,39 @@ def test_relief_changes_mask_depth_normals_and_albedo(factories, kind):
     assert len(eff.index) > 300 and np.all(eff.albedo_weight == 0)
 
 
+def _stain_seeds() -> tuple[int, int]:
+    """A seed drawing a dark (filtering) stain and one drawing an efflorescence (covering)."""
+    kinds = {ChangeSpec(kind="stain", position=(0, 0, 1.0), normal=(0, -1, 0), size_mm=8.0, seed=s).albedo_filters: s
+             for s in range(20)}
+    return kinds[True], kinds[False]
+
+
+def test_a_dark_stain_filters_the_stone_and_an_efflorescence_covers_it():
+    # Model (drivers/sim/changes.py): at footprint F the albedo a becomes a (1 - w F (1 - T)) for a dark stain
+    # (an absorbing layer: the same relative darkening on any stone) and a (1 - w F) + w F W for an
+    # efflorescence (a crust: every stone moves towards the same white W).
+    pts, normals = np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, -1.0, 0.0]])
+    stones = (0.1, 0.6)
+    changed = {}
+    for seed in _stain_seeds():
+        ch = ChangeSpec(kind="stain", position=(0, 0, 1.0), normal=(0, -1, 0), size_mm=8.0, seed=seed)
+        eff = evaluate_changes([ch], pts, normals)
+        assert eff.footprint[0] > 0.9  # the centre
+        target, weight = ch.target_albedo
+        wf = weight * float(eff.footprint[0])
+        out = [eff.albedo_of(np.full((1, 3), a, np.float32))[0] for a in stones]
+        changed[ch.albedo_filters] = out
+        if ch.albedo_filters:
+            for a, new in zip(stones, out):
+                np.testing.assert_allclose(new / a, 1 - wf * (1 - target), rtol=1e-5)  # the same on both stones
+            assert np.all(out[0] / stones[0] < 0.75) and out[0][2] < out[0][0]  # darker, and brown (less blue)
+        else:
+            for a, new in zip(stones, out):
+                np.testing.assert_allclose(new, a * (1 - wf) + wf * target, rtol=1e-5)
+            assert np.all(out[0] > stones[0] + 0.3) and np.all(out[1] > stones[1])  # lighter on both stones
+    assert set(changed) == {True, False}
+
+
 def test_change_ids_tell_which_change_each_masked_pixel_is(factories):
     r = Renderer(factories.make_scene([factories.plane_part(albedo=0.5)]))
     T, x, z = _frontal(_FINE)
