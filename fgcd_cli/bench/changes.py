@@ -273,6 +273,7 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
         sim = run_sim(quick=quick)
         if sim.get("available"):
             summary.update({k: sim[k] for k in ("sim_auto_f1", "sim_false_regions_unchanged", "sim_max_false_region_mm2")})
+            summary.update({k: v for k, v in sim.items() if k.startswith("sim_heldout_")})
             summary.update({k: v for k, v in sim.items() if k.startswith("sim_relocated_")})
     from fgcd_cli.bench.changes_large import run_large
 
