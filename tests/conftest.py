@@ -2,6 +2,13 @@
 
 import signal
 
+from hypothesis import settings
+
+# Property tests check behaviour, not speed (speed belongs to `fgcd bench`): no per-example deadline, which a
+# loaded 2-core machine exceeds (hypothesis' default is 200 ms).
+settings.register_profile("fgcd", deadline=None)
+settings.load_profile("fgcd")
+
 
 def pytest_configure(config):
     # A shell that starts a job in the background (``cmd &`` without job control) starts it with
