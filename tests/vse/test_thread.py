@@ -42,6 +42,7 @@ def test_latest_is_cheap_and_consistent_while_engine_runs(world, small_camera, h
     worst = 0.0
     seen = []
     with th:
+        started = time.perf_counter()
         deadline = time.monotonic() + 240  # generous: a loaded 2-core machine maps slowly; this test is about consistency
         while time.monotonic() < deadline:
             t0 = time.perf_counter()
@@ -54,11 +55,13 @@ def test_latest_is_cheap_and_consistent_while_engine_runs(world, small_camera, h
             if st.frames_processed >= 30:
                 break
             time.sleep(0.002)
+        frame_s = (time.perf_counter() - started) / max(seen[-1], 1)
     assert not th.running
     assert seen[-1] >= 30, th.latest().message
     assert all(b >= a for a, b in zip(seen, seen[1:]))  # monotonic
-    # reading never waited for a frame (a frame plus keyframe mapping takes tens of ms)
-    assert worst < 0.05
+    # reading never waited for a frame: a read that waited would take about one frame's processing time;
+    # measured against this run's own frame time, so that a loaded machine slows both alike
+    assert worst < 0.5 * frame_s, (worst, frame_s)
     assert th.latest().status == "tracking"
 
 
