@@ -167,8 +167,8 @@ class ChangeSpec:
         if self.kind == "missing":
             return np.array([0.80, 0.74, 0.64]), 0.45
         if self.albedo_filters:
-            # the transmission of a brown absorbing layer: at the centre (weight 0.5) it darkens a stone of
-            # albedo 0.6 as much as the opaque brown (0.22, 0.17, 0.10) of an earlier model did
+            # the transmission of a brown absorbing layer: at the centre (weight 0.5) a stone of albedo 0.6
+            # becomes the brown (0.41, 0.38, 0.35), a darker stone darker in proportion
             return np.array([0.37, 0.28, 0.17]), 0.5
         return np.array([0.95, 0.95, 0.93]), 0.5  # efflorescence
 
