@@ -12,6 +12,8 @@ Convention: ``H_cur_ref`` (3x3) maps homogeneous reference pixel coordinates
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -136,6 +138,24 @@ def _scale_homography(H: np.ndarray, factor: float) -> np.ndarray:
     return S @ H @ np.linalg.inv(S)
 
 
+@contextmanager
+def without_ipp() -> Iterator[None]:
+    """Run OpenCV without its Intel IPP kernels in the calling thread (the switch is thread-local).
+
+    Rule: the same pair must register to the same homography every time. With IPP,
+    ``cv2.findTransformECC`` on identical inputs returned homographies differing at the
+    1e-5 level from call to call within one process (the IPP kernels' results depend on
+    the buffers' state), enough to move a region across the decision; without IPP it is
+    repeatable (``docs/benchmarks.md``).
+    """
+    before = cv2.ipp.useIPP()
+    cv2.ipp.setUseIPP(False)
+    try:
+        yield
+    finally:
+        cv2.ipp.setUseIPP(before)
+
+
 def ecc_gradient(
     ref_gray: np.ndarray,
     cur_gray: np.ndarray,
@@ -152,19 +172,19 @@ def ecc_gradient(
     """
     H = H_init.astype(np.float64)
     correlation = float("nan")
-    for level in reversed(range(levels)):
-        factor = 0.5**level
-        if min(ref_gray.shape) * factor < 48:
-            continue
-        size = (max(1, int(round(ref_gray.shape[1] * factor))), max(1, int(round(ref_gray.shape[0] * factor))))
-        ref_l = cv2.resize(ref_gray, size, interpolation=cv2.INTER_AREA) if level else ref_gray
-        cur_l = cv2.resize(cur_gray, size, interpolation=cv2.INTER_AREA) if level else cur_gray
-        grad_ref = gradient_magnitude(ref_l)
-        grad_cur = gradient_magnitude(cur_l)
-        H_l = _scale_homography(H, factor).astype(np.float32)
-        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, iterations, eps)
-        correlation, H_l = cv2.findTransformECC(grad_ref, grad_cur, H_l, cv2.MOTION_HOMOGRAPHY, criteria, None, 5)
-        H = _scale_homography(H_l.astype(np.float64), 1.0 / factor)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, iterations, eps)
+    with without_ipp():
+        for level in reversed(range(levels)):
+            factor = 0.5**level
+            if min(ref_gray.shape) * factor < 48:
+                continue
+            size = (max(1, int(round(ref_gray.shape[1] * factor))), max(1, int(round(ref_gray.shape[0] * factor))))
+            ref_l = cv2.resize(ref_gray, size, interpolation=cv2.INTER_AREA) if level else ref_gray
+            cur_l = cv2.resize(cur_gray, size, interpolation=cv2.INTER_AREA) if level else cur_gray
+            H_l = _scale_homography(H, factor).astype(np.float32)
+            correlation, H_l = cv2.findTransformECC(gradient_magnitude(ref_l), gradient_magnitude(cur_l), H_l,
+                                                    cv2.MOTION_HOMOGRAPHY, criteria, None, 5)
+            H = _scale_homography(H_l.astype(np.float64), 1.0 / factor)
     return H / H[2, 2], float(correlation)
 
 

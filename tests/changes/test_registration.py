@@ -1,6 +1,13 @@
+import cv2
 import numpy as np
 
-from fgcd_cli.changes.registration import overlap_fraction, register_to_reference, warp_to_reference
+from fgcd_cli.changes.registration import (
+    ecc_gradient,
+    overlap_fraction,
+    register_to_reference,
+    warp_to_reference,
+    without_ipp,
+)
 
 
 def test_recovers_subpixel_shift_under_gain_ramp(scene_pair):
@@ -44,3 +51,26 @@ def test_ecc_that_wanders_off_a_good_sift_start_does_not_make_the_pair_incompara
     # the SIFT homography is kept: the 1.5 / 0.8 px shift, not the wandered 40 / -30 px
     assert abs(result.H_cur_ref[0, 2] - 1.5) < 0.2 and abs(result.H_cur_ref[1, 2] - 0.8) < 0.2
     assert result.ecc_correlation > 0.3
+
+
+def test_ecc_returns_the_same_homography_wherever_the_image_lies_in_memory():
+    """The same pair registers the same way every time: with OpenCV's IPP kernels the ECC result
+    depended on the buffer's alignment (two values for a float32 image at even and odd offsets)."""
+    rng = np.random.default_rng(0)
+    ref = cv2.GaussianBlur(rng.random((480, 640)).astype(np.float32), (0, 0), 2.0)
+    H_true = np.array([[1.001, 0.002, 1.3], [-0.001, 0.999, -0.8], [1e-6, 0.0, 1.0]])
+    cur = cv2.warpPerspective(ref, H_true, (640, 480), flags=cv2.INTER_LINEAR)
+    results = set()
+    for offset in range(4):
+        buffer = np.empty(ref.size + 16, np.float32)
+        ref_at_offset = buffer[offset:offset + ref.size].reshape(ref.shape)
+        ref_at_offset[:] = ref
+        results.add(ecc_gradient(ref_at_offset, cur, np.eye(3))[0].tobytes())
+    assert len(results) == 1
+
+
+def test_without_ipp_restores_the_callers_setting():
+    before = cv2.ipp.useIPP()
+    with without_ipp():
+        assert not cv2.ipp.useIPP()
+    assert cv2.ipp.useIPP() == before
