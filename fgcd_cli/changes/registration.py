@@ -143,10 +143,9 @@ def without_ipp() -> Iterator[None]:
     """Run OpenCV without its Intel IPP kernels in the calling thread (the switch is thread-local).
 
     Rule: the same pair must register to the same homography every time. With IPP,
-    ``cv2.findTransformECC`` on identical inputs returned homographies differing at the
-    1e-5 level from call to call within one process (the IPP kernels' results depend on
-    the buffers' state), enough to move a region across the decision; without IPP it is
-    repeatable (``docs/benchmarks.md``).
+    ``cv2.findTransformECC``'s result depends on the memory alignment of its inputs,
+    so identical images can register (and be decided) differently from call to call;
+    without IPP it is repeatable (``docs/benchmarks.md``).
     """
     before = cv2.ipp.useIPP()
     cv2.ipp.setUseIPP(False)
