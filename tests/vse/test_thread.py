@@ -41,26 +41,29 @@ def test_latest_is_cheap_and_consistent_while_engine_runs(world, small_camera, h
     th = VseThread(MonocularVSE(small_camera, config=VseConfig(semidense=True)), src)
     worst = 0.0
     seen = []
+    first = None  # (time, frames) at the first processed frame: the engine's start-up is not a frame
     with th:
-        started = time.perf_counter()
         deadline = time.monotonic() + 240  # generous: a loaded 2-core machine maps slowly; this test is about consistency
         while time.monotonic() < deadline:
             t0 = time.perf_counter()
             st = th.latest()
             worst = max(worst, time.perf_counter() - t0)
             seen.append(st.frames_processed)
+            if first is None and st.frames_processed >= 1:
+                first = (time.perf_counter(), st.frames_processed)
             # a snapshot is internally consistent: the cloud only references published keyframes
             if len(st.cloud):
                 assert set(np.unique(st.cloud.keyframe_ids)) <= {k.id for k in st.keyframes}
             if st.frames_processed >= 30:
                 break
             time.sleep(0.002)
-        frame_s = (time.perf_counter() - started) / max(seen[-1], 1)
+        assert first is not None, th.latest().message
+        frame_s = (time.perf_counter() - first[0]) / max(seen[-1] - first[1], 1)
     assert not th.running
     assert seen[-1] >= 30, th.latest().message
     assert all(b >= a for a, b in zip(seen, seen[1:]))  # monotonic
     # reading never waited for a frame: a read that waited would take about one frame's processing time;
-    # measured against this run's own frame time, so that a loaded machine slows both alike
+    # measured against this run's own time per frame after the first (a loaded machine slows both alike)
     assert worst < 0.5 * frame_s, (worst, frame_s)
     assert th.latest().status == "tracking"
 
