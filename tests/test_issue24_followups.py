@@ -331,7 +331,7 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
     monkeypatch.setattr(alignment, "initial_guess", lambda **k: SimpleNamespace(T_ref_cur=np.eye(4), source="test",
                                                                                  fast=None))
     monkeypatch.setattr(capture_uc, "start_revisit_session",
-                        lambda rig, station, reference, **k: (session, SimpleNamespace(stop=lambda: None), scale))
+                        lambda rig, station, reference, **k: (session, SimpleNamespace(stop=lambda: None), scale, None))
     monkeypatch.setattr(capture_uc, "relocate", lambda ctx: result)
     monkeypatch.setattr(capture_uc, "reference_images", lambda station: {})
     monkeypatch.setattr(capture_uc, "grab_images", lambda rig, lightings: {"front": np.zeros((4, 4), np.float32)})

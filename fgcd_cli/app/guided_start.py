@@ -23,11 +23,14 @@ __all__ = ["GuidedPlan", "guided_exploration", "start_revisit_session", "workspa
 
 
 class GuidedPlan:
-    """The exploration chosen: ``motions`` (None: the usual pattern), why, the seconds the choice took, and
-    whether the image estimate put the start beyond the coarse stage's trigger (``far``)."""
+    """The exploration chosen: ``motions`` (None: the usual pattern), why, the seconds the choice took,
+    whether the image estimate put the start beyond the coarse stage's trigger (``far``), and the image
+    estimate's 1-sigma (RMS radius, mm; NaN when the localizer gave none)."""
 
-    def __init__(self, motions: list[np.ndarray] | None, reason: str, seconds: float, *, far: bool = False):
+    def __init__(self, motions: list[np.ndarray] | None, reason: str, seconds: float, *, far: bool = False,
+                 sigma_mm: float = float("nan")):
         self.motions, self.reason, self.seconds, self.far = motions, reason, seconds, far
+        self.sigma_mm = sigma_mm
 
 
 def workspace_bounds(guard) -> tuple[np.ndarray, np.ndarray]:
@@ -67,7 +70,7 @@ def guided_exploration(rig: RigHandles, station, reference, *, explore_m: float,
     if not within_workspace(rig.guard.platform.flange_pose(), motions, lo, hi):
         return GuidedPlan(None, "the guided legs would leave the workspace: the usual exploration", seconds)
     return GuidedPlan(motions, f"exploring toward the image estimate of the reference ({mm:.0f} mm / {deg:.1f} deg)",
-                      seconds)
+                      seconds, sigma_mm=float(info.get("sigma_mm", float("nan"))))
 
 
 #: Tracked stops after which the usual exploration may end early: the scale fit needs 3, and two
@@ -108,11 +111,14 @@ def alignment_trusted(rig: RigHandles, reference, ref_index, session, flange: li
 
 def start_revisit_session(rig: RigHandles, station, reference, *, explore_m: float, legs: int, guided: bool,
                           ref_index=None):
-    """A revisit's VSE session: ``(session, vse, scale)``.
+    """A revisit's VSE session: ``(session, vse, scale, prior_sigma_mm)``.
 
     ``guided``: explored toward the image localizer's estimate of the reference when it has one;
     otherwise the usual pattern, ended early once the alignment is trustworthy (:func:`alignment_trusted`),
     except on a far start: there the whole pattern runs, as the active coarse stage expects its map.
+    ``prior_sigma_mm``: when the exploration ended at the image estimate of the reference, that estimate's
+    1-sigma (mm; NaN when unknown), the prior the loop checks its first 3D estimate against
+    (``LoopContext.image_prior_sigma_mm``); None otherwise.
     """
     plan = guided_exploration(rig, station, reference, explore_m=explore_m) if guided else None
     until = None
@@ -125,4 +131,5 @@ def start_revisit_session(rig: RigHandles, station, reference, *, explore_m: flo
                                            motions=plan.motions if plan is not None else None, until=until)
     if plan is not None:
         session.timing.wait_s += plan.seconds  # the platform stood still while the localizer ran
-    return session, vse, scale
+    prior_sigma_mm = plan.sigma_mm if plan is not None and plan.motions is not None else None
+    return session, vse, scale, prior_sigma_mm

@@ -131,8 +131,9 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
     ref_index = ReferenceIndex(reference.points, intensities=reference.intensities,
                                view=(reference.T_ref_camref, rig.intrinsics))
     rig.progress(0, 0, "starting the VSE")
-    session, vse, scale = start_revisit_session(rig, station, reference, explore_m=request.explore_m,
-                                                legs=request.explore_legs, guided=request.guided, ref_index=ref_index)
+    session, vse, scale, prior_sigma_mm = start_revisit_session(
+        rig, station, reference, explore_m=request.explore_m, legs=request.explore_legs, guided=request.guided,
+        ref_index=ref_index)
     try:
         start = CoarseStart(rig=rig, session=session, reference=reference, ref_index=ref_index, station=station,
                             scale=scale.scale, scale_rel_std=scale.scale_std / scale.scale,
@@ -155,6 +156,8 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
                 on_record=hooks.on_record,
                 reference_images=ref_images,
                 grab_current=lambda: grab_gray_under(rig, vse, same_light),
+                # the camera stands at the image localizer's reference only when nothing moved it since
+                image_prior_sigma_mm=prior_sigma_mm if coarse_result is None else None,
             ))
         except AlgorithmError as exc:
             # the loop paused: what the coarse stage did before stays available to the caller

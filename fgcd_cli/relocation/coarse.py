@@ -99,7 +99,7 @@ def image_estimate(*, reference_images: dict[str, np.ndarray], current_image: np
     T_ref_camref = np.asarray(reference.T_ref_camref, dtype=float)
     pnp = refine_from_reference_image(reference_images=reference_images, current_image=current_image, camera=camera,
                                       ref_points=reference.points, T_ref_camref=T_ref_camref, config=config)
-    info = {"pnp": pnp.reason, "inliers": pnp.inliers}
+    info = {"pnp": pnp.reason, "inliers": pnp.inliers, "sigma_mm": pnp.offset_sigma_mm}
     return (T_ref_camref @ invert_pose(pnp.M_cam) if pnp.ok else None), info
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -69,6 +69,11 @@ class LoopContext:
     image_refiner : ImageRefiner, optional
         The image measurement (default
         :func:`~fgcd_cli.relocation.image_refine.refine_from_reference_image`).
+    image_prior_sigma_mm : float or None
+        Set when the exploration ended where the image localizer put the reference pose
+        (:mod:`fgcd_cli.app.guided_start`): the localizer's 1-sigma (RMS radius, mm) of that
+        estimate. The camera then stands at the reference as far as the localizer knows, and
+        the first 3D estimate is checked against it (docs/relocation.md, "A disputed start").
     """
 
     session: VseSession
@@ -85,6 +90,7 @@ class LoopContext:
     grab_current: Callable[[], np.ndarray] | None = None
     aligner: Aligner = align_once
     image_refiner: ImageRefiner | None = None
+    image_prior_sigma_mm: float | None = None
 
     @property
     def can_image(self) -> bool:
@@ -97,13 +103,23 @@ class LoopContext:
                                 scale=self.scale, fine=self.config.fine, fast_config=self.config.fast_align,
                                 fine_config=self.config.fine_align)
 
-    def refiner(self) -> ImageRefiner:
-        """The image refiner: the injected one, else the default (imported on first use: OpenCV's SIFT)."""
+    def refiner(self, *, unresolved_mm: float = 0.0) -> ImageRefiner:
+        """The image refiner: the injected one, else the default (imported on first use: OpenCV's SIFT).
+
+        ``unresolved_mm``: the offset the 3D estimate cannot tell from none (``agreement_k`` times its
+        1-sigma). The default refiner trusts corrections up to it on ordinary evidence: the image stage
+        exists to measure what the 3D loop cannot resolve, so its ordinary limit
+        (``ImageRefineConfig.max_motion_m``) never stops short of that (docs/relocation.md, "Stop rules").
+        """
         if self.image_refiner is not None:
             return self.image_refiner
-        from fgcd_cli.relocation.image_refine import refine_from_reference_image
+        from functools import partial
 
-        return refine_from_reference_image
+        from fgcd_cli.relocation.image_refine import ImageRefineConfig, refine_from_reference_image
+
+        base = ImageRefineConfig()
+        limit_m = max(base.max_motion_m, unresolved_mm / 1000.0) if math.isfinite(unresolved_mm) else base.max_motion_m
+        return partial(refine_from_reference_image, config=replace(base, max_motion_m=limit_m))
 
     def say(self, text: str) -> None:
         """A progress line (see :func:`say`)."""
@@ -134,6 +150,8 @@ class LoopState:
         VSE frame count when the 3D loop's last motion ended (-1 before any).
     worker : AlignmentWorker or None
         The alignment thread (parallel mode, while it runs).
+    prior_checked : bool
+        The first 3D estimate was compared with the image localizer's (once per run).
     """
 
     tol_mm: float
@@ -143,6 +161,7 @@ class LoopState:
     last_T_ref_cur: Sim3 | None = None
     moved_at_frame: int = -1
     worker: "AlignmentWorker | None" = None
+    prior_checked: bool = False
 
     @classmethod
     def for_context(cls, ctx: LoopContext, *, t_start: float) -> "LoopState":

@@ -20,6 +20,11 @@ Disagreement takes another step; running out of steps pauses (not converged) wit
 the reason. A correction beyond the image evidence's own limit is trusted only
 when the 3D geometry of the view confirms it.
 
+When the first 3D estimate disputed the image localizer that led the
+exploration (``disputed``), the stage runs as in the fallback: the alignment is
+not asked (the camera uncertainty is), and weak evidence before any image
+motion hands the loop back to the 3D estimate.
+
 After a converged 3D loop (the *refinement*), weak image evidence before any
 image motion leaves the camera where the 3D loop stopped, *not converged*: one
 estimator said "done" and nothing confirmed it (the record says why; the
@@ -103,10 +108,12 @@ class _ImageStage:
         self.ctx, self.st, self.result, self.fallback = ctx, st, result, fallback
         self.handed_over = handed_over
         self.handed_back = False  # declined before any motion after a hand-over: the 3D loop goes on
+        # the 3D alignment paused, or disputed the image localizer: it is not asked to confirm
+        self.without_alignment = fallback or result.disputed
         self.last = st.records[-1] if st.records else None
         self.first_iteration = self.last.iteration if self.last is not None else 0
-        self.label = "image fallback" if fallback else "image stage"
-        self.steps = c.image_fallback_steps if fallback else c.image_refine_steps
+        self.label = "image fallback" if fallback else "image stage (3D disputed)" if result.disputed else "image stage"
+        self.steps = c.image_fallback_steps if self.without_alignment else c.image_refine_steps
         self.reason = result.reason
         self.residual: Residual | None = None
         self.converged = False
@@ -118,9 +125,9 @@ class _ImageStage:
         ctx.say(f"{self.label} {step + 1}/{self.steps}: matching the current image with "
                 f"{len(ctx.reference_images)} reference image(s)")
         t0 = time.monotonic()
-        ref = ctx.refiner()(reference_images=ctx.reference_images, current_image=ctx.grab_current(),
-                            camera=ctx.camera, ref_points=ctx.reference.points,
-                            T_ref_camref=ctx.reference.T_ref_camref)
+        ref = ctx.refiner(unresolved_mm=ctx.config.agreement_k * self.st.sigma3d_mm)(
+            reference_images=ctx.reference_images, current_image=ctx.grab_current(), camera=ctx.camera,
+            ref_points=ctx.reference.points, T_ref_camref=ctx.reference.T_ref_camref)
         session.timing.wait_s += time.monotonic() - t0
         return ref
 
@@ -153,7 +160,7 @@ class _ImageStage:
                                        f"{c.max_offset_deg:.0f} deg revisit range"), None
         T_ref_cam = np.asarray(ctx.reference.T_ref_camref, dtype=float) @ invert_pose(ref.M_cam)
         check = geometry_check(ctx, self.st, self.after_frame, T_ref_cam, ref.offset_sigma_mm,
-                               use_alignment=not self.fallback)
+                               use_alignment=not self.without_alignment)
         if check["agree"] and check["bound_mm"] >= mm:  # the check could not tell it from no correction at all
             return replace(ref, reason=f"{ref.reason}; not confirmed by the 3D geometry (its {check['check']} "
                                        f"bound {check['bound_mm']:.0f} mm does not resolve a {mm:.0f} mm "
@@ -175,9 +182,10 @@ class _ImageStage:
         if not frames["agree"]:
             return False, frames, None
         geometry = geometry_check(self.ctx, st, self.after_frame, m.T_ref_cam, m.sigma_mm,
-                                  use_alignment=not self.fallback)
-        # after a converged 3D loop an unavailable check is no confirmation; the fallback has no other estimator
-        done = geometry["agree"] is True or (geometry["agree"] is None and self.fallback)
+                                  use_alignment=not self.without_alignment)
+        # after a converged 3D loop an unavailable check is no confirmation; without the alignment (paused or
+        # disputed) there is no other estimator
+        done = geometry["agree"] is True or (geometry["agree"] is None and self.without_alignment)
         return done, frames, geometry
 
     def _step(self, step: int) -> bool:
@@ -223,7 +231,8 @@ class _ImageStage:
         if geometry is not None and geometry["agree"]:
             verdict = Agreement.AGREE if geometry["check"] == "alignment" else Agreement.AGREE.because(geometry["check"])
         else:
-            verdict = Agreement.NOT_CHECKED.because(geometry["note"] if geometry else "the 3D loop paused")
+            verdict = Agreement.NOT_CHECKED.because(geometry["note"] if geometry else "the 3D loop paused"
+                                                    if self.fallback else "the 3D alignment disputed")
         self.converged = True
         self.residual = Residual(offset_mm=m.offset_mm, sigma_mm=m.sigma_mm, tolerance_mm=self.st.tol_mm,
                                  source=EstimateSource.IMAGE, agreement=verdict)

@@ -20,7 +20,7 @@ from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.estimates import align_now, wait_for_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
-from fgcd_cli.relocation.stop_rule import estimated_afd_px
+from fgcd_cli.relocation.stop_rule import estimated_afd_px, estimates_agree, offset_vector_mm
 from fgcd_core.se3 import pose_distance
 from fgcd_cli.vse.types import VseStatus
 
@@ -75,6 +75,29 @@ def _hands_over(ctx: LoopContext, st: LoopState, adj: Adjustment) -> bool:
     c = ctx.config
     return (c.image_handover and c.image_refine and ctx.can_image and st.sigma3d_mm > st.tol_mm
             and adj.offset_mm <= st.sigma3d_mm)
+
+
+def _disputed(ctx: LoopContext, st: LoopState, adj: Adjustment) -> RelocationResult | None:
+    """The first 3D estimate against the image localizer's, when the exploration ended at the latter's estimate of
+    the reference (``LoopContext.image_prior_sigma_mm``): the camera stands at the reference within the
+    localizer's uncertainty. Disagreement beyond ``agreement_k`` times both uncertainties
+    (:func:`~fgcd_cli.relocation.stop_rule.estimates_agree`) hands the loop to the image stage before any 3D
+    motion, which then stops without the alignment's agreement (docs/relocation.md, "A disputed start");
+    None when they agree, or when there is nothing to check."""
+    c = ctx.config
+    if st.prior_checked or ctx.image_prior_sigma_mm is None or not (c.image_handover and c.image_refine
+                                                                      and ctx.can_image):
+        return None
+    st.prior_checked = True
+    ok, dist, bound = estimates_agree(offset_vector_mm(adj.T_ref_cam, ctx.reference.T_ref_camref), st.sigma3d_mm,
+                                      np.zeros(3), ctx.image_prior_sigma_mm, k=c.agreement_k)
+    if ok:
+        return None
+    out = RelocationResult(False, f"the first 3D estimate puts the camera {dist:.1f} mm from where the image "
+                                  f"localizer led the exploration (> {bound:.1f} mm, both uncertainties): "
+                                  "handed to the image stage, the 3D alignment disputed", st.records[-1].iteration)
+    out.handed_over = out.disputed = True
+    return out
 
 
 def _tracking_or(session, state):
@@ -184,6 +207,9 @@ def racr_loop(ctx: LoopContext, st: LoopState, *, handover: bool = True) -> Relo
         st.last_T_ref_cur = est.T_ref_cur
         st.add(ctx, _record(ctx, st, iteration, est, state, adj, afd))
         _check_within_revisit_range(ctx, adj)
+        disputed = _disputed(ctx, st, adj) if handover else None
+        if disputed is not None:
+            return disputed
         divergence.check(adj, ctx)
         result = _stop_result(ctx, st, iteration, adj, afd)
         if result is not None:

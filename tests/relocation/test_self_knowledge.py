@@ -82,14 +82,18 @@ class _Cloud:
 
 
 def _relief_case(*, image_bias: np.ndarray, start: np.ndarray, frames_px=None, oversize_mm=None,
-                 aligner_ok=False, cloud_tilt_deg=0.0):
+                 aligner_ok=False, cloud_tilt_deg=0.0, aligner_bias: np.ndarray | None = None,
+                 prior_sigma_mm: float | None = None, moves: list | None = None):
     """Relocate over a relief at 1.5 m from the reference camera.
 
     The 3D loop is degenerate (``aligner_ok`` False: the image fallback runs) or exact. The image
     stand-in reports the camera at ``T_true @ image_bias``; ``frames_px(T_true)`` is what the frames
     show (default: consistent with the truth); corrections above ``oversize_mm`` come back ``oversize``.
     ``cloud_tilt_deg`` distorts the session's cloud: turned about the relief's centre (a monocular cloud's
-    systematic error), while the camera poses stay exact.
+    systematic error), while the camera poses stay exact. ``aligner_bias`` (``ref`` frame) makes a trusted 3D
+    alignment confidently wrong; ``prior_sigma_mm`` says the exploration ended at the image localizer's
+    estimate of the reference (``LoopContext.image_prior_sigma_mm``); ``moves`` collects the true camera
+    offsets (mm) after every motion.
     Returns the result (or the AlgorithmError) and the true final offset (mm, deg).
     """
     X, _p, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
@@ -103,8 +107,12 @@ def _relief_case(*, image_bias: np.ndarray, start: np.ndarray, frames_px=None, o
     platform = ErringPlatform(invert_pose(T_ref_base) @ T_ref_camref @ start @ invert_pose(X))
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
 
+    estimate = T_ref_cur if aligner_bias is None else Sim3.from_pose(aligner_bias) @ T_ref_cur
+
     def aligner(*, serial=0, state=None, **kw):
-        return [AlignmentEstimate(T_ref_cur=T_ref_cur if aligner_ok else Sim3(), stage="fast", ok=aligner_ok,
+        if moves is not None:
+            moves.append(pose_distance(true_cam(), T_ref_camref)[0])
+        return [AlignmentEstimate(T_ref_cur=estimate if aligner_ok else Sim3(), stage="fast", ok=aligner_ok,
                                   reason="exact" if aligner_ok else "degenerate geometry (plane)",
                                   vse_frame=state.frames_processed, seconds=0.0, serial=serial,
                                   degenerate=not aligner_ok)]
@@ -131,7 +139,7 @@ def _relief_case(*, image_bias: np.ndarray, start: np.ndarray, frames_px=None, o
                                    T_flange_cam=X, init=Sim3(), config=config,
                                    reference_images={"front": np.zeros((480, 640), np.float32)},
                                    grab_current=lambda: np.zeros((480, 640), np.float32), aligner=aligner,
-                                   image_refiner=refine))
+                                   image_refiner=refine, image_prior_sigma_mm=prior_sigma_mm))
     except AlgorithmError as exc:
         out = exc
     finally:
@@ -221,6 +229,68 @@ def test_a_large_image_correction_the_geometry_contradicts_is_refused():
     assert isinstance(res, AlgorithmError)
     assert "not confirmed by the 3D geometry" in str(res)
     assert mm == pytest.approx(pose_distance(far, np.eye(4))[0], abs=0.5)  # it did not move
+
+
+# ----------------------------------------------------------------------------- a disputed start
+#: An orbit of 3 deg about a vertical axis through the object 1.5 m in front of the reference camera: what a
+#: smooth, nearly symmetric body lets a cloud alignment slide by (the statue under opposite light), about 79 mm.
+ORBIT = exp_se3(np.r_[0.0, 0.0, 0.0, 0.0, np.radians(3.0), 0.0])
+NEAR = exp_se3(np.r_[0.0008, -0.0005, 0.0003, 0.0002, -0.0003, 0.0001])  # where the localizer led: ~1 mm away
+
+
+def _orbit_about_object(T_ref_camref: np.ndarray) -> np.ndarray:
+    """``ORBIT`` about the point 1.5 m along the reference camera's axis, ``ref`` frame."""
+    centre = T_ref_camref @ np.r_[0.0, 0.0, 1.5, 1.0]
+    about = np.eye(4)
+    about[:3, 3] = centre[:3]
+    R = np.eye(4)
+    R[:3, :3] = T_ref_camref[:3, :3] @ ORBIT[:3, :3] @ T_ref_camref[:3, :3].T
+    return about @ R @ invert_pose(about)
+
+
+def test_a_first_3d_estimate_that_disputes_the_image_localizer_hands_over_before_any_3d_motion(monkeypatch):
+    """The exploration ended where the image localizer put the reference (~1 mm away); the trusted 3D alignment
+    is confidently wrong by an orbit about the object (~79 mm, beyond both uncertainties). The 3D estimate must
+    not move the camera: the image stage takes over, runs without the alignment's vote and converges, and the
+    log says why."""
+    X, _p, _M, _s, T_ref_camref, _T, _B = __import__("tests.relocation.test_loop", fromlist=["make_case"]).make_case()
+    moves: list = []
+    res, (mm, _deg) = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True,
+                                   aligner_bias=_orbit_about_object(T_ref_camref), prior_sigma_mm=1.0, moves=moves)
+    assert not isinstance(res, Exception), res
+    assert res.converged and mm <= res.residual.tolerance_mm  # the localizer's ~1 mm is within it: no motion needed
+    assert "the 3D alignment disputed" in res.reason
+    assert res.records[0].offset_mm > 60.0  # the 3D estimate did say ~79 mm ...
+    assert max(moves) < 2.0  # ... and the camera never went there
+
+
+def test_without_the_localizer_prior_the_same_wrong_3d_estimate_moves_the_camera():
+    """Negative control of the test above: with no image prior (the usual exploration) nothing disputes the
+    3D estimate, and the loop drives the camera along its orbit (the behaviour the rule removes)."""
+    X, _p, _M, _s, T_ref_camref, _T, _B = __import__("tests.relocation.test_loop", fromlist=["make_case"]).make_case()
+    moves: list = []
+    res, _ = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True,
+                          aligner_bias=_orbit_about_object(T_ref_camref), prior_sigma_mm=None, moves=moves)
+    assert max(moves) > 40.0
+    assert "disputed" not in str(getattr(res, "reason", res))
+
+
+def test_a_3d_estimate_that_agrees_with_the_localizer_is_not_disputed():
+    res, (mm, _deg) = _relief_case(image_bias=np.eye(4), start=START, aligner_ok=True, prior_sigma_mm=20.0)
+    assert not isinstance(res, Exception), res
+    assert res.converged and mm < 0.01 and "disputed" not in res.reason
+
+
+def test_the_image_stage_trusts_on_ordinary_evidence_what_the_3d_estimate_cannot_resolve():
+    """The default refiner's ordinary limit is never below ``agreement_k`` times the 3D estimate's 1-sigma: at
+    1.5 m (15 mm) a 21 mm correction is the image stage's to make; near objects keep the 20 mm limit."""
+    from fgcd_cli.relocation.image_refine import ImageRefineConfig
+
+    ctx = LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
+                      init=Sim3())
+    assert ctx.refiner(unresolved_mm=31.0).keywords["config"].max_motion_m == pytest.approx(0.031)
+    assert ctx.refiner(unresolved_mm=5.0).keywords["config"].max_motion_m == ImageRefineConfig().max_motion_m
+    assert ctx.refiner(unresolved_mm=math.inf).keywords["config"].max_motion_m == ImageRefineConfig().max_motion_m
 
 
 # ----------------------------------------------------------------------------- a far start under an overhang
