@@ -144,17 +144,9 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
         rig.progress(0, 0, "relocating")
         try:
             result = relocate(LoopContext(
-                session=session,
-                reference=reference,
-                ref_index=ref_index,
-                camera=rig.intrinsics,
-                scale=scale.scale,
-                T_flange_cam=rig.T_flange_cam,
-                init=init,
-                config=request.config,
-                evaluate=hooks.evaluate,
-                on_record=hooks.on_record,
-                reference_images=ref_images,
+                session=session, reference=reference, ref_index=ref_index, camera=rig.intrinsics,
+                scale=scale.scale, T_flange_cam=rig.T_flange_cam, init=init, config=request.config,
+                evaluate=hooks.evaluate, on_record=hooks.on_record, reference_images=ref_images,
                 grab_current=lambda: grab_gray_under(rig, vse, same_light),
                 # the camera stands at the image localizer's reference only when nothing moved it since
                 image_prior_sigma_mm=prior_sigma_mm if coarse_result is None else None,
