@@ -248,12 +248,12 @@ def _orbit_about_object(T_ref_camref: np.ndarray) -> np.ndarray:
     return about @ R @ invert_pose(about)
 
 
-def test_a_first_3d_estimate_that_disputes_the_image_localizer_hands_over_before_any_3d_motion(monkeypatch):
+def test_a_first_3d_estimate_that_disputes_the_image_localizer_hands_over_before_any_3d_motion():
     """The exploration ended where the image localizer put the reference (~1 mm away); the trusted 3D alignment
     is confidently wrong by an orbit about the object (~79 mm, beyond both uncertainties). The 3D estimate must
     not move the camera: the image stage takes over, runs without the alignment's vote and converges, and the
     log says why."""
-    X, _p, _M, _s, T_ref_camref, _T, _B = __import__("tests.relocation.test_loop", fromlist=["make_case"]).make_case()
+    T_ref_camref = make_case()[4]
     moves: list = []
     res, (mm, _deg) = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True,
                                    aligner_bias=_orbit_about_object(T_ref_camref), prior_sigma_mm=1.0, moves=moves)
@@ -267,7 +267,7 @@ def test_a_first_3d_estimate_that_disputes_the_image_localizer_hands_over_before
 def test_without_the_localizer_prior_the_same_wrong_3d_estimate_moves_the_camera():
     """Negative control of the test above: with no image prior (the usual exploration) nothing disputes the
     3D estimate, and the loop drives the camera along its orbit (the behaviour the rule removes)."""
-    X, _p, _M, _s, T_ref_camref, _T, _B = __import__("tests.relocation.test_loop", fromlist=["make_case"]).make_case()
+    T_ref_camref = make_case()[4]
     moves: list = []
     res, _ = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True,
                           aligner_bias=_orbit_about_object(T_ref_camref), prior_sigma_mm=None, moves=moves)
