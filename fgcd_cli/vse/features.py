@@ -106,8 +106,15 @@ class KltFrontend:
         if max_new <= 0:
             return np.zeros((0, 2))
         mask = occupancy_mask(img_u8.shape, existing, self.min_distance_px, border_px=self.window[0] // 2 + 2)
+        strongest = float(cv2.cornerMinEigenVal(img_u8, 7, 3)[mask > 0].max(initial=0.0))
+        if strongest < self.min_corner_response:
+            return np.zeros((0, 2))
+        # Rule: the absolute response is the only threshold. OpenCV's qualityLevel is relative to the
+        # image's strongest corner, so one dark pit or glint under a torch (100x the texture's response)
+        # would hide every other corner; expressed relative to that maximum it is min_corner_response.
         corners = cv2.goodFeaturesToTrack(
-            img_u8, maxCorners=int(max_new), qualityLevel=0.01, minDistance=self.min_distance_px, mask=mask, blockSize=7
+            img_u8, maxCorners=int(max_new), qualityLevel=min(1.0, self.min_corner_response / strongest),
+            minDistance=self.min_distance_px, mask=mask, blockSize=7
         )
         if corners is None:
             return np.zeros((0, 2))
