@@ -77,26 +77,46 @@ def _hands_over(ctx: LoopContext, st: LoopState, adj: Adjustment) -> bool:
             and adj.offset_mm <= st.sigma3d_mm)
 
 
-def _disputed(ctx: LoopContext, st: LoopState, adj: Adjustment) -> RelocationResult | None:
+def _against_prior(ctx: LoopContext, st: LoopState, adj: Adjustment) -> RelocationResult | None:
     """The first 3D estimate against the image localizer's, when the exploration ended at the latter's estimate of
     the reference (``LoopContext.image_prior_sigma_mm``): the camera stands at the reference within the
     localizer's uncertainty. Disagreement beyond ``agreement_k`` times both uncertainties
     (:func:`~fgcd_cli.relocation.stop_rule.estimates_agree`) hands the loop to the image stage before any 3D
-    motion, which then stops without the alignment's agreement (docs/relocation.md, "A disputed start");
-    None when they agree, or when there is nothing to check."""
+    motion, which then stops without the alignment's agreement (docs/relocation.md, "A disputed start").
+    Agreement combines the two (:func:`_combined`). None when the 3D estimate stands, or there is nothing to check."""
     c = ctx.config
     if st.prior_checked or ctx.image_prior_sigma_mm is None or not (c.image_handover and c.image_refine
                                                                       and ctx.can_image):
         return None
     st.prior_checked = True
-    ok, dist, bound = estimates_agree(offset_vector_mm(adj.T_ref_cam, ctx.reference.T_ref_camref), st.sigma3d_mm,
-                                      np.zeros(3), ctx.image_prior_sigma_mm, k=c.agreement_k)
+    offset_3d = offset_vector_mm(adj.T_ref_cam, ctx.reference.T_ref_camref)
+    ok, dist, bound = estimates_agree(offset_3d, st.sigma3d_mm, np.zeros(3), ctx.image_prior_sigma_mm,
+                                      k=c.agreement_k)
     if ok:
-        return None
+        return _combined(ctx, st, float(np.linalg.norm(offset_3d)))
     out = RelocationResult(False, f"the first 3D estimate puts the camera {dist:.1f} mm from where the image "
                                   f"localizer led the exploration (> {bound:.1f} mm, both uncertainties): "
                                   "handed to the image stage, the 3D alignment disputed", st.records[-1].iteration)
     out.handed_over = out.disputed = True
+    return out
+
+
+def _combined(ctx: LoopContext, st: LoopState, offset_3d_mm: float) -> RelocationResult | None:
+    """Two agreeing estimates of the camera's offset, the 3D one and the localizer's (0, where the exploration
+    ended), combine with inverse-variance weights: ``|d| = |d_3d| s_img^2 / (s_img^2 + s_3d^2)``. When that
+    leaves the camera within the 3D estimate's own 1-sigma, the 3D estimate is not acted on: the image stage
+    takes over as in :func:`_hands_over` (docs/relocation.md, "A disputed start"). None otherwise (an unknown
+    localizer uncertainty combines nothing)."""
+    s_img, s_3d = float(ctx.image_prior_sigma_mm), st.sigma3d_mm
+    if not (np.isfinite(s_img) and np.isfinite(s_3d) and s_3d > st.tol_mm):
+        return None
+    combined_mm = offset_3d_mm * s_img**2 / (s_img**2 + s_3d**2)
+    if combined_mm > s_3d:
+        return None
+    out = RelocationResult(False, f"the first 3D estimate ({offset_3d_mm:.1f} ± {s_3d:.1f} mm) agrees with the "
+                                  f"image localizer that led the exploration (0 ± {s_img:.1f} mm); combined, "
+                                  f"{combined_mm:.1f} mm: handed to the image stage", st.records[-1].iteration)
+    out.handed_over = True
     return out
 
 
@@ -207,9 +227,9 @@ def racr_loop(ctx: LoopContext, st: LoopState, *, handover: bool = True) -> Relo
         st.last_T_ref_cur = est.T_ref_cur
         st.add(ctx, _record(ctx, st, iteration, est, state, adj, afd))
         _check_within_revisit_range(ctx, adj)
-        disputed = _disputed(ctx, st, adj) if handover else None
-        if disputed is not None:
-            return disputed
+        prior = _against_prior(ctx, st, adj) if handover else None
+        if prior is not None:
+            return prior
         divergence.check(adj, ctx)
         result = _stop_result(ctx, st, iteration, adj, afd)
         if result is not None:

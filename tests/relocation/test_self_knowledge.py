@@ -281,6 +281,40 @@ def test_a_3d_estimate_that_agrees_with_the_localizer_is_not_disputed():
     assert res.converged and mm < 0.01 and "disputed" not in res.reason
 
 
+#: A trusted 3D alignment 22 mm off along the reference camera's x: beyond its own 1-sigma at 1.5 m (15 mm), within
+#: the agreement bound with a 3 mm localizer (2 x sqrt(15^2 + 3^2) = 30.6 mm).
+SHIFT_22MM = exp_se3(np.r_[0.022, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+
+def _shift_in_ref(T_ref_camref: np.ndarray, M_cam: np.ndarray) -> np.ndarray:
+    """``M_cam`` (a motion in the reference camera's frame) as a ``ref``-frame bias of the alignment."""
+    return T_ref_camref @ M_cam @ invert_pose(T_ref_camref)
+
+
+def test_a_3d_estimate_that_agrees_with_a_precise_localizer_is_combined_not_followed():
+    """The exploration ended ~1 mm from the reference (localizer 3 mm 1-sigma); the 3D estimate says 22 mm, which
+    agrees with it within both uncertainties. Combined (inverse-variance) the camera is ~0.9 mm off, within the 3D
+    estimate's 1-sigma: the image stage takes over and the camera is never driven the 22 mm."""
+    T_ref_camref = make_case()[4]
+    moves: list = []
+    res, (mm, _deg) = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True, prior_sigma_mm=3.0,
+                                   aligner_bias=_shift_in_ref(T_ref_camref, SHIFT_22MM), moves=moves)
+    assert not isinstance(res, Exception), res
+    assert res.converged and mm <= res.residual.tolerance_mm
+    assert res.records[0].offset_mm > 15.0  # the 3D estimate alone would have moved ...
+    assert max(moves) < 2.0  # ... and the camera stayed near where the localizer led it
+    assert "disputed" not in res.reason
+
+
+def test_without_the_localizer_prior_an_agreeing_3d_estimate_is_followed():
+    """Negative control: with no prior the same 22 mm estimate drives the camera ~22 mm before the image stage."""
+    T_ref_camref = make_case()[4]
+    moves: list = []
+    _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True, prior_sigma_mm=None,
+                 aligner_bias=_shift_in_ref(T_ref_camref, SHIFT_22MM), moves=moves)
+    assert max(moves) > 15.0
+
+
 def test_the_image_stage_trusts_on_ordinary_evidence_what_the_3d_estimate_cannot_resolve():
     """The default refiner's ordinary limit is never below ``agreement_k`` times the 3D estimate's 1-sigma: at
     1.5 m (15 mm) a 21 mm correction is the image stage's to make; near objects keep the 20 mm limit."""
