@@ -20,18 +20,29 @@ from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.worker import AlignmentWorker
 from fgcd_cli.vse.types import VseStatus
 
-__all__ = ["align_now", "fresh_3d_estimate", "wait_for_estimate"]
+__all__ = ["DegenerateGeometry", "align_now", "fresh_3d_estimate", "wait_for_estimate"]
 
 #: Slack added to a deadline so that a wake-up at the deadline finds it passed, seconds.
 _DEADLINE_SLACK_S = 0.01
 
 
-class _Patience:
-    """Counts the untrustworthy estimates published while the loop waits (``RelocationConfig`` patience rules)."""
+class DegenerateGeometry(AlgorithmError):
+    """The alignment found degenerate geometry in as many estimates in a row as the loop's patience allows
+    (``detail``: the last estimate's reason)."""
 
-    def __init__(self):
+    def __init__(self, message: str, *, detail: str = ""):
+        super().__init__(message)
+        self.detail = detail
+
+
+class _Patience:
+    """Counts the untrustworthy estimates published while the loop waits (``RelocationConfig`` patience rules;
+    ``degenerate_patience`` overrides the configured one)."""
+
+    def __init__(self, degenerate_patience: int | None = None):
         self.bad: set[int] = set()  # serials of untrustworthy estimates since the wait started
         self.degenerate: set[int] = set()  # ... of those flagged degenerate geometry, in a row
+        self.degenerate_patience = degenerate_patience
 
     def check(self, est: AlignmentEstimate, waited: float, ctx: LoopContext) -> None:
         """Note an untrustworthy estimate; raise AlgorithmError when a patience rule runs out."""
@@ -41,10 +52,10 @@ class _Patience:
             self.degenerate.add(est.serial)
         else:
             self.degenerate.clear()
-        if len(self.degenerate) >= config.degenerate_patience:
+        if len(self.degenerate) >= (self.degenerate_patience or config.degenerate_patience):
             ctx.session.timing.wait_s += waited
-            raise AlgorithmError(f"alignment found degenerate geometry in {len(self.degenerate)} estimates in a "
-                                 f"row ({waited:.0f} s), motion paused: {est.reason}")
+            raise DegenerateGeometry(f"alignment found degenerate geometry in {len(self.degenerate)} estimates in a "
+                                     f"row ({waited:.0f} s), motion paused: {est.reason}", detail=est.reason)
         if len(self.bad) >= config.untrusted_patience and waited >= config.untrusted_min_wait_s:
             ctx.session.timing.wait_s += waited
             raise AlgorithmError(f"alignment untrustworthy in {len(self.bad)} estimates in a row "
@@ -57,18 +68,21 @@ def _heartbeat(ctx: LoopContext, worker: AlignmentWorker, waited: float) -> None
             + ("none yet" if est is None else f"{est.stage}, {'ok' if est.ok else est.reason}") + ")")
 
 
-def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: int) -> AlignmentEstimate:
+def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: int, *,
+                      degenerate_patience: int | None = None) -> AlignmentEstimate:
     """The newest trustworthy alignment published after ``last_serial``; pause on failures.
 
     Raises
     ------
+    DegenerateGeometry
+        ``degenerate_patience`` (default: the configured one) estimates in a row found degenerate geometry.
     AlgorithmError
-        The alignment thread failed, its estimates stayed untrustworthy (``degenerate_patience``,
-        ``untrusted_patience`` after ``untrusted_min_wait_s``), or none came within ``estimate_timeout_s``.
+        The alignment thread failed, its estimates stayed untrustworthy (``untrusted_patience`` after
+        ``untrusted_min_wait_s``), or none came within ``estimate_timeout_s``.
     """
     config = ctx.config
     t0 = time.monotonic()
-    patience = _Patience()
+    patience = _Patience(degenerate_patience)
     next_note = t0 + config.heartbeat_s  # never silent for long (issue 24, item 7)
     while True:
         if time.monotonic() >= next_note:

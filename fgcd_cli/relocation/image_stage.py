@@ -20,10 +20,11 @@ Disagreement takes another step; running out of steps pauses (not converged) wit
 the reason. A correction beyond the image evidence's own limit is trusted only
 when the 3D geometry of the view confirms it.
 
-When the first 3D estimate disputed the image localizer that led the
-exploration (``disputed``), the stage runs as in the fallback: the alignment is
-not asked (the camera uncertainty is), and weak evidence before any image
-motion hands the loop back to the 3D estimate.
+When the loop handed over where the image localizer led the exploration
+because its first 3D estimate disputed the localizer's, or its first alignment
+found degenerate geometry (``alignment_set_aside``), the stage runs as in the
+fallback: the alignment is not asked (the camera uncertainty is), and weak
+evidence before any image motion hands the loop back to the 3D estimate.
 
 After a converged 3D loop (the *refinement*), weak image evidence before any
 image motion leaves the camera where the 3D loop stopped, *not converged*: one
@@ -108,11 +109,13 @@ class _ImageStage:
         self.ctx, self.st, self.result, self.fallback = ctx, st, result, fallback
         self.handed_over = handed_over
         self.handed_back = False  # declined before any motion after a hand-over: the 3D loop goes on
-        # the 3D alignment paused, or disputed the image localizer: it is not asked to confirm
-        self.without_alignment = fallback or result.disputed
+        # the 3D alignment paused, or was set aside where the image localizer led: it is not asked to confirm
+        self.set_aside = result.alignment_set_aside
+        self.without_alignment = fallback or bool(self.set_aside)
         self.last = st.records[-1] if st.records else None
         self.first_iteration = self.last.iteration if self.last is not None else 0
-        self.label = "image fallback" if fallback else "image stage (3D disputed)" if result.disputed else "image stage"
+        self.label = ("image fallback" if fallback else f"image stage (3D {self.set_aside})" if self.set_aside
+                      else "image stage")
         self.steps = c.image_fallback_steps if self.without_alignment else c.image_refine_steps
         self.reason = result.reason
         self.residual: Residual | None = None
@@ -184,7 +187,7 @@ class _ImageStage:
         geometry = geometry_check(self.ctx, st, self.after_frame, m.T_ref_cam, m.sigma_mm,
                                   use_alignment=not self.without_alignment)
         # after a converged 3D loop an unavailable check is no confirmation; without the alignment (paused or
-        # disputed) there is no other estimator
+        # set aside) there is no other estimator
         done = geometry["agree"] is True or (geometry["agree"] is None and self.without_alignment)
         return done, frames, geometry
 
@@ -232,7 +235,7 @@ class _ImageStage:
             verdict = Agreement.AGREE if geometry["check"] == "alignment" else Agreement.AGREE.because(geometry["check"])
         else:
             verdict = Agreement.NOT_CHECKED.because(geometry["note"] if geometry else "the 3D loop paused"
-                                                    if self.fallback else "the 3D alignment disputed")
+                                                    if self.fallback else f"the 3D alignment {self.set_aside}")
         self.converged = True
         self.residual = Residual(offset_mm=m.offset_mm, sigma_mm=m.sigma_mm, tolerance_mm=self.st.tol_mm,
                                  source=EstimateSource.IMAGE, agreement=verdict)

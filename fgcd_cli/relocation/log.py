@@ -74,7 +74,8 @@ class RelocationResult:
     """The final remaining offset as the tool estimates it, with its uncertainty."""
     handed_over: bool = False
     """The 3D loop ended because the image stage should take over (``RelocationConfig.image_handover``)."""
-    disputed: bool = False
-    """Handed over because the first 3D estimate disagreed with the image localizer that led the
-    exploration (:func:`fgcd_cli.relocation.racr.racr_loop`): the image stage then stops without the 3D
-    alignment's agreement."""
+    alignment_set_aside: str = ""
+    """Why the image stage must not ask the 3D alignment, when the loop handed over where the image localizer
+    led the exploration (:func:`fgcd_cli.relocation.racr.racr_loop`): "disputed" (the first 3D estimate
+    disagreed with the localizer) or "degenerate" (the first alignment found degenerate geometry). The image
+    stage then stops without the alignment's agreement; "" otherwise."""

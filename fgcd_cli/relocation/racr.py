@@ -18,7 +18,7 @@ from fgcd_cli.relocation.adjustment import Adjustment, compute_adjustment
 from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
 from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import LoopMode
-from fgcd_cli.relocation.estimates import align_now, wait_for_estimate
+from fgcd_cli.relocation.estimates import DegenerateGeometry, align_now, wait_for_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.stop_rule import estimated_afd_px, estimates_agree, offset_vector_mm
 from fgcd_core.se3 import pose_distance
@@ -85,8 +85,7 @@ def _against_prior(ctx: LoopContext, st: LoopState, adj: Adjustment) -> Relocati
     motion, which then stops without the alignment's agreement (docs/relocation.md, "A disputed start").
     Agreement combines the two (:func:`_combined`). None when the 3D estimate stands, or there is nothing to check."""
     c = ctx.config
-    if st.prior_checked or ctx.image_prior_sigma_mm is None or not (c.image_handover and c.image_refine
-                                                                      and ctx.can_image):
+    if not _at_prior(ctx, st):
         return None
     st.prior_checked = True
     offset_3d = offset_vector_mm(adj.T_ref_cam, ctx.reference.T_ref_camref)
@@ -97,7 +96,7 @@ def _against_prior(ctx: LoopContext, st: LoopState, adj: Adjustment) -> Relocati
     out = RelocationResult(False, f"the first 3D estimate puts the camera {dist:.1f} mm from where the image "
                                   f"localizer led the exploration (> {bound:.1f} mm, both uncertainties): "
                                   "handed to the image stage, the 3D alignment disputed", st.records[-1].iteration)
-    out.handed_over = out.disputed = True
+    out.handed_over, out.alignment_set_aside = True, "disputed"
     return out
 
 
@@ -125,7 +124,28 @@ def _tracking_or(session, state):
     return session.vse.latest() if session.vse.latest().status == VseStatus.TRACKING else state
 
 
-def _estimate(ctx: LoopContext, st: LoopState, iteration: int, last_serial: int, current_init):
+def _at_prior(ctx: LoopContext, st: LoopState) -> bool:
+    """The camera stands where the image localizer led the exploration and nothing has checked that yet
+    (``LoopContext.image_prior_sigma_mm``), and the image stage may take over there."""
+    c = ctx.config
+    return (not st.prior_checked and ctx.image_prior_sigma_mm is not None and c.image_handover
+            and c.image_refine and ctx.can_image)
+
+
+def _degenerate_at_prior(st: LoopState, iteration: int, exc: DegenerateGeometry) -> RelocationResult:
+    """The first alignment found degenerate geometry where the localizer led: the image stage takes over at
+    once, without the alignment (docs/relocation.md, "A disputed start"), instead of waiting for
+    ``degenerate_patience`` estimates in a row; weak image evidence there hands the loop back."""
+    st.prior_checked = True
+    out = RelocationResult(False, f"the first alignment found {exc.detail or 'degenerate geometry'} where the image "
+                                  "localizer led the exploration: handed to the image stage, the 3D alignment "
+                                  "degenerate", max(iteration - 1, 0))
+    out.handed_over, out.alignment_set_aside = True, "degenerate"
+    return out
+
+
+def _estimate(ctx: LoopContext, st: LoopState, iteration: int, last_serial: int, current_init, *,
+              degenerate_patience: int | None = None):
     """The estimate this adjustment uses, and the VSE state to combine it with."""
     session = ctx.session
     state = session.tracking_state()
@@ -139,7 +159,7 @@ def _estimate(ctx: LoopContext, st: LoopState, iteration: int, last_serial: int,
             est = latest
         else:
             ctx.say(f"adjustment {iteration}: waiting for an alignment of the current view")
-            est = wait_for_estimate(ctx, st.worker, last_serial)
+            est = wait_for_estimate(ctx, st.worker, last_serial, degenerate_patience=degenerate_patience)
         return est, _tracking_or(session, state)
     t0 = time.monotonic()
     ctx.say(f"adjustment {iteration}: aligning the current cloud to the reference")
@@ -221,7 +241,14 @@ def racr_loop(ctx: LoopContext, st: LoopState, *, handover: bool = True) -> Relo
     last_serial = max([int(r.estimate_serial) for r in st.records if r.estimate_serial is not None], default=0)
     divergence = _Divergence()
     for iteration in range((last.iteration + 1) if last is not None else 1, ctx.config.max_adjustments + 1):
-        est, state = _estimate(ctx, st, iteration, last_serial, current_init)
+        at_prior = handover and _at_prior(ctx, st)
+        try:
+            est, state = _estimate(ctx, st, iteration, last_serial, current_init,
+                                   degenerate_patience=1 if at_prior else None)
+        except DegenerateGeometry as exc:
+            if not at_prior:
+                raise
+            return _degenerate_at_prior(st, iteration, exc)
         est, state, adj, afd = _confirmed(ctx, st, iteration, est, state, handover)
         last_serial, current_init = est.serial, est.T_ref_cur
         st.last_T_ref_cur = est.T_ref_cur

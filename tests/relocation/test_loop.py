@@ -322,13 +322,17 @@ def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
     assert res.converged  # a 30 % sloppy platform still shrinks the offset every time
 
 
-def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, untrusted_min_wait_s=0.2):
-    """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``."""
+def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, untrusted_min_wait_s=0.2,
+                                         prior_sigma_mm=None, calls=None):
+    """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``. ``prior_sigma_mm``: the
+    exploration ended where the image localizer put the reference; ``calls`` collects the alignments' serials."""
     from fgcd_core import PinholeCamera
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
 
     def degenerate(*, serial=0, state=None, **kw):
+        if calls is not None:
+            calls.append(serial)
         return [AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
                                   vse_frame=state.frames_processed, seconds=0.0, serial=serial, degenerate=True)]
 
@@ -347,7 +351,8 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, 
                              T_flange_cam=X, init=Sim3(), config=config,
                              reference_images={"front": np.zeros((480, 640), np.float32)},
                              grab_current=lambda: np.zeros((480, 640), np.float32), aligner=degenerate,
-                             image_refiner=lambda **kw: refine(true_cam(), T_ref_camref)))
+                             image_refiner=lambda **kw: refine(true_cam(), T_ref_camref),
+                             image_prior_sigma_mm=prior_sigma_mm))
     finally:
         vse.stop()
     return res, platform, pose_distance(true_cam(), T_ref_camref)
@@ -386,6 +391,39 @@ def test_degenerate_geometry_falls_back_without_waiting_for_the_untrusted_timeou
     assert mm < 1e-3
     # the untrusted rule alone would have waited 100 s (the 120 s timeout behind it)
     assert time.monotonic() - t0 < 60.0
+
+
+def test_degenerate_geometry_where_the_localizer_led_hands_over_at_the_first_estimate(monkeypatch):
+    """After a guided exploration (the camera stands at the image localizer's estimate) the first degenerate
+    alignment hands over to the image stage, which relocates without the alignment's vote; no waiting for
+    ``degenerate_patience`` estimates in a row (without the prior: 3, the test above)."""
+    from fgcd_cli.relocation.image_refine import ImageRefinement
+
+    def exact(T_ref_cam_true, T_ref_camref):
+        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
+                               measured_afd_px=frames_afd_px(T_ref_cam_true, T_ref_camref), matches=300,
+                               inliers=250, rms_px=0.3, matcher="sift", offset_sigma_mm=0.3)
+
+    res, _platform, (mm, _deg) = _degenerate_case_with_image_fallback(monkeypatch, exact, "parallel",
+                                                                       untrusted_min_wait_s=100.0, prior_sigma_mm=2.0)
+    assert res.converged and mm < 1e-3
+    assert "image stage (3D degenerate)" in res.reason and "in 3 estimates" not in res.reason
+    assert all(r.stage == "image" for r in res.records)
+
+
+def test_weak_image_evidence_where_the_localizer_led_hands_back_and_keeps_the_pause(monkeypatch):
+    """The early hand-over changes nothing when the image evidence is weak: the 3D loop goes on to its usual
+    patience (3 degenerate estimates), the fallback finds the same weak evidence, and the pause stands."""
+    from fgcd_cli.errors import AlgorithmError
+    from fgcd_cli.relocation.image_refine import ImageRefinement
+
+    weak = lambda _T, _R: ImageRefinement(ok=False, reason="only 9 feature matches with the reference image",  # noqa: E731
+                                          M_cam=None, measured_afd_px=float("nan"), matches=9, inliers=0,
+                                          rms_px=float("nan"))
+    calls: list = []
+    with pytest.raises(AlgorithmError, match="degenerate geometry in 3 estimates.*image fallback: only 9"):
+        _degenerate_case_with_image_fallback(monkeypatch, weak, "parallel", prior_sigma_mm=2.0, calls=calls)
+    assert len(set(calls)) >= 4  # the first (handed over and back), then the loop's usual three
 
 
 def test_weak_image_evidence_keeps_the_pause(monkeypatch):
