@@ -41,16 +41,17 @@ def orb_describe(orb: cv2.ORB, image_u8: np.ndarray, points: np.ndarray) -> tupl
     return desc, np.array([k.class_id for k in kps], dtype=int)
 
 
-def _strong(img_u8: np.ndarray, pts: np.ndarray, min_response: float) -> np.ndarray:
-    """Keep points whose absolute corner response (minimum eigenvalue of the
-    7x7 structure tensor, OpenCV units) reaches ``min_response``: relative
+def _corner_response(img_u8: np.ndarray) -> np.ndarray:
+    """Absolute corner response (H, W) float32: the minimum eigenvalue of the 7x7 structure tensor, OpenCV units."""
+    return cv2.cornerMinEigenVal(img_u8, 7, 3)
+
+
+def _strong(response: np.ndarray, pts: np.ndarray, min_response: float) -> np.ndarray:
+    """(N,) bool: which points (N, 2) have a :func:`_corner_response` reaching ``min_response``; relative
     quality thresholds alone turn sensor noise on a blank wall into "corners"."""
-    if len(pts) == 0:
-        return pts
-    e = cv2.cornerMinEigenVal(img_u8, 7, 3)
-    xi = np.clip(np.round(pts[:, 0]).astype(int), 0, img_u8.shape[1] - 1)
-    yi = np.clip(np.round(pts[:, 1]).astype(int), 0, img_u8.shape[0] - 1)
-    return pts[e[yi, xi] >= min_response]
+    xi = np.clip(np.round(pts[:, 0]).astype(int), 0, response.shape[1] - 1)
+    yi = np.clip(np.round(pts[:, 1]).astype(int), 0, response.shape[0] - 1)
+    return response[yi, xi] >= min_response
 
 
 class KltFrontend:
@@ -106,7 +107,8 @@ class KltFrontend:
         if max_new <= 0:
             return np.zeros((0, 2))
         mask = occupancy_mask(img_u8.shape, existing, self.min_distance_px, border_px=self.window[0] // 2 + 2)
-        strongest = float(cv2.cornerMinEigenVal(img_u8, 7, 3)[mask > 0].max(initial=0.0))
+        response = _corner_response(img_u8)
+        strongest = float(response[mask > 0].max(initial=0.0))
         if strongest < self.min_corner_response:
             return np.zeros((0, 2))
         # Rule: the absolute response is the only threshold. OpenCV's qualityLevel is relative to the
@@ -118,7 +120,8 @@ class KltFrontend:
         )
         if corners is None:
             return np.zeros((0, 2))
-        corners = _strong(img_u8, corners.reshape(-1, 2), self.min_corner_response).reshape(-1, 1, 2)
+        corners = corners.reshape(-1, 2)
+        corners = corners[_strong(response, corners, self.min_corner_response)].reshape(-1, 1, 2)
         if len(corners) == 0:
             return np.zeros((0, 2))
         corners = cv2.cornerSubPix(
@@ -160,10 +163,7 @@ class OrbFrontend:
             out = (np.zeros((0, 2)), np.zeros((0, 32), np.uint8))
         else:
             pts = np.array([k.pt for k in kps], float)
-            e = cv2.cornerMinEigenVal(img_u8, 7, 3)
-            xi = np.clip(np.round(pts[:, 0]).astype(int), 0, img_u8.shape[1] - 1)
-            yi = np.clip(np.round(pts[:, 1]).astype(int), 0, img_u8.shape[0] - 1)
-            strong = e[yi, xi] >= self.min_corner_response
+            strong = _strong(_corner_response(img_u8), pts, self.min_corner_response)
             out = (pts[strong], desc[strong])
         self._cache_key, self._cache = key, out
         return out
