@@ -152,6 +152,9 @@ class LoopState:
         The alignment thread (parallel mode, while it runs).
     prior_checked : bool
         The first 3D estimate was compared with the image localizer's (once per run).
+    map_estimates : list of AlignmentEstimate
+        The 3D loop's trustworthy estimates so far that agree with each other (one per serial;
+        :func:`~fgcd_cli.relocation.consistency.estimate_spread`).
     """
 
     tol_mm: float
@@ -162,6 +165,7 @@ class LoopState:
     moved_at_frame: int = -1
     worker: "AlignmentWorker | None" = None
     prior_checked: bool = False
+    map_estimates: list = field(default_factory=list)
 
     @classmethod
     def for_context(cls, ctx: LoopContext, *, t_start: float) -> "LoopState":

@@ -142,7 +142,8 @@ def geometry_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_
     sigma_img_mm : float
         Its RMS-radius uncertainty, mm.
     use_alignment : bool
-        False when the 3D loop paused (its alignment is what failed): the camera uncertainty only.
+        False when the 3D loop paused or its alignment was set aside (it is what failed): the camera
+        uncertainty only.
 
     Returns
     -------
@@ -150,7 +151,7 @@ def geometry_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_
         See the module docstring; the alignment's verdict when it has one, else the camera uncertainty's.
     """
     first = (_alignment_check(ctx, st, after_frame, T_ref_cam_img, sigma_img_mm) if use_alignment else
-             {"agree": None, "note": "the 3D loop paused", "check": ALIGNMENT})
+             {"agree": None, "note": "the 3D alignment not asked (paused or set aside)", "check": ALIGNMENT})
     if first["agree"] is not None:
         return first
     second = _camera_uncertainty_check(ctx, st, T_ref_cam_img, sigma_img_mm)

@@ -87,6 +87,8 @@ def _run_stages(ctx: LoopContext, st: LoopState) -> RelocationResult:
             taken = image_stage(ctx, st, result, fallback=False, handed_over=True)
             if taken is not None:
                 return taken
+            if result.alignment_set_aside == "inconsistent":  # a 3D loop that follows the camera cannot go on
+                raise AlgorithmError(f"{result.reason}; the image stage could not take over")
             # the image evidence could not take over where the 3D estimate stopped resolving the offset:
             # the 3D loop goes on to its own stop rule (then the usual refinement)
             ctx.say("the image stage could not take over: the 3D loop goes on")

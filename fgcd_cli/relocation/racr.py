@@ -16,6 +16,7 @@ import numpy as np
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.adjustment import Adjustment, compute_adjustment
 from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
+from fgcd_cli.relocation.consistency import estimate_spread
 from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.estimates import DegenerateGeometry, align_now, wait_for_estimate
@@ -116,6 +117,31 @@ def _combined(ctx: LoopContext, st: LoopState, offset_3d_mm: float) -> Relocatio
                                   f"image localizer that led the exploration (0 ± {s_img:.1f} mm); combined, "
                                   f"{combined_mm:.1f} mm: handed to the image stage", st.records[-1].iteration)
     out.handed_over = True
+    return out
+
+
+def _follows_camera(ctx: LoopContext, st: LoopState, est: AlignmentEstimate, state, iteration: int,
+                    handover: bool) -> RelocationResult | None:
+    """The new estimate against the run's earlier ones, all of one map-to-reference transform
+    (:mod:`~fgcd_cli.relocation.consistency`). When two disagree beyond their uncertainties, the alignment's
+    estimate moves with the camera and following it walks the camera away: the image stage takes over without
+    the alignment (``alignment_set_aside`` "inconsistent"), else the loop pauses (docs/relocation.md,
+    "Estimates that follow the camera"). None when they agree."""
+    c = ctx.config
+    earlier = [e.T_ref_cur for e in st.map_estimates if e.serial != est.serial]
+    spread = estimate_spread(est.T_ref_cur, earlier, scaled_pose(state.T_map_cam, ctx.scale),
+                             sigma_mm=st.sigma3d_mm, k=c.agreement_k)
+    if spread.agree:
+        if all(e.serial != est.serial for e in st.map_estimates):
+            st.map_estimates.append(est)
+        return None
+    text = (f"the 3D estimates follow the camera: estimate {iteration} puts it {spread.distance_mm:.1f} mm from "
+            f"where an earlier estimate of the same map-to-reference transform puts it (> {spread.bound_mm:.1f} mm, "
+            "both uncertainties)")
+    if not (handover and c.image_handover and c.image_refine and ctx.can_image):
+        raise AlgorithmError(f"{text}; motion paused")
+    out = RelocationResult(False, f"{text}: handed to the image stage, the 3D alignment inconsistent", iteration)
+    out.handed_over, out.alignment_set_aside = True, "inconsistent"
     return out
 
 
@@ -257,6 +283,9 @@ def racr_loop(ctx: LoopContext, st: LoopState, *, handover: bool = True) -> Relo
         prior = _against_prior(ctx, st, adj) if handover else None
         if prior is not None:
             return prior
+        drift = _follows_camera(ctx, st, est, state, iteration, handover)
+        if drift is not None:
+            return drift
         divergence.check(adj, ctx)
         result = _stop_result(ctx, st, iteration, adj, afd)
         if result is not None:
