@@ -29,7 +29,7 @@ cloud and camera pose, the calibrated intrinsics.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -37,6 +37,8 @@ import numpy as np
 from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
+from fgcd_cli.relocation.adjustment import clamp_motion
+from fgcd_cli.relocation.pnp_uncertainty import pnp_jacobian, pnp_translation_sigma_m  # noqa: F401 (re-exported)
 from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
 from fgcd_core.se3 import make_pose, pose_distance
 
@@ -137,6 +139,14 @@ class ImageRefinement:
     oversize: bool = False
     """Refused only for its size: strong evidence, a correction beyond ``strong_max_motion_*``.
     ``M_cam`` and ``offset_sigma_mm`` are kept so that an independent check may confirm it."""
+    unverified: bool = False
+    """Refused only for its size on ordinary evidence: a correction beyond ``max_motion_*`` (up to
+    ``strong_max_motion_*``) without the strong evidence. ``M_cam``, ``offset_sigma_mm`` and ``step_M_cam`` are
+    kept so that the loop may approach it by one ordinary step and let the next measurement corroborate it
+    (:mod:`fgcd_cli.relocation.image_probe`)."""
+    step_M_cam: np.ndarray | None = None
+    """With ``unverified``: ``M_cam`` shortened along its geodesic to ``max_motion_*`` (the largest motion
+    ordinary evidence moves), (4, 4), metres."""
 
 
 # Two depths of one surface point in the semi-dense cloud differ by less than the fusion gate (2.5,
@@ -386,63 +396,7 @@ def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
 
 
 def _replace_reason(res: ImageRefinement, reason: str) -> ImageRefinement:
-    return ImageRefinement(ok=res.ok, reason=reason, M_cam=res.M_cam, measured_afd_px=res.measured_afd_px,
-                           matches=res.matches, inliers=res.inliers, rms_px=res.rms_px,
-                           reference_image=res.reference_image, matcher=res.matcher,
-                           offset_sigma_mm=res.offset_sigma_mm, oversize=res.oversize)
-
-
-def pnp_translation_sigma_m(points_3d: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
-                            K: np.ndarray) -> float:
-    """1-sigma uncertainty of a PnP translation from its own reprojection residuals, metres.
-
-    Gauss-Newton covariance of the six pose parameters,
-    ``Cov = s^2 (J^T J)^-1`` with ``s^2 = sum(r^2) / (2n - 6)`` the residual
-    variance per image coordinate and ``J`` (2n, 6) the reprojection Jacobian with
-    respect to ``(rvec, tvec)``. The rotation-translation coupling of a nearly
-    planar scene (a sideways shift that a small turn almost hides) appears as a
-    large marginal translation variance, which is the point.
-
-    Parameters
-    ----------
-    points_3d : (n, 3) ndarray
-        Inlier points in the reference camera frame, metres.
-    pixels : (n, 2) ndarray
-        Their matched pixels in the current image.
-    rvec, tvec : (3,) ndarray
-        The PnP pose (reference camera into current camera).
-    K : (3, 3) ndarray
-        Pinhole matrix.
-
-    Returns
-    -------
-    float
-        ``sqrt(trace(Cov_t))``: the RMS radius of the translation error, metres
-        (invariant to the frame it is expressed in). The camera centre
-        ``-R^T t`` has the same uncertainty up to the rotation uncertainty times
-        the (near-zero) offset. ``inf`` when fewer than 4 points or the
-        system is singular.
-    """
-    n = len(points_3d)
-    if n < 4:
-        return math.inf
-    proj, J = pnp_jacobian(points_3d, rvec, tvec, K)
-    r = (proj - np.asarray(pixels, dtype=np.float64)).ravel()
-    s2 = float(r @ r) / max(1, 2 * n - 6)
-    try:
-        cov = s2 * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return math.inf
-    return float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:])))))
-
-
-def pnp_jacobian(points_3d: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
-                 K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Projections (n, 2) of ``points_3d`` (n, 3) under the pose ``(rvec, tvec)`` and the reprojection
-    Jacobian (2n, 6) with respect to ``(rvec, tvec)`` (OpenCV's ``projectPoints``, no distortion)."""
-    proj, jac = cv2.projectPoints(np.asarray(points_3d, dtype=np.float64), np.asarray(rvec, dtype=np.float64),
-                                  np.asarray(tvec, dtype=np.float64), K, None)
-    return proj.reshape(-1, 2), jac[:, :6]
+    return replace(res, reason=reason)
 
 
 def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inliers: int) -> ImageRefinement:
@@ -483,9 +437,14 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     if mm > 1000 * config.max_motion_m or deg > config.max_motion_deg:
         strong = len(inl) >= config.strong_min_inliers and len(inl) / n >= config.strong_min_inlier_ratio
         if not strong:
-            return fail(f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on {len(inl)} inliers "
-                        f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})",
-                        n, len(inl), afd, rms)
+            reason = (f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on {len(inl)} inliers "
+                      f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})")
+            if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
+                return fail(reason, n, len(inl), afd, rms)
+            step, _ = clamp_motion(M_cam, max_step_m=config.max_motion_m, max_step_rad=math.radians(config.max_motion_deg))
+            return ImageRefinement(ok=False, reason=reason, M_cam=M_cam, measured_afd_px=afd, matches=n,
+                                   inliers=len(inl), rms_px=rms, reference_image=name, matcher=matcher,
+                                   offset_sigma_mm=sigma_mm, unverified=True, step_M_cam=step)
         if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
             return ImageRefinement(ok=False, reason=f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to "
                                    f"trust on image evidence alone", M_cam=M_cam, measured_afd_px=afd, matches=n,

@@ -46,6 +46,7 @@ from fgcd_cli.relocation.adjustment import clamp_motion
 from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.cross_check import geometry_check
 from fgcd_cli.relocation.enums import Agreement, EstimateSource, EstimateStage
+from fgcd_cli.relocation.image_probe import Prediction, corroborates, predict_after_step
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.stop_rule import Residual, estimated_afd_px, frame_afd_bound_px
 from fgcd_core.se3 import invert_pose, pose_distance
@@ -122,6 +123,7 @@ class _ImageStage:
         self.converged = False
         self.moved = False  # an image motion was made since the last estimate that reached the tolerance
         self.after_frame = st.moved_at_frame
+        self.pending: Prediction | None = None  # after a step toward an unverified correction (:mod:`.image_probe`)
 
     def _refine(self, step: int):
         ctx, session = self.ctx, self.ctx.session
@@ -195,7 +197,10 @@ class _ImageStage:
         """One measurement, and a motion unless it ends the stage; True when the stage ends."""
         ctx = self.ctx
         state = ctx.session.settle(frames=2)
-        ref, large = self._confirmed_if_large(self._refine(step))
+        ref = self._corroborated(self._refine(step))
+        if self._may_probe(step, ref):
+            return self._probe(step, state, ref)
+        ref, large = self._confirmed_if_large(ref)
         m = _measurement(ctx, ref, self.last)
         done, frames, geometry = self._checks(ref, m)
         self.st.add(ctx, self._record(step, state, ref, m, geometry or large, frames))
@@ -212,6 +217,52 @@ class _ImageStage:
         self.moved = True
         self.after_frame = ctx.session.vse.latest().frames_processed
         return False
+
+    def _may_probe(self, step: int, ref) -> bool:
+        """A correction refused only for its size on ordinary evidence, where nothing else can vouch for it (the
+        alignment is not asked), within the revisit range, with a step left to measure again."""
+        c = self.ctx.config
+        if not (ref.unverified and ref.M_cam is not None and ref.step_M_cam is not None and self.without_alignment
+                and step + 1 < self.steps):
+            return False
+        mm, deg = pose_distance(np.eye(4), ref.M_cam)
+        return mm <= c.max_offset_m * 1e3 and deg <= c.max_offset_deg
+
+    def _probe(self, step: int, state, ref) -> bool:
+        """One ordinary step toward the unverified correction; the next measurement must corroborate it
+        (:mod:`.image_probe`). Returns False (the stage goes on)."""
+        ctx, c = self.ctx, self.ctx.config
+        X = np.asarray(ctx.T_flange_cam, dtype=float)
+        M_cmd, _ = clamp_motion(X @ ref.step_M_cam @ invert_pose(X), max_step_m=c.max_step_m,
+                                max_step_rad=c.max_step_rad)
+        step_cam = invert_pose(X) @ M_cmd @ X
+        self.pending = predict_after_step(ctx.reference.T_ref_camref, ref.M_cam, step_cam, sigma_mm=ref.offset_sigma_mm)
+        m = replace(_measurement(ctx, replace(ref, ok=True), self.last), M_cmd=M_cmd, clamped=True)
+        self.st.add(ctx, self._record(step, state, ref, m, None, None))
+        mm, deg = pose_distance(np.eye(4), step_cam)
+        self.reason = f"{self.result.reason}; {self.label}: {ref.reason}; approached by {mm:.1f} mm"
+        ctx.say(f"{self.label} {step + 1}/{self.steps}: {m.offset_mm:.0f} mm on ordinary evidence ({ref.inliers} "
+                f"inliers): moving {mm:.1f} mm / {deg:.2f} deg toward it, the next measurement must corroborate it")
+        ctx.session.move_by(M_cmd, progress=(0, ctx.session.substeps(M_cmd), f"{self.label} {step + 1}: moving"))
+        self.moved = True
+        self.after_frame = ctx.session.vse.latest().frames_processed
+        return False
+
+    def _corroborated(self, ref):
+        """After a step toward an unverified correction: the new measurement must put the camera where the last
+        one predicted (:func:`~.image_probe.corroborates`), else it is refused."""
+        prediction, self.pending = self.pending, None
+        if prediction is None or ref.M_cam is None:
+            return ref
+        ok, dist, bound = corroborates(prediction, self.ctx.reference.T_ref_camref, ref.M_cam,
+                                       sigma_mm=ref.offset_sigma_mm, k=self.ctx.config.agreement_k)
+        if ok:
+            self.ctx.say(f"{self.label}: the step corroborated the image estimate ({dist:.1f} mm from its "
+                         f"prediction, <= {bound:.1f} mm)")
+            return ref
+        return replace(ref, ok=False, unverified=False, oversize=False,
+                       reason=f"after the step the image estimate lies {dist:.1f} mm from where the last one put the "
+                              f"camera (> {bound:.1f} mm, both uncertainties): it does not follow the motion")
 
     def _declined(self, ref) -> None:
         """No trustworthy image solution: the stage ends. Before any image motion the camera stays where the 3D

@@ -40,7 +40,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from fgcd_cli.relocation.coarse_config import CoarseConfig
-from fgcd_cli.relocation.image_refine import ImageRefineConfig, pnp_jacobian
+from fgcd_cli.relocation.image_refine import ImageRefineConfig
+from fgcd_cli.relocation.pnp_uncertainty import pnp_jacobian
 from fgcd_cli.relocation.uncertainty import strong_directions, visible_points
 
 __all__ = [
@@ -224,7 +225,7 @@ def _pnp_sigma(Xc: np.ndarray, camera, pixel_sigma_px: float) -> tuple[float, fl
 
     Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` of the pose at the camera itself (``rvec = tvec = 0``,
     where the translation's uncertainty is the camera centre's) with ``J`` the localizer's own
-    reprojection Jacobian (:func:`~fgcd_cli.relocation.image_refine.pnp_jacobian`). Returns the RMS
+    reprojection Jacobian (:func:`~fgcd_cli.relocation.pnp_uncertainty.pnp_jacobian`). Returns the RMS
     radius of the position error (metres) and of the rotation error (degrees); inf when the system is
     singular.
     """
