@@ -18,13 +18,17 @@ clamped to the largest step). No single estimator ends it (issue 25; docs/reloca
 
 Disagreement takes another step; running out of steps pauses (not converged) with
 the reason. A correction beyond the image evidence's own limit is trusted only
-when the 3D geometry of the view confirms it.
+when the 3D geometry of the view confirms it; where the alignment is not asked,
+one beyond the ordinary limit on ordinary evidence is approached by one
+ordinary step, and the next measurement must corroborate it (:mod:`.image_probe`).
 
 When the loop handed over where the image localizer led the exploration
 because its first 3D estimate disputed the localizer's, or its first alignment
-found degenerate geometry (``alignment_set_aside``), the stage runs as in the
+found degenerate geometry, or anywhere because two 3D estimates of the run
+disagreed (``alignment_set_aside``), the stage runs as in the
 fallback: the alignment is not asked (the camera uncertainty is), and weak
-evidence before any image motion hands the loop back to the 3D estimate.
+evidence before any image motion hands the loop back to the 3D estimate (after
+disagreeing estimates: the loop pauses instead, :func:`.loop.relocate`).
 
 After a converged 3D loop (the *refinement*), weak image evidence before any
 image motion leaves the camera where the 3D loop stopped, *not converged*: one
