@@ -441,7 +441,8 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
                       f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})")
             if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
                 return fail(reason, n, len(inl), afd, rms)
-            step, _ = clamp_motion(M_cam, max_step_m=config.max_motion_m, max_step_rad=math.radians(config.max_motion_deg))
+            step, _ = clamp_motion(M_cam, max_step_m=config.max_motion_m,
+                                   max_step_rad=math.radians(config.max_motion_deg))
             return ImageRefinement(ok=False, reason=reason, M_cam=M_cam, measured_afd_px=afd, matches=n,
                                    inliers=len(inl), rms_px=rms, reference_image=name, matcher=matcher,
                                    offset_sigma_mm=sigma_mm, unverified=True, step_M_cam=step)
