@@ -62,10 +62,18 @@ class _Patience:
                                  f"({waited:.0f} s), motion paused: {est.reason}")
 
 
+def _none_yet(ctx: LoopContext) -> str:
+    """Why the alignment thread has published nothing: it aligns only a tracking VSE state with at least
+    ``min_points`` cloud points."""
+    state = ctx.session.vse.latest()
+    return (f"no estimate yet (the VSE is {state.status}, its cloud has {len(state.cloud)} points, "
+            f"alignment needs {ctx.config.min_points})")
+
+
 def _heartbeat(ctx: LoopContext, worker: AlignmentWorker, waited: float) -> None:
     est = worker.latest()
     ctx.say(f"  still aligning ({waited:.0f} s; latest estimate: "
-            + ("none yet" if est is None else f"{est.stage}, {'ok' if est.ok else est.reason}") + ")")
+            + (_none_yet(ctx) if est is None else f"{est.stage}, {'ok' if est.ok else est.reason}") + ")")
 
 
 def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: int, *,
@@ -99,7 +107,7 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
             patience.check(est, waited, ctx)
         if waited > config.estimate_timeout_s:
             ctx.session.timing.wait_s += waited
-            why = est.reason if est is not None else "no estimate yet"
+            why = est.reason if est is not None else _none_yet(ctx)
             raise AlgorithmError(f"no trustworthy alignment within {config.estimate_timeout_s:.0f} s, motion paused: {why}")
         # sleep until the next publication or the next deadline (heartbeat, patience, timeout)
         deadlines = [next_note, t0 + config.estimate_timeout_s + _DEADLINE_SLACK_S]

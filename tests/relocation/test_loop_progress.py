@@ -36,3 +36,32 @@ def test_every_step_and_every_wait_says_something(monkeypatch):
     # never the issue's ~3 s of silence, with a 0.1 s heartbeat and 0.3 s alignments (loose: a loaded machine)
     stamps = [t0] + [t for t, _ in lines]
     assert max(b - a for a, b in zip(stamps, stamps[1:])) < 3.0
+
+
+def test_a_wait_with_no_estimate_at_all_says_why():
+    """The alignment thread aligns only a tracking VSE state with ``min_points`` cloud points: a heartbeat and a
+    timeout that come with no estimate say what the VSE has (a statue run waited 120 s on "no estimate yet")."""
+    import pytest
+
+    from fgcd_cli.errors import AlgorithmError
+    from tests.relocation.test_loop import ExactVse, FakeCloud, FakeState
+
+    class SmallCloudVse(ExactVse):
+        def latest(self):
+            state = super().latest()
+            return FakeState(state.status, state.T_map_cam, state.frames_processed, FakeCloud(12))
+
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _T_ref_base = make_case()
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    vse.stop()
+    small = SmallCloudVse(platform, X, T_map_base, s)
+    session.vse = small
+    lines: list[str] = []
+    session.on_event = lines.append
+    with pytest.raises(AlgorithmError, match=r"no estimate yet \(the VSE is tracking, its cloud has 12 points, "
+                                             r"alignment needs 500\)"):
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                             init=Sim3(), aligner=lambda **kw: [],
+                             config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5, heartbeat_s=0.1)))
+    small.stop()
+    assert any("still aligning" in t and "its cloud has 12 points" in t for t in lines)
