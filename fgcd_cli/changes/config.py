@@ -60,6 +60,12 @@ class ScoreConfig:
     """Weight in [0, 1] of the gain-invariant local-NCC cue against the colour difference cue."""
     smooth_sigma_px: float = 2.0
     """Gaussian smoothing of the fused score, pixels."""
+    fine_smooth_sigma_px: float = 1.0
+    """A second, finer smoothing of the same fused score, tested beside the main one with the
+    number of tests counted over both (0: off; must be below ``smooth_sigma_px``). A change smaller
+    than the main smoothing's correlation area (4 pi sigma^2 px) is one sample there; at the finer
+    scale it holds several (``docs/change-detection.md``, "Two scales"). 1 px: the difference cue
+    already tolerates ``shift_radius_px`` = 1 px, so a finer smoothing resolves nothing more."""
     robust_gain_rounds: int = 1
     """Re-estimations of the gain field without the pixels the previous score flags as suspect."""
     edge_tolerance_px: int = 0

@@ -9,6 +9,7 @@ section it needs; :func:`detect_changes` chains them.
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -38,7 +39,7 @@ from fgcd_cli.changes.result import (
     unreported_candidates,
 )
 from fgcd_cli.changes.score import PairScore, ScoreOptions, score_pair
-from fgcd_cli.changes.significance import Decision, acontrario_config, acontrario_decision
+from fgcd_cli.changes.significance import Decision, acontrario_config, acontrario_decision, merge_decisions
 from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
 from fgcd_cli.errors import UserInputError
 
@@ -116,7 +117,8 @@ def detect_changes(
     scored = score_stacks(refs, alignment, score=config.score, regions=config.regions, settings=settings)
     step("scored")
     valid = alignment.valid
-    found = decide_regions(scored.score, valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings)
+    found = decide_regions(scored.score, valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings,
+                           fine_score=scored.fine_score)
     step("decided")
     explained = apply_edge_check(found, refs=refs, scored=scored, valid=valid, pixel_area_mm2=pixel_area_mm2,
                                  config=config, settings=settings)
@@ -124,7 +126,7 @@ def detect_changes(
                           config=config.cue_labels, smooth_sigma_px=config.score.smooth_sigma_px, settings=settings)
     step("labelled")
     return ChangeResult(
-        comparable=True, score=scored.score, mask=found.mask, labels=found.labels, valid=valid, regions=found.regions,
+        comparable=True, score=scored.score, fine_score=scored.fine_score, mask=found.mask, labels=found.labels, valid=valid, regions=found.regions,
         registration=alignment.registration, threshold=found.threshold,
         current_registered=[np.clip(image, 0.0, 1.0) for image in scored.normalized], settings=settings,
         warnings=result_warnings(found.mask, valid, alignment.registration, register=config.registration.register),
@@ -248,17 +250,19 @@ class Regions:
 
 
 def decide_regions(score: np.ndarray, valid: np.ndarray, *, pixel_area_mm2, config: DetectionConfig,
-                   settings: dict) -> Regions:
-    """:func:`decide` on the score, and the regions of its mask with their significance and area."""
+                   settings: dict, fine_score: np.ndarray | None = None) -> Regions:
+    """:func:`decide` on the score (and its finer smoothing), and the regions of its mask with their significance and area."""
     mask, threshold, significance = decide(score, valid, config=config.regions,
-                                           smooth_sigma_px=config.score.smooth_sigma_px)
+                                           smooth_sigma_px=config.score.smooth_sigma_px, fine_score=fine_score,
+                                           fine_sigma_px=config.score.fine_smooth_sigma_px)
     settings["seed_level"] = significance.seed_level
     regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     return Regions(mask=mask, regions=regions, labels=labels, threshold=threshold, significance=significance)
 
 
 def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None = None,
-           smooth_sigma_px: float = 2.0) -> tuple[np.ndarray, ThresholdInfo, Decision]:
+           smooth_sigma_px: float = 2.0, fine_score: np.ndarray | None = None,
+           fine_sigma_px: float = 0.0) -> tuple[np.ndarray, ThresholdInfo, Decision]:
     """The changed pixels of a fused score map.
 
     Both rules are evaluated: the hysteresis threshold is kept as a reference (and
@@ -270,6 +274,9 @@ def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None 
     score, valid : ndarray, HxW float32 / bool, the fused score and the compared pixels.
     config : RegionConfig, optional (default: the shipped one)
     smooth_sigma_px : float, the score's smoothing (its correlation area bounds the a-contrario cluster area).
+    fine_score : ndarray, HxW float32, optional
+        The same score at the finer smoothing ``fine_sigma_px``: both maps are scanned, the number of
+        tests counted over both, and the significant regions of either are kept.
 
     Returns
     -------
@@ -279,10 +286,19 @@ def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None 
     """
     config = config or RegionConfig()
     raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=config.k_high, k_low=config.k_low)
-    significance = acontrario_decision(score, valid, config=acontrario_config(config),
-                                       min_cluster_area_px=4.0 * np.pi * smooth_sigma_px**2)
+    significance = two_scale_decision(score, valid, config=config, smooth_sigma_px=smooth_sigma_px,
+                                      fine_score=fine_score, fine_sigma_px=fine_sigma_px)
     acontrario = significance.mask if config.decision == DecisionRule.ACONTRARIO else None
     return region_mask(acontrario, raw_mask, score, valid, threshold=threshold, config=config), threshold, significance
+
+
+def two_scale_decision(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig, smooth_sigma_px: float,
+                       fine_score: np.ndarray | None, fine_sigma_px: float) -> Decision:
+    """The a-contrario decision on the score, and on its finer smoothing when given (one family of tests)."""
+    maps = [(score, smooth_sigma_px)] + ([(fine_score, fine_sigma_px)] if fine_score is not None else [])
+    test = dataclasses.replace(acontrario_config(config), score_maps=len(maps))
+    return merge_decisions([acontrario_decision(s, valid, config=test, min_cluster_area_px=4.0 * np.pi * sigma**2)
+                            for s, sigma in maps], max_candidates=test.max_candidates)
 
 
 def region_mask(acontrario_mask: np.ndarray | None, hysteresis_mask: np.ndarray | None, score: np.ndarray,

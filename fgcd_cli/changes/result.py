@@ -27,6 +27,8 @@ class ChangeResult:
     reason: str = ""
     score: np.ndarray
     """HxW float32 fused change score (dimensionless, background median ~1; 0 outside ``valid``)."""
+    fine_score: np.ndarray | None = None
+    """HxW float32, the same score at the finer smoothing the decision also scans (None when off)."""
     mask: np.ndarray
     """HxW bool, changed pixels after threshold and cleaning."""
     labels: np.ndarray
@@ -90,6 +92,7 @@ def detection_settings(config: DetectionConfig, *, lightings: int, shading: bool
         "shift_radius_px": score.shift_radius_px,
         "structure_weight": score.structure_weight,
         "smooth_sigma_px": score.smooth_sigma_px,
+        "fine_smooth_sigma_px": score.fine_smooth_sigma_px,
         "k_high": regions.k_high,
         "k_low": regions.k_low,
         "min_region_px": regions.min_region_px,

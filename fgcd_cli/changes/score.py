@@ -22,6 +22,7 @@ class ScoreOptions:
     shift_radius_px: int = 1
     structure_weight: float = 0.0
     smooth_sigma_px: float = 2.0
+    fine_smooth_sigma_px: float = 0.0
     robust_gain_rounds: int = 1
     edge_tolerance_px: int = 0
     edge_contrast: float = 3.0
@@ -34,6 +35,7 @@ class ScoreOptions:
         """The score options of a detector configuration (the suspect threshold is the decision's hysteresis)."""
         return cls(gain_sigma_px=score.gain_sigma_px, shift_radius_px=score.shift_radius_px,
                    structure_weight=score.structure_weight, smooth_sigma_px=score.smooth_sigma_px,
+                   fine_smooth_sigma_px=score.fine_smooth_sigma_px,
                    robust_gain_rounds=score.robust_gain_rounds, edge_tolerance_px=score.edge_tolerance_px,
                    edge_contrast=score.edge_contrast, suspect_k_high=suspect.k_high, suspect_k_low=suspect.k_low)
 
@@ -50,6 +52,8 @@ class PairScore:
     """Per-lighting median of the difference cue over the compared pixels (its unit)."""
     robust_rounds: int
     edge_band_fraction: float | None = None
+    fine_score: np.ndarray | None = None
+    """HxW float32, the same fused score at ``fine_smooth_sigma_px`` (None when off)."""
 
 
 def _fuse(refs, warped, *, valid, bands, options: ScoreOptions, gain_weight):
@@ -70,9 +74,30 @@ def _fuse(refs, warped, *, valid, bands, options: ScoreOptions, gain_weight):
     if structures:
         structure = np.mean([relative_to_median(s, valid) for s in structures], axis=0)
         fused = (1.0 - options.structure_weight) * fused + options.structure_weight * structure
-    if options.smooth_sigma_px > 0:
-        fused = cv2.GaussianBlur(fused.astype(np.float32), (0, 0), options.smooth_sigma_px)
-    return np.where(valid, fused, 0.0).astype(np.float32), normalized_images, medians
+    fused, fine = smooth_at_two_scales(fused.astype(np.float32), smooth_sigma_px=options.smooth_sigma_px,
+                                       fine_sigma_px=options.fine_smooth_sigma_px)
+    if fine is not None:
+        fine[~valid] = 0.0
+    return np.where(valid, fused, 0.0).astype(np.float32), fine, normalized_images, medians
+
+
+def smooth_at_two_scales(fused: np.ndarray, *, smooth_sigma_px: float,
+                         fine_sigma_px: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """The fused score smoothed at ``smooth_sigma_px`` and, when ``0 < fine_sigma_px < smooth_sigma_px``, at the finer scale.
+
+    Parameters
+    ----------
+    fused : ndarray, HxW float32, the unsmoothed fused score.
+
+    Returns
+    -------
+    (main, fine or None), HxW float32 each; ``main`` is the same whether the fine scale is on or off.
+    """
+    fine = None
+    if 0.0 < fine_sigma_px < smooth_sigma_px:
+        fine = cv2.GaussianBlur(fused, (0, 0), fine_sigma_px)
+    main = cv2.GaussianBlur(fused, (0, 0), smooth_sigma_px) if smooth_sigma_px > 0 else fused
+    return main, fine
 
 
 def score_pair(refs: list[np.ndarray], warped: list[np.ndarray], *, valid: np.ndarray, seen_all: np.ndarray,
@@ -96,7 +121,7 @@ def score_pair(refs: list[np.ndarray], warped: list[np.ndarray], *, valid: np.nd
     bands = [edge_band(ref, radius_px=options.edge_tolerance_px, contrast=options.edge_contrast)
              if options.edge_tolerance_px > 0 else None for ref in refs]
     band_fraction = float(np.mean([b[valid].mean() for b in bands])) if options.edge_tolerance_px > 0 else None
-    score, normalized, medians = _fuse(refs, warped, valid=valid, bands=bands, options=options, gain_weight=None)
+    score, fine, normalized, medians = _fuse(refs, warped, valid=valid, bands=bands, options=options, gain_weight=None)
     # The light-gain field is estimated from unchanged pixels only: a first pass
     # flags what is suspect (above the growing threshold, fused over all
     # lightings), the gain is re-estimated without it, and so on until the
@@ -114,8 +139,8 @@ def score_pair(refs: list[np.ndarray], warped: list[np.ndarray], *, valid: np.nd
         if rounds and np.array_equal(new_weight, gain_weight):
             break
         gain_weight = new_weight
-        score, normalized, medians = _fuse(refs, warped, valid=valid, bands=bands, options=options,
-                                           gain_weight=gain_weight)
+        score, fine, normalized, medians = _fuse(refs, warped, valid=valid, bands=bands, options=options,
+                                                 gain_weight=gain_weight)
         rounds += 1
     return PairScore(score=score, normalized=normalized, medians=medians, robust_rounds=rounds,
-                     edge_band_fraction=band_fraction)
+                     edge_band_fraction=band_fraction, fine_score=fine)

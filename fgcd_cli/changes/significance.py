@@ -179,6 +179,9 @@ class AcontrarioConfig:
     null_rounds: int = 2
     """Re-estimations of the null distribution without the regions found (and their correlation
     radius); 0 keeps the null of all compared pixels."""
+    score_maps: int = 1
+    """Score maps of the pair tested with this decision (e.g. two smoothings of one score): the
+    number of tests counts the regions of all of them, so epsilon stays per image."""
 
 
 def acontrario_config(regions: RegionConfig) -> AcontrarioConfig:
@@ -279,7 +282,7 @@ def _scan_with_null(score, valid, background, halfnormal, *, previous: _Scan, mi
     area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
     levels = np.arange(-np.log(config.seed_p), float(neglogp.max()) + 1e-9, config.level_step)
     for _ in range(config.area_rounds + 1):
-        n_tests = n_valid / area * max(len(levels), 1)
+        n_tests = n_valid / area * max(len(levels), 1) * config.score_maps
         regions, candidates, significant, seed_index = _scan_levels(
             score, neglogp, valid, levels, area=area, n_tests=n_tests, epsilon=config.epsilon,
             max_candidates=config.max_candidates)
@@ -332,6 +335,31 @@ def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_c
             seeds |= component  # a weaker, overlapping level of the same candidate is not another one
             candidates.append(entry)
     return regions, candidates, significant, seed_index
+
+
+def merge_decisions(decisions: list[Decision], *, max_candidates: int) -> Decision:
+    """One decision from the decisions on several score maps of one pair (each run with
+    ``score_maps = len(decisions)``): the union of their masks, every region with its own NFA.
+
+    The first decision's statistics (median, seed level, cluster area) describe the result;
+    ``seed_index`` numbers the regions in the merged list (the first map's seeds win where seeds overlap).
+    """
+    first = decisions[0]
+    if len(decisions) == 1:
+        return first
+    mask = np.logical_or.reduce([d.mask for d in decisions])
+    regions, seed_index = [], np.zeros(first.mask.shape, np.int32)
+    for d in decisions:
+        if d.seed_index is not None:
+            free = (seed_index == 0) & (d.seed_index > 0)
+            seed_index[free] = d.seed_index[free] + len(regions)
+        regions.extend(d.regions)
+    candidates = sorted((c for d in decisions for c in d.candidates), key=lambda c: c.log10_nfa)[:max_candidates]
+    return Decision(mask=mask, regions=regions, candidates=candidates, cluster_area_px=first.cluster_area_px,
+                    n_tests=first.n_tests, seed_level=first.seed_level,
+                    median=first.median, seed_index=seed_index,
+                    settings=dict(first.settings, score_maps=len(decisions),
+                                  regions_per_map=[len(d.regions) for d in decisions]))
 
 
 def grow_to_extent(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, background: float,

@@ -43,6 +43,8 @@ gain-invariant structure cue, the edge tolerance and the region-level edge check
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -127,22 +129,25 @@ def detect_changes_tiled(
         return empty_result(shape, small[1], None, settings)
     registration, geom = _to_full_resolution(small, plan)
     report("registered (working resolution)")
+    # The finer smoothing is scanned only where the decision runs at full resolution (tiled_decision).
+    score_config = (config.score if max(shape) <= config.tiling.decision_px
+                    else dataclasses.replace(config.score, fine_smooth_sigma_px=0.0))
     tiled = TiledScore(ref_images, cur_images, geom, plan.tiles, eval_mask=eval_mask, workers=config.tiling.workers,
-                       score=config.score, report=report)
+                       score=score_config, report=report)
     tiled.run_pass(0, None)
     valid = tiled.valid()
     if valid.sum() < 100:
         report("nothing to compare", units=report.total - report.done)
         return empty_result(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
-    score, settings["robust_gain_rounds"] = _robust_rounds(tiled, valid, config)
+    score, fine, settings["robust_gain_rounds"] = _robust_rounds(tiled, valid, config)
     report.done = 1 + len(plan.tiles) * plan.passes  # rounds skipped by the early exits
     not_compared = tiled.not_compared
     del tiled
     mask, regions, labels, threshold, significance, cue_maps = _decide_and_label(
-        score, valid, small, pixel_area_mm2=pixel_area_mm2, config=config, plan=plan, settings=settings)
+        (score, fine), valid, small, pixel_area_mm2=pixel_area_mm2, config=config, plan=plan, settings=settings)
     report("decided")
     return ChangeResult(
-        comparable=True, score=score, mask=mask, labels=labels, valid=valid, regions=regions,
+        comparable=True, score=score, fine_score=fine, mask=mask, labels=labels, valid=valid, regions=regions,
         registration=registration, threshold=threshold, current_registered=[], settings=settings,
         warnings=result_warnings(mask, valid, registration, register=config.registration.register),
         edge_explained=None, candidates=unreported_candidates(significance, mask),
@@ -239,13 +244,14 @@ def _to_full_resolution(small: Small, plan: _Plan) -> tuple[Registration, Geomet
     return registration, geom
 
 
-def _robust_rounds(tiled: TiledScore, valid: np.ndarray, config: DetectionConfig) -> tuple[np.ndarray, int]:
-    """The fused score after the robust gain rounds, and the rounds run.
+def _robust_rounds(tiled: TiledScore, valid: np.ndarray,
+                   config: DetectionConfig) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """The fused score after the robust gain rounds, its finer smoothing (or None), and the rounds run.
 
     As :func:`fgcd_cli.changes.score.score_pair`, on the full frame: the suspect set is
     decided by the whole frame's threshold, the gain re-estimated without it.
     """
-    score = tiled.fuse(valid)
+    score, fine = tiled.fuse(valid)
     gain_weight = None
     rounds = 0
     for r in range(config.score.robust_gain_rounds):
@@ -258,16 +264,18 @@ def _robust_rounds(tiled: TiledScore, valid: np.ndarray, config: DetectionConfig
         if rounds and np.array_equal(new_weight, gain_weight):
             break
         gain_weight = new_weight
-        del score, suspect
+        del score, fine, suspect
         tiled.run_pass(r + 1, gain_weight)
-        score = tiled.fuse(valid)
+        score, fine = tiled.fuse(valid)
         rounds += 1
-    return score, rounds
+    return score, fine, rounds
 
 
-def _decide_and_label(score, valid, small: Small, *, pixel_area_mm2, config: DetectionConfig, plan: _Plan,
+def _decide_and_label(scores, valid, small: Small, *, pixel_area_mm2, config: DetectionConfig, plan: _Plan,
                       settings: dict):
     """Decision on the full frame (as ``detect_changes``), the cue maps alongside at the working resolution.
+
+    ``scores`` is the fused score and its finer smoothing (or None).
 
     One thread beside the decision: the cue maps (photometric stereo), then the threshold.
     Returns ``(mask, regions, labels, threshold, significance, cue maps or None)``.
@@ -280,8 +288,8 @@ def _decide_and_label(score, valid, small: Small, *, pixel_area_mm2, config: Det
                           gain_sigma_px=config.score.gain_sigma_px / max(fx, fy), config=config.cue_labels)
     with opencv_threads(1 if workers > 1 else None), ThreadPoolExecutor(max_workers=1) as aside:
         mask, regions, labels, threshold, significance, cue_maps = decide_tiled(
-            score, valid, aside, cue_job, pixel_area_mm2=pixel_area_mm2, config=config.regions,
-            decision_px=config.tiling.decision_px, smooth_sigma_px=smooth_sigma_px)
+            scores, valid, aside, cue_job, pixel_area_mm2=pixel_area_mm2, config=config.regions,
+            decision_px=config.tiling.decision_px, smoothing_px=(smooth_sigma_px, config.score.fine_smooth_sigma_px))
         settings["significance_scale"] = significance.settings.get("scale", 1.0)
         if cue_maps is not None:
             cue_maps, valid_small = cue_maps.result()

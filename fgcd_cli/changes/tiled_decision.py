@@ -10,22 +10,25 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.config import DecisionRule, RegionConfig
-from fgcd_cli.changes.detect import region_mask
+from fgcd_cli.changes.detect import region_mask, two_scale_decision
 from fgcd_cli.changes.regions import regions_with_significance
 from fgcd_cli.changes.significance import acontrario_config, acontrario_decision, grow_to_extent
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
 from fgcd_cli.changes.tiled_schedule import release_free_memory
 
 
-def decide_tiled(score, valid, aside: ThreadPoolExecutor, cue_job: Callable | None, *, pixel_area_mm2,
-                 config: RegionConfig, decision_px: int, smooth_sigma_px: float):
+def decide_tiled(scores, valid, aside: ThreadPoolExecutor, cue_job: Callable | None, *, pixel_area_mm2,
+                 config: RegionConfig, decision_px: int, smoothing_px: tuple[float, float]):
     """Threshold, a-contrario scan at the decision resolution, growth, cleaning and regions (as ``detect_changes``).
+
+    ``scores``: the fused score and its finer smoothing (or None); ``smoothing_px``: their sigmas.
 
     ``cue_job`` (the cue maps), then the threshold, run on ``aside`` while the scan runs
     here; they start once the scan's full-frame temporaries are freed (the cue maps'
     photometric stereo is the run's largest memory). Returns ``(mask, regions, labels,
     threshold, significance, cue maps future or None)``.
     """
+    (score, fine_score), (smooth_sigma_px, fine_sigma_px) = scores, smoothing_px
     beside = {}
 
     def start_beside() -> None:
@@ -36,7 +39,8 @@ def decide_tiled(score, valid, aside: ThreadPoolExecutor, cue_job: Callable | No
                                            k_low=config.k_low)
 
     significance = significance_coarse(score, valid, config=config, decision_px=decision_px,
-                                       smooth_sigma_px=smooth_sigma_px, on_grid=start_beside)
+                                       smooth_sigma_px=smooth_sigma_px, on_grid=start_beside,
+                                       fine=(fine_score, fine_sigma_px))
     hysteresis, threshold = beside["threshold"].result()
     acontrario = None
     if config.decision == DecisionRule.ACONTRARIO:
@@ -54,7 +58,7 @@ def decide_tiled(score, valid, aside: ThreadPoolExecutor, cue_job: Callable | No
 
 
 def significance_coarse(score, valid, *, config: RegionConfig, decision_px: int, smooth_sigma_px: float,
-                        on_grid: Callable[[], None] | None = None):
+                        on_grid: Callable[[], None] | None = None, fine: tuple | None = None):
     """The a-contrario scan on the score area-averaged to ``decision_px`` (long side), seeds mapped back.
 
     The scan's cost grows faster than the pixel count (one labelling per level and
@@ -63,15 +67,18 @@ def significance_coarse(score, valid, *, config: RegionConfig, decision_px: int,
     the compared pixels ``N`` and the cluster area ``A`` shrink by the same factor.
     Returns a :class:`Decision` whose ``seed_index`` is at full resolution and whose
     regions' centroids and areas are in full-resolution pixels. ``on_grid`` is called
-    once the score is on the decision grid, before the scan.
+    once the score is on the decision grid, before the scan. ``fine`` (the score at a finer
+    smoothing, and its sigma) is scanned beside it only at full resolution: on a coarser decision
+    grid the area averaging is already coarser than both smoothings.
     """
     h, w = score.shape
     scale = max(1.0, max(h, w) / float(decision_px))
     on_grid = on_grid or (lambda: None)
     if scale <= 1.0:
         on_grid()
-        result = acontrario_decision(score, valid, config=acontrario_config(config),
-                                     min_cluster_area_px=4.0 * np.pi * smooth_sigma_px**2)
+        fine_score, fine_sigma_px = fine if fine is not None else (None, 0.0)
+        result = two_scale_decision(score, valid, config=config, smooth_sigma_px=smooth_sigma_px,
+                                    fine_score=fine_score, fine_sigma_px=fine_sigma_px)
         result.settings["scale"] = 1.0
         return result
     ws, hs = max(2, int(round(w / scale))), max(2, int(round(h / scale)))

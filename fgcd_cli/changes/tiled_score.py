@@ -19,6 +19,7 @@ from fgcd_cli.changes.config import ScoreConfig
 from fgcd_cli.changes.cues import shift_tolerant_difference
 from fgcd_cli.changes.detect import comparison_margin_px
 from fgcd_cli.changes.illumination import normalize_local_gain, prepare_gain_weight
+from fgcd_cli.changes.score import smooth_at_two_scales
 from fgcd_cli.changes.tiled_geometry import Geometry, Tile, tile_sampling, warp_tile
 from fgcd_cli.changes.tiled_input import crop_float
 from fgcd_cli.changes.tiled_schedule import median_float16, release_free_memory, run_tiles
@@ -35,6 +36,7 @@ class TiledScore:
         self.eval_mask, self.workers, self.report, self.score = eval_mask, workers, report, score
         self.gain_sigma_px, self.shift_radius_px = score.gain_sigma_px, score.shift_radius_px
         self.smooth_sigma_px = score.smooth_sigma_px
+        self.fine_smooth_sigma_px = score.fine_smooth_sigma_px
         self.seen_all = np.zeros(self.shape, bool)
         self.not_compared = np.zeros(self.shape, bool) if geom.flow_work is not None else None
         self.differences = [np.zeros(self.shape, np.float16) for _ in ref_images]
@@ -108,8 +110,9 @@ class TiledScore:
             valid = cv2.erode(valid.astype(np.uint8), kernel).astype(bool)
         return valid
 
-    def fuse(self, valid: np.ndarray) -> np.ndarray:
-        """Mean over lightings of each difference over its median on every compared pixel of the frame, smoothed.
+    def fuse(self, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Mean over lightings of each difference over its median on every compared pixel of the frame, smoothed
+        (and at the finer smoothing, or None: :func:`fgcd_cli.changes.score.smooth_at_two_scales`).
 
         A global null model: never a per-tile median (the threshold would become a local one).
         The sum runs in bands of rows, over the workers (each pixel's sum in lighting order).
@@ -130,10 +133,12 @@ class TiledScore:
         else:
             for rows in bands:
                 add(rows)
-        if self.smooth_sigma_px > 0:
-            fused = cv2.GaussianBlur(fused, (0, 0), self.smooth_sigma_px)
+        fused, fine = smooth_at_two_scales(fused, smooth_sigma_px=self.smooth_sigma_px,
+                                           fine_sigma_px=self.fine_smooth_sigma_px)
         fused[~valid] = 0.0
-        return fused
+        if fine is not None:
+            fine[~valid] = 0.0
+        return fused, fine
 
 
 _FUSE_ROWS = 128

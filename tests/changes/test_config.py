@@ -26,6 +26,8 @@ OLD_DEFAULTS = dict(
     decision="acontrario", epsilon=1.0, seed_p=0.005, extent_fraction=0.3, dense=True, cues=True, ambient_index=0,
     light_dirs=None, tile_px=2048, overlap_px=None, work_px=1600, workers=2, decision_px=1000,
 )
+# Options added after the grouping, with their defaults.
+OLD_DEFAULTS["fine_smooth_sigma_px"] = 1.0
 
 
 def _flat(config: DetectionConfig) -> dict:
@@ -79,7 +81,7 @@ def test_other_configs_keep_the_old_keyword_defaults():
         min_response=0.1)
     assert dataclasses.asdict(AcontrarioConfig()) == dict(
         epsilon=1.0, seed_p=0.005, extent_fraction=0.2, level_step=0.25, max_candidates=5, area_rounds=3,
-        null_rounds=2)
+        null_rounds=2, score_maps=1)
     assert dataclasses.asdict(ICCV2015Config()) == dict(
         n_normal_bins=16, rank=3, spatial_sigma_px=40.0, sparse_threshold=2.0, smooth_sigma_px=2.0)
     assert dataclasses.asdict(JointFitConfig()) == dict(

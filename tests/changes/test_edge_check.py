@@ -37,10 +37,17 @@ def _revisit(image):
     return np.clip(image * 0.9 + 0.03, 0, 1)
 
 
+def _with_sensor_noise(image, seed: int):
+    # Two observations never share their noise; a noise-free pair has a zero median score,
+    # against which every rounding difference is extreme.
+    return np.clip(image + np.random.default_rng(seed).normal(0.0, 0.002, image.shape), 0, 1).astype(np.float32)
+
+
 @pytest.mark.parametrize("stain_value", [0.1, 0.9], ids=["dark stain", "whitish efflorescence"])
 def test_compact_stain_between_grooves_is_reported(stain_value, monkeypatch):
     ref, _ = _two_grooves()
     cur, truth = _two_grooves(stain_value=stain_value)
+    ref, cur = _with_sensor_noise(ref, 0), _with_sensor_noise(cur, 1)
     assert 20 <= truth.sum() <= 40  # a stain a few pixels across, as small as the grooves' tolerance
     result = detect_changes([ref], [_revisit(cur)], config=DetectionConfig.from_options(edge_check_px=2))
     assert len(result.regions) == 1
