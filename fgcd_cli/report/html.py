@@ -9,6 +9,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from fgcd_cli import __version__
+from fgcd_cli.changes.config import RegionConfig
 from fgcd_cli.changes.detect import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
 from fgcd_cli.report.areas import area_mm2_text
@@ -354,7 +355,7 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
         parts.append(f'<p class="small">… and {more} smaller regions (all in regions.json).</p>')
     parts.append('<p class="small">Positions are pixels of the reference image (x to the right, y down). '
                  "Strength: the region's largest change score over the level at which the decision starts a "
-                 f"region (a-contrario: the pair's top {100 * float(result.settings.get('seed_p', 0.005)):g} % of scores; "
+                 f"region (a-contrario: the pair's top {100 * float(result.settings.get('seed_p', RegionConfig().seed_p)):g} % of scores; "
                  "a region also needs its significance, so a weak but extended one may be below 1; "
                  "hysteresis: its high threshold). Significance: the number of false alarms (NFA), how many regions "
                  "at least as extreme are expected per image on an unchanged pair (a-contrario; "
