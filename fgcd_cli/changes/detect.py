@@ -22,6 +22,7 @@ from fgcd_cli.changes.config import (
     RegionConfig,
     RegistrationConfig,
     ScoreConfig,
+    with_scan_rules,
 )
 from fgcd_cli.changes.cue_labels import CueMaps, label_regions, relief_colour_cues
 from fgcd_cli.changes.dense import DenseAlignment, refine_dense, warp_with_flow
@@ -93,7 +94,7 @@ def detect_changes(
         ``comparable`` is False (with a reason) for black, textureless or non-overlapping
         pairs. Raises :class:`UserInputError` for inconsistent input.
     """
-    config = DetectionConfig() if config is None else config
+    config = with_scan_rules(DetectionConfig() if config is None else config)
     settings = detection_settings(config, lightings=len(ref_images), shading=shading_ref is not None)
     step = _Steps(progress, total=4)
     refs, curs, eval_mask = _check_inputs(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=pixel_area_mm2,

@@ -57,3 +57,10 @@ def test_unchanged_noisy_pairs_give_no_region_at_either_scale():
         pair = [_observed(ref, 10 + seed)], [_observed(ref * 0.9 + 0.03, 20 + seed)]
         result = detect_changes(*pair, config=DetectionConfig.from_options(register=False))
         assert result.regions == []
+
+
+def test_the_finer_scan_is_off_where_edge_shifts_are_tolerated():
+    ref, cur, _ = _pair()
+    campaign = detect_changes([ref], [cur], config=DetectionConfig.from_options(register=False, cues=False,
+                                                                                edge_check_px=2))
+    assert campaign.settings["fine_smooth_sigma_px"] == 0.0 and campaign.fine_score is None
