@@ -204,4 +204,3 @@ def with_scan_rules(config: DetectionConfig) -> DetectionConfig:
     if config.edge_check.edge_check_px > 0 and config.score.fine_smooth_sigma_px > 0:
         return dataclasses.replace(config, score=dataclasses.replace(config.score, fine_smooth_sigma_px=0.0))
     return config
-

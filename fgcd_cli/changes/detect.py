@@ -127,7 +127,8 @@ def detect_changes(
                           config=config.cue_labels, smooth_sigma_px=config.score.smooth_sigma_px, settings=settings)
     step("labelled")
     return ChangeResult(
-        comparable=True, score=scored.score, fine_score=scored.fine_score, mask=found.mask, labels=found.labels, valid=valid, regions=found.regions,
+        comparable=True, score=scored.score, fine_score=scored.fine_score, mask=found.mask, labels=found.labels,
+        valid=valid, regions=found.regions,
         registration=alignment.registration, threshold=found.threshold,
         current_registered=[np.clip(image, 0.0, 1.0) for image in scored.normalized], settings=settings,
         warnings=result_warnings(found.mask, valid, alignment.registration, register=config.registration.register),
@@ -252,7 +253,8 @@ class Regions:
 
 def decide_regions(score: np.ndarray, valid: np.ndarray, *, pixel_area_mm2, config: DetectionConfig,
                    settings: dict, fine_score: np.ndarray | None = None) -> Regions:
-    """:func:`decide` on the score (and its finer smoothing), and the regions of its mask with their significance and area."""
+    """:func:`decide` on the score (and its finer smoothing), and the regions of its mask with their
+    significance and area."""
     mask, threshold, significance = decide(score, valid, config=config.regions,
                                            smooth_sigma_px=config.score.smooth_sigma_px, fine_score=fine_score,
                                            fine_sigma_px=config.score.fine_smooth_sigma_px)

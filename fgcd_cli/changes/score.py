@@ -83,7 +83,8 @@ def _fuse(refs, warped, *, valid, bands, options: ScoreOptions, gain_weight):
 
 def smooth_at_two_scales(fused: np.ndarray, *, smooth_sigma_px: float,
                          fine_sigma_px: float) -> tuple[np.ndarray, np.ndarray | None]:
-    """The fused score smoothed at ``smooth_sigma_px`` and, when ``0 < fine_sigma_px < smooth_sigma_px``, at the finer scale.
+    """The fused score smoothed at ``smooth_sigma_px`` and, when ``0 < fine_sigma_px < smooth_sigma_px``,
+    at the finer scale.
 
     Parameters
     ----------

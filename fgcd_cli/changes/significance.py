@@ -354,7 +354,15 @@ def merge_decisions(decisions: list[Decision], *, max_candidates: int) -> Decisi
             free = (seed_index == 0) & (d.seed_index > 0)
             seed_index[free] = d.seed_index[free] + len(regions)
         regions.extend(d.regions)
-    candidates = sorted((c for d in decisions for c in d.candidates), key=lambda c: c.log10_nfa)[:max_candidates]
+    # One candidate seen at both scales is listed once: the more significant one, others within
+    # the main scan's correlation radius of it dropped.
+    radius = float(np.sqrt(first.cluster_area_px / np.pi))
+    candidates: list[SignificantRegion] = []
+    for c in sorted((c for d in decisions for c in d.candidates), key=lambda c: c.log10_nfa):
+        if all(np.hypot(c.centroid_xy[0] - k.centroid_xy[0], c.centroid_xy[1] - k.centroid_xy[1]) > radius
+               for k in candidates):
+            candidates.append(c)
+    candidates = candidates[:max_candidates]
     return Decision(mask=mask, regions=regions, candidates=candidates, cluster_area_px=first.cluster_area_px,
                     n_tests=first.n_tests, seed_level=first.seed_level,
                     median=first.median, seed_index=seed_index,
