@@ -34,11 +34,14 @@ from fgcd_cli.alignment.results import AlignmentResult, StartPath
 from fgcd_cli.alignment.weak_probe import probe_weak_directions
 from fgcd_core import Sim3
 
-__all__ = ["FastAlignConfig", "fast_align", "initial_scale", "as_reference", "evaluate_alignment",
-           "probe_weak_directions"]
+__all__ = ["MIN_CURRENT_POINTS", "FastAlignConfig", "fast_align", "initial_scale", "as_reference",
+           "evaluate_alignment", "probe_weak_directions"]
 
 #: Current points (the first of the random order) that score starts and test warmth.
 _PROBE_POINTS = 1000
+#: Fewest valid current points a fast alignment attempts (a similarity has 7 parameters; fewer than
+#: 10 points leave no residual to judge the fit by).
+MIN_CURRENT_POINTS = 10
 
 
 def as_reference(ref_points: np.ndarray | ReferenceIndex) -> ReferenceIndex:
@@ -95,8 +98,8 @@ def fast_align(
     cur, weights = _valid_points(cur_points, cur_weights)
     ref = as_reference(ref_points)
     T = initial_scale(cur, ref) if init is None else init
-    if len(cur) < 10:
-        return failed_result(T, "fewer than 10 valid current points", t0)
+    if len(cur) < MIN_CURRENT_POINTS:
+        return failed_result(T, f"fewer than {MIN_CURRENT_POINTS} valid current points", t0)
     order = np.random.default_rng(config.seed).permutation(len(cur))
     run = _Run(inputs=LevelInputs(cur=cur, weights=weights, ref=ref, order=order),
                probe=cur[order[:_PROBE_POINTS]], config=config, t0=t0, scale_prior=T.scale)

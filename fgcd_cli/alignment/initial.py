@@ -11,7 +11,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from fgcd_cli.alignment.fast import FastAlignConfig, as_reference, fast_align, initial_scale
+from fgcd_cli.alignment.fast import MIN_CURRENT_POINTS, FastAlignConfig, as_reference, fast_align, initial_scale
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentResult
 from fgcd_core import Sim3
@@ -173,7 +173,9 @@ def initial_guess(
     # other, equally good-looking fits (docs/alignment.md, "Initial guess and global fallback").
     only_degenerate = (fast.health.degenerate and fast.health.inlier_ratio >= config.health.min_inlier_ratio
                        and fast.health.overlap >= config.health.min_overlap)
-    if fast.health.ok or not global_fallback or only_degenerate:
+    # Too few current points: the multi-start has nothing to rotate either.
+    too_few = len(np.asarray(cur_points).reshape(-1, 3)) < MIN_CURRENT_POINTS
+    if fast.health.ok or not global_fallback or only_degenerate or too_few:
         return InitialGuess(T_ref_cur=fast.T_ref_cur, source=GuessSource.FIRST_CAMERA_FAST, fast=fast,
                             seconds=time.perf_counter() - t0)
     glob = global_registration(cur_points, ref, config=config, around=prior)

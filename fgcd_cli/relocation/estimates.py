@@ -70,6 +70,34 @@ def _none_yet(ctx: LoopContext) -> str:
             f"alignment needs {ctx.config.min_points})")
 
 
+class _StandingStill:
+    """Watches a VSE state the alignment thread cannot align (not tracking, or fewer than ``min_points``
+    cloud points) while the loop waits with the camera standing still.
+
+    Rule: the cloud grows only with new keyframes, and a standing camera makes none, so a state that
+    has not changed for ``untrusted_min_wait_s`` (the loop's patience with untrustworthy estimates)
+    will not change by waiting the rest of ``estimate_timeout_s``: the loop pauses then (and the image
+    fallback may take over) instead of waiting out the timeout.
+    """
+
+    def __init__(self):
+        self.seen: tuple | None = None  # (status, cloud size) last seen
+        self.since = 0.0  # seconds into the wait when it was first seen
+
+    def check(self, ctx: LoopContext, waited: float) -> None:
+        """Raise AlgorithmError when the unalignable state stood still for the patience."""
+        state = ctx.session.vse.latest()
+        key = (state.status, len(state.cloud))
+        if key != self.seen:
+            self.seen, self.since = key, waited
+            return
+        alignable = state.status == VseStatus.TRACKING and len(state.cloud) >= ctx.config.min_points
+        if not alignable and waited - self.since >= ctx.config.untrusted_min_wait_s:
+            ctx.session.timing.wait_s += waited
+            raise AlgorithmError(f"no alignment possible, motion paused: {_none_yet(ctx)}, unchanged for "
+                                 f"{waited - self.since:.0f} s with the camera standing still")
+
+
 def _heartbeat(ctx: LoopContext, worker: AlignmentWorker, waited: float) -> None:
     est = worker.latest()
     ctx.say(f"  still aligning ({waited:.0f} s; latest estimate: "
@@ -86,11 +114,13 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
         ``degenerate_patience`` (default: the configured one) estimates in a row found degenerate geometry.
     AlgorithmError
         The alignment thread failed, its estimates stayed untrustworthy (``untrusted_patience`` after
-        ``untrusted_min_wait_s``), or none came within ``estimate_timeout_s``.
+        ``untrusted_min_wait_s``), none came within ``estimate_timeout_s``, or none has come and the VSE
+        state it would need has stood still for ``untrusted_min_wait_s`` (:class:`_StandingStill`).
     """
     config = ctx.config
     t0 = time.monotonic()
     patience = _Patience(degenerate_patience)
+    still = _StandingStill()
     next_note = t0 + config.heartbeat_s  # never silent for long (issue 24, item 7)
     while True:
         if time.monotonic() >= next_note:
@@ -105,6 +135,8 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
         waited = time.monotonic() - t0
         if est is not None and est.serial > last_serial:
             patience.check(est, waited, ctx)
+        if est is None:
+            still.check(ctx, waited)
         if waited > config.estimate_timeout_s:
             ctx.session.timing.wait_s += waited
             why = est.reason if est is not None else _none_yet(ctx)

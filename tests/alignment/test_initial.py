@@ -61,3 +61,19 @@ def test_global_fallback_when_the_prior_is_wrong(world):
     assert guess.fast.health.ok, guess.fast.health.reason
     E = guess.T_ref_cur @ T_true.inverse()
     assert E.rotation_deg() < 0.1
+
+
+def test_an_empty_current_cloud_gives_the_camera_prior_without_a_multi_start(world):
+    """A VSE that tracks but has no cloud yet (a statue run): the prior stands, marked failed, and the
+    multi-start is not tried on nothing (it averaged an empty array)."""
+    import warnings
+
+    _rng, ref, _p, _T_true, T_ref_camref = world
+    T_cur_cam0 = exp_se3([0.01, 0.0, 0.0, 0.0, 0.0, 0.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        guess = initial_guess(T_ref_camref=T_ref_camref, T_cur_cam0=T_cur_cam0, cur_points=np.zeros((0, 3)),
+                              reference=ref)
+    assert guess.source == "first_camera+fast"
+    assert not guess.fast.health.ok
+    np.testing.assert_allclose(guess.T_ref_cur.transform_pose(T_cur_cam0), T_ref_camref, atol=1e-9)

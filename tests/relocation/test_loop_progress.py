@@ -65,3 +65,37 @@ def test_a_wait_with_no_estimate_at_all_says_why():
                              config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5, heartbeat_s=0.1)))
     small.stop()
     assert any("still aligning" in t and "its cloud has 12 points" in t for t in lines)
+
+
+def test_a_wait_on_a_cloud_that_cannot_grow_ends_early():
+    """A standing camera makes no keyframes, so a VSE cloud below ``min_points`` stays so: the loop pauses after
+    ``untrusted_min_wait_s`` with that state unchanged, not after ``estimate_timeout_s`` (a statue run waited
+    120 s on a tracking VSE with an empty cloud)."""
+    import pytest
+
+    from fgcd_cli.errors import AlgorithmError
+    from tests.relocation.test_loop import ExactVse, FakeCloud, FakeState
+
+    class EmptyCloudVse(ExactVse):
+        def latest(self):
+            state = super().latest()
+            return FakeState(state.status, state.T_map_cam, state.frames_processed, FakeCloud(0))
+
+    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _T_ref_base = make_case()
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    vse.stop()
+    empty = EmptyCloudVse(platform, X, T_map_base, s)
+    session.vse = empty
+    patience_s = 0.3
+    t0 = time.monotonic()
+    with pytest.raises(AlgorithmError, match=r"no alignment possible.*its cloud has 0 points.*camera standing still"):
+        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
+                             init=Sim3(), aligner=lambda **kw: [],
+                             config=RelocationConfig(mode="parallel", estimate_timeout_s=60.0, heartbeat_s=0.1,
+                                                     untrusted_min_wait_s=patience_s)))
+    elapsed = time.monotonic() - t0
+    empty.stop()
+    # at least the patience; far below the 60 s timeout (a heartbeat's 0.1 s checks it; loose for a loaded machine)
+    assert patience_s <= elapsed < 30.0
+    assert session.timing.wait_s >= patience_s
+    assert platform.moves == 0
