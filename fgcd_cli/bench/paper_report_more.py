@@ -170,6 +170,21 @@ def sections(data: dict) -> list[str]:
             + _s55(results))
 
 
+def _plot_runs(ax, runs: list[tuple[float, dict | None]], *, label: str) -> None:
+    """One case's true AFD against the swept value; a run that paused (did not converge) is ringed in black."""
+    pts = [(x, run["afd_px"], not run.get("converged")) for x, run in runs
+           if run is not None and run.get("afd_px") is not None]
+    ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=label)
+    paused = [p for p in pts if p[2]]
+    ax.scatter([p[0] for p in paused], [p[1] for p in paused], s=110, facecolors="none", edgecolors="k",
+               linewidths=1.2, zorder=3)
+
+
+def _paused_legend(ax) -> None:
+    ax.scatter([], [], s=110, facecolors="none", edgecolors="k", linewidths=1.2, label="paused (not converged)")
+    ax.legend(fontsize=7)
+
+
 def figures(data: dict) -> dict[str, bytes]:
     """Fig. 4 (AFD against r), Fig. 12 (AFD against α; the ablations as bars) and §5.5 (F1 bars)."""
     from fgcd_cli.report.charts import figure_png, plt
@@ -180,32 +195,33 @@ def figures(data: dict) -> dict[str, bytes]:
     if f4:
         fig, ax = plt.subplots(figsize=(5, 3.2))
         for case in dict.fromkeys(c for c, _ in f4):
-            pts = [(0.0, (base.get((case, "racr-pure")) or {}).get("afd_px"))] + [
-                (r, (f4.get((case, f"noise-{r:.2f}")) or {}).get("afd_px")) for r in FIG4_NOISE]
-            pts = [(x * 100, y) for x, y in pts if y is not None]
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=case)
+            runs = [(0.0, base.get((case, "racr-pure")))] + [
+                (r, f4.get((case, f"noise-{r:.2f}"))) for r in FIG4_NOISE]
+            _plot_runs(ax, [(x * 100, run) for x, run in runs], label=case)
+        _paused_legend(ax)
         ax.axhline(3.0, color="k", linestyle="--", linewidth=0.8)
         ax.set_yscale("log")
         ax.set_xlabel("noise on the reference points r (% of the cloud's width)")
         ax.set_ylabel("true AFD (px)")
-        ax.legend(fontsize=7)
         out["fig4_reference_noise.png"] = figure_png(fig)
     f12 = runs_by(results, "fig12")
     if f12:
         fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(8, 3.2))
         for case in dict.fromkeys(c for c, _ in f12):
-            pts = [(0.2, (base.get((case, "racr-pure")) or {}).get("afd_px"))] + [
-                (a, (f12.get((case, label)) or {}).get("afd_px")) for label, a, x in FIG12_VARIANTS if not x]
-            pts = sorted((x, y) for x, y in pts if y is not None)
-            ax_a.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=case)
+            runs = [(0.2, base.get((case, "racr-pure")))] + [
+                (a, f12.get((case, label))) for label, a, x in FIG12_VARIANTS if not x]
+            _plot_runs(ax_a, sorted(runs, key=lambda xr: xr[0]), label=case)
+        _paused_legend(ax_a)
         ax_a.set_xlabel("α (weight of the geometric term)")
         ax_a.set_ylabel("true AFD (px)")
-        ax_a.legend(fontsize=7)
-        bars = [("rACR", [r.get("afd_px") for (c, lab), r in base.items() if lab == "racr-pure"
-                          and any(c == k[0] for k in f12)])]
-        bars += [(f"rACR-{x}", [r.get("afd_px") for (_, lab), r in f12.items() if lab == f"no-{x}"]) for x in "PFS"]
-        stats = [(name, *_mean_std(v)) for name, v in bars if v]
+        bars = [("rACR", [r for (c, lab), r in base.items() if lab == "racr-pure" and any(c == k[0] for k in f12)])]
+        bars += [(f"rACR-{x}", [r for (_, lab), r in f12.items() if lab == f"no-{x}"]) for x in "PFS"]
+        stats = [(name, *_mean_std([r.get("afd_px") for r in v]), sum(not r.get("converged") for r in v), len(v))
+                 for name, v in bars if v]
         ax_b.bar([s[0] for s in stats], [s[1] for s in stats], yerr=[s[2] for s in stats], color="#1f5fa8", capsize=3)
+        for i, (_, mean, std, n_paused, n) in enumerate(stats):
+            if n_paused:  # a mean over paused runs is not an accuracy: say how many
+                ax_b.annotate(f"{n_paused}/{n} paused", (i, mean + std), ha="center", va="bottom", fontsize=7)
         ax_b.set_ylabel("true AFD (px), mean ± std")
         out["fig12_alpha_ablations.png"] = figure_png(fig)
     s55 = runs_by(results, "s55")
