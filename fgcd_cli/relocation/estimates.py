@@ -84,15 +84,14 @@ class _StandingStill:
         self.seen: tuple | None = None  # (status, cloud size) last seen
         self.since = 0.0  # seconds into the wait when it was first seen
 
-    def check(self, ctx: LoopContext, waited: float) -> None:
+    def check(self, ctx: LoopContext, worker: AlignmentWorker, waited: float) -> None:
         """Raise AlgorithmError when the unalignable state stood still for the patience."""
         state = ctx.session.vse.latest()
         key = (state.status, len(state.cloud))
         if key != self.seen:
             self.seen, self.since = key, waited
             return
-        alignable = state.status == VseStatus.TRACKING and len(state.cloud) >= ctx.config.min_points
-        if not alignable and waited - self.since >= ctx.config.untrusted_min_wait_s:
+        if not worker.can_align(state) and waited - self.since >= ctx.config.untrusted_min_wait_s:
             ctx.session.timing.wait_s += waited
             raise AlgorithmError(f"no alignment possible, motion paused: {_none_yet(ctx)}, unchanged for "
                                  f"{waited - self.since:.0f} s with the camera standing still")
@@ -136,7 +135,7 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
         if est is not None and est.serial > last_serial:
             patience.check(est, waited, ctx)
         if est is None:
-            still.check(ctx, waited)
+            still.check(ctx, worker, waited)
         if waited > config.estimate_timeout_s:
             ctx.session.timing.wait_s += waited
             why = est.reason if est is not None else _none_yet(ctx)

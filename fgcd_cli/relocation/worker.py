@@ -82,9 +82,12 @@ class AlignmentWorker:
             return self._cond.wait_for(lambda: self._error is not None or predicate(self._latest),
                                        timeout=max(0.0, timeout_s))
 
+    def can_align(self, state) -> bool:
+        """Whether this thread aligns ``state`` at all: a tracking VSE with at least ``min_points`` cloud points."""
+        return state.status == VseStatus.TRACKING and len(state.cloud) >= self._min_points
+
     def _ready(self, state, last_frame: int) -> bool:
-        return (state.status == VseStatus.TRACKING and len(state.cloud) >= self._min_points
-                and state.frames_processed != last_frame)
+        return self.can_align(state) and state.frames_processed != last_frame
 
     def _wait_for_vse(self, last_frame: int) -> None:
         """Wait (at most ``VSE_WAIT_S``) for a state worth aligning; a stopped VSE returns at once, so

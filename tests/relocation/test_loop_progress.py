@@ -38,32 +38,41 @@ def test_every_step_and_every_wait_says_something(monkeypatch):
     assert max(b - a for a, b in zip(stamps, stamps[1:])) < 3.0
 
 
+def _session_with_a_fixed_cloud(n_points: int):
+    """An exact VSE session whose cloud always has ``n_points`` points (below ``min_points``: nothing to align)."""
+    from tests.relocation.test_loop import ExactVse, FakeCloud, FakeState
+
+    class FixedCloudVse(ExactVse):
+        def latest(self):
+            state = super().latest()
+            return FakeState(state.status, state.T_map_cam, state.frames_processed, FakeCloud(n_points))
+
+    X, platform, T_map_base, s, T_ref_camref, _T_ref_cur, _T_ref_base = make_case()
+    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
+    vse.stop()
+    session.vse = FixedCloudVse(platform, X, T_map_base, s)
+    return session, ref, platform, X, s
+
+
+def _relocate_on(session, ref, X, s, config: RelocationConfig):
+    return relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s,
+                                T_flange_cam=X, init=Sim3(), aligner=lambda **kw: [], config=config))
+
+
 def test_a_wait_with_no_estimate_at_all_says_why():
     """The alignment thread aligns only a tracking VSE state with ``min_points`` cloud points: a heartbeat and a
     timeout that come with no estimate say what the VSE has (a statue run waited 120 s on "no estimate yet")."""
     import pytest
 
     from fgcd_cli.errors import AlgorithmError
-    from tests.relocation.test_loop import ExactVse, FakeCloud, FakeState
 
-    class SmallCloudVse(ExactVse):
-        def latest(self):
-            state = super().latest()
-            return FakeState(state.status, state.T_map_cam, state.frames_processed, FakeCloud(12))
-
-    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _T_ref_base = make_case()
-    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
-    vse.stop()
-    small = SmallCloudVse(platform, X, T_map_base, s)
-    session.vse = small
+    session, ref, _platform, X, s = _session_with_a_fixed_cloud(12)
     lines: list[str] = []
     session.on_event = lines.append
     with pytest.raises(AlgorithmError, match=r"no estimate yet \(the VSE is tracking, its cloud has 12 points, "
                                              r"alignment needs 500\)"):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                             init=Sim3(), aligner=lambda **kw: [],
-                             config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5, heartbeat_s=0.1)))
-    small.stop()
+        _relocate_on(session, ref, X, s, RelocationConfig(mode="parallel", estimate_timeout_s=0.5, heartbeat_s=0.1))
+    session.vse.stop()
     assert any("still aligning" in t and "its cloud has 12 points" in t for t in lines)
 
 
@@ -74,27 +83,15 @@ def test_a_wait_on_a_cloud_that_cannot_grow_ends_early():
     import pytest
 
     from fgcd_cli.errors import AlgorithmError
-    from tests.relocation.test_loop import ExactVse, FakeCloud, FakeState
 
-    class EmptyCloudVse(ExactVse):
-        def latest(self):
-            state = super().latest()
-            return FakeState(state.status, state.T_map_cam, state.frames_processed, FakeCloud(0))
-
-    X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _T_ref_base = make_case()
-    vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
-    vse.stop()
-    empty = EmptyCloudVse(platform, X, T_map_base, s)
-    session.vse = empty
+    session, ref, platform, X, s = _session_with_a_fixed_cloud(0)
     patience_s = 0.3
     t0 = time.monotonic()
     with pytest.raises(AlgorithmError, match=r"no alignment possible.*its cloud has 0 points.*camera standing still"):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                             init=Sim3(), aligner=lambda **kw: [],
-                             config=RelocationConfig(mode="parallel", estimate_timeout_s=60.0, heartbeat_s=0.1,
-                                                     untrusted_min_wait_s=patience_s)))
+        _relocate_on(session, ref, X, s, RelocationConfig(mode="parallel", estimate_timeout_s=60.0, heartbeat_s=0.1,
+                                                          untrusted_min_wait_s=patience_s))
     elapsed = time.monotonic() - t0
-    empty.stop()
+    session.vse.stop()
     # at least the patience; far below the 60 s timeout (a heartbeat's 0.1 s checks it; loose for a loaded machine)
     assert patience_s <= elapsed < 30.0
     assert session.timing.wait_s >= patience_s
