@@ -97,3 +97,11 @@ def test_options_in_the_docs_code_blocks_exist(where, tokens):
     flags = [f for f in flags if not re.fullmatch(r"-[0-9.]+", f)]  # negative numbers are values
     missing = [f for f in flags if f not in _options(cmd)]
     assert not missing, f"{where}: `{' '.join(tokens)}`: {missing} not options of {cmd.name}"
+
+
+def test_the_readme_cites_the_papers_without_paths_a_clone_lacks():
+    """A user who clones has only the repository: the papers are cited by title and identifier."""
+    text = README.read_text()
+    assert "../shared" not in text
+    assert "Fast and robust active camera" in text and "Neurocomputing" in text
+    assert "Towards Accurate Active Camera Localization" in text and "arXiv:2012.04263" in text
