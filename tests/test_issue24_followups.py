@@ -477,4 +477,5 @@ def test_no_terminal_no_bar_and_no_blank_line(capsys):
     with step_progress(enabled=True) as bar:
         bar(0, 0, "a step")
         bar(1, 2, "another")
-    assert capsys.readouterr().err == ""
+    # no live display off a terminal: one plain line per step (issue 48, item 6), no blank line
+    assert capsys.readouterr().err == "a step\nanother\n"

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 import sys
+import time
 from typing import Any, Callable
 
 import numpy as np
@@ -28,11 +29,13 @@ class OutputState:
 
     verbose: bool = False
     emitted: bool = False  # a JSON result is on stdout: an error must not print a second object
+    last_line_at: float = 0.0  # time.monotonic() of the last line on stderr (the progress heartbeat's silence)
 
     def reset(self) -> None:
         """Defaults again (a new command line starts)."""
         self.verbose = False
         self.emitted = False
+        self.last_line_at = 0.0
 
 
 state = OutputState()
@@ -88,12 +91,21 @@ def emit(data: dict, *, as_json: bool, render: Callable[[Console], None] | None 
 def info(message: str) -> None:
     """A progress line for people (stderr, so --json stdout stays clean)."""
     err_console.print(message)
+    state.last_line_at = time.monotonic()
+
+
+def plain_line(text: str) -> None:
+    """A progress line off a terminal, printed as it is (no markup), flushed at once (a log follows it live)."""
+    err_console.print(text, markup=False, highlight=False)
+    err_console.file.flush()
+    state.last_line_at = time.monotonic()
 
 
 def debug(message: str) -> None:
     """Printed only with --verbose."""
     if state.verbose:
         err_console.print(f"[dim]{message}[/dim]")
+        state.last_line_at = time.monotonic()
 
 
 def confirmer(*, yes: bool) -> Callable[[str], bool] | None:

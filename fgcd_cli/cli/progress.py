@@ -5,18 +5,31 @@ Algorithms never import rich: they report through a plain callback
 wraps its work in :func:`step_progress` and hands the callback down. The bar
 lives on stderr (``--json`` stdout stays one object), shares the console of
 :func:`fgcd_cli.cli.output.info` so progress lines print above it, and is
-transient: once a command ends, only its lines and result remain. When stderr
-is not a terminal nothing is drawn (the lines still are).
+transient: once a command ends, only its lines and result remain.
+
+When stderr is not a terminal (a pipe, a log file) no bar is drawn: a plain
+line names each new step (:class:`PlainSteps`), and a heartbeat thread
+re-prints the current step with its elapsed time whenever nothing was printed
+on stderr for :data:`HEARTBEAT_S` seconds, so that a long step (the hand-eye
+image refinement, a scene uncertainty map, a change detection) is never silent
+in a log (issue 48, item 6).
 """
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
-__all__ = ["ProgressCallback", "StepBar", "step_progress"]
+__all__ = ["HEARTBEAT_S", "PlainSteps", "ProgressCallback", "StepBar", "step_progress"]
 
 ProgressCallback = Callable[[int, int, str], None]
+
+#: Off a terminal, the longest silence on stderr during a step before the step is named again, seconds
+#: (``FGCD_HEARTBEAT_S`` overrides it: tests of a whole command shorten it).
+HEARTBEAT_S = float(os.environ.get("FGCD_HEARTBEAT_S", "10"))
 
 
 class StepBar:
@@ -37,7 +50,7 @@ class StepBar:
     def __call__(self, done: int, total: int, label: str) -> None:
         known = total is not None and total > 0
         self._counting = known and done < total
-        step = label.split(" (")[0]
+        step = _step(label)
         if step != self._label:
             if self._task is not None:
                 self._progress.remove_task(self._task)
@@ -79,30 +92,113 @@ class StepBar:
         return wrapped
 
 
+def _step(label: str) -> str:
+    """The step a label belongs to: labels differing only in a parenthesised detail are one step."""
+    return label.split(" (")[0]
+
+
+class PlainSteps:
+    """The callback off a terminal: one plain stderr line per step, and a heartbeat during a long one.
+
+    Same interface as :class:`StepBar`. A new step prints its label; while a
+    step runs, a daemon thread prints ``  ... <label> <done>/<total>, <n> s``
+    whenever nothing was printed on stderr (this renderer's lines or
+    :func:`fgcd_cli.cli.output.info`) for ``heartbeat_s`` seconds.
+    """
+
+    def __init__(self, write: Callable[[str], None], *, heartbeat_s: float,
+                 last_printed: Callable[[], float] = lambda: 0.0) -> None:
+        self._write = write
+        self._heartbeat_s = float(heartbeat_s)
+        self._last_printed = last_printed  # when another writer last printed on stderr (time.monotonic)
+        self._lock = threading.Lock()
+        self._step: str | None = None
+        self._label = ""
+        self._count = ""
+        self._started = self._printed = time.monotonic()
+        self._counting = False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name="fgcd-progress-heartbeat", daemon=True)
+
+    def __call__(self, done: int, total: int, label: str) -> None:
+        known = total is not None and total > 0
+        with self._lock:
+            self._counting = known and done < total
+            self._label, self._count = label, (f" {done}/{total}" if known else "")
+            if _step(label) == self._step:
+                return
+            self._step, self._started = _step(label), time.monotonic()
+            self._print(label)
+
+    def lines(self, say: Callable[[str], None]) -> Callable[[str], None]:
+        """``say`` whose lines also name the step between counted steps (as :meth:`StepBar.lines`), not printed twice."""
+
+        def wrapped(text: str) -> None:
+            say(text)
+            if text[:1].isspace() or self._counting:
+                return
+            with self._lock:  # the line itself names the step: no second line
+                self._step, self._label, self._count = _step(text.strip()), text.strip(), ""
+                self._started = self._printed = time.monotonic()
+
+        return wrapped
+
+    def paused(self, ask: Callable[[str], bool] | None) -> Callable[[str], bool] | None:
+        """``ask`` as it is (nothing is drawn that a question could be hidden by)."""
+        return ask
+
+    def _print(self, text: str) -> None:
+        self._printed = time.monotonic()
+        self._write(text)
+
+    def _beat(self) -> None:
+        while not self._stop.wait(min(1.0, self._heartbeat_s / 4)):
+            with self._lock:
+                now = time.monotonic()
+                if self._step is None or now - max(self._printed, self._last_printed()) < self._heartbeat_s:
+                    continue
+                self._print(f"  ... {self._label}{self._count}, {now - self._started:.0f} s")
+
+    def __enter__(self) -> "PlainSteps":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
 @contextmanager
-def step_progress(*, enabled: bool) -> Iterator[StepBar | None]:
+def step_progress(*, enabled: bool, heartbeat_s: float | None = None) -> Iterator[StepBar | PlainSteps | None]:
     """A rich progress bar fed by ``(done, total, label)`` calls, or None when disabled.
 
     Parameters
     ----------
     enabled : bool
         False (``--json``) yields None: callers pass it on as "no progress".
+    heartbeat_s : float, optional
+        Off a terminal, the heartbeat's interval (default :data:`HEARTBEAT_S`, read at the call).
 
     Yields
     ------
-    StepBar or None
-        A ``(done, total, label)`` callable.
+    StepBar, PlainSteps or None
+        A ``(done, total, label)`` callable: the rich bar on a terminal, plain lines otherwise.
     """
     if not enabled:
         yield None
         return
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    from fgcd_cli.cli.output import err_console
+    from fgcd_cli.cli.output import err_console, plain_line, state
+
+    if not err_console.is_terminal:
+        # a log file, a pipe: no live display (it would only leave a blank line), plain lines instead
+        with PlainSteps(plain_line, heartbeat_s=HEARTBEAT_S if heartbeat_s is None else heartbeat_s,
+                        last_printed=lambda: state.last_line_at) as steps:
+            yield steps
+        return
 
     columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                TextColumn("{task.fields[count]}"), TimeElapsedColumn())
-    # Not a terminal (a log file, a pipe): the steps are followed but nothing is drawn (a live
-    # display there would only leave a blank line before the result or the error line).
-    with Progress(*columns, console=err_console, transient=True, disable=not err_console.is_terminal) as progress:
+    with Progress(*columns, console=err_console, transient=True) as progress:
         yield StepBar(progress)

@@ -1,0 +1,66 @@
+"""cli/progress.py off a terminal: a plain line per step and a heartbeat during a long step (stderr only)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+import time
+
+SLOW_STEP = textwrap.dedent("""
+    import sys, time
+    from fgcd_cli.cli.output import info
+    from fgcd_cli.cli.progress import step_progress
+
+    with step_progress(enabled=True, heartbeat_s=float(sys.argv[1])) as bar:
+        bar(0, 0, "a slow step")
+        time.sleep(float(sys.argv[2]))          # one long step, nothing said
+        for i in range(1, 4):
+            bar(i, 3, f"counted ({i}/3)")       # one step: one line
+        for _ in range(int(sys.argv[3])):       # lines of the use case: not silent, no heartbeat needed
+            info("a line of the use case")
+            time.sleep(0.05)
+    print("result")
+""")
+
+
+def _run(heartbeat_s: float, sleep_s: float, said: int = 0) -> tuple[list[tuple[float, str]], str]:
+    """The script through pipes: each stderr line with the time it arrived, and stdout."""
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_STEP, str(heartbeat_s), str(sleep_s), str(said)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
+    t0 = time.monotonic()
+    for line in proc.stderr:
+        lines.append((time.monotonic() - t0, line.rstrip("\n")))
+    out = proc.stdout.read()
+    assert proc.wait(timeout=60) == 0, lines
+    return lines, out
+
+
+def test_off_a_terminal_each_step_is_a_line_and_a_long_step_beats():
+    lines, out = _run(heartbeat_s=0.2, sleep_s=1.6)
+    texts = [t for _, t in lines]
+    assert out == "result\n"  # stdout untouched: a --json result stays one object
+    assert texts[0] == "a slow step"
+    beats = [t for t in texts if t.startswith("  ... a slow step")]
+    # 1.6 s of silence at a 0.2 s interval: a beat every interval or so (not one at the end only)
+    assert 3 <= len(beats) <= 9, texts
+    assert beats[-1].endswith(" s")
+    assert texts.count("counted (1/3)") == 1 and not any(t.startswith("counted (2/3)") for t in texts)
+    assert "" not in texts  # no blank line left behind by a live display
+
+
+def test_the_heartbeat_stays_quiet_while_something_else_prints():
+    lines, _ = _run(heartbeat_s=0.3, sleep_s=0.0, said=12)
+    texts = [t for _, t in lines]
+    assert texts.count("a line of the use case") == 12
+    assert not any(t.startswith("  ... counted") for t in texts), texts
+
+
+def test_a_heartbeat_interval_is_a_named_constant_overridable_for_tests():
+    from fgcd_cli.cli import progress
+
+    assert progress.HEARTBEAT_S == 10.0
+    r = subprocess.run([sys.executable, "-c", "from fgcd_cli.cli import progress; print(progress.HEARTBEAT_S)"],
+                       env={**__import__("os").environ, "FGCD_HEARTBEAT_S": "0.5"}, capture_output=True, text=True)
+    assert r.stdout.strip() == "0.5"
