@@ -1,6 +1,7 @@
 """`fgcd demo` feedback: every step runs under a live progress label, and it counts injected changes
 the same way when it announces them and when it scores them (issue 24, items 7 and 12)."""
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -98,8 +99,10 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
     monkeypatch.setattr(relocate_uc, "relocate_and_capture", long_step("relocate", relocate))
     monkeypatch.setattr(usecases, "run_campaign", long_step("diff", {}))
 
-    run_demo(tmp_path / "d", config=DemoConfig(), say=lambda text: events.append(("say", text)),
-             on_progress=lambda done, total, label: events.append(("progress", label)))
+    summary = run_demo(tmp_path / "d", config=DemoConfig(), say=lambda text: events.append(("say", text)),
+                       on_progress=lambda done, total, label: events.append(("progress", label)))
+    assert summary["out"] == str(tmp_path / "d")  # the JSON result names where it wrote (issue 48, item 10)
+    assert summary["summary"] == str(tmp_path / "d" / "summary.json")
     steps = [i for i, (kind, _) in enumerate(events) if kind == "step"]
     assert [events[i][1] for i in steps] == ["intrinsics", "hand-eye", "open rig", "capture", "scene map", "open rig",
                                              "relocate", "diff"]
@@ -108,3 +111,39 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
         labels = [text for kind, text in events[previous + 1:i] if kind == "progress"]
         assert labels, f"step {events[i][1]} starts without a progress label: {events[previous + 1:i]}"
         previous = i
+
+
+def test_the_demo_says_where_it_writes_before_any_work(tmp_path, monkeypatch):
+    """A non-empty --out gets a timestamped subfolder: named on the first line, before the demo starts
+    (issue 48, item 10), and in the JSON result."""
+    import json
+
+    from typer.testing import CliRunner
+
+    import fgcd_cli.cli.demo_cmd as demo_cmd
+    from fgcd_cli.cli.app import app
+
+    events = []
+    (tmp_path / "old-run").mkdir()  # the folder holds an earlier run
+
+    def fake_run(out_dir, **kwargs):
+        events.append(("run", str(out_dir)))
+        return {"out": str(out_dir), "campaign": str(out_dir / "campaign"),
+                "reference": {"cloud_points": 1}, "relocation": {"converged": True, "adjustments": 1, "session_s": 1.0}}
+
+    monkeypatch.setattr(demo_mod, "run_demo", fake_run)
+    monkeypatch.setattr(demo_cmd, "info", lambda text: events.append(("info", text)))
+    r = CliRunner().invoke(app, ["demo", "-o", str(tmp_path), "--json"])
+    assert r.exit_code == 0, r.output
+    (kind, first), (then, nested) = events[0], events[1]
+    assert kind == "info" and then == "run"
+    assert first == f"writing the demo into {nested} (a new folder: {tmp_path} is not empty)"
+    assert Path(nested).parent == tmp_path and Path(nested).name.endswith("Z")
+    assert json.loads(r.stdout.strip().splitlines()[-1])["out"] == nested
+
+
+def test_an_empty_or_new_out_folder_is_used_as_given(tmp_path):
+    from fgcd_cli.app.demo import demo_output_dir
+
+    assert demo_output_dir(tmp_path / "new") == (tmp_path / "new", f"writing the demo into {tmp_path / 'new'}")
+    assert demo_output_dir(tmp_path)[0] == tmp_path  # empty

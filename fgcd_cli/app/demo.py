@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import time
+from datetime import datetime, timezone
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -21,7 +22,7 @@ from fgcd_cli.campaign import init_campaign, schema
 from fgcd_cli.app.sim_scoring import score_visit_changes  # evaluation only
 from fgcd_cli.errors import CampaignError
 
-__all__ = ["DemoConfig", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "run_demo"]
+__all__ = ["DemoConfig", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "demo_output_dir", "run_demo"]
 
 ProgressCallback = Callable[[int, int, str], None]
 """``on_progress(done, total, label)``: progress of a long step (``total <= 0``: length unknown).
@@ -49,6 +50,19 @@ class DemoConfig:
     vse: str = "mono"
 
 
+def demo_output_dir(requested: Path, *, now: datetime | None = None) -> tuple[Path, str]:
+    """Where the demo writes, and the one line that says so before any work (issue 48, item 10).
+
+    Rule: a demo never writes into a folder that holds something; a non-empty
+    ``requested`` gets a new UTC-timestamped subfolder (``20250102T030405Z``).
+    """
+    requested = Path(requested)
+    if not (requested.exists() and any(requested.iterdir())):
+        return requested, f"writing the demo into {requested}"
+    out = requested / (now or datetime.now(timezone.utc)).strftime("%Y%m%dT%H%M%SZ")
+    return out, f"writing the demo into {out} (a new folder: {requested} is not empty)"
+
+
 def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[[str], None] = print,
              on_record=None, on_progress: ProgressCallback | None = None) -> dict:
     """Run the whole simulated campaign into ``out_dir``; returns a summary.
@@ -69,8 +83,8 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
     Returns
     -------
     dict
-        The summary also written to ``summary.json``: ``campaign``, ``handeye``,
-        ``reference``, ``relocation``, ``diff``, ``wall_s``.
+        The summary also written to ``summary.json``: ``out`` (``out_dir``), ``campaign``,
+        ``summary`` (that file), ``handeye``, ``reference``, ``relocation``, ``diff``, ``wall_s``.
     """
     out_dir = Path(out_dir)
     camp_dir = out_dir / "campaign"
@@ -82,7 +96,7 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
     station = camp.create_station(config.station, description="simulated heritage object")
     run = _DemoRun(config=config, campaign=camp, station=station, say=say, on_record=on_record,
                    on_progress=on_progress)
-    summary: dict = {"campaign": str(camp_dir)}
+    summary: dict = {"out": str(out_dir), "campaign": str(camp_dir), "summary": str(out_dir / "summary.json")}
     summary["handeye"] = _calibrate(run)
     summary["reference"] = _capture(run)
     summary["relocation"] = _relocate(run)

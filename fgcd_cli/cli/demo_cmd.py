@@ -63,13 +63,11 @@ def demo(
     if changes < 0:
         raise UserInputError(f"--changes must be 0 or more, got {changes}")
 
-    if out.exists() and any(out.iterdir()):
-        from datetime import datetime, timezone
-
-        out = out / datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    # Every step of the demo reports through on_progress: a live bar with its elapsed time, so
-    # no step runs silently; lines (info, print_record) print above it.
-    with step_progress(enabled=not as_json) as bar:
+    out, where = demo_uc.demo_output_dir(out)
+    info(where)  # before any work: a non-empty --out gets a new subfolder, named now, not at the end
+    # Every step of the demo reports through on_progress: a live bar with its elapsed time, or off a
+    # terminal a plain line per step and a heartbeat (stderr, also with --json), so no step runs silently.
+    with step_progress(enabled=True) as bar:
         summary = demo_uc.run_demo(out, config=demo_uc.DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse),
                            say=info, on_record=print_record, on_progress=bar)
 
