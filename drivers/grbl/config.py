@@ -25,10 +25,12 @@ class GrblConfig:
     answer_timeout_s : float
         Longest wait for the ``ok``/``error`` of one line.
     banner_timeout_s : float
-        Longest wait for the banner after a soft reset.
+        Longest wait for the banner in all, from opening the port, the soft
+        reset included (the time a missing banner's error states).
     open_banner_wait_s : float
-        Wait for the banner a board prints when opening the port resets it
-        (DTR); without one the driver sends a soft reset.
+        Part of that wait spent on the banner a board prints when opening the
+        port resets it (DTR), at most 80 % of ``banner_timeout_s``; without a
+        banner by then the driver sends a soft reset and waits the rest.
     arrival_margin_s : float
         Extra time allowed beyond the nominal motion time before a move times out.
     homing_timeout_s : float

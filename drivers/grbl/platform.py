@@ -31,6 +31,9 @@ from drivers.platform import (
 
 __all__ = ["GrblPlatform"]
 
+#: Largest share of ``banner_timeout_s`` spent waiting for a banner before the soft reset.
+_OPEN_BANNER_SHARE = 0.8
+
 #: States in which a stage accepts a motion and counts as arrived.
 _READY = (GrblState.IDLE, GrblState.CHECK)
 
@@ -84,18 +87,7 @@ class GrblPlatform:
     def connect(self) -> None:
         """Open the port, wait for the banner (soft reset if none), read settings."""
         link = self.link
-        link.open()
-        if not link.banner_event.wait(self.config.open_banner_wait_s):
-            # A pty or a board without DTR reset prints nothing on open: soft reset.
-            link.banner_event.clear()
-            link.write(SOFT_RESET)
-            if not link.banner_event.wait(self.config.banner_timeout_s):
-                link.check_lost()
-                self.close()
-                raise PlatformTimeout(
-                    f"no GRBL banner on {self.config.port} within {self.config.banner_timeout_s:.1f} s "
-                    "(wrong port or baud rate, or the controller is not running GRBL)"
-                )
+        self._open_and_wait_banner()
         time.sleep(0.05)  # let the post-reset messages ([MSG:...]) arrive
         link.drain_answers()
         self._read_settings()
@@ -105,6 +97,31 @@ class GrblPlatform:
             raise PlatformConnectionError(
                 f"the stage reports axes {''.join(status.mpos)}; the configured mapping needs {''.join(missing)}"
             )
+
+    def _open_and_wait_banner(self) -> None:
+        """Open the port and wait for the banner, soft reset included, within ``banner_timeout_s`` in all.
+
+        Rule: the time a missing banner states is the time it took, from opening
+        the port to giving up (one deadline for both waits, config ``banner_timeout_s``).
+        """
+        link, total = self.link, self.config.banner_timeout_s
+        started = time.monotonic()
+        deadline = started + total
+        link.open()
+        # The wait for a DTR-reset board's own banner leaves the soft reset a share of the time.
+        if link.banner_event.wait(min(self.config.open_banner_wait_s, _OPEN_BANNER_SHARE * total)):
+            return
+        # A pty or a board without DTR reset prints nothing on open: soft reset.
+        link.banner_event.clear()
+        link.write(SOFT_RESET)
+        if link.banner_event.wait(max(0.0, deadline - time.monotonic())):
+            return
+        link.check_lost()
+        self.close()
+        raise PlatformTimeout(
+            f"no GRBL banner on {self.config.port} within {time.monotonic() - started:.1f} s, soft reset included "
+            "(wrong port or baud rate, or the controller is not running GRBL)"
+        )
 
     def reconnect(self) -> None:
         """Close and reopen the port (after a lost link), then re-check the controller."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import _thread
 import math
+import re
 import threading
 import time
 
@@ -166,6 +167,25 @@ def test_silent_controller_times_out_on_connect():
     finally:
         stage.close()
         emu.close()
+
+
+def test_a_missing_banner_states_the_time_it_took():
+    # The open wait is a large part of the timeout: it used to come on top of it (1.0 s stated, 1.6 s taken).
+    emu = GrblEmulator()
+    emu.set_silent(True)
+    stage = GrblPlatform(make_config(emu.port, banner_timeout_s=1.0, open_banner_wait_s=0.6))
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(PlatformTimeout, match="no GRBL banner") as info:
+            stage.connect()
+        taken = time.monotonic() - t0
+    finally:
+        stage.close()
+        emu.close()
+    stated = float(re.search(r"within ([0-9.]+) s", str(info.value)).group(1))
+    # tolerance: the figure's rounding (0.05 s) and the reader thread's 0.05 s read slices when the port closes
+    assert abs(taken - stated) <= 0.05 + 0.1, (taken, str(info.value))
+    assert taken <= 1.0 + 0.15  # the whole wait, soft reset included, honours banner_timeout_s
 
 
 def test_controller_going_silent_mid_move_times_out_and_holds(stage, emulator):
