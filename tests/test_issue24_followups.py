@@ -420,7 +420,7 @@ def test_handeye_on_hardware_without_its_address_is_bad_input(camp, driver, opti
 
 # ----------------------------------------------------------------------------- 4: demo options
 @pytest.mark.parametrize("args, mentions", [
-    (["--visit-light", "bogus"], ("--visit-light", "bogus", "led:H")),
+    (["--light", "bogus"], ("--light", "bogus", "led:H")),
     (["--scene", "nosuch"], ("nosuch", "relief_panel")),
     (["--changes", "-1"], ("--changes",)),
 ])

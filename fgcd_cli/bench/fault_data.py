@@ -221,7 +221,7 @@ def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     rng = np.random.default_rng(seed)
     station = f"{fault.split('_')[0]}-{seed}"  # a new station per fault
     before = committed_digests(campaign)
-    args = ["capture", "-c", str(campaign), "-s", station, "--lightings", "led:3,led:9", "--yes", "--json"]
+    args = ["capture", "-c", str(campaign), "-s", station, "--light", "led:3,led:9", "--yes", "--json"]
     if fault == "enospc_during_capture":
         budget = int(rng.integers(0, 1_500_000))  # below the reference's size (two images, cloud)
         run = run_fgcd(args, launcher=["fgcd_cli.bench.fault_launch"], timeout_s=900,

@@ -43,7 +43,8 @@ def summary_lines(summary: dict, *, summary_path: Path) -> list[str]:
 def demo(
     out: Path = typer.Option(Path("runs/demo"), "--out", "-o", help="Directory for the campaign and the summary."),
     scene: str = typer.Option("relief_panel", "--scene", help="Simulator scene (fgcd sim scenes)."),
-    visit_light: str = typer.Option("led:3", "--visit-light", help="Lighting of the revisit (e.g. led:3, sun-evening)."),
+    visit_light: str = typer.Option("led:3", "--light", help="Lighting of the revisit (e.g. led:3, sun-evening; "
+                                                             "`fgcd sim lights`)."),
     changes: int = typer.Option(4, "--changes", help="Fine-grained changes injected before the revisit."),
     vse: str = typer.Option("mono", "--vse", help="VSE of capture and relocation: mono (rACR, monocular) or rgbd (depth camera)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
@@ -59,7 +60,7 @@ def demo(
     if vse not in ("mono", "rgbd"):
         raise UserInputError(f"unknown --vse '{vse}' (mono or rgbd)")
     check_scene(scene)
-    visit_light = check_lighting(visit_light, option="--visit-light")
+    visit_light = check_lighting(visit_light, option="--light")
     if changes < 0:
         raise UserInputError(f"--changes must be 0 or more, got {changes}")
 

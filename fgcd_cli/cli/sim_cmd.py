@@ -198,7 +198,7 @@ def render_cmd(
 @app.command("contact-sheet")
 def contact_sheet(
     out: Path = typer.Option(Path("docs/img/scenes_contact_sheet.png"), "-o", "--out", help="Output PNG."),
-    lights_: str = typer.Option("front,led:3,night", "--lights", help="Comma-separated lighting presets (columns)."),
+    lights_: str = typer.Option("front,led:3,night", "--light", help="Comma-separated lighting presets (columns)."),
     width: int = typer.Option(320, "--width", help="Width of each tile (px)."),
     supersample: int = typer.Option(2, "--supersample", help="Anti-aliasing samples per pixel and axis."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
