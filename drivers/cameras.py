@@ -13,6 +13,9 @@ shared bottom layer :mod:`fgcd_core` (intrinsics, grey conversion).
 
 from __future__ import annotations
 
+import os
+import stat
+import sys
 import time
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -75,13 +78,35 @@ class CameraSource(Protocol):
         """Release the device."""
 
 
+def _device_path(index: int | str) -> str | None:
+    """The file of a camera: a Linux index's ``/dev/videoN``, an absolute path; None for URLs and pipelines."""
+    if isinstance(index, int) or (isinstance(index, str) and index.isdigit()):
+        return f"/dev/video{int(index)}" if sys.platform.startswith("linux") else None
+    return index if isinstance(index, str) and index.startswith("/") else None
+
+
+def _check_device(index: int | str) -> None:
+    """Name a camera device that is absent or forbidden before OpenCV tries it (its own words go to a log)."""
+    path = _device_path(index)
+    if path is None:
+        return
+    if not os.path.exists(path):
+        which = "" if path == index else f" (camera {index})"
+        raise CameraError(f"no camera at {path}{which}: connect it, or choose another with --camera")
+    if stat.S_ISCHR(os.stat(path).st_mode) and not os.access(path, os.R_OK | os.W_OK):
+        raise CameraError(f"no permission to open camera {path} (add the user to the group owning it, "
+                          "usually 'video')")
+
+
 class OpenCVCamera:
     """A camera device through ``cv2.VideoCapture``.
 
     Parameters
     ----------
     index : int or str
-        Device index or a stream/file URL.
+        Device index, device path or a stream/file URL. An index whose
+        ``/dev/videoN`` or an absolute path that does not exist, or a device
+        without permission, is refused (:class:`CameraError`) before OpenCV tries it.
     width, height : int, optional
         Requested resolution.
     intrinsics : CameraIntrinsics, optional
@@ -92,6 +117,7 @@ class OpenCVCamera:
                  intrinsics: CameraIntrinsics | None = None):
         import cv2
 
+        _check_device(index)
         self._cap = cv2.VideoCapture(index)
         if not self._cap.isOpened():
             self._cap.release()

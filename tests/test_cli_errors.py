@@ -260,3 +260,89 @@ def test_ctrl_c_during_verify_says_nothing_moved_or_written(capsys, monkeypatch,
     assert _lines(capsys.readouterr().err) == [
         "interrupted (Ctrl-C): no platform was in use; nothing was written"
     ]
+
+
+# ----------------------------------------------------------------------------- issue 48 item 3: hardware, --verbose
+def _manual_campaign(root: Path) -> Path:
+    import numpy as np
+
+    from fgcd_cli.campaign import init_campaign
+    from fgcd_core.camera import PinholeCamera
+
+    camp = init_campaign(root / "c", site="x", rig={"driver": "manual"})
+    camp.write_rig("intrinsics", PinholeCamera(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640,
+                                               height=480).to_dict())
+    camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
+    return camp.path
+
+
+@pytest.mark.parametrize("verbose", [[], ["--verbose"], ["-v"]], ids=["plain", "--verbose after", "-v after"])
+def test_a_missing_camera_is_hardware_in_one_line(tmp_path, monkeypatch, capsys, verbose):
+    # Before: exit 70 "internal error: CameraError: ..." (and `--verbose` after the subcommand a usage error).
+    import drivers.cameras as cameras
+    from fgcd_cli.cli.app import app
+
+    exists = cameras.os.path.exists
+    monkeypatch.setattr(cameras.os.path, "exists", lambda p: False if str(p) == "/dev/video0" else exists(p))
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    code = run(app, ["capture", "-c", str(_manual_campaign(tmp_path)), "-s", "m1", "--driver", "manual", "--yes",
+                     *verbose])
+    err = capsys.readouterr().err
+    assert code == 7, err
+    assert _lines(err)[-1:] == ["camera error: no camera at /dev/video0 (camera 0): connect it, "
+                                "or choose another with --camera"], err
+    assert "Traceback" not in err and len(_lines(err)) <= 2  # a progress line may come first
+
+
+def test_camera_errors_are_hardware_exit_7(capsys):
+    from drivers.cameras import CameraError
+
+    app = typer.Typer()
+
+    @app.command()
+    def cmd() -> None:
+        raise CameraError("camera 0 opened but delivers no frames")
+
+    assert run(app, []) == 7
+    assert _lines(capsys.readouterr().err) == ["camera error: camera 0 opened but delivers no frames"]
+
+
+def _verbose_app() -> typer.Typer:
+    from fgcd_cli.cli.output import state
+
+    app = typer.Typer()
+
+    @app.callback()
+    def root(verbose: bool = typer.Option(False, "--verbose", "-v")) -> None:
+        state.verbose = verbose
+
+    @app.command()
+    def bug(site: str = typer.Option("", "--site")) -> None:
+        print(f"site={site} verbose={state.verbose}")
+        raise ValueError("a bug")
+
+    @app.command()
+    def own(value: str = typer.Option("", "--value", "-v")) -> None:
+        print(f"value={value} verbose={state.verbose}")
+
+    return app
+
+
+def test_verbose_after_the_subcommand_is_the_roots(capsys):
+    app = _verbose_app()
+    assert run(app, ["bug"]) == 70
+    out, err = capsys.readouterr()
+    assert "verbose=False" in out and "run the same command again with --verbose" in _lines(err)[0]
+    for flag in ("--verbose", "-v"):
+        with pytest.raises(ValueError, match="a bug"):  # --verbose: a bug propagates with its traceback
+            run(app, ["bug", "--site", "x", flag])
+        assert "site=x verbose=True" in capsys.readouterr().out
+
+
+def test_verbose_is_not_taken_from_a_command_or_value_that_owns_it(capsys):
+    app = _verbose_app()
+    assert run(app, ["own", "-v", "3"]) == 0
+    assert capsys.readouterr().out.strip() == "value=3 verbose=False"
+    assert run(app, ["bug", "--site", "-v"]) == 70  # the value of --site
+    assert "site=-v verbose=False" in capsys.readouterr().out
+    assert run(app, ["own", "--", "-v"]) == 2  # after --: an argument, not an option

@@ -364,8 +364,12 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
     try:
         platform = open_platform(driver, spec=PlatformSpec(port=request.port, baud=request.baud, host=request.host))
         platform.connect()
-        raw_camera = OpenCVCamera(request.camera_index, width=request.intrinsics.width,
-                                  height=request.intrinsics.height)
+        try:
+            raw_camera = OpenCVCamera(request.camera_index, width=request.intrinsics.width,
+                                      height=request.intrinsics.height)
+        except BaseException:  # no camera (CameraError, exit 7): the platform is not left connected
+            platform.close()
+            raise
     except OSError as exc:
         raise HardwareError(f"cannot open the rig: {exc}") from None
     guard = _recorded_guard(platform, GuardLimits(), hooks.confirm)

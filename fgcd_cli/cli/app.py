@@ -116,6 +116,15 @@ def _platform_error_type():
         return ()
 
 
+def _camera_error_type():
+    try:
+        from drivers.cameras import CameraError
+
+        return CameraError
+    except Exception:  # pragma: no cover - drivers always ship with fgcd
+        return ()
+
+
 def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
     from fgcd_cli.cli.native_stderr import route_native_stderr
@@ -200,7 +209,7 @@ def _invoke(typer_app: typer.Typer, args: Sequence[str]) -> int:
     """
     command = typer.main.get_command(typer_app)
     try:
-        with command.make_context("fgcd", list(args)) as ctx:
+        with command.make_context("fgcd", hoist_verbose(command, args)) as ctx:
             command.invoke(ctx)
     except typer.Exit as exc:
         return int(exc.exit_code or 0)
@@ -208,6 +217,52 @@ def _invoke(typer_app: typer.Typer, args: Sequence[str]) -> int:
         # `fgcd` or `fgcd campaign` alone: the help is the answer, not an error.
         print(exc.format_message())
     return 0
+
+
+VERBOSE_FLAGS = ("--verbose", "-v")
+
+
+def hoist_verbose(command, args: Sequence[str]) -> list[str]:
+    """``args`` with a ``--verbose``/``-v`` given after the subcommand moved before it, to the root's option.
+
+    Rule: the root's ``--verbose`` works anywhere before a ``--``, except where
+    the subcommand (or a group on the way) has an option of that name, or as
+    the value of an option that takes one (``--site -v``): those are left alone.
+    """
+    args = list(args)
+    end = args.index("--") if "--" in args else len(args)
+    if not set(VERBOSE_FLAGS) & _flags_and_valued(command)[0]:
+        return args
+    cmd, i, own, valued = command, 0, set(), set()
+    while i < end:
+        token = args[i]
+        flags, takes_value = _flags_and_valued(cmd)
+        if token in VERBOSE_FLAGS and cmd is not command and token not in own | flags:
+            args.insert(0, args.pop(i))  # the order of the others is kept: i now points at the next one
+            i += 1
+            continue
+        if token in takes_value:
+            i += 2
+            continue
+        sub = getattr(cmd, "commands", {}).get(token) if not token.startswith("-") else None
+        if sub is not None:
+            own |= flags if cmd is not command else set()
+            cmd = sub
+        i += 1
+    return args
+
+
+def _flags_and_valued(cmd) -> tuple[set[str], set[str]]:
+    """``(every option name of cmd, the names of those that take a value)``."""
+    names, valued = set(), set()
+    for param in getattr(cmd, "params", []):
+        if getattr(param, "param_type_name", "") != "option":
+            continue
+        opts = set(param.opts) | set(getattr(param, "secondary_opts", []))
+        names |= opts
+        if not (getattr(param, "is_flag", False) or getattr(param, "count", False)):
+            valued |= opts
+    return names, valued
 
 
 def _no_args_is_help_type():
@@ -243,6 +298,8 @@ def _classify(exc: BaseException) -> Failure | None:
         return Failure("error", str(exc), exc.exit_code)
     if isinstance(exc, _platform_error_type()):
         return Failure("platform error", str(exc), EXIT_PLATFORM)
+    if isinstance(exc, _camera_error_type()):  # hardware, like the platform: not connected, no frame
+        return Failure("camera error", str(exc), EXIT_PLATFORM)
     if isinstance(exc, typer.Abort):
         return _aborted(exc)
     if isinstance(exc, (SystemExit, GeneratorExit)):
@@ -254,7 +311,8 @@ def _classify(exc: BaseException) -> Failure | None:
         return Failure("error", f"{exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}", EXIT_OS)
     if state.verbose or not isinstance(exc, Exception):
         return None
-    return Failure("internal error", f"{type(exc).__name__}: {exc} (run with --verbose for details)", EXIT_INTERNAL)
+    return Failure("internal error", f"{type(exc).__name__}: {exc} (a bug: run the same command again with "
+                   "--verbose and report what it prints)", EXIT_INTERNAL)
 
 
 def _interrupted() -> Failure:
