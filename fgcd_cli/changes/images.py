@@ -54,11 +54,11 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return gray.copy() if np.shares_memory(gray, image) else gray
 
 
-def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Check and convert the reference and current image stacks (one image per lighting).
+def check_stack_sizes(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) -> None:
+    """Check that the stacks are non-empty, of equal length and of one image size (cheap: shapes only).
 
-    Returns the two lists as float32 images in [0, 1]. Raises :class:`UserInputError`
-    when the stacks are empty, of different lengths, or of different image sizes.
+    Callers run it before announcing any work (``docs/change-detection.md``); raises
+    :class:`UserInputError` naming the first image that does not fit.
     """
     if len(ref_images) == 0 or len(cur_images) == 0:
         raise UserInputError("need at least one reference and one current image")
@@ -67,16 +67,28 @@ def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) 
             f"{len(ref_images)} reference image(s) but {len(cur_images)} current image(s): "
             "give one current image per reference lighting, in the same order"
         )
-    refs = [to_float_image(im, name=f"reference image {i + 1}") for i, im in enumerate(ref_images)]
-    curs = [to_float_image(im, name=f"current image {i + 1}") for i, im in enumerate(cur_images)]
-    shape = refs[0].shape
-    for i, im in enumerate(refs + curs):
-        if im.shape[:2] != shape[:2]:
-            which = f"reference image {i + 1}" if i < len(refs) else f"current image {i - len(refs) + 1}"
+    shapes = [np.shape(im) for im in [*ref_images, *cur_images]]
+    if len(shapes[0]) < 2:
+        return  # not an image at all: to_float_image names it
+    for i, shape in enumerate(shapes):
+        if len(shape) >= 2 and shape[:2] != shapes[0][:2]:
+            which = f"reference image {i + 1}" if i < len(ref_images) else f"current image {i - len(ref_images) + 1}"
             raise UserInputError(
-                f"{which} is {im.shape[1]}x{im.shape[0]} px but reference image 1 is {shape[1]}x{shape[0]} px: "
+                f"{which} is {shape[1]}x{shape[0]} px but reference image 1 is {shapes[0][1]}x{shapes[0][0]} px: "
                 "all images must have the same size"
             )
+
+
+def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Check and convert the reference and current image stacks (one image per lighting).
+
+    Returns the two lists as float32 images in [0, 1]. Raises :class:`UserInputError`
+    when the stacks are empty, of different lengths, or of different image sizes.
+    """
+    check_stack_sizes(ref_images, cur_images)
+    refs = [to_float_image(im, name=f"reference image {i + 1}") for i, im in enumerate(ref_images)]
+    curs = [to_float_image(im, name=f"current image {i + 1}") for i, im in enumerate(cur_images)]
+    for im in refs + curs:
         if im.ndim != refs[0].ndim:
             raise UserInputError("mixing colour and grey images: give all images in colour or all in grey")
     return refs, curs
