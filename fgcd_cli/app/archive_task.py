@@ -105,7 +105,7 @@ def _analyze(key: VisitKey, options: AnalysisOptions, force: bool, t0: float) ->
     verify_inputs(reference, visit, inputs)
     data = run_campaign(request=CampaignDiffRequest(
         campaign=Path(key.campaign), station=key.station, visit=key.visit, mm_per_px=options.mm_per_px,
-        register=options.register, edge_check_px=options.edge_check_px))
+        register=options.register, edge_check_px=options.edge_check_px, force=force))
     _, visit = _open(key)  # the manifest now lists the products
     record = analysis_record(visit, inputs=inputs, options=options, seconds=time.perf_counter() - t0)
     # last: its presence (with matching product checksums) means "complete"

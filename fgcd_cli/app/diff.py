@@ -5,21 +5,25 @@ Plain functions (no typer); the CLI parses options and renders what they return.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, AnalysisOptions, analysis_inputs, analysis_record, stored_options
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.campaign import schema
-from fgcd_cli.campaign.atomic import atomic_write_bytes
+from fgcd_cli.campaign.atomic import atomic_write_bytes, sha256_file
 from fgcd_cli.changes import detect_changes
-from fgcd_cli.changes.images import to_float_image, to_gray
+from fgcd_cli.changes.images import check_stack_sizes, to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud
-from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
+from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.report.products import diff_products, result_summary
@@ -57,6 +61,26 @@ def _write_dir(output: Path, files: dict[str, bytes]) -> None:
         atomic_write_bytes(output / name, data)
 
 
+def check_diff_options(*, mm_per_px: float | None, edge_check_px: int | None, ambient_index: int | None = None,
+                       files: dict[str, Path | None] | None = None) -> None:
+    """The one check of a diff's options, run when a request is made: before anything is read or written.
+
+    Raises :class:`UserInputError` (exit 2) for a scale that is not a positive finite
+    number of mm per px (a negative or zero scale would give non-physical areas), an
+    edge check outside 0..8 px, a negative ambient index, or a named file that is not there.
+    """
+    if mm_per_px is not None and (isinstance(mm_per_px, bool) or not isinstance(mm_per_px, (int, float))
+                                  or not math.isfinite(mm_per_px) or mm_per_px <= 0):
+        raise UserInputError(f"--mm-per-px must be a positive number of millimetres per pixel, got {mm_per_px}")
+    if edge_check_px is not None:
+        _edge_check(edge_check_px)
+    if ambient_index is not None and ambient_index < 0:
+        raise UserInputError(f"--ambient-index must be 0 or more, got {ambient_index}")
+    for option, path in (files or {}).items():
+        if path is not None and not Path(path).is_file():
+            raise UserInputError(f"{option}: file not found: {path}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class BareDiffRequest:
     """A comparison of image files (``fgcd diff --ref ... --cur ...``).
@@ -91,6 +115,10 @@ class BareDiffRequest:
     edge_check_px: int = 0
     ambient_index: int | None = None
 
+    def __post_init__(self) -> None:
+        check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px, ambient_index=self.ambient_index,
+                           files={"--eval-mask": self.eval_mask, "--truth": self.truth})
+
 
 def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progress: TileProgress = None) -> dict:
     """Compare image files (one per lighting) and write the products into ``output``.
@@ -108,12 +136,9 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
         raise UserInputError(f"--ambient-index {ambient_index} is outside 0..{len(ref_paths) - 1}")
     ref_images = [read_image(p) for p in ref_paths]
     cur_images = [read_image(p) for p in cur_paths]
+    check_stack_sizes(ref_images, cur_images)  # before any work is announced
     mask = read_mask(eval_mask) if eval_mask is not None else None
-    area = None
-    if mm_per_px is not None:
-        if not mm_per_px > 0:
-            raise UserInputError("--mm-per-px must be positive")
-        area = np.full(ref_images[0].shape[:2], mm_per_px**2)
+    area = None if mm_per_px is None else np.full(ref_images[0].shape[:2], mm_per_px**2)
     _say(progress, f"comparing {len(ref_images)} lighting(s)…")
     large = ref_images[0].shape[0] * ref_images[0].shape[1] > LARGE_FRAME_PX
     if large:
@@ -274,6 +299,9 @@ class CampaignDiffRequest:
         A folder that also receives the products (they are always stored in the visit).
     edge_check_px : int or None
         Region-level edge check shift, pixels (None: :data:`EDGE_CHECK_PX`; 0: off).
+    force : bool
+        Replace a stored diff of the visit that was made with other options
+        (without it such a diff is kept and the request refused, :func:`check_stored_diff`).
     """
 
     campaign: Path
@@ -284,46 +312,98 @@ class CampaignDiffRequest:
     register: bool = True
     output: Path | None = None
     edge_check_px: int | None = None
+    force: bool = False
+
+    def __post_init__(self) -> None:
+        check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px,
+                           files={"--eval-mask": self.eval_mask})
+
+    def options(self) -> AnalysisOptions:
+        """The options this diff is made with, as its record (``changes/analysis.json``) states them."""
+        return AnalysisOptions(edge_check_px=self.edge_check_px, mm_per_px=self.mm_per_px, register=self.register,
+                               eval_mask_sha256=sha256_file(self.eval_mask) if self.eval_mask is not None else None)
+
+
+def _effective(options: AnalysisOptions) -> AnalysisOptions:
+    """``options`` with the campaign diff's default edge check spelled out (``None`` and 2 px make the same diff)."""
+    edge = EDGE_CHECK_PX if options.edge_check_px is None else options.edge_check_px
+    return dataclasses.replace(options, edge_check_px=edge)
+
+
+def options_text(options: AnalysisOptions) -> str:
+    """``--mm-per-px 0.5, --edge-check 2`` (the options as a person would give them)."""
+    o = _effective(options)
+    parts = [f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "the metric cloud's scale",
+             f"--edge-check {o.edge_check_px}"]
+    parts += ["--no-register"] if not o.register else []
+    parts += [f"--eval-mask sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []
+    return ", ".join(parts)
+
+
+def check_stored_diff(observation, options: AnalysisOptions, *, force: bool) -> str | None:
+    """Refuse to replace a visit's stored diff made with other options unless forced (docs/change-detection.md).
+
+    Returns a warning when the stored diff's options were not recorded (an older
+    fgcd): it is replaced, and the result says so. Raises
+    :class:`ImmutableDataError` (exit 5) naming both sets of options otherwise.
+    """
+    if not observation.has(schema.change_relpath(schema.REGIONS_JSON)):
+        return None
+    stored = stored_options(observation)
+    if stored is None:
+        return (f"replaced the stored diff of visit {observation.name}, made by an older fgcd "
+                "that did not record its options")
+    if force or _effective(stored) == _effective(options):
+        return None
+    raise ImmutableDataError(f"visit {observation.name} already has a diff made with {options_text(stored)}; "
+                             f"this one asks for {options_text(options)}: give --force to replace it")
 
 
 def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> dict:
-    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``)."""
+    """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``).
+
+    The options are checked when the request is made; a stored diff made with other
+    options is refused before any image is read (:func:`check_stored_diff`). The
+    products are followed by ``changes/analysis.json``, the record of the options and
+    inputs (:mod:`fgcd_cli.archive.freshness`).
+    """
     from fgcd_cli.campaign import open_campaign
 
     r = request
-    campaign, station, visit, eval_mask, mm_per_px = r.campaign, r.station, r.visit, r.eval_mask, r.mm_per_px
-    register, output, edge_check_px = r.register, r.output, r.edge_check_px
-
-    camp = open_campaign(campaign)
-    st = camp.station(station)
+    t0 = time.perf_counter()
+    camp = open_campaign(r.campaign)
+    st = camp.station(r.station)
     reference = st.reference()
-    observation = st.visit(visit)
+    observation = st.visit(r.visit)
+    options = r.options()
+    replaced = check_stored_diff(observation, options, force=r.force)
     lightings = _shared_lightings(reference, observation)
     ref_images = [reference.image(n) for n in lightings]
     cur_images = [observation.image(n) for n in lightings]
+    check_stack_sizes(ref_images, cur_images)
     shape = ref_images[0].shape[:2]
-    if mm_per_px is not None:
-        area = np.full(shape, mm_per_px**2)
-        scale_note = f"{mm_per_px} mm per px (given)"
+    if r.mm_per_px is not None:
+        area = np.full(shape, r.mm_per_px**2)
+        scale_note = f"{r.mm_per_px} mm per px (given)"
     else:
         area = _reference_pixel_area(reference, shape)
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
-    mask = read_mask(eval_mask) if eval_mask is not None else None
-    edge_check = _edge_check(EDGE_CHECK_PX if edge_check_px is None else edge_check_px)
-    _say(progress, f"station {station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
+    mask = read_mask(r.eval_mask) if r.eval_mask is not None else None
+    edge_check = _edge_check(EDGE_CHECK_PX if r.edge_check_px is None else r.edge_check_px)
+    _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
     result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,
-                            config=DetectionConfig.from_options(register=register, edge_check_px=edge_check,
+                            config=DetectionConfig.from_options(register=r.register, edge_check_px=edge_check,
                                                                 ambient_index=lightings.index("ambient") if "ambient" in lightings else None))
     fdf = measure_fdf(ref_images[0], cur_images[0])
-    reloc = observation.metadata.get("relocation") or {}
     metadata = {
         "site": camp.site,
-        "station": station,
+        "station": r.station,
         "visit": observation.name,
         "lightings": lightings,
         "metric scale": scale_note,
-        "relocation": reloc,
+        **({"scale (mm per px)": r.mm_per_px} if r.mm_per_px is not None else {}),
+        "relocation": observation.metadata.get("relocation") or {},
         "relocation residual (its own estimate)": relocation_residual_text(observation),
         "edge check": (f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
                        "edges set aside (cyan outlines)" if edge_check else "off"),
@@ -332,16 +412,27 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
 
     context = ReportContext(relocation_log=relocation_log_rows(observation), metadata=metadata,
                             scene_map=cached_scene_uncertainty(st), coarse_log=coarse_log_rows(observation),
-                            title=f"Station {station}: change report",
+                            title=f"Station {r.station}: change report",
                             subtitle=f"{camp.site} · reference vs visit {observation.name}")
     files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, context=context)
+    _store_products(st, observation, files, fdf, options=options, inputs=analysis_inputs(reference, observation), t0=t0)
+    if r.output is not None:
+        _write_dir(r.output, files)
+    data = result_summary(result, fdf)
+    data["output"] = str(r.output or observation.path)
+    data["visit"] = observation.name
+    if replaced:
+        data["warnings"] = [*data.get("warnings", []), replaced]
+    return data
+
+
+def _store_products(st, observation, files: dict[str, bytes], fdf: FdfResult | None, *, options: AnalysisOptions,
+                    inputs: dict[str, str], t0: float) -> None:
+    """The products in the visit, then the record of the options and inputs they were made with, last."""
     for name, data in files.items():
         observation.add_derived(schema.change_relpath(name), data)
     if fdf is not None:
         observation.add_derived(schema.AFD_JSON, json.dumps(fdf.as_dict(), indent=1).encode())
-    if output is not None:
-        _write_dir(output, files)
-    data = result_summary(result, fdf)
-    data["output"] = str(output or observation.path)
-    data["visit"] = observation.name
-    return data
+    visit = st.visit(observation.name)  # the manifest now lists the products
+    record = analysis_record(visit, inputs=inputs, options=options, seconds=time.perf_counter() - t0)
+    visit.add_derived(ANALYSIS_RELPATH, (json.dumps(record, indent=1) + "\n").encode("utf-8"))

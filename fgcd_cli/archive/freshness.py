@@ -24,8 +24,8 @@ from fgcd_cli.campaign.atomic import sha256_file
 from fgcd_cli.changes.version import DETECTOR_VERSION
 from fgcd_cli.errors import DataIntegrityError
 
-__all__ = ["AnalysisOptions", "Freshness", "analysis_inputs", "analysis_record", "freshness", "verify_inputs",
-           "ANALYSIS_RELPATH"]
+__all__ = ["AnalysisOptions", "Freshness", "analysis_inputs", "analysis_record", "freshness", "stored_options",
+           "verify_inputs", "ANALYSIS_RELPATH"]
 
 ANALYSIS_RELPATH = schema.change_relpath(schema.ANALYSIS_JSON)
 _REFERENCE_ARRAYS = (schema.array_relpath(schema.ARRAY_CLOUD_POINTS), schema.array_relpath(schema.ARRAY_T_REF_CAMREF))
@@ -43,11 +43,14 @@ class AnalysisOptions:
         Fixed scale, mm per px (None: from the reference's metric cloud).
     register : bool
         Register the visit's images onto the reference first.
+    eval_mask_sha256 : str or None
+        sha256 of the evaluation mask the diff compared within (None: the whole image).
     """
 
     edge_check_px: int | None = None
     mm_per_px: float | None = None
     register: bool = True
+    eval_mask_sha256: str | None = None
 
 
 class Freshness(StrEnum):
@@ -124,6 +127,23 @@ def _products_present(visit, products: dict[str, str]) -> bool:
     return True
 
 
+def _recorded_options(record: dict) -> dict | None:
+    """A record's options with the defaults of fields it predates (a record of an older fgcd keeps its meaning)."""
+    options = record.get("options")
+    return {**asdict(AnalysisOptions()), **options} if isinstance(options, dict) else None
+
+
+def stored_options(visit) -> AnalysisOptions | None:
+    """The options the visit's stored diff was made with (its ``changes/analysis.json``), or None if not recorded."""
+    if not visit.has(ANALYSIS_RELPATH) or not (visit.path / ANALYSIS_RELPATH).is_file():
+        return None
+    try:
+        options = _recorded_options(visit.json(ANALYSIS_RELPATH))
+        return AnalysisOptions(**options) if options is not None else None
+    except (ValueError, TypeError, AttributeError, DataIntegrityError):
+        return None
+
+
 def freshness(reference, visit, options: AnalysisOptions) -> Freshness:
     """Where ``visit``'s stored analysis stands against the current detector, ``options`` and inputs."""
     if not visit.has(ANALYSIS_RELPATH) or not (visit.path / ANALYSIS_RELPATH).is_file():
@@ -134,7 +154,7 @@ def freshness(reference, visit, options: AnalysisOptions) -> Freshness:
         return Freshness.NOT_ANALYSED
     if record.get("detector_version") != DETECTOR_VERSION:
         return Freshness.DETECTOR_CHANGED
-    if record.get("options") != asdict(options):
+    if _recorded_options(record) != asdict(options):
         return Freshness.OPTIONS_CHANGED
     if record.get("inputs") != analysis_inputs(reference, visit):
         return Freshness.INPUTS_CHANGED

@@ -9,6 +9,8 @@ observations from being checked (only the index comparison needs it).
 from __future__ import annotations
 
 import json
+import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -36,7 +38,7 @@ class Problem:
     """One damaged, missing or unexpected file."""
 
     path: str
-    kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write | interrupted-visit
+    kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write | interrupted-visit | scale
     detail: str
     severity: str = "error"  # error | warning
 
@@ -101,6 +103,8 @@ def _verify_observation(obs_path: Path, report: VerifyReport) -> None:
             continue
         if digest != entry.get("sha256"):
             report.problems.append(Problem(str(p), "checksum", "sha256 does not match the manifest"))
+        elif rel == _REGIONS:
+            _verify_scale(p, report)
     listed = set(files) | {MANIFEST}
     for p in sorted(obs_path.rglob("*")):
         if p.is_file():
@@ -108,6 +112,27 @@ def _verify_observation(obs_path: Path, report: VerifyReport) -> None:
             if rel not in listed:
                 kind = "incomplete-write" if p.name.startswith(TMP_PREFIX) else "unlisted"
                 report.problems.append(Problem(str(p), kind, "file not in the manifest", "warning"))
+
+
+_REGIONS = "changes/regions.json"
+_GIVEN_SCALE = re.compile(r"^\s*(\S+) mm per px \(given\)")
+
+
+def _verify_scale(path: Path, report: VerifyReport) -> None:
+    """A stored diff's areas rest on a physical scale: a given mm per px that is not positive and finite is named.
+
+    (``fgcd diff`` refuses such a scale up front; this finds diffs an older fgcd wrote with one.)
+    """
+    try:
+        metadata = json.loads(path.read_text(encoding="utf-8")).get("metadata") or {}
+        scale = metadata.get("scale (mm per px)")
+        if scale is None and (given := _GIVEN_SCALE.match(str(metadata.get("metric scale", "")))):
+            scale = float(given.group(1))
+    except (OSError, ValueError, AttributeError):
+        return  # its checksum matched: what it says is checked by `fgcd diff`, not here
+    if scale is not None and not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+        report.problems.append(Problem(str(path), "scale", f"diff made with a non-physical scale ({scale} mm per px): "
+                                       "its areas are wrong; run `fgcd diff` on this visit again to replace it"))
 
 
 def verify_campaign_dir(path: Path) -> VerifyReport:

@@ -71,24 +71,35 @@ def _render(data: dict):
 
 @contextmanager
 def tile_progress_bar(*, enabled: bool):
-    """A rich progress bar for tiled comparisons (large frames), or a no-op callback."""
+    """A rich progress bar for tiled comparisons (large frames), or a no-op callback.
+
+    Rule: the bar starts at the first tile, never before, so a command that fails
+    earlier (bad input, a damaged file) prints its one error line and nothing else
+    (a started bar leaves an empty line on stderr when it stops).
+    """
     if not enabled:
         yield None
         return
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeElapsedColumn(), transient=True, console=Console(stderr=True)) as bar:
-        task = None
+    bar = None
+    task = None
 
-        def update(done: int, total: int, label: str) -> None:
-            nonlocal task
-            if task is None:
-                task = bar.add_task(label, total=total)
-            bar.update(task, completed=done, total=total, description=label)
+    def update(done: int, total: int, label: str) -> None:
+        nonlocal bar, task
+        if bar is None:
+            bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                           TimeElapsedColumn(), transient=True, console=Console(stderr=True))
+            bar.start()
+            task = bar.add_task(label, total=total)
+        bar.update(task, completed=done, total=total, description=label)
 
+    try:
         yield update
+    finally:
+        if bar is not None:
+            bar.stop()
 
 
 def diff(
@@ -108,13 +119,18 @@ def diff(
     ambient_index: Optional[int] = typer.Option(
         None, "--ambient-index", help="Bare images: 0-based index of the ambient-light image (left out of the "
         "photometric stereo that labels regions relief/colour). Campaigns know it from the lighting names."),
+    force: bool = typer.Option(
+        False, "--force", help="Campaign mode: replace the visit's stored diff even when it was made with other "
+        "options (without it such a diff is kept and the command refused, exit 5)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Find fine-grained changes; writes change_score.png/.npy, change_mask.png, overlay.png, regions.json, report.html.
 
     Exit status 0 when the images were compared (with or without changes); 6 when
     they cannot be compared honestly (black, textureless, not overlapping): the
-    report and regions.json are still written and say why; 2 for bad input.
+    report and regions.json are still written and say why; 2 for bad input
+    (every option is checked before anything is read); 5 when the visit already
+    holds a diff made with other options and --force is not given.
     """
     from fgcd_cli.app import diff as diff_uc
     from fgcd_cli.errors import UserInputError
@@ -124,26 +140,28 @@ def diff(
             raise UserInputError("give either --campaign/--station or --ref/--cur, not both")
         if campaign is None or station is None:
             raise UserInputError("campaign mode needs both --campaign and --station")
+        request = diff_uc.CampaignDiffRequest(campaign=campaign, station=station, visit=visit, eval_mask=eval_mask,
+                                              mm_per_px=mm_per_px, register=not no_register, output=output,
+                                              edge_check_px=edge_check, force=force)
         run_record.no_platform()
         where = output or f"visit {visit or '(latest)'} of station '{station}'"
         with run_record.writing(f"the change maps and report in {where}", whole=False):
-            request = diff_uc.CampaignDiffRequest(campaign=campaign, station=station, visit=visit, eval_mask=eval_mask,
-                                                  mm_per_px=mm_per_px, register=not no_register, output=output,
-                                                  edge_check_px=edge_check)
             data = diff_uc.run_campaign(request, progress=None if as_json else info)
     else:
         if not ref or not cur:
             raise UserInputError("give --ref and --cur images (or --campaign and --station)")
         if output is None:
             raise UserInputError("give an output folder with -o DIR")
+        if force:
+            raise UserInputError("--force is for campaign mode (a visit's stored diff); bare mode writes to -o DIR")
+        request = diff_uc.BareDiffRequest(ref=ref, cur=cur, output=output, eval_mask=eval_mask, truth=truth,
+                                          mm_per_px=mm_per_px, register=not no_register,
+                                          edge_check_px=edge_check or 0, ambient_index=ambient_index)
         run_record.no_platform()
         with (
             run_record.writing(f"the change maps and report in {output}", whole=False),
             tile_progress_bar(enabled=not as_json) as tile_progress,
         ):
-            request = diff_uc.BareDiffRequest(ref=ref, cur=cur, output=output, eval_mask=eval_mask, truth=truth,
-                                              mm_per_px=mm_per_px, register=not no_register,
-                                              edge_check_px=edge_check or 0, ambient_index=ambient_index)
             data = diff_uc.run_bare(request, progress=None if as_json else info, tile_progress=tile_progress)
     emit(data, as_json=as_json, render=_render(data))
     if not data["comparable"]:

@@ -49,6 +49,19 @@ def test_up_to_date_until_the_version_the_options_an_input_or_a_product_changes(
     assert freshness(ref, visit, AnalysisOptions()) == Freshness.NOT_ANALYSED
 
 
+def test_a_record_older_than_an_option_keeps_its_meaning(analysed):
+    """A record written before ``eval_mask_sha256`` existed is read with that option's default (up to date)."""
+    st = analysed
+    visit = st.visit()
+    record = json.loads((visit.path / ANALYSIS_RELPATH).read_text())
+    record["options"].pop("eval_mask_sha256")
+    visit.add_derived(ANALYSIS_RELPATH, json.dumps(record).encode())
+    visit = st.visit()
+    assert freshness(st.reference(), visit, AnalysisOptions()) == Freshness.UP_TO_DATE
+    assert fr.stored_options(visit) == AnalysisOptions()
+    assert freshness(st.reference(), visit, AnalysisOptions(eval_mask_sha256="ab")) == Freshness.OPTIONS_CHANGED
+
+
 def test_a_changed_input_checksum_is_seen_and_damaged_bytes_are_refused(analysed):
     st = analysed
     ref, visit = st.reference(), st.visit()

@@ -60,6 +60,34 @@ def test_diff_missing_file(tmp_path):
     assert proc.returncode == 2 and "not found" in proc.stderr
 
 
+def test_diff_input_errors_are_exactly_one_stderr_line(image_files, tmp_path):
+    """No empty line from a progress bar, no "comparing..." before a size mismatch: the error line alone."""
+    missing = run("diff", "--ref", str(tmp_path / "missing.png"), "--cur", str(image_files / "ref-1.png"),
+                  "-o", str(tmp_path / "o1"))
+    assert missing.returncode == 2 and missing.stdout == ""
+    assert missing.stderr == f"error: image not found: {tmp_path / 'missing.png'}\n"
+    mismatch = run("diff", "--ref", str(image_files / "ref-1.png"), "--cur", str(image_files / "small.png"),
+                   "-o", str(tmp_path / "o2"))
+    assert mismatch.returncode == 2 and mismatch.stdout == ""
+    assert len(mismatch.stderr.splitlines()) == 1 and mismatch.stderr.startswith("error: current image 1 is 256x100 px")
+    assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+
+
+def test_diff_names_empty_and_damaged_image_files(image_files, tmp_path):
+    """A 0-byte file is empty, a cut-short PNG or JPEG is damaged (OpenCV would decode the JPEG with grey rows)."""
+    png = (image_files / "ref-1.png").read_bytes()
+    ok, jpg = cv2.imencode(".jpg", (textured_scene(64) * 255).astype(np.uint8))
+    cases = {"empty.png": (b"", "empty file (0 bytes)"),
+             "cut.png": (png[: len(png) // 2], "damaged or truncated PNG file"),
+             "cut.jpg": (jpg.tobytes()[: len(jpg) // 2], "damaged or truncated JPEG file"),
+             "notes.png": (b"field notes, not an image", "not an image format OpenCV knows")}
+    for name, (data, said) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        proc = run("diff", "--ref", str(tmp_path / name), "--cur", str(image_files / "ref-1.png"), "-o", str(tmp_path / "o"))
+        assert proc.returncode == 2, name
+        assert proc.stderr.splitlines() == [proc.stderr.strip()] and said in proc.stderr, (name, proc.stderr)
+
+
 def test_afd_json_and_figure(image_files, tmp_path):
     fig = tmp_path / "q.png"
     proc = run("afd", str(image_files / "ref-1.png"), str(image_files / "cur-1.png"), "-o", str(fig), "--json")
