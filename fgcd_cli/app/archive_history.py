@@ -18,7 +18,7 @@ from fgcd_cli.archive.discovery import find_campaigns
 from fgcd_cli.archive.tracking import RegionTrack, TrackStatus, VisitRegions, track_regions
 from fgcd_cli.campaign import open_campaign, schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes
-from fgcd_cli.errors import UserInputError
+from fgcd_cli.errors import DataIntegrityError, UserInputError
 
 __all__ = ["HistoryRequest", "StationHistory", "SiteHistory", "station_tracks", "archive_history", "visit_date"]
 
@@ -137,7 +137,11 @@ def station_tracks(campaign: Path, station: str) -> StationHistory:
     history = StationHistory(campaign=str(campaign), station=station)
     visits = []
     for name in st.visit_names():
-        visit = st.visit(name)
+        try:
+            visit = st.visit(name)
+        except DataIntegrityError:  # a damaged visit is named by its caller (`fgcd report`); the others are tracked
+            history.not_analysed.append(name)
+            continue
         if visit.has(_REGIONS) and visit.has(_MASK) and (visit.path / _REGIONS).is_file() \
                 and (visit.path / _MASK).is_file():
             visits.append(_visit_regions(visit))

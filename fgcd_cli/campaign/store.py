@@ -102,9 +102,30 @@ class Station:
         """Committed visits, oldest first."""
         return [self.visit(n) for n in self.visit_names()]
 
+    def missing_visit_names(self) -> list[str]:
+        """Visits ``station.json`` records whose folders are gone, oldest first ([] without an index)."""
+        present = set(self.visit_names())
+        prefix = f"{VISITS_DIR}/"
+        recorded = {rel.removeprefix(prefix) for rel in self.indexed_observations() or [] if rel.startswith(prefix)}
+        return sorted(recorded - present)
+
     def visit(self, name: str | None = None) -> Observation:
-        """A visit by name; the latest when ``name`` is None."""
+        """A visit by name; the latest recorded one when ``name`` is None.
+
+        Rule: a visit ``station.json`` records whose folder is gone is damage
+        (DataIntegrityError, exit 4), never skipped: asked for by name, or as the
+        latest, it is named; an older visit is never taken for the latest.
+        """
         names = self.visit_names()
+        missing = self.missing_visit_names()
+        if name is None and missing and (not names or missing[-1] > names[-1]):
+            older = f"; give --visit {names[-1]} for the latest one present" if names else ""
+            raise DataIntegrityError(f"station '{self.name}': the latest recorded visit {missing[-1]} is missing "
+                                     f"(its folder {self.path / VISITS_DIR / missing[-1]} is gone){older}; "
+                                     "run `fgcd campaign verify`")
+        if name in missing:
+            raise DataIntegrityError(f"station '{self.name}': visit {name} is recorded in {STATION_FILE} but its "
+                                     f"folder {self.path / VISITS_DIR / name} is gone; run `fgcd campaign verify`")
         if not names:
             raise CampaignError(f"station '{self.name}' has no visits yet (run `fgcd relocate`)")
         if name is None:

@@ -451,6 +451,10 @@ def render_station_history(*, station: str, site: str, reference_date: str, refe
     parts = [f"<h1>Station {html.escape(station)}: history</h1>",
              f'<div class="sub">Site {html.escape(site)} · reference observation {html.escape(reference_date)} · '
              f"{len(visits)} visit{'s' if len(visits) != 1 else ''}</div>"]
+    damaged = [v.name for v in visits if v.extra.get("damaged")]
+    if damaged:
+        parts.append(f'<div class="verdict cannot">Damaged or missing visit(s), not compared: {html.escape(", ".join(damaged))} '
+                     "(each row says why; run <code>fgcd campaign verify</code>).</div>")
     if not visits:
         parts.append('<div class="verdict cannot">No visit yet: only the reference observation exists.</div>')
     else:
@@ -472,7 +476,7 @@ def render_station_history(*, station: str, site: str, reference_date: str, refe
         rows = []
         for v in visits:
             area_mm2 = area_mm2_text(v.changed_mm2, v.changed_px, unit=False)
-            status = "compared" if v.comparable else f"not compared: {html.escape(v.reason)}"
+            status = "compared" if v.comparable else f"{'damaged' if v.extra.get('damaged') else 'not compared'}: {html.escape(v.reason)}"
             rows.append(f"<tr><td class=\"l\">{html.escape(v.date)}</td><td class=\"l\">{status}</td><td>{v.regions}</td>"
                         f"<td>{v.changed_px}</td><td>{area_mm2}</td><td>{_fmt(v.afd_px)}</td></tr>")
         parts.append("<h2>Visits</h2><table><tr><th class=\"l\">visit</th><th class=\"l\">status</th><th>regions</th>"

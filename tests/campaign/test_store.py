@@ -271,6 +271,49 @@ def test_deleted_observation_directories_are_named(camp):
     ]
 
 
+def _three_visits(st):
+    for i in range(3):
+        with st.new_visit(stamp=f"2026010{i}T000000000Z") as w:
+            w.add_image("cur", np.zeros((4, 4), np.uint8))
+            w.commit()
+
+
+def test_latest_recorded_visit_missing_is_named_never_replaced_by_an_older_one(camp):
+    import shutil
+
+    st = camp.create_station("s")
+    _write_reference(st)
+    _three_visits(st)
+    shutil.rmtree(st.path / "visits" / "20260102T000000000Z")
+    st = open_campaign(camp.path).station("s")
+    assert st.missing_visit_names() == ["20260102T000000000Z"]
+    with pytest.raises(DataIntegrityError, match=r"latest recorded visit 20260102T000000000Z is missing.*"
+                                                 r"--visit 20260101T000000000Z"):
+        st.visit()
+    with pytest.raises(DataIntegrityError, match="recorded in station.json but its folder"):
+        st.visit("20260102T000000000Z")
+    assert st.visit("20260101T000000000Z").name == "20260101T000000000Z"  # asked for by name: given
+    shutil.rmtree(st.path / "visits" / "20260100T000000000Z")  # an older one missing too: the latest present is fine
+    (st.path / "station.json").write_text(json.dumps({**st.info, "observations": [
+        "reference", "visits/20260100T000000000Z", "visits/20260101T000000000Z"]}))
+    assert open_campaign(camp.path).station("s").visit().name == "20260101T000000000Z"
+
+
+def test_verify_names_a_diff_made_with_a_non_physical_scale(camp):
+    st = camp.create_station("s")
+    _write_reference(st)
+    _three_visits(st)
+    visit = st.visit()
+    for scale, bad in (("0.5 mm per px (given)", False), ("-1.0 mm per px (given)", True), ("0.0 mm per px (given)", True),
+                       ("from the reference metric cloud", False)):
+        visit.add_derived("changes/regions.json", json.dumps({"regions": [], "metadata": {"metric scale": scale}}).encode())
+        report = verify_campaign(camp)
+        assert report.ok != bad, scale
+        assert [p.kind for p in report.problems] == (["scale"] if bad else [])
+    visit.add_derived("changes/regions.json", json.dumps({"metadata": {"scale (mm per px)": float("nan")}}).encode())
+    assert [p.path for p in verify_campaign(camp).problems] == [str(visit.path / "changes" / "regions.json")]
+
+
 def test_index_survives_stale_station_objects(camp):
     a = camp.create_station("s")
     b = open_campaign(camp.path).station("s")  # loaded before a's commit
