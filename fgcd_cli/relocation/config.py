@@ -45,6 +45,12 @@ class RelocationConfig:
     mode : LoopMode
         ``"parallel"``: three threads with latest-value hand-over; ``"serial"``:
         everything in turn. A plain string is accepted and checked when the loop starts.
+    deterministic : bool
+        Step the threads in a fixed order instead of running them side by side
+        (:class:`~fgcd_cli.vse.thread.SteppedVse`,
+        :class:`~fgcd_cli.relocation.worker.SteppedAlignmentWorker`): the same seeds give the
+        same run, and the time on the rig counts the steps, not the wall clock
+        (docs/relocation.md, "Reproducibility"). Either mode may be deterministic.
     eta : float
         Stop when ``g = ||M_B - I||_F <= eta`` (paper: 1e-4).
     max_adjustments : int
@@ -69,6 +75,7 @@ class RelocationConfig:
     """
 
     mode: LoopMode | str = LoopMode.PARALLEL
+    deterministic: bool = False
     eta: float = 1e-4
     max_adjustments: int = 12
     max_step_m: float = 0.05

@@ -17,7 +17,7 @@ from fgcd_cli.relocation.adjustment import camera_in_reference
 from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
 from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import LoopMode
-from fgcd_cli.relocation.worker import AlignmentWorker
+from fgcd_cli.relocation.worker import ALIGNMENT_STEP_S, AlignmentWorker
 from fgcd_cli.vse.types import VseStatus
 
 __all__ = ["DegenerateGeometry", "align_now", "fresh_3d_estimate", "wait_for_estimate"]
@@ -116,22 +116,22 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
         ``untrusted_min_wait_s``), none came within ``estimate_timeout_s``, or none has come and the VSE
         state it would need has stood still for ``untrusted_min_wait_s`` (:class:`_StandingStill`).
     """
-    config = ctx.config
-    t0 = time.monotonic()
+    config, now = ctx.config, getattr(ctx.session, "now", time.monotonic)  # deterministic: the step clock
+    t0 = now()
     patience = _Patience(degenerate_patience)
     still = _StandingStill()
     next_note = t0 + config.heartbeat_s  # never silent for long (issue 24, item 7)
     while True:
-        if time.monotonic() >= next_note:
-            _heartbeat(ctx, worker, time.monotonic() - t0)
+        if now() >= next_note:
+            _heartbeat(ctx, worker, now() - t0)
             next_note += config.heartbeat_s
         if worker.error:
             raise AlgorithmError(f"alignment thread stopped: {worker.error}")
         est = worker.latest()
         if est is not None and est.serial > last_serial and est.ok:
-            ctx.session.timing.wait_s += time.monotonic() - t0
+            ctx.session.timing.wait_s += now() - t0
             return est
-        waited = time.monotonic() - t0
+        waited = now() - t0
         if est is not None and est.serial > last_serial:
             patience.check(est, waited, ctx)
         if est is None:
@@ -145,7 +145,16 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
         if waited < config.untrusted_min_wait_s:
             deadlines.append(t0 + config.untrusted_min_wait_s)
         seen = est.serial if est is not None else -1
-        worker.wait_until(lambda e: e is not None and e.serial != seen, min(deadlines) - time.monotonic())
+        worker.wait_until(lambda e: e is not None and e.serial != seen, min(deadlines) - now())
+
+
+def _aligned(ctx: LoopContext, state, init, serial: int = 0) -> list[AlignmentEstimate]:
+    """Serial mode's alignment run; a deterministic run counts its nominal cost on the step clock."""
+    ests = ctx.aligner(state=state, problem=ctx.problem(), init=init, serial=serial)
+    advance = getattr(ctx.session.vse, "advance", None)
+    if advance is not None:
+        advance(ALIGNMENT_STEP_S)
+    return ests
 
 
 def align_now(ctx: LoopContext, state, init, serial: int, *, t0: float | None = None) -> AlignmentEstimate:
@@ -156,7 +165,7 @@ def align_now(ctx: LoopContext, state, init, serial: int, *, t0: float | None = 
     t0 = time.monotonic() if t0 is None else t0
     if len(state.cloud) < ctx.config.min_points:
         raise AlgorithmError(f"the VSE cloud has only {len(state.cloud)} points: cannot align")
-    ests = ctx.aligner(state=state, problem=ctx.problem(), init=init, serial=serial)
+    ests = _aligned(ctx, state, init, serial)
     ctx.session.timing.wait_s += time.monotonic() - t0
     oks = [e for e in ests if e.ok]
     est = oks[-1] if oks else ests[-1]
@@ -207,7 +216,7 @@ def fresh_3d_estimate(ctx: LoopContext, st: LoopState, after_frame: int) -> tupl
         ctx.say("aligning the current cloud to compare with the image estimate")
         state = session.tracking_state()
         t0 = time.monotonic()
-        ests = ctx.aligner(state=state, problem=ctx.problem(), init=st.last_T_ref_cur)
+        ests = _aligned(ctx, state, st.last_T_ref_cur)
         session.timing.wait_s += time.monotonic() - t0
         oks = [e for e in ests if e.ok]
         if not oks:

@@ -13,7 +13,8 @@
 Hand-over between threads is "latest value" under a lock: nobody waits for
 anybody except the adjustment thread, which needs one estimate newer than its
 previous motion and waits for it on the alignment thread's condition variable. ``mode="serial"`` runs the same steps one after the other
-(the paper's Table 5 baseline). A failing VSE or alignment pauses motion
+(the paper's Table 5 baseline), with the VSE thread still running beside them. ``deterministic=True``
+steps all three in a fixed order in one thread (docs/relocation.md, "Reproducibility"). A failing VSE or alignment pauses motion
 instead of guessing; the image stage (:mod:`fgcd_cli.relocation.image_stage`)
 takes over once the 3D estimate can no longer resolve the remaining offset
 (``RelocationConfig.image_handover``), refines a converged result, or falls back
@@ -44,7 +45,7 @@ from fgcd_cli.relocation.stop_rule import (
     reference_depth_m,
     tolerance_mm,
 )
-from fgcd_cli.relocation.worker import AlignmentWorker
+from fgcd_cli.relocation.worker import AlignmentWorker, SteppedAlignmentWorker
 
 __all__ = [
     "HEARTBEAT_S",
@@ -74,8 +75,10 @@ def _check_mode(config: RelocationConfig) -> LoopMode:
 
 
 def _start_worker(ctx: LoopContext) -> AlignmentWorker:
-    return AlignmentWorker(vse=ctx.session.vse, problem=ctx.problem(), init=ctx.init,
-                           min_points=ctx.config.min_points, aligner=ctx.aligner).start()
+    """The alignment thread; deterministic runs step it in turn with the VSE (no thread)."""
+    kind = SteppedAlignmentWorker if ctx.config.deterministic else AlignmentWorker
+    return kind(vse=ctx.session.vse, problem=ctx.problem(), init=ctx.init,
+                min_points=ctx.config.min_points, aligner=ctx.aligner).start()
 
 
 def _run_stages(ctx: LoopContext, st: LoopState) -> RelocationResult:

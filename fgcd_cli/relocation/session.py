@@ -81,10 +81,15 @@ class SessionTiming:
     simulator's rendering), left out of ``wait_s``: a real camera streams frames
     while the VSE works. 0 on hardware."""
 
+    step_clock: Callable[[], float] | None = None
+    """A deterministic run's clock (:attr:`fgcd_cli.vse.thread.SteppedVse.seconds`, one frame period per
+    frame step): its waits then count that, not the wall clock (docs/relocation.md, "Reproducibility")."""
+
     @property
     def total_s(self) -> float:
-        """Platform time plus waiting time: the session's duration on a real rig."""
-        return self.platform_s + self.wait_s
+        """Platform time plus waiting time: the session's duration on a real rig (a deterministic run:
+        platform time plus the frames' steps, so that it depends on the steps only)."""
+        return self.platform_s + (self.step_clock() if self.step_clock is not None else self.wait_s)
 
     @property
     def with_synthesis_s(self) -> float:
@@ -188,6 +193,14 @@ class VseSession:
     on_progress: Callable[[int, int, str], None] | None = None
     timing: SessionTiming = field(default_factory=SessionTiming)
 
+    def __post_init__(self) -> None:
+        if getattr(self.vse, "stepped", False):  # a deterministic run: the VSE's steps are the clock
+            self.timing.step_clock = lambda: self.vse.seconds
+
+    def now(self) -> float:
+        """The session's clock for its waits: ``time.monotonic()``, or a deterministic run's step clock."""
+        return self.timing.step_clock() if self.timing.step_clock is not None else time.monotonic()
+
     # -- VSE access
     def settle(self, *, frames: int | None = None):
         """Wait until the VSE has processed ``frames`` new frames; return its state."""
@@ -213,14 +226,14 @@ class VseSession:
 
     def tracking_state(self, *, timeout_s: float = 60.0):
         """Wait for a settled state in which the VSE tracks; raise if it fails."""
-        t0 = time.monotonic()
+        t0 = self.now()
         while True:
             st = self.settle()
             if st.status == VseStatus.TRACKING and st.T_map_cam is not None:
                 return st
             if st.status == VseStatus.FAILED:
                 raise AlgorithmError(f"the VSE cannot track this scene: {st.message}")
-            if time.monotonic() - t0 > timeout_s:
+            if self.now() - t0 > timeout_s:
                 raise AlgorithmError(f"the VSE is not tracking ({st.status}: {st.message})")
 
     # -- motion

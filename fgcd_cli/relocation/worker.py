@@ -17,10 +17,14 @@ from fgcd_cli.relocation.waiting import wait_for_state
 from fgcd_core.sim3 import Sim3
 from fgcd_cli.vse.types import VseStatus
 
-__all__ = ["AlignmentWorker"]
+__all__ = ["ALIGNMENT_STEP_S", "AlignmentWorker", "SteppedAlignmentWorker"]
 
 #: Longest wait for a new VSE state before the thread checks whether it is asked to stop, seconds.
 VSE_WAIT_S = 0.01
+
+#: A deterministic run's nominal cost of one alignment run (fast, then fine) on the step clock, seconds: the
+#: loop's patience rules and the time on the rig count it instead of the wall time the run took.
+ALIGNMENT_STEP_S = 1.0
 
 
 class AlignmentWorker:
@@ -124,3 +128,60 @@ class AlignmentWorker:
             with self._cond:
                 self._error = f"{type(exc).__name__}: {exc}"
                 self._cond.notify_all()
+
+
+class SteppedAlignmentWorker(AlignmentWorker):
+    """The alignment "thread" of a deterministic run: no thread, the steps in a fixed order.
+
+    Each tick: the VSE processes a frame (:class:`fgcd_cli.vse.thread.SteppedVse`), then the
+    alignment runs to completion on the latest state, then the adjustment reads the result. A
+    read (:meth:`latest`, :meth:`latest_ok`) first aligns the VSE's latest state when it is new and
+    alignable (the rule of :meth:`AlignmentWorker.can_align`); :meth:`wait_until` steps the VSE one
+    frame at a time, aligning after each, until its predicate holds or ``timeout_s`` seconds of the
+    VSE's step clock have passed. The same seeds then give the same estimates, in the same order.
+    """
+
+    _last_frame = -1  # frames_processed of the state aligned last
+
+    def start(self) -> "SteppedAlignmentWorker":
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _tick(self) -> None:
+        """Align the VSE's latest state to completion, when it is new and alignable."""
+        state = self._vse.latest()
+        if self._stop.is_set() or self._error is not None or not self._ready(state, self._last_frame):
+            return
+        self._last_frame = state.frames_processed
+        init = self._last_ok.T_ref_cur if self._last_ok is not None else self._init
+        try:
+            for est in self._aligner(state=state, problem=self._problem, init=init, serial=self._serial + 1):
+                self._publish(est)
+        except Exception as exc:  # noqa: BLE001 - reported to the adjustment, which stops (as the thread's)
+            self._error = f"{type(exc).__name__}: {exc}"
+        advance = getattr(self._vse, "advance", None)
+        if advance is not None:
+            advance(ALIGNMENT_STEP_S)
+
+    def latest(self) -> AlignmentEstimate | None:
+        self._tick()
+        return self._latest
+
+    def latest_ok(self) -> AlignmentEstimate | None:
+        self._tick()
+        return self._latest if self._latest is not None and self._latest.ok else None
+
+    def wait_until(self, predicate: Callable[[AlignmentEstimate | None], bool], timeout_s: float) -> bool:
+        deadline = self._vse.seconds + max(0.0, timeout_s)
+        while True:
+            self._tick()
+            if self._error is not None or predicate(self._latest):
+                return True
+            if self._stop.is_set() or self._vse.seconds >= deadline:
+                return False
+            before = self._vse.seconds
+            self._vse.step()
+            if self._vse.seconds <= before:  # a VSE that cannot step: nothing will change
+                return False

@@ -15,7 +15,7 @@ from typing import Callable
 
 from fgcd_cli.vse.types import FrameSource, VseState, VseStatus
 
-__all__ = ["VseThread"]
+__all__ = ["SteppedVse", "VseThread"]
 
 
 class VseThread:
@@ -180,3 +180,114 @@ def _failed(prev: VseState, message: str) -> VseState:
     from dataclasses import replace
 
     return replace(prev, status=VseStatus.FAILED, message=message)
+
+
+class SteppedVse:
+    """The VSE of a deterministic run: frames are processed in the caller's thread, when it waits for them.
+
+    Same interface as :class:`VseThread` (``start``, ``stop``, ``latest``, ``wait_for``, ``held``,
+    ``reset``). No thread runs beside the caller: :meth:`wait_for` grabs and processes one frame at a
+    time until its predicate holds, so how many frames the engine sees, and in what order with the
+    motions and the alignments, depends only on the steps, never on the machine's speed
+    (docs/relocation.md, "Reproducibility"). Its clock (:attr:`seconds`) is the steps' too: one
+    ``frame_period_s`` per frame, and ``wait_for``'s timeout is counted on it.
+    """
+
+    stepped = True
+
+    def __init__(self, engine, source: FrameSource, *, frame_period_s: float = 1.0 / 30.0,
+                 max_consecutive_errors: int = 20):
+        self.engine = engine
+        self.source = source
+        self.frame_period_s = float(frame_period_s)
+        self.max_consecutive_errors = int(max_consecutive_errors)
+        self._latest: VseState = engine.state()
+        self._steps = 0
+        self._advanced_s = 0.0
+        self._errors = 0
+        self._stopped = False
+        self._dead = False  # the camera or the engine failed: no further frame
+        self.error: str | None = None
+
+    @classmethod
+    def like(cls, thread: VseThread) -> "SteppedVse":
+        """The stepped twin of a (not started) :class:`VseThread`: its engine and its source."""
+        return cls(thread.engine, thread.source, max_consecutive_errors=thread.max_consecutive_errors)
+
+    @property
+    def seconds(self) -> float:
+        """The steps' clock: ``frame_period_s`` per frame step so far (resets included), plus what
+        :meth:`advance` added (the nominal cost of the other threads' steps)."""
+        return self._steps * self.frame_period_s + self._advanced_s
+
+    def advance(self, seconds: float) -> None:
+        """Count a step of another thread on this clock (an alignment run: its nominal cost)."""
+        self._advanced_s += max(0.0, float(seconds))
+
+    @property
+    def running(self) -> bool:
+        """False: nothing runs beside the caller."""
+        return False
+
+    def start(self) -> "SteppedVse":
+        self._stopped = False
+        return self
+
+    def stop(self, timeout: float = 60.0) -> None:
+        self._stopped = True
+
+    @contextmanager
+    def held(self, *, timeout_s: float = 30.0):
+        """Nothing to hold: frames are only grabbed inside :meth:`wait_for`."""
+        yield self
+
+    def reset(self) -> None:
+        """Forget the map now."""
+        self.engine.reset()
+        self._latest = self.engine.state()
+
+    def latest(self) -> VseState:
+        return self._latest
+
+    def step(self) -> VseState:
+        """Grab and process one frame (a failed camera or engine: the failed state, no frame)."""
+        self._steps += 1
+        if self._dead or self._stopped:
+            return self._latest
+        try:
+            frame = self.source.grab()
+        except Exception as exc:  # camera trouble: as VseThread, a few retries then failed
+            self._errors += 1
+            self.error = f"camera error: {exc}"
+            if self._errors >= self.max_consecutive_errors:
+                self._dead = True
+                self._latest = _failed(self._latest, f"failed: camera stopped delivering frames ({exc})")
+            return self._latest
+        self._errors = 0
+        try:
+            if getattr(self.engine, "metric", False):
+                self._latest = self.engine.process(frame.image, frame.timestamp_s, depth=getattr(frame, "depth", None))
+            else:
+                self._latest = self.engine.process(frame.image, frame.timestamp_s)
+        except Exception as exc:  # an engine bug must not kill the caller silently
+            self._dead = True
+            self.error = f"engine error: {type(exc).__name__}: {exc}"
+            self._latest = _failed(self._latest, f"failed: {self.error}")
+        return self._latest
+
+    def wait_for(self, predicate: Callable[[VseState], bool], timeout: float) -> VseState | None:
+        """Process frames until ``predicate(latest())`` holds; ``None`` after ``timeout`` seconds of the steps'
+        clock, or at once when no frame can come (stopped, failed)."""
+        deadline = self.seconds + float(timeout)
+        while True:
+            if predicate(self._latest):
+                return self._latest
+            if self._dead or self._stopped or self.seconds >= deadline:
+                return None
+            self.step()
+
+    def __enter__(self) -> "SteppedVse":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
