@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics  # the calibration use cases
+from fgcd_cli.app.determinism import deterministic_rig
 from fgcd_cli.campaign import init_campaign, schema
 from fgcd_cli.app.sim_scoring import score_visit_changes  # evaluation only
 from fgcd_cli.errors import CampaignError
@@ -48,6 +49,8 @@ class DemoConfig:
     start_offset_deg: float = 2.5
     station: str = "niche-figure"
     vse: str = "mono"
+    deterministic: bool = False
+    """Capture and relocation with their threads stepped in a fixed order: the same seeds, the same demo."""
 
 
 def demo_output_dir(requested: Path, *, now: datetime | None = None) -> tuple[Path, str]:
@@ -157,7 +160,7 @@ def _capture(run: _DemoRun) -> dict:
                               vse_variant=config.vse)
     run.tick("capturing the reference")
     try:
-        cap = capture_uc.capture_reference(rig.handles, run.station, lightings=[config.reference_light],
+        cap = capture_uc.capture_reference(deterministic_rig(rig.handles, config.deterministic), run.station, lightings=[config.reference_light],
                                            metadata={"driver": "sim", "scenario": rig.info["scenario"]},
                                            evaluation=reference_truth(rig.sim))
     finally:
@@ -186,12 +189,13 @@ def _relocate(run: _DemoRun) -> dict:
     rig = rig_uc.open_sim_rig(run.visit_scenario, T_flange_cam=run.X, intrinsics=run.camera, on_event=run.say,
                               on_progress=run.on_progress, vse_variant=config.vse)
     evaluator = RelocationEvaluator.from_reference(rig.sim, run.station.reference())
-    run.say("4/5 relocating (parallel rACR loop)")
-    run.tick("relocating (parallel rACR loop)")
+    loop = "deterministic rACR loop, threads stepped in turn" if config.deterministic else "parallel rACR loop"
+    run.say(f"4/5 relocating ({loop})")
+    run.tick(f"relocating ({loop})")
     try:
         vis = relocate_uc.relocate_and_capture(
             rig.handles, run.station,
-            request=relocate_uc.RelocateRequest(config=RelocationConfig(),
+            request=relocate_uc.RelocateRequest(config=RelocationConfig(deterministic=config.deterministic),
                                                 lightings=[config.visit_light, config.reference_light],
                                                 metadata={"driver": "sim", "scenario": rig.info["scenario"]}),
             hooks=relocate_uc.RelocateHooks(evaluate=evaluator.evaluate, on_record=run.on_record,

@@ -67,8 +67,9 @@ def _coarse_ok(row: dict) -> bool:
     return bool(c.get("handed_over")) and mm is not None and deg is not None and mm <= 50.0 and deg <= 5.0
 
 
-def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[str] | None = None) -> dict:
-    """Run the benchmark; returns ``{"summary": ..., "cases": [...]}``."""
+def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[str] | None = None,
+        deterministic: bool = False) -> dict:
+    """Run the benchmark; returns ``{"summary": ..., "cases": [...]}`` (``deterministic``: threads stepped in turn)."""
     from fgcd_cli.relocation.coarse import CoarseConfig
 
     chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK))]
@@ -77,7 +78,7 @@ def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[
     with tempfile.TemporaryDirectory(prefix="fgcd-bench-coarse-") as tmp:
         for case in chosen:
             say(f"case {case.name}: {case.scene}, start {case.offset_mm:.0f} mm / {case.offset_deg:.0f} deg away")
-            results.append(_run_case(case, Path(tmp), modes=[], runs=runs, say=say))
+            results.append(_run_case(case, Path(tmp), modes=[], runs=runs, say=say, deterministic=deterministic))
     with_stage = _summarise(results, "coarse")
     rows = [r["coarse"] for r in results if "coarse" in r]
     ran = [r for r in rows if r.get("coarse")]

@@ -41,8 +41,12 @@ __all__ = ["EXPERIMENTS", "QUICK", "plan", "run", "summarise"]
 
 
 def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
-        cases: list[str] | None = None, say=lambda _m: None, on_progress=None) -> dict:
-    """Run (or resume) the experiments; returns ``{"summary", "targets", "paper", "runs", "out"}``."""
+        cases: list[str] | None = None, say=lambda _m: None, on_progress=None, deterministic: bool = False) -> dict:
+    """Run (or resume) the experiments; returns ``{"summary", "targets", "paper", "runs", "out"}``.
+
+    ``deterministic``: the rACR runs with their threads stepped in a fixed order (runs already in ``out`` are
+    kept as they are: a deterministic figure needs a fresh ``out``).
+    """
     from fgcd_cli.bench.paper_changes import score_visits
     from fgcd_cli.bench.paper_report import write_report
 
@@ -57,7 +61,7 @@ def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
         if on_progress is not None:
             on_progress(i, total, f"{spec.experiment} {spec.case} {spec.label}")
         if load_run(spec.path(out)) is None:
-            atomic_write_json(spec.path(out), _run_spec(spec, out, worlds, say))
+            atomic_write_json(spec.path(out), _run_spec(spec, out, worlds, say, deterministic=deterministic))
     if scored:
         if on_progress is not None:
             on_progress(len(runs), total, "s55: change detection after each relocation")
@@ -72,7 +76,7 @@ def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
     return data
 
 
-def _run_spec(spec: RunSpec, out: Path, worlds: dict, say) -> dict:
+def _run_spec(spec: RunSpec, out: Path, worlds: dict, say, *, deterministic: bool = False) -> dict:
     """One run, with its world and station set up first (once per invocation, or reused from disk)."""
     from fgcd_cli.errors import FgcdError
 
@@ -85,7 +89,7 @@ def _run_spec(spec: RunSpec, out: Path, worlds: dict, say) -> dict:
         say(f"{spec.world.name}: set-up failed: {exc}")
         return {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
                 "error": f"setup: {exc}", "success": False, "afd_px": None}
-    return run_one(spec, camp, station, X, camera, say=say)
+    return run_one(spec, camp, station, X, camera, say=say, deterministic=deterministic)
 
 
 # ----------------------------------------------------------------------------- summary

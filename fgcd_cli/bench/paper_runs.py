@@ -191,15 +191,17 @@ def visit_scenario(spec: RunSpec):
                        start_offset_deg=spec.offset_deg, session_seed=spec.session_seed, **VISIT_CHANGES)
 
 
-def loop_config(spec: RunSpec):
-    """The rACR loop's options for ``spec``: its mode, alpha and ablation (paper 000 §5.4)."""
+def loop_config(spec: RunSpec, *, deterministic: bool = False):
+    """The rACR loop's options for ``spec``: its mode, alpha and ablation (paper 000 §5.4); ``deterministic``:
+    its threads stepped in a fixed order."""
     from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
     from fgcd_cli.alignment.fine_config import FineAlignConfig
     from fgcd_cli.relocation.config import RelocationConfig
 
     fast = FastAlignConfig(scale=ScaleStepConfig(estimate=False)) if spec.ablation == "S" else FastAlignConfig()
     fine = FineAlignConfig(alpha=spec.alpha, refine_keyframes=spec.ablation != "P")
-    return RelocationConfig(mode=spec.mode, fine=spec.ablation != "F", fast_align=fast, fine_align=fine,
+    return RelocationConfig(mode=spec.mode, deterministic=deterministic, fine=spec.ablation != "F", fast_align=fast,
+                            fine_align=fine,
                             image_refine=spec.image_stage, image_fallback=spec.image_stage)
 
 
@@ -219,7 +221,8 @@ def _noisy_reference(noise: float):
     return perturb
 
 
-def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say) -> dict:
+def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say,
+            deterministic: bool = False) -> dict:
     """Relocate once as ``spec`` says and score it; a pause or a refused motion is an outcome (``error``)."""
     from drivers.platform import PlatformError
     from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
@@ -244,7 +247,7 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     try:
         vis = relocate_and_capture(
             rig.handles, station,
-            RelocateRequest(config=loop_config(spec), lightings=[spec.visit_light, spec.reference_light],
+            RelocateRequest(config=loop_config(spec, deterministic=deterministic), lightings=[spec.visit_light, spec.reference_light],
                             coarse=CoarseConfig(), method=spec.method, guided=spec.guided,
                             acr=AcrConfig(use_handeye=spec.acr_handeye)),
             hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary,

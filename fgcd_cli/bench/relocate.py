@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fgcd_cli.app.determinism import deterministic_rig
 from fgcd_cli.campaign import init_campaign
 from fgcd_cli.relocation.enums import CoarseAction, EstimateStage, LoopMode
 
@@ -78,11 +79,13 @@ CASES: list[Case] = [
 QUICK = ["indoor-1", "indoor-2", "outdoor-1"]
 
 
-def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: list[tuple] | None = None) -> dict:
+def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: list[tuple] | None = None,
+              deterministic: bool = False) -> dict:
     """Calibrate, capture the reference, then relocate once per mode.
 
     ``runs`` (label, mode, coarse config or None), when given, replaces ``modes``: the
-    coarse-stage benchmark relocates the same reference with and without the stage.
+    coarse-stage benchmark relocates the same reference with and without the stage (``deterministic``:
+    capture and relocations with their threads stepped in a fixed order).
     """
     from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
     from drivers.platform import PlatformError
@@ -91,8 +94,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     from fgcd_cli.app.capture import capture_reference
     from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
     from fgcd_cli.relocation.loop import RelocationConfig
-    from fgcd_cli.app.rig import open_sim_rig
-    from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.app.rig import SimScenario, open_sim_rig
 
     camp = init_campaign(workdir / case.name, site=case.name, rig={"driver": "sim"})
     st = camp.create_station("s")
@@ -106,7 +108,8 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
         rig = open_sim_rig(SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light),
                            T_flange_cam=X, intrinsics=cam)
         try:
-            capture_reference(rig.handles, st, lightings=[case.reference_light], evaluation=reference_truth(rig.sim))
+            capture_reference(deterministic_rig(rig.handles, deterministic), st, lightings=[case.reference_light],
+                              evaluation=reference_truth(rig.sim))
         finally:
             rig.close()
     except FgcdError as exc:
@@ -125,8 +128,8 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
             t0 = time.monotonic()
             vis = relocate_and_capture(
                 rig.handles, st,
-                RelocateRequest(config=RelocationConfig(mode=mode), lightings=[case.visit_light, case.reference_light],
-                                coarse=coarse),
+                RelocateRequest(config=RelocationConfig(mode=mode, deterministic=deterministic),
+                                lightings=[case.visit_light, case.reference_light], coarse=coarse),
                 hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary))
             r = vis.relocation
             truth = ev.evaluate()
@@ -226,15 +229,16 @@ def _summarise(results: list[dict], mode: str) -> dict:
     }
 
 
-def run(*, quick: bool, serial: bool = True, say=lambda _m: None, cases: list[str] | None = None) -> dict:
-    """Run the benchmark; returns ``{"summary": ..., "cases": [...]}``."""
+def run(*, quick: bool, serial: bool = True, say=lambda _m: None, cases: list[str] | None = None,
+        deterministic: bool = False) -> dict:
+    """Run the benchmark; returns ``{"summary": ..., "cases": [...]}`` (``deterministic``: threads stepped in turn)."""
     chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK))]
     modes = [LoopMode.PARALLEL, LoopMode.SERIAL] if serial else [LoopMode.PARALLEL]
     results = []
     with tempfile.TemporaryDirectory(prefix="fgcd-bench-relocate-") as tmp:
         for case in chosen:
             say(f"case {case.name}: {case.scene}, {case.reference_light} -> {case.visit_light}")
-            results.append(_run_case(case, Path(tmp), modes=modes, say=say))
+            results.append(_run_case(case, Path(tmp), modes=modes, say=say, deterministic=deterministic))
     par = _summarise(results, LoopMode.PARALLEL)
     summary = dict(par)
     if serial:

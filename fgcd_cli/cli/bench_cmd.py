@@ -7,6 +7,7 @@ from typing import Optional
 
 import typer
 
+from fgcd_cli.cli.determinism import DETERMINISTIC, deterministic_setup
 from fgcd_cli.cli.output import emit, info
 
 app = typer.Typer(help="Benchmarks reproducing the papers' measurements.", no_args_is_help=True)
@@ -150,13 +151,15 @@ def relocate(
     quick: bool = typer.Option(False, "--quick", help="A 3-case subset (CI-sized)."),
     no_serial: bool = typer.Option(False, "--no-serial", help="Skip the serial comparison."),
     case: Optional[list[str]] = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
+    deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """The rACR loop on simulated indoor/outdoor cases: success (true AFD < 3 px), AFD, adjustments, time."""
+    deterministic_setup(deterministic)
     from fgcd_cli.bench.relocate import run
     from fgcd_cli.relocation.enums import LoopMode
 
-    data = run(quick=quick, serial=not no_serial, say=info, cases=case)
+    data = run(quick=quick, serial=not no_serial, say=info, cases=case, deterministic=deterministic)
 
     def show(console):
         for r in data["cases"]:
@@ -185,9 +188,11 @@ def paper(
     experiment: Optional[list[str]] = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, table4, "
                                                    "fig4, fig6, fig12, s55, revisit (repeatable; default all)."),
     case: Optional[list[str]] = typer.Option(None, "--case", help="Only these relocation cases (repeatable)."),
+    deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Paper 000's experiments in the simulator: rACR beside the ACR baseline (Tables 2-5, Figs. 4, 6, 7, 12, §5.5)."""
+    deterministic_setup(deterministic)
     from fgcd_cli.bench.paper import EXPERIMENTS, run
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.errors import UserInputError
@@ -205,7 +210,7 @@ def paper(
     with step_progress(enabled=True) as bar:
         say = bar.lines(info) if bar is not None else info
         data = run(quick=quick, out=out, experiments=tuple(experiment) if experiment else EXPERIMENTS,
-                   cases=case, say=say, on_progress=bar)
+                   cases=case, say=say, on_progress=bar, deterministic=deterministic)
 
     def show(console):
         console.print((Path(data["out"]) / "paper.md").read_text())
@@ -221,12 +226,14 @@ def coarse(
     quick: bool = typer.Option(False, "--quick", help="A 2-case subset."),
     no_baseline: bool = typer.Option(False, "--no-baseline", help="Skip the runs without the coarse stage."),
     case: Optional[list[str]] = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
+    deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """The active coarse stage (paper 001) from far starts: hand-over within 5 cm / 5 deg, then rACR."""
+    deterministic_setup(deterministic)
     from fgcd_cli.bench.coarse import run
 
-    data = run(quick=quick, baseline=not no_baseline, say=info, cases=case)
+    data = run(quick=quick, baseline=not no_baseline, say=info, cases=case, deterministic=deterministic)
 
     def show(console):
         for r in data["cases"]:

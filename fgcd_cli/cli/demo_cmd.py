@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from fgcd_cli.cli.capture_cmd import print_record
+from fgcd_cli.cli.determinism import DETERMINISTIC, deterministic_setup
 from fgcd_cli.cli.output import emit, info
 
 
@@ -47,9 +48,11 @@ def demo(
                                                              "`fgcd sim lights`)."),
     changes: int = typer.Option(4, "--changes", help="Fine-grained changes injected before the revisit."),
     vse: str = typer.Option("mono", "--vse", help="VSE of capture and relocation: mono (rACR, monocular) or rgbd (depth camera)."),
+    deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Run a complete simulated campaign: calibrate, capture, relocate under other light, diff, report."""
+    deterministic_setup(deterministic)  # before the heavy libraries load
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.app import demo as demo_uc
     from fgcd_cli.errors import UserInputError
@@ -69,7 +72,8 @@ def demo(
     # Every step of the demo reports through on_progress: a live bar with its elapsed time, or off a
     # terminal a plain line per step and a heartbeat (stderr, also with --json), so no step runs silently.
     with step_progress(enabled=True) as bar:
-        summary = demo_uc.run_demo(out, config=demo_uc.DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse),
+        summary = demo_uc.run_demo(out, config=demo_uc.DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse,
+                                                                  deterministic=deterministic),
                            say=info, on_record=print_record, on_progress=bar)
 
     def render(c) -> None:

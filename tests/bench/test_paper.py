@@ -89,7 +89,7 @@ def fake_result(spec, afd):
 def test_a_rerun_resumes_from_the_run_files(tmp_path, monkeypatch):
     calls = []
 
-    def fake_run(spec, out, worlds, say):
+    def fake_run(spec, out, worlds, say, deterministic=False):
         calls.append(spec)
         if len(calls) == 3:
             raise KeyboardInterrupt  # killed mid-way
