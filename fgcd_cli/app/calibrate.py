@@ -14,11 +14,14 @@ from pathlib import Path
 from typing import Any, Callable
 
 from fgcd_cli.calibration.handeye import HandEyeResult
+from fgcd_cli.app.session import MAX_SCALE_RESIDUAL_MM
 from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
+from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
 
-__all__ = ["HandEyeMode", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "run_handeye", "calibrate_sim_handeye",
-           "calibrate_sim_intrinsics"]
+__all__ = ["HandEyeMode", "HandEyePlan", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "MAX_HANDEYE_RMS_MM",
+           "MAX_HANDEYE_REPROJECTION_PX", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "handeye_unusable",
+           "plan_handeye", "run_handeye", "store_handeye"]
 
 ProgressCallback = Callable[[int, int, str], None]
 
@@ -187,7 +190,8 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], cam
         calibration = run_handeye(rig.handles, HandEyeRequest(), say=say, on_progress=on_progress)
     finally:
         rig.close()
-    record = calibration.result.to_dict()
+    record = {**calibration.result.to_dict(), "mode": str(HandEyeMode.TARGET_FREE), "driver": "sim",
+              "rig": {"driver": "sim"}}
     campaign.write_rig("handeye", record)
     return record
 
@@ -222,3 +226,113 @@ def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callab
     save_intrinsics(campaign, result)
     say(f"intrinsics: fx {result.camera.fx:.1f} px, RMS {result.rms_px:.3f} px over {result.n_views} views")
     return result.camera
+
+
+# ----------------------------------------------------------------------------- `fgcd calibrate hand-eye` on a campaign
+#: Largest motion-pair residual RMS (mm) of a hand-eye that is stored. Every capture and revisit fits its
+#: session's map scale through this hand-eye over the same kind of guarded motions and explores again when
+#: that fit leaves more than app.session.MAX_SCALE_RESIDUAL_MM (12 mm, 40 % of the 30 mm exploration): a
+#: hand-eye whose own calibration motions leave more would fail that check in every later session
+#: (docs/calibration.md, "When a result is refused").
+MAX_HANDEYE_RMS_MM = MAX_SCALE_RESIDUAL_MM
+#: Largest reprojection RMS (px) of the target-free image refinement that is stored: good runs give
+#: 0.2-0.25 px (docs/calibration.md, "Reading the result"); beyond 1 px the stop images disagree with X
+#: (blur, a moving scene, wrong intrinsics) by more than the sub-pixel AFD the relocation aims for.
+MAX_HANDEYE_REPROJECTION_PX = 1.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class HandEyePlan:
+    """A hand-eye run checked before anything is opened or moved (:func:`plan_handeye`).
+
+    Attributes
+    ----------
+    rig : fgcd_cli.app.rig_options.EffectiveRig
+        Driver, address, baud rate and camera (option > campaign.toml [rig] > default).
+    scenario : SimScenario or None
+        The simulated world (simulator only): ``--scene``/``--seed``, else the campaign's ``[rig.sim]``.
+    intrinsics : IntrinsicsResult or None
+        The campaign's calibrated intrinsics (None: the simulated camera's nominal ones).
+    request : HandEyeRequest
+    """
+
+    rig: Any
+    scenario: Any
+    intrinsics: Any
+    request: HandEyeRequest
+
+
+def _handeye_world(campaign, rig, *, scene: str | None, seed: int | None):
+    """The simulated world of a hand-eye run: the options, else the campaign's ``[rig.sim]`` (UserInputError)."""
+    from fgcd_cli.app.scenario import Driver, SimScenario, check_scenario
+    from fgcd_cli.campaign.records import campaign_world
+
+    if rig.driver != Driver.SIM:
+        if scene is not None or seed is not None:
+            raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, "
+                                 f"not {rig.driver}")
+        return None
+    world = campaign_world(campaign) if campaign is not None else {"scene": "stele", "seed": 0, "noise": "default"}
+    return check_scenario(SimScenario(scene=scene or world["scene"], seed=world["seed"] if seed is None else seed,
+                                      noise=world["noise"]))
+
+
+def plan_handeye(campaign, given, request: HandEyeRequest, *, scene: str | None = None,
+                 seed: int | None = None) -> HandEyePlan:
+    """Check a hand-eye run in the order a person fixes it; nothing is opened, moved or written.
+
+    The rig (``given``: :class:`fgcd_cli.app.rig_options.RigOptions`; driver, then its address) -> the mode
+    against the driver (no board in the simulator; a board file) -> the world -> the intrinsics (a real camera
+    needs calibrated ones) -> the campaign's rig: a hand-eye made on one rig is never stored into a campaign
+    of another, whatever ``--driver`` says (docs/calibration.md, "Which rig a hand-eye belongs to").
+    """
+    from fgcd_cli.app.rig_options import check_campaign_rig, resolve_rig
+    from fgcd_cli.app.scenario import Driver
+    from fgcd_cli.calibration.rig import load_intrinsics
+
+    rig = resolve_rig(campaign, given)
+    if request.mode == HandEyeMode.TARGET and rig.driver == Driver.SIM:
+        raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
+    if request.mode == HandEyeMode.TARGET and request.board_file is None:
+        raise UserInputError("--mode target needs --board <sidecar.json> describing the printed board")
+    scenario = _handeye_world(campaign, rig, scene=scene, seed=seed)
+    intrinsics = load_intrinsics(campaign) if campaign is not None else None
+    if intrinsics is None and rig.driver != Driver.SIM:
+        where = "this campaign has none" if campaign is not None else "give -c CAMPAIGN"
+        raise UserInputError(f"hand-eye with a real camera needs calibrated intrinsics ({where}): "
+                             "run `fgcd calibrate intrinsics --images DIR -c CAMPAIGN` first")
+    check_campaign_rig(campaign, rig, what="a hand-eye")
+    return HandEyePlan(rig=rig, scenario=scenario, intrinsics=intrinsics, request=request)
+
+
+def handeye_unusable(result: HandEyeResult) -> str | None:
+    """Why a hand-eye is not usable (its residuals beyond :data:`MAX_HANDEYE_RMS_MM` / ``_PX``), or None."""
+    import math
+
+    rms = result.rms_mm
+    if not math.isfinite(rms) or rms > MAX_HANDEYE_RMS_MM:
+        return (f"the hand-eye's motion pairs disagree by {rms:.1f} mm RMS, beyond the {MAX_HANDEYE_RMS_MM:.0f} mm "
+                f"a session's scale fit accepts")
+    px = (result.refinement or {}).get("rms_px")
+    if px is not None and (not math.isfinite(px) or px > MAX_HANDEYE_REPROJECTION_PX):
+        return (f"the hand-eye's image refinement reprojects at {px:.2f} px RMS, beyond "
+                f"{MAX_HANDEYE_REPROJECTION_PX:.0f} px (blur, a moving scene or wrong intrinsics)")
+    return None
+
+
+def store_handeye(campaign, plan: HandEyePlan, calibration: HandEyeCalibration, *, accept_residual: bool = False):
+    """Store a hand-eye in the campaign rig with the rig that made it; ``(path or None, refusal or None)``.
+
+    Rule: a hand-eye beyond the residual limits is not stored (the caller exits 6) unless
+    ``accept_residual``; then it is stored with the reason in ``residual_accepted``.
+    """
+    from fgcd_cli.calibration.rig import save_handeye
+
+    unusable = handeye_unusable(calibration.result)
+    if campaign is None or (unusable is not None and not accept_residual):
+        return None, unusable
+    extra = {"mode": str(plan.request.mode), "driver": plan.rig.driver, "rig": plan.rig.record(),
+             "limits": {"rms_mm": MAX_HANDEYE_RMS_MM, "reprojection_px": MAX_HANDEYE_REPROJECTION_PX}}
+    if unusable is not None:
+        extra["residual_accepted"] = unusable
+    return save_handeye(campaign, calibration.result, extra=extra), None

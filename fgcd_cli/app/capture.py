@@ -14,11 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcd_cli.app.rig import LightsSpec, RigHandles, RigHooks, RigRequest
+from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
 from fgcd_cli.app.scenario import (
     Driver,
     SimScenario,
-    check_connection,
-    check_driver,
     check_lighting,
     check_scenario,
     check_scene,
@@ -123,8 +122,8 @@ class CapturePlan:
         The campaign's hand-eye.
     camera : PinholeCamera or None
         The campaign's intrinsics (required on hardware).
-    port, host : str or None
-        Address of a GRBL stage / UR arm (option, else campaign.toml ``[rig]``).
+    rig : EffectiveRig
+        Driver, address, baud rate and camera (option, else campaign.toml ``[rig]``, else the default).
     station : str
         The station to capture.
     """
@@ -134,10 +133,16 @@ class CapturePlan:
     scenario: SimScenario | None
     T_flange_cam: np.ndarray
     camera: PinholeCamera | None
-    port: str | None = None
-    host: str | None = None
+    rig: EffectiveRig | None = None
     station: str = ""
     lights: LightsSpec | None = None
+
+    def rig_request(self) -> RigRequest:
+        """The rig this capture opens."""
+        rig = self.rig or EffectiveRig(driver=self.driver)
+        return RigRequest(driver=self.driver, T_flange_cam=self.T_flange_cam, intrinsics=self.camera,
+                          scenario=self.scenario, port=rig.port, baud=rig.baud, host=rig.host,
+                          camera_index=rig.camera, lights=self.lights)
 
 
 def rig_lights(campaign, lightings: list[str]) -> LightsSpec | None:
@@ -175,14 +180,14 @@ def check_station_can_take_a_reference(campaign, name: str) -> None:
 
 
 def _image_lightings(text: str, *, sim: bool) -> list[str]:
-    """The comma-separated lightings of the reference images, checked (simulator: known presets)."""
+    """The comma-separated lightings of the reference images (``--light``), checked (simulator: known presets)."""
     names = [x.strip() for x in text.split(",") if x.strip()]
     if not names:
-        raise UserInputError("--lightings names no lighting")
+        raise UserInputError("--light names no lighting")
     if sim:
-        names = [check_lighting(n, option="--lightings") for n in names]
+        names = [check_lighting(n, option="--light") for n in names]
     if len(set(names)) != len(names):
-        raise UserInputError(f"--lightings names a lighting twice: {text}")
+        raise UserInputError(f"--light names a lighting twice: {text}")
     return names
 
 
@@ -194,39 +199,36 @@ class CaptureRequest:
     ----------
     station : str
         Station to capture (created if missing).
-    driver : str or None
-        Platform driver (None: the campaign's ``[rig] driver``, else ``sim``).
+    rig : RigOptions
+        Driver, port, host, baud, camera as given (None: campaign.toml ``[rig]``, else the default;
+        :func:`fgcd_cli.app.rig_options.resolve_rig`).
     scene, seed : str, int or None
         The station's simulated world (None: the campaign's ``[rig.sim]``).
     light : str
-        Lighting of the capture (simulator).
-    lightings : str or None
-        Comma-separated lightings of the reference images (None: ``light``).
-    port, host : str or None
-        Address of a GRBL stage / UR arm (None: campaign.toml ``[rig]``).
+        Comma-separated lightings of the reference images, e.g. ``ambient,led:3,led:9``; on the
+        simulator the first also lights the capture session.
     """
 
     station: str
-    driver: str | None = None
+    rig: RigOptions = RigOptions()
     scene: str | None = None
     seed: int | None = None
     light: str = "front"
-    lightings: str | None = None
-    port: str | None = None
-    host: str | None = None
 
 
 def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
     """Check every option of a capture, in the order a person fixes them; nothing is written.
 
-    Station (name, damage, existing reference) -> driver -> world (scene)
-    -> the driver's address -> lights (and ``[rig.lights]``) -> calibration. The simulated world is the station's: ``--scene``
-    and ``--seed`` override the campaign's default ``[rig.sim]`` for this
+    Station (name, damage, existing reference) -> the rig (driver, address; :func:`resolve_rig`) -> world (scene)
+    -> the campaign's rig -> lights (and ``[rig.lights]``) -> calibration. The simulated world is the station's:
+    ``--scene`` and ``--seed`` override the campaign's default ``[rig.sim]`` for this
     station only, and are recorded in its reference.
     """
     r = request
     check_station_can_take_a_reference(campaign, r.station)
-    driver = check_driver(r.driver or campaign.rig_config.get("driver", Driver.SIM))
+    rig = resolve_rig(campaign, r.rig)
+    driver = rig.driver
+    names = _image_lightings(r.light, sim=driver == Driver.SIM)
     scenario = None
     if driver == Driver.SIM:
         world = campaign_world(campaign)
@@ -238,19 +240,20 @@ def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
                                     "give --scene") from None
         scenario = check_scenario(SimScenario(scene=r.scene or world["scene"],
                                               seed=world["seed"] if r.seed is None else r.seed,
-                                              noise=world["noise"], lighting=r.light))
+                                              noise=world["noise"], lighting=names[0]))
     elif r.scene is not None or r.seed is not None:
         raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, not {driver}")
-    port, host = connection(campaign, driver, port=r.port, host=r.host)
-    names = _image_lightings(r.lightings or r.light, sim=driver == Driver.SIM)
+    check_campaign_rig(campaign, rig, what="a reference")
     lights = rig_lights(campaign, names)
     T_flange_cam, cam = rig_calibration(campaign)
     if T_flange_cam is None:
         raise CampaignError("no hand-eye calibration in the campaign: run `fgcd calibrate hand-eye` first")
+    check_record_rig(campaign.read_rig(schema.RIG_HANDEYE), rig, name=schema.RIG_HANDEYE,
+                     command="fgcd calibrate hand-eye")
     if driver != Driver.SIM and cam is None:
         raise CampaignError("no camera intrinsics in the campaign: run `fgcd calibrate intrinsics -c CAMPAIGN` first")
     return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam,
-                       port=port, host=host, station=r.station, lights=lights)
+                       rig=rig, station=r.station, lights=lights)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -283,14 +286,13 @@ def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) ->
     with station_lock(campaign.path, plan.station, command="capture"), \
             campaign.station_for_writing(plan.station) as st:
         check_station_can_take_a_reference(campaign, plan.station)  # again, under the lock
-        rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                                         scenario=plan.scenario, port=plan.port, host=plan.host,
-                                         lights=plan.lights), hooks=hooks)
+        rig = rig_uc.open_rig(plan.rig_request(), hooks=hooks)
         run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
         with rig_uc.opened(rig):
             result = capture_reference(
                 rig.handles, st, lightings=plan.lightings,
-                metadata={"driver": plan.driver, "scenario": rig.info.get("scenario")},
+                metadata={"driver": plan.driver, "rig": (plan.rig or EffectiveRig(driver=plan.driver)).record(),
+                          "scenario": rig.info.get("scenario")},
                 evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
             )
         # the platform is released; the reference's scene uncertainty map (paper 001), for the report and the
@@ -305,11 +307,10 @@ def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) ->
 def connection(campaign, driver: str, *, port: str | None, host: str | None) -> tuple[str | None, str | None]:
     """``(port, host)`` of a hardware driver (options first, then campaign.toml [rig]); UserInputError when missing.
 
-    Checked before anything is created or opened, like ``fgcd platform``.
+    Checked before anything is created or opened, like ``fgcd platform``
+    (:func:`fgcd_cli.app.rig_options.resolve_rig` resolves the whole rig).
     """
-    port = port or campaign.rig_config.get("port")
-    host = host or campaign.rig_config.get("host")
-    check_connection(driver, port=port, host=host)
-    return port, host
+    rig = resolve_rig(campaign, RigOptions(driver=driver, port=port, host=host))
+    return rig.port, rig.host
 
 

@@ -19,7 +19,9 @@ import typer.main
 from fgcd_cli import __version__
 from fgcd_cli.cli.output import state, stdin_is_terminal, to_json
 from fgcd_cli.errors import ConfirmationNeeded, FgcdError, run_record
+from fgcd_cli.cli.options import install_help_conventions
 
+install_help_conventions()  # plain-text help, no <bool> after a flag (every command)
 app = typer.Typer(
     name="fgcd",
     help="Fine-grained change detection of cultural heritage: calibrate, capture, relocate, diff.",

@@ -11,6 +11,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import confirmer, emit, info
 from fgcd_cli.errors import UserInputError, run_record
 
@@ -221,121 +222,91 @@ def _render_handeye(console, data: dict) -> None:
         console.print(f"stored in {data['stored']}")
 
 
-def _check_handeye_options(*, mode: str, driver: str, scene: str, seed: int, board_file: Optional[Path],
-                           translation_mm: float, rotation_deg: float):
-    """Refuse bad hand-eye options before anything is opened or moved; the simulated world when ``driver`` is sim."""
-    from fgcd_cli.app.scenario import SimScenario, check_driver, check_scenario
-
+def _check_handeye_options(*, mode: str, translation_mm: float, rotation_deg: float) -> None:
+    """Refuse a bad mode or motion size before anything is opened or moved (the rig is checked by the plan)."""
     from fgcd_cli.app.calibrate import HandEyeMode
 
     if mode not in tuple(HandEyeMode):
         raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
-    check_driver(driver)
-    if mode == HandEyeMode.TARGET and driver == "sim":
-        raise UserInputError("the simulated scenes hold no calibration board: use --mode target-free with --driver sim")
-    if mode == HandEyeMode.TARGET and board_file is None:
-        raise UserInputError("--mode target needs --board <sidecar.json> describing the printed board")
     if mode == HandEyeMode.TARGET_FREE:
         from fgcd_cli.calibration.motions import exploration_motions
 
         # refuse bad motion sizes before connecting to a platform
         exploration_motions(translation_m=translation_mm / 1000, rotation_deg=rotation_deg)
-    return check_scenario(SimScenario(scene=scene, seed=seed)) if driver == "sim" else None
 
 
-def _handeye_intrinsics(camp, *, driver: str, as_json: bool):
-    """The campaign's intrinsics for a hand-eye run, or None with one warning (simulator only).
+def _run_handeye(handles, request, *, say, bar):
+    """The hand-eye use case on an opened rig (:class:`fgcd_cli.app.calibrate.HandEyeCalibration`)."""
+    from fgcd_cli.app.calibrate import HandEyeMode, run_handeye
 
-    Rule: a real camera's hand-eye needs calibrated intrinsics, refused up front
-    in one line; the simulator's camera has nominal ones, used after a warning.
-    """
-    from fgcd_cli.calibration.rig import load_intrinsics
-
-    intr = load_intrinsics(camp) if camp is not None else None
-    if intr is not None:
-        return intr
-    if driver != "sim":
-        where = "this campaign has none" if camp is not None else "give -c CAMPAIGN"
-        raise UserInputError(f"hand-eye with a real camera needs calibrated intrinsics ({where}): "
-                             "run `fgcd calibrate intrinsics --images DIR -c CAMPAIGN` first")
-    if not as_json:
-        info("warning: no calibrated intrinsics (-c CAMPAIGN): using the simulated camera's nominal ones; a focal "
-             "length 1 % off puts the hand-eye centimetres off (docs/calibration.md, §2)")
-    return None
-
-
-def _run_handeye(handles, *, mode: str, board_file: Optional[Path], translation_mm: float, rotation_deg: float,
-                 say, bar):
-    """The hand-eye use case on an opened rig; ``(result, JSON data)``."""
-    from fgcd_cli.app.calibrate import HandEyeMode, HandEyeRequest, run_handeye
-
-    if mode == HandEyeMode.TARGET_FREE and say is not None:
+    if request.mode == HandEyeMode.TARGET_FREE and say is not None:
         say("target-free hand-eye: the platform makes small motions while the VSE tracks…")
-    calibration = run_handeye(
-        handles,
-        HandEyeRequest(mode=HandEyeMode(mode), translation_mm=translation_mm, rotation_deg=rotation_deg,
-                       board_file=board_file),
-        say=say, on_progress=bar,
-    )
-    return calibration.result, calibration.record
+    return run_handeye(handles, request, say=say, on_progress=bar)
 
 
 @app.command("hand-eye")
 def handeye_cmd(
     mode: str = typer.Option("target-free", "--mode", help="target (ChArUco board) or target-free (VSE, rACR)."),
-    driver: str = typer.Option("sim", "--driver", help="sim, grbl or ur."),
-    campaign: Optional[Path] = typer.Option(None, "--campaign", "-c", help="Campaign: intrinsics from, result into its rig."),
-    scene: str = typer.Option("stele", "--scene", help="Simulator scene (--driver sim)."),
-    seed: int = typer.Option(0, "--seed", help="Simulated rig seed (--driver sim)."),
-    port: Optional[str] = typer.Option(None, "--port", help="Serial port (grbl)."),
-    host: Optional[str] = typer.Option(None, "--host", help="Robot address (ur)."),
-    camera_index: str = typer.Option("0", "--camera", help="OpenCV camera index or device path."),
+    campaign: Optional[Path] = typer.Option(None, "--campaign", "-c", help="Campaign: its rig, its intrinsics; the "
+                                            "result is stored in its rig/ (only a hand-eye of that rig)."),
+    driver: Optional[str] = opt.DRIVER,
+    port: Optional[str] = opt.PORT,
+    host: Optional[str] = opt.HOST,
+    baud: Optional[int] = opt.BAUD,
+    camera: Optional[str] = opt.CAMERA,
+    scene: Optional[str] = opt.SCENE,
+    seed: Optional[int] = typer.Option(None, "--seed", help="Simulated rig seed (default: the campaign's [rig.sim] "
+                                       "seed, else 0)."),
     translation_mm: float = typer.Option(30.0, "--translation-mm", help="Exploration translation (target-free)."),
     rotation_deg: float = typer.Option(8.0, "--rotation-deg", help="Rotation about each axis (target: default 15)."),
     board_file: Optional[Path] = BOARD_FILE,
-    yes: bool = typer.Option(False, "--yes", help="Do not ask before the first motion."),
+    accept_residual: bool = typer.Option(False, "--accept-residual", help="Store a hand-eye whose residuals are "
+                                         "beyond the limits (docs/calibration.md); refused with exit 6 otherwise."),
+    yes: bool = opt.YES,
     as_json: bool = JSON_OPT,
 ) -> None:
     """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
-    from fgcd_cli.calibration.rig import save_handeye
+    from fgcd_cli.app.calibrate import HandEyeMode, HandEyeRequest, plan_handeye, store_handeye
+    from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
-    from fgcd_cli.app.scenario import SimScenario, check_connection
+    from fgcd_cli.errors import AlgorithmError
 
     # no terminal and no --yes: refused first (exit 2), before anything is opened or moved
     confirm = confirmer(yes=yes)
-    scenario = _check_handeye_options(mode=mode, driver=driver, scene=scene, seed=seed, board_file=board_file,
-                                      translation_mm=translation_mm, rotation_deg=rotation_deg)
+    _check_handeye_options(mode=mode, translation_mm=translation_mm, rotation_deg=rotation_deg)
     camp = _open_campaign(campaign)
-    port = port or (camp.rig_config.get("port") if camp is not None else None)
-    host = host or (camp.rig_config.get("host") if camp is not None else None)
-    check_connection(driver, port=port, host=host)
-    intr = _handeye_intrinsics(camp, driver=driver, as_json=as_json)
+    plan = plan_handeye(camp, RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera),
+                        HandEyeRequest(mode=HandEyeMode(mode), translation_mm=translation_mm,
+                                       rotation_deg=rotation_deg, board_file=board_file), scene=scene, seed=seed)
+    if plan.intrinsics is None and not as_json:
+        info("warning: no calibrated intrinsics (-c CAMPAIGN): using the simulated camera's nominal ones; a focal "
+             "length 1 % off puts the hand-eye centimetres off (docs/calibration.md, §2)")
+    rig_of = plan.rig
     run_record.no_writes()
     with step_progress(enabled=not as_json) as bar:
         if bar is not None:
             bar(0, 0, "opening the rig")
             confirm = bar.paused(confirm)
-        rig = open_rig(
-            RigRequest(
-                driver=driver,
-                T_flange_cam=None,
-                intrinsics=intr.camera if intr is not None else None,
-                scenario=scenario or SimScenario(),
-                port=port,
-                host=host,
-                camera_index=int(camera_index) if camera_index.isdigit() else camera_index,
-            ),
-            hooks=RigHooks(confirm=confirm),
-        )
-        run_record.platform_connected(rig.platform_name or driver)
+        rig = open_rig(RigRequest(driver=rig_of.driver, intrinsics=plan.intrinsics.camera if plan.intrinsics else None,
+                                  scenario=plan.scenario, port=rig_of.port, baud=rig_of.baud, host=rig_of.host,
+                                  camera_index=rig_of.camera), hooks=RigHooks(confirm=confirm))
+        run_record.platform_connected(rig.platform_name or rig_of.driver)
         with opened(rig):
-            result, data = _run_handeye(rig.handles, mode=mode, board_file=board_file, translation_mm=translation_mm,
-                                        rotation_deg=rotation_deg, say=None if as_json else info, bar=bar)
-    data["mode"] = mode
-    data["driver"] = driver
-    if camp is not None:
+            calibration = _run_handeye(rig.handles, plan.request, say=None if as_json else info, bar=bar)
+    data = {**calibration.record, "mode": mode, "driver": rig_of.driver, "rig": rig_of.record()}
+    if camp is None:
+        stored, unusable = store_handeye(None, plan, calibration)
+    else:
         with run_record.writing(camp.rig_path("handeye")):
-            data["stored"] = save_handeye(camp, result, extra={"mode": mode, "driver": driver})
+            stored, unusable = store_handeye(camp, plan, calibration, accept_residual=accept_residual)
+    if stored is not None:
+        data["stored"] = stored
+    if unusable is not None:
+        data["usable"] = False
+        data.setdefault("notes", []).append(f"not usable: {unusable}")
     emit(data, as_json=as_json, render=lambda c: _render_handeye(c, data))
-
+    if unusable is not None and stored is None:
+        kept = "nothing stored" if camp is not None else "not stored (no -c)"
+        raise AlgorithmError(f"{unusable}: {kept}; calibrate again (docs/calibration.md, \"When a result is "
+                             f"refused\"), or store it anyway with --accept-residual")

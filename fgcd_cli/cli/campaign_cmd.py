@@ -10,7 +10,7 @@ from rich.table import Table
 from fgcd_cli.campaign import init_campaign, open_campaign
 from fgcd_cli.campaign.verify import verify_campaign_dir
 from fgcd_cli.cli.output import emit
-from fgcd_cli.errors import DataIntegrityError, UserInputError, run_record
+from fgcd_cli.errors import DataIntegrityError, run_record
 
 app = typer.Typer(help="Create, inspect and verify campaigns (a site, its stations and observations).", no_args_is_help=True)
 
@@ -28,16 +28,19 @@ def init_cmd(
     directory: Path = typer.Argument(..., help="Campaign directory to create."),
     site: str = typer.Option(..., "--site", help="Site name, e.g. 'Dunhuang cave 45'."),
     description: str = typer.Option("", "--description", help="Free text."),
-    driver: str = typer.Option("sim", "--driver", help="Default platform driver: sim, grbl, ur or manual."),
-    port: str = typer.Option(None, "--port", help="Serial port of a GRBL stage (stored in the rig section)."),
-    host: str = typer.Option(None, "--host", help="Address of a UR arm (stored in the rig section)."),
+    driver: str = typer.Option("sim", "--driver", "-d", help="The campaign's rig: sim, grbl, ur or manual "
+                                                            "(campaign.toml [rig] driver)."),
+    port: str = typer.Option(None, "--port", help="GRBL serial device, e.g. /dev/ttyUSB0 ([rig] port)."),
+    host: str = typer.Option(None, "--host", help="UR controller address, e.g. 192.168.0.10 ([rig] host)."),
+    baud: int = typer.Option(None, "--baud", help="GRBL baud rate ([rig] baud; grbl: 115200 when not given)."),
+    camera: str = typer.Option(None, "--camera", help="OpenCV camera: an index or a device path such as "
+                                                      "/dev/video2 ([rig] camera; grbl, ur, manual: 0 when not given)."),
     as_json: bool = JSON_OPT,
 ) -> None:
-    """Create a new campaign directory."""
-    if driver not in ("sim", "grbl", "ur", "manual"):
-        raise UserInputError(f"unknown driver '{driver}' (use sim, grbl, ur or manual)")
-    rig = {"driver": driver}
-    rig.update({k: v for k, v in (("port", port), ("host", host)) if v})
+    """Create a new campaign directory: one site, one rig (every command that drives it reads campaign.toml [rig])."""
+    from fgcd_cli.app.rig_options import campaign_rig_section
+
+    rig = campaign_rig_section(driver=driver, port=port, host=host, baud=baud, camera=camera)
     run_record.no_platform()
     with run_record.writing(f"the campaign in {directory}"):
         camp = init_campaign(directory, site=site, description=description, rig=rig)
@@ -52,7 +55,8 @@ def init_cmd(
 def add_station_cmd(
     name: str = typer.Argument(..., help="Station (viewpoint) name."),
     campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign directory."),
-    description: str = typer.Option("", "--description"),
+    description: str = typer.Option("", "--description", help="Free text: what the station looks at, where "
+                                                                 "the camera stands."),
     as_json: bool = JSON_OPT,
 ) -> None:
     """Add a station (a viewpoint to monitor) to a campaign."""

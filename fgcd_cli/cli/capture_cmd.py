@@ -11,6 +11,7 @@ from fgcd_cli.app.capture import CapturePlan, connection, plan_capture  # noqa: 
 from fgcd_cli.app.relocate import check_relocation_options, visit_lightings, visit_scenario  # noqa: F401
 from fgcd_cli.campaign import open_campaign
 from fgcd_cli.campaign.records import campaign_world, rig_calibration, station_world  # noqa: F401
+from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import ask_line, confirmer, emit, info
 
 
@@ -30,20 +31,21 @@ def print_record(rec) -> None:
 
 
 def capture(
-    campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign directory."),
+    campaign: Path = opt.CAMPAIGN,
     station: str = typer.Option(..., "--station", "-s", help="Station to capture (created if missing)."),
-    driver: str = typer.Option(None, "--driver", help="sim, grbl, ur or manual (default: the campaign's)."),
-    scene: str = typer.Option(None, "--scene", help="Simulator scene of this station (default: the campaign's "
-                                                     "[rig.sim] scene; `fgcd sim scenes`)."),
+    driver: Optional[str] = opt.DRIVER,
+    port: Optional[str] = opt.PORT,
+    host: Optional[str] = opt.HOST,
+    baud: Optional[int] = opt.BAUD,
+    camera: Optional[str] = opt.CAMERA,
+    scene: Optional[str] = opt.SCENE,
     seed: int = typer.Option(None, "--seed", help="Simulator world seed of this station (default: the campaign's; "
                                                    "the seed the hand-eye was calibrated with)."),
-    light: str = typer.Option("front", "--light", help="Lighting of the capture (sim; `fgcd sim lights`)."),
-    lightings: str = typer.Option(None, "--lightings", help="Comma-separated lightings of the reference images, e.g. ambient,led:3,led:9 "
-                                                                "(default: --light; hardware: the channels of [rig.lights])."),
-    port: str = typer.Option(None, "--port", help="Serial port (grbl)."),
-    host: str = typer.Option(None, "--host", help="Robot address (ur)."),
-    yes: bool = typer.Option(False, "--yes", help="Answer the first-motion confirmation (scripts)."),
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+    light: str = opt.light_option("front", "Lightings of the reference images, comma-separated, e.g. "
+                                  "ambient,led:3,led:9 (`fgcd sim lights`; the first lights the simulated capture; "
+                                  "hardware: channels of [rig.lights])."),
+    yes: bool = opt.YES,
+    as_json: bool = opt.JSON,
 ) -> None:
     """Capture the reference observation of a station (immutable once written).
 
@@ -52,13 +54,14 @@ def capture(
     """
     from fgcd_cli.app.capture import CaptureRequest, run_capture
     from fgcd_cli.app.rig import RigHooks
+    from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.cli.progress import step_progress
 
     # Rule: a motion that needs confirming without a terminal is refused before anything is created.
     confirm = confirmer(yes=yes)
     camp = open_campaign(campaign)
-    plan = plan_capture(camp, CaptureRequest(station=station, driver=driver, scene=scene, seed=seed, light=light,
-                                             lightings=lightings, port=port, host=host))
+    rig = RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera)
+    plan = plan_capture(camp, CaptureRequest(station=station, rig=rig, scene=scene, seed=seed, light=light))
     with step_progress(enabled=not as_json) as progress:
         say, ask = info, ask_line
         if progress is not None:
@@ -73,10 +76,15 @@ def capture(
 
 
 def relocate(
-    campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign directory."),
+    campaign: Path = opt.CAMPAIGN,
     station: str = typer.Option(..., "--station", "-s", help="Station to relocate to."),
-    driver: str = typer.Option(None, "--driver", help="sim, grbl, ur or manual (default: the campaign's)."),
-    light: str = typer.Option("led:3", "--light", help="Lighting of this visit (sim)."),
+    driver: Optional[str] = opt.DRIVER,
+    port: Optional[str] = opt.PORT,
+    host: Optional[str] = opt.HOST,
+    baud: Optional[int] = opt.BAUD,
+    camera: Optional[str] = opt.CAMERA,
+    light: str = opt.light_option("led:3", "Lighting of this visit (sim: `fgcd sim lights`; hardware: the name "
+                                  "of the day's light; the reference's lightings are taken as well)."),
     changes: int = typer.Option(0, "--changes", help="Fine-grained changes to inject (sim)."),
     start_offset_mm: float = typer.Option(30.0, "--start-offset-mm", help="Displaced start, mm (sim)."),
     start_offset_deg: float = typer.Option(3.0, "--start-offset-deg", help="Displaced start, degrees (sim)."),
@@ -96,25 +104,24 @@ def relocate(
                                                          "taken as identity) and acr-h (its homography-guided step)."),
     guided: bool = typer.Option(True, "--guided/--no-guided", help="rACR: explore toward the image localizer's "
                                 "estimate of the reference pose (default), or the fixed 3-leg pattern."),
-    port: str = typer.Option(None, "--port"),
-    host: str = typer.Option(None, "--host"),
     resume: bool = typer.Option(False, "--resume", help="Continue the station's interrupted visit from its journal "
                                                         "(or start over cleanly), and say which."),
-    yes: bool = typer.Option(False, "--yes", help="Answer the first-motion confirmation (scripts)."),
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+    yes: bool = opt.YES,
+    as_json: bool = opt.JSON,
 ) -> None:
     """Drive the camera back to a station's reference pose (rACR, or the ACR baseline) and record a visit."""
     from fgcd_cli.app.relocate import RevisitRequest, plan_revisit, run_revisit
     from fgcd_cli.app.rig import RigHooks
+    from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.cli.progress import step_progress
 
     # no terminal and no --yes: refused first (exit 2); option values (exit 2), then the campaign (exit 3)
     confirm = confirmer(yes=yes)
     plan = plan_revisit(campaign, RevisitRequest(
-        station=station, driver=driver, light=light, changes=changes, start_offset_mm=start_offset_mm,
-        start_offset_deg=start_offset_deg, session_seed=session_seed, serial=serial, no_handeye=no_handeye,
-        no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments, port=port,
-        host=host, resume=resume, method=method, guided=guided))
+        station=station, rig=RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera), light=light,
+        changes=changes, start_offset_mm=start_offset_mm, start_offset_deg=start_offset_deg, session_seed=session_seed,
+        serial=serial, no_handeye=no_handeye, no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments,
+        resume=resume, method=method, guided=guided))
     # The steps report through plain callbacks: a live bar on stderr (not with --json), lines above it.
     with step_progress(enabled=not as_json) as bar:
         say, ask = info, ask_line

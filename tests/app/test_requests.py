@@ -6,6 +6,7 @@ from fgcd_cli.app.capture import CaptureRequest
 from fgcd_cli.app.diff import BareDiffRequest, CampaignDiffRequest
 from fgcd_cli.app.relocate import RelocateRequest, RevisitRequest
 from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig
+from fgcd_cli.app.rig_options import RigOptions
 from fgcd_cli.campaign import schema
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.relocation.coarse import CoarseConfig
@@ -27,7 +28,8 @@ def test_relocate_request_defaults():
 
 def test_cli_requests_keep_the_cli_defaults():
     c = CaptureRequest(station="s")
-    assert (c.driver, c.scene, c.seed, c.light, c.lightings, c.port, c.host) == (None, None, None, "front", None, None, None)
+    assert (c.rig, c.scene, c.seed, c.light) == (RigOptions(), None, None, "front")
+    assert RigOptions() == RigOptions(driver=None, port=None, host=None, baud=None, camera=None)
     v = RevisitRequest(station="s")
     # max_adjustments None: the method's own budget (rACR 12 = RelocationConfig's, ACR 30 = AcrConfig's)
     assert (v.light, v.changes, v.start_offset_mm, v.start_offset_deg, v.session_seed, v.eta, v.max_adjustments,

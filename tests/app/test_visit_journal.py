@@ -115,7 +115,7 @@ def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
     # stands in for `fgcd calibrate hand-eye` (tested elsewhere): the simulated rig's mounting
     camp.write_rig("handeye", {"T_flange_cam": build_sim_rig(scene="stele", seed=0).ground_truth
                                .T_flange_cam_true().tolist()})
-    run_capture(camp, plan_capture(camp, CaptureRequest(station="s1", lightings="led:3")))
+    run_capture(camp, plan_capture(camp, CaptureRequest(station="s1", light="led:3")))
 
     def interrupt(record):
         raise KeyboardInterrupt

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import cv2
+import pytest
 import numpy as np
 
 from fgcd_cli.campaign import init_campaign
@@ -86,3 +87,96 @@ def test_sim_intrinsics_calibrate_the_camera_of_the_rig_of_that_seed(tmp_path):
     assert abs(cam["fy"] / true.fy - 1) < 0.0025
     assert abs(cam["cx"] - true.cx) < 3.0
     assert abs(cam["cy"] - true.cy) < 3.0
+
+
+# ----------------------------------------------------------------------------- the campaign's rig (issue 48, item 1)
+INTRINSICS = {"camera": {"fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480},
+              "distortion_model": "none", "rms_px": 0.2, "n_views": 20}
+
+
+def _ur_campaign(tmp_path):
+    """A UR campaign (an address nothing listens on: refused at once) with calibrated intrinsics."""
+    r = fgcd("campaign", "init", tmp_path / "urc", "--site", "UR site", "--driver", "ur", "--host", "127.0.0.77")
+    assert r.returncode == 0, r.stderr
+    from fgcd_cli.campaign import open_campaign
+
+    camp = open_campaign(tmp_path / "urc")
+    camp.write_rig("intrinsics", INTRINSICS)
+    return camp
+
+
+def _rig_files(camp):
+    return sorted(p.relative_to(camp.path).as_posix() for p in (camp.path / "rig").rglob("*"))
+
+
+def test_handeye_drives_the_campaigns_robot_not_the_simulator(tmp_path):
+    """No --driver: the campaign's ur at its host; unreachable, so exit 7 at once (not 210 s of simulator)."""
+    camp = _ur_campaign(tmp_path)
+    before = _rig_files(camp)
+    r = fgcd("calibrate", "hand-eye", "-c", camp.path, "--yes", timeout=60)
+    assert r.returncode == 7, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr
+    assert "127.0.0.77" in r.stderr.strip().splitlines()[-1]
+    assert _rig_files(camp) == before  # no handeye.json
+
+
+def test_handeye_made_on_another_rig_is_never_stored_in_the_campaign(tmp_path):
+    """--driver sim on a UR campaign: refused before anything is opened (exit 2, one line, nothing written)."""
+    camp = _ur_campaign(tmp_path)
+    before = _rig_files(camp)
+    r = fgcd("calibrate", "hand-eye", "-c", camp.path, "--driver", "sim", "--yes", timeout=60)
+    one_line_error(r, mentions="ur rig")
+    assert "--driver sim" in r.stderr
+    assert "platform makes small motions" not in r.stderr
+    assert _rig_files(camp) == before
+
+
+def _fake_calibration(rms_mm: float):
+    from fgcd_cli.app.calibrate import HandEyeCalibration
+    from fgcd_cli.calibration.handeye import HandEyeResult
+
+    result = HandEyeResult(T_flange_cam=np.eye(4), scale=1.6, method="racr-linear", n_samples=12, n_pairs=2,
+                           pairs=[(0, 1), (1, 2)], residuals_mm=np.array([rms_mm, rms_mm]),
+                           residuals_deg=np.array([0.2, 0.2]), sample_residuals_mm=np.full(3, rms_mm),
+                           sample_residuals_deg=np.full(3, 0.2), axis_spread_deg=80.0, max_rotation_deg=8.0)
+    return HandEyeCalibration(result=result, record=result.to_dict(), run=None)
+
+
+@pytest.fixture
+def handeye_of(monkeypatch):
+    """`calibrate hand-eye` in process, its procedure replaced by one giving a residual of ``rms_mm``."""
+    import fgcd_cli.app.calibrate as calibrate_uc
+    import fgcd_cli.app.rig as rig_uc
+    from types import SimpleNamespace
+
+    def run(rms_mm):
+        monkeypatch.setattr(calibrate_uc, "run_handeye", lambda *a, **k: _fake_calibration(rms_mm))
+        monkeypatch.setattr(rig_uc, "open_rig", lambda request, hooks=None: rig_uc.OpenedRig(
+            handles=SimpleNamespace(guard=None), close=lambda: None))
+    return run
+
+
+@pytest.mark.parametrize("rms_mm, code", [(24.4, 6), (5.3, 0)])
+def test_handeye_beyond_the_residual_limit_is_refused_and_not_stored(tmp_path, handeye_of, capsys, rms_mm, code):
+    from fgcd_cli.cli.app import app, run
+
+    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
+    handeye_of(rms_mm)
+    assert run(app, ["calibrate", "hand-eye", "-c", str(camp.path), "--yes", "--json"]) == code
+    out, err = capsys.readouterr()
+    if code == 6:
+        assert err.strip().splitlines()[-1].startswith("error:") and "24.4 mm" in err and "12 mm" in err, err
+        assert json.loads(out)["usable"] is False
+        assert camp.read_rig("handeye") is None
+    else:
+        record = camp.read_rig("handeye")
+        assert record["rig"] == {"driver": "sim"} and record["driver"] == "sim"
+
+
+def test_handeye_beyond_the_limit_is_stored_only_when_accepted(tmp_path, handeye_of, capsys):
+    from fgcd_cli.cli.app import app, run
+
+    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
+    handeye_of(24.4)
+    assert run(app, ["calibrate", "hand-eye", "-c", str(camp.path), "-y", "--accept-residual"]) == 0
+    assert "24.4 mm" in camp.read_rig("handeye")["residual_accepted"]

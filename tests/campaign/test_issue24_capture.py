@@ -56,7 +56,7 @@ def _capture(c, station: str, **options):
     """Call the capture command in-process with every option explicit."""
     from fgcd_cli.cli.capture_cmd import capture
 
-    values = dict(driver=None, scene=None, seed=None, light="front", lightings=None, port=None, host=None,
+    values = dict(driver=None, port=None, host=None, baud=None, camera=None, scene=None, seed=None, light="front",
                   yes=True, as_json=True)
     values.update(options)
     return capture(campaign=c.path, station=station, **values)
@@ -178,9 +178,9 @@ def test_a_damaged_station_is_named_damaged_not_already_existing(camp):
 # ----------------------------------------------------------------------------- item 8: bad option values, exit 2
 @pytest.mark.parametrize("args, mentions", [
     (("--light", "bogus"), ("--light", "bogus", "front", "led:H")),
-    (("--lightings", "front,led:13"), ("--lightings", "1..12")),
+    (("--light", "front,led:13"), ("--light", "1..12")),
     (("--driver", "robot9000"), ("robot9000", "sim, grbl, ur, manual")),
-    (("--driver", "ur", "--scene", "stele"), ("--scene", "--driver sim")),
+    (("--driver", "ur", "--host", "192.0.2.1", "--scene", "stele"), ("--scene", "--driver sim")),
 ])
 def test_capture_option_values_are_refused_before_anything_is_written(camp, args, mentions):
     before = _toml(camp)

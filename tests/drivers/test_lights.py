@@ -186,7 +186,7 @@ def test_manual_lights_light_the_simulated_scene():
 @pytest.mark.timeout(900)
 @pytest.mark.parametrize("driver", ["grbl", "manual"])
 def test_a_simulated_capture_switches_real_lights_end_to_end(tmp_path, emulator, driver):
-    """`fgcd capture --lightings ambient,led:3,led:9` on the simulated platform with GRBL or manual lights."""
+    """`fgcd capture --light ambient,led:3,led:9` on the simulated platform with GRBL or manual lights."""
     from drivers.sim.rig import build_sim_rig
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
     from fgcd_cli.app.rig import RigHooks
@@ -201,7 +201,7 @@ def test_a_simulated_capture_switches_real_lights_end_to_end(tmp_path, emulator,
     camp.write_rig("handeye", {"T_flange_cam": build_sim_rig(scene="stele", seed=0).ground_truth
                                .T_flange_cam_true().tolist()})
     prompts: list[str] = []
-    plan = plan_capture(camp, CaptureRequest(station="s1", lightings="ambient,led:3,led:9"))
+    plan = plan_capture(camp, CaptureRequest(station="s1", light="ambient,led:3,led:9"))
     outcome = run_capture(camp, plan, hooks=RigHooks(ask_light=lambda t: prompts.append(t) or ""))
     ref = camp.station("s1").reference()
     assert outcome.result.images == ["ambient", "led:3", "led:9"]
