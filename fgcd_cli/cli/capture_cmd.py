@@ -12,6 +12,7 @@ from fgcd_cli.app.relocate import check_relocation_options, visit_lightings, vis
 from fgcd_cli.campaign import open_campaign
 from fgcd_cli.campaign.records import campaign_world, rig_calibration, station_world  # noqa: F401
 from fgcd_cli.cli import options as opt
+from fgcd_cli.cli.determinism import DETERMINISTIC, deterministic_setup
 from fgcd_cli.cli.output import ask_line, confirmer, emit, info
 
 
@@ -90,6 +91,7 @@ def relocate(
     start_offset_deg: float = typer.Option(3.0, "--start-offset-deg", help="Displaced start, degrees (sim)."),
     session_seed: int = typer.Option(1, "--session-seed", help="Seed of the visit's start and noise (sim)."),
     serial: bool = typer.Option(False, "--serial", help="Single-thread variant (rACR Table 5)."),
+    deterministic: bool = DETERMINISTIC,
     no_handeye: bool = typer.Option(False, "--no-handeye", help="Guess X = I instead of the calibration (rACR Table 3)."),
     no_image_refine: bool = typer.Option(False, "--no-image-refine",
                                          help="Skip the image stage and its fallback (pure rACR: 3D alignment only)."),
@@ -110,6 +112,7 @@ def relocate(
     as_json: bool = opt.JSON,
 ) -> None:
     """Drive the camera back to a station's reference pose (rACR, or the ACR baseline) and record a visit."""
+    deterministic_setup(deterministic)  # before the heavy libraries load
     from fgcd_cli.app.relocate import RevisitRequest, plan_revisit, run_revisit
     from fgcd_cli.app.rig import RigHooks
     from fgcd_cli.app.rig_options import RigOptions
@@ -120,7 +123,7 @@ def relocate(
     plan = plan_revisit(campaign, RevisitRequest(
         station=station, rig=RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera), light=light,
         changes=changes, start_offset_mm=start_offset_mm, start_offset_deg=start_offset_deg, session_seed=session_seed,
-        serial=serial, no_handeye=no_handeye, no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments,
+        serial=serial, deterministic=deterministic, no_handeye=no_handeye, no_image_refine=no_image_refine, no_coarse=no_coarse, eta=eta, max_adjustments=max_adjustments,
         resume=resume, method=method, guided=guided))
     # The steps report through plain callbacks: a live bar on stderr (not with --json), lines above it.
     with step_progress(enabled=not as_json) as bar:
