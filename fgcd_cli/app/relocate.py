@@ -17,6 +17,7 @@ import numpy as np
 
 from fgcd_cli.app.capture import CaptureResult
 from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
+from fgcd_cli.app.determinism import deterministic_rig, run_conditions
 from fgcd_cli.app.guided_start import start_revisit_session
 from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
 from fgcd_cli.app.scenario import (Driver, SimScenario, check_driver, check_lighting, check_method, check_scenario,
@@ -132,8 +133,8 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
                                view=(reference.T_ref_camref, rig.intrinsics))
     rig.progress(0, 0, "starting the VSE")
     session, vse, scale, prior_sigma_mm = start_revisit_session(
-        rig, station, reference, explore_m=request.explore_m, legs=request.explore_legs, guided=request.guided,
-        ref_index=ref_index)
+        deterministic_rig(rig, request.config.deterministic), station, reference, explore_m=request.explore_m,
+        legs=request.explore_legs, guided=request.guided, ref_index=ref_index)
     try:
         start = CoarseStart(rig=rig, session=session, reference=reference, ref_index=ref_index, station=station,
                             scale=scale.scale, scale_rel_std=scale.scale_std / scale.scale,
@@ -221,7 +222,7 @@ def _visit_metadata(rig: RigHandles, request: RelocateRequest, scale, result: Re
             "session_s": result.session_s,
             "platform_s": result.platform_s,
             "synthetic_s": result.synthetic_s,
-            "mode": request.config.mode,
+            "mode": request.config.mode, "run": run_conditions(request.config, request.metadata),
             "residual": result.residual.to_dict() if result.residual else None,
         },
         "coarse": None if coarse_result is None else {
@@ -271,8 +272,8 @@ class RevisitRequest:
         Displaced start (simulator), millimetres and degrees.
     session_seed : int
         Seed of the visit's start and noise (simulator).
-    serial : bool
-        The single-thread loop (rACR Table 5).
+    serial, deterministic : bool
+        The single-thread loop (rACR Table 5); the loop's threads stepped in a fixed order (same seeds, same visit).
     no_handeye : bool
         X = I instead of the calibration (rACR Table 3).
     no_image_refine : bool
@@ -302,6 +303,7 @@ class RevisitRequest:
     start_offset_deg: float = 3.0
     session_seed: int = 1
     serial: bool = False
+    deterministic: bool = False
     no_handeye: bool = False
     no_image_refine: bool = False
     no_coarse: bool = False
@@ -428,8 +430,8 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         raise CampaignError("no hand-eye calibration in the campaign: calibrate, or use --no-handeye")
     if r.no_handeye or T_flange_cam is None:  # ACR needs none: it takes the identity
         T_flange_cam = np.eye(4)
-    config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, eta=r.eta,
-                              max_adjustments=r.max_adjustments or RelocationConfig().max_adjustments,
+    config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, deterministic=r.deterministic,
+                              eta=r.eta, max_adjustments=r.max_adjustments or RelocationConfig().max_adjustments,
                               image_refine=not r.no_image_refine, image_fallback=not r.no_image_refine)
     acr = AcrConfig(pose=AcrPoseConfig(model=AcrModel(str(method))), max_adjustments=r.max_adjustments
                     or AcrConfig().max_adjustments) if method != RelocationMethod.RACR else None
