@@ -9,7 +9,6 @@ so that the other visits go on (docs/archive.md, "Failures").
 
 from __future__ import annotations
 
-import json
 import logging
 import resource
 import time
@@ -18,15 +17,7 @@ from enum import StrEnum
 from pathlib import Path
 
 from fgcd_cli.archive.discovery import VisitKey
-from fgcd_cli.archive.freshness import (
-    ANALYSIS_RELPATH,
-    AnalysisOptions,
-    Freshness,
-    analysis_inputs,
-    analysis_record,
-    freshness,
-    verify_inputs,
-)
+from fgcd_cli.archive.freshness import AnalysisOptions, Freshness, analysis_inputs, freshness, verify_inputs
 from fgcd_cli.errors import FgcdError
 
 __all__ = ["VisitStatus", "VisitOutcome", "analyze_visit", "visit_freshness"]
@@ -106,10 +97,7 @@ def _analyze(key: VisitKey, options: AnalysisOptions, force: bool, t0: float) ->
     data = run_campaign(request=CampaignDiffRequest(
         campaign=Path(key.campaign), station=key.station, visit=key.visit, mm_per_px=options.mm_per_px,
         register=options.register, edge_check_px=options.edge_check_px, force=force))
-    _, visit = _open(key)  # the manifest now lists the products
-    record = analysis_record(visit, inputs=inputs, options=options, seconds=time.perf_counter() - t0)
-    # last: its presence (with matching product checksums) means "complete"
-    visit.add_derived(ANALYSIS_RELPATH, (json.dumps(record, indent=1) + "\n").encode("utf-8"))
+    # run_campaign wrote changes/analysis.json last (the options and inputs above): its presence means "complete"
     return VisitOutcome(key=key, status=VisitStatus.DONE, reason="forced" if force else state.value,
                         regions=len(data.get("regions") or []), seconds=time.perf_counter() - t0,
                         worker_peak_rss_mb=_peak_rss_mb())
