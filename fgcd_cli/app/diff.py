@@ -333,7 +333,7 @@ def _effective(options: AnalysisOptions) -> AnalysisOptions:
 def options_text(options: AnalysisOptions) -> str:
     """``--mm-per-px 0.5, --edge-check 2`` (the options as a person would give them)."""
     o = _effective(options)
-    parts = [f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "the metric cloud's scale",
+    parts = [f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "no --mm-per-px",
              f"--edge-check {o.edge_check_px}"]
     parts += ["--no-register"] if not o.register else []
     parts += [f"--eval-mask sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []

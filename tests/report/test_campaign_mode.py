@@ -116,7 +116,7 @@ def test_rediff_with_other_options_keeps_the_stored_diff_unless_forced(tmp_path,
     assert record["options"]["mm_per_px"] is None and record["options"]["edge_check_px"] is None
     code, out, err = _fgcd(capsys, "diff", "-c", str(camp.path), "-s", "S1", "--mm-per-px", "0.5")
     assert code == 5 and out == "" and err.count("\n") == 1
-    assert "already has a diff made with the metric cloud's scale" in err and "--mm-per-px 0.5" in err and "--force" in err
+    assert "already has a diff made with no --mm-per-px, --edge-check 2" in err and "--mm-per-px 0.5" in err and "--force" in err
     assert (visit / "changes/regions.json").read_bytes() == stored
     again = run_campaign(CampaignDiffRequest(campaign=camp.path, station="S1", edge_check_px=2))  # the same diff
     assert again["regions"] == first["regions"] and not any("replaced" in w for w in again["warnings"])
