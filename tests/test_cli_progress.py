@@ -64,3 +64,17 @@ def test_a_heartbeat_interval_is_a_named_constant_overridable_for_tests():
     r = subprocess.run([sys.executable, "-c", "from fgcd_cli.cli import progress; print(progress.HEARTBEAT_S)"],
                        env={**__import__("os").environ, "FGCD_HEARTBEAT_S": "0.5"}, capture_output=True, text=True)
     assert r.stdout.strip() == "0.5"
+
+
+def test_the_longest_silence_of_a_command_in_a_pipe_is_the_heartbeat():
+    """scripts/longest_silence.py on a command with a 1.5 s silent step, heartbeat at 0.25 s: the longest
+    silence is about the heartbeat, not the step (measured, not a speed assertion: generous bounds)."""
+    import json
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "longest_silence.py"
+    r = subprocess.run([sys.executable, str(script), "--", sys.executable, "-c", SLOW_STEP, "0.25", "1.5", "0"],
+                       capture_output=True, text=True, timeout=120)
+    report = json.loads(r.stdout.strip().splitlines()[-1])
+    assert report["exit"] == 0 and report["lines"] >= 5
+    assert report["longest_silence_s"] < 1.2, r.stdout  # the step alone would leave 1.5 s
