@@ -92,6 +92,12 @@ class RunRecord:
     pending : list of str
         Outputs in progress, as the clause printed if the command stops now
         (``not written: ...`` or ``not completed: ...``).
+    kept : list of str
+        Files deliberately left if the command stops now, as clauses (a
+        revisit's journal for ``--resume``), see :meth:`keep`.
+    not_written : str
+        What the clause says when nothing was completed or is in progress but
+        something is kept (the output the kept file stands in for).
     """
 
     platform_known: bool = False
@@ -100,6 +106,8 @@ class RunRecord:
     writes_known: bool = False
     written: list[str] = field(default_factory=list)
     pending: list[str] = field(default_factory=list)
+    kept: list[str] = field(default_factory=list)
+    not_written: str = "nothing was written"
 
     def reset(self) -> None:
         """Forget everything (a new command starts)."""
@@ -159,6 +167,26 @@ class RunRecord:
         self.pending.remove(item)
         self.written.append(str(what))
 
+    def keep(self, clause: str, *, not_written: str) -> None:
+        """A file is left on purpose if the command stops now (``clause`` says what and for what).
+
+        Parameters
+        ----------
+        clause : str
+            E.g. ``the journal ... is kept for `fgcd relocate --resume```.
+        not_written : str
+            Said first when nothing else was written, e.g. ``no visit was written``.
+        """
+        self.writes_known = True
+        if clause not in self.kept:
+            self.kept.append(clause)
+        self.not_written = not_written
+
+    def unkeep(self, clause: str) -> None:
+        """The kept file is gone (its output was completed)."""
+        if clause in self.kept:
+            self.kept.remove(clause)
+
     def platform_clause(self) -> str:
         """Whether a platform was moving, in a few words."""
         if not self.platform_known:
@@ -179,6 +207,8 @@ class RunRecord:
             clauses.append(f"wrote {shown}")
         if self.pending:
             clauses += self.pending
+        if self.kept:
+            clauses = (clauses or [self.not_written]) + self.kept
         return "; ".join(clauses) or "nothing was written"
 
 

@@ -3,9 +3,11 @@
 A revisit appends one line per adjustment to ``stations/S/visits/.in-progress.jsonl``
 (:data:`fgcd_cli.campaign.schema.VISIT_JOURNAL`), each flushed and fsynced: the
 adjustment record and the flange pose the platform reported after it. The first
-line holds the visit's options. The journal is removed once the visit is
-committed; a visit that ends early (Ctrl-C, a fault, a killed process, a loop
-that paused) leaves it. ``--resume`` then:
+line holds the visit's options; it is written with the first adjustment (a
+visit stopped before any leaves no journal, and an earlier one's stays until
+then). The journal is removed once the visit is committed; a visit that ends
+early after an adjustment (Ctrl-C, a fault, a killed process, a loop that
+paused) leaves it, and the Ctrl-C line says so (``run_record.keep``). ``--resume`` then:
 
 * **continues** when the journal is readable and was written with the same
   driver and light: the platform is driven back (through the MotionGuard, in
@@ -28,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcd_cli.campaign.schema import VISIT_JOURNAL, VISITS_DIR
+from fgcd_cli.errors import run_record
 from fgcd_core.se3 import interpolate_pose, pose_distance
 
 __all__ = ["JournalWriter", "ResumeDecision", "ResumeMode", "decide_resume", "journal_path", "return_to"]
@@ -114,7 +117,8 @@ def decide_resume(station, *, resume: bool, options: dict) -> ResumeDecision:
         return ResumeDecision(mode=ResumeMode.STARTED_OVER,
                               reason="the interrupted visit made no adjustment yet: starting over")
     return ResumeDecision(mode=ResumeMode.CONTINUED, records=records, T_base_flange=pose,
-                          reason=f"continuing the interrupted visit after its {len(records)} adjustment(s)")
+                          reason=f"continuing the interrupted visit after its {len(records)} "
+                                 f"adjustment{'' if len(records) == 1 else 's'}")
 
 
 class JournalWriter:
@@ -123,8 +127,14 @@ class JournalWriter:
     def __init__(self, station, *, options: dict, decision: ResumeDecision) -> None:
         self.path = journal_path(station)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        if decision.mode != ResumeMode.CONTINUED:
-            self._append({"kind": "start", "options": options}, truncate=True)
+        self._options = options
+        self.adjustments = len(decision.records) if decision.mode == ResumeMode.CONTINUED else 0
+        self._kept_clause = f"the journal {self.path} is kept for `fgcd relocate --resume`"
+        if self.adjustments:
+            self._keep()
+
+    def _keep(self) -> None:
+        run_record.keep(self._kept_clause, not_written="no visit was written")
 
     def _append(self, entry: dict, *, truncate: bool = False) -> None:
         flags = os.O_WRONLY | os.O_CREAT | (os.O_TRUNC if truncate else os.O_APPEND)
@@ -136,9 +146,14 @@ class JournalWriter:
             os.close(fd)
 
     def record(self, record, T_base_flange: np.ndarray) -> None:
-        """One adjustment and the flange pose the platform reported after it."""
+        """One adjustment and the flange pose the platform reported after it (the first: after the start line)."""
+        if self.adjustments == 0:
+            self._append({"kind": "start", "options": self._options}, truncate=True)
         self._append({"record": json.loads(record.to_json()),
                       "T_base_flange": np.asarray(T_base_flange, dtype=float).tolist()})
+        if self.adjustments == 0:
+            self._keep()
+        self.adjustments += 1
 
     def remove(self) -> None:
         """The visit is committed: the journal goes."""
@@ -146,6 +161,7 @@ class JournalWriter:
             self.path.unlink()
         except FileNotFoundError:
             pass
+        run_record.unkeep(self._kept_clause)
 
 
 def return_to(guard, T_base_flange: np.ndarray, *, step_fraction: float = 0.9) -> int:

@@ -40,7 +40,16 @@ class Problem:
     path: str
     kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write | interrupted-visit | scale
     detail: str
-    severity: str = "error"  # error | warning
+    severity: str = "error"  # error (damage, exit 4) | warning (a leftover, safe to delete) | note (nothing wrong)
+
+
+#: Severities in the order the summary counts them, with the noun it counts them by (docs/user-guide.md §2).
+SEVERITY_NOUNS = (("error", "problem"), ("warning", "warning"), ("note", "note"))
+
+
+def counted(n: int, noun: str) -> str:
+    """``1 problem``, ``2 problems``, ``0 files``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 @dataclass
@@ -57,13 +66,25 @@ class VerifyReport:
         """True when no error-level problem was found."""
         return not any(p.severity == "error" for p in self.problems)
 
+    def count(self, severity: str) -> int:
+        """How many problems of ``severity`` were found."""
+        return sum(p.severity == severity for p in self.problems)
+
+    def summary(self) -> str:
+        """One line: ``OK: ...``, ``OK, 1 warning: ...``, ``DAMAGED, 2 problems, 1 note: ...``."""
+        counts = [counted(self.count(severity), noun) for severity, noun in SEVERITY_NOUNS if self.count(severity)]
+        head = ", ".join(["OK" if self.ok else "DAMAGED", *counts])
+        return (f"{head}: {counted(self.observations, 'observation')}, "
+                f"{counted(self.files_checked, 'file')} checked")
+
     def to_dict(self) -> dict:
-        """JSON-friendly form."""
+        """JSON-friendly form (``errors``, ``warnings``, ``notes``: the counts of ``problems`` by severity)."""
         return {
             "campaign": self.campaign,
             "ok": self.ok,
             "observations": self.observations,
             "files_checked": self.files_checked,
+            **{f"{severity}s": self.count(severity) for severity, _ in SEVERITY_NOUNS},
             "problems": [p.__dict__ for p in self.problems],
         }
 
@@ -252,8 +273,10 @@ def _verify_station(st: Station, report: VerifyReport) -> None:
             )
     journal = st.path / VISITS_DIR / VISIT_JOURNAL
     if journal.exists():
-        report.problems.append(Problem(str(journal), "interrupted-visit", "a visit was interrupted: "
-                                       "`fgcd relocate --resume` continues it", "warning"))
+        # A note, not a warning: nothing is wrong, and deleting the journal loses the resumable revisit.
+        report.problems.append(Problem(str(journal), "interrupted-visit", f"a revisit of station '{st.name}' was "
+                                       "interrupted: `fgcd relocate --resume` continues it (a new `fgcd relocate` "
+                                       "replaces it)", "note"))
     for parent in [st.path, st.path / VISITS_DIR]:
         if parent.is_dir():
             for p in parent.iterdir():

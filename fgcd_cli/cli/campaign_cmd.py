@@ -5,10 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from fgcd_cli.campaign import init_campaign, open_campaign
-from fgcd_cli.campaign.verify import verify_campaign_dir
+from fgcd_cli.campaign.verify import counted, verify_campaign_dir
 from fgcd_cli.cli.output import emit
 from fgcd_cli.errors import DataIntegrityError, run_record
 
@@ -156,14 +157,13 @@ def verify_cmd(
 
     def render(c) -> None:
         for p in report.problems:
-            colour = "red" if p.severity == "error" else "yellow"
-            c.print(f"[{colour}]{p.severity}[/{colour}] {p.kind}: {p.path} — {p.detail}")
-        status = "[green]OK[/green]" if report.ok else "[red]DAMAGED[/red]"
-        c.print(f"{status}: {report.observations} observations, {report.files_checked} files checked, "
-                f"{len(report.problems)} problems")
+            colour = {"error": "red", "warning": "yellow"}.get(p.severity, "cyan")
+            c.print(f"[{colour}]{p.severity}[/{colour}] {p.kind}: {escape(p.path)} — {escape(p.detail)}")
+        status, colour = ("OK", "green") if report.ok else ("DAMAGED", "red")
+        c.print(f"[{colour}]{status}[/{colour}]{escape(report.summary().removeprefix(status))}")
 
     emit(report.to_dict(), as_json=as_json, render=render)
     if not report.ok:
-        n = sum(p.severity == "error" for p in report.problems)
+        n = report.count("error")
         first = next(p for p in report.problems if p.severity == "error")
-        raise DataIntegrityError(f"{n} damaged or missing file(s), first: {first.path} ({first.kind})")
+        raise DataIntegrityError(f"{counted(n, 'damaged or missing file')}, first: {first.path} ({first.kind})")

@@ -45,7 +45,7 @@ def _interrupted(station, n):
 def test_resume_continues_after_the_last_recorded_adjustment(station):
     _interrupted(station, 3)
     decision = decide_resume(station, resume=True, options=OPTIONS)
-    assert decision.mode == ResumeMode.CONTINUED and "after its 3 adjustment(s)" in decision.reason
+    assert decision.mode == ResumeMode.CONTINUED and "after its 3 adjustments" in decision.reason
     assert [r["iteration"] for r in decision.records] == [1, 2, 3]
     np.testing.assert_allclose(decision.T_base_flange, _pose(3))
     # continuing appends: the journal keeps the earlier adjustments
@@ -71,8 +71,9 @@ def test_resume_starts_over_cleanly_and_says_why(station, damage, mode, words):
     if damage == "options":
         _interrupted(station, 2)
         decision = decide_resume(station, resume=True, options={**OPTIONS, "light": "front"})
-    elif damage == "empty":
-        _interrupted(station, 0)
+    elif damage == "empty":  # a start line alone (an older fgcd wrote it before the first adjustment)
+        journal_path(station).parent.mkdir(parents=True)
+        journal_path(station).write_text(json.dumps({"kind": "start", "options": OPTIONS}) + "\n")
         decision = decide_resume(station, resume=True, options=OPTIONS)
     else:
         if damage is not None:
@@ -80,9 +81,12 @@ def test_resume_starts_over_cleanly_and_says_why(station, damage, mode, words):
             journal_path(station).write_bytes(damage)
         decision = decide_resume(station, resume=True, options=OPTIONS)
     assert decision.mode == mode and words in decision.reason and decision.records == []
-    # starting over truncates the old journal
-    JournalWriter(station, options=OPTIONS, decision=decision)
-    assert decide_resume(station, resume=True, options=OPTIONS).reason.endswith("no adjustment yet: starting over")
+    # starting over replaces the old journal with the first adjustment, not before
+    before = journal_path(station).read_bytes() if journal_path(station).exists() else None
+    journal = JournalWriter(station, options=OPTIONS, decision=decision)
+    assert (journal_path(station).read_bytes() if journal_path(station).exists() else None) == before
+    journal.record(_record(1), _pose(1))
+    assert len(decide_resume(station, resume=True, options=OPTIONS).records) == 1
 
 
 def test_without_resume_a_left_journal_is_named_and_replaced(station):
@@ -134,7 +138,7 @@ def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
     assert not journal_path(station).exists()
 
 
-def test_campaign_verify_warns_of_an_interrupted_visit(tmp_path):
+def test_campaign_verify_notes_an_interrupted_visit(tmp_path):
     from fgcd_cli.campaign import init_campaign
     from fgcd_cli.campaign.verify import verify_campaign_dir
 
@@ -142,6 +146,77 @@ def test_campaign_verify_warns_of_an_interrupted_visit(tmp_path):
     station = camp.station_or_create("s1")
     _interrupted(station, 1)
     report = verify_campaign_dir(camp.path)
-    assert report.ok  # a warning, not damage
-    assert [p.kind for p in report.problems] == ["interrupted-visit"]
+    assert report.ok  # a note: neither damage nor a leftover to delete (it is a resumable revisit)
+    assert [(p.kind, p.severity) for p in report.problems] == [("interrupted-visit", "note")]
     assert "--resume" in report.problems[0].detail
+
+
+def _adjustment(i: int):
+    from fgcd_cli.relocation.log import AdjustmentRecord
+
+    return AdjustmentRecord(iteration=i, t_wall_s=1.0, t_session_s=1.0, stage="fine", g=0.1, offset_mm=2.0,
+                            offset_deg=0.1, T_ref_cam=np.eye(4).tolist(), M_flange_commanded=np.eye(4).tolist(),
+                            clamped=False, vse_status="tracking", vse_points=100, alignment_ok=True,
+                            alignment_reason="ok", scale=1.0, sigma=0.0, afd_est_px=1.0)
+
+
+def _relocate_interrupted(tmp_path, monkeypatch, capsys, *, adjustments: int) -> tuple[int, str, Path]:
+    """`fgcd relocate` in-process on a stand-in rig, Ctrl-C after ``adjustments`` adjustments: (code, stderr, journal)."""
+    import fgcd_cli.app.relocate as relocate_uc
+    import fgcd_cli.app.rig as rig_uc
+    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.cli.app import app, run
+
+    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
+    camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
+    meta = {"lightings": ["led:3"], "driver": "sim", "scenario": {"scene": "stele", "seed": 0, "noise": "default"}}
+    with camp.station_or_create("s1").write_reference(meta) as w:
+        w.add_image("led:3", np.zeros((4, 4), np.uint8))
+        w.commit()
+    platform = ManualPlatform(ask=lambda prompt: "", say=lambda text: None)
+    handles = SimpleNamespace(guard=MotionGuard(platform, GuardLimits()), say=lambda text: None)
+    monkeypatch.setattr(rig_uc, "open_rig", lambda request, hooks=None: rig_uc.OpenedRig(
+        handles=handles, close=lambda: None))
+
+    def relocate_and_capture(rig, station, request, hooks):
+        for i in range(1, adjustments + 1):
+            hooks.on_record(_adjustment(i))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(relocate_uc, "relocate_and_capture", relocate_and_capture)
+    code = run(app, ["relocate", "-c", str(camp.path), "-s", "s1", "--yes", "--json"])
+    return code, capsys.readouterr().err, journal_path(camp.station("s1"))
+
+
+def test_ctrl_c_in_a_revisit_says_the_journal_is_kept_for_resume(tmp_path, monkeypatch, capsys):
+    # Before: "...; nothing was written" while visits/.in-progress.jsonl stayed behind.
+    code, err, journal = _relocate_interrupted(tmp_path, monkeypatch, capsys, adjustments=2)
+    assert code == 130 and journal.exists()
+    assert err.strip().splitlines()[-1] == (
+        "interrupted (Ctrl-C): the manual platform was not moving; no visit was written; "
+        f"the journal {journal} is kept for `fgcd relocate --resume`")
+    station = SimpleNamespace(name="s1", path=journal.parents[1])
+    assert len(decide_resume(station, resume=True, options=OPTIONS).records) == 2
+
+
+def test_ctrl_c_before_the_first_adjustment_leaves_no_journal(tmp_path, monkeypatch, capsys):
+    code, err, journal = _relocate_interrupted(tmp_path, monkeypatch, capsys, adjustments=0)
+    assert code == 130 and not journal.exists()
+    assert err.strip().splitlines()[-1] == \
+        "interrupted (Ctrl-C): the manual platform was not moving; nothing was written"
+
+
+def test_the_kept_journal_is_no_longer_claimed_once_the_visit_is_committed(station):
+    from fgcd_cli.errors import RunRecord, run_record
+
+    run_record.reset()
+    run_record.no_writes()
+    journal = _interrupted(station, 1)
+    assert run_record.writes_clause() == (f"no visit was written; the journal {journal.path} is kept for "
+                                          "`fgcd relocate --resume`")
+    with run_record.writing("the visit of station 's1'"):
+        assert run_record.writes_clause().startswith("not written: the visit of station 's1'; the journal ")
+        journal.remove()
+    assert run_record.writes_clause() == "wrote the visit of station 's1'"
+    run_record.reset()
+    assert run_record.kept == RunRecord().kept

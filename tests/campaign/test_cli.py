@@ -157,3 +157,55 @@ def test_verify_names_a_malformed_or_missing_station_json(tmp_path, content):
     assert r.returncode == 4, r.stderr
     assert [p["path"] for p in data["problems"] if p["severity"] == "error"] == [str(st.path / "station.json")]
     assert data["observations"] == 2
+
+
+# ----------------------------------------------------------------------------- issue 48 item 9: the summary counts
+def _summary(root: Path) -> tuple[int, str]:
+    r = fgcd("campaign", "verify", root)
+    assert "Traceback" not in r.stderr
+    return r.returncode, " ".join(r.stdout.split()).rsplit(" — ", 1)[-1]
+
+
+def test_verify_counts_notes_and_warnings_as_such_in_singular_and_plural(tmp_path):
+    # Before: "OK: 2 observations, 2 files checked, 1 problems" for one interrupted revisit (no problem at all).
+    root = tmp_path / "c"
+    _, st, _, _ = _campaign_with_observations(root)
+    assert _summary(root) == (0, "OK: 2 observations, 2 files checked")
+    (st.path / "visits" / ".in-progress.jsonl").write_text('{"kind": "start", "options": {}}\n')
+    code, out = _summary(root)
+    assert code == 0 and out.endswith("OK, 1 note: 2 observations, 2 files checked"), out
+    assert "note interrupted-visit:" in fgcd("campaign", "verify", root).stdout
+    (st.path / "visits" / ".tmp-visit-1").mkdir()
+    (st.path / ".tmp-x").write_text("")
+    assert _summary(root)[1].endswith("OK, 2 warnings, 1 note: 2 observations, 2 files checked")
+
+
+def test_verify_counts_damage_in_singular_and_plural(tmp_path):
+    root = tmp_path / "c"
+    _, _, ref, visit = _campaign_with_observations(root)
+    _damage(ref.path / "images" / "front.png")
+    r = fgcd("campaign", "verify", root)
+    assert r.returncode == 4
+    assert "DAMAGED, 1 problem: 2 observations, 2 files checked" in " ".join(r.stdout.split())
+    assert r.stderr.startswith("error: 1 damaged or missing file, first: ")
+    _damage(visit.path / "images" / "front.png")
+    r = fgcd("campaign", "verify", root, "--json")
+    data = json.loads(r.stdout)
+    assert (data["errors"], data["warnings"], data["notes"]) == (2, 0, 0)
+    assert "error: 2 damaged or missing files, first: " in r.stderr
+
+
+def test_init_stores_the_rigs_camera_and_baud_rate(tmp_path):
+    """`campaign init` writes the whole rig into campaign.toml [rig] (issue 48, item 4)."""
+    import tomllib
+
+    r = fgcd("campaign", "init", tmp_path / "g", "--site", "x", "-d", "grbl", "--port", "/dev/ttyUSB1", "--baud",
+             "57600", "--camera", "/dev/video2")
+    assert r.returncode == 0, r.stderr
+    rig = tomllib.loads((tmp_path / "g" / "campaign.toml").read_text())["rig"]
+    assert rig == {"driver": "grbl", "port": "/dev/ttyUSB1", "baud": 57600, "camera": "/dev/video2"}
+    r = fgcd("campaign", "init", tmp_path / "u", "--site", "x", "--driver", "ur", "--host", "10.0.0.5")
+    rig = tomllib.loads((tmp_path / "u" / "campaign.toml").read_text())["rig"]
+    assert rig == {"driver": "ur", "host": "10.0.0.5", "camera": 0}  # the defaults written out
+    r = fgcd("campaign", "init", tmp_path / "bad", "--site", "x", "--driver", "grbl", "--baud", "0")
+    assert r.returncode == 2 and "--baud" in r.stderr and not (tmp_path / "bad").exists()
