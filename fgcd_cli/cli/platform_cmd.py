@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
+from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import typer
@@ -18,12 +20,12 @@ from scipy.spatial.transform import Rotation
 
 from drivers.connect import DRIVERS, PlatformSpec, open_platform
 from drivers.platform import GuardLimits, MotionGuard
+from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import confirmer, debug, emit
 from fgcd_cli.errors import HardwareError, UserInputError, run_record
 
 app = typer.Typer(help="Check, move and home a motion platform (GRBL stage, UR arm, manual).", no_args_is_help=True)
 
-_DRIVER_HELP = f"Platform driver: {', '.join(d for d in DRIVERS if d != 'sim')}."
 
 
 def _options(timeout_s: float | None) -> tuple[dict, dict]:
@@ -34,24 +36,27 @@ def _options(timeout_s: float | None) -> tuple[dict, dict]:
     return grbl, ur
 
 
-def _check_connection_options(driver: str, *, port: str | None, host: str | None, timeout_s: float | None) -> None:
-    """Refuse bad options before anything is opened (exit 2): driver, address, timeout."""
-    if driver == "sim":
+def _rig(campaign, driver: str | None, port: str | None, baud: int | None, host: str | None):
+    """The platform to open: each value from the option, else the campaign's [rig], else the default (exit 2/3)."""
+    from fgcd_cli.app.rig_options import RigOptions, resolve_rig
+
+    if campaign is not None:
+        from fgcd_cli.campaign import open_campaign
+
+        campaign = open_campaign(campaign)
+    if driver is None and campaign is None:
+        raise UserInputError(f"give --driver ({', '.join(d for d in DRIVERS if d != 'sim')}) or -c CAMPAIGN")
+    if driver == "sim" or (driver is None and campaign.rig_config.get("driver", "sim") == "sim"):
         raise UserInputError("the sim platform lives in a simulated rig: use 'fgcd sim' commands")
-    if driver not in DRIVERS:
-        raise UserInputError(f"unknown driver '{driver}' (choose from grbl, ur, manual)")
     # Rule: the address a driver needs is an option the user forgot, not a hardware fault.
-    if driver == "grbl" and not port:
-        raise UserInputError("the grbl driver needs --port (e.g. --port /dev/ttyUSB0)")
-    if driver == "ur" and not host:
-        raise UserInputError("the ur driver needs --host (the controller's address, e.g. --host 192.168.0.10)")
-    if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
-        raise UserInputError("--timeout must be a positive number of seconds")
+    return resolve_rig(campaign, RigOptions(driver=driver, port=port, host=host, baud=baud))
 
 
 @contextmanager
-def _opened(driver: str, port: str | None, baud: int, host: str | None, timeout_s: float | None):
-    _check_connection_options(driver, port=port, host=host, timeout_s=timeout_s)
+def _opened(rig, timeout_s: float | None):
+    if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
+        raise UserInputError("--timeout must be a positive number of seconds")
+    driver, port, baud, host = rig.driver, rig.port, rig.baud, rig.host
     run_record.no_writes()
     grbl_options, ur_options = _options(timeout_s)
     platform = open_platform(driver, spec=PlatformSpec(port=port, baud=baud, host=host, grbl_options=grbl_options,
@@ -83,25 +88,27 @@ def _describe(platform) -> dict:
     return describe() if describe is not None else {"driver": platform.name, "healthy": True}
 
 
-DriverOpt = typer.Option(..., "--driver", "-d", help=_DRIVER_HELP)
-PortOpt = typer.Option(None, "--port", help="GRBL serial device, e.g. /dev/ttyUSB0.")
-BaudOpt = typer.Option(115200, "--baud", help="GRBL baud rate.")
-HostOpt = typer.Option(None, "--host", help="UR controller address.")
+CampaignOpt = typer.Option(None, "--campaign", "-c", help="Campaign whose campaign.toml [rig] names the platform.")
+DriverOpt = opt.DRIVER
+PortOpt = opt.PORT
+BaudOpt = opt.BAUD
+HostOpt = opt.HOST
 TimeoutOpt = typer.Option(None, "--timeout", help="Answer/pre-flight timeout in seconds (driver default if unset).")
 JsonOpt = typer.Option(False, "--json", help="Print one JSON object.")
 
 
 @app.command("check")
 def check(
-    driver: str = DriverOpt,
-    port: str = PortOpt,
-    baud: int = BaudOpt,
-    host: str = HostOpt,
+    campaign: Optional[Path] = CampaignOpt,
+    driver: Optional[str] = DriverOpt,
+    port: Optional[str] = PortOpt,
+    baud: Optional[int] = BaudOpt,
+    host: Optional[str] = HostOpt,
     timeout: float = TimeoutOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Connect, print the state and the flange pose; exit 0 only when healthy."""
-    with _opened(driver, port, baud, host, timeout) as platform:
+    with _opened(_rig(campaign, driver, port, baud, host), timeout) as platform:
         state = _describe(platform)
         caps = platform.capabilities()
         data = {
@@ -133,17 +140,18 @@ def check(
 
 @app.command("move")
 def move(
-    driver: str = DriverOpt,
-    port: str = PortOpt,
-    baud: int = BaudOpt,
-    host: str = HostOpt,
+    campaign: Optional[Path] = CampaignOpt,
+    driver: Optional[str] = DriverOpt,
+    port: Optional[str] = PortOpt,
+    baud: Optional[int] = BaudOpt,
+    host: Optional[str] = HostOpt,
     dx: float = typer.Option(0.0, "--dx", help="Translation along flange x, mm."),
     dy: float = typer.Option(0.0, "--dy", help="Translation along flange y, mm."),
     dz: float = typer.Option(0.0, "--dz", help="Translation along flange z, mm."),
     rx: float = typer.Option(0.0, "--rx", help="Rotation vector x component in the flange frame, degrees."),
     ry: float = typer.Option(0.0, "--ry", help="Rotation vector y component, degrees."),
     rz: float = typer.Option(0.0, "--rz", help="Rotation vector z component, degrees."),
-    yes: bool = typer.Option(False, "--yes", "-y", help="Answer the first-motion confirmation (scripts)."),
+    yes: bool = opt.YES,
     max_step_mm: float = typer.Option(50.0, "--max-step-mm", help="Guard: largest translation, mm."),
     max_step_deg: float = typer.Option(10.0, "--max-step-deg", help="Guard: largest rotation, degrees."),
     speed_fraction: float = typer.Option(0.5, "--speed-fraction", help="Fraction (0, 1] of the platform's speed."),
@@ -165,14 +173,14 @@ def move(
         max_step_m=max_step_mm / 1000.0, max_step_rad=math.radians(max_step_deg), speed_fraction=speed_fraction
     )
     confirm = confirmer(yes=yes)
-    with _opened(driver, port, baud, host, timeout) as platform:
+    with _opened(_rig(campaign, driver, port, baud, host), timeout) as platform:
         guard = MotionGuard(platform, limits, confirm=confirm)
         debug(f"moving {platform.name} by ({dx:.3f}, {dy:.3f}, {dz:.3f}) mm, ({rx:.3f}, {ry:.3f}, {rz:.3f}) deg")
         with run_record.motion():
             result = guard.move_by(T_flange_delta)
     error_mm = float(np.linalg.norm(result.T_base_flange_reached[:3, 3] - result.T_base_flange_commanded[:3, 3])) * 1000
     data = {
-        "driver": driver,
+        "driver": platform.name,
         "arrived": True,
         "reached": _pose_dict(result.T_base_flange_reached),
         "target": _pose_dict(result.T_base_flange_target),
@@ -192,20 +200,21 @@ def move(
 
 @app.command("home")
 def home(
-    driver: str = DriverOpt,
-    port: str = PortOpt,
-    baud: int = BaudOpt,
-    host: str = HostOpt,
-    yes: bool = typer.Option(False, "--yes", "-y", help="Do not ask before homing."),
+    campaign: Optional[Path] = CampaignOpt,
+    driver: Optional[str] = DriverOpt,
+    port: Optional[str] = PortOpt,
+    baud: Optional[int] = BaudOpt,
+    host: Optional[str] = HostOpt,
+    yes: bool = opt.YES,
     timeout: float = TimeoutOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Run the platform's homing cycle (GRBL $H; clears an alarm)."""
     confirm = confirmer(yes=yes)
-    with _opened(driver, port, baud, host, timeout) as platform:
+    with _opened(_rig(campaign, driver, port, baud, host), timeout) as platform:
         if confirm is not None and not confirm(f"Home '{platform.name}' now? The axes will move to their switches."):
             raise UserInputError("homing not confirmed")
         with run_record.motion():
             platform.home()
         pose = _pose_dict(platform.flange_pose())
-    emit({"driver": driver, "homed": True, "pose": pose}, as_json=as_json)
+    emit({"driver": platform.name, "homed": True, "pose": pose}, as_json=as_json)

@@ -211,3 +211,15 @@ def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert lines[0].startswith("platform error:") and "no fresh state" in lines[0], stderr
     assert "Traceback" not in stderr
+
+
+def test_platform_commands_take_the_campaigns_rig(tmp_path, emulator):
+    """`platform check -c CAMPAIGN`: the port and baud of campaign.toml [rig] (issue 48, item 1: one rule)."""
+    from fgcd_cli.campaign import init_campaign
+
+    camp = init_campaign(tmp_path / "g", site="x", rig={"driver": "grbl", "port": emulator.port, "baud": 115200})
+    run = fgcd("platform", "check", "-c", str(camp.path), "--timeout", "1", "--json")
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["driver"] == "grbl"
+    run = fgcd("platform", "check")
+    assert run.returncode == 2 and run.stderr.strip() == "error: give --driver (grbl, ur, manual) or -c CAMPAIGN"
