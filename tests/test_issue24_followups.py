@@ -346,6 +346,8 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
         def add_image(self, name, img):
             raise KeyboardInterrupt
 
+    from fgcd_cli.relocation.config import RelocationConfig
+
     station = SimpleNamespace(name="north-wall", new_visit=lambda meta: Writer())
     rig = capture_uc.RigHandles(guard=SimpleNamespace(platform=SimpleNamespace(flange_pose=lambda: np.eye(4))),
                                 camera_source=None, intrinsics=SimpleNamespace(to_dict=lambda: {}),
@@ -353,7 +355,7 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
     run_record.reset()
     with pytest.raises(KeyboardInterrupt):
         capture_uc.relocate_and_capture(rig, station, capture_uc.RelocateRequest(
-            config=SimpleNamespace(mode="parallel"), lightings=["front"], coarse=None))
+            config=RelocationConfig(mode="parallel"), lightings=["front"], coarse=None))
     assert run_record.writes_clause() == "not written: the visit of station 'north-wall'"
     run_record.reset()
 
