@@ -44,6 +44,13 @@ MKMM = typer.Option(None, "--marker-mm", help="Side of one marker in mm (default
 DICT = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary.")
 
 
+def _sim_seed(camp, seed: Optional[int]) -> int:
+    """``--seed`` of a simulated rig: the option, else the campaign's ``[rig.sim]`` seed, else 0 (the hand-eye's rule)."""
+    from fgcd_cli.campaign.records import campaign_world
+
+    return seed if seed is not None else (campaign_world(camp)["seed"] if camp is not None else 0)
+
+
 def _open_campaign(path: Optional[Path]):
     if path is None:
         return None
@@ -103,8 +110,9 @@ def intrinsics_cmd(
     images: Optional[Path] = typer.Option(None, "--images", help="Folder of board photographs."),
     sim: bool = typer.Option(False, "--sim", help="Use views of a board rendered by the simulator."),
     sim_views: int = typer.Option(20, "--sim-views", help="Number of simulated views."),
-    seed: int = typer.Option(0, "--seed", help="Simulated rig whose camera is calibrated (--sim): same seed as "
-                             "`calibrate hand-eye --driver sim --seed`."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Simulated rig whose camera is calibrated (--sim): same "
+                                       "seed as `calibrate hand-eye --seed` (default: the campaign's [rig.sim] seed, "
+                                       "else 0)."),
     board_file: Optional[Path] = BOARD_FILE,
     squares_x: int = SQX,
     squares_y: int = SQY,
@@ -122,6 +130,7 @@ def intrinsics_cmd(
     if (images is None) == (not sim):
         raise UserInputError("give exactly one of --images DIR or --sim")
     camp = _open_campaign(campaign)
+    seed = _sim_seed(camp, seed)
     if sim:
         from drivers.sim.board import SimBoard
         from fgcd_cli.app.rig import open_sim_rig
@@ -235,7 +244,7 @@ def _check_handeye_options(*, mode: str, translation_mm: float, rotation_deg: fl
         exploration_motions(translation_m=translation_mm / 1000, rotation_deg=rotation_deg)
 
 
-def _run_handeye(handles, request, *, say, bar):
+def _run_handeye(handles, *, request, say, bar):
     """The hand-eye use case on an opened rig (:class:`fgcd_cli.app.calibrate.HandEyeCalibration`)."""
     from fgcd_cli.app.calibrate import HandEyeMode, run_handeye
 
@@ -293,7 +302,7 @@ def handeye_cmd(
                                   camera_index=rig_of.camera), hooks=RigHooks(confirm=confirm))
         run_record.platform_connected(rig.platform_name or rig_of.driver)
         with opened(rig):
-            calibration = _run_handeye(rig.handles, plan.request, say=None if as_json else info, bar=bar)
+            calibration = _run_handeye(rig.handles, request=plan.request, say=None if as_json else info, bar=bar)
     data = {**calibration.record, "mode": mode, "driver": rig_of.driver, "rig": rig_of.record()}
     if camp is None:
         stored, unusable = store_handeye(None, plan, calibration)
