@@ -152,12 +152,17 @@ class PlainSteps:
         self._write(text)
 
     def _beat(self) -> None:
-        while not self._stop.wait(min(1.0, self._heartbeat_s / 4)):
+        wait = self._heartbeat_s
+        while not self._stop.wait(wait):
             with self._lock:
                 now = time.monotonic()
-                if self._step is None or now - max(self._printed, self._last_printed()) < self._heartbeat_s:
-                    continue
-                self._print(f"  ... {self._label}{self._count}, {now - self._started:.0f} s")
+                due = max(self._printed, self._last_printed()) + self._heartbeat_s  # the silence ends here
+                if self._step is None:  # no step yet: nothing to name
+                    due = now + self._heartbeat_s
+                elif now >= due:
+                    self._print(f"  ... {self._label}{self._count}, {now - self._started:.0f} s")
+                    due = now + self._heartbeat_s
+                wait = max(0.01, due - now)  # wake at the end of the silence, not a polling period later
 
     def __enter__(self) -> "PlainSteps":
         self._thread.start()
