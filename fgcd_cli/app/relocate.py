@@ -20,6 +20,7 @@ from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
 from fgcd_cli.app.determinism import deterministic_rig, run_conditions
 from fgcd_cli.app.guided_start import start_revisit_session
 from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
+from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
 from fgcd_cli.app.scenario import (Driver, SimScenario, check_driver, check_lighting, check_method, check_scenario,
                                    check_scene)
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
@@ -262,8 +263,9 @@ class RevisitRequest:
     Attributes
     ----------
     station : str
-    driver : str or None
-        Platform driver (None: the campaign's ``[rig] driver``, else ``sim``).
+    rig : RigOptions
+        Driver, port, host, baud, camera as given (None: campaign.toml ``[rig]``, else the default;
+        :func:`fgcd_cli.app.rig_options.resolve_rig`).
     light : str
         Lighting of the visit (simulator).
     changes : int
@@ -288,15 +290,13 @@ class RevisitRequest:
         ``racr``, ``acr`` or ``acr-h`` (:class:`RelocationMethod`).
     guided : bool
         rACR: explore toward the image localizer's estimate of the reference.
-    port, host : str or None
-        Address of a GRBL stage / UR arm (None: campaign.toml ``[rig]``).
     resume : bool
         Continue an interrupted visit from its journal, or start over cleanly
         (:mod:`fgcd_cli.app.visit_journal`).
     """
 
     station: str
-    driver: str | None = None
+    rig: RigOptions = RigOptions()
     light: str = "led:3"
     changes: int = 0
     start_offset_mm: float = 30.0
@@ -309,8 +309,6 @@ class RevisitRequest:
     no_coarse: bool = False
     eta: float = 1e-4
     max_adjustments: int | None = None
-    port: str | None = None
-    host: str | None = None
     resume: bool = False
     method: str = RelocationMethod.RACR
     guided: bool = True
@@ -328,8 +326,7 @@ class RevisitPlan:
     T_flange_cam: np.ndarray
     camera: object
     config: RelocationConfig
-    port: str | None = None
-    host: str | None = None
+    rig: EffectiveRig | None = None  # driver, address, baud, camera (fgcd_cli.app.rig_options.resolve_rig)
     lights: object | None = None  # drivers.lights.LightsSpec of campaign.toml [rig.lights]
     method: RelocationMethod = RelocationMethod.RACR
     acr: AcrConfig | None = None
@@ -404,19 +401,20 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     Order: option values (exit 2), then the campaign (exit 3): driver, values, campaign,
     the campaign's driver, light, connection, station and reference, world, calibration.
     """
-    from fgcd_cli.app.capture import connection, rig_lights
+    from fgcd_cli.app.capture import rig_lights
     from fgcd_cli.campaign import open_campaign
 
     r = request
-    if r.driver is not None:
-        check_driver(r.driver)
+    if r.rig.driver is not None:
+        check_driver(r.rig.driver)
     method = check_method(r.method)
     check_relocation_options(changes=r.changes, eta=r.eta, max_adjustments=r.max_adjustments,
                              start_offset_mm=r.start_offset_mm, start_offset_deg=r.start_offset_deg)
     camp = open_campaign(campaign_path)
-    driver = check_driver(r.driver or camp.rig_config.get("driver", Driver.SIM))
+    rig = resolve_rig(camp, r.rig)  # the driver, then its address
+    driver = rig.driver
     light = check_lighting(r.light) if driver == Driver.SIM else r.light
-    port, host = connection(camp, driver, port=r.port, host=r.host)
+    check_campaign_rig(camp, rig, what="a visit")
     st = camp.station(r.station)
     ref = st.reference()
     for relpath in ref.files():  # Rule: a damaged reference is refused before anything is opened or moved
@@ -430,6 +428,9 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         raise CampaignError("no hand-eye calibration in the campaign: calibrate, or use --no-handeye")
     if r.no_handeye or T_flange_cam is None:  # ACR needs none: it takes the identity
         T_flange_cam = np.eye(4)
+    else:
+        check_record_rig(camp.read_rig(schema.RIG_HANDEYE), rig, name=schema.RIG_HANDEYE,
+                         command="fgcd calibrate hand-eye")
     config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, deterministic=r.deterministic,
                               eta=r.eta, max_adjustments=r.max_adjustments or RelocationConfig().max_adjustments,
                               image_refine=not r.no_image_refine, image_fallback=not r.no_image_refine)
@@ -437,7 +438,7 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
                     or AcrConfig().max_adjustments) if method != RelocationMethod.RACR else None
     lights = rig_lights(camp, visit_lightings(light, ref.metadata.get("lightings", []), controllable=True))
     return RevisitPlan(request=replace(r, light=light), driver=driver, station=st, reference=ref, scenario=scenario,
-                       T_flange_cam=T_flange_cam, camera=cam, config=config, port=port, host=host, lights=lights,
+                       T_flange_cam=T_flange_cam, camera=cam, config=config, rig=rig, lights=lights,
                        method=method, acr=acr)
 
 
@@ -460,8 +461,10 @@ def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
     options = {"driver": plan.driver, "light": r.light}
     decision = decide_resume(plan.station, resume=r.resume, options=options)
     run_record.no_writes()
+    where = plan.rig or EffectiveRig(driver=plan.driver)
     rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                                     scenario=plan.scenario, port=plan.port, host=plan.host, lights=plan.lights),
+                                     scenario=plan.scenario, port=where.port, baud=where.baud, host=where.host,
+                                     camera_index=where.camera, lights=plan.lights),
                           hooks=hooks)
     run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
     with rig_uc.opened(rig):
