@@ -46,7 +46,8 @@ def test_off_a_terminal_each_step_is_a_line_and_a_long_step_beats():
     # 1.6 s of silence at a 0.2 s interval: a beat every interval or so (not one at the end only)
     assert 3 <= len(beats) <= 9, texts
     assert beats[-1].endswith(" s")
-    assert texts.count("counted (1/3)") == 1 and not any(t.startswith("counted (2/3)") for t in texts)
+    # the counted step ends at once: not named (a step is named once it lasts a heartbeat here)
+    assert not any(t.startswith("counted") for t in texts), texts
     assert "" not in texts  # no blank line left behind by a live display
 
 
@@ -78,3 +79,16 @@ def test_the_longest_silence_of_a_command_in_a_pipe_is_the_heartbeat():
     report = json.loads(r.stdout.strip().splitlines()[-1])
     assert report["exit"] == 0 and report["lines"] >= 5
     assert report["longest_silence_s"] < 1.2, r.stdout  # the step alone would leave 1.5 s
+
+
+def test_a_step_that_ends_at_once_is_not_named_so_a_quick_error_stays_one_line():
+    """Off a terminal the step lines wait PLAIN_STEP_DELAY_S: a command refused at once prints its error only."""
+    script = textwrap.dedent("""
+        import sys
+        from fgcd_cli.cli.progress import step_progress
+        with step_progress(enabled=True) as bar:
+            bar(0, 0, "opening the rig")
+        print("error: refused", file=sys.stderr)
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert r.stderr.splitlines() == ["error: refused"]

@@ -8,7 +8,8 @@ lives on stderr (``--json`` stdout stays one object), shares the console of
 transient: once a command ends, only its lines and result remain.
 
 When stderr is not a terminal (a pipe, a log file) no bar is drawn: a plain
-line names each new step (:class:`PlainSteps`), and a heartbeat thread
+line names each step that lasts :data:`PLAIN_STEP_DELAY_S` (:class:`PlainSteps`;
+a command that fails at once prints its one error line only), and a heartbeat thread
 re-prints the current step with its elapsed time whenever nothing was printed
 on stderr for :data:`HEARTBEAT_S` seconds, so that a long step (the hand-eye
 image refinement, a scene uncertainty map, a change detection) is never silent
@@ -30,6 +31,9 @@ ProgressCallback = Callable[[int, int, str], None]
 #: Off a terminal, the longest silence on stderr during a step before the step is named again, seconds
 #: (``FGCD_HEARTBEAT_S`` overrides it: tests of a whole command shorten it).
 HEARTBEAT_S = float(os.environ.get("FGCD_HEARTBEAT_S", "10"))
+#: Off a terminal, how long a step runs before its line is printed, seconds (or one heartbeat, if shorter):
+#: a step that ends sooner is not named, so a command that fails at once prints its one error line only.
+PLAIN_STEP_DELAY_S = 1.0
 
 
 class StepBar:
@@ -100,8 +104,8 @@ def _step(label: str) -> str:
 class PlainSteps:
     """The callback off a terminal: one plain stderr line per step, and a heartbeat during a long one.
 
-    Same interface as :class:`StepBar`. A new step prints its label; while a
-    step runs, a daemon thread prints ``  ... <label> <done>/<total>, <n> s``
+    Same interface as :class:`StepBar`. A step prints its (latest) label once
+    it has lasted :data:`PLAIN_STEP_DELAY_S` or one heartbeat, if shorter; while it runs, a daemon thread prints ``  ... <label> <done>/<total>, <n> s``
     whenever nothing was printed on stderr (this renderer's lines or
     :func:`fgcd_cli.cli.output.info`) for ``heartbeat_s`` seconds.
     """
@@ -117,6 +121,7 @@ class PlainSteps:
         self._count = ""
         self._started = self._printed = time.monotonic()
         self._counting = False
+        self._named = False  # the current step's line is printed (after PLAIN_STEP_DELAY_S)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._beat, name="fgcd-progress-heartbeat", daemon=True)
 
@@ -127,8 +132,7 @@ class PlainSteps:
             self._label, self._count = label, (f" {done}/{total}" if known else "")
             if _step(label) == self._step:
                 return
-            self._step, self._started = _step(label), time.monotonic()
-            self._print(label)
+            self._step, self._started, self._named = _step(label), time.monotonic(), False
 
     def lines(self, say: Callable[[str], None]) -> Callable[[str], None]:
         """``say`` whose lines also name the step between counted steps (as :meth:`StepBar.lines`), not printed twice."""
@@ -140,6 +144,7 @@ class PlainSteps:
             with self._lock:  # the line itself names the step: no second line
                 self._step, self._label, self._count = _step(text.strip()), text.strip(), ""
                 self._started = self._printed = time.monotonic()
+                self._named = True
 
         return wrapped
 
@@ -152,13 +157,20 @@ class PlainSteps:
         self._write(text)
 
     def _beat(self) -> None:
-        wait = self._heartbeat_s
+        delay = min(PLAIN_STEP_DELAY_S, self._heartbeat_s)
+        wait = delay
         while not self._stop.wait(wait):
             with self._lock:
                 now = time.monotonic()
                 due = max(self._printed, self._last_printed()) + self._heartbeat_s  # the silence ends here
                 if self._step is None:  # no step yet: nothing to name
-                    due = now + self._heartbeat_s
+                    due = now + delay
+                elif not self._named:  # a step is named once it has lasted `delay`
+                    due = self._started + delay
+                    if now >= due:
+                        self._named = True
+                        self._print(self._label)
+                        due = now + self._heartbeat_s
                 elif now >= due:
                     self._print(f"  ... {self._label}{self._count}, {now - self._started:.0f} s")
                     due = now + self._heartbeat_s
