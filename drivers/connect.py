@@ -1,7 +1,7 @@
 """One factory for every platform driver: ``open_platform("grbl", spec=PlatformSpec(port=...))``.
 
 The simulator's platform is built elsewhere (from a rig) and passed in as
-``sim_rig``; this module never imports ``drivers.sim``.
+``sim_rig``; this module never imports ``fgcd_drivers.sim``.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Callable
 
-from drivers.platform import Platform, PlatformConnectionError
+from fgcd_drivers.platform import Platform, PlatformConnectionError
 
 __all__ = ["DRIVERS", "Driver", "PlatformSpec", "open_platform"]
 
@@ -38,7 +38,7 @@ class PlatformSpec:
     host : str or None
         UR controller address.
     grbl_options, ur_options : dict, optional
-        Extra fields of :class:`drivers.grbl.GrblConfig` / :class:`drivers.ur.URConfig`.
+        Extra fields of :class:`fgcd_drivers.grbl.GrblConfig` / :class:`fgcd_drivers.ur.URConfig`.
     ask, say : callables, optional
         For the manual driver (``input`` / ``print`` by default).
     sim_rig : Platform, optional
@@ -87,17 +87,17 @@ def _build(driver: str, spec: PlatformSpec) -> Platform:
     if driver == Driver.GRBL:
         if not spec.port:
             raise PlatformConnectionError("the grbl driver needs --port (e.g. /dev/ttyUSB0)")
-        from drivers.grbl import GrblConfig, GrblPlatform
+        from fgcd_drivers.grbl import GrblConfig, GrblPlatform
 
         return GrblPlatform(GrblConfig(port=spec.port, baud=spec.baud, **(spec.grbl_options or {})))
     if driver == Driver.UR:
         if not spec.host:
             raise PlatformConnectionError("the ur driver needs --host (the controller's address)")
-        from drivers.ur import URConfig, URPlatform
+        from fgcd_drivers.ur import URConfig, URPlatform
 
         return URPlatform(URConfig(host=spec.host, **(spec.ur_options or {})))
     if driver == Driver.MANUAL:
-        from drivers.manual import ManualPlatform
+        from fgcd_drivers.manual import ManualPlatform
 
         kwargs = {}
         if spec.ask is not None:

@@ -1,4 +1,4 @@
-"""The Lights protocol (beside :class:`drivers.platform.Platform`), the manual prompt, and ``open_lights``.
+"""The Lights protocol (beside :class:`fgcd_drivers.platform.Platform`), the manual prompt, and ``open_lights``.
 
 A *lighting* is named as on the command line (``fgcd capture --lightings
 ambient,led:3,led:6``): ``ambient`` means every rig light off (the day's
@@ -7,10 +7,10 @@ light only); any other name is a *channel* of the rig (``led:3``, the LED at
 switches that one channel on and every other channel off.
 
 Drivers: :class:`ManualLights` (a person is asked to switch, here),
-:class:`drivers.lights_grbl.GrblLights` (GRBL's coolant and spindle outputs),
-:class:`drivers.lights_serial.SerialLights` (a USB relay / serial light
+:class:`fgcd_drivers.lights_grbl.GrblLights` (GRBL's coolant and spindle outputs),
+:class:`fgcd_drivers.lights_serial.SerialLights` (a USB relay / serial light
 controller with the line protocol documented there), and the simulator's
-``drivers.sim.world.SimLights``. Wiring and protocol: ``docs/hardware.md``,
+``fgcd_drivers.sim.world.SimLights``. Wiring and protocol: ``docs/hardware.md``,
 "Lights".
 """
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Callable, Protocol, runtime_checkable
 
-from drivers.platform import PlatformConnectionError, PlatformError
+from fgcd_drivers.platform import PlatformConnectionError, PlatformError
 
 __all__ = ["AMBIENT", "Lights", "LightsDriver", "LightsError", "LightsSpec", "ManualLights", "open_lights",
            "parse_lightings"]
@@ -176,11 +176,11 @@ def open_lights(spec: LightsSpec, *, platform=None, ask: Callable[[str], str] = 
     if spec.driver == LightsDriver.MANUAL:
         return ManualLights(list(spec.channels), ask=ask)
     if spec.driver == LightsDriver.GRBL:
-        from drivers.lights_grbl import GrblLights
+        from fgcd_drivers.lights_grbl import GrblLights
 
         return GrblLights.open(spec, platform=platform)
     if spec.driver == LightsDriver.SERIAL:
-        from drivers.lights_serial import SerialLights
+        from fgcd_drivers.lights_serial import SerialLights
 
         return SerialLights.open(spec)
     raise PlatformConnectionError(f"the '{spec.driver}' lights belong to the simulator's rig")

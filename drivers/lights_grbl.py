@@ -15,8 +15,8 @@ from __future__ import annotations
 import re
 import time
 
-from drivers.lights import AMBIENT, LightsError, LightsSpec
-from drivers.platform import PlatformConnectionError, PlatformError
+from fgcd_drivers.lights import AMBIENT, LightsError, LightsSpec
+from fgcd_drivers.platform import PlatformConnectionError, PlatformError
 
 __all__ = ["GrblLights", "GrblOutput", "output_command"]
 
@@ -57,7 +57,7 @@ class GrblLights:
 
     Parameters
     ----------
-    platform : drivers.grbl.GrblPlatform
+    platform : fgcd_drivers.grbl.GrblPlatform
         An open GRBL connection (the stage's own, or one opened for the lights).
     channels : dict str -> str
         Lighting name -> output (``flood``, ``mist``, ``spindle:S``), one output per lighting.
@@ -83,7 +83,7 @@ class GrblLights:
             return cls(platform, spec.channels)
         if not spec.port:
             raise PlatformConnectionError("[rig.lights] driver 'grbl' needs a port (the GRBL board's serial device)")
-        from drivers.grbl import GrblConfig, GrblPlatform
+        from fgcd_drivers.grbl import GrblConfig, GrblPlatform
 
         board = GrblPlatform(GrblConfig(port=spec.port, baud=spec.baud))
         board.connect()

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.platform import (
+from fgcd_drivers.platform import (
     Capabilities,
     MotionInterrupted,
     MotionRejected,
@@ -42,7 +42,7 @@ from drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
-from drivers.ur_preflight import preflight
+from fgcd_drivers.ur_preflight import preflight
 
 #: Interfaces of hung controllers, kept alive so that no ur_rtde call (not even a
 #: destructor's disconnect, which can block without a timeout) touches them again.
@@ -169,7 +169,7 @@ class URConfig:
 
 
 class URPlatform:
-    """A UR arm as a :class:`~drivers.platform.Platform` (6 DoF, flange frame)."""
+    """A UR arm as a :class:`~fgcd_drivers.platform.Platform` (6 DoF, flange frame)."""
 
     name = "ur"
 

@@ -4,7 +4,7 @@ Camera frame as OpenCV: x right, y down, z forward; pixel centres at integer
 coordinates. Distortion and its inverse go through OpenCV (``projectPoints``,
 ``undistortPointsIter``) rather than a hand-written solver.
 
-The one intrinsics type of fgcd: ``drivers.cameras.CameraIntrinsics`` (what a
+The one intrinsics type of fgcd: ``fgcd_drivers.cameras.CameraIntrinsics`` (what a
 camera advertises) and ``fgcd_core.camera.PinholeCamera`` (what the
 algorithms project with) are both this class. Its JSON form (:meth:`to_dict`)
 is the one written to ``rig/intrinsics.json``.

@@ -48,7 +48,7 @@ class GrayChannels(StrEnum):
     LUMA_601_F32 = "luma601_f32"
     """Rec. 601 luma as a float32 dot product on the image already scaled to [0, 1]
     (scaling multiplies by the float32 reciprocal of the full scale), clipped to [0, 1]:
-    no intermediate rounding. The camera sources' pipeline (``drivers.cameras``)."""
+    no intermediate rounding. The camera sources' pipeline (``fgcd_drivers.cameras``)."""
     MEAN = "mean"
     """``(R + G + B) / 3`` in float32 on the image scaled to [0, 1] (no colour weighting)."""
 

@@ -1,6 +1,6 @@
 """Every forbidden import direction, checked on the source of every module (docs/architecture.md).
 
-Layers: ``fgcd_core`` (bottom: numpy/scipy/OpenCV only) <- ``drivers`` (the
+Layers: ``fgcd_core`` (bottom: numpy/scipy/OpenCV only) <- ``fgcd_drivers`` (the folder ``drivers/``, the
 world) <- ``fgcd_cli`` (the brain). The algorithm packages stay free of the
 simulator, the use cases, reports, benchmarks and the CLI; only ``fgcd_cli.cli``
 speaks typer, and nothing imports the CLI but the CLI.
@@ -18,7 +18,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-TOP_PACKAGES = ("fgcd_core", "drivers", "fgcd_cli")
+TOP_PACKAGES = ("fgcd_core", "fgcd_drivers", "fgcd_cli")
+#: The folder of each top-level package: the design card's ``drivers/`` installs as ``fgcd_drivers`` (setup.py).
+FOLDER = {"fgcd_core": "fgcd_core", "fgcd_drivers": "drivers", "fgcd_cli": "fgcd_cli"}
 ALGORITHM_PACKAGES = (
     "fgcd_core",
     "fgcd_cli.vse",
@@ -31,7 +33,7 @@ ALGORITHM_PACKAGES = (
 )
 #: What no algorithm package may import: the simulator's truth, use cases, outputs, benchmarks, the CLI and its libraries.
 ALGORITHM_FORBIDDEN = (
-    "drivers.sim",
+    "fgcd_drivers.sim",
     "fgcd_cli.cli",
     "fgcd_cli.app",
     "fgcd_cli.report",
@@ -44,6 +46,7 @@ ALGORITHM_FORBIDDEN = (
 def module_name(path: Path, root: Path) -> str:
     """Dotted module name of ``path`` under ``root`` (a package's ``__init__`` is the package)."""
     parts = list(path.relative_to(root).with_suffix("").parts)
+    parts[0] = {folder: package for package, folder in FOLDER.items()}.get(parts[0], parts[0])
     if parts[-1] == "__init__":
         parts = parts[:-1]
     return ".".join(parts)
@@ -79,7 +82,7 @@ def offenders(root: Path, importers: tuple[str, ...], forbidden: tuple[str, ...]
     """``file:line -> name`` of every module under ``importers`` (minus ``exempt``) importing a ``forbidden`` name."""
     out = []
     for top in TOP_PACKAGES:
-        for path in sorted((root / top).rglob("*.py")):
+        for path in sorted((root / FOLDER[top]).rglob("*.py")):
             mod = module_name(path, root)
             if not _matches(mod, importers) or _matches(mod, exempt):
                 continue
@@ -90,11 +93,16 @@ def offenders(root: Path, importers: tuple[str, ...], forbidden: tuple[str, ...]
 
 
 def test_core_imports_neither_the_brain_nor_the_world():
-    assert not offenders(ROOT, ("fgcd_core",), ("fgcd_cli", "drivers"))
+    assert not offenders(ROOT, ("fgcd_core",), ("fgcd_cli", "fgcd_drivers"))
 
 
 def test_drivers_never_import_fgcd_cli():
-    assert not offenders(ROOT, ("drivers",), ("fgcd_cli",))
+    assert not offenders(ROOT, ("fgcd_drivers",), ("fgcd_cli",))
+
+
+def test_nothing_imports_the_folder_name_drivers():
+    """``drivers`` is importable only from the repository root; installed, the package is ``fgcd_drivers``."""
+    assert not offenders(ROOT, TOP_PACKAGES, ("drivers",))
 
 
 _KNOWN_VIOLATIONS: dict[str, str] = {}
@@ -120,7 +128,8 @@ def test_nothing_but_the_cli_imports_the_cli():
 def test_every_listed_package_exists():
     """The checks pass vacuously on a missing folder: make sure they look where the code is."""
     for package in ALGORITHM_PACKAGES + TOP_PACKAGES + ("fgcd_cli.cli",):
-        assert (ROOT / package.replace(".", "/") / "__init__.py").is_file(), package
+        top, _, rest = package.partition(".")
+        assert (ROOT / FOLDER[top] / rest.replace(".", "/") / "__init__.py").is_file(), package
 
 
 def test_checker_sees_every_import_form(tmp_path):
@@ -131,9 +140,9 @@ def test_checker_sees_every_import_form(tmp_path):
     (tmp_path / "drivers").mkdir()
     (tmp_path / "fgcd_core").mkdir()
     cases = {
-        "import drivers.sim": "drivers.sim",
-        "from drivers.sim.groundtruth import GroundTruth": "drivers.sim.groundtruth",
-        "from drivers import sim": "drivers.sim",
+        "import fgcd_drivers.sim": "fgcd_drivers.sim",
+        "from fgcd_drivers.sim.groundtruth import GroundTruth": "fgcd_drivers.sim.groundtruth",
+        "from fgcd_drivers import sim": "fgcd_drivers.sim",
         "import typer": "typer",
         "from rich.console import Console": "rich.console",
         "import importlib\nimportlib.import_module('fgcd_cli.cli.app')": "fgcd_cli.cli.app",
@@ -146,7 +155,7 @@ def test_checker_sees_every_import_form(tmp_path):
         found = offenders(tmp_path, ("fgcd_cli.alignment",), ALGORITHM_FORBIDDEN)
         assert any(expected in o for o in found), (line, found)
         f.unlink()
-    (pkg / "ok.py").write_text("import numpy\nfrom drivers.platform import MotionGuard\nfrom . import sub\n")
+    (pkg / "ok.py").write_text("import numpy\nfrom fgcd_drivers.platform import MotionGuard\nfrom . import sub\n")
     assert offenders(tmp_path, ("fgcd_cli.alignment",), ALGORITHM_FORBIDDEN) == []
 
 
@@ -168,7 +177,7 @@ def size_offenders(root: Path) -> list[str]:
     exempt from the parameter limit: their options are the command line's)."""
     out = []
     for top in TOP_PACKAGES:
-        for path in sorted((root / top).rglob("*.py")):
+        for path in sorted((root / FOLDER[top]).rglob("*.py")):
             rel = path.relative_to(root)
             source = path.read_text(encoding="utf-8")
             if len(source.splitlines()) > MAX_MODULE_LINES:
@@ -222,7 +231,7 @@ def test_options_travel_in_config_objects_not_keyword_catch_alls():
     """One call form per function: no ``**overrides`` beside a config dataclass or a typed request."""
     found = []
     for top in TOP_PACKAGES:
-        for path in sorted((ROOT / top).rglob("*.py")):
+        for path in sorted((ROOT / FOLDER[top]).rglob("*.py")):
             rel = path.relative_to(ROOT).as_posix()
             for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
                 if (isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.args.kwarg is not None

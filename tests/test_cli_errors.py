@@ -279,7 +279,7 @@ def _manual_campaign(root: Path) -> Path:
 @pytest.mark.parametrize("verbose", [[], ["--verbose"], ["-v"]], ids=["plain", "--verbose after", "-v after"])
 def test_a_missing_camera_is_hardware_in_one_line(tmp_path, monkeypatch, capsys, verbose):
     # Before: exit 70 "internal error: CameraError: ..." (and `--verbose` after the subcommand a usage error).
-    import drivers.cameras as cameras
+    import fgcd_drivers.cameras as cameras
     from fgcd_cli.cli.app import app
 
     exists = cameras.os.path.exists
@@ -295,7 +295,7 @@ def test_a_missing_camera_is_hardware_in_one_line(tmp_path, monkeypatch, capsys,
 
 
 def test_camera_errors_are_hardware_exit_7(capsys):
-    from drivers.cameras import CameraError
+    from fgcd_drivers.cameras import CameraError
 
     app = typer.Typer()
 

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 import sysconfig
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -15,9 +16,14 @@ ROOT = Path(__file__).resolve().parents[1]
 def installed(tmp_path_factory) -> Path:
     """fgcd built as a wheel and unpacked into a folder of its own (dependencies from this environment)."""
     tmp = tmp_path_factory.mktemp("wheel")
+    before = {p.name for p in ROOT.iterdir()}
     subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation", "-q",
                     "-w", str(tmp / "dist")], check=True, cwd=tmp, capture_output=True, timeout=300)
+    left = sorted({p.name for p in ROOT.iterdir()} - before)
+    assert not left, f"the build wrote into the source tree: {left}"  # setup.py builds out of tree
     wheel = next((tmp / "dist").glob("fgcd-*.whl"))
+    tops = {name.split("/")[0] for name in zipfile.ZipFile(wheel).namelist() if "/" in name}
+    assert "fgcd_drivers" in tops and "drivers" not in tops, tops  # fgcd's own name in site-packages
     target = tmp / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(target), str(wheel)],
                    check=True, cwd=tmp, capture_output=True, timeout=300)
@@ -38,7 +44,7 @@ def _run_installed(target: Path, code: str) -> subprocess.CompletedProcess:
 
 def test_wheel_lists_the_scenes_and_renders_a_frame(installed):
     listing = _run_installed(installed, (
-        "import json; import fgcd_cli, fgcd_core, drivers.sim.scenes as s; "
+        "import json; import fgcd_cli, fgcd_core, fgcd_drivers.sim.scenes as s; "
         "print(json.dumps({'module': fgcd_cli.__file__, 'core': fgcd_core.__file__, "
         "'scenes': [i.name for i in s.list_scenes()]}))"))
     assert listing.returncode == 0, listing.stderr
@@ -54,8 +60,8 @@ def test_wheel_lists_the_scenes_and_renders_a_frame(installed):
     assert sorted(s["name"] for s in json.loads(cli.stdout)["scenes"]) == shipped
 
     render = _run_installed(installed, (
-        "import numpy as np; from drivers.cameras import CameraIntrinsics; "
-        "from drivers.sim.render import Renderer; from drivers.sim.scenes import load_scene; "
+        "import numpy as np; from fgcd_drivers.cameras import CameraIntrinsics; "
+        "from fgcd_drivers.sim.render import Renderer; from fgcd_drivers.sim.scenes import load_scene; "
         "scene = load_scene('stele'); intr = CameraIntrinsics(fx=120., fy=120., cx=39.5, cy=29.5, width=80, height=60); "
         "rgb = Renderer(scene).render(np.asarray(scene.default_T_world_cam), intr, 'front', want=('rgb',)).rgb; "
         "print(rgb.shape, float(rgb.std()))"))

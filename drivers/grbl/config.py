@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from drivers.grbl.kinematics import GrblKinematics
+from fgcd_drivers.grbl.kinematics import GrblKinematics
 
 __all__ = ["GrblConfig"]
 

@@ -1,7 +1,7 @@
 """The serial link to a GRBL controller: port, reader thread, answers, status and alarms.
 
 A background reader thread owns the port's input: it frames lines (LF ends a
-line, CR is dropped), sorts them with :func:`drivers.grbl.protocol.classify_line`
+line, CR is dropped), sorts them with :func:`fgcd_drivers.grbl.protocol.classify_line`
 into answers (``ok``/``error``), status reports, alarms, the banner, messages
 and settings, and counts anything else as noise (line noise, a boot loader's
 bytes). Commands are sent one at a time and wait for their answer with a
@@ -17,8 +17,8 @@ import time
 
 import serial
 
-from drivers.grbl.config import GrblConfig
-from drivers.grbl.protocol import (
+from fgcd_drivers.grbl.config import GrblConfig
+from fgcd_drivers.grbl.protocol import (
     ERROR_LOCKED,
     STATUS_QUERY,
     GrblState,
@@ -32,7 +32,7 @@ from drivers.grbl.protocol import (
     parse_setting,
     parse_status,
 )
-from drivers.platform import MotionRejected, PlatformConnectionError, PlatformTimeout, SafetyStop
+from fgcd_drivers.platform import MotionRejected, PlatformConnectionError, PlatformTimeout, SafetyStop
 
 __all__ = ["GrblLink"]
 

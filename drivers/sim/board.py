@@ -3,7 +3,7 @@
 Two uses:
 
 - :func:`board_mesh_part` / :func:`add_board_to_scene`: the board as a textured
-  plane of a :class:`drivers.sim.scene.Scene`, so the simulated rig camera sees
+  plane of a :class:`fgcd_drivers.sim.scene.Scene`, so the simulated rig camera sees
   it through the scene renderer (hand-eye with a target);
 - :func:`render_board_view`: an exact ray-cast image of the board alone for a
   camera with given intrinsics and distortion (intrinsic calibration views and
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drivers.sim.meshes import MeshPart, quad
-from drivers.sim.scene import Scene
+from fgcd_drivers.sim.meshes import MeshPart, quad
+from fgcd_drivers.sim.scene import Scene
 from fgcd_core.board import CharucoSpec
 from fgcd_core.camera import CameraIntrinsics
 
@@ -285,7 +285,7 @@ class SimBoardCamera:
     """A simulated camera looking at a hand-held board: each ``grab()`` shows a new pose.
 
     The true intrinsics differ from the nominal ones like a real camera's
-    (``drivers.sim.camera.perturbed_intrinsics``, seeded); only evaluation code
+    (``fgcd_drivers.sim.camera.perturbed_intrinsics``, seeded); only evaluation code
     reads :attr:`intrinsics_true` and :attr:`poses_true`.
 
     Parameters
@@ -301,8 +301,8 @@ class SimBoardCamera:
 
     def __init__(self, board: SimBoard, *, seed: int = 0, intrinsics_error="default", supersample: int = 2,
                  intrinsics_true=None):
-        from drivers.cameras import Frame
-        from drivers.sim.camera import DEFAULT_INTRINSICS, perturbed_intrinsics
+        from fgcd_drivers.cameras import Frame
+        from fgcd_drivers.sim.camera import DEFAULT_INTRINSICS, perturbed_intrinsics
 
         self._frame_type = Frame
         self.board = board

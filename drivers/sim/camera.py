@@ -14,9 +14,9 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.cameras import CameraError, CameraIntrinsics, Frame
-from drivers.sim.render import CameraEffects
-from drivers.sim.world import SimLights, SimWorld
+from fgcd_drivers.cameras import CameraError, CameraIntrinsics, Frame
+from fgcd_drivers.sim.render import CameraEffects
+from fgcd_drivers.sim.world import SimLights, SimWorld
 
 __all__ = [
     "SimCamera",
@@ -115,7 +115,7 @@ class SimCameraOptions:
 
 
 class SimCamera:
-    """A camera in the simulated world (implements ``drivers.cameras.CameraSource``).
+    """A camera in the simulated world (implements ``fgcd_drivers.cameras.CameraSource``).
 
     Parameters
     ----------

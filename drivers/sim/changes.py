@@ -469,8 +469,8 @@ def random_changes(scene, *, n: int, seed: int, kinds=KINDS, size_mm: tuple[floa
     unknown = [k for k in kinds if k not in ALL_KINDS]
     if unknown or not len(kinds):
         raise ValueError(f"kinds must be a non-empty subset of {', '.join(ALL_KINDS)}, got {list(kinds)}")
-    from drivers.cameras import CameraIntrinsics
-    from drivers.sim.render import Renderer
+    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_drivers.sim.render import Renderer
 
     rng = np.random.default_rng(seed)
     T = scene.default_T_world_cam if T_world_cam is None else T_world_cam

@@ -28,7 +28,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from drivers.platform import (
+from fgcd_drivers.platform import (
     Capabilities,
     MotionRejected,
     MoveResult,
@@ -36,7 +36,7 @@ from drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
-from drivers.sim.transforms import exp_so3, invert_pose, log_so3, make_pose, rot_angle
+from fgcd_drivers.sim.transforms import exp_so3, invert_pose, log_so3, make_pose, rot_angle
 
 __all__ = ["SimClock", "PlatformErrorModel", "SimPlatform", "SimPlatformConfig", "SimFault", "ERROR_PRESETS", "FAULTS"]
 
@@ -150,7 +150,7 @@ class SimPlatformConfig:
 
 
 class SimPlatform:
-    """Simulated 6-DoF (or 3-DoF gantry) platform implementing ``drivers.platform.Platform``.
+    """Simulated 6-DoF (or 3-DoF gantry) platform implementing ``fgcd_drivers.platform.Platform``.
 
     Parameters
     ----------

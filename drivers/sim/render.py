@@ -13,7 +13,7 @@ pixel and box-filters it (anti-aliased edges); depth, normals, labels, change
 masks and change ids always come from the pixel centres.
 
 The camera response (exposure, vignetting, noise, gamma) is applied by
-:func:`drivers.sim.sensor.apply_camera_response` (re-exported here with
+:func:`fgcd_drivers.sim.sensor.apply_camera_response` (re-exported here with
 :class:`CameraEffects`, :func:`auto_exposure` and ``LUMA``).
 """
 
@@ -27,11 +27,11 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.changes import evaluate_changes
-from drivers.sim.lights import Lighting, lighting_preset
-from drivers.sim.scene import Scene
-from drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.changes import evaluate_changes
+from fgcd_drivers.sim.lights import Lighting, lighting_preset
+from fgcd_drivers.sim.scene import Scene
+from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
 
 __all__ = ["Renderer", "RenderResult", "CameraEffects", "apply_camera_response", "auto_exposure", "LUMA"]
 

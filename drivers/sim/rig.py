@@ -6,15 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.camera import (DEFAULT_EFFECTS, DEFAULT_INTRINSICS, STILL_SUPERSAMPLE, SimCamera, SimCameraOptions,
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.camera import (DEFAULT_EFFECTS, DEFAULT_INTRINSICS, STILL_SUPERSAMPLE, SimCamera, SimCameraOptions,
                                perturbed_intrinsics)
-from drivers.sim.groundtruth import GroundTruth
-from drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
-from drivers.sim.render import CameraEffects, Renderer
-from drivers.sim.scenes import load_scene
+from fgcd_drivers.sim.groundtruth import GroundTruth
+from fgcd_drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
+from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.scenes import load_scene
 from fgcd_core.se3 import exp_so3, invert_pose, make_pose
-from drivers.sim.world import SimLights, SimWorld
+from fgcd_drivers.sim.world import SimLights, SimWorld
 
 __all__ = ["SimRig", "SimRigConfig", "build_sim_rig", "random_hand_eye"]
 
@@ -36,14 +36,14 @@ class SimRig:
 
     def board_camera(self, board, *, seed: int = 0, supersample: int = 2):
         """The rig's camera looking at a hand-held ChArUco board (intrinsics calibration views)."""
-        from drivers.sim.board import SimBoardCamera
+        from fgcd_drivers.sim.board import SimBoardCamera
 
         return SimBoardCamera(board, seed=seed, supersample=supersample,
                               intrinsics_true=self.ground_truth.intrinsics_true())
 
     def inject_changes(self, *, n: int, seed: int, kinds=None, size_mm: tuple[float, float] = (1.0, 20.0)) -> list:
         """Add ``n`` random changes on the object where the reference camera sees it (returns them)."""
-        from drivers.sim.changes import KINDS, random_changes
+        from fgcd_drivers.sim.changes import KINDS, random_changes
 
         chs = random_changes(self.world.scene, n=n, seed=seed, kinds=kinds or KINDS, size_mm=size_mm)
         self.world.apply_changes(chs)
@@ -123,7 +123,7 @@ def build_sim_rig(*, scene: str, config: SimRigConfig | None = None) -> SimRig:
 
     Parameters
     ----------
-    scene : scene name (``drivers.sim.scenes.list_scenes``).
+    scene : scene name (``fgcd_drivers.sim.scenes.list_scenes``).
     config : SimRigConfig, optional
         The rig's options (default: :class:`SimRigConfig`).
     """

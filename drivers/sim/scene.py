@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.sim.meshes import MeshPart
+from fgcd_drivers.sim.meshes import MeshPart
 
 __all__ = ["Scene", "SceneInfo", "OBJECT_LABEL"]
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from drivers.sim.meshes import MeshPart, box, heightfield, implicit_surface, quad, revolution, uv_sphere
-from drivers.sim.scene import OBJECT_LABEL
-from drivers.sim.textures import blend_detail, fractal_noise, photo, stone, tinted
+from fgcd_drivers.sim.meshes import MeshPart, box, heightfield, implicit_surface, quad, revolution, uv_sphere
+from fgcd_drivers.sim.scene import OBJECT_LABEL
+from fgcd_drivers.sim.textures import blend_detail, fractal_noise, photo, stone, tinted
 
 __all__ = ["BUILDERS"]
 

@@ -1,6 +1,6 @@
 """Builders of architectural scene kinds: an overhanging cornice and a lettered slab (issue 25).
 
-Same conventions as :mod:`drivers.sim.scene_builders`: world z up, metres, the
+Same conventions as :mod:`fgcd_drivers.sim.scene_builders`: world z up, metres, the
 object's front facing -y, everything random from the given generator.
 
 * ``cornice``: an ashlar wall under a classical cornice that projects 28 cm
@@ -17,10 +17,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from drivers.sim.meshes import MeshPart, box, heightfield
-from drivers.sim.scene import OBJECT_LABEL
-from drivers.sim.scene_builders import X, Z, _floor, _grid, _grid_to_texture, _panel_relief_part, _text_mask
-from drivers.sim.textures import blend_detail, fractal_noise, stone
+from fgcd_drivers.sim.meshes import MeshPart, box, heightfield
+from fgcd_drivers.sim.scene import OBJECT_LABEL
+from fgcd_drivers.sim.scene_builders import X, Z, _floor, _grid, _grid_to_texture, _panel_relief_part, _text_mask
+from fgcd_drivers.sim.textures import blend_detail, fractal_noise, stone
 
 __all__ = ["ARCH_BUILDERS", "build_cornice", "build_lettered_slab"]
 
@@ -29,7 +29,7 @@ def _extrusion(profile_yz: np.ndarray, *, x0: float, x1: float, nx: int, repeat_
     """A profile ``(K, 2)`` of ``(y, z)`` points (metres) swept along x from ``x0`` to ``x1``.
 
     The profile runs bottom to top on the viewer's side, so the surface faces -y / down.
-    Returns ``(vertices (N, 3), triangles (M, 3), tri_uv (M, 3, 2))`` as :func:`~drivers.sim.meshes.heightfield`.
+    Returns ``(vertices (N, 3), triangles (M, 3), tri_uv (M, 3, 2))`` as :func:`~fgcd_drivers.sim.meshes.heightfield`.
     """
     P = np.asarray(profile_yz, float)
     xs = np.linspace(x0, x1, nx)

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.sim.scene import OBJECT_LABEL, Scene, SceneInfo
-from drivers.sim.scene_builders import BUILDERS as _BASE_BUILDERS
-from drivers.sim.scene_builders_arch import ARCH_BUILDERS
-from drivers.sim.transforms import look_at
+from fgcd_drivers.sim.scene import OBJECT_LABEL, Scene, SceneInfo
+from fgcd_drivers.sim.scene_builders import BUILDERS as _BASE_BUILDERS
+from fgcd_drivers.sim.scene_builders_arch import ARCH_BUILDERS
+from fgcd_drivers.sim.transforms import look_at
 
 BUILDERS = {**_BASE_BUILDERS, **ARCH_BUILDERS}
 
@@ -40,7 +40,7 @@ def scenes_dir() -> Path:
         return Path(env)
     # setuptools installs package data as plain files (wheels are not zip-imported),
     # so the resource folder is a directory on disk.
-    return Path(str(resources.files("drivers.sim").joinpath("scene_specs")))
+    return Path(str(resources.files("fgcd_drivers.sim").joinpath("scene_specs")))
 
 
 def _spec_files() -> dict[str, Path]:

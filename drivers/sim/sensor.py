@@ -1,6 +1,6 @@
 """The simulated sensor's response: exposure, vignetting, read and shot noise, gamma.
 
-Applied by :class:`drivers.sim.render.Renderer` after shading (linear radiance
+Applied by :class:`fgcd_drivers.sim.render.Renderer` after shading (linear radiance
 in, image in [0, 1] out).
 """
 

@@ -9,15 +9,15 @@ session's own light, as the day's light stays on a real site.
 
 from __future__ import annotations
 
-from drivers.lights import AMBIENT, Lights, LightsError
-from drivers.sim.lights import lighting_preset
-from drivers.sim.world import SimLights
+from fgcd_drivers.lights import AMBIENT, Lights, LightsError
+from fgcd_drivers.sim.lights import lighting_preset
+from fgcd_drivers.sim.world import SimLights
 
 __all__ = ["WiredSimLights"]
 
 
 class WiredSimLights:
-    """A real :class:`drivers.lights.Lights` driver whose reported state lights the simulated world.
+    """A real :class:`fgcd_drivers.lights.Lights` driver whose reported state lights the simulated world.
 
     Parameters
     ----------

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from drivers.sim.changes import ChangeSpec
-from drivers.sim.lights import Lighting, lighting_preset, list_lighting_presets
-from drivers.sim.render import Renderer
-from drivers.sim.scene import Scene
+from fgcd_drivers.sim.changes import ChangeSpec
+from fgcd_drivers.sim.lights import Lighting, lighting_preset, list_lighting_presets
+from fgcd_drivers.sim.render import Renderer
+from fgcd_drivers.sim.scene import Scene
 
 __all__ = ["SimWorld", "SimLights"]
 
@@ -15,8 +15,8 @@ __all__ = ["SimWorld", "SimLights"]
 class SimLights:
     """Switchable lighting of a rig (what a rig with controllable lights offers).
 
-    ``set(name)`` takes any preset of :func:`drivers.sim.lights.lighting_preset`
-    (a :class:`drivers.lights.Lights`).
+    ``set(name)`` takes any preset of :func:`fgcd_drivers.sim.lights.lighting_preset`
+    (a :class:`fgcd_drivers.lights.Lights`).
     """
 
     name = "sim"

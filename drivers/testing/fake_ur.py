@@ -1,6 +1,6 @@
 """A fake Universal Robots controller for the real ``ur_rtde`` client, run as its own process.
 
-``python -m drivers.testing.fake_ur [--host 127.0.0.1] [--silent]`` listens on the
+``python -m fgcd_drivers.testing.fake_ur [--host 127.0.0.1] [--silent]`` listens on the
 controller's fixed ports: RTDE 30004, dashboard 29999 and the script port 30003.
 It prints ``READY`` on stdout once listening and takes fault-injection commands
 on stdin, one per line:
@@ -40,7 +40,7 @@ import sys
 import threading
 import time
 
-from drivers.testing.fake_ur_controller import RTDE_FORMATS, FakeController, rtde_type_of
+from fgcd_drivers.testing.fake_ur_controller import RTDE_FORMATS, FakeController, rtde_type_of
 
 RTDE_PORT = 30004
 DASHBOARD_PORT = 29999
@@ -358,7 +358,7 @@ class FakeURProcess:
     def start(self) -> "FakeURProcess":
         import subprocess
 
-        args = [sys.executable, "-m", "drivers.testing.fake_ur"]
+        args = [sys.executable, "-m", "fgcd_drivers.testing.fake_ur"]
         if self.silent:
             args.append("--silent")
         self.process = subprocess.Popen(

@@ -2,7 +2,7 @@
 
 Implements ur_rtde's command handshake through the registers
 (``output_int_register_0``: 1 ready, 2 done) and straight-line moves at the
-requested speed; see :mod:`drivers.testing.fake_ur` for the servers.
+requested speed; see :mod:`fgcd_drivers.testing.fake_ur` for the servers.
 """
 
 from __future__ import annotations

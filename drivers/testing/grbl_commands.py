@@ -3,7 +3,7 @@
 GRBL 1.1 grammar (``doc/markdown/interface.md``): one ``ok`` or ``error:N`` per
 line; ``$$ $I $G $X $H $C $J= $N=value``; ``G0/G1/G4/G90/G91/G21`` with ``F``
 and axes ``X Y Z`` (optionally ``A B C``). :class:`GrblCommandsMixin` runs on the
-state of :class:`drivers.testing.grbl_emulator.GrblEmulator`.
+state of :class:`fgcd_drivers.testing.grbl_emulator.GrblEmulator`.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def parse_words(text: str) -> list[tuple[str, float]] | str:
 
 
 class GrblCommandsMixin:
-    """Line commands of :class:`~drivers.testing.grbl_emulator.GrblEmulator` (state, locks and
+    """Line commands of :class:`~fgcd_drivers.testing.grbl_emulator.GrblEmulator` (state, locks and
     ``_send``/``_enqueue``/``_enter_alarm``/``_realtime`` live there)."""
 
     def _execute(self, line: str) -> str | None:

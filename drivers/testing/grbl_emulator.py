@@ -38,7 +38,7 @@ from collections import deque
 
 import pty
 
-from drivers.testing.grbl_commands import BANNER, GrblCommandsMixin, Segment
+from fgcd_drivers.testing.grbl_commands import BANNER, GrblCommandsMixin, Segment
 
 __all__ = ["GrblEmulator", "BANNER"]
 

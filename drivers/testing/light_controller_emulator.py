@@ -1,4 +1,4 @@
-"""A serial light controller (the protocol of :mod:`drivers.lights_serial`) emulated on a pseudo-terminal.
+"""A serial light controller (the protocol of :mod:`fgcd_drivers.lights_serial`) emulated on a pseudo-terminal.
 
 The driver opens :attr:`LightControllerEmulator.port` as it would open
 ``/dev/ttyACM0``. :attr:`relays_on` is what the relay board drives; faults on

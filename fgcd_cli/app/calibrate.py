@@ -70,7 +70,7 @@ class HandEyeRig:
 
     Attributes
     ----------
-    guard : drivers.platform.MotionGuard
+    guard : fgcd_drivers.platform.MotionGuard
     camera_source : object with ``grab()``
     intrinsics : PinholeCamera
         Intrinsics of the frames ``camera_source`` gives (undistorted: the ideal pinhole).
@@ -137,7 +137,7 @@ def run_handeye(
     ------
     CalibrationError
         Degenerate motions, a VSE that cannot track, a board not seen.
-    drivers.platform.PlatformError
+    fgcd_drivers.platform.PlatformError
         A motion failed or was refused.
     """
     from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig, run_target, run_target_free
@@ -204,7 +204,7 @@ def _tick_progress(on_progress: ProgressCallback | None, done: int, total: int, 
 def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None],
                              on_progress: ProgressCallback | None = None):
     """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
-    from drivers.sim.board import SimBoard
+    from fgcd_drivers.sim.board import SimBoard
     from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
     from fgcd_cli.calibration.rig import save_intrinsics
     from fgcd_cli.app.rig import open_sim_rig

@@ -327,7 +327,7 @@ class RevisitPlan:
     camera: object
     config: RelocationConfig
     rig: EffectiveRig | None = None  # driver, address, baud, camera (fgcd_cli.app.rig_options.resolve_rig)
-    lights: object | None = None  # drivers.lights.LightsSpec of campaign.toml [rig.lights]
+    lights: object | None = None  # fgcd_drivers.lights.LightsSpec of campaign.toml [rig.lights]
     method: RelocationMethod = RelocationMethod.RACR
     acr: AcrConfig | None = None
 

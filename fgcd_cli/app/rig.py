@@ -15,7 +15,7 @@ from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
-from drivers.lights import Lights, LightsDriver, LightsSpec
+from fgcd_drivers.lights import Lights, LightsDriver, LightsSpec
 
 from fgcd_cli.errors import HardwareError, UserInputError, run_record
 from fgcd_core.camera import PinholeCamera
@@ -61,7 +61,7 @@ class RigHandles:
 
     Attributes
     ----------
-    guard : drivers.platform.MotionGuard
+    guard : fgcd_drivers.platform.MotionGuard
     camera_source : object with ``grab()`` (stream) and ``grab_still()`` (observation stills)
     intrinsics : PinholeCamera
     T_flange_cam : (4, 4) ndarray
@@ -117,7 +117,7 @@ def _recording(confirm: Callable[[str], bool] | None) -> Callable[[str], bool] |
 
 def _recorded_guard(platform, limits, confirm):
     """A MotionGuard whose motions mark ``run_record`` (the Ctrl-C line says whether the platform was moving)."""
-    from drivers.platform import MotionGuard
+    from fgcd_drivers.platform import MotionGuard
 
     class RecordedMotionGuard(MotionGuard):
         def move_to(self, T_base_flange_target):  # noqa: D102 - MotionGuard.move_to, recorded
@@ -217,8 +217,8 @@ def open_sim_rig(
     on_progress: Callable[[int, int, str], None] | None = None,
 ) -> OpenedRig:
     """A simulated rig for one session of a scenario (``on_progress``: see :class:`RigHandles`)."""
-    from drivers.platform import GuardLimits
-    from drivers.sim.rig import SimRigConfig, build_sim_rig
+    from fgcd_drivers.platform import GuardLimits
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     scenario = check_scenario(scenario)
     rig = build_sim_rig(scene=scenario.scene,
@@ -272,7 +272,7 @@ class RigRequest:
         The rig's light driver (campaign.toml ``[rig.lights]``); None: the
         simulator's own lights, a manual prompt on the manual driver, else none.
         On the simulator a real driver is wired to the simulated scene
-        (:class:`drivers.sim.wiring.WiredSimLights`).
+        (:class:`fgcd_drivers.sim.wiring.WiredSimLights`).
     """
 
     driver: str
@@ -321,8 +321,8 @@ def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig
 
 def _lights_for(spec: LightsSpec, hooks: RigHooks, platform=None) -> Lights:
     """The light driver of ``spec`` (HardwareError when it cannot be opened)."""
-    from drivers.lights import open_lights
-    from drivers.platform import PlatformError
+    from fgcd_drivers.lights import open_lights
+    from fgcd_drivers.platform import PlatformError
 
     try:
         return open_lights(spec, platform=platform, ask=hooks.ask_light or input)
@@ -332,7 +332,7 @@ def _lights_for(spec: LightsSpec, hooks: RigHooks, platform=None) -> Lights:
 
 def _wire_sim_lights(rig: OpenedRig, spec: LightsSpec, hooks: RigHooks) -> None:
     """A real light driver lighting the simulated scene (docs/hardware.md, Lights); closed with the rig."""
-    from drivers.sim.wiring import WiredSimLights
+    from fgcd_drivers.sim.wiring import WiredSimLights
 
     try:
         wired = WiredSimLights(_lights_for(spec, hooks), rig.handles.lights)
@@ -357,9 +357,9 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
     check_connection(driver, port=request.port, host=request.host)
     if request.intrinsics is None:
         raise UserInputError("no camera intrinsics in the campaign rig: run `fgcd calibrate intrinsics` first")
-    from drivers.cameras import OpenCVCamera
-    from drivers.connect import PlatformSpec, open_platform
-    from drivers.platform import GuardLimits
+    from fgcd_drivers.cameras import OpenCVCamera
+    from fgcd_drivers.connect import PlatformSpec, open_platform
+    from fgcd_drivers.platform import GuardLimits
 
     try:
         platform = open_platform(driver, spec=PlatformSpec(port=request.port, baud=request.baud, host=request.host))

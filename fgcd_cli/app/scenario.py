@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, replace
 
 from fgcd_cli.errors import UserInputError
-from drivers.connect import DRIVERS, Driver  # the drivers a command can open (re-exported for the CLI)
+from fgcd_drivers.connect import DRIVERS, Driver  # the drivers a command can open (re-exported for the CLI)
 
 __all__ = [
     "check_method",
@@ -88,12 +88,12 @@ def check_connection(driver: str, *, port: str | None, host: str | None) -> None
 
 def check_scene(scene: str) -> str:
     """``scene`` if the simulator has it; UserInputError naming the known scenes otherwise."""
-    from drivers.sim.scenes import SceneNotFound, scene_spec
+    from fgcd_drivers.sim.scenes import SceneNotFound, scene_spec
 
     try:
         scene_spec(scene)
     except SceneNotFound:
-        from drivers.sim.scenes import list_scenes
+        from fgcd_drivers.sim.scenes import list_scenes
 
         known = ", ".join(s.name for s in list_scenes()) or "none"
         raise UserInputError(f"unknown scene '{scene}' (choose from {known}; `fgcd sim scenes`)") from None
@@ -104,7 +104,7 @@ def check_scene(scene: str) -> str:
 
 def check_lighting(name: str, *, option: str = "--light") -> str:
     """The canonical name of a simulator lighting preset; UserInputError naming the valid ones otherwise."""
-    from drivers.sim.lights import lighting_preset, list_lighting_presets
+    from fgcd_drivers.sim.lights import lighting_preset, list_lighting_presets
 
     try:
         return lighting_preset(name).name

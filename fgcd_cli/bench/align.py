@@ -146,9 +146,9 @@ def _camera_errors(T_ref_cur: Sim3, poses, truths) -> tuple[float, float]:
 
 
 def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
-    from drivers.cameras import CameraIntrinsics
-    from drivers.sim.render import Renderer
-    from drivers.sim.scenes import load_scene
+    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_drivers.sim.render import Renderer
+    from fgcd_drivers.sim.scenes import load_scene
 
     scene_name = "relief_panel"
     sc = load_scene(scene_name)
@@ -235,8 +235,8 @@ NEAR_PLANAR_SCENES = ("stele", "mural", "bricks")
 
 def _degenerate_case(scene_name, intr, camera, rng, *, frames: int) -> dict:
     """VSE clouds of one scene aligned from near the truth: flags, probe and registration error."""
-    from drivers.sim.render import Renderer
-    from drivers.sim.scenes import load_scene
+    from fgcd_drivers.sim.render import Renderer
+    from fgcd_drivers.sim.scenes import load_scene
 
     sc = load_scene(scene_name)
     renderer = Renderer(sc)

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.render import CameraEffects, Renderer
-from drivers.sim.scenes import load_scene
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.scenes import load_scene
 from fgcd_cli.bench.changes_sim import _changes_in_view
 from fgcd_cli.campaign import init_campaign, schema
 from fgcd_core.se3 import exp_se3

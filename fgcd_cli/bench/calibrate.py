@@ -4,7 +4,7 @@ Each rig (seeded: its own hidden hand-eye, true intrinsics and platform errors)
 goes through what a user does on site:
 
 1. intrinsics from ChArUco views rendered with the rig camera's true intrinsics
-   and distortion (:func:`drivers.sim.board.render_board_view`);
+   and distortion (:func:`fgcd_drivers.sim.board.render_board_view`);
 2. hand-eye with a board: the simulated platform visits the target stops (with
    its execution and encoder errors), the camera sees a board fixed in the
    world, ``solvePnP`` with the *calibrated* intrinsics, OpenCV's solvers;
@@ -31,9 +31,9 @@ import time
 
 import numpy as np
 
-from drivers.platform import MotionGuard
-from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
-from drivers.sim.rig import SimRigConfig, build_sim_rig
+from fgcd_drivers.platform import MotionGuard
+from fgcd_drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
+from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 from fgcd_cli.app.calibrate import HandEyeRig, run_handeye
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
@@ -146,7 +146,7 @@ def _true_map_scale(state, poses: dict, gt, camera: PinholeCamera) -> tuple[floa
     Returns the median over keyframes and the relative spread (max - min) / median of the
     per-keyframe values.
     """
-    from drivers.cameras import CameraIntrinsics
+    from fgcd_drivers.cameras import CameraIntrinsics
 
     intr = CameraIntrinsics(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width,
                             height=camera.height)

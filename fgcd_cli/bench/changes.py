@@ -297,7 +297,7 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
     sim = None
     try:
         from fgcd_cli.bench.changes_sim import run_sim
-    except ImportError as exc:  # the simulator part needs drivers.sim
+    except ImportError as exc:  # the simulator part needs fgcd_drivers.sim
         sim = {"available": False, "reason": f"simulator part unavailable: {exc}"}
     else:
         sim = run_sim(quick=quick)

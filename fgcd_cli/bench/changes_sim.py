@@ -18,11 +18,11 @@ import time
 
 import numpy as np
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.camera import STILL_SUPERSAMPLE
-from drivers.sim.changes import random_changes
-from drivers.sim.render import CameraEffects, Renderer
-from drivers.sim.scenes import load_scene
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.camera import STILL_SUPERSAMPLE
+from fgcd_drivers.sim.changes import random_changes
+from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.scenes import load_scene
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes import detect_changes, pixel_area_from_depth
 from fgcd_core.se3 import exp_se3

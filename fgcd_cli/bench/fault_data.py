@@ -42,7 +42,7 @@ EXIT_OS, EXIT_CAMPAIGN, EXIT_INTEGRITY, EXIT_ALGORITHM, EXIT_INTERRUPTED = 1, 3,
 
 def prepare_campaign(folder: Path) -> Path:
     """A campaign with stations ``s1`` and ``s2``: simulated reference and visit (3 small changes), written once."""
-    from drivers.sim.rig import SimRigConfig, build_sim_rig
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
     from fgcd_cli.campaign import init_campaign, open_campaign
 
     path = Path(folder) / "campaign"

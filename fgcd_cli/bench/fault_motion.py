@@ -63,7 +63,7 @@ def _grbl_inject(emu, fault: str, rng: np.random.Generator):
 
 def grbl_fault(fault: str, seed: int) -> FaultOutcome:
     """One GRBL fault mid-move; the outcome judged on the emulator's own state."""
-    from drivers.testing.grbl_emulator import GrblEmulator
+    from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 
     rng = np.random.default_rng(seed)
     emu = GrblEmulator(time_scale=1.0)

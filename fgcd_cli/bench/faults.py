@@ -36,7 +36,7 @@ def run_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     if fault in GRBL_FAULTS:
         return grbl_fault(fault, seed)
     if fault in UR_FAULTS:
-        from drivers.testing.fake_ur import FakeURProcess
+        from fgcd_drivers.testing.fake_ur import FakeURProcess
 
         with FakeURProcess() as fake:  # fixed ports: one at a time, a fresh controller per fault
             return ur_fault(fault, seed, fake)

@@ -88,7 +88,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     capture and relocations with their threads stepped in a fixed order).
     """
     from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
-    from drivers.platform import PlatformError
+    from fgcd_drivers.platform import PlatformError
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
     from fgcd_cli.app.capture import capture_reference

@@ -8,9 +8,9 @@ import time
 
 import numpy as np
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.render import Renderer
-from drivers.sim.scenes import list_scenes, load_scene
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.render import Renderer
+from fgcd_drivers.sim.scenes import list_scenes, load_scene
 
 __all__ = ["run", "TARGET_MS"]
 

@@ -46,8 +46,8 @@ def exploration_waypoints(*, translation_m: float = 0.03, rotation_deg: float = 
 
 
 def _render_sequence(scene: str, *, legs: int, step_m: float, step_deg: float, seed: int = 0):
-    from drivers.platform import MotionGuard
-    from drivers.sim.rig import SimRigConfig, build_sim_rig
+    from fgcd_drivers.platform import MotionGuard
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     rig = build_sim_rig(scene=scene, config=SimRigConfig(lighting="front", seed=seed, intrinsics_error="none"))
     try:
@@ -81,7 +81,7 @@ def _render_sequence(scene: str, *, legs: int, step_m: float, step_deg: float, s
 
 def evaluate(states, truth: list[np.ndarray], gt, camera: PinholeCamera, *, frame_dt: float = 0.1) -> dict:
     """Accuracy of one run against the ground truth (see the module docstring)."""
-    from drivers.cameras import CameraIntrinsics
+    from fgcd_drivers.cameras import CameraIntrinsics
 
     final = states[-1]
     tracked = [i for i, s in enumerate(states) if s.status == VseStatus.TRACKING and s.T_map_cam is not None]

@@ -1,6 +1,6 @@
 """Calibration procedures that move the platform: target-free (rACR) and with a board.
 
-Every motion goes through :class:`drivers.platform.MotionGuard`. Samples pair
+Every motion goes through :class:`fgcd_drivers.platform.MotionGuard`. Samples pair
 the platform's *reported* flange pose (what a real rig knows) with what the
 camera measured at the same stop: the VSE camera pose (target-free) or the board
 pose from ``solvePnP`` (target).
@@ -13,7 +13,7 @@ from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
-from drivers.platform import MotionGuard
+from fgcd_drivers.platform import MotionGuard
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.errors import CalibrationError
@@ -30,7 +30,7 @@ __all__ = ["TargetFreeRun", "TargetRun", "TargetFreeRunConfig", "TargetRunConfig
 
 
 class CameraSourceLike(Protocol):
-    """What the procedures need from a camera (``drivers.cameras.CameraSource``)."""
+    """What the procedures need from a camera (``fgcd_drivers.cameras.CameraSource``)."""
 
     def grab(self) -> Any:
         """A frame with ``.image`` and ``.timestamp_s``."""
@@ -153,7 +153,7 @@ def run_target_free(
     CalibrationError
         The platform cannot rotate about two axes, the VSE failed, or the
         samples are degenerate.
-    drivers.platform.PlatformError
+    fgcd_drivers.platform.PlatformError
         A motion failed or was refused (the platform stays where it stopped).
     """
     config = config or TargetFreeRunConfig()

@@ -111,7 +111,7 @@ class Failure:
 
 def _platform_error_type():
     try:
-        from drivers.platform import PlatformError
+        from fgcd_drivers.platform import PlatformError
 
         return PlatformError
     except Exception:  # pragma: no cover - drivers always ship with fgcd
@@ -120,7 +120,7 @@ def _platform_error_type():
 
 def _camera_error_type():
     try:
-        from drivers.cameras import CameraError
+        from fgcd_drivers.cameras import CameraError
 
         return CameraError
     except Exception:  # pragma: no cover - drivers always ship with fgcd
@@ -149,7 +149,7 @@ def main() -> None:
 
 
 def _abandoned_native_interfaces() -> int:
-    ur = sys.modules.get("drivers.ur")
+    ur = sys.modules.get("fgcd_drivers.ur")
     return 0 if ur is None else ur.abandoned_interface_count()
 
 

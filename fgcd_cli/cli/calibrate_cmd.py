@@ -132,7 +132,7 @@ def intrinsics_cmd(
     camp = _open_campaign(campaign)
     seed = _sim_seed(camp, seed)
     if sim:
-        from drivers.sim.board import SimBoard
+        from fgcd_drivers.sim.board import SimBoard
         from fgcd_cli.app.rig import open_sim_rig
         from fgcd_cli.app.scenario import SimScenario
 

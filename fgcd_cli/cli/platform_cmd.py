@@ -1,6 +1,6 @@
 """``fgcd platform check | move | home``: talk to a real platform (GRBL stage, UR arm, a person).
 
-Platform failures (``drivers.platform.PlatformError``) propagate to ``main()``,
+Platform failures (``fgcd_drivers.platform.PlatformError``) propagate to ``main()``,
 which prints one line and exits with code 7; a missing ``--port``/``--host`` is
 bad input (exit 2). Ctrl-C stops the platform first (the guard trips, and the
 platform is told to stop again on the way out) and exits with code 130 with one
@@ -18,8 +18,8 @@ import numpy as np
 import typer
 from scipy.spatial.transform import Rotation
 
-from drivers.connect import DRIVERS, PlatformSpec, open_platform
-from drivers.platform import GuardLimits, MotionGuard
+from fgcd_drivers.connect import DRIVERS, PlatformSpec, open_platform
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import confirmer, debug, emit
 from fgcd_cli.errors import HardwareError, UserInputError, run_record

@@ -84,7 +84,7 @@ def _save_npy(path: Path, arr: np.ndarray) -> None:
 @app.command("scenes")
 def scenes(as_json: bool = typer.Option(False, "--json", help="Print one JSON object.")) -> None:
     """List the simulated scenes with their descriptions."""
-    from drivers.sim.scenes import list_scenes, scenes_dir
+    from fgcd_drivers.sim.scenes import list_scenes, scenes_dir
 
     items = [{"name": s.name, "description": s.description} for s in list_scenes()]
 
@@ -104,7 +104,7 @@ def scenes(as_json: bool = typer.Option(False, "--json", help="Print one JSON ob
 @app.command("lights")
 def lights(as_json: bool = typer.Option(False, "--json", help="Print one JSON object.")) -> None:
     """List the lighting presets."""
-    from drivers.sim.lights import list_lighting_presets
+    from fgcd_drivers.sim.lights import list_lighting_presets
 
     items = [{"name": n, "description": d} for n, d in list_lighting_presets()]
 
@@ -134,11 +134,11 @@ def render_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Render one view of a scene (and optionally its depth and change mask)."""
-    from drivers.cameras import CameraIntrinsics
-    from drivers.sim.changes import random_changes
-    from drivers.sim.lights import lighting_preset
-    from drivers.sim.render import Renderer
-    from drivers.sim.scenes import SceneNotFound, load_scene
+    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_drivers.sim.changes import random_changes
+    from fgcd_drivers.sim.lights import lighting_preset
+    from fgcd_drivers.sim.render import Renderer
+    from fgcd_drivers.sim.scenes import SceneNotFound, load_scene
 
     if out.suffix.lower() != ".png":
         raise UserInputError(f"output must be a .png file, got {out}")
@@ -206,9 +206,9 @@ def contact_sheet(
     """Every scene (rows) under several lightings (columns), labelled, in one PNG."""
     import cv2
 
-    from drivers.cameras import CameraIntrinsics
-    from drivers.sim.render import Renderer
-    from drivers.sim.scenes import list_scenes, load_scene
+    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_drivers.sim.render import Renderer
+    from fgcd_drivers.sim.scenes import list_scenes, load_scene
 
     names = [s.name for s in list_scenes()]
     lights_list = [s.strip() for s in lights_.split(",") if s.strip()]

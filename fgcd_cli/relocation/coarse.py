@@ -41,7 +41,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.platform import MotionRejected
+from fgcd_drivers.platform import MotionRejected
 from fgcd_cli.relocation.adjustment import clamp_motion
 from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult, CoarseStep
 from fgcd_cli.relocation.config import ReferenceData

@@ -28,7 +28,7 @@ class VseThread:
         ``metric`` one (RGB-D) is given each frame's ``depth``.
     source : FrameSource
         Anything with ``grab() -> frame`` (``frame.image``, ``frame.timestamp_s``,
-        optional ``frame.depth``), e.g. a ``drivers.cameras`` camera.
+        optional ``frame.depth``), e.g. a ``fgcd_drivers.cameras`` camera.
     idle_s : float
         Pause between frames (0: as fast as the engine goes).
     max_consecutive_errors : int

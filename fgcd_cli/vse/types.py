@@ -35,7 +35,7 @@ class VseStatus(StrEnum):
 
 @runtime_checkable
 class FrameLike(Protocol):
-    """What the engine needs of a camera frame (``drivers.cameras.Frame`` fits)."""
+    """What the engine needs of a camera frame (``fgcd_drivers.cameras.Frame`` fits)."""
 
     image: np.ndarray
     timestamp_s: float

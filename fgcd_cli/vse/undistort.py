@@ -60,7 +60,7 @@ class UndistortedSource:
         return self._undistorted(self.source.grab())
 
     def grab_still(self) -> UndistortedFrame:
-        """A still of the wrapped camera (``drivers.cameras.CameraSource.grab_still``), undistorted."""
+        """A still of the wrapped camera (``fgcd_drivers.cameras.CameraSource.grab_still``), undistorted."""
         return self._undistorted(self.source.grab_still())
 
     def _undistorted(self, f) -> UndistortedFrame:

@@ -18,9 +18,9 @@ import time
 
 import numpy as np
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.render import CameraEffects, Renderer
-from drivers.sim.scenes import load_scene
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.scenes import load_scene
 from fgcd_cli.app.diff import EDGE_CHECK_PX
 from fgcd_cli.changes import detect_changes, pixel_area_from_depth
 from fgcd_cli.changes.config import DetectionConfig

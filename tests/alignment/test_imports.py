@@ -21,6 +21,6 @@ def test_alignment_does_not_import_simulator_or_cli():
             elif isinstance(node, ast.ImportFrom) and node.module:
                 names = [node.module]
             for name in names:
-                if name.startswith(("drivers.sim", "fgcd_cli.cli", "typer", "rich")):
+                if name.startswith(("fgcd_drivers.sim", "fgcd_cli.cli", "typer", "rich")):
                     offenders.append(f"{path.name}: {name}")
     assert not offenders

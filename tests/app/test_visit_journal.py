@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from drivers.manual import ManualPlatform
-from drivers.platform import GuardLimits, MotionGuard
+from fgcd_drivers.manual import ManualPlatform
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeMode, decide_resume, journal_path, return_to
 from fgcd_core.se3 import exp_se3, pose_distance
 
@@ -109,7 +109,7 @@ def test_return_to_moves_in_guarded_steps_to_the_recorded_pose():
 @pytest.mark.timeout(1800)
 def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
     """Ctrl-C after the first adjustment of a simulated revisit, then `--resume`: continued, log kept."""
-    from drivers.sim.rig import build_sim_rig
+    from fgcd_drivers.sim.rig import build_sim_rig
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
     from fgcd_cli.app.relocate import RevisitRequest, plan_revisit, run_revisit
     from fgcd_cli.campaign import init_campaign, open_campaign

@@ -70,7 +70,7 @@ def test_sim_intrinsics_calibrate_the_camera_of_the_rig_of_that_seed(tmp_path):
     in cy for seed 2; 8 board views calibrate to ~0.1 % and ~1 px, so the
     tolerances (0.25 %, 3 px) separate the two.
     """
-    from drivers.sim.rig import SimRigConfig, build_sim_rig
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
     r = fgcd("calibrate", "intrinsics", "--sim", "--seed", 2, "--sim-views", 8, "-c", tmp_path / "c", "--json")

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
+from fgcd_drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 from fgcd_cli.calibration.board import BoardSpec, load_board_sidecar, write_printable_board
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.intrinsics import IntrinsicsResult, calibrate_intrinsics, coverage_feedback

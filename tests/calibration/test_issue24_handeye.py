@@ -12,7 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from drivers.platform import GuardLimits, MotionGuard
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.calibration.procedure import run_target_free
 from fgcd_cli.campaign import init_campaign
 from fgcd_core.se3 import exp_so3, make_pose

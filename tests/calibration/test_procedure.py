@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
+from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
 from fgcd_cli.calibration.procedure import run_target_free
@@ -170,7 +170,7 @@ def test_calibration_package_never_imports_the_simulator():
 
     for path in Path(pkg.__file__).parent.glob("*.py"):
         text = path.read_text(encoding="utf-8")
-        assert "drivers.sim" not in text, f"{path.name} imports the simulator"
+        assert "fgcd_drivers.sim" not in text, f"{path.name} imports the simulator"
 
 
 def test_run_target_free_gives_the_refinement_every_rest_pose_of_the_path(monkeypatch):

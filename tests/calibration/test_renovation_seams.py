@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.platform import GuardLimits, MotionGuard
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.app.calibrate import HandEyeCalibration, HandEyeMode, HandEyeRequest, HandEyeRig, run_handeye
 from fgcd_cli.calibration.handeye import HandEyeMethod, Regress
 from fgcd_cli.calibration.handeye_refine import RefineConfig

@@ -58,7 +58,7 @@ def _same(a, b):
 
 @pytest.mark.parametrize("name", sorted(INPUTS))
 def test_camera_sources_pipeline(name):
-    """drivers.cameras.to_gray_float == to_gray_f32(channels=LUMA_601_F32) on every dtype."""
+    """fgcd_drivers.cameras.to_gray_float == to_gray_f32(channels=LUMA_601_F32) on every dtype."""
     _same(to_gray_f32(INPUTS[name], channels=GrayChannels.LUMA_601_F32),
           legacy.drivers_cameras_to_gray_float(INPUTS[name]))
 

@@ -22,7 +22,7 @@ TARGETS = [RNG.normal(size=3) for _ in range(20)] + [np.array([0.0, 0.0, 1.1]), 
 
 
 def test_look_at_matches_both_old_copies():
-    from drivers.sim.transforms import look_at as sim_look_at
+    from fgcd_drivers.sim.transforms import look_at as sim_look_at
 
     for eye, target in zip(EYES, TARGETS):
         assert np.array_equal(sim_look_at(eye, target), legacy.transforms_look_at(eye, target))
@@ -44,7 +44,7 @@ def test_look_at_needs_up_and_refuses_a_silent_fallback():
 
 
 def test_guard_rotation_angle_agrees_with_the_old_acos_form():
-    """drivers.platform's guard now uses rotation_angle_rad (atan2); the old acos agrees to 1e-7 rad."""
+    """fgcd_drivers.platform's guard now uses rotation_angle_rad (atan2); the old acos agrees to 1e-7 rad."""
     from fgcd_core.se3 import exp_so3
 
     for phi in RNG.normal(size=(50, 3)):
@@ -54,7 +54,7 @@ def test_guard_rotation_angle_agrees_with_the_old_acos_form():
 
 
 def test_one_intrinsics_type_with_both_old_interfaces():
-    from drivers.cameras import CameraIntrinsics as DriversIntrinsics
+    from fgcd_drivers.cameras import CameraIntrinsics as DriversIntrinsics
     from fgcd_core.camera import PinholeCamera as GeometryPinhole
 
     assert DriversIntrinsics is CameraIntrinsics is PinholeCamera is GeometryPinhole
@@ -72,7 +72,7 @@ def test_one_intrinsics_type_with_both_old_interfaces():
 
 
 def test_board_geometry_is_shared():
-    from drivers.sim.board import SimBoard
+    from fgcd_drivers.sim.board import SimBoard
     from fgcd_cli.calibration.board import BoardSpec
 
     sim, spec = SimBoard(), BoardSpec()
@@ -87,7 +87,7 @@ def test_board_geometry_is_shared():
 
 
 def test_board_geometry_converts_between_the_two_sides():
-    from drivers.sim.board import SimBoard
+    from fgcd_drivers.sim.board import SimBoard
     from fgcd_cli.calibration.board import BoardSpec
 
     spec = BoardSpec(squares_x=9, squares_y=6, legacy_pattern=True)
@@ -97,7 +97,7 @@ def test_board_geometry_converts_between_the_two_sides():
 
 
 def test_board_view_keyword_form_equals_camera_form():
-    from drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
+    from fgcd_drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 
     board = SimBoard(squares_x=5, squares_y=4)
     cam = CameraIntrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240,
@@ -116,7 +116,7 @@ def test_board_view_keyword_form_equals_camera_form():
 
 
 def test_sim_camera_options_keep_the_old_defaults():
-    from drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, IntrinsicsErrorLevel, SimCameraOptions
+    from fgcd_drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, IntrinsicsErrorLevel, SimCameraOptions
 
     o = SimCameraOptions()
     assert (o.intrinsics_true, o.intrinsics_nominal, o.effects, o.exposure, o.with_depth, o.with_rgb,

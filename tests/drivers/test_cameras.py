@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from drivers.cameras import CameraError, OpenCVCamera
+from fgcd_drivers.cameras import CameraError, OpenCVCamera
 
 
 def test_a_device_path_that_does_not_exist_is_named(tmp_path):
@@ -16,7 +16,7 @@ def test_a_device_path_that_does_not_exist_is_named(tmp_path):
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="camera indices are /dev/videoN on Linux")
 def test_an_index_without_its_device_names_the_device(monkeypatch):
-    import drivers.cameras as cameras
+    import fgcd_drivers.cameras as cameras
 
     monkeypatch.setattr(cameras.os.path, "exists", lambda path: False)
     with pytest.raises(CameraError, match=r"^no camera at /dev/video3 \(camera 3\): connect it, or choose another"):

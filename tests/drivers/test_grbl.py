@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drivers.grbl import GrblConfig, GrblKinematics, GrblPlatform
-from drivers.platform import (
+from fgcd_drivers.grbl import GrblConfig, GrblKinematics, GrblPlatform
+from fgcd_drivers.platform import (
     GuardLimits,
     MotionGuard,
     MotionInterrupted,
@@ -22,7 +22,7 @@ from drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
-from drivers.testing.grbl_emulator import GrblEmulator
+from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 
 pytestmark = pytest.mark.timeout(60)
 

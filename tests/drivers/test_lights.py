@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.grbl import GrblConfig, GrblPlatform
-from drivers.lights import AMBIENT, LightsDriver, LightsError, LightsSpec, ManualLights, open_lights
-from drivers.lights_grbl import GrblLights
-from drivers.testing.grbl_emulator import GrblEmulator
-from drivers.testing.light_controller_emulator import LightControllerEmulator
+from fgcd_drivers.grbl import GrblConfig, GrblPlatform
+from fgcd_drivers.lights import AMBIENT, LightsDriver, LightsError, LightsSpec, ManualLights, open_lights
+from fgcd_drivers.lights_grbl import GrblLights
+from fgcd_drivers.testing.grbl_emulator import GrblEmulator
+from fgcd_drivers.testing.light_controller_emulator import LightControllerEmulator
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -106,7 +106,7 @@ def test_serial_controller_relays_follow_the_lightings():
 
 
 def test_serial_controller_without_the_configured_relay_is_refused_at_open():
-    from drivers.platform import PlatformConnectionError
+    from fgcd_drivers.platform import PlatformConnectionError
 
     with LightControllerEmulator(n_relays=2) as emu:
         with pytest.raises(PlatformConnectionError, match="relays 1..2"):
@@ -139,7 +139,7 @@ def test_lights_spec_from_campaign_config():
     assert LightsSpec.from_config({"driver": "manual", "channels": ["led:3", "led:6"]}).channels == \
         {"led:3": "", "led:6": ""}
     assert LightsSpec.from_config(None) is None
-    from drivers.platform import PlatformConnectionError
+    from fgcd_drivers.platform import PlatformConnectionError
 
     with pytest.raises(PlatformConnectionError, match="driver must be one of"):
         LightsSpec.from_config({"driver": "dmx"})
@@ -187,7 +187,7 @@ def test_manual_lights_light_the_simulated_scene():
 @pytest.mark.parametrize("driver", ["grbl", "manual"])
 def test_a_simulated_capture_switches_real_lights_end_to_end(tmp_path, emulator, driver):
     """`fgcd capture --light ambient,led:3,led:9` on the simulated platform with GRBL or manual lights."""
-    from drivers.sim.rig import build_sim_rig
+    from fgcd_drivers.sim.rig import build_sim_rig
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
     from fgcd_cli.app.rig import RigHooks
     from fgcd_cli.campaign import init_campaign

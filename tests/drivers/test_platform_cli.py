@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from drivers.testing.fake_ur import FakeURProcess
-from drivers.testing.grbl_emulator import GrblEmulator
+from fgcd_drivers.testing.fake_ur import FakeURProcess
+from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from drivers.connect import DRIVERS, PlatformSpec, open_platform
-from drivers.grbl.protocol import (
+from fgcd_drivers.connect import DRIVERS, PlatformSpec, open_platform
+from fgcd_drivers.grbl.protocol import (
     GrblState,
     LineKind,
     alarm_text,
@@ -15,8 +15,8 @@ from drivers.grbl.protocol import (
     parse_setting,
     parse_status,
 )
-from drivers.manual import ManualPlatform
-from drivers.ur import abandoned_interface_count
+from fgcd_drivers.manual import ManualPlatform
+from fgcd_drivers.ur import abandoned_interface_count
 
 
 def test_platform_spec_defaults_and_the_one_call_form():
@@ -32,7 +32,7 @@ def test_platform_spec_defaults_and_the_one_call_form():
 
 
 def test_ur_abandoned_accessor(monkeypatch):
-    import drivers.ur as ur
+    import fgcd_drivers.ur as ur
 
     monkeypatch.setattr(ur, "_ABANDONED", [])
     assert abandoned_interface_count() == 0
@@ -43,7 +43,7 @@ def test_ur_abandoned_accessor(monkeypatch):
 def test_interfaces_abandoned_before_a_command_do_not_end_the_host_process(monkeypatch, capsys):
     # A test session (or any host) in which a UR link was abandoned earlier: a later
     # in-process command must return through SystemExit, not os._exit the host.
-    import drivers.ur as ur
+    import fgcd_drivers.ur as ur
     from fgcd_cli.cli import app as cli_app
 
     monkeypatch.setattr(ur, "_ABANDONED", [(None, None)])
@@ -55,7 +55,7 @@ def test_interfaces_abandoned_before_a_command_do_not_end_the_host_process(monke
 
 
 def test_a_command_that_abandons_interfaces_ends_its_process_at_once(monkeypatch):
-    import drivers.ur as ur
+    import fgcd_drivers.ur as ur
     from fgcd_cli.cli import app as cli_app
 
     monkeypatch.setattr(ur, "_ABANDONED", [])
@@ -100,8 +100,8 @@ def test_grbl_status_parsing_keeps_wco_for_wpos():
 
 
 def test_sim_configs_keep_old_defaults():
-    from drivers.sim.platform import SimFault, SimPlatform, SimPlatformConfig
-    from drivers.sim.rig import SimRigConfig
+    from fgcd_drivers.sim.platform import SimFault, SimPlatform, SimPlatformConfig
+    from fgcd_drivers.sim.rig import SimRigConfig
 
     c = SimPlatformConfig()
     assert (c.seconds_per_m, c.rotation_deg_per_s, c.settle_s, c.dof, c.realtime_factor, c.timeout_s, c.name) == (

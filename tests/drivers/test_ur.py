@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drivers.platform import (
+from fgcd_drivers.platform import (
     GuardLimits,
     MotionGuard,
     MotionInterrupted,
@@ -27,8 +27,8 @@ from drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
-from drivers.testing.fake_ur import FakeURProcess
-from drivers.ur import URConfig, URPlatform, pose_to_vector, preflight, safety_problem, vector_to_pose
+from fgcd_drivers.testing.fake_ur import FakeURProcess
+from fgcd_drivers.ur import URConfig, URPlatform, pose_to_vector, preflight, safety_problem, vector_to_pose
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -124,8 +124,8 @@ def test_controller_gone_mid_move_is_connection_error_not_stale_pose(arm, fake):
 
 HUNG_SCRIPT = """
 import json, os, sys, time
-from drivers.platform import GuardLimits, MotionGuard, PlatformConnectionError
-from drivers.ur import URConfig, URPlatform
+from fgcd_drivers.platform import GuardLimits, MotionGuard, PlatformConnectionError
+from fgcd_drivers.ur import URConfig, URPlatform
 arm = URPlatform(URConfig(host="127.0.0.1", preflight_timeout_s=0.5, max_linear_speed_m_s=0.05))
 arm.connect()
 arm.flange_pose()

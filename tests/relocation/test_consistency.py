@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.platform import GuardLimits, MotionGuard
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.consistency import estimate_spread
 from fgcd_cli.relocation.image_refine import ImageRefinement

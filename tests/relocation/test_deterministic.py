@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
+from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core import Sim3
 from fgcd_core.se3 import exp_se3, invert_pose, log_se3
 from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate

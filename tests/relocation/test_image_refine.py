@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.render import Renderer
-from drivers.sim.scenes import load_scene
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.render import Renderer
+from fgcd_drivers.sim.scenes import load_scene
 from fgcd_core import PinholeCamera
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from fgcd_cli.relocation.image_refine import (

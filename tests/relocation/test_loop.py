@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
+from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core import Sim3
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
@@ -478,7 +478,7 @@ def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monk
     vse.stop()
     assert stops, "the platform was not told to stop"
     assert session.guard.tripped and "Ctrl-C" in session.guard.tripped
-    from drivers.platform import MotionRejected
+    from fgcd_drivers.platform import MotionRejected
 
     with pytest.raises(MotionRejected):
         session.guard.move_by(np.eye(4))

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.platform import GuardLimits, MotionGuard
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.errors import AlgorithmError
 from fgcd_core import PinholeCamera, Sim3
 from fgcd_core.se3 import exp_se3, invert_pose, make_pose, pose_distance

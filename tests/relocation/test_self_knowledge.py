@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from drivers.platform import GuardLimits, MotionGuard
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.coarse_config import CoarseConfig
 from fgcd_cli.relocation.image_refine import ImageRefinement

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.meshes import MeshPart, box, quad, uv_sphere
-from drivers.sim.scene import Scene
-from drivers.sim.transforms import look_at
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.meshes import MeshPart, box, quad, uv_sphere
+from fgcd_drivers.sim.scene import Scene
+from fgcd_drivers.sim.transforms import look_at
 
 
 def uniform_texture(value: float = 0.5) -> np.ndarray:

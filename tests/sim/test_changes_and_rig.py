@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.cameras import CameraIntrinsics, CameraSource
-from drivers.sim.changes import ALL_KINDS, CHANGE_CATEGORY, KINDS, ChangeSpec, evaluate_changes, random_changes
-from drivers.sim.lights import Lighting, lighting_preset, list_lighting_presets, solar_az_el
-from drivers.sim.render import CameraEffects, Renderer
-from drivers.sim.transforms import look_at
+from fgcd_drivers.cameras import CameraIntrinsics, CameraSource
+from fgcd_drivers.sim.changes import ALL_KINDS, CHANGE_CATEGORY, KINDS, ChangeSpec, evaluate_changes, random_changes
+from fgcd_drivers.sim.lights import Lighting, lighting_preset, list_lighting_presets, solar_az_el
+from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.transforms import look_at
 
 LINEAR = CameraEffects(gamma=1.0)
 AMBIENT = Lighting(name="a", lights=(), ambient=1.0)
@@ -87,7 +87,7 @@ def test_lighting_presets_parse():
 
 
 def test_scene_catalogue_and_determinism():
-    from drivers.sim.scenes import _load, list_scenes, load_scene, scene_spec
+    from fgcd_drivers.sim.scenes import _load, list_scenes, load_scene, scene_spec
 
     names = [s.name for s in list_scenes()]
     assert len(names) >= 9
@@ -110,7 +110,7 @@ def test_scene_catalogue_and_determinism():
 
 
 def test_random_changes_lie_on_the_visible_object():
-    from drivers.sim.scenes import load_scene
+    from fgcd_drivers.sim.scenes import load_scene
 
     s = load_scene("plane")
     chs = random_changes(s, n=6, seed=2)
@@ -132,7 +132,7 @@ _PLANE_12_SEED_0 = [
 
 
 def test_random_changes_default_kinds_draw_as_before_and_kinds_select():
-    from drivers.sim.scenes import load_scene
+    from fgcd_drivers.sim.scenes import load_scene
 
     s = load_scene("plane")
     chs = random_changes(s, n=12, seed=0)
@@ -314,7 +314,7 @@ def _footprint_image(ch, x, z):
 
 
 def test_rig_home_pose_camera_and_ground_truth():
-    from drivers.sim.rig import SimRigConfig, build_sim_rig
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     rig = build_sim_rig(scene="plane", config=SimRigConfig(noise="none", intrinsics_error="none", seed=4))
     gt = rig.ground_truth
@@ -367,7 +367,7 @@ def test_rig_home_pose_camera_and_ground_truth():
 
 
 def test_rig_intrinsics_error_and_depth_output():
-    from drivers.sim.rig import SimRigConfig, build_sim_rig
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     rig = build_sim_rig(scene="plane", config=SimRigConfig(seed=1, with_depth=True))
     true, nom = rig.ground_truth.intrinsics_true(), rig.camera.intrinsics_nominal
@@ -380,7 +380,7 @@ def test_rig_intrinsics_error_and_depth_output():
 
 
 def test_rig_sessions_changes_and_displaced_base():
-    from drivers.sim.rig import SimRigConfig, build_sim_rig
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     a = build_sim_rig(scene="plane", config=SimRigConfig(seed=2, session_seed=0))
     b = build_sim_rig(scene="plane", config=SimRigConfig(seed=2, session_seed=1))
@@ -403,7 +403,7 @@ def test_rig_sessions_changes_and_displaced_base():
 
 def test_procedural_geometry_is_a_function_of_the_seed():
     """The irregular statue: same seed, identical mesh and textures; another seed, another statue."""
-    from drivers.sim.scenes import _load
+    from fgcd_drivers.sim.scenes import _load
 
     a = _load.__wrapped__("statue", 0, 0.0)
     b = _load.__wrapped__("statue", 0, 0.0)

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from drivers.platform import MotionGuard, GuardLimits, MotionRejected, Platform, PlatformConnectionError, \
+from fgcd_drivers.platform import MotionGuard, GuardLimits, MotionRejected, Platform, PlatformConnectionError, \
     PlatformTimeout, SafetyStop
-from drivers.sim.platform import PlatformErrorModel, SimPlatform, SimPlatformConfig
-from drivers.sim.transforms import exp_so3, make_pose, rot_angle
+from fgcd_drivers.sim.platform import PlatformErrorModel, SimPlatform, SimPlatformConfig
+from fgcd_drivers.sim.transforms import exp_so3, make_pose, rot_angle
 
 ZERO = dict(scale_error=0, axis_misalignment_rad=0, rotation_scale_error=0, noise_m=0, noise_rad=0, backlash_m=0,
             encoder_noise_m=0, encoder_noise_rad=0)

@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.cameras import CameraIntrinsics
-from drivers.sim.lights import Light, Lighting
-from drivers.sim.meshes import MeshPart
-from drivers.sim.render import CameraEffects, Renderer
-from drivers.sim.transforms import look_at
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.lights import Light, Lighting
+from fgcd_drivers.sim.meshes import MeshPart
+from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.transforms import look_at
 
 LINEAR = CameraEffects(gamma=1.0)
 

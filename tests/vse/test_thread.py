@@ -117,4 +117,4 @@ def test_vse_never_imports_the_simulator():
                 names = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom) and node.module:
                 names = [node.module]
-            assert not any(n == "drivers.sim" or n.startswith("drivers.sim.") for n in names), path
+            assert not any(n == "fgcd_drivers.sim" or n.startswith("fgcd_drivers.sim.") for n in names), path
