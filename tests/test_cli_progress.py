@@ -61,7 +61,7 @@ def test_the_heartbeat_stays_quiet_while_something_else_prints():
 def test_a_heartbeat_interval_is_a_named_constant_overridable_for_tests():
     from fgcd_cli.cli import progress
 
-    assert progress.HEARTBEAT_S == 10.0
+    assert progress.HEARTBEAT_S < 10.0  # the rule: no silence over 10 s in a log, with room for a loaded machine
     r = subprocess.run([sys.executable, "-c", "from fgcd_cli.cli import progress; print(progress.HEARTBEAT_S)"],
                        env={**__import__("os").environ, "FGCD_HEARTBEAT_S": "0.5"}, capture_output=True, text=True)
     assert r.stdout.strip() == "0.5"

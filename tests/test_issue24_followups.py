@@ -476,8 +476,10 @@ def test_lines_name_the_bar_step_between_counted_steps():
 def test_no_terminal_no_bar_and_no_blank_line(capsys):
     from fgcd_cli.cli.progress import step_progress
 
-    with step_progress(enabled=True) as bar:
+    with step_progress(enabled=True, heartbeat_s=0.05) as bar:
         bar(0, 0, "a step")
-        bar(1, 2, "another")
-    # no live display off a terminal: one plain line per step (issue 48, item 6), no blank line
-    assert capsys.readouterr().err == "a step\nanother\n"
+        time.sleep(0.3)  # lasts a heartbeat: named
+        bar(1, 2, "another")  # ends at once: not named
+    # no live display off a terminal: a plain line per step that lasts, no blank line
+    err = capsys.readouterr().err
+    assert err.splitlines()[0] == "a step" and "another" not in err and "\n\n" not in err

@@ -56,7 +56,8 @@ def _render(data: dict):
                 from fgcd_cli.report.candidates import set_aside_text
 
                 console.print(f"{n} change{'s' if n != 1 else ''}{set_aside_text(set_aside)} "
-                              "(cyan in the report; --edge-check 0 reports it)", markup=False)
+                              f"(cyan in the report; --edge-check 0 reports {'them' if set_aside != 1 else 'it'})",
+                              markup=False)
             for w in data.get("warnings", []):
                 console.print(f"[yellow]warning[/yellow]: {w}")
         if "afd" in data:
