@@ -3,7 +3,7 @@
     .venv/bin/python scripts/longest_silence.py -- .venv/bin/fgcd demo -o /tmp/demo
 
 Prints each stderr line with its arrival time, then one JSON line: ``{"longest_silence_s", "after", "lines",
-"exit"}``. Off a terminal fgcd prints a progress line at least every HEARTBEAT_S (10 s) of a long step
+"exit"}``. Off a terminal fgcd names the current step again after HEARTBEAT_S (8 s) without output
 (cli/progress.py); this measures it on a real command.
 """
 

@@ -142,7 +142,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
                             evaluate=hooks.evaluate)
         init, coarse_result = _initial_alignment(start, request.coarse)
         ref_images, same_light = _measurement_images(rig, station)
-        rig.say(f"relocating ({request.config.mode}) to the reference of station '{station.name}'")
+        rig.say(f"relocating ({request.config.loop_name}) to the reference of station '{station.name}'")
         rig.progress(0, 0, "relocating")
         try:
             result = relocate(LoopContext(

@@ -146,3 +146,8 @@ class RelocationConfig:
     """Options of every fast alignment of the loop (the paper's ``rACR-S`` ablation keeps the scale)."""
     fine_align: FineAlignConfig = FineAlignConfig()
     """Options of every fine alignment of the loop (the paper's alpha, and ``rACR-P``)."""
+
+    @property
+    def loop_name(self) -> str:
+        """How the loop runs, as a log line says it: ``parallel``, ``serial``, ``parallel, deterministic``."""
+        return f"{self.mode}, deterministic" if self.deterministic else str(self.mode)

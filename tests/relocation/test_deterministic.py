@@ -255,3 +255,12 @@ def test_two_deterministic_relocations_of_a_simulated_station_are_identical(tmp_
     run = va.metadata["relocation"]["run"]
     assert run["deterministic"] is True and run["seeds"]["session_seed"] == 2 and "numpy" in run["versions"]
     assert a.relocation.session_s == b.relocation.session_s
+
+
+def test_the_loop_line_says_when_a_run_is_deterministic():
+    """A deterministic demo printed 'relocating (parallel)': the loop's name says both."""
+    from fgcd_cli.relocation.config import RelocationConfig
+    from fgcd_cli.relocation.enums import LoopMode
+
+    assert RelocationConfig().loop_name == "parallel"
+    assert RelocationConfig(mode=LoopMode.SERIAL, deterministic=True).loop_name == "serial, deterministic"
