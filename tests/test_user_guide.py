@@ -80,3 +80,16 @@ def test_the_simulator_path_runs_as_written(tmp_path):
     visits = list((tmp_path / "sim-stele" / "stations").glob("*/visits/*/report.html"))
     assert visits, "no visit report was written"
     assert list((tmp_path / "sim-stele" / "stations").glob("*/history.html"))
+
+
+def test_the_timings_say_when_and_where_they_were_measured():
+    """'How long things take' states figures as measured, with the date, commit and machine (not estimates)."""
+    import re
+
+    text = GUIDE.read_text(encoding="utf-8")
+    section = text[text.index("## How long things take"):]
+    head = section.split("|", 1)[0]
+    assert re.search(r"Measured on \d{4}-\d{2}-\d{2}", head) and re.search(r"`[0-9a-f]{7}`", head), head
+    assert "cores" in head
+    rows = [line for line in section.splitlines() if line.startswith("| `fgcd") or line.startswith("| the ")]
+    assert rows and all(re.search(r"\d+(\.\d+)? (s|min)\b", row) for row in rows), rows
