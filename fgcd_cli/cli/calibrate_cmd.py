@@ -105,6 +105,27 @@ def _load_images(directory: Path) -> tuple[list[np.ndarray], list[str]]:
     return images, names
 
 
+def _sim_board_views(seed: int, board, views: int, tick) -> tuple[list, list[str]]:
+    """``views`` board views from the camera of the simulated rig of this seed (the one `hand-eye --driver sim
+    --seed` moves, not a stand-alone camera with other true intrinsics), each a tick of the progress."""
+    from fgcd_drivers.sim.board import SimBoard
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
+
+    opened = open_sim_rig(SimScenario(seed=seed), T_flange_cam=None, intrinsics=None)
+    try:
+        source = opened.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
+                                                  square_m=board.square_m, marker_m=board.marker_m,
+                                                  dictionary=board.dictionary), seed=seed)
+        images = []
+        for k in range(views):
+            tick(k, views, "rendering board views")
+            images.append(source.grab().image)
+    finally:
+        opened.close()
+    return images, [f"sim_{i:03d}" for i in range(views)]
+
+
 @app.command("intrinsics")
 def intrinsics_cmd(
     images: Optional[Path] = typer.Option(None, "--images", help="Folder of board photographs."),
@@ -126,39 +147,25 @@ def intrinsics_cmd(
     """Calibrate the camera from views of a ChArUco board."""
     from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
     from fgcd_cli.calibration.rig import save_intrinsics
+    from fgcd_cli.cli.progress import step_progress
 
     if (images is None) == (not sim):
         raise UserInputError("give exactly one of --images DIR or --sim")
     camp = _open_campaign(campaign)
     seed = _sim_seed(camp, seed)
-    if sim:
-        from fgcd_drivers.sim.board import SimBoard
-        from fgcd_cli.app.rig import open_sim_rig
-        from fgcd_cli.app.scenario import SimScenario
-
-        board_file = None
-        board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
-        if sim_views < 1:
-            raise UserInputError("--sim-views must be at least 1")
-        # the camera of the simulated rig of this seed (the one `hand-eye --driver sim --seed` moves),
-        # not a stand-alone camera with other true intrinsics
-        opened = open_sim_rig(SimScenario(seed=seed), T_flange_cam=None, intrinsics=None)
-        try:
-            source = opened.sim.board_camera(
-                SimBoard(squares_x=board.squares_x, squares_y=board.squares_y, square_m=board.square_m,
-                         marker_m=board.marker_m, dictionary=board.dictionary),
-                seed=seed,
-            )
-            if not as_json:
-                info(f"rendering {sim_views} simulated board views…")
-            imgs = [source.grab().image for _ in range(sim_views)]
-        finally:
-            opened.close()
-        names = [f"sim_{i:03d}" for i in range(sim_views)]
-    else:
-        board = _board_from_options(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary)
-        imgs, names = _load_images(images)
-    result = calibrate_intrinsics(imgs, board, names=names, distortion_model=distortion)
+    if sim and sim_views < 1:
+        raise UserInputError("--sim-views must be at least 1")
+    with step_progress(enabled=not as_json) as bar:
+        tick = bar or (lambda *_: None)
+        if sim:
+            board_file = None
+            board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
+            imgs, names = _sim_board_views(seed, board, sim_views, tick)
+        else:
+            board = _board_from_options(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary)
+            imgs, names = _load_images(images)
+        tick(0, 0, "calibrating the intrinsics (ChArUco)")
+        result = calibrate_intrinsics(imgs, board, names=names, distortion_model=distortion)
     data = result.to_dict()
     if camp is not None:
         data["stored"] = save_intrinsics(camp, result)

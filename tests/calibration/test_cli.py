@@ -180,3 +180,18 @@ def test_handeye_beyond_the_limit_is_stored_only_when_accepted(tmp_path, handeye
     handeye_of(24.4)
     assert run(app, ["calibrate", "hand-eye", "-c", str(camp.path), "-y", "--accept-residual"]) == 0
     assert "24.4 mm" in camp.read_rig("handeye")["residual_accepted"]
+
+
+def test_sim_intrinsics_are_not_silent_in_a_pipe():
+    """Rendering and calibrating run under the progress: off a terminal they are named and beat (no 10 s
+    silence in a log; here the heartbeat is shortened to 0.3 s), and stdout keeps only the result."""
+    import os
+
+    r = subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", "calibrate", "intrinsics", "--sim", "--sim-views",
+                        "8"], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                       env={**os.environ, "FGCD_HEARTBEAT_S": "0.3"})
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert lines and lines[0] == "rendering board views", lines
+    assert any(line.startswith("  ... rendering board views") for line in lines)
+    assert "RMS reprojection error" in r.stdout and "rendering" not in r.stdout
