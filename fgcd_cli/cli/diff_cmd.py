@@ -71,15 +71,26 @@ def _render(data: dict):
 
 
 @contextmanager
-def tile_progress_bar(*, enabled: bool):
-    """A rich progress bar for tiled comparisons (large frames), or a no-op callback.
+def diff_progress(*, enabled: bool):
+    """``(say, tile_progress)`` of a diff: where its lines go, and the tile bar of large frames.
 
-    Rule: the bar starts at the first tile, never before, so a command that fails
-    earlier (bad input, a damaged file) prints its one error line and nothing else
-    (a started bar leaves an empty line on stderr when it stops).
+    On a terminal: lines through :func:`info`, and a rich bar that starts at the
+    first tile, never before, so a command that fails earlier (bad input, a
+    damaged file) prints its one error line and nothing else (a started bar
+    leaves an empty line on stderr when it stops). Off a terminal: plain step
+    lines with the heartbeat of :func:`fgcd_cli.cli.progress.step_progress`, so
+    a long comparison (a 24 MP frame: about a minute) is never silent in a log.
+    ``enabled`` False (``--json``): ``(None, None)``.
     """
+    from fgcd_cli.cli.output import err_console
+    from fgcd_cli.cli.progress import step_progress
+
     if not enabled:
-        yield None
+        yield None, None
+        return
+    if not err_console.is_terminal:
+        with step_progress(enabled=True) as steps:
+            yield steps.lines(info), steps
         return
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -97,7 +108,7 @@ def tile_progress_bar(*, enabled: bool):
         bar.update(task, completed=done, total=total, description=label)
 
     try:
-        yield update
+        yield info, update
     finally:
         if bar is not None:
             bar.stop()
@@ -146,8 +157,11 @@ def diff(
                                               edge_check_px=edge_check, force=force)
         run_record.no_platform()
         where = output or f"visit {visit or '(latest)'} of station '{station}'"
-        with run_record.writing(f"the change maps and report in {where}", whole=False):
-            data = diff_uc.run_campaign(request, progress=None if as_json else info)
+        with (
+            run_record.writing(f"the change maps and report in {where}", whole=False),
+            diff_progress(enabled=not as_json) as (say, _),
+        ):
+            data = diff_uc.run_campaign(request, progress=say)
     else:
         if not ref or not cur:
             raise UserInputError("give --ref and --cur images (or --campaign and --station)")
@@ -161,9 +175,9 @@ def diff(
         run_record.no_platform()
         with (
             run_record.writing(f"the change maps and report in {output}", whole=False),
-            tile_progress_bar(enabled=not as_json) as tile_progress,
+            diff_progress(enabled=not as_json) as (say, tile_progress),
         ):
-            data = diff_uc.run_bare(request, progress=None if as_json else info, tile_progress=tile_progress)
+            data = diff_uc.run_bare(request, progress=say, tile_progress=tile_progress)
     emit(data, as_json=as_json, render=_render(data))
     if not data["comparable"]:
         from fgcd_cli.errors import AlgorithmError

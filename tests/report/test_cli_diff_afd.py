@@ -135,3 +135,18 @@ def test_large_frames_take_the_tiled_path_with_the_same_change(image_files, tmp_
     assert abs(cx - 200) < 3 and abs(cy - 60) < 3
     assert calls and calls[-1][0] == calls[-1][1]  # progress reached its total
     assert (tmp_path / "out" / "report.html").stat().st_size > 0
+
+
+def test_a_diff_in_a_pipe_names_its_step_and_beats(image_files, tmp_path):
+    """Off a terminal the diff's lines name a step and the heartbeat repeats it (shortened here to 0.05 s), so a
+    long comparison (a 24 MP frame: about a minute) is never silent in a log; stdout keeps only the result."""
+    import os
+
+    proc = subprocess.run([*FGCD, "diff", "--ref", str(image_files / "ref-*.png"), "--cur",
+                           str(image_files / "cur-*.png"), "-o", str(tmp_path / "out")], capture_output=True,
+                          text=True, timeout=300, env={**os.environ, "FGCD_HEARTBEAT_S": "0.05"})
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert lines[0].startswith("comparing 2 lighting(s)"), lines
+    assert any(line.startswith("  ... comparing 2 lighting(s)") for line in lines), lines
+    assert "comparing" not in proc.stdout and "changed region" in proc.stdout
