@@ -192,6 +192,10 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], cam
         rig.close()
     record = {**calibration.result.to_dict(), "mode": str(HandEyeMode.TARGET_FREE), "driver": "sim",
               "rig": {"driver": "sim"}}
+    unusable = handeye_unusable(calibration.result)
+    if unusable is not None:  # the demo and the benches keep it, as --accept-residual does, and say so
+        say(f"warning: {unusable}; kept for this simulated campaign (`fgcd calibrate hand-eye` refuses it)")
+        record["residual_accepted"] = unusable
     campaign.write_rig("handeye", record)
     return record
 
@@ -272,7 +276,9 @@ def _handeye_world(campaign, rig, *, scene: str | None, seed: int | None):
             raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, "
                                  f"not {rig.driver}")
         return None
-    world = campaign_world(campaign) if campaign is not None else {"scene": "stele", "seed": 0, "noise": "default"}
+    default = SimScenario()
+    world = (campaign_world(campaign) if campaign is not None
+             else {"scene": default.scene, "seed": default.seed, "noise": default.noise})
     return check_scenario(SimScenario(scene=scene or world["scene"], seed=world["seed"] if seed is None else seed,
                                       noise=world["noise"]))
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fgcd_cli.app.scenario import Driver, check_connection, check_driver
+from fgcd_cli.app.scenario import Driver, SimScenario, check_connection, check_driver
 from fgcd_cli.errors import CampaignError, UserInputError
 
 __all__ = ["DEFAULT_BAUD", "DEFAULT_CAMERA", "DEFAULT_DRIVER", "DEFAULT_SCENE", "EffectiveRig", "RigOptions",
@@ -25,8 +25,8 @@ DEFAULT_DRIVER = Driver.SIM.value
 DEFAULT_BAUD = 115200
 #: The first camera OpenCV enumerates.
 DEFAULT_CAMERA = 0
-#: The simulator's scene when neither ``--scene`` nor a campaign's ``[rig.sim] scene`` names one.
-DEFAULT_SCENE = "stele"
+#: The simulator's scene when neither ``--scene`` nor a campaign's ``[rig.sim] scene`` names one (the world's default).
+DEFAULT_SCENE = SimScenario.scene
 
 
 @dataclass(frozen=True, kw_only=True)

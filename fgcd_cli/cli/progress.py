@@ -30,7 +30,7 @@ ProgressCallback = Callable[[int, int, str], None]
 
 #: Off a terminal, the longest silence on stderr during a step before the step is named again, seconds
 #: (``FGCD_HEARTBEAT_S`` overrides it: tests of a whole command shorten it). The rule is no silence over
-#: 10 s in a log; beating at 8 s leaves 2 s for a loaded machine (measured at 10 s: 10.1 s through a pipe).
+#: 10 s in a log; beating at 8 s leaves 2 s for a loaded machine (the pipe's and the scheduler's delays).
 HEARTBEAT_S = float(os.environ.get("FGCD_HEARTBEAT_S", "8"))
 #: Off a terminal, how long a step runs before its line is printed, seconds (or one heartbeat, if shorter):
 #: a step that ends sooner is not named, so a command that fails at once prints its one error line only.

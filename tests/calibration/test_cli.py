@@ -195,3 +195,22 @@ def test_sim_intrinsics_are_not_silent_in_a_pipe():
     assert lines and lines[0] == "rendering board views", lines
     assert any(line.startswith("  ... rendering board views") for line in lines)
     assert "RMS reprojection error" in r.stdout and "rendering" not in r.stdout
+
+
+@pytest.mark.parametrize("rms_mm, warned", [(24.4, True), (5.3, False)])
+def test_the_simulated_campaigns_hand_eye_states_a_residual_beyond_the_limit(tmp_path, monkeypatch, rms_mm, warned):
+    """The demo's and the benches' hand-eye is kept (their own simulated campaign) but said to be unusable."""
+    import fgcd_cli.app.calibrate as calibrate_uc
+    import fgcd_cli.app.rig as rig_uc
+    from types import SimpleNamespace
+
+    from fgcd_cli.app.scenario import SimScenario
+
+    monkeypatch.setattr(calibrate_uc, "run_handeye", lambda *a, **k: _fake_calibration(rms_mm))
+    monkeypatch.setattr(rig_uc, "open_sim_rig", lambda *a, **k: SimpleNamespace(handles=None, close=lambda: None))
+    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
+    said = []
+    record = calibrate_uc.calibrate_sim_handeye(camp, SimScenario(), say=said.append, camera=None)
+    assert any(s.startswith("warning:") and "24.4 mm" in s for s in said) == warned, said
+    assert ("residual_accepted" in record) == warned
+    assert camp.read_rig("handeye") is not None
