@@ -7,13 +7,25 @@ at random moments and during store writes (``fgcd diff``, ``fgcd capture``), a
 full disk, two revisits of one station at once, a damaged reference (:mod:`fgcd_cli.bench.fault_data`). Each
 outcome is judged by :class:`fgcd_cli.bench.fault_checks.FaultOutcome`.
 
+Four more groups hit the field's faults inside whole operations: faults at
+seeded instants of a whole ``fgcd capture`` or ``fgcd relocate``
+(:mod:`fgcd_cli.bench.fault_whole`), a real small file system filled up
+(:mod:`fgcd_cli.bench.fault_fs`), a link cut from outside the controller
+(:mod:`fgcd_cli.bench.fault_link`) and SIGKILL while a visit is written
+(:mod:`fgcd_cli.bench.fault_power`). Each group module gives ``FAULTS`` (its
+classes), ``PER_CLASS_FULL`` (faults per class in the full run) and
+``inject(fault, seed, campaign) -> FaultOutcome``.
+
 Summary keys: ``faults_tried``, ``fault_classes``, ``platform_left_moving``,
 ``campaign_inconsistent``, ``earlier_data_changed``, ``tracebacks`` (the four
-must be 0), ``unexpected_exit_codes``, ``stderr_not_one_line``, ``faults_ok``.
+must be 0), ``unexpected_exit_codes``, ``stderr_not_one_line``, ``faults_ok``,
+and per group ``whole_operation_faults``, ``whole_operation_classes``,
+``real_fs_full_faults``, ``link_cut_faults``, ``power_loss_points``.
 """
 
 from __future__ import annotations
 
+import importlib
 import tempfile
 import time
 from pathlib import Path
@@ -23,9 +35,23 @@ from fgcd_cli.bench.fault_checks import FaultOutcome
 from fgcd_cli.bench.fault_data import CAPTURE_FAULTS, DATA_FAULTS, data_fault, prepare_campaign
 from fgcd_cli.bench.fault_motion import GRBL_FAULTS, UR_FAULTS, grbl_fault, ur_fault
 
-__all__ = ["FAULT_CLASSES", "run", "run_fault", "summarize"]
+__all__ = ["FAULT_CLASSES", "GROUPS", "group_of", "run", "run_fault", "summarize"]
 
-FAULT_CLASSES = GRBL_FAULTS + UR_FAULTS + DATA_FAULTS + CAPTURE_FAULTS
+#: The groups of fault classes beyond the single-move and campaign ones: summary key -> module.
+GROUP_MODULES = {"whole_operation_faults": "fgcd_cli.bench.fault_whole",
+                 "real_fs_full_faults": "fgcd_cli.bench.fault_fs",
+                 "link_cut_faults": "fgcd_cli.bench.fault_link",
+                 "power_loss_points": "fgcd_cli.bench.fault_power"}
+_MODULES = {key: importlib.import_module(name) for key, name in GROUP_MODULES.items()}
+#: Summary key -> its fault classes.
+GROUPS = {key: tuple(module.FAULTS) for key, module in _MODULES.items()}
+FAULT_CLASSES = GRBL_FAULTS + UR_FAULTS + DATA_FAULTS + CAPTURE_FAULTS + tuple(c for g in GROUPS.values() for c in g)
+
+
+def group_of(fault: str) -> str | None:
+    """The summary key of the group ``fault`` belongs to (None: the single-move and campaign classes)."""
+    return next((key for key, classes in GROUPS.items() if fault in classes), None)
+
 #: Faults per class: the full run tries 15 x 14 + 3 x 2 = 216 (a simulated capture takes about 90 s: its
 #: classes run a fifth as often); the quick one 3 x 14 = 42, without the capture classes.
 PER_CLASS_FULL, PER_CLASS_QUICK = 15, 3
@@ -40,6 +66,9 @@ def run_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
 
         with FakeURProcess() as fake:  # fixed ports: one at a time, a fresh controller per fault
             return ur_fault(fault, seed, fake)
+    group = group_of(fault)
+    if group is not None:
+        return _MODULES[group].inject(fault, seed, campaign)
     return data_fault(fault, seed, campaign)
 
 
@@ -56,6 +85,8 @@ def summarize(outcomes: list[FaultOutcome]) -> dict:
         "stderr_not_one_line": sum((o.stderr_lines != 1) if o.one_line_expected else (o.stderr_lines > 1)
                                    for o in outcomes),
         "faults_ok": sum(o.ok for o in outcomes),
+        **{key: sum(group_of(o.fault) == key for o in outcomes) for key in GROUPS},
+        "whole_operation_classes": len({o.fault for o in outcomes if group_of(o.fault) == "whole_operation_faults"}),
     }
 
 
@@ -67,7 +98,8 @@ def run(*, quick: bool = False, seed: int = 0, classes: tuple[str, ...] | None =
     Parameters
     ----------
     quick : bool
-        Three faults per class instead of fifteen, the capture classes left out.
+        Three faults per class instead of fifteen, the capture classes left out; one fault of each group of
+        :data:`GROUPS` (its class drawn from the seed).
     seed : int
         The run's seed: fault ``k`` of a class uses seed ``1000 * seed + k``.
     classes : tuple of str, optional
@@ -82,13 +114,11 @@ def run(*, quick: bool = False, seed: int = 0, classes: tuple[str, ...] | None =
     unknown = [c for c in chosen if c not in FAULT_CLASSES]
     if unknown:
         raise ValueError(f"unknown fault classes {unknown} (known: {', '.join(FAULT_CLASSES)})")
-    count = per_class or (PER_CLASS_QUICK if quick else PER_CLASS_FULL)
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="fgcd-faults-") as tmp:
         campaign = prepare_campaign(Path(workdir or tmp))
         outcomes: list[FaultOutcome] = []
-        plan = [(fault, k) for k in range(count) for fault in chosen
-                if fault not in CAPTURE_FAULTS or k < max(1, count // 5) or per_class is not None]
+        plan = _plan(chosen, quick=quick, seed=seed, per_class=per_class, explicit=classes is not None)
         for fault, k in plan:
             if on_progress is not None:
                 on_progress(len(outcomes), len(plan), fault)
@@ -98,5 +128,35 @@ def run(*, quick: bool = False, seed: int = 0, classes: tuple[str, ...] | None =
     by_class = {c: summarize([o for o in outcomes if o.fault == c]) for c in chosen}
     return {"bench": "faults", "quick": quick, "seed": seed, "summary": summary,
             "targets": {"faults_tried": 200, "fault_classes": 10, "platform_left_moving": 0,
-                        "campaign_inconsistent": 0, "earlier_data_changed": 0, "tracebacks": 0},
+                        "campaign_inconsistent": 0, "earlier_data_changed": 0, "tracebacks": 0,
+                        **({} if quick else TARGETS)},
             "by_class": by_class, "faults": [o.to_dict() for o in outcomes]}
+
+
+#: Targets of the full run for the groups (issue "Faults in the middle of real work").
+TARGETS = {"whole_operation_faults": 60, "whole_operation_classes": 8, "real_fs_full_faults": 10,
+           "link_cut_faults": 10, "power_loss_points": 50}
+
+
+def _plan(chosen: tuple[str, ...], *, quick: bool, seed: int, per_class: int | None,
+          explicit: bool) -> list[tuple[str, int]]:
+    """``(fault, k)`` pairs to run: fault ``k`` of its class gets seed ``1000 * seed + k``.
+
+    Classes of a group run ``PER_CLASS_FULL`` of their module each in the full run; the quick run keeps one
+    fault per group (its class drawn from ``seed``) unless classes were named.
+    """
+    count = per_class or (PER_CLASS_QUICK if quick else PER_CLASS_FULL)
+    plan = []
+    for key, classes in GROUPS.items():
+        picked = [c for c in classes if c in chosen]
+        if not picked:
+            continue
+        if quick and not explicit and per_class is None:
+            plan.append((picked[seed % len(picked)], 0))
+            continue
+        n = per_class or _MODULES[key].PER_CLASS_FULL
+        plan += [(c, k) for k in range(n) for c in picked]
+    rest = [c for c in chosen if group_of(c) is None]
+    plan = [(fault, k) for k in range(count) for fault in rest
+            if fault not in CAPTURE_FAULTS or k < max(1, count // 5) or per_class is not None] + plan
+    return plan
