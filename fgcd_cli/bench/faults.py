@@ -37,14 +37,17 @@ from fgcd_cli.bench.fault_motion import GRBL_FAULTS, UR_FAULTS, grbl_fault, ur_f
 
 __all__ = ["FAULT_CLASSES", "GROUPS", "group_of", "run", "run_fault", "summarize"]
 
-#: The groups of fault classes beyond the single-move and campaign ones: summary key -> module.
-GROUP_MODULES = {"whole_operation_faults": "fgcd_cli.bench.fault_whole",
-                 "real_fs_full_faults": "fgcd_cli.bench.fault_fs",
-                 "link_cut_faults": "fgcd_cli.bench.fault_link",
-                 "power_loss_points": "fgcd_cli.bench.fault_power"}
-_MODULES = {key: importlib.import_module(name) for key, name in GROUP_MODULES.items()}
+#: The groups of fault classes beyond the single-move and campaign ones: summary key -> its modules.
+GROUP_MODULES = {"whole_operation_faults": ("fgcd_cli.bench.fault_whole", "fgcd_cli.bench.fault_wired"),
+                 "real_fs_full_faults": ("fgcd_cli.bench.fault_fs",),
+                 "link_cut_faults": ("fgcd_cli.bench.fault_link",),
+                 "power_loss_points": ("fgcd_cli.bench.fault_power",)}
+#: Fault class -> the module that injects it.
+_MODULE_OF = {fault: module for names in GROUP_MODULES.values() for module in map(importlib.import_module, names)
+              for fault in module.FAULTS}
 #: Summary key -> its fault classes.
-GROUPS = {key: tuple(module.FAULTS) for key, module in _MODULES.items()}
+GROUPS = {key: tuple(f for name in names for f in importlib.import_module(name).FAULTS)
+          for key, names in GROUP_MODULES.items()}
 FAULT_CLASSES = GRBL_FAULTS + UR_FAULTS + DATA_FAULTS + CAPTURE_FAULTS + tuple(c for g in GROUPS.values() for c in g)
 
 
@@ -66,9 +69,8 @@ def run_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
 
         with FakeURProcess() as fake:  # fixed ports: one at a time, a fresh controller per fault
             return ur_fault(fault, seed, fake)
-    group = group_of(fault)
-    if group is not None:
-        return _MODULES[group].inject(fault, seed, campaign)
+    if fault in _MODULE_OF:
+        return _MODULE_OF[fault].inject(fault, seed, campaign)
     return data_fault(fault, seed, campaign)
 
 
@@ -154,8 +156,7 @@ def _plan(chosen: tuple[str, ...], *, quick: bool, seed: int, per_class: int | N
         if quick and not explicit and per_class is None:
             plan.append((picked[seed % len(picked)], 0))
             continue
-        n = per_class or _MODULES[key].PER_CLASS_FULL
-        plan += [(c, k) for k in range(n) for c in picked]
+        plan += [(c, k) for c in picked for k in range(per_class or _MODULE_OF[c].PER_CLASS_FULL)]
     rest = [c for c in chosen if group_of(c) is None]
     plan = [(fault, k) for k in range(count) for fault in rest
             if fault not in CAPTURE_FAULTS or k < max(1, count // 5) or per_class is not None] + plan
