@@ -42,4 +42,21 @@ def test_the_judge_counts_what_went_wrong():
     s = summarize([good, moving, chatty])
     assert (s["faults_tried"], s["fault_classes"], s["platform_left_moving"], s["tracebacks"],
             s["stderr_not_one_line"], s["faults_ok"]) == (3, 2, 1, 1, 1, 1)
-    assert len(FAULT_CLASSES) == 16
+    assert len(FAULT_CLASSES) == len(set(FAULT_CLASSES))  # one class, one name
+
+
+def test_every_group_class_is_planned_and_counted_in_its_group():
+    from fgcd_cli.bench.fault_checks import FaultOutcome
+    from fgcd_cli.bench.faults import GROUPS, _plan
+
+    quick = _plan(FAULT_CLASSES, quick=True, seed=3, per_class=None, explicit=False)
+    for key, classes in GROUPS.items():
+        planned = [fault for fault, _ in quick if fault in classes]
+        assert len(planned) == (1 if classes else 0), key  # the quick run keeps one fault of each group
+    full = _plan(FAULT_CLASSES, quick=False, seed=0, per_class=None, explicit=False)
+    assert {fault for fault, _ in full} == set(FAULT_CLASSES)
+    rows = [FaultOutcome(fault=fault, seed=k, command="x", code=0, expected=(0,), stderr_lines=0, traceback=False,
+                         one_line_expected=False) for fault, k in full]
+    s = summarize(rows)
+    for key, classes in GROUPS.items():
+        assert s[key] == sum(fault in classes for fault, _ in full), key
