@@ -213,3 +213,37 @@ class RunRecord:
 
 
 run_record = RunRecord()
+
+
+# ----------------------------------------------------------------------------- stop signals
+class StopSignal(KeyboardInterrupt):
+    """SIGTERM or SIGHUP turned into the path Ctrl-C takes (README, "Errors"; docs/hardware.md, "Faults").
+
+    Rule: a supervisor's SIGTERM or a closed terminal's SIGHUP stops a command
+    as Ctrl-C does: every ``except KeyboardInterrupt`` on the way (the motion
+    guard, the drivers, the rig) stops the platform first, every write in
+    progress is abandoned atomically, and the CLI prints one line naming the
+    signal and exits ``128 + signal``.
+
+    Attributes
+    ----------
+    signum : int
+        The signal received.
+    name : str
+        Its name (``SIGTERM``, ``SIGHUP``).
+    """
+
+    def __init__(self, signum: int, name: str) -> None:
+        super().__init__(name)
+        self.signum = int(signum)
+        self.name = name
+
+    @property
+    def exit_code(self) -> int:
+        """``128 + signal`` (143 for SIGTERM, 129 for SIGHUP), as a shell reports a process ended by it."""
+        return 128 + self.signum
+
+    @property
+    def prefix(self) -> str:
+        """How the one failure line starts: ``terminated (SIGTERM)``, ``hung up (SIGHUP)``."""
+        return f"{'hung up' if self.name == 'SIGHUP' else 'terminated'} ({self.name})"

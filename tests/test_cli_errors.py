@@ -346,3 +346,50 @@ def test_verbose_is_not_taken_from_a_command_or_value_that_owns_it(capsys):
     assert run(app, ["bug", "--site", "-v"]) == 70  # the value of --site
     assert "site=-v verbose=False" in capsys.readouterr().out
     assert run(app, ["own", "--", "-v"]) == 2  # after --: an argument, not an option
+
+
+# ----------------------------------------------------------------------------- SIGTERM, SIGHUP
+@pytest.mark.parametrize("name, code, prefix", [("SIGTERM", 143, "terminated (SIGTERM)"),
+                                                ("SIGHUP", 129, "hung up (SIGHUP)")])
+def test_a_stop_signal_mid_move_stops_the_platform_in_one_line(name, code, prefix):
+    # A supervisor's SIGTERM or a closed terminal's SIGHUP takes Ctrl-C's path (README, "Errors"): the
+    # GRBL emulator's own state says the platform no longer moves once the command has ended.
+    from fgcd_cli.bench.fault_checks import run_fgcd, send_signal, wait_until
+    from fgcd_drivers.testing.grbl_emulator import GrblEmulator
+
+    emu = GrblEmulator(time_scale=1.0)
+    sent = {}
+
+    def inject(proc) -> None:
+        # 60 mm at the driver's 20 mm/s: 3 s of motion, signalled once the motion line has reached the board
+        if wait_until(lambda: any(" G1 " in f" {line} " for line in emu.lines_received), timeout_s=90, proc=proc):
+            sent["moving"] = emu.moving()
+            send_signal(proc, getattr(signal, name))
+
+    try:
+        run = run_fgcd(["platform", "move", "--driver", "grbl", "--port", emu.port, "--yes", "--dx", "-60",
+                        "--speed-fraction", "1", "--max-step-mm", "80"], inject=inject, timeout_s=110)
+        assert sent.get("moving"), run.stderr
+        assert not emu.moving(), "the platform still moves after the command ended"
+    finally:
+        emu.close()
+    assert run.code == code, run.stderr
+    assert run.lines == [f"{prefix}: the grbl platform was stopped mid-motion; nothing was written"], run.stderr
+
+
+def test_a_stop_signal_in_process_is_one_line_and_restores_the_handlers(capsys):
+    import os
+
+    app = typer.Typer()
+
+    @app.command()
+    def wait() -> None:
+        run_record.no_platform()
+        run_record.no_writes()
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises before this ends
+
+    before = signal.getsignal(signal.SIGTERM)
+    assert run(app, []) == 143
+    assert _lines(capsys.readouterr().err) == ["terminated (SIGTERM): no platform was in use; nothing was written"]
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -23,6 +23,7 @@ __all__ = ["FaultOutcome", "FgcdRun", "committed_digests", "campaign_problems", 
 
 #: How the CLI's one failure line starts (``fgcd_cli/cli/app.py``, Failure prefixes).
 FAILURE_PREFIXES = ("error:", "platform error:", "interrupted (Ctrl-C):", "internal error:", "usage error:",
+                    "terminated (SIGTERM):", "hung up (SIGHUP):", "camera error:",
                     "aborted:")
 
 #: The repository root (the fgcd children run from here, like the tests).

@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import os
 import select
+import signal
 import sys
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import typer
 import typer.main
 
 from fgcd_cli import __version__
 from fgcd_cli.cli.output import state, stdin_is_terminal, to_json
-from fgcd_cli.errors import ConfirmationNeeded, FgcdError, run_record
+from fgcd_cli.errors import ConfirmationNeeded, FgcdError, StopSignal, run_record
 from fgcd_cli.cli.options import install_help_conventions
 
 install_help_conventions()  # plain-text help, no <bool> after a flag (every command)
@@ -171,7 +173,8 @@ def run(typer_app: typer.Typer, args: Sequence[str]) -> int:
     run_record.reset()
     state.reset()
     try:
-        return _invoke(typer_app, args)
+        with stop_signals_as_interrupts():
+            return _invoke(typer_app, args)
     except BaseException as exc:  # noqa: BLE001 - every failure becomes one line
         if isinstance(exc, BrokenPipeError) and _stdout_reader_gone():
             # The reader went away (`fgcd ... | head`): nothing left to tell it.
@@ -182,6 +185,43 @@ def run(typer_app: typer.Typer, args: Sequence[str]) -> int:
             raise
     _report(failure, as_json=_wants_json(args))
     return failure.code
+
+
+#: The signals that stop a command as Ctrl-C does (errors.StopSignal): a supervisor's stop, a closed terminal.
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")
+
+
+@contextmanager
+def stop_signals_as_interrupts() -> Iterator[None]:
+    """SIGTERM and SIGHUP raise :class:`fgcd_cli.errors.StopSignal` (a KeyboardInterrupt) for the block.
+
+    Rule (README, "Errors"): they take the path of Ctrl-C, so the platform is
+    stopped before anything else. Once one has arrived, further ones are
+    ignored while the command stops (a second ``kill`` must not cut the
+    platform's stop short; SIGKILL remains the supervisor's last resort). The
+    previous handlers come back after the block (a host process, a test
+    session); off the main thread nothing is installed (Python allows it there only).
+    """
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    numbers = {getattr(signal, name): name for name in STOP_SIGNALS if hasattr(signal, name)}
+    received: list[int] = []
+
+    def handler(signum, frame) -> None:  # noqa: ARG001 - the signal module's signature
+        if received:
+            return  # already stopping
+        received.append(signum)
+        raise StopSignal(signum, numbers[signum])
+
+    previous = {num: signal.signal(num, handler) for num in numbers}
+    try:
+        yield
+    finally:
+        for num, old in previous.items():
+            signal.signal(num, old)
 
 
 def _stdout_reader_gone() -> bool:
@@ -286,14 +326,19 @@ def _wants_json(args: Sequence[str]) -> bool:
 
 def _report(failure: Failure, *, as_json: bool) -> None:
     """Print the failure: one line on stderr; with --json also one object on stdout."""
-    if as_json and not state.emitted:
-        print(to_json({"error": failure.line, "code": failure.code}))
-    # Plain print: one unwrapped line whatever the terminal width.
-    print(failure.line, file=sys.stderr)
+    try:
+        if as_json and not state.emitted:
+            print(to_json({"error": failure.line, "code": failure.code}))
+        # Plain print: one unwrapped line whatever the terminal width.
+        print(failure.line, file=sys.stderr)
+    except OSError:  # the terminal is gone (SIGHUP): the exit code still tells
+        pass
 
 
 def _classify(exc: BaseException) -> Failure | None:
     """The failure an exception means, or None for one that must propagate (a bug with --verbose)."""
+    if isinstance(exc, StopSignal):
+        return Failure(exc.prefix, f"{run_record.platform_clause()}; {run_record.writes_clause()}", exc.exit_code)
     if isinstance(exc, KeyboardInterrupt):
         return _interrupted()
     if isinstance(exc, FgcdError):
@@ -328,7 +373,7 @@ def _aborted(exc: BaseException) -> Failure:
     """A confirmation prompt ended without an answer: Ctrl-C, no terminal, or end of input."""
     # typer.confirm turns Ctrl-C and end of input into Abort; the cause stays in __context__.
     if isinstance(exc.__context__, KeyboardInterrupt):
-        return _interrupted()
+        return _classify(exc.__context__)
     if not stdin_is_terminal():
         return Failure("error", str(ConfirmationNeeded.for_prompt()), ConfirmationNeeded.exit_code)
     return Failure("aborted", "no answer at the confirmation prompt; nothing was done after it", EXIT_ABORTED)
