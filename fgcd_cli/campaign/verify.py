@@ -18,9 +18,13 @@ from pathlib import Path, PurePosixPath
 from fgcd_cli.campaign.atomic import TMP_PREFIX, sha256_file
 from fgcd_cli.campaign.records import load_rig_record
 from fgcd_cli.campaign.schema import (
+    AFD_JSON,
     CAMPAIGN_FILE,
+    CHANGES_DIR,
     FORMAT_VERSION,
     MANIFEST,
+    RELOCATION_LOG,
+    REPORT_HTML,
     RIG_DIR,
     STATION_FILE,
     STATIONS_DIR,
@@ -38,7 +42,7 @@ class Problem:
     """One damaged, missing or unexpected file."""
 
     path: str
-    kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write | interrupted-visit | scale
+    kind: str  # missing | checksum | size | unreadable | manifest | campaign | station | unindexed | unlisted | incomplete-write | interrupted-visit | journal | scale
     detail: str
     severity: str = "error"  # error (damage, exit 4) | warning (a leftover, safe to delete) | note (nothing wrong)
 
@@ -131,8 +135,11 @@ def _verify_observation(obs_path: Path, report: VerifyReport) -> None:
         if p.is_file():
             rel = p.relative_to(obs_path).as_posix()
             if rel not in listed:
-                kind = "incomplete-write" if p.name.startswith(TMP_PREFIX) else "unlisted"
-                report.problems.append(Problem(str(p), kind, "file not in the manifest", "warning"))
+                if p.name.startswith(TMP_PREFIX):
+                    report.problems.append(Problem(str(p), "incomplete-write", "a file write interrupted before "
+                                                   "its rename; safe to delete", "warning"))
+                else:
+                    report.problems.append(Problem(str(p), "unlisted", _unlisted_detail(rel), "warning"))
 
 
 _REGIONS = "changes/regions.json"
@@ -269,21 +276,17 @@ def _verify_station(st: Station, report: VerifyReport) -> None:
                 )
         for rel in sorted(present - set(index)):
             report.problems.append(
-                Problem(str(st.path / rel), "unindexed", "observation not recorded in station.json", "warning")
+                Problem(str(st.path / rel), "unindexed", f"observation not recorded in {STATION_FILE} (a write "
+                        "interrupted between its commit and the index update, or a folder copied in)", "warning")
             )
     journal = st.path / VISITS_DIR / VISIT_JOURNAL
     if journal.exists():
-        # A note, not a warning: nothing is wrong, and deleting the journal loses the resumable revisit.
-        report.problems.append(Problem(str(journal), "interrupted-visit", f"a revisit of station '{st.name}' was "
-                                       "interrupted: `fgcd relocate --resume` continues it (a new `fgcd relocate` "
-                                       "replaces it)", "note"))
+        report.problems.append(_journal_problem(journal, st))
     for parent in [st.path, st.path / VISITS_DIR]:
         if parent.is_dir():
-            for p in parent.iterdir():
+            for p in sorted(parent.iterdir()):
                 if p.name.startswith(TMP_PREFIX):
-                    report.problems.append(
-                        Problem(str(p), "incomplete-write", "left by an interrupted write; safe to delete", "warning")
-                    )
+                    report.problems.append(Problem(str(p), "incomplete-write", _leftover_detail(p, parent), "warning"))
 
 
 def _verify_rig(rig: Path, report: VerifyReport) -> None:
@@ -298,3 +301,77 @@ def _verify_rig(rig: Path, report: VerifyReport) -> None:
             report.problems.append(Problem(str(p), "checksum", f"rig record: {str(exc).removeprefix(str(p) + ': ')}"))
         except OSError as exc:
             report.problems.append(Problem(str(p), "unreadable", f"rig record cannot be read ({exc.strerror or exc})"))
+
+
+# ----------------------------------------------------------------------------- leftovers of interrupted writes
+#: Files and folders a diff or report adds to a visit after its commit (docs/campaign.md, derived products).
+_DERIVED = (f"{CHANGES_DIR}/", REPORT_HTML, AFD_JSON)
+
+
+def _unlisted_detail(rel: str) -> str:
+    """Why a file of an observation is not in its manifest, as far as its name tells."""
+    if rel.startswith(_DERIVED):
+        return ("a derived product whose manifest entry was not written (an interrupted `fgcd diff` or report): "
+                "`fgcd diff` on this visit writes and lists it again; safe to delete")
+    return "file not in the manifest"
+
+
+def _leftover_detail(path: Path, parent: Path) -> str:
+    """What a store temporary (``.tmp-*``) in a station or its visits folder was being written."""
+    if path.is_dir():
+        what = "reference" if parent.name != VISITS_DIR else f"visit {path.name[len(TMP_PREFIX):].rsplit('-', 1)[0]}"
+        files = sum(1 for p in path.rglob("*") if p.is_file())
+        state = "complete but not moved into place" if (path / MANIFEST).is_file() else "without its manifest"
+        return f"the {what} being written when the process stopped ({counted(files, 'file')}, {state}); " \
+               "nothing was committed; safe to delete"
+    target = path.name[len(TMP_PREFIX):].rsplit(".", 1)[0]
+    return f"a write of {target} interrupted before its rename (the {target} in place is intact); safe to delete"
+
+
+def _journal_problem(journal: Path, st: Station) -> Problem:
+    """The journal of a revisit in progress: a note when intact, a warning when a kill cut it or its visit was
+    committed, an error when damaged otherwise (each line is written whole and fsynced, app/visit_journal.py)."""
+    try:
+        data = journal.read_bytes()
+    except OSError as exc:
+        return Problem(str(journal), "unreadable", f"the revisit journal cannot be read ({exc.strerror or exc})")
+    lines = data.decode("utf-8", errors="replace").splitlines()
+    entries = []
+    for number, line in enumerate(lines, start=1):
+        try:
+            entries.append(json.loads(line))
+        except ValueError:
+            if number < len(lines) or data.endswith(b"\n"):
+                return Problem(str(journal), "journal", f"revisit journal damaged at line {number} (not what an "
+                               "interrupted write leaves): `fgcd relocate --resume` will start over")
+            held = (f"the {counted(len(entries) - 1, 'adjustment')} before it hold: `fgcd relocate --resume` "
+                    "continues after them" if len(entries) > 1 else "nothing to continue: `fgcd relocate` replaces it")
+            return Problem(str(journal), "incomplete-write", f"the revisit journal's last line (line {number}) was "
+                           f"cut short by an interrupted write; {held}", "warning")
+    if not entries:
+        return Problem(str(journal), "incomplete-write", "an empty revisit journal (the revisit stopped while "
+                       "writing its first line): `fgcd relocate` replaces it; safe to delete", "warning")
+    if not (isinstance(entries[0], dict) and entries[0].get("kind") == "start"):
+        return Problem(str(journal), "journal", "revisit journal damaged: its first line is not the start line; "
+                       "`fgcd relocate --resume` will start over")
+    committed = _visit_of_journal(st, [e.get("record") if isinstance(e, dict) else None for e in entries[1:]])
+    if committed is not None:
+        return Problem(str(journal), "incomplete-write", f"the revisit this journal records was committed as "
+                       f"visits/{committed}; the journal is left from a stop right after that commit: safe to "
+                       "delete (`fgcd relocate --resume` would record another visit)", "warning")
+    # A note, not a warning: nothing is wrong, and deleting the journal loses the resumable revisit.
+    return Problem(str(journal), "interrupted-visit", f"a revisit of station '{st.name}' was interrupted: "
+                   "`fgcd relocate --resume` continues it (a new `fgcd relocate` replaces it)", "note")
+
+
+def _visit_of_journal(st: Station, records: list) -> str | None:
+    """The latest visit when its relocation log holds exactly the journal's adjustments (the journal outlived it)."""
+    names = st.visit_names()
+    if not records or not names:
+        return None
+    log = st.path / VISITS_DIR / names[-1] / RELOCATION_LOG
+    try:
+        logged = [json.loads(line) for line in log.read_text(encoding="utf-8").splitlines() if line.strip()]
+    except (OSError, ValueError):
+        return None
+    return names[-1] if logged == records else None
