@@ -19,7 +19,8 @@ from typing import Callable
 from fgcd_cli.campaign.schema import MANIFEST, STATION_FILE, STATIONS_DIR
 from fgcd_cli.campaign.verify import verify_campaign_dir
 
-__all__ = ["FaultOutcome", "FgcdRun", "committed_digests", "campaign_problems", "run_fgcd", "wait_until"]
+__all__ = ["FaultOutcome", "FgcdRun", "committed_digests", "campaign_problems", "run_fgcd", "run_fgcd_lines",
+           "wait_until"]
 
 #: How the CLI's one failure line starts (``fgcd_cli/cli/app.py``, Failure prefixes).
 FAILURE_PREFIXES = ("error:", "platform error:", "interrupted (Ctrl-C):", "internal error:", "usage error:",
@@ -93,6 +94,13 @@ class FaultOutcome:
         A file of an observation committed before the fault changed or vanished.
     detail : str
         The stderr line, or what went wrong.
+    one_line_expected : bool
+        The run must end with exactly one failure line (not a success, not a SIGKILL).
+    resume_failed : bool
+        The ``fgcd relocate --resume`` run after the fault neither succeeded nor said whether it continued
+        the visit or started over (docs/hardware.md, "Faults in the field"); False when none was run.
+    extra : dict
+        The fault's details (its moment, the resume's mode and exit code...).
     """
 
     fault: str
@@ -107,6 +115,7 @@ class FaultOutcome:
     earlier_data_changed: bool = False
     detail: str = ""
     one_line_expected: bool = True
+    resume_failed: bool = False
     extra: dict = field(default_factory=dict)
 
     @property
@@ -114,7 +123,7 @@ class FaultOutcome:
         """Every check passed: documented code, one stderr line (none for SIGKILL), nothing left moving or damaged."""
         lines_ok = self.stderr_lines == 1 if self.one_line_expected else self.stderr_lines <= 1
         return (self.code in self.expected and lines_ok and not self.traceback and not self.platform_left_moving
-                and not self.campaign_inconsistent and not self.earlier_data_changed)
+                and not self.campaign_inconsistent and not self.earlier_data_changed and not self.resume_failed)
 
     def to_dict(self) -> dict:
         """The JSON row of this fault."""
@@ -122,7 +131,7 @@ class FaultOutcome:
                 "expected": list(self.expected), "stderr_lines": self.stderr_lines, "traceback": self.traceback,
                 "platform_left_moving": self.platform_left_moving,
                 "campaign_inconsistent": self.campaign_inconsistent,
-                "earlier_data_changed": self.earlier_data_changed, "ok": self.ok, "detail": self.detail[:300],
+                "earlier_data_changed": self.earlier_data_changed, "resume_failed": self.resume_failed, "ok": self.ok, "detail": self.detail[:300],
                 **self.extra}
 
 
@@ -150,6 +159,42 @@ def run_fgcd(args: list[str], *, inject: Callable[[subprocess.Popen], None] | No
         thread.join(timeout=30)
     return FgcdRun(code=proc.returncode, stderr=err.decode("utf-8", errors="replace"),
                    seconds=time.monotonic() - started)
+
+
+def run_fgcd_lines(args: list[str], *, on_line: Callable[[str, subprocess.Popen], None],
+                   timeout_s: float = 300.0, env: dict | None = None) -> FgcdRun:
+    """Run ``fgcd ARGS`` as a child, handing each stderr line to ``on_line(line, process)`` as it comes.
+
+    The streaming form of :func:`run_fgcd` (whole-operation faults act on the
+    child's progress lines): ``on_line`` runs on the reader thread, so it must
+    not block for long (start a timer or a thread for a delayed fault). Stdout
+    is read on its own thread (a full pipe must never stall the child).
+    """
+    command = [sys.executable, "-m", "fgcd_cli.cli.app", *args]
+    started = time.monotonic()
+    proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            cwd=ROOT, env={**os.environ, **(env or {})})
+    lines: list[str] = []
+
+    def read_stderr() -> None:
+        for raw in iter(proc.stderr.readline, b""):
+            line = raw.decode("utf-8", errors="replace").rstrip("\n")
+            lines.append(line)
+            on_line(line, proc)
+
+    readers = [threading.Thread(target=read_stderr, daemon=True),
+               threading.Thread(target=proc.stdout.read, daemon=True)]
+    for reader in readers:
+        reader.start()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()  # by its own pid: a hung child is a failed fault, never left behind
+        proc.wait()
+        lines.append("[bench] the command did not end in time and was killed")
+    for reader in readers:
+        reader.join(timeout=30)
+    return FgcdRun(code=proc.returncode, stderr="\n".join(lines), seconds=time.monotonic() - started)
 
 
 def send_signal(proc: subprocess.Popen, sig: int) -> None:
@@ -212,4 +257,4 @@ def campaign_problems(campaign: Path, *, allowed: set[str] = frozenset()) -> lis
             if getattr(p, "severity", "error") == "error" and str(p.path) not in allowed]
 
 
-SIGNALS = {"SIGINT": signal.SIGINT, "SIGKILL": signal.SIGKILL}
+SIGNALS = {"SIGINT": signal.SIGINT, "SIGKILL": signal.SIGKILL, "SIGTERM": signal.SIGTERM, "SIGHUP": signal.SIGHUP}
