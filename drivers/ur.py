@@ -14,7 +14,15 @@ Behaviours of ``ur_rtde`` 1.6.5 this driver guards against (``docs/hardware.md``
 * ``moveL`` returns ``False`` (no exception) under a protective stop, and a
   blocking ``moveL`` cannot be interrupted by Ctrl-C. Moves are therefore sent
   asynchronously and the driver polls arrival, safety bits and the connection
-  itself, so Ctrl-C or :meth:`stop` can ``stopL`` the arm at once.
+  itself, so Ctrl-C or :meth:`stop` can ``stopL`` the arm at once;
+* a ``moveL`` whose client is gone (the network is down, nothing reaches the
+  controller, not even the dashboard's ``stop``) runs to its end. So at connect
+  the driver arms ur_rtde's watchdog (``setWatchdog``: the control script calls
+  URScript ``rtde_set_watchdog("input_int_register_0", f, "stop")``) and a
+  thread kicks it (``kickWatchdog``) every :attr:`URConfig.watchdog_kick_s`:
+  when the kicks stop arriving the controller stops the program, and the arm,
+  by itself within :attr:`URConfig.link_stop_s` (docs/hardware.md, "Faults in
+  the field").
 
 All poses are of the **flange**: at connect the driver sets the TCP offset to
 zero (``setTcp``), so ``actual_TCP_pose`` is the flange pose. Poses travel as
@@ -43,6 +51,8 @@ from fgcd_drivers.platform import (
     SafetyStop,
 )
 from fgcd_drivers.ur_preflight import preflight
+from fgcd_drivers.ur_watchdog import links_up as _links_up
+from fgcd_drivers.ur_watchdog import locked, start_kicker
 
 #: Interfaces of hung controllers, kept alive so that no ur_rtde call (not even a
 #: destructor's disconnect, which can block without a timeout) touches them again.
@@ -88,14 +98,6 @@ def abandoned_interface_count() -> int:
     them: a command that abandoned one (the count grew) ends its process with ``os._exit``.
     """
     return len(_ABANDONED)
-
-
-def _links_up(c, r) -> bool:
-    """True when both ur_rtde interfaces report a live connection."""
-    try:
-        return bool(c.isConnected()) and (r is None or bool(r.isConnected()))
-    except RuntimeError:
-        return False
 
 
 def pose_to_vector(T: np.ndarray) -> list[float]:
@@ -151,6 +153,13 @@ class URConfig:
         ``stopL`` without a timeout while it tries to reconnect to a controller
         that is gone, and a stop must never hang the tool (the controller stops
         the arm by itself when its connection drops).
+    watchdog_min_hz : float
+        The RTDE watchdog's minimum input frequency: the controller stops the
+        program (and the motion) when no kick reached it for ``1 / watchdog_min_hz``
+        seconds. 0 leaves it unset (a move then runs to its end when the link dies).
+        1 Hz: a fgcd process stalled for under a second on a busy laptop is not stopped.
+    watchdog_kick_s : float
+        Period of the kicks (ten per watchdog period by default).
     """
 
     host: str
@@ -166,6 +175,15 @@ class URConfig:
     poll_s: float = 0.02
     stale_after_s: float = 0.5
     stop_timeout_s: float = 2.0
+    watchdog_min_hz: float = 1.0
+    watchdog_kick_s: float = 0.1
+
+    @property
+    def link_stop_s(self) -> float | None:
+        """The stated bound: after the link dies the arm stops by itself within this many seconds (its
+        braking aside): the watchdog period plus one kick period (the last kick may have left that much
+        earlier). None when no watchdog is set."""
+        return 1.0 / self.watchdog_min_hz + self.watchdog_kick_s if self.watchdog_min_hz > 0 else None
 
 
 class URPlatform:
@@ -182,6 +200,7 @@ class URPlatform:
         self.greeting: str | None = None
         self._last_timestamp: float | None = None
         self._last_fresh = 0.0
+        self._kicking = threading.Event()  # set while the watchdog kicker of the current interfaces runs
 
     # ------------------------------------------------------------------ connection
     def connect(self) -> None:
@@ -197,10 +216,28 @@ class URPlatform:
             self._rtde_c = self._rtde_r = None
             raise PlatformConnectionError(f"ur_rtde could not connect to {self.config.host}: {exc}") from None
         self._last_timestamp, self._last_fresh = None, time.monotonic()
-        with self._control_lock:
-            if not self._rtde_c.setTcp([0.0] * 6):
-                raise PlatformConnectionError("the UR controller refused setTcp (is the control script running?)")
+        with self._locked("setTcp"):
+            accepted = self._rtde_c.setTcp([0.0] * 6)
+        if not accepted:
+            # ur_rtde refuses every command under a protective or emergency stop: say so (connecting
+            # never releases one; a person does, on the pendant: docs/hardware.md, faults).
+            self.check_safety()
+            raise PlatformConnectionError("the UR controller refused setTcp (is the control script running?)")
+        self._arm_watchdog()
         time.sleep(0.05)  # let a state package with the new TCP arrive
+
+    def _locked(self, what: str):
+        """The control lock, held within ``stop_timeout_s`` or PlatformConnectionError."""
+        return locked(self._control_lock, self.config.stop_timeout_s, what)
+
+    def _arm_watchdog(self) -> None:
+        """Set the controller's RTDE watchdog and start kicking it (see the module docstring)."""
+        if self.config.watchdog_min_hz <= 0:
+            return
+        with self._locked("setWatchdog"):
+            if not self._rtde_c.setWatchdog(float(self.config.watchdog_min_hz)):
+                raise PlatformConnectionError("the UR controller refused setWatchdog (is the control script running?)")
+        self._kicking = start_kicker(self._rtde_c, self._control_lock, self.config.watchdog_kick_s)
 
     def reconnect(self) -> None:
         """Drop the old interfaces and connect afresh (pre-flight first).
@@ -219,6 +256,7 @@ class URPlatform:
         """
         c, r = self._rtde_c, self._rtde_r
         self._rtde_c = self._rtde_r = None
+        self._kicking.clear()  # the kicker ends at its next period (stopScript removes the watchdog)
         if c is not None and (self._hung(r) or not _links_up(c, r)):
             # A hung controller or a dropped link: ur_rtde's stopL/disconnect block with
             # no timeout on the first, and race its own native reconnect thread on the
@@ -226,6 +264,8 @@ class URPlatform:
             # keep them referenced so their destructors do not run either.
             _ABANDONED.append((c, r))
             return
+        if self._control_lock.acquire(timeout=self.config.stop_timeout_s):
+            self._control_lock.release()  # a kick in flight has ended; no other one starts
         try:
             healthy = c is not None and c.isConnected() and c.isProgramRunning()
         except RuntimeError:
@@ -343,7 +383,7 @@ class URPlatform:
         angle = float(np.linalg.norm(Rotation.from_matrix(start[:3, :3].T @ target[:3, :3]).as_rotvec()))
         nominal = max(dist / speed, angle / (self.config.max_angular_speed_rad_s * fraction)) + speed / acc
         try:
-            with self._control_lock:
+            with self._locked("moveL"):
                 accepted = self._rtde_c.moveL(pose_to_vector(target), speed, acc, True)
             if not accepted:
                 self.check_safety()  # a protective stop is the usual reason

@@ -36,7 +36,7 @@ def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, time
         The peer accepted the connection but did not answer in time.
     """
     try:
-        with socket.create_connection((host, port), timeout=timeout_s) as sock:
+        with _connect(host, port, timeout_s) as sock:
             sock.settimeout(timeout_s)
             sock.sendall(struct.pack(">HBH", 5, ord("V"), 2))
             header = _recv_exact(sock, 3)
@@ -47,7 +47,7 @@ def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, time
             if not body or body[0] != 1:
                 raise PlatformConnectionError(f"{host}:{port} does not speak RTDE protocol version 2")
             _require_state_stream(sock, host)
-        with socket.create_connection((host, dashboard_port), timeout=timeout_s) as sock:
+        with _connect(host, dashboard_port, timeout_s) as sock:
             sock.settimeout(timeout_s)
             greeting = sock.recv(256).decode(errors="replace").strip()
             if "Dashboard" not in greeting:
@@ -59,6 +59,21 @@ def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, time
         ) from None
     except (ConnectionError, OSError) as exc:
         raise PlatformConnectionError(f"cannot reach the UR controller at {host}: {exc}") from None
+
+
+def _connect(host: str, port: int, timeout_s: float) -> socket.socket:
+    """A TCP connection; a connect that times out is a network that carries nothing (cable, switch, power).
+
+    Rule: "accepted the connection but did not answer" is said only of a peer that accepted
+    (docs/hardware.md, faults: a pulled cable and a hung controller need different actions).
+    """
+    try:
+        return socket.create_connection((host, port), timeout=timeout_s)
+    except socket.timeout:
+        raise PlatformConnectionError(
+            f"no answer from the UR controller at {host}:{port} within {timeout_s:.1f} s: nothing reaches it "
+            "(network cable, switch, or the controller is off)"
+        ) from None
 
 
 def _rtde_packet(sock: socket.socket, kind: str) -> bytes:

@@ -15,7 +15,14 @@ on stdin, one per line:
 ``freeze``           stop sending RTDE data packages on the open connections, which stay
                      open (a hung controller or a half-open link: the client's getters go stale)
 ``slow``             the arm moves at a tenth of the commanded speed (it does not arrive in time)
+``state``            answers ``ACK state moving=0|1 safety=BITS program=0|1 watchdog_stops=N``: the arm's
+                     own motion (it progresses even while frozen: a hung stream does not stop an arm)
 ``quit``             exit
+
+A watchdog set by the client (``setWatchdog``) stops the program, and the
+motion, when its input updates stop arriving (see
+:mod:`fgcd_drivers.testing.fake_ur_controller`); the controller checks it every
+10 ms, whatever the state of the network.
 
 What it speaks (RTDE protocol v2, big-endian, ``uint16 size | uint8 type | payload``):
 the version handshake, output and input recipes with the types of UR's RTDE
@@ -242,6 +249,7 @@ def _serve_script(ctrl: FakeController, conn: socket.socket) -> None:
                     with ctrl.lock:
                         # The uploaded control script starts: runtime playing, ready for commands.
                         ctrl.program_running = True
+                        ctrl.watchdog_period_s = None  # a new program has no watchdog yet
                         ctrl.cmd_state = "idle"
                         ctrl.reg_out_int[0] = 1
                     received = b""
@@ -291,6 +299,12 @@ def main(argv: list[str] | None = None) -> int:
         _listen(args.host, DASHBOARD_PORT, _serve_dashboard, ctrl),
         _listen(args.host, SCRIPT_PORT, _serve_script, ctrl),
     ]
+    def watchdog_loop() -> None:
+        while True:
+            time.sleep(0.01)
+            ctrl.check_watchdog()
+
+    threading.Thread(target=watchdog_loop, name="fake-ur-watchdog", daemon=True).start()
     print("READY", flush=True)
     for line in sys.stdin:
         command = line.strip()
@@ -326,12 +340,12 @@ def main(argv: list[str] | None = None) -> int:
             ctrl.speed_factor = 0.1
         elif command == "quit":
             break
-        elif command == "state":  # for fault campaigns: is the arm moving, and its safety bits
-            if not ctrl.frozen:  # a frozen controller's motion does not progress
-                ctrl.step()
+        elif command == "state":  # for fault campaigns: is the arm moving, its safety bits, its program
+            ctrl.step()  # the motion is the arm's: it goes on while the stream is frozen
             with ctrl.lock:
-                moving = int(ctrl.motion is not None and not ctrl.frozen)
-                print(f"ACK state moving={moving} safety={ctrl.safety_bits}", flush=True)
+                moving = int(ctrl.motion is not None)
+                print(f"ACK state moving={moving} safety={ctrl.safety_bits} program={int(ctrl.program_running)} "
+                      f"watchdog_stops={ctrl.watchdog_stops}", flush=True)
             continue
         print(f"ACK {command}", flush=True)
     for server in servers:
@@ -350,15 +364,18 @@ class FakeURProcess:
     fixed, so only one may run at a time (tests using it must not run in parallel).
     """
 
-    def __init__(self, *, silent: bool = False, startup_timeout_s: float = 10.0) -> None:
+    def __init__(self, *, silent: bool = False, startup_timeout_s: float = 10.0, host: str = "127.0.0.1",
+                 prefix: list[str] | None = None) -> None:
         self.silent = silent
         self.startup_timeout_s = startup_timeout_s
+        self.host = host
+        self.prefix = list(prefix or [])  # e.g. ``ip netns exec NS`` (fgcd_drivers.testing.link_cut)
         self.process = None
 
     def start(self) -> "FakeURProcess":
         import subprocess
 
-        args = [sys.executable, "-m", "fgcd_drivers.testing.fake_ur"]
+        args = [*self.prefix, sys.executable, "-m", "fgcd_drivers.testing.fake_ur", "--host", self.host]
         if self.silent:
             args.append("--silent")
         self.process = subprocess.Popen(

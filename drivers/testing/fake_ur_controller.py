@@ -3,6 +3,17 @@
 Implements ur_rtde's command handshake through the registers
 (``output_int_register_0``: 1 ready, 2 done) and straight-line moves at the
 requested speed; see :mod:`fgcd_drivers.testing.fake_ur` for the servers.
+
+The RTDE watchdog is modelled as a real controller runs ur_rtde's control
+script: ``setWatchdog(f)`` (command 35, the frequency in
+``input_double_register_0``) makes the script call URScript
+``rtde_set_watchdog("input_int_register_0", f, "stop")``; when no input package
+carrying that register arrives for ``1/f`` s the program is stopped, and with it
+the motion; a program stop removes every watchdog (URScript manual,
+``rtde_set_watchdog``). ``kickWatchdog()`` only updates the register: ur_rtde
+1.6.5 sends it as 0 (seen on this fake's trace), older versions as :data:`KICK`
+(their ``WATCHDOG`` type); neither is a command with a handshake. With no watchdog set, a
+``moveL`` whose client is gone runs to its end, as on the real arm.
 """
 
 from __future__ import annotations
@@ -15,7 +26,10 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-__all__ = ["FakeController", "RTDE_FORMATS", "rtde_type_of"]
+__all__ = ["FakeController", "KICK", "RTDE_FORMATS", "SET_WATCHDOG", "rtde_type_of"]
+
+#: ur_rtde command ids (``RTDE::RobotCommand::Type``): set the watchdog, and an older version's kick.
+SET_WATCHDOG, KICK = 35, 99
 
 _V6 = "VECTOR6D"
 _OUTPUT_TYPES = {
@@ -100,6 +114,9 @@ class FakeController:
         self.t0 = time.monotonic()
         self.done_at: float | None = None
         self.log = None  # a text stream to trace commands (--trace)
+        self.watchdog_period_s: float | None = None  # 1 / min_frequency of rtde_set_watchdog, while set
+        self.last_input = time.monotonic()  # the last input package carrying input_int_register_0
+        self.watchdog_stops = 0
 
     # ------------------------------------------------------------------ motion
     def step(self) -> None:
@@ -133,7 +150,10 @@ class FakeController:
             self.speed = np.zeros(6)
 
     def stop_program(self) -> None:
-        """The dashboard's ``stop``: the motion ends where the arm is, the control script stops."""
+        """The dashboard's ``stop``: the motion ends where the arm is, the control script stops.
+
+        A program stop removes every RTDE watchdog (URScript, ``rtde_set_watchdog``).
+        """
         self.step()
         with self.lock:
             self.motion = None
@@ -142,14 +162,32 @@ class FakeController:
             self.reg_out_int[0] = 0
             self.cmd_state = "idle"
             self.done_at = None
+            self.watchdog_period_s = None
+
+    def check_watchdog(self) -> bool:
+        """Stop the program when its watchdog saw no input update in time (True when it just did)."""
+        with self.lock:
+            period = self.watchdog_period_s
+            if period is None or not self.program_running or time.monotonic() - self.last_input <= period:
+                return False
+            self.watchdog_stops += 1
+        self.stop_program()
+        if self.log is not None:
+            print(f"{time.monotonic() - self.t0:.3f} watchdog: no input for {period:.2f} s, program stopped",
+                  file=self.log, flush=True)
+        return True
 
     # ------------------------------------------------------------------ commands
     def command(self, values: dict[str, float | int]) -> None:
         """A data package of an input recipe: ur_rtde's command protocol."""
         cmd = int(values.get("input_int_register_0", 0))
-        if self.log is not None:
+        if self.log is not None and cmd != KICK:
             print(f"{time.monotonic() - self.t0:.3f} cmd {cmd} reg0={self.reg_out_int[0]} {self.cmd_state}", file=self.log, flush=True)
         with self.lock:
+            if "input_int_register_0" in values:
+                self.last_input = time.monotonic()  # the watchdog's variable was updated
+            if cmd == KICK:
+                return  # a continuous command: no handshake, the update is all it does
             if cmd == 0:
                 # The client clears the command: the script is ready for the next one.
                 if self.program_running and (self.cmd_state == "done" or self.done_at is not None
@@ -183,6 +221,9 @@ class FakeController:
                     self.done_at = None  # done when the motion ends
             elif cmd in (33, 34):  # stopL / stopJ
                 self.halt()
+            elif cmd == SET_WATCHDOG:  # rtde_set_watchdog("input_int_register_0", f, "stop")
+                self.watchdog_period_s = 1.0 / d[0] if d[0] > 0 else None
+                self.last_input = time.monotonic()
             elif cmd == 29:  # setTcp
                 self.T_flange_tcp = _pose_to_T(d[0:6])
             elif cmd == 40:  # getTCPOffset
@@ -191,6 +232,7 @@ class FakeController:
                 self.reg_out_double[0:6] = _T_to_pose(self.T_base_flange)
             elif cmd == 255:  # stopScript
                 self.halt()
+                self.watchdog_period_s = None
                 self.program_running = False
                 self.reg_out_int[0] = 0
                 self.cmd_state = "idle"

@@ -17,7 +17,9 @@ GRBL's grammar (see GRBL's ``doc/markdown/interface.md``):
   (``$20``: ``ALARM:2`` for a G-code motion, ``error:15`` for a jog), alarms with
   ``[MSG:'$H'|'$X' to unlock]``;
 * faults on demand: :meth:`inject_alarm`, :meth:`set_silent`,
-  :meth:`inject_garbage`, :meth:`unplug`.
+  :meth:`inject_garbage`, :meth:`unplug` (the pty closed from the board's side:
+  the board ends the block it holds) and :meth:`replug` (a new pty, the board's
+  state kept).
 
 Machine coordinates follow GRBL's homing convention: after ``$H`` the machine
 sits at 0 and travel is ``[-$13x, 0]`` mm on each axis.
@@ -177,6 +179,23 @@ class GrblEmulator(GrblCommandsMixin):
                 pass
         self._master = self._slave = -1
 
+    def replug(self) -> str:
+        """The cable is plugged back in: a new pty (a new ``/dev/pts`` path, as a re-enumerated USB port).
+
+        The board's state is kept (position, alarm, a block still running): a pty carries
+        no DTR, so nothing resets it; the driver's connect sends its soft reset. Returns the new port.
+        """
+        if self._master >= 0:
+            self.unplug()  # still plugged: the old pty is pulled first
+        master, slave = pty.openpty()
+        tty.setraw(slave)
+        self._master, self._slave = master, slave
+        self.port = os.ttyname(slave)
+        reader = threading.Thread(target=self._read_loop, name="grbl-emu-read", daemon=True)
+        self._threads.append(reader)
+        reader.start()
+        return self.port
+
     def outputs(self) -> dict[str, float | bool]:
         """The accessory pins as the board drives them: spindle enable and PWM duty (0..1), flood, mist."""
         with self._lock:
@@ -188,6 +207,16 @@ class GrblEmulator(GrblCommandsMixin):
         """True while the board executes a motion (not held, not in alarm)."""
         with self._lock:
             return (self.current is not None or bool(self.queue)) and not self.hold and self.state != "Alarm"
+
+    def block_left_s(self) -> float:
+        """Wall-clock seconds until the board has executed what it holds (the running block and the queue)."""
+        with self._lock:
+            if self.hold or self.state == "Alarm":
+                return 0.0
+            left = sum(seg.duration_s for seg in self.queue)
+            if self.current is not None:
+                left += max(0.0, self.current.duration_s - self.current.elapsed_s)
+            return left * self.time_scale
 
     def position(self) -> list[float]:
         """Current machine position (thread-safe copy)."""
@@ -209,12 +238,13 @@ class GrblEmulator(GrblCommandsMixin):
 
     def _read_loop(self) -> None:
         buffer = bytearray()
-        while not self._stop.is_set():
+        master = self._master  # this pty's: after an unplug a replugged one gets its own reader
+        while not self._stop.is_set() and master == self._master:
             try:
-                ready, _, _ = select.select([self._master], [], [], 0.05)
+                ready, _, _ = select.select([master], [], [], 0.05)
                 if not ready:
                     continue
-                chunk = os.read(self._master, 1024)
+                chunk = os.read(master, 1024)
             except (OSError, ValueError):
                 return
             if not chunk:
