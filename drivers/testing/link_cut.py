@@ -11,11 +11,14 @@ so a fake UR controller inside one does not collide with one on ``127.0.0.1``.
 
 Where namespaces are not permitted (no ``ip``, not root, a container without
 ``CAP_NET_ADMIN``), :class:`ProxyLink` is the fallback: a TCP proxy thread on
-``127.0.0.2`` forwards the controller's ports to ``127.0.0.1``; its
+``127.0.0.2`` forwards the controller's ports to ``127.0.0.3`` (clear of a fake
+controller on ``127.0.0.1``); its
 :meth:`ProxyLink.cut` stops forwarding both ways and answers no new connection
 (the sockets stay open, no RST), so the dashboard is unreachable too.
 
-:func:`open_link` returns whichever works, and ``link.kind`` says which.
+:func:`open_link` returns whichever works, and ``link.kind`` says which. Run the
+controller on ``link.fake_host`` with ``link.prefix()`` before its command;
+the client connects to ``link.address``.
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ class NetnsLink:
         self.host_dev, self.ns_dev = f"fgl{tag}h", f"fgl{tag}n"
         subnet = (os.getpid() * 7 + NetnsLink._count) % 250 + 1
         self.host_ip, self.ns_ip = f"10.213.{subnet}.1", f"10.213.{subnet}.2"
-        self.address = self.ns_ip  # where the client connects
+        self.address = self.fake_host = self.ns_ip  # where the client connects, and the controller listens
         self._made = False
 
     def open(self) -> "NetnsLink":
@@ -118,13 +121,13 @@ class NetnsLink:
 
 
 class ProxyLink:
-    """TCP forwarding of ``ports`` from ``127.0.0.2`` to ``127.0.0.1``, cut on demand (the fallback)."""
+    """TCP forwarding of ``ports`` from ``127.0.0.2`` to ``target``, cut on demand (the fallback)."""
 
     kind = "proxy"
 
-    def __init__(self, ports: tuple[int, ...] = (29999, 30003, 30004), target: str = "127.0.0.1") -> None:
+    def __init__(self, ports: tuple[int, ...] = (29999, 30003, 30004), target: str = "127.0.0.3") -> None:
         self.ports, self.target = ports, target
-        self.address = "127.0.0.2"
+        self.address, self.fake_host = "127.0.0.2", target
         self._cut = threading.Event()
         self._closed = threading.Event()
         self._servers: list[socket.socket] = []
@@ -148,7 +151,7 @@ class ProxyLink:
         return self
 
     def prefix(self) -> list[str]:
-        """No prefix: the controller runs here, on ``127.0.0.1``."""
+        """No prefix: the controller runs in this namespace, on ``target``."""
         return []
 
     def _accept(self, server: socket.socket, port: int) -> None:

@@ -45,18 +45,17 @@ STOP_MARGIN_S = 0.5
 COMMAND_END_S = _driver_config().stale_after_s + _TIMEOUT_S + 2.0
 
 
-def _open(fault: str, seed: int):
+def _open(fault: str, seed: int, prefer: str):
     """The cuttable link and the fake controller behind it; or a failed outcome saying why not."""
     from fgcd_drivers.testing.fake_ur import FakeURProcess
     from fgcd_drivers.testing.link_cut import LinkUnavailable, open_link
 
     try:
-        link = open_link()
+        link = open_link(prefer=prefer)
     except LinkUnavailable as exc:
         return None, None, FaultOutcome(fault=fault, seed=seed, command="-", code=-1, expected=(), stderr_lines=0,
                                         traceback=False, detail=f"no cuttable link here: {exc}")
-    host = link.address if link.kind == "netns" else "127.0.0.1"
-    fake = FakeURProcess(host=host, prefix=link.prefix())
+    fake = FakeURProcess(host=link.fake_host, prefix=link.prefix())
     try:
         fake.start()
     except RuntimeError:
@@ -154,9 +153,12 @@ def _judge(case, run, seen: dict, link, fake, *, protective: bool, extra: dict) 
     return outcome
 
 
-def ur_link_fault(fault: str, seed: int) -> FaultOutcome:
-    """One UR link cut on a fresh fake controller behind a fresh cuttable link (always removed)."""
-    link, fake, failed = _open(fault, seed)
+def ur_link_fault(fault: str, seed: int, *, prefer: str = "netns") -> FaultOutcome:
+    """One UR link cut on a fresh fake controller behind a fresh cuttable link (always removed).
+
+    ``prefer="proxy"`` uses the TCP proxy even where a network namespace can be made.
+    """
+    link, fake, failed = _open(fault, seed, prefer)
     if failed is not None:
         return failed
     try:
