@@ -59,7 +59,9 @@ def station_lock(campaign_path: Path, station: str, *, command: str) -> Iterator
         folder.mkdir(exist_ok=True)
         fd = os.open(folder / f"{name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as exc:
-        raise CampaignError(f"cannot create the lock of station '{name}': {exc.strerror}") from None
+        # Rule (README, "Errors"): an operating-system error (a full disk, a read-only campaign folder) is exit 1
+        # naming its file, ``Read-only file system: <campaign>/.locks/S.lock``; nothing was opened yet.
+        raise OSError(exc.errno, exc.strerror, exc.filename or str(folder / f"{name}.lock")) from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:

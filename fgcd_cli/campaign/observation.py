@@ -208,11 +208,18 @@ class ObservationWriter:
         if relpath == MANIFEST or ".." in relpath.split("/") or relpath in self._files:
             raise UserInputError(f"invalid or duplicate file name {relpath!r}")
         p = self.tmp_path / relpath
-        p.parent.mkdir(parents=True, exist_ok=True)
-        with open(p, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            with open(p, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as exc:
+            if exc.filename is not None or exc.errno is None:
+                raise
+            # Rule (README, "Errors"): a full disk names its file; a write's ENOSPC carries none. The file is named
+            # where it was going (its temporary folder goes with the abort: docs/hardware.md, "Faults in the field").
+            raise OSError(exc.errno, exc.strerror, str(self.final_path / relpath)) from None
         self._files[relpath] = {"sha256": sha256_bytes(data), "bytes": len(data)}
 
     def add_image(self, name: str, image: np.ndarray) -> None:
