@@ -26,6 +26,7 @@ adjustment 1: waiting for an alignment of the current view
 adjustment 1: moving
 adjustment  1 (3d)  g = 1.23e-02  remaining   12.30 mm  turn 0.50 deg
 the image stage measures under the reference's light (led:3)
+image stage 1/3: matching the current image with the reference
 adjustment  4 (image)  step   0.40 mm  turn 0.02 deg
 settling at the reached pose
 images under each lighting 1/2
@@ -39,6 +40,7 @@ def test_each_phase_is_recognised_from_its_progress_line():
     assert [p for p in dict.fromkeys(seen)] == ["exploration", "alignment_wait", "adjustment_motion",
                                                  "image_stage", "stills", "writing"]
     assert phase_of("opening the rig") is None
+    assert phase_of("the image stage measures under the reference's light (led:3)") is None  # said before the loop
     assert phase_of("  still aligning (10 s; latest estimate: none yet)") is None
 
 
@@ -65,12 +67,22 @@ def test_the_tracker_fires_once_inside_the_target_phase():
     hits = []
     tracker = PhaseTracker("image_stage", 0.0, lambda proc: (hits.append(tracker.current), fired.set()))
     child = _Child()
-    for line in RELOCATE_STDERR.splitlines()[:12]:
+    for line in RELOCATE_STDERR.splitlines()[:13]:
         tracker.on_line(line, child)
     assert fired.wait(10)
     tracker.on_line("adjustment  5 (image)  step   0.10 mm", child)
     assert hits == ["image_stage"]
     assert tracker.phases_seen[:3] == ["exploration", "alignment_wait", "adjustment_motion"]
+
+
+def test_a_target_phase_the_run_skips_is_hit_at_the_next_one():
+    hits = []
+    fired = threading.Event()
+    tracker = PhaseTracker("image_stage", 0.0, lambda proc: (hits.append(tracker.current), fired.set()),
+                           order=fault_whole.RELOCATE_PHASES)
+    for line in ("exploration 1/6: VSE tracking", "adjustment 1: moving 3.0 mm / 0.10 deg", "writing the visit"):
+        tracker.on_line(line, _Child())
+    assert fired.wait(10) and hits == ["writing"]
 
 
 def test_the_tracker_does_not_fire_at_a_child_that_has_ended():
