@@ -312,3 +312,37 @@ def faults(
                                                       if t is not None else ""))
 
     emit(data, as_json=as_json, render=show)
+
+
+@app.command("soak")
+def soak(
+    quick: bool = typer.Option(False, "--quick", help="10 revisits, then 2 with change detection (else 100 + 20)."),
+    revisits: Optional[int] = typer.Option(None, "--revisits", help="Consecutive revisits before the ones with "
+                                           "change detection (default 100; 10 with --quick)."),
+    change_revisits: Optional[int] = typer.Option(None, "--change-revisits", help="Revisits with injected changes, "
+                                                  "diff and report after those (default 20; 2 with --quick)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Keep the campaign and samples.jsonl (one line per "
+                                       "revisit, as it ends) in this folder; by default a temporary one, removed."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Many simulated revisits of one station in one process: memory, threads, files and temporaries per revisit."""
+    from fgcd_cli.bench.soak import run
+    from fgcd_cli.errors import UserInputError
+
+    for option, value in (("--revisits", revisits), ("--change-revisits", change_revisits)):
+        if value is not None and value < 0:
+            raise UserInputError(f"{option} must be 0 or more, got {value}")
+    if out is not None and out.exists() and any(out.iterdir()):
+        raise UserInputError(f"--out {out} is not empty: give a new or empty folder")
+    data = run(quick=quick, revisits=revisits, change_revisits=change_revisits, out=out,
+               say=(lambda _m: None) if as_json else info)
+
+    def show(console):
+        for key, value in data["summary"].items():
+            target = data["targets"].get(key)
+            console.print(f"[bold]{key}[/bold] = {value}" + (f"  (target {target})" if target is not None else ""))
+        for s in data["samples"]:
+            if s["detail"]:
+                console.print(f"[red]revisit {s['index']}[/red]: {s['detail']}")
+
+    emit(data, as_json=as_json, render=show)
