@@ -47,9 +47,10 @@ FAULTS = ("relocate_grbl_link_lost", "relocate_grbl_alarm", "relocate_grbl_silen
 PER_CLASS_FULL = 5
 #: The wired stations of the bench campaign, captured once each through the launcher.
 STATIONS = {"grbl": "wired-grbl", "ur": "wired-ur"}
-#: Motions of a wired revisit the fault may land in, per stage (sub-steps of 5 mm / 1 deg, measured on a clean
-#: wired revisit: docs/hardware.md, "Faults in the field").
-MOTIONS = {"exploration": 24, "adjustment": 12}
+#: Motions of a wired revisit the fault may land in, per stage (sub-steps of 5 mm / 1 deg). Measured on clean
+#: wired GRBL revisits (30 mm start): guided, 24 exploration motions and 1 adjustment; fixed pattern, 28 and 9,
+#: the first 6 adjustments carrying the 30 mm (docs/hardware.md, "Faults in the field").
+MOTIONS = {"exploration": 24, "adjustment": 6}
 #: Latest moment inside a sub-step the fault is drawn at, s (a 5 mm sub-step lasts 0.25 s at 20 mm/s).
 MAX_DELAY_S = 0.15
 #: A GRBL stage mid-travel, so that every motion of a revisit is inside its soft limits.
@@ -189,14 +190,19 @@ def prepare_wired_station(campaign: Path, kind: str) -> str:
     return station
 
 
-def _revisit_args(campaign: Path, kind: str, session_seed: int) -> list[str]:
-    """``fgcd relocate`` of the wired station; an XYZ stage cannot turn, so its start is displaced without rotation."""
+def _revisit_args(campaign: Path, kind: str, session_seed: int, *, guided: bool = True) -> list[str]:
+    """``fgcd relocate`` of the wired station; an XYZ stage cannot turn, so its start is displaced without rotation.
+
+    A guided exploration ends near the reference and leaves the adjustments a
+    sub-millimetre step; a fault meant for the adjustments explores with the
+    fixed pattern (``--no-guided``), whose adjustments travel the whole offset.
+    """
     args = ["relocate", "-c", str(campaign), "-s", STATIONS[kind], "--yes", "--json", "--session-seed",
             str(session_seed)]
-    return args + (["--start-offset-deg", "0"] if kind == "grbl" else [])
+    return args + (["--start-offset-deg", "0"] if kind == "grbl" else []) + ([] if guided else ["--no-guided"])
 
 
-def clean_revisit(campaign: Path, kind: str, *, session_seed: int = 1) -> dict:
+def clean_revisit(campaign: Path, kind: str, *, session_seed: int = 1, guided: bool = True) -> dict:
     """A wired revisit without fault: exit code, motions per stage, the emulator's travel, the final true error."""
     prepare_wired_station(campaign, kind)
     with tempfile.TemporaryDirectory(prefix="fgcd-wired-") as tmp, _controller(kind) as side:
@@ -211,12 +217,12 @@ def clean_revisit(campaign: Path, kind: str, *, session_seed: int = 1) -> dict:
                     side.moving()
                     time.sleep(0.05)
 
-            run = run_fgcd(_revisit_args(campaign, kind, session_seed), inject=watch,
+            run = run_fgcd(_revisit_args(campaign, kind, session_seed, guided=guided), inject=watch,
                            launcher=["fgcd_cli.bench.wired_launch"], env=_wired(side, log), timeout_s=1800)
             done.set()
         else:
-            run = run_fgcd(_revisit_args(campaign, kind, session_seed), launcher=["fgcd_cli.bench.wired_launch"],
-                           env=_wired(side, log), timeout_s=1800)
+            run = run_fgcd(_revisit_args(campaign, kind, session_seed, guided=guided),
+                           launcher=["fgcd_cli.bench.wired_launch"], env=_wired(side, log), timeout_s=1800)
         motions = _motions(log)
         return {"code": run.code, "seconds": round(run.seconds, 1), "motions": {p: motions.count(p) for p in
                                                                                set(motions)},
@@ -247,8 +253,12 @@ def _injector(side, plan: WiredPlan, log: Path, record: dict):
                 break
             time.sleep(plan.delay_s)
             if side.moving():
-                record.update(attempts=attempt, at=time.monotonic(), travelled_mm=round(side.travelled_mm(), 2))
+                record.update(attempts=attempt, travelled_mm=round(side.travelled_mm(), 2))
+                hit = time.monotonic()
                 side.hit(plan)
+                # how long the emulator went on moving after the fault (the rest of its block, or the stop)
+                if wait_until(lambda: not side.moving(), timeout_s=BLOCK_END_S * 2):
+                    record["moved_after_s"] = round(time.monotonic() - hit, 3)
                 return
         record["missed"] = f"no motion lasted {plan.delay_s:.3f} s after {plan.phase} motion {plan.motion + 1}"
 
@@ -276,7 +286,8 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     record: dict = {}
     with tempfile.TemporaryDirectory(prefix="fgcd-wired-") as tmp, _controller(kind) as side:
         log = Path(tmp) / "motions.jsonl"
-        run = run_fgcd(_revisit_args(campaign, kind, 1 + seed % 1000), inject=_injector(side, plan, log, record),
+        args = _revisit_args(campaign, kind, 1 + seed % 1000, guided=plan.phase == "exploration")
+        run = run_fgcd(args, inject=_injector(side, plan, log, record),
                        launcher=["fgcd_cli.bench.wired_launch"], env=_wired(side, log), timeout_s=1200)
         moving = _left_moving(side, fault)
         motions = len(_motions(log))
@@ -286,7 +297,8 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     if "missed" in record:
         expected = ()  # the fault never hit a motion: not a pass, whatever the exit
     extra = {"phase": plan.phase, "motion": plan.motion + 1, "delay_s": round(plan.delay_s, 3),
-             "motions": motions, "attempts": record.get("attempts"), "travelled_mm": record.get("travelled_mm")}
+             "motions": motions, "attempts": record.get("attempts"), "travelled_mm": record.get("travelled_mm"),
+             "moved_after_s": record.get("moved_after_s")}
     detail = "; ".join(problems + changed) or record.get("missed") or (run.error_lines or run.lines or [""])[-1]
     return FaultOutcome(fault=fault, seed=seed, command=f"relocate (wired {kind})", code=run.code, expected=expected,
                         stderr_lines=run.failure_lines, traceback=run.traceback, platform_left_moving=moving,
