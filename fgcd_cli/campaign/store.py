@@ -249,7 +249,17 @@ class Campaign:
             raise CampaignError(f"station '{name}' already exists")
         path.mkdir(parents=True)
         data = {"name": name, "description": description, "created": now_iso(), **info, "observations": []}
-        atomic_write_json(path / STATION_FILE, data)
+        try:
+            atomic_write_json(path / STATION_FILE, data)
+        except BaseException:
+            # Rule: a station folder exists only with its station.json. A full disk (or Ctrl-C) here must not
+            # leave an empty folder that every later command reads as a damaged station (docs/hardware.md,
+            # "Faults in the field": no partial write remains); the write's temporary file is already gone.
+            try:
+                path.rmdir()
+            except OSError:
+                pass
+            raise
         return Station(self, name, path, data)
 
     def station_or_create(self, name: str, **info: Any) -> Station:

@@ -74,6 +74,18 @@ def test_an_observation_on_a_full_disk_names_its_file_and_leaves_nothing(tmpfs):
     assert not (camp.path / "stations" / "s2" / "reference").exists()
 
 
+def test_a_station_that_cannot_be_written_leaves_no_folder(tmpfs):
+    camp = _campaign(tmpfs)
+    fill_to(tmpfs, 0)
+    with pytest.raises(OSError) as caught:
+        camp.station_or_create("s3")
+    assert caught.value.errno == errno.ENOSPC
+    assert caught.value.filename == str(camp.path / "stations" / "s3" / "station.json")
+    assert not (camp.path / "stations" / "s3").exists()
+    (tmpfs / ".filler").unlink()
+    assert camp.station_or_create("s3").name == "s3"  # once there is room, the station is created
+
+
 def test_a_read_only_campaign_refuses_the_lock_naming_its_file(tmpfs):
     camp = _campaign(tmpfs)
     remount_readonly(tmpfs)
