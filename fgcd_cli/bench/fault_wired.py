@@ -55,6 +55,8 @@ MOTIONS = {"exploration": 24, "adjustment": 6}
 MAX_DELAY_S = 0.15
 #: A GRBL stage mid-travel, so that every motion of a revisit is inside its soft limits.
 GRBL_TRAVEL_MM, GRBL_START_MM = 400.0, -200.0
+#: Longest wait for the fake UR's fixed ports (another run's fake may hold them), s.
+UR_PORTS_WAIT_S = 300.0
 #: Faults whose stop can still reach the controller (the others: no stop can travel).
 _CAN_STOP = ("relocate_grbl_alarm", "relocate_grbl_garbage", "relocate_ur_protective_stop")
 _UR_COMMANDS = {"relocate_ur_protective_stop": "protective_stop", "relocate_ur_link_lost": "disconnect",
@@ -131,6 +133,11 @@ class _URSide:
         """The fake's state has no pose: 1 when it was seen moving, else 0 (a flag, not a distance)."""
         return float(self.seen_moving)
 
+    def watchdog_stops(self) -> int | None:
+        """How often the fake's RTDE watchdog stopped the program (None: a fake that does not say)."""
+        value = self.fake.state().get("watchdog_stops")
+        return None if value is None else int(value)
+
     def hit(self, plan: WiredPlan) -> None:
         self.fake.send(_UR_COMMANDS[plan.fault])
 
@@ -149,13 +156,13 @@ def _controller(kind: str) -> Iterator[object]:
         return
     from fgcd_drivers.testing.fake_ur import FakeURProcess
 
-    fake = None
-    for attempt in range(3):  # the ports may still be held by a fake another run just ended
+    deadline = time.monotonic() + UR_PORTS_WAIT_S
+    while True:  # the fixed ports may be held by another run's fake for a while: wait for them
         try:
             fake = FakeURProcess().start()
             break
         except RuntimeError:
-            if attempt == 2:
+            if time.monotonic() > deadline:
                 raise
             time.sleep(5.0)
     try:
@@ -291,6 +298,7 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
                        launcher=["fgcd_cli.bench.wired_launch"], env=_wired(side, log), timeout_s=1200)
         moving = _left_moving(side, fault)
         motions = len(_motions(log))
+        watchdog = side.watchdog_stops() if kind == "ur" else None
     changed = earlier_changed(before, committed_digests(campaign))
     problems = campaign_problems(campaign)
     expected = (0, 6, EXIT_PLATFORM) if fault == "relocate_grbl_garbage" else (EXIT_PLATFORM,)
@@ -298,7 +306,7 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
         expected = ()  # the fault never hit a motion: not a pass, whatever the exit
     extra = {"phase": plan.phase, "motion": plan.motion + 1, "delay_s": round(plan.delay_s, 3),
              "motions": motions, "attempts": record.get("attempts"), "travelled_mm": record.get("travelled_mm"),
-             "moved_after_s": record.get("moved_after_s")}
+             "moved_after_s": record.get("moved_after_s"), "watchdog_stops": watchdog}
     detail = "; ".join(problems + changed) or record.get("missed") or (run.error_lines or run.lines or [""])[-1]
     return FaultOutcome(fault=fault, seed=seed, command=f"relocate (wired {kind})", code=run.code, expected=expected,
                         stderr_lines=run.failure_lines, traceback=run.traceback, platform_left_moving=moving,
