@@ -131,7 +131,8 @@ class FaultOutcome:
                 "expected": list(self.expected), "stderr_lines": self.stderr_lines, "traceback": self.traceback,
                 "platform_left_moving": self.platform_left_moving,
                 "campaign_inconsistent": self.campaign_inconsistent,
-                "earlier_data_changed": self.earlier_data_changed, "resume_failed": self.resume_failed, "ok": self.ok, "detail": self.detail[:300],
+                "earlier_data_changed": self.earlier_data_changed, "resume_failed": self.resume_failed,
+                "ok": self.ok, "detail": self.detail[:300],
                 **self.extra}
 
 
