@@ -156,3 +156,19 @@ def test_a_store_write_killed_at_seeded_events_leaves_only_named_leftovers(tmp_p
         # before the rename of the visit folder, its temporary folder is named; after it, nothing is left but
         # (before the index update) the unindexed visit
         assert bool(leftovers(station)) == bool(new), (n, new)
+
+
+@pytest.mark.slow
+def test_power_loss_points_of_a_real_revisit_leave_the_campaign_consistent(tmp_path):
+    # one point of each class on a fresh bench campaign (a calibration, a capture, a counting revisit, two
+    # killed revisits), then the fifth point of a class: killed, and followed by a new revisit that succeeds
+    from fgcd_cli.bench.fault_power import FAULTS, inject
+    from fgcd_cli.bench.faults import run
+
+    data = run(classes=FAULTS, per_class=1, seed=0, workdir=tmp_path)
+    summary = data["summary"]
+    assert summary["power_loss_points"] == 2 and summary["faults_ok"] == 2, data["faults"]
+    for key in ("platform_left_moving", "campaign_inconsistent", "earlier_data_changed", "tracebacks"):
+        assert summary[key] == 0, data["faults"]
+    fifth = inject(FAULTS[0], 4, tmp_path / "campaign")
+    assert fifth.ok and fifth.extra["revisit_after"] == 0, fifth.to_dict()
