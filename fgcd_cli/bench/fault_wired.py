@@ -307,7 +307,8 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     extra = {"phase": plan.phase, "motion": plan.motion + 1, "delay_s": round(plan.delay_s, 3),
              "motions": motions, "attempts": record.get("attempts"), "travelled_mm": record.get("travelled_mm"),
              "moved_after_s": record.get("moved_after_s"), "watchdog_stops": watchdog}
-    detail = "; ".join(problems + changed) or record.get("missed") or (run.error_lines or run.lines or [""])[-1]
+    line = (run.error_lines or run.lines or [""])[-1]
+    detail = "; ".join(problems + changed) or (f"{record['missed']}: {line}" if "missed" in record else line)
     return FaultOutcome(fault=fault, seed=seed, command=f"relocate (wired {kind})", code=run.code, expected=expected,
                         stderr_lines=run.failure_lines, traceback=run.traceback, platform_left_moving=moving,
                         campaign_inconsistent=bool(problems), earlier_data_changed=bool(changed), detail=detail,
