@@ -389,7 +389,8 @@ class URPlatform:
                 self.check_safety()  # a protective stop is the usual reason
                 if not self._rtde_c.isProgramRunning():
                     raise PlatformConnectionError(
-                        "the UR control script is not running (connection lost or program stopped); reconnect"
+                        "the UR control script is not running (connection lost, its watchdog stopped it after a "
+                        "link loss, or it was stopped on the pendant); reconnect"
                     )
                 raise MotionRejected("the UR controller refused the move (moveL returned False)")
             self._wait_arrival(target, nominal)
@@ -448,12 +449,18 @@ class URPlatform:
         if c is not None and not self._hung(self._rtde_r):
 
             def send_stop() -> None:
+                # A watchdog kick in flight must not interleave with stopL's handshake; a moveL
+                # holding the lock (a send, milliseconds) is not waited for past a short while.
+                held = self._control_lock.acquire(timeout=min(0.5, self.config.stop_timeout_s / 2))
                 try:
                     if c.isConnected() and c.isProgramRunning():
                         c.stopL(self.config.max_linear_acc_m_s2 * 2.0)
                         sent.set()
                 except RuntimeError:
                     pass
+                finally:
+                    if held:
+                        self._control_lock.release()
 
             # In a daemon thread: ur_rtde may block in its reconnect loop (see URConfig.stop_timeout_s).
             sender = threading.Thread(target=send_stop, name="fgcd-ur-stop", daemon=True)

@@ -389,8 +389,12 @@ class FakeURProcess:
 
         threading.Thread(target=wait_ready, daemon=True).start()
         if not ready.wait(self.startup_timeout_s):
+            exited = self.process.poll() is not None
             self.stop()
-            raise RuntimeError("the fake UR controller did not start (ports 29999/30003/30004 busy?)")
+            if exited:  # its bind failed: another controller (a fake of another test run) holds the ports
+                raise RuntimeError(f"the fake UR controller did not start: ports 29999/30003/30004 on {self.host} "
+                                   "are busy (another fake UR running?)")
+            raise RuntimeError(f"the fake UR controller printed no READY within {self.startup_timeout_s:.0f} s")
         return self
 
     def send(self, command: str) -> None:

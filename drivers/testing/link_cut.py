@@ -195,6 +195,8 @@ class ProxyLink:
                     except OSError:
                         pass
                 return
+            if self._cut.is_set():
+                continue  # read just as the cable went: these bytes are lost too
             try:
                 dst.sendall(data)
             except OSError:

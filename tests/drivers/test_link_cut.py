@@ -141,7 +141,7 @@ def test_a_network_cut_mid_move_stops_the_arm_and_a_reconnect_releases_nothing()
     outcome = ur_link_fault("link_cut_ur_move", 0)  # seed 0: a protective stop raised during the cut
     _skip_without_link(outcome)
     assert outcome.extra["protective_during_cut"] is True
-    assert outcome.ok, outcome.to_dict()
+    assert outcome.ok, str(outcome.to_dict())
     assert outcome.code == 7 and outcome.stderr_lines == 1
     assert outcome.extra["arm_stopped_after_cut_s"] <= URConfig(host="x").link_stop_s + STOP_MARGIN_S
     assert outcome.extra["reconnect_code"] == 7  # the protective stop is reported, not released
@@ -151,7 +151,7 @@ def test_a_pulled_serial_cable_leaves_an_alarm_for_a_person_to_clear():
     from fgcd_cli.bench.link_grbl import grbl_link_fault
 
     outcome = grbl_link_fault("link_cut_grbl_reconnect", 0)
-    assert outcome.ok, outcome.to_dict()
+    assert outcome.ok, str(outcome.to_dict())
     assert outcome.extra["alarm_during_cut"] in (1, 3)
     assert outcome.extra["reconnect_code"] == 7 and outcome.extra["refused_move_code"] == 7
     assert outcome.extra["home_code"] == 0
@@ -164,7 +164,7 @@ def test_more_link_cuts_end_cleanly(fault, seed):
 
     outcome = inject(fault, seed, None)
     _skip_without_link(outcome)
-    assert outcome.ok, outcome.to_dict()
+    assert outcome.ok, str(outcome.to_dict())
 
 
 @pytest.mark.slow
@@ -174,4 +174,4 @@ def test_the_proxy_fallback_cuts_rtde_and_the_dashboard_alike():
     outcome = ur_link_fault("link_cut_ur_move", 1, prefer="proxy")
     _skip_without_link(outcome)
     assert outcome.extra["link"] == "proxy"
-    assert outcome.ok, outcome.to_dict()
+    assert outcome.ok, str(outcome.to_dict())
