@@ -9,8 +9,9 @@ Each point is a real ``fgcd relocate`` of the bench station ``real``
   station index, the journal's removal), N drawn over ``[1, count]``; or, for
   a third of the points, a seeded delay after the write's first event, which
   lands inside the writes themselves (the bytes of an image);
-* ``power_loss_journal``: before the N-th write of the revisit journal (its
-  start line, one line per adjustment, its removal after the commit).
+* ``power_loss_journal``: before the N-th line write of the revisit journal
+  (its start line, one line per adjustment) or, for a quarter of the points,
+  before its removal after the visit's commit.
 
 ``count`` comes from a counting run (the same launcher, never killed) made once
 per bench campaign (its log holds every event under ``stations/``; each class
@@ -58,6 +59,8 @@ RELOCATE_OPTIONS = ("--start-offset-mm", "5", "--start-offset-deg", "0.5", "--ye
 REVISIT_EVERY = 5
 #: Share of the visit-write points killed at a delay rather than at an event (instants inside one write).
 JITTERED_SHARE = 1 / 3
+#: Share of the journal points killed before the journal's removal (after the visit's commit).
+REMOVAL_SHARE = 1 / 4
 _COUNTS = ".bench-power.json"
 _TIMEOUT_S = 1800.0
 
@@ -123,10 +126,22 @@ def event_counts(campaign: Path, station: str) -> dict:
 
 
 def _instant(fault: str, seed: int, count: dict) -> _Instant:
-    """The seeded instant of one point (every draw from ``np.random.default_rng(seed)``)."""
+    """The seeded instant of one point (every draw from ``np.random.default_rng(seed)``).
+
+    A journal point falls before one of its line writes, or (a quarter of them) before its removal after the
+    commit: a revisit may make fewer adjustments than the counting run, and its removal is always last.
+    """
     rng = np.random.default_rng(seed)
-    jittered = fault == "power_loss_visit_write" and rng.random() < JITTERED_SHARE
-    if jittered:
+    draw = rng.random()
+    if fault == "power_loss_journal":
+        if draw < REMOVAL_SHARE:
+            return _Instant(env={"FGCD_BENCH_POWER_EVENT": "os.remove", "FGCD_BENCH_POWER_AT": "1"},
+                            text="before the journal's removal")
+        lines = max(count["events"] - 1, 1)
+        n = int(rng.integers(1, lines + 1))
+        return _Instant(env={"FGCD_BENCH_POWER_EVENT": "open", "FGCD_BENCH_POWER_AT": str(n)},
+                        text=f"before journal line write {n} of {lines}")
+    if draw < JITTERED_SHARE:
         delay = float(rng.uniform(0.0, 1.1 * max(count["seconds"], 0.1)))
         return _Instant(env={"FGCD_BENCH_POWER_DELAY_S": f"{delay:.4f}"},
                         text=f"{delay:.3f} s after the write's first event")

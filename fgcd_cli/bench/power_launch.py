@@ -7,7 +7,8 @@ operation the process makes (``open`` for writing, ``os.rename`` — which
 ``os.chmod``, ``shutil.*``); those on paths under ``FGCD_BENCH_POWER_UNDER``
 are *write events*, numbered from 1 from the first one whose path contains
 ``FGCD_BENCH_POWER_FROM`` (empty: from the first one), and only those whose path
-contains ``FGCD_BENCH_POWER_ONLY`` when it is set (the revisit journal's lines). The process kills itself
+contains ``FGCD_BENCH_POWER_ONLY`` and, when ``FGCD_BENCH_POWER_EVENT`` is set, only
+audit events of that name (``os.remove``: the journal's removal). The process kills itself
 with SIGKILL, as a power cut stops it (no handler, no ``finally``, no flush):
 
 * before the ``FGCD_BENCH_POWER_AT``-th event (so events ``1 .. N-1`` are done
@@ -57,6 +58,8 @@ class PowerPlan:
         Events count from the first one whose path contains this (empty: the first one).
     only : str
         Only events whose path contains this count (empty: every one).
+    event : str
+        Only audit events of this name count (empty: every write event).
     kill_at : int or None
         SIGKILL before this event (1-based); None: not by count.
     delay_s : float or None
@@ -68,6 +71,7 @@ class PowerPlan:
     under: str
     start: str = ""
     only: str = ""
+    event: str = ""
     kill_at: int | None = None
     delay_s: float | None = None
     log: str | None = None
@@ -78,7 +82,7 @@ class PowerPlan:
         env = os.environ if env is None else env
         at, delay = env.get("FGCD_BENCH_POWER_AT", ""), env.get("FGCD_BENCH_POWER_DELAY_S", "")
         return cls(under=env["FGCD_BENCH_POWER_UNDER"], start=env.get("FGCD_BENCH_POWER_FROM", ""),
-                   only=env.get("FGCD_BENCH_POWER_ONLY", ""),
+                   only=env.get("FGCD_BENCH_POWER_ONLY", ""), event=env.get("FGCD_BENCH_POWER_EVENT", ""),
                    kill_at=int(at) if at else None, delay_s=float(delay) if delay else None,
                    log=env.get("FGCD_BENCH_POWER_LOG") or None)
 
@@ -148,7 +152,7 @@ class _PowerCut:
 
     def hook(self, event: str, args: tuple) -> None:
         """The audit hook: count the write events under the root, kill at the planned one."""
-        if event not in WRITE_EVENTS:
+        if event not in WRITE_EVENTS or (self.plan.event and event != self.plan.event):
             return
         path = write_event_path(event, args)
         if path is None or not (path + os.sep).startswith(self.root) or self.plan.only not in path:

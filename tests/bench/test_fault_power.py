@@ -87,6 +87,8 @@ def test_events_count_from_the_first_matching_one_and_only_matching_ones(tmp_pat
     assert _names(events, root)[:3] == ["open out/sub/f1.bin", "open out/sub/f2.bin", "os.rename out/sub/f0.bin"]
     _, events, _ = _launch(tmp_path, WRITER, args, under=str(root), only="f2.bin")
     assert _names(events, root) == ["open out/sub/f2.bin", "os.remove out/sub/f2.bin"]
+    _, events, _ = _launch(tmp_path, WRITER, args, under=str(root), only="f2.bin", event="os.remove")
+    assert _names(events, root) == ["os.remove out/sub/f2.bin"]
 
 
 def test_a_delayed_kill_lands_after_the_first_event(tmp_path, root):
