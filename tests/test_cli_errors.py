@@ -367,8 +367,10 @@ def test_a_stop_signal_mid_move_stops_the_platform_in_one_line(name, code, prefi
             send_signal(proc, getattr(signal, name))
 
     try:
+        # fault_child: a terminal's signal defaults, even when the tests run in the background (nohup, CI)
         run = run_fgcd(["platform", "move", "--driver", "grbl", "--port", emu.port, "--yes", "--dx", "-60",
-                        "--speed-fraction", "1", "--max-step-mm", "80"], inject=inject, timeout_s=110)
+                        "--speed-fraction", "1", "--max-step-mm", "80"], inject=inject, timeout_s=110,
+                       launcher=["fgcd_cli.bench.fault_child"])
         assert sent.get("moving"), run.stderr
         assert not emu.moving(), "the platform still moves after the command ended"
     finally:
@@ -393,3 +395,24 @@ def test_a_stop_signal_in_process_is_one_line_and_restores_the_handlers(capsys):
     assert run(app, []) == 143
     assert _lines(capsys.readouterr().err) == ["terminated (SIGTERM): no platform was in use; nothing was written"]
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_stop_signal_ignored_at_start_stays_ignored(capsys):
+    # `nohup fgcd relocate ... &`: the person chose that a closed terminal does not stop the command
+    import os
+
+    app = typer.Typer()
+
+    @app.command()
+    def hang_up() -> None:
+        run_record.no_platform()
+        os.kill(os.getpid(), signal.SIGHUP)
+        time.sleep(0.2)
+
+    before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        assert run(app, []) == 0
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, before)
+    assert capsys.readouterr().err == ""

@@ -171,7 +171,8 @@ def run_fgcd_lines(args: list[str], *, on_line: Callable[[str, subprocess.Popen]
     not block for long (start a timer or a thread for a delayed fault). Stdout
     is read on its own thread (a full pipe must never stall the child).
     """
-    command = [sys.executable, "-m", "fgcd_cli.cli.app", *args]
+    # the terminal's signal defaults, whatever the bench's own (fault_child: a bench run in the background)
+    command = [sys.executable, "-m", "fgcd_cli.bench.fault_child", *args]
     started = time.monotonic()
     proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             cwd=ROOT, env={**os.environ, **(env or {})})

@@ -174,6 +174,21 @@ def _visits(campaign: Path, station: str) -> int:
     return len(list((campaign / schema.STATIONS_DIR / station / schema.VISITS_DIR).glob(f"*/{schema.MANIFEST}")))
 
 
+def _observations(campaign: Path, station: str) -> list[str]:
+    """The observations ``station.json`` lists (empty: no station yet)."""
+    import json
+
+    path = campaign / schema.STATIONS_DIR / station / schema.STATION_FILE
+    return json.loads(path.read_text(encoding="utf-8")).get("observations", []) if path.is_file() else []
+
+
+def _grown(campaign: Path, station: str, before: list[str]) -> set[str]:
+    """``station.json`` as an allowed change when a committed visit only appended itself to it (docs/campaign.md)."""
+    after = _observations(campaign, station)
+    grown = len(after) > len(before) and after[:len(before)] == before
+    return {str(campaign / schema.STATIONS_DIR / station / schema.STATION_FILE)} if grown else set()
+
+
 def _signal_action(sig: int, state: dict, committed) -> callable:
     """The fault: ``sig`` to the child, noting whether its observation was already committed then."""
 
@@ -244,7 +259,9 @@ def _resume(outcome: FaultOutcome, campaign: Path, station: str) -> FaultOutcome
     """``fgcd relocate --resume`` after the fault: it must succeed and say whether it continued or started over."""
     run = run_fgcd(_relocate_args(campaign, station, resume=True), timeout_s=1800)
     mode = resume_mode(run.stderr)
-    outcome.extra.update({"resume": mode, "resume_code": run.code, "resume_s": round(run.seconds, 1)})
+    said = next((line for line in run.lines if resume_mode(line)), "")
+    outcome.extra.update({"resume": mode, "resume_reason": said, "resume_code": run.code,
+                          "resume_s": round(run.seconds, 1)})
     if mode is None or run.code not in (EXIT_OK, EXIT_NOT_CONVERGED) or run.traceback:
         outcome.resume_failed = True
         outcome.detail = (f"the resume ended with {run.code} ({mode or 'saying neither continued nor started over'}): "
@@ -259,13 +276,13 @@ def _relocate_signal_fault(fault: str, seed: int, campaign: Path) -> FaultOutcom
            "relocate_sighup": signal.SIGHUP}[fault]
     phase, delay, _ = _draw(fault, seed)
     before, left, state = _snapshot(campaign)
-    visits = _visits(campaign, station)
+    visits, listed = _visits(campaign, station), _observations(campaign, station)
     tracker = PhaseTracker(phase, delay, _signal_action(sig, state, lambda: _visits(campaign, station) > visits),
                            watch=campaign, order=RELOCATE_PHASES)
     run = _run_tracked(_relocate_args(campaign, station), tracker, left)
     outcome = _outcome(_Case(fault, seed, f"relocate -s {station} ({sig.name} in {phase})"), run,
                        _expected(sig, state, (EXIT_OK, EXIT_NOT_CONVERGED)), campaign=campaign, before=before,
-                       extra=_timing(tracker, delay))
+                       allowed=_grown(campaign, station, listed), extra=_timing(tracker, delay))
     return _resume(outcome, campaign, station)
 
 
@@ -286,7 +303,7 @@ def _light_fault(seed: int, campaign: Path) -> FaultOutcome:
         toml.write_bytes(original + lights_section(lights.port, {"led:3": 1, "led:9": 2}).encode())
         try:
             before, left, state = _snapshot(campaign)
-            visits = _visits(campaign, station)
+            visits, listed = _visits(campaign, station), _observations(campaign, station)
 
             def action(proc) -> None:
                 state["committed_before"] = _visits(campaign, station) > visits
@@ -299,7 +316,8 @@ def _light_fault(seed: int, campaign: Path) -> FaultOutcome:
             extra = {**_timing(tracker, delay), "light_fault": mode, "shown_to_fgcd": lights.showed_fault,
                      "commands_after_fault": lights.commands_since_fault}
             outcome = _outcome(_Case("relocate_light_stuck", seed, f"relocate -s {station} (lights {mode} in {phase})"),
-                               run, expected, campaign=campaign, before=before, extra=extra)
+                               run, expected, campaign=campaign, before=before,
+                               allowed=_grown(campaign, station, listed), extra=extra)
             lights.mode = None  # the operator has fixed the controller
             lights.set_silent(False)
             return _resume(outcome, campaign, station)

@@ -198,7 +198,8 @@ def stop_signals_as_interrupts() -> Iterator[None]:
     Rule (README, "Errors"): they take the path of Ctrl-C, so the platform is
     stopped before anything else. Once one has arrived, further ones are
     ignored while the command stops (a second ``kill`` must not cut the
-    platform's stop short; SIGKILL remains the supervisor's last resort). The
+    platform's stop short; SIGKILL remains the supervisor's last resort). A
+    signal already ignored when the command starts (``nohup``) stays ignored. The
     previous handlers come back after the block (a host process, a test
     session); off the main thread nothing is installed (Python allows it there only).
     """
@@ -207,7 +208,9 @@ def stop_signals_as_interrupts() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    numbers = {getattr(signal, name): name for name in STOP_SIGNALS if hasattr(signal, name)}
+    # a signal ignored when fgcd starts stays ignored: `nohup fgcd relocate ... &` must outlive its terminal
+    numbers = {getattr(signal, name): name for name in STOP_SIGNALS
+               if hasattr(signal, name) and signal.getsignal(getattr(signal, name)) is not signal.SIG_IGN}
     received: list[int] = []
 
     def handler(signum, frame) -> None:  # noqa: ARG001 - the signal module's signature
