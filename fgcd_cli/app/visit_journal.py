@@ -13,7 +13,9 @@ paused) leaves it, and the Ctrl-C line says so (``run_record.keep``). ``--resume
   driver and light: the platform is driven back (through the MotionGuard, in
   steps) to the last pose the journal recorded, the rACR loop runs from there,
   and the visit's relocation log holds the earlier adjustments first;
-* **starts over** otherwise (no journal, a damaged one, other options), saying why.
+* **starts over** otherwise (no journal, a damaged one, other options, or a
+  journal whose visit was already committed: a stop between the commit and the
+  journal's removal), saying why.
 
 Without ``--resume`` a left journal is replaced by the new visit's.
 """
@@ -30,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcd_cli.campaign.schema import VISIT_JOURNAL, VISITS_DIR
+from fgcd_cli.campaign.verify import committed_visit_of_journal
 from fgcd_cli.errors import run_record
 from fgcd_core.se3 import interpolate_pose, pose_distance
 
@@ -116,6 +119,11 @@ def decide_resume(station, *, resume: bool, options: dict) -> ResumeDecision:
     if pose is None:
         return ResumeDecision(mode=ResumeMode.STARTED_OVER,
                               reason="the interrupted visit made no adjustment yet: starting over")
+    committed = committed_visit_of_journal(station, records)
+    if committed is not None:  # continuing would record the same revisit a second time
+        return ResumeDecision(mode=ResumeMode.STARTED_OVER,
+                              reason=f"the journal's visit was already written (visits/{committed}): starting a "
+                                     "new one")
     return ResumeDecision(mode=ResumeMode.CONTINUED, records=records, T_base_flange=pose,
                           reason=f"continuing the interrupted visit after its {len(records)} "
                                  f"adjustment{'' if len(records) == 1 else 's'}")

@@ -209,8 +209,10 @@ def calibrate_campaign(campaign: Path) -> None:
     marker = campaign / ".bench-calibrated"
     if marker.exists():
         return
+    # The faults need a stored hand-eye, not a good one: seed 0's motion pairs fit to 24 mm RMS, over the
+    # 12 mm at which `fgcd calibrate hand-eye` refuses to store one (app/calibrate.py, MAX_HANDEYE_RMS_MM).
     run = run_fgcd(["calibrate", "hand-eye", "-c", str(campaign), "--driver", "sim", "--scene", "stele", "--seed",
-                    "0", "--yes", "--json"], timeout_s=1800)
+                    "0", "--accept-residual", "--yes", "--json"], timeout_s=1800)
     if run.code != 0 or open_campaign(campaign).read_rig("handeye") is None:
         raise RuntimeError(f"the bench campaign's hand-eye calibration failed: {(run.lines or ['?'])[-1]}")
     marker.write_text("ok\n")

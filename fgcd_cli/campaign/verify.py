@@ -34,7 +34,7 @@ from fgcd_cli.campaign.schema import (
 from fgcd_cli.campaign.store import Campaign, Station, open_campaign
 from fgcd_cli.errors import CampaignError, DataIntegrityError
 
-__all__ = ["Problem", "VerifyReport", "verify_campaign", "verify_campaign_dir"]
+__all__ = ["Problem", "VerifyReport", "committed_visit_of_journal", "verify_campaign", "verify_campaign_dir"]
 
 
 @dataclass(frozen=True)
@@ -354,7 +354,7 @@ def _journal_problem(journal: Path, st: Station) -> Problem:
     if not (isinstance(entries[0], dict) and entries[0].get("kind") == "start"):
         return Problem(str(journal), "journal", "revisit journal damaged: its first line is not the start line; "
                        "`fgcd relocate --resume` will start over")
-    committed = _visit_of_journal(st, [e.get("record") if isinstance(e, dict) else None for e in entries[1:]])
+    committed = committed_visit_of_journal(st, [e.get("record") if isinstance(e, dict) else None for e in entries[1:]])
     if committed is not None:
         return Problem(str(journal), "incomplete-write", f"the revisit this journal records was committed as "
                        f"visits/{committed}; the journal is left from a stop right after that commit: safe to "
@@ -364,8 +364,12 @@ def _journal_problem(journal: Path, st: Station) -> Problem:
                    "`fgcd relocate --resume` continues it (a new `fgcd relocate` replaces it)", "note")
 
 
-def _visit_of_journal(st: Station, records: list) -> str | None:
-    """The latest visit when its relocation log holds exactly the journal's adjustments (the journal outlived it)."""
+def committed_visit_of_journal(st: Station, records: list) -> str | None:
+    """The latest visit when its relocation log holds exactly the journal's adjustments (the journal outlived it).
+
+    The one rule for a journal left by a stop between a visit's commit and the journal's removal: both
+    ``campaign verify`` and ``fgcd relocate --resume`` (:func:`fgcd_cli.app.visit_journal.decide_resume`) use it.
+    """
     names = st.visit_names()
     if not records or not names:
         return None

@@ -21,7 +21,14 @@ OPTIONS = {"driver": "sim", "light": "led:3"}
 
 @pytest.fixture
 def station(tmp_path):
-    return SimpleNamespace(name="s1", path=tmp_path / "stations" / "s1")
+    path = tmp_path / "stations" / "s1"
+
+    def visit_names():  # as fgcd_cli.campaign.store.Station: committed visit folders, oldest first
+        folder = path / "visits"
+        return sorted(p.name for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")) \
+            if folder.is_dir() else []
+
+    return SimpleNamespace(name="s1", path=path, visit_names=visit_names)
 
 
 def _record(i):
@@ -87,6 +94,18 @@ def test_resume_starts_over_cleanly_and_says_why(station, damage, mode, words):
     assert (journal_path(station).read_bytes() if journal_path(station).exists() else None) == before
     journal.record(_record(1), _pose(1))
     assert len(decide_resume(station, resume=True, options=OPTIONS).records) == 1
+
+
+def test_resume_starts_a_new_visit_when_the_journal_outlived_its_committed_visit(station):
+    _interrupted(station, 2)  # killed after the commit, before the journal's removal
+    visit = station.path / "visits" / "20261201T000000000Z"
+    visit.mkdir(parents=True)
+    (visit / "relocation.jsonl").write_text("".join(_record(i).to_json() + "\n" for i in (1, 2)))
+    decision = decide_resume(station, resume=True, options=OPTIONS)
+    assert decision.mode == ResumeMode.STARTED_OVER and "already written (visits/20261201T000000000Z)" in \
+        decision.reason and not decision.records
+    (visit / "relocation.jsonl").write_text(_record(1).to_json() + "\n")  # another revisit's log: continue
+    assert decide_resume(station, resume=True, options=OPTIONS).mode == ResumeMode.CONTINUED
 
 
 def test_without_resume_a_left_journal_is_named_and_replaced(station):
@@ -195,7 +214,9 @@ def test_ctrl_c_in_a_revisit_says_the_journal_is_kept_for_resume(tmp_path, monke
     assert err.strip().splitlines()[-1] == (
         "interrupted (Ctrl-C): the manual platform was not moving; no visit was written; "
         f"the journal {journal} is kept for `fgcd relocate --resume`")
-    station = SimpleNamespace(name="s1", path=journal.parents[1])
+    from fgcd_cli.campaign import open_campaign
+
+    station = open_campaign(journal.parents[3]).station("s1")
     assert len(decide_resume(station, resume=True, options=OPTIONS).records) == 2
 
 
