@@ -159,6 +159,17 @@ def _verify_visit(campaign: Path, visit: str) -> str:
     return "; ".join(f"{p.path}: {p.kind} {p.detail}" for p in errors)
 
 
+def _visit_truth(outcome) -> dict:
+    """The simulator's truth at the pose a revisit reached (``evaluation/sim_truth.json``; evaluation only)."""
+    from fgcd_cli.campaign import schema
+    from fgcd_cli.campaign.observation import load_observation
+
+    try:
+        return load_observation(Path(outcome.result.observation_path), "visit").json(schema.SIM_TRUTH)
+    except (FgcdError, OSError, ValueError):
+        return {}
+
+
 def one_revisit(campaign: Path, request, *, diff_and_report: bool) -> dict:
     """One revisit through ``fgcd relocate``'s use case (then ``fgcd diff``'s and ``fgcd report``'s).
 
@@ -175,9 +186,10 @@ def one_revisit(campaign: Path, request, *, diff_and_report: bool) -> dict:
     except FgcdError as exc:  # the revisit failed (the CLI's exit 3/4/6): a finding, the soak goes on
         return {"converged": False, "visit": "", "detail": f"{type(exc).__name__}: {exc}", "report_visits": None}
     visit = Path(outcome.result.observation_path).name
+    truth = _visit_truth(outcome)
     out = {"converged": outcome.converged, "visit": visit,
            "detail": "" if outcome.converged else f"not converged: {outcome.result.relocation.reason}",
-           "report_visits": None}
+           "report_visits": None, "afd_px": float(truth.get("afd_px", float("nan")))}
     if diff_and_report:
         run_record.reset()
         run_campaign(CampaignDiffRequest(campaign=campaign, station=STATION, visit=visit))
@@ -227,8 +239,10 @@ def _revisits(campaign: Path, config: SoakConfig, baseline: TempBaseline, *, say
         problems = _verify_visit(campaign, done["visit"])
         detail = "; ".join(d for d in (done["detail"], problems) if d)
         sample = sample_resources(index=k, phase="changes" if changes else "quick", seconds=seconds,
-                                  baseline=baseline, verified=bool(done["visit"]) and not problems,
-                                  converged=done["converged"], visit=done["visit"], detail=detail)
+                                  baseline=baseline, outcome={
+                                      "verified": bool(done["visit"]) and not problems, "converged": done["converged"],
+                                      "visit": done["visit"], "detail": detail,
+                                      "afd_px": done.get("afd_px", float("nan"))})
         samples.append(sample)
         on_sample(sample)
         say(f"revisit {k}/{total} ({sample.phase}): {seconds:.0f} s, RSS {sample.rss_mb:.0f} MB, "

@@ -60,6 +60,8 @@ class ResourceSample:
         The visit's folder name ('' when the revisit failed).
     detail : str
         The failure or verify problem ('' when none).
+    afd_px : float
+        The simulator's true AFD at the reached pose (drift of the relocation; nan when unknown).
     """
 
     index: int
@@ -75,12 +77,13 @@ class ResourceSample:
     converged: bool = True
     visit: str = ""
     detail: str = ""
+    afd_px: float = float("nan")
 
     def to_dict(self) -> dict:
         """The sample as JSON (rounded)."""
         d = asdict(self)
-        for key in ("seconds", "rss_mb", "hwm_mb"):
-            d[key] = round(d[key], 2)
+        for key in ("seconds", "rss_mb", "hwm_mb", "afd_px"):
+            d[key] = round(d[key], 2) if np.isfinite(d[key]) else None
         return d
 
 
@@ -120,19 +123,18 @@ def _campaign_tmp(campaign: Path) -> set[Path]:
     return set(campaign.rglob(TMP_PREFIX + "*")) if campaign.is_dir() else set()
 
 
-def sample_resources(*, index: int, phase: str, seconds: float, baseline: TempBaseline, verified: bool = True,
-                     converged: bool = True, visit: str = "", detail: str = "") -> ResourceSample:
+def sample_resources(*, index: int, phase: str, seconds: float, baseline: TempBaseline,
+                     outcome: dict | None = None) -> ResourceSample:
     """Sample the process now (after a full garbage collection: cyclic garbage is not a leak).
 
-    ``verified``, ``converged``, ``visit``, ``detail``: the revisit's outcome (:class:`ResourceSample`).
+    ``outcome``: the revisit's ``verified``, ``converged``, ``visit``, ``detail``, ``afd_px`` (:class:`ResourceSample`).
     """
     gc.collect()
     status = Path("/proc/self/status").read_text()
     return ResourceSample(index=index, phase=phase, seconds=seconds, rss_mb=proc_status_mb(status, "VmRSS"),
                           hwm_mb=proc_status_mb(status, "VmHWM"), threads_native=len(os.listdir("/proc/self/task")),
                           threads_python=threading.active_count(), fds=len(os.listdir("/proc/self/fd")) - 1,
-                          tmp_left=len(baseline.left()), verified=verified, converged=converged, visit=visit,
-                          detail=detail)
+                          tmp_left=len(baseline.left()), **(outcome or {}))
 
 
 def growth_per_revisit(values: Sequence[float], *, warmup: int) -> float:
@@ -159,10 +161,15 @@ def summarize_samples(samples: Sequence[ResourceSample], *, warmup: int) -> dict
     quick = [s for s in revisits if s.phase == "quick"]
     changes = [s for s in revisits if s.phase == "changes"]
     every = list(samples)
+    rss = [s.rss_mb for s in quick]
+    afd = [s.afd_px for s in revisits if np.isfinite(s.afd_px)]
     return {
         "rss_growth_mb_per_revisit": round(growth_per_revisit([s.rss_mb for s in quick], warmup=warmup), 3),
         "rss_growth_mb_per_change_revisit": round(growth_per_revisit([s.rss_mb for s in changes], warmup=1), 3),
         "fds_growth_per_revisit": round(growth_per_revisit([s.fds for s in quick], warmup=warmup), 3),
+        "rss_largest_step_mb": round(float(max(np.diff(rss), default=0.0)), 1) if len(rss) > 1 else 0.0,
+        "afd_px_max": round(max(afd), 2) if afd else None,
+        "afd_growth_px_per_revisit": round(growth_per_revisit(afd, warmup=0), 4),
         "rss_start_mb": round(revisits[0].rss_mb, 1) if revisits else 0.0,
         "rss_end_mb": round(revisits[-1].rss_mb, 1) if revisits else 0.0,
         "rss_peak_mb": round(max((s.hwm_mb for s in every), default=0.0), 1),

@@ -12,9 +12,9 @@ from fgcd_cli.bench.soak_sample import (ResourceSample, TempBaseline, growth_per
                                         sample_resources, summarize_samples)
 
 
-def _sample(index, rss, *, phase="quick", fds=10, threads=5, tmp=0, hwm=None):
+def _sample(index, rss, *, phase="quick", fds=10, threads=5, tmp=0, hwm=None, afd=float("nan")):
     return ResourceSample(index=index, phase=phase, seconds=1.0, rss_mb=rss, hwm_mb=hwm or rss + 1.0,
-                          threads_native=threads, threads_python=2, fds=fds, tmp_left=tmp)
+                          threads_native=threads, threads_python=2, fds=fds, tmp_left=tmp, afd_px=afd)
 
 
 def test_growth_is_the_least_squares_slope_after_the_warmup():
@@ -41,16 +41,21 @@ def test_growth_needs_two_points_after_the_warmup():
 
 def test_summary_fits_each_phase_and_takes_the_maxima():
     samples = [_sample(0, 90.0, phase="setup", fds=8, threads=3)]
-    samples += [_sample(k, 200.0 + 2.0 * k, fds=10 + (k == 4), threads=6 + (k == 2)) for k in range(1, 7)]
+    samples += [_sample(k, 200.0 + 2.0 * k + 30.0 * (k == 6), fds=10 + (k == 4), threads=6 + (k == 2),
+                        afd=0.5 + 0.01 * k) for k in range(1, 7)]
     samples += [_sample(k, 400.0 - k, phase="changes", tmp=1 if k == 8 else 0, hwm=900.0) for k in range(7, 10)]
     s = summarize_samples(samples, warmup=1)
-    assert s["rss_growth_mb_per_revisit"] == pytest.approx(2.0)
+    # revisits 2..6 after the warm-up: 2 MB each, and a one-off step of 30 MB at the last
+    assert s["rss_growth_mb_per_revisit"] == pytest.approx(np.polyfit(np.arange(5), [204, 206, 208, 210, 242], 1)[0])
+    assert s["rss_largest_step_mb"] == pytest.approx(32.0)
+    assert s["afd_px_max"] == pytest.approx(0.56) and s["afd_growth_px_per_revisit"] == pytest.approx(0.01)
     # the change revisits' own slope, after their first (which compares every earlier visit)
     assert s["rss_growth_mb_per_change_revisit"] == pytest.approx(-1.0)
     assert s["rss_peak_mb"] == 900.0
     assert s["threads_max"] == 7 and s["fds_max"] == 11 and s["fds_end"] == 10
     assert s["tmp_files_left"] == 0 and s["tmp_files_left_max"] == 1
     assert s["rss_start_mb"] == 202.0 and s["rss_end_mb"] == 391.0
+    assert samples[1].to_dict()["afd_px"] == 0.51 and samples[-1].to_dict()["afd_px"] is None
 
 
 def test_proc_status_reads_kilobytes_as_megabytes():
