@@ -273,12 +273,19 @@ class GrblLink:
             self._last_poll = time.monotonic()
             self.write(STATUS_QUERY)
             deadline = time.monotonic() + self.config.answer_timeout_s
+            period = 1.0 / self.config.poll_hz
             while self.last_status is before:
                 self.check_lost()
-                left = deadline - time.monotonic()
+                now = time.monotonic()
+                left = deadline - now
                 if left <= 0:
                     raise PlatformTimeout(
                         f"GRBL sent no status report within {self.config.answer_timeout_s:.1f} s"
                     )
+                if now - self._last_poll >= period:
+                    # A report garbled by line noise is lost for good: ask again at the polling rate
+                    # (GRBL, interface.md: '?' is real-time, never acknowledged; <= 5 Hz advised).
+                    self._last_poll = now
+                    self.write(STATUS_QUERY)
                 self._status_event.wait(min(left, 0.1))
             return self.last_status  # type: ignore[return-value]

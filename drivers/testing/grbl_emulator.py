@@ -95,6 +95,7 @@ class GrblEmulator(GrblCommandsMixin):
             self.settings[120 + i] = 10.0
             self.settings[130 + i] = max_travel_mm
         self.time_scale = float(time_scale)
+        self.garble_status = 0  # status reports still to garble (garble_status_reports)
         self.mpos = list(start_mm) if start_mm is not None else [-10.0] * len(axes)
         self.wco = [0.0] * len(axes)
         self.state = "Alarm" if homing_enabled else "Idle"
@@ -165,6 +166,11 @@ class GrblEmulator(GrblCommandsMixin):
     def inject_garbage(self, data: bytes) -> None:
         """Write noise on the line (EMI, baud mismatch, a boot loader)."""
         self._write_raw(data)
+
+    def garble_status_reports(self, count: int = 1) -> None:
+        """The next ``count`` status reports are cut by line noise (a torn, unparseable report each)."""
+        with self._lock:
+            self.garble_status = int(count)
 
     def unplug(self) -> None:
         """The USB cable is pulled: the pty hangs up under the driver.
@@ -288,7 +294,11 @@ class GrblEmulator(GrblCommandsMixin):
     def _realtime(self, byte: int) -> None:
         with self._lock:
             if byte == 0x3F:  # '?'
-                self._send(self._status())
+                if self.garble_status > 0:  # the report is lost to line noise
+                    self.garble_status -= 1
+                    self._write_raw(b"<Run|MP\xff\xfe")
+                else:
+                    self._send(self._status())
             elif byte == 0x21:  # '!' feed hold
                 if self.current is not None or self.queue:
                     self.hold = True

@@ -217,6 +217,15 @@ def test_garbage_bytes_are_tolerated(stage, emulator):
     assert result.unreachable == ()
 
 
+def test_a_status_report_lost_to_noise_is_asked_for_again(stage, emulator):
+    # Before: one torn report left the driver waiting its whole answer timeout, then the move failed.
+    emulator.garble_status_reports(1)  # asked again after one polling period (0.2 s), within the 0.8 s timeout
+    assert stage.status(fresh=True).state == "Idle"
+    assert emulator.garble_status == 0
+    result = stage.move_to(offset(stage.flange_pose(), (-2.0, 0.0, 0.0)))
+    assert result.unreachable == ()
+
+
 def test_unplug_mid_move_is_connection_error_then_reconnect_fails_cleanly(stage, emulator):
     threading.Timer(0.3, emulator.unplug).start()
     with pytest.raises(PlatformConnectionError, match="lost"):
