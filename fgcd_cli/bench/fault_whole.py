@@ -50,7 +50,8 @@ EXIT_OK, EXIT_NOT_CONVERGED, EXIT_PLATFORM = 0, 6, 7
 PHASE_MARKERS = {
     "exploration": r"exploring to initialise|exploration \d+/\d+|^\s*\.\.\. exploration",
     "alignment_wait": r"waiting for an alignment|waiting for a 3D estimate",
-    "adjustment_motion": r"adjustment\s+\d+: moving|^adjustment\s+\d+ \((?!image)",
+    # a motion of the 3D loop or of the image stage (which leads when the 3D alignment is degenerate)
+    "adjustment_motion": r"(adjustment\s+\d+|image (stage|fallback)\b.*\d+/\d+): moving|^adjustment\s+\d+ \((?!image)",
     "image_stage": r"^image (stage|fallback)\b.*\d+/\d+|^adjustment\s+\d+ \(image\)",
     "stills": r"images under each lighting",
     "writing": r"writing the (visit|reference)",

@@ -39,6 +39,7 @@ def test_each_phase_is_recognised_from_its_progress_line():
     seen = [p for i, p in enumerate(phases) if p is not None and p != (phases[:i] or [None])[-1]]
     assert [p for p in dict.fromkeys(seen)] == ["exploration", "alignment_wait", "adjustment_motion",
                                                  "image_stage", "stills", "writing"]
+    assert phase_of("image stage (3D degenerate) 2/6: moving 1.2 mm / 0.05 deg") == "adjustment_motion"
     assert phase_of("opening the rig") is None
     assert phase_of("the image stage measures under the reference's light (led:3)") is None  # said before the loop
     assert phase_of("  still aligning (10 s; latest estimate: none yet)") is None
