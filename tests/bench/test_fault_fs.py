@@ -107,4 +107,5 @@ def test_fgcd_on_a_real_small_file_system_ends_cleanly(tmp_path, fault, seed):
     outcome = inject(fault, seed, prepare_campaign(tmp_path))
     if outcome.skipped:
         pytest.skip(outcome.skipped)
-    assert outcome.ok, outcome.to_dict()
+    row = outcome.to_dict()
+    assert outcome.ok, f"{row['detail']} (stray stderr lines: {row.get('stray_lines')}, left: {row['leftovers']})"
