@@ -126,6 +126,8 @@ class PhaseTracker:
         """``phase`` comes after the target in the operation's order."""
         if self.target not in self.order or phase not in self.order:
             return False
+        if (self.target, phase) == ("adjustment_motion", "image_stage"):
+            return False  # the image stage makes motions of its own: wait for them
         return self.order.index(phase) > self.order.index(self.target)
 
     def arm(self, proc) -> None:

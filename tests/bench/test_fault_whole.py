@@ -86,6 +86,17 @@ def test_a_target_phase_the_run_skips_is_hit_at_the_next_one():
     assert fired.wait(10) and hits == ["writing"]
 
 
+def test_an_adjustment_motion_fault_waits_for_the_image_stages_motion():
+    hits = []
+    fired = threading.Event()
+    tracker = PhaseTracker("adjustment_motion", 0.0, lambda proc: (hits.append(tracker.current), fired.set()),
+                           order=fault_whole.RELOCATE_PHASES)
+    tracker.on_line("image stage (3D degenerate) 1/6: matching the current image with 1 reference image(s)", _Child())
+    assert not fired.wait(0.3)
+    tracker.on_line("image stage (3D degenerate) 1/6: moving 1.2 mm / 0.05 deg", _Child())
+    assert fired.wait(10) and hits == ["adjustment_motion"]
+
+
 def test_the_tracker_does_not_fire_at_a_child_that_has_ended():
     hits = []
     child = _Child()
