@@ -247,3 +247,24 @@ class StopSignal(KeyboardInterrupt):
     def prefix(self) -> str:
         """How the one failure line starts: ``terminated (SIGTERM)``, ``hung up (SIGHUP)``."""
         return f"{'hung up' if self.name == 'SIGHUP' else 'terminated'} ({self.name})"
+
+
+# ----------------------------------------------------------------------------- one line per failure
+#: What an exhausted memory is told as (exit 1, an operating-system limit, not a bug).
+OUT_OF_MEMORY = ("out of memory: the machine (or its limit, `ulimit -v`) gave no more; free memory, or diff fewer "
+                 "lightings or smaller images at once")
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """A MemoryError, or OpenCV's allocation failure (``cv2.error``: "Insufficient memory")."""
+    return isinstance(exc, MemoryError) or (type(exc).__name__ == "error" and "Insufficient memory" in str(exc))
+
+
+def os_error_line(exc: OSError) -> str:
+    """The one line of an operating-system error: ``<reason>: <file>`` (README, "Errors": a full disk).
+
+    The file is left out only when the error names none.
+    """
+    name = getattr(exc, "filename", None)
+    reason = exc.strerror or str(exc)
+    return f"{reason}: {name}" if name else reason

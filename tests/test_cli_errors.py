@@ -307,6 +307,24 @@ def test_camera_errors_are_hardware_exit_7(capsys):
     assert _lines(capsys.readouterr().err) == ["camera error: camera 0 opened but delivers no frames"]
 
 
+@pytest.mark.parametrize("error, line", [
+    (MemoryError(), "error: out of memory"),
+    (OSError(28, "No space left on device", "/c/stations/s1/visits/.tmp-x/cloud.ply"),
+     "error: No space left on device: /c/stations/s1/visits/.tmp-x/cloud.ply"),
+    (OSError(30, "Read-only file system"), "error: Read-only file system"),
+])
+def test_memory_and_disk_exhaustion_are_one_line_exit_1(capsys, error, line):
+    app = typer.Typer()
+
+    @app.command()
+    def cmd() -> None:
+        raise error
+
+    assert run(app, []) == 1
+    lines = _lines(capsys.readouterr().err)
+    assert len(lines) == 1 and lines[0].startswith(line) and not lines[0].endswith(": ")
+
+
 def _verbose_app() -> typer.Typer:
     from fgcd_cli.cli.output import state
 

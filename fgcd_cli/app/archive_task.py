@@ -18,7 +18,7 @@ from pathlib import Path
 
 from fgcd_cli.archive.discovery import VisitKey
 from fgcd_cli.archive.freshness import AnalysisOptions, Freshness, analysis_inputs, freshness, verify_inputs
-from fgcd_cli.errors import FgcdError
+from fgcd_cli.errors import OUT_OF_MEMORY, FgcdError, is_out_of_memory, os_error_line
 
 __all__ = ["VisitStatus", "VisitOutcome", "analyze_visit", "visit_freshness"]
 
@@ -123,7 +123,14 @@ def analyze_visit(key: VisitKey, options: AnalysisOptions = AnalysisOptions(), f
     try:
         return _analyze(key, options, force, t0)
     except Exception as exc:  # one visit's failure is reported, never stops the others
-        text = str(exc) if isinstance(exc, FgcdError) else f"{type(exc).__name__}: {exc}"
+        if isinstance(exc, FgcdError):
+            text = str(exc)
+        elif isinstance(exc, OSError):  # the CLI's line for the same error (README, "Errors")
+            text = os_error_line(exc)
+        elif is_out_of_memory(exc):
+            text = OUT_OF_MEMORY
+        else:
+            text = f"{type(exc).__name__}: {exc}"
         line = (text.strip().splitlines() or [type(exc).__name__])[0]
         return VisitOutcome(key=key, status=VisitStatus.FAILED, reason=line, seconds=time.perf_counter() - t0,
                             worker_peak_rss_mb=_peak_rss_mb())

@@ -20,7 +20,15 @@ import typer.main
 
 from fgcd_cli import __version__
 from fgcd_cli.cli.output import state, stdin_is_terminal, to_json
-from fgcd_cli.errors import ConfirmationNeeded, FgcdError, StopSignal, run_record
+from fgcd_cli.errors import (
+    OUT_OF_MEMORY,
+    ConfirmationNeeded,
+    FgcdError,
+    StopSignal,
+    is_out_of_memory,
+    os_error_line,
+    run_record,
+)
 from fgcd_cli.cli.options import install_help_conventions
 
 install_help_conventions()  # plain-text help, no <bool> after a flag (every command)
@@ -358,7 +366,9 @@ def _classify(exc: BaseException) -> Failure | None:
     if hasattr(exc, "show") and hasattr(exc, "exit_code") and hasattr(exc, "format_message"):
         return Failure("usage error", _usage_message(exc), int(exc.exit_code))
     if isinstance(exc, OSError):
-        return Failure("error", f"{exc.strerror or exc}: {getattr(exc, 'filename', '') or ''}", EXIT_OS)
+        return Failure("error", os_error_line(exc), EXIT_OS)
+    if is_out_of_memory(exc):
+        return Failure("error", OUT_OF_MEMORY, EXIT_OS)
     if state.verbose or not isinstance(exc, Exception):
         return None
     return Failure("internal error", f"{type(exc).__name__}: {exc} (a bug: run the same command again with "
