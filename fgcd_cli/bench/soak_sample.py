@@ -150,6 +150,11 @@ def growth_per_revisit(values: Sequence[float], *, warmup: int) -> float:
     return float(np.polyfit(x, y, 1)[0])
 
 
+def _rounded(value: float, digits: int) -> float:
+    """``value`` rounded; a flat series' slope of -1e-17 reads 0.0, not -0.0."""
+    return round(value, digits) + 0.0
+
+
 def summarize_samples(samples: Sequence[ResourceSample], *, warmup: int) -> dict:
     """The soak's resource keys over the revisits (``index`` >= 1) of ``samples``.
 
@@ -164,12 +169,12 @@ def summarize_samples(samples: Sequence[ResourceSample], *, warmup: int) -> dict
     rss = [s.rss_mb for s in quick]
     afd = [s.afd_px for s in revisits if np.isfinite(s.afd_px)]
     return {
-        "rss_growth_mb_per_revisit": round(growth_per_revisit([s.rss_mb for s in quick], warmup=warmup), 3),
-        "rss_growth_mb_per_change_revisit": round(growth_per_revisit([s.rss_mb for s in changes], warmup=1), 3),
-        "fds_growth_per_revisit": round(growth_per_revisit([s.fds for s in quick], warmup=warmup), 3),
+        "rss_growth_mb_per_revisit": _rounded(growth_per_revisit([s.rss_mb for s in quick], warmup=warmup), 3),
+        "rss_growth_mb_per_change_revisit": _rounded(growth_per_revisit([s.rss_mb for s in changes], warmup=1), 3),
+        "fds_growth_per_revisit": _rounded(growth_per_revisit([s.fds for s in quick], warmup=warmup), 3),
         "rss_largest_step_mb": round(float(max(np.diff(rss), default=0.0)), 1) if len(rss) > 1 else 0.0,
         "afd_px_max": round(max(afd), 2) if afd else None,
-        "afd_growth_px_per_revisit": round(growth_per_revisit(afd, warmup=0), 4),
+        "afd_growth_px_per_revisit": _rounded(growth_per_revisit(afd, warmup=0), 4),
         "rss_start_mb": round(revisits[0].rss_mb, 1) if revisits else 0.0,
         "rss_end_mb": round(revisits[-1].rss_mb, 1) if revisits else 0.0,
         "rss_peak_mb": round(max((s.hwm_mb for s in every), default=0.0), 1),
