@@ -158,10 +158,19 @@ class Station:
         except (OSError, json.JSONDecodeError):
             pass
         index = self.indexed_observations() or []
+        # An observation committed by a process killed before its own index update is indexed now: it is whole
+        # (renamed into place with its manifest), and `campaign verify` only warned it was unindexed.
+        index += [r for r in self._committed_on_disk() if r not in index and r != rel]
         if rel not in index:
             index.append(rel)
         self.info = {**self.info, "observations": index}
         atomic_write_json(sfile, self.info)
+
+    def _committed_on_disk(self) -> list[str]:
+        """The committed observations in the station folder (with their manifest), reference first, as indexed."""
+        found = [REFERENCE_DIR] if (self.path / REFERENCE_DIR / MANIFEST).is_file() else []
+        return found + [f"{VISITS_DIR}/{n}" for n in self.visit_names()
+                        if (self.path / VISITS_DIR / n / MANIFEST).is_file()]
 
 
 def _read_station_info(sfile: Path) -> dict:

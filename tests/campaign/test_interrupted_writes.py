@@ -59,3 +59,24 @@ def test_a_kill_between_a_derived_file_and_its_manifest_leaves_a_consistent_visi
     report = verify_campaign_dir(camp.path)
     assert report.ok, report.to_dict()  # the old entry went first: the old file is merely unlisted (a warning)
     assert any(p.kind == "unlisted" for p in report.problems)
+
+
+def test_a_visit_committed_by_a_killed_process_is_indexed_by_the_next_write(camp):
+    import json
+
+    st = camp.station_or_create("s")
+    for _ in range(2):
+        with st.new_visit({}) as w:
+            w.add_image("front", np.zeros((4, 4), np.uint8))
+            w.commit()
+    sfile = camp.path / "stations" / "s" / "station.json"
+    info = json.loads(sfile.read_text())
+    lost = info["observations"].pop()  # killed between the visit's rename and its index update
+    sfile.write_text(json.dumps(info))
+    assert any(p.kind == "unindexed" for p in verify_campaign_dir(camp.path).problems)
+    with open_campaign(camp.path).station("s").new_visit({}) as w:
+        w.add_image("front", np.zeros((4, 4), np.uint8))
+        w.commit()
+    index = json.loads(sfile.read_text())["observations"]
+    assert lost in index and len(index) == 3 and index.index(lost) == 1  # in its place, before the new one
+    assert not any(p.kind == "unindexed" for p in verify_campaign_dir(camp.path).problems)
