@@ -4,12 +4,9 @@ from __future__ import annotations
 
 import io
 
-import matplotlib
-import matplotlib.ticker
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from fgcd_cli.report.mpl import matplotlib, plt
 
 from fgcd_cli.report.areas import area_mm2_text  # noqa: E402
 

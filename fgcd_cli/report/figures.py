@@ -7,12 +7,9 @@ import io
 from dataclasses import dataclass
 
 import cv2
-import matplotlib
-import matplotlib.ticker
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from fgcd_cli.report.mpl import matplotlib, plt
 
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
 from fgcd_cli.changes.significance import SignificantRegion  # noqa: E402
