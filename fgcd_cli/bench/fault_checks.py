@@ -142,7 +142,7 @@ def run_fgcd(args: list[str], *, inject: Callable[[subprocess.Popen], None] | No
 
     ``launcher`` replaces ``python -m fgcd_cli.cli.app`` (the ENOSPC launcher).
     """
-    command = [sys.executable, "-m", *(launcher or ["fgcd_cli.cli.app"]), *args]
+    command = [sys.executable, "-m", *(launcher or ["fgcd_cli.bench.fault_child"]), *args]  # a terminal's signals
     started = time.monotonic()
     proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             cwd=ROOT, env={**os.environ, **(env or {})})

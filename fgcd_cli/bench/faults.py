@@ -88,6 +88,10 @@ def summarize(outcomes: list[FaultOutcome]) -> dict:
                                    for o in outcomes),
         "faults_ok": sum(o.ok for o in outcomes),
         **{key: sum(group_of(o.fault) == key for o in outcomes) for key in GROUPS},
+        # a resume after a revisit fault that neither succeeded nor said whether it continued (fault_whole)
+        "resume_not_said": sum(o.resume_failed for o in outcomes),
+        # faults that could not be injected on this machine (no tmpfs mount): not ok, counted apart
+        "skipped": sum(bool(getattr(o, "skipped", "")) for o in outcomes),
         "whole_operation_classes": len({o.fault for o in outcomes if group_of(o.fault) == "whole_operation_faults"}),
     }
 

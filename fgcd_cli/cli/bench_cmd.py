@@ -283,9 +283,15 @@ def archive(
 
 @app.command("faults")
 def faults(
-    quick: bool = typer.Option(False, "--quick", help="3 faults per class instead of 15, without the whole-capture classes."),
+    quick: bool = typer.Option(False, "--quick", help="3 faults per single-move and campaign class instead of 15, "
+                               "without the whole-capture classes, and one fault of each group (whole operations, "
+                               "real disk full, link cuts, power loss)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the fault moments and kinds."),
     fault: Optional[list[str]] = typer.Option(None, "--fault", help="Only these fault classes (repeatable)."),
+    per_class: Optional[int] = typer.Option(None, "--per-class", min=1, help="Faults per class (default: the "
+                                            "run's, 15 or 3; each group's own in the full run)."),
+    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the bench campaign here and reuse it "
+                                           "(its calibration and captured stations) on the next run."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Injected field faults against real fgcd processes and emulated controllers (docs/hardware.md, Faults)."""
@@ -297,7 +303,7 @@ def faults(
         raise UserInputError(f"--fault: unknown class {', '.join(unknown)} (valid: {', '.join(FAULT_CLASSES)})")
     if not as_json:
         info("injecting faults…")
-    data = run(quick=quick, seed=seed, classes=tuple(fault) if fault else None,
+    data = run(quick=quick, seed=seed, classes=tuple(fault) if fault else None, per_class=per_class, workdir=workdir,
                on_progress=None if as_json else (lambda done, total, label: info(f"{done + 1}/{total} {label}")))
 
     def show(console):
