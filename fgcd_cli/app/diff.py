@@ -18,7 +18,7 @@ import numpy as np
 from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, AnalysisOptions, analysis_inputs, analysis_record, stored_options
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.campaign import schema
-from fgcd_cli.campaign.atomic import atomic_write_bytes, sha256_file
+from fgcd_cli.campaign.atomic import atomic_write_bytes, check_writable, sha256_file
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.images import check_stack_sizes, to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
@@ -377,6 +377,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     observation = st.visit(r.visit)
     options = r.options()
     replaced = check_stored_diff(observation, options, force=r.force)
+    check_writable(observation.path)  # the products go into the visit: refused before the computation
     lightings = _shared_lightings(reference, observation)
     ref_images = [reference.image(n) for n in lightings]
     cur_images = [observation.image(n) for n in lightings]

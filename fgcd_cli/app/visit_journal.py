@@ -146,9 +146,11 @@ class JournalWriter:
 
     def _append(self, entry: dict, *, truncate: bool = False) -> None:
         flags = os.O_WRONLY | os.O_CREAT | (os.O_TRUNC if truncate else os.O_APPEND)
+        data = memoryview((json.dumps(entry, default=float) + "\n").encode("utf-8"))
         fd = os.open(self.path, flags, 0o644)
         try:
-            os.write(fd, (json.dumps(entry, default=float) + "\n").encode("utf-8"))
+            while data:  # os.write may write less than asked (a nearly full disk): the rest follows or raises
+                data = data[os.write(fd, data):]
             os.fsync(fd)
         finally:
             os.close(fd)

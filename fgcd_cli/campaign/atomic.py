@@ -6,13 +6,15 @@ file, even if the process is killed in the middle of a write.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "fsync_dir", "sha256_file", "sha256_bytes"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "check_writable", "fsync_dir", "sha256_file",
+           "sha256_bytes"]
 
 TMP_PREFIX = ".tmp-"
 
@@ -77,3 +79,20 @@ def sha256_file(path: Path) -> str:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def check_writable(folder: Path) -> None:
+    """OSError naming ``folder`` when nothing can be written in it (a read-only file system, no permission).
+
+    Asked before long work whose result goes there (``fgcd diff``), so a refusal
+    comes at once rather than after the computation (README, "Errors", exit 1).
+    """
+    folder = Path(folder)
+    if os.access(folder, os.W_OK):
+        return
+    try:
+        read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except OSError:
+        read_only = False
+    code = errno.EROFS if read_only else errno.EACCES
+    raise OSError(code, os.strerror(code), str(folder))

@@ -241,3 +241,18 @@ def test_the_kept_journal_is_no_longer_claimed_once_the_visit_is_committed(stati
     assert run_record.writes_clause() == "wrote the visit of station 's1'"
     run_record.reset()
     assert run_record.kept == RunRecord().kept
+
+
+def test_a_short_write_on_a_nearly_full_disk_still_writes_the_whole_line(station, monkeypatch):
+    import fgcd_cli.app.visit_journal as journal_mod
+
+    real = journal_mod.os.write
+
+    def short(fd, data):  # the kernel writes at most 7 bytes per call
+        return real(fd, bytes(data[:7]))
+
+    monkeypatch.setattr(journal_mod.os, "write", short)
+    _interrupted(station, 2)
+    monkeypatch.setattr(journal_mod.os, "write", real)
+    decision = decide_resume(station, resume=True, options=OPTIONS)
+    assert decision.mode == ResumeMode.CONTINUED and [r["iteration"] for r in decision.records] == [1, 2]

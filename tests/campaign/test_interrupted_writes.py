@@ -80,3 +80,24 @@ def test_a_visit_committed_by_a_killed_process_is_indexed_by_the_next_write(camp
     index = json.loads(sfile.read_text())["observations"]
     assert lost in index and len(index) == 3 and index.index(lost) == 1  # in its place, before the new one
     assert not any(p.kind == "unindexed" for p in verify_campaign_dir(camp.path).problems)
+
+
+def test_a_read_only_folder_is_refused_by_name_before_any_work(tmp_path):
+    import errno
+    import subprocess
+
+    from fgcd_cli.campaign.atomic import check_writable
+
+    check_writable(tmp_path)  # writable: nothing said
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m,ro", "tmpfs", str(folder)],
+                             capture_output=True).returncode == 0
+    if not mounted:
+        pytest.skip("mounting a read-only tmpfs is not permitted here (needs root)")
+    try:
+        with pytest.raises(OSError) as info:
+            check_writable(folder)
+        assert info.value.errno == errno.EROFS and info.value.filename == str(folder)
+    finally:
+        subprocess.run(["umount", str(folder)], check=False)
