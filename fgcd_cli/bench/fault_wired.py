@@ -47,9 +47,9 @@ FAULTS = ("relocate_grbl_link_lost", "relocate_grbl_alarm", "relocate_grbl_silen
 PER_CLASS_FULL = 5
 #: The wired stations of the bench campaign, captured once each through the launcher.
 STATIONS = {"grbl": "wired-grbl", "ur": "wired-ur"}
-#: Motions of a wired revisit the fault may land in, per stage (sub-steps of 5 mm / 1 deg). Measured on clean
-#: wired GRBL revisits (30 mm start): guided, 24 exploration motions and 1 adjustment; fixed pattern, 28 and 9,
-#: the first 6 adjustments carrying the 30 mm (docs/hardware.md, "Faults in the field").
+#: Motions of a wired revisit the fault may land in, per stage (sub-steps of 5 mm / 1 deg): no more than a clean
+#: wired revisit from the bench's 30 mm start makes in that stage (adjustment faults explore with the fixed
+#: pattern, whose first adjustments carry the start offset); the counts: docs/lab/2026-12-02-faults.md.
 MOTIONS = {"exploration": 24, "adjustment": 6}
 #: Latest moment inside a sub-step the fault is drawn at, s (a 5 mm sub-step lasts 0.25 s at 20 mm/s).
 MAX_DELAY_S = 0.15
