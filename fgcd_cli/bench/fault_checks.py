@@ -101,6 +101,10 @@ class FaultOutcome:
         the visit or started over (docs/hardware.md, "Faults in the field"); False when none was run.
     extra : dict
         The fault's details (its moment, the resume's mode and exit code...).
+    landed : bool
+        The fault reached the command: False when its seeded instant never came (the command ended first,
+        or the write had fewer events). Such a row is judged as usual but not counted as a fault of its
+        group (:func:`fgcd_cli.bench.faults.summarize`, ``not_landed``).
     """
 
     fault: str
@@ -117,6 +121,7 @@ class FaultOutcome:
     one_line_expected: bool = True
     resume_failed: bool = False
     extra: dict = field(default_factory=dict)
+    landed: bool = True
 
     @property
     def ok(self) -> bool:
@@ -132,7 +137,7 @@ class FaultOutcome:
                 "platform_left_moving": self.platform_left_moving,
                 "campaign_inconsistent": self.campaign_inconsistent,
                 "earlier_data_changed": self.earlier_data_changed, "resume_failed": self.resume_failed,
-                "ok": self.ok, "detail": self.detail[:300],
+                "ok": self.ok, "landed": self.landed, "detail": self.detail[:300],
                 **self.extra}
 
 

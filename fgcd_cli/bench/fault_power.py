@@ -258,4 +258,4 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
                         one_line_expected=run.code != 0 and not killed,
                         detail="; ".join(wrong + changed + ([f"the new revisit failed: {extra['revisit_line']}"]
                                                             if revisit_failed else []))
-                        or (run.error_lines or run.lines or [""])[-1], extra=extra)
+                        or (run.error_lines or run.lines or [""])[-1], extra=extra, landed=kill is not None)

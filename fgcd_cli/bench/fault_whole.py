@@ -230,9 +230,11 @@ def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
                            order=CAPTURE_PHASES)
     run = _run_tracked(["capture", "-c", str(campaign), "-s", station, "--light", REAL_STATION_LIGHTS, "--yes"],
                        tracker, left)
-    return _outcome(_Case(fault, seed, f"capture ({sig.name} in {phase})"), run,
-                    _expected(sig, state, (EXIT_OK,)), campaign=campaign, before=before,
-                    extra=_timing(tracker, delay))
+    outcome = _outcome(_Case(fault, seed, f"capture ({sig.name} in {phase})"), run,
+                       _expected(sig, state, (EXIT_OK,)), campaign=campaign, before=before,
+                       extra=_timing(tracker, delay))
+    outcome.landed = bool(state.get("sent"))
+    return outcome
 
 
 def _snapshot(campaign: Path) -> tuple[dict, set[Path], dict]:
@@ -286,6 +288,7 @@ def _relocate_signal_fault(fault: str, seed: int, campaign: Path) -> FaultOutcom
     outcome = _outcome(_Case(fault, seed, f"relocate -s {station} ({sig.name} in {phase})"), run,
                        _expected(sig, state, (EXIT_OK, EXIT_NOT_CONVERGED)), campaign=campaign, before=before,
                        allowed=_grown(campaign, station, listed), extra=_timing(tracker, delay))
+    outcome.landed = bool(state.get("sent"))
     return _resume(outcome, campaign, station)
 
 
@@ -321,6 +324,7 @@ def _light_fault(seed: int, campaign: Path) -> FaultOutcome:
             outcome = _outcome(_Case("relocate_light_stuck", seed, f"relocate -s {station} (lights {mode} in {phase})"),
                                run, expected, campaign=campaign, before=before,
                                allowed=_grown(campaign, station, listed), extra=extra)
+            outcome.landed = bool(lights.showed_fault)
             lights.mode = None  # the operator has fixed the controller
             lights.set_silent(False)
             return _resume(outcome, campaign, station)

@@ -312,4 +312,4 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     return FaultOutcome(fault=fault, seed=seed, command=f"relocate (wired {kind})", code=run.code, expected=expected,
                         stderr_lines=run.failure_lines, traceback=run.traceback, platform_left_moving=moving,
                         campaign_inconsistent=bool(problems), earlier_data_changed=bool(changed), detail=detail,
-                        one_line_expected=run.code != 0, extra=extra)
+                        one_line_expected=run.code != 0, extra=extra, landed="missed" not in record)

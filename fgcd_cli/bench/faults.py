@@ -20,7 +20,9 @@ Summary keys: ``faults_tried``, ``fault_classes``, ``platform_left_moving``,
 ``campaign_inconsistent``, ``earlier_data_changed``, ``tracebacks`` (the four
 must be 0), ``unexpected_exit_codes``, ``stderr_not_one_line``, ``faults_ok``,
 and per group ``whole_operation_faults``, ``whole_operation_classes``,
-``real_fs_full_faults``, ``link_cut_faults``, ``power_loss_points``.
+``real_fs_full_faults``, ``link_cut_faults``, ``power_loss_points`` (each counts the faults that reached
+their command), ``not_landed`` (rows whose seeded instant never came: the command ended first),
+``resume_not_said`` and ``skipped``.
 """
 
 from __future__ import annotations
@@ -87,12 +89,15 @@ def summarize(outcomes: list[FaultOutcome]) -> dict:
         "stderr_not_one_line": sum((o.stderr_lines != 1) if o.one_line_expected else (o.stderr_lines > 1)
                                    for o in outcomes),
         "faults_ok": sum(o.ok for o in outcomes),
-        **{key: sum(group_of(o.fault) == key for o in outcomes) for key in GROUPS},
+        # a group counts the faults that reached their command; the others are counted apart
+        **{key: sum(group_of(o.fault) == key and o.landed for o in outcomes) for key in GROUPS},
+        "not_landed": sum(not o.landed for o in outcomes),
         # a resume after a revisit fault that neither succeeded nor said whether it continued (fault_whole)
         "resume_not_said": sum(o.resume_failed for o in outcomes),
         # faults that could not be injected on this machine (no tmpfs mount): not ok, counted apart
         "skipped": sum(bool(getattr(o, "skipped", "")) for o in outcomes),
-        "whole_operation_classes": len({o.fault for o in outcomes if group_of(o.fault) == "whole_operation_faults"}),
+        "whole_operation_classes": len({o.fault for o in outcomes
+                                        if group_of(o.fault) == "whole_operation_faults" and o.landed}),
     }
 
 

@@ -60,3 +60,16 @@ def test_every_group_class_is_planned_and_counted_in_its_group():
     s = summarize(rows)
     for key, classes in GROUPS.items():
         assert s[key] == sum(fault in classes for fault, _ in full), key
+
+
+def test_a_fault_whose_instant_never_came_is_not_counted_in_its_group():
+    from fgcd_cli.bench.fault_checks import FaultOutcome
+
+    def row(fault: str, landed: bool) -> FaultOutcome:
+        return FaultOutcome(fault=fault, seed=0, command="x", code=0, expected=(0,), stderr_lines=0,
+                            traceback=False, one_line_expected=False, landed=landed)
+
+    s = summarize([row("relocate_sigint", True), row("relocate_sigterm", False), row("power_loss_journal", False)])
+    assert (s["whole_operation_faults"], s["whole_operation_classes"], s["power_loss_points"], s["not_landed"]) == (
+        1, 1, 0, 2)
+    assert s["faults_ok"] == 3  # judged as usual: a command that ended before the instant must still end well
