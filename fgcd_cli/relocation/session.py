@@ -310,8 +310,10 @@ class VseSession:
         from fgcd_cli.calibration.handeye import estimate_scale
 
         if len(flange) < 3:
+            st = self.vse.latest()  # its last word says why (too little texture, parallax, lost...)
+            said = f" ({getattr(st.status, 'value', st.status)}: {st.message})" if getattr(st, "message", "") else ""
             raise AlgorithmError(
-                f"only {len(flange)} tracked exploration waypoints: the VSE could not follow the motion"
+                f"only {len(flange)} tracked exploration waypoints: the VSE could not follow the motion{said}"
             )
         res = estimate_scale(T_flange_cam, flange, cams, pairs="all")
         return ScaleEstimate(

@@ -92,3 +92,17 @@ def test_frame_waits_count_without_the_synthesis_of_the_frames():
     assert modelled.timing.wait_s < 0.5 * plain.timing.wait_s  # rendering is 6/7 of a frame here
     assert modelled.timing.synthetic_s >= (frames - 1) * render_s - frames / 30.0
     assert modelled.timing.with_synthesis_s == pytest.approx(modelled.timing.wait_s + modelled.timing.synthetic_s)
+
+
+def test_an_exploration_the_vse_never_tracks_fails_with_the_vses_own_reason():
+    """Fewer than three tracked stops: the scale cannot be fitted, and the error says what the VSE last said."""
+    from types import SimpleNamespace
+
+    from fgcd_cli.errors import AlgorithmError
+    from fgcd_cli.relocation.session import VseSession
+
+    said = "initialising: median parallax 0.12 deg < 0.5 deg"
+    vse = SimpleNamespace(latest=lambda: SimpleNamespace(status="initializing", message=said, frames_processed=0))
+    session = VseSession(guard=None, vse=vse)
+    with pytest.raises(AlgorithmError, match="only 2 tracked exploration waypoints.*median parallax 0.12 deg"):
+        session.estimate_scale(np.eye(4), [np.eye(4)] * 2, [np.eye(4)] * 2)
