@@ -8,17 +8,21 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import signal
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import typer
 
 from fgcd_cli import __version__
+from fgcd_cli.campaign import init_campaign, open_campaign
 from fgcd_cli.cli.app import run
 from fgcd_cli.errors import run_record
 
@@ -26,15 +30,24 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.timeout(120)
 
 
-def fgcd(*args, stdin=subprocess.DEVNULL) -> subprocess.CompletedProcess:
+def fgcd(*args, stdin=subprocess.DEVNULL, timeout=60) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)],
-        capture_output=True, text=True, cwd=ROOT, stdin=stdin, timeout=60,
+        capture_output=True, text=True, cwd=ROOT, stdin=stdin, timeout=timeout,
     )
 
 
 def _lines(text: str) -> list[str]:
     return [line for line in text.splitlines() if line.strip()]
+
+
+def one_line(text: str, *mentions: str) -> str:
+    lines = _lines(text)
+    assert len(lines) == 1, text
+    assert "Traceback" not in text
+    for word in mentions:
+        assert word in lines[0], lines[0]
+    return lines[0]
 
 
 # ----------------------------------------------------------------------------- item 9: version, help
@@ -434,3 +447,167 @@ def test_a_stop_signal_ignored_at_start_stays_ignored(capsys):
     finally:
         signal.signal(signal.SIGHUP, before)
     assert capsys.readouterr().err == ""
+
+
+# ----------------------------------------------------------------------------- capture, relocate, hand-eye: the
+# first-motion question and Ctrl-C on a rig
+@pytest.fixture
+def camp(tmp_path):
+    """A simulator campaign (stele) with a hand-eye and a station 's' holding a (stand-in) reference."""
+    c = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
+    c.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
+    meta = {"lightings": ["front"], "driver": "sim", "scenario": {"scene": "stele", "seed": 0, "noise": "default"}}
+    with c.create_station("s").write_reference(meta) as w:
+        w.add_image("front", np.zeros((4, 4), np.uint8))
+        w.commit()
+    return c
+
+
+def _stations(c) -> list[str]:
+    return sorted(p.name for p in (c.path / "stations").iterdir())
+
+
+@pytest.fixture
+def stand_in_rig(monkeypatch):
+    """``open_rig`` replaced by a stand-in that records its options and asks the first-motion question."""
+    import fgcd_cli.app.rig as rigs
+
+    seen: dict = {}
+
+    def open_rig(request=None, *, hooks=None, **kwargs):
+        if request is not None:  # the use cases' typed form: RigRequest + RigHooks
+            kwargs = {**request.__dict__, **hooks.__dict__}
+        seen.update(kwargs)
+        if kwargs.get("confirm") is not None:
+            seen["answer"] = kwargs["confirm"]("First motion of this session on 'sim': move flange by (1, 0, 0) mm. "
+                                               "Proceed?")
+        platform = SimpleNamespace(name="sim", stop=lambda: seen.setdefault("stopped", True))
+        guard = SimpleNamespace(platform=platform, trip=lambda reason: seen.setdefault("tripped", reason))
+        handles = SimpleNamespace(guard=guard)
+        return rigs.OpenedRig(handles=handles, close=lambda: seen.setdefault("closed", True), sim=None,
+                              info={"scenario": None})
+
+    monkeypatch.setattr(rigs, "open_rig", open_rig)
+    return seen
+
+
+def _result(path="visit"):
+    reloc = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[],
+                            residual=None)
+    return SimpleNamespace(observation_path=path, relocation=reloc, coarse=None, cloud_points=0, images=["front"],
+                           scale=SimpleNamespace(scale=1.0))
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("command", ["capture", "relocate", "hand-eye"])
+def test_a_motion_command_without_a_terminal_or_yes_is_refused_before_anything_is_created(camp, command):
+    before = _stations(camp)
+    args = {"capture": ["capture", "-c", camp.path, "-s", "new"],
+            "relocate": ["relocate", "-c", camp.path, "-s", "s"],
+            "hand-eye": ["calibrate", "hand-eye", "--driver", "sim", "-c", camp.path]}[command]
+    r = fgcd(*args, "--json", timeout=120)
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    line = one_line(r.stderr, "needs a terminal", "--yes")
+    assert line.startswith("error:"), line
+    assert json.loads(r.stdout) == {"error": line, "code": 2}  # stdout: one object, no prompt
+    assert _stations(camp) == before
+    assert not list(camp.path.glob("stations/s/visits/*"))
+    assert open_campaign(camp.path).read_rig("handeye")["T_flange_cam"] == np.eye(4).tolist()
+
+
+def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, monkeypatch, capsys):
+    import fgcd_cli.app.relocate as capture_uc
+    import fgcd_cli.cli.output as output
+    from fgcd_cli.cli.app import app
+
+    monkeypatch.setattr(output, "stdin_is_terminal", lambda: True)
+    monkeypatch.setattr(sys, "stdin", io.StringIO("y\n"))
+    monkeypatch.setattr(capture_uc, "relocate_and_capture", lambda *a, **k: _result())
+    assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert stand_in_rig["answer"] is True
+    assert "Proceed?" in err and "Proceed?" not in out
+    assert json.loads(out)["converged"] is True  # stdout is the one JSON object
+
+
+def test_ctrl_c_during_a_relocation_names_the_platform_and_the_unwritten_visit(camp, stand_in_rig, monkeypatch,
+                                                                               capsys):
+    import fgcd_cli.app.relocate as capture_uc
+    from fgcd_cli.cli.app import app
+
+    def interrupted(rig, station, **kwargs):
+        with run_record.motion():
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(capture_uc, "relocate_and_capture", interrupted)
+    assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--yes"]) == 130
+    assert _lines(capsys.readouterr().err)[-1] == \
+        "interrupted (Ctrl-C): the sim platform was stopped mid-motion; nothing was written"
+    assert stand_in_rig["tripped"] and stand_in_rig["closed"]  # the platform was told to stop, the rig closed
+
+
+def test_ctrl_c_during_a_capture_says_nothing_written_and_leaves_no_station(camp, stand_in_rig, monkeypatch, capsys):
+    import fgcd_cli.app.capture as capture_uc
+    from fgcd_cli.cli.app import app
+
+    def interrupted(rig, station, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(capture_uc, "capture_reference", interrupted)
+    assert run(app, ["capture", "-c", str(camp.path), "-s", "new", "--yes"]) == 130
+    assert _lines(capsys.readouterr().err)[-1] == \
+        "interrupted (Ctrl-C): the sim platform was not moving; nothing was written"
+    assert "new" not in _stations(camp)
+
+
+def test_ctrl_c_during_a_handeye_run_names_the_platform_and_keeps_the_old_calibration(camp, stand_in_rig,
+                                                                                       monkeypatch, capsys):
+    import fgcd_cli.cli.calibrate_cmd as calibrate_cmd
+    from fgcd_cli.cli.app import app
+
+    def interrupted(handles, **kwargs):
+        assert handles.guard.platform.name == "sim"
+        with run_record.motion():
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate_cmd, "_run_handeye", interrupted)
+    assert run(app, ["calibrate", "hand-eye", "--driver", "sim", "-c", str(camp.path), "--yes"]) == 130
+    assert _lines(capsys.readouterr().err)[-1] == \
+        "interrupted (Ctrl-C): the sim platform was stopped mid-motion; nothing was written"
+    assert stand_in_rig["tripped"] and stand_in_rig["closed"]
+    assert open_campaign(camp.path).read_rig("handeye")["T_flange_cam"] == np.eye(4).tolist()
+
+
+@pytest.mark.timeout(300)
+def test_ctrl_c_during_a_simulated_capture_is_one_line_and_leaves_no_station(camp):
+    """SIGINT to a running `fgcd capture` (simulator) once it explores: one line, exit 130, no station left."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fgcd_cli.cli.app", "capture", "-c", str(camp.path), "-s", "new", "--yes"],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+    )
+    seen = bytearray()
+    exploring = threading.Event()
+
+    def read() -> None:
+        while chunk := proc.stderr.read1(256):
+            seen.extend(chunk)
+            if b"exploration 1/" in seen:
+                exploring.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert exploring.wait(240), bytes(seen).decode(errors="replace")
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=120)
+        reader.join(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    stderr = bytes(seen).decode(errors="replace")
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert re.fullmatch(r"interrupted \(Ctrl-C\): the sim platform was (stopped mid-motion|not moving); "
+                        r"nothing was written", _lines(stderr)[-1]), stderr
+    assert "new" not in _stations(camp)

@@ -1,7 +1,9 @@
-"""cli/progress.py off a terminal: a plain line per step and a heartbeat during a long step (stderr only)."""
+"""cli/progress.py: the step bar, and off a terminal a plain line per step and a heartbeat during a long step
+(stderr only)."""
 
 from __future__ import annotations
 
+import io
 import subprocess
 import sys
 import textwrap
@@ -92,3 +94,36 @@ def test_a_step_that_ends_at_once_is_not_named_so_a_quick_error_stays_one_line()
     """)
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert r.stderr.splitlines() == ["error: refused"]
+
+
+def test_lines_name_the_bar_step_between_counted_steps():
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from fgcd_cli.cli.progress import StepBar
+
+    said = []
+    with Progress(console=Console(file=io.StringIO()), disable=True) as progress:
+        bar = StepBar(progress)
+        say = bar.lines(said.append)
+        bar(1, 4, "exploring (1/3)")
+        say("exploration 1/3: VSE tracking")  # in the middle of a counted step: the bar keeps it
+        assert [t.description for t in progress.tasks] == ["exploring (1/3)"]
+        bar(4, 4, "adjustment 1: moving")
+        say("adjustment 2: waiting for an alignment of the current view")  # after it: the line names the step
+        assert [t.description for t in progress.tasks] == ["adjustment 2: waiting for an alignment of the current view"]
+        say("  still aligning (10 s; latest estimate: none yet)")  # a detail: the step stays
+        assert [t.description for t in progress.tasks] == ["adjustment 2: waiting for an alignment of the current view"]
+    assert len(said) == 3
+
+
+def test_no_terminal_no_bar_and_no_blank_line(capsys):
+    from fgcd_cli.cli.progress import step_progress
+
+    with step_progress(enabled=True, heartbeat_s=0.05) as bar:
+        bar(0, 0, "a step")
+        time.sleep(0.3)  # lasts a heartbeat: named
+        bar(1, 2, "another")  # ends at once: not named
+    # no live display off a terminal: a plain line per step that lasts, no blank line
+    err = capsys.readouterr().err
+    assert err.splitlines()[0] == "a step" and "another" not in err and "\n\n" not in err

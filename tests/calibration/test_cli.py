@@ -214,3 +214,16 @@ def test_the_simulated_campaigns_hand_eye_states_a_residual_beyond_the_limit(tmp
     assert any(s.startswith("warning:") and "24.4 mm" in s for s in said) == warned, said
     assert ("residual_accepted" in record) == warned
     assert camp.read_rig("handeye") is not None
+
+
+@pytest.mark.parametrize("driver, option", [("grbl", "--port"), ("ur", "--host")])
+def test_handeye_on_hardware_without_its_address_is_bad_input(tmp_path, driver, option, capsys):
+    from fgcd_cli.cli.app import app, run
+
+    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
+    camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
+    camp.write_rig("intrinsics", {"camera": {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}})
+    assert run(app, ["calibrate", "hand-eye", "--driver", driver, "-c", str(camp.path), "--yes"]) == 2
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err and option in lines[0], err

@@ -4,24 +4,67 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from fgcd_cli.campaign import init_campaign
+from fgcd_cli.cli.app import app, run
 
 ROOT = Path(__file__).parents[2]
 
 
 def fgcd(*args, timeout=600):
     return subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=timeout)
+                          text=True, cwd=ROOT, timeout=timeout, stdin=subprocess.DEVNULL)
 
 
-def one_line_error(r, code):
+def one_line_error(r, code: int, *mentions: str) -> str:
+    """The command failed with ``code`` and one stderr line naming every one of ``mentions``."""
     assert r.returncode == code, (r.returncode, r.stderr)
     assert "Traceback" not in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    for word in mentions:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+def one_line(text: str, *mentions: str) -> str:
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert len(lines) == 1, text
+    assert "Traceback" not in text
+    for word in mentions:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def camp(tmp_path):
+    """A simulator campaign whose default world is the stele, with a hand-eye."""
+    c = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
+    c.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
+    return c
+
+
+def _fake_reference(station, *, scene: str, seed: int = 0) -> None:
+    """A reference as `fgcd capture` records it, without running one."""
+    meta = {"lightings": ["front"], "driver": "sim", "scenario": {"scene": scene, "seed": seed, "noise": "default"}}
+    with station.write_reference(meta) as w:
+        w.add_image("front", np.zeros((4, 4), np.uint8))
+        w.commit()
+
+
+@pytest.fixture
+def camp_with_reference(camp):
+    """``camp`` with a station 's' holding a (stand-in) reference of the stele."""
+    _fake_reference(camp.create_station("s"), scene="stele")
+    return camp
+
+
+def _stations(c) -> list[str]:
+    return sorted(p.name for p in (c.path / "stations").iterdir())
 
 
 def test_capture_without_handeye_is_refused(tmp_path):
@@ -153,3 +196,87 @@ def test_capture_and_relocate_refuse_another_driver_than_the_campaigns(tmp_path,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "grbl rig" in err[0] and "--driver sim" in err[0], err
     assert not opened_rigs and not (camp.path / "stations" / "new").exists()
+
+
+# ----------------------------------------------------------------------------- a hardware driver's address
+@pytest.mark.parametrize("args, option", [
+    (["capture", "-s", "new", "--driver", "grbl"], "--port"),
+    (["capture", "-s", "new", "--driver", "ur"], "--host"),
+    (["relocate", "-s", "s", "--driver", "grbl"], "--port"),
+    (["relocate", "-s", "s", "--driver", "ur"], "--host"),
+])
+@pytest.mark.parametrize("intrinsics", [True, False])
+def test_a_hardware_driver_without_its_address_is_bad_input(camp_with_reference, args, option, intrinsics, capsys):
+    # the missing address is the first thing to fix: said before the missing intrinsics
+    camp = camp_with_reference
+    if intrinsics:
+        camp.write_rig("intrinsics", {"camera": {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640,
+                                                 "height": 480}})
+    before = _stations(camp)
+    assert run(app, [args[0], "-c", str(camp.path), *args[1:], "--yes"]) == 2
+    one_line(capsys.readouterr().err, option)
+    assert _stations(camp) == before
+
+
+# ----------------------------------------------------------------------------- the demo's options
+@pytest.mark.parametrize("args, mentions", [
+    (["--light", "bogus"], ("--light", "bogus", "led:H")),
+    (["--scene", "nosuch"], ("nosuch", "relief_panel")),
+    (["--changes", "-1"], ("--changes",)),
+])
+def test_demo_checks_its_options_before_it_starts(tmp_path, monkeypatch, capsys, args, mentions):
+    import fgcd_cli.app.demo as demo_mod
+
+    def never(*a, **k):
+        raise AssertionError("the demo started with a bad option")
+
+    monkeypatch.setattr(demo_mod, "run_demo", never)
+    out = tmp_path / "d"
+    assert run(app, ["demo", "-o", str(out), *args]) == 2
+    one_line(capsys.readouterr().err, *mentions)
+    assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- relocation progress
+@pytest.fixture
+def stand_in_rig(monkeypatch):
+    """``open_rig`` replaced by a stand-in that records its options and asks the first-motion question."""
+    import fgcd_cli.app.rig as rigs
+
+    seen: dict = {}
+
+    def open_rig(request=None, *, hooks=None, **kwargs):
+        if request is not None:  # the use cases' typed form: RigRequest + RigHooks
+            kwargs = {**request.__dict__, **hooks.__dict__}
+        seen.update(kwargs)
+        if kwargs.get("confirm") is not None:
+            seen["answer"] = kwargs["confirm"]("First motion of this session on 'sim': move flange by (1, 0, 0) mm. "
+                                               "Proceed?")
+        platform = SimpleNamespace(name="sim", stop=lambda: seen.setdefault("stopped", True))
+        guard = SimpleNamespace(platform=platform, trip=lambda reason: seen.setdefault("tripped", reason))
+        handles = SimpleNamespace(guard=guard)
+        return rigs.OpenedRig(handles=handles, close=lambda: seen.setdefault("closed", True), sim=None,
+                              info={"scenario": None})
+
+    monkeypatch.setattr(rigs, "open_rig", open_rig)
+    return seen
+
+
+def _result(path="visit"):
+    reloc = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[],
+                            residual=None)
+    return SimpleNamespace(observation_path=path, relocation=reloc, coarse=None, cloud_points=0, images=["front"],
+                           scale=SimpleNamespace(scale=1.0))
+
+
+def test_relocate_hands_a_progress_callback_to_the_rig(camp_with_reference, stand_in_rig, monkeypatch, capsys):
+    import fgcd_cli.app.relocate as capture_uc
+
+    camp = camp_with_reference
+    monkeypatch.setattr(capture_uc, "relocate_and_capture", lambda *a, **k: _result())
+    assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--yes"]) == 0
+    bar = stand_in_rig["on_progress"]
+    assert callable(bar)
+    bar(1, 4, "adjustment 1: moving")  # the plain (done, total, label) callback the use case calls
+    assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--yes", "--json"]) == 0
+    assert stand_in_rig["on_progress"] is None  # --json: no bar

@@ -1,12 +1,14 @@
-"""The exploration pattern of a VSE session."""
+"""A VSE session: the exploration pattern, its sub-stepped motions, the time it counts."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from fgcd_core.se3 import rotation_angle_rad
-from fgcd_cli.relocation.session import exploration_pattern
+from fgcd_core.se3 import exp_se3, rotation_angle_rad
+from fgcd_cli.errors import run_record
+from fgcd_cli.relocation.session import VseSession, exploration_pattern
 
 
 def _compose(motions):
@@ -106,3 +108,46 @@ def test_an_exploration_the_vse_never_tracks_fails_with_the_vses_own_reason():
     session = VseSession(guard=None, vse=vse)
     with pytest.raises(AlgorithmError, match="only 2 tracked exploration waypoints.*median parallax 0.12 deg"):
         session.estimate_scale(np.eye(4), [np.eye(4)] * 2, [np.eye(4)] * 2)
+
+
+class _Guard:
+    """A guard whose ``k``-th motion is interrupted (Ctrl-C)."""
+
+    def __init__(self, interrupt_at: int | None = None):
+        self.moves = 0
+        self.interrupt_at = interrupt_at
+        self.platform = SimpleNamespace(flange_pose=lambda: np.eye(4), name="sim")
+
+    def move_by(self, step):
+        self.moves += 1
+        if self.moves == self.interrupt_at:
+            raise KeyboardInterrupt
+        return SimpleNamespace(duration_s=0.1)
+
+
+class _Vse:
+    def __init__(self, interrupt_after: int | None = None):
+        self.frames = 0
+        self.interrupt_after = interrupt_after
+
+    def latest(self):
+        self.frames += 1
+        if self.interrupt_after is not None and self.frames > self.interrupt_after:
+            raise KeyboardInterrupt
+        return SimpleNamespace(frames_processed=self.frames, status="tracking")
+
+    def stop(self):
+        pass
+
+
+@pytest.mark.parametrize("where", ["in a sub-step", "between sub-steps"])
+def test_a_sub_stepped_motion_is_in_progress_until_its_last_sub_step(where):
+    run_record.reset()
+    M = exp_se3(np.r_[0.02, 0, 0, 0, 0, 0])  # 20 mm: 4 sub-steps
+    VseSession(guard=_Guard(), vse=_Vse()).move_by(M)
+    assert run_record.moving is False  # a finished motion
+    guard, vse = (_Guard(interrupt_at=2), _Vse()) if where == "in a sub-step" else (_Guard(), _Vse(interrupt_after=4))
+    with pytest.raises(KeyboardInterrupt):
+        VseSession(guard=guard, vse=vse).move_by(M)
+    assert run_record.moving is True
+    run_record.reset()
