@@ -127,3 +127,22 @@ def test_no_terminal_no_bar_and_no_blank_line(capsys):
     # no live display off a terminal: a plain line per step that lasts, no blank line
     err = capsys.readouterr().err
     assert err.splitlines()[0] == "a step" and "another" not in err and "\n\n" not in err
+
+
+def test_the_cli_bar_keeps_one_step_per_label_and_hides_for_questions():
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from fgcd_cli.cli.progress import StepBar, step_progress
+
+    with step_progress(enabled=False) as bar:
+        assert bar is None  # --json: no bar
+    with Progress(console=Console(file=io.StringIO())) as progress:
+        bar = StepBar(progress)
+        bar(1, 10, "exploring (1/5)")
+        bar(4, 10, "exploring (2/5)")
+        assert len(progress.tasks) == 1 and progress.tasks[0].completed == 4
+        bar(0, 0, "writing the reference")
+        assert len(progress.tasks) == 1 and progress.tasks[0].total is None
+        assert bar.paused(lambda text: text == "move?")("move?") is True
+        assert bar.paused(None) is None

@@ -16,7 +16,7 @@ ROOT = Path(__file__).parents[2]
 
 def fgcd(*args, timeout=600):
     return subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=timeout)
+                          text=True, cwd=ROOT, timeout=timeout, stdin=subprocess.DEVNULL)
 
 
 def one_line_error(r, code=2, *, mentions: str):
@@ -51,6 +51,23 @@ def test_handeye_target_mode_has_no_board_in_the_simulator():
 
 def test_handeye_unknown_mode():
     one_line_error(fgcd("calibrate", "hand-eye", "--mode", "magic", "--yes"), mentions="unknown mode")
+
+
+@pytest.mark.parametrize("rig", [("--driver", "ur", "--host", "192.0.2.1"), ("--driver", "grbl", "--port", "/dev/null")])
+def test_handeye_on_hardware_without_intrinsics_is_one_message(tmp_path, rig):
+    for campaign in ((), ("-c", init_campaign(tmp_path / rig[1], site="x").path)):
+        r = fgcd("calibrate", "hand-eye", "--mode", "target-free", *rig, *campaign, "--yes", timeout=120)
+        assert r.returncode == 2, r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1, r.stderr  # no "warning: using nominal intrinsics" before the failure
+        assert lines[0].startswith("error:") and "intrinsics" in lines[0] and "warning" not in lines[0]
+
+
+def test_handeye_with_an_unknown_scene_is_refused_naming_the_scenes():
+    r = fgcd("calibrate", "hand-eye", "--driver", "sim", "--scene", "nosuch", "--yes", timeout=120)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "nosuch" in lines[0] and "stele" in lines[0], r.stderr
 
 
 def test_handeye_rejects_a_zero_rotation_before_moving():

@@ -204,3 +204,20 @@ def test_run_target_free_gives_the_refinement_every_rest_pose_of_the_path(monkey
     assert min(steps) > 0.01 and max(steps) <= 1.0 + 1e-9  # distinct poses, each <= 5 mm / 1 deg on
     assert 0 not in path.stop_index
     assert all(img.dtype == np.uint8 and img.ndim == 2 for img in path.images)
+
+
+def test_target_free_reports_its_progress_through_a_plain_callback():
+    platform = IdealPlatform()
+    X = make_pose(exp_so3([0.1, -0.3, 0.2]), [0.03, -0.05, 0.08])
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
+    calls = []
+    run_target_free(guard, FakeCamera(), lambda cam: FakeVSE(platform, X, 0.42), camera=CAMERA,
+                    on_progress=lambda done, total, label: calls.append((done, total, label)))
+    path = [c for c in calls if c[1] > 0]
+    assert path, calls
+    totals = {t for _, t, _ in path}
+    assert len(totals) == 1  # one bar over the whole path
+    dones = [d for d, _, _ in path]
+    assert dones == sorted(dones) and dones[-1] == totals.pop()
+    assert path[0][2].startswith("hand-eye motions (stop 1/") and "stop 13/13" in path[-1][2]
+    assert calls[-1][1] == 0 and "refinement" in calls[-1][2]  # the refinement: length unknown

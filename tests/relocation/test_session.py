@@ -134,7 +134,7 @@ class _Vse:
         self.frames += 1
         if self.interrupt_after is not None and self.frames > self.interrupt_after:
             raise KeyboardInterrupt
-        return SimpleNamespace(frames_processed=self.frames, status="tracking")
+        return SimpleNamespace(frames_processed=self.frames, status="tracking", T_map_cam=np.eye(4))
 
     def stop(self):
         pass
@@ -151,3 +151,14 @@ def test_a_sub_stepped_motion_is_in_progress_until_its_last_sub_step(where):
         VseSession(guard=guard, vse=vse).move_by(M)
     assert run_record.moving is True
     run_record.reset()
+
+
+def test_session_exploration_reports_every_substep():
+    calls = []
+    session = VseSession(guard=_Guard(), vse=_Vse(), on_progress=lambda d, t, label: calls.append((d, t, label)))
+    motions = exploration_pattern(translation_m=0.02, legs=3)
+    session.explore(motions)
+    total = sum(session.substeps(M) for M in motions)
+    assert [d for d, _, _ in calls] == list(range(1, total + 1))
+    assert {t for _, t, _ in calls} == {total}
+    assert calls[0][2] == f"exploring (1/{len(motions)})" and calls[-1][2] == f"exploring ({len(motions)}/{len(motions)})"
