@@ -13,7 +13,7 @@ Optimization*, §10.3; Triggs et al., "Bundle adjustment, a modern synthesis",
 
 Hand-written rather than :func:`scipy.optimize.least_squares`: measured on the
 hand-eye problem, its sparse trust-region steps were 10-50x slower or stopped
-short of the minimum (docs/benchmarks.md, "Measurements that were code comments").
+short of the minimum (docs/lab/2026-11-25-code-comment-measurements.md, "Calibration").
 """
 
 from __future__ import annotations

@@ -199,7 +199,7 @@ class SimCamera:
         A real camera streams frames while the software works; this camera renders
         each frame on demand in the grabbing thread, which a rig's time budget must
         not count (docs/relocation.md, "Time"; render times in docs/benchmarks.md,
-        "Simulator renderer"). ``time.monotonic`` seconds, comparable between calls.
+        "Simulator renderer (`fgcd bench render`)"). ``time.monotonic`` seconds, comparable between calls.
         """
         with self._render_lock:
             now = time.monotonic()

@@ -5,7 +5,9 @@ step, scale step, convergence, warm start, cold start, scale-minimum check,
 health, weak-direction probe), e.g.
 ``FastAlignConfig(scale=ScaleStepConfig(estimate=False)).scale.estimate``.
 The rationale of each default is in ``docs/alignment.md`` ("Fast alignment");
-its measurements are in ``docs/benchmarks.md``.
+its figures are in ``docs/benchmarks.md``, "Scale-aware point cloud alignment
+(`fgcd bench align`)", the measurements behind the defaults in
+``docs/lab/2026-11-25-code-comment-measurements.md``, "Alignment".
 
 Distances given as ``*_rel`` are fractions of the reference cloud's width.
 """
@@ -214,7 +216,8 @@ class HealthConfig:
     min_overlap: float = 0.3
     min_condition_ratio: float = 5e-3
     """Smallest accepted condition ratio: between the VSE clouds of a plane or a sphere (below)
-    and a relief (above); typical values per scene are in docs/benchmarks.md."""
+    and a relief (above); typical values per scene are in docs/lab/2026-11-25-code-comment-measurements.md,
+    "Alignment"."""
     condition_noise_factor: float = 3.0
     """The limit is raised to this times ``(roughness / normal radius)^2`` of the reference: the
     floor that normal noise puts under a plane's smallest eigenvalue."""

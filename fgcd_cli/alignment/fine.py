@@ -20,8 +20,8 @@ and the scale; the joint 7-parameter step converges in fewer iterations and
 the ``-S`` ablation simply drops the scale column). Hand-written LM
 (:mod:`~fgcd_cli.alignment.lm`) with analytic Jacobians ``dI/du . du/dX . dX/dparams``
 (:mod:`~fgcd_cli.alignment.fine_problem`): ``scipy.optimize.least_squares`` with the
-same Jacobian is far slower here (docs/benchmarks.md) and numeric Jacobians do not
-move on bilinearly interpolated images. A blur schedule (sigma 3 then 1 pixel)
+same Jacobian is far slower here (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment") and numeric
+Jacobians do not move on bilinearly interpolated images. A blur schedule (sigma 3 then 1 pixel)
 widens the basin before the final precise level.
 
 Units: the two terms are normalised by their robust residual scales

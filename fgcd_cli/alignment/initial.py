@@ -94,7 +94,7 @@ def global_registration(
     ``around``, composed with that prior). Each start runs the two coarse levels;
     the start with the highest inlier ratio (ties: lower residual) is refined at
     full resolution. FPFH + RANSAC is not used: it is slower, fails on symmetric
-    scenes (docs/benchmarks.md) and its radii are not scale invariant.
+    scenes (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment") and its radii are not scale invariant.
     """
     cur = np.asarray(cur_points, dtype=float)
     ref = as_reference(reference)

@@ -20,7 +20,7 @@ def local_roughness(points: np.ndarray, *, samples: int = 1000, neighbours: int 
     surface's curvature at the neighbourhood scale, small for dense clouds).
     Semi-dense VSE points are locally coherent along image edges, so small
     neighbourhoods (16) underestimate their noise several times over
-    (docs/benchmarks.md); 50 neighbours see it.
+    (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment"); 50 neighbours see it.
     """
     pts = np.asarray(points, dtype=float)
     if len(pts) <= neighbours:
@@ -159,7 +159,8 @@ class ReferenceIndex:
         The cloud is voxel-downsampled (voxel = a third of the radius
         ``max(10 x roughness, 5 x spacing, 5 % of the width)``) and normals
         estimated on 30 neighbours there: on a noisy plane, fine-scale normals
-        scatter by tens of degrees (docs/benchmarks.md) and would hide the degeneracy.
+        scatter by tens of degrees (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment") and would hide
+        the degeneracy.
 
         Returns
         -------

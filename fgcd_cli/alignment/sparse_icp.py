@@ -7,7 +7,8 @@ of correspondences (non-repeated points, outliers, the non-overlapping part)
 keep large residuals without pulling the fit. The point-to-plane form is used
 because point-to-point ICP slides very slowly along the nearly flat surfaces of
 reliefs and murals (tens of iterations more from a few degrees off;
-docs/benchmarks.md), which the 10 Hz target cannot afford. There is no maintained PyPI package for sparse ICP and each
+docs/lab/2026-11-25-code-comment-measurements.md, "Alignment"), which the 10 Hz target cannot afford. There
+is no maintained PyPI package for sparse ICP and each
 ADMM step is a shrink plus a 6x6 linear solve, so it is written here, with the
 shrink operator of the authors' reference implementation.
 """
@@ -64,8 +65,8 @@ def gram(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``A.T @ B`` for tall, narrow matrices, without BLAS.
 
     OpenBLAS's threaded GEMM on these shapes slows down by orders of magnitude when
-    the machine's cores are busy (docs/benchmarks.md); ``einsum`` without BLAS takes
-    a steady few milliseconds.
+    the machine's cores are busy (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment"); ``einsum``
+    without BLAS takes a steady few milliseconds.
     """
     return np.einsum("ni,nj->ij", A, B, optimize=False)
 

@@ -74,8 +74,8 @@ def _cloud_depth_ratio(state, truth_by_frame, T_world_map: Sim3, renderer, intr,
     """Median ratio of the cloud's depths to the true depths, over the session's keyframes.
 
     The monocular VSE's cloud can be a little shallower or deeper than its own
-    trajectory (docs/benchmarks.md); that is the VSE's error, not the alignment's,
-    so the benchmark defines each session's metric frame by its cloud.
+    trajectory (docs/benchmarks.md, "Scale-aware point cloud alignment (`fgcd bench align`)"); that is
+    the VSE's error, not the alignment's, so the benchmark defines each session's metric frame by its cloud.
     """
     P = T_world_map.apply(np.asarray(state.cloud.points, dtype=float))
     ratios = []
@@ -248,7 +248,8 @@ def _degenerate_case(scene_name, intr, camera, rng, *, frames: int) -> dict:
     if len(ref_state.keyframes) < 2 or len(cur_state.keyframes) < 2:
         return {"scene": scene_name, "vse_failed": True}
     # Each session's metric frame is defined by its cloud (renderer depths), as in the main part:
-    # the VSE cloud and its own trajectory differ in scale on these walls too (docs/benchmarks.md).
+    # the VSE cloud and its own trajectory differ in scale on these walls too
+    # (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment").
     _, ref_pts, T_world_ref, _, _ = _metric_session(ref_state, ref_truth, scale_error=0.0,
                                                     renderer=renderer, intr=intr, camera=camera)
     kfs, cur_pts, T_world_cur, kf_truth, _ = _metric_session(cur_state, cur_truth, scale_error=0.01,

@@ -1,4 +1,5 @@
-"""``fgcd bench archive``: the archive analysis at scale on Dask (docs/benchmarks.md, "Archive").
+"""``fgcd bench archive``: the archive analysis at scale on Dask (docs/benchmarks.md,
+"Archive analysis on Dask (`fgcd bench archive`)").
 
 Builds a synthetic archive (:mod:`fgcd_cli.bench.archive_data`: N stations x M
 visits of small simulated images), then times the archive use case

@@ -21,7 +21,7 @@ the keyframes (:func:`_true_map_scale`). Scales fitted to the VSE's camera
 rotation from the orientations; ``scale_true_centres``: Umeyama over the centres
 alone, the former definition); they are no truth: the stop positions' errors are
 a sizeable fraction of the small motion span, so such fits depend on the
-regression direction (docs/benchmarks.md, "Calibration").
+regression direction (docs/lab/2026-11-22-calibrate.md, "Target-free image refinement").
 """
 
 from __future__ import annotations

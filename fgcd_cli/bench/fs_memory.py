@@ -30,7 +30,8 @@ LIGHTINGS = (1, 4, 7)
 #: Db-1 upscaled this much: ~4900 x 4900 px (24 MP).
 FACTOR = 7
 #: The address-space limit is drawn uniformly in this range, MiB: the bench's 24 MP diff peaks at ~3.4 GB
-#: resident with seven lightings (docs/benchmarks.md, "Fine-grained change detection", 24 MP), so the range
+#: resident with seven lightings (docs/benchmarks.md, "Fine-grained change detection (`fgcd bench changes`)",
+#: `peak_rss_mb_24mp`), so the range
 #: spans failing early, late and completing.
 LIMIT_MB = (1024, 6144)
 #: The products a completed bare-image diff writes (fgcd_cli/app/diff.py, ``diff_products``).

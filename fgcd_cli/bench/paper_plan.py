@@ -17,7 +17,8 @@ from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
 __all__ = ["EXPERIMENTS", "QUICK", "TABLE4_CASES", "plan"]
 
 EXPERIMENTS = ("table2", "table5", "fig7", "table3", "table4", "fig4", "fig6", "fig12", "s55", "revisit")
-#: ``--quick``: one or two cases per experiment, sized for <= 30 min on 2 cores (docs/benchmarks.md has the time).
+#: ``--quick``: one or two cases per experiment, sized for <= 30 min on 2 cores (the time: docs/benchmarks.md,
+#: "rACR beside the ACR baseline (`fgcd bench paper`)").
 QUICK = {"cases": ("indoor-2", "outdoor-1"), "one_case": ("indoor-2",), "fig7_scenes": ("relief_panel",),
          "fig7_clock": (9,), "table4": ("W1",), "fig12": ("alpha-1.0", "no-S"), "fig4": (0.08,)}
 FIG7_REFERENCE = "led:12"

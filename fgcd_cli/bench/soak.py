@@ -92,7 +92,7 @@ def private_tempdir(folder: Path) -> Iterator[Path]:
     """The process's temporary folder (``tempfile`` and ``TMPDIR`` for native code) is ``folder`` in the block.
 
     Rule: the soak counts the temporary files *it* leaves; other processes share the system's
-    temporary folder, so its entries would be counted too (docs/benchmarks.md, soak).
+    temporary folder, so its entries would be counted too (docs/benchmarks.md, "Soak (`fgcd bench soak`)").
     """
     folder.mkdir(parents=True, exist_ok=True)
     saved_env, saved = os.environ.get("TMPDIR"), tempfile.tempdir

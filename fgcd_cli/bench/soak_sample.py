@@ -9,7 +9,7 @@ resident set (``VmRSS``) and its peak (``VmHWM``), every thread of the process
 (:data:`fgcd_cli.campaign.atomic.TMP_PREFIX`). Growth per revisit is the slope
 of a least-squares line (:func:`growth_per_revisit`), after a warm-up: the first
 revisits load the libraries, build the simulator's caches and fill malloc's
-arenas, which is not a leak (docs/benchmarks.md, soak).
+arenas, which is not a leak (docs/benchmarks.md, "Soak (`fgcd bench soak`)").
 """
 
 from __future__ import annotations

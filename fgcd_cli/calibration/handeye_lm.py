@@ -12,7 +12,7 @@ analytic sparse Jacobian ('trf', ``x_scale='jac'``), its sparse trust-region
 steps (LSMR, no Schur elimination) reach this solver's hand-eye only with a
 tight LSMR tolerance, several times to fifty times slower; with LSMR's default
 tolerance it stops short of the minimum by millimetres (measurements in
-docs/benchmarks.md, "Measurements that were code comments", hand-eye solver).
+docs/lab/2026-11-25-code-comment-measurements.md, "Calibration", solver).
 """
 
 from __future__ import annotations

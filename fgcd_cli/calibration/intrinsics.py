@@ -151,8 +151,8 @@ class IntrinsicsResult:
 
 #: Above this one-sigma focal uncertainty (percent) the result suggests more views: a focal
 #: error of a few tenths of a percent already moves a target-free hand-eye by millimetres
-#: (docs/calibration.md, "2. Camera intrinsics"; the measurements are in docs/benchmarks.md,
-#: "Calibration").
+#: (docs/calibration.md, "2. Camera intrinsics"; the measurements are in docs/lab/2026-11-22-calibrate.md,
+#: "2026-11-25: the bias explained, the target met").
 FOCAL_STD_HINT_PCT = 0.06
 
 

@@ -85,8 +85,8 @@ def stop_features(images: Sequence[np.ndarray], *, n_features: int = 1500) -> li
     camera the raw images keep mostly large blobs of shading whose centres shift
     as the light moves with the camera, which biases ``X``; equalised images keep
     mostly small-scale texture, which does not move with the light
-    (docs/calibration.md, "Target-free"; measurements in docs/benchmarks.md,
-    "Calibration").
+    (docs/calibration.md, "Target-free"; measurements in docs/lab/2026-11-22-calibrate.md,
+    "2026-11-25: the bias explained, the target met").
     """
     return [sift_features(clahe(gray_u8(img), clip_limit=CLAHE_CLIP, tiles=CLAHE_TILES), n_features=n_features)
             for img in images]

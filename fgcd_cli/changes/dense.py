@@ -16,7 +16,7 @@ Rules the implementation follows:
   ``log I - local mean``, and dividing by the local standard deviation equalises
   contrast. DIS normalises each patch's mean, not its contrast, so a blotchy gain
   would cost raw-intensity matches their forward-backward consistency
-  (``docs/benchmarks.md``).
+  (``docs/lab/2026-11-25-code-comment-measurements.md``, "Change detection").
 - **Raw matches.** OpenCV's DIS optical flow (Kroeger, Timofte, Dai, Van Gool,
   "Fast Optical Flow using Dense Inverse Search", ECCV 2016;
   ``cv2.DISOpticalFlow_create``), preset MEDIUM, forward (reference -> current)
@@ -24,7 +24,7 @@ Rules the implementation follows:
 - **The flow must not swallow changes.** DIS follows anything that looks like
   motion, a change included: its raw flow on changed pixels is larger than around
   them, and resampling through it would shrink a grown loss back
-  (``docs/benchmarks.md``). The field is
+  (``docs/lab/2026-11-25-code-comment-measurements.md``, "Change detection"). The field is
   therefore replaced by a robust, low-order, large-scale fit: confidence-weighted
   local-quadratic normalized convolution (Knutsson & Westin, "Normalized and
   differential convolution", CVPR 1993; Farnebaeck, "Polynomial expansion for
@@ -55,7 +55,7 @@ Rules the implementation follows:
   A raw flow that is inconsistent (no match) or that departs from the fit only
   lowers the confidence: a change and an occlusion at a depth edge look alike to
   the flow, and masking such pixels would hide true change pixels
-  (``docs/benchmarks.md``).
+  (``docs/lab/2026-11-25-code-comment-measurements.md``, "Change detection").
 
 Convention: ``flow[y, x] = (dx, dy)`` means that reference pixel ``(x, y)`` is
 seen at ``(x + dx, y + dy)`` in the homography-warped current image, so
@@ -146,7 +146,7 @@ def apply_flow(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
     -----
     Applied to the homography-warped image, this is a second interpolation: the
     extra blur costs the gradient cues as much as a small parallax does
-    (``docs/benchmarks.md``). To resample the
+    (``docs/lab/2026-11-25-code-comment-measurements.md``, "Change detection"). To resample the
     current image for comparison, use :func:`warp_with_flow` (one interpolation).
     """
     h, w = flow.shape[:2]

@@ -25,7 +25,8 @@ FIT_ORDER = 2
 RIDGE = 0.05
 """Ridge on the non-constant coefficients of the local fit, as a fraction of the window's
 weight. It keeps a one-sided window (frame border, edge of ``valid``) from extrapolating;
-where the support surrounds the pixel it hardly matters (``docs/benchmarks.md``)."""
+where the support surrounds the pixel it hardly matters (``docs/lab/2026-11-25-code-comment-measurements.md``,
+"Change detection")."""
 
 
 def smoothing_scale_px(change_px: float = MAX_CHANGE_PX, *, share: float = CHANGE_SHARE,

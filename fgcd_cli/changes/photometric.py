@@ -247,7 +247,7 @@ def photometric_stereo(
         normal and its shading, like shading common to all lightings (e.g.
         daylight cast shadows), stays in the albedo. None for distant lights or
         whole-object shape. The default 40 px is the scale of near-light
-        fall-off on the real groups (``docs/benchmarks.md``).
+        fall-off on the real groups (``docs/lab/2026-11-25-code-comment-measurements.md``, "Change detection").
 
     Returns
     -------

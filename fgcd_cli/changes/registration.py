@@ -2,9 +2,9 @@
 
 Rule (``docs/change-detection.md``, "Change detection pipeline"): a spatially
 varying light gain biases ECC on raw intensities by pixels, while gradient
-magnitudes are nearly insensitive to it (``docs/benchmarks.md``). So: SIFT
-homography for the start (when features match), then coarse-to-fine ECC on
-gradient magnitudes.
+magnitudes are nearly insensitive to it (``docs/lab/2026-11-25-code-comment-measurements.md``,
+"Change detection"). So: SIFT homography for the start (when features match), then
+coarse-to-fine ECC on gradient magnitudes.
 
 Convention: ``H_cur_ref`` (3x3) maps homogeneous reference pixel coordinates
 (x right, y down, pixel centres at integers) to current-image pixel coordinates.
@@ -145,7 +145,8 @@ def without_ipp() -> Iterator[None]:
     Rule: the same pair must register to the same homography every time. With IPP,
     ``cv2.findTransformECC``'s result depends on the memory alignment of its inputs,
     so identical images can register (and be decided) differently from call to call;
-    without IPP it is repeatable (``docs/benchmarks.md``).
+    without IPP it is repeatable (``docs/lab/2026-11-28-changes-simulated-pairs.md``,
+    "The registration's run-to-run variation, and ε = 10 with stills").
     """
     before = cv2.ipp.useIPP()
     cv2.ipp.setUseIPP(False)

@@ -160,8 +160,8 @@ class FdfConfig:
     """SIFT keypoints per image."""
     min_inliers: int = 12
     """Fewest SIFT inliers for a trustworthy AFD (3x the homography's minimal set). With fewer,
-    RANSAC has fitted chance matches (``docs/benchmarks.md``). The grid variant needs 8 agreeing
-    cells and at least half of the correlated ones."""
+    RANSAC has fitted chance matches (``docs/lab/2026-11-25-code-comment-measurements.md``, "Change detection").
+    The grid variant needs 8 agreeing cells and at least half of the correlated ones."""
     grid_cells: int = 8
     """Grid variant: cells per side."""
     patch_px: int = 96

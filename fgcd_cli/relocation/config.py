@@ -110,7 +110,8 @@ class RelocationConfig:
     """The image stage stops when its correction moves the reference image by less than this.
     The same 0.5 px as ``stop_afd_px``: the image measurement itself is only good to about
     0.3 px across lightings, so a lower bar makes the stage chase its own noise, each step
-    costing seconds and millimetres of motion for no gain (docs/benchmarks.md)."""
+    costing seconds and millimetres of motion for no gain (docs/lab/2026-11-25-code-comment-measurements.md,
+    "Relocation")."""
     image_fallback: bool = True
     """When the 3D alignment stays untrustworthy (degenerate geometry such as a
     flat wall, too few inliers, divergence), try the image stage before pausing:

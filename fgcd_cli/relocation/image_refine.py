@@ -354,7 +354,7 @@ def local_contrast(gray: np.ndarray, *, clip_limit: float = 3.0, tiles: int = 8)
     Why: SIFT's detector drops extrema below a fixed contrast (0.04 of the
     range), which dim, low-contrast stone under a side light barely reaches;
     equalised locally, the same pair of views gives tens of times more matches,
-    nearly all of them epipolar inliers (docs/benchmarks.md).
+    nearly all of them epipolar inliers (docs/lab/2026-11-25-code-comment-measurements.md, "Relocation").
     """
     return to_gray_f32(_local_contrast_u8(gray, clip_limit=clip_limit, tiles=tiles))
 

@@ -68,7 +68,8 @@ class CameraUncertainty:
         registration sees an error, so a small residual says nothing there. An image estimate is
         checked on the constrained part: along the weak directions its texture correspondences
         are the evidence, and the registration's slide there is not a measurement
-        (docs/relocation.md, "Far starts"; the measurements in docs/benchmarks.md).
+        (docs/relocation.md, "Far starts"; the measurements in docs/lab/2026-11-25-code-comment-measurements.md,
+        "Relocation").
         """
         if self.fitness < config.min_fitness:
             return False
@@ -86,8 +87,8 @@ class CameraUncertainty:
         the registration along the view by that fraction of the depth: 15 mm at 1.5 m for 1 %, against
         2 mm for PnP on a textured slab 92 mm from the reference. The check's constrained part may reject
         an image estimate, but as a correction it would move a good one by the scale's error
-        (docs/benchmarks.md, "Why the statue's far start cannot be verified"). A 3D estimate keeps the
-        whole correction: it is verified only where the geometry pins every direction, and there the
+        (docs/lab/2026-11-27-coarse-far-starts.md, "Why the statue's far start cannot be verified"). A 3D
+        estimate keeps the whole correction: it is verified only where the geometry pins every direction, and there the
         registration is the better measurement of the two.
         """
         if geometric_source:

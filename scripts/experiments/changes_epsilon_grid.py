@@ -1,7 +1,7 @@
 """Experiment (issue 19, not adopted): the a-contrario epsilon as a third leave-one-group-out constant.
 
-Reproduces the table "epsilon chosen leave one group out" in docs/benchmarks.md
-(Change detection: leads measured and not adopted). Each real group is scored
+Reproduces the table of docs/lab/2026-11-25-changes-leave-one-group-out.md, "The a-contrario ε as a
+third leave-one-group-out constant" (epsilon chosen leave one group out). Each real group is scored
 once with the shipped detector; the decision is then taken over the grid
 seed_p x extent_fraction x epsilon and every group is scored with the point
 that has the best mean auto F1 on the other six (the bench's own procedure,

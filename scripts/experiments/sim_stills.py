@@ -1,6 +1,6 @@
 """Experiment (simulator realism): false change regions of an unchanged niche against the stills' samples per pixel.
 
-Reproduces the table in docs/benchmarks.md, "Simulated stills". The demo's
+Reproduces the table in docs/lab/2026-11-22-render.md, "Simulated stills". The demo's
 scene (``relief_panel``, a niche whose side walls are seen edge-on, 1-2 px
 wide) is rendered at its default view and again 0.4 mm / 0.013 deg away (the
 demo's relocation residual) in a random direction, under the same light, with
