@@ -71,9 +71,9 @@ def _same_regions(got: dict, want: dict) -> bool:
 
     Two runs of the diff on the same inputs, in one process or two, may differ by
     a pixel at a region's edge (the registration is not bit-deterministic run to
-    run: docs/benchmarks.md, "Archive"). So: the same number of regions per visit,
-    each box within 1 px, each area within the region's one-pixel boundary ring
-    (its box perimeter).
+    run: docs/benchmarks.md, "Archive analysis on Dask (`fgcd bench archive`)").
+    So: the same number of regions per visit, each box within 1 px, each area
+    within the region's one-pixel boundary ring (its box perimeter).
     """
     if got.keys() != want.keys():
         return False

@@ -24,7 +24,7 @@ def test_db1_all_lightings():
     assert result.registration.ecc_correlation > 0.85
     sweep = sweep_scores(result.score, truth, eval_mask=mask)
     auto = binary_scores(result.mask, truth, eval_mask=mask)
-    # Development figures 0.84 / 0.85 (docs/benchmarks.md); the test guards against
+    # Development figures 0.84 / 0.85 (docs/lab/2026-11-23-changes-in-sample.md); the test guards against
     # regressions with margin, and checks the automatic threshold stays near the oracle.
     assert sweep.best_f1 > 0.75
     assert auto.f1 > 0.7

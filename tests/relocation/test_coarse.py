@@ -262,12 +262,12 @@ def test_a_verified_image_estimate_is_not_moved_by_the_session_scale_error(refer
 
 
 def test_an_exact_image_estimate_verifies_through_a_large_session_scale_error(reference_points, monkeypatch):
-    """A 5 % scale error (the statue's revisit, docs/benchmarks.md) shifts a check at the session's scale by
-    5 % of 1.5 m = 75 mm, beyond the 50 mm limit, at the true pose: nothing could verify. The image estimate
-    is checked at the scale the alignment measured, whatever sigma the session claims (1 % here: the fit does
-    not count the map's drift), and verifies; the 3D estimate, checked at its own scale only within the
-    session's 3 sigma, keeps the session's. A metric session (sigma 0) keeps its own scale for both, and the
-    same exact estimate is refused, not moved."""
+    """A 5 % scale error (the statue's revisit, docs/lab/2026-11-27-coarse-far-starts.md) shifts a check at the
+    session's scale by 5 % of 1.5 m = 75 mm, beyond the 50 mm limit, at the true pose: nothing could verify.
+    The image estimate is checked at the scale the alignment measured, whatever sigma the session claims (1 %
+    here: the fit does not count the map's drift), and verifies; the 3D estimate, checked at its own scale only
+    within the session's 3 sigma, keeps the session's. A metric session (sigma 0) keeps its own scale for both,
+    and the same exact estimate is refused, not moved."""
     for claimed in (0.04, 0.01):
         result, session = _scale_error_run(reference_points, monkeypatch, scale_error=0.05, scale_rel_std=claimed)
         assert result.handed_over, (claimed, result.reason)
