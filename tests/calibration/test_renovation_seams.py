@@ -12,30 +12,16 @@ import pytest
 from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.app.calibrate import HandEyeCalibration, HandEyeMode, HandEyeRequest, HandEyeRig, run_handeye
 from fgcd_cli.calibration.handeye import HandEyeMethod, Regress
-from fgcd_cli.calibration.handeye_refine import RefineConfig
 from fgcd_cli.calibration.handeye_target import OPENCV_METHODS, TargetSolver
 from fgcd_cli.calibration.intrinsics import DISTORTION_MODELS, DistortionModel
-from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig, run_target, run_target_free
-from fgcd_cli.calibration.target_free import ScaleMethod, TargetFreeConfig
-from fgcd_cli.calibration.tracks import MatchConfig, pair_list
+from fgcd_cli.calibration.procedure import TargetFreeRunConfig, run_target, run_target_free
+from fgcd_cli.calibration.target_free import ScaleMethod
+from fgcd_cli.calibration.tracks import pair_list
 from fgcd_core.se3 import exp_so3, make_pose
 
 
-def test_config_defaults_are_the_former_keyword_defaults():
-    assert TargetFreeRunConfig() == TargetFreeRunConfig(motions=None, translation_m=0.03, rotation_deg=8.0,
-                                                        settle_frames=3, max_step_m=0.005, max_step_deg=1.0,
-                                                        refine=True)
-    assert TargetRunConfig() == TargetRunConfig(motions=None, rotation_deg=15.0, translation_m=0.04,
-                                                methods=("TSAI", "PARK", "HORAUD", "ANDREFF", "DANIILIDIS"),
-                                                min_corners=12)
-    assert MatchConfig() == MatchConfig(ratio=0.8, ransac_px=1.0, n_features=1500, max_points=3000,
-                                        match_window=None, anchors=())
-    assert RefineConfig() == RefineConfig(reject_px=2.0, min_points=60, estimate_rotation_scale=True)
-    assert TargetFreeConfig() == TargetFreeConfig(n_features=1500, match_window=2)
-    request = HandEyeRequest()
-    assert (request.mode, request.translation_mm, request.rotation_deg, request.board_file, request.refine) == (
-        "target-free", 30.0, 8.0, None, True)
-    assert request.translation_mm / 1000 == TargetFreeRunConfig().translation_m
+def test_the_hand_eye_request_moves_as_far_as_the_procedure():
+    assert HandEyeRequest().translation_mm / 1000 == TargetFreeRunConfig().translation_m
 
 
 def test_enums_keep_the_strings_of_logs_and_json():

@@ -19,9 +19,7 @@ from fgcd_drivers.manual import ManualPlatform
 from fgcd_drivers.ur import abandoned_interface_count
 
 
-def test_platform_spec_defaults_and_the_one_call_form():
-    spec = PlatformSpec()
-    assert (spec.port, spec.baud, spec.host, spec.connect, spec.sim_rig) == (None, 115200, None, True, None)
+def test_platforms_open_in_one_call_form_with_their_options_in_a_spec():
     assert DRIVERS == ("sim", "grbl", "ur", "manual")
     manual = ManualPlatform()
     assert open_platform("sim", spec=PlatformSpec(sim_rig=manual, connect=False)) is manual
@@ -99,19 +97,11 @@ def test_grbl_status_parsing_keeps_wco_for_wpos():
     assert parse_status("<Idle|MPos:a,b,c>", "XYZ", wco, received_at=3.0)[0] is None
 
 
-def test_sim_configs_keep_old_defaults():
+def test_a_sim_platform_takes_its_config_and_refuses_four_axes():
     from fgcd_drivers.sim.platform import SimFault, SimPlatform, SimPlatformConfig
-    from fgcd_drivers.sim.rig import SimRigConfig
 
-    c = SimPlatformConfig()
-    assert (c.seconds_per_m, c.rotation_deg_per_s, c.settle_s, c.dof, c.realtime_factor, c.timeout_s, c.name) == (
-        150.0, 5.0, 0.2, 6, None, 600.0, "sim")
     p = SimPlatform(config=SimPlatformConfig(dof=3, timeout_s=3.0))
     assert (p.dof, p.timeout_s, p.rotation_rad_per_s) == (3, 3.0, math.radians(5.0))
     with pytest.raises(ValueError):
         SimPlatform(config=SimPlatformConfig(dof=4))
     assert [f.value for f in SimFault] == ["timeout", "estop", "disconnect"]
-    r = SimRigConfig()
-    assert (r.lighting, r.seed, r.noise, r.intrinsics_error, r.supersample, r.exposure, r.dof,
-            r.workspace_half_m, r.scene_seed, r.session_seed) == ("front", 0, "default", "default", 1, "auto", 6,
-                                                                  0.25, 0, 0)

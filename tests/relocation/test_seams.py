@@ -1,6 +1,5 @@
 """The seams of the renovated relocation package (#20): defaults, enum values, injection, condition waits."""
 
-import math
 import threading
 import time
 
@@ -12,28 +11,6 @@ from fgcd_cli.relocation.enums import Agreement, CoarseAction, EstimateSource, E
 from fgcd_cli.relocation.loop import LoopContext, RelocationConfig, relocate
 from fgcd_cli.relocation.waiting import wait_for_state
 from fgcd_cli.relocation.worker import AlignmentWorker
-
-
-def test_relocation_config_defaults_are_the_old_ones():
-    c = RelocationConfig()
-    assert (c.mode, c.eta, c.max_adjustments, c.max_step_m, c.max_step_rad, c.fine, c.min_points) == (
-        "parallel", 1e-4, 12, 0.05, math.radians(10.0), True, 500)
-    assert (c.estimate_timeout_s, c.stop_afd_px, c.divergence_factor, c.divergence_margin_mm,
-            c.divergence_margin_deg, c.divergence_patience, c.max_offset_m, c.max_offset_deg) == (
-        120.0, 0.5, 1.5, 10.0, 1.0, 2, 0.25, 20.0)
-    assert (c.image_refine, c.image_refine_steps, c.image_stop_afd_px, c.image_fallback, c.image_fallback_steps,
-            c.untrusted_patience, c.untrusted_min_wait_s, c.degenerate_patience, c.tolerance_mm) == (
-        True, 4, 0.5, True, 6, 6, 20.0, 3, None)
-    assert (c.vse_sigma_rel, c.agreement_k, c.agreement_wait_s, c.heartbeat_s) == (0.01, 2.0, 30.0, 5.0)
-
-
-def test_coarse_config_defaults_are_the_documented_ones():
-    c = CoarseConfig()
-    assert (c.trigger_m, c.trigger_deg, c.handover_m, c.handover_deg, c.verify_m, c.verify_deg, c.weak_ratio,
-            c.min_fitness, c.step_m, c.step_deg, c.look_deg, c.max_steps, c.max_looks, c.render_stride_px,
-            c.max_points) == (0.10, 8.0, None, None, 0.05, 5.0, None, 0.5, 0.08, 8.0, 4.0, 10, 3, 4, 6000)
-    # issue 25: the hand-over radius and the weak directions come from a stated covariance model
-    assert (c.basin_m, c.basin_deg, c.sigma_rel, c.k_sigma) == (0.05, 5.0, 0.01, 2.0)
 
 
 def test_enum_values_are_the_logged_strings():

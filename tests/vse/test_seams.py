@@ -9,24 +9,12 @@ import pytest
 
 from fgcd_core.se3 import exp_se3
 from fgcd_cli.vse import MonocularVSE, RgbdVSE, SparseVSE, VisualSlamEngine, VseConfig, VseStatus, VseVariant, make_engine
-from fgcd_cli.vse.ba import (BundleAdjustConfig, OutlierRejectionConfig, bundle_adjust,
+from fgcd_cli.vse.ba import (BundleAdjustConfig, bundle_adjust,
                              bundle_adjust_rejecting_outliers)
 from fgcd_cli.vse.cloud import DepthImageCloud, LandmarkCloud, SemiDenseCloud
 from fgcd_cli.vse.depth_source import DepthImage, Triangulation
-from fgcd_cli.vse.epipolar import EpipolarSearchConfig
 from fgcd_cli.vse.frontend import FrontendKind, KltTracking, OrbTracking
 from fgcd_cli.vse.semidense import KeyframeDepthConfig, keyframe_depth
-
-
-def test_option_dataclasses_keep_the_former_defaults():
-    assert BundleAdjustConfig() == BundleAdjustConfig(iterations=10, huber_px=1.5)
-    assert OutlierRejectionConfig() == OutlierRejectionConfig(iterations=10, huber_px=1.0, outlier_sigmas=4.0,
-                                                              outlier_min_px=0.5, outlier_max_px=6.0, max_rounds=4)
-    assert EpipolarSearchConfig() == EpipolarSearchConfig(noise_sigma=2.0 / 255.0, geometric_sigma_px=0.1,
-                                                          max_samples=160, uniqueness=0.7,
-                                                          max_cost_per_px=(12.0 / 255.0) ** 2, chunk=2048)
-    assert KeyframeDepthConfig() == KeyframeDepthConfig(grad_threshold=6.0, max_points=12000, cell_px=3, min_views=2,
-                                                        max_rel_sigma=0.02, noise_sigma=2.0 / 255.0)
 
 
 def test_status_is_a_string_with_the_former_values():
