@@ -38,6 +38,8 @@ __all__ = [
     "pose_distance",
     "transform_points",
     "look_at",
+    "flange_motion",
+    "camera_motion",
 ]
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -233,3 +235,31 @@ def look_at(
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_pose(np.column_stack([x, y, z]), eye)
+
+
+def flange_motion(T_flange_cam: np.ndarray, M_cam: np.ndarray) -> np.ndarray:
+    """The flange motion that moves the camera by ``M_cam``: ``M_flange = X M_cam X⁻¹`` (paper 000, Eq. 3).
+
+    Parameters
+    ----------
+    T_flange_cam : (4, 4) ndarray
+        Hand-eye transform ``X``: the camera in the flange frame, metres (identity: no hand-eye).
+    M_cam : (4, 4) ndarray
+        The camera's motion, expressed in its own frame before the motion, metres.
+
+    Returns
+    -------
+    (4, 4) ndarray
+        The same rigid motion as the flange must make it, in the flange frame before the motion.
+    """
+    X = np.asarray(T_flange_cam, dtype=float)
+    return X @ np.asarray(M_cam, dtype=float) @ invert_pose(X)
+
+
+def camera_motion(T_flange_cam: np.ndarray, M_flange: np.ndarray) -> np.ndarray:
+    """The camera motion a flange motion makes: ``M_cam = X⁻¹ M_flange X``, the inverse of :func:`flange_motion`.
+
+    Shapes and units as :func:`flange_motion`.
+    """
+    X = np.asarray(T_flange_cam, dtype=float)
+    return invert_pose(X) @ np.asarray(M_flange, dtype=float) @ X

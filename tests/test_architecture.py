@@ -238,3 +238,23 @@ def test_options_travel_in_config_objects_not_keyword_catch_alls():
                         and node.name not in ALLOWED_KEYWORD_CATCH_ALLS.get(rel, ())):
                     found.append(f"{rel}:{node.lineno} {node.name}(**{node.args.kwarg.arg})")
     assert not found
+
+
+#: Paper 000's Eq. 3 written out: ``X @ M @ invert_pose(X)`` (or its inverse ``invert_pose(X) @ M @ X``).
+EQ3_WRITTEN_OUT = r"\bX\b[^#\n]*@[^#\n]*@\s*invert_pose\(\s*(self\.)?X\s*\)|invert_pose\(\s*(self\.)?X\s*\)\s*@[^#\n]*@\s*(self\.)?X\b"
+
+
+def test_eq3_is_written_out_in_one_function_only():
+    """The camera motion as a flange motion has one home: ``fgcd_core.se3.flange_motion`` / ``camera_motion``."""
+    import re
+
+    pattern = re.compile(EQ3_WRITTEN_OUT)
+    homes = set()
+    for path in sorted(p for folder in ("fgcd_cli", "fgcd_core", "drivers", "scripts")
+                       for p in (ROOT / folder).rglob("*.py")):
+        for line in path.read_text(encoding="utf-8").splitlines():
+            if pattern.search(line):
+                homes.add(path.relative_to(ROOT).as_posix())
+    assert homes == {"fgcd_core/se3.py"}
+    assert pattern.search("M_flange = X @ M_cam @ invert_pose(X)")  # the checker sees the inline form
+    assert pattern.search("step = invert_pose(self.X) @ M_cmd @ self.X")

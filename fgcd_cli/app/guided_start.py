@@ -17,7 +17,7 @@ from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import grab_gray, reference_images, start_session
 from fgcd_cli.relocation.coarse import CoarseConfig, image_estimate
 from fgcd_cli.relocation.guided import guided_waypoints, motions_between, within_workspace
-from fgcd_core.se3 import invert_pose, pose_distance
+from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 
 __all__ = ["GuidedPlan", "guided_exploration", "start_revisit_session", "workspace_bounds"]
 
@@ -60,7 +60,7 @@ def guided_exploration(rig: RigHandles, station, reference, *, explore_m: float,
         return GuidedPlan(None, f"no image estimate ({info.get('pnp')}): the usual exploration", seconds)
     X = np.asarray(rig.T_flange_cam, dtype=float)
     M_cam = invert_pose(T_img) @ np.asarray(reference.T_ref_camref, dtype=float)
-    M_flange = X @ M_cam @ invert_pose(X)
+    M_flange = flange_motion(X, M_cam)
     mm, deg = pose_distance(np.eye(4), M_flange)
     if mm > near.trigger_m * 1e3 or deg > near.trigger_deg:
         return GuidedPlan(None, f"image estimate {mm:.0f} mm / {deg:.1f} deg away (a far start): the usual "

@@ -40,7 +40,7 @@ from fgcd_cli.calibration.samples import (
     validate_poses,
 )
 from fgcd_cli.errors import UserInputError
-from fgcd_core.se3 import invert_pose, log_so3, make_pose, pose_distance
+from fgcd_core.se3 import log_so3, make_pose, pose_distance
 
 __all__ = [
     "HandEyeResult",
@@ -53,7 +53,6 @@ __all__ = [
     "per_sample_residuals",
     "utc_now",
     "rotation_from_axes",
-    "flange_motion_for_camera_motion",
 ]
 
 
@@ -366,8 +365,3 @@ def _fit_scale(u: np.ndarray, b: np.ndarray, regress: Regress, shared: float) ->
     r = u - b / scale  # map units
     return scale, float(math.sqrt(float(r @ r) / dof / bb)) * scale**2 * shared
 
-
-def flange_motion_for_camera_motion(T_flange_cam: np.ndarray, T_cam_motion: np.ndarray) -> np.ndarray:
-    """Flange motion ``M_B = X M_A X^-1`` that moves the camera by ``M_A`` (in the camera frame)."""
-    X = np.asarray(T_flange_cam, dtype=float)
-    return X @ np.asarray(T_cam_motion, dtype=float) @ invert_pose(X)

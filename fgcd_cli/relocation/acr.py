@@ -36,7 +36,7 @@ from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.acr_pose import AcrModel, AcrPoseConfig, RelativePose, measure_relative_pose
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.session import SessionTiming
-from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose, rotation_angle_rad
+from fgcd_core.se3 import exp_so3, flange_motion, log_so3, make_pose, rotation_angle_rad
 
 __all__ = ["AcrConfig", "AcrRig", "Bisection", "acr_camera_motion", "acr_relocate"]
 
@@ -205,7 +205,7 @@ def acr_relocate(rig: AcrRig, reference_image: np.ndarray, K: np.ndarray, *,
         step_m = 0.0 if (done or not pose.ok) else bisection.length(pose.t_dir)
         M_cam = acr_camera_motion(pose, step_m, max_step_rad=config.max_step_rad) if pose.ok else np.eye(4)
         too_small = pose.ok and not done and step_m < config.min_step_m
-        M_flange = np.eye(4) if (done or too_small) else X @ M_cam @ invert_pose(X)
+        M_flange = np.eye(4) if (done or too_small) else flange_motion(X, M_cam)
         records.append(_record(rig, iteration=iteration, stage=stage, pose=pose, M_flange=M_flange, step_m=step_m,
                                t_start=t_start))
         if rig.on_record:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_core.se3 import exp_se3, invert_pose, log_se3, pose_distance, rotation_angle_rad
+from fgcd_core.se3 import exp_se3, flange_motion, invert_pose, log_se3, pose_distance, rotation_angle_rad
 from fgcd_core.sim3 import Sim3
 
 __all__ = ["Adjustment", "camera_in_reference", "compute_adjustment", "clamp_motion"]
@@ -131,7 +131,7 @@ def compute_adjustment(
     T_ref_cam = camera_in_reference(T_ref_cur, T_cur_cam)
     M_cam = invert_pose(T_ref_cam) @ np.asarray(T_ref_camref, dtype=float)
     X = np.asarray(T_flange_cam, dtype=float)
-    M_flange = X @ M_cam @ invert_pose(X)
+    M_flange = flange_motion(X, M_cam)  # paper 000, Eq. 3
     M_cmd, clamped = clamp_motion(M_flange, max_step_m=max_step_m, max_step_rad=max_step_rad)
     g = float(np.linalg.norm(M_flange - np.eye(4)))
     off_mm, off_deg = pose_distance(T_ref_cam, T_ref_camref)

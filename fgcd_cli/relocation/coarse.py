@@ -51,7 +51,7 @@ from fgcd_cli.relocation.scene_uncertainty import SceneUncertaintyMap, camera_tu
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import reference_depth_m
 from fgcd_cli.relocation.uncertainty import CameraUncertainty, camera_uncertainty, in_view, render_visible_points
-from fgcd_core.se3 import invert_pose, pose_distance
+from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
 
 __all__ = [
@@ -310,7 +310,7 @@ class _CoarseRun:
                   "bring the camera nearer the reference pose")
         try:  # back to the heading the stage started from: the loop starts where it would have
             if self.heading != (0.0, 0.0):
-                self.inp.session.move_by(self.X @ invert_pose(camera_turn(*self.heading)) @ invert_pose(self.X))
+                self.inp.session.move_by(flange_motion(self.X, invert_pose(camera_turn(*self.heading))))
         except MotionRejected:
             pass
         return CoarseResult(False, reason, None, self.steps)
@@ -360,7 +360,7 @@ class _CoarseRun:
         target, note = self._choose_look(view)
         M_cam = invert_pose(camera_turn(*self.heading)) @ camera_turn(*target)
         try:
-            inp.session.move_by(self.X @ M_cam @ invert_pose(self.X))
+            inp.session.move_by(flange_motion(self.X, M_cam))
         except MotionRejected as exc:
             return CoarseResult(False, f"coarse stage: a look-around motion is refused by the platform "
                                 f"guard ({exc})", None, self.steps)
@@ -388,7 +388,7 @@ class _CoarseRun:
         M_half = np.eye(4)  # half the translation, half the rotation angle about the same axis
         M_half[:3, :3] = Rotation.from_rotvec(0.5 * Rotation.from_matrix(M_cam[:3, :3]).as_rotvec()).as_matrix()
         M_half[:3, 3] = 0.5 * M_cam[:3, 3]
-        M_flange, _ = clamp_motion(self.X @ M_half @ invert_pose(self.X), max_step_m=c.step_m,
+        M_flange, _ = clamp_motion(flange_motion(self.X, M_half), max_step_m=c.step_m,
                                    max_step_rad=math.radians(c.step_deg))
         cmd_mm, cmd_deg = pose_distance(np.eye(4), M_flange)
         inp.say(f"coarse step {step}: no verified estimate; descending {cmd_mm:.0f} mm toward the reference on the "
@@ -417,7 +417,7 @@ class _CoarseRun:
             return CoarseResult(True, f"verified {name} estimate within {self.handover_m * 1e3:.0f} mm / "
                                 f"{self.handover_deg:.1f} deg", self.last_3d, self.steps)
         M_cam = invert_pose(T_ref_cam) @ self.T_ref_camref
-        M_flange, _ = clamp_motion(self.X @ M_cam @ invert_pose(self.X), max_step_m=c.step_m,
+        M_flange, _ = clamp_motion(flange_motion(self.X, M_cam), max_step_m=c.step_m,
                                    max_step_rad=math.radians(c.step_deg))
         cmd_mm, cmd_deg = pose_distance(np.eye(4), M_flange)
         self._log(step, CoarseAction.MOVE, name, view, truth, offset=(off_mm, off_deg), commanded=(cmd_mm, cmd_deg))

@@ -53,7 +53,7 @@ from fgcd_cli.relocation.enums import Agreement, EstimateSource, EstimateStage
 from fgcd_cli.relocation.image_probe import Prediction, corroborates, predict_after_step
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.stop_rule import Residual, estimated_afd_px, frame_afd_bound_px
-from fgcd_core.se3 import invert_pose, pose_distance
+from fgcd_core.se3 import camera_motion, flange_motion, invert_pose, pose_distance
 
 __all__ = ["image_stage"]
 
@@ -78,7 +78,7 @@ def _measurement(ctx: LoopContext, ref, last: AdjustmentRecord | None) -> _Measu
         c, reference = ctx.config, ctx.reference
         X = np.asarray(ctx.T_flange_cam, dtype=float)
         T_ref_cam = np.asarray(reference.T_ref_camref, dtype=float) @ invert_pose(ref.M_cam)
-        M_flange = X @ ref.M_cam @ invert_pose(X)
+        M_flange = flange_motion(X, ref.M_cam)
         M_cmd, clamped = clamp_motion(M_flange, max_step_m=c.max_step_m, max_step_rad=c.max_step_rad)
         off_mm, off_deg = pose_distance(T_ref_cam, reference.T_ref_camref)
         return _Measurement(T_ref_cam=T_ref_cam, M_cmd=M_cmd, clamped=clamped,
@@ -237,9 +237,9 @@ class _ImageStage:
         (:mod:`.image_probe`). Returns False (the stage goes on)."""
         ctx, c = self.ctx, self.ctx.config
         X = np.asarray(ctx.T_flange_cam, dtype=float)
-        M_cmd, _ = clamp_motion(X @ ref.step_M_cam @ invert_pose(X), max_step_m=c.max_step_m,
+        M_cmd, _ = clamp_motion(flange_motion(X, ref.step_M_cam), max_step_m=c.max_step_m,
                                 max_step_rad=c.max_step_rad)
-        step_cam = invert_pose(X) @ M_cmd @ X
+        step_cam = camera_motion(X, M_cmd)
         self.pending = predict_after_step(ctx.reference.T_ref_camref, ref.M_cam, step_cam, sigma_mm=ref.offset_sigma_mm)
         m = replace(_measurement(ctx, replace(ref, ok=True), self.last), M_cmd=M_cmd, clamped=True)
         self.st.add(ctx, self._record(step, state, ref, m, None, None))

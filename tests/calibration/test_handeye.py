@@ -12,13 +12,12 @@ from fgcd_cli.calibration.handeye import (
     HandEyeResult,
     ScaleResult,
     estimate_scale,
-    flange_motion_for_camera_motion,
     solve_handeye_scale,
 )
 from fgcd_cli.calibration.handeye_target import solve_handeye_target
 from fgcd_cli.calibration.samples import rotation_axis_spread_deg
 from fgcd_cli.errors import UserInputError
-from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose, pose_distance
+from fgcd_core.se3 import camera_motion, exp_so3, flange_motion, invert_pose, log_so3, make_pose, pose_distance
 
 # Default noise of the noisy cases: platform 0.2 mm / 0.02 deg, VSE 0.3 mm / 0.05 deg per pose.
 NOISE = dict(
@@ -36,7 +35,8 @@ def test_convention_hand_motion_times_x_equals_x_times_camera_motion(handeye_dat
         MA = invert_pose(d["T_map_cam"][i]) @ d["T_map_cam"][j]
         MA[:3, 3] *= s
         np.testing.assert_allclose(MB @ X, X @ MA, atol=1e-12)
-        np.testing.assert_allclose(flange_motion_for_camera_motion(X, MA), MB, atol=1e-12)
+        np.testing.assert_allclose(flange_motion(X, MA), MB, atol=1e-12)  # paper 000, Eq. 3
+        np.testing.assert_allclose(camera_motion(X, MB), MA, atol=1e-12)
 
 
 def test_axis_projection_scale_formula_in_our_convention(handeye_data):
