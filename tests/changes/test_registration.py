@@ -3,11 +3,15 @@ import numpy as np
 
 from fgcd_cli.changes.registration import (
     ecc_gradient,
+    match_sift,
     overlap_fraction,
     register_to_reference,
+    to_uint8,
     warp_to_reference,
     without_ipp,
 )
+
+from .conftest import textured_scene, translate
 
 
 def test_recovers_subpixel_shift_under_gain_ramp(scene_pair):
@@ -74,3 +78,25 @@ def test_without_ipp_restores_the_callers_setting():
     with without_ipp():
         assert not cv2.ipp.useIPP()
     assert cv2.ipp.useIPP() == before
+
+
+def test_eight_bit_levels_round_half_up_in_the_images_precision():
+    grey = np.array([[0.0, 1.0, -0.1, 1.2], [100.4 / 255, 100.6 / 255, 0.25, 0.75]])
+    for image in (grey.astype(np.float32), grey):
+        levels = to_uint8(image)
+        assert levels.dtype == np.uint8 and levels.tolist() == [[0, 255, 0, 255], [100, 101, 64, 191]]
+
+
+def test_sift_matches_follow_the_shift_and_a_blank_image_has_none():
+    ref = textured_scene(256)
+    cur = translate(ref, 3.2, -1.7)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # SIFT's keypoint order follows OpenCV's thread scheduling: one thread, one order
+    try:
+        points_ref, points_cur = match_sift(ref, cur)
+        assert len(points_ref) > 50 and points_ref.shape == points_cur.shape
+        np.testing.assert_allclose(np.median(points_cur - points_ref, axis=0), [3.2, -1.7], atol=0.1)
+        blank_ref, blank_cur = match_sift(np.zeros_like(ref), cur)
+        assert blank_ref.shape == blank_cur.shape == (0, 2)
+    finally:
+        cv2.setNumThreads(before)

@@ -1,12 +1,8 @@
-"""fgcd_core.imaging reproduces every grey converter, CLAHE and SIFT matcher it replaces, bit for bit.
+"""fgcd_core.imaging: grey images by declared dtype and channel rule, 8-bit levels, CLAHE, SIFT and matching.
 
-Each old copy (tests/core/legacy_gray.py) is compared with the canonical call
-that replaces it, on uint8, uint16 and float inputs; where the declared-dtype
-rule deliberately differs from an old copy's guess, the test says so.
+Known colours give their Rec. 601 luma (or their mean), 8-bit levels follow the stated rounding rule, SIFT
+finds the shift of a shifted texture; undeclared dtypes and shapes are refused.
 """
-
-import importlib.util
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -23,10 +19,6 @@ from fgcd_core.imaging import (
     to_gray_f32,
     to_gray_u8,
 )
-
-_spec = importlib.util.spec_from_file_location("legacy_gray", Path(__file__).with_name("legacy_gray.py"))
-legacy = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(legacy)
 
 
 def _texture(h=180, w=240, seed=0) -> np.ndarray:
@@ -56,89 +48,90 @@ def _same(a, b):
     assert np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("name", sorted(INPUTS))
-def test_camera_sources_pipeline(name):
-    """fgcd_drivers.cameras.to_gray_float == to_gray_f32(channels=LUMA_601_F32) on every dtype."""
-    _same(to_gray_f32(INPUTS[name], channels=GrayChannels.LUMA_601_F32),
-          legacy.drivers_cameras_to_gray_float(INPUTS[name]))
-
-
-@pytest.mark.parametrize("name", sorted(k for k in INPUTS if not k.startswith("u16")))
-def test_vse_converters(name):
-    """vse.features.to_gray_f32 / to_gray_u8 == the defaults (uint16 differs: it was not scaled)."""
-    _same(to_gray_f32(INPUTS[name]), legacy.vse_features_to_gray_f32(INPUTS[name]))
-    _same(to_gray_u8(INPUTS[name]), legacy.vse_features_to_gray_u8(INPUTS[name]))
-
-
 def test_uint16_is_scaled_by_its_dtype():
     img = INPUTS["u16_gray"]
     _same(to_gray_f32(img), img.astype(np.float32) / 65535.0)
     assert float(to_gray_f32(INPUTS["u16_rgb"]).max()) <= 1.0
 
 
-@pytest.mark.parametrize("name", ["u8_rgb", "u8_rgba", "u8_gray", "f32_gray", "f64_gray"])
-def test_board_converter(name):
-    """calibration.board._to_gray_u8 == to_gray_u8(rounding=HALF_UP_F64) (float RGB: luma, was the mean)."""
-    _same(to_gray_u8(INPUTS[name], rounding=U8Rounding.HALF_UP_F64), legacy.calibration_board_to_gray_u8(INPUTS[name]))
+def _one_pixel(*rgb, dtype=np.uint8) -> np.ndarray:
+    return np.array([[rgb]], dtype=dtype)
 
 
-@pytest.mark.parametrize("name", ["u8_rgb", "u8_gray", "f32_rgb", "f32_gray", "f64_gray"])
-def test_handeye_converter(name):
-    """handeye_ba.gray_u8 == to_gray_u8(rounding=TRUNCATE_F32) on [0, 1] floats (it guessed [0, 255] otherwise)."""
-    _same(to_gray_u8(INPUTS[name], rounding=U8Rounding.TRUNCATE_F32), legacy.handeye_ba_gray_u8(INPUTS[name]))
+@pytest.mark.parametrize("rgb, luma_u8", [((255, 0, 0), 76), ((0, 255, 0), 150), ((0, 0, 255), 29),
+                                          ((255, 255, 255), 255), ((0, 0, 0), 0)])
+def test_a_known_colour_gives_its_rec601_luma(rgb, luma_u8):
+    """Y = 0.299 R + 0.587 G + 0.114 B, rounded to the integer type first (OpenCV), then scaled to [0, 1]."""
+    img = _one_pixel(*rgb)
+    assert to_gray_u8(img)[0, 0] == luma_u8
+    assert to_gray_f32(img)[0, 0] == np.float32(luma_u8) / np.float32(255)
+    # the camera sources' rule: no intermediate rounding
+    exact = (0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2]) / 255
+    assert to_gray_f32(img, channels=GrayChannels.LUMA_601_F32)[0, 0] == pytest.approx(exact, abs=1e-6)
+    assert to_gray_f32(img, channels=GrayChannels.MEAN)[0, 0] == pytest.approx(sum(rgb) / 3 / 255, abs=1e-6)
+    # the alpha channel is ignored
+    assert to_gray_u8(_one_pixel(*rgb, 7))[0, 0] == luma_u8
+    assert to_gray_f32(_one_pixel(*rgb, 7), channels=GrayChannels.MEAN)[0, 0] == to_gray_f32(
+        img, channels=GrayChannels.MEAN)[0, 0]
 
 
-@pytest.mark.parametrize("name", ["f32_rgb", "f32_gray"])
-def test_change_detection_mean(name):
-    """changes.images.to_gray and changes.tiled._gray == to_gray_f32(channels=MEAN) on their float32 inputs."""
-    _same(to_gray_f32(INPUTS[name], channels=GrayChannels.MEAN), legacy.changes_images_to_gray(INPUTS[name]))
-    _same(to_gray_f32(INPUTS[name], channels=GrayChannels.MEAN), legacy.changes_tiled_gray(INPUTS[name]))
+def test_other_dtypes_take_their_range_from_the_dtype():
+    red16 = _one_pixel(65535, 0, 0, dtype=np.uint16)
+    assert abs(float(to_gray_f32(red16)[0, 0]) * 65535 - 0.299 * 65535) <= 1.5  # luma within a 16-bit level
+    colour = _one_pixel(0.2, 0.4, 0.6, dtype=np.float32)  # floats are taken as [0, 1]
+    assert to_gray_f32(colour)[0, 0] == pytest.approx(0.299 * 0.2 + 0.587 * 0.4 + 0.114 * 0.6, abs=1e-6)
+    assert to_gray_f32(colour, channels=GrayChannels.MEAN)[0, 0] == pytest.approx(0.4, abs=1e-7)
+    assert to_gray_f32(colour.astype(np.float64)).dtype == np.float32
 
 
-@pytest.mark.parametrize("name", ["u8_rgb", "u8_gray", "f32_rgb", "f32_gray", "f64_gray"])
-def test_photometric_converter(name):
-    """alignment.photometric._as_float_gray == to_gray_f32() (it could not take float64 colour)."""
-    _same(to_gray_f32(INPUTS[name]), legacy.alignment_photometric_as_float_gray(INPUTS[name]))
+def test_eight_bit_levels_follow_the_rounding_rule():
+    grey = np.array([[0.0, 1.0, -0.1, 1.2, 100.4 / 255, 100.6 / 255, 0.25, 0.75]], np.float32)
+    half_up = [0, 255, 0, 255, 100, 101, 64, 191]  # floor(x * 255 + 0.5), clipped
+    assert to_gray_u8(grey).tolist() == [half_up]
+    assert to_gray_u8(grey, rounding=U8Rounding.HALF_UP_F64).tolist() == [half_up]
+    assert to_gray_u8(grey, rounding=U8Rounding.TRUNCATE_F32).tolist() == [[0, 255, 0, 255, 100, 100, 63, 191]]
+    u8 = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    assert np.array_equal(to_gray_u8(u8), u8)  # uint8 grey passes through unchanged
+    assert np.array_equal(to_gray_f32(u8), u8.astype(np.float32) / 255.0)
 
 
-@pytest.mark.parametrize("name", ["f32_gray", "f64_gray"])
-def test_local_contrast(name):
-    """relocation.image_refine.local_contrast == to_gray_f32(clahe(to_gray_u8(g), clip_limit=3, tiles=8))."""
-    g = INPUTS[name]
-    _same(to_gray_f32(clahe(to_gray_u8(g), clip_limit=3.0, tiles=8)), legacy.relocation_local_contrast(g))
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32, np.float64])
+@pytest.mark.parametrize("colour", [False, True])
+def test_every_frame_dtype_gives_grey_of_the_declared_type(dtype, colour):
+    rng = np.random.default_rng(1)
+    shape = (37, 53, 3) if colour else (37, 53)
+    img = rng.integers(0, 256, shape).astype(np.uint8) if dtype == np.uint8 else rng.random(shape).astype(dtype)
+    u8, f32 = to_gray_u8(img), to_gray_f32(img)
+    assert u8.dtype == np.uint8 and f32.dtype == np.float32
+    assert u8.shape == f32.shape == (37, 53)
+    assert 0.0 <= float(f32.min()) and float(f32.max()) <= 1.0
 
 
-def test_registration_uint8_and_match_sift():
-    """changes.registration.match_sift(ref, cur) == match_sift(to_gray_u8(ref), to_gray_u8(cur))."""
-    ref = INPUTS["f32_gray"]
-    H = np.array([[1.0, 0.02, 3.0], [-0.01, 1.0, -2.0], [0.0, 0.0, 1.0]], np.float32)
-    cur = cv2.warpPerspective(ref, H, ref.shape[::-1])
-    _same(to_gray_u8(ref), legacy.registration_to_uint8(ref))
-    old = legacy.registration_match_sift(ref, cur, ratio=0.75, max_features=4000)
-    new = match_sift(to_gray_u8(ref), to_gray_u8(cur), ratio=0.75, max_features=4000)
-    assert len(old[0]) > 20
-    _same(new[0], old[0])
-    _same(new[1], old[1])
-    blank = np.zeros_like(ref)
-    for a, b in zip(match_sift(to_gray_u8(blank), to_gray_u8(cur)), legacy.registration_match_sift(blank, cur)):
-        _same(a, b)
+def _shifted(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    return cv2.warpAffine(image, np.float32([[1, 0, dx], [0, 1, dy]]), image.shape[::-1])
 
 
-def test_handeye_features_and_matching():
-    """handeye_ba.stop_features and its ratio-test, one-to-one FLANN matching."""
-    images = [INPUTS["f32_gray"], cv2.warpAffine(INPUTS["f32_gray"], np.float32([[1, 0, 4], [0, 1, -3]]), (240, 180))]
-    old = legacy.handeye_ba_stop_features(images)
-    new = [sift_features(clahe(to_gray_u8(im, rounding=U8Rounding.TRUNCATE_F32), clip_limit=3.0, tiles=8),
-                         n_features=1500) for im in images]
-    for (xo, do), (xn, dn) in zip(old, new):
-        _same(xn, xo)
-        _same(dn, do)
-    # FLANN's randomised kd-trees draw from OpenCV's global RNG: both runs start from the same seed
-    cv2.setRNGSeed(11)
-    idx = match_descriptors(new[0][1], new[1][1], ratio=0.8, matcher=DescriptorMatcher.FLANN, one_to_one=True)
-    cv2.setRNGSeed(11)
+def test_sift_matches_find_the_shift_of_a_shifted_texture_and_nothing_on_a_blank_image():
+    ref = to_gray_u8(INPUTS["f32_gray"])
+    cur = _shifted(ref, 4.0, -3.0)
+    points_ref, points_cur = match_sift(ref, cur, ratio=0.75, max_features=4000)
+    assert len(points_ref) > 20 and points_ref.dtype == np.float64
+    np.testing.assert_allclose(np.median(points_cur - points_ref, axis=0), [4.0, -3.0], atol=0.1)
+    blank_ref, blank_cur = match_sift(np.zeros_like(ref), cur)
+    assert blank_ref.shape == blank_cur.shape == (0, 2)
+
+
+def test_one_to_one_matching_uses_each_descriptor_once():
+    """The hand-eye refinement's features: CLAHE'd SIFT, FLANN ratio test, every ``b`` descriptor matched once."""
+    grey = to_gray_u8(INPUTS["f32_gray"], rounding=U8Rounding.TRUNCATE_F32)
+    (xy_a, d_a), (xy_b, d_b) = [sift_features(clahe(im, clip_limit=3.0, tiles=8), n_features=1500)
+                                for im in (grey, _shifted(grey, 4.0, -3.0))]
+    assert d_a.dtype == np.float32 and d_a.shape == (len(xy_a), 128)
+    cv2.setRNGSeed(11)  # FLANN's randomised kd-trees draw from OpenCV's global RNG
+    idx = match_descriptors(d_a, d_b, ratio=0.8, matcher=DescriptorMatcher.FLANN, one_to_one=True)
     assert len(idx) > 20
-    _same(idx, legacy.handeye_ba_ratio_one_to_one(old[0][1], old[1][1], ratio=0.8))
+    assert len(np.unique(idx[:, 1])) == len(idx)
+    np.testing.assert_allclose(np.median(xy_b[idx[:, 1]] - xy_a[idx[:, 0]], axis=0), [4.0, -3.0], atol=0.1)
 
 
 @pytest.mark.parametrize("dtype", [np.int32, np.int64, np.bool_, np.float16])

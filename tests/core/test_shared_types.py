@@ -1,6 +1,5 @@
-"""fgcd_core's shared types replace the old copies without changing a number or a file format."""
+"""fgcd_core's shared types: one look-at, one intrinsics type, one board geometry, the same file formats."""
 
-import importlib.util
 import json
 from dataclasses import fields
 from pathlib import Path
@@ -10,30 +9,39 @@ import pytest
 
 from fgcd_core.board import CharucoSpec
 from fgcd_core.camera import CameraIntrinsics, PinholeCamera
-from fgcd_core.se3 import look_at, rotation_angle_rad
-
-_spec = importlib.util.spec_from_file_location("legacy_gray", Path(__file__).with_name("legacy_gray.py"))
-legacy = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(legacy)
+from fgcd_core.se3 import look_at, make_pose, rotation_angle_rad
 
 RNG = np.random.default_rng(3)
 EYES = [RNG.normal(size=3) for _ in range(20)] + [np.array([0.0, -1.2, 1.1]), np.array([0.0, 0.0, -0.6])]
 TARGETS = [RNG.normal(size=3) for _ in range(20)] + [np.array([0.0, 0.0, 1.1]), np.zeros(3)]
 
 
-def test_look_at_matches_both_old_copies():
+def test_look_at_puts_an_opencv_camera_at_the_eye_facing_the_target():
+    """Camera z from the eye to the target, x = z x up, y = z x x (against up: down in the image)."""
+    # the synthetic reliefs' up (-y): looking along +z is the identity
+    np.testing.assert_allclose(look_at((0, 0, 0), (0, 0, 1), up=(0.0, -1.0, 0.0)), np.eye(4), atol=1e-15)
+    # the simulator's up (+z): a camera 1 m in front of the origin (-y) looking at it
+    facing = make_pose(np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]), [0.0, -1.0, 0.0])
+    np.testing.assert_allclose(look_at((0, -1, 0), (0, 0, 0), up=(0.0, 0.0, 1.0)), facing, atol=1e-15)
+    # looking along up: the fallback axis takes its place
+    down = make_pose(np.array([[0.0, -1, 0], [-1, 0, 0], [0, 0, -1]]), [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(look_at((0, 0, 1), (0, 0, 0), up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0)), down,
+                               atol=1e-15)
+    for eye, target in zip(EYES, TARGETS):
+        T = look_at(eye, target, up=(0.0, -1.0, 0.0), fallback_up=(0.0, 0.0, 1.0))
+        np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)
+        assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0)
+        z = (target - eye) / np.linalg.norm(target - eye)
+        np.testing.assert_allclose(T[:3, 2], z, atol=1e-12)
+        np.testing.assert_array_equal(T[:3, 3], eye)
+
+
+def test_the_simulators_look_at_is_the_core_one_with_z_up():
     from fgcd_drivers.sim.transforms import look_at as sim_look_at
 
-    for eye, target in zip(EYES, TARGETS):
-        assert np.array_equal(sim_look_at(eye, target), legacy.transforms_look_at(eye, target))
-        assert np.array_equal(look_at(eye, target, up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0)),
-                              legacy.transforms_look_at(eye, target))
-        assert np.array_equal(look_at(eye, target, up=(0.0, -1.0, 0.0), fallback_up=(0.0, 0.0, 1.0)),
-                              legacy.synthetic_look_at(eye, target))
-    # looking along up: each copy's own fallback axis
-    assert np.array_equal(sim_look_at((0, 0, 1), (0, 0, 0)), legacy.transforms_look_at((0, 0, 1), (0, 0, 0)))
-    assert np.array_equal(look_at((0, 0, 0), (0, 1, 0), up=(0.0, -1.0, 0.0), fallback_up=(0.0, 0.0, 1.0)),
-                          legacy.synthetic_look_at((0, 0, 0), (0, 1, 0)))
+    for eye, target in zip(EYES + [np.array([0.0, 0.0, 1.0])], TARGETS + [np.zeros(3)]):
+        assert np.array_equal(sim_look_at(eye, target),
+                              look_at(eye, target, up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0)))
 
 
 def test_look_at_needs_up_and_refuses_a_silent_fallback():

@@ -160,3 +160,17 @@ def test_low_contrast_wall_under_a_side_light_from_a_few_centimetres():
     assert res.matcher == "sift" and res.inliers >= ImageRefineConfig().strong_min_inliers
     mm, deg = pose_distance(res.M_cam, M_true)
     assert mm < 3.0 and deg < 0.1  # ~1 px at 1.5 m is 2.5 mm; the offset itself is 30 mm / 3 deg
+
+
+def test_local_contrast_is_the_core_clahe_and_its_8_bit_form_the_same_levels():
+    """CLAHE at clip limit 3 on 8 x 8 tiles of the 8-bit image, back to [0, 1]; SIFT sees the same levels in 8 bits."""
+    from fgcd_core.imaging import clahe, to_gray_f32, to_gray_u8
+    from fgcd_cli.relocation.image_refine import _local_contrast_u8, local_contrast
+
+    rng = np.random.default_rng(4)
+    levels = np.tile(np.arange(256, dtype=np.float32) / 255.0, (64, 1))
+    for g in (rng.uniform(0, 1, (120, 160)).astype(np.float32), rng.uniform(0, 1, (90, 70)), levels):
+        out = local_contrast(g)
+        assert out.dtype == np.float32 and out.shape == g.shape and 0.0 <= out.min() and out.max() <= 1.0
+        assert np.array_equal(out, to_gray_f32(clahe(to_gray_u8(g), clip_limit=3.0, tiles=8)))
+        assert np.array_equal(_local_contrast_u8(g), np.clip(out * 255.0 + 0.5, 0, 255).astype(np.uint8))

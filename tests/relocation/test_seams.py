@@ -94,25 +94,3 @@ def test_the_worker_wakes_its_reader_on_publication():
         assert not worker.wait_until(lambda e: e.serial == 99, 0.05)  # one frame only: no newer estimate
     finally:
         worker.stop()
-
-
-def _old_local_contrast(gray, *, clip_limit=3.0, tiles=8):
-    """The image stage's CLAHE before it moved to fgcd_core.imaging (float in, float out)."""
-    import cv2
-
-    u8 = np.clip(np.asarray(gray, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    return cv2.createCLAHE(clipLimit=float(clip_limit), tileGridSize=(int(tiles), int(tiles))).apply(u8).astype(
-        np.float32) / 255.0
-
-
-def test_local_contrast_through_fgcd_core_is_bit_identical():
-    from fgcd_cli.relocation.image_refine import _local_contrast_u8, local_contrast
-
-    rng = np.random.default_rng(4)
-    levels = np.tile(np.arange(256, dtype=np.float32) / 255.0, (64, 1))
-    for g in (rng.uniform(0, 1, (120, 160)).astype(np.float32), rng.uniform(0, 1, (90, 70)), levels):
-        old = _old_local_contrast(g)
-        new = local_contrast(g)
-        assert new.dtype == old.dtype and np.array_equal(new, old)
-        # SIFT used to see the float result converted back to 8 bits (changes.registration): the same levels
-        assert np.array_equal(_local_contrast_u8(g), np.clip(old * 255.0 + 0.5, 0, 255).astype(np.uint8))

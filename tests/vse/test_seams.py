@@ -1,8 +1,6 @@
 """The engine's parts and option dataclasses: former defaults, former call forms, variants by object."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -84,23 +82,3 @@ def test_frontends_state_what_depends_on_keypoint_precision():
 def test_unknown_variant_is_refused(small_camera):
     with pytest.raises(ValueError):
         make_engine("stereo", small_camera)
-
-
-# the former copies, kept verbatim once, in tests/core/legacy_gray.py
-_spec = importlib.util.spec_from_file_location("legacy_gray", Path(__file__).resolve().parents[1] / "core" / "legacy_gray.py")
-legacy = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(legacy)
-
-
-@pytest.mark.parametrize("dtype", [np.uint8, np.float32, np.float64])
-@pytest.mark.parametrize("colour", [False, True])
-def test_engine_grey_conversion_is_the_former_one_on_its_frame_dtypes(dtype, colour):
-    from fgcd_core.imaging import to_gray_f32, to_gray_u8
-
-    rng = np.random.default_rng(1)
-    shape = (37, 53, 3) if colour else (37, 53)
-    img = rng.integers(0, 256, shape).astype(np.uint8) if dtype == np.uint8 else rng.random(shape).astype(dtype)
-    u8, f32 = to_gray_u8(img), to_gray_f32(img)
-    np.testing.assert_array_equal(u8, legacy.vse_features_to_gray_u8(img))
-    np.testing.assert_array_equal(f32, legacy.vse_features_to_gray_f32(img))
-    assert u8.dtype == np.uint8 and f32.dtype == np.float32
