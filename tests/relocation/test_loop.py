@@ -17,6 +17,7 @@ import pytest
 from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core import Sim3
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs
 from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
 from fgcd_cli.relocation.session import VseSession
 
@@ -530,3 +531,23 @@ def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(mon
     assert res.records[-1].estimate_vse_frame >= frames_after_motion[-1]  # the stop saw the final view
     mm, _ = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)
     assert mm < 0.2
+
+
+def test_an_unknown_mode_is_refused_before_anything_starts():
+    from fgcd_cli.errors import AlgorithmError
+
+    with pytest.raises(AlgorithmError, match="unknown relocation mode 'sideways'"):
+        relocate(LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0,
+                             T_flange_cam=np.eye(4), init=None, config=RelocationConfig(mode="sideways")))
+
+
+def test_the_contexts_refuse_unknown_inputs_and_inject_their_parts():
+    with pytest.raises(TypeError):
+        LoopContext(session=None, unknown_option=1)
+    with pytest.raises(TypeError):
+        CoarseInputs(session=None, unknown_option=1)
+    ctx = LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
+                      init=None, image_refiner=lambda **kw: "measured")
+    assert ctx.refiner()() == "measured" and not ctx.can_image
+    assert CoarseInputs(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
+                        init=None, reference_images=None, grab_current=None).config == CoarseConfig()

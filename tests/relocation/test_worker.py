@@ -1,0 +1,26 @@
+"""relocation/worker.py: the alignment thread and the waits on what it publishes."""
+
+import time
+from types import SimpleNamespace
+
+import numpy as np
+
+from fgcd_cli.relocation.worker import AlignmentWorker
+
+
+def test_the_worker_wakes_its_reader_on_publication():
+    state = SimpleNamespace(status="tracking", cloud=np.zeros((10, 3)), frames_processed=0)
+    vse = SimpleNamespace(latest=lambda: state)
+
+    def aligner(*, state, serial=0, **kw):
+        time.sleep(0.05)
+        return [SimpleNamespace(serial=serial, ok=True, T_ref_cur=None)]
+
+    worker = AlignmentWorker(vse=vse, problem=None, init=None, min_points=1, aligner=aligner).start()
+    try:
+        t0 = time.monotonic()
+        assert worker.wait_until(lambda e: e is not None and e.serial == 1, 10.0)
+        assert time.monotonic() - t0 < 5.0 and worker.latest().serial == 1
+        assert not worker.wait_until(lambda e: e.serial == 99, 0.05)  # one frame only: no newer estimate
+    finally:
+        worker.stop()
