@@ -1,10 +1,11 @@
 """Bundle adjustment and pose refinement against synthetic ground truth."""
 
 import numpy as np
+import pytest
 
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
-from fgcd_cli.vse.ba import (BundleAdjustConfig, OutlierRejectionConfig, bundle_adjust, projection_residuals,
-                             refine_pose)
+from fgcd_cli.vse.ba import (BundleAdjustConfig, OutlierRejectionConfig, bundle_adjust,
+                             bundle_adjust_rejecting_outliers, projection_residuals, refine_pose)
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
@@ -128,3 +129,28 @@ def test_bundle_adjustment_rejects_tracks_sliding_along_occluding_contours():
     assert e_robust < e_oracle + 0.3
     # no inlier is rejected at 4 sigma (expected ~1 of 2400), most sliding observations are
     assert bad[~slide].sum() <= 3 and bad[slide].mean() > 0.5
+
+
+def _ba_problem():
+    rng = np.random.default_rng(5)
+    K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    T = np.stack([exp_se3(np.r_[rng.normal(0, 0.02, 3), rng.normal(0, 0.02, 3)]) for _ in range(4)])
+    X = rng.uniform([-0.3, -0.2, 0.5], [0.3, 0.2, 0.8], (80, 3))
+    cam = np.repeat(np.arange(4), 80)
+    pt = np.tile(np.arange(80), 4)
+    Xc = np.einsum("mij,mj->mi", T[cam, :3, :3], X[pt]) + T[cam, :3, 3]
+    uv = (Xc @ K.T)[:, :2] / Xc[:, 2:3] + rng.normal(0, 0.2, (len(cam), 2))
+    uv[::23] += 4.0
+    T0 = np.stack([exp_se3(rng.normal(0, 0.003, 6)) @ Ti for Ti in T])
+    return T0, X + rng.normal(0, 0.004, X.shape), cam, pt, uv, K
+
+
+def test_bundle_adjust_takes_its_options_as_one_config():
+    """One call form: the options are a config dataclass; the former flat keywords are refused."""
+    T0, X0, cam, pt, uv, K = _ba_problem()
+    res = bundle_adjust(T0, X0, cam, pt, uv, K, config=BundleAdjustConfig(iterations=7, huber_px=1.2))
+    assert res.iterations <= 7
+    with pytest.raises(TypeError):
+        bundle_adjust(T0, X0, cam, pt, uv, K, iterations=7)
+    with pytest.raises(TypeError):
+        bundle_adjust_rejecting_outliers(T0, X0, cam, pt, uv, K, max_rounds=2)

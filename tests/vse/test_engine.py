@@ -1,11 +1,18 @@
-"""Engines on a rendered relief: initialisation, tracking accuracy, loss and recovery, failure, RGB-D."""
+"""Engines: variants as compositions of parts, their status strings; on a rendered relief initialisation,
+tracking accuracy, loss and recovery, failure, RGB-D."""
+
+import json
 
 import numpy as np
 import pytest
 
 from fgcd_core.se3 import invert_pose, pose_distance
 from fgcd_core.sim3 import umeyama
-from fgcd_cli.vse import MonocularVSE, RgbdVSE, SparseVSE, VseConfig
+from fgcd_cli.vse import (MonocularVSE, RgbdVSE, SparseVSE, VisualSlamEngine, VseConfig, VseStatus, VseVariant,
+                          make_engine)
+from fgcd_cli.vse.cloud import DepthImageCloud, LandmarkCloud, SemiDenseCloud
+from fgcd_cli.vse.depth_source import DepthImage, Triangulation
+from fgcd_cli.vse.frontend import FrontendKind, KltTracking, OrbTracking
 
 
 def _run(engine, world, camera, poses, *, depth=False, t0=0):
@@ -164,3 +171,35 @@ def test_wrong_frame_size_is_refused(small_camera):
     eng = MonocularVSE(small_camera)
     with pytest.raises(ValueError, match="camera"):
         eng.process(np.zeros((100, 100), np.float32), 0.0)
+
+
+def test_the_status_is_the_string_logs_and_json_carry():
+    assert [s.value for s in VseStatus] == ["initializing", "tracking", "lost", "failed"]
+    assert VseStatus.TRACKING == "tracking" and f"{VseStatus.LOST}" == "lost"
+    assert json.dumps({"status": VseStatus.FAILED}) == '{"status": "failed"}'
+
+
+@pytest.mark.parametrize(("variant", "cls", "frontend", "source", "cloud"), [
+    ("mono", MonocularVSE, KltTracking, Triangulation, SemiDenseCloud),
+    ("sparse", SparseVSE, OrbTracking, Triangulation, LandmarkCloud),
+    ("rgbd", RgbdVSE, KltTracking, DepthImage, DepthImageCloud),
+])
+def test_variants_are_compositions_of_parts(small_camera, variant, cls, frontend, source, cloud):
+    eng = make_engine(variant, small_camera, config=VseConfig(max_features=300))
+    assert type(eng) is cls and isinstance(eng, VisualSlamEngine)
+    assert isinstance(eng.frontend, frontend) and isinstance(eng.depth_source, source)
+    assert isinstance(eng.cloud_builder, cloud)
+    assert eng.state().status == VseStatus.INITIALIZING
+    assert eng.state().scale_is_metric is eng.metric is (variant == VseVariant.RGBD)
+
+
+def test_frontends_state_what_depends_on_keypoint_precision():
+    cfg = VseConfig()
+    klt, orb = KltTracking(cfg), OrbTracking(cfg)
+    assert (klt.kind, klt.min_triangulation_deg, klt.noise_level_outliers) == (FrontendKind.KLT, 0.5, True)
+    assert (orb.kind, orb.min_triangulation_deg, orb.noise_level_outliers) == (FrontendKind.ORB, 1.5, False)
+
+
+def test_unknown_variant_is_refused(small_camera):
+    with pytest.raises(ValueError):
+        make_engine("stereo", small_camera)

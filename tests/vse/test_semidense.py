@@ -1,11 +1,13 @@
-"""Cross-keyframe fusion of semi-dense depths against synthetic ground truth."""
+"""Semi-dense depths: per-keyframe depth on a rendered relief, cross-keyframe fusion against synthetic ground
+truth."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fgcd_core.se3 import make_pose
-from fgcd_cli.vse.semidense import fuse_across_keyframes
+from fgcd_cli.vse.semidense import KeyframeDepthConfig, fuse_across_keyframes, keyframe_depth
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
 Z = 1.5  # fronto-parallel plane: the true inverse depth is 1/Z in both (parallel) cameras
@@ -76,3 +78,15 @@ def test_points_without_a_partner_are_unchanged():
     f2, s2, n2 = fuse_across_keyframes(K, (px, rho, sig), [])
     np.testing.assert_array_equal(f2, rho)
     assert np.all(n2 == 0)
+
+
+def test_keyframe_depth_takes_its_options_as_one_config(world, small_camera, helpers):
+    T0, T1 = helpers.look_pose([0, 0, 0]), helpers.look_pose([0.012, 0.0, 0.0])
+    i0, _ = world.render(small_camera, T0)
+    i1, _ = world.render(small_camera, T1)
+    nbs = [(i1, np.linalg.inv(T1) @ T0)]
+    b = keyframe_depth(i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45),
+                       config=KeyframeDepthConfig(max_points=2000, min_views=1))
+    assert len(b.inv_depth) > 100 and len(b.pixels) <= 2000
+    with pytest.raises(TypeError):
+        keyframe_depth(i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45), max_points=2000)
