@@ -1,4 +1,4 @@
-"""GRBL driver against the pty emulator: grammar, arrival, faults."""
+"""GRBL driver: the line grammar alone, then against the pty emulator: arrival, faults."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fgcd_drivers.grbl import GrblConfig, GrblKinematics, GrblPlatform
+from fgcd_drivers.grbl.protocol import GrblState, LineKind, alarm_text, classify_line, parse_setting, parse_status
 from fgcd_drivers.platform import (
     GuardLimits,
     MotionGuard,
@@ -296,3 +297,30 @@ def test_emulator_check_mode_parses_without_moving(stage, emulator):
     assert emulator.position()[0] == -10.0
     with pytest.raises(MotionRejected, match="error 15"):
         stage.send_line("G90 G1 X50 F600")  # soft limit in check mode is an error, not an alarm
+
+
+# ----------------------------------------------------------------------------- the grammar alone
+def test_each_grbl_line_is_classified_by_its_kind():
+    assert classify_line("") is LineKind.EMPTY
+    assert classify_line("ok") is LineKind.ANSWER
+    assert classify_line("error:20") is LineKind.ANSWER
+    assert classify_line("okay") is LineKind.NOISE
+    assert classify_line("<Idle|MPos:0,0,0|FS:0,0>") is LineKind.STATUS
+    assert classify_line("ALARM:2") is LineKind.ALARM
+    assert classify_line("Grbl 1.1h ['$' for help]") is LineKind.BANNER
+    assert classify_line("[MSG:Caution: Unlocked]") is LineKind.MESSAGE
+    assert classify_line("$110=500.000") is LineKind.SETTING
+    assert parse_setting("$130=-2.5") == (130, -2.5)
+    assert alarm_text(0).startswith("GRBL Alarm (alarm state)")
+    assert alarm_text(2).startswith("GRBL ALARM:2 (soft limit")
+
+
+def test_a_status_report_in_wpos_is_read_with_the_last_wco():
+    wco = {"X": 0.0, "Y": 0.0, "Z": 0.0}
+    status, wco = parse_status("<Idle|MPos:1,2,3|FS:0,0|WCO:0.5,0.25,0>", "XYZ", wco, received_at=1.0)
+    assert status.state == GrblState.IDLE == "Idle" and status.mpos == {"X": 1.0, "Y": 2.0, "Z": 3.0}
+    status, wco = parse_status("<Hold:0|WPos:1,2,3|F:100>", "XYZ", wco, received_at=2.0)
+    assert (status.state, status.substate, status.feed_mm_min) == ("Hold", 0, 100.0)
+    assert status.mpos == {"X": 1.5, "Y": 2.25, "Z": 3.0}
+    assert parse_status("<Idle|FS:0,0>", "XYZ", wco, received_at=3.0)[0] is None
+    assert parse_status("<Idle|MPos:a,b,c>", "XYZ", wco, received_at=3.0)[0] is None

@@ -28,7 +28,8 @@ from fgcd_drivers.platform import (
     SafetyStop,
 )
 from fgcd_drivers.testing.fake_ur import FakeURProcess
-from fgcd_drivers.ur import URConfig, URPlatform, pose_to_vector, preflight, safety_problem, vector_to_pose
+from fgcd_drivers.ur import (URConfig, URPlatform, abandoned_interface_count, pose_to_vector, preflight,
+                             safety_problem, vector_to_pose)
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -303,3 +304,46 @@ def test_stop_returns_even_when_ur_rtde_blocks_in_stopL():
     arm.stop()
     assert time.monotonic() - t0 < 2.0
     released.set()
+
+
+# ----------------------------------------------------------------------------- abandoned interfaces
+def test_abandoned_interfaces_are_counted(monkeypatch):
+    import fgcd_drivers.ur as ur
+
+    monkeypatch.setattr(ur, "_ABANDONED", [])
+    assert abandoned_interface_count() == 0
+    ur._ABANDONED.append((None, None))
+    assert abandoned_interface_count() == 1
+
+
+def test_interfaces_abandoned_before_a_command_do_not_end_the_host_process(monkeypatch, capsys):
+    # A test session (or any host) in which a UR link was abandoned earlier: a later
+    # in-process command must return through SystemExit, not os._exit the host.
+    import fgcd_drivers.ur as ur
+    from fgcd_cli.cli import app as cli_app
+
+    monkeypatch.setattr(ur, "_ABANDONED", [(None, None)])
+    monkeypatch.setattr(cli_app.os, "_exit", lambda code: pytest.fail(f"os._exit({code}) ended the host process"))
+    monkeypatch.setattr(cli_app.sys, "argv", ["fgcd", "sim", "scenes", "--json"])
+    with pytest.raises(SystemExit) as exc:
+        cli_app.main()
+    assert exc.value.code in (0, None)
+
+
+def test_a_command_that_abandons_interfaces_ends_its_process_at_once(monkeypatch):
+    import fgcd_drivers.ur as ur
+    from fgcd_cli.cli import app as cli_app
+
+    monkeypatch.setattr(ur, "_ABANDONED", [])
+    exits = []
+
+    def run_abandoning(_app, _args):
+        ur._ABANDONED.append((None, None))  # what URPlatform.close does on a hung or dropped link
+        return 7
+
+    monkeypatch.setattr(cli_app, "run", run_abandoning)
+    monkeypatch.setattr(cli_app.os, "_exit", exits.append)
+    monkeypatch.setattr(cli_app.sys, "argv", ["fgcd", "platform", "check"])
+    with pytest.raises(SystemExit):
+        cli_app.main()
+    assert exits == [7]

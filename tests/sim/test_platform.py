@@ -206,3 +206,13 @@ def test_realtime_factor_runs_the_clock_faster_than_wall_time_and_stop_halts():
     assert 0.51 < x < 0.55 - 1e-3
     assert res.duration_s < 6.2
     np.testing.assert_allclose(res.T_base_flange_commanded[:3, 3], p.true_flange_pose()[:3, 3], atol=1e-12)
+
+
+def test_a_sim_platform_takes_its_config_and_refuses_four_axes():
+    from fgcd_drivers.sim.platform import SimFault
+
+    p = SimPlatform(config=SimPlatformConfig(dof=3, timeout_s=3.0))
+    assert (p.dof, p.timeout_s, p.rotation_rad_per_s) == (3, 3.0, math.radians(5.0))
+    with pytest.raises(ValueError):
+        SimPlatform(config=SimPlatformConfig(dof=4))
+    assert [f.value for f in SimFault] == ["timeout", "estop", "disconnect"]
