@@ -1,7 +1,9 @@
-"""The calibration procedures against a fake rig: motions pass the guard, samples are solved."""
+"""The calibration procedures against a fake rig: motions pass the guard, samples are solved; the hand-eye
+use case is the target-free procedure."""
 
 from __future__ import annotations
 
+import inspect
 import math
 from types import SimpleNamespace
 
@@ -9,9 +11,10 @@ import numpy as np
 import pytest
 
 from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
+from fgcd_cli.app.calibrate import HandEyeCalibration, HandEyeRequest, HandEyeRig, run_handeye
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
-from fgcd_cli.calibration.procedure import run_target_free
+from fgcd_cli.calibration.procedure import TargetFreeRunConfig, run_target, run_target_free
 from fgcd_cli.calibration.samples import rotation_axis_spread_deg
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
@@ -221,3 +224,38 @@ def test_target_free_reports_its_progress_through_a_plain_callback():
     assert dones == sorted(dones) and dones[-1] == totals.pop()
     assert path[0][2].startswith("hand-eye motions (stop 1/") and "stop 13/13" in path[-1][2]
     assert calls[-1][1] == 0 and "refinement" in calls[-1][2]  # the refinement: length unknown
+
+
+def test_procedures_take_their_options_as_one_config():
+    for func in (run_target_free, run_target):
+        params = inspect.signature(func).parameters
+        assert "config" in params and not any(p.kind is p.VAR_KEYWORD for p in params.values())
+    with pytest.raises(TypeError):
+        TargetFreeRunConfig(nonsense=1)
+
+
+def test_the_hand_eye_request_moves_as_far_as_the_procedure():
+    assert HandEyeRequest().translation_mm / 1000 == TargetFreeRunConfig().translation_m
+
+
+def test_the_hand_eye_use_case_is_the_target_free_procedure():
+    X = make_pose(exp_so3([0.1, -0.3, 0.2]), [0.03, -0.05, 0.08])
+    outcomes = []
+    for use_case in (True, False):
+        platform = IdealPlatform()
+        guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
+        says, ticks = [], []
+        factory = lambda cam: FakeVSE(platform, X, 0.42)  # noqa: E731
+        if use_case:
+            calibration = run_handeye(HandEyeRig(guard=guard, camera_source=FakeCamera(), intrinsics=CAMERA),
+                                      HandEyeRequest(), say=says.append,
+                                      on_progress=lambda *a: ticks.append(a), vse_factory=factory)
+            assert isinstance(calibration, HandEyeCalibration)
+            assert calibration.record["skipped_stops"] == {"0": "VSE initializing: need parallax"}
+            run = calibration.run
+        else:
+            run = run_target_free(guard, FakeCamera(), factory, camera=CAMERA, progress=says.append,
+                                  on_progress=lambda *a: ticks.append(a))
+        outcomes.append((np.asarray(run.result.T_flange_cam), run.result.scale, says, ticks, run.frames))
+    (X_a, s_a, say_a, tick_a, f_a), (X_b, s_b, say_b, tick_b, f_b) = outcomes
+    assert np.array_equal(X_a, X_b) and s_a == s_b and say_a == say_b and tick_a == tick_b and f_a == f_b
