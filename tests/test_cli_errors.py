@@ -516,7 +516,7 @@ def test_a_motion_command_without_a_terminal_or_yes_is_refused_before_anything_i
 
 
 def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, monkeypatch, capsys):
-    import fgcd_cli.app.relocate as capture_uc
+    import fgcd_cli.app.revisit as capture_uc
     import fgcd_cli.cli.output as output
     from fgcd_cli.cli.app import app
 
@@ -532,7 +532,7 @@ def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, monkey
 
 def test_ctrl_c_during_a_relocation_names_the_platform_and_the_unwritten_visit(camp, stand_in_rig, monkeypatch,
                                                                                capsys):
-    import fgcd_cli.app.relocate as capture_uc
+    import fgcd_cli.app.revisit as capture_uc
     from fgcd_cli.cli.app import app
 
     def interrupted(rig, station, **kwargs):

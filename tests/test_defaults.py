@@ -18,7 +18,8 @@ from typing import Any
 
 from fgcd_cli.alignment import FastAlignConfig
 from fgcd_cli.app.calibrate import HandEyeRequest
-from fgcd_cli.app.relocate import RelocateRequest, RevisitRequest
+from fgcd_cli.app.relocate import RelocateRequest
+from fgcd_cli.app.revisit import RevisitRequest
 from fgcd_cli.app.rig import RigRequest
 from fgcd_cli.calibration.handeye_refine import RefineConfig
 from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig

@@ -8,10 +8,9 @@ import numpy as np
 from rich.console import Console
 
 import fgcd_cli.app.demo as demo_mod
-from fgcd_cli.cli.demo_cmd import summary_lines
 from fgcd_cli.app.demo import DemoConfig, run_demo
-from fgcd_cli.metrics.sim_eval import count_changes_found
-from fgcd_cli.metrics.sim_eval import score_change_detection
+from fgcd_cli.cli.demo_cmd import summary_lines
+from fgcd_cli.metrics.sim_eval import count_changes_found, score_change_detection
 
 
 def _truth_ids() -> np.ndarray:
@@ -81,11 +80,11 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
             w.commit()
         return SimpleNamespace(observation_path="r", cloud_points=10, scale=SimpleNamespace(scale=1.0))
 
-    import fgcd_cli.metrics.sim_eval as sim_eval
     import fgcd_cli.app.capture as capture
     import fgcd_cli.app.diff as usecases
-    import fgcd_cli.app.relocate as relocate_uc
+    import fgcd_cli.app.revisit as relocate_uc
     import fgcd_cli.app.rig as rigs
+    import fgcd_cli.metrics.sim_eval as sim_eval
 
     monkeypatch.setattr(demo_mod, "calibrate_sim_intrinsics", long_step("intrinsics", None))
     monkeypatch.setattr(demo_mod, "calibrate_sim_handeye", long_step("hand-eye", {"T_flange_cam": np.eye(4).tolist()}))

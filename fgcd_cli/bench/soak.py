@@ -5,8 +5,8 @@ intrinsics (``fgcd calibrate intrinsics --sim``), the target-free hand-eye
 (``fgcd calibrate hand-eye --driver sim``: plan, run, store) and the reference
 (``fgcd capture``: :func:`fgcd_cli.app.capture.plan_capture` /
 :func:`~fgcd_cli.app.capture.run_capture`). Then ``revisits`` consecutive revisits
-through ``fgcd relocate``'s use case (:func:`fgcd_cli.app.relocate.plan_revisit` /
-:func:`~fgcd_cli.app.relocate.run_revisit`), each with a new session seed and a
+through ``fgcd relocate``'s use case (:func:`fgcd_cli.app.revisit.plan_revisit` /
+:func:`~fgcd_cli.app.revisit.run_revisit`), each with a new session seed and a
 displaced start drawn from the run's seed, as a user's revisits; then
 ``change_revisits`` more with injected changes, each followed by ``fgcd diff``'s
 and ``fgcd report``'s use cases. After every revisit the process is sampled
@@ -31,10 +31,10 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 
@@ -109,8 +109,13 @@ def private_tempdir(folder: Path) -> Iterator[Path]:
 
 def set_up_station(campaign: Path, config: SoakConfig, *, say: Say) -> dict:
     """A simulated campaign at ``campaign``: intrinsics, hand-eye and the station's reference; their figures."""
-    from fgcd_cli.app.calibrate import (HandEyeRequest, calibrate_sim_intrinsics, plan_handeye, run_handeye,
-                                        store_handeye)
+    from fgcd_cli.app.calibrate import (
+        HandEyeRequest,
+        calibrate_sim_intrinsics,
+        plan_handeye,
+        run_handeye,
+        store_handeye,
+    )
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
     from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
     from fgcd_cli.app.rig_options import RigOptions
@@ -141,7 +146,7 @@ def set_up_station(campaign: Path, config: SoakConfig, *, say: Say) -> dict:
 
 def _revisit_request(config: SoakConfig, k: int, rng: np.random.Generator, *, changes: int):
     """Revisit ``k``'s options, as ``fgcd relocate -s soak --session-seed S --start-offset-mm ... --yes`` gives them."""
-    from fgcd_cli.app.relocate import RevisitRequest
+    from fgcd_cli.app.revisit import RevisitRequest
 
     return RevisitRequest(station=STATION, light=config.light, changes=changes,
                           start_offset_mm=float(rng.uniform(*config.offset_mm)),
@@ -176,8 +181,8 @@ def one_revisit(campaign: Path, request, *, diff_and_report: bool) -> dict:
     Returns ``converged``, ``visit`` (folder name), ``detail`` ('' or the failure), ``report_visits``.
     """
     from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign
-    from fgcd_cli.app.relocate import plan_revisit, run_revisit
     from fgcd_cli.app.report import station_history
+    from fgcd_cli.app.revisit import plan_revisit, run_revisit
     from fgcd_cli.app.rig import RigHooks
 
     run_record.reset()  # a new command starts (as the CLI boundary does)

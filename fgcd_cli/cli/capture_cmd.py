@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
-from fgcd_cli.app.capture import CapturePlan, connection, plan_capture  # noqa: F401 - former names of this module
-from fgcd_cli.app.relocate import check_relocation_options, visit_lightings, visit_scenario  # noqa: F401
+from fgcd_cli.app.capture import plan_capture
 from fgcd_cli.campaign import open_campaign
-from fgcd_cli.campaign.records import campaign_world, rig_calibration, station_world  # noqa: F401
 from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.determinism import DETERMINISTIC, deterministic_setup
 from fgcd_cli.cli.output import ask_line, confirmer, emit, info
@@ -34,12 +31,12 @@ def print_record(rec) -> None:
 def capture(
     campaign: Path = opt.CAMPAIGN,
     station: str = typer.Option(..., "--station", "-s", help="Station to capture (created if missing)."),
-    driver: Optional[str] = opt.DRIVER,
-    port: Optional[str] = opt.PORT,
-    host: Optional[str] = opt.HOST,
-    baud: Optional[int] = opt.BAUD,
-    camera: Optional[str] = opt.CAMERA,
-    scene: Optional[str] = opt.SCENE,
+    driver: str | None = opt.DRIVER,
+    port: str | None = opt.PORT,
+    host: str | None = opt.HOST,
+    baud: int | None = opt.BAUD,
+    camera: str | None = opt.CAMERA,
+    scene: str | None = opt.SCENE,
     seed: int = typer.Option(None, "--seed", help="Simulator world seed of this station (default: the campaign's; "
                                                    "the seed the hand-eye was calibrated with)."),
     light: str = opt.light_option("front", "Lightings of the reference images, comma-separated, e.g. "
@@ -79,11 +76,11 @@ def capture(
 def relocate(
     campaign: Path = opt.CAMPAIGN,
     station: str = typer.Option(..., "--station", "-s", help="Station to relocate to."),
-    driver: Optional[str] = opt.DRIVER,
-    port: Optional[str] = opt.PORT,
-    host: Optional[str] = opt.HOST,
-    baud: Optional[int] = opt.BAUD,
-    camera: Optional[str] = opt.CAMERA,
+    driver: str | None = opt.DRIVER,
+    port: str | None = opt.PORT,
+    host: str | None = opt.HOST,
+    baud: int | None = opt.BAUD,
+    camera: str | None = opt.CAMERA,
     light: str = opt.light_option("led:3", "Lighting of this visit (sim: `fgcd sim lights`; hardware: the name "
                                   "of the day's light; the reference's lightings are taken as well)."),
     changes: int = typer.Option(0, "--changes", help="Fine-grained changes to inject (sim)."),
@@ -99,7 +96,7 @@ def relocate(
                                    help="Leave out the active coarse stage (paper 001) that first brings a far start "
                                         "(beyond 10 cm / 8 deg) near the reference; the loop then pauses on such a start."),
     eta: float = typer.Option(1e-4, "--eta", help="Stop when ||M_B - I|| <= eta."),
-    max_adjustments: Optional[int] = typer.Option(None, "--max-adjustments",
+    max_adjustments: int | None = typer.Option(None, "--max-adjustments",
                                                   help="Adjustment budget (default: 12 for racr, 30 for acr)."),
     method: str = typer.Option("racr", "--method", help="racr (3D alignment, paper 000), or the baselines acr "
                                                          "(Tian et al.: 5-point pose, bisection on the scale, hand-eye "
@@ -113,7 +110,7 @@ def relocate(
 ) -> None:
     """Drive the camera back to a station's reference pose (rACR, or the ACR baseline) and record a visit."""
     deterministic_setup(deterministic)  # before the heavy libraries load
-    from fgcd_cli.app.relocate import RevisitRequest, plan_revisit, run_revisit
+    from fgcd_cli.app.revisit import RevisitRequest, plan_revisit, run_revisit
     from fgcd_cli.app.rig import RigHooks
     from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.cli.progress import step_progress

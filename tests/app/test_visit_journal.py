@@ -4,17 +4,17 @@ and the guarded return to where the interrupted visit stopped."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from fgcd_drivers.manual import ManualPlatform
-from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeMode, decide_resume, journal_path, return_to
 from fgcd_core.se3 import exp_se3, pose_distance
+from fgcd_drivers.manual import ManualPlatform
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 
 OPTIONS = {"driver": "sim", "light": "led:3"}
 
@@ -128,11 +128,11 @@ def test_return_to_moves_in_guarded_steps_to_the_recorded_pose():
 @pytest.mark.timeout(1800)
 def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
     """Ctrl-C after the first adjustment of a simulated revisit, then `--resume`: continued, log kept."""
-    from fgcd_drivers.sim.rig import build_sim_rig
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
-    from fgcd_cli.app.relocate import RevisitRequest, plan_revisit, run_revisit
+    from fgcd_cli.app.revisit import RevisitRequest, plan_revisit, run_revisit
     from fgcd_cli.campaign import init_campaign, open_campaign
     from fgcd_cli.campaign.schema import RELOCATION_LOG
+    from fgcd_drivers.sim.rig import build_sim_rig
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
     # stands in for `fgcd calibrate hand-eye` (tested elsewhere): the simulated rig's mounting
@@ -181,7 +181,7 @@ def _adjustment(i: int):
 
 def _relocate_interrupted(tmp_path, monkeypatch, capsys, *, adjustments: int) -> tuple[int, str, Path]:
     """`fgcd relocate` in-process on a stand-in rig, Ctrl-C after ``adjustments`` adjustments: (code, stderr, journal)."""
-    import fgcd_cli.app.relocate as relocate_uc
+    import fgcd_cli.app.revisit as relocate_uc
     import fgcd_cli.app.rig as rig_uc
     from fgcd_cli.campaign import init_campaign
     from fgcd_cli.cli.app import app, run

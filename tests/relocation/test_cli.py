@@ -272,7 +272,7 @@ def _result(path="visit"):
 
 
 def test_relocate_hands_a_progress_callback_to_the_rig(camp_with_reference, stand_in_rig, monkeypatch, capsys):
-    import fgcd_cli.app.relocate as capture_uc
+    import fgcd_cli.app.revisit as capture_uc
 
     camp = camp_with_reference
     monkeypatch.setattr(capture_uc, "relocate_and_capture", lambda *a, **k: _result())
@@ -350,7 +350,8 @@ def test_a_capture_in_another_scene_keeps_the_campaign_world(camp, fake_capture)
 
 
 def test_relocation_uses_the_world_of_the_station_not_the_campaign(camp):
-    from fgcd_cli.cli.capture_cmd import station_world, visit_scenario
+    from fgcd_cli.app.revisit import visit_scenario
+    from fgcd_cli.campaign.records import station_world
 
     _fake_reference(camp.create_station("niche"), scene="relief_panel", seed=3)
     _fake_reference(camp.create_station("stele-face"), scene="stele")
