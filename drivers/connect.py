@@ -6,9 +6,9 @@ The simulator's platform is built elsewhere (from a rig) and passed in as
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Callable
 
 from fgcd_drivers.platform import Platform, PlatformConnectionError
 

@@ -16,9 +16,10 @@ controller with the line protocol documented there), and the simulator's
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Callable, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 from fgcd_drivers.platform import PlatformConnectionError, PlatformError
 
@@ -101,7 +102,7 @@ class ManualLights:
             raise LightsError(f"no light '{lighting}' on this rig (lights: {', '.join(self.available())})")
         if lighting == self._current:
             return
-        prompt = (f"Switch every rig light off (ambient light only), then press Enter [Y/n] "
+        prompt = ("Switch every rig light off (ambient light only), then press Enter [Y/n] "
                   if lighting == AMBIENT else
                   f"Switch on the {_clock_words(lighting)} light only (all others off), then press Enter [Y/n] ")
         try:
@@ -147,7 +148,7 @@ class LightsSpec:
     channels: dict[str, str] = field(default_factory=dict)
 
     @classmethod
-    def from_config(cls, section: dict | None) -> "LightsSpec | None":
+    def from_config(cls, section: dict | None) -> LightsSpec | None:
         """The spec of a ``[rig.lights]`` table (None when there is none); PlatformConnectionError when malformed."""
         if not section:
             return None

@@ -77,7 +77,7 @@ class GrblLights:
         self._current = AMBIENT
 
     @classmethod
-    def open(cls, spec: LightsSpec, *, platform=None) -> "GrblLights":
+    def open(cls, spec: LightsSpec, *, platform=None) -> GrblLights:
         """The lights of ``spec``: on ``platform`` when it is the GRBL stage on the same port, else a connection of their own."""
         if getattr(platform, "name", None) == "grbl" and (spec.port is None or spec.port == platform.config.port):
             return cls(platform, spec.channels)

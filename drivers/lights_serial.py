@@ -63,7 +63,7 @@ class SerialLights:
         self._current = AMBIENT
 
     @classmethod
-    def open(cls, spec: LightsSpec, *, timeout_s: float = 1.0) -> "SerialLights":
+    def open(cls, spec: LightsSpec, *, timeout_s: float = 1.0) -> SerialLights:
         """Open ``spec.port``, check the controller (``ID``) has every configured relay, switch all off."""
         if not spec.port:
             raise PlatformConnectionError("[rig.lights] driver 'serial' needs a port")

@@ -17,7 +17,7 @@ up, about y turns it right, about z rolls it clockwise.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation

@@ -53,7 +53,7 @@ def preflight(host: str, *, port: int = 30004, dashboard_port: int = 29999, time
             if "Dashboard" not in greeting:
                 raise PlatformConnectionError(f"{host}:{dashboard_port} is not a UR dashboard server")
             return greeting
-    except socket.timeout:
+    except TimeoutError:
         raise PlatformTimeout(
             f"the UR controller at {host} accepted the connection but did not answer within {timeout_s:.1f} s"
         ) from None
@@ -69,7 +69,7 @@ def _connect(host: str, port: int, timeout_s: float) -> socket.socket:
     """
     try:
         return socket.create_connection((host, port), timeout=timeout_s)
-    except socket.timeout:
+    except TimeoutError:
         raise PlatformConnectionError(
             f"no answer from the UR controller at {host}:{port} within {timeout_s:.1f} s: nothing reaches it "
             "(network cable, switch, or the controller is off)"
@@ -102,7 +102,7 @@ def _require_state_stream(sock: socket.socket, host: str) -> None:
         raise PlatformConnectionError(f"the UR controller at {host} refused to start RTDE streaming")
     try:
         _rtde_packet(sock, "U")
-    except socket.timeout:
+    except TimeoutError:
         raise PlatformTimeout(f"the UR controller at {host} answers but sends no state (it may be hung); "
                               "check the controller before moving") from None
     sock.sendall(struct.pack(">HB", 3, ord("P")))

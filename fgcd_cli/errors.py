@@ -6,10 +6,10 @@ running command has done so far, for the line printed when it is interrupted.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Iterator
 
 
 class FgcdError(Exception):
@@ -58,7 +58,7 @@ class ConfirmationNeeded(UserInputError):
     """A motion needs a confirmation but there is no terminal to ask on (pass ``--yes``)."""
 
     @classmethod
-    def for_prompt(cls) -> "ConfirmationNeeded":
+    def for_prompt(cls) -> ConfirmationNeeded:
         """The error for a confirmation asked with no terminal on stdin."""
         return cls("confirmation needs a terminal: run the command in a terminal or pass --yes; nothing was moved")
 

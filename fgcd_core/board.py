@@ -79,7 +79,7 @@ class CharucoSpec:
         """The geometry alone, as keywords: ``SimBoard(**spec.charuco_fields(), margin_m=...)``."""
         return {f.name: getattr(self, f.name) for f in fields(CharucoSpec)}
 
-    def cv_board(self) -> "cv2.aruco.CharucoBoard":
+    def cv_board(self) -> cv2.aruco.CharucoBoard:
         """The OpenCV board object."""
         board = cv2.aruco.CharucoBoard(
             (self.squares_x, self.squares_y),

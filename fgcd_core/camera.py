@@ -80,7 +80,7 @@ class PinholeCamera:
 
     # -- constructors / conversions
     @classmethod
-    def from_K(cls, K: np.ndarray, width: int, height: int, dist=None) -> "PinholeCamera":
+    def from_K(cls, K: np.ndarray, width: int, height: int, dist=None) -> PinholeCamera:
         """From a 3x3 matrix ``K``."""
         K = np.asarray(K, dtype=float)
         d = (0.0,) * 5 if dist is None else tuple(np.asarray(dist, dtype=float).ravel()[:5]) + (0.0,) * max(
@@ -103,7 +103,7 @@ class PinholeCamera:
         """True if any distortion coefficient is non-zero."""
         return any(abs(d) > 0 for d in self.dist)
 
-    def scaled(self, factor: float) -> "PinholeCamera":
+    def scaled(self, factor: float) -> PinholeCamera:
         """Intrinsics of the image resized by ``factor`` (pyramid levels use 0.5, 0.25...).
 
         Uses the pixel-centre convention: ``c' = (c + 0.5) * factor - 0.5``.
@@ -131,7 +131,7 @@ class PinholeCamera:
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> "PinholeCamera":
+    def from_dict(cls, data: dict) -> PinholeCamera:
         """Inverse of :meth:`to_dict`."""
         return cls(
             fx=float(data["fx"]),

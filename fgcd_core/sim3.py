@@ -50,18 +50,18 @@ class Sim3:
 
     # -- constructors
     @classmethod
-    def identity(cls) -> "Sim3":
+    def identity(cls) -> Sim3:
         """The identity similarity."""
         return cls()
 
     @classmethod
-    def from_pose(cls, T: np.ndarray, scale: float = 1.0) -> "Sim3":
+    def from_pose(cls, T: np.ndarray, scale: float = 1.0) -> Sim3:
         """Similarity with the rotation and translation of a rigid pose."""
         T = np.asarray(T, dtype=float)
         return cls(T[:3, :3], T[:3, 3], scale)
 
     @classmethod
-    def from_matrix(cls, M: np.ndarray) -> "Sim3":
+    def from_matrix(cls, M: np.ndarray) -> Sim3:
         """From a 4x4 matrix ``[[sR, t], [0, 1]]``."""
         M = np.asarray(M, dtype=float)
         sR = M[:3, :3]
@@ -79,12 +79,12 @@ class Sim3:
         """The 4x4 rigid part ``[[R, t], [0, 1]]`` (scale dropped)."""
         return make_pose(self.R, self.t)
 
-    def inverse(self) -> "Sim3":
+    def inverse(self) -> Sim3:
         """Inverse similarity."""
         Rinv = self.R.T
         return Sim3(Rinv, -(Rinv @ self.t) / self.scale, 1.0 / self.scale)
 
-    def __matmul__(self, other: "Sim3") -> "Sim3":
+    def __matmul__(self, other: Sim3) -> Sim3:
         """Composition: ``(a @ b)(x) == a(b(x))``."""
         return Sim3(self.R @ other.R, self.scale * (self.R @ other.t) + self.t, self.scale * other.scale)
 
@@ -105,7 +105,7 @@ class Sim3:
 
     # -- conversions
     @classmethod
-    def from_rotvec(cls, rotvec: np.ndarray, t: np.ndarray, scale: float = 1.0) -> "Sim3":
+    def from_rotvec(cls, rotvec: np.ndarray, t: np.ndarray, scale: float = 1.0) -> Sim3:
         """From a rotation vector (axis * angle, radians), a translation and a scale."""
         return cls(Rotation.from_rotvec(np.asarray(rotvec, dtype=float).reshape(3)).as_matrix(), t, scale)
 
@@ -114,7 +114,7 @@ class Sim3:
         return Rotation.from_matrix(self.R).as_rotvec(), self.t.copy(), self.scale
 
     @classmethod
-    def from_quat(cls, q_xyzw: np.ndarray, t: np.ndarray, scale: float = 1.0) -> "Sim3":
+    def from_quat(cls, q_xyzw: np.ndarray, t: np.ndarray, scale: float = 1.0) -> Sim3:
         """From a unit quaternion ``(x, y, z, w)``, a translation and a scale."""
         return cls(Rotation.from_quat(np.asarray(q_xyzw, dtype=float).reshape(4)).as_matrix(), t, scale)
 
@@ -124,7 +124,7 @@ class Sim3:
         return (-q if q[3] < 0 else q), self.t.copy(), self.scale
 
     # -- interpolation and distances
-    def interpolate(self, other: "Sim3", alpha: float) -> "Sim3":
+    def interpolate(self, other: Sim3, alpha: float) -> Sim3:
         """Similarity a fraction ``alpha`` in [0, 1] of the way to ``other``.
 
         Rotation by spherical interpolation, translation linearly, scale
@@ -136,7 +136,7 @@ class Sim3:
         scale = math.exp((1.0 - a) * math.log(self.scale) + a * math.log(other.scale))
         return Sim3(R, t, scale)
 
-    def distance(self, other: "Sim3") -> tuple[float, float, float]:
+    def distance(self, other: Sim3) -> tuple[float, float, float]:
         """``(translation mm, rotation deg, scale ratio >= 1)`` between two similarities."""
         mm = float(np.linalg.norm(self.t - other.t) * 1000.0)
         deg = math.degrees(rotation_angle_rad(self.R.T @ other.R))
@@ -145,7 +145,7 @@ class Sim3:
 
     # -- Lie algebra
     @staticmethod
-    def exp(xi: np.ndarray) -> "Sim3":
+    def exp(xi: np.ndarray) -> Sim3:
         """Similarity of a tangent vector ``(rho (3), phi (3), lambda)``."""
         xi = np.asarray(xi, dtype=float).reshape(7)
         A = np.zeros((4, 4))
@@ -171,7 +171,7 @@ class Sim3:
         return {"R": self.R.tolist(), "t": self.t.tolist(), "scale": self.scale}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "Sim3":
+    def from_dict(cls, data: dict) -> Sim3:
         """Inverse of :meth:`to_dict`."""
         return cls(np.array(data["R"]), np.array(data["t"]), float(data["scale"]))
 

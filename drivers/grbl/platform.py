@@ -173,7 +173,7 @@ class GrblPlatform:
             corners.append(kin.pose_from_axes(mpos)[:3, 3])
         corners = np.array(corners)
         # $110+i: max rate of the i-th reported axis, mm/min
-        max_rate = min(self.settings.get(110 + self.config.report_axes.index(l), 500.0) for l in kin.linear_axes)
+        max_rate = min(self.settings.get(110 + self.config.report_axes.index(axis), 500.0) for axis in kin.linear_axes)
         linear = max_rate / 60.0 / 1000.0
         if self.config.max_linear_speed_m_s is not None:
             linear = min(linear, self.config.max_linear_speed_m_s)
@@ -255,8 +255,8 @@ class GrblPlatform:
         feed = linear
         if kin.rotary_axes:
             # GRBL's F is a rate along the combined axis vector; keep rotation within its cap too.
-            lin_mm = math.sqrt(sum((axes[l] - start[l]) ** 2 for l in kin.linear_axes))
-            rot_deg = math.sqrt(sum((axes[l] - start[l]) ** 2 for _, l in kin.rotary_axes))
+            lin_mm = math.sqrt(sum((axes[axis] - start[axis]) ** 2 for axis in kin.linear_axes))
+            rot_deg = math.sqrt(sum((axes[axis] - start[axis]) ** 2 for _, axis in kin.rotary_axes))
             if rot_deg > 1e-9:
                 max_deg_min = math.degrees(caps.max_angular_speed_rad_s) * 60.0 * fraction
                 total = math.hypot(lin_mm, rot_deg)
@@ -265,7 +265,7 @@ class GrblPlatform:
 
     @staticmethod
     def _nominal_time_s(start: dict[str, float], axes: dict[str, float], feed: float) -> float:
-        dist = math.sqrt(sum((axes[l] - start[l]) ** 2 for l in axes))
+        dist = math.sqrt(sum((axes[axis] - start[axis]) ** 2 for axis in axes))
         return dist / (feed / 60.0)
 
     def _wait_arrival(self, axes: dict[str, float], nominal_s: float) -> None:
@@ -278,7 +278,7 @@ class GrblPlatform:
             if self._in_alarm(status):
                 raise SafetyStop(self.link.alarm_text())
             if status.state in _READY:
-                err = max(abs(status.mpos[l] - v) for l, v in axes.items())
+                err = max(abs(status.mpos[axis] - v) for axis, v in axes.items())
                 if status.state == GrblState.CHECK or err <= self.config.arrival_tolerance_mm:
                     return
                 raise MotionRejected(

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from fgcd_drivers.sim.meshes import MeshPart, quad
-from fgcd_drivers.sim.scene import Scene
 from fgcd_core.board import CharucoSpec
 from fgcd_core.camera import CameraIntrinsics
+from fgcd_drivers.sim.meshes import MeshPart, quad
+from fgcd_drivers.sim.scene import Scene
 
 __all__ = [
     "SimBoard",

@@ -343,7 +343,7 @@ class ChangeEffect:
     albedo_filters: np.ndarray
 
     @classmethod
-    def empty(cls) -> "ChangeEffect":
+    def empty(cls) -> ChangeEffect:
         return cls(index=np.zeros(0, np.int64), footprint=np.zeros(0, np.float32),
                    change_index=np.zeros(0, np.int64), height_m=np.zeros(0), slope=np.zeros((0, 3)),
                    albedo_target=np.zeros((0, 3)), albedo_weight=np.zeros(0), occlusion=np.zeros(0),
@@ -484,7 +484,7 @@ def random_changes(scene, *, n: int, seed: int, kinds=KINDS, size_mm: tuple[floa
     if len(vs) == 0:
         raise ValueError(f"the object of scene {scene.name} is not visible from the camera")
     out = []
-    for i in range(n):
+    for _ in range(n):
         j = rng.integers(len(vs))
         v, u = vs[j], us[j]
         z = float(res.depth[v, u])

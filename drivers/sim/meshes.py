@@ -53,7 +53,7 @@ class MeshPart:
         if self.smooth and self.vertex_normals is None:
             self.vertex_normals = vertex_normals(self.vertices, self.triangles)
 
-    def transformed(self, T: np.ndarray) -> "MeshPart":
+    def transformed(self, T: np.ndarray) -> MeshPart:
         """A copy moved by the 4x4 pose ``T``."""
         v = self.vertices @ T[:3, :3].T + T[:3, 3]
         return MeshPart(name=self.name, label=self.label, vertices=v, triangles=self.triangles,

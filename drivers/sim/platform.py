@@ -36,7 +36,7 @@ from fgcd_drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
-from fgcd_drivers.sim.transforms import exp_so3, invert_pose, log_so3, make_pose, rot_angle
+from fgcd_drivers.sim.transforms import exp_so3, log_so3, make_pose, rot_angle
 
 __all__ = ["SimClock", "PlatformErrorModel", "SimPlatform", "SimPlatformConfig", "SimFault", "ERROR_PRESETS", "FAULTS"]
 

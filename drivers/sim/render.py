@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -140,7 +140,7 @@ class Renderer:
         # Global per-triangle tables (all parts concatenated) so that one gather serves every hit.
         offsets, uvs, corner_normals, part_of_tri = {}, [], [], []
         n_tri = 0
-        for k, part in enumerate(scene.parts):
+        for part in scene.parts:
             gid = self._rc.add_triangles(part.vertices.astype(np.float32), part.triangles.astype(np.uint32))
             pyr = [np.ascontiguousarray(part.texture, dtype=np.float32)]
             while min(pyr[-1].shape[:2]) > 4:
@@ -175,7 +175,7 @@ class Renderer:
         self._ray_cache: dict = {}
 
     # ------------------------------------------------------------------ rays
-    def with_supersample(self, supersample: int) -> "Renderer":
+    def with_supersample(self, supersample: int) -> Renderer:
         """This renderer (same ray-casting scene and textures, shared) shading ``supersample``² rays per pixel.
 
         The copy has its own ray cache, so that two threads can render with the two at once.
@@ -329,9 +329,9 @@ class Renderer:
                 atten = (np.float32(light.reference_distance_m) * inv) ** 2
                 atten = np.minimum(atten, np.float32(1e6))
             else:
-                l = np.asarray(light.direction, np.float32) / np.float32(np.linalg.norm(light.direction))
-                cos = shade_n @ l
-                cos_geo = geo_n @ l
+                to_light = np.asarray(light.direction, np.float32) / np.float32(np.linalg.norm(light.direction))
+                cos = shade_n @ to_light
+                cos_geo = geo_n @ to_light
                 atten = np.float32(1.0)
             # light below the geometric surface never reaches it (no leaking at grazing angles)
             lit = (cos > 0) & (cos_geo > 0)
@@ -346,7 +346,7 @@ class Renderer:
                 if light.kind == "point":
                     occ = self.occluded(org, pos[None, :] - org, 0.999)
                 else:
-                    occ = self.occluded(org, np.broadcast_to(l, org.shape), math.inf)
+                    occ = self.occluded(org, np.broadcast_to(to_light, org.shape), math.inf)
                 strength[li[occ]] = 0.0
             E += (np.float32(light.intensity) * strength)[:, None] * np.asarray(light.colour, np.float32)[None, :]
         return albedo * E

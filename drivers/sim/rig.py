@@ -6,14 +6,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgcd_core.se3 import exp_so3, invert_pose, make_pose
 from fgcd_drivers.cameras import CameraIntrinsics
-from fgcd_drivers.sim.camera import (DEFAULT_EFFECTS, DEFAULT_INTRINSICS, STILL_SUPERSAMPLE, SimCamera, SimCameraOptions,
-                               perturbed_intrinsics)
+from fgcd_drivers.sim.camera import (
+    DEFAULT_EFFECTS,
+    DEFAULT_INTRINSICS,
+    STILL_SUPERSAMPLE,
+    SimCamera,
+    SimCameraOptions,
+    perturbed_intrinsics,
+)
 from fgcd_drivers.sim.groundtruth import GroundTruth
 from fgcd_drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
 from fgcd_drivers.sim.render import CameraEffects, Renderer
 from fgcd_drivers.sim.scenes import load_scene
-from fgcd_core.se3 import exp_so3, invert_pose, make_pose
 from fgcd_drivers.sim.world import SimLights, SimWorld
 
 __all__ = ["SimRig", "SimRigConfig", "build_sim_rig", "random_hand_eye"]

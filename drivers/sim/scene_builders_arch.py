@@ -17,9 +17,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from fgcd_drivers.sim.meshes import MeshPart, box, heightfield
+from fgcd_drivers.sim.meshes import MeshPart, box
 from fgcd_drivers.sim.scene import OBJECT_LABEL
-from fgcd_drivers.sim.scene_builders import X, Z, _floor, _grid, _grid_to_texture, _panel_relief_part, _text_mask
+from fgcd_drivers.sim.scene_builders import _floor, _grid, _grid_to_texture, _panel_relief_part, _text_mask
 from fgcd_drivers.sim.textures import blend_detail, fractal_noise, stone
 
 __all__ = ["ARCH_BUILDERS", "build_cornice", "build_lettered_slab"]

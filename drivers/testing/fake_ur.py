@@ -244,7 +244,7 @@ def _serve_script(ctrl: FakeController, conn: socket.socket) -> None:
         while True:
             try:
                 chunk = conn.recv(65536)
-            except socket.timeout:
+            except TimeoutError:
                 if received and not ctrl.silent:
                     with ctrl.lock:
                         # The uploaded control script starts: runtime playing, ready for commands.
@@ -372,7 +372,7 @@ class FakeURProcess:
         self.prefix = list(prefix or [])  # e.g. ``ip netns exec NS`` (fgcd_drivers.testing.link_cut)
         self.process = None
 
-    def start(self) -> "FakeURProcess":
+    def start(self) -> FakeURProcess:
         import subprocess
 
         args = [*self.prefix, sys.executable, "-m", "fgcd_drivers.testing.fake_ur", "--host", self.host]
@@ -425,7 +425,7 @@ class FakeURProcess:
                     pass
             self.process = None
 
-    def __enter__(self) -> "FakeURProcess":
+    def __enter__(self) -> FakeURProcess:
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -277,5 +277,5 @@ class GrblCommandsMixin:
 
 def _split_accessories(words: list[tuple[str, float]]) -> tuple[list, list]:
     """``(other words, spindle and coolant words)`` of a G-code line."""
-    accessory = [(l, v) for l, v in words if l == "S" or (l == "M" and v in (3.0, 4.0, 5.0, 7.0, 8.0, 9.0))]
+    accessory = [(letter, v) for letter, v in words if letter == "S" or (letter == "M" and v in (3.0, 4.0, 5.0, 7.0, 8.0, 9.0))]
     return [w for w in words if w not in accessory], accessory

@@ -32,13 +32,12 @@ written by hand here.
 from __future__ import annotations
 
 import os
+import pty
 import select
 import threading
 import time
 import tty
 from collections import deque
-
-import pty
 
 from fgcd_drivers.testing.grbl_commands import BANNER, GrblCommandsMixin, Segment
 
@@ -147,7 +146,7 @@ class GrblEmulator(GrblCommandsMixin):
             except OSError:
                 pass
 
-    def __enter__(self) -> "GrblEmulator":
+    def __enter__(self) -> GrblEmulator:
         return self
 
     def __exit__(self, *exc) -> None:

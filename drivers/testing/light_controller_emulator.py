@@ -45,7 +45,7 @@ class LightControllerEmulator:
             except OSError:
                 pass
 
-    def __enter__(self) -> "LightControllerEmulator":
+    def __enter__(self) -> LightControllerEmulator:
         return self
 
     def __exit__(self, *exc) -> None:

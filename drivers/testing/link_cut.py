@@ -68,7 +68,7 @@ class NetnsLink:
         self.address = self.fake_host = self.ns_ip  # where the client connects, and the controller listens
         self._made = False
 
-    def open(self) -> "NetnsLink":
+    def open(self) -> NetnsLink:
         """Create the namespace, the veth pair and their addresses; LinkUnavailable when not permitted."""
         problem = netns_problem()
         if problem is not None:
@@ -113,7 +113,7 @@ class NetnsLink:
         _ip("netns", "del", self.name, check=False)
         self._made = False
 
-    def __enter__(self) -> "NetnsLink":
+    def __enter__(self) -> NetnsLink:
         return self.open()
 
     def __exit__(self, *exc) -> None:
@@ -134,7 +134,7 @@ class ProxyLink:
         self._conns: list[socket.socket] = []
         self._lock = threading.Lock()
 
-    def open(self) -> "ProxyLink":
+    def open(self) -> ProxyLink:
         """Listen on every port; LinkUnavailable when an address is busy."""
         try:
             for port in self.ports:
@@ -158,7 +158,7 @@ class ProxyLink:
         while not self._closed.is_set():
             try:
                 client, _ = server.accept()
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError:
                 return
@@ -184,7 +184,7 @@ class ProxyLink:
                 continue
             try:
                 data = src.recv(65536)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError:
                 data = b""
@@ -221,7 +221,7 @@ class ProxyLink:
                     pass
             self._servers, self._conns = [], []
 
-    def __enter__(self) -> "ProxyLink":
+    def __enter__(self) -> ProxyLink:
         return self.open()
 
     def __exit__(self, *exc) -> None:

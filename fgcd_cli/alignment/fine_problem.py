@@ -55,7 +55,7 @@ class PhotometricObservations:
         Keyframe images blurred for this level.
     ref_pts : (M, 3) ndarray
         Selected reference points, reference frame (metres).
-    pt, kf : (O,) int ndarray
+    pt, kf : (n_obs,) int ndarray
         Point index and keyframe index of each observation.
     n_kf : int
         Number of keyframes.
@@ -73,18 +73,18 @@ class PhotometricObservations:
         object.__setattr__(self, "by_kf", [np.flatnonzero(self.kf == u) for u in range(self.n_kf)])
 
     def residuals(self, S: Sim3, poses: list[np.ndarray], *, block: Block | None):
-        """Residuals (O,), validity (O,) and, with ``block``, the Jacobian (O, P) of ``E_p``.
+        """Residuals (n_obs,), validity (n_obs,) and, with ``block``, the Jacobian (n_obs, P) of ``E_p``.
 
         ``S`` is ``T_cur_ref``; ``poses`` the keyframes' ``T_cur_cam``. An observation is
         valid when in front of the camera, inside the image and one of at least two valid
         observations of its point.
         """
-        O = len(self.pt)
+        n_obs = len(self.pt)
         q = S.apply(self.ref_pts)[self.pt]  # current map frame
-        I = np.zeros(O)
-        ok = np.zeros(O, dtype=bool)
-        dIdX = np.zeros((O, 3))
-        X = np.zeros((O, 3))
+        intensity = np.zeros(n_obs)
+        ok = np.zeros(n_obs, dtype=bool)
+        dIdX = np.zeros((n_obs, 3))
+        X = np.zeros((n_obs, 3))
         for u, idx in enumerate(self.by_kf):
             if len(idx) == 0:
                 continue
@@ -92,38 +92,38 @@ class PhotometricObservations:
             Xu = (q[idx] - t_u) @ R_u
             uv, J, front = project_with_jacobian(self.camera, Xu)
             vals, inside = sample(self.images[u], np.nan_to_num(uv))
-            I[idx] = vals[:, 0]
+            intensity[idx] = vals[:, 0]
             ok[idx] = front & inside
             dIdX[idx] = np.einsum("ni,nij->nj", vals[:, 1:3], J)
             X[idx] = Xu
         cnt = np.bincount(self.pt, weights=ok.astype(float), minlength=len(self.ref_pts))
         ok &= cnt[self.pt] >= 2
         cnt = np.bincount(self.pt, weights=ok.astype(float), minlength=len(self.ref_pts))
-        mean = np.bincount(self.pt, weights=I * ok, minlength=len(self.ref_pts)) / np.maximum(cnt, 1)
-        r = np.where(ok, I - mean[self.pt], 0.0)
+        mean = np.bincount(self.pt, weights=intensity * ok, minlength=len(self.ref_pts)) / np.maximum(cnt, 1)
+        r = np.where(ok, intensity - mean[self.pt], 0.0)
         if block is None:
             return r, ok, None
         JI = self._intensity_jacobian(block, q, dIdX, X, poses)
         JI[~ok] = 0.0
         w_avg = np.where(ok, 1.0 / np.maximum(cnt[self.pt], 1), 0.0)
-        A = sparse.csr_matrix((w_avg, (self.pt, np.arange(O))), shape=(len(self.ref_pts), O))
+        A = sparse.csr_matrix((w_avg, (self.pt, np.arange(n_obs))), shape=(len(self.ref_pts), n_obs))
         J = JI - (A @ JI)[self.pt]
         J[~ok] = 0.0
         return r, ok, J
 
     def _intensity_jacobian(self, block: Block, q, dIdX, X, poses) -> np.ndarray:
-        """Jacobian (O, P) of the sampled intensities (before subtracting the per-point mean)."""
-        O = len(self.pt)
+        """Jacobian (n_obs, P) of the sampled intensities (before subtracting the per-point mean)."""
+        n_obs = len(self.pt)
         if block == Block.KEYFRAMES:
             # Right perturbation T_u <- T_u exp(delta): dX = -rho + X x phi.
             Jb = np.concatenate([-dIdX, np.cross(dIdX, X)], axis=1)
             cols = 6 * self.n_kf
             return sparse.csr_matrix(
-                (Jb.ravel(), ((6 * self.kf)[:, None] + np.arange(6)).ravel(), np.arange(0, 6 * O + 1, 6)),
-                shape=(O, cols),
+                (Jb.ravel(), ((6 * self.kf)[:, None] + np.arange(6)).ravel(), np.arange(0, 6 * n_obs + 1, 6)),
+                shape=(n_obs, cols),
             ).toarray()
         # Left perturbation S <- exp(xi) S: dq = rho + phi x q + lambda q; dX = R_u^T dq.
-        a = np.zeros((O, 3))
+        a = np.zeros((n_obs, 3))
         for u, idx in enumerate(self.by_kf):
             a[idx] = dIdX[idx] @ poses[u][:3, :3].T
         return np.concatenate([a, np.cross(q, a), np.sum(a * q, axis=1, keepdims=True)], axis=1)

@@ -9,8 +9,9 @@ Levenberg-Marquardt driver (:func:`fgcd_core.lm.levenberg_marquardt`) on it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

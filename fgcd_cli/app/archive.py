@@ -14,10 +14,10 @@ from __future__ import annotations
 import logging
 import time
 import uuid
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
 
 from fgcd_cli.app.archive_task import VisitOutcome, VisitStatus, analyze_visit, visit_freshness
 from fgcd_cli.archive.discovery import VisitKey, archive_visits, find_campaigns

@@ -11,7 +11,7 @@ are listed, never analysed here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from fgcd_cli.archive.discovery import find_campaigns
@@ -103,14 +103,14 @@ class SiteHistory:
 def visit_date(visit) -> datetime:
     """A visit's date: its UTC-stamp name (``20240301T000000000Z``), else its manifest's ``created``, else its mtime."""
     try:
-        return datetime.strptime(visit.name[:15], "%Y%m%dT%H%M%S").replace(tzinfo=timezone.utc)
+        return datetime.strptime(visit.name[:15], "%Y%m%dT%H%M%S").replace(tzinfo=UTC)
     except ValueError:
         pass
     try:
         created = datetime.fromisoformat(str(visit.manifest.get("created")))
     except ValueError:  # neither: the manifest's file time, the last witness of when the visit was written
-        return datetime.fromtimestamp((visit.path / schema.MANIFEST).stat().st_mtime, tz=timezone.utc)
-    return created if created.tzinfo else created.replace(tzinfo=timezone.utc)
+        return datetime.fromtimestamp((visit.path / schema.MANIFEST).stat().st_mtime, tz=UTC)
+    return created if created.tzinfo else created.replace(tzinfo=UTC)
 
 
 def _visit_regions(visit) -> VisitRegions:

@@ -8,13 +8,14 @@ and map scale, refined on the images of every rest pose; docs/calibration.md).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from fgcd_cli.calibration.handeye import HandEyeResult
 from fgcd_cli.app.session import MAX_SCALE_RESIDUAL_MM
+from fgcd_cli.calibration.handeye import HandEyeResult
 from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
@@ -208,10 +209,10 @@ def _tick_progress(on_progress: ProgressCallback | None, done: int, total: int, 
 def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None],
                              on_progress: ProgressCallback | None = None):
     """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
-    from fgcd_drivers.sim.board import SimBoard
+    from fgcd_cli.app.rig import open_sim_rig
     from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
     from fgcd_cli.calibration.rig import save_intrinsics
-    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_drivers.sim.board import SimBoard
 
     board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
     rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)

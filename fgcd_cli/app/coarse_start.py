@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -60,8 +60,8 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
     starts from: the stage's verified one, or the first one when the stage could not verify
     any (the loop then pauses on the far estimate and its image fallback tries, as before).
     """
-    from fgcd_core.se3 import pose_distance
     from fgcd_cli.relocation.adjustment import camera_in_reference
+    from fgcd_core.se3 import pose_distance
 
     rig, session, reference = start.rig, start.session, start.reference
     state = session.tracking_state()

@@ -10,17 +10,17 @@ from __future__ import annotations
 
 import json
 import time
-from datetime import datetime, timezone
+from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics  # the calibration use cases
 from fgcd_cli.app.determinism import deterministic_rig
-from fgcd_cli.campaign import init_campaign, schema
 from fgcd_cli.app.sim_scoring import score_visit_changes  # evaluation only
+from fgcd_cli.campaign import init_campaign, schema
 from fgcd_cli.errors import CampaignError
 
 __all__ = ["DemoConfig", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "demo_output_dir", "run_demo"]
@@ -62,7 +62,7 @@ def demo_output_dir(requested: Path, *, now: datetime | None = None) -> tuple[Pa
     requested = Path(requested)
     if not (requested.exists() and any(requested.iterdir())):
         return requested, f"writing the demo into {requested}"
-    out = requested / (now or datetime.now(timezone.utc)).strftime("%Y%m%dT%H%M%SZ")
+    out = requested / (now or datetime.now(UTC)).strftime("%Y%m%dT%H%M%SZ")
     return out, f"writing the demo into {out} (a new folder: {requested} is not empty)"
 
 

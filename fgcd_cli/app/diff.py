@@ -9,17 +9,23 @@ import dataclasses
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, AnalysisOptions, analysis_inputs, analysis_record, stored_options
-from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.archive.freshness import (
+    ANALYSIS_RELPATH,
+    AnalysisOptions,
+    analysis_inputs,
+    analysis_record,
+    stored_options,
+)
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes, check_writable, sha256_file
 from fgcd_cli.changes import detect_changes
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.images import check_stack_sizes, to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud

@@ -83,7 +83,7 @@ def _guarded_move(rig: RigHandles, M_flange: np.ndarray, timing: SessionTiming) 
             timing.moves += 1
 
 
-def _visit_metadata(request: "RelocateRequest", result: RelocationResult, reference_name: str) -> dict:
+def _visit_metadata(request: RelocateRequest, result: RelocationResult, reference_name: str) -> dict:
     return {
         "lightings": request.lightings,
         "scale": None,
@@ -98,8 +98,8 @@ def _visit_metadata(request: "RelocateRequest", result: RelocationResult, refere
     }
 
 
-def acr_relocate_and_capture(rig: RigHandles, station, request: "RelocateRequest", *,
-                             hooks: "RelocateHooks") -> CaptureResult:
+def acr_relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
+                             hooks: RelocateHooks) -> CaptureResult:
     """Relocate to the station's reference image with ACR, then write a visit (images, log, truth).
 
     Raises

@@ -9,16 +9,12 @@ simulator it also returns the evaluation hooks (ground truth), which only
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
-from fgcd_drivers.lights import Lights, LightsDriver, LightsSpec
-
-from fgcd_cli.errors import HardwareError, UserInputError, run_record
-from fgcd_core.camera import PinholeCamera
 from fgcd_cli.app.scenario import (  # noqa: F401 - part of this module's interface
     DRIVERS,
     Driver,
@@ -29,7 +25,10 @@ from fgcd_cli.app.scenario import (  # noqa: F401 - part of this module's interf
     check_scenario,
     check_scene,
 )
+from fgcd_cli.errors import HardwareError, UserInputError, run_record
 from fgcd_cli.relocation.session import recorded_motion
+from fgcd_core.camera import PinholeCamera
+from fgcd_drivers.lights import Lights, LightsDriver, LightsSpec
 
 __all__ = [
     "DRIVERS",
@@ -176,7 +175,7 @@ def undistorted(camera: PinholeCamera, source):
     """``(ideal camera, source)``: frames remapped to an ideal pinhole when the lens distorts."""
     if not camera.has_distortion:
         return camera, source
-    from fgcd_cli.vse.undistort import Undistorter, UndistortedSource
+    from fgcd_cli.vse.undistort import UndistortedSource, Undistorter
 
     u = Undistorter(camera)
     return u.ideal, UndistortedSource(source, u)

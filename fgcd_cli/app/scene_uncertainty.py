@@ -12,9 +12,9 @@ Campaigns without the file keep working: it is computed when first needed.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 

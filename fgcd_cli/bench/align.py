@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
 
 import numpy as np
 
@@ -40,9 +39,9 @@ from fgcd_cli.alignment import (
 )
 from fgcd_cli.alignment.fast_config import ScaleStepConfig
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity
+from fgcd_cli.vse.types import VseStatus
 from fgcd_core import PinholeCamera, Sim3, exp_se3, pose_distance
 from fgcd_core.se3 import project_to_so3
-from fgcd_cli.vse.types import VseStatus
 
 SUCCESS_ROT_DEG = 1.0
 SUCCESS_TRANS_MM = 20.0

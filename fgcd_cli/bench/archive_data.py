@@ -21,23 +21,23 @@ Ground truth (the changes' sizes) is kept in ``evaluation/sim_truth.json``
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
 
-from fgcd_drivers.cameras import CameraIntrinsics
-from fgcd_drivers.sim.render import CameraEffects, Renderer
-from fgcd_drivers.sim.scenes import load_scene
 from fgcd_cli.bench.changes_sim import _changes_in_view
 from fgcd_cli.campaign import init_campaign, schema
 from fgcd_core.se3 import exp_se3
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.scenes import load_scene
 
 LIGHTINGS = ("led:2", "led:6", "led:10")
 GROWTH_PER_VISIT = 0.5
 """Each change's size grows by this fraction of its first size per visit."""
 VISIT_INTERVAL_DAYS = 91
-FIRST_VISIT = datetime(2024, 3, 1, tzinfo=timezone.utc)
+FIRST_VISIT = datetime(2024, 3, 1, tzinfo=UTC)
 
 
 @dataclass(frozen=True, kw_only=True)

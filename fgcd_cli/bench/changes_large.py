@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 import cv2
-import numpy as np
 
 from fgcd_cli.changes.config import DetectionConfig
 

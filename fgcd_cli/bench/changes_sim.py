@@ -18,15 +18,15 @@ import time
 
 import numpy as np
 
+from fgcd_cli.changes import detect_changes, pixel_area_from_depth
+from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.metrics.change_scores import binary_scores
+from fgcd_core.se3 import exp_se3
 from fgcd_drivers.cameras import CameraIntrinsics
 from fgcd_drivers.sim.camera import STILL_SUPERSAMPLE
 from fgcd_drivers.sim.changes import random_changes
 from fgcd_drivers.sim.render import CameraEffects, Renderer
 from fgcd_drivers.sim.scenes import load_scene
-from fgcd_cli.changes.config import DetectionConfig
-from fgcd_cli.changes import detect_changes, pixel_area_from_depth
-from fgcd_core.se3 import exp_se3
-from fgcd_cli.metrics.change_scores import binary_scores
 
 LIGHTINGS = ("led:2", "led:6", "led:10")
 #: Seeds of the full run's held-out simulated pairs (``sim_heldout_*``): the fixed set (0, 1) is what the

@@ -12,9 +12,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from fgcd_cli.campaign.schema import MANIFEST, STATION_FILE, STATIONS_DIR
 from fgcd_cli.campaign.verify import verify_campaign_dir

@@ -42,8 +42,8 @@ EXIT_OS, EXIT_CAMPAIGN, EXIT_INTEGRITY, EXIT_ALGORITHM, EXIT_INTERRUPTED = 1, 3,
 
 def prepare_campaign(folder: Path) -> Path:
     """A campaign with stations ``s1`` and ``s2``: simulated reference and visit (3 small changes), written once."""
-    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
     from fgcd_cli.campaign import init_campaign, open_campaign
+    from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     path = Path(folder) / "campaign"
     if (path / "campaign.toml").exists():

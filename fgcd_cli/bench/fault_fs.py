@@ -37,7 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcd_cli.bench.fault_checks import FaultOutcome, FgcdRun, campaign_problems, committed_digests, earlier_changed, run_fgcd
+from fgcd_cli.bench.fault_checks import (
+    FaultOutcome,
+    FgcdRun,
+    campaign_problems,
+    committed_digests,
+    earlier_changed,
+    run_fgcd,
+)
 from fgcd_cli.bench.fs_mount import MountUnavailable, fill_to, free_bytes, remount_readonly, small_fs, tree_bytes
 from fgcd_cli.campaign import schema
 

@@ -30,8 +30,8 @@ from __future__ import annotations
 import importlib
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from fgcd_cli.bench.fault_checks import FaultOutcome
 from fgcd_cli.bench.fault_data import CAPTURE_FAULTS, DATA_FAULTS, data_fault, prepare_campaign
@@ -158,7 +158,7 @@ def _plan(chosen: tuple[str, ...], *, quick: bool, seed: int, per_class: int | N
     """
     count = per_class or (PER_CLASS_QUICK if quick else PER_CLASS_FULL)
     plan = []
-    for key, classes in GROUPS.items():
+    for classes in GROUPS.values():
         picked = [c for c in classes if c in chosen]
         if not picked:
             continue

@@ -14,9 +14,9 @@ import os
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 __all__ = ["MountUnavailable", "fill_to", "free_bytes", "mount_refusal", "remount_readonly", "small_fs",
            "tree_bytes"]

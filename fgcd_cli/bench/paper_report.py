@@ -10,7 +10,8 @@ import math
 from pathlib import Path
 
 from fgcd_cli.bench.paper_report_more import afd_cell, fmt, runs_by
-from fgcd_cli.bench.paper_report_more import figures as more_figures, sections as more_sections
+from fgcd_cli.bench.paper_report_more import figures as more_figures
+from fgcd_cli.bench.paper_report_more import sections as more_sections
 from fgcd_cli.campaign.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["markdown", "write_report"]

@@ -224,13 +224,13 @@ def _noisy_reference(noise: float):
 def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say,
             deterministic: bool = False) -> dict:
     """Relocate once as ``spec`` says and score it; a pause or a refused motion is an outcome (``error``)."""
-    from fgcd_drivers.platform import PlatformError
     from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
     from fgcd_cli.app.rig import open_sim_rig
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.acr import AcrConfig
     from fgcd_cli.relocation.coarse import CoarseConfig
+    from fgcd_drivers.platform import PlatformError
 
     w = spec.world
     scen = visit_scenario(spec)

@@ -77,7 +77,7 @@ class PowerPlan:
     log: str | None = None
 
     @classmethod
-    def from_env(cls, env: dict | None = None) -> "PowerPlan":
+    def from_env(cls, env: dict | None = None) -> PowerPlan:
         """The plan of the ``FGCD_BENCH_POWER_*`` variables."""
         env = os.environ if env is None else env
         at, delay = env.get("FGCD_BENCH_POWER_AT", ""), env.get("FGCD_BENCH_POWER_DELAY_S", "")

@@ -88,13 +88,13 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     capture and relocations with their threads stepped in a fixed order).
     """
     from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
-    from fgcd_drivers.platform import PlatformError
-    from fgcd_cli.errors import FgcdError
-    from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
     from fgcd_cli.app.capture import capture_reference
     from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
-    from fgcd_cli.relocation.loop import RelocationConfig
     from fgcd_cli.app.rig import SimScenario, open_sim_rig
+    from fgcd_cli.errors import FgcdError
+    from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
+    from fgcd_cli.relocation.loop import RelocationConfig
+    from fgcd_drivers.platform import PlatformError
 
     camp = init_campaign(workdir / case.name, site=case.name, rig={"driver": "sim"})
     st = camp.create_station("s")

@@ -18,9 +18,9 @@ import gc
 import os
 import tempfile
 import threading
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -106,7 +106,7 @@ class TempBaseline:
     campaign_tmp: frozenset[Path]
 
     @classmethod
-    def take(cls, campaign: Path) -> "TempBaseline":
+    def take(cls, campaign: Path) -> TempBaseline:
         """The entries now: of :func:`tempfile.gettempdir` and the ``.tmp-*`` under ``campaign``."""
         tmp = Path(tempfile.gettempdir())
         return cls(tmp, frozenset(os.listdir(tmp)), Path(campaign), frozenset(_campaign_tmp(Path(campaign))))

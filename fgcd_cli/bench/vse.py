@@ -28,7 +28,7 @@ import numpy as np
 
 from fgcd_cli.vse import VseConfig, VseStatus, VseVariant, make_engine
 from fgcd_core.camera import PinholeCamera
-from fgcd_core.se3 import exp_se3, interpolate_pose, invert_pose, transform_points
+from fgcd_core.se3 import interpolate_pose, invert_pose, transform_points
 from fgcd_core.sim3 import umeyama
 
 __all__ = ["run", "exploration_waypoints", "evaluate"]

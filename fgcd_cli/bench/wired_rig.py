@@ -53,7 +53,7 @@ class FrameMap:
     T_sim_driver: np.ndarray
 
     @classmethod
-    def at_connect(cls, T_sim_home: np.ndarray, T_driver_home: np.ndarray) -> "FrameMap":
+    def at_connect(cls, T_sim_home: np.ndarray, T_driver_home: np.ndarray) -> FrameMap:
         """The map that makes the driver's pose at connect the simulated home pose."""
         return cls(np.asarray(T_sim_home, float) @ invert_pose(np.asarray(T_driver_home, float)))
 

@@ -112,7 +112,7 @@ class BoardSpec(CharucoSpec):
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> "BoardSpec":
+    def from_dict(cls, data: dict) -> BoardSpec:
         """Inverse of :meth:`to_dict`."""
         try:
             return cls(

@@ -8,8 +8,8 @@ few tenths of a percent across keyframes, so they are what fixes the scale
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

@@ -24,8 +24,8 @@ about at least two non-parallel axes.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from enum import StrEnum
-from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation

@@ -24,8 +24,14 @@ import numpy as np
 
 from fgcd_cli.calibration.handeye_model import HandPoses, Observations, linearise
 from fgcd_core.lm import LMSchedule, huber_cost, huber_weights, levenberg_marquardt
-from fgcd_core.schur import (BlockNormalEquations, Damping, SchurDamping, block_normal_equations,
-                             reduced_camera_system, schur_step)
+from fgcd_core.schur import (
+    BlockNormalEquations,
+    Damping,
+    SchurDamping,
+    block_normal_equations,
+    reduced_camera_system,
+    schur_step,
+)
 from fgcd_core.se3 import exp_se3
 
 __all__ = ["lm_handeye", "Adjusted"]

@@ -14,8 +14,8 @@ Parameterisation: ``X`` is perturbed on the right, ``X exp(d)`` with
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -87,7 +87,7 @@ class Observations:
     pt: np.ndarray
     uv: np.ndarray
 
-    def subset(self, keep: np.ndarray, remap: np.ndarray) -> "Observations":
+    def subset(self, keep: np.ndarray, remap: np.ndarray) -> Observations:
         """The observations ``keep`` (bool mask), with landmark indices renumbered by ``remap``."""
         return Observations(self.cam[keep], remap[self.pt[keep]], self.uv[keep])
 

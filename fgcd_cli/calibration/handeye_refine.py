@@ -20,8 +20,8 @@ the camera poses tied to the reported flange poses
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 

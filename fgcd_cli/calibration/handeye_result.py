@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import numpy as np
 
@@ -12,7 +12,7 @@ __all__ = ["HandEyeResult", "ScaleResult", "utc_now"]
 
 def utc_now() -> str:
     """Current UTC time as ISO 8601 text (seconds)."""
-    return datetime.now(timezone.utc).replace(microsecond=0).isoformat()
+    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -104,7 +104,7 @@ class HandEyeResult:
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> "HandEyeResult":
+    def from_dict(cls, data: dict) -> HandEyeResult:
         """Inverse of :meth:`to_dict`."""
         return cls(
             T_flange_cam=np.array(data["T_flange_cam"], dtype=float),
@@ -172,7 +172,7 @@ class ScaleResult:
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> "ScaleResult":
+    def from_dict(cls, data: dict) -> ScaleResult:
         """Inverse of :meth:`to_dict`."""
         return cls(
             scale=float(data["scale"]),

@@ -15,15 +15,15 @@ for every sample; its spread around the mean is the per-sample residual.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Sequence
 
 import cv2
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import HandEyeResult, pair_residuals, per_sample_residuals, utc_now
+from fgcd_cli.calibration.handeye import HandEyeResult, pair_residuals, utc_now
 from fgcd_cli.calibration.samples import (
     check_rotation_diversity,
     motion_pairs,

@@ -12,9 +12,9 @@ determined).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -130,7 +130,7 @@ class IntrinsicsResult:
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> "IntrinsicsResult":
+    def from_dict(cls, data: dict) -> IntrinsicsResult:
         """Inverse of :meth:`to_dict`."""
         return cls(
             camera=PinholeCamera.from_dict(data["camera"]),

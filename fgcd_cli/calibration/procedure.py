@@ -8,12 +8,12 @@ pose from ``solvePnP`` (target).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
-from fgcd_drivers.platform import MotionGuard
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.errors import CalibrationError
@@ -24,6 +24,7 @@ from fgcd_cli.calibration.target_free import PathViews, refine_target_free
 from fgcd_cli.calibration.tracks import gray_u8
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
+from fgcd_drivers.platform import MotionGuard
 
 __all__ = ["TargetFreeRun", "TargetRun", "TargetFreeRunConfig", "TargetRunConfig", "run_target_free", "run_target",
            "CameraSourceLike", "VseEngineLike"]
@@ -169,7 +170,7 @@ def run_target_free(
     total_frames = sum(len(steps) for steps in legs) + len(legs) * settle
     for index, steps in enumerate(legs):
         label = f"hand-eye motions (stop {index + 1}/{len(motions)})"
-        session.visit(steps, settle, lambda: tick(session.frames, total_frames, label))
+        session.visit(steps, settle, lambda label=label: tick(session.frames, total_frames, label))
         where = f"stop {index + 1}/{len(motions)}"
         if session.record_stop(index):
             say(f"{where}: sample {len(session.hand)} recorded")
@@ -379,7 +380,7 @@ def run_target(
                 guard.move_to(T_step)
         T_prev = T_target
         _board_sample(run, guard, camera_source.grab(), board, camera, config.min_corners, index,
-                      lambda text: say(f"stop {index + 1}/{len(motions)}: {text}"))
+                      lambda text, index=index: say(f"stop {index + 1}/{len(motions)}: {text}"))
     tick(len(motions), len(motions), "back to the start pose")
     # Return to the start pose (the same small steps).
     for T_step in interpolate_steps(T_prev, T_start, **steps):

@@ -15,8 +15,8 @@ With ``X = T_flange_cam`` both are the same physical motion, hence
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from itertools import combinations
-from typing import Sequence
 
 import numpy as np
 

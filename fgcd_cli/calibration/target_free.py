@@ -10,9 +10,9 @@ camera motions with the refined ``X`` (docs/calibration.md, "Target-free").
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from enum import StrEnum
-from typing import Sequence
 
 import numpy as np
 

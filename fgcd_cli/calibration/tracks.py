@@ -8,8 +8,8 @@ triangulation that starts the adjustment (docs/calibration.md, "Target-free").
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np

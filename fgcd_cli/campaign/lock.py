@@ -16,9 +16,9 @@ import fcntl
 import json
 import os
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 from fgcd_cli.campaign.schema import LOCKS_DIR, check_name
 from fgcd_cli.errors import CampaignError

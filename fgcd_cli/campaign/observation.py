@@ -21,9 +21,10 @@ import json
 import os
 import shutil
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -195,7 +196,7 @@ class ObservationWriter:
         self._images: dict[str, str] = {}
         self._committed = False
 
-    def __enter__(self) -> "ObservationWriter":
+    def __enter__(self) -> ObservationWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

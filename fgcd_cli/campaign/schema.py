@@ -21,7 +21,7 @@ Only names and pure path functions live here; reading and writing is
 from __future__ import annotations
 
 import re
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from enum import StrEnum
 
 from fgcd_cli.errors import UserInputError
@@ -102,13 +102,13 @@ _NON_PORTABLE = re.compile(r'[<>:"/\\|?*\x00-\x1f]')
 
 def utc_stamp(now: datetime | None = None) -> str:
     """A UTC timestamp usable as a directory name, e.g. ``20261122T041503Z``."""
-    now = now or datetime.now(timezone.utc)
-    return now.astimezone(timezone.utc).strftime("%Y%m%dT%H%M%S") + f"{now.microsecond // 1000:03d}Z"
+    now = now or datetime.now(UTC)
+    return now.astimezone(UTC).strftime("%Y%m%dT%H%M%S") + f"{now.microsecond // 1000:03d}Z"
 
 
 def now_iso() -> str:
     """The current UTC time, ISO 8601 to the second (``created``, ``written`` fields)."""
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return datetime.now(UTC).isoformat(timespec="seconds")
 
 
 def check_name(name: str, what: str) -> str:

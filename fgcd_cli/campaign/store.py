@@ -12,10 +12,11 @@ from __future__ import annotations
 import json
 import shutil
 import tomllib
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import tomli_w
 
@@ -62,7 +63,7 @@ __all__ = [
 class Station:
     """A viewpoint of a campaign: one reference observation and its visits."""
 
-    campaign: "Campaign"
+    campaign: Campaign
     name: str
     path: Path
     info: dict = field(default_factory=dict)

@@ -28,8 +28,8 @@ from fgcd_cli.campaign.schema import (
     RIG_DIR,
     STATION_FILE,
     STATIONS_DIR,
-    VISITS_DIR,
     VISIT_JOURNAL,
+    VISITS_DIR,
 )
 from fgcd_cli.campaign.store import Campaign, Station, open_campaign
 from fgcd_cli.errors import CampaignError, DataIntegrityError

@@ -10,7 +10,6 @@ import numpy as np
 
 from fgcd_cli.changes.images import to_gray
 
-
 _STRIP_ROWS = 32
 """Rows processed at a time by the shift-tolerant difference (its arrays then stay in cache)."""
 

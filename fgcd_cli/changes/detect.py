@@ -8,8 +8,8 @@ section it needs; :func:`detect_changes` chains them.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2

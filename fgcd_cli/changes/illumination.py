@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-
 _ONE = np.ones((1, 1), np.float32)
 
 _COLUMN_BAND_PX = 64

@@ -44,7 +44,6 @@ gain-invariant structure cue, the edge tolerance and the region-level edge check
 from __future__ import annotations
 
 import dataclasses
-
 import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor

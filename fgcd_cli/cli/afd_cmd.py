@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -15,10 +14,10 @@ def afd(
     ref: Path = typer.Argument(..., help="Reference image."),
     cur: Path = typer.Argument(..., help="Current image (same size)."),
     grid: bool = typer.Option(False, "--grid", help="Lighting-robust grid variant (phase correlation of gradient patches)."),
-    pairs: Optional[Path] = typer.Option(None, "--pairs", help="CSV of point pairs x_ref,y_ref,x_cur,y_cur picked by hand."),
+    pairs: Path | None = typer.Option(None, "--pairs", help="CSV of point pairs x_ref,y_ref,x_cur,y_cur picked by hand."),
     ratio: float = typer.Option(0.75, "--ratio", help="SIFT ratio test."),
     ransac_px: float = typer.Option(3.0, "--ransac-px", help="RANSAC homography inlier threshold (px)."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the FDF quiver figure (PNG) here."),
+    output: Path | None = typer.Option(None, "-o", "--output", help="Write the FDF quiver figure (PNG) here."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """AFD with the authors' protocol (SIFT, ratio test, RANSAC homography inliers, mean displacement in px)."""

@@ -11,14 +11,15 @@ import os
 import select
 import signal
 import sys
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator, Sequence
 
 import typer
 import typer.main
 
 from fgcd_cli import __version__
+from fgcd_cli.cli.options import install_help_conventions
 from fgcd_cli.cli.output import state, stdin_is_terminal, to_json
 from fgcd_cli.errors import (
     OUT_OF_MEMORY,
@@ -29,7 +30,6 @@ from fgcd_cli.errors import (
     os_error_line,
     run_record,
 )
-from fgcd_cli.cli.options import install_help_conventions
 
 install_help_conventions()  # plain-text help, no <bool> after a flag (every command)
 app = typer.Typer(
@@ -286,7 +286,7 @@ def hoist_verbose(command, args: Sequence[str]) -> list[str]:
     end = args.index("--") if "--" in args else len(args)
     if not set(VERBOSE_FLAGS) & _flags_and_valued(command)[0]:
         return args
-    cmd, i, own, valued = command, 0, set(), set()
+    cmd, i, own = command, 0, set()
     while i < end:
         token = args[i]
         flags, takes_value = _flags_and_valued(cmd)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -16,10 +15,10 @@ app = typer.Typer(help="A site's whole archive: batch analysis on Dask, change o
 
 @app.command("analyze")
 def analyze(
-    roots: List[Path] = typer.Argument(..., metavar="root",
+    roots: list[Path] = typer.Argument(..., metavar="root",
                                     help="Folders holding campaigns (searched recursively)."),
     workers: int = typer.Option(2, "--workers", "-w", help="Worker processes of the embedded Dask LocalCluster."),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler",
+    scheduler: str | None = typer.Option(None, "--scheduler",
                                             help="An existing Dask scheduler, tcp://HOST:PORT (default: embedded)."),
     dry_run: bool = typer.Option(False, "--dry-run", help="List the visits and what would be done; run nothing."),
     force: bool = typer.Option(False, "--force", help="Re-do every visit, up to date or not."),
@@ -70,7 +69,7 @@ def analyze(
 
 @app.command("history")
 def history(
-    roots: List[Path] = typer.Argument(..., metavar="root",
+    roots: list[Path] = typer.Argument(..., metavar="root",
                                     help="Folders holding campaigns (searched recursively)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,7 +15,7 @@ app = typer.Typer(help="Benchmarks reproducing the papers' measurements.", no_ar
 @app.command("changes")
 def changes(
     quick: bool = typer.Option(False, "--quick", help="Fewer lightings and pairs."),
-    overlays: Optional[Path] = typer.Option(None, "--overlays", help="Write sample overlays (PNG) into this folder."),
+    overlays: Path | None = typer.Option(None, "--overlays", help="Write sample overlays (PNG) into this folder."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Fine-grained change detection: real FGCD groups (leave one group out) and simulated pairs."""
@@ -150,7 +149,7 @@ def vse(
 def relocate(
     quick: bool = typer.Option(False, "--quick", help="A 3-case subset (CI-sized)."),
     no_serial: bool = typer.Option(False, "--no-serial", help="Skip the serial comparison."),
-    case: Optional[list[str]] = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
+    case: list[str] | None = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
     deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
@@ -185,20 +184,19 @@ def paper(
     quick: bool = typer.Option(False, "--quick", help="One or two cases per experiment (<= 30 min)."),
     out: Path = typer.Option(Path("fgcd-bench-paper"), "--out", help="Folder of the worlds, per-run JSON, tables "
                                                                       "(paper.md) and figures; a re-run resumes it."),
-    experiment: Optional[list[str]] = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, table4, "
+    experiment: list[str] | None = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, table4, "
                                                    "fig4, fig6, fig12, s55, revisit (repeatable; default all)."),
-    case: Optional[list[str]] = typer.Option(None, "--case", help="Only these relocation cases (repeatable)."),
+    case: list[str] | None = typer.Option(None, "--case", help="Only these relocation cases (repeatable)."),
     deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Paper 000's experiments in the simulator: rACR beside the ACR baseline (Tables 2-5, Figs. 4, 6, 7, 12, §5.5)."""
     deterministic_setup(deterministic)
     from fgcd_cli.bench.paper import EXPERIMENTS, run
-    from fgcd_cli.cli.progress import step_progress
-    from fgcd_cli.errors import UserInputError
-
     from fgcd_cli.bench.paper_plan import TABLE4_CASES
     from fgcd_cli.bench.relocate import CASES
+    from fgcd_cli.cli.progress import step_progress
+    from fgcd_cli.errors import UserInputError
 
     unknown = [e for e in experiment or [] if e not in EXPERIMENTS]
     if unknown:
@@ -225,7 +223,7 @@ def paper(
 def coarse(
     quick: bool = typer.Option(False, "--quick", help="A 2-case subset."),
     no_baseline: bool = typer.Option(False, "--no-baseline", help="Skip the runs without the coarse stage."),
-    case: Optional[list[str]] = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
+    case: list[str] | None = typer.Option(None, "--case", help="Run only these cases (repeatable)."),
     deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
@@ -287,10 +285,10 @@ def faults(
                                "without the whole-capture classes, and one fault of each group (whole operations, "
                                "real disk full, link cuts, power loss)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the fault moments and kinds."),
-    fault: Optional[list[str]] = typer.Option(None, "--fault", help="Only these fault classes (repeatable)."),
-    per_class: Optional[int] = typer.Option(None, "--per-class", min=1, help="Faults per class (default: the "
+    fault: list[str] | None = typer.Option(None, "--fault", help="Only these fault classes (repeatable)."),
+    per_class: int | None = typer.Option(None, "--per-class", min=1, help="Faults per class (default: the "
                                             "run's, 15 or 3; each group's own in the full run)."),
-    workdir: Optional[Path] = typer.Option(None, "--workdir", help="Keep the bench campaign here and reuse it "
+    workdir: Path | None = typer.Option(None, "--workdir", help="Keep the bench campaign here and reuse it "
                                            "(its calibration and captured stations) on the next run."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
@@ -323,11 +321,11 @@ def faults(
 @app.command("soak")
 def soak(
     quick: bool = typer.Option(False, "--quick", help="10 revisits, then 2 with change detection (else 100 + 20)."),
-    revisits: Optional[int] = typer.Option(None, "--revisits", help="Consecutive revisits before the ones with "
+    revisits: int | None = typer.Option(None, "--revisits", help="Consecutive revisits before the ones with "
                                            "change detection (default 100; 10 with --quick)."),
-    change_revisits: Optional[int] = typer.Option(None, "--change-revisits", help="Revisits with injected changes, "
+    change_revisits: int | None = typer.Option(None, "--change-revisits", help="Revisits with injected changes, "
                                                   "diff and report after those (default 20; 2 with --quick)."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Keep the campaign and samples.jsonl (one line per "
+    out: Path | None = typer.Option(None, "--out", help="Keep the campaign and samples.jsonl (one line per "
                                        "revisit, as it ends) in this folder; by default a temporary one, removed."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import math
-
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
@@ -44,14 +42,14 @@ MKMM = typer.Option(None, "--marker-mm", help="Side of one marker in mm (default
 DICT = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary.")
 
 
-def _sim_seed(camp, seed: Optional[int]) -> int:
+def _sim_seed(camp, seed: int | None) -> int:
     """``--seed`` of a simulated rig: the option, else the campaign's ``[rig.sim]`` seed, else 0 (the hand-eye's rule)."""
     from fgcd_cli.campaign.records import campaign_world
 
     return seed if seed is not None else (campaign_world(camp)["seed"] if camp is not None else 0)
 
 
-def _open_campaign(path: Optional[Path]):
+def _open_campaign(path: Path | None):
     if path is None:
         return None
     from fgcd_cli.campaign import open_campaign
@@ -64,8 +62,8 @@ def board_cmd(
     output: Path = typer.Option(..., "--output", "-o", help="Board file to write: .png or .pdf (true size)."),
     squares_x: int = SQX,
     squares_y: int = SQY,
-    square_mm: Optional[float] = SQMM,
-    marker_mm: Optional[float] = MKMM,
+    square_mm: float | None = SQMM,
+    marker_mm: float | None = MKMM,
     dictionary: str = DICT,
     dpi: int = typer.Option(300, "--dpi", help="Print resolution."),
     as_json: bool = JSON_OPT,
@@ -108,9 +106,9 @@ def _load_images(directory: Path) -> tuple[list[np.ndarray], list[str]]:
 def _sim_board_views(seed: int, board, views: int, tick) -> tuple[list, list[str]]:
     """``views`` board views from the camera of the simulated rig of this seed (the one `hand-eye --driver sim
     --seed` moves, not a stand-alone camera with other true intrinsics), each a tick of the progress."""
-    from fgcd_drivers.sim.board import SimBoard
     from fgcd_cli.app.rig import open_sim_rig
     from fgcd_cli.app.scenario import SimScenario
+    from fgcd_drivers.sim.board import SimBoard
 
     opened = open_sim_rig(SimScenario(seed=seed), T_flange_cam=None, intrinsics=None)
     try:
@@ -128,20 +126,20 @@ def _sim_board_views(seed: int, board, views: int, tick) -> tuple[list, list[str
 
 @app.command("intrinsics")
 def intrinsics_cmd(
-    images: Optional[Path] = typer.Option(None, "--images", help="Folder of board photographs."),
+    images: Path | None = typer.Option(None, "--images", help="Folder of board photographs."),
     sim: bool = typer.Option(False, "--sim", help="Use views of a board rendered by the simulator."),
     sim_views: int = typer.Option(20, "--sim-views", help="Number of simulated views."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Simulated rig whose camera is calibrated (--sim): same "
+    seed: int | None = typer.Option(None, "--seed", help="Simulated rig whose camera is calibrated (--sim): same "
                                        "seed as `calibrate hand-eye --seed` (default: the campaign's [rig.sim] seed, "
                                        "else 0)."),
-    board_file: Optional[Path] = BOARD_FILE,
+    board_file: Path | None = BOARD_FILE,
     squares_x: int = SQX,
     squares_y: int = SQY,
-    square_mm: Optional[float] = SQMM,
-    marker_mm: Optional[float] = MKMM,
+    square_mm: float | None = SQMM,
+    marker_mm: float | None = MKMM,
     dictionary: str = DICT,
     distortion: str = typer.Option("k1k2p1p2", "--distortion", help="none, k1k2, k1k2p1p2 or k1k2p1p2k3."),
-    campaign: Optional[Path] = typer.Option(None, "--campaign", "-c", help="Store the result in this campaign's rig."),
+    campaign: Path | None = typer.Option(None, "--campaign", "-c", help="Store the result in this campaign's rig."),
     as_json: bool = JSON_OPT,
 ) -> None:
     """Calibrate the camera from views of a ChArUco board."""
@@ -263,19 +261,19 @@ def _run_handeye(handles, *, request, say, bar):
 @app.command("hand-eye")
 def handeye_cmd(
     mode: str = typer.Option("target-free", "--mode", help="target (ChArUco board) or target-free (VSE, rACR)."),
-    campaign: Optional[Path] = typer.Option(None, "--campaign", "-c", help="Campaign: its rig, its intrinsics; the "
+    campaign: Path | None = typer.Option(None, "--campaign", "-c", help="Campaign: its rig, its intrinsics; the "
                                             "result is stored in its rig/ (only a hand-eye of that rig)."),
-    driver: Optional[str] = opt.DRIVER,
-    port: Optional[str] = opt.PORT,
-    host: Optional[str] = opt.HOST,
-    baud: Optional[int] = opt.BAUD,
-    camera: Optional[str] = opt.CAMERA,
-    scene: Optional[str] = opt.SCENE,
-    seed: Optional[int] = typer.Option(None, "--seed", help="Simulated rig seed (default: the campaign's [rig.sim] "
+    driver: str | None = opt.DRIVER,
+    port: str | None = opt.PORT,
+    host: str | None = opt.HOST,
+    baud: int | None = opt.BAUD,
+    camera: str | None = opt.CAMERA,
+    scene: str | None = opt.SCENE,
+    seed: int | None = typer.Option(None, "--seed", help="Simulated rig seed (default: the campaign's [rig.sim] "
                                        "seed, else 0)."),
     translation_mm: float = typer.Option(30.0, "--translation-mm", help="Exploration translation (target-free)."),
     rotation_deg: float = typer.Option(8.0, "--rotation-deg", help="Rotation about each axis (target: default 15)."),
-    board_file: Optional[Path] = BOARD_FILE,
+    board_file: Path | None = BOARD_FILE,
     accept_residual: bool = typer.Option(False, "--accept-residual", help="Store a hand-eye whose residuals are "
                                          "beyond the limits (docs/calibration.md); refused with exit 6 otherwise."),
     yes: bool = opt.YES,
@@ -283,9 +281,9 @@ def handeye_cmd(
 ) -> None:
     """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
     from fgcd_cli.app.calibrate import HandEyeMode, HandEyeRequest, plan_handeye, store_handeye
+    from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
     from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.cli.progress import step_progress
-    from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
     from fgcd_cli.errors import AlgorithmError
 
     # no terminal and no --yes: refused first (exit 2), before anything is opened or moved

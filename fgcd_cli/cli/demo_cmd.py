@@ -53,11 +53,10 @@ def demo(
 ) -> None:
     """Run a complete simulated campaign: calibrate, capture, relocate under other light, diff, report."""
     deterministic_setup(deterministic)  # before the heavy libraries load
-    from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.app import demo as demo_uc
-    from fgcd_cli.errors import UserInputError
-
     from fgcd_cli.app.scenario import check_lighting, check_scene
+    from fgcd_cli.cli.progress import step_progress
+    from fgcd_cli.errors import UserInputError
 
     # every option with a closed set of values, before anything is created or calibrated
     if vse not in ("mono", "rgbd"):

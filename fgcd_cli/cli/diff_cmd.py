@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -115,20 +114,20 @@ def diff_progress(*, enabled: bool):
 
 
 def diff(
-    ref: Optional[list[str]] = typer.Option(None, "--ref", help="Reference image(s): repeat, comma-separate or quote a glob; one per lighting."),
-    cur: Optional[list[str]] = typer.Option(None, "--cur", help="Current image(s), same lightings in the same order."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Output folder (bare-image mode)."),
-    campaign: Optional[Path] = typer.Option(None, "--campaign", "-c", help="Campaign folder (campaign mode)."),
-    station: Optional[str] = typer.Option(None, "--station", "-s", help="Station name (campaign mode)."),
-    visit: Optional[str] = typer.Option(None, "--visit", help="Visit name (default: latest)."),
-    eval_mask: Optional[Path] = typer.Option(None, "--eval-mask", help="Compare only where this mask is non-zero (reference frame)."),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."),
-    mm_per_px: Optional[float] = typer.Option(None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."),
+    ref: list[str] | None = typer.Option(None, "--ref", help="Reference image(s): repeat, comma-separate or quote a glob; one per lighting."),
+    cur: list[str] | None = typer.Option(None, "--cur", help="Current image(s), same lightings in the same order."),
+    output: Path | None = typer.Option(None, "-o", "--output", help="Output folder (bare-image mode)."),
+    campaign: Path | None = typer.Option(None, "--campaign", "-c", help="Campaign folder (campaign mode)."),
+    station: str | None = typer.Option(None, "--station", "-s", help="Station name (campaign mode)."),
+    visit: str | None = typer.Option(None, "--visit", help="Visit name (default: latest)."),
+    eval_mask: Path | None = typer.Option(None, "--eval-mask", help="Compare only where this mask is non-zero (reference frame)."),
+    truth: Path | None = typer.Option(None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."),
+    mm_per_px: float | None = typer.Option(None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."),
     no_register: bool = typer.Option(False, "--no-register", help="Images are already aligned: skip registration."),
-    edge_check: Optional[int] = typer.Option(
+    edge_check: int | None = typer.Option(
         None, "--edge-check", help="Set aside regions along strong reference edges that a shift of up to this many px "
         "explains (shown in cyan); 0 = off. Default: 2 on a campaign, 0 on bare images."),
-    ambient_index: Optional[int] = typer.Option(
+    ambient_index: int | None = typer.Option(
         None, "--ambient-index", help="Bare images: 0-based index of the ambient-light image (left out of the "
         "photometric stereo that labels regions relief/colour). Campaigns know it from the lighting names."),
     force: bool = typer.Option(

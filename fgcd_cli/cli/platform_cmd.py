@@ -12,17 +12,16 @@ from __future__ import annotations
 import math
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
 from scipy.spatial.transform import Rotation
 
-from fgcd_drivers.connect import DRIVERS, PlatformSpec, open_platform
-from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import confirmer, debug, emit
 from fgcd_cli.errors import HardwareError, UserInputError, run_record
+from fgcd_drivers.connect import DRIVERS, PlatformSpec, open_platform
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 
 app = typer.Typer(help="Check, move and home a motion platform (GRBL stage, UR arm, manual).", no_args_is_help=True)
 
@@ -99,11 +98,11 @@ JsonOpt = typer.Option(False, "--json", help="Print one JSON object.")
 
 @app.command("check")
 def check(
-    campaign: Optional[Path] = CampaignOpt,
-    driver: Optional[str] = DriverOpt,
-    port: Optional[str] = PortOpt,
-    baud: Optional[int] = BaudOpt,
-    host: Optional[str] = HostOpt,
+    campaign: Path | None = CampaignOpt,
+    driver: str | None = DriverOpt,
+    port: str | None = PortOpt,
+    baud: int | None = BaudOpt,
+    host: str | None = HostOpt,
     timeout: float = TimeoutOpt,
     as_json: bool = JsonOpt,
 ) -> None:
@@ -140,11 +139,11 @@ def check(
 
 @app.command("move")
 def move(
-    campaign: Optional[Path] = CampaignOpt,
-    driver: Optional[str] = DriverOpt,
-    port: Optional[str] = PortOpt,
-    baud: Optional[int] = BaudOpt,
-    host: Optional[str] = HostOpt,
+    campaign: Path | None = CampaignOpt,
+    driver: str | None = DriverOpt,
+    port: str | None = PortOpt,
+    baud: int | None = BaudOpt,
+    host: str | None = HostOpt,
     dx: float = typer.Option(0.0, "--dx", help="Translation along flange x, mm."),
     dy: float = typer.Option(0.0, "--dy", help="Translation along flange y, mm."),
     dz: float = typer.Option(0.0, "--dz", help="Translation along flange z, mm."),
@@ -200,11 +199,11 @@ def move(
 
 @app.command("home")
 def home(
-    campaign: Optional[Path] = CampaignOpt,
-    driver: Optional[str] = DriverOpt,
-    port: Optional[str] = PortOpt,
-    baud: Optional[int] = BaudOpt,
-    host: Optional[str] = HostOpt,
+    campaign: Path | None = CampaignOpt,
+    driver: str | None = DriverOpt,
+    port: str | None = PortOpt,
+    baud: int | None = BaudOpt,
+    host: str | None = HostOpt,
     yes: bool = opt.YES,
     timeout: float = TimeoutOpt,
     as_json: bool = JsonOpt,

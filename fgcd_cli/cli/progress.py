@@ -21,8 +21,8 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Callable, Iterator
 
 __all__ = ["HEARTBEAT_S", "PlainSteps", "ProgressCallback", "StepBar", "step_progress"]
 
@@ -177,7 +177,7 @@ class PlainSteps:
                     due = now + self._heartbeat_s
                 wait = max(0.01, due - now)  # wake at the end of the silence, not a polling period later
 
-    def __enter__(self) -> "PlainSteps":
+    def __enter__(self) -> PlainSteps:
         self._thread.start()
         return self
 

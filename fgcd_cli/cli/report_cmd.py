@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,7 +13,7 @@ from fgcd_cli.errors import run_record
 def report(
     campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign folder."),
     station: str = typer.Option(..., "--station", "-s", help="Station name."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="HTML file (default: <station>/history.html)."),
+    output: Path | None = typer.Option(None, "-o", "--output", help="HTML file (default: <station>/history.html)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Station history: every visit compared with the reference (visits not yet compared are compared now).

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
@@ -119,11 +118,11 @@ def lights(as_json: bool = typer.Option(False, "--json", help="Print one JSON ob
 def render_cmd(
     scene: str = typer.Option(..., "--scene", help="Scene name (fgcd sim scenes)."),
     light: str = typer.Option("front", "--light", help="Lighting preset (fgcd sim lights)."),
-    pose: Optional[str] = typer.Option(None, "--pose", help="x,y,z,rx,ry,rz in mm and degrees, camera frame, "
+    pose: str | None = typer.Option(None, "--pose", help="x,y,z,rx,ry,rz in mm and degrees, camera frame, "
                                                           "relative to the scene's default camera."),
     out: Path = typer.Option(..., "-o", "--out", help="Output image (PNG)."),
-    depth: Optional[Path] = typer.Option(None, "--depth", help="Also write z-depth: .npy (metres) or .png (16-bit mm)."),
-    mask: Optional[Path] = typer.Option(None, "--mask", help="Also write the change mask (PNG, 255 = change)."),
+    depth: Path | None = typer.Option(None, "--depth", help="Also write z-depth: .npy (metres) or .png (16-bit mm)."),
+    mask: Path | None = typer.Option(None, "--mask", help="Also write the change mask (PNG, 255 = change)."),
     changes: int = typer.Option(0, "--changes", help="Inject this many random changes (1-20 mm)."),
     change_seed: int = typer.Option(1, "--change-seed", help="Seed of the changes."),
     seed: int = typer.Option(0, "--seed", help="Scene seed."),

@@ -35,7 +35,7 @@ class RelocationEvaluator:
     T_world_camref: np.ndarray
 
     @classmethod
-    def from_reference(cls, sim_rig, reference_observation) -> "RelocationEvaluator | None":
+    def from_reference(cls, sim_rig, reference_observation) -> RelocationEvaluator | None:
         """Build from a reference observation captured on the simulator (None otherwise)."""
         if not reference_observation.has(SIM_TRUTH):
             return None

@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.acr_pose import AcrModel, AcrPoseConfig, RelativePose, measure_relative_pose
+from fgcd_cli.relocation.acr_pose import AcrPoseConfig, RelativePose, measure_relative_pose
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.session import SessionTiming
 from fgcd_core.se3 import exp_so3, flange_motion, log_so3, make_pose, rotation_angle_rad

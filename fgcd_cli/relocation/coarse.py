@@ -35,13 +35,12 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fgcd_drivers.platform import MotionRejected
 from fgcd_cli.relocation.adjustment import clamp_motion
 from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult, CoarseStep
 from fgcd_cli.relocation.config import ReferenceData
@@ -53,6 +52,7 @@ from fgcd_cli.relocation.stop_rule import reference_depth_m
 from fgcd_cli.relocation.uncertainty import CameraUncertainty, camera_uncertainty, in_view, render_visible_points
 from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
+from fgcd_drivers.platform import MotionRejected
 
 __all__ = [
     "check_scale",

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -163,12 +164,12 @@ class LoopState:
     records: list[AdjustmentRecord] = field(default_factory=list)
     last_T_ref_cur: Sim3 | None = None
     moved_at_frame: int = -1
-    worker: "AlignmentWorker | None" = None
+    worker: AlignmentWorker | None = None
     prior_checked: bool = False
     map_estimates: list = field(default_factory=list)
 
     @classmethod
-    def for_context(cls, ctx: LoopContext, *, t_start: float) -> "LoopState":
+    def for_context(cls, ctx: LoopContext, *, t_start: float) -> LoopState:
         """Tolerance and 3D uncertainty from the reference (docs/relocation.md, "Stop rules")."""
         config, reference = ctx.config, ctx.reference
         tol = config.tolerance_mm if config.tolerance_mm is not None else tolerance_mm(

@@ -145,7 +145,7 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
         if waited < config.untrusted_min_wait_s:
             deadlines.append(t0 + config.untrusted_min_wait_s)
         seen = est.serial if est is not None else -1
-        worker.wait_until(lambda e: e is not None and e.serial != seen, min(deadlines) - now())
+        worker.wait_until(lambda e, seen=seen: e is not None and e.serial != seen, min(deadlines) - now())
 
 
 def _aligned(ctx: LoopContext, state, init, serial: int = 0) -> list[AlignmentEstimate]:

@@ -22,8 +22,8 @@ from fgcd_cli.relocation.enums import LoopMode
 from fgcd_cli.relocation.estimates import DegenerateGeometry, align_now, wait_for_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.stop_rule import estimated_afd_px, estimates_agree, offset_vector_mm
-from fgcd_core.se3 import pose_distance
 from fgcd_cli.vse.types import VseStatus
+from fgcd_core.se3 import pose_distance
 
 __all__ = ["racr_loop"]
 

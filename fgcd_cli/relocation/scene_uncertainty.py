@@ -344,7 +344,7 @@ class SceneUncertaintyMap:
         return buf.getvalue()
 
     @classmethod
-    def from_npz(cls, data: bytes) -> "SceneUncertaintyMap":
+    def from_npz(cls, data: bytes) -> SceneUncertaintyMap:
         """The map written by :meth:`to_npz`."""
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
             options = json.loads(str(z["config"]))

@@ -11,17 +11,18 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 
-from fgcd_drivers.platform import MotionGuard
 from fgcd_cli.errors import AlgorithmError, run_record
 from fgcd_cli.relocation.waiting import wait_for_state
-from fgcd_core.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
 from fgcd_cli.vse.types import VseStatus
+from fgcd_core.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
+from fgcd_drivers.platform import MotionGuard
 
 __all__ = [
     "SessionTiming",

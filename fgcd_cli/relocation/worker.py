@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from fgcd_cli.relocation.aligner import Aligner, AlignmentEstimate, AlignmentProblem, align_once
 from fgcd_cli.relocation.waiting import wait_for_state
-from fgcd_core.sim3 import Sim3
 from fgcd_cli.vse.types import VseStatus
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["ALIGNMENT_STEP_S", "AlignmentWorker", "SteppedAlignmentWorker"]
 
@@ -59,7 +59,7 @@ class AlignmentWorker:
         self._error: str | None = None
         self._thread = threading.Thread(target=self._run, name="fgcd-alignment", daemon=True)
 
-    def start(self) -> "AlignmentWorker":
+    def start(self) -> AlignmentWorker:
         self._thread.start()
         return self
 
@@ -143,7 +143,7 @@ class SteppedAlignmentWorker(AlignmentWorker):
 
     _last_frame = -1  # frames_processed of the state aligned last
 
-    def start(self) -> "SteppedAlignmentWorker":
+    def start(self) -> SteppedAlignmentWorker:
         return self
 
     def stop(self) -> None:

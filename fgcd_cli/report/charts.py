@@ -6,9 +6,8 @@ import io
 
 import numpy as np
 
-from fgcd_cli.report.mpl import matplotlib, plt
-
 from fgcd_cli.report.areas import area_mm2_text  # noqa: E402
+from fgcd_cli.report.mpl import matplotlib, plt
 
 __all__ = ["convergence_figure", "convergence_png", "figure_png", "history_figure", "history_png"]
 

@@ -3,17 +3,13 @@
 from __future__ import annotations
 
 import base64
-import io
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from fgcd_cli.report.mpl import matplotlib, plt
-
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
 from fgcd_cli.changes.significance import SignificantRegion  # noqa: E402
-from fgcd_cli.report.areas import area_mm2_text  # noqa: E402
 from fgcd_cli.report.charts import (  # noqa: E402, F401 - the charts, re-exported here
     CONVERGENCE_PANELS,
     ESTIMATE_STYLE,
@@ -21,10 +17,13 @@ from fgcd_cli.report.charts import (  # noqa: E402, F401 - the charts, re-export
     TRUTH_STYLE,
     convergence_figure,
     convergence_png,
-    figure_png as _figure_png,
     history_figure,
     history_png,
 )
+from fgcd_cli.report.charts import (
+    figure_png as _figure_png,
+)
+from fgcd_cli.report.mpl import plt
 
 # Colours (RGB) chosen to stand out on plaster, pigments and stone.
 CHANGE_RGB = (255, 0, 200)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 
 import matplotlib.dates as mdates
+
 from fgcd_cli.report.charts import figure_png, plt
 
 __all__ = ["track_area_figure", "track_area_png"]

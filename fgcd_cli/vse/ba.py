@@ -19,9 +19,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fgcd_core.camera import MIN_DEPTH_M, pinhole_pixels
 from fgcd_core.lm import LMSchedule, huber_cost, huber_weights, levenberg_marquardt
 from fgcd_core.schur import BlockNormalEquations, Damping, SchurDamping, block_normal_equations, schur_step
-from fgcd_core.camera import MIN_DEPTH_M, pinhole_pixels
 from fgcd_core.se3 import exp_se3, transform_each
 
 __all__ = ["BundleResult", "BundleAdjustConfig", "OutlierRejectionConfig", "bundle_adjust",

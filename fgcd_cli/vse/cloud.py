@@ -23,8 +23,13 @@ import cv2
 import numpy as np
 
 from fgcd_cli.vse.landmarks import KeyframeRecord, median_depth
-from fgcd_cli.vse.semidense import (KeyframeDepthConfig, SemiDenseDepth, fuse_across_keyframes, keyframe_depth,
-                                    select_pixels)
+from fgcd_cli.vse.semidense import (
+    KeyframeDepthConfig,
+    SemiDenseDepth,
+    fuse_across_keyframes,
+    keyframe_depth,
+    select_pixels,
+)
 from fgcd_cli.vse.types import MapCloud, VseConfig
 from fgcd_core.se3 import invert_pose, rotation_angle_rad, transform_points
 

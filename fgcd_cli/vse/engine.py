@@ -40,7 +40,7 @@ import numpy as np
 from fgcd_cli.vse.ba import outlier_threshold_px, projection_residuals, refine_pose
 from fgcd_cli.vse.cloud import CloudBuilder, DepthImageCloud, LandmarkCloud, SemiDenseCloud
 from fgcd_cli.vse.depth_source import DepthImage, DepthSource, Triangulation
-from fgcd_cli.vse.frontend import KltTracking, OrbTracking, Tracks, TrackingFrontend
+from fgcd_cli.vse.frontend import KltTracking, OrbTracking, TrackingFrontend, Tracks
 from fgcd_cli.vse.landmarks import KeyframeRecord, LandmarkMap, median_depth
 from fgcd_cli.vse.mapping import windowed_bundle_adjustment
 from fgcd_cli.vse.relocalizer import Relocalizer

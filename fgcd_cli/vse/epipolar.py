@@ -94,7 +94,7 @@ class GradientImage(NamedTuple):
     gy: np.ndarray
 
     @classmethod
-    def of(cls, image: np.ndarray) -> "GradientImage":
+    def of(cls, image: np.ndarray) -> GradientImage:
         return cls(image, *image_gradients(image))
 
 

@@ -12,8 +12,9 @@ residuals' own noise level. All positions are raw (distorted) image pixels.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import StrEnum
-from typing import Callable, Protocol
+from typing import Protocol
 
 import cv2
 import numpy as np

@@ -20,9 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from fgcd_cli.vse.epipolar import PATTERN, EpipolarSearchConfig, GradientImage, epipolar_search, image_gradients  # noqa: F401
 from fgcd_core.camera import pinhole_pixels
-from fgcd_cli.vse.epipolar import (PATTERN, EpipolarSearchConfig, GradientImage, epipolar_search,  # noqa: F401
-                                   image_gradients)
 
 __all__ = ["SemiDenseDepth", "EpipolarSearchConfig", "KeyframeDepthConfig", "GradientImage", "select_pixels",
            "image_gradients", "epipolar_search", "fuse_estimates", "keyframe_depth", "fuse_across_keyframes"]

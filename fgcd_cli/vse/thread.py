@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
-from typing import Callable
 
 from fgcd_cli.vse.types import FrameSource, VseState, VseStatus
 
@@ -51,7 +51,7 @@ class VseThread:
         self.error: str | None = None
 
     # ------------------------------------------------------------------ control
-    def start(self) -> "VseThread":
+    def start(self) -> VseThread:
         """Start the worker (idempotent)."""
         if self._thread is not None and self._thread.is_alive():
             return self
@@ -120,7 +120,7 @@ class VseThread:
                     return None
                 self._cond.wait(min(remaining, 0.1))
 
-    def __enter__(self) -> "VseThread":
+    def __enter__(self) -> VseThread:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -210,7 +210,7 @@ class SteppedVse:
         self.error: str | None = None
 
     @classmethod
-    def like(cls, thread: VseThread) -> "SteppedVse":
+    def like(cls, thread: VseThread) -> SteppedVse:
         """The stepped twin of a (not started) :class:`VseThread`: its engine and its source."""
         return cls(thread.engine, thread.source, max_consecutive_errors=thread.max_consecutive_errors)
 
@@ -229,7 +229,7 @@ class SteppedVse:
         """False: nothing runs beside the caller."""
         return False
 
-    def start(self) -> "SteppedVse":
+    def start(self) -> SteppedVse:
         self._stopped = False
         return self
 
@@ -286,7 +286,7 @@ class SteppedVse:
                 return None
             self.step()
 
-    def __enter__(self) -> "SteppedVse":
+    def __enter__(self) -> SteppedVse:
         return self.start()
 
     def __exit__(self, *exc) -> None:

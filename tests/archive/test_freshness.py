@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from fgcd_cli.archive import freshness as fr
-from fgcd_cli.archive.freshness import (ANALYSIS_RELPATH, AnalysisOptions, Freshness, analysis_inputs,
-                                        analysis_record, freshness, verify_inputs)
+from fgcd_cli.archive.freshness import (
+    ANALYSIS_RELPATH,
+    AnalysisOptions,
+    Freshness,
+    analysis_inputs,
+    analysis_record,
+    freshness,
+    verify_inputs,
+)
 from fgcd_cli.campaign import init_campaign, schema
 from fgcd_cli.errors import DataIntegrityError
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 import cv2
 import numpy as np
@@ -13,7 +13,7 @@ import pytest
 from fgcd_cli.archive.tracking import MATCH_DILATION_PX, TrackStatus, VisitRegions, track_regions
 
 SHAPE = (120, 160)
-T0 = datetime(2024, 1, 1, tzinfo=timezone.utc)
+T0 = datetime(2024, 1, 1, tzinfo=UTC)
 MM2_PER_PX = 0.25
 
 

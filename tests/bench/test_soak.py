@@ -8,8 +8,14 @@ import numpy as np
 import pytest
 
 from fgcd_cli.bench.soak import private_tempdir, run
-from fgcd_cli.bench.soak_sample import (ResourceSample, TempBaseline, growth_per_revisit, proc_status_mb,
-                                        sample_resources, summarize_samples)
+from fgcd_cli.bench.soak_sample import (
+    ResourceSample,
+    TempBaseline,
+    growth_per_revisit,
+    proc_status_mb,
+    sample_resources,
+    summarize_samples,
+)
 
 
 def _sample(index, rss, *, phase="quick", fds=10, threads=5, tmp=0, hwm=None, afd=float("nan")):

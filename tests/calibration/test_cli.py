@@ -6,8 +6,8 @@ import sys
 from pathlib import Path
 
 import cv2
-import pytest
 import numpy as np
+import pytest
 
 from fgcd_cli.campaign import init_campaign
 
@@ -162,9 +162,10 @@ def _fake_calibration(rms_mm: float):
 @pytest.fixture
 def handeye_of(monkeypatch):
     """`calibrate hand-eye` in process, its procedure replaced by one giving a residual of ``rms_mm``."""
+    from types import SimpleNamespace
+
     import fgcd_cli.app.calibrate as calibrate_uc
     import fgcd_cli.app.rig as rig_uc
-    from types import SimpleNamespace
 
     def run(rms_mm):
         monkeypatch.setattr(calibrate_uc, "run_handeye", lambda *a, **k: _fake_calibration(rms_mm))
@@ -217,10 +218,10 @@ def test_sim_intrinsics_are_not_silent_in_a_pipe():
 @pytest.mark.parametrize("rms_mm, warned", [(24.4, True), (5.3, False)])
 def test_the_simulated_campaigns_hand_eye_states_a_residual_beyond_the_limit(tmp_path, monkeypatch, rms_mm, warned):
     """The demo's and the benches' hand-eye is kept (their own simulated campaign) but said to be unusable."""
-    import fgcd_cli.app.calibrate as calibrate_uc
-    import fgcd_cli.app.rig as rig_uc
     from types import SimpleNamespace
 
+    import fgcd_cli.app.calibrate as calibrate_uc
+    import fgcd_cli.app.rig as rig_uc
     from fgcd_cli.app.scenario import SimScenario
 
     monkeypatch.setattr(calibrate_uc, "run_handeye", lambda *a, **k: _fake_calibration(rms_mm))

@@ -12,12 +12,12 @@ import cv2
 import numpy as np
 import pytest
 
+from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.handeye import solve_handeye_scale
-from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.handeye_refine import RefineConfig, refine_handeye_tracks
-from fgcd_cli.calibration.target_free import TargetFreeConfig, refine_target_free
 from fgcd_cli.calibration.motions import exploration_motions
+from fgcd_cli.calibration.target_free import TargetFreeConfig, refine_target_free
 from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
 

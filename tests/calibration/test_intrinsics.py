@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 from fgcd_cli.calibration.board import BoardSpec, load_board_sidecar, write_printable_board
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.intrinsics import IntrinsicsResult, calibrate_intrinsics, coverage_feedback
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
+from fgcd_drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 
 CAM = dict(fx=620.0, fy=618.0, cx=322.0, cy=238.0, width=640, height=480)
 DIST = (-0.12, 0.05, 0.001, -0.0005, 0.0)

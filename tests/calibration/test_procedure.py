@@ -10,7 +10,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_cli.app.calibrate import HandEyeCalibration, HandEyeRequest, HandEyeRig, run_handeye
 from fgcd_cli.calibration.errors import CalibrationError
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
@@ -19,6 +18,7 @@ from fgcd_cli.calibration.samples import rotation_axis_spread_deg
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import exp_so3, invert_pose, make_pose, pose_distance
+from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 
 CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
 
@@ -245,17 +245,18 @@ def test_the_hand_eye_use_case_is_the_target_free_procedure():
         platform = IdealPlatform()
         guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
         says, ticks = [], []
-        factory = lambda cam: FakeVSE(platform, X, 0.42)  # noqa: E731
+        def factory(cam, platform=platform):
+            return FakeVSE(platform, X, 0.42)
         if use_case:
             calibration = run_handeye(HandEyeRig(guard=guard, camera_source=FakeCamera(), intrinsics=CAMERA),
                                       HandEyeRequest(), say=says.append,
-                                      on_progress=lambda *a: ticks.append(a), vse_factory=factory)
+                                      on_progress=lambda *a, ticks=ticks: ticks.append(a), vse_factory=factory)
             assert isinstance(calibration, HandEyeCalibration)
             assert calibration.record["skipped_stops"] == {"0": "VSE initializing: need parallax"}
             run = calibration.run
         else:
             run = run_target_free(guard, FakeCamera(), factory, camera=CAMERA, progress=says.append,
-                                  on_progress=lambda *a: ticks.append(a))
+                                  on_progress=lambda *a, ticks=ticks: ticks.append(a))
         outcomes.append((np.asarray(run.result.T_flange_cam), run.result.scale, says, ticks, run.frames))
     (X_a, s_a, say_a, tick_a, f_a), (X_b, s_b, say_b, tick_b, f_b) = outcomes
     assert np.array_equal(X_a, X_b) and s_a == s_b and say_a == say_b and tick_a == tick_b and f_a == f_b

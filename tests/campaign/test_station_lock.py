@@ -50,7 +50,7 @@ def test_the_second_holder_is_refused_naming_the_first(camp):
 def test_a_lock_left_by_a_killed_process_is_stale_and_does_not_block(camp):
     holder = subprocess.Popen([sys.executable, "-c", (
         "import sys, time; from fgcd_cli.campaign.lock import station_lock\n"
-        f"with station_lock(sys.argv[1], 's1', command='relocate'):\n"
+        "with station_lock(sys.argv[1], 's1', command='relocate'):\n"
         "    print('held', flush=True); time.sleep(60)"), str(camp.path)], stdout=subprocess.PIPE, cwd=ROOT)
     try:
         assert holder.stdout.readline().strip() == b"held"

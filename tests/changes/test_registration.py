@@ -43,8 +43,8 @@ def test_ecc_that_wanders_off_a_good_sift_start_does_not_make_the_pair_incompara
     """ECC ending below the correlation bar is judged against the SIFT homography by the same criterion."""
     import numpy as _np
 
-    from fgcd_cli.changes import registration as reg
     from changes.conftest import textured_scene, translate
+    from fgcd_cli.changes import registration as reg
 
     ref = textured_scene(256)
     cur = translate(ref, 1.5, 0.8)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from skimage import data
 
-from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes import detect_changes
+from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.tiled import detect_changes_tiled, load_images, tile_grid
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.metrics.change_scores import binary_scores

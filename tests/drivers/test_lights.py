@@ -187,10 +187,10 @@ def test_manual_lights_light_the_simulated_scene():
 @pytest.mark.parametrize("driver", ["grbl", "manual"])
 def test_a_simulated_capture_switches_real_lights_end_to_end(tmp_path, emulator, driver):
     """`fgcd capture --light ambient,led:3,led:9` on the simulated platform with GRBL or manual lights."""
-    from fgcd_drivers.sim.rig import build_sim_rig
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
     from fgcd_cli.app.rig import RigHooks
     from fgcd_cli.campaign import init_campaign
+    from fgcd_drivers.sim.rig import build_sim_rig
 
     lights = {"driver": driver, "channels": {"led:3": "flood", "led:9": "mist"}}
     if driver == "grbl":

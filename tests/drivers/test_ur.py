@@ -28,8 +28,15 @@ from fgcd_drivers.platform import (
     SafetyStop,
 )
 from fgcd_drivers.testing.fake_ur import FakeURProcess
-from fgcd_drivers.ur import (URConfig, URPlatform, abandoned_interface_count, pose_to_vector, preflight,
-                             safety_problem, vector_to_pose)
+from fgcd_drivers.ur import (
+    URConfig,
+    URPlatform,
+    abandoned_interface_count,
+    pose_to_vector,
+    preflight,
+    safety_problem,
+    vector_to_pose,
+)
 
 pytestmark = pytest.mark.timeout(90)
 

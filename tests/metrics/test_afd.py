@@ -1,10 +1,9 @@
 import numpy as np
 import pytest
+from changes.conftest import textured_scene, translate
 
 from fgcd_cli.errors import AlgorithmError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, compute_fdf, read_pairs_csv
-
-from changes.conftest import textured_scene, translate
 
 SHIFT = (2.4, -1.3)
 TRUE_AFD = float(np.hypot(*SHIFT))

@@ -15,7 +15,7 @@ from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.acr import AcrConfig, AcrRig, Bisection, acr_relocate
 from fgcd_cli.relocation.acr_pose import AcrModel, AcrPoseConfig, RelativePose, relative_pose_from_matches
 from fgcd_cli.relocation.session import SessionTiming
-from fgcd_core.se3 import exp_se3, invert_pose, log_so3, rotation_angle_rad, transform_points
+from fgcd_core.se3 import exp_se3, invert_pose, rotation_angle_rad, transform_points
 
 F_PX, W, H = 600.0, 640, 480
 K = np.array([[F_PX, 0, W / 2], [0, F_PX, H / 2], [0, 0, 1.0]])

@@ -14,9 +14,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from fgcd_cli.relocation.coarse import CoarseConfig, camera_uncertainty, render_visible_points
 from fgcd_core import PinholeCamera, exp_se3
 from fgcd_core.se3 import invert_pose, pose_distance
-from fgcd_cli.relocation.coarse import CoarseConfig, camera_uncertainty, render_visible_points
 
 CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=320.0, cy=240.0, width=640, height=480)
 
@@ -227,9 +227,9 @@ def test_a_body_of_revolution_leaves_its_slide_out_of_the_verification():
 def _scale_error_run(reference_points, monkeypatch, *, scale_error: float, scale_rel_std: float):
     """The coarse stage from 41 mm / 1.6 deg with the session's scale ``1 + scale_error`` too large and an
     exact image localizer (a textured object near the reference): ``(result, session)``."""
-    from fgcd_core.sim3 import Sim3
     from fgcd_cli.alignment import ReferenceIndex
     from fgcd_cli.relocation import coarse as coarse_mod
+    from fgcd_core.sim3 import Sim3
 
     T_start = exp_se3(np.r_[0.03, -0.02, 0.02, np.radians([0.5, 1.5, 0.0])])  # 41 mm / 1.6 deg away
     cloud = _relief(30000, np.random.default_rng(8))

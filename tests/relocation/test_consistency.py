@@ -13,7 +13,6 @@ import math
 import numpy as np
 import pytest
 
-from fgcd_drivers.platform import GuardLimits, MotionGuard
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.consistency import estimate_spread
 from fgcd_cli.relocation.image_refine import ImageRefinement
@@ -21,7 +20,8 @@ from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceDa
 from fgcd_cli.relocation.session import VseSession
 from fgcd_core import PinholeCamera, Sim3
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
-from tests.relocation.test_loop import ErringPlatform, ExactVse, make_case
+from fgcd_drivers.platform import GuardLimits, MotionGuard
+from tests.relocation.test_loop import ExactVse, make_case
 
 CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
 DEPTH_M = 1.5

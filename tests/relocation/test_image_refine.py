@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from fgcd_drivers.cameras import CameraIntrinsics
-from fgcd_drivers.sim.render import Renderer
-from fgcd_drivers.sim.scenes import load_scene
-from fgcd_core import PinholeCamera
-from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from fgcd_cli.relocation.image_refine import (
     ImageRefineConfig,
     reference_depth_lookup,
     refine_from_reference_image,
 )
+from fgcd_core import PinholeCamera
+from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_drivers.sim.render import Renderer
+from fgcd_drivers.sim.scenes import load_scene
 
 INTR = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
 CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
@@ -164,8 +164,8 @@ def test_low_contrast_wall_under_a_side_light_from_a_few_centimetres():
 
 def test_local_contrast_is_the_core_clahe_and_its_8_bit_form_the_same_levels():
     """CLAHE at clip limit 3 on 8 x 8 tiles of the 8-bit image, back to [0, 1]; SIFT sees the same levels in 8 bits."""
-    from fgcd_core.imaging import clahe, to_gray_f32, to_gray_u8
     from fgcd_cli.relocation.image_refine import _local_contrast_u8, local_contrast
+    from fgcd_core.imaging import clahe, to_gray_f32, to_gray_u8
 
     rng = np.random.default_rng(4)
     levels = np.tile(np.arange(256, dtype=np.float32) / 255.0, (64, 1))

@@ -14,12 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
-from fgcd_core import Sim3
-from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs
 from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
 from fgcd_cli.relocation.session import VseSession
+from fgcd_core import Sim3
+from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 
 
 class ErringPlatform:
@@ -144,7 +144,10 @@ def test_perfect_platform_and_alignment_reach_reference_in_one_adjustment(monkey
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
-    truth = lambda: {"mm": pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]}
+
+    def truth():
+        return {"mm": pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]}
+
     res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
                          init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), evaluate=truth,
                          aligner=exact_align_once))
@@ -196,8 +199,8 @@ def test_failed_alignment_pauses_motion(monkeypatch):
 
 
 def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
-    from fgcd_core import PinholeCamera
     from fgcd_cli.relocation.loop import estimated_afd_px
+    from fgcd_core import PinholeCamera
 
     cam = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
     rng = np.random.default_rng(0)

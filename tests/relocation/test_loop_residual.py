@@ -12,22 +12,21 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_drivers.platform import GuardLimits, MotionGuard
-from fgcd_cli.errors import AlgorithmError
-from fgcd_core import PinholeCamera, Sim3
-from fgcd_core.se3 import exp_se3, invert_pose, make_pose, pose_distance
 from fgcd_cli.relocation.image_refine import ImageRefinement, pnp_translation_sigma_m
 from fgcd_cli.relocation.loop import (
     AlignmentEstimate,
+    LoopContext,
     ReferenceData,
     RelocationConfig,
     estimated_afd_px,
-    LoopContext,
     estimates_agree,
     relocate,
     tolerance_mm,
 )
 from fgcd_cli.relocation.session import VseSession
+from fgcd_core import PinholeCamera, Sim3
+from fgcd_core.se3 import exp_se3, invert_pose, make_pose, pose_distance
+from fgcd_drivers.platform import GuardLimits, MotionGuard
 from tests.relocation.test_loop import ErringPlatform, ExactVse, make_case
 
 CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)

@@ -13,8 +13,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_core import PinholeCamera
-from fgcd_core.se3 import invert_pose, pose_distance
 from fgcd_cli.relocation.coarse_config import CoarseConfig
 from fgcd_cli.relocation.scene_uncertainty import (
     SceneModel,
@@ -26,6 +24,8 @@ from fgcd_cli.relocation.scene_uncertainty import (
     scene_uncertainty_map,
     view_uncertainty,
 )
+from fgcd_core import PinholeCamera
+from fgcd_core.se3 import invert_pose, pose_distance
 
 CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=320.0, cy=240.0, width=640, height=480)
 
@@ -120,9 +120,9 @@ class _TurnOnlySession:
 
 
 def _run(scene):
+    from fgcd_cli.relocation.coarse import CoarseInputs, _CoarseRun, _View
     from fgcd_core import exp_se3
     from fgcd_core.sim3 import Sim3
-    from fgcd_cli.relocation.coarse import CoarseInputs, _CoarseRun, _View
 
     X = exp_se3(np.r_[0.03, -0.05, 0.12, np.radians([1.0, 2.0, 90.0])])
     session = _TurnOnlySession(X)

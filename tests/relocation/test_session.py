@@ -6,9 +6,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_core.se3 import exp_se3, rotation_angle_rad
 from fgcd_cli.errors import run_record
 from fgcd_cli.relocation.session import VseSession, exploration_pattern
+from fgcd_core.se3 import exp_se3, rotation_angle_rad
 
 
 def _compose(motions):

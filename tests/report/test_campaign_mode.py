@@ -12,9 +12,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
-from fgcd_cli.campaign import init_campaign, open_campaign, verify_campaign  # noqa: E402
 from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign
 from fgcd_cli.app.report import station_history  # noqa: E402
+from fgcd_cli.campaign import init_campaign, open_campaign, verify_campaign  # noqa: E402
 
 
 def _u8(image):

@@ -13,6 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
+from fgcd_cli.app.diff import relocation_log_rows  # noqa: E402
 from fgcd_cli.changes import detect_changes  # noqa: E402
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
 from fgcd_cli.report.areas import area_mm2_text, round_area_mm2  # noqa: E402
@@ -27,7 +28,6 @@ from fgcd_cli.report.figures import (  # noqa: E402
 )
 from fgcd_cli.report.html import ReportContext  # noqa: E402
 from fgcd_cli.report.products import diff_products  # noqa: E402
-from fgcd_cli.app.diff import relocation_log_rows  # noqa: E402
 
 ESTIMATES = {"afd_est_px": [30.0, 2.0, 0.5, 0.2], "offset_mm": [25.0, 3.0, 0.4, 0.1], "offset_deg": [2.5, 0.3, 0.05, 0.01]}
 TRUTH = {"afd_px": [32.0, 1.0, 0.8, 0.07], "pose_err_mm": [25.2, 5.3, 2.9, 0.2], "pose_err_deg": [2.5, 0.12, 0.1, 0.007]}

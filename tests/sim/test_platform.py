@@ -7,8 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from fgcd_drivers.platform import MotionGuard, GuardLimits, MotionRejected, Platform, PlatformConnectionError, \
-    PlatformTimeout, SafetyStop
+from fgcd_drivers.platform import (
+    GuardLimits,
+    MotionGuard,
+    MotionRejected,
+    Platform,
+    PlatformConnectionError,
+    PlatformTimeout,
+    SafetyStop,
+)
 from fgcd_drivers.sim.platform import PlatformErrorModel, SimPlatform, SimPlatformConfig
 from fgcd_drivers.sim.transforms import exp_so3, make_pose, rot_angle
 

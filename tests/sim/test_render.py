@@ -68,8 +68,9 @@ def test_lambert_shading_of_known_normal(factories, small_intr):
     scene = factories.make_scene([factories.plane_part(albedo=albedo)])
     T = look_at((0.0, -1.0, 1.0), (0.0, 0.0, 1.0))
     theta = np.radians(50.0)
-    l = np.array([np.sin(theta), -np.cos(theta), 0.0])  # towards the light; the plane's normal is -y
-    light = Lighting(name="t", lights=(Light(kind="directional", frame="world", direction=tuple(l), intensity=0.8),),
+    to_light = np.array([np.sin(theta), -np.cos(theta), 0.0])  # the plane's normal is -y
+    light = Lighting(name="t", lights=(Light(kind="directional", frame="world", direction=tuple(to_light),
+                                             intensity=0.8),),
                      ambient=0.1)
     res = Renderer(scene).render(T, small_intr, light, exposure=1.0, effects=LINEAR, want=("gray",))
     expected = albedo * (0.1 + 0.8 * np.cos(theta))

@@ -3,9 +3,15 @@
 import numpy as np
 import pytest
 
+from fgcd_cli.vse.ba import (
+    BundleAdjustConfig,
+    OutlierRejectionConfig,
+    bundle_adjust,
+    bundle_adjust_rejecting_outliers,
+    projection_residuals,
+    refine_pose,
+)
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
-from fgcd_cli.vse.ba import (BundleAdjustConfig, OutlierRejectionConfig, bundle_adjust,
-                             bundle_adjust_rejecting_outliers, projection_residuals, refine_pose)
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 

@@ -6,13 +6,21 @@ import json
 import numpy as np
 import pytest
 
-from fgcd_core.se3 import invert_pose, pose_distance
-from fgcd_core.sim3 import umeyama
-from fgcd_cli.vse import (MonocularVSE, RgbdVSE, SparseVSE, VisualSlamEngine, VseConfig, VseStatus, VseVariant,
-                          make_engine)
+from fgcd_cli.vse import (
+    MonocularVSE,
+    RgbdVSE,
+    SparseVSE,
+    VisualSlamEngine,
+    VseConfig,
+    VseStatus,
+    VseVariant,
+    make_engine,
+)
 from fgcd_cli.vse.cloud import DepthImageCloud, LandmarkCloud, SemiDenseCloud
 from fgcd_cli.vse.depth_source import DepthImage, Triangulation
 from fgcd_cli.vse.frontend import FrontendKind, KltTracking, OrbTracking
+from fgcd_core.se3 import invert_pose, pose_distance
+from fgcd_core.sim3 import umeyama
 
 
 def _run(engine, world, camera, poses, *, depth=False, t0=0):

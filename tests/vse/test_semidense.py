@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcd_core.se3 import make_pose
 from fgcd_cli.vse.semidense import KeyframeDepthConfig, fuse_across_keyframes, keyframe_depth
+from fgcd_core.se3 import make_pose
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
 Z = 1.5  # fronto-parallel plane: the true inverse depth is 1/Z in both (parallel) cameras
