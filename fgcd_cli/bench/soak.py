@@ -20,7 +20,8 @@ simulated camera (640 x 480) and the revisit's exploration (3 legs of 4 cm) are
 fixed by the product: no smaller honest setting exists.
 
 Summary keys: ``revisits``, ``rss_growth_mb_per_revisit`` (slope after ``warmup``
-revisits), ``rss_peak_mb``, ``threads_max``, ``fds_max``, ``tmp_files_left`` (target
+revisits), ``rss_peak_mb``, ``python_objects_growth_per_revisit`` (a leak of Python objects, beside the resident set's
+growth that the allocator's fragmentation also makes), ``threads_max``, ``fds_max``, ``tmp_files_left`` (target
 0), ``visits_verified`` (target ``revisits``), ``history_complete``, ``seconds``.
 """
 

@@ -4,7 +4,9 @@ One :class:`ResourceSample` per revisit, read from ``/proc/self`` (Linux): the
 resident set (``VmRSS``) and its peak (``VmHWM``), every thread of the process
 (``/proc/self/task``: the native ones of OpenCV, BLAS and the VSE included) beside
 :func:`threading.active_count` (Python's), the open file descriptors
-(``/proc/self/fd``) and the temporary files a revisit left: new entries in
+(``/proc/self/fd``), the objects Python's collector tracks (a leak of Python
+objects grows it; the allocator's fragmentation, which also grows the resident
+set, does not) and the temporary files a revisit left: new entries in
 :func:`tempfile.gettempdir` and the store's ``.tmp-*`` under the campaign
 (:data:`fgcd_cli.campaign.atomic.TMP_PREFIX`). Growth per revisit is the slope
 of a least-squares line (:func:`growth_per_revisit`), after a warm-up: the first
@@ -50,6 +52,8 @@ class ResourceSample:
         :func:`threading.active_count`.
     fds : int
         Open file descriptors (``/proc/self/fd``, without the one that lists them).
+    python_objects : int
+        Objects tracked by Python's garbage collector after a full collection (:func:`gc.get_objects`).
     tmp_left : int
         Entries of the temporary folder and ``.tmp-*`` under the campaign that were not there before the run.
     verified : bool
@@ -73,6 +77,7 @@ class ResourceSample:
     threads_python: int
     fds: int
     tmp_left: int
+    python_objects: int = 0
     verified: bool = True
     converged: bool = True
     visit: str = ""
@@ -134,7 +139,7 @@ def sample_resources(*, index: int, phase: str, seconds: float, baseline: TempBa
     return ResourceSample(index=index, phase=phase, seconds=seconds, rss_mb=proc_status_mb(status, "VmRSS"),
                           hwm_mb=proc_status_mb(status, "VmHWM"), threads_native=len(os.listdir("/proc/self/task")),
                           threads_python=threading.active_count(), fds=len(os.listdir("/proc/self/fd")) - 1,
-                          tmp_left=len(baseline.left()), **(outcome or {}))
+                          tmp_left=len(baseline.left()), python_objects=len(gc.get_objects()), **(outcome or {}))
 
 
 def growth_per_revisit(values: Sequence[float], *, warmup: int) -> float:
@@ -172,6 +177,8 @@ def summarize_samples(samples: Sequence[ResourceSample], *, warmup: int) -> dict
         "rss_growth_mb_per_revisit": _rounded(growth_per_revisit([s.rss_mb for s in quick], warmup=warmup), 3),
         "rss_growth_mb_per_change_revisit": _rounded(growth_per_revisit([s.rss_mb for s in changes], warmup=1), 3),
         "fds_growth_per_revisit": _rounded(growth_per_revisit([s.fds for s in quick], warmup=warmup), 3),
+        "python_objects_growth_per_revisit": _rounded(
+            growth_per_revisit([s.python_objects for s in quick], warmup=warmup), 1),
         "rss_largest_step_mb": round(float(max(np.diff(rss), default=0.0)), 1) if len(rss) > 1 else 0.0,
         "afd_px_max": round(max(afd), 2) if afd else None,
         "afd_growth_px_per_revisit": _rounded(growth_per_revisit(afd, warmup=0), 4),
