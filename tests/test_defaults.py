@@ -240,9 +240,9 @@ DOCUMENTED = [
     row("alignment.md", r"Each step changes the scale by at most (\d+) %, and a run by at most (\d+) %", F,
         ("scale.max_step", pct), ("scale.max_drift", pct)),
     row("alignment.md", r"Coarse to fine: (\d+) points with unbounded correspondences and the point-to-point metric "
-        r"\(wide basin\), then (\d+) points within (\d+) % of the width, then up to \d+ points within (\d+) % of the "
+        r"\(wide basin\), then (\d+) points within (\d+) % of the width, then (\d+) points within (\d+) % of the "
         r"width", F, ("levels.points[0]", int), ("levels.points[1]", int), ("levels.radius_rel[1]", pct),
-        ("levels.radius_rel[2]", pct)),
+        ("levels.points[2]", int), ("levels.radius_rel[2]", pct)),
     row("alignment.md", r"median distance above (\d+) % of the width", F, ("warm.rel", pct)),
     row("alignment.md", r"scored by the (median) nearest-neighbour distance", F, ("cold.search_score", str)),
     row("alignment.md", r"the prior shifted by −(\d+)…\d+ steps of (\d+) % of the width", F,

@@ -82,7 +82,7 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
 
     import fgcd_cli.app.capture as capture
     import fgcd_cli.app.diff as usecases
-    import fgcd_cli.app.revisit as relocate_uc
+    import fgcd_cli.app.relocate as relocate_uc
     import fgcd_cli.app.rig as rigs
     import fgcd_cli.metrics.sim_eval as sim_eval
 
