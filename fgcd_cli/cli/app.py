@@ -64,10 +64,10 @@ def _register() -> None:
     from fgcd_cli.cli import campaign_cmd
 
     app.add_typer(campaign_cmd.app, name="campaign")
-    from fgcd_cli.cli import capture_cmd, demo_cmd
+    from fgcd_cli.cli import capture_cmd, demo_cmd, relocate_cmd
 
     app.command(name="capture")(capture_cmd.capture)
-    app.command(name="relocate")(capture_cmd.relocate)
+    app.command(name="relocate")(relocate_cmd.relocate)
     app.command(name="demo")(demo_cmd.demo)
     from fgcd_cli.cli import afd_cmd, diff_cmd, report_cmd
 

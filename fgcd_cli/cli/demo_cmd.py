@@ -6,9 +6,9 @@ from pathlib import Path
 
 import typer
 
-from fgcd_cli.cli.capture_cmd import print_record
 from fgcd_cli.cli.determinism import DETERMINISTIC, deterministic_setup
 from fgcd_cli.cli.output import emit, info
+from fgcd_cli.cli.relocate_cmd import print_record
 
 
 def summary_lines(summary: dict, *, summary_path: Path) -> list[str]:
