@@ -33,7 +33,7 @@ from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
 
 __all__ = ["CapturePlan", "CaptureRequest", "CaptureResult", "CaptureOutcome", "capture_reference", "connection",
-           "plan_capture", "run_capture"]
+           "open_capture", "plan_capture", "run_capture"]
 
 
 @dataclass
@@ -254,6 +254,26 @@ def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
         raise CampaignError("no camera intrinsics in the campaign: run `fgcd calibrate intrinsics -c CAMPAIGN` first")
     return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam,
                        rig=rig, station=r.station, lights=lights)
+
+
+def open_capture(campaign_dir, request: CaptureRequest):
+    """Open the campaign in ``campaign_dir`` and plan its capture (``fgcd capture``); nothing is written.
+
+    Parameters
+    ----------
+    campaign_dir : path-like
+        The campaign folder (CampaignError when it is not one).
+    request : CaptureRequest
+
+    Returns
+    -------
+    tuple of (Campaign, CapturePlan)
+        The opened campaign and :func:`plan_capture`'s plan, both for :func:`run_capture`.
+    """
+    from fgcd_cli.campaign import open_campaign
+
+    campaign = open_campaign(campaign_dir)
+    return campaign, plan_capture(campaign, request)
 
 
 @dataclass(frozen=True, kw_only=True)

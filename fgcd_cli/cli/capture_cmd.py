@@ -6,8 +6,6 @@ from pathlib import Path
 
 import typer
 
-from fgcd_cli.app.capture import plan_capture
-from fgcd_cli.campaign import open_campaign
 from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import ask_line, confirmer, emit, info
 
@@ -34,16 +32,15 @@ def capture(
     Every option is checked before anything is written; a capture that fails
     leaves no station behind, and never changes campaign.toml.
     """
-    from fgcd_cli.app.capture import CaptureRequest, run_capture
+    from fgcd_cli.app.capture import CaptureRequest, open_capture, run_capture
     from fgcd_cli.app.rig import RigHooks
     from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.cli.progress import step_progress
 
     # Rule: a motion that needs confirming without a terminal is refused before anything is created.
     confirm = confirmer(yes=yes)
-    camp = open_campaign(campaign)
     rig = RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera)
-    plan = plan_capture(camp, CaptureRequest(station=station, rig=rig, scene=scene, seed=seed, light=light))
+    camp, plan = open_capture(campaign, CaptureRequest(station=station, rig=rig, scene=scene, seed=seed, light=light))
     with step_progress(enabled=not as_json) as progress:
         say, ask = info, ask_line
         if progress is not None:
