@@ -119,24 +119,6 @@ class Failure:
         return " ".join(f"{self.prefix}: {self.message}".split())
 
 
-def _platform_error_type():
-    try:
-        from fgcd_drivers.platform import PlatformError
-
-        return PlatformError
-    except Exception:  # pragma: no cover - drivers always ship with fgcd
-        return ()
-
-
-def _camera_error_type():
-    try:
-        from fgcd_drivers.cameras import CameraError
-
-        return CameraError
-    except Exception:  # pragma: no cover - drivers always ship with fgcd
-        return ()
-
-
 def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
     from fgcd_cli.cli.native_stderr import route_native_stderr
@@ -354,10 +336,9 @@ def _classify(exc: BaseException) -> Failure | None:
         return _interrupted()
     if isinstance(exc, FgcdError):
         return Failure("error", str(exc), exc.exit_code)
-    if isinstance(exc, _platform_error_type()):
-        return Failure("platform error", str(exc), EXIT_PLATFORM)
-    if isinstance(exc, _camera_error_type()):  # hardware, like the platform: not connected, no frame
-        return Failure("camera error", str(exc), EXIT_PLATFORM)
+    hardware = _hardware_error_kind(exc)
+    if hardware is not None:  # the platform, or the camera like it: not connected, no frame
+        return Failure(f"{hardware} error", str(exc), EXIT_PLATFORM)
     if isinstance(exc, typer.Abort):
         return _aborted(exc)
     if isinstance(exc, (SystemExit, GeneratorExit)):
@@ -373,6 +354,12 @@ def _classify(exc: BaseException) -> Failure | None:
         return None
     return Failure("internal error", f"{type(exc).__name__}: {exc} (a bug: run the same command again with "
                    "--verbose and report what it prints)", EXIT_INTERNAL)
+
+
+def _hardware_error_kind(exc: BaseException) -> str | None:
+    from fgcd_cli.app.platform import hardware_error_kind
+
+    return hardware_error_kind(exc)
 
 
 def _interrupted() -> Failure:
