@@ -14,6 +14,8 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fgcd_cli.app.session import MAX_SCALE_RESIDUAL_MM
 from fgcd_cli.calibration.handeye import HandEyeResult
 from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
@@ -21,8 +23,9 @@ from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
 
 __all__ = ["HandEyeMode", "HandEyePlan", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "MAX_HANDEYE_RMS_MM",
-           "MAX_HANDEYE_REPROJECTION_PX", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "handeye_unusable",
-           "plan_handeye", "run_handeye", "store_handeye"]
+           "MAX_HANDEYE_REPROJECTION_PX", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "calibration_campaign",
+           "check_handeye_options", "handeye_rotation_deg", "handeye_unusable", "plan_handeye", "run_handeye",
+           "store_handeye"]
 
 ProgressCallback = Callable[[int, int, str], None]
 
@@ -201,32 +204,17 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], cam
     return record
 
 
-def _tick_progress(on_progress: ProgressCallback | None, done: int, total: int, label: str) -> None:
-    if on_progress is not None:
-        on_progress(done, total, label)
-
-
 def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None],
                              on_progress: ProgressCallback | None = None):
     """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
-    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.intrinsics import sim_board_views
     from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
     from fgcd_cli.calibration.rig import save_intrinsics
-    from fgcd_drivers.sim.board import SimBoard
 
     board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
-    rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)
-    try:
-        source = rig.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
-                                               square_m=board.square_m, marker_m=board.marker_m,
-                                               dictionary=board.dictionary), seed=scenario.seed)
-        images = []
-        for k in range(views):
-            _tick_progress(on_progress, k, views, "rendering board views")
-            images.append(source.grab().image)
-    finally:
-        rig.close()
-    _tick_progress(on_progress, 0, 0, "calibrating the intrinsics (ChArUco)")
+    images = sim_board_views(scenario, board, views, on_progress=on_progress)
+    if on_progress is not None:
+        on_progress(0, 0, "calibrating the intrinsics (ChArUco)")
     result = calibrate_intrinsics(images, board, names=[f"view_{i:02d}" for i in range(views)])
     save_intrinsics(campaign, result)
     say(f"intrinsics: fx {result.camera.fx:.1f} px, RMS {result.rms_px:.3f} px over {result.n_views} views")
@@ -244,6 +232,33 @@ MAX_HANDEYE_RMS_MM = MAX_SCALE_RESIDUAL_MM
 #: 0.2-0.25 px (docs/calibration.md, "Reading the result"); beyond 1 px the stop images disagree with X
 #: (blur, a moving scene, wrong intrinsics) by more than the sub-pixel AFD the relocation aims for.
 MAX_HANDEYE_REPROJECTION_PX = 1.0
+
+
+def calibration_campaign(path: Path | None):
+    """The campaign a calibration reads its rig from and stores into (``-c``; None without one; CampaignError)."""
+    if path is None:
+        return None
+    from fgcd_cli.campaign import open_campaign
+
+    return open_campaign(path)
+
+
+def check_handeye_options(*, mode: str, translation_mm: float, rotation_deg: float) -> None:
+    """Refuse a bad mode or motion size before anything is opened or moved (the rig is checked by the plan)."""
+    if mode not in tuple(HandEyeMode):
+        raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
+    if mode == HandEyeMode.TARGET_FREE:
+        from fgcd_cli.calibration.motions import exploration_motions
+
+        # refuse bad motion sizes before connecting to a platform
+        exploration_motions(translation_m=translation_mm / 1000, rotation_deg=rotation_deg)
+
+
+def handeye_rotation_deg(T_flange_cam) -> np.ndarray:
+    """The rotation vector of a hand-eye ``T_flange_cam`` (4x4), degrees (how it is printed)."""
+    from fgcd_core.se3 import log_so3
+
+    return np.degrees(log_so3(np.asarray(T_flange_cam)[:3, :3]))
 
 
 @dataclass(frozen=True, kw_only=True)

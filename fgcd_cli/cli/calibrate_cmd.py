@@ -11,27 +11,11 @@ from rich.table import Table
 
 from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import confirmer, emit, info
-from fgcd_cli.errors import UserInputError, run_record
+from fgcd_cli.errors import run_record
 
 app = typer.Typer(help="Calibrate the rig: ChArUco board, camera intrinsics, hand-eye and map scale.", no_args_is_help=True)
 
 JSON_OPT = typer.Option(False, "--json", help="Print one JSON object instead of text.")
-
-
-def _board_from_options(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary):
-    from fgcd_cli.calibration.board import BoardSpec, load_board_sidecar
-
-    if board_file is not None:
-        board = load_board_sidecar(board_file)
-        if square_mm is not None:  # the measured print overrides the nominal size
-            ratio = square_mm / (board.square_m * 1000)
-            board = BoardSpec(**{**board.__dict__, "square_m": board.square_m * ratio, "marker_m": board.marker_m * ratio})
-        return board
-    square = 25.0 if square_mm is None else square_mm
-    marker = marker_mm if marker_mm is not None else square * 0.72
-    return BoardSpec(
-        squares_x=squares_x, squares_y=squares_y, square_m=square / 1000, marker_m=marker / 1000, dictionary=dictionary
-    )
 
 
 BOARD_FILE = typer.Option(None, "--board", help="Board sidecar JSON written by `fgcd calibrate board`.")
@@ -42,19 +26,11 @@ MKMM = typer.Option(None, "--marker-mm", help="Side of one marker in mm (default
 DICT = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary.")
 
 
-def _sim_seed(camp, seed: int | None) -> int:
-    """``--seed`` of a simulated rig: the option, else the campaign's ``[rig.sim]`` seed, else 0 (the hand-eye's rule)."""
-    from fgcd_cli.campaign.records import campaign_world
+def _board(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary):
+    from fgcd_cli.app.intrinsics import BoardOptions
 
-    return seed if seed is not None else (campaign_world(camp)["seed"] if camp is not None else 0)
-
-
-def _open_campaign(path: Path | None):
-    if path is None:
-        return None
-    from fgcd_cli.campaign import open_campaign
-
-    return open_campaign(path)
+    return BoardOptions(board_file=board_file, squares_x=squares_x, squares_y=squares_y, square_mm=square_mm,
+                        marker_mm=marker_mm, dictionary=dictionary)
 
 
 @app.command("board")
@@ -69,10 +45,9 @@ def board_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Write a printable ChArUco board and its exact geometry (<output>.json)."""
-    from fgcd_cli.calibration.board import write_printable_board
+    from fgcd_cli.app.intrinsics import write_board
 
-    board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
-    sidecar = write_printable_board(board, output, dpi=dpi)
+    board, sidecar = write_board(_board(None, squares_x, squares_y, square_mm, marker_mm, dictionary), output, dpi=dpi)
     data = {"board_file": str(output), "sidecar": str(output) + ".json", **sidecar}
     emit(
         data,
@@ -83,45 +58,6 @@ def board_cmd(
             + sidecar["instructions"]
         ),
     )
-
-
-def _load_images(directory: Path) -> tuple[list[np.ndarray], list[str]]:
-    import cv2
-
-    if not directory.is_dir():
-        raise UserInputError(f"{directory} is not a directory of images")
-    files = sorted(p for p in directory.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"))
-    if not files:
-        raise UserInputError(f"no images (.png, .jpg, .tif, .bmp) in {directory}")
-    images, names = [], []
-    for p in files:
-        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise UserInputError(f"cannot read image {p}")
-        images.append(img)
-        names.append(p.name)
-    return images, names
-
-
-def _sim_board_views(seed: int, board, views: int, tick) -> tuple[list, list[str]]:
-    """``views`` board views from the camera of the simulated rig of this seed (the one `hand-eye --driver sim
-    --seed` moves, not a stand-alone camera with other true intrinsics), each a tick of the progress."""
-    from fgcd_cli.app.rig import open_sim_rig
-    from fgcd_cli.app.scenario import SimScenario
-    from fgcd_drivers.sim.board import SimBoard
-
-    opened = open_sim_rig(SimScenario(seed=seed), T_flange_cam=None, intrinsics=None)
-    try:
-        source = opened.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
-                                                  square_m=board.square_m, marker_m=board.marker_m,
-                                                  dictionary=board.dictionary), seed=seed)
-        images = []
-        for k in range(views):
-            tick(k, views, "rendering board views")
-            images.append(source.grab().image)
-    finally:
-        opened.close()
-    return images, [f"sim_{i:03d}" for i in range(views)]
 
 
 @app.command("intrinsics")
@@ -143,30 +79,15 @@ def intrinsics_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Calibrate the camera from views of a ChArUco board."""
-    from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
-    from fgcd_cli.calibration.rig import save_intrinsics
+    from fgcd_cli.app.intrinsics import IntrinsicsRequest, plan_intrinsics, run_intrinsics, store_intrinsics
     from fgcd_cli.cli.progress import step_progress
 
-    if (images is None) == (not sim):
-        raise UserInputError("give exactly one of --images DIR or --sim")
-    camp = _open_campaign(campaign)
-    seed = _sim_seed(camp, seed)
-    if sim and sim_views < 1:
-        raise UserInputError("--sim-views must be at least 1")
+    plan = plan_intrinsics(IntrinsicsRequest(
+        images=images, sim=sim, sim_views=sim_views, seed=seed, distortion=distortion, campaign=campaign,
+        board=_board(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary)))
     with step_progress(enabled=not as_json) as bar:
-        tick = bar or (lambda *_: None)
-        if sim:
-            board_file = None
-            board = _board_from_options(None, squares_x, squares_y, square_mm, marker_mm, dictionary)
-            imgs, names = _sim_board_views(seed, board, sim_views, tick)
-        else:
-            board = _board_from_options(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary)
-            imgs, names = _load_images(images)
-        tick(0, 0, "calibrating the intrinsics (ChArUco)")
-        result = calibrate_intrinsics(imgs, board, names=names, distortion_model=distortion)
-    data = result.to_dict()
-    if camp is not None:
-        data["stored"] = save_intrinsics(camp, result)
+        result = run_intrinsics(plan, on_progress=bar)
+    data = store_intrinsics(plan, result)
 
     def render(console):
         cam = result.camera
@@ -193,10 +114,10 @@ def intrinsics_cmd(
 
 
 def _render_handeye(console, data: dict) -> None:
-    from fgcd_core.se3 import log_so3
+    from fgcd_cli.app.calibrate import handeye_rotation_deg
 
     X = np.array(data["T_flange_cam"])
-    rv = np.degrees(log_so3(X[:3, :3]))
+    rv = handeye_rotation_deg(X)
     console.print(
         f"T_flange_cam: t = ({', '.join(f'{v * 1000:.1f}' for v in X[:3, 3])}) mm, "
         f"rotation vector = ({', '.join(f'{v:.2f}' for v in rv)}) deg   \\[{data['method']}]"
@@ -236,19 +157,6 @@ def _render_handeye(console, data: dict) -> None:
         console.print(f"stored in {data['stored']}")
 
 
-def _check_handeye_options(*, mode: str, translation_mm: float, rotation_deg: float) -> None:
-    """Refuse a bad mode or motion size before anything is opened or moved (the rig is checked by the plan)."""
-    from fgcd_cli.app.calibrate import HandEyeMode
-
-    if mode not in tuple(HandEyeMode):
-        raise UserInputError(f"unknown mode '{mode}' (target or target-free)")
-    if mode == HandEyeMode.TARGET_FREE:
-        from fgcd_cli.calibration.motions import exploration_motions
-
-        # refuse bad motion sizes before connecting to a platform
-        exploration_motions(translation_m=translation_mm / 1000, rotation_deg=rotation_deg)
-
-
 def _run_handeye(handles, *, request, say, bar):
     """The hand-eye use case on an opened rig (:class:`fgcd_cli.app.calibrate.HandEyeCalibration`)."""
     from fgcd_cli.app.calibrate import HandEyeMode, run_handeye
@@ -280,7 +188,14 @@ def handeye_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Hand-eye T_flange_cam (and the map scale, target-free) from commanded platform motions."""
-    from fgcd_cli.app.calibrate import HandEyeMode, HandEyeRequest, plan_handeye, store_handeye
+    from fgcd_cli.app.calibrate import (
+        HandEyeMode,
+        HandEyeRequest,
+        calibration_campaign,
+        check_handeye_options,
+        plan_handeye,
+        store_handeye,
+    )
     from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
     from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.cli.progress import step_progress
@@ -288,8 +203,8 @@ def handeye_cmd(
 
     # no terminal and no --yes: refused first (exit 2), before anything is opened or moved
     confirm = confirmer(yes=yes)
-    _check_handeye_options(mode=mode, translation_mm=translation_mm, rotation_deg=rotation_deg)
-    camp = _open_campaign(campaign)
+    check_handeye_options(mode=mode, translation_mm=translation_mm, rotation_deg=rotation_deg)
+    camp = calibration_campaign(campaign)
     plan = plan_handeye(camp, RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera),
                         HandEyeRequest(mode=HandEyeMode(mode), translation_mm=translation_mm,
                                        rotation_deg=rotation_deg, board_file=board_file), scene=scene, seed=seed)
