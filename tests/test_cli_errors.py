@@ -262,13 +262,13 @@ def test_record_clauses_for_a_platform_that_was_not_moving():
 
 
 def test_ctrl_c_during_verify_says_nothing_moved_or_written(capsys, monkeypatch, tmp_path):
-    import fgcd_cli.cli.campaign_cmd as campaign_cmd
+    import fgcd_cli.app.campaign as campaign_uc
     from fgcd_cli.cli.app import app
 
     def interrupted(path):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(campaign_cmd, "verify_campaign_dir", interrupted)
+    monkeypatch.setattr(campaign_uc, "verify_campaign_dir", interrupted)
     assert run(app, ["campaign", "verify", str(tmp_path)]) == 130
     assert _lines(capsys.readouterr().err) == [
         "interrupted (Ctrl-C): no platform was in use; nothing was written"

@@ -8,8 +8,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from fgcd_cli.campaign import init_campaign, open_campaign
-from fgcd_cli.campaign.verify import counted, verify_campaign_dir
+from fgcd_cli.app import campaign as campaign_uc
 from fgcd_cli.cli.output import emit
 from fgcd_cli.errors import DataIntegrityError, run_record
 
@@ -39,17 +38,13 @@ def init_cmd(
     as_json: bool = JSON_OPT,
 ) -> None:
     """Create a new campaign directory: one site, one rig (every command that drives it reads campaign.toml [rig])."""
-    from fgcd_cli.app.rig_options import campaign_rig_section
-
-    rig = campaign_rig_section(driver=driver, port=port, host=host, baud=baud, camera=camera)
+    request = campaign_uc.CampaignInit(directory=directory, site=site, description=description, driver=driver,
+                                       port=port, host=host, baud=baud, camera=camera)
     run_record.no_platform()
     with run_record.writing(f"the campaign in {directory}"):
-        camp = init_campaign(directory, site=site, description=description, rig=rig)
-    emit(
-        {"campaign": str(camp.path), "site": camp.site, "created": True},
-        as_json=as_json,
-        render=lambda c: c.print(f"Created campaign [bold]{camp.site}[/bold] in {camp.path}"),
-    )
+        data = campaign_uc.create_campaign(request)
+    emit(data, as_json=as_json,
+         render=lambda c: c.print(f"Created campaign [bold]{data['site']}[/bold] in {data['campaign']}"))
 
 
 @app.command("add-station")
@@ -63,18 +58,8 @@ def add_station_cmd(
     """Add a station (a viewpoint to monitor) to a campaign."""
     run_record.no_platform()
     with run_record.writing(f"station '{name}'"):
-        st = open_campaign(campaign).create_station(name, description=description)
-    emit({"station": st.name, "path": str(st.path)}, as_json=as_json,
-         render=lambda c: c.print(f"Added station [bold]{st.name}[/bold]"))
-
-
-def _station_summary(st) -> dict:
-    return {
-        "name": st.name,
-        "description": st.info.get("description", ""),
-        "reference": st.has_reference(),
-        "visits": st.visit_names(),
-    }
+        data = campaign_uc.add_station(campaign, name, description=description)
+    emit(data, as_json=as_json, render=lambda c: c.print(f"Added station [bold]{data['station']}[/bold]"))
 
 
 @app.command("list")
@@ -84,11 +69,11 @@ def list_cmd(
 ) -> None:
     """List the stations of a campaign with their reference and visits."""
     _reads_only()
-    camp = open_campaign(campaign)
-    stations = [_station_summary(camp.station(n)) for n in camp.station_names()]
+    listed = campaign_uc.campaign_stations(campaign)
+    stations = listed.stations
 
     def render(c) -> None:
-        t = Table(title=f"{camp.site} — {camp.path}")
+        t = Table(title=f"{listed.site} — {listed.path}")
         t.add_column("station")
         t.add_column("reference")
         t.add_column("visits", justify="right")
@@ -97,7 +82,7 @@ def list_cmd(
             t.add_row(s["name"], "yes" if s["reference"] else "—", str(len(s["visits"])), s["visits"][-1] if s["visits"] else "—")
         c.print(t)
 
-    emit({"campaign": str(camp.path), "site": camp.site, "stations": stations}, as_json=as_json, render=render)
+    emit(listed.to_dict(), as_json=as_json, render=render)
 
 
 @app.command("show")
@@ -108,10 +93,9 @@ def show_cmd(
 ) -> None:
     """Show a campaign's configuration, or one station's observations."""
     _reads_only()
-    camp = open_campaign(campaign)
     if station is None:
-        data = {"campaign": str(camp.path), "config": camp.config, "stations": camp.station_names(),
-                "rig_records": sorted(p.stem for p in (camp.path / "rig").glob("*.json"))}
+        camp = campaign_uc.campaign_overview(campaign)
+        data = camp.to_dict()
 
         def render(c) -> None:
             c.print(f"[bold]{camp.site}[/bold]  ({camp.path})")
@@ -124,26 +108,18 @@ def show_cmd(
 
         emit(data, as_json=as_json, render=render)
         return
-    st = camp.station(station)
-    obs = []
-    if st.has_reference():
-        obs.append(st.reference())
-    obs += st.visits()
-    rows = [
-        {"name": o.name, "kind": o.kind, "created": o.manifest.get("created"), "files": len(o.files()),
-         "images": o.image_names(), "metadata": o.metadata}
-        for o in obs
-    ]
+    data = campaign_uc.station_observations(campaign, station)
+    rows = data["observations"]
 
     def render(c) -> None:
-        t = Table(title=f"station {st.name}")
+        t = Table(title=f"station {data['station']['name']}")
         for col in ("observation", "kind", "created", "files", "images"):
             t.add_column(col)
         for r in rows:
             t.add_row(r["name"], r["kind"], str(r["created"]), str(r["files"]), ", ".join(r["images"]))
         c.print(t)
 
-    emit({"station": _station_summary(st), "observations": rows}, as_json=as_json, render=render)
+    emit(data, as_json=as_json, render=render)
 
 
 @app.command("verify")
@@ -153,7 +129,7 @@ def verify_cmd(
 ) -> None:
     """Check every manifest and checksum; name each damaged file and exit 4 if any (3: not a campaign)."""
     _reads_only()
-    report = verify_campaign_dir(campaign)
+    report = campaign_uc.verify(campaign)
 
     def render(c) -> None:
         for p in report.problems:
@@ -163,7 +139,6 @@ def verify_cmd(
         c.print(f"[{colour}]{status}[/{colour}]{escape(report.summary().removeprefix(status))}")
 
     emit(report.to_dict(), as_json=as_json, render=render)
-    if not report.ok:
-        n = report.count("error")
-        first = next(p for p in report.problems if p.severity == "error")
-        raise DataIntegrityError(f"{counted(n, 'damaged or missing file')}, first: {first.path} ({first.kind})")
+    damage = campaign_uc.damage_line(report)
+    if damage is not None:
+        raise DataIntegrityError(damage)
