@@ -21,28 +21,16 @@ def afd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """AFD with the authors' protocol (SIFT, ratio test, RANSAC homography inliers, mean displacement in px)."""
-    from fgcd_cli.campaign.atomic import atomic_write_bytes
-    from fgcd_cli.changes.io import read_image
-    from fgcd_cli.errors import UserInputError
-    from fgcd_cli.metrics.afd import FdfConfig, compute_fdf, read_pairs_csv
-    from fgcd_cli.report.figures import fdf_quiver_png
+    from fgcd_cli.app.afd import AfdRequest, measure_afd, write_fdf_figure
 
-    if grid and pairs is not None:
-        raise UserInputError("give either --grid or --pairs, not both")
+    request = AfdRequest(ref=ref, cur=cur, grid=grid, pairs=pairs, ratio=ratio, ransac_px=ransac_px)
     run_record.no_platform()
     run_record.no_writes()
-    ref_image, cur_image = read_image(ref), read_image(cur)
-    if pairs is not None:
-        result = compute_fdf(ref_image, cur_image, config=FdfConfig(method="pairs"), pairs=read_pairs_csv(pairs))
-    else:
-        result = compute_fdf(ref_image, cur_image,
-                             config=FdfConfig(method="grid" if grid else "sift", ratio=ratio, ransac_px=ransac_px))
-    data = result.as_dict()
-    data["reference"], data["current"] = str(ref), str(cur)
+    measurement = measure_afd(request)
+    result, data = measurement.result, measurement.record
     if output is not None:
         with run_record.writing(output):
-            atomic_write_bytes(output, fdf_quiver_png(ref_image, result.points_ref, result.points_cur,
-                                                      afd_px=result.afd_px, inliers=result.inliers, method=result.method))
+            write_fdf_figure(measurement, output)
         data["figure"] = str(output)
 
     def render(console):
