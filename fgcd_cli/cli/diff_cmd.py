@@ -13,29 +13,9 @@ from fgcd_cli.errors import run_record
 HELP = "Find fine-grained changes between reference and current images; write maps, regions and a report."
 
 
-def _region_line(region: dict, *, epsilon: float) -> str:
-    """``#1: 340 px, 3.40 mm² at (200, 60), NFA 1e-12, relief`` (the cue only when known)."""
-    from fgcd_cli.report.areas import area_mm2_text
-    from fgcd_cli.report.candidates import region_significance_text
-
-    mm2 = (f", {area_mm2_text(region['area_mm2'], region['area_px'])}" if region.get("area_mm2") is not None
-           else "")
-    x, y = region["centroid_xy"]
-    cue = f", [bold]{region['cue']}[/bold]" if region.get("cue") else ""
-    significance = region_significance_text(region.get("log10_nfa"), epsilon=epsilon)
-    return f"#{region['id']}: {region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}"
-
-
-def _no_change_lines(candidates: list[dict], *, epsilon: float, more: int = 2) -> list[str]:
-    """The "no significant change; strongest candidate ..." line and up to ``more`` further candidates."""
-    from fgcd_cli.report.candidates import candidate_text, no_change_line
-
-    lines = [no_change_line(candidates, epsilon=epsilon)]
-    lines += [f"  candidate {k}: {candidate_text(c)}" for k, c in enumerate(candidates[1:1 + more], start=2)]
-    return lines
-
-
 def _render(data: dict):
+    from fgcd_cli.app.diff_summary import no_change_lines, region_line, set_aside_line
+
     def render(console):
         if not data["comparable"]:
             reason = data["reason"].removeprefix("cannot compare: ")
@@ -44,19 +24,15 @@ def _render(data: dict):
             n = len(data["regions"])
             epsilon = float((data.get("settings") or {}).get("epsilon") or 1.0)
             if n == 0:
-                for line in _no_change_lines(data.get("candidates") or [], epsilon=epsilon):
+                for line in no_change_lines(data.get("candidates") or [], epsilon=epsilon):
                     console.print(line, markup=False)
             else:
                 console.print(f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area")
             for r in data["regions"][:10]:
-                console.print("  " + _region_line(r, epsilon=epsilon))
+                console.print("  " + region_line(r, epsilon=epsilon))
             set_aside = int((data.get("settings") or {}).get("edge_explained_regions") or 0)
             if set_aside:
-                from fgcd_cli.report.candidates import set_aside_text
-
-                console.print(f"{n} change{'s' if n != 1 else ''}{set_aside_text(set_aside)} "
-                              f"(cyan in the report; --edge-check 0 reports {'them' if set_aside != 1 else 'it'})",
-                              markup=False)
+                console.print(set_aside_line(n, set_aside), markup=False)
             for w in data.get("warnings", []):
                 console.print(f"[yellow]warning[/yellow]: {w}")
         if "afd" in data:

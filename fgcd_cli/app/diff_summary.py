@@ -1,0 +1,40 @@
+"""The lines that summarise a diff's result on a terminal (``fgcd diff``'s text output).
+
+A region with its area and significance, the "no significant change" line with
+the strongest candidates, the regions an edge check set aside: the same wording
+as the HTML report (:mod:`fgcd_cli.report.areas`, :mod:`fgcd_cli.report.candidates`).
+"""
+
+from __future__ import annotations
+
+__all__ = ["no_change_lines", "region_line", "set_aside_line"]
+
+
+def region_line(region: dict, *, epsilon: float) -> str:
+    """``#1: 340 px, 3.40 mm² at (200, 60), NFA 1e-12, relief`` (the cue only when known; rich markup)."""
+    from fgcd_cli.report.areas import area_mm2_text
+    from fgcd_cli.report.candidates import region_significance_text
+
+    mm2 = (f", {area_mm2_text(region['area_mm2'], region['area_px'])}" if region.get("area_mm2") is not None
+           else "")
+    x, y = region["centroid_xy"]
+    cue = f", [bold]{region['cue']}[/bold]" if region.get("cue") else ""
+    significance = region_significance_text(region.get("log10_nfa"), epsilon=epsilon)
+    return f"#{region['id']}: {region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}"
+
+
+def no_change_lines(candidates: list[dict], *, epsilon: float, more: int = 2) -> list[str]:
+    """The "no significant change; strongest candidate ..." line and up to ``more`` further candidates."""
+    from fgcd_cli.report.candidates import candidate_text, no_change_line
+
+    lines = [no_change_line(candidates, epsilon=epsilon)]
+    lines += [f"  candidate {k}: {candidate_text(c)}" for k, c in enumerate(candidates[1:1 + more], start=2)]
+    return lines
+
+
+def set_aside_line(regions: int, set_aside: int) -> str:
+    """``N changes`` and the ``set_aside`` regions the edge check explained (shown in cyan in the report)."""
+    from fgcd_cli.report.candidates import set_aside_text
+
+    return (f"{regions} change{'s' if regions != 1 else ''}{set_aside_text(set_aside)} "
+            f"(cyan in the report; --edge-check 0 reports {'them' if set_aside != 1 else 'it'})")
