@@ -20,7 +20,8 @@ from fgcd_cli.campaign import open_campaign, schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes
 from fgcd_cli.errors import DataIntegrityError, UserInputError
 
-__all__ = ["HistoryRequest", "StationHistory", "SiteHistory", "station_tracks", "archive_history", "visit_date"]
+__all__ = ["HistoryRequest", "StationHistory", "SiteHistory", "station_tracks", "archive_history", "track_growth",
+           "visit_date"]
 
 _REGIONS = schema.change_relpath(schema.REGIONS_JSON)
 _MASK = schema.change_relpath(schema.CHANGE_MASK_PNG)
@@ -98,6 +99,13 @@ class SiteHistory:
         """JSON-ready form."""
         return {"campaign": self.campaign, "site": self.site, "page": self.page,
                 "stations": [s.to_dict() for s in self.stations]}
+
+
+def track_growth(track: RegionTrack) -> str:
+    """A tracked region's growth as the site page writes it: ``+12.3 mm²/year``, or ``–`` (seen at one visit)."""
+    from fgcd_cli.report.site import growth_text
+
+    return growth_text(track.growth_per_year, track.unit)
 
 
 def visit_date(visit) -> datetime:

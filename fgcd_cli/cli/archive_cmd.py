@@ -74,8 +74,7 @@ def history(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Track each change region across visits; write each campaign's site page (<campaign>/site.html)."""
-    from fgcd_cli.app.archive_history import HistoryRequest, archive_history
-    from fgcd_cli.report.site import growth_text
+    from fgcd_cli.app.archive_history import HistoryRequest, archive_history, track_growth
 
     run_record.no_platform()
     sites = archive_history(HistoryRequest(roots=list(roots)))
@@ -90,7 +89,7 @@ def history(
                               + (f"; not analysed: {len(s.not_analysed)}" if s.not_analysed else ""))
                 for t in s.tracks:
                     console.print(f"    region {t.id}: {t.status.value}, first seen {t.first_seen}, "
-                                  f"growth {growth_text(t.growth_per_year, t.unit)}")
+                                  f"growth {track_growth(t)}")
             console.print(f"  site page: {site.page}")
 
     emit(data, as_json=as_json, render=render)
