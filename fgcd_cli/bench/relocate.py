@@ -34,7 +34,10 @@ from fgcd_cli.app.determinism import deterministic_rig
 from fgcd_cli.campaign import init_campaign
 from fgcd_cli.relocation.enums import CoarseAction, EstimateStage, LoopMode
 
-__all__ = ["CASES", "confident_wrong", "handover_summary", "run"]
+__all__ = ["CASES", "LOOP_MODES", "confident_wrong", "handover_summary", "run"]
+
+#: The loop modes a case's result may hold (``result[mode]``), in the order they are printed.
+LOOP_MODES: tuple[LoopMode, ...] = tuple(LoopMode)
 
 #: A run that claims convergence while truly farther than this is "confidently wrong" (issue 25).
 CONFIDENT_WRONG_AFD_PX = 1.0

@@ -155,14 +155,13 @@ def relocate(
 ) -> None:
     """The rACR loop on simulated indoor/outdoor cases: success (true AFD < 3 px), AFD, adjustments, time."""
     deterministic_setup(deterministic)
-    from fgcd_cli.bench.relocate import run
-    from fgcd_cli.relocation.enums import LoopMode
+    from fgcd_cli.bench.relocate import LOOP_MODES, run
 
     data = run(quick=quick, serial=not no_serial, say=info, cases=case, deterministic=deterministic)
 
     def show(console):
         for r in data["cases"]:
-            for mode in tuple(LoopMode):
+            for mode in LOOP_MODES:
                 if mode in r:
                     m = r[mode]
                     if "error" in m:
