@@ -3,7 +3,8 @@
 Layers: ``fgcd_core`` (bottom: numpy/scipy/OpenCV only) <- ``fgcd_drivers`` (the folder ``drivers/``, the
 world) <- ``fgcd_cli`` (the brain). The algorithm packages stay free of the
 simulator, the use cases, reports, benchmarks and the CLI; only ``fgcd_cli.cli``
-speaks typer, and nothing imports the CLI but the CLI.
+speaks typer, and nothing imports the CLI but the CLI; the CLI itself imports of fgcd
+only the use cases, the benchmarks and the errors (it is only a face).
 
 Imports are read with :mod:`ast` (top-level and function-local ``import`` /
 ``from ... import`` with relative imports resolved, and ``importlib.import_module``
@@ -123,6 +124,65 @@ def test_only_the_cli_speaks_typer():
 def test_nothing_but_the_cli_imports_the_cli():
     """``fgcd_cli.bench`` and ``fgcd_cli.app`` may import anything else; nothing imports ``fgcd_cli.cli``."""
     assert not offenders(ROOT, TOP_PACKAGES, ("fgcd_cli.cli",), exempt=("fgcd_cli.cli",))
+
+
+#: What the CLI may import of fgcd: itself, the use cases, the benchmarks, the errors (the command's one line and
+#: exit code) and the package's version; the rest of fgcd only through a use case (the CLI is only a face).
+CLI_MAY_IMPORT = ("fgcd_cli.cli", "fgcd_cli.app", "fgcd_cli.bench", "fgcd_cli.errors", "fgcd_cli.__version__")
+
+
+def outsiders(root: Path, importers: tuple[str, ...], allowed: tuple[str, ...]) -> list[str]:
+    """``file:line -> name`` of every fgcd name (of ``TOP_PACKAGES``) a module under ``importers`` imports that is
+    not ``allowed``; the packages on the way to an allowed name (``fgcd_cli`` of ``fgcd_cli.app``) are allowed."""
+    on_the_way = {".".join(p.split(".")[:k]) for p in allowed for k in range(1, p.count(".") + 1)}
+    out = []
+    for top in TOP_PACKAGES:
+        for path in sorted((root / FOLDER[top]).rglob("*.py")):
+            if not _matches(module_name(path, root), importers):
+                continue
+            for line, name in imported_names(path, root):
+                if _matches(name, TOP_PACKAGES) and not _matches(name, allowed) and name not in on_the_way:
+                    out.append(f"{path.relative_to(root)}:{line} -> {name}")
+    return sorted(set(out))
+
+
+def test_the_cli_is_only_a_face():
+    """``fgcd_cli.cli`` builds a request, calls a use case (``fgcd_cli.app``) or a bench, and renders its result."""
+    found = outsiders(ROOT, ("fgcd_cli.cli",), CLI_MAY_IMPORT)
+    assert not found, f"the CLI imports what only a use case may: {found}"
+
+
+def test_cli_checker_sees_every_import_form(tmp_path):
+    pkg = tmp_path / "fgcd_cli" / "cli"
+    (pkg / "sub").mkdir(parents=True)
+    for p in (tmp_path / "fgcd_cli", pkg, pkg / "sub"):
+        (p / "__init__.py").write_text("")
+    (tmp_path / "drivers").mkdir()
+    (tmp_path / "fgcd_core").mkdir()
+    cases = {
+        "import fgcd_drivers.connect": "fgcd_drivers.connect",
+        "from fgcd_drivers.platform import MotionGuard": "fgcd_drivers.platform",
+        "from fgcd_drivers import sim": "fgcd_drivers.sim",
+        "from fgcd_core.se3 import log_so3": "fgcd_core.se3",
+        "import fgcd_cli.campaign": "fgcd_cli.campaign",
+        "from fgcd_cli import report": "fgcd_cli.report",
+        "from fgcd_cli.relocation.enums import LoopMode": "fgcd_cli.relocation.enums",
+        "import importlib\nimportlib.import_module('fgcd_cli.metrics.afd')": "fgcd_cli.metrics.afd",
+        "def f():\n    from ...calibration import board\n": "fgcd_cli.calibration",
+        "def f():\n    from ... import changes\n": "fgcd_cli.changes",
+    }
+    for i, (line, expected) in enumerate(cases.items()):
+        f = pkg / "sub" / f"case{i}.py"
+        f.write_text(line + "\n")
+        found = outsiders(tmp_path, ("fgcd_cli.cli",), CLI_MAY_IMPORT)
+        assert any(expected in o for o in found), (line, found)
+        f.unlink()
+    (pkg / "ok.py").write_text(
+        "import typer\nfrom rich.table import Table\nimport numpy\nfrom fgcd_cli import __version__\n"
+        "from fgcd_cli.app.platform import MoveRequest\nfrom fgcd_cli.bench.relocate import LOOP_MODES\n"
+        "from fgcd_cli.errors import UserInputError\nfrom . import sub\nfrom .. import app\n"
+        "def f():\n    from fgcd_cli.cli.output import emit\n    import fgcd_cli.app.sim\n")
+    assert outsiders(tmp_path, ("fgcd_cli.cli",), CLI_MAY_IMPORT) == []
 
 
 def test_every_listed_package_exists():
