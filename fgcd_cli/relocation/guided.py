@@ -5,13 +5,22 @@ parallax) and the scale fit tracked stops (docs/relocation.md, "What a session
 does"). It need not lead away from the reference. When the image localizer
 estimates the reference pose before any motion, the legs go *toward* it:
 
-    start → R + a → R − a → R        (R: the estimated reference flange pose)
+    start → R + a − b → R − a − b → R        (R: the estimated reference flange pose)
 
 with ``a`` perpendicular to the way there and to the optical axis, ``|a|`` half
 the exploration amplitude, so that the two sideways legs span the same ``2|a|``
-baseline as one leg of the usual pattern. The exploration ends where the rACR
-loop would have driven the camera anyway, and the loop only refines. Rotation
-toward the reference is spread over the legs.
+baseline as one leg of the usual pattern, and ``b`` a step back along the
+optical axis, away from the object, of :data:`BACK_FRACTION` of the amplitude.
+The step back is what lets a monocular VSE start on a flat object: before a
+plane facing the camera, a sideways translation moves the image as a small
+rotation does (the homography ``K (R + t nᵀ/d) K⁻¹`` differs from ``K R K⁻¹`` by
+a shift only), so the initialiser's rotation-only test
+(:func:`fgcd_cli.vse.twoview.rotation_only_residual_px`) sees no parallax when
+the way there is sideways too; a move along the axis scales the image, which
+no rotation does (1 cm at 1.2 m moves the image corners ~2.5 px, ten times
+the test's 0.2 px). The stops never come closer to the object than R. The
+exploration ends where the rACR loop would have driven the camera anyway, and
+the loop only refines. Rotation toward the reference is spread over the legs.
 
 Every waypoint is checked against the guard's workspace before the first
 motion (:func:`within_workspace`); a plan that leaves it is not used (the usual
@@ -24,7 +33,11 @@ import numpy as np
 
 from fgcd_core.se3 import exp_se3, invert_pose, log_se3
 
-__all__ = ["guided_waypoints", "motions_between", "within_workspace"]
+__all__ = ["BACK_FRACTION", "guided_waypoints", "motions_between", "within_workspace"]
+
+#: The sideways stops' step back along the optical axis, as a fraction of the exploration amplitude
+#: (1 cm of a 4 cm exploration: the module docstring gives the model).
+BACK_FRACTION = 0.25
 
 
 def _sideways(d: np.ndarray, optical_axis: np.ndarray, camera_x: np.ndarray) -> np.ndarray:
@@ -52,18 +65,19 @@ def guided_waypoints(M_flange_ref: np.ndarray, T_flange_cam: np.ndarray, *, expl
     Returns
     -------
     list of (4, 4) ndarray
-        ``[I, R·a⁺, R·a⁻, R]``: poses in the start flange's frame.
+        ``[I, R + a − b, R − a − b, R]``: poses in the start flange's frame.
     """
     M = np.asarray(M_flange_ref, dtype=float)
     X = np.asarray(T_flange_cam, dtype=float)
     d = M[:3, 3]
     a = 0.5 * explore_m * _sideways(d, X[:3, 2], X[:3, 0])
+    back = -BACK_FRACTION * explore_m * X[:3, 2] / np.linalg.norm(X[:3, 2])  # away from the object
     xi = log_se3(M)
     # rotation toward the reference spread over the legs: 1/3, 2/3, all of it
     waypoints = [np.eye(4)]
     for fraction, side in ((1 / 3, +1.0), (2 / 3, -1.0)):
         T = exp_se3(np.r_[np.zeros(3), xi[3:] * fraction])
-        T[:3, 3] = d + side * a
+        T[:3, 3] = d + side * a + back
         waypoints.append(T)
     waypoints.append(M.copy())
     return waypoints

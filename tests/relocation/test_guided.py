@@ -43,7 +43,8 @@ def test_path_is_shorter_than_the_usual_exploration_plus_the_way_back():
     M = exp_se3(np.r_[0.03, 0.0, 0.0, 0.0, 0.0, 0.0])
     w = guided_waypoints(M, np.eye(4), explore_m=0.04)
     path = sum(np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in zip(w[:-1], w[1:]))
-    assert path == pytest.approx(math.hypot(0.03, 0.02) + 0.04 + 0.02)  # to R+a, across to R-a, onto R
+    # to R+a-b, across to R-a-b, onto R (d, a and the step back b are orthogonal here)
+    assert path == pytest.approx(math.sqrt(0.03**2 + 0.02**2 + 0.01**2) + 0.04 + math.hypot(0.02, 0.01))
     legs = exploration_waypoints(translation_m=0.04)[:3] + [np.eye(4)]  # a revisit's usual 3 legs
     usual = sum(np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in zip(legs[:-1], legs[1:]))
     assert path < usual  # and the usual exploration still leaves the loop its ~30 mm to drive
@@ -158,3 +159,39 @@ def test_exploration_ends_when_until_says_so():
                                             GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
                           vse=TrackingVse(), frame_timeout_s=1.0)
     assert len(session2.explore(motions)[0]) == 6
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_sideways_stops_step_back_so_a_flat_object_shows_parallax(seed):
+    """Before a plane facing the camera a sideways move looks much like a rotation to the VSE's initialiser
+    (its rotation-only residual); the stops' step back along the optical axis, away from the object, scales the
+    image, which no rotation does."""
+    from fgcd_cli.relocation.guided import BACK_FRACTION
+    from fgcd_cli.vse.twoview import rotation_only_residual_px
+    from fgcd_core.se3 import camera_motion, flange_motion
+
+    rng = np.random.default_rng(seed)
+    K = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])
+    X = random_pose(rng, 0.05, 0.3)
+    # a flat object 1.2 m ahead, its points filling the view
+    uv = np.column_stack([rng.uniform(20, 620, 400), rng.uniform(20, 460, 400)])
+    P = (np.linalg.inv(K) @ np.column_stack([uv, np.ones(len(uv))]).T).T * 1.2
+    way = np.cross(rng.normal(size=3) * [1, 1, 0], [0, 0, 1.0])  # a sideways way there, in the camera frame
+    M_cam = np.eye(4)
+    M_cam[:3, 3] = 0.008 * way / np.linalg.norm(way)
+    M_flange = flange_motion(X, M_cam)
+    w = guided_waypoints(M_flange, X, explore_m=0.04)
+    axis = X[:3, 2] / np.linalg.norm(X[:3, 2])
+
+    def residual(stop):
+        T = camera_motion(X, stop)  # the camera's motion to this stop, in its start frame
+        Pc = (P - T[:3, 3]) @ T[:3, :3]
+        return rotation_only_residual_px(K, uv, (K @ (Pc / Pc[:, 2:]).T).T[:, :2])
+
+    stop = w[1]
+    back = np.dot(stop[:3, 3] - M_flange[:3, 3], axis)
+    assert back == pytest.approx(-BACK_FRACTION * 0.04)  # away from the object, never closer than R
+    assert np.dot(w[2][:3, 3] - M_flange[:3, 3], axis) == pytest.approx(back)
+    flat = stop.copy()
+    flat[:3, 3] -= back * axis  # the same stop without the step back
+    assert residual(stop) > 1.8 * residual(flat)
