@@ -10,7 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
-from fgcd_drivers.platform import Platform, PlatformConnectionError
+from fgcd_core.platform import Platform, PlatformConnectionError
 
 __all__ = ["DRIVERS", "Driver", "PlatformSpec", "open_platform"]
 

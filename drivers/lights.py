@@ -1,4 +1,4 @@
-"""The Lights protocol (beside :class:`fgcd_drivers.platform.Platform`), the manual prompt, and ``open_lights``.
+"""The Lights protocol (beside :class:`fgcd_core.platform.Platform`), the manual prompt, and ``open_lights``.
 
 A *lighting* is named as on the command line (``fgcd capture --lightings
 ambient,led:3,led:6``): ``ambient`` means every rig light off (the day's
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Protocol, runtime_checkable
 
-from fgcd_drivers.platform import PlatformConnectionError, PlatformError
+from fgcd_core.platform import PlatformConnectionError, PlatformError
 
 __all__ = ["AMBIENT", "Lights", "LightsDriver", "LightsError", "LightsSpec", "ManualLights", "open_lights",
            "parse_lightings"]

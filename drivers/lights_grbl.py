@@ -15,8 +15,8 @@ from __future__ import annotations
 import re
 import time
 
+from fgcd_core.platform import PlatformConnectionError, PlatformError
 from fgcd_drivers.lights import AMBIENT, LightsError, LightsSpec
-from fgcd_drivers.platform import PlatformConnectionError, PlatformError
 
 __all__ = ["GrblLights", "GrblOutput", "output_command"]
 

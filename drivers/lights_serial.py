@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import serial
 
+from fgcd_core.platform import PlatformConnectionError
 from fgcd_drivers.lights import AMBIENT, LightsError, LightsSpec
-from fgcd_drivers.platform import PlatformConnectionError
 
 __all__ = ["SerialLights", "parse_state"]
 

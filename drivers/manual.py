@@ -22,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fgcd_drivers.platform import Capabilities, MotionInterrupted, MoveResult
+from fgcd_core.platform import Capabilities, MotionInterrupted, MoveResult
 
 __all__ = ["ManualPlatform", "instructions_for"]
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fgcd_drivers.platform import (
+from fgcd_core.platform import (
     Capabilities,
     MotionInterrupted,
     MotionRejected,
@@ -187,7 +187,7 @@ class URConfig:
 
 
 class URPlatform:
-    """A UR arm as a :class:`~fgcd_drivers.platform.Platform` (6 DoF, flange frame)."""
+    """A UR arm as a :class:`~fgcd_core.platform.Platform` (6 DoF, flange frame)."""
 
     name = "ur"
 

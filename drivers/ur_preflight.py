@@ -12,7 +12,7 @@ from __future__ import annotations
 import socket
 import struct
 
-from fgcd_drivers.platform import PlatformConnectionError, PlatformTimeout
+from fgcd_core.platform import PlatformConnectionError, PlatformTimeout
 
 __all__ = ["preflight"]
 

@@ -15,7 +15,7 @@ import threading
 import time
 from contextlib import contextmanager
 
-from fgcd_drivers.platform import PlatformConnectionError
+from fgcd_core.platform import PlatformConnectionError
 
 __all__ = ["links_up", "locked", "start_kicker"]
 

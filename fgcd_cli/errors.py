@@ -49,7 +49,7 @@ class AlgorithmError(FgcdError):
 
 
 class HardwareError(FgcdError):
-    """A platform or camera failed; wraps ``fgcd_drivers.platform.PlatformError``."""
+    """A platform or camera failed; wraps ``fgcd_core.platform.PlatformError``."""
 
     exit_code = 7
 

@@ -4,8 +4,11 @@
 pinhole intrinsics type and the one ideal projection. ``board``: the ChArUco
 board's geometry. ``imaging``: grey conversion on declared dtypes, CLAHE, SIFT.
 ``lm``: the one Levenberg-Marquardt driver and the Huber weights. ``schur``: the
-one Schur-complement solve of camera-block + point-block normal equations. This
-package imports only numpy, scipy and OpenCV; never ``fgcd_cli`` nor ``drivers``.
+one Schur-complement solve of camera-block + point-block normal equations.
+``platform``: the robot port (the Platform protocol, its errors, capabilities,
+results) and ``MotionGuard``, the one gate every motion passes; the adapters in
+``drivers`` implement it. This package imports only numpy, scipy and OpenCV;
+never ``fgcd_cli`` nor ``drivers``.
 """
 
 

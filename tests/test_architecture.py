@@ -161,7 +161,7 @@ def test_cli_checker_sees_every_import_form(tmp_path):
     (tmp_path / "fgcd_core").mkdir()
     cases = {
         "import fgcd_drivers.connect": "fgcd_drivers.connect",
-        "from fgcd_drivers.platform import MotionGuard": "fgcd_drivers.platform",
+        "from fgcd_core.platform import MotionGuard": "fgcd_core.platform",
         "from fgcd_drivers import sim": "fgcd_drivers.sim",
         "from fgcd_core.se3 import log_so3": "fgcd_core.se3",
         "import fgcd_cli.campaign": "fgcd_cli.campaign",
@@ -215,7 +215,7 @@ def test_checker_sees_every_import_form(tmp_path):
         found = offenders(tmp_path, ("fgcd_cli.alignment",), ALGORITHM_FORBIDDEN)
         assert any(expected in o for o in found), (line, found)
         f.unlink()
-    (pkg / "ok.py").write_text("import numpy\nfrom fgcd_drivers.platform import MotionGuard\nfrom . import sub\n")
+    (pkg / "ok.py").write_text("import numpy\nfrom fgcd_core.platform import MotionGuard\nfrom . import sub\n")
     assert offenders(tmp_path, ("fgcd_cli.alignment",), ALGORITHM_FORBIDDEN) == []
 
 

@@ -45,7 +45,7 @@ def test_algorithm_package_does_not_import_the_simulator(package):
 def test_checker_detects_planted_violations(tmp_path):
     pkg = tmp_path / "relocation"
     pkg.mkdir()
-    (pkg / "ok.py").write_text("import numpy as np\nfrom fgcd_drivers.platform import MotionGuard\nimport drivers\n")
+    (pkg / "ok.py").write_text("import numpy as np\nfrom fgcd_core.platform import MotionGuard\nimport drivers\n")
     assert sim_imports(pkg) == []
     assert sim_imports(tmp_path / "missing") == []
     for i, line in enumerate([

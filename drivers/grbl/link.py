@@ -17,6 +17,7 @@ import time
 
 import serial
 
+from fgcd_core.platform import MotionRejected, PlatformConnectionError, PlatformTimeout, SafetyStop
 from fgcd_drivers.grbl.config import GrblConfig
 from fgcd_drivers.grbl.protocol import (
     ERROR_LOCKED,
@@ -32,7 +33,6 @@ from fgcd_drivers.grbl.protocol import (
     parse_setting,
     parse_status,
 )
-from fgcd_drivers.platform import MotionRejected, PlatformConnectionError, PlatformTimeout, SafetyStop
 
 __all__ = ["GrblLink"]
 

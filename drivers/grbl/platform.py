@@ -1,4 +1,4 @@
-"""A GRBL 1.1 stage as a :class:`~fgcd_drivers.platform.Platform`: the motion API over a :class:`GrblLink`.
+"""A GRBL 1.1 stage as a :class:`~fgcd_core.platform.Platform`: the motion API over a :class:`GrblLink`.
 
 ``ok`` for a motion means *queued* (GRBL ``doc/markdown/interface.md``), so
 arrival is waited for by polling ``?`` (at most ``poll_hz``) until the report
@@ -15,10 +15,7 @@ import time
 
 import numpy as np
 
-from fgcd_drivers.grbl.config import GrblConfig
-from fgcd_drivers.grbl.link import GrblLink
-from fgcd_drivers.grbl.protocol import FEED_HOLD_JOG_CANCEL, SOFT_RESET, GrblState, GrblStatus
-from fgcd_drivers.platform import (
+from fgcd_core.platform import (
     Capabilities,
     MotionInterrupted,
     MotionRejected,
@@ -28,6 +25,9 @@ from fgcd_drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
+from fgcd_drivers.grbl.config import GrblConfig
+from fgcd_drivers.grbl.link import GrblLink
+from fgcd_drivers.grbl.protocol import FEED_HOLD_JOG_CANCEL, SOFT_RESET, GrblState, GrblStatus
 
 __all__ = ["GrblPlatform"]
 
@@ -39,7 +39,7 @@ _READY = (GrblState.IDLE, GrblState.CHECK)
 
 
 class GrblPlatform:
-    """A GRBL 1.1 stage as a :class:`~fgcd_drivers.platform.Platform`.
+    """A GRBL 1.1 stage as a :class:`~fgcd_core.platform.Platform`.
 
     Parameters
     ----------

@@ -28,7 +28,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from fgcd_drivers.platform import (
+from fgcd_core.platform import (
     Capabilities,
     MotionRejected,
     MoveResult,
@@ -150,7 +150,7 @@ class SimPlatformConfig:
 
 
 class SimPlatform:
-    """Simulated 6-DoF (or 3-DoF gantry) platform implementing ``fgcd_drivers.platform.Platform``.
+    """Simulated 6-DoF (or 3-DoF gantry) platform implementing ``fgcd_core.platform.Platform``.
 
     Parameters
     ----------

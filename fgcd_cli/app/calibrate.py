@@ -74,7 +74,7 @@ class HandEyeRig:
 
     Attributes
     ----------
-    guard : fgcd_drivers.platform.MotionGuard
+    guard : fgcd_core.platform.MotionGuard
     camera_source : object with ``grab()``
     intrinsics : PinholeCamera
         Intrinsics of the frames ``camera_source`` gives (undistorted: the ideal pinhole).
@@ -141,7 +141,7 @@ def run_handeye(
     ------
     CalibrationError
         Degenerate motions, a VSE that cannot track, a board not seen.
-    fgcd_drivers.platform.PlatformError
+    fgcd_core.platform.PlatformError
         A motion failed or was refused.
     """
     from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig, run_target, run_target_free

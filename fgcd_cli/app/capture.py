@@ -153,8 +153,8 @@ def rig_lights(campaign, lightings: list[str]) -> LightsSpec | None:
     CampaignError
         ``[rig.lights]`` is malformed, or a lighting is not one of its channels.
     """
+    from fgcd_core.platform import PlatformError
     from fgcd_drivers.lights import AMBIENT, LightsDriver
-    from fgcd_drivers.platform import PlatformError
 
     try:
         spec = LightsSpec.from_config(campaign.rig_config.get("lights"))

@@ -26,8 +26,8 @@ __all__ = ["PlatformMove", "MoveRequest", "hardware_error_kind", "home_platform"
 def hardware_error_kind(exc: BaseException) -> str | None:
     """``"platform"`` or ``"camera"`` when ``exc`` is that hardware's failure (exit 7), else None."""
     try:
+        from fgcd_core.platform import PlatformError
         from fgcd_drivers.cameras import CameraError
-        from fgcd_drivers.platform import PlatformError
     except Exception:  # pragma: no cover - drivers always ship with fgcd
         return None
     if isinstance(exc, PlatformError):
@@ -94,7 +94,7 @@ def opened_platform(rig, timeout_s: float | None) -> Iterator:
 
     Yields
     ------
-    fgcd_drivers.platform.Platform
+    fgcd_core.platform.Platform
     """
     from fgcd_drivers.connect import PlatformSpec, open_platform
 
@@ -181,7 +181,7 @@ def plan_move(request: MoveRequest) -> PlatformMove:
     """Check a move's values before anything is opened (UserInputError, exit 2)."""
     from scipy.spatial.transform import Rotation
 
-    from fgcd_drivers.platform import GuardLimits
+    from fgcd_core.platform import GuardLimits
 
     r = request
     values = [*r.translation_mm, *r.rotation_deg, r.max_step_mm, r.max_step_deg, r.speed_fraction]
@@ -205,7 +205,7 @@ def move_platform(platform, move: PlatformMove, *, confirm: Callable[[str], bool
 
     Parameters
     ----------
-    platform : fgcd_drivers.platform.Platform
+    platform : fgcd_core.platform.Platform
         From :func:`opened_platform`.
     move : PlatformMove
     confirm : callable(str) -> bool, or None
@@ -215,10 +215,10 @@ def move_platform(platform, move: PlatformMove, *, confirm: Callable[[str], bool
 
     Returns
     -------
-    tuple of (dict, fgcd_drivers.platform.MoveResult)
+    tuple of (dict, fgcd_core.platform.MoveResult)
         ``fgcd platform move``'s record and the guard's result.
     """
-    from fgcd_drivers.platform import MotionGuard
+    from fgcd_core.platform import MotionGuard
 
     (dx, dy, dz), (rx, ry, rz) = move.request.translation_mm, move.request.rotation_deg
     guard = MotionGuard(platform, move.limits, confirm=confirm)

@@ -5,7 +5,7 @@ visit's lightings, ``relocation.jsonl`` with one :class:`AdjustmentRecord` per
 adjustment, the simulator's truth in ``evaluation/``. What differs is the
 method (:mod:`fgcd_cli.relocation.acr`): no exploration, no map, no cloud in
 the visit, the hand-eye taken as the identity. Every motion goes through the
-rig's :class:`fgcd_drivers.platform.MotionGuard`, cut into the guard's largest steps.
+rig's :class:`fgcd_core.platform.MotionGuard`, cut into the guard's largest steps.
 
 Rig time follows the rACR session's model (docs/relocation.md, "Time"): the
 platform's own motion time, plus the computation while the platform stands

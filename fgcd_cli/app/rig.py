@@ -60,7 +60,7 @@ class RigHandles:
 
     Attributes
     ----------
-    guard : fgcd_drivers.platform.MotionGuard
+    guard : fgcd_core.platform.MotionGuard
     camera_source : object with ``grab()`` (stream) and ``grab_still()`` (observation stills)
     intrinsics : PinholeCamera
     T_flange_cam : (4, 4) ndarray
@@ -116,7 +116,7 @@ def _recording(confirm: Callable[[str], bool] | None) -> Callable[[str], bool] |
 
 def _recorded_guard(platform, limits, confirm):
     """A MotionGuard whose motions mark ``run_record`` (the Ctrl-C line says whether the platform was moving)."""
-    from fgcd_drivers.platform import MotionGuard
+    from fgcd_core.platform import MotionGuard
 
     class RecordedMotionGuard(MotionGuard):
         def move_to(self, T_base_flange_target):  # noqa: D102 - MotionGuard.move_to, recorded
@@ -216,7 +216,7 @@ def open_sim_rig(
     on_progress: Callable[[int, int, str], None] | None = None,
 ) -> OpenedRig:
     """A simulated rig for one session of a scenario (``on_progress``: see :class:`RigHandles`)."""
-    from fgcd_drivers.platform import GuardLimits
+    from fgcd_core.platform import GuardLimits
     from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     scenario = check_scenario(scenario)
@@ -320,8 +320,8 @@ def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig
 
 def _lights_for(spec: LightsSpec, hooks: RigHooks, platform=None) -> Lights:
     """The light driver of ``spec`` (HardwareError when it cannot be opened)."""
+    from fgcd_core.platform import PlatformError
     from fgcd_drivers.lights import open_lights
-    from fgcd_drivers.platform import PlatformError
 
     try:
         return open_lights(spec, platform=platform, ask=hooks.ask_light or input)
@@ -356,9 +356,9 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
     check_connection(driver, port=request.port, host=request.host)
     if request.intrinsics is None:
         raise UserInputError("no camera intrinsics in the campaign rig: run `fgcd calibrate intrinsics` first")
+    from fgcd_core.platform import GuardLimits
     from fgcd_drivers.cameras import OpenCVCamera
     from fgcd_drivers.connect import PlatformSpec, open_platform
-    from fgcd_drivers.platform import GuardLimits
 
     try:
         platform = open_platform(driver, spec=PlatformSpec(port=request.port, baud=request.baud, host=request.host))

@@ -178,7 +178,7 @@ def return_to(guard, T_base_flange: np.ndarray, *, step_fraction: float = 0.9) -
     """Drive the platform to ``T_base_flange`` through ``guard`` in steps within its limits; the number of steps.
 
     Each step is at most ``step_fraction`` of the guard's largest translation
-    and rotation (:class:`fgcd_drivers.platform.GuardLimits`), so every one passes it.
+    and rotation (:class:`fgcd_core.platform.GuardLimits`), so every one passes it.
     """
     target = np.asarray(T_base_flange, dtype=float)
     start = np.asarray(guard.platform.flange_pose(), dtype=float)

@@ -37,9 +37,9 @@ from fgcd_cli.calibration.handeye_target import solve_handeye_target
 from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
 from fgcd_cli.calibration.motions import interpolate_steps, target_motions
 from fgcd_core.camera import PinholeCamera
+from fgcd_core.platform import MotionGuard
 from fgcd_core.se3 import invert_pose, make_pose, pose_distance
 from fgcd_core.sim3 import umeyama
-from fgcd_drivers.platform import MotionGuard
 from fgcd_drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 

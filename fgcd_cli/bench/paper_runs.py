@@ -230,7 +230,7 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.acr import AcrConfig
     from fgcd_cli.relocation.coarse import CoarseConfig
-    from fgcd_drivers.platform import PlatformError
+    from fgcd_core.platform import PlatformError
 
     w = spec.world
     scen = visit_scenario(spec)

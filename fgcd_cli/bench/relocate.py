@@ -97,7 +97,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
     from fgcd_cli.relocation.loop import RelocationConfig
-    from fgcd_drivers.platform import PlatformError
+    from fgcd_core.platform import PlatformError
 
     camp = init_campaign(workdir / case.name, site=case.name, rig={"driver": "sim"})
     st = camp.create_station("s")

@@ -46,7 +46,7 @@ def exploration_waypoints(*, translation_m: float = 0.03, rotation_deg: float = 
 
 
 def _render_sequence(scene: str, *, legs: int, step_m: float, step_deg: float, seed: int = 0):
-    from fgcd_drivers.platform import MotionGuard
+    from fgcd_core.platform import MotionGuard
     from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     rig = build_sim_rig(scene=scene, config=SimRigConfig(lighting="front", seed=seed, intrinsics_error="none"))

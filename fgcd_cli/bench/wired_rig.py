@@ -178,7 +178,7 @@ class WiredPlatform:
         Before connect, the simulated home. A driver that cannot report (the
         link is gone) leaves the camera where it was last reported.
         """
-        from fgcd_drivers.platform import PlatformError
+        from fgcd_core.platform import PlatformError
 
         if self.map is None:
             return self._last.copy()

@@ -1,6 +1,6 @@
 """Calibration procedures that move the platform: target-free (rACR) and with a board.
 
-Every motion goes through :class:`fgcd_drivers.platform.MotionGuard`. Samples pair
+Every motion goes through :class:`fgcd_core.platform.MotionGuard`. Samples pair
 the platform's *reported* flange pose (what a real rig knows) with what the
 camera measured at the same stop: the VSE camera pose (target-free) or the board
 pose from ``solvePnP`` (target).
@@ -24,7 +24,7 @@ from fgcd_cli.calibration.target_free import PathViews, refine_target_free
 from fgcd_cli.calibration.tracks import gray_u8
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
-from fgcd_drivers.platform import MotionGuard
+from fgcd_core.platform import MotionGuard
 
 __all__ = ["TargetFreeRun", "TargetRun", "TargetFreeRunConfig", "TargetRunConfig", "run_target_free", "run_target",
            "CameraSourceLike", "VseEngineLike"]
@@ -154,7 +154,7 @@ def run_target_free(
     CalibrationError
         The platform cannot rotate about two axes, the VSE failed, or the
         samples are degenerate.
-    fgcd_drivers.platform.PlatformError
+    fgcd_core.platform.PlatformError
         A motion failed or was refused (the platform stays where it stopped).
     """
     config = config or TargetFreeRunConfig()

@@ -1,6 +1,6 @@
 """``fgcd platform check | move | home``: talk to a real platform (GRBL stage, UR arm, a person).
 
-Platform failures (``fgcd_drivers.platform.PlatformError``) propagate to ``main()``,
+Platform failures (``fgcd_core.platform.PlatformError``) propagate to ``main()``,
 which prints one line and exits with code 7; a missing ``--port``/``--host`` is
 bad input (exit 2). Ctrl-C stops the platform first (the guard trips, and the
 platform is told to stop again on the way out) and exits with code 130 with one

@@ -50,9 +50,9 @@ from fgcd_cli.relocation.scene_uncertainty import SceneUncertaintyMap, camera_tu
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import reference_depth_m
 from fgcd_cli.relocation.uncertainty import CameraUncertainty, camera_uncertainty, in_view, render_visible_points
+from fgcd_core.platform import MotionRejected
 from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
-from fgcd_drivers.platform import MotionRejected
 
 __all__ = [
     "check_scale",

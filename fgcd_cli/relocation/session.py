@@ -1,7 +1,7 @@
 """A VSE session on a rig: start the engine, move slowly, settle, estimate the map scale.
 
 Shared by capture and relocate. The engine runs in its own thread over the
-camera; motions go through the :class:`fgcd_drivers.platform.MotionGuard` in small
+camera; motions go through the :class:`fgcd_core.platform.MotionGuard` in small
 sub-steps so that the VSE keeps tracking (the rACR platform moves slowly too),
 and after each sub-step the session waits for fresh frames before it trusts a
 pose.
@@ -21,8 +21,8 @@ import numpy as np
 from fgcd_cli.errors import AlgorithmError, run_record
 from fgcd_cli.relocation.waiting import wait_for_state
 from fgcd_cli.vse.types import VseStatus
+from fgcd_core.platform import MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
-from fgcd_drivers.platform import MotionGuard
 
 __all__ = [
     "SessionTiming",
@@ -158,7 +158,7 @@ class VseSession:
 
     Parameters
     ----------
-    guard : fgcd_drivers.platform.MotionGuard
+    guard : fgcd_core.platform.MotionGuard
         Every motion passes here.
     vse : VseThreadLike
         A started VSE thread over the rig's camera.

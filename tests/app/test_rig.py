@@ -38,7 +38,7 @@ def test_the_rig_guard_marks_its_motions_and_not_its_question():
         def stop(self):
             pass
 
-    from fgcd_drivers.platform import GuardLimits
+    from fgcd_core.platform import GuardLimits
 
     run_record.reset()
     platform = Platform()

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeMode, decide_resume, journal_path, return_to
+from fgcd_core.platform import GuardLimits, MotionGuard
 from fgcd_core.se3 import exp_se3, pose_distance
 from fgcd_drivers.manual import ManualPlatform
-from fgcd_drivers.platform import GuardLimits, MotionGuard
 
 OPTIONS = {"driver": "sim", "light": "led:3"}
 

@@ -10,8 +10,8 @@ import pytest
 
 from fgcd_cli.bench.fault_wired import FAULTS, MOTIONS, draw_plan
 from fgcd_cli.bench.wired_rig import FrameMap, WiredPlatform, inner_workspace, parse_target
+from fgcd_core.platform import Capabilities, MoveResult, PlatformConnectionError
 from fgcd_core.se3 import exp_se3, invert_pose
-from fgcd_drivers.platform import Capabilities, MoveResult, PlatformConnectionError
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -17,8 +17,8 @@ from fgcd_cli.calibration.procedure import TargetFreeRunConfig, run_target, run_
 from fgcd_cli.calibration.samples import rotation_axis_spread_deg
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
+from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core.se3 import exp_so3, invert_pose, make_pose, pose_distance
-from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 
 CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
 

@@ -381,7 +381,7 @@ def test_rig_record_without_checksum_is_still_read(camp):
 def test_platform_fault_while_writing_a_visit_leaves_the_campaign_consistent(camp):
     # A relocation writes its visit (images, cloud, relocation.jsonl) in one ObservationWriter;
     # a platform fault before commit must leave no visit, no leftover and a clean verify.
-    from fgcd_drivers.platform import SafetyStop
+    from fgcd_core.platform import SafetyStop
 
     st = camp.create_station("s")
     _write_reference(st)

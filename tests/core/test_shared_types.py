@@ -52,7 +52,7 @@ def test_look_at_needs_up_and_refuses_a_silent_fallback():
 
 
 def test_guard_rotation_angle_agrees_with_the_old_acos_form():
-    """fgcd_drivers.platform's guard now uses rotation_angle_rad (atan2); the old acos agrees to 1e-7 rad."""
+    """fgcd_core.platform's guard now uses rotation_angle_rad (atan2); the old acos agrees to 1e-7 rad."""
     from fgcd_core.se3 import exp_so3
 
     for phi in RNG.normal(size=(50, 3)):

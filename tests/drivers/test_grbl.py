@@ -12,9 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fgcd_drivers.grbl import GrblConfig, GrblKinematics, GrblPlatform
-from fgcd_drivers.grbl.protocol import GrblState, LineKind, alarm_text, classify_line, parse_setting, parse_status
-from fgcd_drivers.platform import (
+from fgcd_core.platform import (
     GuardLimits,
     MotionGuard,
     MotionInterrupted,
@@ -23,6 +21,8 @@ from fgcd_drivers.platform import (
     PlatformTimeout,
     SafetyStop,
 )
+from fgcd_drivers.grbl import GrblConfig, GrblKinematics, GrblPlatform
+from fgcd_drivers.grbl.protocol import GrblState, LineKind, alarm_text, classify_line, parse_setting, parse_status
 from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 
 pytestmark = pytest.mark.timeout(60)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fgcd_drivers.platform import (
+from fgcd_core.platform import (
     Capabilities,
     GuardLimits,
     MotionGuard,

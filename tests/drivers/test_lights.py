@@ -106,7 +106,7 @@ def test_serial_controller_relays_follow_the_lightings():
 
 
 def test_serial_controller_without_the_configured_relay_is_refused_at_open():
-    from fgcd_drivers.platform import PlatformConnectionError
+    from fgcd_core.platform import PlatformConnectionError
 
     with LightControllerEmulator(n_relays=2) as emu:
         with pytest.raises(PlatformConnectionError, match="relays 1..2"):
@@ -139,7 +139,7 @@ def test_lights_spec_from_campaign_config():
     assert LightsSpec.from_config({"driver": "manual", "channels": ["led:3", "led:6"]}).channels == \
         {"led:3": "", "led:6": ""}
     assert LightsSpec.from_config(None) is None
-    from fgcd_drivers.platform import PlatformConnectionError
+    from fgcd_core.platform import PlatformConnectionError
 
     with pytest.raises(PlatformConnectionError, match="driver must be one of"):
         LightsSpec.from_config({"driver": "dmx"})

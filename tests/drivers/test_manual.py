@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from fgcd_core.platform import GuardLimits, MotionGuard, MotionInterrupted, PlatformConnectionError
 from fgcd_drivers.connect import PlatformSpec, open_platform
 from fgcd_drivers.manual import ManualPlatform, instructions_for
-from fgcd_drivers.platform import GuardLimits, MotionGuard, MotionInterrupted, PlatformConnectionError
 
 
 def delta(xyz_mm=(0, 0, 0), rotvec_deg=(0, 0, 0)):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fgcd_drivers.platform import (
+from fgcd_core.platform import (
     GuardLimits,
     MotionGuard,
     MotionInterrupted,
@@ -132,7 +132,7 @@ def test_controller_gone_mid_move_is_connection_error_not_stale_pose(arm, fake):
 
 HUNG_SCRIPT = """
 import json, os, sys, time
-from fgcd_drivers.platform import GuardLimits, MotionGuard, PlatformConnectionError
+from fgcd_core.platform import GuardLimits, MotionGuard, PlatformConnectionError
 from fgcd_drivers.ur import URConfig, URPlatform
 arm = URPlatform(URConfig(host="127.0.0.1", preflight_timeout_s=0.5, max_linear_speed_m_s=0.05))
 arm.connect()

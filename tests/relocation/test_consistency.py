@@ -19,8 +19,8 @@ from fgcd_cli.relocation.image_refine import ImageRefinement
 from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
 from fgcd_cli.relocation.session import VseSession
 from fgcd_core import PinholeCamera, Sim3
+from fgcd_core.platform import GuardLimits, MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
-from fgcd_drivers.platform import GuardLimits, MotionGuard
 from tests.relocation.test_loop import ExactVse, make_case
 
 CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)

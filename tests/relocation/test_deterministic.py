@@ -22,8 +22,8 @@ from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.worker import ALIGNMENT_STEP_S
 from fgcd_cli.vse.thread import SteppedVse
 from fgcd_core import Sim3
+from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core.se3 import exp_se3, invert_pose, log_se3
-from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 
 
 class Platform:

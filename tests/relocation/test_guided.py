@@ -8,8 +8,8 @@ import pytest
 
 from fgcd_cli.relocation.guided import guided_waypoints, motions_between, within_workspace
 from fgcd_cli.relocation.session import exploration_waypoints
+from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
-from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 
 
 def random_pose(rng, t, r):

@@ -18,8 +18,8 @@ from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs
 from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
 from fgcd_cli.relocation.session import VseSession
 from fgcd_core import Sim3
+from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
-from fgcd_drivers.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 
 
 class ErringPlatform:
@@ -482,7 +482,7 @@ def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monk
     vse.stop()
     assert stops, "the platform was not told to stop"
     assert session.guard.tripped and "Ctrl-C" in session.guard.tripped
-    from fgcd_drivers.platform import MotionRejected
+    from fgcd_core.platform import MotionRejected
 
     with pytest.raises(MotionRejected):
         session.guard.move_by(np.eye(4))

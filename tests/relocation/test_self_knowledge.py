@@ -21,8 +21,8 @@ from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import frame_afd_bound_px
 from fgcd_cli.relocation.uncertainty import camera_uncertainty, render_visible_points
 from fgcd_core import PinholeCamera, Sim3
+from fgcd_core.platform import GuardLimits, MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
-from fgcd_drivers.platform import GuardLimits, MotionGuard
 from tests.relocation.test_coarse import _relief
 from tests.relocation.test_loop import ErringPlatform, ExactVse, FakeState, make_case
 

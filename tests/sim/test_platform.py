@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fgcd_drivers.platform import (
+from fgcd_core.platform import (
     GuardLimits,
     MotionGuard,
     MotionRejected,

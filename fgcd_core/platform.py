@@ -1,8 +1,10 @@
-"""The Platform protocol, its errors, and the one motion guard every motion passes.
+"""The Platform port: the protocol, its errors, and the one motion guard every motion passes.
 
-Everything in ``drivers/`` speaks plain data with the rest of fgcd: poses are
-4x4 float64 homogeneous matrices in metres, ``T_base_flange`` maps flange
-coordinates into the platform's base frame. Drivers never import ``fgcd_cli``.
+The port lives in the core so the algorithm packages (relocation, calibration)
+speak to a platform without importing any driver; the adapters in ``drivers/``
+(sim, GRBL, UR, manual) implement it. Everything crossing it is plain data:
+poses are 4x4 float64 homogeneous matrices in metres, ``T_base_flange`` maps
+flange coordinates into the platform's base frame.
 
 A platform moves the *flange*; the camera is mounted on it through the hand-eye
 transform ``T_flange_cam`` which the driver does not know.
