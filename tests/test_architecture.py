@@ -2,7 +2,8 @@
 
 Layers: ``fgcd_core`` (bottom: numpy/scipy/OpenCV only) <- ``fgcd_drivers`` (the folder ``drivers/``, the
 world) <- ``fgcd_cli`` (the brain). The algorithm packages stay free of the
-simulator, the use cases, reports, benchmarks and the CLI; only ``fgcd_cli.cli``
+simulator, the use cases, reports, benchmarks and the CLI, and those under ``fgcd_cli``
+of every driver (the robot port is ``fgcd_core.platform``); only ``fgcd_cli.cli``
 speaks typer, and nothing imports the CLI but the CLI; the CLI itself imports of fgcd
 only the use cases, the benchmarks and the errors (it is only a face).
 
@@ -115,6 +116,46 @@ _KNOWN_VIOLATIONS: dict[str, str] = {}
 def test_algorithm_package_stays_below_the_simulator_use_cases_and_cli(package):
     found = offenders(ROOT, (package,), ALGORITHM_FORBIDDEN)
     assert not found, f"{package} imports what an algorithm package may not: {found}"
+
+
+#: The algorithm packages under ``fgcd_cli``: they drive a platform through the port in ``fgcd_core.platform``
+#: (``Platform``, its errors, ``MotionGuard``) and get their rig from a use case, so they import no driver at all.
+ALGORITHM_CLI_PACKAGES = tuple(p for p in ALGORITHM_PACKAGES if p.startswith("fgcd_cli."))
+
+
+@pytest.mark.parametrize("package", ALGORITHM_CLI_PACKAGES)
+def test_algorithm_package_imports_no_driver(package):
+    found = offenders(ROOT, (package,), ("fgcd_drivers",))
+    assert not found, f"{package} imports a driver (the port is fgcd_core.platform): {found}"
+
+
+def test_driver_checker_sees_every_import_form(tmp_path):
+    pkg = tmp_path / "fgcd_cli" / "relocation"
+    (pkg / "sub").mkdir(parents=True)
+    for p in (tmp_path / "fgcd_cli", pkg, pkg / "sub"):
+        (p / "__init__.py").write_text("")
+    (tmp_path / "drivers").mkdir()
+    (tmp_path / "fgcd_core").mkdir()
+    cases = {
+        "import fgcd_drivers": "fgcd_drivers",
+        "import fgcd_drivers.grbl.platform as g": "fgcd_drivers.grbl.platform",
+        "from fgcd_drivers import connect": "fgcd_drivers.connect",
+        "from fgcd_drivers.sim import build_sim_rig": "fgcd_drivers.sim",
+        "def f():\n    from fgcd_drivers.ur import URPlatform\n": "fgcd_drivers.ur",
+        "class A:\n    def f(self):\n        import fgcd_drivers.manual\n": "fgcd_drivers.manual",
+        "import importlib\nimportlib.import_module('fgcd_drivers.connect')": "fgcd_drivers.connect",
+        "__import__('fgcd_drivers.cameras')": "fgcd_drivers.cameras",
+    }
+    for i, (line, expected) in enumerate(cases.items()):
+        f = pkg / "sub" / f"case{i}.py"
+        f.write_text(line + "\n")
+        found = offenders(tmp_path, ALGORITHM_CLI_PACKAGES, ("fgcd_drivers",))
+        assert any(o.endswith(f"-> {expected}") for o in found), (line, found)
+        f.unlink()
+    (pkg / "ok.py").write_text(
+        "import numpy\nfrom fgcd_core.platform import MotionGuard\nfrom fgcd_core import platform\n"
+        "from . import sub\ndef f():\n    from fgcd_core.platform import MotionRejected\n")
+    assert offenders(tmp_path, ALGORITHM_CLI_PACKAGES, ("fgcd_drivers",)) == []
 
 
 def test_only_the_cli_speaks_typer():
