@@ -28,6 +28,7 @@ import shutil
 import socket
 import subprocess
 import threading
+from pathlib import Path
 
 __all__ = ["LinkUnavailable", "NetnsLink", "ProxyLink", "netns_problem", "open_link"]
 
@@ -101,9 +102,21 @@ class NetnsLink:
         """The cable is pulled: the namespace's end goes down, packets vanish silently."""
         self._in_ns("ip", "link", "set", self.ns_dev, "down")
 
-    def restore(self) -> None:
-        """The cable is back."""
+    def restore(self, *, timeout_s: float = 5.0) -> None:
+        """The cable is back: the namespace's end up, and this end's carrier with it.
+
+        Rule: the link counts as back once the host end reports ``operstate`` up (carrier on
+        both ends) and the neighbour entry the cut left failed is flushed; a connect made before
+        that gets ``No route to host``, as a connect made while a real cable is still negotiating.
+        """
+        import time
+
         self._in_ns("ip", "link", "set", self.ns_dev, "up")
+        state = Path("/sys/class/net") / self.host_dev / "operstate"
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and state.read_text().strip() != "up":
+            time.sleep(0.02)
+        _ip("neigh", "flush", "to", self.ns_ip, "dev", self.host_dev, check=False)
 
     def close(self) -> None:
         """Remove the veth pair and the namespace (idempotent; processes inside must be ended first)."""

@@ -125,6 +125,38 @@ def test_a_namespace_cut_loses_packets_without_a_reset_and_is_removed():
     assert link.name not in names
 
 
+def test_a_connect_right_after_the_link_is_restored_reaches_the_peer():
+    """A connect tried while the cable was out leaves the peer's neighbour entry failed; once ``restore``
+    returns, a new connect gets through at once (no "No route to host" while the link comes back)."""
+    if netns_problem():
+        pytest.skip(netns_problem())
+    link = NetnsLink()
+    try:
+        link.open()
+    except LinkUnavailable as exc:
+        pytest.skip(str(exc))
+    try:
+        import subprocess
+        import sys
+
+        server = subprocess.Popen([*link.prefix(), sys.executable, "-c",
+                                   "import socket,sys\ns=socket.socket();s.bind((sys.argv[1],30004));s.listen(4)\n"
+                                   "print('up',flush=True)\nwhile True: s.accept()[0].close()\n",
+                                   link.ns_ip], stdout=subprocess.PIPE, text=True)
+        try:
+            assert server.stdout.readline().strip() == "up"
+            link.cut()
+            with pytest.raises(OSError):  # a timeout, or no route once the neighbour entry has failed
+                socket.create_connection((link.address, 30004), timeout=4).close()
+            link.restore()
+            socket.create_connection((link.address, 30004), timeout=2).close()
+        finally:
+            server.kill()
+            server.wait()
+    finally:
+        link.close()
+
+
 def test_an_emulator_replugged_after_a_pull_keeps_its_alarm():
     with GrblEmulator() as emu:
         old = emu.port
