@@ -36,6 +36,10 @@ _OPEN_BANNER_SHARE = 0.8
 
 #: States in which a stage accepts a motion and counts as arrived.
 _READY = (GrblState.IDLE, GrblState.CHECK)
+#: After a motion line's ``ok``, GRBL may still report Idle until its stepper starts the block (the
+#: ``?`` report is answered out of band); Idle away from the target within this time of the send,
+#: before any moving state was seen, is that start, not a motion cut short.
+_START_GRACE_S = 0.5
 
 
 class GrblPlatform:
@@ -269,7 +273,9 @@ class GrblPlatform:
         return dist / (feed / 60.0)
 
     def _wait_arrival(self, axes: dict[str, float], nominal_s: float) -> None:
-        deadline = time.monotonic() + 1.5 * nominal_s + self.config.arrival_margin_s
+        sent = time.monotonic()
+        deadline = sent + 1.5 * nominal_s + self.config.arrival_margin_s
+        moved = False
         while True:
             if self._stop_requested.is_set():
                 self._halt_after_stop()
@@ -281,9 +287,12 @@ class GrblPlatform:
                 err = max(abs(status.mpos[axis] - v) for axis, v in axes.items())
                 if status.state == GrblState.CHECK or err <= self.config.arrival_tolerance_mm:
                     return
+                if not moved and time.monotonic() - sent < _START_GRACE_S:
+                    continue  # the block has not started yet
                 raise MotionRejected(
                     f"GRBL is idle {err:.3f} mm from the target: the motion was cut short"
                 )
+            moved = moved or status.state not in _READY
             if time.monotonic() > deadline:
                 raise PlatformTimeout(
                     f"GRBL did not arrive within {deadline - time.monotonic() + 1.5 * nominal_s:.1f} s "
