@@ -82,7 +82,7 @@ def test_sample_counts_this_process_threads_descriptors_and_new_temporaries(tmp_
         stop = threading.Event()
         worker = threading.Thread(target=stop.wait)
         worker.start()
-        kept = [[k] for k in range(5000)]  # 5000 lists still referenced: tracked objects, as a leak's
+        kept = [[k] for k in range(50000)]  # 50,000 lists still referenced: tracked objects, as a leak's
         handle = open(tmp_path / "held", "w")
         fd, _ = tempfile.mkstemp()  # a temporary file left (its descriptor too)
         (campaign / "stations" / "s" / ".tmp-new").write_text("x")
@@ -97,7 +97,8 @@ def test_sample_counts_this_process_threads_descriptors_and_new_temporaries(tmp_
         assert after.threads_python == before.threads_python + 1
         assert after.fds == before.fds + 2
         assert after.tmp_left == 2 and before.tmp_left == 0
-        assert after.python_objects >= before.python_objects + len(kept)
+        # other threads of the test run free a few objects meanwhile (62 seen in a full run): 10 % of slack
+        assert after.python_objects >= before.python_objects + 0.9 * len(kept)
         assert baseline.left()[-1] == "stations/s/.tmp-new"
     assert tempfile.gettempdir() != str(tmp)
     assert before.rss_mb > 0 and before.hwm_mb >= before.rss_mb
