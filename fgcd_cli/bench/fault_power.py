@@ -53,7 +53,7 @@ __all__ = ["FAULTS", "PER_CLASS_FULL", "event_counts", "inject", "judge_verify",
 FAULTS: tuple[str, ...] = ("power_loss_visit_write", "power_loss_journal")
 #: 28 + 28 points in the full run, for the group's ``power_loss_points`` target of 50 landed (issue "Faults in
 #: the middle"): a journal point drawn at the counting run's last line does not land when the revisit
-#: converges in fewer adjustments (3 of 26 journal points at seed 0, 2026-12-02).
+#: converges in fewer adjustments (docs/benchmarks.md, "Fault groups").
 PER_CLASS_FULL = 28
 #: The cheapest honest revisit: a displaced start of 5 mm and 0.5 degree (the default is 30 mm, 3 degrees).
 RELOCATE_OPTIONS = ("--start-offset-mm", "5", "--start-offset-deg", "0.5", "--yes", "--json")
