@@ -26,7 +26,7 @@ from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig
 from fgcd_cli.calibration.target_free import TargetFreeConfig
 from fgcd_cli.changes.baseline_iccv import ICCV2015Config
 from fgcd_cli.changes.config import DetectionConfig
-from fgcd_cli.changes.dense import DenseConfig
+from fgcd_cli.changes.dense.refine import DenseConfig
 from fgcd_cli.changes.significance import AcontrarioConfig
 from fgcd_cli.metrics.afd import FdfConfig
 from fgcd_cli.relocation.acr import AcrConfig

@@ -39,7 +39,7 @@ TileProgress = Callable[[int, int, str], None] | None
 
 LARGE_FRAME_PX = 8_000_000
 """Frames above this many pixels are compared tile by tile in bounded memory
-(:func:`fgcd_cli.changes.tiled.detect_changes_tiled`; ``docs/change-detection.md``)."""
+(:func:`fgcd_cli.changes.tiled.pipeline.detect_changes_tiled`; ``docs/change-detection.md``)."""
 
 
 def _say(progress: Progress, message: str) -> None:
@@ -148,7 +148,7 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
     _say(progress, f"comparing {len(ref_images)} lighting(s)…")
     large = ref_images[0].shape[0] * ref_images[0].shape[1] > LARGE_FRAME_PX
     if large:
-        from fgcd_cli.changes.tiled import detect_changes_tiled
+        from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
 
         _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
                        "(no edge check, no FDF on frames this large)")

@@ -17,7 +17,7 @@ Implemented
   ``k`` depends on its surface normal only (``n . l'_k / n . l_k``), not on its
   albedo. The pixels are grouped by their reference normal (spherical k-means on
   the uncalibrated pseudo-normals of
-  :func:`fgcd_cli.changes.photometric.joint_photometric_stereo`, both
+  :func:`fgcd_cli.changes.photometric.stereo.joint_photometric_stereo`, both
   observations in one basis), and each (lighting, normal group) gets one gain,
   the median log ratio of its pixels (robust: changes are a few percent of
   the pixels). Near lights also make the ratio drift across the image; a smooth
@@ -60,7 +60,7 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.images import to_float_image, to_gray
-from fgcd_cli.changes.photometric import joint_photometric_stereo
+from fgcd_cli.changes.photometric.stereo import joint_photometric_stereo
 from fgcd_cli.errors import UserInputError
 
 _KMEANS_SAMPLES = 50_000  # normals entering the spherical k-means

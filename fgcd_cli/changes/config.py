@@ -44,7 +44,7 @@ class RegistrationConfig:
     """Index of the lighting the registration is estimated on (the most diffuse one is best)."""
     dense: bool = True
     """After the homography, estimate the residual parallax as a smooth dense flow
-    (:func:`fgcd_cli.changes.dense.refine_dense`) and resample the current images through both at
+    (:func:`fgcd_cli.changes.dense.refine.refine_dense`) and resample the current images through both at
     once; pixels it cannot align are *not compared* (``ChangeResult.not_compared``) instead of changed."""
 
 
@@ -73,7 +73,7 @@ class ScoreConfig:
     median, grown by ``edge_tolerance_px``) a difference counts only if neither image lies within
     the other's min/max envelope over ``edge_tolerance_px``: a relocation residual of a few mm
     thins, blurs or moves thin structures there by up to ~1-2 px (see
-    :func:`fgcd_cli.changes.cues.edge_tolerant_difference`). 0 (default) disables it: it also hides
+    :func:`fgcd_cli.changes.cues.maps.edge_tolerant_difference`). 0 (default) disables it: it also hides
     small changes on strong texture edges, so it is for pairs known to be relocated only to a few
     mm (campaign diffs use the region-level :class:`EdgeCheckConfig` instead)."""
     edge_contrast: float = 3.0
@@ -110,7 +110,7 @@ class RegionConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class CueConfig:
-    """Relief / colour labels from photometric stereo (:mod:`fgcd_cli.changes.cue_labels`)."""
+    """Relief / colour labels from photometric stereo (:mod:`fgcd_cli.changes.cues.labels`)."""
 
     cues: bool = True
     """Fit photometric stereo to both stacks and label each region relief, colour or both; needs
@@ -137,7 +137,7 @@ class EdgeCheckConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class TilingConfig:
-    """The tile-by-tile path for large frames (:func:`fgcd_cli.changes.tiled.detect_changes_tiled`)."""
+    """The tile-by-tile path for large frames (:func:`fgcd_cli.changes.tiled.pipeline.detect_changes_tiled`)."""
 
     tile_px: int = 2048
     """Largest tile side, pixels."""

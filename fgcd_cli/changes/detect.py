@@ -24,8 +24,8 @@ from fgcd_cli.changes.config import (
     ScoreConfig,
     with_scan_rules,
 )
-from fgcd_cli.changes.cue_labels import CueMaps, label_regions, relief_colour_cues
-from fgcd_cli.changes.dense import DenseAlignment, refine_dense, warp_with_flow
+from fgcd_cli.changes.cues.labels import CueMaps, label_regions, relief_colour_cues
+from fgcd_cli.changes.dense.refine import DenseAlignment, refine_dense, warp_with_flow
 from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.illumination import normalize_shading
 from fgcd_cli.changes.images import check_side_inputs, image_health, to_gray, validate_stacks

@@ -8,7 +8,7 @@ is set aside only when all three hold:
 1. it lies mostly in the reference's strong-edge band (``band_fraction`` of its
    pixels within ``edge_check_px`` of a strong edge);
 2. the two-sided envelope difference over ``edge_check_px``
-   (:func:`fgcd_cli.changes.cues.edge_tolerant_difference`) nowhere reaches the
+   (:func:`fgcd_cli.changes.cues.maps.edge_tolerant_difference`) nowhere reaches the
    detection's seed level inside it: each image is explained by the other
    within the tolerated shift;
 3. it is not a small compact blob. The envelope of nearby dark strokes hides
@@ -36,7 +36,7 @@ import numpy as np
 from scipy import ndimage
 
 from fgcd_cli.changes.config import EdgeCheckConfig, ScoreConfig
-from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, relative_to_median
+from fgcd_cli.changes.cues.maps import edge_band, edge_tolerant_difference, relative_to_median
 from fgcd_cli.changes.images import to_gray
 from fgcd_cli.changes.score import PairScore
 
@@ -124,7 +124,7 @@ def edge_explained_regions(labels: np.ndarray, n_regions: int, *, refs: list[np.
     valid : (H, W) bool, the compared pixels.
     seed_level : float, the score level at which the detection seeds regions.
     score : ScoreConfig, the detection's shift tolerance (px), score smoothing (px) and
-        strong-edge contrast (see :func:`fgcd_cli.changes.cues.edge_band`), applied the same way here.
+        strong-edge contrast (see :func:`fgcd_cli.changes.cues.maps.edge_band`), applied the same way here.
     config : EdgeCheckConfig, the tolerated edge shift (px) and rule 1's fraction.
     """
     normalized_images, medians = scored.normalized, scored.medians

@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 
 
 class CueLabel(StrEnum):
-    """What changed in a region, from the photometric-stereo cues (:mod:`fgcd_cli.changes.cue_labels`)."""
+    """What changed in a region, from the photometric-stereo cues (:mod:`fgcd_cli.changes.cues.labels`)."""
 
     RELIEF = "relief"
     """Surface normals changed: pits, flakes, cracks."""

@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig
-from fgcd_cli.changes.cue_labels import CueMaps
-from fgcd_cli.changes.dense import DenseAlignment
+from fgcd_cli.changes.cues.labels import CueMaps
+from fgcd_cli.changes.dense.refine import DenseAlignment
 from fgcd_cli.changes.regions import ChangeRegion
 from fgcd_cli.changes.registration import Registration, RegistrationInit
 from fgcd_cli.changes.significance import Decision, SignificantRegion

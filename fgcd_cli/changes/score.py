@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.config import RegionConfig, ScoreConfig
-from fgcd_cli.changes.cues import edge_band, edge_tolerant_difference, local_ncc_dissimilarity, relative_to_median
+from fgcd_cli.changes.cues.maps import edge_band, edge_tolerant_difference, local_ncc_dissimilarity, relative_to_median
 from fgcd_cli.changes.illumination import normalize_local_gain
 from fgcd_cli.changes.images import to_gray
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold

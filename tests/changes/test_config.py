@@ -10,7 +10,7 @@ from fgcd_cli.changes.config import OPTION_SECTION, DecisionRule, DetectionConfi
 from fgcd_cli.changes.detect import decide, detect_changes
 from fgcd_cli.changes.regions import CueLabel
 from fgcd_cli.changes.registration import RegistrationInit
-from fgcd_cli.changes.tiled import detect_changes_tiled
+from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, FdfMethod
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.changes.dense import (
+from fgcd_cli.changes.dense.refine import (
     DenseConfig,
     apply_flow,
     lighting_invariant,

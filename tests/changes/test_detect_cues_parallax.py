@@ -4,7 +4,7 @@ Every pair is rendered here with a Lambertian model of a textured, non-planar
 surface: a colour albedo (scikit-image 'gravel') on a height field (a broad dome
 plus random bumps), one ambient image (index 0) and six directional lights at
 the even clock positions, 45 degrees from the optical axis, with sensor noise.
-Camera frame as in :mod:`fgcd_cli.changes.photometric`: x right, y down, z away
+Camera frame as in :mod:`fgcd_cli.changes.photometric.stereo`: x right, y down, z away
 from the camera; a surface facing the camera has normal ~(0, 0, -1).
 """
 

@@ -3,7 +3,7 @@
 import numpy as np
 
 from fgcd_cli.changes.images import to_gray
-from fgcd_cli.changes.tiled_input import as_float, gray_mean
+from fgcd_cli.changes.tiled.inputs import as_float, gray_mean
 
 
 def test_grey_is_the_channel_mean_without_alpha_in_a_new_float32_array():

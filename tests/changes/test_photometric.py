@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from skimage import data
 
-from fgcd_cli.changes.photometric import (
+from fgcd_cli.changes.photometric.stereo import (
     JointFitConfig,
     PhotometricStereo,
     joint_photometric_stereo,

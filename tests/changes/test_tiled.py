@@ -1,4 +1,4 @@
-"""Tiled, bounded-memory detection (fgcd_cli.changes.tiled) against the untiled detector."""
+"""Tiled, bounded-memory detection (fgcd_cli.changes.tiled.pipeline) against the untiled detector."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from skimage import data
 
 from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.config import DetectionConfig
-from fgcd_cli.changes.tiled import detect_changes_tiled, load_images, tile_grid
+from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled, load_images, tile_grid
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.metrics.change_scores import binary_scores
 

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_cli.changes.photometric_basis import align_basis, canonical_basis, factorize_lights
-from fgcd_cli.changes.photometric_stack import DARK_LEVEL, Stack, prepare_stack
+from fgcd_cli.changes.photometric.basis import align_basis, canonical_basis, factorize_lights
+from fgcd_cli.changes.photometric.stack import DARK_LEVEL, Stack, prepare_stack
 from fgcd_cli.errors import UserInputError
 
 # Rules of the robust per-pixel fit (both cases).

@@ -1,5 +1,5 @@
 """The basis of uncalibrated photometric stereo: the lights from the rank-3 SVD (Hayakawa 1994), the
-conventions that fix the 3x3 ambiguity (:func:`fgcd_cli.changes.photometric.photometric_stereo`, Notes),
+conventions that fix the 3x3 ambiguity (:func:`fgcd_cli.changes.photometric.stereo.photometric_stereo`, Notes),
 and the robust alignment of a second basis onto the first.
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.photometric_stack import DARK_LEVEL, Stack
+from fgcd_cli.changes.photometric.stack import DARK_LEVEL, Stack
 from fgcd_cli.errors import AlgorithmError
 
 _SVD_SAMPLES = 60_000  # reliable pixels (all stacks together) entering the SVD

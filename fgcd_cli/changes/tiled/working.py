@@ -9,13 +9,13 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.config import CueConfig, RegistrationConfig
-from fgcd_cli.changes.cue_labels import label_regions, relief_colour_cues
-from fgcd_cli.changes.dense import DenseAlignment, refine_dense, warp_with_flow
+from fgcd_cli.changes.cues.labels import label_regions, relief_colour_cues
+from fgcd_cli.changes.dense.refine import DenseAlignment, refine_dense, warp_with_flow
 from fgcd_cli.changes.illumination import normalize_local_gain
 from fgcd_cli.changes.images import image_health
 from fgcd_cli.changes.registration import Registration, RegistrationInit, register_to_reference, warp_to_reference
-from fgcd_cli.changes.tiled_input import as_float, downscale, gray_mean
-from fgcd_cli.changes.tiled_schedule import release_free_memory
+from fgcd_cli.changes.tiled.inputs import as_float, downscale, gray_mean
+from fgcd_cli.changes.tiled.schedule import release_free_memory
 
 
 @dataclass(kw_only=True)

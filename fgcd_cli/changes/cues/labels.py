@@ -1,7 +1,7 @@
 """Relief and colour cues of a pair, and the label of each change region (relief / colour / both).
 
 The capture's directional lightings are a photometric-stereo set
-(:mod:`fgcd_cli.changes.photometric`): the reference and the registered current
+(:mod:`fgcd_cli.changes.photometric.stereo`): the reference and the registered current
 stack are fitted in one basis, and two cues are compared per pixel:
 
 * **relief**: the angle between the reference and current normals (pits, lifted
@@ -18,7 +18,7 @@ the relative change of a pixel's intensity they cause under the capture's lights
   tilted ``tau`` from the optical axis changes ``n . l`` by a relative
   ``~ theta tan(tau)`` (first order, the most affected lighting); ``tau`` is the
   median tilt of the lights: the 45 degree convention of the uncalibrated fit
-  (:mod:`fgcd_cli.changes.photometric`, ``tan tau = 1``), the given lights' when calibrated.
+  (:mod:`fgcd_cli.changes.photometric.stereo`, ``tan tau = 1``), the given lights' when calibrated.
 
 Each cue, smoothed like the detection score, gives a region two numbers:
 
@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.photometric import joint_photometric_stereo, relief_and_colour_cues
+from fgcd_cli.changes.photometric.stereo import joint_photometric_stereo, relief_and_colour_cues
 from fgcd_cli.changes.regions import ChangeRegion, CueLabel
 from fgcd_cli.errors import AlgorithmError, UserInputError
 
@@ -59,7 +59,7 @@ BOTH_RATIO = 0.5
 
 CONVENTIONAL_TILT_DEG = 45.0
 """Light tilt from the optical axis assumed when the lights are not given (the uncalibrated
-fit's convention, :data:`fgcd_cli.changes.photometric_basis.LIGHT_TILT_DEG`)."""
+fit's convention, :data:`fgcd_cli.changes.photometric.basis.LIGHT_TILT_DEG`)."""
 
 
 @dataclass(kw_only=True)

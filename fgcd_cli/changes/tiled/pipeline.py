@@ -15,7 +15,7 @@ decision), with these differences of *where* and *at which resolution* each stag
   convention (``x_full = f (x_work + 0.5) - 0.5``), the flow is upsampled per
   tile (bilinear, values times ``f``), and each tile of the current image is
   resampled once, through homography and flow together (as
-  :func:`~fgcd_cli.changes.dense.warp_with_flow`).
+  :func:`~fgcd_cli.changes.dense.refine.warp_with_flow`).
 - **Tiles for the per-lighting cue, a global null model.** Per tile (with an
   overlap that covers the gain windows) and per lighting: the light gain
   (:func:`~fgcd_cli.changes.illumination.normalize_local_gain`) and the symmetric
@@ -65,12 +65,12 @@ from fgcd_cli.changes.result import (
     unreported_candidates,
 )
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
-from fgcd_cli.changes.tiled_decision import decide_tiled
-from fgcd_cli.changes.tiled_geometry import Geometry, Tile, scale_matrix, tile_grid
-from fgcd_cli.changes.tiled_input import check_stacks, load_images
-from fgcd_cli.changes.tiled_schedule import opencv_threads
-from fgcd_cli.changes.tiled_score import TiledScore
-from fgcd_cli.changes.tiled_working import Small, cue_maps_small, label_cues_small, working_resolution
+from fgcd_cli.changes.tiled.decision import decide_tiled
+from fgcd_cli.changes.tiled.geometry import Geometry, Tile, scale_matrix, tile_grid
+from fgcd_cli.changes.tiled.inputs import check_stacks, load_images
+from fgcd_cli.changes.tiled.schedule import opencv_threads
+from fgcd_cli.changes.tiled.tile_scores import TiledScore
+from fgcd_cli.changes.tiled.working import Small, cue_maps_small, label_cues_small, working_resolution
 from fgcd_cli.errors import UserInputError
 
 __all__ = ["detect_changes_tiled", "load_images", "tile_grid"]
@@ -128,7 +128,7 @@ def detect_changes_tiled(
         return empty_result(shape, small[1], None, settings)
     registration, geom = _to_full_resolution(small, plan)
     report("registered (working resolution)")
-    # The finer smoothing is scanned only where the decision runs at full resolution (tiled_decision).
+    # The finer smoothing is scanned only where the decision runs at full resolution (`tiled.decision`).
     score_config = (config.score if max(shape) <= config.tiling.decision_px
                     else dataclasses.replace(config.score, fine_smooth_sigma_px=0.0))
     tiled = TiledScore(ref_images, cur_images, geom, plan.tiles, eval_mask=eval_mask, workers=config.tiling.workers,

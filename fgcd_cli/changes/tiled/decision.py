@@ -14,7 +14,7 @@ from fgcd_cli.changes.detect import region_mask, two_scale_decision
 from fgcd_cli.changes.regions import regions_with_significance
 from fgcd_cli.changes.significance import acontrario_config, acontrario_decision, grow_to_extent
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
-from fgcd_cli.changes.tiled_schedule import release_free_memory
+from fgcd_cli.changes.tiled.schedule import release_free_memory
 
 
 def decide_tiled(scores, valid, aside: ThreadPoolExecutor, cue_job: Callable | None, *, pixel_area_mm2,

@@ -11,7 +11,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.tiled_geometry import Tile
+from fgcd_cli.changes.tiled.geometry import Tile
 
 
 def release_free_memory() -> None:

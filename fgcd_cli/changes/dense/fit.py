@@ -1,4 +1,4 @@
-"""The dense refinement's smooth field: a robust local-polynomial fit of a raw flow (:mod:`fgcd_cli.changes.dense`).
+"""The dense refinement's smooth field: a robust local-polynomial fit of a raw flow (:mod:`fgcd_cli.changes.dense.refine`).
 
 Confidence-weighted local-polynomial normalized convolution (Knutsson & Westin,
 CVPR 1993; Farnebaeck 2002 for the separable applicability) with a Gaussian

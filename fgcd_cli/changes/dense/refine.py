@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.dense_fit import (  # noqa: F401  (public names of this module)
+from fgcd_cli.changes.dense.fit import (  # noqa: F401  (public names of this module)
     CHANGE_SHARE,
     FIT_ORDER,
     MAX_CHANGE_PX,

@@ -16,13 +16,13 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.config import ScoreConfig
-from fgcd_cli.changes.cues import shift_tolerant_difference
+from fgcd_cli.changes.cues.maps import shift_tolerant_difference
 from fgcd_cli.changes.detect import comparison_margin_px
 from fgcd_cli.changes.illumination import normalize_local_gain, prepare_gain_weight
 from fgcd_cli.changes.score import smooth_at_two_scales
-from fgcd_cli.changes.tiled_geometry import Geometry, Tile, tile_sampling, warp_tile
-from fgcd_cli.changes.tiled_input import crop_float
-from fgcd_cli.changes.tiled_schedule import median_float16, release_free_memory, run_tiles
+from fgcd_cli.changes.tiled.geometry import Geometry, Tile, tile_sampling, warp_tile
+from fgcd_cli.changes.tiled.inputs import crop_float
+from fgcd_cli.changes.tiled.schedule import median_float16, release_free_memory, run_tiles
 
 
 class TiledScore:

@@ -1,4 +1,4 @@
-"""The image stack of one observation, prepared for photometric stereo (:mod:`fgcd_cli.changes.photometric`).
+"""The image stack of one observation, prepared for photometric stereo (:mod:`fgcd_cli.changes.photometric.stereo`).
 
 Directional images only (the ambient one left out), grey levels and colour per
 pixel of the valid area, saturation flags, and the near-light fall-off gains.

@@ -4,7 +4,7 @@ The homography is conjugated to full resolution with OpenCV's pixel-centre
 convention (``x_full = f (x_work + 0.5) - 0.5``, :func:`scale_matrix`), the
 working-resolution flow is upsampled per tile (bilinear, values times ``f``), and
 each tile of the current image is resampled once, through homography and flow
-together (as :func:`fgcd_cli.changes.dense.warp_with_flow`).
+together (as :func:`fgcd_cli.changes.dense.refine.warp_with_flow`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.tiled_input import crop_float
+from fgcd_cli.changes.tiled.inputs import crop_float
 
 
 def scale_matrix(fx: float, fy: float) -> np.ndarray:

@@ -1,0 +1,1 @@
+"""Per-pixel change cues and the relief / colour label of each region."""

@@ -1,0 +1,1 @@
+"""Photometric stereo for change cues: the stack, the light basis, relief apart from colour."""
