@@ -21,9 +21,9 @@ from fgcd_cli.app.calibrate import HandEyeRequest
 from fgcd_cli.app.relocate import RelocateRequest
 from fgcd_cli.app.revisit import RevisitRequest
 from fgcd_cli.app.rig import RigRequest
-from fgcd_cli.calibration.handeye_refine import RefineConfig
+from fgcd_cli.calibration.handeye.refine import RefineConfig
+from fgcd_cli.calibration.handeye.target_free import TargetFreeConfig
 from fgcd_cli.calibration.procedure import TargetFreeRunConfig, TargetRunConfig
-from fgcd_cli.calibration.target_free import TargetFreeConfig
 from fgcd_cli.changes.baseline_iccv import ICCV2015Config
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.dense.refine import DenseConfig

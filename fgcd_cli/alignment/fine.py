@@ -18,7 +18,7 @@ similarity fixed; steps 2–3 (Eqs. 17–18) refine the similarity: here R, t an
 the scale jointly in one Levenberg–Marquardt problem (the paper alternates R, t
 and the scale; the joint 7-parameter step converges in fewer iterations and
 the ``-S`` ablation simply drops the scale column). Hand-written LM
-(:mod:`~fgcd_cli.alignment.lm`) with analytic Jacobians ``dI/du . du/dX . dX/dparams``
+(:mod:`~fgcd_cli.alignment.dense_steps`) with analytic Jacobians ``dI/du . du/dX . dX/dparams``
 (:mod:`~fgcd_cli.alignment.fine_problem`): ``scipy.optimize.least_squares`` with the
 same Jacobian is far slower here (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment") and numeric
 Jacobians do not move on bilinearly interpolated images. A blur schedule (sigma 3 then 1 pixel)
@@ -38,11 +38,11 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from fgcd_cli.alignment.dense_steps import minimise_subset
 from fgcd_cli.alignment.evaluation import evaluate_alignment
 from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.alignment.fine_config import FineAlignConfig
 from fgcd_cli.alignment.fine_problem import Block, FineProblem, GeometricMatches, PhotometricObservations
-from fgcd_cli.alignment.lm import minimise_subset
 from fgcd_cli.alignment.photometric import prepare_keyframe, sample, visible_nearest
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, FineAlignmentResult, ResidualStats

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from fgcd_cli.app.session import MAX_SCALE_RESIDUAL_MM
-from fgcd_cli.calibration.handeye import HandEyeResult
+from fgcd_cli.calibration.handeye.linear import HandEyeResult
 from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
@@ -209,7 +209,7 @@ def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callab
     """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
     from fgcd_cli.app.intrinsics import sim_board_views
     from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
-    from fgcd_cli.calibration.rig import save_intrinsics
+    from fgcd_cli.calibration.rig_files import save_intrinsics
 
     board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
     images = sim_board_views(scenario, board, views, on_progress=on_progress)
@@ -310,7 +310,7 @@ def plan_handeye(campaign, given, request: HandEyeRequest, *, scene: str | None 
     """
     from fgcd_cli.app.rig_options import check_campaign_rig, resolve_rig
     from fgcd_cli.app.scenario import Driver
-    from fgcd_cli.calibration.rig import load_intrinsics
+    from fgcd_cli.calibration.rig_files import load_intrinsics
 
     rig = resolve_rig(campaign, given)
     if request.mode == HandEyeMode.TARGET and rig.driver == Driver.SIM:
@@ -348,7 +348,7 @@ def store_handeye(campaign, plan: HandEyePlan, calibration: HandEyeCalibration, 
     Rule: a hand-eye beyond the residual limits is not stored (the caller exits 6) unless
     ``accept_residual``; then it is stored with the reason in ``residual_accepted``.
     """
-    from fgcd_cli.calibration.rig import save_handeye
+    from fgcd_cli.calibration.rig_files import save_handeye
 
     unusable = handeye_unusable(calibration.result)
     if campaign is None or (unusable is not None and not accept_residual):

@@ -201,7 +201,7 @@ def run_intrinsics(plan: IntrinsicsPlan, *, on_progress: ProgressCallback | None
 
 def store_intrinsics(plan: IntrinsicsPlan, result) -> dict:
     """``fgcd calibrate intrinsics``'s record: the result, and where it was stored (``stored``) with a campaign."""
-    from fgcd_cli.calibration.rig import save_intrinsics
+    from fgcd_cli.calibration.rig_files import save_intrinsics
 
     data = result.to_dict()
     if plan.campaign is not None:

@@ -33,7 +33,7 @@ import numpy as np
 
 from fgcd_cli.app.calibrate import HandEyeRig, run_handeye
 from fgcd_cli.calibration.board import BoardSpec
-from fgcd_cli.calibration.handeye_target import solve_handeye_target
+from fgcd_cli.calibration.handeye.with_target import solve_handeye_target
 from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
 from fgcd_cli.calibration.motions import interpolate_steps, target_motions
 from fgcd_core.camera import PinholeCamera

@@ -10,8 +10,8 @@ Public API::
 
 from fgcd_cli.calibration.board import BoardSpec, write_printable_board
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import HandEyeResult, ScaleResult, estimate_scale, solve_handeye_scale
-from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_handeye_target
+from fgcd_cli.calibration.handeye.linear import HandEyeResult, ScaleResult, estimate_scale, solve_handeye_scale
+from fgcd_cli.calibration.handeye.with_target import TargetHandEyeResult, solve_handeye_target
 from fgcd_cli.calibration.intrinsics import IntrinsicsResult, calibrate_intrinsics
 
 __all__ = [

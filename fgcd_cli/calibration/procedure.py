@@ -17,11 +17,11 @@ import numpy as np
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import HandEyeResult, solve_handeye_scale
-from fgcd_cli.calibration.handeye_target import TargetHandEyeResult, solve_handeye_target
+from fgcd_cli.calibration.handeye.linear import HandEyeResult, solve_handeye_scale
+from fgcd_cli.calibration.handeye.target_free import PathViews, refine_target_free
+from fgcd_cli.calibration.handeye.tracks import gray_u8
+from fgcd_cli.calibration.handeye.with_target import TargetHandEyeResult, solve_handeye_target
 from fgcd_cli.calibration.motions import exploration_motions, interpolate_steps, target_motions
-from fgcd_cli.calibration.target_free import PathViews, refine_target_free
-from fgcd_cli.calibration.tracks import gray_u8
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
 from fgcd_core.platform import MotionGuard
@@ -102,7 +102,7 @@ class TargetFreeRunConfig:
     refine : bool
         Refine ``X`` by a bundle adjustment over the images of every rest pose of the
         path with the camera poses tied to the reported flange poses, then
-        re-estimate the scale (:func:`fgcd_cli.calibration.target_free.refine_target_free`);
+        re-estimate the scale (:func:`fgcd_cli.calibration.handeye.target_free.refine_target_free`);
         if the images cannot be matched the linear solution is kept with a note.
     """
 
@@ -315,7 +315,7 @@ class TargetRunConfig:
     rotation_deg, translation_m : float
         Size of the default motions, degrees and metres.
     methods : tuple of str
-        Solvers to compare (:data:`fgcd_cli.calibration.handeye_target.OPENCV_METHODS`).
+        Solvers to compare (:data:`fgcd_cli.calibration.handeye.with_target.OPENCV_METHODS`).
     min_corners : int
         Views with fewer board corners are skipped.
     """

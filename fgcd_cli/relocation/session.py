@@ -308,7 +308,7 @@ class VseSession:
         self, T_flange_cam: np.ndarray, flange: list[np.ndarray], cams: list[np.ndarray]
     ) -> ScaleEstimate:
         """Metric scale of the map from the recorded waypoints and a known hand-eye."""
-        from fgcd_cli.calibration.handeye import estimate_scale
+        from fgcd_cli.calibration.handeye.linear import estimate_scale
 
         if len(flange) < 3:
             st = self.vse.latest()  # its last word says why (too little texture, parallax, lost...)

@@ -150,7 +150,7 @@ def test_handeye_made_on_another_rig_is_never_stored_in_the_campaign(tmp_path):
 
 def _fake_calibration(rms_mm: float):
     from fgcd_cli.app.calibrate import HandEyeCalibration
-    from fgcd_cli.calibration.handeye import HandEyeResult
+    from fgcd_cli.calibration.handeye.linear import HandEyeResult
 
     result = HandEyeResult(T_flange_cam=np.eye(4), scale=1.6, method="racr-linear", n_samples=12, n_pairs=2,
                            pairs=[(0, 1), (1, 2)], residuals_mm=np.array([rms_mm, rms_mm]),

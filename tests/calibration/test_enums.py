@@ -3,10 +3,10 @@
 import json
 
 from fgcd_cli.app.calibrate import HandEyeMode
-from fgcd_cli.calibration.handeye import HandEyeMethod, Regress
-from fgcd_cli.calibration.handeye_target import OPENCV_METHODS, TargetSolver
+from fgcd_cli.calibration.handeye.linear import HandEyeMethod, Regress
+from fgcd_cli.calibration.handeye.target_free import ScaleMethod
+from fgcd_cli.calibration.handeye.with_target import OPENCV_METHODS, TargetSolver
 from fgcd_cli.calibration.intrinsics import DISTORTION_MODELS, DistortionModel
-from fgcd_cli.calibration.target_free import ScaleMethod
 
 
 def test_enums_keep_the_strings_of_logs_and_json():

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import (
+from fgcd_cli.calibration.handeye.linear import (
     HandEyeResult,
     ScaleResult,
     estimate_scale,
     solve_handeye_scale,
 )
-from fgcd_cli.calibration.handeye_target import solve_handeye_target
+from fgcd_cli.calibration.handeye.with_target import solve_handeye_target
 from fgcd_cli.calibration.samples import rotation_axis_spread_deg
 from fgcd_cli.errors import UserInputError
 from fgcd_core.se3 import camera_motion, exp_so3, flange_motion, invert_pose, log_so3, make_pose, pose_distance
@@ -211,7 +211,7 @@ def test_target_unknown_method(handeye_data):
 def test_estimate_scale_regression_directions_under_independent_vse_noise(handeye_data):
     """Independent VSE pose noise: regressing the VSE translations on the metric motions
     (``regress="vse"``) is unbiased; the default fit of the metric residuals is biased low."""
-    from fgcd_cli.calibration.handeye import estimate_scale
+    from fgcd_cli.calibration.handeye.linear import estimate_scale
 
     errors = {"vse": [], "platform": []}
     for seed in range(60):

@@ -1,4 +1,4 @@
-"""Target-free hand-eye refined on the stop images (fgcd_cli.calibration.target_free, handeye_refine).
+"""Target-free hand-eye refined on the stop images (fgcd_cli.calibration.handeye.target_free, handeye.refine).
 
 Ground truth is synthetic: feature tracks projected from known points, or images
 of a textured plane rendered through exact homographies, with a known ``X``.
@@ -14,10 +14,10 @@ import pytest
 
 from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import solve_handeye_scale
-from fgcd_cli.calibration.handeye_refine import RefineConfig, refine_handeye_tracks
+from fgcd_cli.calibration.handeye.linear import solve_handeye_scale
+from fgcd_cli.calibration.handeye.refine import RefineConfig, refine_handeye_tracks
+from fgcd_cli.calibration.handeye.target_free import TargetFreeConfig, refine_target_free
 from fgcd_cli.calibration.motions import exploration_motions
-from fgcd_cli.calibration.target_free import TargetFreeConfig, refine_target_free
 from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import exp_se3, exp_so3, invert_pose, make_pose, pose_distance
 
@@ -205,7 +205,7 @@ def test_refinement_fixes_the_hand_eye_and_scale_of_noisy_vse_poses(plane_case):
     assert by_motion.refinement["scale_method"].startswith("camera motions")
     assert abs(by_motion.scale / scale - 1) < 3 * by_motion.refinement["scale_std"] / by_motion.scale
     # the stored form keeps the refinement
-    from fgcd_cli.calibration.handeye import HandEyeResult
+    from fgcd_cli.calibration.handeye.linear import HandEyeResult
 
     back = HandEyeResult.from_dict(refined.to_dict())
     assert back.refinement["points"] == refined.refinement["points"]

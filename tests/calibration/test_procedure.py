@@ -147,8 +147,8 @@ def test_run_target_free_reports_a_vse_that_never_tracks():
 
 
 def test_results_are_stored_in_the_campaign_rig_with_history(tmp_path, handeye_data):
-    from fgcd_cli.calibration.handeye import solve_handeye_scale
-    from fgcd_cli.calibration.rig import load_camera, load_handeye, save_handeye
+    from fgcd_cli.calibration.handeye.linear import solve_handeye_scale
+    from fgcd_cli.calibration.rig_files import load_camera, load_handeye, save_handeye
     from fgcd_cli.campaign import init_campaign
     from fgcd_cli.errors import CampaignError
 

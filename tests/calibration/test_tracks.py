@@ -1,6 +1,6 @@
-"""calibration/tracks.py: which views the target-free refinement matches."""
+"""calibration/handeye/tracks.py: which views the target-free refinement matches."""
 
-from fgcd_cli.calibration.tracks import pair_list
+from fgcd_cli.calibration.handeye.tracks import pair_list
 
 
 def test_pairs_follow_the_match_window_and_the_anchors():

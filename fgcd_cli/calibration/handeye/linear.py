@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye_result import HandEyeResult, ScaleResult, utc_now
+from fgcd_cli.calibration.handeye.result import HandEyeResult, ScaleResult, utc_now
 from fgcd_cli.calibration.samples import (
     check_rotation_diversity,
     motion_pairs,

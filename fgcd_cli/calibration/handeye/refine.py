@@ -1,6 +1,6 @@
 """Target-free hand-eye refined on the images of the platform's rest poses (structure from known motion).
 
-The rACR linear solve (:func:`fgcd_cli.calibration.handeye.solve_handeye_scale`)
+The rACR linear solve (:func:`fgcd_cli.calibration.handeye.linear.solve_handeye_scale`)
 works on the camera motions the monocular VSE reports. Over the small motions a
 heritage site allows, those poses carry slowly varying errors of several
 millimetres and a few tenths of a degree (the rotation/translation ambiguity of a
@@ -10,11 +10,11 @@ translations divided by rotation angles of ~0.1 rad: the VSE errors reach
 
 The refinement goes back to the images: a bundle adjustment over the views with
 the camera poses tied to the reported flange poses
-(:mod:`fgcd_cli.calibration.handeye_model`), on feature tracks
-(:mod:`fgcd_cli.calibration.tracks`), twice: observations off by more than
+(:mod:`fgcd_cli.calibration.handeye.model`), on feature tracks
+(:mod:`fgcd_cli.calibration.handeye.tracks`), twice: observations off by more than
 ``reject_px`` after the first pass are removed. The map scale does not enter
 (the flange poses are metric); it is estimated afterwards
-(:mod:`fgcd_cli.calibration.target_free`).
+(:mod:`fgcd_cli.calibration.handeye.target_free`).
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye_lm import Adjusted, lm_handeye
-from fgcd_cli.calibration.handeye_model import HandPoses, Observations, initial_landmarks, residuals
-from fgcd_cli.calibration.tracks import MatchConfig, feature_tracks
+from fgcd_cli.calibration.handeye.model import HandPoses, Observations, initial_landmarks, residuals
+from fgcd_cli.calibration.handeye.schur_lm import Adjusted, lm_handeye
+from fgcd_cli.calibration.handeye.tracks import MatchConfig, feature_tracks
 from fgcd_core.se3 import pose_distance
 
 __all__ = ["BAHandEyeResult", "RefineConfig", "refine_handeye_images", "refine_handeye_tracks"]
@@ -85,7 +85,7 @@ class BAHandEyeResult:
         The adjusted scene points in the platform base frame, metres.
     rotation_scale, rotation_scale_std : float
         Ratio of the platform's true rotations to the reported ones, estimated
-        with ``X`` (see :class:`~fgcd_cli.calibration.handeye_model.HandPoses`),
+        with ``X`` (see :class:`~fgcd_cli.calibration.handeye.model.HandPoses`),
         and its one-sigma; 1.0 / NaN when not estimated.
     """
 

@@ -1,8 +1,8 @@
 """The target-free result refined on the images: ``X`` from the bundle adjustment, the scale re-estimated.
 
-Starts from the rACR linear solution (:func:`fgcd_cli.calibration.handeye.solve_handeye_scale`),
+Starts from the rACR linear solution (:func:`fgcd_cli.calibration.handeye.linear.solve_handeye_scale`),
 refines ``X`` on the images of the stops or of every rest pose of the path
-(:func:`fgcd_cli.calibration.handeye_refine.refine_handeye_images`), then takes
+(:func:`fgcd_cli.calibration.handeye.refine.refine_handeye_images`), then takes
 the map scale from the VSE's map depths when its keyframes are given
 (:func:`fgcd_cli.calibration.depth_scale.scale_from_depths`), else from its
 camera motions with the refined ``X`` (docs/calibration.md, "Target-free").
@@ -18,10 +18,16 @@ import numpy as np
 
 from fgcd_cli.calibration.depth_scale import KeyframeDepths, scale_from_depths
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import HandEyeMethod, Regress, estimate_scale, pair_residuals, per_sample_residuals
-from fgcd_cli.calibration.handeye_refine import BAHandEyeResult, refine_handeye_images
+from fgcd_cli.calibration.handeye.linear import (
+    HandEyeMethod,
+    Regress,
+    estimate_scale,
+    pair_residuals,
+    per_sample_residuals,
+)
+from fgcd_cli.calibration.handeye.refine import BAHandEyeResult, refine_handeye_images
+from fgcd_cli.calibration.handeye.tracks import MatchConfig
 from fgcd_cli.calibration.samples import relative_motions
-from fgcd_cli.calibration.tracks import MatchConfig
 from fgcd_core.camera import PinholeCamera
 
 __all__ = ["PathViews", "TargetFreeConfig", "ScaleMethod", "refine_target_free"]
@@ -117,7 +123,7 @@ def refine_target_free(
     HandEyeResult
         Method ``"racr-linear+image-ba"``; ``scale`` from the map depths when
         ``keyframes`` are given, else from the VSE's camera motions with the refined
-        ``X`` (:func:`fgcd_cli.calibration.handeye.estimate_scale`); residuals
+        ``X`` (:func:`fgcd_cli.calibration.handeye.linear.estimate_scale`); residuals
         recomputed; ``refinement`` says what was done.
 
     Raises

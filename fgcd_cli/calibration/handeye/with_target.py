@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye import HandEyeResult, pair_residuals, utc_now
+from fgcd_cli.calibration.handeye.linear import HandEyeResult, pair_residuals, utc_now
 from fgcd_cli.calibration.samples import (
     check_rotation_diversity,
     motion_pairs,

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fgcd_cli.calibration.handeye_model import HandPoses, Observations, linearise
+from fgcd_cli.calibration.handeye.model import HandPoses, Observations, linearise
 from fgcd_core.lm import LMSchedule, huber_cost, huber_weights, levenberg_marquardt
 from fgcd_core.schur import (
     BlockNormalEquations,

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.tracks import triangulate_dlt
+from fgcd_cli.calibration.handeye.tracks import triangulate_dlt
 from fgcd_core.camera import MIN_DEPTH_M, pinhole_pixels
 from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose, transform_each
 
