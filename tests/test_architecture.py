@@ -324,7 +324,7 @@ ALLOWED_KEYWORD_CATCH_ALLS = {
     "fgcd_cli/campaign/atomic.py": {"atomic_write_text", "atomic_write_json"},
     "fgcd_cli/campaign/store.py": {"create_station", "station_or_create", "station_for_writing"},
     "fgcd_cli/changes/config.py": {"from_options"},
-    "fgcd_cli/bench/fault_launch.py": {"fdopen"},
+    "fgcd_cli/bench/faults/launch.py": {"fdopen"},
 }
 
 

@@ -385,7 +385,7 @@ def test_verbose_is_not_taken_from_a_command_or_value_that_owns_it(capsys):
 def test_a_stop_signal_mid_move_stops_the_platform_in_one_line(name, code, prefix):
     # A supervisor's SIGTERM or a closed terminal's SIGHUP takes Ctrl-C's path (README, "Errors"): the
     # GRBL emulator's own state says the platform no longer moves once the command has ended.
-    from fgcd_cli.bench.fault_checks import run_fgcd, send_signal, wait_until
+    from fgcd_cli.bench.faults.checks import run_fgcd, send_signal, wait_until
     from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 
     emu = GrblEmulator(time_scale=1.0)
@@ -398,10 +398,10 @@ def test_a_stop_signal_mid_move_stops_the_platform_in_one_line(name, code, prefi
             send_signal(proc, getattr(signal, name))
 
     try:
-        # fault_child: a terminal's signal defaults, even when the tests run in the background (nohup, CI)
+        # bench.faults.child: a terminal's signal defaults, even when the tests run in the background (nohup, CI)
         run = run_fgcd(["platform", "move", "--driver", "grbl", "--port", emu.port, "--yes", "--dx", "-60",
                         "--speed-fraction", "1", "--max-step-mm", "80"], inject=inject, timeout_s=110,
-                       launcher=["fgcd_cli.bench.fault_child"])
+                       launcher=["fgcd_cli.bench.faults.child"])
         assert sent.get("moving"), run.stderr
         assert not emu.moving(), "the platform still moves after the command ended"
     finally:

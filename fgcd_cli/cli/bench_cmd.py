@@ -19,7 +19,7 @@ def changes(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Fine-grained change detection: real FGCD groups (leave one group out) and simulated pairs."""
-    from fgcd_cli.bench.changes import run
+    from fgcd_cli.bench.changes.main import run
 
     if not as_json:
         info("running the change-detection benchmark…")
@@ -191,8 +191,8 @@ def paper(
 ) -> None:
     """Paper 000's experiments in the simulator: rACR beside the ACR baseline (Tables 2-5, Figs. 4, 6, 7, 12, §5.5)."""
     deterministic_setup(deterministic)
-    from fgcd_cli.bench.paper import EXPERIMENTS, run
-    from fgcd_cli.bench.paper_plan import TABLE4_CASES
+    from fgcd_cli.bench.paper.main import EXPERIMENTS, run
+    from fgcd_cli.bench.paper.plan import TABLE4_CASES
     from fgcd_cli.bench.relocate import CASES
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.errors import UserInputError
@@ -262,7 +262,7 @@ def archive(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Archive analysis on Dask: visits per minute with 1 and 2 workers, scheduler overhead, re-run when unchanged."""
-    from fgcd_cli.bench.archive import run
+    from fgcd_cli.bench.archive.main import run
 
     if not as_json:
         info("building a synthetic archive and analysing it on Dask…")
@@ -292,7 +292,7 @@ def faults(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Injected field faults against real fgcd processes and emulated controllers (docs/hardware.md, Faults)."""
-    from fgcd_cli.bench.faults import FAULT_CLASSES, run
+    from fgcd_cli.bench.faults.main import FAULT_CLASSES, run
     from fgcd_cli.errors import UserInputError
 
     unknown = [f for f in fault or [] if f not in FAULT_CLASSES]
@@ -329,7 +329,7 @@ def soak(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Many simulated revisits of one station in one process: memory, threads, files and temporaries per revisit."""
-    from fgcd_cli.bench.soak import run
+    from fgcd_cli.bench.soak.main import run
     from fgcd_cli.errors import UserInputError
 
     for option, value in (("--revisits", revisits), ("--change-revisits", change_revisits)):

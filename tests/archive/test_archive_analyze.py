@@ -26,7 +26,7 @@ from fgcd_cli.app.archive_task import VisitStatus  # noqa: E402
 from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign  # noqa: E402
 from fgcd_cli.archive.discovery import archive_visits, find_campaigns  # noqa: E402
 from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, Freshness  # noqa: E402
-from fgcd_cli.bench.archive_data import SyntheticArchiveConfig, build_synthetic_archive  # noqa: E402
+from fgcd_cli.bench.archive.data import SyntheticArchiveConfig, build_synthetic_archive  # noqa: E402
 from fgcd_cli.campaign import open_campaign, schema  # noqa: E402
 
 REGIONS = schema.change_relpath(schema.REGIONS_JSON)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcd_cli.bench.fs_mount import MountUnavailable, fill_to, free_bytes, remount_readonly, small_fs
+from fgcd_cli.bench.faults.tmpfs import MountUnavailable, fill_to, free_bytes, remount_readonly, small_fs
 from fgcd_cli.campaign import init_campaign
 from fgcd_cli.campaign.lock import station_lock
 
@@ -101,8 +101,8 @@ def test_a_read_only_campaign_refuses_the_lock_naming_its_file(tmpfs):
                                              ("fs_full_archive", 1)])
 def test_fgcd_on_a_real_small_file_system_ends_cleanly(tmp_path, fault, seed):
     """The real command on a full (or read-only) tmpfs: documented code, one line naming the file, nothing left."""
-    from fgcd_cli.bench.fault_data import prepare_campaign
-    from fgcd_cli.bench.fault_fs import inject
+    from fgcd_cli.bench.faults.campaign_faults import prepare_campaign
+    from fgcd_cli.bench.faults.real_fs import inject
 
     outcome = inject(fault, seed, prepare_campaign(tmp_path))
     if outcome.skipped:

@@ -1,4 +1,4 @@
-"""The power-loss launcher (``python -m fgcd_cli.bench.power_launch``): its write events, counted and cut at a
+"""The power-loss launcher (``python -m fgcd_cli.bench.faults.power_launch``): its write events, counted and cut at a
 chosen one, and what a store write killed at seeded events leaves (docs/hardware.md, "Faults in the field")."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcd_cli.bench.fault_checks import ROOT, committed_digests, earlier_changed
-from fgcd_cli.bench.power_launch import read_log, write_event_path
+from fgcd_cli.bench.faults.checks import ROOT, committed_digests, earlier_changed
+from fgcd_cli.bench.faults.power_launch import read_log, write_event_path
 
 #: A tiny writer: two folders, three files, a rename, a file outside the root, a tree removed.
 WRITER = """
@@ -42,7 +42,7 @@ def _launch(tmp_path: Path, script: str, args: list[str], **env: str) -> tuple[i
     path.write_text(textwrap.dedent(script))
     log = tmp_path / "events.log"
     variables = {f"FGCD_BENCH_POWER_{k.upper()}": v for k, v in env.items()}
-    proc = subprocess.run([sys.executable, "-m", "fgcd_cli.bench.power_launch", *args], cwd=ROOT,
+    proc = subprocess.run([sys.executable, "-m", "fgcd_cli.bench.faults.power_launch", *args], cwd=ROOT,
                           env={**os.environ, "FGCD_BENCH_POWER_TARGET": str(path), "FGCD_BENCH_POWER_LOG": str(log),
                                **variables}, capture_output=True, timeout=300)
     events, kill = read_log(log)
@@ -139,7 +139,7 @@ def _store_campaign(tmp_path: Path):
 
 
 def test_a_store_write_killed_at_seeded_events_leaves_only_named_leftovers(tmp_path):
-    from fgcd_cli.bench.fault_power import judge_verify, leftovers
+    from fgcd_cli.bench.faults.power import judge_verify, leftovers
 
     campaign, station = _store_campaign(tmp_path / "count")
     where = {"under": str(campaign / "stations"), "from": "/visits/.tmp-"}  # from the visit's temporary folder
@@ -164,8 +164,8 @@ def test_a_store_write_killed_at_seeded_events_leaves_only_named_leftovers(tmp_p
 def test_power_loss_points_of_a_real_revisit_leave_the_campaign_consistent(tmp_path):
     # one point of each class on a fresh bench campaign (a calibration, a capture, a counting revisit, two
     # killed revisits), then the fifth point of a class: killed, and followed by a new revisit that succeeds
-    from fgcd_cli.bench.fault_power import FAULTS, inject
-    from fgcd_cli.bench.faults import run
+    from fgcd_cli.bench.faults.main import run
+    from fgcd_cli.bench.faults.power import FAULTS, inject
 
     data = run(classes=FAULTS, per_class=1, seed=0, workdir=tmp_path)
     summary = data["summary"]

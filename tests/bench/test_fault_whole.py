@@ -8,9 +8,9 @@ import threading
 
 import pytest
 
-from fgcd_cli.bench import fault_whole
-from fgcd_cli.bench.fault_lights import FaultyLightController
-from fgcd_cli.bench.fault_whole import PhaseTracker, phase_of, resume_mode
+from fgcd_cli.bench.faults import whole as fault_whole
+from fgcd_cli.bench.faults.failing_lights import FaultyLightController
+from fgcd_cli.bench.faults.whole import PhaseTracker, phase_of, resume_mode
 
 #: stderr of a simulated ``fgcd relocate`` off a terminal (progress step lines and the use case's lines).
 RELOCATE_STDERR = """\
@@ -158,7 +158,7 @@ def test_a_light_fault_after_the_last_switch_is_not_shown():
 def test_a_seeded_sigterm_inside_a_revisit_ends_in_one_line_and_resumes(tmp_path):
     # One fault of the bench on a fresh campaign (calibration, the real station's capture, the revisit
     # signalled, then --resume): every check of the bench holds.
-    from fgcd_cli.bench.fault_data import prepare_campaign
+    from fgcd_cli.bench.faults.campaign_faults import prepare_campaign
 
     campaign = prepare_campaign(tmp_path)
     outcome = fault_whole.inject("relocate_sigterm", 3, campaign)

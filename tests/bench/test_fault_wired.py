@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from fgcd_cli.bench.fault_wired import FAULTS, MOTIONS, draw_plan
-from fgcd_cli.bench.wired_rig import FrameMap, WiredPlatform, inner_workspace, parse_target
+from fgcd_cli.bench.faults.wired import FAULTS, MOTIONS, draw_plan
+from fgcd_cli.bench.faults.wired_rig import FrameMap, WiredPlatform, inner_workspace, parse_target
 from fgcd_core.platform import Capabilities, MoveResult, PlatformConnectionError
 from fgcd_core.se3 import exp_se3, invert_pose
 
@@ -137,7 +137,7 @@ def test_wired_platform_renders_at_the_reported_pose_not_the_commanded_one():
 
 def test_wired_platform_moves_the_grbl_emulator_by_the_simulated_step():
     """Through the real GRBL driver: the emulator's own MPos travels the simulated step, rotated into its frame."""
-    from fgcd_cli.bench.wired_rig import open_driver
+    from fgcd_cli.bench.faults.wired_rig import open_driver
     from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 
     rng = np.random.default_rng(7)
@@ -180,8 +180,8 @@ def test_target_names_a_driver_and_an_address():
 @pytest.mark.slow
 def test_a_grbl_alarm_in_a_wired_revisit_stops_it_in_one_line(tmp_path):
     """One seeded fault of a class through the real driver: exit 7, one line, nothing moving, campaign intact."""
-    from fgcd_cli.bench.fault_data import prepare_campaign
-    from fgcd_cli.bench.fault_wired import inject
+    from fgcd_cli.bench.faults.campaign_faults import prepare_campaign
+    from fgcd_cli.bench.faults.wired import inject
 
     campaign = prepare_campaign(tmp_path)
     outcome = inject("relocate_grbl_alarm", 0, campaign)

@@ -5,8 +5,8 @@ import math
 
 import pytest
 
-from fgcd_cli.bench import paper
-from fgcd_cli.bench.paper_report import markdown
+from fgcd_cli.bench.paper import main as paper
+from fgcd_cli.bench.paper.report import markdown
 
 
 def test_quick_plan_covers_every_experiment():
@@ -49,7 +49,7 @@ def test_full_plan_is_the_20_cases_the_72_sweep_positions_and_the_paper_s_other_
 
 
 def test_each_variant_sets_the_loop_options_it_names():
-    from fgcd_cli.bench.paper_runs import loop_config
+    from fgcd_cli.bench.paper.runs import loop_config
 
     runs = {r.label: r for r in paper.plan(quick=False, experiments=("fig12",), cases=["indoor-2"])}
     assert loop_config(runs["no-F"]).fine is False
@@ -68,7 +68,7 @@ def test_each_variant_sets_the_loop_options_it_names():
 def test_the_reference_noise_has_the_stated_spread():
     import numpy as np
 
-    from fgcd_cli.bench.paper_runs import _noisy_reference
+    from fgcd_cli.bench.paper.runs import _noisy_reference
     from fgcd_cli.relocation.config import ReferenceData
 
     pts = np.random.default_rng(0).uniform(0, 0.5, (20000, 3))

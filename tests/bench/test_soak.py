@@ -7,8 +7,8 @@ import threading
 import numpy as np
 import pytest
 
-from fgcd_cli.bench.soak import private_tempdir, run
-from fgcd_cli.bench.soak_sample import (
+from fgcd_cli.bench.soak.main import private_tempdir, run
+from fgcd_cli.bench.soak.sample import (
     ResourceSample,
     TempBaseline,
     growth_per_revisit,

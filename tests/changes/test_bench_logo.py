@@ -1,6 +1,6 @@
 """Leave-one-group-out selection in ``fgcd bench changes``: a group never chooses its own constants."""
 
-from fgcd_cli.bench.changes import leave_one_group_out, leave_one_group_out_score_constants
+from fgcd_cli.bench.changes.main import leave_one_group_out, leave_one_group_out_score_constants
 
 
 def _group(name, scores_by_key, metric):

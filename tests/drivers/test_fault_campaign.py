@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from fgcd_cli.bench.faults import FAULT_CLASSES, run, summarize
+from fgcd_cli.bench.faults.main import FAULT_CLASSES, run, summarize
 
 pytestmark = pytest.mark.timeout(600)
 
@@ -31,7 +31,7 @@ def test_a_seeded_subset_of_the_fault_campaign_leaves_everything_consistent(tmp_
 
 
 def test_the_judge_counts_what_went_wrong():
-    from fgcd_cli.bench.fault_checks import FaultOutcome
+    from fgcd_cli.bench.faults.checks import FaultOutcome
 
     good = FaultOutcome(fault="grbl_alarm", seed=0, command="x", code=7, expected=(7,), stderr_lines=1,
                         traceback=False)
@@ -46,8 +46,8 @@ def test_the_judge_counts_what_went_wrong():
 
 
 def test_every_group_class_is_planned_and_counted_in_its_group():
-    from fgcd_cli.bench.fault_checks import FaultOutcome
-    from fgcd_cli.bench.faults import GROUPS, _plan
+    from fgcd_cli.bench.faults.checks import FaultOutcome
+    from fgcd_cli.bench.faults.main import GROUPS, _plan
 
     quick = _plan(FAULT_CLASSES, quick=True, seed=3, per_class=None, explicit=False)
     for key, classes in GROUPS.items():
@@ -63,7 +63,7 @@ def test_every_group_class_is_planned_and_counted_in_its_group():
 
 
 def test_a_fault_whose_instant_never_came_is_not_counted_in_its_group():
-    from fgcd_cli.bench.fault_checks import FaultOutcome
+    from fgcd_cli.bench.faults.checks import FaultOutcome
 
     def row(fault: str, landed: bool) -> FaultOutcome:
         return FaultOutcome(fault=fault, seed=0, command="x", code=0, expected=(0,), stderr_lines=0,

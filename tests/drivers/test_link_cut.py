@@ -168,7 +168,7 @@ def test_an_emulator_replugged_after_a_pull_keeps_its_alarm():
 
 
 def test_a_network_cut_mid_move_stops_the_arm_and_a_reconnect_releases_nothing():
-    from fgcd_cli.bench.link_ur import STOP_MARGIN_S, ur_link_fault
+    from fgcd_cli.bench.faults.link_ur import STOP_MARGIN_S, ur_link_fault
 
     outcome = ur_link_fault("link_cut_ur_move", 0)  # seed 0: a protective stop raised during the cut
     _skip_without_link(outcome)
@@ -180,7 +180,7 @@ def test_a_network_cut_mid_move_stops_the_arm_and_a_reconnect_releases_nothing()
 
 
 def test_a_pulled_serial_cable_leaves_an_alarm_for_a_person_to_clear():
-    from fgcd_cli.bench.link_grbl import grbl_link_fault
+    from fgcd_cli.bench.faults.link_grbl import grbl_link_fault
 
     outcome = grbl_link_fault("link_cut_grbl_reconnect", 0)
     assert outcome.ok, str(outcome.to_dict())
@@ -192,7 +192,7 @@ def test_a_pulled_serial_cable_leaves_an_alarm_for_a_person_to_clear():
 @pytest.mark.slow
 @pytest.mark.parametrize("fault,seed", [("link_cut_ur_idle", 1), ("link_cut_grbl_move", 0)])
 def test_more_link_cuts_end_cleanly(fault, seed):
-    from fgcd_cli.bench.fault_link import inject
+    from fgcd_cli.bench.faults.link_cuts import inject
 
     outcome = inject(fault, seed, None)
     _skip_without_link(outcome)
@@ -201,7 +201,7 @@ def test_more_link_cuts_end_cleanly(fault, seed):
 
 @pytest.mark.slow
 def test_the_proxy_fallback_cuts_rtde_and_the_dashboard_alike():
-    from fgcd_cli.bench.link_ur import ur_link_fault
+    from fgcd_cli.bench.faults.link_ur import ur_link_fault
 
     outcome = ur_link_fault("link_cut_ur_move", 1, prefer="proxy")
     _skip_without_link(outcome)
