@@ -29,8 +29,8 @@ from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.dense.refine import DenseConfig
 from fgcd_cli.changes.significance import AcontrarioConfig
 from fgcd_cli.metrics.afd import FdfConfig
-from fgcd_cli.relocation.acr import AcrConfig
-from fgcd_cli.relocation.coarse import CoarseConfig
+from fgcd_cli.relocation.acr.baseline import AcrConfig
+from fgcd_cli.relocation.coarse.stage import CoarseConfig
 from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.vse.ba import OutlierRejectionConfig
@@ -115,7 +115,7 @@ DOCUMENTED = [
         ("divergence_margin_deg", NUM), ("divergence_patience", word)),
     row("relocation.md", r"more than (\d+) mm or (\d+)° from the reference pauses the 3D loop before any motion "
         r"\(`max_offset_m`, `max_offset_deg`\)", R, ("max_offset_m", mm), ("max_offset_deg", NUM)),
-    row("relocation.md", r"Final image stage \(`relocation/image_refine.py`, on by default;", R, ("image_refine", True)),
+    row("relocation.md", r"Final image stage \(`relocation/image/refine.py`, on by default;", R, ("image_refine", True)),
     row("relocation.md", r"moves, and repeats \(at most (\d+) times\) until the correction moves the reference image "
         r"by less than ([0-9.]+) px", R, ("image_refine_steps", int), ("image_stop_afd_px", NUM)),
     row("relocation.md", r"It moves only on strong evidence, up to (\d+) times", R, ("image_fallback_steps", int)),

@@ -26,7 +26,7 @@ from fgcd_cli.app.session import grab_images, metric_keyframes, start_session
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import campaign_world, rig_calibration
 from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError, run_record
-from fgcd_cli.relocation.coarse_config import CoarseResult
+from fgcd_cli.relocation.coarse.config import CoarseResult
 from fgcd_cli.relocation.log import RelocationResult
 from fgcd_cli.relocation.session import ScaleEstimate
 from fgcd_cli.vse.types import VseStatus

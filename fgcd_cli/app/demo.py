@@ -176,7 +176,7 @@ def _relocate(run: _DemoRun) -> dict:
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
-    from fgcd_cli.relocation.loop import RelocationConfig
+    from fgcd_cli.relocation.loop.parallel import RelocationConfig
 
     config = run.config
     run.say(f"3/5 revisit: light '{config.visit_light}', {config.changes} injected changes, start displaced by "

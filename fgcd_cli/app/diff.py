@@ -256,7 +256,7 @@ def relocation_residual_text(visit) -> str:
     estimator, agreement) when the run stated one, else the last logged offset
     estimate alone; never the simulator's truth.
     """
-    from fgcd_cli.relocation.loop import Residual
+    from fgcd_cli.relocation.loop.parallel import Residual
 
     stated = (visit.metadata.get("relocation") or {}).get("residual")
     if isinstance(stated, dict):

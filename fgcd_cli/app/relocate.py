@@ -28,12 +28,12 @@ from fgcd_cli.app.session import (
 )
 from fgcd_cli.campaign import schema
 from fgcd_cli.errors import AlgorithmError, run_record
-from fgcd_cli.relocation.acr import AcrConfig
-from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult
+from fgcd_cli.relocation.acr.baseline import AcrConfig
+from fgcd_cli.relocation.coarse.config import CoarseConfig, CoarseResult
 from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.enums import RelocationMethod
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
-from fgcd_cli.relocation.loop import LoopContext, relocate
+from fgcd_cli.relocation.loop.parallel import LoopContext, relocate
 
 __all__ = ["RelocateHooks", "RelocateRequest", "relocate_and_capture"]
 
@@ -107,7 +107,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
     """Relocate to the station's reference pose with rACR, then write a visit.
 
     When the first estimate puts the camera farther than ``coarse.trigger_*`` from the
-    reference pose, the active coarse stage (:mod:`fgcd_cli.relocation.coarse`, paper 001)
+    reference pose, the active coarse stage (:mod:`fgcd_cli.relocation.coarse.stage`, paper 001)
     runs first; ``coarse=None`` leaves it out (the loop then pauses on such a start).
     """
     hooks = hooks or RelocateHooks()

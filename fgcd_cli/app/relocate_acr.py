@@ -3,7 +3,7 @@
 The same visit as rACR's (:mod:`fgcd_cli.app.relocate`): images under the
 visit's lightings, ``relocation.jsonl`` with one :class:`AdjustmentRecord` per
 adjustment, the simulator's truth in ``evaluation/``. What differs is the
-method (:mod:`fgcd_cli.relocation.acr`): no exploration, no map, no cloud in
+method (:mod:`fgcd_cli.relocation.acr.baseline`): no exploration, no map, no cloud in
 the visit, the hand-eye taken as the identity. Every motion goes through the
 rig's :class:`fgcd_core.platform.MotionGuard`, cut into the guard's largest steps.
 
@@ -28,8 +28,8 @@ from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import grab_gray, grab_images
 from fgcd_cli.campaign import schema
 from fgcd_cli.errors import CampaignError, run_record
-from fgcd_cli.relocation.acr import AcrConfig, AcrRig, acr_relocate
-from fgcd_cli.relocation.acr_pose import AcrModel
+from fgcd_cli.relocation.acr.baseline import AcrConfig, AcrRig, acr_relocate
+from fgcd_cli.relocation.acr.pose import AcrModel
 from fgcd_cli.relocation.log import RelocationResult
 from fgcd_cli.relocation.session import ScaleEstimate, SessionTiming, recorded_motion
 from fgcd_core.se3 import exp_se3, log_se3, rotation_angle_rad

@@ -32,9 +32,9 @@ from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import rig_calibration, station_world
 from fgcd_cli.errors import CampaignError, UserInputError, run_record
-from fgcd_cli.relocation.acr import AcrConfig
-from fgcd_cli.relocation.acr_pose import AcrModel, AcrPoseConfig
-from fgcd_cli.relocation.coarse_config import CoarseConfig
+from fgcd_cli.relocation.acr.baseline import AcrConfig
+from fgcd_cli.relocation.acr.pose import AcrModel, AcrPoseConfig
+from fgcd_cli.relocation.coarse.config import CoarseConfig
 from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
 from fgcd_cli.relocation.log import AdjustmentRecord

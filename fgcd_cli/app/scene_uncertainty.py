@@ -21,8 +21,8 @@ import numpy as np
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes, sha256_bytes
 from fgcd_cli.errors import FgcdError
-from fgcd_cli.relocation.coarse_config import CoarseConfig
-from fgcd_cli.relocation.scene_uncertainty import (
+from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_cli.relocation.coarse.scene_uncertainty import (
     SceneUncertaintyConfig,
     SceneUncertaintyMap,
     build_scene_model,
@@ -64,7 +64,7 @@ def station_scene_uncertainty(station, camera, *, config: SceneUncertaintyConfig
         None when the reference cannot give one (no cloud, no images); the reason is said.
     """
     from fgcd_cli.app.session import load_reference, reference_images
-    from fgcd_cli.relocation.image_refine import reference_keypoints_3d
+    from fgcd_cli.relocation.image.refine import reference_keypoints_3d
 
     path = scene_uncertainty_path(station, camera, config=config, coarse=coarse)
     if path.exists():

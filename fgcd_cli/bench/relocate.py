@@ -96,7 +96,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     from fgcd_cli.app.rig import SimScenario, open_sim_rig
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
-    from fgcd_cli.relocation.loop import RelocationConfig
+    from fgcd_cli.relocation.loop.parallel import RelocationConfig
     from fgcd_core.platform import PlatformError
 
     camp = init_campaign(workdir / case.name, site=case.name, rig={"driver": "sim"})
@@ -119,7 +119,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
         out["error"] = f"setup: {exc}"
         say(f"{case.name}: setup failed: {exc}")
         return out
-    from fgcd_cli.relocation.coarse import CoarseConfig
+    from fgcd_cli.relocation.coarse.stage import CoarseConfig
 
     runs = runs if runs is not None else [(str(m), m, CoarseConfig()) for m in modes]
     for i, (label, mode, coarse) in enumerate(runs):

@@ -48,7 +48,7 @@ class RelocationConfig:
     deterministic : bool
         Step the threads in a fixed order instead of running them side by side
         (:class:`~fgcd_cli.vse.thread.SteppedVse`,
-        :class:`~fgcd_cli.relocation.worker.SteppedAlignmentWorker`): the same seeds give the
+        :class:`~fgcd_cli.relocation.loop.worker.SteppedAlignmentWorker`): the same seeds give the
         same run, and the time on the rig counts the steps, not the wall clock
         (docs/relocation.md, "Reproducibility"). Either mode may be deterministic.
     eta : float
@@ -99,7 +99,7 @@ class RelocationConfig:
     the wrong way until the divergence rule fires."""
     image_refine: bool = True
     """After the 3D loop converges, refine from the reference images
-    (:mod:`fgcd_cli.relocation.image_refine`) when the evidence is strong."""
+    (:mod:`fgcd_cli.relocation.image.refine`) when the evidence is strong."""
     image_handover: bool = True
     """Hand the loop to the image stage as soon as the 3D estimate's offset is within its own 1-sigma
     uncertainty (``vse_sigma_rel`` of the depth): a motion that size is mostly the estimate's error,

@@ -41,7 +41,7 @@ class EstimateStage(StrEnum):
     FINE = "fine"
     """Geometric + photometric refinement (:func:`fgcd_cli.alignment.fine_align`)."""
     IMAGE = "image"
-    """PnP on the reference images (:mod:`fgcd_cli.relocation.image_refine`)."""
+    """PnP on the reference images (:mod:`fgcd_cli.relocation.image.refine`)."""
 
 
 class EstimateSource(StrEnum):

@@ -76,7 +76,7 @@ class RelocationResult:
     """The 3D loop ended because the image stage should take over (``RelocationConfig.image_handover``)."""
     alignment_set_aside: str = ""
     """Why the image stage must not ask the 3D alignment when the loop handed over
-    (:func:`fgcd_cli.relocation.racr.racr_loop`): where the image localizer led the exploration, "disputed" (the
+    (:func:`fgcd_cli.relocation.racr.stage.racr_loop`): where the image localizer led the exploration, "disputed" (the
     first 3D estimate disagreed with the localizer) or "degenerate" (the first alignment found degenerate
     geometry); anywhere, "inconsistent" (two estimates of the one map-to-reference transform disagreed: the
     estimate follows the camera). The image stage then stops without the alignment's agreement; "" otherwise."""

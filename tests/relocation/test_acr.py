@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.acr import AcrConfig, AcrRig, Bisection, acr_relocate
-from fgcd_cli.relocation.acr_pose import AcrModel, AcrPoseConfig, RelativePose, relative_pose_from_matches
+from fgcd_cli.relocation.acr.baseline import AcrConfig, AcrRig, Bisection, acr_relocate
+from fgcd_cli.relocation.acr.pose import AcrModel, AcrPoseConfig, RelativePose, relative_pose_from_matches
 from fgcd_cli.relocation.session import SessionTiming
 from fgcd_core.se3 import exp_se3, invert_pose, rotation_angle_rad, transform_points
 

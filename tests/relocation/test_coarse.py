@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.coarse import CoarseConfig, camera_uncertainty, render_visible_points
+from fgcd_cli.relocation.coarse.stage import CoarseConfig, camera_uncertainty, render_visible_points
 from fgcd_core import PinholeCamera, exp_se3
 from fgcd_core.se3 import invert_pose, pose_distance
 
@@ -118,7 +118,7 @@ class _FakeSession:
 
 def _stage(session, reference_points, init, **config):
     from fgcd_cli.alignment import ReferenceIndex
-    from fgcd_cli.relocation.coarse import CoarseInputs, run_coarse
+    from fgcd_cli.relocation.coarse.stage import CoarseInputs, run_coarse
 
     ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
     return run_coarse(CoarseInputs(session=session, reference=ref, ref_index=ReferenceIndex(reference_points), camera=CAMERA,
@@ -228,7 +228,7 @@ def _scale_error_run(reference_points, monkeypatch, *, scale_error: float, scale
     """The coarse stage from 41 mm / 1.6 deg with the session's scale ``1 + scale_error`` too large and an
     exact image localizer (a textured object near the reference): ``(result, session)``."""
     from fgcd_cli.alignment import ReferenceIndex
-    from fgcd_cli.relocation import coarse as coarse_mod
+    from fgcd_cli.relocation.coarse import stage as coarse_mod
     from fgcd_core.sim3 import Sim3
 
     T_start = exp_se3(np.r_[0.03, -0.02, 0.02, np.radians([0.5, 1.5, 0.0])])  # 41 mm / 1.6 deg away
@@ -284,7 +284,7 @@ def test_an_exact_image_estimate_verifies_through_a_large_session_scale_error(re
 
 
 def test_the_check_takes_the_alignment_scale_within_the_session_s_error_or_when_measured():
-    from fgcd_cli.relocation.coarse import check_scale
+    from fgcd_cli.relocation.coarse.stage import check_scale
 
     assert check_scale(0.95, scale_rel_std=0.04) == 0.95  # 5 % against 3 x 4 %
     assert check_scale(0.95, scale_rel_std=0.01) == 1.0  # 5 % against 3 x 1 %: the alignment is suspect

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.consistency import estimate_spread
-from fgcd_cli.relocation.image_refine import ImageRefinement
-from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.image.refine import ImageRefinement
+from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.racr.consistency import estimate_spread
 from fgcd_cli.relocation.session import VseSession
 from fgcd_core import PinholeCamera, Sim3
 from fgcd_core.platform import GuardLimits, MotionGuard

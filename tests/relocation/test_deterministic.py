@@ -17,9 +17,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.loop.worker import ALIGNMENT_STEP_S
 from fgcd_cli.relocation.session import VseSession
-from fgcd_cli.relocation.worker import ALIGNMENT_STEP_S
 from fgcd_cli.vse.thread import SteppedVse
 from fgcd_core import Sim3
 from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult

@@ -1,5 +1,5 @@
 """A correction beyond what ordinary image evidence moves: one ordinary step toward it, corroborated by the next
-measurement (relocation/image_probe.py; docs/relocation.md, "A large correction on ordinary evidence").
+measurement (relocation/image/probe.py; docs/relocation.md, "A large correction on ordinary evidence").
 
 Stand-ins: the 3D alignment never trusts itself (the image fallback runs, nothing else can vouch for an image
 estimate); the image refiner refuses corrections beyond 20 mm / 1.5 deg as "unverified" (ordinary evidence),
@@ -15,8 +15,8 @@ import pytest
 
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.adjustment import clamp_motion
-from fgcd_cli.relocation.image_probe import corroborates, predict_after_step
-from fgcd_cli.relocation.image_refine import ImageRefinement
+from fgcd_cli.relocation.image.probe import corroborates, predict_after_step
+from fgcd_cli.relocation.image.refine import ImageRefinement
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from tests.relocation.test_loop import _degenerate_case_with_image_fallback, frames_afd_px
 

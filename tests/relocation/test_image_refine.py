@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.image_refine import (
+from fgcd_cli.relocation.image.refine import (
     ImageRefineConfig,
     reference_depth_lookup,
     refine_from_reference_image,
@@ -164,7 +164,7 @@ def test_low_contrast_wall_under_a_side_light_from_a_few_centimetres():
 
 def test_local_contrast_is_the_core_clahe_and_its_8_bit_form_the_same_levels():
     """CLAHE at clip limit 3 on 8 x 8 tiles of the 8-bit image, back to [0, 1]; SIFT sees the same levels in 8 bits."""
-    from fgcd_cli.relocation.image_refine import _local_contrast_u8, local_contrast
+    from fgcd_cli.relocation.image.refine import _local_contrast_u8, local_contrast
     from fgcd_core.imaging import clahe, to_gray_f32, to_gray_u8
 
     rng = np.random.default_rng(4)

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.coarse import CoarseConfig, CoarseInputs
-from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.coarse.stage import CoarseConfig, CoarseInputs
+from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
 from fgcd_cli.relocation.session import VseSession
 from fgcd_core import Sim3
 from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
@@ -199,7 +199,7 @@ def test_failed_alignment_pauses_motion(monkeypatch):
 
 
 def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
-    from fgcd_cli.relocation.loop import estimated_afd_px
+    from fgcd_cli.relocation.loop.parallel import estimated_afd_px
     from fgcd_core import PinholeCamera
 
     cam = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
@@ -243,7 +243,7 @@ def frames_afd_px(T_cam, T_ref_cam, *, f_px=600.0, depth_m=1.5):
 
 
 def test_image_stage_removes_a_biased_alignment(monkeypatch):
-    from fgcd_cli.relocation.image_refine import ImageRefinement
+    from fgcd_cli.relocation.image.refine import ImageRefinement
 
     def exact(T_ref_cam_true):
         # what a perfect image stage measures: the reference camera seen from the current one
@@ -266,7 +266,7 @@ def test_image_stage_removes_a_biased_alignment(monkeypatch):
 def test_weak_image_evidence_leaves_the_3d_result_unconfirmed(monkeypatch):
     """The 3D estimate alone says "done" 8 mm off; weak image evidence cannot confirm it: no motion on
     weak evidence, and no "converged" on one estimator either (issue 25)."""
-    from fgcd_cli.relocation.image_refine import ImageRefinement
+    from fgcd_cli.relocation.image.refine import ImageRefinement
 
     weak = lambda _T: ImageRefinement(ok=False, reason="only 12 feature matches with the reference image",  # noqa: E731
                                       M_cam=None, measured_afd_px=float("nan"), matches=12, inliers=0,
@@ -280,7 +280,7 @@ def test_weak_image_evidence_leaves_the_3d_result_unconfirmed(monkeypatch):
 
 
 def _exact_aligner(T_ref_cur, *, reason="exact"):
-    """An exact stand-in for the alignment (an :class:`~fgcd_cli.relocation.aligner.Aligner`) returning ``T_ref_cur``."""
+    """An exact stand-in for the alignment (an :class:`~fgcd_cli.relocation.racr.aligner.Aligner`) returning ``T_ref_cur``."""
     def aligner(*, serial=0, state=None, **kw):
         return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason=reason,
                                   vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
@@ -364,7 +364,7 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, 
 
 @pytest.mark.parametrize("mode", ["serial", "parallel"])
 def test_image_fallback_relocates_when_3d_alignment_is_degenerate(monkeypatch, mode):
-    from fgcd_cli.relocation.image_refine import ImageRefinement
+    from fgcd_cli.relocation.image.refine import ImageRefinement
 
     def exact(T_ref_cam_true, T_ref_camref):
         return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
@@ -381,7 +381,7 @@ def test_image_fallback_relocates_when_3d_alignment_is_degenerate(monkeypatch, m
 
 def test_degenerate_geometry_falls_back_without_waiting_for_the_untrusted_timeout(monkeypatch):
     """Degenerate geometry is the scene, not noise: the parallel loop falls back after a few such estimates."""
-    from fgcd_cli.relocation.image_refine import ImageRefinement
+    from fgcd_cli.relocation.image.refine import ImageRefinement
 
     def exact(T_ref_cam_true, T_ref_camref):
         return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
@@ -401,7 +401,7 @@ def test_degenerate_geometry_where_the_localizer_led_hands_over_at_the_first_est
     """After a guided exploration (the camera stands at the image localizer's estimate) the first degenerate
     alignment hands over to the image stage, which relocates without the alignment's vote; no waiting for
     ``degenerate_patience`` estimates in a row (without the prior: 3, the test above)."""
-    from fgcd_cli.relocation.image_refine import ImageRefinement
+    from fgcd_cli.relocation.image.refine import ImageRefinement
 
     def exact(T_ref_cam_true, T_ref_camref):
         return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
@@ -419,7 +419,7 @@ def test_weak_image_evidence_where_the_localizer_led_hands_back_and_keeps_the_pa
     """The early hand-over changes nothing when the image evidence is weak: the 3D loop goes on to its usual
     patience (3 degenerate estimates), the fallback finds the same weak evidence, and the pause stands."""
     from fgcd_cli.errors import AlgorithmError
-    from fgcd_cli.relocation.image_refine import ImageRefinement
+    from fgcd_cli.relocation.image.refine import ImageRefinement
 
     weak = lambda _T, _R: ImageRefinement(ok=False, reason="only 9 feature matches with the reference image",  # noqa: E731
                                           M_cam=None, measured_afd_px=float("nan"), matches=9, inliers=0,
@@ -432,7 +432,7 @@ def test_weak_image_evidence_where_the_localizer_led_hands_back_and_keeps_the_pa
 
 def test_weak_image_evidence_keeps_the_pause(monkeypatch):
     from fgcd_cli.errors import AlgorithmError
-    from fgcd_cli.relocation.image_refine import ImageRefinement
+    from fgcd_cli.relocation.image.refine import ImageRefinement
 
     weak = lambda _T, _R: ImageRefinement(ok=False, reason="only 9 feature matches with the reference image",  # noqa: E731
                                           M_cam=None, measured_afd_px=float("nan"), matches=9, inliers=0,

@@ -2,7 +2,7 @@
 
 import time
 
-from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, RelocationConfig, relocate
+from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, RelocationConfig, relocate
 from fgcd_core import Sim3
 from tests.relocation.test_loop import _exact_session, make_case
 

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.image_refine import ImageRefinement, pnp_translation_sigma_m
-from fgcd_cli.relocation.loop import (
+from fgcd_cli.relocation.image.refine import ImageRefinement, pnp_translation_sigma_m
+from fgcd_cli.relocation.loop.parallel import (
     AlignmentEstimate,
     LoopContext,
     ReferenceData,

@@ -13,8 +13,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.coarse_config import CoarseConfig
-from fgcd_cli.relocation.scene_uncertainty import (
+from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_cli.relocation.coarse.scene_uncertainty import (
     SceneModel,
     SceneUncertaintyConfig,
     SceneUncertaintyMap,
@@ -78,7 +78,7 @@ def test_the_predicted_pnp_error_agrees_with_the_localizers_own_covariance(reces
     agree when the residuals are the stated pixel noise."""
     import cv2
 
-    from fgcd_cli.relocation.image_refine import pnp_translation_sigma_m
+    from fgcd_cli.relocation.image.refine import pnp_translation_sigma_m
 
     rng = np.random.default_rng(1)
     X = np.column_stack([rng.uniform(-0.4, 0.4, 400), rng.uniform(-0.3, 0.3, 400), rng.uniform(1.3, 1.7, 400)])
@@ -120,7 +120,7 @@ class _TurnOnlySession:
 
 
 def _run(scene):
-    from fgcd_cli.relocation.coarse import CoarseInputs, _CoarseRun, _View
+    from fgcd_cli.relocation.coarse.stage import CoarseInputs, _CoarseRun, _View
     from fgcd_core import exp_se3
     from fgcd_core.sim3 import Sim3
 

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.coarse_config import CoarseConfig
-from fgcd_cli.relocation.image_refine import ImageRefinement
-from fgcd_cli.relocation.loop import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.coarse.camera_uncertainty import camera_uncertainty, render_visible_points
+from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_cli.relocation.image.refine import ImageRefinement
+from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import frame_afd_bound_px
-from fgcd_cli.relocation.uncertainty import camera_uncertainty, render_visible_points
 from fgcd_core import PinholeCamera, Sim3
 from fgcd_core.platform import GuardLimits, MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
@@ -189,8 +189,8 @@ def test_the_session_scale_is_matched_on_the_pixels_both_clouds_cover():
     part with a 3.2 % scale error. Matching the depths pixel by pixel recovers the scale (to the 1 mm depth
     noise over 1.2 m), where the ratio of the two clouds' medians mixes coverage into it; the camera, truly at
     the estimate, is then found there."""
-    from fgcd_cli.relocation.cross_check import _depth_normalised
-    from fgcd_cli.relocation.uncertainty import camera_uncertainty
+    from fgcd_cli.relocation.coarse.camera_uncertainty import camera_uncertainty
+    from fgcd_cli.relocation.image.cross_check import _depth_normalised
 
     rng = np.random.default_rng(5)
     x, y = rng.uniform(-0.9, 0.9, 120000), rng.uniform(-0.6, 0.6, 120000)
@@ -318,7 +318,7 @@ def test_without_the_localizer_prior_an_agreeing_3d_estimate_is_followed():
 def test_the_image_stage_trusts_on_ordinary_evidence_what_the_3d_estimate_cannot_resolve():
     """The default refiner's ordinary limit is never below ``agreement_k`` times the 3D estimate's 1-sigma: at
     1.5 m (15 mm) a 21 mm correction is the image stage's to make; near objects keep the 20 mm limit."""
-    from fgcd_cli.relocation.image_refine import ImageRefineConfig
+    from fgcd_cli.relocation.image.refine import ImageRefineConfig
 
     ctx = LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
                       init=Sim3())
@@ -352,7 +352,7 @@ def test_a_far_start_under_an_overhang_verifies_or_pauses_with_a_reason():
     unverified estimate it only descends: at most ``max_descents`` times, each half the estimated way and at
     most one step; every other motion is a look-around (a pure rotation of the camera)."""
     from fgcd_cli.alignment import ReferenceIndex
-    from fgcd_cli.relocation.coarse import CoarseInputs, run_coarse
+    from fgcd_cli.relocation.coarse.stage import CoarseInputs, run_coarse
     from tests.relocation.test_coarse import X_HANDEYE, _FakeSession
 
     rng = np.random.default_rng(11)

@@ -1,11 +1,11 @@
-"""relocation/worker.py: the alignment thread and the waits on what it publishes."""
+"""relocation/loop/worker.py: the alignment thread and the waits on what it publishes."""
 
 import time
 from types import SimpleNamespace
 
 import numpy as np
 
-from fgcd_cli.relocation.worker import AlignmentWorker
+from fgcd_cli.relocation.loop.worker import AlignmentWorker
 
 
 def test_the_worker_wakes_its_reader_on_publication():

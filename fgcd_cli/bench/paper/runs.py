@@ -228,8 +228,8 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     from fgcd_cli.app.rig import open_sim_rig
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
-    from fgcd_cli.relocation.acr import AcrConfig
-    from fgcd_cli.relocation.coarse import CoarseConfig
+    from fgcd_cli.relocation.acr.baseline import AcrConfig
+    from fgcd_cli.relocation.coarse.stage import CoarseConfig
     from fgcd_core.platform import PlatformError
 
     w = spec.world

@@ -14,16 +14,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fgcd_cli.relocation.aligner import Aligner, AlignmentProblem, align_once
 from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.log import AdjustmentRecord
 from fgcd_cli.relocation.protocols import CameraModel, ImageRefiner
+from fgcd_cli.relocation.racr.aligner import Aligner, AlignmentProblem, align_once
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import reference_depth_m, tolerance_mm
 from fgcd_core.sim3 import Sim3
 
 if TYPE_CHECKING:
-    from fgcd_cli.relocation.worker import AlignmentWorker
+    from fgcd_cli.relocation.loop.worker import AlignmentWorker
 
 __all__ = ["LoopContext", "LoopState", "say"]
 
@@ -36,7 +36,7 @@ def say(session, text: str) -> None:
 
 @dataclass(frozen=True, kw_only=True)
 class LoopContext:
-    """The inputs of :func:`fgcd_cli.relocation.loop.relocate`.
+    """The inputs of :func:`fgcd_cli.relocation.loop.parallel.relocate`.
 
     Attributes
     ----------
@@ -66,10 +66,10 @@ class LoopContext:
         The current undistorted grey image, for the image stage.
     aligner : Aligner
         One fast (then fine) alignment of a VSE state (default
-        :func:`~fgcd_cli.relocation.aligner.align_once`).
+        :func:`~fgcd_cli.relocation.racr.aligner.align_once`).
     image_refiner : ImageRefiner, optional
         The image measurement (default
-        :func:`~fgcd_cli.relocation.image_refine.refine_from_reference_image`).
+        :func:`~fgcd_cli.relocation.image.refine.refine_from_reference_image`).
     image_prior_sigma_mm : float or None
         Set when the exploration ended where the image localizer put the reference pose
         (:mod:`fgcd_cli.app.guided_start`): the localizer's 1-sigma (RMS radius, mm) of that
@@ -116,7 +116,7 @@ class LoopContext:
             return self.image_refiner
         from functools import partial
 
-        from fgcd_cli.relocation.image_refine import ImageRefineConfig, refine_from_reference_image
+        from fgcd_cli.relocation.image.refine import ImageRefineConfig, refine_from_reference_image
 
         base = ImageRefineConfig()
         limit_m = max(base.max_motion_m, unresolved_mm / 1000.0) if math.isfinite(unresolved_mm) else base.max_motion_m
@@ -155,7 +155,7 @@ class LoopState:
         The first 3D estimate was compared with the image localizer's (once per run).
     map_estimates : list of AlignmentEstimate
         The 3D loop's trustworthy estimates so far that agree with each other (one per serial;
-        :func:`~fgcd_cli.relocation.consistency.estimate_spread`).
+        :func:`~fgcd_cli.relocation.racr.consistency.estimate_spread`).
     """
 
     tol_mm: float

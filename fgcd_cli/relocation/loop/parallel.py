@@ -2,7 +2,7 @@
 
 * the VSE thread (``fgcd_cli.vse.thread.VseThread``) keeps the latest camera pose
   and cloud of the current session;
-* the alignment thread (:class:`~fgcd_cli.relocation.worker.AlignmentWorker`) aligns
+* the alignment thread (:class:`~fgcd_cli.relocation.loop.worker.AlignmentWorker`) aligns
   the latest cloud to the reference, fast then fine, again and again, and publishes
   its latest similarity ``T_ref_cur``;
 * the adjustment thread (the caller of :func:`relocate`) combines the latest pose
@@ -15,13 +15,12 @@ anybody except the adjustment thread, which needs one estimate newer than its
 previous motion and waits for it on the alignment thread's condition variable. ``mode="serial"`` runs the same steps one after the other
 (the paper's Table 5 baseline), with the VSE thread still running beside them. ``deterministic=True``
 steps all three in a fixed order in one thread (docs/relocation.md, "Reproducibility"). A failing VSE or alignment pauses motion
-instead of guessing; the image stage (:mod:`fgcd_cli.relocation.image_stage`)
+instead of guessing; the image stage (:mod:`fgcd_cli.relocation.image.stage`)
 takes over once the 3D estimate can no longer resolve the remaining offset
 (``RelocationConfig.image_handover``), refines a converged result, or falls back
 when the 3D loop paused.
 
-This module composes the stages; it also re-exports the names that used to
-live here (``from fgcd_cli.relocation.loop import ...`` keeps working).
+This module composes the stages.
 """
 
 from __future__ import annotations
@@ -31,13 +30,14 @@ import time
 import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.aligner import AlignmentEstimate, AlignmentProblem, align_once
 from fgcd_cli.relocation.config import HEARTBEAT_S, ReferenceData, RelocationConfig
-from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import Agreement, EstimateSource, LoopMode
-from fgcd_cli.relocation.image_stage import image_stage
+from fgcd_cli.relocation.image.stage import image_stage
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
-from fgcd_cli.relocation.racr import racr_loop
+from fgcd_cli.relocation.loop.context import LoopContext, LoopState
+from fgcd_cli.relocation.loop.worker import AlignmentWorker, SteppedAlignmentWorker
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate, AlignmentProblem, align_once
+from fgcd_cli.relocation.racr.stage import racr_loop
 from fgcd_cli.relocation.stop_rule import (
     Residual,
     estimated_afd_px,
@@ -45,7 +45,6 @@ from fgcd_cli.relocation.stop_rule import (
     reference_depth_m,
     tolerance_mm,
 )
-from fgcd_cli.relocation.worker import AlignmentWorker, SteppedAlignmentWorker
 
 __all__ = [
     "HEARTBEAT_S",

@@ -20,7 +20,7 @@ Disagreement takes another step; running out of steps pauses (not converged) wit
 the reason. A correction beyond the image evidence's own limit is trusted only
 when the 3D geometry of the view confirms it; where the alignment is not asked,
 one beyond the ordinary limit on ordinary evidence is approached by one
-ordinary step, and the next measurement must corroborate it (:mod:`.image_probe`).
+ordinary step, and the next measurement must corroborate it (:mod:`.probe`).
 
 When the loop handed over where the image localizer led the exploration
 because its first 3D estimate disputed the localizer's, or its first alignment
@@ -47,11 +47,11 @@ import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.adjustment import clamp_motion
-from fgcd_cli.relocation.context import LoopContext, LoopState
-from fgcd_cli.relocation.cross_check import geometry_check
 from fgcd_cli.relocation.enums import Agreement, EstimateSource, EstimateStage
-from fgcd_cli.relocation.image_probe import Prediction, corroborates, predict_after_step
+from fgcd_cli.relocation.image.cross_check import geometry_check
+from fgcd_cli.relocation.image.probe import Prediction, corroborates, predict_after_step
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
+from fgcd_cli.relocation.loop.context import LoopContext, LoopState
 from fgcd_cli.relocation.stop_rule import Residual, estimated_afd_px, frame_afd_bound_px
 from fgcd_core.se3 import camera_motion, flange_motion, invert_pose, pose_distance
 
@@ -127,7 +127,7 @@ class _ImageStage:
         self.converged = False
         self.moved = False  # an image motion was made since the last estimate that reached the tolerance
         self.after_frame = st.moved_at_frame
-        self.pending: Prediction | None = None  # after a step toward an unverified correction (:mod:`.image_probe`)
+        self.pending: Prediction | None = None  # after a step toward an unverified correction (:mod:`.probe`)
 
     def _refine(self, step: int):
         ctx, session = self.ctx, self.ctx.session
@@ -234,7 +234,7 @@ class _ImageStage:
 
     def _probe(self, step: int, state, ref) -> bool:
         """One ordinary step toward the unverified correction; the next measurement must corroborate it
-        (:mod:`.image_probe`). Returns False (the stage goes on)."""
+        (:mod:`.probe`). Returns False (the stage goes on)."""
         ctx, c = self.ctx, self.ctx.config
         X = np.asarray(ctx.T_flange_cam, dtype=float)
         M_cmd, _ = clamp_motion(flange_motion(X, ref.step_M_cam), max_step_m=c.max_step_m,
@@ -254,7 +254,7 @@ class _ImageStage:
 
     def _corroborated(self, ref):
         """After a step toward an unverified correction: the new measurement must put the camera where the last
-        one predicted (:func:`~.image_probe.corroborates`), else it is refused."""
+        one predicted (:func:`~.probe.corroborates`), else it is refused."""
         prediction, self.pending = self.pending, None
         if prediction is None or ref.M_cam is None:
             return ref

@@ -34,8 +34,8 @@ import time
 
 import numpy as np
 
-from fgcd_cli.relocation.context import LoopContext, LoopState
-from fgcd_cli.relocation.estimates import fresh_3d_estimate
+from fgcd_cli.relocation.loop.context import LoopContext, LoopState
+from fgcd_cli.relocation.racr.estimates import fresh_3d_estimate
 from fgcd_cli.relocation.stop_rule import estimates_agree, offset_vector_mm
 
 __all__ = ["ALIGNMENT", "CAMERA_UNCERTAINTY", "geometry_check"]
@@ -61,8 +61,8 @@ def _alignment_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_ca
 def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np.ndarray,
                               sigma_img_mm: float) -> dict:
     """Paper 001's camera uncertainty of the image estimate (constrained part of the residual motion)."""
-    from fgcd_cli.relocation.coarse_config import CoarseConfig
-    from fgcd_cli.relocation.uncertainty import camera_uncertainty, in_view
+    from fgcd_cli.relocation.coarse.camera_uncertainty import camera_uncertainty, in_view
+    from fgcd_cli.relocation.coarse.config import CoarseConfig
 
     out = {"agree": None, "check": CAMERA_UNCERTAINTY}
     if ctx.camera is None:
@@ -104,7 +104,7 @@ def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: n
     a leaning slab differ by more than the scale error itself. Fewer than ``min_pixels`` shared bins: the
     ratio of the medians.
     """
-    from fgcd_cli.relocation.uncertainty import render_visible_points
+    from fgcd_cli.relocation.coarse.camera_uncertainty import render_visible_points
 
     rendered = render_visible_points(ref_points, T_ref_cam, camera, stride_px=stride_px)
     if len(observed) == 0 or len(rendered) == 0:

@@ -11,7 +11,7 @@ localizer; here each localizer's success is *predicted* from the reference
 observation by a stated model (docs/relocation.md, "Scene uncertainty"):
 
 * **image localizer** (SIFT matches to the reference image lifted to 3D by the
-  reference cloud, PnP; :func:`fgcd_cli.relocation.coarse.image_estimate`): the
+  reference cloud, PnP; :func:`fgcd_cli.relocation.coarse.stage.image_estimate`): the
   reference keypoints with a 3D point that the candidate sees (in view, not
   hidden behind the reference surface) under a viewing-angle change SIFT
   tolerates; it succeeds when they are at least the PnP minimum the localizer
@@ -20,7 +20,7 @@ observation by a stated model (docs/relocation.md, "Scene uncertainty"):
 * **3D localizer** (point-to-plane registration of the session cloud): the
   reference surface the candidate sees; it succeeds when the registration has
   no weak direction under the same covariance model the camera uncertainty
-  uses (:func:`fgcd_cli.relocation.uncertainty.strong_directions`).
+  uses (:func:`fgcd_cli.relocation.coarse.camera_uncertainty.strong_directions`).
 
 Candidate positions form a grid over the plane through the reference camera
 centre parallel to its image plane (optionally several depth layers), in the
@@ -39,10 +39,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from fgcd_cli.relocation.coarse_config import CoarseConfig
-from fgcd_cli.relocation.image_refine import ImageRefineConfig
-from fgcd_cli.relocation.pnp_uncertainty import pnp_jacobian
-from fgcd_cli.relocation.uncertainty import strong_directions, visible_points
+from fgcd_cli.relocation.coarse.camera_uncertainty import strong_directions, visible_points
+from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_cli.relocation.image.pnp_uncertainty import pnp_jacobian
+from fgcd_cli.relocation.image.refine import ImageRefineConfig
 
 __all__ = [
     "SceneModel",
@@ -168,7 +168,7 @@ def build_scene_model(*, reference_points: np.ndarray, T_ref_camref: np.ndarray,
     camera : PinholeCamera
     keypoints_per_image : list of (K_i, 3) ndarray
         The reference keypoints lifted to 3D, per reference image
-        (:func:`fgcd_cli.relocation.image_refine.reference_keypoints_3d`).
+        (:func:`fgcd_cli.relocation.image.refine.reference_keypoints_3d`).
     config : SceneUncertaintyConfig
     seed : int
         Subsampling seed.
@@ -225,7 +225,7 @@ def _pnp_sigma(Xc: np.ndarray, camera, pixel_sigma_px: float) -> tuple[float, fl
 
     Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` of the pose at the camera itself (``rvec = tvec = 0``,
     where the translation's uncertainty is the camera centre's) with ``J`` the localizer's own
-    reprojection Jacobian (:func:`~fgcd_cli.relocation.pnp_uncertainty.pnp_jacobian`). Returns the RMS
+    reprojection Jacobian (:func:`~fgcd_cli.relocation.image.pnp_uncertainty.pnp_jacobian`). Returns the RMS
     radius of the position error (metres) and of the rotation error (degrees); inf when the system is
     singular.
     """
@@ -249,7 +249,7 @@ def predict_view(model: SceneModel, T_ref_cam: np.ndarray, camera, *,
     ``config.min_keypoints`` and their predicted PnP error is within ``coarse.verify_m`` /
     ``coarse.verify_deg``. 3D localizer: success when at least ``config.min_points`` surface points
     are seen and the point-to-plane registration on them has no weak direction
-    (:func:`~fgcd_cli.relocation.uncertainty.strong_directions`, the camera uncertainty's model).
+    (:func:`~fgcd_cli.relocation.coarse.camera_uncertainty.strong_directions`, the camera uncertainty's model).
     """
     T = np.asarray(T_ref_cam, dtype=float)
     n = len(model.points)

@@ -14,10 +14,10 @@ import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.adjustment import camera_in_reference
-from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
-from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import LoopMode
-from fgcd_cli.relocation.worker import ALIGNMENT_STEP_S, AlignmentWorker
+from fgcd_cli.relocation.loop.context import LoopContext, LoopState
+from fgcd_cli.relocation.loop.worker import ALIGNMENT_STEP_S, AlignmentWorker
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate, scaled_pose
 from fgcd_cli.vse.types import VseStatus
 
 __all__ = ["DegenerateGeometry", "align_now", "fresh_3d_estimate", "wait_for_estimate"]

@@ -38,7 +38,7 @@ from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
 from fgcd_cli.relocation.adjustment import clamp_motion
-from fgcd_cli.relocation.pnp_uncertainty import pnp_jacobian, pnp_translation_sigma_m  # noqa: F401 (re-exported)
+from fgcd_cli.relocation.image.pnp_uncertainty import pnp_jacobian, pnp_translation_sigma_m  # noqa: F401 (re-exported)
 from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
 from fgcd_core.se3 import make_pose, pose_distance
 
@@ -93,7 +93,7 @@ class ImageRefineConfig:
     weak texture gathers neither). Beyond them, a correction on strong evidence
     is returned refused but ``oversize`` with its motion: the loop trusts it only
     when the 3D geometry of the same view confirms it
-    (:mod:`fgcd_cli.relocation.cross_check`). The loop still clamps each motion to
+    (:mod:`fgcd_cli.relocation.image.cross_check`). The loop still clamps each motion to
     its largest step and measures again after moving."""
 
 
@@ -143,7 +143,7 @@ class ImageRefinement:
     """Refused only for its size on ordinary evidence: a correction beyond ``max_motion_*`` (up to
     ``strong_max_motion_*``) without the strong evidence. ``M_cam``, ``offset_sigma_mm`` and ``step_M_cam`` are
     kept so that the loop may approach it by one ordinary step and let the next measurement corroborate it
-    (:mod:`fgcd_cli.relocation.image_probe`)."""
+    (:mod:`fgcd_cli.relocation.image.probe`)."""
     step_M_cam: np.ndarray | None = None
     """With ``unverified``: ``M_cam`` shortened along its geodesic to ``max_motion_*`` (the largest motion
     ordinary evidence moves), (4, 4), metres."""

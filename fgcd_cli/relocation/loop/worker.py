@@ -12,7 +12,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from fgcd_cli.relocation.aligner import Aligner, AlignmentEstimate, AlignmentProblem, align_once
+from fgcd_cli.relocation.racr.aligner import Aligner, AlignmentEstimate, AlignmentProblem, align_once
 from fgcd_cli.relocation.waiting import wait_for_state
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.sim3 import Sim3

@@ -15,12 +15,12 @@ import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.adjustment import Adjustment, compute_adjustment
-from fgcd_cli.relocation.aligner import AlignmentEstimate, scaled_pose
-from fgcd_cli.relocation.consistency import estimate_spread
-from fgcd_cli.relocation.context import LoopContext, LoopState
 from fgcd_cli.relocation.enums import LoopMode
-from fgcd_cli.relocation.estimates import DegenerateGeometry, align_now, wait_for_estimate
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
+from fgcd_cli.relocation.loop.context import LoopContext, LoopState
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate, scaled_pose
+from fgcd_cli.relocation.racr.consistency import estimate_spread
+from fgcd_cli.relocation.racr.estimates import DegenerateGeometry, align_now, wait_for_estimate
 from fgcd_cli.relocation.stop_rule import estimated_afd_px, estimates_agree, offset_vector_mm
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.se3 import pose_distance
@@ -123,7 +123,7 @@ def _combined(ctx: LoopContext, st: LoopState, offset_3d_mm: float) -> Relocatio
 def _follows_camera(ctx: LoopContext, st: LoopState, est: AlignmentEstimate, state, iteration: int,
                     handover: bool) -> RelocationResult | None:
     """The new estimate against the run's earlier ones, all of one map-to-reference transform
-    (:mod:`~fgcd_cli.relocation.consistency`). When two disagree beyond their uncertainties, the alignment's
+    (:mod:`~fgcd_cli.relocation.racr.consistency`). When two disagree beyond their uncertainties, the alignment's
     estimate moves with the camera and following it walks the camera away: the image stage takes over without
     the alignment (``alignment_set_aside`` "inconsistent"), else the loop pauses (docs/relocation.md,
     "Estimates that follow the camera"). None when they agree."""

@@ -1,7 +1,7 @@
 """The ACR baseline loop (Tian et al., reference [1] of paper 000): 2D relative pose and bisection on the scale.
 
 Each adjustment measures the reference camera seen from the current one
-(:mod:`fgcd_cli.relocation.acr_pose`: rotation and a *unit* translation
+(:mod:`fgcd_cli.relocation.acr.pose`: rotation and a *unit* translation
 direction), rotates by the measured rotation and translates along the measured
 direction by the current step length. The step length is the unknown scale;
 ACR finds it by bisection (paper 000 §5.3, "the bisection strategy"): it starts
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.acr_pose import AcrPoseConfig, RelativePose, measure_relative_pose
+from fgcd_cli.relocation.acr.pose import AcrPoseConfig, RelativePose, measure_relative_pose
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.session import SessionTiming
 from fgcd_core.se3 import exp_so3, flange_motion, log_so3, make_pose, rotation_angle_rad

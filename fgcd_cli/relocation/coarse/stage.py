@@ -14,7 +14,7 @@ AccurateACL's split, adapted to a platform next to one object:
   the reference cloud is rendered at an estimated pose, the observed session
   cloud is put in the current camera frame, and the two are registered; the
   residual motion says how wrong the estimate is (paper 001, §3.2;
-  :mod:`fgcd_cli.relocation.uncertainty`). An estimate is *verified* when that
+  :mod:`fgcd_cli.relocation.coarse.camera_uncertainty`). An estimate is *verified* when that
   residual is within 5 cm / 5 deg (the paper's lambda_cu) on enough overlap;
 * **where to go**: the paper's scene-descent heuristic with the reference
   view as the localizable region (the reference cloud was built from there,
@@ -27,7 +27,7 @@ AccurateACL's split, adapted to a platform next to one object:
   another view; after a few unverified views the stage pauses rather than
   guess. Only a verified estimate ever hands over. Which turn: the one whose
   predicted view has the lowest scene uncertainty (paper 001, Eq. 2;
-  :mod:`fgcd_cli.relocation.scene_uncertainty`) seen from the best unverified
+  :mod:`fgcd_cli.relocation.coarse.scene_uncertainty`) seen from the best unverified
   estimate of where the camera is; without one, a fixed order.
 """
 
@@ -42,14 +42,19 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fgcd_cli.relocation.adjustment import clamp_motion
-from fgcd_cli.relocation.coarse_config import CoarseConfig, CoarseResult, CoarseStep
+from fgcd_cli.relocation.coarse.camera_uncertainty import (
+    CameraUncertainty,
+    camera_uncertainty,
+    in_view,
+    render_visible_points,
+)
+from fgcd_cli.relocation.coarse.config import CoarseConfig, CoarseResult, CoarseStep
+from fgcd_cli.relocation.coarse.scene_uncertainty import SceneUncertaintyMap, camera_turn, view_uncertainty
 from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
 from fgcd_cli.relocation.protocols import CameraModel
-from fgcd_cli.relocation.scene_uncertainty import SceneUncertaintyMap, camera_turn, view_uncertainty
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import reference_depth_m
-from fgcd_cli.relocation.uncertainty import CameraUncertainty, camera_uncertainty, in_view, render_visible_points
 from fgcd_core.platform import MotionRejected
 from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
@@ -92,7 +97,7 @@ def image_estimate(*, reference_images: dict[str, np.ndarray], current_image: np
     Unlike the loop's image stage, any motion size is accepted here: the camera
     uncertainty, not the size of the correction, decides whether it is trusted.
     """
-    from fgcd_cli.relocation.image_refine import ImageRefineConfig, refine_from_reference_image
+    from fgcd_cli.relocation.image.refine import ImageRefineConfig, refine_from_reference_image
 
     config = replace(ImageRefineConfig(), max_motion_m=10.0, max_motion_deg=180.0,
                      strong_max_motion_m=10.0, strong_max_motion_deg=180.0)

@@ -1,4 +1,4 @@
-"""Options and log of the active coarse stage (:mod:`fgcd_cli.relocation.coarse`)."""
+"""Options and log of the active coarse stage (:mod:`fgcd_cli.relocation.coarse.stage`)."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ class CoarseConfig:
     """Camera uncertainty that verifies an estimate (the paper's 5 cm / 5 deg, lambda_cu)."""
     weak_ratio: float | None = None
     """Override: a direction whose information is below this fraction of the strongest is weak.
-    None: the covariance model of :func:`~fgcd_cli.relocation.uncertainty.camera_uncertainty`
+    None: the covariance model of :func:`~fgcd_cli.relocation.coarse.camera_uncertainty.camera_uncertainty`
     (a direction is weak when a systematic cloud error of ``sigma_rel`` x depth could slide the
     registration along it by more than ``verify_m``)."""
     min_fitness: float = 0.5
