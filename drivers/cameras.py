@@ -25,13 +25,7 @@ import numpy as np
 from fgcd_core.camera import CameraIntrinsics
 from fgcd_core.imaging import GrayChannels, to_gray_f32
 
-__all__ = [
-    "Frame",
-    "CameraIntrinsics",
-    "CameraSource",
-    "CameraError",
-    "OpenCVCamera",
-]
+__all__ = ["Frame", "CameraSource", "CameraError", "OpenCVCamera"]
 
 
 class CameraError(RuntimeError):

@@ -1,4 +1,4 @@
-"""One factory for every platform driver: ``open_platform("grbl", spec=PlatformSpec(port=...))``.
+"""One factory for every platform driver, ``open_platform("grbl", spec=PlatformSpec(port=...))``, and one for the lights, ``open_lights``.
 
 The simulator's platform is built elsewhere (from a rig) and passed in as
 ``sim_rig``; this module never imports ``fgcd_drivers.sim``.
@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 from fgcd_core.platform import Platform, PlatformConnectionError
+from fgcd_drivers.lights import Lights, LightsDriver, LightsSpec, ManualLights
 
-__all__ = ["DRIVERS", "Driver", "PlatformSpec", "open_platform"]
+__all__ = ["DRIVERS", "Driver", "PlatformSpec", "open_lights", "open_platform"]
 
 
 class Driver(StrEnum):
@@ -87,7 +88,8 @@ def _build(driver: str, spec: PlatformSpec) -> Platform:
     if driver == Driver.GRBL:
         if not spec.port:
             raise PlatformConnectionError("the grbl driver needs --port (e.g. /dev/ttyUSB0)")
-        from fgcd_drivers.grbl import GrblConfig, GrblPlatform
+        from fgcd_drivers.grbl.config import GrblConfig
+        from fgcd_drivers.grbl.platform import GrblPlatform
 
         return GrblPlatform(GrblConfig(port=spec.port, baud=spec.baud, **(spec.grbl_options or {})))
     if driver == Driver.UR:
@@ -106,3 +108,24 @@ def _build(driver: str, spec: PlatformSpec) -> Platform:
             kwargs["say"] = spec.say
         return ManualPlatform(**kwargs)
     raise PlatformConnectionError(f"unknown platform driver '{driver}' (choose from {', '.join(DRIVERS)})")
+
+
+def open_lights(spec: LightsSpec, *, platform=None, ask: Callable[[str], str] = input) -> Lights:
+    """Open the lights ``spec`` names (``platform``: an open GRBL platform on the same port, shared).
+
+    Raises
+    ------
+    PlatformConnectionError
+        A driver without its port, or a controller that does not answer.
+    """
+    if spec.driver == LightsDriver.MANUAL:
+        return ManualLights(list(spec.channels), ask=ask)
+    if spec.driver == LightsDriver.GRBL:
+        from fgcd_drivers.lights_grbl import GrblLights
+
+        return GrblLights.open(spec, platform=platform)
+    if spec.driver == LightsDriver.SERIAL:
+        from fgcd_drivers.lights_serial import SerialLights
+
+        return SerialLights.open(spec)
+    raise PlatformConnectionError(f"the '{spec.driver}' lights belong to the simulator's rig")

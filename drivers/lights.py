@@ -1,4 +1,4 @@
-"""The Lights protocol (beside :class:`fgcd_core.platform.Platform`), the manual prompt, and ``open_lights``.
+"""The Lights protocol (beside :class:`fgcd_core.platform.Platform`) and the manual prompt; ``fgcd_drivers.connect.open_lights`` opens a rig's lights.
 
 A *lighting* is named as on the command line (``fgcd capture --lightings
 ambient,led:3,led:6``): ``ambient`` means every rig light off (the day's
@@ -23,7 +23,7 @@ from typing import Protocol, runtime_checkable
 
 from fgcd_core.platform import PlatformConnectionError, PlatformError
 
-__all__ = ["AMBIENT", "Lights", "LightsDriver", "LightsError", "LightsSpec", "ManualLights", "open_lights",
+__all__ = ["AMBIENT", "Lights", "LightsDriver", "LightsError", "LightsSpec", "ManualLights",
            "parse_lightings"]
 
 #: The lighting with every rig light off.
@@ -164,24 +164,3 @@ class LightsSpec:
             raise PlatformConnectionError("[rig.lights] channels must be a table: lighting name = output")
         return cls(driver=driver, port=section.get("port"), baud=int(section.get("baud", 115200)),
                    channels={str(k): str(v) for k, v in channels.items()})
-
-
-def open_lights(spec: LightsSpec, *, platform=None, ask: Callable[[str], str] = input) -> Lights:
-    """Open the lights ``spec`` names (``platform``: an open GRBL platform on the same port, shared).
-
-    Raises
-    ------
-    PlatformConnectionError
-        A driver without its port, or a controller that does not answer.
-    """
-    if spec.driver == LightsDriver.MANUAL:
-        return ManualLights(list(spec.channels), ask=ask)
-    if spec.driver == LightsDriver.GRBL:
-        from fgcd_drivers.lights_grbl import GrblLights
-
-        return GrblLights.open(spec, platform=platform)
-    if spec.driver == LightsDriver.SERIAL:
-        from fgcd_drivers.lights_serial import SerialLights
-
-        return SerialLights.open(spec)
-    raise PlatformConnectionError(f"the '{spec.driver}' lights belong to the simulator's rig")

@@ -83,7 +83,8 @@ class GrblLights:
             return cls(platform, spec.channels)
         if not spec.port:
             raise PlatformConnectionError("[rig.lights] driver 'grbl' needs a port (the GRBL board's serial device)")
-        from fgcd_drivers.grbl import GrblConfig, GrblPlatform
+        from fgcd_drivers.grbl.config import GrblConfig
+        from fgcd_drivers.grbl.platform import GrblPlatform
 
         board = GrblPlatform(GrblConfig(port=spec.port, baud=spec.baud))
         board.connect()

@@ -59,7 +59,11 @@ from fgcd_drivers.ur_watchdog import locked, start_kicker
 _ABANDONED: list = []
 
 __all__ = [
-    "URConfig", "URPlatform", "preflight", "pose_to_vector", "vector_to_pose", "safety_problem",
+    "URConfig",
+    "URPlatform",
+    "pose_to_vector",
+    "vector_to_pose",
+    "safety_problem",
     "abandoned_interface_count",
 ]
 

@@ -10,37 +10,3 @@ results) and ``MotionGuard``, the one gate every motion passes; the adapters in
 ``drivers`` implement it. This package imports only numpy, scipy and OpenCV;
 never ``fgcd_cli`` nor ``drivers``.
 """
-
-
-from fgcd_core.camera import PinholeCamera
-from fgcd_core.se3 import (
-    exp_se3,
-    interpolate_pose,
-    invert_pose,
-    log_se3,
-    make_pose,
-    pose_distance,
-    pose_from_quat,
-    pose_from_rotvec,
-    pose_to_quat,
-    pose_to_rotvec,
-    transform_points,
-)
-from fgcd_core.sim3 import Sim3, umeyama
-
-__all__ = [
-    "PinholeCamera",
-    "Sim3",
-    "umeyama",
-    "exp_se3",
-    "log_se3",
-    "make_pose",
-    "invert_pose",
-    "interpolate_pose",
-    "pose_distance",
-    "pose_from_quat",
-    "pose_from_rotvec",
-    "pose_to_quat",
-    "pose_to_rotvec",
-    "transform_points",
-]

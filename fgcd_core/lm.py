@@ -2,8 +2,8 @@
 
 Every iterative least-squares solver in fgcd runs through :func:`levenberg_marquardt`:
 the VSE bundle adjustment (``fgcd_cli/vse/ba.py``), the target-free hand-eye
-adjustment (``fgcd_cli/calibration/handeye_lm.py``) and the fine alignment
-(``fgcd_cli/alignment/lm.py``). A problem supplies its linearisation, its damped
+adjustment (``fgcd_cli/calibration/handeye/schur_lm.py``) and the fine alignment
+(``fgcd_cli/alignment/dense_steps.py``). A problem supplies its linearisation, its damped
 step (dense, or the Schur-complement solve of :mod:`fgcd_core.schur`), how a step
 moves the state and the cost; the driver owns the accept / reject rule, the
 damping schedule and the stop rules (Nocedal & Wright, *Numerical

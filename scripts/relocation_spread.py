@@ -28,8 +28,10 @@ def main() -> int:
         from fgcd_cli.app.determinism import pin_native_threads
 
         pin_native_threads()
-    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
-    from fgcd_cli.app.rig import SimScenario, open_sim_rig
+    from fgcd_cli.app.relocate import relocate_and_capture
+    from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.config import RelocationConfig
 

@@ -359,3 +359,185 @@ def test_eq3_is_written_out_in_one_function_only():
     assert homes == {"fgcd_core/se3.py"}
     assert pattern.search("M_flange = X @ M_cam @ invert_pose(X)")  # the checker sees the inline form
     assert pattern.search("step = invert_pose(self.X) @ M_cmd @ self.X")
+
+
+# --- the module graph: no circle, no re-export, one meaning per module name -------------------------------------
+
+
+def module_paths(root: Path) -> dict[str, Path]:
+    """Dotted name -> file of every module of the three top packages."""
+    return {module_name(p, root): p for top in TOP_PACKAGES for p in sorted((root / FOLDER[top]).rglob("*.py"))}
+
+
+def import_graph(root: Path) -> dict[str, set[str]]:
+    """Module -> the modules it imports (any form, ``TYPE_CHECKING`` blocks and function-local imports included)."""
+    paths = module_paths(root)
+    graph: dict[str, set[str]] = {m: set() for m in paths}
+    for mod, path in paths.items():
+        for _, name in imported_names(path, root):
+            parts = name.split(".")
+            while parts and ".".join(parts) not in paths:
+                parts.pop()
+            target = ".".join(parts)
+            # a package's __init__ imported on the way to its submodule is not an edge back to it
+            if target and target != mod and not mod.startswith(target + "."):
+                graph[mod].add(target)
+    return graph
+
+
+def import_circles(root: Path) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan's algorithm, iterative)."""
+    graph = import_graph(root)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    circles = []
+    for start in graph:
+        if start in index:
+            continue
+        work = [(start, iter(sorted(graph[start])))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    circles.append(sorted(component))
+    return circles
+
+
+def test_no_import_circle():
+    assert not import_circles(ROOT)
+
+
+def test_circle_checker_sees_a_type_checking_circle(tmp_path):
+    pkg = tmp_path / "fgcd_cli"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from fgcd_cli.b import f\n")
+    (pkg / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from fgcd_cli.a import g\n")
+    (pkg / "c.py").write_text("from fgcd_cli import a\n")
+    for top in ("fgcd_core", "drivers"):
+        (tmp_path / top).mkdir()
+    assert import_circles(tmp_path) == [["fgcd_cli.a", "fgcd_cli.b"]]
+
+
+#: Names a module may import from another without defining them: pyplot configured once for the reports.
+REEXPORT_ALLOWED = {("fgcd_cli.report.mpl", "plt"), ("fgcd_cli.report.mpl", "matplotlib")}
+
+
+def top_level_names(path: Path) -> set[str]:
+    """Functions, classes and assigned names a module defines at top level (inside ``if`` / ``try`` too)."""
+    names: set[str] = set()
+    stack = list(ast.parse(path.read_text(encoding="utf-8")).body)
+    while stack:
+        node = stack.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            for target in (node.targets if isinstance(node, ast.Assign) else [node.target]):
+                names |= {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
+        elif isinstance(node, (ast.If, ast.Try, ast.With)):
+            stack.extend(ast.iter_child_nodes(node))
+    return names
+
+
+def re_exports(root: Path, scanned: tuple[str, ...] = ("fgcd_core", "fgcd_cli", "drivers", "tests", "scripts")) -> list[str]:
+    """``file:line name from module`` of every import of a name its module does not define (a re-export)."""
+    paths = module_paths(root)
+    defined = {m: top_level_names(p) for m, p in paths.items()}
+    out = []
+    for folder in scanned:
+        for path in sorted((root / folder).rglob("*.py")) if (root / folder).exists() else ():
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if not (isinstance(node, ast.ImportFrom) and node.level == 0 and node.module in defined):
+                    continue
+                for alias in node.names:
+                    name = alias.name
+                    if (name in defined[node.module] or f"{node.module}.{name}" in paths
+                            or (node.module, name) in REEXPORT_ALLOWED):
+                        continue
+                    out.append(f"{path.relative_to(root)}:{node.lineno} {name} from {node.module}")
+    return out
+
+
+def test_each_name_is_imported_from_the_module_that_defines_it():
+    """No re-export shim and no package facade: each public name has one import path."""
+    assert not re_exports(ROOT)
+
+
+def test_re_export_checker_sees_a_facade_and_a_shim(tmp_path):
+    pkg = tmp_path / "fgcd_cli"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("from fgcd_cli.sub.impl import thing\n")
+    (pkg / "sub" / "impl.py").write_text("def thing():\n    pass\n")
+    (pkg / "shim.py").write_text("from fgcd_cli.sub.impl import thing  # noqa: F401\n")
+    (pkg / "user.py").write_text("from fgcd_cli.sub import thing, impl\nfrom fgcd_cli.shim import thing as t\n"
+                                 "from fgcd_cli.sub.impl import thing as fine\n")
+    found = re_exports(tmp_path, scanned=("fgcd_cli",))
+    assert found == ["fgcd_cli/user.py:1 thing from fgcd_cli.sub", "fgcd_cli/user.py:2 thing from fgcd_cli.shim"]
+
+
+#: Module names a package may use for its own part of a shared role (docs/architecture.md, "Names").
+ROLE_NAMES = {
+    "config": "the options of its package",
+    "errors": "the errors of its package",
+    "result": "what its package returns",
+    "main": "the entry (run) of a bench with parts",
+    "stage": "the steps of one relocation stage",
+    "refine": "the refinement of its package's estimate",
+}
+#: One concept at different layers (core, an algorithm package, the simulator, a driver, a use case, the CLI, a bench).
+LAYER_TWINS = {
+    "afd": "FDF/AFD", "board": "the ChArUco board", "calibrate": "hand-eye calibration", "camera": "the camera",
+    "determinism": "deterministic runs", "intrinsics": "camera intrinsics", "lights": "the rig's lights",
+    "platform": "the motion platform", "relocate": "a revisit's relocation", "render": "the simulator's renderer",
+    "report": "a report", "rig": "a rig", "scene_uncertainty": "paper 001's scene uncertainty",
+    "session": "a VSE session on a rig",
+}
+
+
+def layer_of(module: str) -> str:
+    """The layer a module sits in: core, sim, a driver, app, cli, bench, or its algorithm package."""
+    for prefix, layer in (("fgcd_core", "core"), ("fgcd_drivers.sim", "sim"), ("fgcd_drivers", "drivers"),
+                          ("fgcd_cli.app", "app"), ("fgcd_cli.cli", "cli"), ("fgcd_cli.bench", "bench")):
+        if _matches(module, (prefix,)):
+            return layer
+    return ".".join(module.split(".")[:2])
+
+
+def test_a_module_name_names_one_thing():
+    by_name: dict[str, list[str]] = {}
+    for mod, path in module_paths(ROOT).items():
+        if path.name != "__init__.py":
+            by_name.setdefault(path.stem, []).append(mod)
+    repeated = {name: mods for name, mods in by_name.items() if len(mods) > 1}
+    unexplained = sorted(set(repeated) - set(ROLE_NAMES) - set(LAYER_TWINS))
+    assert not unexplained, f"module names used twice for different things: {[repeated[n] for n in unexplained]}"
+    for name in set(repeated) & set(LAYER_TWINS):
+        layers = [layer_of(m) for m in repeated[name]]
+        assert len(set(layers)) == len(layers), f"{name}: twins in one layer: {repeated[name]}"
+    assert set(LAYER_TWINS) <= set(repeated), "a twin no longer repeated leaves the table"

@@ -15,14 +15,13 @@ import sys
 import threading
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import typer
 
 from fgcd_cli import __version__
-from fgcd_cli.campaign import init_campaign, open_campaign
+from fgcd_cli.campaign.store import init_campaign, open_campaign
 from fgcd_cli.cli.app import run
 from fgcd_cli.errors import run_record
 
@@ -279,7 +278,7 @@ def test_ctrl_c_during_verify_says_nothing_moved_or_written(capsys, monkeypatch,
 def _manual_campaign(root: Path) -> Path:
     import numpy as np
 
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
     from fgcd_core.camera import PinholeCamera
 
     camp = init_campaign(root / "c", site="x", rig={"driver": "manual"})
@@ -467,37 +466,6 @@ def _stations(c) -> list[str]:
     return sorted(p.name for p in (c.path / "stations").iterdir())
 
 
-@pytest.fixture
-def stand_in_rig(monkeypatch):
-    """``open_rig`` replaced by a stand-in that records its options and asks the first-motion question."""
-    import fgcd_cli.app.rig as rigs
-
-    seen: dict = {}
-
-    def open_rig(request=None, *, hooks=None, **kwargs):
-        if request is not None:  # the use cases' typed form: RigRequest + RigHooks
-            kwargs = {**request.__dict__, **hooks.__dict__}
-        seen.update(kwargs)
-        if kwargs.get("confirm") is not None:
-            seen["answer"] = kwargs["confirm"]("First motion of this session on 'sim': move flange by (1, 0, 0) mm. "
-                                               "Proceed?")
-        platform = SimpleNamespace(name="sim", stop=lambda: seen.setdefault("stopped", True))
-        guard = SimpleNamespace(platform=platform, trip=lambda reason: seen.setdefault("tripped", reason))
-        handles = SimpleNamespace(guard=guard)
-        return rigs.OpenedRig(handles=handles, close=lambda: seen.setdefault("closed", True), sim=None,
-                              info={"scenario": None})
-
-    monkeypatch.setattr(rigs, "open_rig", open_rig)
-    return seen
-
-
-def _result(path="visit"):
-    reloc = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[],
-                            residual=None)
-    return SimpleNamespace(observation_path=path, relocation=reloc, coarse=None, cloud_points=0, images=["front"],
-                           scale=SimpleNamespace(scale=1.0))
-
-
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("command", ["capture", "relocate", "hand-eye"])
 def test_a_motion_command_without_a_terminal_or_yes_is_refused_before_anything_is_created(camp, command):
@@ -515,14 +483,12 @@ def test_a_motion_command_without_a_terminal_or_yes_is_refused_before_anything_i
     assert open_campaign(camp.path).read_rig("handeye")["T_flange_cam"] == np.eye(4).tolist()
 
 
-def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, monkeypatch, capsys):
-    import fgcd_cli.app.revisit as capture_uc
+def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, stand_in_relocation, monkeypatch, capsys):
     import fgcd_cli.cli.output as output
     from fgcd_cli.cli.app import app
 
     monkeypatch.setattr(output, "stdin_is_terminal", lambda: True)
     monkeypatch.setattr(sys, "stdin", io.StringIO("y\n"))
-    monkeypatch.setattr(capture_uc, "relocate_and_capture", lambda *a, **k: _result())
     assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--json"]) == 0
     out, err = capsys.readouterr()
     assert stand_in_rig["answer"] is True

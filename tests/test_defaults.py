@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fgcd_cli.alignment import FastAlignConfig
+from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.app.calibrate import HandEyeRequest
-from fgcd_cli.app.relocate import RelocateRequest
+from fgcd_cli.app.relocate_request import RelocateRequest
 from fgcd_cli.app.revisit import RevisitRequest
 from fgcd_cli.app.rig import RigRequest
 from fgcd_cli.calibration.handeye.refine import RefineConfig
@@ -30,7 +30,7 @@ from fgcd_cli.changes.dense.refine import DenseConfig
 from fgcd_cli.changes.significance import AcontrarioConfig
 from fgcd_cli.metrics.afd import FdfConfig
 from fgcd_cli.relocation.acr.baseline import AcrConfig
-from fgcd_cli.relocation.coarse.stage import CoarseConfig
+from fgcd_cli.relocation.coarse.config import CoarseConfig
 from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.vse.ba import OutlierRejectionConfig

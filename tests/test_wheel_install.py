@@ -60,7 +60,7 @@ def test_wheel_lists_the_scenes_and_renders_a_frame(installed):
     assert sorted(s["name"] for s in json.loads(cli.stdout)["scenes"]) == shipped
 
     render = _run_installed(installed, (
-        "import numpy as np; from fgcd_drivers.cameras import CameraIntrinsics; "
+        "import numpy as np; from fgcd_core.camera import CameraIntrinsics; "
         "from fgcd_drivers.sim.render import Renderer; from fgcd_drivers.sim.scenes import load_scene; "
         "scene = load_scene('stele'); intr = CameraIntrinsics(fx=120., fy=120., cx=39.5, cy=29.5, width=80, height=60); "
         "rgb = Renderer(scene).render(np.asarray(scene.default_T_world_cam), intr, 'front', want=('rgb',)).rgb; "

@@ -14,8 +14,9 @@ from enum import StrEnum
 
 import numpy as np
 
-from fgcd_drivers.cameras import CameraError, CameraIntrinsics, Frame
-from fgcd_drivers.sim.render import CameraEffects
+from fgcd_core.camera import CameraIntrinsics
+from fgcd_drivers.cameras import CameraError, Frame
+from fgcd_drivers.sim.sensor import CameraEffects
 from fgcd_drivers.sim.world import SimLights, SimWorld
 
 __all__ = [

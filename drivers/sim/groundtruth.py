@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_core.camera import CameraIntrinsics
 
 __all__ = ["GroundTruth"]
 

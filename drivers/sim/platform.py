@@ -36,7 +36,8 @@ from fgcd_core.platform import (
     PlatformTimeout,
     SafetyStop,
 )
-from fgcd_drivers.sim.transforms import exp_so3, log_so3, make_pose, rot_angle
+from fgcd_core.se3 import exp_so3, make_pose
+from fgcd_drivers.sim.transforms import log_so3, rot_angle
 
 __all__ = ["SimClock", "PlatformErrorModel", "SimPlatform", "SimPlatformConfig", "SimFault", "ERROR_PRESETS", "FAULTS"]
 

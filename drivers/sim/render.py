@@ -27,13 +27,13 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.sim.changes import evaluate_changes
 from fgcd_drivers.sim.lights import Lighting, lighting_preset
 from fgcd_drivers.sim.scene import Scene
 from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
 
-__all__ = ["Renderer", "RenderResult", "CameraEffects", "apply_camera_response", "auto_exposure", "LUMA"]
+__all__ = ["Renderer", "RenderResult", "apply_camera_response", "auto_exposure", "LUMA"]
 
 _MISS = np.uint32(0xFFFFFFFF)
 

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_core.se3 import exp_so3, invert_pose, make_pose
-from fgcd_drivers.cameras import CameraIntrinsics
 from fgcd_drivers.sim.camera import (
     DEFAULT_EFFECTS,
     DEFAULT_INTRINSICS,
@@ -18,8 +18,9 @@ from fgcd_drivers.sim.camera import (
 )
 from fgcd_drivers.sim.groundtruth import GroundTruth
 from fgcd_drivers.sim.platform import PlatformErrorModel, SimClock, SimPlatform, SimPlatformConfig
-from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
+from fgcd_drivers.sim.sensor import CameraEffects
 from fgcd_drivers.sim.world import SimLights, SimWorld
 
 __all__ = ["SimRig", "SimRigConfig", "build_sim_rig", "random_hand_eye"]
@@ -49,7 +50,8 @@ class SimRig:
 
     def inject_changes(self, *, n: int, seed: int, kinds=None, size_mm: tuple[float, float] = (1.0, 20.0)) -> list:
         """Add ``n`` random changes on the object where the reference camera sees it (returns them)."""
-        from fgcd_drivers.sim.changes import KINDS, random_changes
+        from fgcd_drivers.sim.change_placement import random_changes
+        from fgcd_drivers.sim.changes import KINDS
 
         chs = random_changes(self.world.scene, n=n, seed=seed, kinds=kinds or KINDS, size_mm=size_mm)
         self.world.apply_changes(chs)

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fgcd_core.se3 import exp_so3, invert_pose, make_pose
+from fgcd_core.se3 import invert_pose
 from fgcd_core.se3 import look_at as _look_at
 
-__all__ = ["make_pose", "invert_pose", "look_at", "rot_angle", "exp_so3", "log_so3"]
+__all__ = ["invert_pose", "look_at", "rot_angle", "log_so3"]
 
 #: The simulator's worlds are z-up.
 WORLD_UP = (0.0, 0.0, 1.0)

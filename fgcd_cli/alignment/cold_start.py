@@ -18,7 +18,7 @@ import numpy as np
 from fgcd_cli.alignment.fast_config import FastAlignConfig, IcpMetric, PyramidConfig, SearchScore
 from fgcd_cli.alignment.icp_levels import LevelInputs, finest, run_levels
 from fgcd_cli.alignment.reference import ReferenceIndex
-from fgcd_core import Sim3
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["search_score", "shift_search", "scale_search", "scale_neighbour"]
 

@@ -16,7 +16,7 @@ from fgcd_cli.alignment.health import HealthEvidence, HealthLimits, assess, resi
 from fgcd_cli.alignment.reference import ReferenceIndex, local_roughness
 from fgcd_cli.alignment.results import AlignmentHealth, AlignmentResult, ResidualStats
 from fgcd_cli.alignment.weak_probe import probe_weak_directions
-from fgcd_core import Sim3
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["evaluate_alignment", "finished_result", "failed_result"]
 

@@ -32,10 +32,16 @@ from fgcd_cli.alignment.icp_levels import LevelInputs, LevelRun, finest, run_lev
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentResult, StartPath
 from fgcd_cli.alignment.weak_probe import probe_weak_directions
-from fgcd_core import Sim3
+from fgcd_core.sim3 import Sim3
 
-__all__ = ["MIN_CURRENT_POINTS", "FastAlignConfig", "fast_align", "initial_scale", "as_reference",
-           "evaluate_alignment", "probe_weak_directions"]
+__all__ = [
+    "MIN_CURRENT_POINTS",
+    "fast_align",
+    "initial_scale",
+    "as_reference",
+    "evaluate_alignment",
+    "probe_weak_directions",
+]
 
 #: Current points (the first of the random order) that score starts and test warmth.
 _PROBE_POINTS = 1000

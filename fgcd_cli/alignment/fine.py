@@ -46,9 +46,11 @@ from fgcd_cli.alignment.fine_problem import Block, FineProblem, GeometricMatches
 from fgcd_cli.alignment.photometric import prepare_keyframe, sample, visible_nearest
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, FineAlignmentResult, ResidualStats
-from fgcd_core import PinholeCamera, Sim3, exp_se3
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import exp_se3
+from fgcd_core.sim3 import Sim3
 
-__all__ = ["FineAlignConfig", "fine_align"]
+__all__ = ["fine_align"]
 
 
 def _select_points(ref: ReferenceIndex, S: Sim3, poses, camera, images, config, rng):

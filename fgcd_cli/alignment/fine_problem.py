@@ -20,7 +20,9 @@ from scipy import sparse
 
 from fgcd_cli.alignment.photometric import KeyframeImage, project_with_jacobian, sample
 from fgcd_cli.alignment.sparse_icp import gram
-from fgcd_core import PinholeCamera, Sim3, lm
+from fgcd_core import lm
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["Block", "PhotometricObservations", "GeometricMatches", "FineProblem", "huber_weights"]
 

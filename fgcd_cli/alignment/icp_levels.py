@@ -24,7 +24,8 @@ from fgcd_cli.alignment.sparse_icp import (
     sparse_point_to_point_step,
     trimmed_point_to_plane_step,
 )
-from fgcd_core import Sim3, make_pose
+from fgcd_core.se3 import make_pose
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["LevelInputs", "LevelRun", "run_levels", "finest", "LOST_CORRESPONDENCES"]
 

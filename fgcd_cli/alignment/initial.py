@@ -11,10 +11,11 @@ from enum import StrEnum
 
 import numpy as np
 
-from fgcd_cli.alignment.fast import MIN_CURRENT_POINTS, FastAlignConfig, as_reference, fast_align, initial_scale
+from fgcd_cli.alignment.fast import MIN_CURRENT_POINTS, as_reference, fast_align, initial_scale
+from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentResult
-from fgcd_core import Sim3
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["GuessSource", "InitialGuess", "camera_prior", "initial_guess", "global_registration"]
 

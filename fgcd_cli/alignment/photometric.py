@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from fgcd_core import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 from fgcd_core.imaging import to_gray_f32
 
 __all__ = ["KeyframeImage", "prepare_keyframe", "sample", "project_with_jacobian", "visible_nearest"]

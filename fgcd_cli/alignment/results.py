@@ -13,7 +13,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from fgcd_core import Sim3
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["HEALTH_OK", "StartPath", "AlignmentHealth", "ResidualStats", "AlignmentResult", "FineAlignmentResult"]
 

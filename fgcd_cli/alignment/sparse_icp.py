@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcd_core import exp_se3, umeyama
+from fgcd_core.se3 import exp_se3
+from fgcd_core.sim3 import umeyama
 
 __all__ = [
     "shrink",

@@ -13,7 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import gaussian_filter, map_coordinates
 
-from fgcd_core import PinholeCamera, Sim3, exp_se3, invert_pose, se3
+from fgcd_core import se3
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import exp_se3, invert_pose
+from fgcd_core.sim3 import Sim3
 
 __all__ = [
     "ReliefScene",

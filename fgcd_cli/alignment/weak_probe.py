@@ -16,7 +16,8 @@ import numpy as np
 from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.alignment.icp_levels import LevelInputs, finest, run_levels
 from fgcd_cli.alignment.reference import ReferenceIndex
-from fgcd_core import Sim3, exp_se3
+from fgcd_core.se3 import exp_se3
+from fgcd_core.sim3 import Sim3
 
 __all__ = ["probe_weak_directions"]
 

@@ -16,8 +16,9 @@ from pathlib import Path
 
 from fgcd_cli.archive.discovery import find_campaigns
 from fgcd_cli.archive.tracking import RegionTrack, TrackStatus, VisitRegions, track_regions
-from fgcd_cli.campaign import open_campaign, schema
+from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes
+from fgcd_cli.campaign.store import open_campaign
 from fgcd_cli.errors import DataIntegrityError, UserInputError
 
 __all__ = ["HistoryRequest", "StationHistory", "SiteHistory", "station_tracks", "archive_history", "track_growth",

@@ -72,7 +72,7 @@ def _peak_rss_mb() -> float:
 
 
 def _open(key: VisitKey):
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     station = open_campaign(Path(key.campaign)).station(key.station)
     return station.reference(), station.visit(key.visit)

@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 
 from fgcd_cli.app.session import MAX_SCALE_RESIDUAL_MM
-from fgcd_cli.calibration.handeye.linear import HandEyeResult
+from fgcd_cli.calibration.handeye.result import HandEyeResult
 from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
 
 __all__ = ["HandEyeMode", "HandEyePlan", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "MAX_HANDEYE_RMS_MM",
-           "MAX_HANDEYE_REPROJECTION_PX", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "calibration_campaign",
+           "MAX_HANDEYE_REPROJECTION_PX", "calibrate_sim_handeye", "calibrate_sim_intrinsics",
            "check_handeye_options", "handeye_rotation_deg", "handeye_unusable", "plan_handeye", "run_handeye",
            "store_handeye"]
 
@@ -105,7 +105,7 @@ class HandEyeCalibration:
 
 
 def _monocular_vse(camera: PinholeCamera):
-    from fgcd_cli.vse import MonocularVSE
+    from fgcd_cli.vse.engine import MonocularVSE
 
     return MonocularVSE(camera)
 
@@ -208,7 +208,8 @@ def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callab
                              on_progress: ProgressCallback | None = None):
     """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
     from fgcd_cli.app.intrinsics import sim_board_views
-    from fgcd_cli.calibration import BoardSpec, calibrate_intrinsics
+    from fgcd_cli.calibration.board import BoardSpec
+    from fgcd_cli.calibration.intrinsics import calibrate_intrinsics
     from fgcd_cli.calibration.rig_files import save_intrinsics
 
     board = BoardSpec(squares_x=9, squares_y=6, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
@@ -232,15 +233,6 @@ MAX_HANDEYE_RMS_MM = MAX_SCALE_RESIDUAL_MM
 #: 0.2-0.25 px (docs/calibration.md, "Reading the result"); beyond 1 px the stop images disagree with X
 #: (blur, a moving scene, wrong intrinsics) by more than the sub-pixel AFD the relocation aims for.
 MAX_HANDEYE_REPROJECTION_PX = 1.0
-
-
-def calibration_campaign(path: Path | None):
-    """The campaign a calibration reads its rig from and stores into (``-c``; None without one; CampaignError)."""
-    if path is None:
-        return None
-    from fgcd_cli.campaign import open_campaign
-
-    return open_campaign(path)
 
 
 def check_handeye_options(*, mode: str, translation_mm: float, rotation_deg: float) -> None:
@@ -284,8 +276,9 @@ class HandEyePlan:
 
 def _handeye_world(campaign, rig, *, scene: str | None, seed: int | None):
     """The simulated world of a hand-eye run: the options, else the campaign's ``[rig.sim]`` (UserInputError)."""
-    from fgcd_cli.app.scenario import Driver, SimScenario, check_scenario
+    from fgcd_cli.app.scenario import SimScenario, check_scenario
     from fgcd_cli.campaign.records import campaign_world
+    from fgcd_drivers.connect import Driver
 
     if rig.driver != Driver.SIM:
         if scene is not None or seed is not None:
@@ -309,8 +302,8 @@ def plan_handeye(campaign, given, request: HandEyeRequest, *, scene: str | None 
     of another, whatever ``--driver`` says (docs/calibration.md, "Which rig a hand-eye belongs to").
     """
     from fgcd_cli.app.rig_options import check_campaign_rig, resolve_rig
-    from fgcd_cli.app.scenario import Driver
     from fgcd_cli.calibration.rig_files import load_intrinsics
+    from fgcd_drivers.connect import Driver
 
     rig = resolve_rig(campaign, given)
     if request.mode == HandEyeMode.TARGET and rig.driver == Driver.SIM:

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from fgcd_cli.campaign import init_campaign, open_campaign
+from fgcd_cli.campaign.store import init_campaign, open_campaign
 from fgcd_cli.campaign.verify import counted, verify_campaign_dir
 
 __all__ = ["CampaignInit", "CampaignOverview", "CampaignStations", "add_station", "campaign_overview",

@@ -13,15 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcd_cli.app.rig import LightsSpec, RigHandles, RigHooks, RigRequest
+from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
-from fgcd_cli.app.scenario import (
-    Driver,
-    SimScenario,
-    check_lighting,
-    check_scenario,
-    check_scene,
-)
+from fgcd_cli.app.scenario import SimScenario, check_lighting, check_scenario, check_scene
 from fgcd_cli.app.session import grab_images, metric_keyframes, start_session
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import campaign_world, rig_calibration
@@ -31,6 +25,8 @@ from fgcd_cli.relocation.log import RelocationResult
 from fgcd_cli.relocation.session import ScaleEstimate
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
+from fgcd_drivers.connect import Driver
+from fgcd_drivers.lights import LightsSpec
 
 __all__ = ["CapturePlan", "CaptureRequest", "CaptureResult", "CaptureOutcome", "capture_reference", "connection",
            "open_capture", "plan_capture", "run_capture"]
@@ -270,7 +266,7 @@ def open_capture(campaign_dir, request: CaptureRequest):
     tuple of (Campaign, CapturePlan)
         The opened campaign and :func:`plan_capture`'s plan, both for :func:`run_capture`.
     """
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     campaign = open_campaign(campaign_dir)
     return campaign, plan_capture(campaign, request)

@@ -10,8 +10,9 @@ import numpy as np
 
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import grab_gray, reference_images
-from fgcd_cli.relocation.coarse.stage import CoarseConfig, CoarseInputs, CoarseResult, image_estimate, run_coarse
-from fgcd_cli.relocation.loop.parallel import ReferenceData
+from fgcd_cli.relocation.coarse.config import CoarseConfig, CoarseResult
+from fgcd_cli.relocation.coarse.stage import CoarseInputs, image_estimate, run_coarse
+from fgcd_cli.relocation.config import ReferenceData
 
 __all__ = ["CoarseStart", "maybe_coarse"]
 

@@ -20,7 +20,8 @@ import numpy as np
 from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics  # the calibration use cases
 from fgcd_cli.app.determinism import deterministic_rig
 from fgcd_cli.app.sim_scoring import score_visit_changes  # evaluation only
-from fgcd_cli.campaign import init_campaign, schema
+from fgcd_cli.campaign import schema
+from fgcd_cli.campaign.store import init_campaign
 from fgcd_cli.errors import CampaignError
 
 __all__ = ["DemoConfig", "calibrate_sim_handeye", "calibrate_sim_intrinsics", "demo_output_dir", "run_demo"]
@@ -176,7 +177,7 @@ def _relocate(run: _DemoRun) -> dict:
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
-    from fgcd_cli.relocation.loop.parallel import RelocationConfig
+    from fgcd_cli.relocation.config import RelocationConfig
 
     config = run.config
     run.say(f"3/5 revisit: light '{config.visit_light}', {config.changes} injected changes, start displaced by "

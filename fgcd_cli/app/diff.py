@@ -24,8 +24,8 @@ from fgcd_cli.archive.freshness import (
 )
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes, check_writable, sha256_file
-from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.images import check_stack_sizes, to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud
@@ -230,6 +230,11 @@ def relocation_log_rows(visit) -> list[dict] | None:
 EDGE_CHECK_PX = 2
 
 
+def campaign_edge_check_px(px: int | None) -> int:
+    """The edge check of a campaign diff: ``px`` when given, else :data:`EDGE_CHECK_PX` (the one default)."""
+    return EDGE_CHECK_PX if px is None else px
+
+
 def _edge_check(px: int) -> int:
     if not 0 <= px <= 8:
         raise UserInputError(f"--edge-check must be between 0 (off) and 8 px, got {px}")
@@ -256,7 +261,7 @@ def relocation_residual_text(visit) -> str:
     estimator, agreement) when the run stated one, else the last logged offset
     estimate alone; never the simulator's truth.
     """
-    from fgcd_cli.relocation.loop.parallel import Residual
+    from fgcd_cli.relocation.stop_rule import Residual
 
     stated = (visit.metadata.get("relocation") or {}).get("residual")
     if isinstance(stated, dict):
@@ -332,8 +337,7 @@ class CampaignDiffRequest:
 
 def _effective(options: AnalysisOptions) -> AnalysisOptions:
     """``options`` with the campaign diff's default edge check spelled out (``None`` and 2 px make the same diff)."""
-    edge = EDGE_CHECK_PX if options.edge_check_px is None else options.edge_check_px
-    return dataclasses.replace(options, edge_check_px=edge)
+    return dataclasses.replace(options, edge_check_px=campaign_edge_check_px(options.edge_check_px))
 
 
 def options_text(options: AnalysisOptions) -> str:
@@ -373,7 +377,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     products are followed by ``changes/analysis.json``, the record of the options and
     inputs (:mod:`fgcd_cli.archive.freshness`).
     """
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     r = request
     t0 = time.perf_counter()
@@ -396,7 +400,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         area = _reference_pixel_area(reference, shape)
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
     mask = read_mask(r.eval_mask) if r.eval_mask is not None else None
-    edge_check = _edge_check(EDGE_CHECK_PX if r.edge_check_px is None else r.edge_check_px)
+    edge_check = _edge_check(campaign_edge_check_px(r.edge_check_px))
     _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
     result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,

@@ -7,7 +7,7 @@ as the HTML report (:mod:`fgcd_cli.report.areas`, :mod:`fgcd_cli.report.candidat
 
 from __future__ import annotations
 
-__all__ = ["no_change_lines", "region_line", "set_aside_line"]
+__all__ = ["no_change_lines", "region_line", "result_epsilon", "set_aside_line"]
 
 
 def region_line(region: dict, *, epsilon: float) -> str:
@@ -38,3 +38,10 @@ def set_aside_line(regions: int, set_aside: int) -> str:
 
     return (f"{regions} change{'s' if regions != 1 else ''}{set_aside_text(set_aside)} "
             f"(cyan in the report; --edge-check 0 reports {'them' if set_aside != 1 else 'it'})")
+
+
+def result_epsilon(data: dict) -> float:
+    """The ε a diff result (its JSON form) was decided with."""
+    from fgcd_cli.report.candidates import settings_epsilon
+
+    return settings_epsilon(data.get("settings"))

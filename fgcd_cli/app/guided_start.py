@@ -15,7 +15,8 @@ import numpy as np
 
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import grab_gray, reference_images, start_session
-from fgcd_cli.relocation.coarse.stage import CoarseConfig, image_estimate
+from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_cli.relocation.coarse.stage import image_estimate
 from fgcd_cli.relocation.guided import guided_waypoints, motions_between, within_workspace
 from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 
@@ -85,7 +86,7 @@ def alignment_trusted(rig: RigHandles, reference, ref_index, session, flange: li
     start, which a trustworthy alignment makes useless (the loop drives to the reference from
     wherever the camera is). The check's computation counts as rig time.
     """
-    from fgcd_cli.alignment import initial_guess
+    from fgcd_cli.alignment.initial import initial_guess
     from fgcd_cli.app.session import MAX_SCALE_RESIDUAL_MM
     from fgcd_cli.errors import AlgorithmError
 

@@ -167,7 +167,7 @@ class IntrinsicsPlan:
 
 def plan_intrinsics(request: IntrinsicsRequest) -> IntrinsicsPlan:
     """Check the request (UserInputError, exit 2) and open its campaign (CampaignError, exit 3)."""
-    from fgcd_cli.app.calibrate import calibration_campaign
+    from fgcd_cli.app.rig_options import calibration_campaign
     from fgcd_cli.campaign.records import campaign_world
 
     r = request

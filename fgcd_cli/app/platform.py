@@ -61,7 +61,7 @@ def platform_rig(campaign_dir: Path | None, given):
 
     campaign = None
     if campaign_dir is not None:
-        from fgcd_cli.campaign import open_campaign
+        from fgcd_cli.campaign.store import open_campaign
 
         campaign = open_campaign(campaign_dir)
     driver = given.driver

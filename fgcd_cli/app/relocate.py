@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,6 +17,7 @@ from fgcd_cli.app.capture import CaptureResult
 from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
 from fgcd_cli.app.determinism import deterministic_rig, run_conditions
 from fgcd_cli.app.guided_start import start_revisit_session
+from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import (
     grab_gray_under,
@@ -28,78 +28,14 @@ from fgcd_cli.app.session import (
 )
 from fgcd_cli.campaign import schema
 from fgcd_cli.errors import AlgorithmError, run_record
-from fgcd_cli.relocation.acr.baseline import AcrConfig
 from fgcd_cli.relocation.coarse.config import CoarseConfig, CoarseResult
-from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.enums import RelocationMethod
-from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
-from fgcd_cli.relocation.loop.parallel import LoopContext, relocate
+from fgcd_cli.relocation.log import RelocationResult
+from fgcd_cli.relocation.loop.context import LoopContext
+from fgcd_cli.relocation.loop.parallel import relocate
 
-__all__ = ["RelocateHooks", "RelocateRequest", "relocate_and_capture"]
+__all__ = ["relocate_and_capture"]
 
-
-@dataclass(frozen=True, kw_only=True)
-class RelocateRequest:
-    """How to relocate to a station's reference and what the visit records.
-
-    Attributes
-    ----------
-    config : RelocationConfig
-        The rACR loop's options.
-    lightings : list of str
-        Lightings of the visit's images.
-    explore_m : float
-        Exploration amplitude of the session start, metres.
-    explore_legs : int
-        Exploration legs of the session start.
-    metadata : dict or None
-        Extra entries of the visit's manifest metadata.
-    guided : bool
-        Explore toward the image localizer's estimate of the reference (:mod:`fgcd_cli.app.guided_start`).
-    coarse : CoarseConfig or None
-        The active coarse stage's options (paper 001); None leaves it out (the
-        loop then pauses on a far start).
-    earlier_log : tuple of dict
-        Adjustments of an interrupted visit this one continues, written first in its log.
-    method : RelocationMethod
-        rACR, or the ACR baseline (``acr``, ``acr-h``: :mod:`fgcd_cli.app.relocate_acr`).
-    acr : AcrConfig or None
-        The ACR loop's options (None: its defaults, the model following ``method``).
-    """
-
-    config: RelocationConfig
-    lightings: list[str]
-    explore_m: float = 0.04
-    explore_legs: int = 3
-    guided: bool = True
-    metadata: dict | None = None
-    coarse: CoarseConfig | None = field(default_factory=CoarseConfig)
-    earlier_log: tuple[dict, ...] = ()
-    method: RelocationMethod = RelocationMethod.RACR
-    acr: AcrConfig | None = None
-
-
-@dataclass(frozen=True, kw_only=True)
-class RelocateHooks:
-    """Callbacks of a relocation: evaluation (simulator only) and each adjustment as it is made.
-
-    Attributes
-    ----------
-    evaluate : callable() -> dict, or None
-        The simulator's truth at the current pose, logged beside each estimate.
-    on_record : callable(AdjustmentRecord), or None
-        Each adjustment of the loop.
-    evaluation : callable() -> dict, or None
-        The truth written into the visit (``evaluation/sim_truth.json``).
-    reference_override : callable(ReferenceData) -> ReferenceData, or None
-        A benchmark's change of the reference cloud before rACR sees it (paper 000 Fig. 4:
-        noise on the reference points); the stored reference is never changed.
-    """
-
-    evaluate: Callable[[], dict] | None = None
-    on_record: Callable[[AdjustmentRecord], None] | None = None
-    evaluation: Callable[[], dict] | None = None
-    reference_override: Callable[[ReferenceData], ReferenceData] | None = None
 
 
 def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
@@ -115,7 +51,7 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
         from fgcd_cli.app.relocate_acr import acr_relocate_and_capture
 
         return acr_relocate_and_capture(rig, station, request, hooks=hooks)
-    from fgcd_cli.alignment import ReferenceIndex
+    from fgcd_cli.alignment.reference import ReferenceIndex
 
     reference = load_reference(station)
     if hooks.reference_override is not None:
@@ -168,7 +104,7 @@ def _initial_alignment(start: CoarseStart, coarse: CoarseConfig | None) -> tuple
     The first camera is near the reference camera; checked by a fast alignment of the
     whole current cloud, with the global multi-start registration as fallback.
     """
-    from fgcd_cli.alignment import initial_guess
+    from fgcd_cli.alignment.initial import initial_guess
 
     rig, scale = start.rig, start.scale
     rig.progress(0, 0, "initial alignment to the reference")

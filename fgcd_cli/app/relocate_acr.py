@@ -35,7 +35,7 @@ from fgcd_cli.relocation.session import ScaleEstimate, SessionTiming, recorded_m
 from fgcd_core.se3 import exp_se3, log_se3, rotation_angle_rad
 
 if TYPE_CHECKING:
-    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest
+    from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 
 __all__ = ["acr_relocate_and_capture", "acr_reference_image"]
 

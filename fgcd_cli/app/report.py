@@ -47,7 +47,7 @@ def station_history(campaign: Path, station: str, *, output: Path | None = None,
     records it, is named in the result's ``damaged`` list (name, reason) and in the
     page; the good visits are reported. The CLI then exits 4 (README, exit codes).
     """
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
     from fgcd_cli.report.figures import png_bytes, to_display_rgb
     from fgcd_cli.report.html import VisitSummary, render_station_history
 

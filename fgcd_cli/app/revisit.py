@@ -16,18 +16,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fgcd_cli.app.capture import CaptureResult
-from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
+from fgcd_cli.app.relocate import relocate_and_capture
+from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 from fgcd_cli.app.rig import RigHooks, RigRequest
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
-from fgcd_cli.app.scenario import (
-    Driver,
-    SimScenario,
-    check_driver,
-    check_lighting,
-    check_method,
-    check_scenario,
-    check_scene,
-)
+from fgcd_cli.app.scenario import SimScenario, check_driver, check_lighting, check_method, check_scenario, check_scene
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.records import rig_calibration, station_world
@@ -38,6 +31,7 @@ from fgcd_cli.relocation.coarse.config import CoarseConfig
 from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
 from fgcd_cli.relocation.log import AdjustmentRecord
+from fgcd_drivers.connect import Driver
 
 __all__ = ["RevisitOutcome", "RevisitPlan", "RevisitRequest", "check_relocation_options", "plan_revisit",
            "run_revisit", "visit_lightings", "visit_scenario"]
@@ -110,7 +104,7 @@ class RevisitPlan:
     station: object
     reference: object
     scenario: SimScenario | None
-    T_flange_cam: np.ndarray
+    T_flange_cam: np.ndarray | None  # None: the rig opens with the identity
     camera: object
     config: RelocationConfig
     rig: EffectiveRig | None = None  # driver, address, baud, camera (fgcd_cli.app.rig_options.resolve_rig)
@@ -189,7 +183,7 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     the campaign's driver, light, connection, station and reference, world, calibration.
     """
     from fgcd_cli.app.capture import rig_lights
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     r = request
     if r.rig.driver is not None:
@@ -213,8 +207,8 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     T_flange_cam, cam = rig_calibration(camp)
     if T_flange_cam is None and not r.no_handeye and method == RelocationMethod.RACR:
         raise CampaignError("no hand-eye calibration in the campaign: calibrate, or use --no-handeye")
-    if r.no_handeye or T_flange_cam is None:  # ACR needs none: it takes the identity
-        T_flange_cam = np.eye(4)
+    if r.no_handeye or T_flange_cam is None:  # ACR needs none; the rig opens with the identity (rig.hand_eye_or_identity)
+        T_flange_cam = None
     else:
         check_record_rig(camp.read_rig(schema.RIG_HANDEYE), rig, name=schema.RIG_HANDEYE,
                          command="fgcd calibrate hand-eye")

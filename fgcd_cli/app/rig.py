@@ -15,9 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcd_cli.app.scenario import (  # noqa: F401 - part of this module's interface
-    DRIVERS,
-    Driver,
+from fgcd_cli.app.scenario import (
     SimScenario,
     check_connection,
     check_driver,
@@ -28,18 +26,17 @@ from fgcd_cli.app.scenario import (  # noqa: F401 - part of this module's interf
 from fgcd_cli.errors import HardwareError, UserInputError, run_record
 from fgcd_cli.relocation.session import recorded_motion
 from fgcd_core.camera import PinholeCamera
+from fgcd_drivers.connect import DRIVERS, Driver
 from fgcd_drivers.lights import Lights, LightsDriver, LightsSpec
 
 __all__ = [
     "DRIVERS",
     "Driver",
     "Lights",
-    "LightsSpec",
     "OpenedRig",
     "RigHandles",
     "RigHooks",
     "RigRequest",
-    "SimScenario",
     "check_connection",
     "check_driver",
     "check_lighting",
@@ -239,7 +236,7 @@ def open_sim_rig(
         guard=guard,
         camera_source=source,
         intrinsics=cam,
-        T_flange_cam=np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float),
+        T_flange_cam=hand_eye_or_identity(T_flange_cam),
         vse_factory=vse_factory_for(cam, source, variant=vse_variant),
         lights=rig.lights,
         on_event=on_event,
@@ -247,6 +244,15 @@ def open_sim_rig(
         frame_synthesis_s=source.synthetic_overhead_s,
     )
     return OpenedRig(handles=handles, close=rig.platform.close, sim=rig, info={"scenario": scenario.__dict__})
+
+
+def hand_eye_or_identity(T_flange_cam: np.ndarray | None) -> np.ndarray:
+    """The hand-eye a rig is opened with: ``T_flange_cam`` (4x4, metres), or the identity without one.
+
+    The one home of "no hand-eye means identity": a rig opened to calibrate it, the ACR
+    baseline (which needs none) and ``fgcd relocate --no-handeye`` all reach it through here.
+    """
+    return np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -321,7 +327,7 @@ def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig
 def _lights_for(spec: LightsSpec, hooks: RigHooks, platform=None) -> Lights:
     """The light driver of ``spec`` (HardwareError when it cannot be opened)."""
     from fgcd_core.platform import PlatformError
-    from fgcd_drivers.lights import open_lights
+    from fgcd_drivers.connect import open_lights
 
     try:
         return open_lights(spec, platform=platform, ask=hooks.ask_light or input)
@@ -396,7 +402,7 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
         guard=guard,
         camera_source=camera,
         intrinsics=intrinsics,
-        T_flange_cam=np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float),
+        T_flange_cam=hand_eye_or_identity(T_flange_cam),
         vse_factory=vse_factory_for(intrinsics, camera, variant=request.vse_variant),
         lights=lights,
         on_event=hooks.on_event,

@@ -12,12 +12,14 @@ so is a hand-eye record made on another driver (:func:`check_record_rig`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
-from fgcd_cli.app.scenario import Driver, SimScenario, check_connection, check_driver
+from fgcd_cli.app.scenario import SimScenario, check_connection, check_driver
 from fgcd_cli.errors import CampaignError, UserInputError
+from fgcd_drivers.connect import Driver
 
 __all__ = ["DEFAULT_BAUD", "DEFAULT_CAMERA", "DEFAULT_DRIVER", "DEFAULT_SCENE", "EffectiveRig", "RigOptions",
-           "campaign_rig_section",
+           "calibration_campaign", "campaign_rig_section",
            "check_campaign_rig", "check_record_rig", "parse_camera", "resolve_rig"]
 
 DEFAULT_DRIVER = Driver.SIM.value
@@ -190,3 +192,12 @@ def campaign_rig_section(*, driver: str, port: str | None = None, host: str | No
     if driver != Driver.SIM or camera is not None:
         rig["camera"] = DEFAULT_CAMERA if camera is None else parse_camera(camera)
     return rig
+
+
+def calibration_campaign(path: Path | None):
+    """The campaign a calibration reads its rig from and stores into (``-c``; None without one; CampaignError)."""
+    if path is None:
+        return None
+    from fgcd_cli.campaign.store import open_campaign
+
+    return open_campaign(path)

@@ -10,12 +10,10 @@ import math
 from dataclasses import dataclass, replace
 
 from fgcd_cli.errors import UserInputError
-from fgcd_drivers.connect import DRIVERS, Driver  # the drivers a command can open (re-exported for the CLI)
+from fgcd_drivers.connect import DRIVERS
 
 __all__ = [
     "check_method",
-    "DRIVERS",
-    "Driver",
     "SimScenario",
     "check_connection",
     "check_driver",

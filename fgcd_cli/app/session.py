@@ -9,7 +9,7 @@ import numpy as np
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.campaign import schema
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.loop.parallel import ReferenceData
+from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
 from fgcd_core.imaging import to_float01
 

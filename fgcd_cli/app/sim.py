@@ -102,7 +102,7 @@ def _save_npy(path: Path, arr: np.ndarray) -> None:
 
 
 def _intrinsics(width: int, height: int):
-    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_core.camera import CameraIntrinsics
 
     f = 600.0 * width / 640.0
     return CameraIntrinsics(fx=f, fy=f, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width, height=height)
@@ -191,7 +191,7 @@ def render_view(request: RenderRequest) -> RenderOutcome:
 
     Every option is checked (UserInputError, exit 2) before anything is rendered or written.
     """
-    from fgcd_drivers.sim.changes import random_changes
+    from fgcd_drivers.sim.change_placement import random_changes
     from fgcd_drivers.sim.lights import lighting_preset
     from fgcd_drivers.sim.render import Renderer
     from fgcd_drivers.sim.scenes import SceneNotFound, load_scene

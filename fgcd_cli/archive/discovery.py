@@ -6,7 +6,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from fgcd_cli.campaign import open_campaign, schema
+from fgcd_cli.campaign import schema
+from fgcd_cli.campaign.store import open_campaign
 from fgcd_cli.errors import UserInputError
 
 __all__ = ["VisitKey", "find_campaigns", "archive_visits"]

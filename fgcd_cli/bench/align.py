@@ -30,18 +30,16 @@ import time
 
 import numpy as np
 
-from fgcd_cli.alignment import (
-    FastAlignConfig,
-    FineAlignConfig,
-    ReferenceIndex,
-    fast_align,
-    fine_align,
-)
-from fgcd_cli.alignment.fast_config import ScaleStepConfig
+from fgcd_cli.alignment.fast import fast_align
+from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
+from fgcd_cli.alignment.fine import fine_align
+from fgcd_cli.alignment.fine_config import FineAlignConfig
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity
 from fgcd_cli.vse.types import VseStatus
-from fgcd_core import PinholeCamera, Sim3, exp_se3, pose_distance
-from fgcd_core.se3 import project_to_so3
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import exp_se3, pose_distance, project_to_so3
+from fgcd_core.sim3 import Sim3
 
 SUCCESS_ROT_DEG = 1.0
 SUCCESS_TRANS_MM = 20.0
@@ -53,7 +51,7 @@ NOISE_LEVELS = (0.01, 0.02, 0.04, 0.08, 0.16)
 # --------------------------------------------------------------------------- VSE sessions
 def _vse_session(renderer, intr, camera, T_start, *, lighting, frames, radius, rng):
     """Render a small loop around ``T_start``, run the monocular VSE; returns its state and true poses."""
-    from fgcd_cli.vse import MonocularVSE
+    from fgcd_cli.vse.engine import MonocularVSE
 
     engine = MonocularVSE(camera)
     truth = []
@@ -145,7 +143,7 @@ def _camera_errors(T_ref_cur: Sim3, poses, truths) -> tuple[float, float]:
 
 
 def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
-    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_core.camera import CameraIntrinsics
     from fgcd_drivers.sim.render import Renderer
     from fgcd_drivers.sim.scenes import load_scene
 

@@ -146,7 +146,7 @@ def _true_map_scale(state, poses: dict, gt, camera: PinholeCamera) -> tuple[floa
     Returns the median over keyframes and the relative spread (max - min) / median of the
     per-keyframe values.
     """
-    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_core.camera import CameraIntrinsics
 
     intr = CameraIntrinsics(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width,
                             height=camera.height)

@@ -70,7 +70,7 @@ def _coarse_ok(row: dict) -> bool:
 def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[str] | None = None,
         deterministic: bool = False) -> dict:
     """Run the benchmark; returns ``{"summary": ..., "cases": [...]}`` (``deterministic``: threads stepped in turn)."""
-    from fgcd_cli.relocation.coarse.stage import CoarseConfig
+    from fgcd_cli.relocation.coarse.config import CoarseConfig
 
     chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK))]
     runs = [("coarse", LoopMode.PARALLEL, CoarseConfig())] + ([("baseline", LoopMode.PARALLEL, None)] if baseline else [])

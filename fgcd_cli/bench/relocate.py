@@ -30,9 +30,19 @@ from pathlib import Path
 
 import numpy as np
 
+from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
+from fgcd_cli.app.capture import capture_reference
 from fgcd_cli.app.determinism import deterministic_rig
-from fgcd_cli.campaign import init_campaign
+from fgcd_cli.app.relocate import relocate_and_capture
+from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
+from fgcd_cli.app.rig import open_sim_rig
+from fgcd_cli.app.scenario import SimScenario
+from fgcd_cli.campaign.store import init_campaign
+from fgcd_cli.errors import FgcdError
+from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
+from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.relocation.enums import CoarseAction, EstimateStage, LoopMode
+from fgcd_core.platform import PlatformError
 
 __all__ = ["CASES", "LOOP_MODES", "confident_wrong", "handover_summary", "run"]
 
@@ -90,15 +100,6 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     coarse-stage benchmark relocates the same reference with and without the stage (``deterministic``:
     capture and relocations with their threads stepped in a fixed order).
     """
-    from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
-    from fgcd_cli.app.capture import capture_reference
-    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
-    from fgcd_cli.app.rig import SimScenario, open_sim_rig
-    from fgcd_cli.errors import FgcdError
-    from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
-    from fgcd_cli.relocation.loop.parallel import RelocationConfig
-    from fgcd_core.platform import PlatformError
-
     camp = init_campaign(workdir / case.name, site=case.name, rig={"driver": "sim"})
     st = camp.create_station("s")
     out: dict = {"case": case.name, "scene": case.scene, "reference_light": case.reference_light,
@@ -119,7 +120,7 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
         out["error"] = f"setup: {exc}"
         say(f"{case.name}: setup failed: {exc}")
         return out
-    from fgcd_cli.relocation.coarse.stage import CoarseConfig
+    from fgcd_cli.relocation.coarse.config import CoarseConfig
 
     runs = runs if runs is not None else [(str(m), m, CoarseConfig()) for m in modes]
     for i, (label, mode, coarse) in enumerate(runs):

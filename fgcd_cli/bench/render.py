@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import list_scenes, load_scene
 

@@ -26,7 +26,8 @@ import time
 
 import numpy as np
 
-from fgcd_cli.vse import VseConfig, VseStatus, VseVariant, make_engine
+from fgcd_cli.vse.engine import VseVariant, make_engine
+from fgcd_cli.vse.types import VseConfig, VseStatus
 from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import interpolate_pose, invert_pose, transform_points
 from fgcd_core.sim3 import umeyama
@@ -81,7 +82,7 @@ def _render_sequence(scene: str, *, legs: int, step_m: float, step_deg: float, s
 
 def evaluate(states, truth: list[np.ndarray], gt, camera: PinholeCamera, *, frame_dt: float = 0.1) -> dict:
     """Accuracy of one run against the ground truth (see the module docstring)."""
-    from fgcd_drivers.cameras import CameraIntrinsics
+    from fgcd_core.camera import CameraIntrinsics
 
     final = states[-1]
     tracked = [i for i, s in enumerate(states) if s.status == VseStatus.TRACKING and s.T_map_cam is not None]

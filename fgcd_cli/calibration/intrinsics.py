@@ -21,7 +21,7 @@ import numpy as np
 
 from fgcd_cli.calibration.board import BoardDetection, BoardSpec
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye.linear import utc_now
+from fgcd_cli.calibration.handeye.result import utc_now
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
 

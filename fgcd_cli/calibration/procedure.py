@@ -17,7 +17,8 @@ import numpy as np
 from fgcd_cli.calibration.board import BoardSpec
 from fgcd_cli.calibration.depth_scale import KeyframeDepths
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye.linear import HandEyeResult, solve_handeye_scale
+from fgcd_cli.calibration.handeye.linear import solve_handeye_scale
+from fgcd_cli.calibration.handeye.result import HandEyeResult
 from fgcd_cli.calibration.handeye.target_free import PathViews, refine_target_free
 from fgcd_cli.calibration.handeye.tracks import gray_u8
 from fgcd_cli.calibration.handeye.with_target import TargetHandEyeResult, solve_handeye_target

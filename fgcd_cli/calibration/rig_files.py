@@ -6,7 +6,7 @@ previous record kept in ``rig/history/``).
 
 from __future__ import annotations
 
-from fgcd_cli.calibration.handeye.linear import HandEyeResult
+from fgcd_cli.calibration.handeye.result import HandEyeResult
 from fgcd_cli.calibration.intrinsics import IntrinsicsResult
 from fgcd_cli.campaign import schema
 from fgcd_cli.errors import CampaignError

@@ -25,7 +25,6 @@ from fgcd_cli.campaign.schema import (
 from fgcd_cli.errors import CampaignError, DataIntegrityError
 
 __all__ = [
-    "RIG_CHECKSUM_KEY",
     "campaign_world",
     "load_rig_record",
     "rig_calibration",

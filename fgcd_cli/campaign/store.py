@@ -22,13 +22,11 @@ import tomli_w
 
 from fgcd_cli import __version__
 from fgcd_cli.campaign.atomic import TMP_PREFIX, atomic_write_bytes, atomic_write_json, fsync_dir
-from fgcd_cli.campaign.codecs import decode_png, encode_npy, encode_ply, encode_png  # noqa: F401 - re-exported
 from fgcd_cli.campaign.observation import Observation, ObservationWriter, load_observation
-from fgcd_cli.campaign.records import RIG_CHECKSUM_KEY, load_rig_record, rig_checksum, write_rig_record  # noqa: F401
-from fgcd_cli.campaign.schema import (  # noqa: F401 - IMAGES_KEY, image_relpath_candidates re-exported
+from fgcd_cli.campaign.records import load_rig_record, write_rig_record
+from fgcd_cli.campaign.schema import (
     CAMPAIGN_FILE,
     FORMAT_VERSION,
-    IMAGES_KEY,
     MANIFEST,
     REFERENCE_DIR,
     RIG_DIR,
@@ -37,26 +35,13 @@ from fgcd_cli.campaign.schema import (  # noqa: F401 - IMAGES_KEY, image_relpath
     VISITS_DIR,
     ObservationKind,
     check_name,
-    image_file_stem,
-    image_relpath_candidates,
     now_iso,
     rig_record_file,
     utc_stamp,
 )
 from fgcd_cli.errors import CampaignError, DataIntegrityError, ImmutableDataError, UserInputError
 
-__all__ = [
-    "FORMAT_VERSION",
-    "Campaign",
-    "Station",
-    "Observation",
-    "ObservationWriter",
-    "init_campaign",
-    "open_campaign",
-    "utc_stamp",
-    "image_file_stem",
-    "image_relpath_candidates",
-]
+__all__ = ["Campaign", "Station", "init_campaign", "open_campaign"]
 
 # ----------------------------------------------------------------------------- station
 @dataclass

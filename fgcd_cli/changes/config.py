@@ -34,6 +34,12 @@ def _rule(value) -> DecisionRule:
         raise UserInputError(f"unknown decision rule {value!r}: use hysteresis or acontrario") from None
 
 
+#: ε, the tolerated number of false regions per image under the pair's own no-change model: the one
+#: default of every a-contrario decision and of every report that says whether a region is significant
+#: (docs/change-detection.md, "Significance of each region (a-contrario)").
+EPSILON = 1.0
+
+
 @dataclass(frozen=True, kw_only=True)
 class RegistrationConfig:
     """Bringing the current stack into the reference frame."""
@@ -90,7 +96,7 @@ class RegionConfig:
     k_high: float = 20.0
     """Hysteresis constants (also the suspect threshold of the robust gain rounds)."""
     k_low: float = 10.0
-    epsilon: float = 1.0
+    epsilon: float = EPSILON
     """A-contrario: tolerated false regions per image under the pair's own null."""
     seed_p: float = 0.005
     """A-contrario: lowest level tested (empirical tail probability)."""

@@ -45,7 +45,6 @@ from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshol
 from fgcd_cli.errors import UserInputError
 
 __all__ = [
-    "ChangeResult",
     "DetectionConfig",
     "decide",
     "detect_changes",

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage, special
 
-from fgcd_cli.changes.config import RegionConfig
+from fgcd_cli.changes.config import EPSILON, RegionConfig
 
 _EIGHT = np.ones((3, 3), bool)
 
@@ -162,7 +162,7 @@ def _log_region_probability(lam: float, sizes: np.ndarray, excess: np.ndarray, a
 class AcontrarioConfig:
     """Constants of :func:`acontrario_decision` (the module docstring gives the model)."""
 
-    epsilon: float = 1.0
+    epsilon: float = EPSILON
     """Expected number of false regions per image tolerated under the pair's own no-change model
     (1: at most one false region expected per image)."""
     seed_p: float = 0.005

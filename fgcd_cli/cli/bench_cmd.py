@@ -191,8 +191,8 @@ def paper(
 ) -> None:
     """Paper 000's experiments in the simulator: rACR beside the ACR baseline (Tables 2-5, Figs. 4, 6, 7, 12, §5.5)."""
     deterministic_setup(deterministic)
-    from fgcd_cli.bench.paper.main import EXPERIMENTS, run
-    from fgcd_cli.bench.paper.plan import TABLE4_CASES
+    from fgcd_cli.bench.paper.main import run
+    from fgcd_cli.bench.paper.plan import EXPERIMENTS, TABLE4_CASES
     from fgcd_cli.bench.relocate import CASES
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.errors import UserInputError

@@ -191,13 +191,12 @@ def handeye_cmd(
     from fgcd_cli.app.calibrate import (
         HandEyeMode,
         HandEyeRequest,
-        calibration_campaign,
         check_handeye_options,
         plan_handeye,
         store_handeye,
     )
     from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
-    from fgcd_cli.app.rig_options import RigOptions
+    from fgcd_cli.app.rig_options import RigOptions, calibration_campaign
     from fgcd_cli.cli.progress import step_progress
     from fgcd_cli.errors import AlgorithmError
 

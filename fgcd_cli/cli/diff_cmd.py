@@ -14,7 +14,7 @@ HELP = "Find fine-grained changes between reference and current images; write ma
 
 
 def _render(data: dict):
-    from fgcd_cli.app.diff_summary import no_change_lines, region_line, set_aside_line
+    from fgcd_cli.app.diff_summary import no_change_lines, region_line, result_epsilon, set_aside_line
 
     def render(console):
         if not data["comparable"]:
@@ -22,7 +22,7 @@ def _render(data: dict):
             console.print(f"[yellow]cannot compare[/yellow]: {reason}")
         else:
             n = len(data["regions"])
-            epsilon = float((data.get("settings") or {}).get("epsilon") or 1.0)
+            epsilon = result_epsilon(data)
             if n == 0:
                 for line in no_change_lines(data.get("candidates") or [], epsilon=epsilon):
                     console.print(line, markup=False)

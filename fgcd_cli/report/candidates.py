@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+from fgcd_cli.changes.config import EPSILON
 from fgcd_cli.changes.significance import SignificantRegion
 
 
@@ -76,21 +77,26 @@ def candidate_text(candidate: dict) -> str:
             f"at ({x:.0f}, {y:.0f}), {candidate['area_px']} px")
 
 
-def is_significant(log10_nfa: float | None, *, epsilon: float = 1.0) -> bool:
+def settings_epsilon(settings: dict | None) -> float:
+    """The ε a result was decided with, from its ``settings`` (results written before it was recorded: the default)."""
+    return float((settings or {}).get("epsilon") or EPSILON)
+
+
+def is_significant(log10_nfa: float | None, *, epsilon: float) -> bool:
     """Whether a log10 NFA is below ``log10(epsilon)`` (the a-contrario rule's acceptance)."""
     if log10_nfa is None or math.isnan(log10_nfa):
         return False
     return log10_nfa < math.log10(epsilon)
 
 
-def region_significance_text(log10_nfa: float | None, *, epsilon: float = 1.0) -> str:
+def region_significance_text(log10_nfa: float | None, *, epsilon: float) -> str:
     """A reported region's significance: ``"NFA 1e-12"``, or ``"not significant (NFA ≥ 1)"`` without a significant seed."""
     if log10_nfa is None:
         return f"not significant (NFA ≥ {epsilon:g})"
     return f"NFA {nfa_text(log10_nfa)}"
 
 
-def no_change_line(candidates: list[dict], *, epsilon: float = 1.0) -> str:
+def no_change_line(candidates: list[dict], *, epsilon: float) -> str:
     """The one line said when no region is reported, naming the strongest candidate.
 
     ``"no significant change; strongest candidate NFA = 3.2 (p = 0.0012) at (120, 45), 34 px"``.

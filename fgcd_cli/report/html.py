@@ -10,7 +10,7 @@ import numpy as np
 
 from fgcd_cli import __version__
 from fgcd_cli.changes.config import RegionConfig
-from fgcd_cli.changes.detect import ChangeResult
+from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
 from fgcd_cli.report.areas import area_mm2_text
 from fgcd_cli.report.candidates import (
@@ -21,13 +21,13 @@ from fgcd_cli.report.candidates import (
     p_text,
     region_significance_text,
     set_aside_text,
+    settings_epsilon,
 )
+from fgcd_cli.report.charts import convergence_png, history_png
 from fgcd_cli.report.figures import (
     CUE_NAMES,
-    convergence_png,
     data_uri,
     fdf_quiver_png,
-    history_png,
     png_bytes,
     region_closeup,
     result_overlay,
@@ -124,7 +124,7 @@ def _page(title: str, body: str) -> str:
 
 
 def _epsilon(result: ChangeResult) -> float:
-    return float(result.settings.get("epsilon") or 1.0)
+    return settings_epsilon(result.settings)
 
 
 def _no_change_verdict(result: ChangeResult) -> str:

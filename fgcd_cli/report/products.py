@@ -9,7 +9,7 @@ from dataclasses import asdict
 import numpy as np
 
 from fgcd_cli.campaign import schema
-from fgcd_cli.changes.detect import ChangeResult
+from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
 from fgcd_cli.report.candidates import candidate_dict, nfa_value
 from fgcd_cli.report.figures import fdf_quiver_png, png_bytes, result_overlay

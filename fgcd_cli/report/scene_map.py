@@ -12,7 +12,8 @@ import html
 
 import numpy as np
 
-from fgcd_cli.report.charts import figure_png, plt
+from fgcd_cli.report.charts import figure_png
+from fgcd_cli.report.mpl import plt
 
 __all__ = ["coarse_positions_mm", "scene_uncertainty_figure", "scene_uncertainty_section"]
 

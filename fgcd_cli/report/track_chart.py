@@ -6,7 +6,8 @@ from datetime import datetime, timedelta
 
 import matplotlib.dates as mdates
 
-from fgcd_cli.report.charts import figure_png, plt
+from fgcd_cli.report.charts import figure_png
+from fgcd_cli.report.mpl import plt
 
 __all__ = ["track_area_figure", "track_area_png"]
 

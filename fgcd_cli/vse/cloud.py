@@ -34,7 +34,7 @@ from fgcd_cli.vse.types import MapCloud, VseConfig
 from fgcd_core.se3 import invert_pose, rotation_angle_rad, transform_points
 
 if TYPE_CHECKING:
-    from fgcd_cli.vse.engine import VisualSlamEngine
+    from fgcd_cli.vse.engine_view import EngineView
 
 __all__ = ["CloudBuilder", "SemiDenseCloud", "DepthImageCloud", "LandmarkCloud"]
 
@@ -51,10 +51,10 @@ class CloudBuilder(Protocol):
     def reset(self) -> None:
         """Forget every cached cloud part."""
 
-    def after_keyframe(self, eng: VisualSlamEngine) -> None:
+    def after_keyframe(self, eng: EngineView) -> None:
         """A keyframe was added (the cloud is stale; per-keyframe depths may be due)."""
 
-    def cloud(self, eng: VisualSlamEngine) -> MapCloud:
+    def cloud(self, eng: EngineView) -> MapCloud:
         """The current cloud (cached until the next keyframe)."""
 
 
@@ -67,10 +67,10 @@ class LandmarkCloud:
     def reset(self) -> None:
         self._cache = None
 
-    def after_keyframe(self, eng: VisualSlamEngine) -> None:
+    def after_keyframe(self, eng: EngineView) -> None:
         self._cache = None
 
-    def cloud(self, eng: VisualSlamEngine) -> MapCloud:
+    def cloud(self, eng: EngineView) -> MapCloud:
         if self._cache is None:
             self._cache = landmark_cloud(eng.kfs, eng.landmarks.points, eng.landmarks.ok[: eng.landmarks.next_id],
                                          eng.K, kf_min_baseline_ratio=eng.config.kf_min_baseline_ratio)
@@ -124,13 +124,13 @@ class _FusedKeyframeCloud:
         self._cache = None
         self._parts = {}
 
-    def after_keyframe(self, eng: VisualSlamEngine) -> None:
+    def after_keyframe(self, eng: EngineView) -> None:
         self._cache = None
 
     def _reach(self, config: VseConfig) -> int:
         return 0
 
-    def cloud(self, eng: VisualSlamEngine) -> MapCloud:
+    def cloud(self, eng: EngineView) -> MapCloud:
         if self._cache is not None:
             return self._cache
         parts = []
@@ -149,7 +149,7 @@ class _FusedKeyframeCloud:
         return self._cache
 
     @staticmethod
-    def _part(eng: VisualSlamEngine, kf: KeyframeRecord, partners: list[KeyframeRecord]) -> tuple:
+    def _part(eng: EngineView, kf: KeyframeRecord, partners: list[KeyframeRecord]) -> tuple:
         """One keyframe's points: (X, intensities, keyframe ids, depth sigma, raw pixels)."""
         K = eng.K
         sd = kf.semidense
@@ -193,13 +193,13 @@ class SemiDenseCloud(_FusedKeyframeCloud):
     def _reach(self, config: VseConfig) -> int:
         return config.semidense_cross_fusion_keyframes
 
-    def after_keyframe(self, eng: VisualSlamEngine) -> None:
+    def after_keyframe(self, eng: EngineView) -> None:
         super().after_keyframe(eng)
         if eng.config.semidense:
             self._update_depths(eng)
 
     @staticmethod
-    def _update_depths(eng: VisualSlamEngine) -> None:
+    def _update_depths(eng: EngineView) -> None:
         """Depth for recent keyframes that have stereo partners on both sides (each keyframe once)."""
         kfs = eng.kfs
         n = len(kfs)
@@ -212,7 +212,7 @@ class SemiDenseCloud(_FusedKeyframeCloud):
             kfs[k].semidense = semidense_of_keyframe(eng, k, nbs)
 
 
-def depth_partners(eng: VisualSlamEngine, k: int) -> list[int]:
+def depth_partners(eng: EngineView, k: int) -> list[int]:
     """Indices of keyframes usable as stereo partners of keyframe ``k`` (good baseline), nearest first."""
     cfg = eng.config
     kf = eng.kfs[k]
@@ -230,7 +230,7 @@ def depth_partners(eng: VisualSlamEngine, k: int) -> list[int]:
     return [j for _, _, j in cands[: cfg.semidense_neighbors]]
 
 
-def semidense_of_keyframe(eng: VisualSlamEngine, k: int, nbs: list[int]) -> SemiDenseDepth | None:
+def semidense_of_keyframe(eng: EngineView, k: int, nbs: list[int]) -> SemiDenseDepth | None:
     """Semi-dense depth of keyframe ``k`` from partners ``nbs``, searched over the inverse depths of its
     landmarks (1st-99th percentile, widened by 30 %); None with fewer than 10 landmarks in front."""
     cfg = eng.config
@@ -256,7 +256,7 @@ def semidense_of_keyframe(eng: VisualSlamEngine, k: int, nbs: list[int]) -> Semi
 class DepthImageCloud(_FusedKeyframeCloud):
     """RGB-D: each keyframe's high-gradient pixels with their measured depth (sigma ``depth_sigma_rel * z``)."""
 
-    def after_keyframe(self, eng: VisualSlamEngine) -> None:
+    def after_keyframe(self, eng: EngineView) -> None:
         super().after_keyframe(eng)
         kf = eng.kfs[-1]
         if kf.depth is None:

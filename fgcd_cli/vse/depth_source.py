@@ -14,7 +14,7 @@ from fgcd_cli.vse.initializer import DepthInitializer, TwoViewInitializer
 from fgcd_cli.vse.landmarks import KeyframeRecord, lift_with_depth, triangulate_new
 
 if TYPE_CHECKING:
-    from fgcd_cli.vse.engine import VisualSlamEngine
+    from fgcd_cli.vse.engine_view import EngineView
 
 __all__ = ["DepthSource", "Triangulation", "DepthImage"]
 
@@ -28,13 +28,13 @@ class DepthSource(Protocol):
     def reset(self) -> None:
         """Forget any initialisation in progress."""
 
-    def initialize(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
+    def initialize(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         """One frame before the map exists."""
 
-    def on_keyframe(self, eng: VisualSlamEngine, kf: KeyframeRecord) -> None:
+    def on_keyframe(self, eng: EngineView, kf: KeyframeRecord) -> None:
         """Landmarks for the new keyframe's tracks, before the bundle adjustment."""
 
-    def on_new_tracks(self, eng: VisualSlamEngine, kf: KeyframeRecord) -> None:
+    def on_new_tracks(self, eng: EngineView, kf: KeyframeRecord) -> None:
         """Landmarks for the tracks detected in the new keyframe."""
 
 
@@ -49,14 +49,14 @@ class Triangulation:
     def reset(self) -> None:
         self.initializer = TwoViewInitializer()
 
-    def initialize(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
+    def initialize(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         self.initializer.step(eng, img_u8, frame_image)
 
-    def on_keyframe(self, eng: VisualSlamEngine, kf: KeyframeRecord) -> None:
+    def on_keyframe(self, eng: EngineView, kf: KeyframeRecord) -> None:
         triangulate_new(kf, eng.kfs, eng.landmarks, eng.K, min_angle_deg=eng.frontend.min_triangulation_deg,
                         reproj_inlier_px=eng.config.reproj_inlier_px)
 
-    def on_new_tracks(self, eng: VisualSlamEngine, kf: KeyframeRecord) -> None:
+    def on_new_tracks(self, eng: EngineView, kf: KeyframeRecord) -> None:
         """New tracks wait for a second keyframe."""
 
 
@@ -71,11 +71,11 @@ class DepthImage:
     def reset(self) -> None:
         self.initializer = DepthInitializer()
 
-    def initialize(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
+    def initialize(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         self.initializer.step(eng, img_u8, frame_image)
 
-    def on_keyframe(self, eng: VisualSlamEngine, kf: KeyframeRecord) -> None:
+    def on_keyframe(self, eng: EngineView, kf: KeyframeRecord) -> None:
         lift_with_depth(eng.camera, eng.landmarks, kf, eng.tracks.ids, eng.tracks.pts)
 
-    def on_new_tracks(self, eng: VisualSlamEngine, kf: KeyframeRecord) -> None:
+    def on_new_tracks(self, eng: EngineView, kf: KeyframeRecord) -> None:
         lift_with_depth(eng.camera, eng.landmarks, kf, eng.tracks.ids, eng.tracks.pts)

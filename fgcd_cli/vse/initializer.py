@@ -25,7 +25,7 @@ from fgcd_cli.vse.types import VseStatus
 from fgcd_core.se3 import make_pose
 
 if TYPE_CHECKING:
-    from fgcd_cli.vse.engine import VisualSlamEngine
+    from fgcd_cli.vse.engine_view import EngineView
 
 __all__ = ["TwoViewInitializer", "DepthInitializer"]
 
@@ -48,7 +48,7 @@ class _TextureGate:
     def __init__(self) -> None:
         self.frames_without_texture = 0
 
-    def reference_tracks(self, eng: VisualSlamEngine, img_u8: np.ndarray) -> bool:
+    def reference_tracks(self, eng: EngineView, img_u8: np.ndarray) -> bool:
         """Replace the engine's tracks by fresh corners of ``img_u8``; whether there are enough."""
         cfg = eng.config
         eng.tracks = Tracks()
@@ -77,7 +77,7 @@ class TwoViewInitializer(_TextureGate):
         super().__init__()
         self.reference: _Reference | None = None
 
-    def step(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
+    def step(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         """Try to initialise the map with this frame (``eng.message`` says why not)."""
         cfg = eng.config
         if self.reference is None or len(eng.tracks) < cfg.init_min_inliers:
@@ -98,7 +98,7 @@ class TwoViewInitializer(_TextureGate):
         T10, inl = motion
         self._make_map(eng, img_u8, frame_image, T10, eng.tracks.ids[inl], p0[inl], p1[inl])
 
-    def _set_reference(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
+    def _set_reference(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         if not self.reference_tracks(eng, img_u8):
             self.reference = None
             return
@@ -108,7 +108,7 @@ class TwoViewInitializer(_TextureGate):
         eng.message = "initialising: reference frame set, waiting for parallax"
 
     @staticmethod
-    def _relative_motion(eng: VisualSlamEngine, p0: np.ndarray, p1: np.ndarray):
+    def _relative_motion(eng: EngineView, p0: np.ndarray, p1: np.ndarray):
         """``(T10, inliers)``: camera 1 from camera 0 at a median depth of 1, or None (message set)."""
         cfg, K = eng.config, eng.K
         rot_residual_px = rotation_only_residual_px(K, p0, p1)
@@ -143,7 +143,7 @@ class TwoViewInitializer(_TextureGate):
         T10[:3, 3] /= float(np.median(X[good][:, 2]))
         return T10, inl
 
-    def _make_map(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray, T10: np.ndarray,
+    def _make_map(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray, T10: np.ndarray,
                   ids: np.ndarray, uv0: np.ndarray, uv1: np.ndarray) -> None:
         """Keyframes 0 (the reference) and 1 (this frame), the landmarks of the inlier tracks ``ids`` (N,)
         at ``uv0``/``uv1`` (N, 2)."""
@@ -167,7 +167,7 @@ class TwoViewInitializer(_TextureGate):
 class DepthInitializer(_TextureGate):
     """RGB-D initialisation: the first textured frame is the map origin, its landmarks from the depth image."""
 
-    def step(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
+    def step(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         """Initialise the map with this frame when it has enough corners."""
         if not self.reference_tracks(eng, img_u8):
             return

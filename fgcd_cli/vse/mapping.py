@@ -19,7 +19,7 @@ from fgcd_cli.vse.ba import OutlierRejectionConfig, bundle_adjust_rejecting_outl
 from fgcd_cli.vse.landmarks import KeyframeRecord
 
 if TYPE_CHECKING:
-    from fgcd_cli.vse.engine import VisualSlamEngine
+    from fgcd_cli.vse.engine_view import EngineView
 
 __all__ = ["windowed_bundle_adjustment"]
 
@@ -44,7 +44,7 @@ def _window_observations(window: list[KeyframeRecord], lm_ok: np.ndarray):
     return obs_cam[multi], obs_id[multi], obs_uv[multi]
 
 
-def _rejection_config(eng: VisualSlamEngine) -> OutlierRejectionConfig:
+def _rejection_config(eng: EngineView) -> OutlierRejectionConfig:
     cfg = eng.config
     noise_level = eng.frontend.noise_level_outliers
     return OutlierRejectionConfig(
@@ -54,7 +54,7 @@ def _rejection_config(eng: VisualSlamEngine) -> OutlierRejectionConfig:
     )
 
 
-def windowed_bundle_adjustment(eng: VisualSlamEngine) -> None:
+def windowed_bundle_adjustment(eng: EngineView) -> None:
     """Adjust the last ``VseConfig.ba_window`` keyframes and their landmarks in place."""
     window = eng.kfs[-eng.config.ba_window :]
     C = len(window)
@@ -78,7 +78,7 @@ def windowed_bundle_adjustment(eng: VisualSlamEngine) -> None:
         _drop_outliers(eng, window, obs_cam[bad], obs_id[bad], uniq, obs_pt, bad)
 
 
-def _drop_outliers(eng: VisualSlamEngine, window: list[KeyframeRecord], bad_cam: np.ndarray, bad_id: np.ndarray,
+def _drop_outliers(eng: EngineView, window: list[KeyframeRecord], bad_cam: np.ndarray, bad_id: np.ndarray,
                    uniq: np.ndarray, obs_pt: np.ndarray, bad: np.ndarray) -> None:
     """Remove rejected observations from their keyframes; drop landmarks rejected in half their observations."""
     bad_ids = set(zip(bad_cam.tolist(), bad_id.tolist()))

@@ -23,7 +23,7 @@ from fgcd_cli.vse.types import VseStatus
 from fgcd_core.se3 import invert_pose, make_pose
 
 if TYPE_CHECKING:
-    from fgcd_cli.vse.engine import VisualSlamEngine
+    from fgcd_cli.vse.engine_view import EngineView
 
 __all__ = ["Relocalizer", "MAX_KEYFRAMES_TRIED", "ORB_TIE_PX"]
 
@@ -50,7 +50,7 @@ class Relocalizer:
             kf.orb_desc = desc[hit]
             kf.orb_ids = kf.track_ids[ok][nn[hit]]
 
-    def relocalize(self, eng: VisualSlamEngine, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
+    def relocalize(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         """Find the pose of a frame after tracking loss; on success the frame becomes a keyframe."""
         eng.lost_frames += 1
         c_last = invert_pose(eng.T_cam_map)[:3, 3]
@@ -81,7 +81,7 @@ class Relocalizer:
             return
         eng.message = f"lost for {eng.lost_frames} frames: no keyframe matches the view"
 
-    def _locate_from_keyframe(self, eng: VisualSlamEngine, kf: KeyframeRecord, img_u8: np.ndarray,
+    def _locate_from_keyframe(self, eng: EngineView, kf: KeyframeRecord, img_u8: np.ndarray,
                               T_guess: np.ndarray) -> np.ndarray | None:
         """Pose from KLT tracks keyframe -> frame started at the projections at ``T_guess``."""
         cfg = eng.config
@@ -106,7 +106,7 @@ class Relocalizer:
         return T
 
     @staticmethod
-    def _orb_pose(eng: VisualSlamEngine, kf: KeyframeRecord, kp_xy: np.ndarray,
+    def _orb_pose(eng: EngineView, kf: KeyframeRecord, kp_xy: np.ndarray,
                   desc: np.ndarray | None) -> np.ndarray | None:
         """Coarse pose from ORB matches between a keyframe's landmarks and the frame (keypoints ``kp_xy`` (K, 2))."""
         cfg = eng.config

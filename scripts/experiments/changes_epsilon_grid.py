@@ -5,7 +5,7 @@ third leave-one-group-out constant" (epsilon chosen leave one group out). Each r
 once with the shipped detector; the decision is then taken over the grid
 seed_p x extent_fraction x epsilon and every group is scored with the point
 that has the best mean auto F1 on the other six (the bench's own procedure,
-fgcd_cli.bench.changes.leave_one_group_out, with epsilon added to its grid).
+fgcd_cli.bench.changes.main.leave_one_group_out, with epsilon added to its grid).
 The simulated pairs of `fgcd bench changes` are then decided with a given point.
 
     .venv/bin/python scripts/experiments/changes_epsilon_grid.py real [--eps 1,10,100]
@@ -20,10 +20,9 @@ import json
 import cv2
 import numpy as np
 
-from fgcd_cli.bench.changes import DATASET, _read_rgb, find_groups, group_lightings
-from fgcd_cli.changes import detect_changes
+from fgcd_cli.bench.changes.main import DATASET, _read_rgb, find_groups, group_lightings
 from fgcd_cli.changes.config import DecisionRule, RegionConfig
-from fgcd_cli.changes.detect import decide
+from fgcd_cli.changes.detect import decide, detect_changes
 from fgcd_cli.metrics.change_scores import binary_scores
 
 
@@ -57,7 +56,7 @@ def real(eps_values: list[float]) -> None:
 
 
 def sim(seed_p: float, extent: float, epsilon: float) -> None:
-    from fgcd_cli.bench.changes_sim import run_sim
+    from fgcd_cli.bench.changes.simulated import run_sim
 
     options = {"decision": DecisionRule.ACONTRARIO, "seed_p": seed_p, "extent_fraction": extent, "epsilon": epsilon}
     out = run_sim(quick=False, detector_options=options)

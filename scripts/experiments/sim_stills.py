@@ -19,12 +19,14 @@ import time
 import numpy as np
 
 from fgcd_cli.app.diff import EDGE_CHECK_PX
-from fgcd_cli.changes import detect_changes, pixel_area_from_depth
 from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.regions import pixel_area_from_depth
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_core.se3 import exp_se3
-from fgcd_drivers.cameras import CameraIntrinsics
-from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
+from fgcd_drivers.sim.sensor import CameraEffects
 
 INTRINSICS = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
 EFFECTS = CameraEffects(read_noise=0.003, shot_noise=0.004, vignetting=0.2)

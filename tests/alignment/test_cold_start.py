@@ -12,11 +12,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
 from fgcd_cli.alignment.cold_start import scale_neighbour
+from fgcd_cli.alignment.fast import fast_align
+from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.alignment.icp_levels import LevelInputs
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import ReliefScene
-from fgcd_core import Sim3, exp_se3
+from fgcd_core.se3 import exp_se3
+from fgcd_core.sim3 import Sim3
 
 WIDTH = 0.6
 NOISE = 0.002  # current-cloud noise per axis, metres

@@ -9,8 +9,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fgcd_cli.alignment import FastAlignConfig
-from fgcd_cli.alignment.fast_config import ColdStartConfig, IcpMetric, RobustKernel, SearchScore, WeakProbeConfig
+from fgcd_cli.alignment.fast_config import (
+    ColdStartConfig,
+    FastAlignConfig,
+    IcpMetric,
+    RobustKernel,
+    SearchScore,
+    WeakProbeConfig,
+)
 from fgcd_cli.alignment.health import HealthEvidence, HealthLimits, assess
 from fgcd_cli.alignment.initial import GuessSource
 from fgcd_cli.alignment.results import HEALTH_OK, StartPath

@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
-from fgcd_cli.alignment.fast_config import ScaleStepConfig
+from fgcd_cli.alignment.fast import fast_align
+from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
 from fgcd_cli.alignment.health import scale_conditioning, similarity_conditioning
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.sparse_icp import scale_step_point_to_plane, shrink, shrink_threshold
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity, sample_plane, sample_sphere
-from fgcd_core import Sim3
+from fgcd_core.sim3 import Sim3
 
 NOISE = 0.002  # metres, current-cloud noise per axis
 

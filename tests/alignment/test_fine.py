@@ -5,10 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcd_cli.alignment import ReferenceIndex, fast_align
-from fgcd_cli.alignment.fine import FineAlignConfig, fine_align
+from fgcd_cli.alignment.fast import fast_align
+from fgcd_cli.alignment.fine import fine_align
+from fgcd_cli.alignment.fine_config import FineAlignConfig
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import ReliefScene, SessionConfig, make_session, random_similarity
-from fgcd_core import PinholeCamera, Sim3, pose_distance
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import pose_distance
+from fgcd_core.sim3 import Sim3
 
 CAMERA = PinholeCamera(fx=400, fy=400, cx=159.5, cy=119.5, width=320, height=240)
 

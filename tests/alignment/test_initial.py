@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcd_cli.alignment import ReferenceIndex, camera_prior, initial_guess
+from fgcd_cli.alignment.initial import camera_prior, initial_guess
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import ReliefScene, look_at, random_similarity
-from fgcd_core import exp_se3, pose_distance
+from fgcd_core.se3 import exp_se3, pose_distance
 
 
 @pytest.fixture(scope="module")

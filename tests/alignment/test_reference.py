@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fgcd_cli.alignment import ReferenceIndex
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import ReliefScene
 
 

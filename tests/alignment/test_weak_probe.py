@@ -10,10 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex, fast_align
-from fgcd_cli.alignment.fast_config import WeakProbeConfig
+from fgcd_cli.alignment.fast import fast_align
+from fgcd_cli.alignment.fast_config import FastAlignConfig, WeakProbeConfig
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import look_at
-from fgcd_core import PinholeCamera, Sim3, exp_se3
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import exp_se3
+from fgcd_core.sim3 import Sim3
 
 NOISE = 0.002  # m per axis, both clouds
 

@@ -22,7 +22,8 @@ class _InterruptedWriter:
 
 
 def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypatch):
-    import fgcd_cli.alignment as alignment
+    import fgcd_cli.alignment.initial as alignment_initial
+    import fgcd_cli.alignment.reference as alignment_reference
     import fgcd_cli.app.relocate as capture_uc
     from fgcd_cli.relocation.session import ScaleEstimate
 
@@ -40,8 +41,8 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
     result = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, platform_s=1.0,
                              synthetic_s=0.0, records=[], residual=None)
     monkeypatch.setattr(capture_uc, "load_reference", lambda station: reference)
-    monkeypatch.setattr(alignment, "ReferenceIndex", lambda *a, **k: None)
-    monkeypatch.setattr(alignment, "initial_guess", lambda **k: SimpleNamespace(T_ref_cur=np.eye(4), source="test",
+    monkeypatch.setattr(alignment_reference, "ReferenceIndex", lambda *a, **k: None)
+    monkeypatch.setattr(alignment_initial, "initial_guess", lambda **k: SimpleNamespace(T_ref_cur=np.eye(4), source="test",
                                                                                  fast=None))
     monkeypatch.setattr(capture_uc, "start_revisit_session",
                         lambda rig, station, reference, **k: (session, SimpleNamespace(stop=lambda: None), scale, None))

@@ -3,7 +3,7 @@
 import pytest
 
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
-from fgcd_cli.campaign import init_campaign
+from fgcd_cli.campaign.store import init_campaign
 from fgcd_cli.errors import CampaignError, UserInputError
 
 

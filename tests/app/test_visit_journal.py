@@ -130,8 +130,8 @@ def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
     """Ctrl-C after the first adjustment of a simulated revisit, then `--resume`: continued, log kept."""
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
     from fgcd_cli.app.revisit import RevisitRequest, plan_revisit, run_revisit
-    from fgcd_cli.campaign import init_campaign, open_campaign
     from fgcd_cli.campaign.schema import RELOCATION_LOG
+    from fgcd_cli.campaign.store import init_campaign, open_campaign
     from fgcd_drivers.sim.rig import build_sim_rig
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
@@ -158,7 +158,7 @@ def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
 
 
 def test_campaign_verify_notes_an_interrupted_visit(tmp_path):
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
     from fgcd_cli.campaign.verify import verify_campaign_dir
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
@@ -183,7 +183,7 @@ def _relocate_interrupted(tmp_path, monkeypatch, capsys, *, adjustments: int) ->
     """`fgcd relocate` in-process on a stand-in rig, Ctrl-C after ``adjustments`` adjustments: (code, stderr, journal)."""
     import fgcd_cli.app.revisit as relocate_uc
     import fgcd_cli.app.rig as rig_uc
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
     from fgcd_cli.cli.app import app, run
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
@@ -214,7 +214,7 @@ def test_ctrl_c_in_a_revisit_says_the_journal_is_kept_for_resume(tmp_path, monke
     assert err.strip().splitlines()[-1] == (
         "interrupted (Ctrl-C): the manual platform was not moving; no visit was written; "
         f"the journal {journal} is kept for `fgcd relocate --resume`")
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     station = open_campaign(journal.parents[3]).station("s1")
     assert len(decide_resume(station, resume=True, options=OPTIONS).records) == 2

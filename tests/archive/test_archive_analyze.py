@@ -27,7 +27,8 @@ from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign  # noqa: E402
 from fgcd_cli.archive.discovery import archive_visits, find_campaigns  # noqa: E402
 from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, Freshness  # noqa: E402
 from fgcd_cli.bench.archive.data import SyntheticArchiveConfig, build_synthetic_archive  # noqa: E402
-from fgcd_cli.campaign import open_campaign, schema  # noqa: E402
+from fgcd_cli.campaign import schema  # noqa: E402
+from fgcd_cli.campaign.store import open_campaign  # noqa: E402
 
 REGIONS = schema.change_relpath(schema.REGIONS_JSON)
 # 256 x 192 px at 800 px focal: the benchmark's 1.5 mm per pixel on a smaller field, a few seconds per visit.

@@ -17,7 +17,8 @@ from fgcd_cli.archive.freshness import (
     freshness,
     verify_inputs,
 )
-from fgcd_cli.campaign import init_campaign, schema
+from fgcd_cli.campaign import schema
+from fgcd_cli.campaign.store import init_campaign
 from fgcd_cli.errors import DataIntegrityError
 
 

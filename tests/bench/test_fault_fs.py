@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from fgcd_cli.bench.faults.tmpfs import MountUnavailable, fill_to, free_bytes, remount_readonly, small_fs
-from fgcd_cli.campaign import init_campaign
 from fgcd_cli.campaign.lock import station_lock
+from fgcd_cli.campaign.store import init_campaign
 
 pytestmark = pytest.mark.timeout(600)
 

@@ -116,7 +116,7 @@ def test_only_file_system_changes_are_write_events(tmp_path):
 STORE_WRITER = """
 import sys
 import numpy as np
-from fgcd_cli.campaign import open_campaign
+from fgcd_cli.campaign.store import open_campaign
 station = open_campaign(sys.argv[1]).station("s")
 with station.new_visit({"n": 2}) as w:
     w.add_image("led:3", np.full((16, 16), 7, np.uint8))
@@ -127,7 +127,7 @@ with station.new_visit({"n": 2}) as w:
 
 
 def _store_campaign(tmp_path: Path):
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
     st = camp.station_or_create("s")

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.campaign import init_campaign
+from fgcd_cli.campaign.store import init_campaign
 
 ROOT = Path(__file__).parents[2]
 
@@ -115,7 +115,7 @@ def _ur_campaign(tmp_path):
     """A UR campaign (an address nothing listens on: refused at once) with calibrated intrinsics."""
     r = fgcd("campaign", "init", tmp_path / "urc", "--site", "UR site", "--driver", "ur", "--host", "127.0.0.77")
     assert r.returncode == 0, r.stderr
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     camp = open_campaign(tmp_path / "urc")
     camp.write_rig("intrinsics", INTRINSICS)
@@ -150,7 +150,7 @@ def test_handeye_made_on_another_rig_is_never_stored_in_the_campaign(tmp_path):
 
 def _fake_calibration(rms_mm: float):
     from fgcd_cli.app.calibrate import HandEyeCalibration
-    from fgcd_cli.calibration.handeye.linear import HandEyeResult
+    from fgcd_cli.calibration.handeye.result import HandEyeResult
 
     result = HandEyeResult(T_flange_cam=np.eye(4), scale=1.6, method="racr-linear", n_samples=12, n_pairs=2,
                            pairs=[(0, 1), (1, 2)], residuals_mm=np.array([rms_mm, rms_mm]),

@@ -8,12 +8,8 @@ import numpy as np
 import pytest
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye.linear import (
-    HandEyeResult,
-    ScaleResult,
-    estimate_scale,
-    solve_handeye_scale,
-)
+from fgcd_cli.calibration.handeye.linear import estimate_scale, solve_handeye_scale
+from fgcd_cli.calibration.handeye.result import HandEyeResult, ScaleResult
 from fgcd_cli.calibration.handeye.with_target import solve_handeye_target
 from fgcd_cli.calibration.samples import rotation_axis_spread_deg
 from fgcd_cli.errors import UserInputError

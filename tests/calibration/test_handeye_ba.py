@@ -205,7 +205,7 @@ def test_refinement_fixes_the_hand_eye_and_scale_of_noisy_vse_poses(plane_case):
     assert by_motion.refinement["scale_method"].startswith("camera motions")
     assert abs(by_motion.scale / scale - 1) < 3 * by_motion.refinement["scale_std"] / by_motion.scale
     # the stored form keeps the refinement
-    from fgcd_cli.calibration.handeye.linear import HandEyeResult
+    from fgcd_cli.calibration.handeye.result import HandEyeResult
 
     back = HandEyeResult.from_dict(refined.to_dict())
     assert back.refinement["points"] == refined.refinement["points"]

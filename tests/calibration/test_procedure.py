@@ -149,7 +149,7 @@ def test_run_target_free_reports_a_vse_that_never_tracks():
 def test_results_are_stored_in_the_campaign_rig_with_history(tmp_path, handeye_data):
     from fgcd_cli.calibration.handeye.linear import solve_handeye_scale
     from fgcd_cli.calibration.rig_files import load_camera, load_handeye, save_handeye
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
     from fgcd_cli.errors import CampaignError
 
     camp = init_campaign(tmp_path / "c", site="test")
@@ -171,7 +171,7 @@ def test_calibration_package_never_imports_the_simulator():
 
     import fgcd_cli.calibration as pkg
 
-    for path in Path(pkg.__file__).parent.glob("*.py"):
+    for path in Path(pkg.__file__).parent.rglob("*.py"):
         text = path.read_text(encoding="utf-8")
         assert "fgcd_drivers.sim" not in text, f"{path.name} imports the simulator"
 

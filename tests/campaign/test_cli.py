@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcd_cli.campaign import init_campaign
+from fgcd_cli.campaign.store import init_campaign
 
 ROOT = Path(__file__).parents[2]
 

@@ -8,7 +8,7 @@ import pytest
 
 import fgcd_cli.campaign.observation as observation_mod
 import fgcd_cli.campaign.store as store_mod
-from fgcd_cli.campaign import init_campaign, open_campaign
+from fgcd_cli.campaign.store import init_campaign, open_campaign
 from fgcd_cli.campaign.verify import verify_campaign_dir
 
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcd_cli.campaign import init_campaign
 from fgcd_cli.campaign.lock import StationBusy, station_lock
+from fgcd_cli.campaign.store import init_campaign
 
 ROOT = Path(__file__).parents[2]
 pytestmark = pytest.mark.timeout(120)

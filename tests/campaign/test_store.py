@@ -11,9 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcd_cli.campaign import init_campaign, open_campaign, verify_campaign
 from fgcd_cli.campaign.atomic import sha256_bytes
-from fgcd_cli.campaign.store import MANIFEST, encode_png
+from fgcd_cli.campaign.codecs import encode_png
+from fgcd_cli.campaign.schema import MANIFEST
+from fgcd_cli.campaign.store import init_campaign, open_campaign
+from fgcd_cli.campaign.verify import verify_campaign
 from fgcd_cli.errors import CampaignError, DataIntegrityError, ImmutableDataError, UserInputError
 
 
@@ -189,7 +191,7 @@ def test_killed_during_write_leaves_no_valid_half_observation(camp):
     script = textwrap.dedent(
         f"""
         import os, signal, numpy as np
-        from fgcd_cli.campaign import open_campaign
+        from fgcd_cli.campaign.store import open_campaign
         st = open_campaign({str(camp.path)!r}).station("s")
         w = st.new_visit()
         w.add_image("a", np.zeros((64, 64), np.uint8))
@@ -439,7 +441,7 @@ def test_old_campaigns_with_colon_file_names_are_still_read(camp):
 
 
 def test_a_lighting_name_gives_its_portable_file_then_its_old_spelling():
-    from fgcd_cli.campaign.store import image_file_stem, image_relpath_candidates
+    from fgcd_cli.campaign.schema import image_file_stem, image_relpath_candidates
 
     assert image_file_stem("led:3") == "led-3"
     assert image_relpath_candidates("led:3") == ["images/led-3.png", "images/led:3.png"]

@@ -9,8 +9,8 @@ import shutil
 import numpy as np
 import pytest
 
-from fgcd_cli.campaign import init_campaign, open_campaign
 from fgcd_cli.campaign.schema import RELOCATION_LOG, VISIT_JOURNAL, VISITS_DIR
+from fgcd_cli.campaign.store import init_campaign, open_campaign
 from fgcd_cli.campaign.verify import verify_campaign_dir
 
 RECORDS = [{"iteration": 1, "residual": 0.01}, {"iteration": 2, "residual": 0.001}]

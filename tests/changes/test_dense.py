@@ -6,14 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.changes.dense.refine import (
-    DenseConfig,
-    apply_flow,
-    lighting_invariant,
-    refine_dense,
-    smoothing_scale_px,
-    warp_with_flow,
-)
+from fgcd_cli.changes.dense.fit import smoothing_scale_px
+from fgcd_cli.changes.dense.refine import DenseConfig, apply_flow, lighting_invariant, refine_dense, warp_with_flow
 from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.changes.registration import gradient_magnitude, register_to_reference, warp_to_reference
 

@@ -2,7 +2,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.changes import detect_changes, pixel_area_from_depth
+from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.regions import pixel_area_from_depth
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.metrics.change_scores import binary_scores
 

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from fgcd_cli.changes.config import DetectionConfig
-from fgcd_cli.changes.detect import ChangeResult, detect_changes
+from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.result import ChangeResult
 
 from .conftest import textured_scene
 

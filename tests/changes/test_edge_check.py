@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 import fgcd_cli.changes.edge_check as edge_check
-from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.edge_check import along_edge_elongation, max_hidden_blob_px
 from fgcd_cli.metrics.change_scores import binary_scores
 

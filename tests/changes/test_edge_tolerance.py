@@ -4,9 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.cues.maps import edge_band, edge_tolerant_difference, envelope_distance, shift_tolerant_difference
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.metrics.change_scores import binary_scores
 
 from .conftest import textured_scene

@@ -5,7 +5,7 @@ from pathlib import Path
 import cv2
 import pytest
 
-from fgcd_cli.changes import detect_changes
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores
 
 GROUP = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "fgcd-dataset" / "Db" / "Db-1"

@@ -4,8 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.illumination import normalize_local_gain
 from fgcd_cli.changes.regions import refine_to_local_peak
 from fgcd_cli.metrics.change_scores import binary_scores

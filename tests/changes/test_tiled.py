@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 from skimage import data
 
-from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.config import DetectionConfig
-from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled, load_images, tile_grid
+from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.tiled.geometry import tile_grid
+from fgcd_cli.changes.tiled.inputs import load_images
+from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
 from fgcd_cli.errors import UserInputError
 from fgcd_cli.metrics.change_scores import binary_scores
 

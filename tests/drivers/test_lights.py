@@ -6,8 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcd_drivers.grbl import GrblConfig, GrblPlatform
-from fgcd_drivers.lights import AMBIENT, LightsDriver, LightsError, LightsSpec, ManualLights, open_lights
+from fgcd_drivers.connect import open_lights
+from fgcd_drivers.grbl.config import GrblConfig
+from fgcd_drivers.grbl.platform import GrblPlatform
+from fgcd_drivers.lights import AMBIENT, LightsDriver, LightsError, LightsSpec, ManualLights
 from fgcd_drivers.lights_grbl import GrblLights
 from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 from fgcd_drivers.testing.light_controller_emulator import LightControllerEmulator
@@ -189,7 +191,7 @@ def test_a_simulated_capture_switches_real_lights_end_to_end(tmp_path, emulator,
     """`fgcd capture --light ambient,led:3,led:9` on the simulated platform with GRBL or manual lights."""
     from fgcd_cli.app.capture import CaptureRequest, plan_capture, run_capture
     from fgcd_cli.app.rig import RigHooks
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
     from fgcd_drivers.sim.rig import build_sim_rig
 
     lights = {"driver": driver, "channels": {"led:3": "flood", "led:9": "mist"}}

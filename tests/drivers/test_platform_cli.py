@@ -215,7 +215,7 @@ def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
 
 def test_platform_commands_take_the_campaigns_rig(tmp_path, emulator):
     """`platform check -c CAMPAIGN`: the port and baud of campaign.toml [rig] (issue 48, item 1: one rule)."""
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
 
     camp = init_campaign(tmp_path / "g", site="x", rig={"driver": "grbl", "port": emulator.port, "baud": 115200})
     run = fgcd("platform", "check", "-c", str(camp.path), "--timeout", "1", "--json")

@@ -33,10 +33,10 @@ from fgcd_drivers.ur import (
     URPlatform,
     abandoned_interface_count,
     pose_to_vector,
-    preflight,
     safety_problem,
     vector_to_pose,
 )
+from fgcd_drivers.ur_preflight import preflight
 
 pytestmark = pytest.mark.timeout(90)
 

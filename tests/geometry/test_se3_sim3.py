@@ -7,7 +7,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fgcd_core import Sim3, umeyama
 from fgcd_core.se3 import (
     exp_se3,
     interpolate_pose,
@@ -21,6 +20,7 @@ from fgcd_core.se3 import (
     pose_to_rotvec,
     transform_points,
 )
+from fgcd_core.sim3 import Sim3, umeyama
 
 finite = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
 # rotation angles below pi (log is ambiguous at exactly pi)

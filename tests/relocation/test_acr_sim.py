@@ -3,14 +3,17 @@
 import numpy as np
 import pytest
 
-from fgcd_cli.campaign import init_campaign, schema
+from fgcd_cli.campaign import schema
+from fgcd_cli.campaign.store import init_campaign
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["acr", "acr-h"])
 def test_acr_revisit_on_the_simulator(tmp_path, method):
-    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
-    from fgcd_cli.app.rig import SimScenario, open_sim_rig
+    from fgcd_cli.app.relocate import relocate_and_capture
+    from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.app.session import grab_images
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
     from fgcd_cli.relocation.config import RelocationConfig

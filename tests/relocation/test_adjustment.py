@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fgcd_cli.relocation.adjustment import clamp_motion, compute_adjustment
-from fgcd_core import Sim3
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance, rotation_angle_rad
+from fgcd_core.sim3 import Sim3
 
 
 def random_pose(rng, t_scale=0.1, r_scale=0.3):

@@ -7,13 +7,13 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from fgcd_cli.alignment import FastAlignConfig, ReferenceIndex
-from fgcd_cli.alignment.fast_config import ScaleStepConfig
+from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
+from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import ReliefScene
 from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.loop.context import LoopContext
 from fgcd_cli.relocation.racr.aligner import align_once
-from fgcd_core import Sim3
+from fgcd_core.sim3 import Sim3
 
 SCALE_ERROR = 1.06  # the session's map is 6 % too large: the fast stage's scale step must remove it
 

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.campaign import init_campaign, open_campaign
+from fgcd_cli.campaign.store import init_campaign, open_campaign
 from fgcd_cli.cli.app import app, run
 from fgcd_cli.errors import AlgorithmError, DataIntegrityError
 
@@ -116,7 +116,7 @@ def test_demo_runs_end_to_end(tmp_path):
 def test_connection_options_come_from_the_rig_section(tmp_path):
     r = fgcd("campaign", "init", tmp_path / "c", "--site", "x", "--driver", "grbl", "--port", "/dev/ttyFGCD-NOPE")
     assert r.returncode == 0, r.stderr
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     camp = open_campaign(tmp_path / "c")
     camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
@@ -135,7 +135,7 @@ def _grbl_campaign(tmp_path, *, handeye_driver="grbl"):
     r = fgcd("campaign", "init", tmp_path / "c", "--site", "x", "--driver", "grbl", "--port", "/dev/ttyFGCD-NOPE",
              "--baud", "57600", "--camera", "2")
     assert r.returncode == 0, r.stderr
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     camp = open_campaign(tmp_path / "c")
     camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist(), "driver": handeye_driver})
@@ -240,42 +240,8 @@ def test_demo_checks_its_options_before_it_starts(tmp_path, monkeypatch, capsys,
 
 
 # ----------------------------------------------------------------------------- relocation progress
-@pytest.fixture
-def stand_in_rig(monkeypatch):
-    """``open_rig`` replaced by a stand-in that records its options and asks the first-motion question."""
-    import fgcd_cli.app.rig as rigs
-
-    seen: dict = {}
-
-    def open_rig(request=None, *, hooks=None, **kwargs):
-        if request is not None:  # the use cases' typed form: RigRequest + RigHooks
-            kwargs = {**request.__dict__, **hooks.__dict__}
-        seen.update(kwargs)
-        if kwargs.get("confirm") is not None:
-            seen["answer"] = kwargs["confirm"]("First motion of this session on 'sim': move flange by (1, 0, 0) mm. "
-                                               "Proceed?")
-        platform = SimpleNamespace(name="sim", stop=lambda: seen.setdefault("stopped", True))
-        guard = SimpleNamespace(platform=platform, trip=lambda reason: seen.setdefault("tripped", reason))
-        handles = SimpleNamespace(guard=guard)
-        return rigs.OpenedRig(handles=handles, close=lambda: seen.setdefault("closed", True), sim=None,
-                              info={"scenario": None})
-
-    monkeypatch.setattr(rigs, "open_rig", open_rig)
-    return seen
-
-
-def _result(path="visit"):
-    reloc = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[],
-                            residual=None)
-    return SimpleNamespace(observation_path=path, relocation=reloc, coarse=None, cloud_points=0, images=["front"],
-                           scale=SimpleNamespace(scale=1.0))
-
-
-def test_relocate_hands_a_progress_callback_to_the_rig(camp_with_reference, stand_in_rig, monkeypatch, capsys):
-    import fgcd_cli.app.revisit as capture_uc
-
+def test_relocate_hands_a_progress_callback_to_the_rig(camp_with_reference, stand_in_rig, stand_in_relocation, capsys):
     camp = camp_with_reference
-    monkeypatch.setattr(capture_uc, "relocate_and_capture", lambda *a, **k: _result())
     assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--yes"]) == 0
     bar = stand_in_rig["on_progress"]
     assert callable(bar)

@@ -14,9 +14,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.coarse.stage import CoarseConfig, camera_uncertainty, render_visible_points
-from fgcd_core import PinholeCamera, exp_se3
-from fgcd_core.se3 import invert_pose, pose_distance
+from fgcd_cli.relocation.coarse.camera_uncertainty import camera_uncertainty, render_visible_points
+from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_core.camera import PinholeCamera
+from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 
 CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=320.0, cy=240.0, width=640, height=480)
 
@@ -117,7 +118,7 @@ class _FakeSession:
 
 
 def _stage(session, reference_points, init, **config):
-    from fgcd_cli.alignment import ReferenceIndex
+    from fgcd_cli.alignment.reference import ReferenceIndex
     from fgcd_cli.relocation.coarse.stage import CoarseInputs, run_coarse
 
     ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
@@ -227,7 +228,7 @@ def test_a_body_of_revolution_leaves_its_slide_out_of_the_verification():
 def _scale_error_run(reference_points, monkeypatch, *, scale_error: float, scale_rel_std: float):
     """The coarse stage from 41 mm / 1.6 deg with the session's scale ``1 + scale_error`` too large and an
     exact image localizer (a textured object near the reference): ``(result, session)``."""
-    from fgcd_cli.alignment import ReferenceIndex
+    from fgcd_cli.alignment.reference import ReferenceIndex
     from fgcd_cli.relocation.coarse import stage as coarse_mod
     from fgcd_core.sim3 import Sim3
 

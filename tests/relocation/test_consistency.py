@@ -14,13 +14,17 @@ import numpy as np
 import pytest
 
 from fgcd_cli.errors import AlgorithmError
+from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.image.refine import ImageRefinement
-from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.loop.context import LoopContext
+from fgcd_cli.relocation.loop.parallel import relocate
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate
 from fgcd_cli.relocation.racr.consistency import estimate_spread
 from fgcd_cli.relocation.session import VseSession
-from fgcd_core import PinholeCamera, Sim3
+from fgcd_core.camera import PinholeCamera
 from fgcd_core.platform import GuardLimits, MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_core.sim3 import Sim3
 from tests.relocation.test_loop import ExactVse, make_case
 
 CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)

@@ -17,13 +17,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
+from fgcd_cli.relocation.loop.context import LoopContext
+from fgcd_cli.relocation.loop.parallel import relocate
 from fgcd_cli.relocation.loop.worker import ALIGNMENT_STEP_S
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.vse.thread import SteppedVse
-from fgcd_core import Sim3
 from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core.se3 import exp_se3, invert_pose, log_se3
+from fgcd_core.sim3 import Sim3
 
 
 class Platform:
@@ -205,8 +208,9 @@ def _simulated_station(tmp_path):
     """A small simulated station with a reference (the cheapest capture the use cases allow)."""
     from fgcd_cli.app import capture as capture_uc
     from fgcd_cli.app.determinism import deterministic_rig
-    from fgcd_cli.app.rig import SimScenario, open_sim_rig
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
+    from fgcd_cli.campaign.store import init_campaign
     from fgcd_cli.metrics.sim_eval import reference_truth
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
@@ -223,8 +227,10 @@ def _simulated_station(tmp_path):
 
 
 def _relocate_once(station):
-    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
-    from fgcd_cli.app.rig import SimScenario, open_sim_rig
+    from fgcd_cli.app.relocate import relocate_and_capture
+    from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
+    from fgcd_cli.app.rig import open_sim_rig
+    from fgcd_cli.app.scenario import SimScenario
 
     scenario = SimScenario(scene="relief_panel", seed=1, lighting="led:3", start_offset_mm=20, start_offset_deg=2,
                            session_seed=2)

@@ -10,9 +10,8 @@ from fgcd_cli.relocation.image.refine import (
     reference_depth_lookup,
     refine_from_reference_image,
 )
-from fgcd_core import PinholeCamera
+from fgcd_core.camera import CameraIntrinsics, PinholeCamera
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
-from fgcd_drivers.cameras import CameraIntrinsics
 from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
 

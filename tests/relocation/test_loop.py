@@ -14,12 +14,16 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.coarse.stage import CoarseConfig, CoarseInputs
-from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_cli.relocation.coarse.stage import CoarseInputs
+from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
+from fgcd_cli.relocation.loop.context import LoopContext
+from fgcd_cli.relocation.loop.parallel import relocate
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate
 from fgcd_cli.relocation.session import VseSession
-from fgcd_core import Sim3
 from fgcd_core.platform import Capabilities, GuardLimits, MotionGuard, MoveResult
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_core.sim3 import Sim3
 
 
 class ErringPlatform:
@@ -199,8 +203,8 @@ def test_failed_alignment_pauses_motion(monkeypatch):
 
 
 def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
-    from fgcd_cli.relocation.loop.parallel import estimated_afd_px
-    from fgcd_core import PinholeCamera
+    from fgcd_cli.relocation.stop_rule import estimated_afd_px
+    from fgcd_core.camera import PinholeCamera
 
     cam = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
     rng = np.random.default_rng(0)
@@ -212,7 +216,7 @@ def test_estimated_afd_of_a_lateral_shift_is_f_d_over_z():
 
 def _biased_case_with_image_stage(monkeypatch, refine):
     """3D estimates off by 8 mm / 0.3 deg (a biased alignment); the image stage is ``refine``."""
-    from fgcd_core import PinholeCamera
+    from fgcd_core.camera import PinholeCamera
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
     bias = Sim3.from_pose(exp_se3([0.008, 0.0, 0.0, 0.0, 0.005, 0.0]))
@@ -330,7 +334,7 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, 
                                          prior_sigma_mm=None, calls=None):
     """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``. ``prior_sigma_mm``: the
     exploration ended where the image localizer put the reference; ``calls`` collects the alignments' serials."""
-    from fgcd_core import PinholeCamera
+    from fgcd_core.camera import PinholeCamera
 
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
 

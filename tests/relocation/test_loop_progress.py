@@ -2,8 +2,11 @@
 
 import time
 
-from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, RelocationConfig, relocate
-from fgcd_core import Sim3
+from fgcd_cli.relocation.config import RelocationConfig
+from fgcd_cli.relocation.loop.context import LoopContext
+from fgcd_cli.relocation.loop.parallel import relocate
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate
+from fgcd_core.sim3 import Sim3
 from tests.relocation.test_loop import _exact_session, make_case
 
 

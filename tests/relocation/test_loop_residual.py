@@ -12,21 +12,18 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.image.refine import ImageRefinement, pnp_translation_sigma_m
-from fgcd_cli.relocation.loop.parallel import (
-    AlignmentEstimate,
-    LoopContext,
-    ReferenceData,
-    RelocationConfig,
-    estimated_afd_px,
-    estimates_agree,
-    relocate,
-    tolerance_mm,
-)
+from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
+from fgcd_cli.relocation.image.pnp_uncertainty import pnp_translation_sigma_m
+from fgcd_cli.relocation.image.refine import ImageRefinement
+from fgcd_cli.relocation.loop.context import LoopContext
+from fgcd_cli.relocation.loop.parallel import relocate
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate
 from fgcd_cli.relocation.session import VseSession
-from fgcd_core import PinholeCamera, Sim3
+from fgcd_cli.relocation.stop_rule import estimated_afd_px, estimates_agree, tolerance_mm
+from fgcd_core.camera import PinholeCamera
 from fgcd_core.platform import GuardLimits, MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, make_pose, pose_distance
+from fgcd_core.sim3 import Sim3
 from tests.relocation.test_loop import ErringPlatform, ExactVse, make_case
 
 CAMERA = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)

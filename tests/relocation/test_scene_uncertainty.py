@@ -24,7 +24,7 @@ from fgcd_cli.relocation.coarse.scene_uncertainty import (
     scene_uncertainty_map,
     view_uncertainty,
 )
-from fgcd_core import PinholeCamera
+from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import invert_pose, pose_distance
 
 CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=320.0, cy=240.0, width=640, height=480)
@@ -78,7 +78,7 @@ def test_the_predicted_pnp_error_agrees_with_the_localizers_own_covariance(reces
     agree when the residuals are the stated pixel noise."""
     import cv2
 
-    from fgcd_cli.relocation.image.refine import pnp_translation_sigma_m
+    from fgcd_cli.relocation.image.pnp_uncertainty import pnp_translation_sigma_m
 
     rng = np.random.default_rng(1)
     X = np.column_stack([rng.uniform(-0.4, 0.4, 400), rng.uniform(-0.3, 0.3, 400), rng.uniform(1.3, 1.7, 400)])
@@ -121,7 +121,7 @@ class _TurnOnlySession:
 
 def _run(scene):
     from fgcd_cli.relocation.coarse.stage import CoarseInputs, _CoarseRun, _View
-    from fgcd_core import exp_se3
+    from fgcd_core.se3 import exp_se3
     from fgcd_core.sim3 import Sim3
 
     X = exp_se3(np.r_[0.03, -0.05, 0.12, np.radians([1.0, 2.0, 90.0])])
@@ -179,7 +179,7 @@ def _coarse_rows() -> list[dict]:
 def test_the_report_shows_the_map_with_the_coarse_estimates(recess):
     import cv2
 
-    from fgcd_cli.changes import detect_changes
+    from fgcd_cli.changes.detect import detect_changes
     from fgcd_cli.report.html import ReportContext, render_diff_report
     from fgcd_cli.report.scene_map import coarse_positions_mm
 

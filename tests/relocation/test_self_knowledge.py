@@ -16,13 +16,17 @@ import pytest
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.coarse.camera_uncertainty import camera_uncertainty, render_visible_points
 from fgcd_cli.relocation.coarse.config import CoarseConfig
+from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.image.refine import ImageRefinement
-from fgcd_cli.relocation.loop.parallel import AlignmentEstimate, LoopContext, ReferenceData, RelocationConfig, relocate
+from fgcd_cli.relocation.loop.context import LoopContext
+from fgcd_cli.relocation.loop.parallel import relocate
+from fgcd_cli.relocation.racr.aligner import AlignmentEstimate
 from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import frame_afd_bound_px
-from fgcd_core import PinholeCamera, Sim3
+from fgcd_core.camera import PinholeCamera
 from fgcd_core.platform import GuardLimits, MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
+from fgcd_core.sim3 import Sim3
 from tests.relocation.test_coarse import _relief
 from tests.relocation.test_loop import ErringPlatform, ExactVse, FakeState, make_case
 
@@ -351,7 +355,7 @@ def test_a_far_start_under_an_overhang_verifies_or_pauses_with_a_reason():
     hands over with the camera truly inside the paper's 5 cm / 5 deg, or pauses with a reason. Toward an
     unverified estimate it only descends: at most ``max_descents`` times, each half the estimated way and at
     most one step; every other motion is a look-around (a pure rotation of the camera)."""
-    from fgcd_cli.alignment import ReferenceIndex
+    from fgcd_cli.alignment.reference import ReferenceIndex
     from fgcd_cli.relocation.coarse.stage import CoarseInputs, run_coarse
     from tests.relocation.test_coarse import X_HANDEYE, _FakeSession
 

@@ -14,7 +14,8 @@ from changes.conftest import textured_scene, translate  # noqa: E402
 
 from fgcd_cli.app.diff import CampaignDiffRequest, run_campaign
 from fgcd_cli.app.report import station_history  # noqa: E402
-from fgcd_cli.campaign import init_campaign, open_campaign, verify_campaign  # noqa: E402
+from fgcd_cli.campaign.store import init_campaign, open_campaign
+from fgcd_cli.campaign.verify import verify_campaign
 
 
 def _u8(image):
@@ -72,12 +73,12 @@ def _fgcd(capsys, *args):
 
 def _nothing_is_loaded(monkeypatch):
     """Opening a campaign (the first step that reads data) fails the test: options must be refused before."""
-    import fgcd_cli.campaign
+    import fgcd_cli.campaign.store as store
 
     def load(*_args, **_kwargs):
         raise AssertionError("the campaign was opened before the options were checked")
 
-    monkeypatch.setattr(fgcd_cli.campaign, "open_campaign", load)
+    monkeypatch.setattr(store, "open_campaign", load)
 
 
 @pytest.mark.parametrize("option", [("--mm-per-px", "-1"), ("--mm-per-px", "0"), ("--mm-per-px", "nan"),

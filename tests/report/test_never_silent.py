@@ -14,8 +14,8 @@ from rich.console import Console
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
-from fgcd_cli.changes.detect import ChangeResult  # noqa: E402
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
+from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.changes.significance import SignificantRegion  # noqa: E402
 from fgcd_cli.changes.threshold import ThresholdInfo  # noqa: E402
 from fgcd_cli.cli.diff_cmd import _render  # noqa: E402

@@ -14,16 +14,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
 from fgcd_cli.app.diff import relocation_log_rows  # noqa: E402
-from fgcd_cli.changes import detect_changes  # noqa: E402
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
 from fgcd_cli.report.areas import area_mm2_text, round_area_mm2  # noqa: E402
-from fgcd_cli.report.figures import (  # noqa: E402
+from fgcd_cli.report.charts import convergence_figure, history_figure
+from fgcd_cli.report.figures import (
     CANDIDATE_RGB,
     SET_ASIDE_RGB,
     change_overlay,
-    convergence_figure,
     fdf_magnification,
-    history_figure,
     overlay_legend_entries,
 )
 from fgcd_cli.report.html import ReportContext  # noqa: E402

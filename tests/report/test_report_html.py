@@ -13,7 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
-from fgcd_cli.changes import detect_changes  # noqa: E402
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.metrics.afd import compute_fdf  # noqa: E402
 from fgcd_cli.report.html import ReportContext  # noqa: E402
 from fgcd_cli.report.products import diff_products  # noqa: E402

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.sim.meshes import MeshPart, box, quad, uv_sphere
 from fgcd_drivers.sim.scene import Scene
 from fgcd_drivers.sim.transforms import look_at

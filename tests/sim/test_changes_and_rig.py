@@ -8,10 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_drivers.cameras import CameraIntrinsics, CameraSource
-from fgcd_drivers.sim.changes import ALL_KINDS, CHANGE_CATEGORY, KINDS, ChangeSpec, evaluate_changes, random_changes
+from fgcd_core.camera import CameraIntrinsics
+from fgcd_drivers.cameras import CameraSource
+from fgcd_drivers.sim.change_placement import random_changes
+from fgcd_drivers.sim.changes import ALL_KINDS, CHANGE_CATEGORY, KINDS, ChangeSpec, evaluate_changes
 from fgcd_drivers.sim.lights import Lighting, lighting_preset, list_lighting_presets, solar_az_el
-from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.render import Renderer
+from fgcd_drivers.sim.sensor import CameraEffects
 from fgcd_drivers.sim.transforms import look_at
 
 LINEAR = CameraEffects(gamma=1.0)

@@ -16,8 +16,9 @@ from fgcd_core.platform import (
     PlatformTimeout,
     SafetyStop,
 )
+from fgcd_core.se3 import exp_so3, make_pose
 from fgcd_drivers.sim.platform import PlatformErrorModel, SimPlatform, SimPlatformConfig
-from fgcd_drivers.sim.transforms import exp_so3, make_pose, rot_angle
+from fgcd_drivers.sim.transforms import rot_angle
 
 ZERO = dict(scale_error=0, axis_misalignment_rad=0, rotation_scale_error=0, noise_m=0, noise_rad=0, backlash_m=0,
             encoder_noise_m=0, encoder_noise_rad=0)

@@ -6,10 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from fgcd_drivers.cameras import CameraIntrinsics
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.sim.lights import Light, Lighting
 from fgcd_drivers.sim.meshes import MeshPart
-from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.render import Renderer
+from fgcd_drivers.sim.sensor import CameraEffects
 from fgcd_drivers.sim.transforms import look_at
 
 LINEAR = CameraEffects(gamma=1.0)

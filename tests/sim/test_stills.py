@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from fgcd_core.se3 import exp_se3
-from fgcd_drivers.sim.render import CameraEffects
 from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
+from fgcd_drivers.sim.sensor import CameraEffects
 
 NOISELESS = CameraEffects(gamma=1.0)
 

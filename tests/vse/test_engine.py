@@ -6,19 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from fgcd_cli.vse import (
-    MonocularVSE,
-    RgbdVSE,
-    SparseVSE,
-    VisualSlamEngine,
-    VseConfig,
-    VseStatus,
-    VseVariant,
-    make_engine,
-)
 from fgcd_cli.vse.cloud import DepthImageCloud, LandmarkCloud, SemiDenseCloud
 from fgcd_cli.vse.depth_source import DepthImage, Triangulation
+from fgcd_cli.vse.engine import MonocularVSE, RgbdVSE, SparseVSE, VisualSlamEngine, VseVariant, make_engine
 from fgcd_cli.vse.frontend import FrontendKind, KltTracking, OrbTracking
+from fgcd_cli.vse.types import VseConfig, VseStatus
 from fgcd_core.se3 import invert_pose, pose_distance
 from fgcd_core.sim3 import umeyama
 

@@ -8,7 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_cli.vse import MonocularVSE, RgbdVSE, VseConfig, VseThread
+from fgcd_cli.vse.engine import MonocularVSE, RgbdVSE
+from fgcd_cli.vse.thread import VseThread
+from fgcd_cli.vse.types import VseConfig
 
 
 @dataclass

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgcd_cli.vse import VseThread
+from fgcd_cli.vse.thread import VseThread
 
 
 class _CountingSource:

@@ -27,11 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from fgcd_cli.bench.changes.simulated import _changes_in_view
-from fgcd_cli.campaign import init_campaign, schema
+from fgcd_cli.campaign import schema
+from fgcd_cli.campaign.store import init_campaign
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_core.se3 import exp_se3
-from fgcd_drivers.cameras import CameraIntrinsics
-from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
+from fgcd_drivers.sim.sensor import CameraEffects
 
 LIGHTINGS = ("led:2", "led:6", "led:10")
 GROWTH_PER_VISIT = 0.5

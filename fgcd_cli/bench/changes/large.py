@@ -54,7 +54,8 @@ def child_main(folder: str, lightings: str, tile_px: int, workers: int) -> None:
     """Entry point of the measured child: load, detect, score; print one JSON line (with its own peak RSS)."""
     import resource
 
-    from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled, load_images
+    from fgcd_cli.changes.tiled.inputs import load_images
+    from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
     from fgcd_cli.metrics.change_scores import binary_scores
 
     root = Path(folder)
@@ -100,8 +101,9 @@ def _run_child(folder: Path, lightings: list[int], tile_px: int, workers: int) -
 
 def _untiled_f1(folder: Path, lightings: list[int]) -> dict:
     """The untiled detector and the tiled one on the real (small) group: how far tiling moves the result."""
-    from fgcd_cli.changes import detect_changes
-    from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled, load_images
+    from fgcd_cli.changes.detect import detect_changes
+    from fgcd_cli.changes.tiled.inputs import load_images
+    from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
     from fgcd_cli.metrics.change_scores import binary_scores
 
     ref = load_images([folder / f"2-{k}.png" for k in lightings])

@@ -28,10 +28,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fgcd_cli.changes import detect_changes
 from fgcd_cli.changes.baseline_iccv import iccv2015_score
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig, ScoreConfig
-from fgcd_cli.changes.detect import decide
+from fgcd_cli.changes.detect import decide, detect_changes
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.registration import warp_to_reference
 from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores

@@ -18,15 +18,18 @@ import time
 
 import numpy as np
 
-from fgcd_cli.changes import detect_changes, pixel_area_from_depth
+from fgcd_cli.app.diff import EDGE_CHECK_PX
 from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.regions import pixel_area_from_depth
 from fgcd_cli.metrics.change_scores import binary_scores
+from fgcd_core.camera import CameraIntrinsics
 from fgcd_core.se3 import exp_se3
-from fgcd_drivers.cameras import CameraIntrinsics
 from fgcd_drivers.sim.camera import STILL_SUPERSAMPLE
-from fgcd_drivers.sim.changes import random_changes
-from fgcd_drivers.sim.render import CameraEffects, Renderer
+from fgcd_drivers.sim.change_placement import random_changes
+from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
+from fgcd_drivers.sim.sensor import CameraEffects
 
 LIGHTINGS = ("led:2", "led:6", "led:10")
 #: Seeds of the full run's held-out simulated pairs (``sim_heldout_*``): the fixed set (0, 1) is what the
@@ -64,7 +67,6 @@ def _render_set(renderer, T, intr, *, changes, effects, exposure, rng):
 
 RELOCATED_SCENE = "relief_panel"
 RELOCATED_TRANSLATION_MM = 3.0
-RELOCATED_EDGE_CHECK_PX = 2  # the region-level edge check ``fgcd diff`` on a campaign uses (app.diff.EDGE_CHECK_PX)
 
 
 def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
@@ -106,7 +108,7 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
         for changed in (True, False):
             cur_images = _render_set(renderer, T_cur, intr, changes=changes if changed else None,
                                      effects=cur_effects, exposure=ref_exposure * 0.8, rng=rng)
-            for setting, check in (("campaign", RELOCATED_EDGE_CHECK_PX), ("plain", 0)):
+            for setting, check in (("campaign", EDGE_CHECK_PX), ("plain", 0)):
                 result = detect_changes(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=area,
                                         config=DetectionConfig.from_options(edge_check_px=check))
                 row = {"scene": RELOCATED_SCENE, "seed": seed, "changed": changed, "setting": setting,

@@ -42,7 +42,7 @@ EXIT_OS, EXIT_CAMPAIGN, EXIT_INTEGRITY, EXIT_ALGORITHM, EXIT_INTERRUPTED = 1, 3,
 
 def prepare_campaign(folder: Path) -> Path:
     """A campaign with stations ``s1`` and ``s2``: simulated reference and visit (3 small changes), written once."""
-    from fgcd_cli.campaign import init_campaign, open_campaign
+    from fgcd_cli.campaign.store import init_campaign, open_campaign
     from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     path = Path(folder) / "campaign"
@@ -204,7 +204,7 @@ def _damaged_reference(seed: int, campaign: Path) -> FaultOutcome:
 
 def calibrate_campaign(campaign: Path) -> None:
     """The bench campaign's hand-eye from a real ``fgcd calibrate hand-eye`` (simulator), once: captures need it."""
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     marker = campaign / ".bench-calibrated"
     if marker.exists():

@@ -79,7 +79,7 @@ def _incomplete(out: Path) -> list[str]:
 
 def memory_fault(seed: int, campaign: Path):
     """One 24 MP bare-image diff under a seeded address-space limit; its judged outcome."""
-    from fgcd_cli.bench.faults.real_fs import FsOutcome, skipped
+    from fgcd_cli.bench.faults.fs_outcome import FsOutcome, skipped
 
     rng = np.random.default_rng(seed)
     limit_mb = int(rng.integers(*LIMIT_MB))

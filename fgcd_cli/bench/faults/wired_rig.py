@@ -218,7 +218,8 @@ def parse_target(text: str) -> tuple[str, str]:
 def open_driver(kind: str, address: str):
     """The real driver (not connected): GRBL on ``address`` (a pty) or UR at ``address``."""
     if kind == "grbl":
-        from fgcd_drivers.grbl import GrblConfig, GrblPlatform
+        from fgcd_drivers.grbl.config import GrblConfig
+        from fgcd_drivers.grbl.platform import GrblPlatform
 
         return GrblPlatform(GrblConfig(port=address, max_linear_speed_m_s=WIRED_SPEED_M_S))
     from fgcd_drivers.ur import URConfig, URPlatform

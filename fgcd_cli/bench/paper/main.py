@@ -37,7 +37,7 @@ from fgcd_cli.bench.paper.plan import EXPERIMENTS, QUICK, plan
 from fgcd_cli.bench.paper.runs import RunSpec, ensure_station, ensure_world, load_run, run_one
 from fgcd_cli.campaign.atomic import atomic_write_json
 
-__all__ = ["EXPERIMENTS", "QUICK", "plan", "run", "summarise"]
+__all__ = ["QUICK", "plan", "run", "summarise"]
 
 
 def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,

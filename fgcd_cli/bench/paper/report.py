@@ -123,7 +123,8 @@ def markdown(data: dict) -> str:
 
 def _figures(data: dict) -> dict[str, bytes]:
     """Table 2 as bars per case, Fig. 7 as AFD against the LED hour (log scale: AFDs span 0.1-100 px)."""
-    from fgcd_cli.report.charts import figure_png, plt
+    from fgcd_cli.report.charts import figure_png
+    from fgcd_cli.report.mpl import plt
 
     out = {}
     t2 = runs_by(data["runs"], "table2")

@@ -187,7 +187,8 @@ def _paused_legend(ax) -> None:
 
 def figures(data: dict) -> dict[str, bytes]:
     """Fig. 4 (AFD against r), Fig. 12 (AFD against α; the ablations as bars) and §5.5 (F1 bars)."""
-    from fgcd_cli.report.charts import figure_png, plt
+    from fgcd_cli.report.charts import figure_png
+    from fgcd_cli.report.mpl import plt
 
     results, out = data["runs"], {}
     base = runs_by(results, "pure")

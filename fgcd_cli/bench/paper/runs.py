@@ -119,8 +119,8 @@ def ensure_world(world: World, out: Path, *, say) -> tuple[object, np.ndarray, o
     """The world's campaign with its calibration, built unless complete: ``(campaign, T_flange_cam, camera)``."""
     from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
     from fgcd_cli.app.scenario import SimScenario
-    from fgcd_cli.campaign import init_campaign, open_campaign
     from fgcd_cli.campaign.records import rig_calibration
+    from fgcd_cli.campaign.store import init_campaign, open_campaign
 
     root = out / "worlds" / world.name
     marker = out / "worlds" / f"{world.name}.ready.json"
@@ -224,17 +224,18 @@ def _noisy_reference(noise: float):
 def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say,
             deterministic: bool = False) -> dict:
     """Relocate once as ``spec`` says and score it; a pause or a refused motion is an outcome (``error``)."""
-    from fgcd_cli.app.relocate import RelocateHooks, RelocateRequest, relocate_and_capture
+    from fgcd_cli.app.relocate import relocate_and_capture
+    from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
     from fgcd_cli.app.rig import open_sim_rig
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.acr.baseline import AcrConfig
-    from fgcd_cli.relocation.coarse.stage import CoarseConfig
+    from fgcd_cli.relocation.coarse.config import CoarseConfig
     from fgcd_core.platform import PlatformError
 
     w = spec.world
     scen = visit_scenario(spec)
-    X = np.eye(4) if spec.no_handeye else T_flange_cam
+    X = None if spec.no_handeye else T_flange_cam  # the rig opens with the identity (app.rig.hand_eye_or_identity)
     rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=camera, vse_variant=spec.vse)
     ev = RelocationEvaluator.from_reference(rig.sim, station.reference())
     result = {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),

@@ -121,7 +121,7 @@ def set_up_station(campaign: Path, config: SoakConfig, *, say: Say) -> dict:
     from fgcd_cli.app.rig import RigHooks, RigRequest, open_rig, opened
     from fgcd_cli.app.rig_options import RigOptions
     from fgcd_cli.app.scenario import SimScenario
-    from fgcd_cli.campaign import init_campaign
+    from fgcd_cli.campaign.store import init_campaign
 
     t0 = time.monotonic()
     camp = init_campaign(campaign, site="soak bench", rig={"driver": "sim", "sim": {"scene": config.scene, "seed": 0}})
@@ -210,7 +210,7 @@ def one_revisit(campaign: Path, request, *, diff_and_report: bool) -> dict:
 def read_history(campaign: Path, visits: list[str]) -> dict:
     """The station's history read back: every visit listed (``station.json``, the tracks) and readable."""
     from fgcd_cli.app.archive_history import station_tracks
-    from fgcd_cli.campaign import open_campaign
+    from fgcd_cli.campaign.store import open_campaign
 
     st = open_campaign(campaign).station(STATION)
     listed = st.visit_names()

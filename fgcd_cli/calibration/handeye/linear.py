@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye.result import HandEyeResult, ScaleResult, utc_now
+from fgcd_cli.calibration.handeye.result import HandEyeResult, ScaleResult
 from fgcd_cli.calibration.samples import (
     check_rotation_diversity,
     motion_pairs,
@@ -43,15 +43,12 @@ from fgcd_cli.errors import UserInputError
 from fgcd_core.se3 import log_so3, make_pose, pose_distance
 
 __all__ = [
-    "HandEyeResult",
-    "ScaleResult",
     "HandEyeMethod",
     "Regress",
     "solve_handeye_scale",
     "estimate_scale",
     "pair_residuals",
     "per_sample_residuals",
-    "utc_now",
     "rotation_from_axes",
 ]
 

@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 
 from fgcd_cli.calibration.errors import CalibrationError
-from fgcd_cli.calibration.handeye.linear import HandEyeResult, pair_residuals, utc_now
+from fgcd_cli.calibration.handeye.linear import pair_residuals
+from fgcd_cli.calibration.handeye.result import HandEyeResult, utc_now
 from fgcd_cli.calibration.samples import (
     check_rotation_diversity,
     motion_pairs,

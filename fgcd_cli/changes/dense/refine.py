@@ -69,11 +69,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.dense.fit import (  # noqa: F401  (public names of this module)
-    CHANGE_SHARE,
+from fgcd_cli.changes.dense.fit import (
     FIT_ORDER,
-    MAX_CHANGE_PX,
-    RIDGE,
     robust_smooth,
     smoothing_scale_px,
 )

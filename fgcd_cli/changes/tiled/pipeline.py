@@ -67,13 +67,13 @@ from fgcd_cli.changes.result import (
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
 from fgcd_cli.changes.tiled.decision import decide_tiled
 from fgcd_cli.changes.tiled.geometry import Geometry, Tile, scale_matrix, tile_grid
-from fgcd_cli.changes.tiled.inputs import check_stacks, load_images
+from fgcd_cli.changes.tiled.inputs import check_stacks
 from fgcd_cli.changes.tiled.schedule import opencv_threads
 from fgcd_cli.changes.tiled.tile_scores import TiledScore
 from fgcd_cli.changes.tiled.working import Small, cue_maps_small, label_cues_small, working_resolution
 from fgcd_cli.errors import UserInputError
 
-__all__ = ["detect_changes_tiled", "load_images", "tile_grid"]
+__all__ = ["detect_changes_tiled"]
 
 Progress = Callable[[int, int, str], None]
 

@@ -46,7 +46,6 @@ from fgcd_cli.relocation.coarse.camera_uncertainty import (
     CameraUncertainty,
     camera_uncertainty,
     in_view,
-    render_visible_points,
 )
 from fgcd_cli.relocation.coarse.config import CoarseConfig, CoarseResult, CoarseStep
 from fgcd_cli.relocation.coarse.scene_uncertainty import SceneUncertaintyMap, camera_turn, view_uncertainty
@@ -59,18 +58,7 @@ from fgcd_core.platform import MotionRejected
 from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
 
-__all__ = [
-    "check_scale",
-    "CameraUncertainty",
-    "CoarseConfig",
-    "CoarseInputs",
-    "CoarseResult",
-    "CoarseStep",
-    "camera_uncertainty",
-    "image_estimate",
-    "render_visible_points",
-    "run_coarse",
-]
+__all__ = ["check_scale", "CameraUncertainty", "CoarseInputs", "CoarseStep", "image_estimate", "run_coarse"]
 
 
 def image_estimate(*, reference_images: dict[str, np.ndarray], current_image: np.ndarray, camera,
@@ -183,7 +171,8 @@ class _View:
 
 def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, last_3d: Sim3):
     """The passive localizers' estimates of the current camera in ``ref``, and their notes for the log."""
-    from fgcd_cli.alignment import fast_align, global_registration
+    from fgcd_cli.alignment.fast import fast_align
+    from fgcd_cli.alignment.initial import global_registration
 
     candidates: dict[EstimateSource, np.ndarray] = {}
     notes: dict[str, dict] = {}

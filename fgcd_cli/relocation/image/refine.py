@@ -38,7 +38,7 @@ from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
 from fgcd_cli.relocation.adjustment import clamp_motion
-from fgcd_cli.relocation.image.pnp_uncertainty import pnp_jacobian, pnp_translation_sigma_m  # noqa: F401 (re-exported)
+from fgcd_cli.relocation.image.pnp_uncertainty import pnp_translation_sigma_m
 from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
 from fgcd_core.se3 import make_pose, pose_distance
 
@@ -47,8 +47,6 @@ __all__ = [
     "ImageRefinement",
     "lift_reference_pixels",
     "local_contrast",
-    "pnp_jacobian",
-    "pnp_translation_sigma_m",
     "reference_depth_lookup",
     "front_layer_depth",
     "reference_keypoints_3d",

@@ -30,39 +30,28 @@ import time
 import numpy as np
 
 from fgcd_cli.errors import AlgorithmError
-from fgcd_cli.relocation.config import HEARTBEAT_S, ReferenceData, RelocationConfig
+from fgcd_cli.relocation.config import HEARTBEAT_S, RelocationConfig
 from fgcd_cli.relocation.enums import Agreement, EstimateSource, LoopMode
 from fgcd_cli.relocation.image.stage import image_stage
 from fgcd_cli.relocation.log import AdjustmentRecord, RelocationResult
 from fgcd_cli.relocation.loop.context import LoopContext, LoopState
 from fgcd_cli.relocation.loop.worker import AlignmentWorker, SteppedAlignmentWorker
-from fgcd_cli.relocation.racr.aligner import AlignmentEstimate, AlignmentProblem, align_once
+from fgcd_cli.relocation.racr.aligner import AlignmentProblem, align_once
 from fgcd_cli.relocation.racr.stage import racr_loop
 from fgcd_cli.relocation.stop_rule import (
     Residual,
-    estimated_afd_px,
-    estimates_agree,
     reference_depth_m,
-    tolerance_mm,
 )
 
 __all__ = [
     "HEARTBEAT_S",
-    "ReferenceData",
-    "RelocationConfig",
-    "AlignmentEstimate",
     "AlignmentProblem",
     "AlignmentWorker",
     "AdjustmentRecord",
-    "LoopContext",
     "RelocationResult",
-    "Residual",
     "align_once",
-    "estimated_afd_px",
-    "estimates_agree",
     "reference_depth_m",
     "relocate",
-    "tolerance_mm",
 ]
 
 

@@ -123,7 +123,8 @@ def align_once(*, state, problem: AlignmentProblem, init: Sim3, serial: int = 0)
     The fine stage runs only after a trustworthy fast one and with two keyframes
     or more; its estimate is published with ``serial + 1``.
     """
-    from fgcd_cli.alignment import fast_align, fine_align
+    from fgcd_cli.alignment.fast import fast_align
+    from fgcd_cli.alignment.fine import fine_align
 
     out: list[AlignmentEstimate] = []
     scale, ref_index = problem.scale, problem.ref_index
