@@ -29,6 +29,7 @@ from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.images import check_stack_sizes, to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud
+from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
 from fgcd_cli.report.html import ReportContext
@@ -97,10 +98,12 @@ class BareDiffRequest:
         Image files or glob patterns, one per lighting, in the same order.
     output : Path
         Directory the products are written to.
-    eval_mask : Path or None
-        Mask of the pixels to compare.
+    roi : Path or None
+        Region of interest: a mask of the reference pixels to compare (``--roi``); None compares the whole frame.
     truth : Path or None
         Mask of the true changes (scores the result).
+    score_mask : Path or None
+        Where ``truth`` is scored (an evaluator's region, never given to the detector); None: the ROI, else every pixel.
     mm_per_px : float or None
         Scale of the reference image, millimetres per pixel.
     register : bool
@@ -114,8 +117,9 @@ class BareDiffRequest:
     ref: list[str]
     cur: list[str]
     output: Path
-    eval_mask: Path | None = None
+    roi: Path | None = None
     truth: Path | None = None
+    score_mask: Path | None = None
     mm_per_px: float | None = None
     register: bool = True
     edge_check_px: int = 0
@@ -123,7 +127,57 @@ class BareDiffRequest:
 
     def __post_init__(self) -> None:
         check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px, ambient_index=self.ambient_index,
-                           files={"--eval-mask": self.eval_mask, "--truth": self.truth})
+                           files={"--roi": self.roi, "--truth": self.truth, "--score-mask": self.score_mask})
+
+
+@dataclass(frozen=True, kw_only=True)
+class BareDetection:
+    """What :func:`detect_bare` read and found: the files, their images, the ROI, the result and its FDF."""
+
+    ref_paths: list[Path]
+    cur_paths: list[Path]
+    ref_images: list[np.ndarray]
+    cur_images: list[np.ndarray]
+    roi: np.ndarray | None
+    result: ChangeResult
+    fdf: FdfResult | None
+
+
+def detect_bare(request: BareDiffRequest, *, progress: Progress = None,
+                tile_progress: TileProgress = None) -> BareDetection:
+    """Read the image files and detect their changes as ``fgcd diff --ref ... --cur ...`` does, writing nothing.
+
+    ``fgcd bench changes`` scores this very detection; :func:`run_bare` writes its products.
+    """
+    r = request
+    ref_paths = expand_image_args(r.ref, what="--ref")
+    cur_paths = expand_image_args(r.cur, what="--cur")
+    if r.ambient_index is not None and not 0 <= r.ambient_index < len(ref_paths):
+        raise UserInputError(f"--ambient-index {r.ambient_index} is outside 0..{len(ref_paths) - 1}")
+    ref_images = [read_image(p) for p in ref_paths]
+    cur_images = [read_image(p) for p in cur_paths]
+    check_stack_sizes(ref_images, cur_images)  # before any work is announced
+    roi = read_mask(r.roi) if r.roi is not None else None
+    area = None if r.mm_per_px is None else np.full(ref_images[0].shape[:2], r.mm_per_px**2)
+    _say(progress, f"comparing {len(ref_images)} lighting(s)…")
+    if ref_images[0].shape[0] * ref_images[0].shape[1] > LARGE_FRAME_PX:
+        from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
+
+        _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
+                       "(no edge check, no FDF on frames this large)")
+        result = detect_changes_tiled(ref_images, cur_images, roi=roi, pixel_area_mm2=area, progress=tile_progress,
+                                      config=DetectionConfig.from_options(register=r.register,
+                                                                          ambient_index=r.ambient_index))
+        fdf = None
+    else:
+        result = detect_changes(ref_images, cur_images, roi=roi, pixel_area_mm2=area,
+                                config=DetectionConfig.from_options(register=r.register,
+                                                                    edge_check_px=_edge_check(r.edge_check_px),
+                                                                    ambient_index=r.ambient_index))
+        same_size = ref_images[0].shape == cur_images[0].shape
+        fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or same_size else None
+    return BareDetection(ref_paths=ref_paths, cur_paths=cur_paths, ref_images=ref_images, cur_images=cur_images,
+                         roi=roi, result=result, fdf=fdf)
 
 
 def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progress: TileProgress = None) -> dict:
@@ -133,52 +187,28 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
     left out of the photometric-stereo fit that labels regions relief / colour.
     """
     r = request
-    output, eval_mask, truth, mm_per_px, register = r.output, r.eval_mask, r.truth, r.mm_per_px, r.register
-    edge_check_px, ambient_index = r.edge_check_px, r.ambient_index
-    ref, cur = r.ref, r.cur
-    ref_paths = expand_image_args(ref, what="--ref")
-    cur_paths = expand_image_args(cur, what="--cur")
-    if ambient_index is not None and not 0 <= ambient_index < len(ref_paths):
-        raise UserInputError(f"--ambient-index {ambient_index} is outside 0..{len(ref_paths) - 1}")
-    ref_images = [read_image(p) for p in ref_paths]
-    cur_images = [read_image(p) for p in cur_paths]
-    check_stack_sizes(ref_images, cur_images)  # before any work is announced
-    mask = read_mask(eval_mask) if eval_mask is not None else None
-    area = None if mm_per_px is None else np.full(ref_images[0].shape[:2], mm_per_px**2)
-    _say(progress, f"comparing {len(ref_images)} lighting(s)…")
-    large = ref_images[0].shape[0] * ref_images[0].shape[1] > LARGE_FRAME_PX
-    if large:
-        from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
-
-        _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
-                       "(no edge check, no FDF on frames this large)")
-        result = detect_changes_tiled(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area, progress=tile_progress,
-                                      config=DetectionConfig.from_options(register=register,
-                                                                          ambient_index=ambient_index))
-        fdf = None
-    else:
-        result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,
-                                config=DetectionConfig.from_options(register=register,
-                                                                    edge_check_px=_edge_check(edge_check_px),
-                                                                    ambient_index=ambient_index))
-        fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or ref_images[0].shape == cur_images[0].shape else None
-    metadata = {"reference images": [str(p) for p in ref_paths], "current images": [str(p) for p in cur_paths]}
-    if mm_per_px is not None:
-        metadata["scale (mm per px)"] = mm_per_px
+    found = detect_bare(r, progress=progress, tile_progress=tile_progress)
+    result, fdf = found.result, found.fdf
+    metadata = {"reference images": [str(p) for p in found.ref_paths],
+                "current images": [str(p) for p in found.cur_paths]}
+    if r.mm_per_px is not None:
+        metadata["scale (mm per px)"] = r.mm_per_px
     context = ReportContext(metadata=metadata, title="Change report",
-                            subtitle=f"{ref_paths[0].resolve().parent} — reference vs current")
-    files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, context=context)
-    _write_dir(output, files)
+                            subtitle=f"{found.ref_paths[0].resolve().parent} — reference vs current")
+    files = diff_products(ref_images=found.ref_images, cur_images=found.cur_images, result=result, fdf=fdf,
+                          context=context)
+    _write_dir(r.output, files)
     data = result_summary(result, fdf)
-    data["output"] = str(output)
-    if truth is not None:
+    data["output"] = str(r.output)
+    if r.truth is not None:
         from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores
 
-        truth_mask = read_mask(truth)
-        if truth_mask.shape != result.mask.shape:
-            raise UserInputError("--truth mask must have the reference image's size")
-        b = binary_scores(result.mask, truth_mask, eval_mask=mask)
-        s = sweep_scores(result.score, truth_mask, eval_mask=mask)
+        truth_mask = read_mask(r.truth)
+        scored = read_mask(r.score_mask) if r.score_mask is not None else found.roi
+        if truth_mask.shape != result.mask.shape or (scored is not None and scored.shape != truth_mask.shape):
+            raise UserInputError("--truth and --score-mask must have the reference image's size")
+        b = binary_scores(result.mask, truth_mask, eval_mask=scored)
+        s = sweep_scores(result.score, truth_mask, eval_mask=scored)
         data["scores"] = {"precision": b.precision, "recall": b.recall, "f1": b.f1, "iou": b.iou,
                           "best_f1": s.best_f1, "average_precision": s.average_precision}
     return data
@@ -300,8 +330,8 @@ class CampaignDiffRequest:
     station : str
     visit : str or None
         The visit's name (None: the latest).
-    eval_mask : Path or None
-        Mask of the pixels to compare.
+    roi : Path or None
+        Region of interest: a mask of the reference pixels to compare (``--roi``); None compares the whole frame.
     mm_per_px : float or None
         Scale of the reference image, millimetres per pixel (None: from the reference's metric cloud).
     register : bool
@@ -318,7 +348,7 @@ class CampaignDiffRequest:
     campaign: Path
     station: str
     visit: str | None = None
-    eval_mask: Path | None = None
+    roi: Path | None = None
     mm_per_px: float | None = None
     register: bool = True
     output: Path | None = None
@@ -327,12 +357,12 @@ class CampaignDiffRequest:
 
     def __post_init__(self) -> None:
         check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px,
-                           files={"--eval-mask": self.eval_mask})
+                           files={"--roi": self.roi})
 
     def options(self) -> AnalysisOptions:
         """The options this diff is made with, as its record (``changes/analysis.json``) states them."""
         return AnalysisOptions(edge_check_px=self.edge_check_px, mm_per_px=self.mm_per_px, register=self.register,
-                               eval_mask_sha256=sha256_file(self.eval_mask) if self.eval_mask is not None else None)
+                               eval_mask_sha256=sha256_file(self.roi) if self.roi is not None else None)
 
 
 def _effective(options: AnalysisOptions) -> AnalysisOptions:
@@ -346,7 +376,7 @@ def options_text(options: AnalysisOptions) -> str:
     parts = [f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "no --mm-per-px",
              f"--edge-check {o.edge_check_px}"]
     parts += ["--no-register"] if not o.register else []
-    parts += [f"--eval-mask sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []
+    parts += [f"--roi sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []
     return ", ".join(parts)
 
 
@@ -399,11 +429,11 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     else:
         area = _reference_pixel_area(reference, shape)
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
-    mask = read_mask(r.eval_mask) if r.eval_mask is not None else None
+    mask = read_mask(r.roi) if r.roi is not None else None
     edge_check = _edge_check(campaign_edge_check_px(r.edge_check_px))
     _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
-    result = detect_changes(ref_images, cur_images, eval_mask=mask, pixel_area_mm2=area,
+    result = detect_changes(ref_images, cur_images, roi=mask, pixel_area_mm2=area,
                             config=DetectionConfig.from_options(register=r.register, edge_check_px=edge_check,
                                                                 ambient_index=lightings.index("ambient") if "ambient" in lightings else None))
     fdf = measure_fdf(ref_images[0], cur_images[0])

@@ -44,7 +44,7 @@ class AnalysisOptions:
     register : bool
         Register the visit's images onto the reference first.
     eval_mask_sha256 : str or None
-        sha256 of the evaluation mask the diff compared within (None: the whole image).
+        sha256 of the region of interest (``--roi``) the diff compared within (None: the whole image; the stored key keeps its first name).
     """
 
     edge_check_px: int | None = None

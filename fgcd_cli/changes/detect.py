@@ -60,7 +60,7 @@ def detect_changes(
     ref_images: list[np.ndarray],
     cur_images: list[np.ndarray],
     *,
-    eval_mask: np.ndarray | None = None,
+    roi: np.ndarray | None = None,
     pixel_area_mm2: np.ndarray | None = None,
     shading_ref: list[np.ndarray] | None = None,
     shading_cur: list[np.ndarray] | None = None,
@@ -74,7 +74,7 @@ def detect_changes(
     ref_images, cur_images : list of ndarray, HxW or HxWx3, uint8/uint16/float in [0, 1]
         One image per lighting, the same lightings in the same order in both lists, all of
         one size; the camera may have moved a few pixels between the observations.
-    eval_mask : ndarray, HxW bool, optional
+    roi : ndarray, HxW bool, optional
         Pixels of the reference to compare (e.g. the object, not the background).
     pixel_area_mm2 : ndarray, HxW float, optional
         Surface area seen by each reference pixel, mm² (:mod:`fgcd_cli.changes.regions`).
@@ -96,14 +96,14 @@ def detect_changes(
     config = with_scan_rules(DetectionConfig() if config is None else config)
     settings = detection_settings(config, lightings=len(ref_images), shading=shading_ref is not None)
     step = _Steps(progress, total=4)
-    refs, curs, eval_mask = _check_inputs(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=pixel_area_mm2,
+    refs, curs, roi = _check_inputs(ref_images, cur_images, roi=roi, pixel_area_mm2=pixel_area_mm2,
                                           shading=(shading_ref, shading_cur), config=config.registration)
     shape = refs[0].shape[:2]
     grays_ref, grays_cur = [to_gray(im) for im in refs], [to_gray(im) for im in curs]
     problem = stack_health(grays_ref, grays_cur)
     if problem:
         return empty_result(shape, problem, None, settings)
-    alignment = align_stacks(curs, grays_ref, grays_cur, eval_mask=eval_mask, config=config.registration,
+    alignment = align_stacks(curs, grays_ref, grays_cur, roi=roi, config=config.registration,
                              margin_px=comparison_margin_px(config.score))
     if isinstance(alignment, str):
         return empty_result(shape, alignment, None, settings)
@@ -148,14 +148,14 @@ class _Steps:
             self.progress(self.done, self.total, label)
 
 
-def _check_inputs(ref_images, cur_images, *, eval_mask, pixel_area_mm2, shading, config: RegistrationConfig):
-    """Validate and convert the stacks (float32 [0, 1]) and the evaluation mask (bool); raises UserInputError."""
+def _check_inputs(ref_images, cur_images, *, roi, pixel_area_mm2, shading, config: RegistrationConfig):
+    """Validate and convert the stacks (float32 [0, 1]) and the region of interest (bool); raises UserInputError."""
     refs, curs = validate_stacks(ref_images, cur_images)
-    eval_mask = check_side_inputs(refs[0].shape[:2], len(refs), eval_mask=eval_mask, pixel_area_mm2=pixel_area_mm2,
+    roi = check_side_inputs(refs[0].shape[:2], len(refs), roi=roi, pixel_area_mm2=pixel_area_mm2,
                                   registration_lighting=config.registration_lighting)
     if (shading[0] is None) != (shading[1] is None):
         raise UserInputError("give shading maps for both the reference and the current observation, or neither")
-    return refs, curs, eval_mask
+    return refs, curs, roi
 
 
 def stack_health(grays_ref: list[np.ndarray], grays_cur: list[np.ndarray]) -> str | None:
@@ -188,7 +188,7 @@ class Alignment:
     not_compared: np.ndarray | None = None
 
 
-def align_stacks(curs, grays_ref, grays_cur, *, eval_mask, config: RegistrationConfig,
+def align_stacks(curs, grays_ref, grays_cur, *, roi, config: RegistrationConfig,
                  margin_px: int) -> Alignment | str:
     """Bring the current stack into the reference frame: homography, then (``config.dense``) the parallax flow.
 
@@ -201,7 +201,7 @@ def align_stacks(curs, grays_ref, grays_cur, *, eval_mask, config: RegistrationC
             return f"cannot compare: {registration.reason}"
     else:
         registration = Registration(H_cur_ref=np.eye(3), ok=True, init=RegistrationInit.NONE, overlap_fraction=1.0)
-    area = np.ones(shape, bool) if eval_mask is None else eval_mask.copy()
+    area = np.ones(shape, bool) if roi is None else roi.copy()
     dense_fit = not_compared = None
     if config.dense:
         warped_gray, seen = warp_to_reference(grays_cur[k], registration.H_cur_ref, shape)

@@ -94,22 +94,22 @@ def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) 
     return refs, curs
 
 
-def check_side_inputs(shape: tuple[int, int], lightings: int, *, eval_mask: np.ndarray | None,
+def check_side_inputs(shape: tuple[int, int], lightings: int, *, roi: np.ndarray | None,
                       pixel_area_mm2: np.ndarray | None, registration_lighting: int) -> np.ndarray | None:
-    """Check the maps and the lighting index that come with an HxW stack; returns the evaluation mask as bool.
+    """Check the maps and the lighting index that come with an HxW stack; returns the region of interest as bool.
 
     Raises :class:`UserInputError` when a map is not HxW or the lighting index is out of range.
     """
-    if eval_mask is not None:
-        eval_mask = np.asarray(eval_mask).astype(bool)
-        if eval_mask.shape != shape:
-            raise UserInputError(f"evaluation mask is {eval_mask.shape[1]}x{eval_mask.shape[0]} px, "
+    if roi is not None:
+        roi = np.asarray(roi).astype(bool)
+        if roi.shape != shape:
+            raise UserInputError(f"the region of interest (--roi) is {roi.shape[1]}x{roi.shape[0]} px, "
                                  f"images are {shape[1]}x{shape[0]} px")
     if pixel_area_mm2 is not None and np.asarray(pixel_area_mm2).shape != shape:
         raise UserInputError("pixel area map must have the reference image's size")
     if not 0 <= registration_lighting < lightings:
         raise UserInputError(f"registration lighting {registration_lighting} out of range 0..{lightings - 1}")
-    return eval_mask
+    return roi
 
 
 def image_health(image: np.ndarray) -> str | None:

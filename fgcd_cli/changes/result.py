@@ -34,7 +34,7 @@ class ChangeResult:
     labels: np.ndarray
     """HxW int32, region id per pixel (0 = unchanged)."""
     valid: np.ndarray
-    """HxW bool, pixels that were compared (evaluation mask ∩ seen in the current image)."""
+    """HxW bool, pixels that were compared (region of interest ∩ seen in the current image)."""
     regions: list[ChangeRegion]
     registration: Registration | None
     threshold: ThresholdInfo | None

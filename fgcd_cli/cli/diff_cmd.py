@@ -96,8 +96,13 @@ def diff(
     campaign: Path | None = typer.Option(None, "--campaign", "-c", help="Campaign folder (campaign mode)."),
     station: str | None = typer.Option(None, "--station", "-s", help="Station name (campaign mode)."),
     visit: str | None = typer.Option(None, "--visit", help="Visit name (default: latest)."),
-    eval_mask: Path | None = typer.Option(None, "--eval-mask", help="Compare only where this mask is non-zero (reference frame)."),
+    roi: Path | None = typer.Option(
+        None, "--roi", "--eval-mask", help="Region of interest: compare only where this mask (reference frame) is "
+        "non-zero, e.g. the object without its background. Default: the whole frame."),
     truth: Path | None = typer.Option(None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."),
+    score_mask: Path | None = typer.Option(
+        None, "--score-mask", help="With --truth: score only inside this mask (an evaluator's region; the "
+        "detector never sees it). Default: the region of interest, else the whole frame."),
     mm_per_px: float | None = typer.Option(None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."),
     no_register: bool = typer.Option(False, "--no-register", help="Images are already aligned: skip registration."),
     edge_check: int | None = typer.Option(
@@ -127,7 +132,7 @@ def diff(
             raise UserInputError("give either --campaign/--station or --ref/--cur, not both")
         if campaign is None or station is None:
             raise UserInputError("campaign mode needs both --campaign and --station")
-        request = diff_uc.CampaignDiffRequest(campaign=campaign, station=station, visit=visit, eval_mask=eval_mask,
+        request = diff_uc.CampaignDiffRequest(campaign=campaign, station=station, visit=visit, roi=roi,
                                               mm_per_px=mm_per_px, register=not no_register, output=output,
                                               edge_check_px=edge_check, force=force)
         run_record.no_platform()
@@ -144,7 +149,9 @@ def diff(
             raise UserInputError("give an output folder with -o DIR")
         if force:
             raise UserInputError("--force is for campaign mode (a visit's stored diff); bare mode writes to -o DIR")
-        request = diff_uc.BareDiffRequest(ref=ref, cur=cur, output=output, eval_mask=eval_mask, truth=truth,
+        if score_mask is not None and truth is None:
+            raise UserInputError("--score-mask says where --truth is scored: give --truth too")
+        request = diff_uc.BareDiffRequest(ref=ref, cur=cur, output=output, roi=roi, truth=truth, score_mask=score_mask,
                                           mm_per_px=mm_per_px, register=not no_register,
                                           edge_check_px=edge_check or 0, ambient_index=ambient_index)
         run_record.no_platform()

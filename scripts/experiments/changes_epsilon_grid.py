@@ -36,7 +36,7 @@ def real(eps_values: list[float]) -> None:
         cur = [_read_rgb(folder / f"1-{k}.png") for k in lightings]
         truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
         mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
-        result = detect_changes(ref, cur, eval_mask=mask)
+        result = detect_changes(ref, cur, roi=mask)
         names.append(folder.name)
         for key in grid:
             config = RegionConfig(decision=DecisionRule.ACONTRARIO, seed_p=key[0], extent_fraction=key[1],

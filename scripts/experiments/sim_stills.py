@@ -50,7 +50,7 @@ def trials(samples: int, n: int) -> dict:
         xi = np.r_[direction * 0.4e-3, rng.normal(size=3) / np.sqrt(3) * np.deg2rad(0.013)]
         cur = [renderer.render(T_ref @ exp_se3(xi), INTRINSICS, "front", effects=EFFECTS, exposure=4.0, rng=rng,
                                want=("rgb",)).rgb]
-        result = detect_changes(ref, cur, eval_mask=geometry.labels == 1, pixel_area_mm2=area, config=config)
+        result = detect_changes(ref, cur, roi=geometry.labels == 1, pixel_area_mm2=area, config=config)
         rows.append({"seed": seed, "false_regions": len(result.regions),
                      "set_aside": int(result.settings.get("edge_explained_regions", 0)), "render_s": render_s})
     return {"samples_per_axis": samples, "trials": rows,

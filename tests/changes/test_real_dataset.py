@@ -18,7 +18,7 @@ def test_db1_all_lightings():
     cur = [cv2.imread(str(GROUP / f"1-{k}.png"))[:, :, ::-1] for k in range(1, 8)]
     truth = cv2.imread(str(GROUP / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
     mask = cv2.imread(str(GROUP / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
-    result = detect_changes(ref, cur, eval_mask=mask)
+    result = detect_changes(ref, cur, roi=mask)
     assert result.comparable, result.reason
     # Camera moved ~2 px between the observations; gradient ECC must converge well.
     assert result.registration.ecc_correlation > 0.85
@@ -29,3 +29,32 @@ def test_db1_all_lightings():
     assert sweep.best_f1 > 0.75
     assert auto.f1 > 0.7
     assert 0.005 < result.changed_fraction < 0.06
+
+
+@pytest.mark.skipif(not GROUP.is_dir(), reason=f"real FGCD dataset not found at {GROUP.resolve()}")
+def test_the_bench_scores_the_change_map_fgcd_diff_writes(tmp_path):
+    """``fgcd bench changes`` scores the detection a user's ``fgcd diff`` makes: same mask, same figures."""
+    import json
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from fgcd_cli.bench.changes.main import user_detection
+
+    lightings = [1, 3, 5, 7]
+    found = user_detection(GROUP, lightings)
+    args = [sys.executable, "-c", "from fgcd_cli.cli.app import main; main()", "diff", "-o", str(tmp_path / "out"),
+            "--truth", str(GROUP / "GT.png"), "--score-mask", str(GROUP / "mask.png"), "--json"]
+    for k in lightings:
+        args += ["--ref", str(GROUP / f"2-{k}.png"), "--cur", str(GROUP / f"1-{k}.png")]
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    written = cv2.imread(str(tmp_path / "out" / "change_mask.png"), cv2.IMREAD_GRAYSCALE) > 127
+    assert written.shape == found.result.mask.shape
+    assert np.array_equal(written, found.result.mask)
+    truth = cv2.imread(str(GROUP / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
+    mask = cv2.imread(str(GROUP / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
+    scores = json.loads(proc.stdout)["scores"]
+    assert abs(scores["best_f1"] - sweep_scores(found.result.score, truth, eval_mask=mask).best_f1) < 1e-9
+    assert abs(scores["f1"] - binary_scores(found.result.mask, truth, eval_mask=mask).f1) < 1e-9

@@ -144,8 +144,8 @@ def test_bad_input_is_a_user_error(tmp_path):
         detect_changes_tiled([], [])
     with pytest.raises(UserInputError, match="one current image per reference lighting"):
         detect_changes_tiled(refs, curs[:1])
-    with pytest.raises(UserInputError, match="evaluation mask"):
-        detect_changes_tiled(refs, curs, eval_mask=np.ones((10, 10), bool))
+    with pytest.raises(UserInputError, match="region of interest"):
+        detect_changes_tiled(refs, curs, roi=np.ones((10, 10), bool))
     with pytest.raises(UserInputError, match="cannot read"):
         load_images([tmp_path / "missing.png"])
 

@@ -102,8 +102,8 @@ def test_diff_requests_check_their_options_for_every_caller(tmp_path):
             CampaignDiffRequest(campaign=tmp_path, station="S1", mm_per_px=bad)
         with pytest.raises(UserInputError, match="--mm-per-px"):
             BareDiffRequest(ref=["a.png"], cur=["b.png"], output=tmp_path, mm_per_px=bad)
-    with pytest.raises(UserInputError, match="--eval-mask: file not found"):
-        CampaignDiffRequest(campaign=tmp_path, station="S1", eval_mask=tmp_path / "mask.png")
+    with pytest.raises(UserInputError, match="--roi: file not found"):
+        CampaignDiffRequest(campaign=tmp_path, station="S1", roi=tmp_path / "mask.png")
     with pytest.raises(UserInputError, match="--ambient-index"):
         BareDiffRequest(ref=["a.png"], cur=["b.png"], output=tmp_path, ambient_index=-1)
 

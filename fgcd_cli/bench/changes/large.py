@@ -68,7 +68,7 @@ def child_main(folder: str, lightings: str, tile_px: int, workers: int) -> None:
     mask = cv2.imread(str(root / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
     t_load = time.perf_counter() - t0
     stages: list[tuple[str, float]] = []
-    result = detect_changes_tiled(ref, cur, eval_mask=mask, progress=lambda done, total, label: stages.append((label, time.perf_counter() - t0)),
+    result = detect_changes_tiled(ref, cur, roi=mask, progress=lambda done, total, label: stages.append((label, time.perf_counter() - t0)),
                                   config=DetectionConfig.from_options(tile_px=tile_px, workers=workers))
     seconds = time.perf_counter() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -110,8 +110,8 @@ def _untiled_f1(folder: Path, lightings: list[int]) -> dict:
     cur = load_images([folder / f"1-{k}.png" for k in lightings])
     mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
     truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
-    plain = detect_changes(ref, cur, eval_mask=mask)
-    tiled = detect_changes_tiled(ref, cur, eval_mask=mask, config=DetectionConfig.from_options(tile_px=256))
+    plain = detect_changes(ref, cur, roi=mask)
+    tiled = detect_changes_tiled(ref, cur, roi=mask, config=DetectionConfig.from_options(tile_px=256))
     return {"f1_untiled": binary_scores(plain.mask, truth, eval_mask=mask).f1,
             "f1_tiled_256px": binary_scores(tiled.mask, truth, eval_mask=mask).f1,
             "f1_tiled_vs_untiled": binary_scores(tiled.mask, plain.mask, eval_mask=mask).f1}

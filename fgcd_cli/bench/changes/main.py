@@ -3,12 +3,16 @@
 (a) The real FGCD dataset (Feng et al., ICCV 2015; every group under
 ``../shared/data/fgcd-dataset/<kind>/``: Db-1..5 test blocks, Dp-1 relief, Ds-1
 statue): observation 2 is the reference (GT is aligned with it), observation 1
-the current one, every lighting both hold; scores inside ``mask.png``. Scored
+the current one, every lighting both hold. Each pair is detected as the user
+runs it (:func:`user_detection`: ``fgcd diff --ref 2-*.png --cur 1-*.png``, its
+defaults, no region of interest) and scored inside ``mask.png``, the annotators'
+region, which reaches no decision; the same with ``--roi mask.png`` is reported
+beside (``roi_*``). Scored
 **leave one group out**: the decision's data-chosen constants are selected on
 the other groups (best mean auto F1 over a small grid) and the held-out group is
 scored with them; the in-sample figures are reported beside, as a reference only.
-Each pair is scored once with the shipped defaults (timed end to end); the
-decision rules are then applied to that score. Beside it, as references scored
+Each pair is scored once with the shipped defaults (timed end to end, reading
+the files and the FDF included); the decision rules are then applied to that score. Beside it, as references scored
 the same way: the former tuned hysteresis rule (k chosen leave one group out),
 the detector without its dense parallax refinement, and the ICCV 2015 method's
 key ideas (:mod:`fgcd_cli.changes.baseline_iccv`, threshold-free best F1 / AP).
@@ -96,18 +100,22 @@ def group_lightings(folder: Path) -> list[int]:
     return sorted(ref & cur)
 
 
-def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_grid: tuple = ()) -> dict:
-    """Score the pair once, decide with every grid point, score each against GT; baselines beside.
+def user_detection(folder: Path, lightings: list[int], *, roi: bool = False):
+    """The detection ``fgcd diff --ref 2-*.png --cur 1-*.png`` makes on a group with a user's defaults.
 
-    ``score_grid`` lists further (gain window, smoothing) pairs to score threshold-free.
+    ``roi``: as ``--roi mask.png`` (the annotators' region given as a region of interest). Without it the
+    annotators' mask reaches no decision: it only chooses the scored pixels (docs/benchmarks.md, "changes").
     """
-    ref = [_read_rgb(folder / f"2-{k}.png") for k in lightings]
-    cur = [_read_rgb(folder / f"1-{k}.png") for k in lightings]
-    truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
-    mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
-    t0 = time.perf_counter()
-    result = detect_changes(ref, cur, eval_mask=mask)  # the shipped defaults, end to end (timed)
-    seconds = time.perf_counter() - t0
+    from fgcd_cli.app.diff import BareDiffRequest, detect_bare
+
+    request = BareDiffRequest(ref=[str(folder / f"2-{k}.png") for k in lightings],
+                              cur=[str(folder / f"1-{k}.png") for k in lightings],
+                              output=folder / "never-written", roi=folder / "mask.png" if roi else None)
+    return detect_bare(request)
+
+
+def _grid_rows(result, truth: np.ndarray, mask: np.ndarray, grid: list[tuple], seconds: float) -> dict:
+    """Threshold-free and decided scores of one detection at every grid point, scored inside ``mask``."""
     sweep = sweep_scores(result.score, truth, eval_mask=mask)
     rows = {}
     for key in grid:
@@ -116,11 +124,27 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
         rows[key] = {
             "best_f1": sweep.best_f1, "ap": sweep.average_precision, "auto_f1": auto.f1,
             "auto_precision": auto.precision, "auto_recall": auto.recall,
-            "changed_fraction_found": float(changed[result.valid].mean()), "seconds": seconds,
+            "changed_fraction_found": float(changed[mask].mean()), "seconds": seconds,
         }
-    # Baselines on the same registered pair: without the dense refinement, and the
+    return rows
+
+
+def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_grid: tuple = ()) -> dict:
+    """Score the user's detection of the pair (no ROI; the ROI beside), decide with every grid point; baselines.
+
+    ``score_grid`` lists further (gain window, smoothing) pairs to score threshold-free.
+    """
+    truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
+    mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
+    t0 = time.perf_counter()
+    found = user_detection(folder, lightings)  # fgcd diff's own path and defaults, end to end (timed)
+    seconds = time.perf_counter() - t0
+    result, ref, cur = found.result, found.ref_images, found.cur_images
+    rows = _grid_rows(result, truth, mask, grid, seconds)
+    roi_rows = _grid_rows(user_detection(folder, lightings, roi=True).result, truth, mask, grid, seconds)
+    # Baselines on the same pair: without the dense refinement, and the
     # ICCV 2015 method's key ideas (normal-aware correction, low rank + sparse).
-    no_dense = detect_changes(ref, cur, eval_mask=mask, config=DetectionConfig.from_options(dense=False, cues=False))
+    no_dense = detect_changes(ref, cur, config=DetectionConfig.from_options(dense=False, cues=False))
     no_dense_sweep = sweep_scores(no_dense.score, truth, eval_mask=mask)
     registered = [warp_to_reference(to_float_image(c), result.registration.H_cur_ref, truth.shape)[0] for c in cur]
     iccv = iccv2015_score([to_float_image(r) for r in ref], registered, valid=result.valid,
@@ -129,17 +153,16 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
     variants = {}
     for gain_sigma, smooth_sigma in score_grid:
         if (gain_sigma, smooth_sigma) == SCORE_GRID[0]:
-            variants[(gain_sigma, smooth_sigma)] = {"best_f1": sweep.best_f1, "ap": sweep.average_precision}
+            variants[(gain_sigma, smooth_sigma)] = {"best_f1": rows[grid[0]]["best_f1"], "ap": rows[grid[0]]["ap"]}
             continue
-        variant = detect_changes(ref, cur, eval_mask=mask,
-                                 config=DetectionConfig.from_options(cues=False, gain_sigma_px=gain_sigma,
-                                                                     smooth_sigma_px=smooth_sigma))
+        variant = detect_changes(ref, cur, config=DetectionConfig.from_options(cues=False, gain_sigma_px=gain_sigma,
+                                                                               smooth_sigma_px=smooth_sigma))
         variant_sweep = sweep_scores(variant.score, truth, eval_mask=mask)
         variants[(gain_sigma, smooth_sigma)] = {"best_f1": variant_sweep.best_f1, "ap": variant_sweep.average_precision}
     return {"group": folder.name, "kind": folder.parent.name, "lightings": lightings,
-            "changed_fraction_true": float(truth[mask].mean()), "grid": rows, "seconds": seconds,
-            "regions": len(result.regions), "cues": {c: sum(r.cue == c for r in result.regions)
-                                                     for c in ("relief", "colour", "both")},
+            "changed_fraction_true": float(truth[mask].mean()), "grid": rows, "roi_grid": roi_rows,
+            "seconds": seconds, "regions": len(result.regions),
+            "cues": {c: sum(r.cue == c for r in result.regions) for c in ("relief", "colour", "both")},
             "not_compared_fraction": float(result.not_compared[mask].mean()) if result.not_compared is not None else 0.0,
             "no_dense": {"best_f1": no_dense_sweep.best_f1, "ap": no_dense_sweep.average_precision},
             "iccv2015": {"best_f1": iccv_sweep.best_f1, "ap": iccv_sweep.average_precision},
@@ -169,13 +192,16 @@ def leave_one_group_out_score_constants(scored: list[dict]) -> dict | None:
     }
 
 
-def leave_one_group_out(scored: list[dict], grid: list[tuple[float, float]]) -> list[dict]:
-    """For each group, the grid point with the best mean auto F1 on the *other* groups, and its held-out scores."""
+def leave_one_group_out(scored: list[dict], grid: list[tuple[float, float]], *, table: str = "grid") -> list[dict]:
+    """For each group, the grid point with the best mean auto F1 on the *other* groups, and its held-out scores.
+
+    ``table``: ``"grid"`` (the user's detection, no ROI) or ``"roi_grid"`` (the same with ``--roi mask.png``).
+    """
     out = []
     for held in scored:
         others = [g for g in scored if g is not held]
-        chosen = max(grid, key=lambda key: (np.mean([g["grid"][key]["auto_f1"] for g in others]), -grid.index(key)))
-        row = dict(held["grid"][chosen])
+        chosen = max(grid, key=lambda key: (np.mean([g[table][key]["auto_f1"] for g in others]), -grid.index(key)))
+        row = dict(held[table][chosen])
         row.update({"group": held["group"], "kind": held["kind"], "chosen": detector_options(chosen),
                     "changed_fraction_true": held["changed_fraction_true"]})
         out.append(row)
@@ -197,6 +223,7 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
             lightings = lightings[::2]
         scored.append(_score_group(folder, lightings, grid + reference_grid, () if quick else SCORE_GRID))
     logo = leave_one_group_out(scored, grid)
+    logo_roi = leave_one_group_out(scored, grid, table="roi_grid")
     logo_hysteresis = leave_one_group_out(scored, list(HYSTERESIS_GRID))
     logo_single = leave_one_group_out(scored, single_scale)
     logo_scale_chosen = leave_one_group_out(scored, grid + single_scale)
@@ -216,6 +243,12 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         "logo_ap": mean(logo, "ap"),
         "logo_auto_f1": mean(logo, "auto_f1"),
         "logo_min_auto_recall": float(min(r["auto_recall"] for r in logo)),
+        # The same with the annotators' mask given as a region of interest (fgcd diff --roi mask.png).
+        "roi_logo_best_f1": mean(logo_roi, "best_f1"),
+        "roi_logo_ap": mean(logo_roi, "ap"),
+        "roi_logo_auto_f1": mean(logo_roi, "auto_f1"),
+        "roi_logo_min_auto_recall": float(min(r["auto_recall"] for r in logo_roi)),
+        "roi_groups": logo_roi,
         "deployed": detector_options(deployed),
         "in_sample": in_sample,
         # Every grid point on every group (in-sample, a reference: how each rule behaves).
@@ -260,7 +293,7 @@ def _write_overlays(folders, scored, deployed, overlay_dir: Path) -> None:
         cur = [_read_rgb(folder / f"1-{k}.png") for k in lightings]
         truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
         mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
-        result = detect_changes(ref, cur, eval_mask=mask, config=DetectionConfig.from_options(**detector_options(deployed)))
+        result = detect_changes(ref, cur, config=DetectionConfig.from_options(**detector_options(deployed)))
         overlay = change_overlay(ref[0], result.labels, result.regions, valid=result.valid,
                                  candidates=result.candidates)
         contours, _ = cv2.findContours((truth & mask).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -288,6 +321,8 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
     summary = {}
     if real.get("available"):
         summary.update({k: real[k] for k in ("logo_best_f1", "logo_ap", "logo_auto_f1", "logo_min_auto_recall",
+                                             "roi_logo_best_f1", "roi_logo_ap", "roi_logo_auto_f1",
+                                             "roi_logo_min_auto_recall",
                                              "in_sample_auto_f1", "seconds_per_pair", "logo_hysteresis_auto_f1",
                                              "iccv2015_best_f1", "iccv2015_ap", "no_dense_best_f1",
                                              "logo_best_f1_all_constants", "logo_ap_all_constants",

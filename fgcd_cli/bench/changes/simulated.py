@@ -7,7 +7,8 @@ translation, ~0.1 deg rotation: an AFD of a few pixels), with or without
 injected changes, rendered as the simulated camera's stills (area-integrated
 pixels). Ground truth (change mask, depth) is read here, in evaluation
 code only: the detector sees the images, plus the metric pixel area a real rig
-derives from its reference cloud (here: the rendered reference depth).
+derives from its reference cloud (here: the rendered reference depth). No region
+of interest: the object's outline (its labels) only chooses the scored pixels.
 :func:`run_relocated` adds pairs relocated only to 3 mm on a scene with depth
 edges (a real relocation's residual, as in ``fgcd demo``).
 """
@@ -109,7 +110,7 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
             cur_images = _render_set(renderer, T_cur, intr, changes=changes if changed else None,
                                      effects=cur_effects, exposure=ref_exposure * 0.8, rng=rng)
             for setting, check in (("campaign", EDGE_CHECK_PX), ("plain", 0)):
-                result = detect_changes(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=area,
+                result = detect_changes(ref_images, cur_images, pixel_area_mm2=area,
                                         config=DetectionConfig.from_options(edge_check_px=check))
                 row = {"scene": RELOCATED_SCENE, "seed": seed, "changed": changed, "setting": setting,
                        "edge_check_px": check, "comparable": result.comparable, "regions": len(result.regions),
@@ -155,7 +156,7 @@ def _sim_pairs(scenes, seeds, intr, *, detector_options: dict | None) -> tuple[l
                 t0 = time.perf_counter()
                 cur_images = _render_set(renderer, T_cur, intr, changes=changes if changed else None,
                                          effects=cur_effects, exposure=ref_exposure * 0.8, rng=rng)
-                result = detect_changes(ref_images, cur_images, eval_mask=eval_mask, pixel_area_mm2=area,
+                result = detect_changes(ref_images, cur_images, pixel_area_mm2=area,
                                         config=DetectionConfig.from_options(**(detector_options or {})))
                 row = {"scene": scene_name, "seed": seed, "changed": changed, "comparable": result.comparable,
                        "reason": result.reason, "regions": len(result.regions),

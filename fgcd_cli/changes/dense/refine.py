@@ -249,7 +249,7 @@ def refine_dense(
     valid : ndarray, HxW bool, optional
         Pixels that carry data in both images (the warp's valid mask). Outside:
         no weight in the fit, not compared. None: every pixel. Intersect it with
-        the evaluation mask when that mask cuts an object out of a background at
+        the region of interest when that mask cuts an object out of a background at
         another depth: a background off the object's homography otherwise drags
         the fit near the silhouette.
     config : DenseConfig, optional

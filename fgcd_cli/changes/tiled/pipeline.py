@@ -85,7 +85,7 @@ def detect_changes_tiled(
     ref_images: Sequence[np.ndarray],
     cur_images: Sequence[np.ndarray],
     *,
-    eval_mask: np.ndarray | None = None,
+    roi: np.ndarray | None = None,
     pixel_area_mm2: np.ndarray | None = None,
     config: DetectionConfig | None = None,
     progress: Progress | None = None,
@@ -97,7 +97,7 @@ def detect_changes_tiled(
     ref_images, cur_images : sequences of ndarray, HxW or HxWx3, uint8 (best), uint16 or float in [0, 1]
         One image per lighting, as for ``detect_changes``. They are never converted
         as a whole: keep them 8-bit (:func:`load_images`) to bound the memory.
-    eval_mask, pixel_area_mm2 : as for ``detect_changes`` (full resolution).
+    roi, pixel_area_mm2 : as for ``detect_changes`` (full resolution).
     config : DetectionConfig, optional
         As for ``detect_changes``; its ``tiling`` section (:class:`~fgcd_cli.changes.config.TilingConfig`)
         sets the tiles, the working and decision resolutions and the workers. The options
@@ -116,12 +116,12 @@ def detect_changes_tiled(
     config = _tiled_config(config)
     shape, _ = check_stacks(ref_images, cur_images)
     n = len(ref_images)
-    eval_mask = check_side_inputs(shape, n, eval_mask=eval_mask, pixel_area_mm2=pixel_area_mm2,
+    roi = check_side_inputs(shape, n, roi=roi, pixel_area_mm2=pixel_area_mm2,
                                   registration_lighting=config.registration.registration_lighting)
     plan = _Plan.of(shape, config)
     report = _Report(progress, total=1 + len(plan.tiles) * plan.passes + 1)
     settings = _tiled_settings(config, n, plan)
-    small = working_resolution(ref_images, cur_images, plan.work_wh, eval_mask=eval_mask,
+    small = working_resolution(ref_images, cur_images, plan.work_wh, roi=roi,
                                config=config.registration, workers=config.tiling.workers)
     if isinstance(small, tuple):
         report(small[0], units=report.total)
@@ -131,7 +131,7 @@ def detect_changes_tiled(
     # The finer smoothing is scanned only where the decision runs at full resolution (`tiled.decision`).
     score_config = (config.score if max(shape) <= config.tiling.decision_px
                     else dataclasses.replace(config.score, fine_smooth_sigma_px=0.0))
-    tiled = TiledScore(ref_images, cur_images, geom, plan.tiles, eval_mask=eval_mask, workers=config.tiling.workers,
+    tiled = TiledScore(ref_images, cur_images, geom, plan.tiles, roi=roi, workers=config.tiling.workers,
                        score=score_config, report=report)
     tiled.run_pass(0, None)
     valid = tiled.valid()

@@ -28,12 +28,12 @@ from fgcd_cli.changes.tiled.schedule import median_float16, release_free_memory,
 class TiledScore:
     """The per-lighting difference maps of the whole frame, computed tile by tile, and their fusion."""
 
-    def __init__(self, ref_images, cur_images, geom: Geometry, tiles: list[Tile], *, eval_mask, workers: int,
+    def __init__(self, ref_images, cur_images, geom: Geometry, tiles: list[Tile], *, roi, workers: int,
                  score: ScoreConfig, report):
         """``geom`` carries the dense flow when the dense refinement ran (then ``not_compared`` is kept)."""
         self.refs, self.curs, self.geom, self.tiles = ref_images, cur_images, geom, tiles
         self.shape = np.asarray(ref_images[0]).shape[:2]
-        self.eval_mask, self.workers, self.report, self.score = eval_mask, workers, report, score
+        self.roi, self.workers, self.report, self.score = roi, workers, report, score
         self.gain_sigma_px, self.shift_radius_px = score.gain_sigma_px, score.shift_radius_px
         self.smooth_sigma_px = score.smooth_sigma_px
         self.fine_smooth_sigma_px = score.fine_smooth_sigma_px
@@ -99,7 +99,7 @@ class TiledScore:
 
     def valid(self) -> np.ndarray:
         """Compared pixels: in the area, seen, aligned by the refinement, away from the border by the cue's reach."""
-        area = np.ones(self.shape, bool) if self.eval_mask is None else self.eval_mask
+        area = np.ones(self.shape, bool) if self.roi is None else self.roi
         valid = area & self.seen_all
         if self.not_compared is not None:
             self.not_compared &= area

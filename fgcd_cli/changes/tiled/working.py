@@ -28,7 +28,7 @@ class Small:
     dense_fit: DenseAlignment | None
 
 
-def working_resolution(ref_images, cur_images, size_wh, *, eval_mask, config: RegistrationConfig,
+def working_resolution(ref_images, cur_images, size_wh, *, roi, config: RegistrationConfig,
                        workers: int) -> Small | tuple[str, str]:
     """Downscale the stacks, check them, register and refine at the working resolution.
 
@@ -65,8 +65,8 @@ def working_resolution(ref_images, cur_images, size_wh, *, eval_mask, config: Re
     dense_fit = None
     if config.dense:
         area_small = np.ones((hs, ws), bool)
-        if eval_mask is not None:
-            area_small = cv2.resize(eval_mask.astype(np.uint8), (ws, hs), interpolation=cv2.INTER_NEAREST).astype(bool)
+        if roi is not None:
+            area_small = cv2.resize(roi.astype(np.uint8), (ws, hs), interpolation=cv2.INTER_NEAREST).astype(bool)
         warped_gray, seen_small = warp_to_reference(gray_cur, reg_small.H_cur_ref, (hs, ws))
         dense_fit = refine_dense(gray_ref, warped_gray, valid=area_small & seen_small)
     return Small(refs=smalls[:n], curs=smalls[n:], registration=reg_small, dense_fit=dense_fit)
