@@ -25,9 +25,10 @@ from pathlib import Path
 
 import cv2
 
+from fgcd_cli.bench.paths import FGCD_DATASET, REPO_ROOT
 from fgcd_cli.changes.config import DetectionConfig
 
-DATASET = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "fgcd-dataset"
+DATASET = FGCD_DATASET
 GROUP = ("Db", "Db-1")
 
 
@@ -91,7 +92,7 @@ def child_main(folder: str, lightings: str, tile_px: int, workers: int) -> None:
 def _run_child(folder: Path, lightings: list[int], tile_px: int, workers: int) -> dict:
     code = ("import sys; from fgcd_cli.bench.changes.large import child_main; "
             "child_main(sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))")
-    cwd = Path(__file__).resolve().parents[2]
+    cwd = REPO_ROOT
     done = subprocess.run([sys.executable, "-c", code, str(folder), ",".join(map(str, lightings)), str(tile_px),
                            str(workers)], capture_output=True, text=True, cwd=cwd, check=False)
     if done.returncode != 0:

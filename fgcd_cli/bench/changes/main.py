@@ -32,6 +32,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fgcd_cli.bench.paths import FGCD_DATASET
 from fgcd_cli.changes.baseline_iccv import iccv2015_score
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig, ScoreConfig
 from fgcd_cli.changes.detect import decide, detect_changes
@@ -39,7 +40,7 @@ from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.registration import warp_to_reference
 from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores
 
-DATASET = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "fgcd-dataset"
+DATASET = FGCD_DATASET
 
 # Leave-one-group-out grid of the decision's two data-chosen constants (a-contrario:
 # seed_p, extent_fraction; epsilon = 1 is fixed by its meaning, and the finer smoothing by the

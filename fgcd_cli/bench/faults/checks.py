@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fgcd_cli.bench.paths import REPO_ROOT
 from fgcd_cli.campaign.schema import MANIFEST, STATION_FILE, STATIONS_DIR
 from fgcd_cli.campaign.verify import verify_campaign_dir
 
@@ -27,8 +28,7 @@ FAILURE_PREFIXES = ("error:", "platform error:", "interrupted (Ctrl-C):", "inter
                     "terminated (SIGTERM):", "hung up (SIGHUP):", "camera error:",
                     "aborted:")
 
-#: The repository root (the fgcd children run from here, like the tests).
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = REPO_ROOT  # the fgcd children run from the repository root, like the tests
 
 
 @dataclass(frozen=True, kw_only=True)
