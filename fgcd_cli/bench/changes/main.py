@@ -142,7 +142,9 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
     seconds = time.perf_counter() - t0
     result, ref, cur = found.result, found.ref_images, found.cur_images
     rows = _grid_rows(result, truth, mask, grid, seconds)
-    roi_rows = _grid_rows(user_detection(folder, lightings, roi=True).result, truth, mask, grid, seconds)
+    t0 = time.perf_counter()
+    with_roi = user_detection(folder, lightings, roi=True)
+    roi_rows = _grid_rows(with_roi.result, truth, mask, grid, time.perf_counter() - t0)
     # Baselines on the same pair: without the dense refinement, and the
     # ICCV 2015 method's key ideas (normal-aware correction, low rank + sparse).
     no_dense = detect_changes(ref, cur, config=DetectionConfig.from_options(dense=False, cues=False))
