@@ -304,7 +304,7 @@ def _verify_rig(rig: Path, report: VerifyReport) -> None:
 
 
 # ----------------------------------------------------------------------------- leftovers of interrupted writes
-#: Files and folders a diff or report adds to a visit after its commit (docs/campaign.md, derived products).
+#: Files and folders a diff or report adds to a visit after its commit (docs/user-guide.md, the campaign folder).
 _DERIVED = (f"{CHANGES_DIR}/", REPORT_HTML, AFD_JSON)
 
 

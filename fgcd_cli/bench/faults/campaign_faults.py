@@ -24,6 +24,7 @@ from fgcd_cli.bench.faults.checks import (
     campaign_problems,
     committed_digests,
     earlier_changed,
+    fresh_station,
     run_fgcd,
     send_signal,
     wait_until,
@@ -221,7 +222,7 @@ def calibrate_campaign(campaign: Path) -> None:
 def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     """``fgcd capture`` of a new station, signalled (SIGINT or SIGKILL) or starved of disk at a seeded moment."""
     rng = np.random.default_rng(seed)
-    station = f"{fault.split('_')[0]}-{seed}"  # a new station per fault
+    station = fresh_station(campaign, f"{fault.split('_')[0]}-{seed}")  # a new station per fault
     before = committed_digests(campaign)
     args = ["capture", "-c", str(campaign), "-s", station, "--light", "led:3,led:9", "--yes", "--json"]
     if fault == "enospc_during_capture":

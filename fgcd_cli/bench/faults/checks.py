@@ -230,7 +230,7 @@ def committed_digests(campaign: Path) -> dict[str, str]:
 
     Left out: write leftovers, lock and journal files (dot names), and a diff's
     derived products (listed ``derived`` in a manifest, or unlisted), which every
-    ``fgcd diff`` may recompute (docs/campaign.md); a manifest counts by its
+    ``fgcd diff`` may recompute (docs/user-guide.md, the campaign folder); a manifest counts by its
     captured entries and metadata, which no command may change.
     """
     out = {}
@@ -248,7 +248,28 @@ def committed_digests(campaign: Path) -> dict[str, str]:
             out[f"{rel_obs.as_posix()}/{relpath}"] = (hashlib.sha256(path.read_bytes()).hexdigest()
                                                       if path.is_file() else "missing")
     for station_file in sorted(root.glob(f"*/{STATION_FILE}")):
-        out[station_file.relative_to(root).as_posix()] = hashlib.sha256(station_file.read_bytes()).hexdigest()
+        out.update(_station_record_digests(station_file, station_file.relative_to(root).as_posix()))
+    return out
+
+
+def _station_record_digests(station_file: Path, rel: str) -> dict[str, str]:
+    """A ``station.json`` as earlier data: its fields, and each observation it indexes.
+
+    Rule (docs/user-guide.md, the campaign folder): a committed observation appends itself to the
+    station's index, so a new entry is new data, not a change; an entry that
+    vanishes, or any other field that changes, is earlier data changed.
+    Unreadable JSON counts by its bytes (any change to it is flagged).
+    """
+    raw = station_file.read_bytes()
+    try:
+        info = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        return {rel: hashlib.sha256(raw).hexdigest()}
+    if not isinstance(info, dict) or not isinstance(info.get("observations", []), list):
+        return {rel: hashlib.sha256(raw).hexdigest()}
+    fields = {k: v for k, v in info.items() if k != "observations"}
+    out = {f"{rel}#fields": hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()}
+    out.update({f"{rel}#indexes/{obs}": "indexed" for obs in info.get("observations", [])})
     return out
 
 
@@ -265,3 +286,17 @@ def campaign_problems(campaign: Path, *, allowed: set[str] = frozenset()) -> lis
 
 
 SIGNALS = {"SIGINT": signal.SIGINT, "SIGKILL": signal.SIGKILL, "SIGTERM": signal.SIGTERM, "SIGHUP": signal.SIGHUP}
+
+
+def fresh_station(campaign: Path, base: str) -> str:
+    """A station name of the campaign not taken yet: ``base``, else ``base-r2``, ``base-r3``, ...
+
+    A capture fault needs a new station; a bench campaign reused across runs
+    (``--workdir``) already holds the stations of earlier runs with the same seeds.
+    """
+    root = Path(campaign) / STATIONS_DIR
+    name, n = base, 1
+    while (root / name).exists():
+        n += 1
+        name = f"{base}-r{n}"
+    return name

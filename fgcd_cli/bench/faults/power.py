@@ -198,30 +198,6 @@ def _revisit_after(campaign: Path, station: str, seed: int) -> tuple[int, str]:
     return run.code, (run.error_lines or run.lines or [""])[-1]
 
 
-def _index_grew_only(before: str | None, station_file: Path) -> bool:
-    """``station.json`` after the run is the one before with new observations appended to its index, or unchanged."""
-    try:
-        old, new = json.loads(before or "null"), json.loads(station_file.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    if not (isinstance(old, dict) and isinstance(new, dict)):
-        return False
-    index = list(old.get("observations", []))
-    return ({k: v for k, v in new.items() if k != "observations"} == {k: v for k, v in old.items()
-                                                                        if k != "observations"}
-            and new.get("observations", [])[:len(index)] == index)
-
-
-def _changed(campaign: Path, station_path: Path, before: dict, station_before: str | None) -> list[str]:
-    """Earlier data that changed, a station index that only grew by the committed visit excepted."""
-    changed = earlier_changed(before, committed_digests(campaign))
-    station_file = station_path / schema.STATION_FILE
-    key = station_file.relative_to(campaign / schema.STATIONS_DIR).as_posix()
-    if key in changed and _index_grew_only(station_before, station_file):
-        changed.remove(key)  # the visit was committed and recorded: the index grows by it (docs/campaign.md)
-    return changed
-
-
 def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     """One power-loss point of class ``fault`` with ``seed`` on the bench campaign, judged."""
     if fault not in FAULTS:
@@ -231,7 +207,6 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     station_path = campaign / schema.STATIONS_DIR / station
     instant = _instant(fault, seed, event_counts(campaign, station)[fault])
     before = committed_digests(campaign)
-    station_before = (station_path / schema.STATION_FILE).read_text(encoding="utf-8")
     problems_before = {(p.path, p.kind, p.detail) for p in verify_campaign_dir(campaign).problems}
     with tempfile.TemporaryDirectory(prefix="fgcd-power-") as tmp:
         log = Path(tmp) / "events.log"
@@ -239,7 +214,7 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
                        launcher=["fgcd_cli.bench.faults.power_launch"], timeout_s=_TIMEOUT_S,
                        env={**_launch_env(campaign, log, fault), **instant.env})
         events, kill = read_log(log)
-    changed = _changed(campaign, station_path, before, station_before)
+    changed = earlier_changed(before, committed_digests(campaign))
     wrong, new = judge_verify(campaign, station_path, problems_before)
     extra = {"instant": instant.text, "killed": kill.path[:160] if kill else None, "events_done": len(events),
              "seconds": round(run.seconds, 1), "left": sorted({f"{p.kind}:{Path(p.path).name[:24]}" for p in new})}
