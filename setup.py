@@ -12,7 +12,7 @@ import tempfile
 from setuptools import find_packages, setup
 
 _OUT_OF_TREE = tempfile.mkdtemp(prefix="fgcd-build-")
-_DRIVERS = ["fgcd_drivers" + name[len("drivers"):] for name in find_packages(include=["drivers", "drivers.*"])]
+_DRIVERS = ["fgcd_drivers" + name[len("drivers") :] for name in find_packages(include=["drivers", "drivers.*"])]
 
 setup(
     packages=find_packages(include=["fgcd_cli", "fgcd_cli.*", "fgcd_core", "fgcd_core.*"]) + _DRIVERS,

@@ -88,8 +88,7 @@ def _check_device(index: int | str) -> None:
         which = "" if path == index else f" (camera {index})"
         raise CameraError(f"no camera at {path}{which}: connect it, or choose another with --camera")
     if stat.S_ISCHR(os.stat(path).st_mode) and not os.access(path, os.R_OK | os.W_OK):
-        raise CameraError(f"no permission to open camera {path} (add the user to the group owning it, "
-                          "usually 'video')")
+        raise CameraError(f"no permission to open camera {path} (add the user to the group owning it, usually 'video')")
 
 
 class OpenCVCamera:
@@ -107,8 +106,14 @@ class OpenCVCamera:
         What to advertise; by default a pinhole guess from the frame size.
     """
 
-    def __init__(self, index: int | str = 0, *, width: int | None = None, height: int | None = None,
-                 intrinsics: CameraIntrinsics | None = None):
+    def __init__(
+        self,
+        index: int | str = 0,
+        *,
+        width: int | None = None,
+        height: int | None = None,
+        intrinsics: CameraIntrinsics | None = None,
+    ):
         import cv2
 
         _check_device(index)

@@ -23,8 +23,7 @@ from typing import Protocol, runtime_checkable
 
 from fgcd_core.platform import PlatformConnectionError, PlatformError
 
-__all__ = ["AMBIENT", "Lights", "LightsDriver", "LightsError", "LightsSpec", "ManualLights",
-           "parse_lightings"]
+__all__ = ["AMBIENT", "Lights", "LightsDriver", "LightsError", "LightsSpec", "ManualLights", "parse_lightings"]
 
 #: The lighting with every rig light off.
 AMBIENT = "ambient"
@@ -102,14 +101,18 @@ class ManualLights:
             raise LightsError(f"no light '{lighting}' on this rig (lights: {', '.join(self.available())})")
         if lighting == self._current:
             return
-        prompt = ("Switch every rig light off (ambient light only), then press Enter [Y/n] "
-                  if lighting == AMBIENT else
-                  f"Switch on the {_clock_words(lighting)} light only (all others off), then press Enter [Y/n] ")
+        prompt = (
+            "Switch every rig light off (ambient light only), then press Enter [Y/n] "
+            if lighting == AMBIENT
+            else f"Switch on the {_clock_words(lighting)} light only (all others off), then press Enter [Y/n] "
+        )
         try:
             answer = self._ask(prompt).strip().lower()
         except EOFError:
-            raise LightsError(f"no terminal to ask for the light '{lighting}': configure [rig.lights] in "
-                              "campaign.toml (docs/hardware.md, Lights)") from None
+            raise LightsError(
+                f"no terminal to ask for the light '{lighting}': configure [rig.lights] in "
+                "campaign.toml (docs/hardware.md, Lights)"
+            ) from None
         if answer not in ("", "y", "yes"):
             raise LightsError(f"the switch to the light '{lighting}' was not confirmed; nothing was captured under it")
         self._current = lighting
@@ -155,12 +158,17 @@ class LightsSpec:
         try:
             driver = LightsDriver(str(section.get("driver", LightsDriver.MANUAL)))
         except ValueError:
-            raise PlatformConnectionError(f"[rig.lights] driver must be one of {', '.join(LightsDriver)}, "
-                                          f"got '{section.get('driver')}'") from None
+            raise PlatformConnectionError(
+                f"[rig.lights] driver must be one of {', '.join(LightsDriver)}, got '{section.get('driver')}'"
+            ) from None
         channels = section.get("channels", {})
         if isinstance(channels, list):  # manual: a list of names is enough
             channels = {str(c): "" for c in channels}
         if not isinstance(channels, dict):
             raise PlatformConnectionError("[rig.lights] channels must be a table: lighting name = output")
-        return cls(driver=driver, port=section.get("port"), baud=int(section.get("baud", 115200)),
-                   channels={str(k): str(v) for k, v in channels.items()})
+        return cls(
+            driver=driver,
+            port=section.get("port"),
+            baud=int(section.get("baud", 115200)),
+            channels={str(k): str(v) for k, v in channels.items()},
+        )

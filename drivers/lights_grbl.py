@@ -117,8 +117,10 @@ class GrblLights:
         reported = self.reported_outputs()
         expected = {on[1]} if on is not None else set()
         if reported != expected:
-            raise LightsError(f"GRBL reports outputs {sorted(reported) or 'off'} after switching to '{lighting}' "
-                              f"(expected {sorted(expected) or 'off'})")
+            raise LightsError(
+                f"GRBL reports outputs {sorted(reported) or 'off'} after switching to '{lighting}' "
+                f"(expected {sorted(expected) or 'off'})"
+            )
         self._current = lighting
 
     def reported_outputs(self) -> set[str]:

@@ -79,8 +79,9 @@ class SerialLights:
                 raise PlatformConnectionError(f"{spec.port} answered '{answer}' to ID: not a light controller")
             missing = [n for n, k in lights._relays.items() if not 1 <= k <= int(count)]
             if missing:
-                raise PlatformConnectionError(f"the light controller has relays 1..{count}; "
-                                              f"[rig.lights] wires {', '.join(missing)} beyond them")
+                raise PlatformConnectionError(
+                    f"the light controller has relays 1..{count}; [rig.lights] wires {', '.join(missing)} beyond them"
+                )
             lights.set(AMBIENT)
         except (LightsError, PlatformConnectionError):
             port.close()
@@ -122,8 +123,10 @@ class SerialLights:
         reported = parse_state(self._ask("STATE"))
         expected = {relay} if relay is not None else set()
         if reported != expected:
-            raise LightsError(f"the light controller reports relays {sorted(reported) or 'off'} after switching "
-                              f"to '{lighting}' (expected {sorted(expected) or 'off'})")
+            raise LightsError(
+                f"the light controller reports relays {sorted(reported) or 'off'} after switching "
+                f"to '{lighting}' (expected {sorted(expected) or 'off'})"
+            )
         self._current = lighting
 
     def reported_lighting(self) -> str:

@@ -29,7 +29,11 @@ __all__ = ["ManualPlatform", "instructions_for"]
 _TRANSLATION_WORDS = {0: ("slide right", "slide left"), 1: ("move down", "move up"), 2: ("push forward", "pull back")}
 # Right-hand rule with x right, y down, z forward: +rx turns forward towards -y (up),
 # +ry turns forward towards +x (right), +rz turns right towards down (clockwise from behind).
-_ROTATION_WORDS = {0: ("tilt up", "tilt down"), 1: ("pan right", "pan left"), 2: ("roll clockwise", "roll anticlockwise")}
+_ROTATION_WORDS = {
+    0: ("tilt up", "tilt down"),
+    1: ("pan right", "pan left"),
+    2: ("roll clockwise", "roll anticlockwise"),
+}
 
 
 def instructions_for(T_flange_delta: np.ndarray, *, min_mm: float = 0.05, min_deg: float = 0.02) -> list[str]:

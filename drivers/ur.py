@@ -430,7 +430,11 @@ class URPlatform:
             speed = float(np.linalg.norm(r.getActualTCPSpeed()[:3]))
             err_m = float(np.linalg.norm(pose[:3, 3] - target[:3, 3]))
             err_rad = float(np.linalg.norm(Rotation.from_matrix(pose[:3, :3].T @ target[:3, :3]).as_rotvec()))
-            if err_m <= self.config.arrival_tolerance_m and err_rad <= self.config.arrival_tolerance_rad and speed < 1e-3:
+            if (
+                err_m <= self.config.arrival_tolerance_m
+                and err_rad <= self.config.arrival_tolerance_rad
+                and speed < 1e-3
+            ):
                 return
             if time.monotonic() > deadline:
                 raise PlatformTimeout(

@@ -103,8 +103,10 @@ def _require_state_stream(sock: socket.socket, host: str) -> None:
     try:
         _rtde_packet(sock, "U")
     except TimeoutError:
-        raise PlatformTimeout(f"the UR controller at {host} answers but sends no state (it may be hung); "
-                              "check the controller before moving") from None
+        raise PlatformTimeout(
+            f"the UR controller at {host} answers but sends no state (it may be hung); "
+            "check the controller before moving"
+        ) from None
     sock.sendall(struct.pack(">HB", 3, ord("P")))
 
 

@@ -161,7 +161,11 @@ class RunRecord:
             of which an interruption may leave some.
         """
         self.writes_known = True
-        item = f"not written: {what}" if whole else f"not completed: {what} (some of its files may be there, each one whole)"
+        item = (
+            f"not written: {what}"
+            if whole
+            else f"not completed: {what} (some of its files may be there, each one whole)"
+        )
         self.pending.append(item)
         yield
         self.pending.remove(item)
@@ -203,7 +207,9 @@ class RunRecord:
             return "files already complete were kept and none was left half-written"
         clauses = []
         if self.written:
-            shown = ", ".join(self.written[:3]) + (f" and {len(self.written) - 3} more" if len(self.written) > 3 else "")
+            shown = ", ".join(self.written[:3]) + (
+                f" and {len(self.written) - 3} more" if len(self.written) > 3 else ""
+            )
             clauses.append(f"wrote {shown}")
         if self.pending:
             clauses += self.pending
@@ -251,8 +257,10 @@ class StopSignal(KeyboardInterrupt):
 
 # ----------------------------------------------------------------------------- one line per failure
 #: What an exhausted memory is told as (exit 1, an operating-system limit, not a bug).
-OUT_OF_MEMORY = ("out of memory: the machine (or its limit, `ulimit -v`) gave no more; free memory, or diff fewer "
-                 "lightings or smaller images at once")
+OUT_OF_MEMORY = (
+    "out of memory: the machine (or its limit, `ulimit -v`) gave no more; free memory, or diff fewer "
+    "lightings or smaller images at once"
+)
 
 
 def is_out_of_memory(exc: BaseException) -> bool:

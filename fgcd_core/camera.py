@@ -83,8 +83,10 @@ class PinholeCamera:
     def from_K(cls, K: np.ndarray, width: int, height: int, dist=None) -> PinholeCamera:
         """From a 3x3 matrix ``K``."""
         K = np.asarray(K, dtype=float)
-        d = (0.0,) * 5 if dist is None else tuple(np.asarray(dist, dtype=float).ravel()[:5]) + (0.0,) * max(
-            0, 5 - np.asarray(dist).size
+        d = (
+            (0.0,) * 5
+            if dist is None
+            else tuple(np.asarray(dist, dtype=float).ravel()[:5]) + (0.0,) * max(0, 5 - np.asarray(dist).size)
         )
         return cls(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], width=int(width), height=int(height), dist=d)
 

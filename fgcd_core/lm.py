@@ -24,8 +24,15 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["LMSchedule", "LMOutcome", "LeastSquaresProblem", "levenberg_marquardt", "huber_weights", "huber_rho",
-           "huber_cost"]
+__all__ = [
+    "LMSchedule",
+    "LMOutcome",
+    "LeastSquaresProblem",
+    "levenberg_marquardt",
+    "huber_weights",
+    "huber_rho",
+    "huber_cost",
+]
 
 State = TypeVar("State")
 
@@ -154,8 +161,7 @@ def levenberg_marquardt(problem: LeastSquaresProblem[State], state: State, sched
             candidate = None if step is None else problem.apply(state, step)
             new_cost = math.inf if candidate is None else problem.cost(candidate)
             if new_cost < cost:
-                converged = (cost - new_cost < s.relative_decrease * cost
-                             or problem.step_size(step) < s.min_step)
+                converged = cost - new_cost < s.relative_decrease * cost or problem.step_size(step) < s.min_step
                 state, cost = candidate, new_cost
                 lam = max(lam / s.decrease, s.min_damping)
                 stop = converged or _reached(attempts, s.max_attempts)

@@ -285,8 +285,7 @@ class MotionGuard:
         step_rad = rotation_angle_rad(current[:3, :3].T @ target[:3, :3])
         if step_m > self.limits.max_step_m + 1e-12:
             raise MotionRejected(
-                f"motion refused: step {step_m * 1000:.1f} mm exceeds the limit "
-                f"{self.limits.max_step_m * 1000:.1f} mm"
+                f"motion refused: step {step_m * 1000:.1f} mm exceeds the limit {self.limits.max_step_m * 1000:.1f} mm"
             )
         if step_rad > self.limits.max_step_rad + 1e-12:
             raise MotionRejected(

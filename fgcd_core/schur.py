@@ -19,8 +19,14 @@ from enum import StrEnum
 import numpy as np
 from scipy.sparse import csr_matrix
 
-__all__ = ["Damping", "SchurDamping", "BlockNormalEquations", "block_normal_equations", "schur_step",
-           "reduced_camera_system"]
+__all__ = [
+    "Damping",
+    "SchurDamping",
+    "BlockNormalEquations",
+    "block_normal_equations",
+    "schur_step",
+    "reduced_camera_system",
+]
 
 
 class Damping(StrEnum):
@@ -88,8 +94,17 @@ def _sum_into(index: np.ndarray, n_rows: int, values: np.ndarray) -> np.ndarray:
     return (G @ values.reshape(n, -1)).reshape((n_rows,) + values.shape[1:])
 
 
-def block_normal_equations(r: np.ndarray, Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray, obs_cam: np.ndarray,
-                           obs_pt: np.ndarray, *, n_cameras: int, n_points: int) -> BlockNormalEquations:
+def block_normal_equations(
+    r: np.ndarray,
+    Jc: np.ndarray,
+    Jp: np.ndarray,
+    w: np.ndarray,
+    obs_cam: np.ndarray,
+    obs_pt: np.ndarray,
+    *,
+    n_cameras: int,
+    n_points: int,
+) -> BlockNormalEquations:
     """Accumulate the weighted normal equations of ``M`` residual blocks.
 
     Parameters
@@ -136,8 +151,9 @@ def _damped_diagonal(H: np.ndarray, lam: float, extra: np.ndarray | float, rule:
     return out
 
 
-def reduced_camera_system(eq: BlockNormalEquations, lam: float, damping: SchurDamping,
-                          free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def reduced_camera_system(
+    eq: BlockNormalEquations, lam: float, damping: SchurDamping, free: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The damped reduced system of the cameras.
 
     Parameters
@@ -178,8 +194,9 @@ def reduced_camera_system(eq: BlockNormalEquations, lam: float, damping: SchurDa
     return S.reshape(C * k, C * k), rhs.reshape(-1), Hpp_inv, E
 
 
-def schur_step(eq: BlockNormalEquations, lam: float, damping: SchurDamping,
-               free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+def schur_step(
+    eq: BlockNormalEquations, lam: float, damping: SchurDamping, free: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Camera and point steps of the damped normal equations, points eliminated.
 
     Parameters

@@ -42,6 +42,7 @@ __all__ = [
     "camera_motion",
 ]
 
+
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix ``[v]x`` of a 3-vector, so ``skew(a) @ b == cross(a, b)``."""
     x, y, z = np.asarray(v, dtype=float).reshape(3)

@@ -176,9 +176,7 @@ class Sim3:
         return cls(np.array(data["R"]), np.array(data["t"]), float(data["scale"]))
 
 
-def umeyama(
-    src: np.ndarray, dst: np.ndarray, *, with_scale: bool = True, weights: np.ndarray | None = None
-) -> Sim3:
+def umeyama(src: np.ndarray, dst: np.ndarray, *, with_scale: bool = True, weights: np.ndarray | None = None) -> Sim3:
     """Least-squares similarity mapping ``src`` onto ``dst`` (Umeyama 1991).
 
     Parameters

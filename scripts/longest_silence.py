@@ -16,7 +16,7 @@ import time
 
 
 def main(argv: list[str]) -> int:
-    cmd = argv[argv.index("--") + 1:] if "--" in argv else argv
+    cmd = argv[argv.index("--") + 1 :] if "--" in argv else argv
     if not cmd:
         print("usage: longest_silence.py -- COMMAND...", file=sys.stderr)
         return 2

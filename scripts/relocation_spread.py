@@ -42,29 +42,61 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         station = _simulated_station(Path(tmp))
         for i in range(args.runs):
-            rig = open_sim_rig(SimScenario(scene="relief_panel", seed=1, lighting="led:3", start_offset_mm=20,
-                                           start_offset_deg=2, session_seed=2), T_flange_cam=None, intrinsics=None)
+            rig = open_sim_rig(
+                SimScenario(
+                    scene="relief_panel",
+                    seed=1,
+                    lighting="led:3",
+                    start_offset_mm=20,
+                    start_offset_deg=2,
+                    session_seed=2,
+                ),
+                T_flange_cam=None,
+                intrinsics=None,
+            )
             ev = RelocationEvaluator.from_reference(rig.sim, station.reference())
             t0 = time.monotonic()
             try:
-                out = relocate_and_capture(rig.handles, station, RelocateRequest(
-                    config=RelocationConfig(deterministic=args.deterministic, image_refine=False,
-                                            image_fallback=False), lightings=["led:3"]), hooks=RelocateHooks())
+                out = relocate_and_capture(
+                    rig.handles,
+                    station,
+                    RelocateRequest(
+                        config=RelocationConfig(
+                            deterministic=args.deterministic, image_refine=False, image_fallback=False
+                        ),
+                        lightings=["led:3"],
+                    ),
+                    hooks=RelocateHooks(),
+                )
                 truth = ev.evaluate()
             finally:
                 rig.close()
             r = out.relocation
-            rows.append({"run": i + 1, "adjustments": r.adjustments, "pose_err_mm": round(truth["pose_err_mm"], 3),
-                         "afd_px": round(truth["afd_px"], 3), "session_s": round(r.session_s, 2),
-                         "final_T_ref_cam": [round(v, 9) for v in r.final_T_ref_cam.ravel().tolist()],
-                         "wall_s": round(time.monotonic() - t0, 1)})
+            rows.append(
+                {
+                    "run": i + 1,
+                    "adjustments": r.adjustments,
+                    "pose_err_mm": round(truth["pose_err_mm"], 3),
+                    "afd_px": round(truth["afd_px"], 3),
+                    "session_s": round(r.session_s, 2),
+                    "final_T_ref_cam": [round(v, 9) for v in r.final_T_ref_cam.ravel().tolist()],
+                    "wall_s": round(time.monotonic() - t0, 1),
+                }
+            )
             print(json.dumps({k: v for k, v in rows[-1].items() if k != "final_T_ref_cam"}), flush=True)
     errs = [r["pose_err_mm"] for r in rows]
-    print(json.dumps({"deterministic": args.deterministic, "runs": len(rows),
-                      "pose_err_mm_spread": round(max(errs) - min(errs), 3),
-                      "pose_err_mm_stdev": round(statistics.pstdev(errs), 3),
-                      "adjustments": sorted({r["adjustments"] for r in rows}),
-                      "identical_final_poses": len({tuple(r["final_T_ref_cam"]) for r in rows}) == 1}))
+    print(
+        json.dumps(
+            {
+                "deterministic": args.deterministic,
+                "runs": len(rows),
+                "pose_err_mm_spread": round(max(errs) - min(errs), 3),
+                "pose_err_mm_stdev": round(statistics.pstdev(errs), 3),
+                "adjustments": sorted({r["adjustments"] for r in rows}),
+                "identical_final_poses": len({tuple(r["final_T_ref_cam"]) for r in rows}) == 1,
+            }
+        )
+    )
     return 0
 
 

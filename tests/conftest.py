@@ -33,13 +33,15 @@ def stand_in_rig(monkeypatch):
             kwargs = {**request.__dict__, **hooks.__dict__}
         seen.update(kwargs)
         if kwargs.get("confirm") is not None:
-            seen["answer"] = kwargs["confirm"]("First motion of this session on 'sim': move flange by (1, 0, 0) mm. "
-                                               "Proceed?")
+            seen["answer"] = kwargs["confirm"](
+                "First motion of this session on 'sim': move flange by (1, 0, 0) mm. Proceed?"
+            )
         platform = SimpleNamespace(name="sim", stop=lambda: seen.setdefault("stopped", True))
         guard = SimpleNamespace(platform=platform, trip=lambda reason: seen.setdefault("tripped", reason))
         handles = SimpleNamespace(guard=guard)
-        return rigs.OpenedRig(handles=handles, close=lambda: seen.setdefault("closed", True), sim=None,
-                              info={"scenario": None})
+        return rigs.OpenedRig(
+            handles=handles, close=lambda: seen.setdefault("closed", True), sim=None, info={"scenario": None}
+        )
 
     monkeypatch.setattr(rigs, "open_rig", open_rig)
     return seen
@@ -50,9 +52,16 @@ def stand_in_relocation(monkeypatch):
     """The revisit's relocation replaced by one that converged at once and wrote visit ``visit``."""
     import fgcd_cli.app.revisit as revisit
 
-    relocation = SimpleNamespace(converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[],
-                                 residual=None)
-    result = SimpleNamespace(observation_path="visit", relocation=relocation, coarse=None, cloud_points=0,
-                             images=["front"], scale=SimpleNamespace(scale=1.0))
+    relocation = SimpleNamespace(
+        converged=True, reason="ok", adjustments=1, wall_s=1.0, session_s=1.0, records=[], residual=None
+    )
+    result = SimpleNamespace(
+        observation_path="visit",
+        relocation=relocation,
+        coarse=None,
+        cloud_points=0,
+        images=["front"],
+        scale=SimpleNamespace(scale=1.0),
+    )
     monkeypatch.setattr(revisit, "relocate_and_capture", lambda *a, **k: result)
     return result

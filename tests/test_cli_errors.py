@@ -32,7 +32,11 @@ pytestmark = pytest.mark.timeout(120)
 def fgcd(*args, stdin=subprocess.DEVNULL, timeout=60) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)],
-        capture_output=True, text=True, cwd=ROOT, stdin=stdin, timeout=timeout,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        stdin=stdin,
+        timeout=timeout,
     )
 
 
@@ -172,7 +176,10 @@ def test_ctrl_c_with_json_prints_the_error_object(capsys):
 
     assert run(app, ["--json"]) == 130
     out, _ = capsys.readouterr()
-    assert json.loads(out) == {"error": "interrupted (Ctrl-C): no platform was in use; nothing was written", "code": 130}
+    assert json.loads(out) == {
+        "error": "interrupted (Ctrl-C): no platform was in use; nothing was written",
+        "code": 130,
+    }
 
 
 def test_ctrl_c_at_a_prompt_is_an_interruption(capsys, monkeypatch):
@@ -204,7 +211,10 @@ def test_ctrl_c_while_a_person_moves_the_mount_says_stopped_and_nothing_written(
     # The manual driver waits for the person's "Done?": Ctrl-C there, end to end.
     proc = subprocess.Popen(
         [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "manual", "--dx", "5", "--yes"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=ROOT,
     )
     seen = bytearray()
     prompted = threading.Event()
@@ -244,7 +254,9 @@ def test_ctrl_c_during_a_bare_diff_names_the_incomplete_outputs(capsys, monkeypa
     out = tmp_path / "out"
     assert run(app, ["diff", "--ref", "a.png", "--cur", "b.png", "-o", str(out)]) == 130
     lines = _lines(capsys.readouterr().err)
-    assert len(lines) == 1 and lines[0].startswith("interrupted (Ctrl-C): no platform was in use; not completed: "), lines
+    assert len(lines) == 1 and lines[0].startswith("interrupted (Ctrl-C): no platform was in use; not completed: "), (
+        lines
+    )
     assert str(out) in lines[0]
 
 
@@ -254,7 +266,10 @@ def test_record_clauses_for_a_platform_that_was_not_moving():
     record = RunRecord()
     record.platform_connected("grbl")
     record.no_writes()
-    assert (record.platform_clause(), record.writes_clause()) == ("the grbl platform was not moving", "nothing was written")
+    assert (record.platform_clause(), record.writes_clause()) == (
+        "the grbl platform was not moving",
+        "nothing was written",
+    )
     for k in range(5):
         record.wrote(f"f{k}")
     assert record.writes_clause() == "wrote f0, f1, f2 and 2 more"
@@ -269,9 +284,7 @@ def test_ctrl_c_during_verify_says_nothing_moved_or_written(capsys, monkeypatch,
 
     monkeypatch.setattr(campaign_uc, "verify_campaign_dir", interrupted)
     assert run(app, ["campaign", "verify", str(tmp_path)]) == 130
-    assert _lines(capsys.readouterr().err) == [
-        "interrupted (Ctrl-C): no platform was in use; nothing was written"
-    ]
+    assert _lines(capsys.readouterr().err) == ["interrupted (Ctrl-C): no platform was in use; nothing was written"]
 
 
 # ----------------------------------------------------------------------------- issue 48 item 3: hardware, --verbose
@@ -282,8 +295,7 @@ def _manual_campaign(root: Path) -> Path:
     from fgcd_core.camera import PinholeCamera
 
     camp = init_campaign(root / "c", site="x", rig={"driver": "manual"})
-    camp.write_rig("intrinsics", PinholeCamera(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640,
-                                               height=480).to_dict())
+    camp.write_rig("intrinsics", PinholeCamera(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480).to_dict())
     camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
     return camp.path
 
@@ -297,12 +309,14 @@ def test_a_missing_camera_is_hardware_in_one_line(tmp_path, monkeypatch, capsys,
     exists = cameras.os.path.exists
     monkeypatch.setattr(cameras.os.path, "exists", lambda p: False if str(p) == "/dev/video0" else exists(p))
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))
-    code = run(app, ["capture", "-c", str(_manual_campaign(tmp_path)), "-s", "m1", "--driver", "manual", "--yes",
-                     *verbose])
+    code = run(
+        app, ["capture", "-c", str(_manual_campaign(tmp_path)), "-s", "m1", "--driver", "manual", "--yes", *verbose]
+    )
     err = capsys.readouterr().err
     assert code == 7, err
-    assert _lines(err)[-1:] == ["camera error: no camera at /dev/video0 (camera 0): connect it, "
-                                "or choose another with --camera"], err
+    assert _lines(err)[-1:] == [
+        "camera error: no camera at /dev/video0 (camera 0): connect it, or choose another with --camera"
+    ], err
     assert "Traceback" not in err and len(_lines(err)) <= 2  # a progress line may come first
 
 
@@ -319,12 +333,17 @@ def test_camera_errors_are_hardware_exit_7(capsys):
     assert _lines(capsys.readouterr().err) == ["camera error: camera 0 opened but delivers no frames"]
 
 
-@pytest.mark.parametrize("error, line", [
-    (MemoryError(), "error: out of memory"),
-    (OSError(28, "No space left on device", "/c/stations/s1/visits/.tmp-x/cloud.ply"),
-     "error: No space left on device: /c/stations/s1/visits/.tmp-x/cloud.ply"),
-    (OSError(30, "Read-only file system"), "error: Read-only file system"),
-])
+@pytest.mark.parametrize(
+    "error, line",
+    [
+        (MemoryError(), "error: out of memory"),
+        (
+            OSError(28, "No space left on device", "/c/stations/s1/visits/.tmp-x/cloud.ply"),
+            "error: No space left on device: /c/stations/s1/visits/.tmp-x/cloud.ply",
+        ),
+        (OSError(30, "Read-only file system"), "error: Read-only file system"),
+    ],
+)
 def test_memory_and_disk_exhaustion_are_one_line_exit_1(capsys, error, line):
     app = typer.Typer()
 
@@ -379,8 +398,9 @@ def test_verbose_is_not_taken_from_a_command_or_value_that_owns_it(capsys):
 
 
 # ----------------------------------------------------------------------------- SIGTERM, SIGHUP
-@pytest.mark.parametrize("name, code, prefix", [("SIGTERM", 143, "terminated (SIGTERM)"),
-                                                ("SIGHUP", 129, "hung up (SIGHUP)")])
+@pytest.mark.parametrize(
+    "name, code, prefix", [("SIGTERM", 143, "terminated (SIGTERM)"), ("SIGHUP", 129, "hung up (SIGHUP)")]
+)
 def test_a_stop_signal_mid_move_stops_the_platform_in_one_line(name, code, prefix):
     # A supervisor's SIGTERM or a closed terminal's SIGHUP takes Ctrl-C's path (README, "Errors"): the
     # GRBL emulator's own state says the platform no longer moves once the command has ended.
@@ -398,9 +418,26 @@ def test_a_stop_signal_mid_move_stops_the_platform_in_one_line(name, code, prefi
 
     try:
         # bench.faults.child: a terminal's signal defaults, even when the tests run in the background (nohup, CI)
-        run = run_fgcd(["platform", "move", "--driver", "grbl", "--port", emu.port, "--yes", "--dx", "-60",
-                        "--speed-fraction", "1", "--max-step-mm", "80"], inject=inject, timeout_s=110,
-                       launcher=["fgcd_cli.bench.faults.child"])
+        run = run_fgcd(
+            [
+                "platform",
+                "move",
+                "--driver",
+                "grbl",
+                "--port",
+                emu.port,
+                "--yes",
+                "--dx",
+                "-60",
+                "--speed-fraction",
+                "1",
+                "--max-step-mm",
+                "80",
+            ],
+            inject=inject,
+            timeout_s=110,
+            launcher=["fgcd_cli.bench.faults.child"],
+        )
         assert sent.get("moving"), run.stderr
         assert not emu.moving(), "the platform still moves after the command ended"
     finally:
@@ -470,9 +507,11 @@ def _stations(c) -> list[str]:
 @pytest.mark.parametrize("command", ["capture", "relocate", "hand-eye"])
 def test_a_motion_command_without_a_terminal_or_yes_is_refused_before_anything_is_created(camp, command):
     before = _stations(camp)
-    args = {"capture": ["capture", "-c", camp.path, "-s", "new"],
-            "relocate": ["relocate", "-c", camp.path, "-s", "s"],
-            "hand-eye": ["calibrate", "hand-eye", "--driver", "sim", "-c", camp.path]}[command]
+    args = {
+        "capture": ["capture", "-c", camp.path, "-s", "new"],
+        "relocate": ["relocate", "-c", camp.path, "-s", "s"],
+        "hand-eye": ["calibrate", "hand-eye", "--driver", "sim", "-c", camp.path],
+    }[command]
     r = fgcd(*args, "--json", timeout=120)
     assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
     line = one_line(r.stderr, "needs a terminal", "--yes")
@@ -496,8 +535,7 @@ def test_the_first_motion_question_is_asked_on_stderr(camp, stand_in_rig, stand_
     assert json.loads(out)["converged"] is True  # stdout is the one JSON object
 
 
-def test_ctrl_c_during_a_relocation_names_the_platform_and_the_unwritten_visit(camp, stand_in_rig, monkeypatch,
-                                                                               capsys):
+def test_ctrl_c_during_a_relocation_names_the_platform_and_the_unwritten_visit(camp, stand_in_rig, monkeypatch, capsys):
     import fgcd_cli.app.revisit as capture_uc
     from fgcd_cli.cli.app import app
 
@@ -507,8 +545,10 @@ def test_ctrl_c_during_a_relocation_names_the_platform_and_the_unwritten_visit(c
 
     monkeypatch.setattr(capture_uc, "relocate_and_capture", interrupted)
     assert run(app, ["relocate", "-c", str(camp.path), "-s", "s", "--yes"]) == 130
-    assert _lines(capsys.readouterr().err)[-1] == \
-        "interrupted (Ctrl-C): the sim platform was stopped mid-motion; nothing was written"
+    assert (
+        _lines(capsys.readouterr().err)[-1]
+        == "interrupted (Ctrl-C): the sim platform was stopped mid-motion; nothing was written"
+    )
     assert stand_in_rig["tripped"] and stand_in_rig["closed"]  # the platform was told to stop, the rig closed
 
 
@@ -521,13 +561,16 @@ def test_ctrl_c_during_a_capture_says_nothing_written_and_leaves_no_station(camp
 
     monkeypatch.setattr(capture_uc, "capture_reference", interrupted)
     assert run(app, ["capture", "-c", str(camp.path), "-s", "new", "--yes"]) == 130
-    assert _lines(capsys.readouterr().err)[-1] == \
-        "interrupted (Ctrl-C): the sim platform was not moving; nothing was written"
+    assert (
+        _lines(capsys.readouterr().err)[-1]
+        == "interrupted (Ctrl-C): the sim platform was not moving; nothing was written"
+    )
     assert "new" not in _stations(camp)
 
 
-def test_ctrl_c_during_a_handeye_run_names_the_platform_and_keeps_the_old_calibration(camp, stand_in_rig,
-                                                                                       monkeypatch, capsys):
+def test_ctrl_c_during_a_handeye_run_names_the_platform_and_keeps_the_old_calibration(
+    camp, stand_in_rig, monkeypatch, capsys
+):
     import fgcd_cli.cli.calibrate_cmd as calibrate_cmd
     from fgcd_cli.cli.app import app
 
@@ -538,8 +581,10 @@ def test_ctrl_c_during_a_handeye_run_names_the_platform_and_keeps_the_old_calibr
 
     monkeypatch.setattr(calibrate_cmd, "_run_handeye", interrupted)
     assert run(app, ["calibrate", "hand-eye", "--driver", "sim", "-c", str(camp.path), "--yes"]) == 130
-    assert _lines(capsys.readouterr().err)[-1] == \
-        "interrupted (Ctrl-C): the sim platform was stopped mid-motion; nothing was written"
+    assert (
+        _lines(capsys.readouterr().err)[-1]
+        == "interrupted (Ctrl-C): the sim platform was stopped mid-motion; nothing was written"
+    )
     assert stand_in_rig["tripped"] and stand_in_rig["closed"]
     assert open_campaign(camp.path).read_rig("handeye")["T_flange_cam"] == np.eye(4).tolist()
 
@@ -549,7 +594,10 @@ def test_ctrl_c_during_a_simulated_capture_is_one_line_and_leaves_no_station(cam
     """SIGINT to a running `fgcd capture` (simulator) once it explores: one line, exit 130, no station left."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "fgcd_cli.cli.app", "capture", "-c", str(camp.path), "-s", "new", "--yes"],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=ROOT,
     )
     seen = bytearray()
     exploring = threading.Event()
@@ -574,6 +622,9 @@ def test_ctrl_c_during_a_simulated_capture_is_one_line_and_leaves_no_station(cam
     stderr = bytes(seen).decode(errors="replace")
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr
-    assert re.fullmatch(r"interrupted \(Ctrl-C\): the sim platform was (stopped mid-motion|not moving); "
-                        r"nothing was written", _lines(stderr)[-1]), stderr
+    assert re.fullmatch(
+        r"interrupted \(Ctrl-C\): the sim platform was (stopped mid-motion|not moving); "
+        r"nothing was written",
+        _lines(stderr)[-1],
+    ), stderr
     assert "new" not in _stations(camp)

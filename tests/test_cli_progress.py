@@ -28,8 +28,12 @@ SLOW_STEP = textwrap.dedent("""
 
 def _run(heartbeat_s: float, sleep_s: float, said: int = 0) -> tuple[list[tuple[float, str]], str]:
     """The script through pipes: each stderr line with the time it arrived, and stdout."""
-    proc = subprocess.Popen([sys.executable, "-c", SLOW_STEP, str(heartbeat_s), str(sleep_s), str(said)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SLOW_STEP, str(heartbeat_s), str(sleep_s), str(said)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     lines = []
     t0 = time.monotonic()
     for line in proc.stderr:
@@ -64,8 +68,12 @@ def test_a_heartbeat_interval_is_a_named_constant_overridable_for_tests():
     from fgcd_cli.cli import progress
 
     assert progress.HEARTBEAT_S < 10.0  # the rule: no silence over 10 s in a log, with room for a loaded machine
-    r = subprocess.run([sys.executable, "-c", "from fgcd_cli.cli import progress; print(progress.HEARTBEAT_S)"],
-                       env={**__import__("os").environ, "FGCD_HEARTBEAT_S": "0.5"}, capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-c", "from fgcd_cli.cli import progress; print(progress.HEARTBEAT_S)"],
+        env={**__import__("os").environ, "FGCD_HEARTBEAT_S": "0.5"},
+        capture_output=True,
+        text=True,
+    )
     assert r.stdout.strip() == "0.5"
 
 
@@ -76,8 +84,12 @@ def test_the_longest_silence_of_a_command_in_a_pipe_is_the_heartbeat():
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[1] / "scripts" / "longest_silence.py"
-    r = subprocess.run([sys.executable, str(script), "--", sys.executable, "-c", SLOW_STEP, "0.25", "1.5", "0"],
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, str(script), "--", sys.executable, "-c", SLOW_STEP, "0.25", "1.5", "0"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     report = json.loads(r.stdout.strip().splitlines()[-1])
     assert report["exit"] == 0 and report["lines"] >= 5
     assert report["longest_silence_s"] < 1.2, r.stdout  # the step alone would leave 1.5 s

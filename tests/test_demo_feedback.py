@@ -33,10 +33,17 @@ def test_changes_are_counted_by_identity_not_by_blob():
 
 
 def _summary(evaluation: dict) -> dict:
-    return {"campaign": "c", "reference": {"cloud_points": 10},
-            "relocation": {"converged": True, "adjustments": 3, "session_s": 1.0, "final_truth": {"pose_err_mm": 0.5,
-                                                                                                  "afd_px": 0.2}},
-            "diff": {"regions": 2, "report": "r.html", "evaluation": evaluation}}
+    return {
+        "campaign": "c",
+        "reference": {"cloud_points": 10},
+        "relocation": {
+            "converged": True,
+            "adjustments": 3,
+            "session_s": 1.0,
+            "final_truth": {"pose_err_mm": 0.5, "afd_px": 0.2},
+        },
+        "diff": {"regions": 2, "report": "r.html", "evaluation": evaluation},
+    }
 
 
 def test_the_closing_line_counts_the_injected_changes_it_announced():
@@ -65,14 +72,19 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
         def run(*args, **kwargs):
             events.append(("step", name))
             return result(*args, **kwargs) if callable(result) else result
+
         return run
 
     def relocate(rig, station, **kwargs):
         with station.new_visit({"lightings": ["front"]}) as w:
             w.add_image("front", np.zeros((4, 4), np.uint8))
             w.commit()
-        return SimpleNamespace(observation_path="v", relocation=SimpleNamespace(
-            converged=True, reason="ok", adjustments=1, session_s=1.0, wall_s=1.0, records=[]))
+        return SimpleNamespace(
+            observation_path="v",
+            relocation=SimpleNamespace(
+                converged=True, reason="ok", adjustments=1, session_s=1.0, wall_s=1.0, records=[]
+            ),
+        )
 
     def capture_ref(rig, station, **kwargs):
         with station.write_reference({"lightings": ["front"]}) as w:
@@ -90,25 +102,41 @@ def test_every_demo_step_runs_under_a_progress_label(tmp_path, monkeypatch):
     monkeypatch.setattr(demo_mod, "calibrate_sim_handeye", long_step("hand-eye", {"T_flange_cam": np.eye(4).tolist()}))
     monkeypatch.setattr(rigs, "open_sim_rig", long_step("open rig", lambda *a, **k: _Rig()))
     monkeypatch.setattr(sim_eval, "reference_truth", lambda sim: {})
-    monkeypatch.setattr(sim_eval.RelocationEvaluator, "from_reference",
-                        classmethod(lambda cls, sim, ref: SimpleNamespace(evaluate=None, summary=None)))
+    monkeypatch.setattr(
+        sim_eval.RelocationEvaluator,
+        "from_reference",
+        classmethod(lambda cls, sim, ref: SimpleNamespace(evaluate=None, summary=None)),
+    )
     monkeypatch.setattr(capture, "capture_reference", long_step("capture", capture_ref))
     import fgcd_cli.app.scene_uncertainty as scene_uc
+
     monkeypatch.setattr(scene_uc, "station_scene_uncertainty", long_step("scene map", None))
     monkeypatch.setattr(relocate_uc, "relocate_and_capture", long_step("relocate", relocate))
     monkeypatch.setattr(usecases, "run_campaign", long_step("diff", {}))
 
-    summary = run_demo(tmp_path / "d", config=DemoConfig(), say=lambda text: events.append(("say", text)),
-                       on_progress=lambda done, total, label: events.append(("progress", label)))
+    summary = run_demo(
+        tmp_path / "d",
+        config=DemoConfig(),
+        say=lambda text: events.append(("say", text)),
+        on_progress=lambda done, total, label: events.append(("progress", label)),
+    )
     assert summary["out"] == str(tmp_path / "d")  # the JSON result names where it wrote (issue 48, item 10)
     assert summary["summary"] == str(tmp_path / "d" / "summary.json")
     steps = [i for i, (kind, _) in enumerate(events) if kind == "step"]
-    assert [events[i][1] for i in steps] == ["intrinsics", "hand-eye", "open rig", "capture", "scene map", "open rig",
-                                             "relocate", "diff"]
+    assert [events[i][1] for i in steps] == [
+        "intrinsics",
+        "hand-eye",
+        "open rig",
+        "capture",
+        "scene map",
+        "open rig",
+        "relocate",
+        "diff",
+    ]
     previous = -1
     for i in steps:
-        labels = [text for kind, text in events[previous + 1:i] if kind == "progress"]
-        assert labels, f"step {events[i][1]} starts without a progress label: {events[previous + 1:i]}"
+        labels = [text for kind, text in events[previous + 1 : i] if kind == "progress"]
+        assert labels, f"step {events[i][1]} starts without a progress label: {events[previous + 1 : i]}"
         previous = i
 
 
@@ -127,8 +155,12 @@ def test_the_demo_says_where_it_writes_before_any_work(tmp_path, monkeypatch):
 
     def fake_run(out_dir, **kwargs):
         events.append(("run", str(out_dir)))
-        return {"out": str(out_dir), "campaign": str(out_dir / "campaign"),
-                "reference": {"cloud_points": 1}, "relocation": {"converged": True, "adjustments": 1, "session_s": 1.0}}
+        return {
+            "out": str(out_dir),
+            "campaign": str(out_dir / "campaign"),
+            "reference": {"cloud_points": 1},
+            "relocation": {"converged": True, "adjustments": 1, "session_s": 1.0},
+        }
 
     monkeypatch.setattr(demo_mod, "run_demo", fake_run)
     monkeypatch.setattr(demo_cmd, "info", lambda text: events.append(("info", text)))

@@ -28,8 +28,12 @@ def sim_imports(package_dir: Path) -> list[str]:
                 names = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
-            elif isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", "")) in (
-                    "import_module", "__import__") and node.args and isinstance(node.args[0], ast.Constant):
+            elif (
+                isinstance(node, ast.Call)
+                and getattr(node.func, "attr", getattr(node.func, "id", "")) in ("import_module", "__import__")
+                and node.args
+                and isinstance(node.args[0], ast.Constant)
+            ):
                 names = [str(node.args[0].value)]
             if any(n == "fgcd_drivers.sim" or n.startswith("fgcd_drivers.sim.") for n in names):
                 found.append(f"{path.relative_to(package_dir.parent)}:{node.lineno}")
@@ -39,7 +43,9 @@ def sim_imports(package_dir: Path) -> list[str]:
 @pytest.mark.parametrize("package", ALGORITHM_PACKAGES)
 def test_algorithm_package_does_not_import_the_simulator(package):
     offenders = sim_imports(ROOT / "fgcd_cli" / package)
-    assert not offenders, f"fgcd_cli/{package} imports fgcd_drivers.sim (ground truth must stay in the simulator): {offenders}"
+    assert not offenders, (
+        f"fgcd_cli/{package} imports fgcd_drivers.sim (ground truth must stay in the simulator): {offenders}"
+    )
 
 
 def test_checker_detects_planted_violations(tmp_path):
@@ -48,14 +54,16 @@ def test_checker_detects_planted_violations(tmp_path):
     (pkg / "ok.py").write_text("import numpy as np\nfrom fgcd_core.platform import MotionGuard\nimport drivers\n")
     assert sim_imports(pkg) == []
     assert sim_imports(tmp_path / "missing") == []
-    for i, line in enumerate([
-        "import fgcd_drivers.sim",
-        "from fgcd_drivers.sim.groundtruth import GroundTruth",
-        "from fgcd_drivers import sim",
-        "import fgcd_drivers.sim.rig as r",
-        "import importlib\nimportlib.import_module('fgcd_drivers.sim.rig')",
-        "def f():\n    from fgcd_drivers.sim import scenes\n",
-    ]):
+    for i, line in enumerate(
+        [
+            "import fgcd_drivers.sim",
+            "from fgcd_drivers.sim.groundtruth import GroundTruth",
+            "from fgcd_drivers import sim",
+            "import fgcd_drivers.sim.rig as r",
+            "import importlib\nimportlib.import_module('fgcd_drivers.sim.rig')",
+            "def f():\n    from fgcd_drivers.sim import scenes\n",
+        ]
+    ):
         bad = tmp_path / f"case{i}" / "alignment"
         bad.mkdir(parents=True)
         (bad / "sub").mkdir()

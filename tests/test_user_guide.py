@@ -45,7 +45,7 @@ def guide_commands(text: str) -> list[list[str]]:
     if start + 1 >= len(lines) or not lines[start + 1].startswith("```"):
         raise ValueError(f"{GUIDE.name}: the marker is not followed by a code block")
     commands = []
-    for line in lines[start + 2:]:
+    for line in lines[start + 2 :]:
         if line.startswith("```"):
             return commands
         words = shlex.split(line, comments=True)
@@ -58,8 +58,15 @@ def test_the_marked_block_is_the_simulator_path():
     commands = guide_commands(GUIDE.read_text(encoding="utf-8"))
     assert all(c[0] == "fgcd" for c in commands)
     steps = [" ".join(c[1:3]) for c in commands]
-    for step in ("campaign init", "calibrate intrinsics", "calibrate hand-eye", "capture -c", "relocate -c",
-                 "diff -c", "report -c"):
+    for step in (
+        "campaign init",
+        "calibrate intrinsics",
+        "calibrate hand-eye",
+        "capture -c",
+        "relocate -c",
+        "diff -c",
+        "report -c",
+    ):
         assert any(s.startswith(step) for s in steps), f"the simulator path misses `fgcd {step}`"
     # nothing a newcomer would need hardware for
     flat = [word for c in commands for word in c]
@@ -74,8 +81,14 @@ def test_the_reader_refuses_a_guide_without_the_block():
 @pytest.mark.slow
 def test_the_simulator_path_runs_as_written(tmp_path):
     for command in guide_commands(GUIDE.read_text(encoding="utf-8")):
-        run = subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", *command[1:]], cwd=tmp_path,
-                             capture_output=True, text=True, timeout=1800, stdin=subprocess.DEVNULL)
+        run = subprocess.run(
+            [sys.executable, "-m", "fgcd_cli.cli.app", *command[1:]],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=1800,
+            stdin=subprocess.DEVNULL,
+        )
         assert run.returncode == 0, f"`{shlex.join(command)}` exited {run.returncode}:\n{run.stderr[-3000:]}"
     visits = list((tmp_path / "sim-stele" / "stations").glob("*/visits/*/report.html"))
     assert visits, "no visit report was written"
@@ -87,7 +100,7 @@ def test_the_timings_say_when_and_where_they_were_measured():
     import re
 
     text = GUIDE.read_text(encoding="utf-8")
-    section = text[text.index("## How long things take"):]
+    section = text[text.index("## How long things take") :]
     head = section.split("|", 1)[0]
     assert re.search(r"Measured on \d{4}-\d{2}-\d{2}", head) and re.search(r"`[0-9a-f]{7}`", head), head
     assert "cores" in head

@@ -279,9 +279,7 @@ class GrblLink:
                 now = time.monotonic()
                 left = deadline - now
                 if left <= 0:
-                    raise PlatformTimeout(
-                        f"GRBL sent no status report within {self.config.answer_timeout_s:.1f} s"
-                    )
+                    raise PlatformTimeout(f"GRBL sent no status report within {self.config.answer_timeout_s:.1f} s")
                 if now - self._last_poll >= period:
                     # A report garbled by line noise is lost for good: ask again at the polling rate
                     # (GRBL, interface.md: '?' is real-time, never acknowledged; <= 5 Hz advised).

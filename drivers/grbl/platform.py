@@ -289,9 +289,7 @@ class GrblPlatform:
                     return
                 if not moved and time.monotonic() - sent < _START_GRACE_S:
                     continue  # the block has not started yet
-                raise MotionRejected(
-                    f"GRBL is idle {err:.3f} mm from the target: the motion was cut short"
-                )
+                raise MotionRejected(f"GRBL is idle {err:.3f} mm from the target: the motion was cut short")
             moved = moved or status.state not in _READY
             if time.monotonic() > deadline:
                 raise PlatformTimeout(

@@ -14,9 +14,22 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 __all__ = [
-    "ERROR_TEXT", "ALARM_TEXT", "ERROR_LOCKED", "GrblState", "GrblStatus", "LineKind",
-    "STATUS_QUERY", "FEED_HOLD_JOG_CANCEL", "SOFT_RESET",
-    "decode_line", "classify_line", "parse_status", "parse_setting", "parse_code", "alarm_text", "error_text",
+    "ERROR_TEXT",
+    "ALARM_TEXT",
+    "ERROR_LOCKED",
+    "GrblState",
+    "GrblStatus",
+    "LineKind",
+    "STATUS_QUERY",
+    "FEED_HOLD_JOG_CANCEL",
+    "SOFT_RESET",
+    "decode_line",
+    "classify_line",
+    "parse_status",
+    "parse_setting",
+    "parse_code",
+    "alarm_text",
+    "error_text",
 ]
 
 #: GRBL 1.1 error codes (``doc/csv/error_codes_en_US.csv``), the ones a person may meet.

@@ -299,8 +299,9 @@ class SimBoardCamera:
         Anti-aliasing rays per pixel and axis.
     """
 
-    def __init__(self, board: SimBoard, *, seed: int = 0, intrinsics_error="default", supersample: int = 2,
-                 intrinsics_true=None):
+    def __init__(
+        self, board: SimBoard, *, seed: int = 0, intrinsics_error="default", supersample: int = 2, intrinsics_true=None
+    ):
         from fgcd_drivers.cameras import Frame
         from fgcd_drivers.sim.camera import DEFAULT_INTRINSICS, perturbed_intrinsics
 
@@ -308,8 +309,11 @@ class SimBoardCamera:
         self.board = board
         self.intrinsics_nominal = DEFAULT_INTRINSICS
         # ``intrinsics_true`` given: the same physical camera as a simulated rig (SimRig.board_camera)
-        self.intrinsics_true = intrinsics_true if intrinsics_true is not None else perturbed_intrinsics(
-            DEFAULT_INTRINSICS, intrinsics_error, np.random.default_rng([seed, 0xB0A]))
+        self.intrinsics_true = (
+            intrinsics_true
+            if intrinsics_true is not None
+            else perturbed_intrinsics(DEFAULT_INTRINSICS, intrinsics_error, np.random.default_rng([seed, 0xB0A]))
+        )
         self._rng = np.random.default_rng([seed, 0xB0B])
         self._supersample = supersample
         self.poses_true: list[np.ndarray] = []
@@ -322,8 +326,9 @@ class SimBoardCamera:
         pose_rng = np.random.default_rng([int(self._rng.integers(1 << 31)), k])
         T = random_board_poses(self.board, k + 1, self.intrinsics_true, rng=pose_rng)[k]
         self.poses_true.append(T)
-        image = render_board_view(self.board, T, self.intrinsics_true,
-                                  options=BoardViewOptions(supersample=self._supersample), rng=self._rng)
+        image = render_board_view(
+            self.board, T, self.intrinsics_true, options=BoardViewOptions(supersample=self._supersample), rng=self._rng
+        )
         self._t += 0.5
         return self._frame_type(image, self._t)
 

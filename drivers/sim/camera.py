@@ -128,8 +128,15 @@ class SimCamera:
     clock : object with ``now()``/``advance()``; timestamps come from it.
     """
 
-    def __init__(self, *, world: SimWorld, pose_fn: Callable[[], np.ndarray], lights: SimLights,
-                 options: SimCameraOptions | None = None, clock=None):
+    def __init__(
+        self,
+        *,
+        world: SimWorld,
+        pose_fn: Callable[[], np.ndarray],
+        lights: SimLights,
+        options: SimCameraOptions | None = None,
+        clock=None,
+    ):
         o = options or SimCameraOptions()
         self.options = o
         self.world = world
@@ -180,8 +187,16 @@ class SimCamera:
         with self._render_lock:
             self._render_started[me] = start
         try:
-            res = renderer.render(T, self._intr_true, self.lights.lighting, changes=self.world.changes,
-                                             exposure=self.exposure, effects=self.effects, rng=self._rng, want=want)
+            res = renderer.render(
+                T,
+                self._intr_true,
+                self.lights.lighting,
+                changes=self.world.changes,
+                exposure=self.exposure,
+                effects=self.effects,
+                rng=self._rng,
+                want=want,
+            )
         finally:
             with self._render_lock:
                 self._render_total_s += time.monotonic() - start

@@ -9,8 +9,16 @@ from fgcd_drivers.sim.changes import ALL_KINDS, KINDS, ChangeSpec
 from fgcd_drivers.sim.render import Renderer
 
 
-def random_changes(scene, *, n: int, seed: int, kinds=KINDS, size_mm: tuple[float, float] = (1.0, 20.0),
-                   T_world_cam: np.ndarray | None = None, margin_px: int = 40) -> list[ChangeSpec]:
+def random_changes(
+    scene,
+    *,
+    n: int,
+    seed: int,
+    kinds=KINDS,
+    size_mm: tuple[float, float] = (1.0, 20.0),
+    T_world_cam: np.ndarray | None = None,
+    margin_px: int = 40,
+) -> list[ChangeSpec]:
     """``n`` random changes on the object, placed where the default camera sees it.
 
     Positions are drawn from surface points seen from ``T_world_cam`` (default:
@@ -41,6 +49,13 @@ def random_changes(scene, *, n: int, seed: int, kinds=KINDS, size_mm: tuple[floa
         p = T[:3, :3] @ p_cam + T[:3, 3]
         kind = str(rng.choice(list(kinds)))
         size = float(np.exp(rng.uniform(np.log(size_mm[0]), np.log(size_mm[1]))))
-        out.append(ChangeSpec(kind=kind, position=tuple(p), normal=tuple(res.normals[v, u]), size_mm=size,
-                              seed=int(rng.integers(1 << 30))))
+        out.append(
+            ChangeSpec(
+                kind=kind,
+                position=tuple(p),
+                normal=tuple(res.normals[v, u]),
+                size_mm=size,
+                seed=int(rng.integers(1 << 30)),
+            )
+        )
     return out

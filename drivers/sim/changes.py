@@ -48,13 +48,18 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["ChangeSpec", "ChangeEffect", "KINDS", "ALL_KINDS", "CHANGE_CATEGORY",
-           "evaluate_changes"]
+__all__ = ["ChangeSpec", "ChangeEffect", "KINDS", "ALL_KINDS", "CHANGE_CATEGORY", "evaluate_changes"]
 
 KINDS = ("crack", "flaking", "stain", "missing")
 ALL_KINDS = KINDS + ("pit", "lifted")
-CHANGE_CATEGORY = {"crack": "both", "flaking": "both", "missing": "both", "stain": "colour", "pit": "relief",
-                   "lifted": "relief"}
+CHANGE_CATEGORY = {
+    "crack": "both",
+    "flaking": "both",
+    "missing": "both",
+    "stain": "colour",
+    "pit": "relief",
+    "lifted": "relief",
+}
 _RELIEF_ONLY = ("pit", "lifted")
 _RASTER = 96
 
@@ -126,8 +131,13 @@ class ChangeSpec:
         if self.depth_mm is not None:
             return self.depth_mm / 1000.0
         relief_mm = min(2.0, 0.3 * self.size_mm)
-        default = {"crack": 1.5, "flaking": 0.6, "missing": min(6.0, 0.4 * self.size_mm), "pit": relief_mm,
-                   "lifted": -relief_mm}[self.kind]
+        default = {
+            "crack": 1.5,
+            "flaking": 0.6,
+            "missing": min(6.0, 0.4 * self.size_mm),
+            "pit": relief_mm,
+            "lifted": -relief_mm,
+        }[self.kind]
         return default / 1000.0
 
     @property
@@ -210,8 +220,14 @@ class ChangeSpec:
         return ((np.asarray(x_m) + h) / (2 * h) * _RASTER - 0.5).astype(np.float32)
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "position": list(self.position), "normal": list(self.normal),
-                "size_mm": self.size_mm, "seed": self.seed, "depth_mm": self.depth_m * 1000.0}
+        return {
+            "kind": self.kind,
+            "position": list(self.position),
+            "normal": list(self.normal),
+            "size_mm": self.size_mm,
+            "seed": self.seed,
+            "depth_mm": self.depth_m * 1000.0,
+        }
 
 
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -225,8 +241,14 @@ def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     my = np.full(rows * cols, -10.0, np.float32)
     mx[:n] = x.ravel()
     my[:n] = y.ravel()
-    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    out = cv2.remap(
+        img,
+        mx.reshape(rows, cols),
+        my.reshape(rows, cols),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
     return out.ravel()[:n]
 
 
@@ -243,6 +265,7 @@ def _make_footprint(kind: str, size_mm: float, seed: int) -> np.ndarray:
         width_mm = float(np.clip(0.04 * size_mm, 0.3, 1.0))
         canvas = np.zeros((n * 4, n * 4), np.uint8)
         s = 4.0
+
         def walk(start, heading, length_px, steps):
             pts = [np.array(start, float)]
             h = heading
@@ -250,6 +273,7 @@ def _make_footprint(kind: str, size_mm: float, seed: int) -> np.ndarray:
                 h += rng.normal(0, 0.35)
                 pts.append(pts[-1] + length_px / steps * np.array([np.cos(h), np.sin(h)]))
             return np.array(pts)
+
         heading = rng.uniform(0, 2 * np.pi)
         main = walk((c, c), heading, r_px, 12)
         other = walk((c, c), heading + np.pi, r_px, 12)
@@ -344,10 +368,18 @@ class ChangeEffect:
 
     @classmethod
     def empty(cls) -> ChangeEffect:
-        return cls(index=np.zeros(0, np.int64), footprint=np.zeros(0, np.float32),
-                   change_index=np.zeros(0, np.int64), height_m=np.zeros(0), slope=np.zeros((0, 3)),
-                   albedo_target=np.zeros((0, 3)), albedo_weight=np.zeros(0), occlusion=np.zeros(0),
-                   shadow_height_m=np.zeros(0), albedo_filters=np.zeros(0, bool))
+        return cls(
+            index=np.zeros(0, np.int64),
+            footprint=np.zeros(0, np.float32),
+            change_index=np.zeros(0, np.int64),
+            height_m=np.zeros(0),
+            slope=np.zeros((0, 3)),
+            albedo_target=np.zeros((0, 3)),
+            albedo_weight=np.zeros(0),
+            occlusion=np.zeros(0),
+            shadow_height_m=np.zeros(0),
+            albedo_filters=np.zeros(0, bool),
+        )
 
     def albedo_of(self, albedo: np.ndarray) -> np.ndarray:
         """The changed albedo (K, 3) of the affected samples' albedo ``albedo`` (K, 3)."""
@@ -407,9 +439,18 @@ def evaluate_changes(changes, points: np.ndarray, normals: np.ndarray) -> Change
         S[idx] += slope
     sel = np.nonzero(Fsum > 0)[0]
     occlusion = 0.5 * np.clip(H[sel] / 0.002, 0, 1) * Fsum[sel] * occ_scale[sel]
-    return ChangeEffect(index=sel, footprint=Fsum[sel], change_index=ids[sel], height_m=H[sel], slope=S[sel],
-                        albedo_target=T[sel], albedo_weight=W[sel], occlusion=occlusion, shadow_height_m=Hs[sel],
-                        albedo_filters=filters[sel])
+    return ChangeEffect(
+        index=sel,
+        footprint=Fsum[sel],
+        change_index=ids[sel],
+        height_m=H[sel],
+        slope=S[sel],
+        albedo_target=T[sel],
+        albedo_weight=W[sel],
+        occlusion=occlusion,
+        shadow_height_m=Hs[sel],
+        albedo_filters=filters[sel],
+    )
 
 
 def _change_at(ch: ChangeSpec, points: np.ndarray, normals: np.ndarray):
@@ -455,5 +496,3 @@ def _change_at(ch: ChangeSpec, points: np.ndarray, normals: np.ndarray):
     else:
         slope = np.zeros((len(idx), 3))
     return idx, F, depth * rel, slope, ch
-
-

@@ -16,8 +16,9 @@ __all__ = ["GroundTruth"]
 class GroundTruth:
     """True poses, hand-eye, intrinsics, depths, change masks and ids and AFD of a simulated rig."""
 
-    def __init__(self, *, world, platform, T_world_base: np.ndarray, T_flange_cam: np.ndarray,
-                 intrinsics_true: CameraIntrinsics):
+    def __init__(
+        self, *, world, platform, T_world_base: np.ndarray, T_flange_cam: np.ndarray, intrinsics_true: CameraIntrinsics
+    ):
         self._world = world
         self._platform = platform
         self._T_world_base = np.asarray(T_world_base, float).copy()
@@ -57,20 +58,23 @@ class GroundTruth:
     def depth(self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None) -> np.ndarray:
         """(H, W) float32 z-depth in metres (0 where nothing), current changes included."""
         T = self.T_world_cam_true() if T_world_cam is None else T_world_cam
-        res = self._world.renderer.render(T, intrinsics or self._intr, None, changes=self._world.changes,
-                                          want=("depth",))
+        res = self._world.renderer.render(
+            T, intrinsics or self._intr, None, changes=self._world.changes, want=("depth",)
+        )
         return res.depth
 
-    def change_mask(self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None,
-                    changes=None) -> np.ndarray:
+    def change_mask(
+        self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None, changes=None
+    ) -> np.ndarray:
         """(H, W) bool mask of the changes (default: those applied to the world) seen from a camera."""
         T = self.T_world_cam_true() if T_world_cam is None else T_world_cam
         ch = self._world.changes if changes is None else changes
         res = self._world.renderer.render(T, intrinsics or self._intr, None, changes=ch, want=("labels",))
         return res.change_mask
 
-    def change_ids(self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None,
-                   changes=None) -> np.ndarray:
+    def change_ids(
+        self, T_world_cam: np.ndarray | None = None, intrinsics: CameraIntrinsics | None = None, changes=None
+    ) -> np.ndarray:
         """(H, W) int32: 0 where no change, else 1 + the change's index in ``changes`` (default: :meth:`changes`).
 
         Same pixels as :meth:`change_mask`; where footprints overlap, the strongest wins.
@@ -87,8 +91,14 @@ class GroundTruth:
     def changes(self) -> list:
         return list(self._world.changes)
 
-    def true_afd_px(self, T_world_cam_ref: np.ndarray, T_world_cam_cur: np.ndarray,
-                    intrinsics: CameraIntrinsics | None = None, *, step_px: int = 8) -> float:
+    def true_afd_px(
+        self,
+        T_world_cam_ref: np.ndarray,
+        T_world_cam_cur: np.ndarray,
+        intrinsics: CameraIntrinsics | None = None,
+        *,
+        step_px: int = 8,
+    ) -> float:
         """True average feature displacement (pixels) between two views, without matching.
 
         Reference pixels on a regular grid (every ``step_px``) are back-projected
@@ -101,7 +111,7 @@ class GroundTruth:
         pinhole = CameraIntrinsics(fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy, width=intr.width, height=intr.height)
         d_ref = self.depth(T_world_cam_ref, pinhole)
         d_cur = self.depth(T_world_cam_cur, pinhole)
-        vs, us = np.mgrid[step_px // 2:intr.height:step_px, step_px // 2:intr.width:step_px]
+        vs, us = np.mgrid[step_px // 2 : intr.height : step_px, step_px // 2 : intr.width : step_px]
         z = d_ref[vs, us]
         ok = z > 0
         u, v, z = us[ok].astype(float), vs[ok].astype(float), z[ok].astype(float)

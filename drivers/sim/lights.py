@@ -195,8 +195,11 @@ def lighting_preset(name: str) -> Lighting:
     if key == "overcast":
         return Lighting(
             name="overcast",
-            lights=(Light(kind="directional", frame="world", direction=(0.0, -0.3, 0.95), intensity=0.25,
-                          cast_shadows=False),),
+            lights=(
+                Light(
+                    kind="directional", frame="world", direction=(0.0, -0.3, 0.95), intensity=0.25, cast_shadows=False
+                ),
+            ),
             ambient=0.75,
             ambient_colour=(0.95, 0.97, 1.0),
             sky_weight=0.8,

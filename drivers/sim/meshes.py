@@ -56,9 +56,16 @@ class MeshPart:
     def transformed(self, T: np.ndarray) -> MeshPart:
         """A copy moved by the 4x4 pose ``T``."""
         v = self.vertices @ T[:3, :3].T + T[:3, 3]
-        return MeshPart(name=self.name, label=self.label, vertices=v, triangles=self.triangles,
-                        tri_uv=self.tri_uv, texture=self.texture, texel_size_m=self.texel_size_m,
-                        smooth=self.smooth)
+        return MeshPart(
+            name=self.name,
+            label=self.label,
+            vertices=v,
+            triangles=self.triangles,
+            tri_uv=self.tri_uv,
+            texture=self.texture,
+            texel_size_m=self.texel_size_m,
+            smooth=self.smooth,
+        )
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -81,8 +88,16 @@ def _grid_triangles(nu: int, nv: int) -> np.ndarray:
     return np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
 
 
-def heightfield(*, origin, axis_u, axis_v, size_u: float, size_v: float, height: np.ndarray,
-                uv_repeat_m: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def heightfield(
+    *,
+    origin,
+    axis_u,
+    axis_v,
+    size_u: float,
+    size_v: float,
+    height: np.ndarray,
+    uv_repeat_m: tuple[float, float] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A rectangular grid displaced along its normal.
 
     Parameters
@@ -118,8 +133,15 @@ def heightfield(*, origin, axis_u, axis_v, size_u: float, size_v: float, height:
 
 def quad(*, origin, axis_u, axis_v, size_u, size_v, uv_repeat_m=None):
     """A flat rectangle (two triangles)."""
-    return heightfield(origin=origin, axis_u=axis_u, axis_v=axis_v, size_u=size_u, size_v=size_v,
-                       height=np.zeros((2, 2)), uv_repeat_m=uv_repeat_m)
+    return heightfield(
+        origin=origin,
+        axis_u=axis_u,
+        axis_v=axis_v,
+        size_u=size_u,
+        size_v=size_v,
+        height=np.zeros((2, 2)),
+        uv_repeat_m=uv_repeat_m,
+    )
 
 
 def box(*, center, size, uv_repeat_m: float = 0.5, skip=()):
@@ -151,8 +173,15 @@ def box(*, center, size, uv_repeat_m: float = 0.5, skip=()):
     return np.concatenate(vs), np.concatenate(ts), np.concatenate(uvs)
 
 
-def revolution(*, z: np.ndarray, radius: np.ndarray, n_theta: int, displacement: np.ndarray | None = None,
-               uv_repeat_m: float = 1.0, center=(0.0, 0.0, 0.0)):
+def revolution(
+    *,
+    z: np.ndarray,
+    radius: np.ndarray,
+    n_theta: int,
+    displacement: np.ndarray | None = None,
+    uv_repeat_m: float = 1.0,
+    center=(0.0, 0.0, 0.0),
+):
     """A body of revolution about the world z axis.
 
     Parameters

@@ -105,15 +105,37 @@ class PlatformErrorModel:
 
 
 ERROR_PRESETS = {
-    "none": PlatformErrorModel(scale_error=0, axis_misalignment_rad=0, rotation_scale_error=0, noise_m=0,
-                               noise_rad=0, backlash_m=0, encoder_noise_m=0, encoder_noise_rad=0),
+    "none": PlatformErrorModel(
+        scale_error=0,
+        axis_misalignment_rad=0,
+        rotation_scale_error=0,
+        noise_m=0,
+        noise_rad=0,
+        backlash_m=0,
+        encoder_noise_m=0,
+        encoder_noise_rad=0,
+    ),
     "default": PlatformErrorModel(),
-    "precise": PlatformErrorModel(scale_error=2e-4, axis_misalignment_rad=5e-5, rotation_scale_error=2e-4,
-                                  noise_m=2e-5, noise_rad=math.radians(0.002), backlash_m=5e-6,
-                                  encoder_noise_m=2e-6, encoder_noise_rad=math.radians(0.0005)),
-    "sloppy": PlatformErrorModel(scale_error=1e-2, axis_misalignment_rad=3e-3, rotation_scale_error=1e-2,
-                                 noise_m=1e-3, noise_rad=math.radians(0.1), backlash_m=5e-4,
-                                 encoder_noise_m=1e-4, encoder_noise_rad=math.radians(0.01)),
+    "precise": PlatformErrorModel(
+        scale_error=2e-4,
+        axis_misalignment_rad=5e-5,
+        rotation_scale_error=2e-4,
+        noise_m=2e-5,
+        noise_rad=math.radians(0.002),
+        backlash_m=5e-6,
+        encoder_noise_m=2e-6,
+        encoder_noise_rad=math.radians(0.0005),
+    ),
+    "sloppy": PlatformErrorModel(
+        scale_error=1e-2,
+        axis_misalignment_rad=3e-3,
+        rotation_scale_error=1e-2,
+        noise_m=1e-3,
+        noise_rad=math.radians(0.1),
+        backlash_m=5e-4,
+        encoder_noise_m=1e-4,
+        encoder_noise_rad=math.radians(0.01),
+    ),
 }
 
 
@@ -166,9 +188,16 @@ class SimPlatform:
         Motion model and limits (default: :class:`SimPlatformConfig`).
     """
 
-    def __init__(self, *, T_base_flange_home: np.ndarray | None = None, errors: PlatformErrorModel | str = "default",
-                 seed: int = 0, clock: SimClock | None = None, session_seed: int | None = None,
-                 config: SimPlatformConfig | None = None):
+    def __init__(
+        self,
+        *,
+        T_base_flange_home: np.ndarray | None = None,
+        errors: PlatformErrorModel | str = "default",
+        seed: int = 0,
+        clock: SimClock | None = None,
+        session_seed: int | None = None,
+        config: SimPlatformConfig | None = None,
+    ):
         config = config or SimPlatformConfig()
         if config.dof not in (3, 6):
             raise ValueError("dof must be 3 or 6")

@@ -146,9 +146,12 @@ class Renderer:
             while min(pyr[-1].shape[:2]) > 4:
                 pyr.append(cv2.pyrDown(pyr[-1]))
             self._parts[gid] = _PartData(
-                triangles=part.triangles, tri_uv=part.tri_uv,
+                triangles=part.triangles,
+                tri_uv=part.tri_uv,
                 vertex_normals=part.vertex_normals if part.smooth else None,
-                pyramid=pyr, texel_size_m=float(part.texel_size_m), label=int(part.label),
+                pyramid=pyr,
+                texel_size_m=float(part.texel_size_m),
+                label=int(part.label),
             )
             offsets[gid] = n_tri
             uvs.append(part.tri_uv.astype(np.float32))
@@ -203,11 +206,19 @@ class Renderer:
         uu, vv = np.meshgrid(us, vs)
         if intrinsics.has_distortion:
             pts = np.stack([uu.ravel(), vv.ravel()], 1).reshape(-1, 1, 2)
-            und = cv2.undistortPointsIter(pts, intrinsics.K, intrinsics.dist_array, None, None,
-                                          (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10))
+            und = cv2.undistortPointsIter(
+                pts,
+                intrinsics.K,
+                intrinsics.dist_array,
+                None,
+                None,
+                (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
+            )
             xy = und.reshape(-1, 2)
         else:
-            xy = np.stack([(uu.ravel() - intrinsics.cx) / intrinsics.fx, (vv.ravel() - intrinsics.cy) / intrinsics.fy], 1)
+            xy = np.stack(
+                [(uu.ravel() - intrinsics.cx) / intrinsics.fx, (vv.ravel() - intrinsics.cy) / intrinsics.fy], 1
+            )
         d = np.concatenate([xy, np.ones((len(xy), 1))], 1).astype(np.float32)
         if len(self._ray_cache) > 8:
             self._ray_cache.clear()
@@ -220,7 +231,9 @@ class Renderer:
         rays[:, :3] = origins
         rays[:, 3:] = directions
         ans = self._rc.cast_rays(o3d.core.Tensor(rays), nthreads=self.nthreads)
-        return {k: ans[k].numpy() for k in ("t_hit", "geometry_ids", "primitive_ids", "primitive_uvs", "primitive_normals")}
+        return {
+            k: ans[k].numpy() for k in ("t_hit", "geometry_ids", "primitive_ids", "primitive_uvs", "primitive_normals")
+        }
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, tfar: float) -> np.ndarray:
         """True where a segment ``origin + t * direction, t in (0, tfar)`` hits the scene."""
@@ -382,16 +395,31 @@ class Renderer:
                 ids_local[k] = np.where(eff.footprint >= 0.5, eff.change_index + 1, 0)
         radiance = None
         if want_albedo and lighting is not None:
-            surf = _Surface(points=points, shade_n=shade_n, geo_n=geo_n, albedo=albedo, depth=t, cavity=cavity,
-                            shadow_lift=shadow_lift)
+            surf = _Surface(
+                points=points,
+                shade_n=shade_n,
+                geo_n=geo_n,
+                albedo=albedo,
+                depth=t,
+                cavity=cavity,
+                shadow_lift=shadow_lift,
+            )
             radiance = self._shade(surf, lighting, T_world_cam)
         return dict(n=len(dirs_cam), idx=idx, t=t, labels=labels, normals=shade_n, radiance=radiance, ids=ids_local)
 
     # ------------------------------------------------------------------ public
-    def render(self, T_world_cam: np.ndarray, intrinsics: CameraIntrinsics, lighting: Lighting | str | None = "front",
-               *, changes=None, exposure: float | str = "auto", effects: CameraEffects | None = None,
-               rng: np.random.Generator | None = None,
-               want=("gray", "depth")) -> RenderResult:
+    def render(
+        self,
+        T_world_cam: np.ndarray,
+        intrinsics: CameraIntrinsics,
+        lighting: Lighting | str | None = "front",
+        *,
+        changes=None,
+        exposure: float | str = "auto",
+        effects: CameraEffects | None = None,
+        rng: np.random.Generator | None = None,
+        want=("gray", "depth"),
+    ) -> RenderResult:
         """Render one view.
 
         Parameters
@@ -419,8 +447,14 @@ class Renderer:
         h, w = intrinsics.height, intrinsics.width
         s = self.supersample
         dirs = self.camera_rays(intrinsics, 1)
-        prim = self._shade_rays(T_world_cam, dirs, intrinsics.fx, lighting if (shade and s == 1) else None,
-                                changes, want_albedo=(shade and s == 1))
+        prim = self._shade_rays(
+            T_world_cam,
+            dirs,
+            intrinsics.fx,
+            lighting if (shade and s == 1) else None,
+            changes,
+            want_albedo=(shade and s == 1),
+        )
         depth = np.zeros(h * w, np.float32)
         depth[prim["idx"]] = prim["t"]
         normals = np.zeros((h * w, 3), np.float32)
@@ -438,8 +472,9 @@ class Renderer:
                 lin = lin.reshape(h, w, 3)
                 valid = (labels > 0).reshape(h, w)
             else:
-                fine = self._shade_rays(T_world_cam, self.camera_rays(intrinsics, s), intrinsics.fx * s,
-                                        lighting, changes, want_albedo=True)
+                fine = self._shade_rays(
+                    T_world_cam, self.camera_rays(intrinsics, s), intrinsics.fx * s, lighting, changes, want_albedo=True
+                )
                 lin_f = np.zeros((h * s * w * s, 3), np.float32)
                 lin_f[fine["idx"]] = fine["radiance"]
                 lin = cv2.resize(lin_f.reshape(h * s, w * s, 3), (w, h), interpolation=cv2.INTER_AREA)
@@ -450,13 +485,20 @@ class Renderer:
                     raise ValueError(f"exposure must be a number or 'auto', got {exposure!r}")
                 # centre-weighted metering, as most cameras do: the middle half of the frame
                 meter = np.zeros_like(valid)
-                meter[h // 4: h - h // 4, w // 4: w - w // 4] = True
+                meter[h // 4 : h - h // 4, w // 4 : w - w // 4] = True
                 meter &= valid
                 exp_used = auto_exposure(lin_gray, meter if meter.any() else valid, max_exposure=effects.max_exposure)
             if "gray" in want:
                 gray = apply_camera_response(lin_gray, exposure=exp_used, effects=effects, rng=rng)
             if "rgb" in want:
                 rgb = apply_camera_response(lin, exposure=exp_used, effects=effects, rng=rng)
-        return RenderResult(gray=gray, rgb=rgb, depth=depth.reshape(h, w), normals=normals.reshape(h, w, 3),
-                            labels=labels.reshape(h, w), change_mask=(ids > 0).reshape(h, w),
-                            change_ids=ids.reshape(h, w), exposure=exp_used)
+        return RenderResult(
+            gray=gray,
+            rgb=rgb,
+            depth=depth.reshape(h, w),
+            normals=normals.reshape(h, w, 3),
+            labels=labels.reshape(h, w),
+            change_mask=(ids > 0).reshape(h, w),
+            change_ids=ids.reshape(h, w),
+            exposure=exp_used,
+        )

@@ -45,8 +45,9 @@ class SimRig:
         """The rig's camera looking at a hand-held ChArUco board (intrinsics calibration views)."""
         from fgcd_drivers.sim.board import SimBoardCamera
 
-        return SimBoardCamera(board, seed=seed, supersample=supersample,
-                              intrinsics_true=self.ground_truth.intrinsics_true())
+        return SimBoardCamera(
+            board, seed=seed, supersample=supersample, intrinsics_true=self.ground_truth.intrinsics_true()
+        )
 
     def inject_changes(self, *, n: int, seed: int, kinds=None, size_mm: tuple[float, float] = (1.0, 20.0)) -> list:
         """Add ``n`` random changes on the object where the reference camera sees it (returns them)."""
@@ -63,7 +64,12 @@ class SimRig:
         gt = self.ground_truth
         T_world_cam = gt.T_world_cam_true()
         T_base_flange = self.platform.true_flange_pose()
-        new = T_world_cam @ np.asarray(T_cam_delta, float) @ invert_pose(gt.T_flange_cam_true()) @ invert_pose(T_base_flange)
+        new = (
+            T_world_cam
+            @ np.asarray(T_cam_delta, float)
+            @ invert_pose(gt.T_flange_cam_true())
+            @ invert_pose(T_base_flange)
+        )
         gt._set_T_world_base(new)
 
 
@@ -145,23 +151,44 @@ def build_sim_rig(*, scene: str, config: SimRigConfig | None = None) -> SimRig:
     T_base_flange_home = make_pose(exp_so3(rng.normal(0, 0.3, 3)), [0.6, 0.0, 0.4] + rng.normal(0, 0.05, 3))
     T_world_base = sc.default_T_world_cam @ invert_pose(X) @ invert_pose(T_base_flange_home)
     h = T_base_flange_home[:3, 3]
-    motion = SimPlatformConfig(workspace_min_m=h - c.workspace_half_m, workspace_max_m=h + c.workspace_half_m,
-                               dof=c.dof, realtime_factor=c.realtime_factor)
-    platform = SimPlatform(T_base_flange_home=T_base_flange_home, errors=c.noise, seed=int(rng.integers(1 << 31)),
-                           session_seed=c.session_seed, clock=clock, config=motion)
+    motion = SimPlatformConfig(
+        workspace_min_m=h - c.workspace_half_m,
+        workspace_max_m=h + c.workspace_half_m,
+        dof=c.dof,
+        realtime_factor=c.realtime_factor,
+    )
+    platform = SimPlatform(
+        T_base_flange_home=T_base_flange_home,
+        errors=c.noise,
+        seed=int(rng.integers(1 << 31)),
+        session_seed=c.session_seed,
+        clock=clock,
+        config=motion,
+    )
     intr_true = perturbed_intrinsics(c.intrinsics_nominal, c.intrinsics_error, rng)
     effects = c.effects
     if effects is None:
-        effects = DEFAULT_EFFECTS if c.noise != "none" else CameraEffects(gamma=DEFAULT_EFFECTS.gamma,
-                                                                           vignetting=DEFAULT_EFFECTS.vignetting)
+        effects = (
+            DEFAULT_EFFECTS
+            if c.noise != "none"
+            else CameraEffects(gamma=DEFAULT_EFFECTS.gamma, vignetting=DEFAULT_EFFECTS.vignetting)
+        )
     lights = SimLights(c.lighting)
 
-    gt = GroundTruth(world=world, platform=platform, T_world_base=T_world_base, T_flange_cam=X,
-                     intrinsics_true=intr_true)
+    gt = GroundTruth(
+        world=world, platform=platform, T_world_base=T_world_base, T_flange_cam=X, intrinsics_true=intr_true
+    )
     camera_seed = int(rng.integers(1 << 31))
-    options = SimCameraOptions(intrinsics_true=intr_true, intrinsics_nominal=c.intrinsics_nominal, effects=effects,
-                               exposure=c.exposure, with_depth=c.with_depth, with_rgb=c.with_rgb,
-                               seed=camera_seed + 7919 * c.session_seed, still_supersample=c.still_supersample)
+    options = SimCameraOptions(
+        intrinsics_true=intr_true,
+        intrinsics_nominal=c.intrinsics_nominal,
+        effects=effects,
+        exposure=c.exposure,
+        with_depth=c.with_depth,
+        with_rgb=c.with_rgb,
+        seed=camera_seed + 7919 * c.session_seed,
+        still_supersample=c.still_supersample,
+    )
     camera = SimCamera(world=world, pose_fn=gt.T_world_cam_true, lights=lights, clock=clock, options=options)
     platform.connect()
     return SimRig(platform=platform, camera=camera, lights=lights, clock=clock, ground_truth=gt, world=world)

@@ -28,18 +28,41 @@ Z = np.array([0.0, 0.0, 1.0])
 # ----------------------------------------------------------------------------- helpers
 def _floor(rng, *, size=8.0, repeat=0.8) -> MeshPart:
     tex = stone(rng, size=1024, photo_name="gravel", colour=(0.55, 0.52, 0.48), contrast=0.9)
-    v, t, uv = quad(origin=(-size / 2, -size / 2, 0.0), axis_u=X, axis_v=(0, 1, 0), size_u=size, size_v=size,
-                    uv_repeat_m=(repeat, repeat))
-    return MeshPart(name="floor", label=FLOOR_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
-                    texel_size_m=repeat / 1024, smooth=False)
+    v, t, uv = quad(
+        origin=(-size / 2, -size / 2, 0.0),
+        axis_u=X,
+        axis_v=(0, 1, 0),
+        size_u=size,
+        size_v=size,
+        uv_repeat_m=(repeat, repeat),
+    )
+    return MeshPart(
+        name="floor",
+        label=FLOOR_LABEL,
+        vertices=v,
+        triangles=t,
+        tri_uv=uv,
+        texture=tex,
+        texel_size_m=repeat / 1024,
+        smooth=False,
+    )
 
 
 def _back_wall(rng, *, y=0.0, width=6.0, height=3.5, repeat=1.0) -> MeshPart:
     tex = stone(rng, size=1024, photo_name="gravel", colour=(0.78, 0.74, 0.68), contrast=0.25, detail=0.05)
-    v, t, uv = quad(origin=(-width / 2, y, 0.0), axis_u=X, axis_v=Z, size_u=width, size_v=height,
-                    uv_repeat_m=(repeat, repeat))
-    return MeshPart(name="wall", label=WALL_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
-                    texel_size_m=repeat / 1024, smooth=False)
+    v, t, uv = quad(
+        origin=(-width / 2, y, 0.0), axis_u=X, axis_v=Z, size_u=width, size_v=height, uv_repeat_m=(repeat, repeat)
+    )
+    return MeshPart(
+        name="wall",
+        label=WALL_LABEL,
+        vertices=v,
+        triangles=t,
+        tri_uv=uv,
+        texture=tex,
+        texel_size_m=repeat / 1024,
+        smooth=False,
+    )
 
 
 def _grid(size_u, size_v, cell):
@@ -77,8 +100,16 @@ def _text_mask(rng, n_lines: int) -> np.ndarray:
         (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_TRIPLEX, scale, 7)
         scale *= min(1.0, (w - 40) / tw)
         (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_TRIPLEX, scale, 7)
-        cv2.putText(canvas, text, ((w - tw) // 2, k * h_line + (h_line + th) // 2), cv2.FONT_HERSHEY_TRIPLEX,
-                    scale, 255, 7, cv2.LINE_AA)
+        cv2.putText(
+            canvas,
+            text,
+            ((w - tw) // 2, k * h_line + (h_line + th) // 2),
+            cv2.FONT_HERSHEY_TRIPLEX,
+            scale,
+            255,
+            7,
+            cv2.LINE_AA,
+        )
     return canvas.astype(np.float32) / 255.0
 
 
@@ -136,16 +167,32 @@ def build_stele(p: dict, rng) -> dict:
     dirt = _grid_to_texture(np.clip(-Hgrid / carve, 0, 1), (th, tw))
     grime = np.linspace(0.85, 1.0, th, dtype=np.float32)[::-1][:, None]  # darker at the foot
     tex = tex * (1 - 0.45 * dirt[..., None]) * grime[..., None]
-    front = _panel_relief_part(name="stele", width=W, height=Hh, Hgrid=Hgrid, tex=np.clip(tex, 0, 1),
-                               origin=(-W / 2, -D / 2, base_h))
+    front = _panel_relief_part(
+        name="stele", width=W, height=Hh, Hgrid=Hgrid, tex=np.clip(tex, 0, 1), origin=(-W / 2, -D / 2, base_h)
+    )
     sides_tex = stone(rng, size=512, photo_name="gravel", colour=p.get("colour", (0.74, 0.66, 0.54)))
     v, t, uv = box(center=(0, 0, base_h + Hh / 2), size=(W, D, Hh), skip=("-y", "-z"), uv_repeat_m=0.5)
-    sides = MeshPart(name="stele", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=sides_tex,
-                     texel_size_m=0.5 / 512, smooth=False)
+    sides = MeshPart(
+        name="stele",
+        label=OBJECT_LABEL,
+        vertices=v,
+        triangles=t,
+        tri_uv=uv,
+        texture=sides_tex,
+        texel_size_m=0.5 / 512,
+        smooth=False,
+    )
     v, t, uv = box(center=(0, 0, base_h / 2), size=(W + 0.3, D + 0.25, base_h), skip=("-z",), uv_repeat_m=0.5)
-    plinth = MeshPart(name="plinth", label=PLINTH_LABEL, vertices=v, triangles=t, tri_uv=uv,
-                      texture=stone(rng, size=512, photo_name="grass", colour=(0.5, 0.5, 0.48)),
-                      texel_size_m=0.5 / 512, smooth=False)
+    plinth = MeshPart(
+        name="plinth",
+        label=PLINTH_LABEL,
+        vertices=v,
+        triangles=t,
+        tri_uv=uv,
+        texture=stone(rng, size=512, photo_name="grass", colour=(0.5, 0.5, 0.48)),
+        texel_size_m=0.5 / 512,
+        smooth=False,
+    )
     return {"parts": [front, sides, plinth, _floor(rng)]}
 
 
@@ -153,16 +200,16 @@ def _seated_figure(Xg, Yg, cx, by, s=1.0):
     """Height of a seated figure (halo, head, torso, arms, crossed legs, lotus base); by = base y."""
     h = np.zeros_like(Xg)
     parts = [
-        (cx, by + 0.42 * s, 0.30 * s, 0.09 * s, 0.050),   # crossed legs
-        (cx, by + 0.66 * s, 0.17 * s, 0.22 * s, 0.060),   # torso
+        (cx, by + 0.42 * s, 0.30 * s, 0.09 * s, 0.050),  # crossed legs
+        (cx, by + 0.66 * s, 0.17 * s, 0.22 * s, 0.060),  # torso
         (cx - 0.17 * s, by + 0.62 * s, 0.06 * s, 0.17 * s, 0.045),  # left arm
         (cx + 0.17 * s, by + 0.62 * s, 0.06 * s, 0.17 * s, 0.045),  # right arm
-        (cx, by + 0.50 * s, 0.11 * s, 0.05 * s, 0.062),   # hands in the lap
+        (cx, by + 0.50 * s, 0.11 * s, 0.05 * s, 0.062),  # hands in the lap
         (cx, by + 0.95 * s, 0.085 * s, 0.105 * s, 0.065),  # head
-        (cx, by + 1.06 * s, 0.04 * s, 0.035 * s, 0.060),   # ushnisha
-        (cx, by + 0.84 * s, 0.05 * s, 0.03 * s, 0.050),    # neck
+        (cx, by + 1.06 * s, 0.04 * s, 0.035 * s, 0.060),  # ushnisha
+        (cx, by + 0.84 * s, 0.05 * s, 0.03 * s, 0.050),  # neck
     ]
-    for (x, y, a, b, hh) in parts:
+    for x, y, a, b, hh in parts:
         h = np.maximum(h, _bump(Xg, Yg, x, y, a, b, hh))
     # lotus base: a row of petals
     for k in range(-4, 5):
@@ -195,8 +242,15 @@ def build_relief_panel(p: dict, rng) -> dict:
     tex = blend_detail(tex, rng, amount=0.07, base_sigma=2.0)
     soot = _grid_to_texture(niche, (th, tw)) * 0.15
     tex = tex * (1 - soot[..., None])
-    panel = _panel_relief_part(name="relief", width=W, height=Hh, Hgrid=Hgrid, tex=np.clip(tex, 0, 1),
-                               origin=(-W / 2, -0.06, 0.3), frame_depth=0.06)
+    panel = _panel_relief_part(
+        name="relief",
+        width=W,
+        height=Hh,
+        Hgrid=Hgrid,
+        tex=np.clip(tex, 0, 1),
+        origin=(-W / 2, -0.06, 0.3),
+        frame_depth=0.06,
+    )
     return {"parts": [panel, _back_wall(rng, y=0.0), _floor(rng)]}
 
 
@@ -212,7 +266,7 @@ def _aged_painting(rng, th, tw) -> np.ndarray:
         r, c = divmod(k, cols)
         img = photo(name, size=(ch, cw))
         x, y = mw + c * (cw + mw), mh + r * (ch + mh)
-        canvas[y:y + ch, x:x + cw] = img
+        canvas[y : y + ch, x : x + cw] = img
         cv2.rectangle(canvas, (x - 4, y - 4), (x + cw + 3, y + ch + 3), (0.35, 0.18, 0.10), 6)
     # ageing: desaturate towards ochre, fade, blotches, fine grain
     gray = canvas.mean(axis=2, keepdims=True)
@@ -230,8 +284,7 @@ def build_mural(p: dict, rng) -> dict:
     Hgrid = p.get("relief_mm", 1.5) / 1000 * fractal_noise(Xg.shape, rng, base_sigma=25, wrap=False)
     th, tw = int(Hh / 0.0015), int(W / 0.0015)
     tex = _aged_painting(rng, th, tw)
-    part = _panel_relief_part(name="mural", width=W, height=Hh, Hgrid=Hgrid, tex=tex,
-                              origin=(-W / 2, 0.0, 0.4))
+    part = _panel_relief_part(name="mural", width=W, height=Hh, Hgrid=Hgrid, tex=tex, origin=(-W / 2, 0.0, 0.4))
     return {"parts": [part, _floor(rng)]}
 
 
@@ -242,8 +295,16 @@ def build_plane(p: dict, rng) -> dict:
     big = photo("moon", size=(1024, 1024)).mean(axis=2)
     tex = np.clip(tex * (0.75 + 0.5 * big)[..., None], 0, 1)
     v, t, uv = quad(origin=(-W / 2, 0.0, 0.0), axis_u=X, axis_v=Z, size_u=W, size_v=Hh, uv_repeat_m=(rep, rep))
-    part = MeshPart(name="plane", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
-                    texel_size_m=rep / 1024, smooth=False)
+    part = MeshPart(
+        name="plane",
+        label=OBJECT_LABEL,
+        vertices=v,
+        triangles=t,
+        tri_uv=uv,
+        texture=tex,
+        texel_size_m=rep / 1024,
+        smooth=False,
+    )
     return {"parts": [part]}
 
 
@@ -252,10 +313,12 @@ def build_sphere(p: dict, rng) -> dict:
     c = tuple(p.get("center", (0.0, 0.0, 1.0)))
     rep = p.get("texture_repeat_m", 0.6)
     tex = stone(rng, size=1024, photo_name="moon", colour=(0.72, 0.7, 0.66), contrast=1.0)
-    v, t, uv = uv_sphere(center=c, radius=r, n_lat=int(p.get("n_lat", 240)), n_lon=int(p.get("n_lon", 480)),
-                         uv_repeat_m=rep)
-    part = MeshPart(name="sphere", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
-                    texel_size_m=rep / 1024)
+    v, t, uv = uv_sphere(
+        center=c, radius=r, n_lat=int(p.get("n_lat", 240)), n_lon=int(p.get("n_lon", 480)), uv_repeat_m=rep
+    )
+    part = MeshPart(
+        name="sphere", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex, texel_size_m=rep / 1024
+    )
     return {"parts": [part]}
 
 
@@ -269,10 +332,12 @@ def build_plaster(p: dict, rng) -> dict:
     base *= 1.0 + p.get("contrast", 0.025) * fractal_noise((size, size), rng, base_sigma=60)
     base *= 1.0 + p.get("grain", 0.01) * fractal_noise((size, size), rng, base_sigma=1.5)  # millimetre grain
     tex = tinted(np.clip(base, 0, 1), (1.0, 0.98, 0.93))
-    v, t, uv = heightfield(origin=(-W / 2, 0.0, 0.3), axis_u=X, axis_v=Z, size_u=W, size_v=Hh, height=Hgrid,
-                           uv_repeat_m=(1.0, 1.0))
-    part = MeshPart(name="plaster", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
-                    texel_size_m=1.0 / size)
+    v, t, uv = heightfield(
+        origin=(-W / 2, 0.0, 0.3), axis_u=X, axis_v=Z, size_u=W, size_v=Hh, height=Hgrid, uv_repeat_m=(1.0, 1.0)
+    )
+    part = MeshPart(
+        name="plaster", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex, texel_size_m=1.0 / size
+    )
     return {"parts": [part, _floor(rng)]}
 
 
@@ -313,8 +378,7 @@ def build_bricks(p: dict, rng) -> dict:
     mortar_s = mortar_c[ty.astype(int) % 512, tx.astype(int) % 512]
     tex = np.where(brick_t[..., None], tex, mortar_s).astype(np.float32)
     tex = blend_detail(np.clip(tex, 0, 1), rng, amount=0.05, base_sigma=1.5)
-    part = _panel_relief_part(name="bricks", width=W, height=Hh, Hgrid=Hgrid, tex=tex,
-                              origin=(-W / 2, 0.0, 0.0))
+    part = _panel_relief_part(name="bricks", width=W, height=Hh, Hgrid=Hgrid, tex=tex, origin=(-W / 2, 0.0, 0.0))
     return {"parts": [part, _floor(rng)]}
 
 
@@ -323,12 +387,22 @@ def build_stupa(p: dict, rng) -> dict:
     n_theta = int(p.get("n_theta", 1024))
     # profile: plinth, drum with a carved frieze, dome, harmika, spire
     seg = [
-        (0.00, R * 1.15), (0.25, R * 1.15), (0.26, R * 1.02), (0.30, R), (0.85, R), (0.88, R * 1.04),
+        (0.00, R * 1.15),
+        (0.25, R * 1.15),
+        (0.26, R * 1.02),
+        (0.30, R),
+        (0.85, R),
+        (0.88, R * 1.04),
         (0.92, R * 0.97),
     ]
     dome = [(0.92 + R * 0.95 * np.sin(a), R * 0.97 * np.cos(a)) for a in np.linspace(0.05, np.pi / 2 - 0.12, 40)]
-    top = [(dome[-1][0] + 0.02, 0.28), (dome[-1][0] + 0.30, 0.28), (dome[-1][0] + 0.32, 0.06),
-           (dome[-1][0] + 0.9, 0.02), (dome[-1][0] + 0.92, 0.0)]
+    top = [
+        (dome[-1][0] + 0.02, 0.28),
+        (dome[-1][0] + 0.30, 0.28),
+        (dome[-1][0] + 0.32, 0.06),
+        (dome[-1][0] + 0.9, 0.02),
+        (dome[-1][0] + 0.92, 0.0),
+    ]
     prof = np.array(seg + dome + top)
     # resample the profile to ~6 mm steps along its arc length
     s = np.concatenate([[0], np.cumsum(np.hypot(np.diff(prof[:, 0]), np.diff(prof[:, 1])))])
@@ -354,8 +428,9 @@ def build_stupa(p: dict, rng) -> dict:
     v, t, uv = revolution(z=z, radius=r, n_theta=n_theta, displacement=disp, uv_repeat_m=0.8)
     tex = stone(rng, size=1024, photo_name="gravel", colour=(0.82, 0.78, 0.70), contrast=0.5)
     tex = np.clip(tex * (0.8 + 0.35 * photo("moon", size=(1024, 1024)).mean(axis=2))[..., None], 0, 1)
-    part = MeshPart(name="stupa", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
-                    texel_size_m=0.8 / 1024)
+    part = MeshPart(
+        name="stupa", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex, texel_size_m=0.8 / 1024
+    )
     return {"parts": [part, _floor(rng, size=12.0)]}
 
 
@@ -364,18 +439,24 @@ def build_statue(p: dict, rng) -> dict:
     Hh = p.get("height_m", 1.3)
     base_h = 0.5
     nx, ny, nz = int(0.7 / vox), int(0.5 / vox), int((Hh + 0.1) / vox)
-    gx, gy, gz = np.meshgrid(np.arange(nx) * vox - 0.35, np.arange(ny) * vox - 0.25, np.arange(nz) * vox - 0.05,
-                             indexing="ij")
+    gx, gy, gz = np.meshgrid(
+        np.arange(nx) * vox - 0.35, np.arange(ny) * vox - 0.25, np.arange(nz) * vox - 0.05, indexing="ij"
+    )
     s = Hh / 1.3
     blobs = [  # (x, y, z, rx, ry, rz) of a standing draped figure, slightly contrapposto
-        (0.0, 0.0, 1.20, 0.085, 0.095, 0.11), (0.0, 0.0, 1.05, 0.06, 0.06, 0.07),
-        (0.0, 0.0, 0.88, 0.19, 0.12, 0.18), (0.0, 0.01, 0.62, 0.17, 0.12, 0.16),
-        (-0.07, 0.0, 0.32, 0.10, 0.10, 0.30), (0.08, 0.02, 0.30, 0.09, 0.10, 0.30),
-        (-0.22, -0.02, 0.80, 0.06, 0.06, 0.22), (0.21, -0.05, 0.78, 0.06, 0.07, 0.2),
-        (0.18, -0.12, 0.66, 0.05, 0.06, 0.06), (0.0, 0.0, 0.06, 0.22, 0.17, 0.08),
+        (0.0, 0.0, 1.20, 0.085, 0.095, 0.11),
+        (0.0, 0.0, 1.05, 0.06, 0.06, 0.07),
+        (0.0, 0.0, 0.88, 0.19, 0.12, 0.18),
+        (0.0, 0.01, 0.62, 0.17, 0.12, 0.16),
+        (-0.07, 0.0, 0.32, 0.10, 0.10, 0.30),
+        (0.08, 0.02, 0.30, 0.09, 0.10, 0.30),
+        (-0.22, -0.02, 0.80, 0.06, 0.06, 0.22),
+        (0.21, -0.05, 0.78, 0.06, 0.07, 0.2),
+        (0.18, -0.12, 0.66, 0.05, 0.06, 0.06),
+        (0.0, 0.0, 0.06, 0.22, 0.17, 0.08),
     ]
     f = np.zeros(gx.shape, np.float32)
-    for (x, y, z, rx, ry, rz) in blobs:
+    for x, y, z, rx, ry, rz in blobs:
         q = ((gx - x * s) / (rx * s)) ** 2 + ((gy - y * s) / (ry * s)) ** 2 + ((gz - z * s) / (rz * s)) ** 2
         f += np.exp(-q * 1.5).astype(np.float32)
     f += 0.04 * fractal_noise((nx, ny * nz), rng, base_sigma=3, wrap=False).reshape(f.shape)
@@ -386,12 +467,20 @@ def build_statue(p: dict, rng) -> dict:
     veins = np.abs(fractal_noise((1024, 1024), rng, base_sigma=40))
     g = np.clip(0.62 + 0.35 * (marble - marble.mean()) - 0.25 * np.exp(-veins * 6), 0, 1)
     tex = blend_detail(tinted(g, (0.98, 0.96, 0.92)), rng, amount=0.05)
-    statue = MeshPart(name="statue", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex,
-                      texel_size_m=0.4 / 1024)
+    statue = MeshPart(
+        name="statue", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv, texture=tex, texel_size_m=0.4 / 1024
+    )
     vb, tb, uvb = box(center=(0, 0, base_h / 2), size=(0.6, 0.5, base_h), skip=("-z",), uv_repeat_m=0.5)
-    plinth = MeshPart(name="plinth", label=PLINTH_LABEL, vertices=vb, triangles=tb, tri_uv=uvb,
-                      texture=stone(rng, size=512, photo_name="gravel", colour=(0.5, 0.48, 0.46)),
-                      texel_size_m=0.5 / 512, smooth=False)
+    plinth = MeshPart(
+        name="plinth",
+        label=PLINTH_LABEL,
+        vertices=vb,
+        triangles=tb,
+        tri_uv=uvb,
+        texture=stone(rng, size=512, photo_name="gravel", colour=(0.5, 0.48, 0.46)),
+        texel_size_m=0.5 / 512,
+        smooth=False,
+    )
     return {"parts": [statue, plinth, _floor(rng)]}
 
 

@@ -70,7 +70,9 @@ def _ashlar_wall(p: dict, rng, *, width: float, height: float, z0: float, tex) -
     joint |= np.mod(Yg, course_h) < 0.006
     Hgrid = np.where(joint, -0.006, 0.0) + 0.0008 * fractal_noise(Xg.shape, rng, base_sigma=12, wrap=False)
     Hgrid = cv2.GaussianBlur(Hgrid.astype(np.float32), (0, 0), 0.7)
-    return _panel_relief_part(name="wall", width=width, height=height, Hgrid=Hgrid, tex=tex, origin=(-width / 2, 0.0, z0))
+    return _panel_relief_part(
+        name="wall", width=width, height=height, Hgrid=Hgrid, tex=tex, origin=(-width / 2, 0.0, z0)
+    )
 
 
 def build_cornice(p: dict, rng) -> dict:
@@ -83,25 +85,44 @@ def build_cornice(p: dict, rng) -> dict:
     # the cornice's profile, bottom to top: fascia, dentil bed, corona soffit and face, cyma, top
     t = np.linspace(0.0, np.pi / 2, 12)
     cyma = np.column_stack([-(proj - 0.06) - 0.06 * np.sin(t), z_c + 0.27 + 0.10 * (1 - np.cos(t))])
-    profile = np.vstack([
-        [[0.0, z_c], [-0.03, z_c], [-0.03, z_c + 0.10], [-0.05, z_c + 0.10], [-0.05, z_c + 0.17],
-         [-(proj - 0.06), z_c + 0.17], [-(proj - 0.06), z_c + 0.27]],
-        cyma, [[-proj, z_c + 0.40], [-0.05, z_c + 0.40]],
-    ])
+    profile = np.vstack(
+        [
+            [
+                [0.0, z_c],
+                [-0.03, z_c],
+                [-0.03, z_c + 0.10],
+                [-0.05, z_c + 0.10],
+                [-0.05, z_c + 0.17],
+                [-(proj - 0.06), z_c + 0.17],
+                [-(proj - 0.06), z_c + 0.27],
+            ],
+            cyma,
+            [[-proj, z_c + 0.40], [-0.05, z_c + 0.40]],
+        ]
+    )
     dense = [profile[0]]
     for a, b in zip(profile[:-1], profile[1:]):  # ~4 mm steps so shading follows the mouldings
         n = max(1, int(np.hypot(*(b - a)) / 0.004))
         dense.extend(a + (b - a) * (k / n) for k in range(1, n + 1))
     body = _extrusion(np.array(dense), x0=-W / 2, x1=W / 2, nx=int(W / 0.004), repeat_m=0.5)
     pitch, dw = p.get("dentil_pitch_m", 0.09), 0.055
-    dentils = [box(center=(x, -0.08, z_c + 0.135), size=(dw, 0.06, 0.07), skip=("+y",), uv_repeat_m=0.5)
-               for x in np.arange(-W / 2 + pitch / 2, W / 2, pitch)]
+    dentils = [
+        box(center=(x, -0.08, z_c + 0.135), size=(dw, 0.06, 0.07), skip=("+y",), uv_repeat_m=0.5)
+        for x in np.arange(-W / 2 + pitch / 2, W / 2, pitch)
+    ]
     v, tri, uv = _merge([body, *dentils])
     tex = stone(rng, size=1024, photo_name="gravel", colour=(0.80, 0.75, 0.66), contrast=0.8)
     tex = np.clip(tex * (0.85 + 0.3 * (fractal_noise((1024, 1024), rng, base_sigma=60) > 0.8))[..., None], 0, 1)
-    cornice = MeshPart(name="cornice", label=OBJECT_LABEL, vertices=v, triangles=tri, tri_uv=uv,
-                       texture=blend_detail(tex, rng, amount=0.08, base_sigma=1.5), texel_size_m=0.5 / 1024,
-                       smooth=False)
+    cornice = MeshPart(
+        name="cornice",
+        label=OBJECT_LABEL,
+        vertices=v,
+        triangles=tri,
+        tri_uv=uv,
+        texture=blend_detail(tex, rng, amount=0.08, base_sigma=1.5),
+        texel_size_m=0.5 / 1024,
+        smooth=False,
+    )
     return {"parts": [wall, cornice, _floor(rng)]}
 
 
@@ -124,12 +145,25 @@ def build_lettered_slab(p: dict, rng) -> dict:
     lichen = np.clip(fractal_noise((th, tw), rng, base_sigma=tw / 12, wrap=False) - 0.6, 0, 1)[..., None]
     tex = tex * (1 - 0.6 * lichen) + 0.6 * lichen * np.array([0.78, 0.74, 0.45], np.float32)
     tex = tex * (1 - 0.5 * _grid_to_texture(lmask, (th, tw))[..., None])  # dark, weathered letter grooves
-    front = _panel_relief_part(name="slab", width=W, height=Hh, Hgrid=Hgrid, tex=np.clip(tex, 0, 1).astype(np.float32),
-                               origin=(-W / 2, -D / 2, 0.0))
+    front = _panel_relief_part(
+        name="slab",
+        width=W,
+        height=Hh,
+        Hgrid=Hgrid,
+        tex=np.clip(tex, 0, 1).astype(np.float32),
+        origin=(-W / 2, -D / 2, 0.0),
+    )
     v, t, uv = box(center=(0, 0, Hh / 2), size=(W, D, Hh), skip=("-y", "-z"), uv_repeat_m=0.4)
-    sides = MeshPart(name="slab", label=OBJECT_LABEL, vertices=v, triangles=t, tri_uv=uv,
-                     texture=stone(rng, size=512, photo_name="gravel", colour=(0.5, 0.5, 0.5)),
-                     texel_size_m=0.4 / 512, smooth=False)
+    sides = MeshPart(
+        name="slab",
+        label=OBJECT_LABEL,
+        vertices=v,
+        triangles=t,
+        tri_uv=uv,
+        texture=stone(rng, size=512, photo_name="gravel", colour=(0.5, 0.5, 0.5)),
+        texel_size_m=0.4 / 512,
+        smooth=False,
+    )
     # lean back about the slab's foot (the x axis through its base)
     c, s = np.cos(lean), np.sin(lean)
     T = np.eye(4)

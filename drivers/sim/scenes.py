@@ -27,7 +27,16 @@ from fgcd_drivers.sim.transforms import look_at
 
 BUILDERS = {**_BASE_BUILDERS, **ARCH_BUILDERS}
 
-__all__ = ["scenes_dir", "list_scenes", "load_scene", "scene_spec", "SceneNotFound", "Scene", "SceneInfo", "OBJECT_LABEL"]
+__all__ = [
+    "scenes_dir",
+    "list_scenes",
+    "load_scene",
+    "scene_spec",
+    "SceneNotFound",
+    "Scene",
+    "SceneInfo",
+    "OBJECT_LABEL",
+]
 
 
 class SceneNotFound(ValueError):
@@ -83,8 +92,15 @@ def _load(name: str, seed: int, mtime: float) -> Scene:
     cam = spec["camera"]
     T = look_at(cam["eye"], cam["target"])
     lamp = np.asarray(spec.get("lamp", {}).get("position", (-1.5, -1.5, 0.3)), float)
-    return Scene(name=name, description=str(spec["description"]), seed=seed, parts=built["parts"],
-                 default_T_world_cam=T, lamp_position=lamp, spec=spec)
+    return Scene(
+        name=name,
+        description=str(spec["description"]),
+        seed=seed,
+        parts=built["parts"],
+        default_T_world_cam=T,
+        lamp_position=lamp,
+        spec=spec,
+    )
 
 
 def load_scene(name: str, *, seed: int = 0) -> Scene:

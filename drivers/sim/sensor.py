@@ -41,8 +41,9 @@ class CameraEffects:
     max_exposure: float = 64.0
 
 
-def auto_exposure(linear_gray: np.ndarray, valid: np.ndarray | None = None, *, target: float = 0.18,
-                  max_exposure: float = 64.0) -> float:
+def auto_exposure(
+    linear_gray: np.ndarray, valid: np.ndarray | None = None, *, target: float = 0.18, max_exposure: float = 64.0
+) -> float:
     """Exposure that maps the median lit value to ``target`` without clipping most highlights."""
     v = linear_gray[valid] if valid is not None and valid.any() else linear_gray.ravel()
     if v.size == 0:
@@ -54,8 +55,9 @@ def auto_exposure(linear_gray: np.ndarray, valid: np.ndarray | None = None, *, t
     return float(min(max(e, 1e-3), max_exposure))
 
 
-def apply_camera_response(linear: np.ndarray, *, exposure: float, effects: CameraEffects,
-                          rng: np.random.Generator | None = None) -> np.ndarray:
+def apply_camera_response(
+    linear: np.ndarray, *, exposure: float, effects: CameraEffects, rng: np.random.Generator | None = None
+) -> np.ndarray:
     """Exposure, vignetting, noise and gamma: linear radiance -> image in [0, 1] (float32)."""
     v = linear.astype(np.float32) * np.float32(exposure)
     h, w = v.shape[:2]

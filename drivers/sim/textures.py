@@ -14,8 +14,24 @@ import numpy as np
 __all__ = ["PHOTOS", "photo", "fractal_noise", "tinted", "stone", "blend_detail"]
 
 #: skimage.data images that ship with the package (no download).
-PHOTOS = ("astronaut", "brick", "camera", "coffee", "gravel", "grass", "moon", "rocket", "text",
-          "chelsea", "coins", "page", "clock", "hubble_deep_field", "immunohistochemistry", "retina")
+PHOTOS = (
+    "astronaut",
+    "brick",
+    "camera",
+    "coffee",
+    "gravel",
+    "grass",
+    "moon",
+    "rocket",
+    "text",
+    "chelsea",
+    "coins",
+    "page",
+    "clock",
+    "hubble_deep_field",
+    "immunohistochemistry",
+    "retina",
+)
 
 
 @lru_cache(maxsize=32)
@@ -43,8 +59,15 @@ def photo(name: str, *, size: tuple[int, int] | None = None) -> np.ndarray:
     return np.clip(img, 0.0, 1.0).astype(np.float32)
 
 
-def fractal_noise(shape: tuple[int, int], rng: np.random.Generator, *, octaves: int = 5,
-                  base_sigma: float = 32.0, persistence: float = 0.55, wrap: bool = True) -> np.ndarray:
+def fractal_noise(
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    *,
+    octaves: int = 5,
+    base_sigma: float = 32.0,
+    persistence: float = 0.55,
+    wrap: bool = True,
+) -> np.ndarray:
     """Zero-mean, unit-std multi-scale noise (sum of Gaussian-blurred white noise).
 
     ``wrap`` makes it tile seamlessly (blur with wrapped borders).
@@ -81,15 +104,23 @@ def tinted(gray: np.ndarray, colour) -> np.ndarray:
     return np.clip(g[:, :, None] * np.asarray(colour, np.float32)[None, None, :], 0, 1).astype(np.float32)
 
 
-def blend_detail(base: np.ndarray, rng: np.random.Generator, *, amount: float = 0.08,
-                 base_sigma: float = 4.0) -> np.ndarray:
+def blend_detail(
+    base: np.ndarray, rng: np.random.Generator, *, amount: float = 0.08, base_sigma: float = 4.0
+) -> np.ndarray:
     """Add fine procedural grain (multiplicative) so close-ups keep texture."""
     n = fractal_noise(base.shape[:2], rng, octaves=3, base_sigma=base_sigma)
     return np.clip(base * (1.0 + amount * n[:, :, None]), 0, 1).astype(np.float32)
 
 
-def stone(rng: np.random.Generator, *, size: int = 1024, photo_name: str = "gravel",
-          colour=(0.72, 0.64, 0.52), contrast: float = 0.6, detail: float = 0.10) -> np.ndarray:
+def stone(
+    rng: np.random.Generator,
+    *,
+    size: int = 1024,
+    photo_name: str = "gravel",
+    colour=(0.72, 0.64, 0.52),
+    contrast: float = 0.6,
+    detail: float = 0.10,
+) -> np.ndarray:
     """Stone albedo: a tinted bundled photo, large-scale mottling and fine grain."""
     base = photo(photo_name, size=(size, size)).mean(axis=2)
     base = 0.5 + contrast * (base - base.mean())

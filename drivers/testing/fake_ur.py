@@ -102,9 +102,7 @@ class _RtdeSession:
                 continue
             ctrl.step()
             try:
-                payload = b"\x01" + b"".join(
-                    _pack(t, ctrl.outputs(n)) for n, t in zip(self.outputs, self.output_types)
-                )
+                payload = b"\x01" + b"".join(_pack(t, ctrl.outputs(n)) for n, t in zip(self.outputs, self.output_types))
             except Exception as exc:  # noqa: BLE001 - a fake must say why it stopped
                 print(f"fake_ur sender failed: {exc!r}", file=sys.stderr, flush=True)
                 raise
@@ -165,7 +163,7 @@ class _RtdeSession:
         for n, t in zip(names, types):
             fmt = RTDE_FORMATS[t]
             width = struct.calcsize(fmt)
-            values[n] = struct.unpack(fmt, payload[offset:offset + width])[0]
+            values[n] = struct.unpack(fmt, payload[offset : offset + width])[0]
             offset += width
         self.ctrl.command(values)
 
@@ -299,6 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         _listen(args.host, DASHBOARD_PORT, _serve_dashboard, ctrl),
         _listen(args.host, SCRIPT_PORT, _serve_script, ctrl),
     ]
+
     def watchdog_loop() -> None:
         while True:
             time.sleep(0.01)
@@ -344,8 +343,11 @@ def main(argv: list[str] | None = None) -> int:
             ctrl.step()  # the motion is the arm's: it goes on while the stream is frozen
             with ctrl.lock:
                 moving = int(ctrl.motion is not None)
-                print(f"ACK state moving={moving} safety={ctrl.safety_bits} program={int(ctrl.program_running)} "
-                      f"watchdog_stops={ctrl.watchdog_stops}", flush=True)
+                print(
+                    f"ACK state moving={moving} safety={ctrl.safety_bits} program={int(ctrl.program_running)} "
+                    f"watchdog_stops={ctrl.watchdog_stops}",
+                    flush=True,
+                )
             continue
         print(f"ACK {command}", flush=True)
     for server in servers:
@@ -364,8 +366,14 @@ class FakeURProcess:
     fixed, so only one may run at a time (tests using it must not run in parallel).
     """
 
-    def __init__(self, *, silent: bool = False, startup_timeout_s: float = 10.0, host: str = "127.0.0.1",
-                 prefix: list[str] | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        silent: bool = False,
+        startup_timeout_s: float = 10.0,
+        host: str = "127.0.0.1",
+        prefix: list[str] | None = None,
+    ) -> None:
         self.silent = silent
         self.startup_timeout_s = startup_timeout_s
         self.host = host
@@ -392,8 +400,10 @@ class FakeURProcess:
             exited = self.process.poll() is not None
             self.stop()
             if exited:  # its bind failed: another controller (a fake of another test run) holds the ports
-                raise RuntimeError(f"the fake UR controller did not start: ports 29999/30003/30004 on {self.host} "
-                                   "are busy (another fake UR running?)")
+                raise RuntimeError(
+                    f"the fake UR controller did not start: ports 29999/30003/30004 on {self.host} "
+                    "are busy (another fake UR running?)"
+                )
             raise RuntimeError(f"the fake UR controller printed no READY within {self.startup_timeout_s:.0f} s")
         return self
 

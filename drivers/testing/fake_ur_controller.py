@@ -33,38 +33,99 @@ SET_WATCHDOG, KICK = 35, 99
 
 _V6 = "VECTOR6D"
 _OUTPUT_TYPES = {
-    "timestamp": "DOUBLE", "target_q": _V6, "target_qd": _V6, "target_qdd": _V6, "target_current": _V6,
-    "target_moment": _V6, "actual_q": _V6, "actual_qd": _V6, "actual_current": _V6,
-    "joint_control_output": _V6, "actual_TCP_pose": _V6, "actual_TCP_speed": _V6, "actual_TCP_force": _V6,
-    "target_TCP_pose": _V6, "target_TCP_speed": _V6, "actual_digital_input_bits": "UINT64",
-    "joint_temperatures": _V6, "actual_execution_time": "DOUBLE", "robot_mode": "INT32",
-    "joint_mode": "VECTOR6INT32", "safety_mode": "INT32", "safety_status": "INT32",
-    "actual_tool_accelerometer": "VECTOR3D", "speed_scaling": "DOUBLE", "target_speed_fraction": "DOUBLE",
-    "actual_momentum": "DOUBLE", "actual_main_voltage": "DOUBLE", "actual_robot_voltage": "DOUBLE",
-    "actual_robot_current": "DOUBLE", "actual_joint_voltage": _V6, "actual_digital_output_bits": "UINT64",
-    "runtime_state": "UINT32", "elbow_position": "VECTOR3D", "elbow_velocity": "VECTOR3D",
-    "robot_status_bits": "UINT32", "safety_status_bits": "UINT32", "analog_io_types": "UINT32",
-    "standard_analog_input0": "DOUBLE", "standard_analog_input1": "DOUBLE",
-    "standard_analog_output0": "DOUBLE", "standard_analog_output1": "DOUBLE", "io_current": "DOUBLE",
-    "euromap67_input_bits": "UINT32", "euromap67_output_bits": "UINT32", "euromap67_24V_voltage": "DOUBLE",
-    "euromap67_24V_current": "DOUBLE", "tool_mode": "UINT32", "tool_analog_input_types": "UINT32",
-    "tool_analog_input0": "DOUBLE", "tool_analog_input1": "DOUBLE", "tool_output_voltage": "INT32",
-    "tool_output_current": "DOUBLE", "tool_temperature": "DOUBLE", "tcp_force_scalar": "DOUBLE",
-    "output_bit_registers0_to_31": "UINT32", "output_bit_registers32_to_63": "UINT32",
-    "input_bit_registers0_to_31": "UINT32", "input_bit_registers32_to_63": "UINT32",
-    "payload": "DOUBLE", "payload_cog": "VECTOR3D", "payload_inertia": _V6, "script_control_line": "UINT32",
-    "ft_raw_wrench": _V6, "joint_position_deviation_ratio": _V6, "collision_detection_ratio": "DOUBLE",
-    "time_scale_source": "INT32", "actual_digital_output_bits_": "UINT64",
-    "tool_output_mode": "UINT8", "tool_digital_output0_mode": "UINT8", "tool_digital_output1_mode": "UINT8",
-    "speed_slider_mask": "UINT32", "speed_slider_fraction": "DOUBLE", "standard_digital_output_mask": "UINT8",
-    "standard_digital_output": "UINT8", "configurable_digital_output_mask": "UINT8",
-    "configurable_digital_output": "UINT8", "tool_digital_output_mask": "UINT8", "tool_digital_output": "UINT8",
-    "standard_analog_output_mask": "UINT8", "standard_analog_output_type": "UINT8",
+    "timestamp": "DOUBLE",
+    "target_q": _V6,
+    "target_qd": _V6,
+    "target_qdd": _V6,
+    "target_current": _V6,
+    "target_moment": _V6,
+    "actual_q": _V6,
+    "actual_qd": _V6,
+    "actual_current": _V6,
+    "joint_control_output": _V6,
+    "actual_TCP_pose": _V6,
+    "actual_TCP_speed": _V6,
+    "actual_TCP_force": _V6,
+    "target_TCP_pose": _V6,
+    "target_TCP_speed": _V6,
+    "actual_digital_input_bits": "UINT64",
+    "joint_temperatures": _V6,
+    "actual_execution_time": "DOUBLE",
+    "robot_mode": "INT32",
+    "joint_mode": "VECTOR6INT32",
+    "safety_mode": "INT32",
+    "safety_status": "INT32",
+    "actual_tool_accelerometer": "VECTOR3D",
+    "speed_scaling": "DOUBLE",
+    "target_speed_fraction": "DOUBLE",
+    "actual_momentum": "DOUBLE",
+    "actual_main_voltage": "DOUBLE",
+    "actual_robot_voltage": "DOUBLE",
+    "actual_robot_current": "DOUBLE",
+    "actual_joint_voltage": _V6,
+    "actual_digital_output_bits": "UINT64",
+    "runtime_state": "UINT32",
+    "elbow_position": "VECTOR3D",
+    "elbow_velocity": "VECTOR3D",
+    "robot_status_bits": "UINT32",
+    "safety_status_bits": "UINT32",
+    "analog_io_types": "UINT32",
+    "standard_analog_input0": "DOUBLE",
+    "standard_analog_input1": "DOUBLE",
+    "standard_analog_output0": "DOUBLE",
+    "standard_analog_output1": "DOUBLE",
+    "io_current": "DOUBLE",
+    "euromap67_input_bits": "UINT32",
+    "euromap67_output_bits": "UINT32",
+    "euromap67_24V_voltage": "DOUBLE",
+    "euromap67_24V_current": "DOUBLE",
+    "tool_mode": "UINT32",
+    "tool_analog_input_types": "UINT32",
+    "tool_analog_input0": "DOUBLE",
+    "tool_analog_input1": "DOUBLE",
+    "tool_output_voltage": "INT32",
+    "tool_output_current": "DOUBLE",
+    "tool_temperature": "DOUBLE",
+    "tcp_force_scalar": "DOUBLE",
+    "output_bit_registers0_to_31": "UINT32",
+    "output_bit_registers32_to_63": "UINT32",
+    "input_bit_registers0_to_31": "UINT32",
+    "input_bit_registers32_to_63": "UINT32",
+    "payload": "DOUBLE",
+    "payload_cog": "VECTOR3D",
+    "payload_inertia": _V6,
+    "script_control_line": "UINT32",
+    "ft_raw_wrench": _V6,
+    "joint_position_deviation_ratio": _V6,
+    "collision_detection_ratio": "DOUBLE",
+    "time_scale_source": "INT32",
+    "actual_digital_output_bits_": "UINT64",
+    "tool_output_mode": "UINT8",
+    "tool_digital_output0_mode": "UINT8",
+    "tool_digital_output1_mode": "UINT8",
+    "speed_slider_mask": "UINT32",
+    "speed_slider_fraction": "DOUBLE",
+    "standard_digital_output_mask": "UINT8",
+    "standard_digital_output": "UINT8",
+    "configurable_digital_output_mask": "UINT8",
+    "configurable_digital_output": "UINT8",
+    "tool_digital_output_mask": "UINT8",
+    "tool_digital_output": "UINT8",
+    "standard_analog_output_mask": "UINT8",
+    "standard_analog_output_type": "UINT8",
     "external_force_torque": _V6,
 }
 RTDE_FORMATS = {
-    "DOUBLE": ">d", "VECTOR6D": ">6d", "VECTOR3D": ">3d", "INT32": ">i", "UINT32": ">I", "UINT64": ">Q",
-    "UINT8": ">B", "BOOL": ">?", "VECTOR6INT32": ">6i", "VECTOR6UINT32": ">6I",
+    "DOUBLE": ">d",
+    "VECTOR6D": ">6d",
+    "VECTOR3D": ">3d",
+    "INT32": ">i",
+    "UINT32": ">I",
+    "UINT64": ">Q",
+    "UINT8": ">B",
+    "BOOL": ">?",
+    "VECTOR6INT32": ">6i",
+    "VECTOR6UINT32": ">6I",
 }
 
 
@@ -173,8 +234,11 @@ class FakeController:
             self.watchdog_stops += 1
         self.stop_program()
         if self.log is not None:
-            print(f"{time.monotonic() - self.t0:.3f} watchdog: no input for {period:.2f} s, program stopped",
-                  file=self.log, flush=True)
+            print(
+                f"{time.monotonic() - self.t0:.3f} watchdog: no input for {period:.2f} s, program stopped",
+                file=self.log,
+                flush=True,
+            )
         return True
 
     # ------------------------------------------------------------------ commands
@@ -182,7 +246,11 @@ class FakeController:
         """A data package of an input recipe: ur_rtde's command protocol."""
         cmd = int(values.get("input_int_register_0", 0))
         if self.log is not None and cmd != KICK:
-            print(f"{time.monotonic() - self.t0:.3f} cmd {cmd} reg0={self.reg_out_int[0]} {self.cmd_state}", file=self.log, flush=True)
+            print(
+                f"{time.monotonic() - self.t0:.3f} cmd {cmd} reg0={self.reg_out_int[0]} {self.cmd_state}",
+                file=self.log,
+                flush=True,
+            )
         with self.lock:
             if "input_int_register_0" in values:
                 self.last_input = time.monotonic()  # the watchdog's variable was updated
@@ -190,8 +258,9 @@ class FakeController:
                 return  # a continuous command: no handshake, the update is all it does
             if cmd == 0:
                 # The client clears the command: the script is ready for the next one.
-                if self.program_running and (self.cmd_state == "done" or self.done_at is not None
-                                             or self.safety_bits & ~1):
+                if self.program_running and (
+                    self.cmd_state == "done" or self.done_at is not None or self.safety_bits & ~1
+                ):
                     self.cmd_state = "idle"
                     self.reg_out_int[0] = 1
                     self.done_at = None

@@ -80,8 +80,10 @@ class GrblCommandsMixin:
         if text == "$G":
             mode = "G90" if self.absolute else "G91"
             coolant = " ".join(w for w, on in (("M7", self.mist), ("M8", self.flood)) if on) or "M9"
-            self._send(f"[GC:G0 G54 G17 G21 {mode} G94 {self.spindle} {coolant} T0 F{self.feed_mm_min or 0:.0f} "
-                       f"S{self.spindle_speed:g}]")
+            self._send(
+                f"[GC:G0 G54 G17 G21 {mode} G94 {self.spindle} {coolant} T0 F{self.feed_mm_min or 0:.0f} "
+                f"S{self.spindle_speed:g}]"
+            )
             return "ok"
         if text == "$X":
             with self._lock:
@@ -277,5 +279,7 @@ class GrblCommandsMixin:
 
 def _split_accessories(words: list[tuple[str, float]]) -> tuple[list, list]:
     """``(other words, spindle and coolant words)`` of a G-code line."""
-    accessory = [(letter, v) for letter, v in words if letter == "S" or (letter == "M" and v in (3.0, 4.0, 5.0, 7.0, 8.0, 9.0))]
+    accessory = [
+        (letter, v) for letter, v in words if letter == "S" or (letter == "M" and v in (3.0, 4.0, 5.0, 7.0, 8.0, 9.0))
+    ]
     return [w for w in words if w not in accessory], accessory

@@ -84,9 +84,28 @@ class GrblEmulator(GrblCommandsMixin):
     ) -> None:
         self.axes = axes
         self.settings: dict[int, float] = {
-            0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002,
-            13: 0, 20: int(soft_limits), 21: 0, 22: int(homing_enabled), 23: 0, 24: 25.0,
-            25: 500.0, 26: 250, 27: 1.0, 30: 1000, 31: 0, 32: 0,
+            0: 10,
+            1: 25,
+            2: 0,
+            3: 0,
+            4: 0,
+            5: 0,
+            6: 0,
+            10: 1,
+            11: 0.010,
+            12: 0.002,
+            13: 0,
+            20: int(soft_limits),
+            21: 0,
+            22: int(homing_enabled),
+            23: 0,
+            24: 25.0,
+            25: 500.0,
+            26: 250,
+            27: 1.0,
+            30: 1000,
+            31: 0,
+            32: 0,
         }
         for i in range(len(axes)):
             self.settings[100 + i] = 250.0
@@ -343,8 +362,11 @@ class GrblEmulator(GrblCommandsMixin):
         state = "Check" if self.check_mode and self.state == "Idle" else self.state
         speed = self.spindle_speed if self.spindle != "M5" else 0.0
         text = f"<{state}|MPos:{pos}|FS:{feed:.0f},{speed:.0f}"
-        accessories = ("S" if self.spindle == "M3" else "C" if self.spindle == "M4" else "") + \
-            ("F" if self.flood else "") + ("M" if self.mist else "")
+        accessories = (
+            ("S" if self.spindle == "M3" else "C" if self.spindle == "M4" else "")
+            + ("F" if self.flood else "")
+            + ("M" if self.mist else "")
+        )
         if accessories:
             text += f"|A:{accessories}"
         if self._reports % 10 == 1:

@@ -91,8 +91,9 @@ class NetnsLink:
         return self
 
     def _in_ns(self, *args: str) -> None:
-        subprocess.run(["ip", "netns", "exec", self.name, *args], capture_output=True, text=True, timeout=20,
-                       check=True)
+        subprocess.run(
+            ["ip", "netns", "exec", self.name, *args], capture_output=True, text=True, timeout=20, check=True
+        )
 
     def prefix(self) -> list[str]:
         """The command prefix that runs a program inside the namespace."""

@@ -23,8 +23,9 @@ from fgcd_core.sim3 import Sim3
 __all__ = ["search_score", "shift_search", "scale_search", "scale_neighbour"]
 
 
-def search_score(T: Sim3, probe: np.ndarray, ref: ReferenceIndex, config: FastAlignConfig,
-                 score: SearchScore | None = None) -> float:
+def search_score(
+    T: Sim3, probe: np.ndarray, ref: ReferenceIndex, config: FastAlignConfig, score: SearchScore | None = None
+) -> float:
     """Cold-start score of a candidate (lower is better): a robust residual of the probe points.
 
     ``score`` (default ``config.cold.search_score``), see :class:`SearchScore`: the median
@@ -57,8 +58,12 @@ def shift_search(inputs: LevelInputs, T: Sim3, probe: np.ndarray, config: FastAl
     step = cold.shift_rel * inputs.ref.width
     quick = replace(
         config,
-        levels=PyramidConfig(points=(cold.shift_points,), radius_rel=(cold.shift_radius_rel,),
-                             iterations=(cold.shift_iterations,), metric=(IcpMetric.PLANE,)),
+        levels=PyramidConfig(
+            points=(cold.shift_points,),
+            radius_rel=(cold.shift_radius_rel,),
+            iterations=(cold.shift_iterations,),
+            metric=(IcpMetric.PLANE,),
+        ),
         scale=replace(config.scale, from_level=1),
     )
     best = None
@@ -75,8 +80,7 @@ def shift_search(inputs: LevelInputs, T: Sim3, probe: np.ndarray, config: FastAl
     return T if best is None else best[1]
 
 
-def scale_search(inputs: LevelInputs, T: Sim3, probe: np.ndarray,
-                 config: FastAlignConfig) -> tuple[Sim3 | None, int]:
+def scale_search(inputs: LevelInputs, T: Sim3, probe: np.ndarray, config: FastAlignConfig) -> tuple[Sim3 | None, int]:
     """Best-fitting start over the candidate scales (rigid ICP on the coarse levels).
 
     The scales ``config.cold.scale_candidates`` (relative to ``T``'s, changed about the
@@ -150,8 +154,9 @@ def _parabolic_minimum(tried: list) -> float | None:
     return x
 
 
-def scale_neighbour(inputs: LevelInputs, T: Sim3, probe: np.ndarray,
-                    config: FastAlignConfig) -> tuple[Sim3 | None, int]:
+def scale_neighbour(
+    inputs: LevelInputs, T: Sim3, probe: np.ndarray, config: FastAlignConfig
+) -> tuple[Sim3 | None, int]:
     """A scale ``1 +- minimum_check.step`` times ``T``'s (rigidly refitted) that fits clearly better.
 
     Each neighbouring scale (about the probe points' centroid) runs the finest level

@@ -21,8 +21,15 @@ __all__ = ["minimise_subset"]
 
 #: Every step tried counts against ``iterations``; lambda / 3 after a success, x 8 after a
 #: failure; converged below a 1e-5 relative decrease or once lambda exceeds 1e6
-_SCHEDULE = LMSchedule(initial_damping=1e-3, decrease=3.0, min_damping=1e-7, increase=8.0, max_damping=1e6,
-                       max_iterations=None, relative_decrease=1e-5)
+_SCHEDULE = LMSchedule(
+    initial_damping=1e-3,
+    decrease=3.0,
+    min_damping=1e-7,
+    increase=8.0,
+    max_damping=1e6,
+    max_iterations=None,
+    relative_decrease=1e-5,
+)
 #: Weight of the gauge penalty ``C^T C`` relative to the largest diagonal of the free block
 _GAUGE_WEIGHT = 1e3
 
@@ -68,8 +75,15 @@ class _SubsetProblem:
         return float(np.linalg.norm(delta))
 
 
-def minimise_subset(evaluate: Evaluate, apply: Callable[[Any, np.ndarray], Any], state, *, iterations: int,
-                    free: np.ndarray, gauge: np.ndarray | None = None) -> tuple[Any, int, bool]:
+def minimise_subset(
+    evaluate: Evaluate,
+    apply: Callable[[Any, np.ndarray], Any],
+    state,
+    *,
+    iterations: int,
+    free: np.ndarray,
+    gauge: np.ndarray | None = None,
+) -> tuple[Any, int, bool]:
     """Levenberg-Marquardt on the ``free`` parameters; returns ``(state, steps tried, converged)``.
 
     Parameters

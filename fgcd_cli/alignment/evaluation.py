@@ -71,17 +71,22 @@ def evaluate_alignment(
     def probe(points: np.ndarray, directions: np.ndarray) -> tuple[float, ...]:
         return probe_weak_directions(T, cur, ref, points=points, directions=directions, config=config)
 
-    evidence = HealthEvidence(distances=d, matched_points=smooth_pts[matched_smooth],
-                              matched_normals=smooth_normals[matched_smooth], converged=converged,
-                              scale=scale_ratio)
+    evidence = HealthEvidence(
+        distances=d,
+        matched_points=smooth_pts[matched_smooth],
+        matched_normals=smooth_normals[matched_smooth],
+        converged=converged,
+        scale=scale_ratio,
+    )
     limits = HealthLimits(
         inlier_threshold=inlier_thr,
         overlap_threshold=overlap_thr,
         min_inlier_ratio=h.min_inlier_ratio,
         min_overlap=h.min_overlap,
         # Noisy normals lift the smallest eigenvalue of a plane to about (noise / radius)^2.
-        min_condition_ratio=max(h.min_condition_ratio,
-                                h.condition_noise_factor * (ref.roughness / ref.smooth_radius) ** 2),
+        min_condition_ratio=max(
+            h.min_condition_ratio, h.condition_noise_factor * (ref.roughness / ref.smooth_radius) ** 2
+        ),
         scale_bounds=h.scale_bounds,
         probe_return=config.probe.return_fraction,
         probe_directions=config.probe.directions,
@@ -90,8 +95,17 @@ def evaluate_alignment(
     return residual_stats(d, inlier_threshold=inlier_thr), health
 
 
-def finished_result(T: Sim3, cur: np.ndarray, ref: ReferenceIndex, config: FastAlignConfig, *, converged: bool,
-                    iterations: int, t0: float, scale_prior: float) -> AlignmentResult:
+def finished_result(
+    T: Sim3,
+    cur: np.ndarray,
+    ref: ReferenceIndex,
+    config: FastAlignConfig,
+    *,
+    converged: bool,
+    iterations: int,
+    t0: float,
+    scale_prior: float,
+) -> AlignmentResult:
     """:class:`AlignmentResult` of ``T`` with its residuals and health; ``t0`` is the call's start."""
     residuals, health = evaluate_alignment(
         T, cur, ref, converged=converged, scale_ratio=T.scale / scale_prior, config=config
@@ -108,8 +122,13 @@ def failed_result(T: Sim3, reason: str, t0: float, iterations: int = 0) -> Align
         T_ref_cur=T,
         residuals=ResidualStats(count=0, rms_mm=nan, median_mm=nan, inlier_threshold_mm=nan),
         health=AlignmentHealth(
-            ok=False, reason=reason, converged=False, overlap=0.0, inlier_ratio=0.0,
-            condition_ratio=0.0, degenerate=False,
+            ok=False,
+            reason=reason,
+            converged=False,
+            overlap=0.0,
+            inlier_ratio=0.0,
+            condition_ratio=0.0,
+            degenerate=False,
         ),
         iterations=iterations,
         seconds=time.perf_counter() - t0,

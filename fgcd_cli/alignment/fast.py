@@ -107,8 +107,13 @@ def fast_align(
     if len(cur) < MIN_CURRENT_POINTS:
         return failed_result(T, f"fewer than {MIN_CURRENT_POINTS} valid current points", t0)
     order = np.random.default_rng(config.seed).permutation(len(cur))
-    run = _Run(inputs=LevelInputs(cur=cur, weights=weights, ref=ref, order=order),
-               probe=cur[order[:_PROBE_POINTS]], config=config, t0=t0, scale_prior=T.scale)
+    run = _Run(
+        inputs=LevelInputs(cur=cur, weights=weights, ref=ref, order=order),
+        probe=cur[order[:_PROBE_POINTS]],
+        config=config,
+        t0=t0,
+        scale_prior=T.scale,
+    )
     # Warm start (the loop re-aligns from its previous result): skip the coarse
     # level and the scale search when the prior already fits.
     d0, _ = ref.nearest(T.apply(run.probe))
@@ -157,8 +162,16 @@ class _Run:
     def finish(self, T: Sim3, converged: bool, path: StartPath) -> AlignmentResult:
         inputs = self.inputs
         health_points = inputs.cur[inputs.order[: self.config.health.points]]
-        result = finished_result(T, health_points, inputs.ref, self.config, converged=converged,
-                                 iterations=self.iterations, t0=self.t0, scale_prior=self.scale_prior)
+        result = finished_result(
+            T,
+            health_points,
+            inputs.ref,
+            self.config,
+            converged=converged,
+            iterations=self.iterations,
+            t0=self.t0,
+            scale_prior=self.scale_prior,
+        )
         return replace(result, start=path)
 
     def failed(self, T: Sim3, reason: str) -> AlignmentResult:
@@ -181,8 +194,11 @@ def _warm_start(run: _Run, T: Sim3) -> AlignmentResult | None:
         return None
     moved = abs(math.log(out.T.scale / T.scale))
     path = StartPath.WARM
-    if (not out.converged or moved > config.warm.check_scale_change) and config.scale.estimate \
-            and config.minimum_check.step > 0:
+    if (
+        (not out.converged or moved > config.warm.check_scale_change)
+        and config.scale.estimate
+        and config.minimum_check.step > 0
+    ):
         if run.neighbour(out.T) is not None:
             return None
         path = StartPath.WARM_CHECKED
@@ -193,8 +209,10 @@ def _close(T_new: Sim3, T_old: Sim3, config: FastAlignConfig) -> bool:
     """A warm run stayed near its prior (scale and rotation within the warm limits)."""
     dR = T_new.R @ T_old.R.T
     angle = math.degrees(math.acos(float(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0))))
-    return (abs(math.log(T_new.scale / T_old.scale)) <= config.warm.max_scale_change
-            and angle <= config.warm.max_rotation_deg)
+    return (
+        abs(math.log(T_new.scale / T_old.scale)) <= config.warm.max_scale_change
+        and angle <= config.warm.max_rotation_deg
+    )
 
 
 def _cold_start(run: _Run, T: Sim3, path: StartPath) -> AlignmentResult:
@@ -220,8 +238,12 @@ def _cold_start(run: _Run, T: Sim3, path: StartPath) -> AlignmentResult:
         T_out, converged, problem = checked
     result = run.finish(T_out, converged, path)
     if problem:
-        health = replace(result.health, ok=False, scale_measured=False,
-                         reason=problem if result.health.ok else f"{result.health.reason}; {problem}")
+        health = replace(
+            result.health,
+            ok=False,
+            scale_measured=False,
+            reason=problem if result.health.ok else f"{result.health.reason}; {problem}",
+        )
         result = replace(result, health=health, seconds=time.perf_counter() - run.t0)
     return result
 
@@ -239,8 +261,11 @@ def _minimum_check(run: _Run, T: Sim3, converged: bool) -> tuple[Sim3, bool, str
         if better is None:
             break
         if attempt == 1:
-            return T, converged, (f"scale is not at the residual minimum (a {better.scale / T.scale - 1:+.0%} "
-                                  "change fits better)")
+            return (
+                T,
+                converged,
+                (f"scale is not at the residual minimum (a {better.scale / T.scale - 1:+.0%} change fits better)"),
+            )
         out = run.levels(better, finest(run.config), estimate_scale=True)
         if out.T is None:
             return run.failed(better, out.failure)

@@ -67,8 +67,15 @@ def _select_points(ref: ReferenceIndex, S: Sim3, poses, camera, images, config, 
         uv, in_view = camera.project(X)
         px, py = uv[:, 0], uv[:, 1]
         inside = in_view & (px >= 2) & (px <= camera.width - 3) & (py >= 2) & (py <= camera.height - 3)
-        v = visible_nearest(np.nan_to_num(uv), X[:, 2], inside, width=camera.width, height=camera.height,
-                            cell_px=config.occlusion_cell_px, depth_tol=config.occlusion_depth_tol)
+        v = visible_nearest(
+            np.nan_to_num(uv),
+            X[:, 2],
+            inside,
+            width=camera.width,
+            height=camera.height,
+            cell_px=config.occlusion_cell_px,
+            depth_tol=config.occlusion_depth_tol,
+        )
         if np.any(v):
             vals, _ = sample(images[u], uv[v])
             grad[u, v] = np.hypot(vals[:, 1], vals[:, 2])
@@ -95,8 +102,9 @@ def _select_points(ref: ReferenceIndex, S: Sim3, poses, camera, images, config, 
 def _undistorted(camera: PinholeCamera, keyframes):
     if not camera.has_distortion:
         return camera, [img for _, img in keyframes]
-    pinhole = PinholeCamera(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy,
-                            width=camera.width, height=camera.height)
+    pinhole = PinholeCamera(
+        fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width, height=camera.height
+    )
     return pinhole, [cv2.undistort(np.asarray(img), camera.K, np.array(camera.dist)) for _, img in keyframes]
 
 
@@ -191,22 +199,32 @@ class _FineState:
     n_res: int = 0
 
 
-def _inputs(ref_points, ref_intensities, cur_keyframes, camera: PinholeCamera, init: Sim3,
-            config: FineAlignConfig) -> _FineInputs:
+def _inputs(
+    ref_points, ref_intensities, cur_keyframes, camera: PinholeCamera, init: Sim3, config: FineAlignConfig
+) -> _FineInputs:
     """Check and prepare the inputs: the last keyframes, undistorted; the reference index."""
     if len(cur_keyframes) < 2:
         raise ValueError("fine alignment needs at least 2 current keyframes")
     keyframes = list(cur_keyframes)[-config.max_keyframes :]
-    ref = ref_points if isinstance(ref_points, ReferenceIndex) else ReferenceIndex(
-        np.asarray(ref_points, dtype=float), intensities=ref_intensities
+    ref = (
+        ref_points
+        if isinstance(ref_points, ReferenceIndex)
+        else ReferenceIndex(np.asarray(ref_points, dtype=float), intensities=ref_intensities)
     )
     cam, raw_images = _undistorted(camera, keyframes)
     for img in raw_images:
         if np.asarray(img).shape[:2] != (cam.height, cam.width):
             raise ValueError(f"keyframe image is {np.asarray(img).shape[:2]}, camera is {(cam.height, cam.width)}")
-    return _FineInputs(ref=ref, camera=cam, raw_images=raw_images, init=init, S0=init.inverse(),
-                       poses0=[np.array(T, dtype=float) for T, _ in keyframes],
-                       rng=np.random.default_rng(config.seed), config=config)
+    return _FineInputs(
+        ref=ref,
+        camera=cam,
+        raw_images=raw_images,
+        init=init,
+        S0=init.inverse(),
+        poses0=[np.array(T, dtype=float) for T, _ in keyframes],
+        rng=np.random.default_rng(config.seed),
+        config=config,
+    )
 
 
 def _geometric_matches(ctx: _FineInputs, cur_points: np.ndarray) -> GeometricMatches | None:
@@ -238,8 +256,7 @@ def _geometric_matches(ctx: _FineInputs, cur_points: np.ndarray) -> GeometricMat
     return GeometricMatches(x=x, q=q, n=n, sigma_g=sigma_g, sigma_t=sigma_t)
 
 
-def _refine_level(state: _FineState, ctx: _FineInputs, geo: GeometricMatches | None, level: int,
-                  blur: float) -> None:
+def _refine_level(state: _FineState, ctx: _FineInputs, geo: GeometricMatches | None, level: int, blur: float) -> None:
     """One blur level: keyframe poses with ``E_p`` (Eq. 16), then the similarity (Eqs. 17-18)."""
     config = ctx.config
     images = [prepare_keyframe(img, blur_sigma=blur) for img in ctx.raw_images]
@@ -248,8 +265,9 @@ def _refine_level(state: _FineState, ctx: _FineInputs, geo: GeometricMatches | N
         state.notes.append(f"level {level}: only {len(pt)} photometric observations")
         state.converged = False
         return
-    obs = PhotometricObservations(camera=ctx.camera, images=images, ref_pts=ctx.ref.points[sel], pt=pt, kf=kf,
-                                  n_kf=len(state.poses))
+    obs = PhotometricObservations(
+        camera=ctx.camera, images=images, ref_pts=ctx.ref.points[sel], pt=pt, kf=kf, n_kf=len(state.poses)
+    )
     r0, ok0, _ = obs.residuals(state.S, state.poses, block=None)
     sigma_p = max(1.4826 * float(np.median(np.abs(r0[ok0]))) if ok0.any() else 0.0, config.min_photometric_sigma)
     problem = FineProblem(obs, geo, alpha=config.alpha, sigma_p=sigma_p)
@@ -266,7 +284,9 @@ def _refine_level(state: _FineState, ctx: _FineInputs, geo: GeometricMatches | N
         state.poses, it, _ = minimise_subset(
             lambda poses, jac: problem.cost(S, poses, block=Block.KEYFRAMES if jac else None, with_geometry=False),
             lambda poses, delta: [T @ exp_se3(delta[6 * u : 6 * u + 6]) for u, T in enumerate(poses)],
-            state.poses, iterations=config.keyframe_iterations, free=np.arange(6 * K),
+            state.poses,
+            iterations=config.keyframe_iterations,
+            free=np.arange(6 * K),
             gauge=np.tile(np.eye(6), (1, K)) / K,
         )
         state.iterations += it
@@ -275,7 +295,9 @@ def _refine_level(state: _FineState, ctx: _FineInputs, geo: GeometricMatches | N
     state.S, it, _ = minimise_subset(
         lambda S, jac: problem.cost(S, poses, block=Block.SIMILARITY if jac else None, with_geometry=True),
         lambda S, delta: Sim3.exp(delta) @ S,
-        state.S, iterations=config.similarity_iterations, free=free_sim,
+        state.S,
+        iterations=config.similarity_iterations,
+        free=free_sim,
     )
     state.iterations += it
 
@@ -303,8 +325,15 @@ def _health(state: _FineState, T: Sim3, ctx: _FineInputs, cur_points: np.ndarray
     else:
         nan = float("nan")
         residuals = ResidualStats(count=0, rms_mm=nan, median_mm=nan, inlier_threshold_mm=nan)
-        geo_health = AlignmentHealth(ok=True, reason=HEALTH_OK, converged=state.converged, overlap=nan,
-                                     inlier_ratio=nan, condition_ratio=nan, degenerate=False)
+        geo_health = AlignmentHealth(
+            ok=True,
+            reason=HEALTH_OK,
+            converged=state.converged,
+            overlap=nan,
+            inlier_ratio=nan,
+            condition_ratio=nan,
+            degenerate=False,
+        )
     if not geo_health.ok:
         problems.append(geo_health.reason)
     if not state.converged:

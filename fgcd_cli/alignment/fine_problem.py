@@ -205,8 +205,9 @@ class FineProblem:
         Robust scale of the photometric residuals (grey levels).
     """
 
-    def __init__(self, obs: PhotometricObservations, geo: GeometricMatches | None, *, alpha: float,
-                 sigma_p: float) -> None:
+    def __init__(
+        self, obs: PhotometricObservations, geo: GeometricMatches | None, *, alpha: float, sigma_p: float
+    ) -> None:
         self.obs = obs
         self.geo = geo
         self.alpha = alpha

@@ -24,8 +24,14 @@ import numpy as np
 
 from fgcd_cli.alignment.results import HEALTH_OK, AlignmentHealth, ResidualStats
 
-__all__ = ["similarity_conditioning", "scale_conditioning", "residual_stats", "HealthEvidence", "HealthLimits",
-           "assess"]
+__all__ = [
+    "similarity_conditioning",
+    "scale_conditioning",
+    "residual_stats",
+    "HealthEvidence",
+    "HealthLimits",
+    "assess",
+]
 
 _PARAM_NAMES = ("tx", "ty", "tz", "rx", "ry", "rz", "scale")
 
@@ -110,8 +116,9 @@ def residual_stats(distances: np.ndarray, *, inlier_threshold: float) -> Residua
     d = d[np.isfinite(d)]
     inl = d[d < inlier_threshold]
     if len(inl) == 0:
-        return ResidualStats(count=len(d), rms_mm=float("nan"), median_mm=float("nan"),
-                             inlier_threshold_mm=inlier_threshold * 1e3)
+        return ResidualStats(
+            count=len(d), rms_mm=float("nan"), median_mm=float("nan"), inlier_threshold_mm=inlier_threshold * 1e3
+        )
     return ResidualStats(
         count=len(d),
         rms_mm=float(np.sqrt(np.mean(inl**2)) * 1e3),
@@ -203,15 +210,26 @@ def assess(
     weak = weak_direction_names(w, V, limit=limits.min_condition_ratio) if ratio < limits.min_condition_ratio else ()
     remaining: tuple[float, ...] = ()
     if weak and probe is not None and len(evidence.matched_points) >= 7:
-        remaining = tuple(float(r) for r in probe(np.asarray(evidence.matched_points, dtype=float),
-                                                  V[:, : min(len(weak), limits.probe_directions)]))
+        remaining = tuple(
+            float(r)
+            for r in probe(
+                np.asarray(evidence.matched_points, dtype=float), V[:, : min(len(weak), limits.probe_directions)]
+            )
+        )
         degenerate = not remaining or max(remaining) > limits.probe_return
     else:
         degenerate = bool(weak)
-    problems = _problems(evidence, limits, overlap=overlap, inlier_ratio=inlier_ratio,
-                         degenerate=(ratio, weak, remaining) if degenerate else None)
-    scale_measured = (not _problems(evidence, limits, overlap=overlap, inlier_ratio=inlier_ratio, degenerate=None)
-                      and scale_conditioning(w, V) >= limits.min_condition_ratio)
+    problems = _problems(
+        evidence,
+        limits,
+        overlap=overlap,
+        inlier_ratio=inlier_ratio,
+        degenerate=(ratio, weak, remaining) if degenerate else None,
+    )
+    scale_measured = (
+        not _problems(evidence, limits, overlap=overlap, inlier_ratio=inlier_ratio, degenerate=None)
+        and scale_conditioning(w, V) >= limits.min_condition_ratio
+    )
     return AlignmentHealth(
         ok=not problems,
         reason=HEALTH_OK if not problems else "; ".join(problems),
@@ -226,8 +244,9 @@ def assess(
     )
 
 
-def _problems(evidence: HealthEvidence, limits: HealthLimits, *, overlap: float, inlier_ratio: float,
-              degenerate: tuple | None) -> list[str]:
+def _problems(
+    evidence: HealthEvidence, limits: HealthLimits, *, overlap: float, inlier_ratio: float, degenerate: tuple | None
+) -> list[str]:
     """The failed checks, in the order of :attr:`AlignmentHealth.reason`."""
     problems = []
     if not evidence.converged:
@@ -238,8 +257,7 @@ def _problems(evidence: HealthEvidence, limits: HealthLimits, *, overlap: float,
         problems.append(f"inlier ratio {inlier_ratio:.0%} < {limits.min_inlier_ratio:.0%}")
     if degenerate is not None:
         ratio, weak, remaining = degenerate
-        probed = (f"; perturbations along them kept {', '.join(f'{r:.0%}' for r in remaining)}"
-                  if remaining else "")
+        probed = f"; perturbations along them kept {', '.join(f'{r:.0%}' for r in remaining)}" if remaining else ""
         problems.append(
             f"degenerate geometry (condition {ratio:.1e} < {limits.min_condition_ratio:.0e}; "
             f"weak: {'; '.join(weak)}{probed})"

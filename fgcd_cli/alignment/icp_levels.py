@@ -132,8 +132,9 @@ def run_levels(
     """
     R, t, s = T.R, T.t, T.scale
     drift = config.scale.max_drift
-    limits = _RunLimits(estimate_scale=estimate_scale, s_lo=T.scale / (1 + drift), s_hi=T.scale * (1 + drift),
-                        ignore_ref=ignore_ref)
+    limits = _RunLimits(
+        estimate_scale=estimate_scale, s_lo=T.scale / (1 + drift), s_hi=T.scale * (1 + drift), ignore_ref=ignore_ref
+    )
     iterations = 0
     converged = False
     for index in levels:
@@ -182,8 +183,11 @@ def _iteration(ref: ReferenceIndex, level: _Level, pose, limits: _RunLimits, con
     dv = d[valid]
     r_floor = config.rigid.min_inlier_spacing * ref.spacing
     r_in = float(np.clip(config.rigid.inlier_factor * np.median(dv), r_floor, level.r_max))
-    matches = _Matches(q=ref.points[idx[valid]], normals=ref.normals[idx[valid]],
-                       weights=None if level.weights is None else level.weights[valid])
+    matches = _Matches(
+        q=ref.points[idx[valid]],
+        normals=ref.normals[idx[valid]],
+        weights=None if level.weights is None else level.weights[valid],
+    )
     dT, inl = _rigid_step(y[valid], matches, dv, r_in, config.levels.metric[level.index], config.rigid)
     R = dT[:3, :3] @ R
     t = dT[:3, :3] @ t + dT[:3, 3]
@@ -192,16 +196,27 @@ def _iteration(ref: ReferenceIndex, level: _Level, pose, limits: _RunLimits, con
     return (R, t, s), r_in, y
 
 
-def _rigid_step(y: np.ndarray, m: _Matches, dv: np.ndarray, r_in: float, metric: IcpMetric,
-                rigid: RigidStepConfig) -> tuple[np.ndarray, np.ndarray]:
+def _rigid_step(
+    y: np.ndarray, m: _Matches, dv: np.ndarray, r_in: float, metric: IcpMetric, rigid: RigidStepConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """Robust rigid increment ``dT`` (4, 4) of the matched points ``y`` and its inlier mask (Eq. 13)."""
     if metric == IcpMetric.POINT:
         return sparse_point_to_point_step(
-            y, m.q, inlier_distance=r_in, p=rigid.sparse_p, admm_iterations=rigid.admm_iterations, weights=m.weights,
+            y,
+            m.q,
+            inlier_distance=r_in,
+            p=rigid.sparse_p,
+            admm_iterations=rigid.admm_iterations,
+            weights=m.weights,
         )
     if rigid.robust == RobustKernel.SPARSE:
         return sparse_point_to_plane_step(
-            y, m.q, m.normals, inlier_distance=r_in, p=rigid.sparse_p, admm_iterations=rigid.admm_iterations,
+            y,
+            m.q,
+            m.normals,
+            inlier_distance=r_in,
+            p=rigid.sparse_p,
+            admm_iterations=rigid.admm_iterations,
             weights=m.weights,
         )
     if rigid.robust == RobustKernel.TRIMMED:
@@ -211,8 +226,15 @@ def _rigid_step(y: np.ndarray, m: _Matches, dv: np.ndarray, r_in: float, metric:
     raise ValueError(f"unknown robust method {rigid.robust!r}")
 
 
-def _scale_step(a: np.ndarray, ts: tuple[np.ndarray, float], m: _Matches, inl: np.ndarray, r_in: float,
-                limits: _RunLimits, cfg: ScaleStepConfig) -> tuple[float, np.ndarray]:
+def _scale_step(
+    a: np.ndarray,
+    ts: tuple[np.ndarray, float],
+    m: _Matches,
+    inl: np.ndarray,
+    r_in: float,
+    limits: _RunLimits,
+    cfg: ScaleStepConfig,
+) -> tuple[float, np.ndarray]:
     """Closed-form scale with the translation re-solved (Eq. 15), over the trimmed inliers.
 
     ``a`` (K, 3) are the rotated current points; returns ``(s, t)``, unchanged when fewer

@@ -106,8 +106,12 @@ def global_registration(
     # there (they would multiply the cost by ~10); the final run below has them.
     coarse = replace(
         config,
-        levels=replace(levels, points=levels.points[:2], radius_rel=levels.radius_rel[:2],
-                       iterations=tuple(min(20, n) for n in levels.iterations[:2])),
+        levels=replace(
+            levels,
+            points=levels.points[:2],
+            radius_rel=levels.radius_rel[:2],
+            iterations=tuple(min(20, n) for n in levels.iterations[:2]),
+        ),
         cold=replace(config.cold, shift_steps=0, scale_refinements=0),
         minimum_check=replace(config.minimum_check, step=0.0),
     )
@@ -167,18 +171,23 @@ def initial_guess(
                 scale = d_ref / d_cur
     prior = camera_prior(T_ref_camref, T_cur_cam0, scale=scale)
     if not have_clouds:
-        return InitialGuess(T_ref_cur=prior, source=GuessSource.FIRST_CAMERA, fast=None,
-                            seconds=time.perf_counter() - t0)
+        return InitialGuess(
+            T_ref_cur=prior, source=GuessSource.FIRST_CAMERA, fast=None, seconds=time.perf_counter() - t0
+        )
     fast = fast_align(cur_points, ref, init=prior, config=config)
     # Degenerate geometry (a plane, a sphere) is not cured by other starts: they only find
     # other, equally good-looking fits (docs/alignment.md, "Initial guess and global fallback").
-    only_degenerate = (fast.health.degenerate and fast.health.inlier_ratio >= config.health.min_inlier_ratio
-                       and fast.health.overlap >= config.health.min_overlap)
+    only_degenerate = (
+        fast.health.degenerate
+        and fast.health.inlier_ratio >= config.health.min_inlier_ratio
+        and fast.health.overlap >= config.health.min_overlap
+    )
     # Too few current points: the multi-start has nothing to rotate either.
     too_few = len(np.asarray(cur_points).reshape(-1, 3)) < MIN_CURRENT_POINTS
     if fast.health.ok or not global_fallback or only_degenerate or too_few:
-        return InitialGuess(T_ref_cur=fast.T_ref_cur, source=GuessSource.FIRST_CAMERA_FAST, fast=fast,
-                            seconds=time.perf_counter() - t0)
+        return InitialGuess(
+            T_ref_cur=fast.T_ref_cur, source=GuessSource.FIRST_CAMERA_FAST, fast=fast, seconds=time.perf_counter() - t0
+        )
     glob = global_registration(cur_points, ref, config=config, around=prior)
     chosen = glob if (glob.health.ok or glob.health.inlier_ratio > fast.health.inlier_ratio) else fast
     return InitialGuess(

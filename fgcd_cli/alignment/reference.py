@@ -201,8 +201,13 @@ class ReferenceIndex:
                 T = np.asarray(T_ref_cam, dtype=float)
                 uv, in_view = camera.project((self.points[rim] - T[:3, 3]) @ T[:3, :3])
                 m = 0.08 * min(camera.width, camera.height)
-                inner = in_view & (uv[:, 0] >= m) & (uv[:, 0] <= camera.width - 1 - m) \
-                    & (uv[:, 1] >= m) & (uv[:, 1] <= camera.height - 1 - m)
+                inner = (
+                    in_view
+                    & (uv[:, 0] >= m)
+                    & (uv[:, 0] <= camera.width - 1 - m)
+                    & (uv[:, 1] >= m)
+                    & (uv[:, 1] <= camera.height - 1 - m)
+                )
                 # An outline faces the camera up to where it ends; a limb (a sphere's or a
                 # drum's occluding contour) turns away from it and moves with the viewpoint.
                 rays = self.points[rim] - T[:3, 3]

@@ -185,9 +185,7 @@ def trimmed_point_to_plane_step(y: np.ndarray, q: np.ndarray, n: np.ndarray, *, 
     return out
 
 
-def scale_step_point_to_plane(
-    a: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray
-) -> tuple[float, np.ndarray]:
+def scale_step_point_to_plane(a: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
     """Closed-form scale step (Eq. 15 in point-to-plane form) with the rotation fixed.
 
     Minimises ``sum_i w_i (n_i . (s a_i + t - q_i))^2`` over the scale ``s`` and

@@ -168,9 +168,7 @@ def sample_sphere(n: int, *, rng: np.random.Generator, radius: float = 0.25) -> 
     return radius * v, v
 
 
-def random_similarity(
-    rng: np.random.Generator, *, rotation_deg: float, translation_m: float, scale_rel: float
-) -> Sim3:
+def random_similarity(rng: np.random.Generator, *, rotation_deg: float, translation_m: float, scale_rel: float) -> Sim3:
     """A similarity with rotation angle, translation norm and ``|scale - 1|`` of the given sizes (random axes/signs)."""
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
@@ -274,8 +272,11 @@ def make_session(
         T_ref_cam = look_at(eye, target)
         img, depth = scene.render(camera, T_ref_cam)
         T_cur_cam_true = T_ref_cur.inverse().transform_pose(T_ref_cam)
-        noise = exp_se3(np.concatenate([rng.normal(0, cfg.pose_noise_m, 3) / T_ref_cur.scale,
-                                        np.radians(rng.normal(0, cfg.pose_noise_deg, 3))]))
+        noise = exp_se3(
+            np.concatenate(
+                [rng.normal(0, cfg.pose_noise_m, 3) / T_ref_cur.scale, np.radians(rng.normal(0, cfg.pose_noise_deg, 3))]
+            )
+        )
         T_cur_cam = T_cur_cam_true @ noise
         # Semi-dense: pixels with strong gradient, as a direct VSE keeps them.
         gy, gx = np.gradient(img.astype(float))

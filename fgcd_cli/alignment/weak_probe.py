@@ -82,11 +82,14 @@ def probe_weak_directions(
         q = q[:: len(q) // 2000 + 1]
     size = max(config.probe.rel * ref.width, 3.0 * ref.roughness)
     levels = config.levels
-    probe_config = replace(config, levels=replace(
-        levels,
-        points=levels.points[:-1] + (config.probe.points,),
-        iterations=levels.iterations[:-1] + (config.probe.iterations,),
-    ))
+    probe_config = replace(
+        config,
+        levels=replace(
+            levels,
+            points=levels.points[:-1] + (config.probe.points,),
+            iterations=levels.iterations[:-1] + (config.probe.iterations,),
+        ),
+    )
     order = np.random.default_rng(config.seed + 1).permutation(len(cur_points))
     inputs = LevelInputs(cur=cur_points, weights=None, ref=ref, order=order)
     out = []
@@ -103,8 +106,9 @@ def probe_weak_directions(
         # point-to-plane residuals of a curved cloud pull a perturbation back although the
         # rim is only where the camera stopped seeing. The object's own outline stays: it
         # pins a stele's height (docs/alignment.md, "Health").
-        T_back = run_levels(inputs, start, finest(config), probe_config,
-                            estimate_scale=config.scale.estimate, ignore_ref=ref.view_rim).T
+        T_back = run_levels(
+            inputs, start, finest(config), probe_config, estimate_scale=config.scale.estimate, ignore_ref=ref.view_rim
+        ).T
         if T_back is None:
             out.append(math.inf)
             continue

@@ -77,9 +77,11 @@ def measure_afd(request: AfdRequest) -> AfdMeasurement:
     if r.pairs is not None:
         result = compute_fdf(ref_image, cur_image, config=FdfConfig(method="pairs"), pairs=read_pairs_csv(r.pairs))
     else:
-        result = compute_fdf(ref_image, cur_image,
-                             config=FdfConfig(method="grid" if r.grid else "sift", ratio=r.ratio,
-                                              ransac_px=r.ransac_px))
+        result = compute_fdf(
+            ref_image,
+            cur_image,
+            config=FdfConfig(method="grid" if r.grid else "sift", ratio=r.ratio, ransac_px=r.ransac_px),
+        )
     record = result.as_dict()
     record["reference"], record["current"] = str(r.ref), str(r.cur)
     return AfdMeasurement(result=result, record=record, ref_image=ref_image)
@@ -91,5 +93,14 @@ def write_fdf_figure(measurement: AfdMeasurement, output: Path) -> None:
     from fgcd_cli.report.figures import fdf_quiver_png
 
     result = measurement.result
-    atomic_write_bytes(output, fdf_quiver_png(measurement.ref_image, result.points_ref, result.points_cur,
-                                              afd_px=result.afd_px, inliers=result.inliers, method=result.method))
+    atomic_write_bytes(
+        output,
+        fdf_quiver_png(
+            measurement.ref_image,
+            result.points_ref,
+            result.points_cur,
+            afd_px=result.afd_px,
+            inliers=result.inliers,
+            method=result.method,
+        ),
+    )

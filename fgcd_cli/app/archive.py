@@ -72,9 +72,14 @@ class PlannedVisit:
 
     def to_dict(self) -> dict:
         """JSON-ready form."""
-        return {"campaign": self.key.campaign, "station": self.key.station, "visit": self.key.visit,
-                "state": self.state.value if self.state else None, "problem": self.problem,
-                "to_do": self.needs_work}
+        return {
+            "campaign": self.key.campaign,
+            "station": self.key.station,
+            "visit": self.key.visit,
+            "state": self.state.value if self.state else None,
+            "problem": self.problem,
+            "to_do": self.needs_work,
+        }
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -107,10 +112,18 @@ class ArchiveResult:
 
     def to_dict(self) -> dict:
         """JSON-ready form (the ``--json`` output)."""
-        return {"campaigns": self.campaigns, "visits": len(self.outcomes), "done": self.count(VisitStatus.DONE),
-                "skipped": self.count(VisitStatus.SKIPPED), "failed": self.count(VisitStatus.FAILED),
-                "scheduler": self.scheduler, "workers": self.workers, "start_s": round(self.start_s, 3),
-                "run_s": round(self.run_s, 3), "outcomes": [o.to_dict() for o in self.outcomes]}
+        return {
+            "campaigns": self.campaigns,
+            "visits": len(self.outcomes),
+            "done": self.count(VisitStatus.DONE),
+            "skipped": self.count(VisitStatus.SKIPPED),
+            "failed": self.count(VisitStatus.FAILED),
+            "scheduler": self.scheduler,
+            "workers": self.workers,
+            "start_s": round(self.start_s, 3),
+            "run_s": round(self.run_s, 3),
+            "outcomes": [o.to_dict() for o in self.outcomes],
+        }
 
 
 def _check(request: ArchiveRequest) -> None:
@@ -158,22 +171,34 @@ def dask_client(*, scheduler: str | None, workers: int) -> Iterator:
             try:  # a scheduler without workers would hold the tasks for ever
                 client.wait_for_workers(1, timeout=WORKER_WAIT_S)
             except TimeoutError:
-                raise FgcdError(f"the Dask scheduler at {scheduler} has no worker (waited {WORKER_WAIT_S:.0f} s); "
-                                f"start some with `dask worker {scheduler}`") from None
+                raise FgcdError(
+                    f"the Dask scheduler at {scheduler} has no worker (waited {WORKER_WAIT_S:.0f} s); "
+                    f"start some with `dask worker {scheduler}`"
+                ) from None
             yield client
         finally:
             client.close()
         return
     # The scheduler's HTTP endpoint (health, metrics) is served even with the dashboard off: on a free local port.
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster, \
-            Client(cluster) as client:
+    with (
+        LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+        ) as cluster,
+        Client(cluster) as client,
+    ):
         yield client
 
 
 def _label(result_counts: dict[VisitStatus, int]) -> str:
-    return (f"analysing visits ({result_counts[VisitStatus.DONE]} done, {result_counts[VisitStatus.SKIPPED]} skipped, "
-            f"{result_counts[VisitStatus.FAILED]} failed)")
+    return (
+        f"analysing visits ({result_counts[VisitStatus.DONE]} done, {result_counts[VisitStatus.SKIPPED]} skipped, "
+        f"{result_counts[VisitStatus.FAILED]} failed)"
+    )
 
 
 def _lost(key: VisitKey, exc: BaseException) -> VisitOutcome:
@@ -182,14 +207,23 @@ def _lost(key: VisitKey, exc: BaseException) -> VisitOutcome:
     return VisitOutcome(key=key, status=VisitStatus.FAILED, reason=f"the task was lost ({type(exc).__name__}: {text})")
 
 
-def _run_tasks(client, keys: list[VisitKey], request: ArchiveRequest, on_progress: ProgressCallback | None,
-               on_visit: Callable[[VisitOutcome], None] | None) -> dict[VisitKey, VisitOutcome]:
+def _run_tasks(
+    client,
+    keys: list[VisitKey],
+    request: ArchiveRequest,
+    on_progress: ProgressCallback | None,
+    on_visit: Callable[[VisitOutcome], None] | None,
+) -> dict[VisitKey, VisitOutcome]:
     from distributed import as_completed
 
     counts = {status: 0 for status in VisitStatus}
     run = uuid.uuid4().hex[:8]  # task keys unique to this run: another client of the same cluster has its own
-    futures = {client.submit(analyze_visit, key, request.options, request.force, pure=False,
-                             key=f"fgcd-visit-{run}-{i}-{key.label}"): key for i, key in enumerate(keys)}
+    futures = {
+        client.submit(
+            analyze_visit, key, request.options, request.force, pure=False, key=f"fgcd-visit-{run}-{i}-{key.label}"
+        ): key
+        for i, key in enumerate(keys)
+    }
     outcomes: dict[VisitKey, VisitOutcome] = {}
     try:
         for future in as_completed(list(futures)):
@@ -210,8 +244,12 @@ def _run_tasks(client, keys: list[VisitKey], request: ArchiveRequest, on_progres
     return outcomes
 
 
-def analyze_archive(request: ArchiveRequest, *, on_progress: ProgressCallback | None = None,
-                    on_visit: Callable[[VisitOutcome], None] | None = None) -> ArchiveResult:
+def analyze_archive(
+    request: ArchiveRequest,
+    *,
+    on_progress: ProgressCallback | None = None,
+    on_visit: Callable[[VisitOutcome], None] | None = None,
+) -> ArchiveResult:
     """Analyse every visit under ``request.roots`` on Dask; up-to-date visits are skipped.
 
     Parameters
@@ -234,6 +272,11 @@ def analyze_archive(request: ArchiveRequest, *, on_progress: ProgressCallback | 
         t1 = time.perf_counter()
         outcomes = _run_tasks(client, keys, request, on_progress, on_visit) if keys else {}
         run_s = time.perf_counter() - t1
-    return ArchiveResult(campaigns=len(campaigns), outcomes=[outcomes[k] for k in keys],
-                         scheduler=str(info.get("address", request.scheduler or "")),
-                         workers=len(info.get("workers", {})), start_s=start_s, run_s=run_s)
+    return ArchiveResult(
+        campaigns=len(campaigns),
+        outcomes=[outcomes[k] for k in keys],
+        scheduler=str(info.get("address", request.scheduler or "")),
+        workers=len(info.get("workers", {})),
+        start_s=start_s,
+        run_s=run_s,
+    )

@@ -21,8 +21,15 @@ from fgcd_cli.campaign.atomic import atomic_write_bytes
 from fgcd_cli.campaign.store import open_campaign
 from fgcd_cli.errors import DataIntegrityError, UserInputError
 
-__all__ = ["HistoryRequest", "StationHistory", "SiteHistory", "station_tracks", "archive_history", "track_growth",
-           "visit_date"]
+__all__ = [
+    "HistoryRequest",
+    "StationHistory",
+    "SiteHistory",
+    "station_tracks",
+    "archive_history",
+    "track_growth",
+    "visit_date",
+]
 
 _REGIONS = schema.change_relpath(schema.REGIONS_JSON)
 _MASK = schema.change_relpath(schema.CHANGE_MASK_PNG)
@@ -82,9 +89,16 @@ class StationHistory:
 
     def to_dict(self) -> dict:
         """JSON-ready form (images left out)."""
-        return {"campaign": self.campaign, "station": self.station, "analysed": self.analysed,
-                "not_analysed": self.not_analysed, "unit": self.unit, "new_area": self.new_area,
-                "grown_area": self.grown_area, "tracks": [t.to_dict() for t in self.tracks]}
+        return {
+            "campaign": self.campaign,
+            "station": self.station,
+            "analysed": self.analysed,
+            "not_analysed": self.not_analysed,
+            "unit": self.unit,
+            "new_area": self.new_area,
+            "grown_area": self.grown_area,
+            "tracks": [t.to_dict() for t in self.tracks],
+        }
 
 
 @dataclass(kw_only=True)
@@ -98,8 +112,12 @@ class SiteHistory:
 
     def to_dict(self) -> dict:
         """JSON-ready form."""
-        return {"campaign": self.campaign, "site": self.site, "page": self.page,
-                "stations": [s.to_dict() for s in self.stations]}
+        return {
+            "campaign": self.campaign,
+            "site": self.site,
+            "page": self.page,
+            "stations": [s.to_dict() for s in self.stations],
+        }
 
 
 def track_growth(track: RegionTrack) -> str:
@@ -127,8 +145,13 @@ def _visit_regions(visit) -> VisitRegions:
 
     summary = visit.json(_REGIONS)
     mask = decode_png(visit.bytes(_MASK)) > 0
-    return VisitRegions(visit=visit.name, date=visit_date(visit), comparable=bool(summary.get("comparable")),
-                        regions=list(summary.get("regions") or []), mask=mask)
+    return VisitRegions(
+        visit=visit.name,
+        date=visit_date(visit),
+        comparable=bool(summary.get("comparable")),
+        regions=list(summary.get("regions") or []),
+        mask=mask,
+    )
 
 
 def _latest_gains(history: StationHistory) -> None:
@@ -151,8 +174,12 @@ def station_tracks(campaign: Path, station: str) -> StationHistory:
         except DataIntegrityError:  # a damaged visit is named by its caller (`fgcd report`); the others are tracked
             history.not_analysed.append(name)
             continue
-        if visit.has(_REGIONS) and visit.has(_MASK) and (visit.path / _REGIONS).is_file() \
-                and (visit.path / _MASK).is_file():
+        if (
+            visit.has(_REGIONS)
+            and visit.has(_MASK)
+            and (visit.path / _REGIONS).is_file()
+            and (visit.path / _MASK).is_file()
+        ):
             visits.append(_visit_regions(visit))
             history.analysed.append(name)
             history.overlay_png = visit.bytes(_OVERLAY) if visit.has(_OVERLAY) else history.overlay_png
@@ -187,4 +214,3 @@ def archive_history(request: HistoryRequest) -> list[SiteHistory]:
     if not campaigns:
         raise UserInputError(f"no campaign (no {schema.CAMPAIGN_FILE}) under {', '.join(map(str, request.roots))}")
     return [_site(path) for path in campaigns]
-

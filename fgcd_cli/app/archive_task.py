@@ -62,9 +62,16 @@ class VisitOutcome:
 
     def to_dict(self) -> dict:
         """JSON-ready form."""
-        return {"campaign": self.key.campaign, "station": self.key.station, "visit": self.key.visit,
-                "status": self.status.value, "reason": self.reason, "regions": self.regions,
-                "seconds": round(self.seconds, 3), "worker_peak_rss_mb": round(self.worker_peak_rss_mb, 1)}
+        return {
+            "campaign": self.key.campaign,
+            "station": self.key.station,
+            "visit": self.key.visit,
+            "status": self.status.value,
+            "reason": self.reason,
+            "regions": self.regions,
+            "seconds": round(self.seconds, 3),
+            "worker_peak_rss_mb": round(self.worker_peak_rss_mb, 1),
+        }
 
 
 def _peak_rss_mb() -> float:
@@ -90,17 +97,35 @@ def _analyze(key: VisitKey, options: AnalysisOptions, force: bool, t0: float) ->
     reference, visit = _open(key)
     state = freshness(reference, visit, options)
     if state == Freshness.UP_TO_DATE and not force:
-        return VisitOutcome(key=key, status=VisitStatus.SKIPPED, reason=state.value,
-                            seconds=time.perf_counter() - t0, worker_peak_rss_mb=_peak_rss_mb())
+        return VisitOutcome(
+            key=key,
+            status=VisitStatus.SKIPPED,
+            reason=state.value,
+            seconds=time.perf_counter() - t0,
+            worker_peak_rss_mb=_peak_rss_mb(),
+        )
     inputs = analysis_inputs(reference, visit)
     verify_inputs(reference, visit, inputs)
-    data = run_campaign(request=CampaignDiffRequest(
-        campaign=Path(key.campaign), station=key.station, visit=key.visit, mm_per_px=options.mm_per_px,
-        register=options.register, edge_check_px=options.edge_check_px, force=force))
+    data = run_campaign(
+        request=CampaignDiffRequest(
+            campaign=Path(key.campaign),
+            station=key.station,
+            visit=key.visit,
+            mm_per_px=options.mm_per_px,
+            register=options.register,
+            edge_check_px=options.edge_check_px,
+            force=force,
+        )
+    )
     # run_campaign wrote changes/analysis.json last (the options and inputs above): its presence means "complete"
-    return VisitOutcome(key=key, status=VisitStatus.DONE, reason="forced" if force else state.value,
-                        regions=len(data.get("regions") or []), seconds=time.perf_counter() - t0,
-                        worker_peak_rss_mb=_peak_rss_mb())
+    return VisitOutcome(
+        key=key,
+        status=VisitStatus.DONE,
+        reason="forced" if force else state.value,
+        regions=len(data.get("regions") or []),
+        seconds=time.perf_counter() - t0,
+        worker_peak_rss_mb=_peak_rss_mb(),
+    )
 
 
 def analyze_visit(key: VisitKey, options: AnalysisOptions = AnalysisOptions(), force: bool = False) -> VisitOutcome:
@@ -132,5 +157,10 @@ def analyze_visit(key: VisitKey, options: AnalysisOptions = AnalysisOptions(), f
         else:
             text = f"{type(exc).__name__}: {exc}"
         line = (text.strip().splitlines() or [type(exc).__name__])[0]
-        return VisitOutcome(key=key, status=VisitStatus.FAILED, reason=line, seconds=time.perf_counter() - t0,
-                            worker_peak_rss_mb=_peak_rss_mb())
+        return VisitOutcome(
+            key=key,
+            status=VisitStatus.FAILED,
+            reason=line,
+            seconds=time.perf_counter() - t0,
+            worker_peak_rss_mb=_peak_rss_mb(),
+        )

@@ -22,10 +22,23 @@ from fgcd_cli.calibration.procedure import TargetFreeRun, TargetRun
 from fgcd_cli.errors import UserInputError
 from fgcd_core.camera import PinholeCamera
 
-__all__ = ["HandEyeMode", "HandEyePlan", "HandEyeRequest", "HandEyeRig", "HandEyeCalibration", "MAX_HANDEYE_RMS_MM",
-           "MAX_HANDEYE_REPROJECTION_PX", "calibrate_sim_handeye", "calibrate_sim_intrinsics",
-           "check_handeye_options", "handeye_rotation_deg", "handeye_unusable", "plan_handeye", "run_handeye",
-           "store_handeye"]
+__all__ = [
+    "HandEyeMode",
+    "HandEyePlan",
+    "HandEyeRequest",
+    "HandEyeRig",
+    "HandEyeCalibration",
+    "MAX_HANDEYE_RMS_MM",
+    "MAX_HANDEYE_REPROJECTION_PX",
+    "calibrate_sim_handeye",
+    "calibrate_sim_intrinsics",
+    "check_handeye_options",
+    "handeye_rotation_deg",
+    "handeye_unusable",
+    "plan_handeye",
+    "run_handeye",
+    "store_handeye",
+]
 
 ProgressCallback = Callable[[int, int, str], None]
 
@@ -149,25 +162,43 @@ def run_handeye(
     request = request or HandEyeRequest()
     if request.mode == HandEyeMode.TARGET_FREE:
         run = run_target_free(
-            rig.guard, rig.camera_source, vse_factory or _monocular_vse, camera=rig.intrinsics,
-            config=TargetFreeRunConfig(translation_m=request.translation_mm / 1000, rotation_deg=request.rotation_deg,
-                                       refine=request.refine),
-            progress=say, on_progress=on_progress,
+            rig.guard,
+            rig.camera_source,
+            vse_factory or _monocular_vse,
+            camera=rig.intrinsics,
+            config=TargetFreeRunConfig(
+                translation_m=request.translation_mm / 1000, rotation_deg=request.rotation_deg, refine=request.refine
+            ),
+            progress=say,
+            on_progress=on_progress,
         )
         result, record = run.result, run.result.to_dict()
     else:
         from fgcd_cli.calibration.board import load_board_sidecar
 
         rotation = request.rotation_deg if request.rotation_deg != TARGET_FREE_ROTATION_DEG else TARGET_ROTATION_DEG
-        run = run_target(rig.guard, rig.camera_source, load_board_sidecar(request.board_file), camera=rig.intrinsics,
-                         config=TargetRunConfig(rotation_deg=rotation), progress=say, on_progress=on_progress)
+        run = run_target(
+            rig.guard,
+            rig.camera_source,
+            load_board_sidecar(request.board_file),
+            camera=rig.intrinsics,
+            config=TargetRunConfig(rotation_deg=rotation),
+            progress=say,
+            on_progress=on_progress,
+        )
         result, record = run.result.best, run.result.to_dict()
     record["skipped_stops"] = {str(k): v for k, v in run.skipped.items()}
     return HandEyeCalibration(result=result, record=record, run=run)
 
 
-def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], camera: PinholeCamera | None = None,
-                          on_progress: ProgressCallback | None = None) -> dict:
+def calibrate_sim_handeye(
+    campaign,
+    scenario,
+    *,
+    say: Callable[[str], None],
+    camera: PinholeCamera | None = None,
+    on_progress: ProgressCallback | None = None,
+) -> dict:
     """Target-free hand-eye + scale on the simulated rig of ``scenario``; stored in the campaign rig.
 
     Parameters
@@ -194,8 +225,12 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], cam
         calibration = run_handeye(rig.handles, HandEyeRequest(), say=say, on_progress=on_progress)
     finally:
         rig.close()
-    record = {**calibration.result.to_dict(), "mode": str(HandEyeMode.TARGET_FREE), "driver": "sim",
-              "rig": {"driver": "sim"}}
+    record = {
+        **calibration.result.to_dict(),
+        "mode": str(HandEyeMode.TARGET_FREE),
+        "driver": "sim",
+        "rig": {"driver": "sim"},
+    }
     unusable = handeye_unusable(calibration.result)
     if unusable is not None:  # the demo and the benches keep it, as --accept-residual does, and say so
         say(f"warning: {unusable}; kept for this simulated campaign (`fgcd calibrate hand-eye` refuses it)")
@@ -204,8 +239,9 @@ def calibrate_sim_handeye(campaign, scenario, *, say: Callable[[str], None], cam
     return record
 
 
-def calibrate_sim_intrinsics(campaign, scenario, *, views: int = 16, say: Callable[[str], None],
-                             on_progress: ProgressCallback | None = None):
+def calibrate_sim_intrinsics(
+    campaign, scenario, *, views: int = 16, say: Callable[[str], None], on_progress: ProgressCallback | None = None
+):
     """ChArUco intrinsics of the simulated rig's camera (board views); stored in the campaign rig."""
     from fgcd_cli.app.intrinsics import sim_board_views
     from fgcd_cli.calibration.board import BoardSpec
@@ -282,18 +318,24 @@ def _handeye_world(campaign, rig, *, scene: str | None, seed: int | None):
 
     if rig.driver != Driver.SIM:
         if scene is not None or seed is not None:
-            raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, "
-                                 f"not {rig.driver}")
+            raise UserInputError(
+                f"--scene and --seed choose a simulated world: they need --driver sim, not {rig.driver}"
+            )
         return None
     default = SimScenario()
-    world = (campaign_world(campaign) if campaign is not None
-             else {"scene": default.scene, "seed": default.seed, "noise": default.noise})
-    return check_scenario(SimScenario(scene=scene or world["scene"], seed=world["seed"] if seed is None else seed,
-                                      noise=world["noise"]))
+    world = (
+        campaign_world(campaign)
+        if campaign is not None
+        else {"scene": default.scene, "seed": default.seed, "noise": default.noise}
+    )
+    return check_scenario(
+        SimScenario(scene=scene or world["scene"], seed=world["seed"] if seed is None else seed, noise=world["noise"])
+    )
 
 
-def plan_handeye(campaign, given, request: HandEyeRequest, *, scene: str | None = None,
-                 seed: int | None = None) -> HandEyePlan:
+def plan_handeye(
+    campaign, given, request: HandEyeRequest, *, scene: str | None = None, seed: int | None = None
+) -> HandEyePlan:
     """Check a hand-eye run in the order a person fixes it; nothing is opened, moved or written.
 
     The rig (``given``: :class:`fgcd_cli.app.rig_options.RigOptions`; driver, then its address) -> the mode
@@ -314,8 +356,10 @@ def plan_handeye(campaign, given, request: HandEyeRequest, *, scene: str | None 
     intrinsics = load_intrinsics(campaign) if campaign is not None else None
     if intrinsics is None and rig.driver != Driver.SIM:
         where = "this campaign has none" if campaign is not None else "give -c CAMPAIGN"
-        raise UserInputError(f"hand-eye with a real camera needs calibrated intrinsics ({where}): "
-                             "run `fgcd calibrate intrinsics --images DIR -c CAMPAIGN` first")
+        raise UserInputError(
+            f"hand-eye with a real camera needs calibrated intrinsics ({where}): "
+            "run `fgcd calibrate intrinsics --images DIR -c CAMPAIGN` first"
+        )
     check_campaign_rig(campaign, rig, what="a hand-eye")
     return HandEyePlan(rig=rig, scenario=scenario, intrinsics=intrinsics, request=request)
 
@@ -326,12 +370,16 @@ def handeye_unusable(result: HandEyeResult) -> str | None:
 
     rms = result.rms_mm
     if not math.isfinite(rms) or rms > MAX_HANDEYE_RMS_MM:
-        return (f"the hand-eye's motion pairs disagree by {rms:.1f} mm RMS, beyond the {MAX_HANDEYE_RMS_MM:.0f} mm "
-                f"a session's scale fit accepts")
+        return (
+            f"the hand-eye's motion pairs disagree by {rms:.1f} mm RMS, beyond the {MAX_HANDEYE_RMS_MM:.0f} mm "
+            f"a session's scale fit accepts"
+        )
     px = (result.refinement or {}).get("rms_px")
     if px is not None and (not math.isfinite(px) or px > MAX_HANDEYE_REPROJECTION_PX):
-        return (f"the hand-eye's image refinement reprojects at {px:.2f} px RMS, beyond "
-                f"{MAX_HANDEYE_REPROJECTION_PX:.0f} px (blur, a moving scene or wrong intrinsics)")
+        return (
+            f"the hand-eye's image refinement reprojects at {px:.2f} px RMS, beyond "
+            f"{MAX_HANDEYE_REPROJECTION_PX:.0f} px (blur, a moving scene or wrong intrinsics)"
+        )
     return None
 
 
@@ -346,8 +394,12 @@ def store_handeye(campaign, plan: HandEyePlan, calibration: HandEyeCalibration, 
     unusable = handeye_unusable(calibration.result)
     if campaign is None or (unusable is not None and not accept_residual):
         return None, unusable
-    extra = {"mode": str(plan.request.mode), "driver": plan.rig.driver, "rig": plan.rig.record(),
-             "limits": {"rms_mm": MAX_HANDEYE_RMS_MM, "reprojection_px": MAX_HANDEYE_REPROJECTION_PX}}
+    extra = {
+        "mode": str(plan.request.mode),
+        "driver": plan.rig.driver,
+        "rig": plan.rig.record(),
+        "limits": {"rms_mm": MAX_HANDEYE_RMS_MM, "reprojection_px": MAX_HANDEYE_REPROJECTION_PX},
+    }
     if unusable is not None:
         extra["residual_accepted"] = unusable
     return save_handeye(campaign, calibration.result, extra=extra), None

@@ -13,8 +13,18 @@ from pathlib import Path
 from fgcd_cli.campaign.store import init_campaign, open_campaign
 from fgcd_cli.campaign.verify import counted, verify_campaign_dir
 
-__all__ = ["CampaignInit", "CampaignOverview", "CampaignStations", "add_station", "campaign_overview",
-           "campaign_stations", "create_campaign", "damage_line", "station_observations", "verify"]
+__all__ = [
+    "CampaignInit",
+    "CampaignOverview",
+    "CampaignStations",
+    "add_station",
+    "campaign_overview",
+    "campaign_stations",
+    "create_campaign",
+    "damage_line",
+    "station_observations",
+    "verify",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -84,8 +94,9 @@ class CampaignStations:
 def campaign_stations(campaign_dir: Path) -> CampaignStations:
     """The stations of the campaign in ``campaign_dir`` with their reference and visits."""
     camp = open_campaign(campaign_dir)
-    return CampaignStations(site=camp.site, path=camp.path,
-                            stations=[_station_summary(camp.station(n)) for n in camp.station_names()])
+    return CampaignStations(
+        site=camp.site, path=camp.path, stations=[_station_summary(camp.station(n)) for n in camp.station_names()]
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -111,15 +122,24 @@ class CampaignOverview:
 
     def to_dict(self) -> dict:
         """The JSON object ``fgcd campaign show --json`` prints."""
-        return {"campaign": str(self.path), "config": self.config, "stations": self.stations,
-                "rig_records": self.rig_records}
+        return {
+            "campaign": str(self.path),
+            "config": self.config,
+            "stations": self.stations,
+            "rig_records": self.rig_records,
+        }
 
 
 def campaign_overview(campaign_dir: Path) -> CampaignOverview:
     """The configuration, stations and rig records of the campaign in ``campaign_dir``."""
     camp = open_campaign(campaign_dir)
-    return CampaignOverview(site=camp.site, path=camp.path, config=camp.config, stations=camp.station_names(),
-                            rig_records=sorted(p.stem for p in (camp.path / "rig").glob("*.json")))
+    return CampaignOverview(
+        site=camp.site,
+        path=camp.path,
+        config=camp.config,
+        stations=camp.station_names(),
+        rig_records=sorted(p.stem for p in (camp.path / "rig").glob("*.json")),
+    )
 
 
 def station_observations(campaign_dir: Path, station: str) -> dict:
@@ -131,8 +151,14 @@ def station_observations(campaign_dir: Path, station: str) -> dict:
         obs.append(st.reference())
     obs += st.visits()
     rows = [
-        {"name": o.name, "kind": o.kind, "created": o.manifest.get("created"), "files": len(o.files()),
-         "images": o.image_names(), "metadata": o.metadata}
+        {
+            "name": o.name,
+            "kind": o.kind,
+            "created": o.manifest.get("created"),
+            "files": len(o.files()),
+            "images": o.image_names(),
+            "metadata": o.metadata,
+        }
         for o in obs
     ]
     return {"station": _station_summary(st), "observations": rows}

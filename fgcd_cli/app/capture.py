@@ -28,8 +28,17 @@ from fgcd_core.camera import PinholeCamera
 from fgcd_drivers.connect import Driver
 from fgcd_drivers.lights import LightsSpec
 
-__all__ = ["CapturePlan", "CaptureRequest", "CaptureResult", "CaptureOutcome", "capture_reference", "connection",
-           "open_capture", "plan_capture", "run_capture"]
+__all__ = [
+    "CapturePlan",
+    "CaptureRequest",
+    "CaptureResult",
+    "CaptureOutcome",
+    "capture_reference",
+    "connection",
+    "open_capture",
+    "plan_capture",
+    "run_capture",
+]
 
 
 @dataclass
@@ -70,7 +79,9 @@ def capture_reference(
         T_ref_camref[:3, 3] *= scale.scale
         cloud = state.cloud
         if len(cloud) < 1000:
-            raise AlgorithmError(f"the reference cloud has only {len(cloud)} points: scene too weakly textured for rACR")
+            raise AlgorithmError(
+                f"the reference cloud has only {len(cloud)} points: scene too weakly textured for rACR"
+            )
         points = np.asarray(cloud.points, dtype=float) * scale.scale
         kf_poses, kf_images = metric_keyframes(state, scale.scale)
         images = grab_images(rig, lightings)
@@ -136,9 +147,17 @@ class CapturePlan:
     def rig_request(self) -> RigRequest:
         """The rig this capture opens."""
         rig = self.rig or EffectiveRig(driver=self.driver)
-        return RigRequest(driver=self.driver, T_flange_cam=self.T_flange_cam, intrinsics=self.camera,
-                          scenario=self.scenario, port=rig.port, baud=rig.baud, host=rig.host,
-                          camera_index=rig.camera, lights=self.lights)
+        return RigRequest(
+            driver=self.driver,
+            T_flange_cam=self.T_flange_cam,
+            intrinsics=self.camera,
+            scenario=self.scenario,
+            port=rig.port,
+            baud=rig.baud,
+            host=rig.host,
+            camera_index=rig.camera,
+            lights=self.lights,
+        )
 
 
 def rig_lights(campaign, lightings: list[str]) -> LightsSpec | None:
@@ -160,8 +179,9 @@ def rig_lights(campaign, lightings: list[str]) -> LightsSpec | None:
         return spec
     missing = [n for n in lightings if n != AMBIENT and n not in spec.channels]
     if missing:
-        raise CampaignError(f"campaign.toml [rig.lights] wires no light {', '.join(missing)} "
-                            f"(channels: {', '.join(spec.channels)})")
+        raise CampaignError(
+            f"campaign.toml [rig.lights] wires no light {', '.join(missing)} (channels: {', '.join(spec.channels)})"
+        )
     return spec
 
 
@@ -171,8 +191,10 @@ def check_station_can_take_a_reference(campaign, name: str) -> None:
     if st is None:
         return
     if st.reference_path.exists():
-        raise ImmutableDataError(f"station '{st.name}' already has a reference observation (immutable): "
-                                 "create a new station to capture another reference")
+        raise ImmutableDataError(
+            f"station '{st.name}' already has a reference observation (immutable): "
+            "create a new station to capture another reference"
+        )
 
 
 def _image_lightings(text: str, *, sim: bool) -> list[str]:
@@ -232,11 +254,17 @@ def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
             try:
                 check_scene(world["scene"])
             except UserInputError as exc:
-                raise CampaignError(f"campaign.toml [rig.sim] names a world this simulator lacks: {exc}; "
-                                    "give --scene") from None
-        scenario = check_scenario(SimScenario(scene=r.scene or world["scene"],
-                                              seed=world["seed"] if r.seed is None else r.seed,
-                                              noise=world["noise"], lighting=names[0]))
+                raise CampaignError(
+                    f"campaign.toml [rig.sim] names a world this simulator lacks: {exc}; give --scene"
+                ) from None
+        scenario = check_scenario(
+            SimScenario(
+                scene=r.scene or world["scene"],
+                seed=world["seed"] if r.seed is None else r.seed,
+                noise=world["noise"],
+                lighting=names[0],
+            )
+        )
     elif r.scene is not None or r.seed is not None:
         raise UserInputError(f"--scene and --seed choose a simulated world: they need --driver sim, not {driver}")
     check_campaign_rig(campaign, rig, what="a reference")
@@ -244,12 +272,21 @@ def plan_capture(campaign, request: CaptureRequest) -> CapturePlan:
     T_flange_cam, cam = rig_calibration(campaign)
     if T_flange_cam is None:
         raise CampaignError("no hand-eye calibration in the campaign: run `fgcd calibrate hand-eye` first")
-    check_record_rig(campaign.read_rig(schema.RIG_HANDEYE), rig, name=schema.RIG_HANDEYE,
-                     command="fgcd calibrate hand-eye")
+    check_record_rig(
+        campaign.read_rig(schema.RIG_HANDEYE), rig, name=schema.RIG_HANDEYE, command="fgcd calibrate hand-eye"
+    )
     if driver != Driver.SIM and cam is None:
         raise CampaignError("no camera intrinsics in the campaign: run `fgcd calibrate intrinsics -c CAMPAIGN` first")
-    return CapturePlan(driver=driver, lightings=names, scenario=scenario, T_flange_cam=T_flange_cam, camera=cam,
-                       rig=rig, station=r.station, lights=lights)
+    return CapturePlan(
+        driver=driver,
+        lightings=names,
+        scenario=scenario,
+        T_flange_cam=T_flange_cam,
+        camera=cam,
+        rig=rig,
+        station=r.station,
+        lights=lights,
+    )
 
 
 def open_capture(campaign_dir, request: CaptureRequest):
@@ -283,8 +320,14 @@ class CaptureOutcome:
     def to_dict(self) -> dict:
         """The JSON object ``fgcd capture --json`` prints."""
         r = self.result
-        return {"station": self.station, "reference": r.observation_path, "cloud_points": r.cloud_points,
-                "scale": r.scale.scale, "images": r.images, "scene": self.scene}
+        return {
+            "station": self.station,
+            "reference": r.observation_path,
+            "cloud_points": r.cloud_points,
+            "scale": r.scale.scale,
+            "images": r.images,
+            "scene": self.scene,
+        }
 
 
 def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) -> CaptureOutcome:
@@ -299,16 +342,20 @@ def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) ->
     from fgcd_cli.metrics.sim_eval import reference_truth
 
     run_record.no_writes()
-    with station_lock(campaign.path, plan.station, command="capture"), \
-            campaign.station_for_writing(plan.station) as st:
+    with station_lock(campaign.path, plan.station, command="capture"), campaign.station_for_writing(plan.station) as st:
         check_station_can_take_a_reference(campaign, plan.station)  # again, under the lock
         rig = rig_uc.open_rig(plan.rig_request(), hooks=hooks)
         run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
         with rig_uc.opened(rig):
             result = capture_reference(
-                rig.handles, st, lightings=plan.lightings,
-                metadata={"driver": plan.driver, "rig": (plan.rig or EffectiveRig(driver=plan.driver)).record(),
-                          "scenario": rig.info.get("scenario")},
+                rig.handles,
+                st,
+                lightings=plan.lightings,
+                metadata={
+                    "driver": plan.driver,
+                    "rig": (plan.rig or EffectiveRig(driver=plan.driver)).record(),
+                    "scenario": rig.info.get("scenario"),
+                },
                 evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
             )
         # the platform is released; the reference's scene uncertainty map (paper 001), for the report and the
@@ -316,8 +363,9 @@ def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) ->
         camera = plan.camera if plan.camera is not None else (rig.handles.intrinsics if rig.handles else None)
         if camera is not None:
             station_scene_uncertainty(st, camera, say=hooks.on_event or (lambda _m: None))
-    return CaptureOutcome(station=plan.station, result=result,
-                          scene=plan.scenario.scene if plan.scenario is not None else None)
+    return CaptureOutcome(
+        station=plan.station, result=result, scene=plan.scenario.scene if plan.scenario is not None else None
+    )
 
 
 def connection(campaign, driver: str, *, port: str | None, host: str | None) -> tuple[str | None, str | None]:
@@ -328,5 +376,3 @@ def connection(campaign, driver: str, *, port: str | None, host: str | None) -> 
     """
     rig = resolve_rig(campaign, RigOptions(driver=driver, port=port, host=host))
     return rig.port, rig.host
-
-

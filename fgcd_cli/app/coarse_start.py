@@ -49,8 +49,9 @@ class CoarseStart:
     evaluate: Callable[[], dict] | None = None
 
 
-def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
-                 first_trusted: bool = True) -> tuple[CoarseResult | None, object]:
+def maybe_coarse(
+    start: CoarseStart, init, config: CoarseConfig, *, first_trusted: bool = True
+) -> tuple[CoarseResult | None, object]:
     """Run the active coarse stage when the first estimate is far from the reference pose.
 
     An untrustworthy first alignment (a degenerate fit can claim the camera is near when it is
@@ -77,8 +78,12 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
         # and its image fallback take it from there (docs/relocation.md, "Far starts").
         rig.progress(0, 0, "locating the camera in the reference images")
         t0 = time.monotonic()
-        T_img, _info = image_estimate(reference_images=reference_images(start.station), current_image=grab_gray(rig),
-                                      camera=rig.intrinsics, reference=reference)
+        T_img, _info = image_estimate(
+            reference_images=reference_images(start.station),
+            current_image=grab_gray(rig),
+            camera=rig.intrinsics,
+            reference=reference,
+        )
         session.timing.wait_s += time.monotonic() - t0  # the platform waits for it
         if T_img is not None:
             img_mm, img_deg = pose_distance(T_img, reference.T_ref_camref)
@@ -87,19 +92,33 @@ def maybe_coarse(start: CoarseStart, init, config: CoarseConfig, *,
                 off_mm, off_deg, near = img_mm, img_deg, False
                 source = "image estimate (the 3D one is untrustworthy)"
             elif not near and img_near:
-                rig.say(f"first estimate {off_mm:.0f} mm / {off_deg:.1f} deg from the reference, but the image "
-                        f"localizer says {img_mm:.0f} mm / {img_deg:.1f} deg: no coarse stage")
+                rig.say(
+                    f"first estimate {off_mm:.0f} mm / {off_deg:.1f} deg from the reference, but the image "
+                    f"localizer says {img_mm:.0f} mm / {img_deg:.1f} deg: no coarse stage"
+                )
                 near = True
     if near:
         return None, init
     rig.say(f"{source} {off_mm:.0f} mm / {off_deg:.1f} deg from the reference: active coarse stage")
     rig.progress(0, 0, "active coarse stage")
-    result = run_coarse(CoarseInputs(session=session, reference=reference, ref_index=start.ref_index, camera=rig.intrinsics,
-                              scale=start.scale, scale_rel_std=start.scale_rel_std,
-                              T_flange_cam=rig.T_flange_cam, init=init,
-                              reference_images=reference_images(start.station), grab_current=lambda: grab_gray(rig),
-                              config=config, evaluate=start.evaluate, say=rig.say,
-                              scene=lambda: _scene_map(start, config)))
+    result = run_coarse(
+        CoarseInputs(
+            session=session,
+            reference=reference,
+            ref_index=start.ref_index,
+            camera=rig.intrinsics,
+            scale=start.scale,
+            scale_rel_std=start.scale_rel_std,
+            T_flange_cam=rig.T_flange_cam,
+            init=init,
+            reference_images=reference_images(start.station),
+            grab_current=lambda: grab_gray(rig),
+            config=config,
+            evaluate=start.evaluate,
+            say=rig.say,
+            scene=lambda: _scene_map(start, config),
+        )
+    )
     if not result.handed_over:
         rig.say(f"{result.reason}; the rACR loop starts from the first estimate")
         return result, init

@@ -67,8 +67,14 @@ def demo_output_dir(requested: Path, *, now: datetime | None = None) -> tuple[Pa
     return out, f"writing the demo into {out} (a new folder: {requested} is not empty)"
 
 
-def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[[str], None] = print,
-             on_record=None, on_progress: ProgressCallback | None = None) -> dict:
+def run_demo(
+    out_dir: Path,
+    *,
+    config: DemoConfig = DemoConfig(),
+    say: Callable[[str], None] = print,
+    on_record=None,
+    on_progress: ProgressCallback | None = None,
+) -> dict:
     """Run the whole simulated campaign into ``out_dir``; returns a summary.
 
     Parameters
@@ -95,11 +101,13 @@ def run_demo(out_dir: Path, *, config: DemoConfig = DemoConfig(), say: Callable[
     if camp_dir.exists():
         raise CampaignError(f"{camp_dir} already exists: choose another --out directory")
     t0 = time.monotonic()
-    camp = init_campaign(camp_dir, site=f"Simulated {config.scene} (fgcd demo)",
-                         rig={"driver": "sim", "sim": {"scene": config.scene, "seed": config.seed}})
+    camp = init_campaign(
+        camp_dir,
+        site=f"Simulated {config.scene} (fgcd demo)",
+        rig={"driver": "sim", "sim": {"scene": config.scene, "seed": config.seed}},
+    )
     station = camp.create_station(config.station, description="simulated heritage object")
-    run = _DemoRun(config=config, campaign=camp, station=station, say=say, on_record=on_record,
-                   on_progress=on_progress)
+    run = _DemoRun(config=config, campaign=camp, station=station, say=say, on_record=on_record, on_progress=on_progress)
     summary: dict = {"out": str(out_dir), "campaign": str(camp_dir), "summary": str(out_dir / "summary.json")}
     summary["handeye"] = _calibrate(run)
     summary["reference"] = _capture(run)
@@ -155,15 +163,23 @@ def _capture(run: _DemoRun) -> dict:
     config = run.config
     run.say(f"2/5 capturing the reference under '{config.reference_light}'")
     run.tick("opening the simulated rig")
-    rig = rig_uc.open_sim_rig(SimScenario(scene=config.scene, seed=config.seed, lighting=config.reference_light,
-                                          session_seed=0),
-                              T_flange_cam=run.X, intrinsics=run.camera, on_event=run.say, on_progress=run.on_progress,
-                              vse_variant=config.vse)
+    rig = rig_uc.open_sim_rig(
+        SimScenario(scene=config.scene, seed=config.seed, lighting=config.reference_light, session_seed=0),
+        T_flange_cam=run.X,
+        intrinsics=run.camera,
+        on_event=run.say,
+        on_progress=run.on_progress,
+        vse_variant=config.vse,
+    )
     run.tick("capturing the reference")
     try:
-        cap = capture_uc.capture_reference(deterministic_rig(rig.handles, config.deterministic), run.station, lightings=[config.reference_light],
-                                           metadata={"driver": "sim", "scenario": rig.info["scenario"]},
-                                           evaluation=reference_truth(rig.sim))
+        cap = capture_uc.capture_reference(
+            deterministic_rig(rig.handles, config.deterministic),
+            run.station,
+            lightings=[config.reference_light],
+            metadata={"driver": "sim", "scenario": rig.info["scenario"]},
+            evaluation=reference_truth(rig.sim),
+        )
     finally:
         rig.close()
     run.tick("scene uncertainty of the reference")
@@ -180,34 +196,58 @@ def _relocate(run: _DemoRun) -> dict:
     from fgcd_cli.relocation.config import RelocationConfig
 
     config = run.config
-    run.say(f"3/5 revisit: light '{config.visit_light}', {config.changes} injected changes, start displaced by "
-            f"{config.start_offset_mm:.0f} mm / {config.start_offset_deg:.1f} deg")
+    run.say(
+        f"3/5 revisit: light '{config.visit_light}', {config.changes} injected changes, start displaced by "
+        f"{config.start_offset_mm:.0f} mm / {config.start_offset_deg:.1f} deg"
+    )
     run.tick("changing the light, injecting the changes")
-    run.visit_scenario = SimScenario(scene=config.scene, seed=config.seed, lighting=config.visit_light,
-                                     changes=config.changes, change_seed=7, change_size_mm=config.change_size_mm,
-                                     start_offset_mm=config.start_offset_mm, start_offset_deg=config.start_offset_deg,
-                                     session_seed=1)
-    rig = rig_uc.open_sim_rig(run.visit_scenario, T_flange_cam=run.X, intrinsics=run.camera, on_event=run.say,
-                              on_progress=run.on_progress, vse_variant=config.vse)
+    run.visit_scenario = SimScenario(
+        scene=config.scene,
+        seed=config.seed,
+        lighting=config.visit_light,
+        changes=config.changes,
+        change_seed=7,
+        change_size_mm=config.change_size_mm,
+        start_offset_mm=config.start_offset_mm,
+        start_offset_deg=config.start_offset_deg,
+        session_seed=1,
+    )
+    rig = rig_uc.open_sim_rig(
+        run.visit_scenario,
+        T_flange_cam=run.X,
+        intrinsics=run.camera,
+        on_event=run.say,
+        on_progress=run.on_progress,
+        vse_variant=config.vse,
+    )
     evaluator = RelocationEvaluator.from_reference(rig.sim, run.station.reference())
     loop = "deterministic rACR loop, threads stepped in turn" if config.deterministic else "parallel rACR loop"
     run.say(f"4/5 relocating ({loop})")
     run.tick(f"relocating ({loop})")
     try:
         vis = relocate_uc.relocate_and_capture(
-            rig.handles, run.station,
-            request=relocate_uc.RelocateRequest(config=RelocationConfig(deterministic=config.deterministic),
-                                                lightings=[config.visit_light, config.reference_light],
-                                                metadata={"driver": "sim", "scenario": rig.info["scenario"]}),
-            hooks=relocate_uc.RelocateHooks(evaluate=evaluator.evaluate, on_record=run.on_record,
-                                            evaluation=evaluator.summary))
+            rig.handles,
+            run.station,
+            request=relocate_uc.RelocateRequest(
+                config=RelocationConfig(deterministic=config.deterministic),
+                lightings=[config.visit_light, config.reference_light],
+                metadata={"driver": "sim", "scenario": rig.info["scenario"]},
+            ),
+            hooks=relocate_uc.RelocateHooks(
+                evaluate=evaluator.evaluate, on_record=run.on_record, evaluation=evaluator.summary
+            ),
+        )
     finally:
         rig.close()
     reloc = vis.relocation
     return {
-        "converged": reloc.converged, "reason": reloc.reason, "adjustments": reloc.adjustments,
-        "session_s": round(reloc.session_s, 1), "wall_s": round(reloc.wall_s, 1),
-        "final_truth": reloc.records[-1].truth if reloc.records else None, "visit": vis.observation_path,
+        "converged": reloc.converged,
+        "reason": reloc.reason,
+        "adjustments": reloc.adjustments,
+        "session_s": round(reloc.session_s, 1),
+        "wall_s": round(reloc.wall_s, 1),
+        "final_truth": reloc.records[-1].truth if reloc.records else None,
+        "visit": vis.observation_path,
     }
 
 
@@ -230,6 +270,7 @@ def _diff(run: _DemoRun, camp_dir: Path) -> dict:
     mask_file = schema.change_relpath(schema.CHANGE_MASK_PNG)
     if visit.has(mask_file):
         run.tick("scoring against the simulator's truth")
-        summary["evaluation"] = score_visit_changes(visit, run.station, scenario=run.visit_scenario, X=run.X,
-                                                  camera=run.camera, injected=config.changes)
+        summary["evaluation"] = score_visit_changes(
+            visit, run.station, scenario=run.visit_scenario, X=run.X, camera=run.camera, injected=config.changes
+        )
     return summary

@@ -22,8 +22,18 @@ __all__ = ["NATIVE_THREAD_VARIABLES", "deterministic_rig", "pin_native_threads",
 #: each library loads: the CLI sets them before it imports one (:func:`pin_native_threads`).
 NATIVE_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
-_PACKAGES = ("fgcd", "numpy", "scipy", "threadpoolctl", "opencv-python", "opencv-python-headless",
-             "opencv-contrib-python", "opencv-contrib-python-headless", "open3d", "open3d-cpu")
+_PACKAGES = (
+    "fgcd",
+    "numpy",
+    "scipy",
+    "threadpoolctl",
+    "opencv-python",
+    "opencv-python-headless",
+    "opencv-contrib-python",
+    "opencv-contrib-python-headless",
+    "open3d",
+    "open3d-cpu",
+)
 
 
 def pin_native_threads() -> dict:
@@ -103,13 +113,18 @@ def run_conditions(config, metadata: dict | None = None) -> dict:
     """
     seeds = {**scenario_seeds(metadata), "fast_align": config.fast_align.seed, "fine_align": config.fine_align.seed}
     return {
-        "threads": "stepped in a fixed order (deterministic)" if config.deterministic else
-        f"{config.mode}: side by side, may vary from run to run",
+        "threads": "stepped in a fixed order (deterministic)"
+        if config.deterministic
+        else f"{config.mode}: side by side, may vary from run to run",
         "mode": str(config.mode),
         "deterministic": bool(config.deterministic),
         "seeds": seeds,
         "versions": _versions(),
         "thread_counts": _thread_counts(),
-        "machine": {"platform": platform.platform(), "machine": platform.machine(),
-                    "processor": platform.processor(), "node": platform.node()},
+        "machine": {
+            "platform": platform.platform(),
+            "machine": platform.machine(),
+            "processor": platform.processor(),
+            "node": platform.node(),
+        },
     }

@@ -68,16 +68,25 @@ def _write_dir(output: Path, files: dict[str, bytes]) -> None:
         atomic_write_bytes(output / name, data)
 
 
-def check_diff_options(*, mm_per_px: float | None, edge_check_px: int | None, ambient_index: int | None = None,
-                       files: dict[str, Path | None] | None = None) -> None:
+def check_diff_options(
+    *,
+    mm_per_px: float | None,
+    edge_check_px: int | None,
+    ambient_index: int | None = None,
+    files: dict[str, Path | None] | None = None,
+) -> None:
     """The one check of a diff's options, run when a request is made: before anything is read or written.
 
     Raises :class:`UserInputError` (exit 2) for a scale that is not a positive finite
     number of mm per px (a negative or zero scale would give non-physical areas), an
     edge check outside 0..8 px, a negative ambient index, or a named file that is not there.
     """
-    if mm_per_px is not None and (isinstance(mm_per_px, bool) or not isinstance(mm_per_px, (int, float))
-                                  or not math.isfinite(mm_per_px) or mm_per_px <= 0):
+    if mm_per_px is not None and (
+        isinstance(mm_per_px, bool)
+        or not isinstance(mm_per_px, (int, float))
+        or not math.isfinite(mm_per_px)
+        or mm_per_px <= 0
+    ):
         raise UserInputError(f"--mm-per-px must be a positive number of millimetres per pixel, got {mm_per_px}")
     if edge_check_px is not None:
         _edge_check(edge_check_px)
@@ -126,8 +135,12 @@ class BareDiffRequest:
     ambient_index: int | None = None
 
     def __post_init__(self) -> None:
-        check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px, ambient_index=self.ambient_index,
-                           files={"--roi": self.roi, "--truth": self.truth, "--score-mask": self.score_mask})
+        check_diff_options(
+            mm_per_px=self.mm_per_px,
+            edge_check_px=self.edge_check_px,
+            ambient_index=self.ambient_index,
+            files={"--roi": self.roi, "--truth": self.truth, "--score-mask": self.score_mask},
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -143,8 +156,9 @@ class BareDetection:
     fdf: FdfResult | None
 
 
-def detect_bare(request: BareDiffRequest, *, progress: Progress = None,
-                tile_progress: TileProgress = None) -> BareDetection:
+def detect_bare(
+    request: BareDiffRequest, *, progress: Progress = None, tile_progress: TileProgress = None
+) -> BareDetection:
     """Read the image files and detect their changes as ``fgcd diff --ref ... --cur ...`` does, writing nothing.
 
     ``fgcd bench changes`` scores this very detection; :func:`run_bare` writes its products.
@@ -163,21 +177,41 @@ def detect_bare(request: BareDiffRequest, *, progress: Progress = None,
     if ref_images[0].shape[0] * ref_images[0].shape[1] > LARGE_FRAME_PX:
         from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled
 
-        _say(progress, f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
-                       "(no edge check, no FDF on frames this large)")
-        result = detect_changes_tiled(ref_images, cur_images, roi=roi, pixel_area_mm2=area, progress=tile_progress,
-                                      config=DetectionConfig.from_options(register=r.register,
-                                                                          ambient_index=r.ambient_index))
+        _say(
+            progress,
+            f"{ref_images[0].shape[1]}x{ref_images[0].shape[0]} px: comparing tile by tile "
+            "(no edge check, no FDF on frames this large)",
+        )
+        result = detect_changes_tiled(
+            ref_images,
+            cur_images,
+            roi=roi,
+            pixel_area_mm2=area,
+            progress=tile_progress,
+            config=DetectionConfig.from_options(register=r.register, ambient_index=r.ambient_index),
+        )
         fdf = None
     else:
-        result = detect_changes(ref_images, cur_images, roi=roi, pixel_area_mm2=area,
-                                config=DetectionConfig.from_options(register=r.register,
-                                                                    edge_check_px=_edge_check(r.edge_check_px),
-                                                                    ambient_index=r.ambient_index))
+        result = detect_changes(
+            ref_images,
+            cur_images,
+            roi=roi,
+            pixel_area_mm2=area,
+            config=DetectionConfig.from_options(
+                register=r.register, edge_check_px=_edge_check(r.edge_check_px), ambient_index=r.ambient_index
+            ),
+        )
         same_size = ref_images[0].shape == cur_images[0].shape
         fdf = measure_fdf(ref_images[0], cur_images[0]) if result.comparable or same_size else None
-    return BareDetection(ref_paths=ref_paths, cur_paths=cur_paths, ref_images=ref_images, cur_images=cur_images,
-                         roi=roi, result=result, fdf=fdf)
+    return BareDetection(
+        ref_paths=ref_paths,
+        cur_paths=cur_paths,
+        ref_images=ref_images,
+        cur_images=cur_images,
+        roi=roi,
+        result=result,
+        fdf=fdf,
+    )
 
 
 def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progress: TileProgress = None) -> dict:
@@ -189,14 +223,20 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
     r = request
     found = detect_bare(r, progress=progress, tile_progress=tile_progress)
     result, fdf = found.result, found.fdf
-    metadata = {"reference images": [str(p) for p in found.ref_paths],
-                "current images": [str(p) for p in found.cur_paths]}
+    metadata = {
+        "reference images": [str(p) for p in found.ref_paths],
+        "current images": [str(p) for p in found.cur_paths],
+    }
     if r.mm_per_px is not None:
         metadata["scale (mm per px)"] = r.mm_per_px
-    context = ReportContext(metadata=metadata, title="Change report",
-                            subtitle=f"{found.ref_paths[0].resolve().parent} — reference vs current")
-    files = diff_products(ref_images=found.ref_images, cur_images=found.cur_images, result=result, fdf=fdf,
-                          context=context)
+    context = ReportContext(
+        metadata=metadata,
+        title="Change report",
+        subtitle=f"{found.ref_paths[0].resolve().parent} — reference vs current",
+    )
+    files = diff_products(
+        ref_images=found.ref_images, cur_images=found.cur_images, result=result, fdf=fdf, context=context
+    )
     _write_dir(r.output, files)
     data = result_summary(result, fdf)
     data["output"] = str(r.output)
@@ -209,8 +249,14 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
             raise UserInputError("--truth and --score-mask must have the reference image's size")
         b = binary_scores(result.mask, truth_mask, eval_mask=scored)
         s = sweep_scores(result.score, truth_mask, eval_mask=scored)
-        data["scores"] = {"precision": b.precision, "recall": b.recall, "f1": b.f1, "iou": b.iou,
-                          "best_f1": s.best_f1, "average_precision": s.average_precision}
+        data["scores"] = {
+            "precision": b.precision,
+            "recall": b.recall,
+            "f1": b.f1,
+            "iou": b.iou,
+            "best_f1": s.best_f1,
+            "average_precision": s.average_precision,
+        }
     return data
 
 
@@ -308,15 +354,20 @@ def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | Non
     from fgcd_core.camera import PinholeCamera
 
     meta = reference.metadata
-    if not (reference.has(schema.array_relpath(schema.ARRAY_CLOUD_POINTS))
-            and reference.has(schema.array_relpath(schema.ARRAY_T_REF_CAMREF)) and meta.get("intrinsics")):
+    if not (
+        reference.has(schema.array_relpath(schema.ARRAY_CLOUD_POINTS))
+        and reference.has(schema.array_relpath(schema.ARRAY_T_REF_CAMREF))
+        and meta.get("intrinsics")
+    ):
         return None
     camera = PinholeCamera.from_dict(meta["intrinsics"])
     K = camera.K.copy()
     if (camera.width, camera.height) != (shape[1], shape[0]):
         K[0] *= shape[1] / camera.width
         K[1] *= shape[0] / camera.height
-    area = pixel_area_from_cloud(reference.array(schema.ARRAY_CLOUD_POINTS), reference.array(schema.ARRAY_T_REF_CAMREF), K, shape)
+    area = pixel_area_from_cloud(
+        reference.array(schema.ARRAY_CLOUD_POINTS), reference.array(schema.ARRAY_T_REF_CAMREF), K, shape
+    )
     return area if np.isfinite(area).any() else None
 
 
@@ -356,13 +407,16 @@ class CampaignDiffRequest:
     force: bool = False
 
     def __post_init__(self) -> None:
-        check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px,
-                           files={"--roi": self.roi})
+        check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px, files={"--roi": self.roi})
 
     def options(self) -> AnalysisOptions:
         """The options this diff is made with, as its record (``changes/analysis.json``) states them."""
-        return AnalysisOptions(edge_check_px=self.edge_check_px, mm_per_px=self.mm_per_px, register=self.register,
-                               eval_mask_sha256=sha256_file(self.roi) if self.roi is not None else None)
+        return AnalysisOptions(
+            edge_check_px=self.edge_check_px,
+            mm_per_px=self.mm_per_px,
+            register=self.register,
+            eval_mask_sha256=sha256_file(self.roi) if self.roi is not None else None,
+        )
 
 
 def _effective(options: AnalysisOptions) -> AnalysisOptions:
@@ -373,8 +427,10 @@ def _effective(options: AnalysisOptions) -> AnalysisOptions:
 def options_text(options: AnalysisOptions) -> str:
     """``--mm-per-px 0.5, --edge-check 2`` (the options as a person would give them)."""
     o = _effective(options)
-    parts = [f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "no --mm-per-px",
-             f"--edge-check {o.edge_check_px}"]
+    parts = [
+        f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "no --mm-per-px",
+        f"--edge-check {o.edge_check_px}",
+    ]
     parts += ["--no-register"] if not o.register else []
     parts += [f"--roi sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []
     return ", ".join(parts)
@@ -391,12 +447,16 @@ def check_stored_diff(observation, options: AnalysisOptions, *, force: bool) -> 
         return None
     stored = stored_options(observation)
     if stored is None:
-        return (f"replaced the stored diff of visit {observation.name}, made by an older fgcd "
-                "that did not record its options")
+        return (
+            f"replaced the stored diff of visit {observation.name}, made by an older fgcd "
+            "that did not record its options"
+        )
     if force or _effective(stored) == _effective(options):
         return None
-    raise ImmutableDataError(f"visit {observation.name} already has a diff made with {options_text(stored)}; "
-                             f"this one asks for {options_text(options)}: give --force to replace it")
+    raise ImmutableDataError(
+        f"visit {observation.name} already has a diff made with {options_text(stored)}; "
+        f"this one asks for {options_text(options)}: give --force to replace it"
+    )
 
 
 def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> dict:
@@ -433,9 +493,17 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     edge_check = _edge_check(campaign_edge_check_px(r.edge_check_px))
     _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
-    result = detect_changes(ref_images, cur_images, roi=mask, pixel_area_mm2=area,
-                            config=DetectionConfig.from_options(register=r.register, edge_check_px=edge_check,
-                                                                ambient_index=lightings.index("ambient") if "ambient" in lightings else None))
+    result = detect_changes(
+        ref_images,
+        cur_images,
+        roi=mask,
+        pixel_area_mm2=area,
+        config=DetectionConfig.from_options(
+            register=r.register,
+            edge_check_px=edge_check,
+            ambient_index=lightings.index("ambient") if "ambient" in lightings else None,
+        ),
+    )
     fdf = measure_fdf(ref_images[0], cur_images[0])
     metadata = {
         "site": camp.site,
@@ -446,15 +514,23 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         **({"scale (mm per px)": r.mm_per_px} if r.mm_per_px is not None else {}),
         "relocation": observation.metadata.get("relocation") or {},
         "relocation residual (its own estimate)": relocation_residual_text(observation),
-        "edge check": (f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
-                       "edges set aside (cyan outlines)" if edge_check else "off"),
+        "edge check": (
+            f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
+            "edges set aside (cyan outlines)"
+            if edge_check
+            else "off"
+        ),
     }
     from fgcd_cli.app.scene_uncertainty import cached_scene_uncertainty
 
-    context = ReportContext(relocation_log=relocation_log_rows(observation), metadata=metadata,
-                            scene_map=cached_scene_uncertainty(st), coarse_log=coarse_log_rows(observation),
-                            title=f"Station {r.station}: change report",
-                            subtitle=f"{camp.site} · reference vs visit {observation.name}")
+    context = ReportContext(
+        relocation_log=relocation_log_rows(observation),
+        metadata=metadata,
+        scene_map=cached_scene_uncertainty(st),
+        coarse_log=coarse_log_rows(observation),
+        title=f"Station {r.station}: change report",
+        subtitle=f"{camp.site} · reference vs visit {observation.name}",
+    )
     files = diff_products(ref_images=ref_images, cur_images=cur_images, result=result, fdf=fdf, context=context)
     _store_products(st, observation, files, fdf, options=options, inputs=analysis_inputs(reference, observation), t0=t0)
     if r.output is not None:
@@ -467,8 +543,16 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     return data
 
 
-def _store_products(st, observation, files: dict[str, bytes], fdf: FdfResult | None, *, options: AnalysisOptions,
-                    inputs: dict[str, str], t0: float) -> None:
+def _store_products(
+    st,
+    observation,
+    files: dict[str, bytes],
+    fdf: FdfResult | None,
+    *,
+    options: AnalysisOptions,
+    inputs: dict[str, str],
+    t0: float,
+) -> None:
     """The products in the visit, then the record of the options and inputs they were made with, last."""
     for name, data in files.items():
         observation.add_derived(schema.change_relpath(name), data)

@@ -15,8 +15,7 @@ def region_line(region: dict, *, epsilon: float) -> str:
     from fgcd_cli.report.areas import area_mm2_text
     from fgcd_cli.report.candidates import region_significance_text
 
-    mm2 = (f", {area_mm2_text(region['area_mm2'], region['area_px'])}" if region.get("area_mm2") is not None
-           else "")
+    mm2 = f", {area_mm2_text(region['area_mm2'], region['area_px'])}" if region.get("area_mm2") is not None else ""
     x, y = region["centroid_xy"]
     cue = f", [bold]{region['cue']}[/bold]" if region.get("cue") else ""
     significance = region_significance_text(region.get("log10_nfa"), epsilon=epsilon)
@@ -28,7 +27,7 @@ def no_change_lines(candidates: list[dict], *, epsilon: float, more: int = 2) ->
     from fgcd_cli.report.candidates import candidate_text, no_change_line
 
     lines = [no_change_line(candidates, epsilon=epsilon)]
-    lines += [f"  candidate {k}: {candidate_text(c)}" for k, c in enumerate(candidates[1:1 + more], start=2)]
+    lines += [f"  candidate {k}: {candidate_text(c)}" for k, c in enumerate(candidates[1 : 1 + more], start=2)]
     return lines
 
 
@@ -36,8 +35,10 @@ def set_aside_line(regions: int, set_aside: int) -> str:
     """``N changes`` and the ``set_aside`` regions the edge check explained (shown in cyan in the report)."""
     from fgcd_cli.report.candidates import set_aside_text
 
-    return (f"{regions} change{'s' if regions != 1 else ''}{set_aside_text(set_aside)} "
-            f"(cyan in the report; --edge-check 0 reports {'them' if set_aside != 1 else 'it'})")
+    return (
+        f"{regions} change{'s' if regions != 1 else ''}{set_aside_text(set_aside)} "
+        f"(cyan in the report; --edge-check 0 reports {'them' if set_aside != 1 else 'it'})"
+    )
 
 
 def result_epsilon(data: dict) -> float:

@@ -28,8 +28,15 @@ class GuidedPlan:
     whether the image estimate put the start beyond the coarse stage's trigger (``far``), and the image
     estimate's 1-sigma (RMS radius, mm; NaN when the localizer gave none)."""
 
-    def __init__(self, motions: list[np.ndarray] | None, reason: str, seconds: float, *, far: bool = False,
-                 sigma_mm: float = float("nan")):
+    def __init__(
+        self,
+        motions: list[np.ndarray] | None,
+        reason: str,
+        seconds: float,
+        *,
+        far: bool = False,
+        sigma_mm: float = float("nan"),
+    ):
         self.motions, self.reason, self.seconds, self.far = motions, reason, seconds, far
         self.sigma_mm = sigma_mm
 
@@ -45,8 +52,9 @@ def workspace_bounds(guard) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def guided_exploration(rig: RigHandles, station, reference, *, explore_m: float,
-                       near: CoarseConfig = CoarseConfig()) -> GuidedPlan:
+def guided_exploration(
+    rig: RigHandles, station, reference, *, explore_m: float, near: CoarseConfig = CoarseConfig()
+) -> GuidedPlan:
     """Plan the exploration toward the image localizer's estimate of the reference pose.
 
     ``near``: an estimate beyond its trigger (100 mm / 8 deg) is a far start, the
@@ -54,8 +62,9 @@ def guided_exploration(rig: RigHandles, station, reference, *, explore_m: float,
     """
     image = grab_gray(rig)
     t0 = time.monotonic()
-    T_img, info = image_estimate(reference_images=reference_images(station), current_image=image,
-                                 camera=rig.intrinsics, reference=reference)
+    T_img, info = image_estimate(
+        reference_images=reference_images(station), current_image=image, camera=rig.intrinsics, reference=reference
+    )
     seconds = time.monotonic() - t0
     if T_img is None:
         return GuidedPlan(None, f"no image estimate ({info.get('pnp')}): the usual exploration", seconds)
@@ -64,14 +73,22 @@ def guided_exploration(rig: RigHandles, station, reference, *, explore_m: float,
     M_flange = flange_motion(X, M_cam)
     mm, deg = pose_distance(np.eye(4), M_flange)
     if mm > near.trigger_m * 1e3 or deg > near.trigger_deg:
-        return GuidedPlan(None, f"image estimate {mm:.0f} mm / {deg:.1f} deg away (a far start): the usual "
-                                "exploration", seconds, far=True)
+        return GuidedPlan(
+            None,
+            f"image estimate {mm:.0f} mm / {deg:.1f} deg away (a far start): the usual exploration",
+            seconds,
+            far=True,
+        )
     motions = motions_between(guided_waypoints(M_flange, X, explore_m=explore_m), stops_per_leg=2)
     lo, hi = workspace_bounds(rig.guard)
     if not within_workspace(rig.guard.platform.flange_pose(), motions, lo, hi):
         return GuidedPlan(None, "the guided legs would leave the workspace: the usual exploration", seconds)
-    return GuidedPlan(motions, f"exploring toward the image estimate of the reference ({mm:.0f} mm / {deg:.1f} deg)",
-                      seconds, sigma_mm=float(info.get("sigma_mm", float("nan"))))
+    return GuidedPlan(
+        motions,
+        f"exploring toward the image estimate of the reference ({mm:.0f} mm / {deg:.1f} deg)",
+        seconds,
+        sigma_mm=float(info.get("sigma_mm", float("nan"))),
+    )
 
 
 #: Tracked stops after which the usual exploration may end early: the scale fit needs 3, and two
@@ -100,9 +117,14 @@ def alignment_trusted(rig: RigHandles, reference, ref_index, session, flange: li
         state = session.vse.latest()
         T_cur_cam0 = np.array(state.T_map_cam, dtype=float)
         T_cur_cam0[:3, 3] *= scale.scale
-        guess = initial_guess(T_ref_camref=reference.T_ref_camref, T_cur_cam0=T_cur_cam0,
-                              cur_points=np.asarray(state.cloud.points, dtype=float) * scale.scale,
-                              reference=ref_index, scale=1.0, global_fallback=False)
+        guess = initial_guess(
+            T_ref_camref=reference.T_ref_camref,
+            T_cur_cam0=T_cur_cam0,
+            cur_points=np.asarray(state.cloud.points, dtype=float) * scale.scale,
+            reference=ref_index,
+            scale=1.0,
+            global_fallback=False,
+        )
         return guess.fast is not None and bool(guess.fast.health.ok)
     except AlgorithmError:
         return False
@@ -110,8 +132,9 @@ def alignment_trusted(rig: RigHandles, reference, ref_index, session, flange: li
         session.timing.wait_s += time.monotonic() - t0
 
 
-def start_revisit_session(rig: RigHandles, station, reference, *, explore_m: float, legs: int, guided: bool,
-                          ref_index=None):
+def start_revisit_session(
+    rig: RigHandles, station, reference, *, explore_m: float, legs: int, guided: bool, ref_index=None
+):
     """A revisit's VSE session: ``(session, vse, scale, prior_sigma_mm)``.
 
     ``guided``: explored toward the image localizer's estimate of the reference when it has one;
@@ -126,10 +149,13 @@ def start_revisit_session(rig: RigHandles, station, reference, *, explore_m: flo
     if plan is not None:
         rig.say(plan.reason)
         if plan.motions is None and not plan.far and ref_index is not None:
+
             def until(session, flange, cams):
                 return alignment_trusted(rig, reference, ref_index, session, flange, cams)
-    session, vse, scale, _ = start_session(rig, explore_m=explore_m, legs=legs,
-                                           motions=plan.motions if plan is not None else None, until=until)
+
+    session, vse, scale, _ = start_session(
+        rig, explore_m=explore_m, legs=legs, motions=plan.motions if plan is not None else None, until=until
+    )
     if plan is not None:
         session.timing.wait_s += plan.seconds  # the platform stood still while the localizer ran
     prior_sigma_mm = plan.sigma_mm if plan is not None and plan.motions is not None else None

@@ -19,8 +19,18 @@ import numpy as np
 
 from fgcd_cli.errors import UserInputError
 
-__all__ = ["BoardOptions", "IntrinsicsPlan", "IntrinsicsRequest", "board_spec", "load_board_images",
-           "plan_intrinsics", "run_intrinsics", "sim_board_views", "store_intrinsics", "write_board"]
+__all__ = [
+    "BoardOptions",
+    "IntrinsicsPlan",
+    "IntrinsicsRequest",
+    "board_spec",
+    "load_board_images",
+    "plan_intrinsics",
+    "run_intrinsics",
+    "sim_board_views",
+    "store_intrinsics",
+    "write_board",
+]
 
 ProgressCallback = Callable[[int, int, str], None]
 #: The image files a folder of board photographs may hold.
@@ -63,12 +73,19 @@ def board_spec(options: BoardOptions):
         board = load_board_sidecar(o.board_file)
         if o.square_mm is not None:  # the measured print overrides the nominal size
             ratio = o.square_mm / (board.square_m * 1000)
-            board = BoardSpec(**{**board.__dict__, "square_m": board.square_m * ratio, "marker_m": board.marker_m * ratio})
+            board = BoardSpec(
+                **{**board.__dict__, "square_m": board.square_m * ratio, "marker_m": board.marker_m * ratio}
+            )
         return board
     square = 25.0 if o.square_mm is None else o.square_mm
     marker = o.marker_mm if o.marker_mm is not None else square * 0.72
-    return BoardSpec(squares_x=o.squares_x, squares_y=o.squares_y, square_m=square / 1000, marker_m=marker / 1000,
-                     dictionary=o.dictionary)
+    return BoardSpec(
+        squares_x=o.squares_x,
+        squares_y=o.squares_y,
+        square_m=square / 1000,
+        marker_m=marker / 1000,
+        dictionary=o.dictionary,
+    )
 
 
 def write_board(options: BoardOptions, output: Path, *, dpi: int) -> tuple[Any, dict]:
@@ -112,9 +129,16 @@ def sim_board_views(scenario, board, views: int, *, on_progress: ProgressCallbac
 
     rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)
     try:
-        source = rig.sim.board_camera(SimBoard(squares_x=board.squares_x, squares_y=board.squares_y,
-                                               square_m=board.square_m, marker_m=board.marker_m,
-                                               dictionary=board.dictionary), seed=scenario.seed)
+        source = rig.sim.board_camera(
+            SimBoard(
+                squares_x=board.squares_x,
+                squares_y=board.squares_y,
+                square_m=board.square_m,
+                marker_m=board.marker_m,
+                dictionary=board.dictionary,
+            ),
+            seed=scenario.seed,
+        )
         images = []
         for k in range(views):
             if on_progress is not None:

@@ -19,8 +19,18 @@ import numpy as np
 
 from fgcd_cli.errors import UserInputError, run_record
 
-__all__ = ["PlatformMove", "MoveRequest", "hardware_error_kind", "home_platform", "move_platform",
-           "opened_platform", "plan_move", "platform_rig", "platform_state", "pose_dict"]
+__all__ = [
+    "PlatformMove",
+    "MoveRequest",
+    "hardware_error_kind",
+    "home_platform",
+    "move_platform",
+    "opened_platform",
+    "plan_move",
+    "platform_rig",
+    "platform_state",
+    "pose_dict",
+]
 
 
 def hardware_error_kind(exc: BaseException) -> str | None:
@@ -102,9 +112,12 @@ def opened_platform(rig, timeout_s: float | None) -> Iterator:
         raise UserInputError("--timeout must be a positive number of seconds")
     run_record.no_writes()
     grbl_options, ur_options = _options(timeout_s)
-    platform = open_platform(rig.driver, spec=PlatformSpec(port=rig.port, baud=rig.baud, host=rig.host,
-                                                           grbl_options=grbl_options, ur_options=ur_options,
-                                                           connect=False))
+    platform = open_platform(
+        rig.driver,
+        spec=PlatformSpec(
+            port=rig.port, baud=rig.baud, host=rig.host, grbl_options=grbl_options, ur_options=ur_options, connect=False
+        ),
+    )
     try:
         platform.connect()
         run_record.platform_connected(platform.name)
@@ -194,13 +207,13 @@ def plan_move(request: MoveRequest) -> PlatformMove:
     T_flange_delta = np.eye(4)
     T_flange_delta[:3, :3] = Rotation.from_rotvec(np.radians(list(r.rotation_deg))).as_matrix()
     T_flange_delta[:3, 3] = np.array(r.translation_mm) / 1000.0
-    limits = GuardLimits(max_step_m=r.max_step_mm / 1000.0, max_step_rad=math.radians(r.max_step_deg),
-                         speed_fraction=r.speed_fraction)
+    limits = GuardLimits(
+        max_step_m=r.max_step_mm / 1000.0, max_step_rad=math.radians(r.max_step_deg), speed_fraction=r.speed_fraction
+    )
     return PlatformMove(request=r, T_flange_delta=T_flange_delta, limits=limits)
 
 
-def move_platform(platform, move: PlatformMove, *, confirm: Callable[[str], bool] | None,
-                  say: Callable[[str], None]):
+def move_platform(platform, move: PlatformMove, *, confirm: Callable[[str], bool] | None, say: Callable[[str], None]):
     """Make ``move`` through the motion guard on an opened platform; ``(record, MoveResult)``.
 
     Parameters

@@ -37,9 +37,9 @@ from fgcd_cli.relocation.loop.parallel import relocate
 __all__ = ["relocate_and_capture"]
 
 
-
-def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
-                         hooks: RelocateHooks | None = None) -> CaptureResult:
+def relocate_and_capture(
+    rig: RigHandles, station, request: RelocateRequest, *, hooks: RelocateHooks | None = None
+) -> CaptureResult:
     """Relocate to the station's reference pose with rACR, then write a visit.
 
     When the first estimate puts the camera farther than ``coarse.trigger_*`` from the
@@ -56,29 +56,53 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
     reference = load_reference(station)
     if hooks.reference_override is not None:
         reference = hooks.reference_override(reference)
-    ref_index = ReferenceIndex(reference.points, intensities=reference.intensities,
-                               view=(reference.T_ref_camref, rig.intrinsics))
+    ref_index = ReferenceIndex(
+        reference.points, intensities=reference.intensities, view=(reference.T_ref_camref, rig.intrinsics)
+    )
     rig.progress(0, 0, "starting the VSE")
     session, vse, scale, prior_sigma_mm = start_revisit_session(
-        deterministic_rig(rig, request.config.deterministic), station, reference, explore_m=request.explore_m,
-        legs=request.explore_legs, guided=request.guided, ref_index=ref_index)
+        deterministic_rig(rig, request.config.deterministic),
+        station,
+        reference,
+        explore_m=request.explore_m,
+        legs=request.explore_legs,
+        guided=request.guided,
+        ref_index=ref_index,
+    )
     try:
-        start = CoarseStart(rig=rig, session=session, reference=reference, ref_index=ref_index, station=station,
-                            scale=scale.scale, scale_rel_std=scale.scale_std / scale.scale,
-                            evaluate=hooks.evaluate)
+        start = CoarseStart(
+            rig=rig,
+            session=session,
+            reference=reference,
+            ref_index=ref_index,
+            station=station,
+            scale=scale.scale,
+            scale_rel_std=scale.scale_std / scale.scale,
+            evaluate=hooks.evaluate,
+        )
         init, coarse_result = _initial_alignment(start, request.coarse)
         ref_images, same_light = _measurement_images(rig, station)
         rig.say(f"relocating ({request.config.loop_name}) to the reference of station '{station.name}'")
         rig.progress(0, 0, "relocating")
         try:
-            result = relocate(LoopContext(
-                session=session, reference=reference, ref_index=ref_index, camera=rig.intrinsics,
-                scale=scale.scale, T_flange_cam=rig.T_flange_cam, init=init, config=request.config,
-                evaluate=hooks.evaluate, on_record=hooks.on_record, reference_images=ref_images,
-                grab_current=lambda: grab_gray_under(rig, vse, same_light),
-                # the camera stands at the image localizer's reference only when nothing moved it since
-                image_prior_sigma_mm=prior_sigma_mm if coarse_result is None else None,
-            ))
+            result = relocate(
+                LoopContext(
+                    session=session,
+                    reference=reference,
+                    ref_index=ref_index,
+                    camera=rig.intrinsics,
+                    scale=scale.scale,
+                    T_flange_cam=rig.T_flange_cam,
+                    init=init,
+                    config=request.config,
+                    evaluate=hooks.evaluate,
+                    on_record=hooks.on_record,
+                    reference_images=ref_images,
+                    grab_current=lambda: grab_gray_under(rig, vse, same_light),
+                    # the camera stands at the image localizer's reference only when nothing moved it since
+                    image_prior_sigma_mm=prior_sigma_mm if coarse_result is None else None,
+                )
+            )
         except AlgorithmError as exc:
             # the loop paused: what the coarse stage did before stays available to the caller
             exc.coarse_result = coarse_result
@@ -89,13 +113,22 @@ def relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
         images = grab_images(rig, request.lightings)
         meta = _visit_metadata(rig, request, scale, result, coarse_result)
         rig.progress(0, 0, "writing the visit")
-        log = "".join([json.dumps(e) + "\n" for e in request.earlier_log] + [r.to_json() + "\n" for r in result.records])
-        obs = _write_visit(station, meta, images=images, points=points, state=state, log=log.encode("utf-8"),
-                           coarse_result=coarse_result, evaluation=hooks.evaluation)
+        log = "".join(
+            [json.dumps(e) + "\n" for e in request.earlier_log] + [r.to_json() + "\n" for r in result.records]
+        )
+        obs = _write_visit(
+            station,
+            meta,
+            images=images,
+            points=points,
+            state=state,
+            log=log.encode("utf-8"),
+            coarse_result=coarse_result,
+            evaluation=hooks.evaluation,
+        )
     finally:
         vse.stop()
-    return CaptureResult(str(obs.path), scale, int(len(points)), list(images), relocation=result,
-                         coarse=coarse_result)
+    return CaptureResult(str(obs.path), scale, int(len(points)), list(images), relocation=result, coarse=coarse_result)
 
 
 def _initial_alignment(start: CoarseStart, coarse: CoarseConfig | None) -> tuple[np.ndarray, CoarseResult | None]:
@@ -111,12 +144,15 @@ def _initial_alignment(start: CoarseStart, coarse: CoarseConfig | None) -> tuple
     first = start.session.tracking_state()
     T_cur_cam0 = np.array(first.T_map_cam, dtype=float)
     T_cur_cam0[:3, 3] *= scale
-    guess = initial_guess(T_ref_camref=start.reference.T_ref_camref, T_cur_cam0=T_cur_cam0,
-                          cur_points=np.asarray(first.cloud.points, dtype=float) * scale,
-                          reference=start.ref_index, scale=1.0)
+    guess = initial_guess(
+        T_ref_camref=start.reference.T_ref_camref,
+        T_cur_cam0=T_cur_cam0,
+        cur_points=np.asarray(first.cloud.points, dtype=float) * scale,
+        reference=start.ref_index,
+        scale=1.0,
+    )
     init = guess.T_ref_cur
-    rig.say(f"initial alignment: {guess.source}"
-            + (f" ({guess.fast.health.reason})" if guess.fast is not None else ""))
+    rig.say(f"initial alignment: {guess.source}" + (f" ({guess.fast.health.reason})" if guess.fast is not None else ""))
     if coarse is None:
         return init, None
     first_trusted = guess.fast is not None and guess.fast.health.ok
@@ -135,8 +171,9 @@ def _measurement_images(rig: RigHandles, station) -> tuple[dict[str, np.ndarray]
     return ref_images, same_light
 
 
-def _visit_metadata(rig: RigHandles, request: RelocateRequest, scale, result: RelocationResult,
-                    coarse_result: CoarseResult | None) -> dict:
+def _visit_metadata(
+    rig: RigHandles, request: RelocateRequest, scale, result: RelocationResult, coarse_result: CoarseResult | None
+) -> dict:
     """The visit manifest's metadata: lightings, scale, the relocation's outcome and the rig's calibration."""
     return {
         "lightings": request.lightings,
@@ -149,11 +186,15 @@ def _visit_metadata(rig: RigHandles, request: RelocateRequest, scale, result: Re
             "session_s": result.session_s,
             "platform_s": result.platform_s,
             "synthetic_s": result.synthetic_s,
-            "mode": request.config.mode, "run": run_conditions(request.config, request.metadata),
+            "mode": request.config.mode,
+            "run": run_conditions(request.config, request.metadata),
             "residual": result.residual.to_dict() if result.residual else None,
         },
-        "coarse": None if coarse_result is None else {
-            "handed_over": coarse_result.handed_over, "reason": coarse_result.reason,
+        "coarse": None
+        if coarse_result is None
+        else {
+            "handed_over": coarse_result.handed_over,
+            "reason": coarse_result.reason,
             "steps": len(coarse_result.steps),
         },
         "T_flange_cam": np.asarray(rig.T_flange_cam).tolist(),
@@ -163,9 +204,17 @@ def _visit_metadata(rig: RigHandles, request: RelocateRequest, scale, result: Re
     }
 
 
-def _write_visit(station, meta: dict, *, images: dict[str, np.ndarray], points: np.ndarray, state,
-                 log: bytes, coarse_result: CoarseResult | None,
-                 evaluation: Callable[[], dict] | None):
+def _write_visit(
+    station,
+    meta: dict,
+    *,
+    images: dict[str, np.ndarray],
+    points: np.ndarray,
+    state,
+    log: bytes,
+    coarse_result: CoarseResult | None,
+    evaluation: Callable[[], dict] | None,
+):
     """Write the visit (images, cloud, relocation and coarse logs, truth) and return the committed observation."""
     stamp_writer = station.new_visit(meta)
     with run_record.writing(f"the visit of station '{station.name}'"), stamp_writer as w:
@@ -174,8 +223,10 @@ def _write_visit(station, meta: dict, *, images: dict[str, np.ndarray], points: 
         w.add_cloud(points, colors=np.asarray(state.cloud.intensities, dtype=np.float32))
         w.add_bytes(schema.RELOCATION_LOG, log)
         if coarse_result is not None and coarse_result.steps:
-            w.add_bytes(schema.COARSE_LOG, "".join(json.dumps(st.to_dict(), default=float) + "\n"
-                                                   for st in coarse_result.steps).encode("utf-8"))
+            w.add_bytes(
+                schema.COARSE_LOG,
+                "".join(json.dumps(st.to_dict(), default=float) + "\n" for st in coarse_result.steps).encode("utf-8"),
+            )
         if evaluation is not None:
             w.add_json(schema.SIM_TRUTH, evaluation())
         return w.commit()

@@ -73,8 +73,15 @@ def _guarded_move(rig: RigHandles, M_flange: np.ndarray, timing: SessionTiming) 
     """Move the flange by ``M_flange`` (flange frame) through the guard, in steps within its limits."""
     limits = rig.guard.limits
     M = np.asarray(M_flange, dtype=float)
-    n = max(1, math.ceil(max(float(np.linalg.norm(M[:3, 3])) / limits.max_step_m,
-                             rotation_angle_rad(M[:3, :3]) / limits.max_step_rad) - 1e-9))
+    n = max(
+        1,
+        math.ceil(
+            max(
+                float(np.linalg.norm(M[:3, 3])) / limits.max_step_m, rotation_angle_rad(M[:3, :3]) / limits.max_step_rad
+            )
+            - 1e-9
+        ),
+    )
     step = exp_se3(log_se3(M) / n)
     with recorded_motion():
         for _ in range(n):
@@ -88,18 +95,25 @@ def _visit_metadata(request: RelocateRequest, result: RelocationResult, referenc
         "lightings": request.lightings,
         "scale": None,
         "relocation": {
-            "method": str(request.method), "converged": result.converged, "reason": result.reason,
-            "adjustments": result.adjustments, "wall_s": result.wall_s, "session_s": result.session_s,
-            "platform_s": result.platform_s, "synthetic_s": result.synthetic_s,
-            "reference_image": reference_name, "residual": None,
+            "method": str(request.method),
+            "converged": result.converged,
+            "reason": result.reason,
+            "adjustments": result.adjustments,
+            "wall_s": result.wall_s,
+            "session_s": result.session_s,
+            "platform_s": result.platform_s,
+            "synthetic_s": result.synthetic_s,
+            "reference_image": reference_name,
+            "residual": None,
         },
         "coarse": None,
         **(request.metadata or {}),
     }
 
 
-def acr_relocate_and_capture(rig: RigHandles, station, request: RelocateRequest, *,
-                             hooks: RelocateHooks) -> CaptureResult:
+def acr_relocate_and_capture(
+    rig: RigHandles, station, request: RelocateRequest, *, hooks: RelocateHooks
+) -> CaptureResult:
     """Relocate to the station's reference image with ACR, then write a visit (images, log, truth).
 
     Raises
@@ -109,16 +123,27 @@ def acr_relocate_and_capture(rig: RigHandles, station, request: RelocateRequest,
     """
     name, reference_image = acr_reference_image(station)
     timing = SessionTiming()
-    acr_rig = AcrRig(grab=lambda: _grab_timed(rig, timing), move=lambda M: _guarded_move(rig, M, timing),
-                     timing=timing, say=rig.say, evaluate=hooks.evaluate, on_record=hooks.on_record)
+    acr_rig = AcrRig(
+        grab=lambda: _grab_timed(rig, timing),
+        move=lambda M: _guarded_move(rig, M, timing),
+        timing=timing,
+        say=rig.say,
+        evaluate=hooks.evaluate,
+        on_record=hooks.on_record,
+    )
     config = request.acr or AcrConfig()
     # the two-view model follows the method (acr: essential matrix; acr-h: homography)
     config = replace(config, pose=replace(config.pose, model=AcrModel(str(request.method))))
     handeye = "the calibrated hand-eye" if config.use_handeye else "hand-eye taken as the identity"
     rig.say(f"relocating ({request.method}) to the reference image '{name}' of station '{station.name}' ({handeye})")
     rig.progress(0, 0, "relocating")
-    result = acr_relocate(acr_rig, reference_image, rig.intrinsics.K, config=config,
-                          T_flange_cam=rig.T_flange_cam if config.use_handeye else None)
+    result = acr_relocate(
+        acr_rig,
+        reference_image,
+        rig.intrinsics.K,
+        config=config,
+        T_flange_cam=rig.T_flange_cam if config.use_handeye else None,
+    )
     images = grab_images(rig, request.lightings)
     meta = _visit_metadata(request, result, name)
     rig.progress(0, 0, "writing the visit")
@@ -130,6 +155,7 @@ def acr_relocate_and_capture(rig: RigHandles, station, request: RelocateRequest,
         if hooks.evaluation is not None:
             w.add_json(schema.SIM_TRUTH, hooks.evaluation())
         obs = w.commit()
-    scale = ScaleEstimate(scale=math.nan, scale_std=math.nan, n_samples=0, residual_rms_mm=math.nan,
-                          method="none: ACR builds no map")
+    scale = ScaleEstimate(
+        scale=math.nan, scale_std=math.nan, n_samples=0, residual_rms_mm=math.nan, method="none: ACR builds no map"
+    )
     return CaptureResult(str(obs.path), scale, 0, list(images), relocation=result)

@@ -33,7 +33,9 @@ def _visit_summary(campaign: Path, st, name: str, progress: Progress):
         reason=summary.get("reason", ""),
         regions=len(regions),
         changed_px=int(sum(r["area_px"] for r in regions)),
-        changed_mm2=float(sum(mm2)) if regions and all(v is not None for v in mm2) else (0.0 if not regions and summary.get("comparable") else None),
+        changed_mm2=float(sum(mm2))
+        if regions and all(v is not None for v in mm2)
+        else (0.0 if not regions and summary.get("comparable") else None),
         afd_px=(summary.get("afd") or {}).get("afd_px"),
         overlay_png=observation.bytes(_OVERLAY) if observation.has(_OVERLAY) else None,
     )
@@ -60,19 +62,30 @@ def station_history(campaign: Path, station: str, *, output: Path | None = None,
             summaries.append(_visit_summary(campaign, st, name, progress))
         except DataIntegrityError as exc:
             damaged.append({"name": name, "reason": str(exc)})
-            summaries.append(VisitSummary(name=name, date=name, comparable=False, reason=str(exc),
-                                          extra={"damaged": True}))
+            summaries.append(
+                VisitSummary(name=name, date=name, comparable=False, reason=str(exc), extra={"damaged": True})
+            )
     lightings = list(reference.metadata.get("lightings") or reference.image_names())
     reference_png = png_bytes(to_display_rgb(reference.image(lightings[0]))) if lightings else None
     from fgcd_cli.app.archive_history import station_tracks
     from fgcd_cli.report.site import tracks_section
 
     tracks = station_tracks(camp.path, station)  # each region followed across the visits (docs/archive.md)
-    html_text = render_station_history(station=station, site=camp.site, reference_date=str(reference.manifest.get("created", "")),
-                                       reference_png=reference_png, visits=summaries,
-                                       tracks_html=tracks_section(tracks) if summaries else "")
+    html_text = render_station_history(
+        station=station,
+        site=camp.site,
+        reference_date=str(reference.manifest.get("created", "")),
+        reference_png=reference_png,
+        visits=summaries,
+        tracks_html=tracks_section(tracks) if summaries else "",
+    )
     target = output if output is not None else st.path / schema.HISTORY_REPORT
     atomic_write_bytes(target, html_text.encode())
     good = [s for s in summaries if not s.extra.get("damaged")]
-    return {"station": station, "visits": [s.__dict__ | {"overlay_png": None} for s in good], "damaged": damaged,
-            "output": str(target), "tracks": [t.to_dict() for t in tracks.tracks]}
+    return {
+        "station": station,
+        "visits": [s.__dict__ | {"overlay_png": None} for s in good],
+        "damaged": damaged,
+        "output": str(target),
+        "tracks": [t.to_dict() for t in tracks.tracks],
+    }

@@ -33,8 +33,16 @@ from fgcd_cli.relocation.enums import LoopMode, RelocationMethod
 from fgcd_cli.relocation.log import AdjustmentRecord
 from fgcd_drivers.connect import Driver
 
-__all__ = ["RevisitOutcome", "RevisitPlan", "RevisitRequest", "check_relocation_options", "plan_revisit",
-           "run_revisit", "visit_lightings", "visit_scenario"]
+__all__ = [
+    "RevisitOutcome",
+    "RevisitPlan",
+    "RevisitRequest",
+    "check_relocation_options",
+    "plan_revisit",
+    "run_revisit",
+    "visit_lightings",
+    "visit_scenario",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -130,18 +138,29 @@ class RevisitOutcome:
         """The JSON object ``fgcd relocate --json`` prints."""
         reloc, coarse = self.result.relocation, self.result.coarse
         return {
-            "station": self.station, "visit": self.result.observation_path, "converged": reloc.converged,
-            "reason": reloc.reason, "adjustments": reloc.adjustments, "wall_s": reloc.wall_s,
-            "session_s": reloc.session_s, "residual": reloc.residual.to_dict() if reloc.residual else None,
+            "station": self.station,
+            "visit": self.result.observation_path,
+            "converged": reloc.converged,
+            "reason": reloc.reason,
+            "adjustments": reloc.adjustments,
+            "wall_s": reloc.wall_s,
+            "session_s": reloc.session_s,
+            "residual": reloc.residual.to_dict() if reloc.residual else None,
             "final_truth": reloc.records[-1].truth if reloc.records else None,
-            "coarse": None if coarse is None else {"handed_over": coarse.handed_over, "reason": coarse.reason,
-                                                   "actions": [s.action for s in coarse.steps]},
+            "coarse": None
+            if coarse is None
+            else {
+                "handed_over": coarse.handed_over,
+                "reason": coarse.reason,
+                "actions": [s.action for s in coarse.steps],
+            },
             "resume": None if self.resume is None else self.resume.to_dict(),
         }
 
 
-def check_relocation_options(*, changes: int, eta: float, max_adjustments: int | None, start_offset_mm: float,
-                             start_offset_deg: float) -> None:
+def check_relocation_options(
+    *, changes: int, eta: float, max_adjustments: int | None, start_offset_mm: float, start_offset_deg: float
+) -> None:
     """Refuse out-of-range relocation options up front (UserInputError naming the valid range)."""
     if changes < 0:
         raise UserInputError(f"--changes must be 0 or more, got {changes}")
@@ -154,18 +173,29 @@ def check_relocation_options(*, changes: int, eta: float, max_adjustments: int |
             raise UserInputError(f"{option} must be a number >= 0, got {value}")
 
 
-def visit_scenario(campaign, reference, *, light: str, changes: int, start_offset_mm: float, start_offset_deg: float,
-                   session_seed: int) -> SimScenario:
+def visit_scenario(
+    campaign, reference, *, light: str, changes: int, start_offset_mm: float, start_offset_deg: float, session_seed: int
+) -> SimScenario:
     """The simulated session of a visit: the station's own world (see :func:`station_world`), checked."""
     world = station_world(campaign, reference)
     try:
         check_scene(world["scene"])
     except UserInputError as exc:
-        raise CampaignError(f"the reference of {reference.path} was captured in a world this simulator lacks: {exc}") \
-            from None
-    return check_scenario(SimScenario(scene=world["scene"], seed=world["seed"], noise=world["noise"], lighting=light,
-                                      changes=changes, start_offset_mm=start_offset_mm,
-                                      start_offset_deg=start_offset_deg, session_seed=session_seed))
+        raise CampaignError(
+            f"the reference of {reference.path} was captured in a world this simulator lacks: {exc}"
+        ) from None
+    return check_scenario(
+        SimScenario(
+            scene=world["scene"],
+            seed=world["seed"],
+            noise=world["noise"],
+            lighting=light,
+            changes=changes,
+            start_offset_mm=start_offset_mm,
+            start_offset_deg=start_offset_deg,
+            session_seed=session_seed,
+        )
+    )
 
 
 def visit_lightings(visit_light: str, reference_lightings: list[str], *, controllable: bool) -> list[str]:
@@ -189,8 +219,13 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     if r.rig.driver is not None:
         check_driver(r.rig.driver)
     method = check_method(r.method)
-    check_relocation_options(changes=r.changes, eta=r.eta, max_adjustments=r.max_adjustments,
-                             start_offset_mm=r.start_offset_mm, start_offset_deg=r.start_offset_deg)
+    check_relocation_options(
+        changes=r.changes,
+        eta=r.eta,
+        max_adjustments=r.max_adjustments,
+        start_offset_mm=r.start_offset_mm,
+        start_offset_deg=r.start_offset_deg,
+    )
     camp = open_campaign(campaign_path)
     rig = resolve_rig(camp, r.rig)  # the driver, then its address
     driver = rig.driver
@@ -202,29 +237,62 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         ref.bytes(relpath)  # DataIntegrityError (exit 4) naming the damaged file
     scenario = None
     if driver == Driver.SIM:
-        scenario = visit_scenario(camp, ref, light=light, changes=r.changes, start_offset_mm=r.start_offset_mm,
-                                  start_offset_deg=r.start_offset_deg, session_seed=r.session_seed)
+        scenario = visit_scenario(
+            camp,
+            ref,
+            light=light,
+            changes=r.changes,
+            start_offset_mm=r.start_offset_mm,
+            start_offset_deg=r.start_offset_deg,
+            session_seed=r.session_seed,
+        )
     T_flange_cam, cam = rig_calibration(camp)
     if T_flange_cam is None and not r.no_handeye and method == RelocationMethod.RACR:
         raise CampaignError("no hand-eye calibration in the campaign: calibrate, or use --no-handeye")
-    if r.no_handeye or T_flange_cam is None:  # ACR needs none; the rig opens with the identity (rig.hand_eye_or_identity)
+    if (
+        r.no_handeye or T_flange_cam is None
+    ):  # ACR needs none; the rig opens with the identity (rig.hand_eye_or_identity)
         T_flange_cam = None
     else:
-        check_record_rig(camp.read_rig(schema.RIG_HANDEYE), rig, name=schema.RIG_HANDEYE,
-                         command="fgcd calibrate hand-eye")
-    config = RelocationConfig(mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL, deterministic=r.deterministic,
-                              eta=r.eta, max_adjustments=r.max_adjustments or RelocationConfig().max_adjustments,
-                              image_refine=not r.no_image_refine, image_fallback=not r.no_image_refine)
-    acr = AcrConfig(pose=AcrPoseConfig(model=AcrModel(str(method))), max_adjustments=r.max_adjustments
-                    or AcrConfig().max_adjustments) if method != RelocationMethod.RACR else None
+        check_record_rig(
+            camp.read_rig(schema.RIG_HANDEYE), rig, name=schema.RIG_HANDEYE, command="fgcd calibrate hand-eye"
+        )
+    config = RelocationConfig(
+        mode=LoopMode.SERIAL if r.serial else LoopMode.PARALLEL,
+        deterministic=r.deterministic,
+        eta=r.eta,
+        max_adjustments=r.max_adjustments or RelocationConfig().max_adjustments,
+        image_refine=not r.no_image_refine,
+        image_fallback=not r.no_image_refine,
+    )
+    acr = (
+        AcrConfig(
+            pose=AcrPoseConfig(model=AcrModel(str(method))),
+            max_adjustments=r.max_adjustments or AcrConfig().max_adjustments,
+        )
+        if method != RelocationMethod.RACR
+        else None
+    )
     lights = rig_lights(camp, visit_lightings(light, ref.metadata.get("lightings", []), controllable=True))
-    return RevisitPlan(request=replace(r, light=light), driver=driver, station=st, reference=ref, scenario=scenario,
-                       T_flange_cam=T_flange_cam, camera=cam, config=config, rig=rig, lights=lights,
-                       method=method, acr=acr)
+    return RevisitPlan(
+        request=replace(r, light=light),
+        driver=driver,
+        station=st,
+        reference=ref,
+        scenario=scenario,
+        T_flange_cam=T_flange_cam,
+        camera=cam,
+        config=config,
+        rig=rig,
+        lights=lights,
+        method=method,
+        acr=acr,
+    )
 
 
-def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
-                on_record: Callable[[AdjustmentRecord], None] | None = None) -> RevisitOutcome:
+def run_revisit(
+    plan: RevisitPlan, *, hooks: RigHooks = RigHooks(), on_record: Callable[[AdjustmentRecord], None] | None = None
+) -> RevisitOutcome:
     """Open the plan's rig, relocate to the station's reference and write the visit (under the station's lock)."""
     from fgcd_cli.campaign.lock import station_lock
 
@@ -232,8 +300,9 @@ def run_revisit(plan: RevisitPlan, *, hooks: RigHooks = RigHooks(),
         return _revisit_locked(plan, hooks=hooks, on_record=on_record)
 
 
-def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
-                    on_record: Callable[[AdjustmentRecord], None] | None) -> RevisitOutcome:
+def _revisit_locked(
+    plan: RevisitPlan, *, hooks: RigHooks, on_record: Callable[[AdjustmentRecord], None] | None
+) -> RevisitOutcome:
     """:func:`run_revisit` under the station's lock."""
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
@@ -243,25 +312,44 @@ def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
     decision = decide_resume(plan.station, resume=r.resume, options=options)
     run_record.no_writes()
     where = plan.rig or EffectiveRig(driver=plan.driver)
-    rig = rig_uc.open_rig(RigRequest(driver=plan.driver, T_flange_cam=plan.T_flange_cam, intrinsics=plan.camera,
-                                     scenario=plan.scenario, port=where.port, baud=where.baud, host=where.host,
-                                     camera_index=where.camera, lights=plan.lights),
-                          hooks=hooks)
+    rig = rig_uc.open_rig(
+        RigRequest(
+            driver=plan.driver,
+            T_flange_cam=plan.T_flange_cam,
+            intrinsics=plan.camera,
+            scenario=plan.scenario,
+            port=where.port,
+            baud=where.baud,
+            host=where.host,
+            camera_index=where.camera,
+            lights=plan.lights,
+        ),
+        hooks=hooks,
+    )
     run_record.platform_connected(getattr(rig, "platform_name", None) or plan.driver)
     with rig_uc.opened(rig):
         say = getattr(rig.handles, "say", None) or (lambda text: None)  # stand-in rigs may lack it
         say(decision.reason)
         journal = JournalWriter(plan.station, options=options, decision=decision)
         if decision.mode == ResumeMode.CONTINUED:
-            say(f"back to where the interrupted visit stopped "
-                f"({return_to(rig.handles.guard, decision.T_base_flange)} guarded steps)")
+            say(
+                f"back to where the interrupted visit stopped "
+                f"({return_to(rig.handles.guard, decision.T_base_flange)} guarded steps)"
+            )
         evaluator = RelocationEvaluator.from_reference(rig.sim, plan.reference) if rig.sim is not None else None
         request = RelocateRequest(
             config=plan.config,
-            lightings=visit_lightings(r.light, plan.reference.metadata.get("lightings", []),
-                                      controllable=getattr(rig.handles, "lights", None) is not None),
-            metadata={"driver": plan.driver, "scenario": rig.info.get("scenario"), "no_handeye": r.no_handeye,
-                      "resume": decision.to_dict()},
+            lightings=visit_lightings(
+                r.light,
+                plan.reference.metadata.get("lightings", []),
+                controllable=getattr(rig.handles, "lights", None) is not None,
+            ),
+            metadata={
+                "driver": plan.driver,
+                "scenario": rig.info.get("scenario"),
+                "no_handeye": r.no_handeye,
+                "resume": decision.to_dict(),
+            },
             coarse=None if r.no_coarse else CoarseConfig(),
             earlier_log=tuple(decision.records),
             method=plan.method,
@@ -274,8 +362,15 @@ def _revisit_locked(plan: RevisitPlan, *, hooks: RigHooks,
             if on_record is not None:
                 on_record(rec)
 
-        result = relocate_and_capture(rig.handles, plan.station, request=request, hooks=RelocateHooks(
-            evaluate=evaluator.evaluate if evaluator else None, on_record=record,
-            evaluation=evaluator.summary if evaluator else None))
+        result = relocate_and_capture(
+            rig.handles,
+            plan.station,
+            request=request,
+            hooks=RelocateHooks(
+                evaluate=evaluator.evaluate if evaluator else None,
+                on_record=record,
+                evaluation=evaluator.summary if evaluator else None,
+            ),
+        )
         journal.remove()
     return RevisitOutcome(station=r.station, result=result, resume=decision)

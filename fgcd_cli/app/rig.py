@@ -217,9 +217,16 @@ def open_sim_rig(
     from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
 
     scenario = check_scenario(scenario)
-    rig = build_sim_rig(scene=scenario.scene,
-                        config=SimRigConfig(lighting=scenario.lighting, seed=scenario.seed, noise=scenario.noise,
-                                            session_seed=scenario.session_seed, with_depth=vse_variant == "rgbd"))
+    rig = build_sim_rig(
+        scene=scenario.scene,
+        config=SimRigConfig(
+            lighting=scenario.lighting,
+            seed=scenario.seed,
+            noise=scenario.noise,
+            session_seed=scenario.session_seed,
+            with_depth=vse_variant == "rgbd",
+        ),
+    )
     if scenario.changes > 0:
         rig.inject_changes(n=scenario.changes, seed=scenario.change_seed, size_mm=tuple(scenario.change_size_mm))
     if scenario.start_offset_mm > 0 or scenario.start_offset_deg > 0:
@@ -230,8 +237,9 @@ def open_sim_rig(
     # The simulated platform's speed model is already the rACR paper's slow stage
     # (1.5 s per cm, ~6.7 mm/s): run it at that speed, not at the guard's default
     # half speed meant for fast industrial arms, so simulated times compare with the paper's.
-    guard = _recorded_guard(rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12),
-                                                      speed_fraction=1.0), confirm)
+    guard = _recorded_guard(
+        rig.platform, GuardLimits(max_step_m=0.06, max_step_rad=math.radians(12), speed_fraction=1.0), confirm
+    )
     handles = RigHandles(
         guard=guard,
         camera_source=source,
@@ -370,8 +378,9 @@ def _open_hardware_rig(request: RigRequest, hooks: RigHooks) -> OpenedRig:
         platform = open_platform(driver, spec=PlatformSpec(port=request.port, baud=request.baud, host=request.host))
         platform.connect()
         try:
-            raw_camera = OpenCVCamera(request.camera_index, width=request.intrinsics.width,
-                                      height=request.intrinsics.height)
+            raw_camera = OpenCVCamera(
+                request.camera_index, width=request.intrinsics.width, height=request.intrinsics.height
+            )
         except BaseException:  # no camera (CameraError, exit 7): the platform is not left connected
             platform.close()
             raise

@@ -18,9 +18,20 @@ from fgcd_cli.app.scenario import SimScenario, check_connection, check_driver
 from fgcd_cli.errors import CampaignError, UserInputError
 from fgcd_drivers.connect import Driver
 
-__all__ = ["DEFAULT_BAUD", "DEFAULT_CAMERA", "DEFAULT_DRIVER", "DEFAULT_SCENE", "EffectiveRig", "RigOptions",
-           "calibration_campaign", "campaign_rig_section",
-           "check_campaign_rig", "check_record_rig", "parse_camera", "resolve_rig"]
+__all__ = [
+    "DEFAULT_BAUD",
+    "DEFAULT_CAMERA",
+    "DEFAULT_DRIVER",
+    "DEFAULT_SCENE",
+    "EffectiveRig",
+    "RigOptions",
+    "calibration_campaign",
+    "campaign_rig_section",
+    "check_campaign_rig",
+    "check_record_rig",
+    "parse_camera",
+    "resolve_rig",
+]
 
 DEFAULT_DRIVER = Driver.SIM.value
 #: GRBL 1.1's factory baud rate.
@@ -108,8 +119,7 @@ def parse_camera(value, *, where: str = "--camera") -> int | str:
 
 def _check_baud(value, *, where: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise UserInputError(f"{where} must be a positive whole number of bits per second (e.g. 115200), "
-                             f"got {value!r}")
+        raise UserInputError(f"{where} must be a positive whole number of bits per second (e.g. 115200), got {value!r}")
     return value
 
 
@@ -140,8 +150,9 @@ def resolve_rig(campaign, given: RigOptions) -> EffectiveRig:
     check_connection(driver, port=port, host=host)
     baud = stored_baud if given.baud is None else _check_baud(given.baud, where="--baud")
     camera = stored_camera if given.camera is None else parse_camera(given.camera)
-    return EffectiveRig(driver=driver, port=port, host=host, baud=baud, camera=camera,
-                        driver_given=given.driver is not None)
+    return EffectiveRig(
+        driver=driver, port=port, host=host, baud=baud, camera=camera, driver_given=given.driver is not None
+    )
 
 
 def check_campaign_rig(campaign, rig: EffectiveRig, *, what: str) -> None:
@@ -156,9 +167,10 @@ def check_campaign_rig(campaign, rig: EffectiveRig, *, what: str) -> None:
     stored = str(campaign.rig_config.get("driver", DEFAULT_DRIVER))
     if rig.driver != stored:
         raise UserInputError(
-            f"campaign {campaign.path} is a {stored} rig (campaign.toml [rig] driver = \"{stored}\"): {what} made "
+            f'campaign {campaign.path} is a {stored} rig (campaign.toml [rig] driver = "{stored}"): {what} made '
             f"with --driver {rig.driver} cannot be stored in it; drop --driver, or use a campaign of a "
-            f"{rig.driver} rig (`fgcd campaign init DIR --driver {rig.driver}`)")
+            f"{rig.driver} rig (`fgcd campaign init DIR --driver {rig.driver}`)"
+        )
 
 
 def check_record_rig(record: dict | None, rig: EffectiveRig, *, name: str, command: str) -> None:
@@ -171,12 +183,15 @@ def check_record_rig(record: dict | None, rig: EffectiveRig, *, name: str, comma
     made = record.get("rig", {}).get("driver") if isinstance(record.get("rig"), dict) else None
     made = made or record.get("driver")
     if made is not None and made != rig.driver:
-        raise CampaignError(f"rig/{name}.json was made on the {made} rig, and this campaign's rig is {rig.driver}: "
-                            f"calibrate again on this rig (`{command}`)")
+        raise CampaignError(
+            f"rig/{name}.json was made on the {made} rig, and this campaign's rig is {rig.driver}: "
+            f"calibrate again on this rig (`{command}`)"
+        )
 
 
-def campaign_rig_section(*, driver: str, port: str | None = None, host: str | None = None, baud: int | None = None,
-                         camera: str | None = None) -> dict:
+def campaign_rig_section(
+    *, driver: str, port: str | None = None, host: str | None = None, baud: int | None = None, camera: str | None = None
+) -> dict:
     """The ``[rig]`` section ``fgcd campaign init`` writes, checked (UserInputError, nothing written).
 
     A hardware rig's values are written out even when defaulted (a GRBL

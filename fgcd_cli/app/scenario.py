@@ -23,8 +23,6 @@ __all__ = [
 ]
 
 
-
-
 @dataclass(frozen=True, kw_only=True)
 class SimScenario:
     """How the simulated world of a session differs from the reference one.
@@ -80,8 +78,10 @@ def check_connection(driver: str, *, port: str | None, host: str | None) -> None
     if driver == "grbl" and not port:
         raise UserInputError("the grbl driver needs --port (e.g. --port /dev/ttyUSB0, or port in campaign.toml [rig])")
     if driver == "ur" and not host:
-        raise UserInputError("the ur driver needs --host (the controller's address, e.g. --host 192.168.0.10, "
-                             "or host in campaign.toml [rig])")
+        raise UserInputError(
+            "the ur driver needs --host (the controller's address, e.g. --host 192.168.0.10, "
+            "or host in campaign.toml [rig])"
+        )
 
 
 def check_scene(scene: str) -> str:
@@ -120,7 +120,10 @@ def check_scenario(scenario: SimScenario) -> SimScenario:
     lighting = check_lighting(scenario.lighting)
     if scenario.changes < 0:
         raise UserInputError(f"--changes must be 0 or more, got {scenario.changes}")
-    for option, value in (("--start-offset-mm", scenario.start_offset_mm), ("--start-offset-deg", scenario.start_offset_deg)):
+    for option, value in (
+        ("--start-offset-mm", scenario.start_offset_mm),
+        ("--start-offset-deg", scenario.start_offset_deg),
+    ):
         if not math.isfinite(value) or value < 0:
             raise UserInputError(f"{option} must be a finite number >= 0, got {value}")
     lo, hi = scenario.change_size_mm

@@ -32,19 +32,32 @@ from fgcd_cli.relocation.coarse.scene_uncertainty import (
 __all__ = ["cached_scene_uncertainty", "scene_uncertainty_path", "station_scene_uncertainty"]
 
 
-def scene_uncertainty_path(station, camera, *, config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
-                           coarse: CoarseConfig = CoarseConfig()) -> Path:
+def scene_uncertainty_path(
+    station, camera, *, config: SceneUncertaintyConfig = SceneUncertaintyConfig(), coarse: CoarseConfig = CoarseConfig()
+) -> Path:
     """Where the station's map for this reference, camera and options is cached."""
     reference = station.reference()
-    key = json.dumps({"reference": reference.manifest, "camera": camera.to_dict(), "options": asdict(config),
-                      "coarse": [coarse.sigma_rel, coarse.verify_m, coarse.verify_deg, coarse.weak_ratio]},
-                     sort_keys=True, default=str)
+    key = json.dumps(
+        {
+            "reference": reference.manifest,
+            "camera": camera.to_dict(),
+            "options": asdict(config),
+            "coarse": [coarse.sigma_rel, coarse.verify_m, coarse.verify_deg, coarse.weak_ratio],
+        },
+        sort_keys=True,
+        default=str,
+    )
     return Path(station.path) / f"{schema.SCENE_UNCERTAINTY_PREFIX}-{sha256_bytes(key.encode())[:16]}.npz"
 
 
-def station_scene_uncertainty(station, camera, *, config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
-                              coarse: CoarseConfig = CoarseConfig(),
-                              say: Callable[[str], None] = lambda _m: None) -> SceneUncertaintyMap | None:
+def station_scene_uncertainty(
+    station,
+    camera,
+    *,
+    config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
+    coarse: CoarseConfig = CoarseConfig(),
+    say: Callable[[str], None] = lambda _m: None,
+) -> SceneUncertaintyMap | None:
     """The station's scene uncertainty map: read from its cache, or computed and cached.
 
     Parameters
@@ -71,10 +84,19 @@ def station_scene_uncertainty(station, camera, *, config: SceneUncertaintyConfig
         return SceneUncertaintyMap.from_npz(path.read_bytes())
     try:
         reference = load_reference(station)
-        keypoints = reference_keypoints_3d(reference_images=reference_images(station), camera=camera,
-                                           ref_points=reference.points, T_ref_camref=reference.T_ref_camref)
-        model = build_scene_model(reference_points=reference.points, T_ref_camref=reference.T_ref_camref,
-                                  camera=camera, keypoints_per_image=keypoints, config=config)
+        keypoints = reference_keypoints_3d(
+            reference_images=reference_images(station),
+            camera=camera,
+            ref_points=reference.points,
+            T_ref_camref=reference.T_ref_camref,
+        )
+        model = build_scene_model(
+            reference_points=reference.points,
+            T_ref_camref=reference.T_ref_camref,
+            camera=camera,
+            keypoints_per_image=keypoints,
+            config=config,
+        )
         smap = scene_uncertainty_map(model, camera, config=config, coarse=coarse)
     except (FgcdError, KeyError, ValueError, OSError, np.linalg.LinAlgError) as exc:
         # guidance only: a reference that cannot give a map leaves the looks in their fixed order

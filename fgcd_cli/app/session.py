@@ -13,8 +13,17 @@ from fgcd_cli.relocation.config import ReferenceData
 from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
 from fgcd_core.imaging import to_float01
 
-__all__ = ["MAX_SCALE_RESIDUAL_MM", "grab_gray", "grab_gray_under", "grab_images", "load_reference",
-           "measurement_lighting", "metric_keyframes", "reference_images", "start_session"]
+__all__ = [
+    "MAX_SCALE_RESIDUAL_MM",
+    "grab_gray",
+    "grab_gray_under",
+    "grab_images",
+    "load_reference",
+    "measurement_lighting",
+    "metric_keyframes",
+    "reference_images",
+    "start_session",
+]
 
 
 def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> dict[str, np.ndarray]:
@@ -42,7 +51,12 @@ MAX_SCALE_RESIDUAL_MM = 12.0
 
 
 def start_session(
-    rig: RigHandles, *, explore_m: float, attempts: int = 2, legs: int = 6, motions: list[np.ndarray] | None = None,
+    rig: RigHandles,
+    *,
+    explore_m: float,
+    attempts: int = 2,
+    legs: int = 6,
+    motions: list[np.ndarray] | None = None,
     until: Callable[[VseSession, list, list], bool] | None = None,
 ) -> tuple[VseSession, object, ScaleEstimate, np.ndarray]:
     """Start the VSE, explore and estimate the map scale; explore again once on a bad start.
@@ -57,8 +71,13 @@ def start_session(
     """
     vse = rig.vse_factory()
     vse.start()
-    session = VseSession(guard=rig.guard, vse=vse, on_event=rig.on_event, on_progress=rig.on_progress,
-                         frame_synthesis_s=rig.frame_synthesis_s)
+    session = VseSession(
+        guard=rig.guard,
+        vse=vse,
+        on_event=rig.on_event,
+        on_progress=rig.on_progress,
+        frame_synthesis_s=rig.frame_synthesis_s,
+    )
     T_base_flange_home = rig.guard.platform.flange_pose()
     last_error: AlgorithmError | None = None
     try:
@@ -66,15 +85,21 @@ def start_session(
             rig.say("exploring to initialise the VSE and its scale" + (f" (attempt {attempt})" if attempt > 1 else ""))
             try:
                 flange, cams = session.explore(
-                    motions if motions is not None else
-                    exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2),
-                    until=None if until is None else (lambda f, c: until(session, f, c)))
+                    motions
+                    if motions is not None
+                    else exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2),
+                    until=None if until is None else (lambda f, c: until(session, f, c)),
+                )
                 if getattr(vse.latest(), "scale_is_metric", False):
                     # a depth camera's map is metric: the platform motions only confirm it
                     check = session.estimate_scale(rig.T_flange_cam, flange, cams)
-                    scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=check.n_samples,
-                                          residual_rms_mm=check.residual_rms_mm,
-                                          method=f"metric depth (platform check {check.scale:.4f})")
+                    scale = ScaleEstimate(
+                        scale=1.0,
+                        scale_std=0.0,
+                        n_samples=check.n_samples,
+                        residual_rms_mm=check.residual_rms_mm,
+                        method=f"metric depth (platform check {check.scale:.4f})",
+                    )
                 else:
                     scale = session.estimate_scale(rig.T_flange_cam, flange, cams)
                 if scale.residual_rms_mm > MAX_SCALE_RESIDUAL_MM:

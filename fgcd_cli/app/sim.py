@@ -18,8 +18,17 @@ import numpy as np
 
 from fgcd_cli.errors import UserInputError
 
-__all__ = ["RenderOutcome", "RenderRequest", "check_output", "contact_sheet", "lightings", "parse_pose", "render_view",
-           "scenes", "write_png"]
+__all__ = [
+    "RenderOutcome",
+    "RenderRequest",
+    "check_output",
+    "contact_sheet",
+    "lightings",
+    "parse_pose",
+    "render_view",
+    "scenes",
+    "write_png",
+]
 
 
 def scenes() -> tuple[list[dict], Path]:
@@ -68,8 +77,9 @@ def check_output(path: Path, what: str) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UserInputError(f"cannot write {what} {path}: {exc.strerror or exc} ({exc.filename or path.parent})") \
-            from None
+        raise UserInputError(
+            f"cannot write {what} {path}: {exc.strerror or exc} ({exc.filename or path.parent})"
+        ) from None
     if not os.access(path.parent, os.W_OK):
         raise UserInputError(f"cannot write {what} {path}: {path.parent} is not writable")
 
@@ -226,16 +236,29 @@ def render_view(request: RenderRequest) -> RenderOutcome:
         write_png(r.mask, res.change_mask.astype(np.uint8) * 255, "mask")
         written["mask"] = str(r.mask)
     record = {
-        "scene": r.scene, "lighting": lighting.name, "T_world_cam": T, "intrinsics": intr.to_dict(),
-        "exposure": res.exposure, "render_ms": ms, "changes": [c.to_dict() for c in chs],
-        "change_pixels": int(res.change_mask.sum()), "written": written,
+        "scene": r.scene,
+        "lighting": lighting.name,
+        "T_world_cam": T,
+        "intrinsics": intr.to_dict(),
+        "exposure": res.exposure,
+        "render_ms": ms,
+        "changes": [c.to_dict() for c in chs],
+        "change_pixels": int(res.change_mask.sum()),
+        "written": written,
     }
-    return RenderOutcome(record=record, lighting=lighting.name, render_ms=ms, written=written, changes=len(chs),
-                         change_pixels=int(res.change_mask.sum()))
+    return RenderOutcome(
+        record=record,
+        lighting=lighting.name,
+        render_ms=ms,
+        written=written,
+        changes=len(chs),
+        change_pixels=int(res.change_mask.sum()),
+    )
 
 
-def contact_sheet(out: Path, *, lights: str, width: int, supersample: int,
-                  say: Callable[[str], None] | None = None) -> dict:
+def contact_sheet(
+    out: Path, *, lights: str, width: int, supersample: int, say: Callable[[str], None] | None = None
+) -> dict:
     """Every scene (rows) under several lightings (columns), labelled, in one PNG; ``fgcd sim contact-sheet``'s record.
 
     Parameters

@@ -105,28 +105,38 @@ def decide_resume(station, *, resume: bool, options: dict) -> ResumeDecision:
         left = " (an interrupted visit's journal is replaced; --resume would continue it)" if path.exists() else ""
         return ResumeDecision(mode=ResumeMode.NEW, reason="a new visit" + left)
     if not path.exists():
-        return ResumeDecision(mode=ResumeMode.STARTED_OVER,
-                              reason=f"no interrupted visit of station '{station.name}': starting a new one")
+        return ResumeDecision(
+            mode=ResumeMode.STARTED_OVER, reason=f"no interrupted visit of station '{station.name}': starting a new one"
+        )
     try:
         earlier, records, pose = _read(path)
     except (OSError, ValueError, KeyError, TypeError):
-        return ResumeDecision(mode=ResumeMode.STARTED_OVER,
-                              reason="the interrupted visit's journal is damaged: starting over")
+        return ResumeDecision(
+            mode=ResumeMode.STARTED_OVER, reason="the interrupted visit's journal is damaged: starting over"
+        )
     changed = [k for k in sorted(options) if earlier.get(k) != options[k]]
     if changed:
-        return ResumeDecision(mode=ResumeMode.STARTED_OVER,
-                              reason=f"the interrupted visit used another {', '.join(changed)}: starting over")
+        return ResumeDecision(
+            mode=ResumeMode.STARTED_OVER,
+            reason=f"the interrupted visit used another {', '.join(changed)}: starting over",
+        )
     if pose is None:
-        return ResumeDecision(mode=ResumeMode.STARTED_OVER,
-                              reason="the interrupted visit made no adjustment yet: starting over")
+        return ResumeDecision(
+            mode=ResumeMode.STARTED_OVER, reason="the interrupted visit made no adjustment yet: starting over"
+        )
     committed = committed_visit_of_journal(station, records)
     if committed is not None:  # continuing would record the same revisit a second time
-        return ResumeDecision(mode=ResumeMode.STARTED_OVER,
-                              reason=f"the journal's visit was already written (visits/{committed}): starting a "
-                                     "new one")
-    return ResumeDecision(mode=ResumeMode.CONTINUED, records=records, T_base_flange=pose,
-                          reason=f"continuing the interrupted visit after its {len(records)} "
-                                 f"adjustment{'' if len(records) == 1 else 's'}")
+        return ResumeDecision(
+            mode=ResumeMode.STARTED_OVER,
+            reason=f"the journal's visit was already written (visits/{committed}): starting a new one",
+        )
+    return ResumeDecision(
+        mode=ResumeMode.CONTINUED,
+        records=records,
+        T_base_flange=pose,
+        reason=f"continuing the interrupted visit after its {len(records)} "
+        f"adjustment{'' if len(records) == 1 else 's'}",
+    )
 
 
 class JournalWriter:
@@ -150,7 +160,7 @@ class JournalWriter:
         fd = os.open(self.path, flags, 0o644)
         try:
             while data:  # os.write may write less than asked (a nearly full disk): the rest follows or raises
-                data = data[os.write(fd, data):]
+                data = data[os.write(fd, data) :]
             os.fsync(fd)
         finally:
             os.close(fd)
@@ -159,8 +169,9 @@ class JournalWriter:
         """One adjustment and the flange pose the platform reported after it (the first: after the start line)."""
         if self.adjustments == 0:
             self._append({"kind": "start", "options": self._options}, truncate=True)
-        self._append({"record": json.loads(record.to_json()),
-                      "T_base_flange": np.asarray(T_base_flange, dtype=float).tolist()})
+        self._append(
+            {"record": json.loads(record.to_json()), "T_base_flange": np.asarray(T_base_flange, dtype=float).tolist()}
+        )
         if self.adjustments == 0:
             self._keep()
         self.adjustments += 1
@@ -184,8 +195,11 @@ def return_to(guard, T_base_flange: np.ndarray, *, step_fraction: float = 0.9) -
     start = np.asarray(guard.platform.flange_pose(), dtype=float)
     mm, deg = pose_distance(start, target)
     limits = guard.limits
-    steps = max(math.ceil(mm / (limits.max_step_m * 1000.0 * step_fraction)),
-                math.ceil(math.radians(deg) / (limits.max_step_rad * step_fraction)), 0)
+    steps = max(
+        math.ceil(mm / (limits.max_step_m * 1000.0 * step_fraction)),
+        math.ceil(math.radians(deg) / (limits.max_step_rad * step_fraction)),
+        0,
+    )
     for k in range(1, steps + 1):
         guard.move_to(interpolate_pose(start, target, k / steps))
     return steps

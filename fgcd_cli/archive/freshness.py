@@ -24,8 +24,16 @@ from fgcd_cli.campaign.atomic import sha256_file
 from fgcd_cli.changes.version import DETECTOR_VERSION
 from fgcd_cli.errors import DataIntegrityError
 
-__all__ = ["AnalysisOptions", "Freshness", "analysis_inputs", "analysis_record", "freshness", "stored_options",
-           "verify_inputs", "ANALYSIS_RELPATH"]
+__all__ = [
+    "AnalysisOptions",
+    "Freshness",
+    "analysis_inputs",
+    "analysis_record",
+    "freshness",
+    "stored_options",
+    "verify_inputs",
+    "ANALYSIS_RELPATH",
+]
 
 ANALYSIS_RELPATH = schema.change_relpath(schema.ANALYSIS_JSON)
 _REFERENCE_ARRAYS = (schema.array_relpath(schema.ARRAY_CLOUD_POINTS), schema.array_relpath(schema.ARRAY_T_REF_CAMREF))
@@ -101,18 +109,27 @@ def verify_inputs(reference, visit, inputs: dict[str, str]) -> None:
         try:
             actual = sha256_file(path)
         except OSError as exc:
-            raise DataIntegrityError(f"{path}: cannot be read ({exc.strerror or exc}); "
-                                     "run `fgcd campaign verify`") from None
+            raise DataIntegrityError(
+                f"{path}: cannot be read ({exc.strerror or exc}); run `fgcd campaign verify`"
+            ) from None
         if actual != expected:
             raise DataIntegrityError(f"{path}: damaged, does not match its checksum; run `fgcd campaign verify`")
 
 
 def analysis_record(visit, *, inputs: dict[str, str], options: AnalysisOptions, seconds: float) -> dict:
     """The ``changes/analysis.json`` record of a finished analysis: version, options, inputs and product checksums."""
-    products = {rel: entry["sha256"] for rel, entry in visit.files().items()
-                if entry.get("derived") and rel != ANALYSIS_RELPATH}
-    return {"detector_version": DETECTOR_VERSION, "fgcd_version": __version__, "written": schema.now_iso(),
-            "options": asdict(options), "inputs": inputs, "products": products, "seconds": seconds}
+    products = {
+        rel: entry["sha256"] for rel, entry in visit.files().items() if entry.get("derived") and rel != ANALYSIS_RELPATH
+    }
+    return {
+        "detector_version": DETECTOR_VERSION,
+        "fgcd_version": __version__,
+        "written": schema.now_iso(),
+        "options": asdict(options),
+        "inputs": inputs,
+        "products": products,
+        "seconds": seconds,
+    }
 
 
 def _products_present(visit, products: dict[str, str]) -> bool:

@@ -107,15 +107,22 @@ class RegionTrack:
 
     def to_dict(self) -> dict:
         """JSON-ready form (footprints left out)."""
-        return {"id": self.id, "first_seen": self.first_seen, "areas": self.areas, "unit": self.unit,
-                "centroid_xy": list(self.centroid_xy), "growth_per_year": self.growth_per_year,
-                "status": self.status.value, "change_since_previous": self.change_since_previous}
+        return {
+            "id": self.id,
+            "first_seen": self.first_seen,
+            "areas": self.areas,
+            "unit": self.unit,
+            "centroid_xy": list(self.centroid_xy),
+            "growth_per_year": self.growth_per_year,
+            "status": self.status.value,
+            "change_since_previous": self.change_since_previous,
+        }
 
 
 def _footprint(region: dict, labels: np.ndarray) -> np.ndarray:
     """The region's pixels: the connected component of the change mask that fills most of its box."""
     x, y, w, h = (int(v) for v in region["bbox_xywh"])
-    inside = labels[y:y + h, x:x + w]
+    inside = labels[y : y + h, x : x + w]
     ids, counts = np.unique(inside[inside > 0], return_counts=True)
     if len(ids) == 0:
         return np.zeros(labels.shape, bool)
@@ -150,8 +157,9 @@ def _assign(visit: VisitRegions, tracks: list[RegionTrack], metric: bool, unit: 
         footprint = _footprint(region, labels)
         track = _match(footprint, tracks)
         if track is None:
-            track = RegionTrack(id=len(tracks) + 1, first_seen=visit.visit, unit=unit,
-                                footprint=np.zeros_like(footprint))
+            track = RegionTrack(
+                id=len(tracks) + 1, first_seen=visit.visit, unit=unit, footprint=np.zeros_like(footprint)
+            )
             tracks.append(track)
         track.footprint |= footprint
         track.footprints[visit.visit] = track.footprints.get(visit.visit, np.zeros_like(footprint)) | footprint

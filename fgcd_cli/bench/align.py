@@ -59,8 +59,9 @@ def _vse_session(renderer, intr, camera, T_start, *, lighting, frames, radius, r
     phase = rng.uniform(0, 2 * np.pi)
     for i in range(frames):
         a = phase + 2 * np.pi * i / frames
-        T = T_start @ exp_se3(np.array([radius * np.sin(a), 0.6 * radius * np.sin(2 * a),
-                                        0.4 * radius * (np.cos(a) - 1), 0, 0, 0]))
+        T = T_start @ exp_se3(
+            np.array([radius * np.sin(a), 0.6 * radius * np.sin(2 * a), 0.4 * radius * (np.cos(a) - 1), 0, 0, 0])
+        )
         img = renderer.render(T, intr, lighting, want=("gray",), rng=rng).gray
         state = engine.process(img, 0.1 * i)
         truth.append((state.frames_processed, T))
@@ -155,30 +156,38 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
     camera = PinholeCamera(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
     T0 = sc.default_T_world_cam
     t = time.perf_counter()
-    ref_state, ref_truth = _vse_session(renderer, intr, camera, T0, lighting="front",
-                                        frames=40 if quick else 60, radius=0.06, rng=rng)
+    ref_state, ref_truth = _vse_session(
+        renderer, intr, camera, T0, lighting="front", frames=40 if quick else 60, radius=0.06, rng=rng
+    )
     ref_kfs, ref_pts, T_world_ref, _, ref_ratio = _metric_session(
-        ref_state, ref_truth, scale_error=0.0, renderer=renderer, intr=intr, camera=camera)
+        ref_state, ref_truth, scale_error=0.0, renderer=renderer, intr=intr, camera=camera
+    )
     # The reference frame is the world frame as the reference session's VSE saw it.
     ref_points = T_world_ref.apply(ref_pts)  # reference frame := world (as the reference VSE saw it)
-    ref_index = ReferenceIndex(ref_points, intensities=np.asarray(ref_state.cloud.intensities, dtype=float),
-                               view=(T0, camera))
-    session_specs = [("sun-morning", 0.04, 0.015)] if quick else [
-        ("sun-morning", 0.04, 0.015), ("led:3", -0.05, -0.02), ("overcast", 0.02, 0.03)]
+    ref_index = ReferenceIndex(
+        ref_points, intensities=np.asarray(ref_state.cloud.intensities, dtype=float), view=(T0, camera)
+    )
+    session_specs = (
+        [("sun-morning", 0.04, 0.015)]
+        if quick
+        else [("sun-morning", 0.04, 0.015), ("led:3", -0.05, -0.02), ("overcast", 0.02, 0.03)]
+    )
     trials_per_session = 6 if quick else 10
     rows = []
     vse_seconds = time.perf_counter() - t
     for lighting, offset, scale_error in session_specs:
         T_start = T0 @ exp_se3(np.array([offset, -0.5 * offset, 0.3 * offset, 0.0, math.radians(2.0), 0.0]))
         t = time.perf_counter()
-        state, truth = _vse_session(renderer, intr, camera, T_start, lighting=lighting,
-                                    frames=30 if quick else 40, radius=0.05, rng=rng)
+        state, truth = _vse_session(
+            renderer, intr, camera, T_start, lighting=lighting, frames=30 if quick else 40, radius=0.05, rng=rng
+        )
         vse_seconds += time.perf_counter() - t
         if state.status != VseStatus.TRACKING or len(state.keyframes) < 2:
             rows.append({"lighting": lighting, "vse_failed": True, "status": state.status})
             continue
         keyframes, cur_points, T_world_cur, kf_truth, cur_ratio = _metric_session(
-            state, truth, scale_error=scale_error, renderer=renderer, intr=intr, camera=camera)
+            state, truth, scale_error=scale_error, renderer=renderer, intr=intr, camera=camera
+        )
         keyframes = keyframes[-6:]
         kf_truth = kf_truth[-6:]
         # The reference cloud was put into the world frame, so ref = world here.
@@ -188,39 +197,68 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
         for k in range(trials_per_session):
             # Half of the trials start within 5 deg / 5 cm / 5 % (the loop's usual case), half up to the maxima.
             u = rng.uniform(0, 1, 3) * (1.0 if k % 2 else 1.0 / 3.0)
-            pert = random_similarity(rng, rotation_deg=MAX_INIT["rotation_deg"] * u[0],
-                                     translation_m=MAX_INIT["translation_m"] * u[1],
-                                     scale_rel=MAX_INIT["scale_rel"] * u[2])
+            pert = random_similarity(
+                rng,
+                rotation_deg=MAX_INIT["rotation_deg"] * u[0],
+                translation_m=MAX_INIT["translation_m"] * u[1],
+                scale_rel=MAX_INIT["scale_rel"] * u[2],
+            )
             init = pert @ T_true
-            small = (pert.rotation_deg() <= 5.0 and np.linalg.norm(pert.t) <= 0.05 and abs(pert.scale - 1) <= 0.05)
-            row = {"lighting": lighting, "cloud_depth_ratio": cur_ratio, "init_small": bool(small),
-                   "init_rot_deg": pert.rotation_deg(),
-                   "init_trans_mm": float(np.linalg.norm(pert.t) * 1e3), "init_scale_pct": 100 * abs(pert.scale - 1)}
+            small = pert.rotation_deg() <= 5.0 and np.linalg.norm(pert.t) <= 0.05 and abs(pert.scale - 1) <= 0.05
+            row = {
+                "lighting": lighting,
+                "cloud_depth_ratio": cur_ratio,
+                "init_small": bool(small),
+                "init_rot_deg": pert.rotation_deg(),
+                "init_trans_mm": float(np.linalg.norm(pert.t) * 1e3),
+                "init_scale_pct": 100 * abs(pert.scale - 1),
+            }
             fast = fast_align(cur_points, ref_index, init=init)
             # rACR-S: the session scale is taken as exact (sigma_p = 1), only R, t are estimated.
-            no_scale = fast_align(cur_points, ref_index, init=Sim3(init.R, init.t, 1.0),
-                                  config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)))
+            no_scale = fast_align(
+                cur_points,
+                ref_index,
+                init=Sim3(init.R, init.t, 1.0),
+                config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)),
+            )
             row.update(_score("fast", fast.T_ref_cur, vse_poses, truths_ref, T_true, fast.health.ok))
             row["fast_seconds"] = fast.seconds
             row["fast_start"] = str(fast.start)
             row.update(_score("S", no_scale.T_ref_cur, vse_poses, truths_ref, T_true, no_scale.health.ok))
             if fast.health.ok and k < (3 if quick else 5):
-                fine = fine_align(ref_points=ref_index, cur_keyframes=keyframes, camera=camera, init=fast.T_ref_cur,
-                                  cur_points=cur_points)
-                fine_p = fine_align(ref_points=ref_index, cur_keyframes=keyframes, camera=camera,
-                                    init=fast.T_ref_cur, cur_points=cur_points,
-                                    config=FineAlignConfig(refine_keyframes=False))
+                fine = fine_align(
+                    ref_points=ref_index,
+                    cur_keyframes=keyframes,
+                    camera=camera,
+                    init=fast.T_ref_cur,
+                    cur_points=cur_points,
+                )
+                fine_p = fine_align(
+                    ref_points=ref_index,
+                    cur_keyframes=keyframes,
+                    camera=camera,
+                    init=fast.T_ref_cur,
+                    cur_points=cur_points,
+                    config=FineAlignConfig(refine_keyframes=False),
+                )
                 row.update(_score("fine", fine.T_ref_cur, fine.keyframe_poses, truths_ref, T_true, fine.health.ok))
                 row.update(_score("P", fine_p.T_ref_cur, vse_poses, truths_ref, T_true, fine_p.health.ok))
                 row["fine_seconds"] = fine.seconds
                 row["fine_reason"] = fine.health.reason
             rows.append(row)
-    degenerate = [_degenerate_case(name, intr, camera, rng, frames=25 if quick else 35)
-                  for name in DEGENERATE_SCENES + NEAR_PLANAR_SCENES]
-    return {"scene": scene_name, "reference_points": len(ref_index), "vse_seconds": vse_seconds,
-            "degenerate_scenes": degenerate,
-            "reference_cloud_depth_ratio": ref_ratio,
-            "image_size": [w, h], "rows": rows}
+    degenerate = [
+        _degenerate_case(name, intr, camera, rng, frames=25 if quick else 35)
+        for name in DEGENERATE_SCENES + NEAR_PLANAR_SCENES
+    ]
+    return {
+        "scene": scene_name,
+        "reference_points": len(ref_index),
+        "vse_seconds": vse_seconds,
+        "degenerate_scenes": degenerate,
+        "reference_cloud_depth_ratio": ref_ratio,
+        "image_size": [w, h],
+        "rows": rows,
+    }
 
 
 #: Scenes whose geometry leaves directions free: the health check must flag them.
@@ -238,25 +276,35 @@ def _degenerate_case(scene_name, intr, camera, rng, *, frames: int) -> dict:
     sc = load_scene(scene_name)
     renderer = Renderer(sc)
     T0 = sc.default_T_world_cam
-    ref_state, ref_truth = _vse_session(renderer, intr, camera, T0, lighting="front", frames=frames, radius=0.06, rng=rng)
+    ref_state, ref_truth = _vse_session(
+        renderer, intr, camera, T0, lighting="front", frames=frames, radius=0.06, rng=rng
+    )
     T_start = T0 @ exp_se3(np.array([0.03, -0.02, 0.01, 0.0, math.radians(1.5), 0.0]))
-    cur_state, cur_truth = _vse_session(renderer, intr, camera, T_start, lighting="sun-morning", frames=frames,
-                                        radius=0.05, rng=rng)
+    cur_state, cur_truth = _vse_session(
+        renderer, intr, camera, T_start, lighting="sun-morning", frames=frames, radius=0.05, rng=rng
+    )
     if len(ref_state.keyframes) < 2 or len(cur_state.keyframes) < 2:
         return {"scene": scene_name, "vse_failed": True}
     # Each session's metric frame is defined by its cloud (renderer depths), as in the main part:
     # the VSE cloud and its own trajectory differ in scale on these walls too
     # (docs/lab/2026-11-25-code-comment-measurements.md, "Alignment").
-    _, ref_pts, T_world_ref, _, _ = _metric_session(ref_state, ref_truth, scale_error=0.0,
-                                                    renderer=renderer, intr=intr, camera=camera)
-    kfs, cur_pts, T_world_cur, kf_truth, _ = _metric_session(cur_state, cur_truth, scale_error=0.01,
-                                                             renderer=renderer, intr=intr, camera=camera)
+    _, ref_pts, T_world_ref, _, _ = _metric_session(
+        ref_state, ref_truth, scale_error=0.0, renderer=renderer, intr=intr, camera=camera
+    )
+    kfs, cur_pts, T_world_cur, kf_truth, _ = _metric_session(
+        cur_state, cur_truth, scale_error=0.01, renderer=renderer, intr=intr, camera=camera
+    )
     ref = ReferenceIndex(T_world_ref.apply(ref_pts), view=(T0, camera))
     init = random_similarity(rng, rotation_deg=2.0, translation_m=0.02, scale_rel=0.02) @ T_world_cur
     res = fast_align(cur_pts, ref, init=init)
-    out = {"scene": scene_name, "flagged_degenerate": bool(res.health.degenerate), "ok": bool(res.health.ok),
-           "condition_ratio": res.health.condition_ratio, "weak_probe": list(res.health.weak_probe),
-           "reason": res.health.reason}
+    out = {
+        "scene": scene_name,
+        "flagged_degenerate": bool(res.health.degenerate),
+        "ok": bool(res.health.ok),
+        "condition_ratio": res.health.condition_ratio,
+        "weak_probe": list(res.health.weak_probe),
+        "reason": res.health.reason,
+    }
     out.update(_score("fast", res.T_ref_cur, [T for T, _ in kfs], kf_truth, T_world_cur, res.health.ok))
     return out
 
@@ -265,8 +313,13 @@ def _score(prefix, T_est: Sim3, poses, truths, T_true: Sim3, ok: bool) -> dict:
     mm, deg = _camera_errors(T_est, poses, truths)
     scale_pct = 100 * abs(T_est.scale / T_true.scale - 1)
     success = deg < SUCCESS_ROT_DEG and mm < SUCCESS_TRANS_MM and scale_pct < SUCCESS_SCALE_PCT
-    return {f"{prefix}_trans_mm": mm, f"{prefix}_rot_deg": deg, f"{prefix}_scale_pct": scale_pct,
-            f"{prefix}_ok": bool(ok), f"{prefix}_success": bool(success)}
+    return {
+        f"{prefix}_trans_mm": mm,
+        f"{prefix}_rot_deg": deg,
+        f"{prefix}_scale_pct": scale_pct,
+        f"{prefix}_ok": bool(ok),
+        f"{prefix}_success": bool(success),
+    }
 
 
 # --------------------------------------------------------------------------- synthetic clouds
@@ -306,8 +359,9 @@ def _synthetic_part(*, quick: bool, rng: np.random.Generator) -> dict:
             p = current(10000)
             T_true = random_similarity(rng, rotation_deg=rng.uniform(0, 180), translation_m=1.0, scale_rel=0.05)
             u = rng.uniform(0, 1, 3)
-            init = random_similarity(rng, rotation_deg=15 * u[0], translation_m=0.15 * u[1],
-                                     scale_rel=0.2 * u[2]) @ T_true
+            init = (
+                random_similarity(rng, rotation_deg=15 * u[0], translation_m=0.15 * u[1], scale_rel=0.2 * u[2]) @ T_true
+            )
             res = fast_align(T_true.inverse().apply(p), ref_noisy, init=init)
             E = res.T_ref_cur @ T_true.inverse()
             point_mm = float(np.mean(np.linalg.norm(E.apply(p) - p, axis=1)) * 1e3)
@@ -315,8 +369,10 @@ def _synthetic_part(*, quick: bool, rng: np.random.Generator) -> dict:
             oks += res.health.ok
         noise.append({"r_pct": 100 * r_rel, "success_rate": succ / trials, "health_ok_rate": oks / trials})
     return {
-        "reference_points": len(ref), "current_points": 20000,
-        "warm_median_s": float(np.median(warm)), "cold_median_s": float(np.median(cold)),
+        "reference_points": len(ref),
+        "current_points": 20000,
+        "warm_median_s": float(np.median(warm)),
+        "cold_median_s": float(np.median(cold)),
         "cold_success_rate_at_max_errors": float(np.mean(cold_ok)),
         "noise_study": noise,
     }
@@ -355,16 +411,28 @@ def run(*, quick: bool) -> dict:
         "ablation_S_scale_err_pct": _mean(rows, "S_scale_pct"),
         "fast_success_rate_small_init": _mean([r for r in rows if r["init_small"]], "fast_success"),
         "fast_success_rate_large_init": _mean([r for r in rows if not r["init_small"]], "fast_success"),
-        "degenerate_flagged_rate": float(np.mean([d.get("flagged_degenerate", False) and not d.get("ok", True)
-                                                  for d in vse["degenerate_scenes"]
-                                                  if d["scene"] in DEGENERATE_SCENES])),
-        "near_planar_trusted_rate": float(np.mean([bool(d.get("ok")) for d in vse["degenerate_scenes"]
-                                                   if d["scene"] in NEAR_PLANAR_SCENES])),
-        "near_planar_confident_wrong": int(sum(bool(d.get("fast_ok")) and not d.get("fast_success")
-                                               for d in vse["degenerate_scenes"]
-                                               if d["scene"] in NEAR_PLANAR_SCENES)),
+        "degenerate_flagged_rate": float(
+            np.mean(
+                [
+                    d.get("flagged_degenerate", False) and not d.get("ok", True)
+                    for d in vse["degenerate_scenes"]
+                    if d["scene"] in DEGENERATE_SCENES
+                ]
+            )
+        ),
+        "near_planar_trusted_rate": float(
+            np.mean([bool(d.get("ok")) for d in vse["degenerate_scenes"] if d["scene"] in NEAR_PLANAR_SCENES])
+        ),
+        "near_planar_confident_wrong": int(
+            sum(
+                bool(d.get("fast_ok")) and not d.get("fast_success")
+                for d in vse["degenerate_scenes"]
+                if d["scene"] in NEAR_PLANAR_SCENES
+            )
+        ),
         "fast_confident_wrong_rate": float(np.mean([r["fast_ok"] and not r["fast_success"] for r in rows]))
-        if rows else float("nan"),
+        if rows
+        else float("nan"),
     }
     for entry in synthetic["noise_study"]:
         summary[f"noise_success_r{entry['r_pct']:g}pct"] = entry["success_rate"]

@@ -54,20 +54,29 @@ INTRINSICS_VIEWS = 20
 
 
 def _pinhole(intr) -> PinholeCamera:
-    return PinholeCamera(fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy, width=intr.width, height=intr.height,
-                         dist=tuple(intr.dist))
+    return PinholeCamera(
+        fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy, width=intr.width, height=intr.height, dist=tuple(intr.dist)
+    )
 
 
 def _intrinsics_error_pct(est: PinholeCamera, true: PinholeCamera) -> float:
     """Largest relative error of fx, fy, and of cx, cy relative to the focal length, percent."""
     return 100.0 * max(
-        abs(est.fx / true.fx - 1), abs(est.fy / true.fy - 1), abs(est.cx - true.cx) / true.fx, abs(est.cy - true.cy) / true.fy
+        abs(est.fx / true.fx - 1),
+        abs(est.fy / true.fy - 1),
+        abs(est.cx - true.cx) / true.fx,
+        abs(est.cy - true.cy) / true.fy,
     )
 
 
 def _board_spec(board: SimBoard) -> BoardSpec:
-    return BoardSpec(squares_x=board.squares_x, squares_y=board.squares_y, square_m=board.square_m,
-                     marker_m=board.marker_m, dictionary=board.dictionary)
+    return BoardSpec(
+        squares_x=board.squares_x,
+        squares_y=board.squares_y,
+        square_m=board.square_m,
+        marker_m=board.marker_m,
+        dictionary=board.dictionary,
+    )
 
 
 def _intrinsics_stage(true: PinholeCamera, seed: int, n_views: int) -> tuple[PinholeCamera, dict]:
@@ -108,8 +117,14 @@ def _target_stage(rig, calibrated: PinholeCamera, true: PinholeCamera, seed: int
         guard.move_to(T_step)
     res = solve_handeye_target(hand, boards)
     mm, deg = pose_distance(res.T_flange_cam, gt.T_flange_cam_true())
-    return {"trans_err_mm": mm, "rot_err_deg": deg, "method": res.best.method, "samples": len(hand),
-            "agreement_mm": res.agreement_mm, "agreement_deg": res.agreement_deg}
+    return {
+        "trans_err_mm": mm,
+        "rot_err_deg": deg,
+        "method": res.best.method,
+        "samples": len(hand),
+        "agreement_mm": res.agreement_mm,
+        "agreement_deg": res.agreement_deg,
+    }
 
 
 def _true_scale(T_map_cam: list[np.ndarray], T_world_cam: list[np.ndarray]) -> float:
@@ -148,8 +163,9 @@ def _true_map_scale(state, poses: dict, gt, camera: PinholeCamera) -> tuple[floa
     """
     from fgcd_core.camera import CameraIntrinsics
 
-    intr = CameraIntrinsics(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width,
-                            height=camera.height)
+    intr = CameraIntrinsics(
+        fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width, height=camera.height
+    )
     cloud = state.cloud
     per_kf = []
     for kf in state.keyframes:
@@ -194,13 +210,19 @@ def _target_free_stage(rig, calibrated: PinholeCamera) -> dict:
     linear = {}
     if ref:
         lmm, ldeg = pose_distance(np.array(ref["linear_T_flange_cam"]), X_true)
-        linear = {"linear_trans_err_mm": lmm, "linear_rot_err_deg": ldeg,
-                  "linear_scale_err_pct": 100.0 * abs(ref["linear_scale"] / s_true - 1),
-                  "ba_points": ref["points"], "ba_rms_px": ref["rms_px"], "ba_std_mm": ref["std_mm"],
-                  "ba_std_deg": ref["std_deg"], "ba_views": ref.get("views"),
-                  "platform_rotation_scale": ref.get("platform_rotation_scale"),
-                  "platform_rotation_scale_std": ref.get("platform_rotation_scale_std"),
-                  "platform_rotation_scale_true": gt.platform_rotation_scale_true()}
+        linear = {
+            "linear_trans_err_mm": lmm,
+            "linear_rot_err_deg": ldeg,
+            "linear_scale_err_pct": 100.0 * abs(ref["linear_scale"] / s_true - 1),
+            "ba_points": ref["points"],
+            "ba_rms_px": ref["rms_px"],
+            "ba_std_mm": ref["std_mm"],
+            "ba_std_deg": ref["std_deg"],
+            "ba_views": ref.get("views"),
+            "platform_rotation_scale": ref.get("platform_rotation_scale"),
+            "platform_rotation_scale_std": ref.get("platform_rotation_scale_std"),
+            "platform_rotation_scale_true": gt.platform_rotation_scale_true(),
+        }
     return {
         "method": run.result.method,
         "trans_err_mm": mm,
@@ -248,8 +270,16 @@ def run(*, quick: bool = False) -> dict:
         except Exception as exc:  # a failed session is a benchmark result, reported as such
             free = {"error": f"{type(exc).__name__}: {exc}"}
         rig.close()
-        rigs_out.append({"seed": seed, "noise": noise, "intrinsics": intr, "target": target, "target_free": free,
-                         "seconds": time.perf_counter() - t0})
+        rigs_out.append(
+            {
+                "seed": seed,
+                "noise": noise,
+                "intrinsics": intr,
+                "target": target,
+                "target_free": free,
+                "seconds": time.perf_counter() - t0,
+            }
+        )
 
     default = [r for r in rigs_out if r["noise"] == "default"]
 

@@ -67,13 +67,21 @@ def _coarse_ok(row: dict) -> bool:
     return bool(c.get("handed_over")) and mm is not None and deg is not None and mm <= 50.0 and deg <= 5.0
 
 
-def run(*, quick: bool, baseline: bool = True, say=lambda _m: None, cases: list[str] | None = None,
-        deterministic: bool = False) -> dict:
+def run(
+    *,
+    quick: bool,
+    baseline: bool = True,
+    say=lambda _m: None,
+    cases: list[str] | None = None,
+    deterministic: bool = False,
+) -> dict:
     """Run the benchmark; returns ``{"summary": ..., "cases": [...]}`` (``deterministic``: threads stepped in turn)."""
     from fgcd_cli.relocation.coarse.config import CoarseConfig
 
     chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK))]
-    runs = [("coarse", LoopMode.PARALLEL, CoarseConfig())] + ([("baseline", LoopMode.PARALLEL, None)] if baseline else [])
+    runs = [("coarse", LoopMode.PARALLEL, CoarseConfig())] + (
+        [("baseline", LoopMode.PARALLEL, None)] if baseline else []
+    )
     results = []
     with tempfile.TemporaryDirectory(prefix="fgcd-bench-coarse-") as tmp:
         for case in chosen:

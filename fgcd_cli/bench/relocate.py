@@ -92,8 +92,15 @@ CASES: list[Case] = [
 QUICK = ["indoor-1", "indoor-2", "outdoor-1"]
 
 
-def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: list[tuple] | None = None,
-              deterministic: bool = False) -> dict:
+def _run_case(
+    case: Case,
+    workdir: Path,
+    *,
+    modes: list[LoopMode],
+    say,
+    runs: list[tuple] | None = None,
+    deterministic: bool = False,
+) -> dict:
     """Calibrate, capture the reference, then relocate once per mode.
 
     ``runs`` (label, mode, coarse config or None), when given, replaces ``modes``: the
@@ -102,18 +109,27 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
     """
     camp = init_campaign(workdir / case.name, site=case.name, rig={"driver": "sim"})
     st = camp.create_station("s")
-    out: dict = {"case": case.name, "scene": case.scene, "reference_light": case.reference_light,
-                 "visit_light": case.visit_light}
+    out: dict = {
+        "case": case.name,
+        "scene": case.scene,
+        "reference_light": case.reference_light,
+        "visit_light": case.visit_light,
+    }
     try:
         calib = SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light, session_seed=100)
         cam = calibrate_sim_intrinsics(camp, calib, say=say)
         he = calibrate_sim_handeye(camp, calib, say=say, camera=cam)
         X = np.array(he["T_flange_cam"])
-        rig = open_sim_rig(SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light),
-                           T_flange_cam=X, intrinsics=cam)
+        rig = open_sim_rig(
+            SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light), T_flange_cam=X, intrinsics=cam
+        )
         try:
-            capture_reference(deterministic_rig(rig.handles, deterministic), st, lightings=[case.reference_light],
-                              evaluation=reference_truth(rig.sim))
+            capture_reference(
+                deterministic_rig(rig.handles, deterministic),
+                st,
+                lightings=[case.reference_light],
+                evaluation=reference_truth(rig.sim),
+            )
         finally:
             rig.close()
     except FgcdError as exc:
@@ -124,24 +140,44 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
 
     runs = runs if runs is not None else [(str(m), m, CoarseConfig()) for m in modes]
     for i, (label, mode, coarse) in enumerate(runs):
-        scen = SimScenario(scene=case.scene, seed=case.seed, lighting=case.visit_light, changes=3, change_seed=7,
-                           start_offset_mm=case.offset_mm, start_offset_deg=case.offset_deg, session_seed=1 + i)
+        scen = SimScenario(
+            scene=case.scene,
+            seed=case.seed,
+            lighting=case.visit_light,
+            changes=3,
+            change_seed=7,
+            start_offset_mm=case.offset_mm,
+            start_offset_deg=case.offset_deg,
+            session_seed=1 + i,
+        )
         rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=cam)
         ev = RelocationEvaluator.from_reference(rig.sim, st.reference())
         try:
             t0 = time.monotonic()
             vis = relocate_and_capture(
-                rig.handles, st,
-                RelocateRequest(config=RelocationConfig(mode=mode, deterministic=deterministic),
-                                lightings=[case.visit_light, case.reference_light], coarse=coarse),
-                hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary))
+                rig.handles,
+                st,
+                RelocateRequest(
+                    config=RelocationConfig(mode=mode, deterministic=deterministic),
+                    lightings=[case.visit_light, case.reference_light],
+                    coarse=coarse,
+                ),
+                hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary),
+            )
             r = vis.relocation
             truth = ev.evaluate()
             out[label] = {
-                "converged": r.converged, "reason": r.reason, "adjustments": r.adjustments,
-                "afd_px": truth["afd_px"], "pose_err_mm": truth["pose_err_mm"], "pose_err_deg": truth["pose_err_deg"],
-                "session_s": r.session_s, "platform_s": r.platform_s, "synthetic_s": r.synthetic_s,
-                "session_s_with_rendering": r.session_s + r.synthetic_s, "wall_s": time.monotonic() - t0,
+                "converged": r.converged,
+                "reason": r.reason,
+                "adjustments": r.adjustments,
+                "afd_px": truth["afd_px"],
+                "pose_err_mm": truth["pose_err_mm"],
+                "pose_err_deg": truth["pose_err_deg"],
+                "session_s": r.session_s,
+                "platform_s": r.platform_s,
+                "synthetic_s": r.synthetic_s,
+                "session_s_with_rendering": r.session_s + r.synthetic_s,
+                "wall_s": time.monotonic() - t0,
                 "success": bool(truth["afd_px"] < 3.0),
                 **_residual_summary(r.residual),
             }
@@ -152,13 +188,22 @@ def _run_case(case: Case, workdir: Path, *, modes: list[LoopMode], say, runs: li
             image = [rec for rec in r.records if rec.stage == EstimateStage.IMAGE]
             out[label]["image_fallback"] = any(rec.image and rec.image.get("fallback") for rec in image)
             out[label]["coarse"] = _coarse_summary(vis.coarse)
-            out[label]["image_stage"] = ("not run" if not image else
-                                        "ok" if all(rec.alignment_ok for rec in image) else image[-1].alignment_reason)
+            out[label]["image_stage"] = (
+                "not run"
+                if not image
+                else "ok"
+                if all(rec.alignment_ok for rec in image)
+                else image[-1].alignment_reason
+            )
         except (FgcdError, PlatformError) as exc:  # a refused motion is an outcome of the run, not of the bench
             truth = ev.evaluate()
-            out[label] = {"error": str(exc), "success": False, "afd_px": truth["afd_px"],
-                          "pose_err_mm": truth["pose_err_mm"],
-                          "coarse": _coarse_summary(getattr(exc, "coarse_result", None))}
+            out[label] = {
+                "error": str(exc),
+                "success": False,
+                "afd_px": truth["afd_px"],
+                "pose_err_mm": truth["pose_err_mm"],
+                "coarse": _coarse_summary(getattr(exc, "coarse_result", None)),
+            }
         finally:
             rig.close()
         say(f"{case.name} ({label}): {out[label]}")
@@ -169,9 +214,13 @@ def _residual_summary(residual) -> dict:
     """The run's own final residual estimate (not truth), for comparison with the truth."""
     if residual is None:
         return {"residual_mm": None, "residual_sigma_mm": None, "tolerance_mm": None, "residual_source": None}
-    return {"residual_mm": residual.offset_mm, "residual_sigma_mm": residual.sigma_mm,
-            "tolerance_mm": residual.tolerance_mm, "residual_source": str(residual.source),
-            "residual_agreement": str(residual.agreement)}
+    return {
+        "residual_mm": residual.offset_mm,
+        "residual_sigma_mm": residual.sigma_mm,
+        "tolerance_mm": residual.tolerance_mm,
+        "residual_source": str(residual.source),
+        "residual_agreement": str(residual.agreement),
+    }
 
 
 def _coarse_summary(result) -> dict | None:
@@ -180,14 +229,18 @@ def _coarse_summary(result) -> dict | None:
         return None
     last = result.steps[-1] if result.steps else None
     truth = last.truth if last is not None else None
-    return {"handed_over": result.handed_over, "reason": result.reason, "steps": len(result.steps),
-            "moves": sum(s.action == CoarseAction.MOVE for s in result.steps),
-            "looks": sum(s.action == CoarseAction.LOOK for s in result.steps),
-            "descents": sum(s.action == CoarseAction.DESCEND for s in result.steps),
-            "start_err_mm": result.steps[0].truth["pose_err_mm"] if result.steps and result.steps[0].truth else None,
-            "start_err_deg": result.steps[0].truth["pose_err_deg"] if result.steps and result.steps[0].truth else None,
-            "end_err_mm": truth["pose_err_mm"] if truth else None,
-            "end_err_deg": truth["pose_err_deg"] if truth else None}
+    return {
+        "handed_over": result.handed_over,
+        "reason": result.reason,
+        "steps": len(result.steps),
+        "moves": sum(s.action == CoarseAction.MOVE for s in result.steps),
+        "looks": sum(s.action == CoarseAction.LOOK for s in result.steps),
+        "descents": sum(s.action == CoarseAction.DESCEND for s in result.steps),
+        "start_err_mm": result.steps[0].truth["pose_err_mm"] if result.steps and result.steps[0].truth else None,
+        "start_err_deg": result.steps[0].truth["pose_err_deg"] if result.steps and result.steps[0].truth else None,
+        "end_err_mm": truth["pose_err_mm"] if truth else None,
+        "end_err_deg": truth["pose_err_deg"] if truth else None,
+    }
 
 
 def confident_wrong(row: dict) -> bool:
@@ -202,8 +255,11 @@ def handover_summary(rows: list[dict]) -> dict:
     """How often the active coarse stage ran and handed over to the rACR loop (rate over the runs where it ran)."""
     ran = [r["coarse"] for r in rows if r.get("coarse")]
     handed = sum(bool(c.get("handed_over")) for c in ran)
-    return {"coarse_ran": len(ran), "coarse_handed_over": handed,
-            "handover_rate": handed / len(ran) if ran else float("nan")}
+    return {
+        "coarse_ran": len(ran),
+        "coarse_handed_over": handed,
+        "handover_rate": handed / len(ran) if ran else float("nan"),
+    }
 
 
 def _summarise(results: list[dict], mode: str) -> dict:
@@ -216,8 +272,10 @@ def _summarise(results: list[dict], mode: str) -> dict:
         "mean_afd_px": mean([r["afd_px"] for r in rows if math.isfinite(r.get("afd_px", float("nan")))]),
         "mean_afd_px_racr_only": mean([r["afd_px_racr_only"] for r in rows if "afd_px_racr_only" in r]),
         # truth, every run (paused ones too): the worst final camera-position error
-        "max_final_error_mm": max((float(r["pose_err_mm"]) for r in rows
-                                   if math.isfinite(float(r.get("pose_err_mm", math.nan)))), default=float("nan")),
+        "max_final_error_mm": max(
+            (float(r["pose_err_mm"]) for r in rows if math.isfinite(float(r.get("pose_err_mm", math.nan)))),
+            default=float("nan"),
+        ),
         "image_stage_used": sum(r.get("image_stage") == "ok" for r in rows),
         "converged_runs": sum(bool(r.get("converged")) for r in rows),
         # truth: claimed converged while truly > 1 px or > 5 mm away
@@ -233,8 +291,14 @@ def _summarise(results: list[dict], mode: str) -> dict:
     }
 
 
-def run(*, quick: bool, serial: bool = True, say=lambda _m: None, cases: list[str] | None = None,
-        deterministic: bool = False) -> dict:
+def run(
+    *,
+    quick: bool,
+    serial: bool = True,
+    say=lambda _m: None,
+    cases: list[str] | None = None,
+    deterministic: bool = False,
+) -> dict:
     """Run the benchmark; returns ``{"summary": ..., "cases": [...]}`` (``deterministic``: threads stepped in turn)."""
     chosen = [c for c in CASES if (cases and c.name in cases) or (not cases and (not quick or c.name in QUICK))]
     modes = [LoopMode.PARALLEL, LoopMode.SERIAL] if serial else [LoopMode.PARALLEL]
@@ -253,7 +317,14 @@ def run(*, quick: bool, serial: bool = True, say=lambda _m: None, cases: list[st
         )
     return {
         "summary": summary,
-        "targets": {"success_rate": 1.0, "confident_wrong_runs": 0, "mean_afd_px": 1.0, "mean_iterations": 5, "mean_sim_time_s": 45,
-                    "parallel_speedup": 1.4, "max_final_error_mm": 2.0},
+        "targets": {
+            "success_rate": 1.0,
+            "confident_wrong_runs": 0,
+            "mean_afd_px": 1.0,
+            "mean_iterations": 5,
+            "mean_sim_time_s": 45,
+            "parallel_speedup": 1.4,
+            "max_final_error_mm": 2.0,
+        },
         "cases": results,
     }

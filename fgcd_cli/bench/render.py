@@ -54,13 +54,26 @@ def run(*, quick: bool = False, supersample: int = 1, lighting: str = "front") -
             cpu.append((time.process_time() - c0) * 1000)
         all_ms += times
         all_cpu += cpu
-        per_scene.append({"scene": name, "ms_median": statistics.median(times), "ms_min": min(times),
-                          "cpu_ms_median": statistics.median(cpu),
-                          "triangles": sc.n_triangles, "build_s": build_s})
+        per_scene.append(
+            {
+                "scene": name,
+                "ms_median": statistics.median(times),
+                "ms_min": min(times),
+                "cpu_ms_median": statistics.median(cpu),
+                "triangles": sc.n_triangles,
+                "build_s": build_s,
+            }
+        )
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return {
-        "settings": {"width": 640, "height": 480, "supersample": supersample, "lighting": lighting,
-                     "frames_per_scene": repeats, "quick": quick},
+        "settings": {
+            "width": 640,
+            "height": 480,
+            "supersample": supersample,
+            "lighting": lighting,
+            "frames_per_scene": repeats,
+            "quick": quick,
+        },
         "scenes": per_scene,
         "machine": {"cpu_count": os.cpu_count(), "load_avg_1min": load},
         "summary": {

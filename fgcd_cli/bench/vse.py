@@ -53,8 +53,9 @@ def _render_sequence(scene: str, *, legs: int, step_m: float, step_deg: float, s
     rig = build_sim_rig(scene=scene, config=SimRigConfig(lighting="front", seed=seed, intrinsics_error="none"))
     try:
         intr = rig.camera.intrinsics_nominal
-        camera = PinholeCamera(fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy, width=intr.width, height=intr.height,
-                               dist=intr.dist)
+        camera = PinholeCamera(
+            fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy, width=intr.width, height=intr.height, dist=intr.dist
+        )
         guard = MotionGuard(rig.platform)
         T0 = rig.platform.flange_pose()
         images, truth = [], []
@@ -86,10 +87,19 @@ def evaluate(states, truth: list[np.ndarray], gt, camera: PinholeCamera, *, fram
 
     final = states[-1]
     tracked = [i for i, s in enumerate(states) if s.status == VseStatus.TRACKING and s.T_map_cam is not None]
-    out = {"status": final.status, "message": final.message, "frames": len(states), "tracked_frames": len(tracked),
-           "keyframes": len(final.keyframes), "cloud_points": len(final.cloud),
-           "track_fps": final.track_fps, "overall_fps": final.overall_fps,
-           "ate_mm": None, "cloud_median_error_pct_depth": None, "cloud_median_error_pct_depth_traj_scale": None}
+    out = {
+        "status": final.status,
+        "message": final.message,
+        "frames": len(states),
+        "tracked_frames": len(tracked),
+        "keyframes": len(final.keyframes),
+        "cloud_points": len(final.cloud),
+        "track_fps": final.track_fps,
+        "overall_fps": final.overall_fps,
+        "ate_mm": None,
+        "cloud_median_error_pct_depth": None,
+        "cloud_median_error_pct_depth_traj_scale": None,
+    }
     if len(tracked) < 4:
         return out
     est = np.array([states[i].T_map_cam[:3, 3] for i in tracked])
@@ -100,8 +110,15 @@ def evaluate(states, truth: list[np.ndarray], gt, camera: PinholeCamera, *, fram
     cloud = final.cloud
     if len(cloud) == 0:
         return out
-    intr = CameraIntrinsics(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width,
-                            height=camera.height, dist=camera.dist)
+    intr = CameraIntrinsics(
+        fx=camera.fx,
+        fy=camera.fy,
+        cx=camera.cx,
+        cy=camera.cy,
+        width=camera.width,
+        height=camera.height,
+        dist=camera.dist,
+    )
     z_est_all, z_true_all = [], []
     for kf in final.keyframes:
         sel = cloud.keyframe_ids == kf.id
@@ -157,8 +174,11 @@ def run(*, quick: bool, variant: str = "mono") -> dict:
         ``track_fps``; medians over the textured scenes, worst ATE as ``ate_mm_max``),
         ``scenes`` (per scene and engine), ``targets``, ``settings``.
     """
-    variants = {"mono": [VseVariant.MONO], "sparse": [VseVariant.SPARSE],
-                "both": [VseVariant.MONO, VseVariant.SPARSE]}.get(variant)
+    variants = {
+        "mono": [VseVariant.MONO],
+        "sparse": [VseVariant.SPARSE],
+        "both": [VseVariant.MONO, VseVariant.SPARSE],
+    }.get(variant)
     if variants is None:
         raise ValueError("variant must be mono, sparse or both")
     legs = 3 if quick else 6
@@ -183,8 +203,11 @@ def run(*, quick: bool, variant: str = "mono") -> dict:
             "ate_mm": float(np.median(ate)) if rs and None not in ate else nan,
             "ate_mm_max": float(np.max(ate)) if rs and None not in ate else nan,
             "cloud_median_error_pct_depth": float(np.median(cloud)) if rs and None not in cloud else nan,
-            "cloud_median_error_pct_depth_traj_scale": float(np.median(
-                [r["cloud_median_error_pct_depth_traj_scale"] for r in rs])) if rs and None not in cloud else nan,
+            "cloud_median_error_pct_depth_traj_scale": float(
+                np.median([r["cloud_median_error_pct_depth_traj_scale"] for r in rs])
+            )
+            if rs and None not in cloud
+            else nan,
             "cloud_points": int(np.median([r["cloud_points"] for r in rs])) if rs else 0,
             "track_fps": float(np.median([r["track_fps"] for r in rs])) if rs else nan,
             "overall_fps": float(np.median([r["overall_fps"] for r in rs])) if rs else nan,
@@ -193,12 +216,21 @@ def run(*, quick: bool, variant: str = "mono") -> dict:
     summary = agg(variants[0])
     if VseVariant.SPARSE in variants and variants[0] != VseVariant.SPARSE:
         summary.update({f"sparse_{k}": val for k, val in agg(VseVariant.SPARSE).items()})
-    summary["hard_scenes"] = {f"{r['scene']}/{r['variant']}": f"{r['status']}, {r['cloud_points']} points"
-                              for r in rows if not r["textured"]}
+    summary["hard_scenes"] = {
+        f"{r['scene']}/{r['variant']}": f"{r['status']}, {r['cloud_points']} points" for r in rows if not r["textured"]
+    }
     return {
         "summary": summary,
         "scenes": rows,
         "targets": TARGETS,
-        "settings": {"quick": quick, "variants": variants, "legs": legs, "step_m": step_m, "step_deg": step_deg,
-                     "resolution": [640, 480], "lighting": "front", "intrinsics": "exact nominal"},
+        "settings": {
+            "quick": quick,
+            "variants": variants,
+            "legs": legs,
+            "step_m": step_m,
+            "step_deg": step_deg,
+            "resolution": [640, 480],
+            "lighting": "front",
+            "intrinsics": "exact nominal",
+        },
     }

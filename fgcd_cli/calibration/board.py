@@ -90,7 +90,9 @@ class BoardSpec(CharucoSpec):
         ok, rvec, tvec = cv2.solvePnP(obj, detection.corners_px, np.asarray(K, float), np.asarray(dist, float))
         if not ok:
             return None
-        rvec, tvec = cv2.solvePnPRefineLM(obj, detection.corners_px, np.asarray(K, float), np.asarray(dist, float), rvec, tvec)
+        rvec, tvec = cv2.solvePnPRefineLM(
+            obj, detection.corners_px, np.asarray(K, float), np.asarray(dist, float), rvec, tvec
+        )
         T = np.eye(4)
         T[:3, :3] = cv2.Rodrigues(rvec)[0]
         T[:3, 3] = tvec.ravel()

@@ -236,7 +236,9 @@ def calibrate_intrinsics(
         The board was found in fewer than 4 views.
     """
     if distortion_model not in DISTORTION_MODELS:
-        raise UserInputError(f"unknown distortion model '{distortion_model}'; choose from {', '.join(DISTORTION_MODELS)}")
+        raise UserInputError(
+            f"unknown distortion model '{distortion_model}'; choose from {', '.join(DISTORTION_MODELS)}"
+        )
     if len(images) == 0:
         raise UserInputError("no calibration images given")
     names = [f"view_{i:03d}" for i in range(len(images))] if names is None else list(names)
@@ -251,7 +253,9 @@ def calibrate_intrinsics(
     bad = [i for i, e in enumerate(errors) if e > threshold]
     if bad and len(kept) - len(bad) >= MIN_VIEWS:
         for i in bad:
-            rejected[kept[i][0]] = f"reprojection error {errors[i]:.2f} px above {threshold:.2f} px (blur or bent board?)"
+            rejected[kept[i][0]] = (
+                f"reprojection error {errors[i]:.2f} px above {threshold:.2f} px (blur or bent board?)"
+            )
         kept = [kv for i, kv in enumerate(kept) if i not in set(bad)]
         fit = _calibrate(kept, board, (width, height), flags)
 
@@ -279,8 +283,9 @@ def calibrate_intrinsics(
     )
 
 
-def _detect_views(images: Sequence[np.ndarray], names: list[str],
-                  board: BoardSpec) -> tuple[list[tuple[str, BoardDetection]], dict[str, str]]:
+def _detect_views(
+    images: Sequence[np.ndarray], names: list[str], board: BoardSpec
+) -> tuple[list[tuple[str, BoardDetection]], dict[str, str]]:
     """The views with enough non-collinear corners, and the others with the reason.
 
     Raises

@@ -27,8 +27,16 @@ from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
 from fgcd_core.platform import MotionGuard
 
-__all__ = ["TargetFreeRun", "TargetRun", "TargetFreeRunConfig", "TargetRunConfig", "run_target_free", "run_target",
-           "CameraSourceLike", "VseEngineLike"]
+__all__ = [
+    "TargetFreeRun",
+    "TargetRun",
+    "TargetFreeRunConfig",
+    "TargetRunConfig",
+    "run_target_free",
+    "run_target",
+    "CameraSourceLike",
+    "VseEngineLike",
+]
 
 
 class CameraSourceLike(Protocol):
@@ -165,8 +173,10 @@ def run_target_free(
     session = _TargetFreeSession(guard, camera_source, vse_engine_factory(camera), keep_path=config.refine)
     T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
     targets = [T_start @ np.asarray(T_rel, dtype=float) for T_rel in motions]
-    legs = [interpolate_steps(a, b, max_step_m=config.max_step_m, max_step_deg=config.max_step_deg) if index else []
-            for index, (a, b) in enumerate(zip([T_start] + targets[:-1], targets))]
+    legs = [
+        interpolate_steps(a, b, max_step_m=config.max_step_m, max_step_deg=config.max_step_deg) if index else []
+        for index, (a, b) in enumerate(zip([T_start] + targets[:-1], targets))
+    ]
     settle = max(1, config.settle_frames)
     total_frames = sum(len(steps) for steps in legs) + len(legs) * settle
     for index, steps in enumerate(legs):
@@ -185,8 +195,14 @@ def run_target_free(
     result = solve_handeye_scale(session.hand, session.eye, pairs="all")
     if config.refine:
         result = _refine(result, session, camera, say, tick)
-    return TargetFreeRun(result=result, T_base_flange=session.hand, T_map_cam=session.eye, skipped=session.skipped,
-                         frames=session.frames, engine=session.engine)
+    return TargetFreeRun(
+        result=result,
+        T_base_flange=session.hand,
+        T_map_cam=session.eye,
+        skipped=session.skipped,
+        frames=session.frames,
+        engine=session.engine,
+    )
 
 
 def _target_free_motions(guard: MotionGuard, config: TargetFreeRunConfig) -> Sequence[np.ndarray]:
@@ -199,8 +215,7 @@ def _target_free_motions(guard: MotionGuard, config: TargetFreeRunConfig) -> Seq
             f"platform '{guard.platform.name}' rotates about {len(axes)} axis(es) only: target-free hand-eye "
             "needs rotations about two axes (use a 6-DoF arm, or enter the hand-eye measured by hand)"
         )
-    return exploration_motions(translation_m=config.translation_m, rotation_deg=config.rotation_deg,
-                               rotation_axes=axes)
+    return exploration_motions(translation_m=config.translation_m, rotation_deg=config.rotation_deg, rotation_axes=axes)
 
 
 class _TargetFreeSession:
@@ -232,7 +247,8 @@ class _TargetFreeSession:
         self.frames += 1
         self.last_image = frame.image
         self.last_pose = self.flange_at[float(frame.timestamp_s)] = np.asarray(
-            self.guard.platform.flange_pose(), dtype=float)
+            self.guard.platform.flange_pose(), dtype=float
+        )
         self.state = self.engine.process(frame.image, frame.timestamp_s)
 
     def visit(self, steps: Sequence[np.ndarray], settle: int, tick: Callable[[], None]) -> None:
@@ -282,8 +298,14 @@ class _TargetFreeSession:
             sel = np.asarray(cloud.keyframe_ids) == kf.id
             if T_flange is None or not np.any(sel):
                 continue
-            out.append(KeyframeDepths(T_base_flange=T_flange, T_map_cam=np.asarray(kf.T_map_cam, dtype=float),
-                                      pixels=np.asarray(cloud.pixels)[sel], points_map=np.asarray(cloud.points)[sel]))
+            out.append(
+                KeyframeDepths(
+                    T_base_flange=T_flange,
+                    T_map_cam=np.asarray(kf.T_map_cam, dtype=float),
+                    pixels=np.asarray(cloud.pixels)[sel],
+                    points_map=np.asarray(cloud.points)[sel],
+                )
+            )
         return out
 
 
@@ -292,8 +314,15 @@ def _refine(result: HandEyeResult, session: _TargetFreeSession, camera: PinholeC
     tick(0, 0, f"image refinement over {len(session.path_T)} views")
     path = PathViews(T_base_flange=session.path_T, images=session.path_images, stop_index=session.stop_index)
     try:
-        result = refine_target_free(result, session.hand, session.eye, session.stop_images, camera,
-                                    keyframes=session.keyframe_depths(), path=path)
+        result = refine_target_free(
+            result,
+            session.hand,
+            session.eye,
+            session.stop_images,
+            camera,
+            keyframes=session.keyframe_depths(),
+            path=path,
+        )
         ref = result.refinement
         say(
             f"image refinement: {ref.get('views', len(session.hand))} views, {ref['points']} points, "
@@ -367,8 +396,11 @@ def run_target(
     config = config or TargetRunConfig()
     say = progress or (lambda _msg: None)
     tick = on_progress or (lambda _done, _total, _label: None)
-    motions = (list(config.motions) if config.motions is not None
-               else target_motions(rotation_deg=config.rotation_deg, translation_m=config.translation_m))
+    motions = (
+        list(config.motions)
+        if config.motions is not None
+        else target_motions(rotation_deg=config.rotation_deg, translation_m=config.translation_m)
+    )
     T_start = np.asarray(guard.platform.flange_pose(), dtype=float)
     steps = {"max_step_m": guard.limits.max_step_m * 0.95, "max_step_deg": np.degrees(guard.limits.max_step_rad) * 0.95}
     run = TargetRun(result=None, T_base_flange=[], T_cam_target=[])
@@ -380,8 +412,16 @@ def run_target(
             for T_step in interpolate_steps(T_prev, T_target, **steps):
                 guard.move_to(T_step)
         T_prev = T_target
-        _board_sample(run, guard, camera_source.grab(), board, camera, config.min_corners, index,
-                      lambda text, index=index: say(f"stop {index + 1}/{len(motions)}: {text}"))
+        _board_sample(
+            run,
+            guard,
+            camera_source.grab(),
+            board,
+            camera,
+            config.min_corners,
+            index,
+            lambda text, index=index: say(f"stop {index + 1}/{len(motions)}: {text}"),
+        )
     tick(len(motions), len(motions), "back to the start pose")
     # Return to the start pose (the same small steps).
     for T_step in interpolate_steps(T_prev, T_start, **steps):
@@ -395,8 +435,16 @@ def run_target(
     return run
 
 
-def _board_sample(run: TargetRun, guard: MotionGuard, frame: Any, board: BoardSpec, camera: PinholeCamera,
-                  min_corners: int, index: int, say: Callable[[str], None]) -> None:
+def _board_sample(
+    run: TargetRun,
+    guard: MotionGuard,
+    frame: Any,
+    board: BoardSpec,
+    camera: PinholeCamera,
+    min_corners: int,
+    index: int,
+    say: Callable[[str], None],
+) -> None:
     """The stop's sample (flange pose, board pose) when the board is seen with enough corners, else a skip."""
     det = board.detect(frame.image)
     T_cam_target = board.estimate_pose(det, camera.K, camera.dist) if det.n_corners >= min_corners else None

@@ -13,8 +13,15 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "check_writable", "fsync_dir", "sha256_file",
-           "sha256_bytes"]
+__all__ = [
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "atomic_write_json",
+    "check_writable",
+    "fsync_dir",
+    "sha256_file",
+    "sha256_bytes",
+]
 
 TMP_PREFIX = ".tmp-"
 

@@ -67,8 +67,9 @@ def station_lock(campaign_path: Path, station: str, *, command: str) -> Iterator
     except BlockingIOError:
         holder = _holder(fd)
         os.close(fd)
-        raise StationBusy(f"station '{name}' is in use by another fgcd ({holder}); wait for it to end, "
-                          "nothing was opened or written") from None
+        raise StationBusy(
+            f"station '{name}' is in use by another fgcd ({holder}); wait for it to end, nothing was opened or written"
+        ) from None
     try:
         info = {"pid": os.getpid(), "command": command, "since": time.strftime("%H:%M:%S")}
         try:

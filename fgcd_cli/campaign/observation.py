@@ -278,9 +278,7 @@ class ObservationWriter:
         if self.final_path.exists():
             self.abort()
             if self.kind == ObservationKind.REFERENCE:
-                raise ImmutableDataError(
-                    f"{self.final_path}: a reference observation already exists and is immutable"
-                )
+                raise ImmutableDataError(f"{self.final_path}: a reference observation already exists and is immutable")
             raise CampaignError(f"{self.final_path} already exists")
         os.rename(self.tmp_path, self.final_path)
         fsync_dir(self.final_path.parent)

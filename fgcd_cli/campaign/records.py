@@ -108,8 +108,11 @@ def campaign_world(campaign) -> dict:
     """The campaign's default simulated world (``[rig.sim]`` of campaign.toml), never written by a capture."""
     sim = campaign.rig_config.get("sim", {})
     sim = sim if isinstance(sim, dict) else {}
-    return {"scene": str(sim.get("scene", "stele")), "seed": _int_or(sim.get("seed"), 0),
-            "noise": str(sim.get("noise", "default"))}
+    return {
+        "scene": str(sim.get("scene", "stele")),
+        "seed": _int_or(sim.get("seed"), 0),
+        "noise": str(sim.get("noise", "default")),
+    }
 
 
 def station_world(campaign, reference) -> dict:

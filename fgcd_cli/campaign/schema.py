@@ -115,7 +115,9 @@ def check_name(name: str, what: str) -> str:
     """``name`` stripped, if usable as one path component; UserInputError otherwise."""
     name = name.strip()
     if not name or name in (".", "..") or not _NAME_RE.match(name) or name.startswith("."):
-        raise UserInputError(f"invalid {what} name {name!r}: use a non-empty name without '/' that does not start with '.'")
+        raise UserInputError(
+            f"invalid {what} name {name!r}: use a non-empty name without '/' that does not start with '.'"
+        )
     return name
 
 

@@ -43,6 +43,7 @@ from fgcd_cli.errors import CampaignError, DataIntegrityError, ImmutableDataErro
 
 __all__ = ["Campaign", "Station", "init_campaign", "open_campaign"]
 
+
 # ----------------------------------------------------------------------------- station
 @dataclass
 class Station:
@@ -106,12 +107,16 @@ class Station:
         missing = self.missing_visit_names()
         if name is None and missing and (not names or missing[-1] > names[-1]):
             older = f"; give --visit {names[-1]} for the latest one present" if names else ""
-            raise DataIntegrityError(f"station '{self.name}': the latest recorded visit {missing[-1]} is missing "
-                                     f"(its folder {self.path / VISITS_DIR / missing[-1]} is gone){older}; "
-                                     "run `fgcd campaign verify`")
+            raise DataIntegrityError(
+                f"station '{self.name}': the latest recorded visit {missing[-1]} is missing "
+                f"(its folder {self.path / VISITS_DIR / missing[-1]} is gone){older}; "
+                "run `fgcd campaign verify`"
+            )
         if name in missing:
-            raise DataIntegrityError(f"station '{self.name}': visit {name} is recorded in {STATION_FILE} but its "
-                                     f"folder {self.path / VISITS_DIR / name} is gone; run `fgcd campaign verify`")
+            raise DataIntegrityError(
+                f"station '{self.name}': visit {name} is recorded in {STATION_FILE} but its "
+                f"folder {self.path / VISITS_DIR / name} is gone; run `fgcd campaign verify`"
+            )
         if not names:
             raise CampaignError(f"station '{self.name}' has no visits yet (run `fgcd relocate`)")
         if name is None:
@@ -155,8 +160,9 @@ class Station:
     def _committed_on_disk(self) -> list[str]:
         """The committed observations in the station folder (with their manifest), reference first, as indexed."""
         found = [REFERENCE_DIR] if (self.path / REFERENCE_DIR / MANIFEST).is_file() else []
-        return found + [f"{VISITS_DIR}/{n}" for n in self.visit_names()
-                        if (self.path / VISITS_DIR / n / MANIFEST).is_file()]
+        return found + [
+            f"{VISITS_DIR}/{n}" for n in self.visit_names() if (self.path / VISITS_DIR / n / MANIFEST).is_file()
+        ]
 
 
 def _read_station_info(sfile: Path) -> dict:
@@ -166,8 +172,9 @@ def _read_station_info(sfile: Path) -> dict:
     try:
         info = json.loads(sfile.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DataIntegrityError(f"{sfile}: damaged station record, not valid JSON ({exc}); "
-                                 "run `fgcd campaign verify`") from None
+        raise DataIntegrityError(
+            f"{sfile}: damaged station record, not valid JSON ({exc}); run `fgcd campaign verify`"
+        ) from None
     except OSError as exc:
         raise DataIntegrityError(f"{sfile}: damaged station record, cannot be read ({exc.strerror or exc})") from None
     if not isinstance(info, dict):

@@ -78,8 +78,7 @@ class VerifyReport:
         """One line: ``OK: ...``, ``OK, 1 warning: ...``, ``DAMAGED, 2 problems, 1 note: ...``."""
         counts = [counted(self.count(severity), noun) for severity, noun in SEVERITY_NOUNS if self.count(severity)]
         head = ", ".join(["OK" if self.ok else "DAMAGED", *counts])
-        return (f"{head}: {counted(self.observations, 'observation')}, "
-                f"{counted(self.files_checked, 'file')} checked")
+        return f"{head}: {counted(self.observations, 'observation')}, {counted(self.files_checked, 'file')} checked"
 
     def to_dict(self) -> dict:
         """JSON-friendly form (``errors``, ``warnings``, ``notes``: the counts of ``problems`` by severity)."""
@@ -136,8 +135,14 @@ def _verify_observation(obs_path: Path, report: VerifyReport) -> None:
             rel = p.relative_to(obs_path).as_posix()
             if rel not in listed:
                 if p.name.startswith(TMP_PREFIX):
-                    report.problems.append(Problem(str(p), "incomplete-write", "a file write interrupted before "
-                                                   "its rename; safe to delete", "warning"))
+                    report.problems.append(
+                        Problem(
+                            str(p),
+                            "incomplete-write",
+                            "a file write interrupted before its rename; safe to delete",
+                            "warning",
+                        )
+                    )
                 else:
                     report.problems.append(Problem(str(p), "unlisted", _unlisted_detail(rel), "warning"))
 
@@ -159,8 +164,14 @@ def _verify_scale(path: Path, report: VerifyReport) -> None:
     except (OSError, ValueError, AttributeError):
         return  # its checksum matched: what it says is checked by `fgcd diff`, not here
     if scale is not None and not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-        report.problems.append(Problem(str(path), "scale", f"diff made with a non-physical scale ({scale} mm per px): "
-                                       "its areas are wrong; run `fgcd diff` on this visit again to replace it"))
+        report.problems.append(
+            Problem(
+                str(path),
+                "scale",
+                f"diff made with a non-physical scale ({scale} mm per px): "
+                "its areas are wrong; run `fgcd diff` on this visit again to replace it",
+            )
+        )
 
 
 def verify_campaign_dir(path: Path) -> VerifyReport:
@@ -276,8 +287,13 @@ def _verify_station(st: Station, report: VerifyReport) -> None:
                 )
         for rel in sorted(present - set(index)):
             report.problems.append(
-                Problem(str(st.path / rel), "unindexed", f"observation not recorded in {STATION_FILE} (a write "
-                        "interrupted between its commit and the index update, or a folder copied in)", "warning")
+                Problem(
+                    str(st.path / rel),
+                    "unindexed",
+                    f"observation not recorded in {STATION_FILE} (a write "
+                    "interrupted between its commit and the index update, or a folder copied in)",
+                    "warning",
+                )
             )
     journal = st.path / VISITS_DIR / VISIT_JOURNAL
     if journal.exists():
@@ -311,20 +327,24 @@ _DERIVED = (f"{CHANGES_DIR}/", REPORT_HTML, AFD_JSON)
 def _unlisted_detail(rel: str) -> str:
     """Why a file of an observation is not in its manifest, as far as its name tells."""
     if rel.startswith(_DERIVED):
-        return ("a derived product whose manifest entry was not written (an interrupted `fgcd diff` or report): "
-                "`fgcd diff` on this visit writes and lists it again; safe to delete")
+        return (
+            "a derived product whose manifest entry was not written (an interrupted `fgcd diff` or report): "
+            "`fgcd diff` on this visit writes and lists it again; safe to delete"
+        )
     return "file not in the manifest"
 
 
 def _leftover_detail(path: Path, parent: Path) -> str:
     """What a store temporary (``.tmp-*``) in a station or its visits folder was being written."""
     if path.is_dir():
-        what = "reference" if parent.name != VISITS_DIR else f"visit {path.name[len(TMP_PREFIX):].rsplit('-', 1)[0]}"
+        what = "reference" if parent.name != VISITS_DIR else f"visit {path.name[len(TMP_PREFIX) :].rsplit('-', 1)[0]}"
         files = sum(1 for p in path.rglob("*") if p.is_file())
         state = "complete but not moved into place" if (path / MANIFEST).is_file() else "without its manifest"
-        return f"the {what} being written when the process stopped ({counted(files, 'file')}, {state}); " \
-               "nothing was committed; safe to delete"
-    target = path.name[len(TMP_PREFIX):].rsplit(".", 1)[0]
+        return (
+            f"the {what} being written when the process stopped ({counted(files, 'file')}, {state}); "
+            "nothing was committed; safe to delete"
+        )
+    target = path.name[len(TMP_PREFIX) :].rsplit(".", 1)[0]
     return f"a write of {target} interrupted before its rename (the {target} in place is intact); safe to delete"
 
 
@@ -342,26 +362,56 @@ def _journal_problem(journal: Path, st: Station) -> Problem:
             entries.append(json.loads(line))
         except ValueError:
             if number < len(lines) or data.endswith(b"\n"):
-                return Problem(str(journal), "journal", f"revisit journal damaged at line {number} (not what an "
-                               "interrupted write leaves): `fgcd relocate --resume` will start over")
-            held = (f"the {counted(len(entries) - 1, 'adjustment')} before it hold: `fgcd relocate --resume` "
-                    "continues after them" if len(entries) > 1 else "nothing to continue: `fgcd relocate` replaces it")
-            return Problem(str(journal), "incomplete-write", f"the revisit journal's last line (line {number}) was "
-                           f"cut short by an interrupted write; {held}", "warning")
+                return Problem(
+                    str(journal),
+                    "journal",
+                    f"revisit journal damaged at line {number} (not what an "
+                    "interrupted write leaves): `fgcd relocate --resume` will start over",
+                )
+            held = (
+                f"the {counted(len(entries) - 1, 'adjustment')} before it hold: `fgcd relocate --resume` "
+                "continues after them"
+                if len(entries) > 1
+                else "nothing to continue: `fgcd relocate` replaces it"
+            )
+            return Problem(
+                str(journal),
+                "incomplete-write",
+                f"the revisit journal's last line (line {number}) was cut short by an interrupted write; {held}",
+                "warning",
+            )
     if not entries:
-        return Problem(str(journal), "incomplete-write", "an empty revisit journal (the revisit stopped while "
-                       "writing its first line): `fgcd relocate` replaces it; safe to delete", "warning")
+        return Problem(
+            str(journal),
+            "incomplete-write",
+            "an empty revisit journal (the revisit stopped while "
+            "writing its first line): `fgcd relocate` replaces it; safe to delete",
+            "warning",
+        )
     if not (isinstance(entries[0], dict) and entries[0].get("kind") == "start"):
-        return Problem(str(journal), "journal", "revisit journal damaged: its first line is not the start line; "
-                       "`fgcd relocate --resume` will start over")
+        return Problem(
+            str(journal),
+            "journal",
+            "revisit journal damaged: its first line is not the start line; `fgcd relocate --resume` will start over",
+        )
     committed = committed_visit_of_journal(st, [e.get("record") if isinstance(e, dict) else None for e in entries[1:]])
     if committed is not None:
-        return Problem(str(journal), "incomplete-write", f"the revisit this journal records was committed as "
-                       f"visits/{committed}; the journal is left from a stop right after that commit: safe to "
-                       "delete (`fgcd relocate --resume` would record another visit)", "warning")
+        return Problem(
+            str(journal),
+            "incomplete-write",
+            f"the revisit this journal records was committed as "
+            f"visits/{committed}; the journal is left from a stop right after that commit: safe to "
+            "delete (`fgcd relocate --resume` would record another visit)",
+            "warning",
+        )
     # A note, not a warning: nothing is wrong, and deleting the journal loses the resumable revisit.
-    return Problem(str(journal), "interrupted-visit", f"a revisit of station '{st.name}' was interrupted: "
-                   "`fgcd relocate --resume` continues it (a new `fgcd relocate` replaces it)", "note")
+    return Problem(
+        str(journal),
+        "interrupted-visit",
+        f"a revisit of station '{st.name}' was interrupted: "
+        "`fgcd relocate --resume` continues it (a new `fgcd relocate` replaces it)",
+        "note",
+    )
 
 
 def committed_visit_of_journal(st: Station, records: list) -> str | None:

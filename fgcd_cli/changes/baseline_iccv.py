@@ -132,7 +132,7 @@ def _group_medians(values: np.ndarray, order: np.ndarray, starts: np.ndarray) ->
     sorted_values = values[order]
     out = np.zeros(starts.size - 1)
     for g in range(starts.size - 1):
-        chunk = sorted_values[starts[g]:starts[g + 1]]
+        chunk = sorted_values[starts[g] : starts[g + 1]]
         if chunk.size >= _MIN_GROUP_PIXELS:
             out[g] = np.median(chunk)
         else:
@@ -253,8 +253,11 @@ def iccv2015_details(
     n_groups = config.n_normal_bins + 1  # the last group: unknown normals
     if index.size < 10 * n_groups:
         return ICCV2015Result(
-            score=np.zeros(shape, np.float32), error_maps=np.zeros((k_count, h, w), np.float32),
-            normal_groups=np.full(shape, -1, np.int32), group_log_gains=np.zeros((k_count, n_groups)))
+            score=np.zeros(shape, np.float32),
+            error_maps=np.zeros((k_count, h, w), np.float32),
+            normal_groups=np.full(shape, -1, np.int32),
+            group_log_gains=np.zeros((k_count, n_groups)),
+        )
 
     # 1. Normals of the reference, in the basis shared with the current observation.
     fit_ref, _ = joint_photometric_stereo(refs, curs, valid=valid, ambient_index=ambient_index)
@@ -285,8 +288,9 @@ def iccv2015_details(
     score = np.where(valid, score, 0.0).astype(np.float32)
     groups_map = np.full(h * w, -1, np.int32)
     groups_map[index] = group
-    return ICCV2015Result(score=score, error_maps=error_maps, normal_groups=groups_map.reshape(h, w),
-                          group_log_gains=gains)
+    return ICCV2015Result(
+        score=score, error_maps=error_maps, normal_groups=groups_map.reshape(h, w), group_log_gains=gains
+    )
 
 
 def _checked_inputs(ref_images, cur_images, valid, config: ICCV2015Config):

@@ -182,8 +182,9 @@ class DetectionConfig:
     tiling: TilingConfig = field(default_factory=TilingConfig)
 
     @classmethod
-    def from_options(cls, config: DetectionConfig | None = None, /, *, allowed: frozenset[str] | None = None,
-                     **options) -> DetectionConfig:
+    def from_options(
+        cls, config: DetectionConfig | None = None, /, *, allowed: frozenset[str] | None = None, **options
+    ) -> DetectionConfig:
         """``config`` (default: the shipped one) with flat keyword options replacing its fields.
 
         ``allowed`` restricts the option names (the tiled path accepts fewer); an
@@ -196,8 +197,10 @@ class DetectionConfig:
             if section is None or (allowed is not None and name not in allowed):
                 raise TypeError(f"unexpected keyword argument {name!r}")
             grouped.setdefault(section, {})[name] = value
-        return dataclasses.replace(config, **{section: dataclasses.replace(getattr(config, section), **values)
-                                              for section, values in grouped.items()})
+        return dataclasses.replace(
+            config,
+            **{section: dataclasses.replace(getattr(config, section), **values) for section, values in grouped.items()},
+        )
 
 
 def with_scan_rules(config: DetectionConfig) -> DetectionConfig:

@@ -96,43 +96,78 @@ def detect_changes(
     config = with_scan_rules(DetectionConfig() if config is None else config)
     settings = detection_settings(config, lightings=len(ref_images), shading=shading_ref is not None)
     step = _Steps(progress, total=4)
-    refs, curs, roi = _check_inputs(ref_images, cur_images, roi=roi, pixel_area_mm2=pixel_area_mm2,
-                                          shading=(shading_ref, shading_cur), config=config.registration)
+    refs, curs, roi = _check_inputs(
+        ref_images,
+        cur_images,
+        roi=roi,
+        pixel_area_mm2=pixel_area_mm2,
+        shading=(shading_ref, shading_cur),
+        config=config.registration,
+    )
     shape = refs[0].shape[:2]
     grays_ref, grays_cur = [to_gray(im) for im in refs], [to_gray(im) for im in curs]
     problem = stack_health(grays_ref, grays_cur)
     if problem:
         return empty_result(shape, problem, None, settings)
-    alignment = align_stacks(curs, grays_ref, grays_cur, roi=roi, config=config.registration,
-                             margin_px=comparison_margin_px(config.score))
+    alignment = align_stacks(
+        curs, grays_ref, grays_cur, roi=roi, config=config.registration, margin_px=comparison_margin_px(config.score)
+    )
     if isinstance(alignment, str):
         return empty_result(shape, alignment, None, settings)
     if alignment.valid.sum() < 100:
-        return empty_result(shape, "cannot compare: fewer than 100 pixels are seen in both images",
-                            alignment.registration, settings)
+        return empty_result(
+            shape, "cannot compare: fewer than 100 pixels are seen in both images", alignment.registration, settings
+        )
     step("registered")
     if shading_ref is not None:
-        alignment.warped = [normalize_shading(ref, warped, shading_ref=s_ref, shading_cur=s_cur) for ref, warped,
-                            s_ref, s_cur in zip(refs, alignment.warped, shading_ref, shading_cur)]
+        alignment.warped = [
+            normalize_shading(ref, warped, shading_ref=s_ref, shading_cur=s_cur)
+            for ref, warped, s_ref, s_cur in zip(refs, alignment.warped, shading_ref, shading_cur)
+        ]
     scored = score_stacks(refs, alignment, score=config.score, regions=config.regions, settings=settings)
     step("scored")
     valid = alignment.valid
-    found = decide_regions(scored.score, valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings,
-                           fine_score=scored.fine_score)
+    found = decide_regions(
+        scored.score,
+        valid,
+        pixel_area_mm2=pixel_area_mm2,
+        config=config,
+        settings=settings,
+        fine_score=scored.fine_score,
+    )
     step("decided")
-    explained = apply_edge_check(found, refs=refs, scored=scored, valid=valid, pixel_area_mm2=pixel_area_mm2,
-                                 config=config, settings=settings)
-    cue_maps = label_cues(refs, scored.normalized, found.regions, found.labels, valid=valid,
-                          config=config.cue_labels, smooth_sigma_px=config.score.smooth_sigma_px, settings=settings)
+    explained = apply_edge_check(
+        found, refs=refs, scored=scored, valid=valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
+    )
+    cue_maps = label_cues(
+        refs,
+        scored.normalized,
+        found.regions,
+        found.labels,
+        valid=valid,
+        config=config.cue_labels,
+        smooth_sigma_px=config.score.smooth_sigma_px,
+        settings=settings,
+    )
     step("labelled")
     return ChangeResult(
-        comparable=True, score=scored.score, fine_score=scored.fine_score, mask=found.mask, labels=found.labels,
-        valid=valid, regions=found.regions,
-        registration=alignment.registration, threshold=found.threshold,
-        current_registered=[np.clip(image, 0.0, 1.0) for image in scored.normalized], settings=settings,
+        comparable=True,
+        score=scored.score,
+        fine_score=scored.fine_score,
+        mask=found.mask,
+        labels=found.labels,
+        valid=valid,
+        regions=found.regions,
+        registration=alignment.registration,
+        threshold=found.threshold,
+        current_registered=[np.clip(image, 0.0, 1.0) for image in scored.normalized],
+        settings=settings,
         warnings=result_warnings(found.mask, valid, alignment.registration, register=config.registration.register),
-        edge_explained=explained, candidates=unreported_candidates(found.significance, found.mask),
-        not_compared=alignment.not_compared, dense=alignment.dense, cue_maps=cue_maps,
+        edge_explained=explained,
+        candidates=unreported_candidates(found.significance, found.mask),
+        not_compared=alignment.not_compared,
+        dense=alignment.dense,
+        cue_maps=cue_maps,
     )
 
 
@@ -151,8 +186,13 @@ class _Steps:
 def _check_inputs(ref_images, cur_images, *, roi, pixel_area_mm2, shading, config: RegistrationConfig):
     """Validate and convert the stacks (float32 [0, 1]) and the region of interest (bool); raises UserInputError."""
     refs, curs = validate_stacks(ref_images, cur_images)
-    roi = check_side_inputs(refs[0].shape[:2], len(refs), roi=roi, pixel_area_mm2=pixel_area_mm2,
-                                  registration_lighting=config.registration_lighting)
+    roi = check_side_inputs(
+        refs[0].shape[:2],
+        len(refs),
+        roi=roi,
+        pixel_area_mm2=pixel_area_mm2,
+        registration_lighting=config.registration_lighting,
+    )
     if (shading[0] is None) != (shading[1] is None):
         raise UserInputError("give shading maps for both the reference and the current observation, or neither")
     return refs, curs, roi
@@ -188,8 +228,7 @@ class Alignment:
     not_compared: np.ndarray | None = None
 
 
-def align_stacks(curs, grays_ref, grays_cur, *, roi, config: RegistrationConfig,
-                 margin_px: int) -> Alignment | str:
+def align_stacks(curs, grays_ref, grays_cur, *, roi, config: RegistrationConfig, margin_px: int) -> Alignment | str:
     """Bring the current stack into the reference frame: homography, then (``config.dense``) the parallax flow.
 
     Returns a reason string when the pair cannot be registered.
@@ -221,16 +260,30 @@ def align_stacks(curs, grays_ref, grays_cur, *, roi, config: RegistrationConfig,
         valid &= ~not_compared
     # Keep away from the border of the seen area: the gain field and shifts are biased there.
     if margin_px > 0:
-        valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)).astype(bool)
-    return Alignment(registration=registration, warped=warped_images, valid=valid, seen_all=seen_all,
-                     dense=dense_fit, not_compared=not_compared)
+        valid = cv2.erode(valid.astype(np.uint8), np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)).astype(
+            bool
+        )
+    return Alignment(
+        registration=registration,
+        warped=warped_images,
+        valid=valid,
+        seen_all=seen_all,
+        dense=dense_fit,
+        not_compared=not_compared,
+    )
 
 
-def score_stacks(refs: list[np.ndarray], alignment: Alignment, *, score: ScoreConfig, regions: RegionConfig,
-                 settings: dict) -> PairScore:
+def score_stacks(
+    refs: list[np.ndarray], alignment: Alignment, *, score: ScoreConfig, regions: RegionConfig, settings: dict
+) -> PairScore:
     """The fused score of the aligned stacks (:func:`fgcd_cli.changes.score.score_pair`); records its rounds."""
-    scored = score_pair(refs, alignment.warped, valid=alignment.valid, seen_all=alignment.seen_all,
-                        options=ScoreOptions.from_config(score, suspect=regions))
+    scored = score_pair(
+        refs,
+        alignment.warped,
+        valid=alignment.valid,
+        seen_all=alignment.seen_all,
+        options=ScoreOptions.from_config(score, suspect=regions),
+    )
     settings["robust_gain_rounds"] = scored.robust_rounds
     if scored.edge_band_fraction is not None:
         settings["edge_band_fraction"] = scored.edge_band_fraction
@@ -250,21 +303,39 @@ class Regions:
     significance: Decision
 
 
-def decide_regions(score: np.ndarray, valid: np.ndarray, *, pixel_area_mm2, config: DetectionConfig,
-                   settings: dict, fine_score: np.ndarray | None = None) -> Regions:
+def decide_regions(
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    pixel_area_mm2,
+    config: DetectionConfig,
+    settings: dict,
+    fine_score: np.ndarray | None = None,
+) -> Regions:
     """:func:`decide` on the score (and its finer smoothing), and the regions of its mask with their
     significance and area."""
-    mask, threshold, significance = decide(score, valid, config=config.regions,
-                                           smooth_sigma_px=config.score.smooth_sigma_px, fine_score=fine_score,
-                                           fine_sigma_px=config.score.fine_smooth_sigma_px)
+    mask, threshold, significance = decide(
+        score,
+        valid,
+        config=config.regions,
+        smooth_sigma_px=config.score.smooth_sigma_px,
+        fine_score=fine_score,
+        fine_sigma_px=config.score.fine_smooth_sigma_px,
+    )
     settings["seed_level"] = significance.seed_level
     regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
     return Regions(mask=mask, regions=regions, labels=labels, threshold=threshold, significance=significance)
 
 
-def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None = None,
-           smooth_sigma_px: float = 2.0, fine_score: np.ndarray | None = None,
-           fine_sigma_px: float = 0.0) -> tuple[np.ndarray, ThresholdInfo, Decision]:
+def decide(
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    config: RegionConfig | None = None,
+    smooth_sigma_px: float = 2.0,
+    fine_score: np.ndarray | None = None,
+    fine_sigma_px: float = 0.0,
+) -> tuple[np.ndarray, ThresholdInfo, Decision]:
     """The changed pixels of a fused score map.
 
     Both rules are evaluated: the hysteresis threshold is kept as a reference (and
@@ -288,23 +359,40 @@ def decide(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig | None 
     """
     config = config or RegionConfig()
     raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=config.k_high, k_low=config.k_low)
-    significance = two_scale_decision(score, valid, config=config, smooth_sigma_px=smooth_sigma_px,
-                                      fine_score=fine_score, fine_sigma_px=fine_sigma_px)
+    significance = two_scale_decision(
+        score, valid, config=config, smooth_sigma_px=smooth_sigma_px, fine_score=fine_score, fine_sigma_px=fine_sigma_px
+    )
     acontrario = significance.mask if config.decision == DecisionRule.ACONTRARIO else None
     return region_mask(acontrario, raw_mask, score, valid, threshold=threshold, config=config), threshold, significance
 
 
-def two_scale_decision(score: np.ndarray, valid: np.ndarray, *, config: RegionConfig, smooth_sigma_px: float,
-                       fine_score: np.ndarray | None, fine_sigma_px: float) -> Decision:
+def two_scale_decision(
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    config: RegionConfig,
+    smooth_sigma_px: float,
+    fine_score: np.ndarray | None,
+    fine_sigma_px: float,
+) -> Decision:
     """The a-contrario decision on the score, and on its finer smoothing when given (one family of tests)."""
     maps = [(score, smooth_sigma_px)] + ([(fine_score, fine_sigma_px)] if fine_score is not None else [])
     test = dataclasses.replace(acontrario_config(config), score_maps=len(maps))
-    return merge_decisions([acontrario_decision(s, valid, config=test, min_cluster_area_px=4.0 * np.pi * sigma**2)
-                            for s, sigma in maps], max_candidates=test.max_candidates)
+    return merge_decisions(
+        [acontrario_decision(s, valid, config=test, min_cluster_area_px=4.0 * np.pi * sigma**2) for s, sigma in maps],
+        max_candidates=test.max_candidates,
+    )
 
 
-def region_mask(acontrario_mask: np.ndarray | None, hysteresis_mask: np.ndarray | None, score: np.ndarray,
-                valid: np.ndarray, *, threshold: ThresholdInfo, config: RegionConfig) -> np.ndarray:
+def region_mask(
+    acontrario_mask: np.ndarray | None,
+    hysteresis_mask: np.ndarray | None,
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    threshold: ThresholdInfo,
+    config: RegionConfig,
+) -> np.ndarray:
     """The decision rule's mask, cleaned, inside ``valid``.
 
     A-contrario: the significant regions grown to their extent (``acontrario_mask``).
@@ -315,37 +403,72 @@ def region_mask(acontrario_mask: np.ndarray | None, hysteresis_mask: np.ndarray 
     if config.decision == DecisionRule.ACONTRARIO:
         raw_mask = acontrario_mask
     else:
-        raw_mask = refine_to_local_peak(hysteresis_mask, score, background=threshold.median,
-                                        fraction=config.edge_fraction, radius_px=config.edge_radius_px)
+        raw_mask = refine_to_local_peak(
+            hysteresis_mask,
+            score,
+            background=threshold.median,
+            fraction=config.edge_fraction,
+            radius_px=config.edge_radius_px,
+        )
     return clean_mask(raw_mask, min_region_px=config.min_region_px, max_hole_px=config.max_hole_px) & valid
 
 
-def apply_edge_check(found: Regions, *, refs, scored: PairScore, valid: np.ndarray, pixel_area_mm2,
-                     config: DetectionConfig, settings: dict) -> np.ndarray | None:
+def apply_edge_check(
+    found: Regions,
+    *,
+    refs,
+    scored: PairScore,
+    valid: np.ndarray,
+    pixel_area_mm2,
+    config: DetectionConfig,
+    settings: dict,
+) -> np.ndarray | None:
     """The region-level edge check (:mod:`fgcd_cli.changes.edge_check`): the regions it sets aside leave
     ``found`` (mask, regions, labels); returns their pixels, or None when the check did not run."""
     if config.edge_check.edge_check_px <= 0 or not found.regions:
         return None
     acontrario = config.regions.decision == DecisionRule.ACONTRARIO
-    check = edge_explained_regions(found.labels, len(found.regions), refs=refs, scored=scored, valid=valid,
-                                   seed_level=found.significance.seed_level if acontrario else found.threshold.high,
-                                   score=config.score, config=config.edge_check)
+    check = edge_explained_regions(
+        found.labels,
+        len(found.regions),
+        refs=refs,
+        scored=scored,
+        valid=valid,
+        seed_level=found.significance.seed_level if acontrario else found.threshold.high,
+        score=config.score,
+        config=config.edge_check,
+    )
     settings["edge_explained_regions"] = check.n_explained
     settings["edge_compact_kept_regions"] = check.n_compact_kept
     if check.explained.any():
         found.mask &= ~check.explained
-        found.regions, found.labels = regions_with_significance(found.mask, scored.score, found.significance,
-                                                                pixel_area_mm2)
+        found.regions, found.labels = regions_with_significance(
+            found.mask, scored.score, found.significance, pixel_area_mm2
+        )
     return check.explained
 
 
-def label_cues(refs, normalized, regions: list[ChangeRegion], labels: np.ndarray, *, valid: np.ndarray,
-               config: CueConfig, smooth_sigma_px: float, settings: dict) -> CueMaps | None:
+def label_cues(
+    refs,
+    normalized,
+    regions: list[ChangeRegion],
+    labels: np.ndarray,
+    *,
+    valid: np.ndarray,
+    config: CueConfig,
+    smooth_sigma_px: float,
+    settings: dict,
+) -> CueMaps | None:
     """Relief / colour cue maps of the pair and a label per region (``config.cues``), recorded in ``settings``."""
     if not config.cues:
         return None
-    cue_maps = relief_colour_cues(refs, [np.clip(image, 0.0, 1.0) for image in normalized], valid=valid,
-                                  ambient_index=config.ambient_index, light_dirs=config.light_dirs)
+    cue_maps = relief_colour_cues(
+        refs,
+        [np.clip(image, 0.0, 1.0) for image in normalized],
+        valid=valid,
+        ambient_index=config.ambient_index,
+        light_dirs=config.light_dirs,
+    )
     label_regions(regions, labels, cue_maps, valid=valid, smooth_sigma_px=smooth_sigma_px)
     settings["cues"] = cue_maps.reason or CUES_COMPUTED
     return cue_maps

@@ -80,7 +80,7 @@ def along_edge_elongation(region: np.ndarray, gray: np.ndarray) -> float:
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     # Gradients on a one-pixel margin around the region's box (3x3 Sobel support).
     by0, bx0 = max(y0 - 1, 0), max(x0 - 1, 0)
-    patch = np.ascontiguousarray(gray[by0:y1 + 1, bx0:x1 + 1], np.float32)
+    patch = np.ascontiguousarray(gray[by0 : y1 + 1, bx0 : x1 + 1], np.float32)
     gx = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)[ys - by0, xs - bx0].astype(np.float64)
     gy = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)[ys - by0, xs - bx0].astype(np.float64)
     tensor = np.array([[gx @ gx, gx @ gy], [gx @ gy, gy @ gy]])
@@ -106,12 +106,20 @@ def max_hidden_blob_px(*, edge_check_px: int, smooth_sigma_px: float) -> float:
     twice that diameter; the bound is the area of that disc.
     """
     diameter = 2.0 * ((2 * edge_check_px + 1) + 4.0 * smooth_sigma_px)
-    return float(np.pi * diameter ** 2 / 4.0)
+    return float(np.pi * diameter**2 / 4.0)
 
 
-def edge_explained_regions(labels: np.ndarray, n_regions: int, *, refs: list[np.ndarray], scored: PairScore,
-                           valid: np.ndarray, seed_level: float, score: ScoreConfig,
-                           config: EdgeCheckConfig) -> EdgeCheck:
+def edge_explained_regions(
+    labels: np.ndarray,
+    n_regions: int,
+    *,
+    refs: list[np.ndarray],
+    scored: PairScore,
+    valid: np.ndarray,
+    seed_level: float,
+    score: ScoreConfig,
+    config: EdgeCheckConfig,
+) -> EdgeCheck:
     """Apply rules 1-3 of the module docstring to every region of ``labels``.
 
     Parameters
@@ -132,8 +140,13 @@ def edge_explained_regions(labels: np.ndarray, n_regions: int, *, refs: list[np.
     edge_check_px, band_fraction = config.edge_check_px, config.edge_check_band_fraction
     check_bands = [edge_band(ref, radius_px=edge_check_px, contrast=edge_contrast) for ref in refs]
     tolerant = [
-        relative_to_median(edge_tolerant_difference(ref, normalized, radius_px=shift_radius_px,
-                                                    edge_radius_px=edge_check_px, band=band), valid, median=median)
+        relative_to_median(
+            edge_tolerant_difference(
+                ref, normalized, radius_px=shift_radius_px, edge_radius_px=edge_check_px, band=band
+            ),
+            valid,
+            median=median,
+        )
         for ref, normalized, band, median in zip(refs, normalized_images, check_bands, medians)
     ]
     tolerant_score = np.mean(tolerant, axis=0).astype(np.float32)
@@ -151,8 +164,11 @@ def edge_explained_regions(labels: np.ndarray, n_regions: int, *, refs: list[np.
         pixels = labels == region_id
         if in_band[pixels].mean() < band_fraction or tolerant_score[pixels].max() >= seed_level:
             continue
-        if (not near_border[pixels].any() and pixels.sum() <= blob_px
-                and along_edge_elongation(pixels, gray) < MIN_ALONG_ACROSS):
+        if (
+            not near_border[pixels].any()
+            and pixels.sum() <= blob_px
+            and along_edge_elongation(pixels, gray) < MIN_ALONG_ACROSS
+        ):
             n_compact += 1
             continue
         explained |= pixels

@@ -72,8 +72,8 @@ def smooth_large(image: np.ndarray, sigma_px: float, *, window: tuple[slice, sli
     y0, y1, _ = rows.indices(h)
     x0, x1, _ = cols.indices(w)
     # Map output pixel centres onto the reduced grid (pixel-centre convention of INTER_AREA).
-    xs = ((np.arange(x0, x1, dtype=np.float32) + 0.5) / factor - 0.5)
-    ys = ((np.arange(y0, y1, dtype=np.float32) + 0.5) / factor - 0.5)
+    xs = (np.arange(x0, x1, dtype=np.float32) + 0.5) / factor - 0.5
+    ys = (np.arange(y0, y1, dtype=np.float32) + 0.5) / factor - 0.5
     map_x = np.broadcast_to(xs[None, :], (y1 - y0, x1 - x0)).astype(np.float32)
     map_y = np.broadcast_to(ys[:, None], (y1 - y0, x1 - x0)).astype(np.float32)
     out = cv2.remap(small, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -111,7 +111,7 @@ def _smooth_region(image: np.ndarray, sigma_px: float, region: Region | None) ->
     y0, y1, x0, x1 = _bounds(image.shape, region)
     reach = (int(round(sigma_px * 8 + 1)) | 1) // 2
     gy0, gy1, gx0, gx1 = max(0, y0 - reach), min(h, y1 + reach), max(0, x0 - reach), min(w, x1 + reach)
-    return smooth_large(image[gy0:gy1, gx0:gx1], sigma_px)[y0 - gy0:y1 - gy0, x0 - gx0:x1 - gx0]
+    return smooth_large(image[gy0:gy1, gx0:gx1], sigma_px)[y0 - gy0 : y1 - gy0, x0 - gx0 : x1 - gx0]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -150,8 +150,9 @@ def _shift(window: Region, y0: int, x0: int) -> Region:
     return slice(window[0].start + y0, window[0].stop + y0), slice(window[1].start + x0, window[1].stop + x0)
 
 
-def prepare_gain_weight(weight: np.ndarray, sigma_px: float, image_shape: tuple[int, ...], *,
-                        region: Region | None = None) -> GainWeight:
+def prepare_gain_weight(
+    weight: np.ndarray, sigma_px: float, image_shape: tuple[int, ...], *, region: Region | None = None
+) -> GainWeight:
     """Blur a gain weight once, for :func:`normalize_local_gain` on several lightings of the same frame.
 
     Parameters
@@ -179,9 +180,17 @@ def prepare_gain_weight(weight: np.ndarray, sigma_px: float, image_shape: tuple[
         wide_denom = _replicate(np.maximum(wide, 1e-6), channels)
         alpha = _replicate(np.clip(support[window] / _WIDE_SUPPORT, 0.0, 1.0), channels)
         one_minus_alpha = 1.0 - alpha
-    return GainWeight(sigma_px=float(sigma_px), shape=tuple(image_shape), region=region,
-                      weight=_replicate(w, channels), denom=_replicate(np.maximum(support, 1e-6), channels),
-                      window=window, wide_denom=wide_denom, alpha=alpha, one_minus_alpha=one_minus_alpha)
+    return GainWeight(
+        sigma_px=float(sigma_px),
+        shape=tuple(image_shape),
+        region=region,
+        weight=_replicate(w, channels),
+        denom=_replicate(np.maximum(support, 1e-6), channels),
+        window=window,
+        wide_denom=wide_denom,
+        alpha=alpha,
+        one_minus_alpha=one_minus_alpha,
+    )
 
 
 def _gain_ratio(mean_ref: np.ndarray, mean_cur: np.ndarray, denom: np.ndarray, floor: float) -> np.ndarray:
@@ -244,19 +253,32 @@ def normalize_local_gain(
         return (cur_warped[y0:y1, x0:x1] * gain).astype(np.float32, copy=False)
     if not isinstance(weight, GainWeight):
         weight = prepare_gain_weight(weight, sigma_px, np.shape(ref_image), region=region)
-    elif (weight.sigma_px != float(sigma_px) or weight.shape != np.shape(ref_image)
-          or _bounds(weight.shape, weight.region) != (y0, y1, x0, x1)):
-        raise ValueError(f"gain weight prepared for sigma {weight.sigma_px}, shape {weight.shape} and region "
-                         f"{weight.region}, used with sigma {sigma_px}, shape {np.shape(ref_image)} "
-                         f"and region {region}")
+    elif (
+        weight.sigma_px != float(sigma_px)
+        or weight.shape != np.shape(ref_image)
+        or _bounds(weight.shape, weight.region) != (y0, y1, x0, x1)
+    ):
+        raise ValueError(
+            f"gain weight prepared for sigma {weight.sigma_px}, shape {weight.shape} and region "
+            f"{weight.region}, used with sigma {sigma_px}, shape {np.shape(ref_image)} "
+            f"and region {region}"
+        )
     weighted_ref, weighted_cur = weight.weight * ref_image, weight.weight * cur_warped
-    gain = _gain_ratio(_smooth_region(weighted_ref, sigma_px, region), _smooth_region(weighted_cur, sigma_px, region),
-                       weight.denom, floor)
+    gain = _gain_ratio(
+        _smooth_region(weighted_ref, sigma_px, region),
+        _smooth_region(weighted_cur, sigma_px, region),
+        weight.denom,
+        floor,
+    )
     if weight.window is not None:
         window = weight.window
         inside = _shift(window, y0, x0)
-        wide = _gain_ratio(smooth_large(weighted_ref, 4.0 * sigma_px, window=inside),
-                           smooth_large(weighted_cur, 4.0 * sigma_px, window=inside), weight.wide_denom, floor)
+        wide = _gain_ratio(
+            smooth_large(weighted_ref, 4.0 * sigma_px, window=inside),
+            smooth_large(weighted_cur, 4.0 * sigma_px, window=inside),
+            weight.wide_denom,
+            floor,
+        )
         # Blend smoothly towards the wide estimate where the narrow window has little support
         # (alpha is 1, and the narrow gain kept as it is, outside the window).
         gain[window] = weight.alpha * gain[window] + weight.one_minus_alpha * wide

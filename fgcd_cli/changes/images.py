@@ -37,7 +37,9 @@ def to_float_image(image: np.ndarray, *, name: str = "image") -> np.ndarray:
     if np.issubdtype(array.dtype, np.floating):
         finite = array[np.isfinite(array)]
         if finite.size and (finite.min() < -1e-3 or finite.max() > 1.0 + 1e-3):
-            raise UserInputError(f"{name}: float images must lie in [0, 1] (got {finite.min():.3g}..{finite.max():.3g})")
+            raise UserInputError(
+                f"{name}: float images must lie in [0, 1] (got {finite.min():.3g}..{finite.max():.3g})"
+            )
         return np.clip(np.nan_to_num(array, nan=0.0), 0.0, 1.0).astype(np.float32)
     raise UserInputError(f"{name}: unsupported pixel type {array.dtype}")
 
@@ -79,7 +81,9 @@ def check_stack_sizes(ref_images: list[np.ndarray], cur_images: list[np.ndarray]
             )
 
 
-def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+def validate_stacks(
+    ref_images: list[np.ndarray], cur_images: list[np.ndarray]
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Check and convert the reference and current image stacks (one image per lighting).
 
     Returns the two lists as float32 images in [0, 1]. Raises :class:`UserInputError`
@@ -94,8 +98,14 @@ def validate_stacks(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) 
     return refs, curs
 
 
-def check_side_inputs(shape: tuple[int, int], lightings: int, *, roi: np.ndarray | None,
-                      pixel_area_mm2: np.ndarray | None, registration_lighting: int) -> np.ndarray | None:
+def check_side_inputs(
+    shape: tuple[int, int],
+    lightings: int,
+    *,
+    roi: np.ndarray | None,
+    pixel_area_mm2: np.ndarray | None,
+    registration_lighting: int,
+) -> np.ndarray | None:
     """Check the maps and the lighting index that come with an HxW stack; returns the region of interest as bool.
 
     Raises :class:`UserInputError` when a map is not HxW or the lighting index is out of range.
@@ -103,8 +113,10 @@ def check_side_inputs(shape: tuple[int, int], lightings: int, *, roi: np.ndarray
     if roi is not None:
         roi = np.asarray(roi).astype(bool)
         if roi.shape != shape:
-            raise UserInputError(f"the region of interest (--roi) is {roi.shape[1]}x{roi.shape[0]} px, "
-                                 f"images are {shape[1]}x{shape[0]} px")
+            raise UserInputError(
+                f"the region of interest (--roi) is {roi.shape[1]}x{roi.shape[0]} px, "
+                f"images are {shape[1]}x{shape[0]} px"
+            )
     if pixel_area_mm2 is not None and np.asarray(pixel_area_mm2).shape != shape:
         raise UserInputError("pixel area map must have the reference image's size")
     if not 0 <= registration_lighting < lightings:

@@ -277,10 +277,16 @@ def regions_with_significance(mask, score, significance: Decision, pixel_area_mm
             value = significance.regions[seed - 1].log10_nfa
             nfa[region_id - 1] = value if nfa[region_id - 1] is None else min(nfa[region_id - 1], value)
     regions = [
-        ChangeRegion(id=i + 1, area_px=int(counts[i]), area_mm2=area_mm2[i],
-                     bbox_xywh=(int(x_lo[i]), int(y_lo[i]), int(x_hi[i] - x_lo[i] + 1), int(y_hi[i] - y_lo[i] + 1)),
-                     centroid_xy=(float(cx[i]), float(cy[i])), mean_score=float(means[i]), max_score=float(maxima[i]),
-                     log10_nfa=None if nfa[i] is None else float(nfa[i]))
+        ChangeRegion(
+            id=i + 1,
+            area_px=int(counts[i]),
+            area_mm2=area_mm2[i],
+            bbox_xywh=(int(x_lo[i]), int(y_lo[i]), int(x_hi[i] - x_lo[i] + 1), int(y_hi[i] - y_lo[i] + 1)),
+            centroid_xy=(float(cx[i]), float(cy[i])),
+            mean_score=float(means[i]),
+            max_score=float(maxima[i]),
+            log10_nfa=None if nfa[i] is None else float(nfa[i]),
+        )
         for i in range(count)
     ]
     return regions, labels

@@ -112,7 +112,9 @@ def ransac_homography(
     if n < 4:
         return None, np.zeros(n, dtype=bool)
     cv2.setRNGSeed(0)  # the same pair registers the same way every time (RANSAC samples with OpenCV's RNG)
-    H, inliers = cv2.findHomography(points_ref, points_cur, cv2.RANSAC, float(ransac_px), maxIters=5000, confidence=0.999)
+    H, inliers = cv2.findHomography(
+        points_ref, points_cur, cv2.RANSAC, float(ransac_px), maxIters=5000, confidence=0.999
+    )
     if H is None:
         return None, np.zeros(n, dtype=bool)
     return H.astype(np.float64), inliers.ravel().astype(bool)
@@ -182,8 +184,9 @@ def ecc_gradient(
             ref_l = cv2.resize(ref_gray, size, interpolation=cv2.INTER_AREA) if level else ref_gray
             cur_l = cv2.resize(cur_gray, size, interpolation=cv2.INTER_AREA) if level else cur_gray
             H_l = _scale_homography(H, factor).astype(np.float32)
-            correlation, H_l = cv2.findTransformECC(gradient_magnitude(ref_l), gradient_magnitude(cur_l), H_l,
-                                                    cv2.MOTION_HOMOGRAPHY, criteria, None, 5)
+            correlation, H_l = cv2.findTransformECC(
+                gradient_magnitude(ref_l), gradient_magnitude(cur_l), H_l, cv2.MOTION_HOMOGRAPHY, criteria, None, 5
+            )
             H = _scale_homography(H_l.astype(np.float64), 1.0 / factor)
     return H / H[2, 2], float(correlation)
 
@@ -258,8 +261,12 @@ def register_to_reference(
             H, correlation = H_sift, float("nan")
         else:
             return Registration(
-                H_cur_ref=np.eye(3), ok=False, reason="registration failed: ECC did not converge and no features matched",
-                sift_inliers=n_inliers, init=init, settings=settings,
+                H_cur_ref=np.eye(3),
+                ok=False,
+                reason="registration failed: ECC did not converge and no features matched",
+                sift_inliers=n_inliers,
+                init=init,
+                settings=settings,
             )
     if init == RegistrationInit.SIFT and np.isfinite(correlation) and correlation < min_correlation:
         # ECC can wander off a good start (it then ends below the bar instead of raising):
@@ -269,26 +276,37 @@ def register_to_reference(
             H, correlation = H_sift, sift_correlation
     overlap = overlap_fraction(H, ref_gray.shape)
     result = Registration(
-        H_cur_ref=H, ok=True, ecc_correlation=correlation, overlap_fraction=overlap,
-        sift_inliers=n_inliers, init=init, settings=settings,
+        H_cur_ref=H,
+        ok=True,
+        ecc_correlation=correlation,
+        overlap_fraction=overlap,
+        sift_inliers=n_inliers,
+        init=init,
+        settings=settings,
     )
     if overlap < min_overlap:
         result.ok = False
-        result.reason = f"images overlap on only {overlap * 100:.0f} % of the reference (need {min_overlap * 100:.0f} %)"
+        result.reason = (
+            f"images overlap on only {overlap * 100:.0f} % of the reference (need {min_overlap * 100:.0f} %)"
+        )
     elif np.isfinite(correlation) and correlation < min_correlation:
         result.ok = False
         result.reason = f"registration unreliable: gradient correlation {correlation:.2f} < {min_correlation}"
     return result
 
 
-def warp_to_reference(image: np.ndarray, H_cur_ref: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def warp_to_reference(
+    image: np.ndarray, H_cur_ref: np.ndarray, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
     """Resample a current image into the reference frame.
 
     Returns (warped image float32, valid mask HxW bool: pixels that came from inside the current image).
     """
     h, w = shape
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    warped = cv2.warpPerspective(image.astype(np.float32), H_cur_ref, (w, h), flags=flags, borderMode=cv2.BORDER_REFLECT)
+    warped = cv2.warpPerspective(
+        image.astype(np.float32), H_cur_ref, (w, h), flags=flags, borderMode=cv2.BORDER_REFLECT
+    )
     ones = np.ones(image.shape[:2], np.float32)
     valid = cv2.warpPerspective(ones, H_cur_ref, (w, h), flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return warped, valid > 0.999

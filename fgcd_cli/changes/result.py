@@ -67,7 +67,9 @@ class ChangeResult:
         return float(self.mask[self.valid].mean()) if self.valid.any() else 0.0
 
 
-def empty_result(shape: tuple[int, int], reason: str, registration: Registration | None, settings: dict) -> ChangeResult:
+def empty_result(
+    shape: tuple[int, int], reason: str, registration: Registration | None, settings: dict
+) -> ChangeResult:
     """The result of a pair that cannot be compared honestly (``comparable=False``, empty HxW maps)."""
     return ChangeResult(
         comparable=False,
@@ -128,6 +130,11 @@ def result_warnings(mask: np.ndarray, valid: np.ndarray, registration: Registrat
 
 def unreported_candidates(significance: Decision, mask: np.ndarray, *, count: int = 5) -> list[SignificantRegion]:
     """The ``count`` most significant a-contrario regions whose centroid is not in the final mask."""
-    return sorted((c for c in significance.candidates + significance.regions
-                   if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]),
-                  key=lambda c: c.log10_nfa)[:count]
+    return sorted(
+        (
+            c
+            for c in significance.candidates + significance.regions
+            if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]
+        ),
+        key=lambda c: c.log10_nfa,
+    )[:count]

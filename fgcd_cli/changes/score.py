@@ -33,11 +33,18 @@ class ScoreOptions:
     @classmethod
     def from_config(cls, score: ScoreConfig, *, suspect: RegionConfig) -> ScoreOptions:
         """The score options of a detector configuration (the suspect threshold is the decision's hysteresis)."""
-        return cls(gain_sigma_px=score.gain_sigma_px, shift_radius_px=score.shift_radius_px,
-                   structure_weight=score.structure_weight, smooth_sigma_px=score.smooth_sigma_px,
-                   fine_smooth_sigma_px=score.fine_smooth_sigma_px,
-                   robust_gain_rounds=score.robust_gain_rounds, edge_tolerance_px=score.edge_tolerance_px,
-                   edge_contrast=score.edge_contrast, suspect_k_high=suspect.k_high, suspect_k_low=suspect.k_low)
+        return cls(
+            gain_sigma_px=score.gain_sigma_px,
+            shift_radius_px=score.shift_radius_px,
+            structure_weight=score.structure_weight,
+            smooth_sigma_px=score.smooth_sigma_px,
+            fine_smooth_sigma_px=score.fine_smooth_sigma_px,
+            robust_gain_rounds=score.robust_gain_rounds,
+            edge_tolerance_px=score.edge_tolerance_px,
+            edge_contrast=score.edge_contrast,
+            suspect_k_high=suspect.k_high,
+            suspect_k_low=suspect.k_low,
+        )
 
 
 @dataclass(kw_only=True)
@@ -62,8 +69,11 @@ def _fuse(refs, warped, *, valid, bands, options: ScoreOptions, gain_weight):
     for ref, current, band in zip(refs, warped, bands):
         normalized = normalize_local_gain(ref, current, sigma_px=options.gain_sigma_px, weight=gain_weight)
         normalized_images.append(normalized)
-        differences.append(edge_tolerant_difference(ref, normalized, radius_px=options.shift_radius_px,
-                                                    edge_radius_px=options.edge_tolerance_px, band=band))
+        differences.append(
+            edge_tolerant_difference(
+                ref, normalized, radius_px=options.shift_radius_px, edge_radius_px=options.edge_tolerance_px, band=band
+            )
+        )
         if options.structure_weight > 0:
             structures.append(local_ncc_dissimilarity(to_gray(ref), to_gray(normalized)))
     # Each cue is divided by its median (dimensionless) so lightings of different
@@ -74,15 +84,17 @@ def _fuse(refs, warped, *, valid, bands, options: ScoreOptions, gain_weight):
     if structures:
         structure = np.mean([relative_to_median(s, valid) for s in structures], axis=0)
         fused = (1.0 - options.structure_weight) * fused + options.structure_weight * structure
-    fused, fine = smooth_at_two_scales(fused.astype(np.float32), smooth_sigma_px=options.smooth_sigma_px,
-                                       fine_sigma_px=options.fine_smooth_sigma_px)
+    fused, fine = smooth_at_two_scales(
+        fused.astype(np.float32), smooth_sigma_px=options.smooth_sigma_px, fine_sigma_px=options.fine_smooth_sigma_px
+    )
     if fine is not None:
         fine[~valid] = 0.0
     return np.where(valid, fused, 0.0).astype(np.float32), fine, normalized_images, medians
 
 
-def smooth_at_two_scales(fused: np.ndarray, *, smooth_sigma_px: float,
-                         fine_sigma_px: float) -> tuple[np.ndarray, np.ndarray | None]:
+def smooth_at_two_scales(
+    fused: np.ndarray, *, smooth_sigma_px: float, fine_sigma_px: float
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The fused score smoothed at ``smooth_sigma_px`` and, when ``0 < fine_sigma_px < smooth_sigma_px``,
     at the finer scale.
 
@@ -101,8 +113,9 @@ def smooth_at_two_scales(fused: np.ndarray, *, smooth_sigma_px: float,
     return main, fine
 
 
-def score_pair(refs: list[np.ndarray], warped: list[np.ndarray], *, valid: np.ndarray, seen_all: np.ndarray,
-               options: ScoreOptions) -> PairScore:
+def score_pair(
+    refs: list[np.ndarray], warped: list[np.ndarray], *, valid: np.ndarray, seen_all: np.ndarray, options: ScoreOptions
+) -> PairScore:
     """Fused change score of a reference stack and a current stack resampled into its frame.
 
     Parameters
@@ -119,8 +132,12 @@ def score_pair(refs: list[np.ndarray], warped: list[np.ndarray], *, valid: np.nd
     -------
     PairScore
     """
-    bands = [edge_band(ref, radius_px=options.edge_tolerance_px, contrast=options.edge_contrast)
-             if options.edge_tolerance_px > 0 else None for ref in refs]
+    bands = [
+        edge_band(ref, radius_px=options.edge_tolerance_px, contrast=options.edge_contrast)
+        if options.edge_tolerance_px > 0
+        else None
+        for ref in refs
+    ]
     band_fraction = float(np.mean([b[valid].mean() for b in bands])) if options.edge_tolerance_px > 0 else None
     score, fine, normalized, medians = _fuse(refs, warped, valid=valid, bands=bands, options=options, gain_weight=None)
     # The light-gain field is estimated from unchanged pixels only: a first pass
@@ -140,8 +157,15 @@ def score_pair(refs: list[np.ndarray], warped: list[np.ndarray], *, valid: np.nd
         if rounds and np.array_equal(new_weight, gain_weight):
             break
         gain_weight = new_weight
-        score, fine, normalized, medians = _fuse(refs, warped, valid=valid, bands=bands, options=options,
-                                                 gain_weight=gain_weight)
+        score, fine, normalized, medians = _fuse(
+            refs, warped, valid=valid, bands=bands, options=options, gain_weight=gain_weight
+        )
         rounds += 1
-    return PairScore(score=score, normalized=normalized, medians=medians, robust_rounds=rounds,
-                     edge_band_fraction=band_fraction, fine_score=fine)
+    return PairScore(
+        score=score,
+        normalized=normalized,
+        medians=medians,
+        robust_rounds=rounds,
+        edge_band_fraction=band_fraction,
+        fine_score=fine,
+    )

@@ -130,8 +130,9 @@ def halfnormal_neglog_survival(relative_score: np.ndarray) -> np.ndarray:
     return (-(special.log_ndtr(-z) + np.log(2.0))).clip(min=0.0).astype(np.float32)
 
 
-def exceedance_cluster_area(score: np.ndarray, valid: np.ndarray, level: float,
-                            exclude: np.ndarray | None = None) -> float:
+def exceedance_cluster_area(
+    score: np.ndarray, valid: np.ndarray, level: float, exclude: np.ndarray | None = None
+) -> float:
     """Mean size (px) of the 8-connected clusters of ``score >= level`` (at least 1).
 
     Clusters touching ``exclude`` (regions already found significant) do not count:
@@ -232,8 +233,9 @@ def acontrario_decision(
     scan = _Scan(significant=np.zeros(valid.shape, bool))
     null_round = 0
     while True:
-        scan = _scan_with_null(score, valid, background, halfnormal, previous=scan,
-                               min_cluster_area_px=min_cluster_area_px, config=config)
+        scan = _scan_with_null(
+            score, valid, background, halfnormal, previous=scan, min_cluster_area_px=min_cluster_area_px, config=config
+        )
         mask = grow_to_extent(scan.significant, score, valid, background=median, fraction=config.extent_fraction)
         # The null is the distribution of the *unchanged* pixels: once regions are found,
         # it is re-estimated without them (grown by the correlation radius), so that a
@@ -249,10 +251,22 @@ def acontrario_decision(
         background = new_background
         null_round += 1
     return Decision(
-        mask=mask, regions=scan.regions, candidates=scan.candidates, cluster_area_px=scan.area,
-        n_tests=float(scan.n_tests), seed_level=scan.seed_level, median=median, seed_index=scan.seed_index,
-        settings={"epsilon": config.epsilon, "seed_p": config.seed_p, "extent_fraction": config.extent_fraction,
-                  "level_step": config.level_step, "levels": scan.levels, "null_rounds": null_round},
+        mask=mask,
+        regions=scan.regions,
+        candidates=scan.candidates,
+        cluster_area_px=scan.area,
+        n_tests=float(scan.n_tests),
+        seed_level=scan.seed_level,
+        median=median,
+        seed_index=scan.seed_index,
+        settings={
+            "epsilon": config.epsilon,
+            "seed_p": config.seed_p,
+            "extent_fraction": config.extent_fraction,
+            "level_step": config.level_step,
+            "levels": scan.levels,
+            "null_rounds": null_round,
+        },
     )
 
 
@@ -271,8 +285,9 @@ class _Scan:
     levels: int = 0
 
 
-def _scan_with_null(score, valid, background, halfnormal, *, previous: _Scan, min_cluster_area_px: float,
-                    config: AcontrarioConfig) -> _Scan:
+def _scan_with_null(
+    score, valid, background, halfnormal, *, previous: _Scan, min_cluster_area_px: float, config: AcontrarioConfig
+) -> _Scan:
     """Scan the levels under the null of the ``background`` pixels, re-estimating the cluster area
     without the clusters found significant until it settles (at most ``area_rounds`` times)."""
     n_valid = int(valid.sum())
@@ -284,14 +299,29 @@ def _scan_with_null(score, valid, background, halfnormal, *, previous: _Scan, mi
     for _ in range(config.area_rounds + 1):
         n_tests = n_valid / area * max(len(levels), 1) * config.score_maps
         regions, candidates, significant, seed_index = _scan_levels(
-            score, neglogp, valid, levels, area=area, n_tests=n_tests, epsilon=config.epsilon,
-            max_candidates=config.max_candidates)
+            score,
+            neglogp,
+            valid,
+            levels,
+            area=area,
+            n_tests=n_tests,
+            epsilon=config.epsilon,
+            max_candidates=config.max_candidates,
+        )
         used_area = area
         area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
         if area == used_area:
             break
-    return _Scan(significant=significant, regions=regions, candidates=candidates, seed_index=seed_index,
-                 area=used_area, n_tests=n_tests, seed_level=seed_level, levels=int(len(levels)))
+    return _Scan(
+        significant=significant,
+        regions=regions,
+        candidates=candidates,
+        seed_index=seed_index,
+        area=used_area,
+        n_tests=n_tests,
+        seed_level=seed_level,
+        levels=int(len(levels)),
+    )
 
 
 def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates):
@@ -323,8 +353,11 @@ def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_c
             continue
         ys, xs = np.nonzero(component)
         entry = SignificantRegion(
-            log10_nfa=log_nfa / np.log(10.0), p_level=float(np.exp(-lam)), area_px=int(ys.size),
-            centroid_xy=(float(xs.mean()), float(ys.mean())), peak_score=float(score[component].max()),
+            log10_nfa=log_nfa / np.log(10.0),
+            p_level=float(np.exp(-lam)),
+            area_px=int(ys.size),
+            centroid_xy=(float(xs.mean()), float(ys.mean())),
+            peak_score=float(score[component].max()),
         )
         if log_nfa < np.log(epsilon):
             seeds |= component
@@ -359,19 +392,28 @@ def merge_decisions(decisions: list[Decision], *, max_candidates: int) -> Decisi
     radius = float(np.sqrt(first.cluster_area_px / np.pi))
     candidates: list[SignificantRegion] = []
     for c in sorted((c for d in decisions for c in d.candidates), key=lambda c: c.log10_nfa):
-        if all(np.hypot(c.centroid_xy[0] - k.centroid_xy[0], c.centroid_xy[1] - k.centroid_xy[1]) > radius
-               for k in candidates):
+        if all(
+            np.hypot(c.centroid_xy[0] - k.centroid_xy[0], c.centroid_xy[1] - k.centroid_xy[1]) > radius
+            for k in candidates
+        ):
             candidates.append(c)
     candidates = candidates[:max_candidates]
-    return Decision(mask=mask, regions=regions, candidates=candidates, cluster_area_px=first.cluster_area_px,
-                    n_tests=first.n_tests, seed_level=first.seed_level,
-                    median=first.median, seed_index=seed_index,
-                    settings=dict(first.settings, score_maps=len(decisions),
-                                  regions_per_map=[len(d.regions) for d in decisions]))
+    return Decision(
+        mask=mask,
+        regions=regions,
+        candidates=candidates,
+        cluster_area_px=first.cluster_area_px,
+        n_tests=first.n_tests,
+        seed_level=first.seed_level,
+        median=first.median,
+        seed_index=seed_index,
+        settings=dict(first.settings, score_maps=len(decisions), regions_per_map=[len(d.regions) for d in decisions]),
+    )
 
 
-def grow_to_extent(seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, background: float,
-                   fraction: float) -> np.ndarray:
+def grow_to_extent(
+    seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, background: float, fraction: float
+) -> np.ndarray:
     """Grow each seed region into connected pixels whose excess reaches ``fraction`` of its peak excess.
 
     Parameters

@@ -13,8 +13,12 @@ from fgcd_cli.errors import run_record
 def afd(
     ref: Path = typer.Argument(..., help="Reference image."),
     cur: Path = typer.Argument(..., help="Current image (same size)."),
-    grid: bool = typer.Option(False, "--grid", help="Lighting-robust grid variant (phase correlation of gradient patches)."),
-    pairs: Path | None = typer.Option(None, "--pairs", help="CSV of point pairs x_ref,y_ref,x_cur,y_cur picked by hand."),
+    grid: bool = typer.Option(
+        False, "--grid", help="Lighting-robust grid variant (phase correlation of gradient patches)."
+    ),
+    pairs: Path | None = typer.Option(
+        None, "--pairs", help="CSV of point pairs x_ref,y_ref,x_cur,y_cur picked by hand."
+    ),
     ratio: float = typer.Option(0.75, "--ratio", help="SIFT ratio test."),
     ransac_px: float = typer.Option(3.0, "--ransac-px", help="RANSAC homography inlier threshold (px)."),
     output: Path | None = typer.Option(None, "-o", "--output", help="Write the FDF quiver figure (PNG) here."),
@@ -34,7 +38,9 @@ def afd(
         data["figure"] = str(output)
 
     def render(console):
-        console.print(f"AFD [bold]{result.afd_px:.3f} px[/bold] ({result.method}, {result.inliers} of {result.candidates} kept)")
+        console.print(
+            f"AFD [bold]{result.afd_px:.3f} px[/bold] ({result.method}, {result.inliers} of {result.candidates} kept)"
+        )
         console.print("settings: " + ", ".join(f"{k}={v}" for k, v in result.settings.items()))
         if output is not None:
             console.print(f"FDF figure: {output}")

@@ -199,8 +199,11 @@ def stop_signals_as_interrupts() -> Iterator[None]:
         yield
         return
     # a signal ignored when fgcd starts stays ignored: `nohup fgcd relocate ... &` must outlive its terminal
-    numbers = {getattr(signal, name): name for name in STOP_SIGNALS
-               if hasattr(signal, name) and signal.getsignal(getattr(signal, name)) is not signal.SIG_IGN}
+    numbers = {
+        getattr(signal, name): name
+        for name in STOP_SIGNALS
+        if hasattr(signal, name) and signal.getsignal(getattr(signal, name)) is not signal.SIG_IGN
+    }
     received: list[int] = []
 
     def handler(signum, frame) -> None:  # noqa: ARG001 - the signal module's signature
@@ -352,8 +355,11 @@ def _classify(exc: BaseException) -> Failure | None:
         return Failure("error", OUT_OF_MEMORY, EXIT_OS)
     if state.verbose or not isinstance(exc, Exception):
         return None
-    return Failure("internal error", f"{type(exc).__name__}: {exc} (a bug: run the same command again with "
-                   "--verbose and report what it prints)", EXIT_INTERNAL)
+    return Failure(
+        "internal error",
+        f"{type(exc).__name__}: {exc} (a bug: run the same command again with --verbose and report what it prints)",
+        EXIT_INTERNAL,
+    )
 
 
 def _hardware_error_kind(exc: BaseException) -> str | None:

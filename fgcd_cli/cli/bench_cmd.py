@@ -30,8 +30,10 @@ def changes(
         if real.get("available"):
             console.print("leave one group out (constants chosen on the other groups):")
             for g in real["groups"]:
-                console.print(f"{g['group']}: best F1 {g['best_f1']:.3f}  AP {g['ap']:.3f}  auto F1 {g['auto_f1']:.3f} "
-                              f"(P {g['auto_precision']:.2f} R {g['auto_recall']:.2f})  {g['chosen']}  {g['seconds']:.1f} s")
+                console.print(
+                    f"{g['group']}: best F1 {g['best_f1']:.3f}  AP {g['ap']:.3f}  auto F1 {g['auto_f1']:.3f} "
+                    f"(P {g['auto_precision']:.2f} R {g['auto_recall']:.2f})  {g['chosen']}  {g['seconds']:.1f} s"
+                )
         else:
             console.print(f"real dataset: {real.get('reason')}")
         if data["sim"] and not data["sim"].get("available"):
@@ -59,12 +61,16 @@ def render(
 
     def show(console):
         for s in data["scenes"]:
-            console.print(f"{s['scene']:<14} {s['ms_median']:7.1f} ms/frame (CPU {s['cpu_ms_median']:.0f} ms)  "
-                          f"({s['triangles']} triangles, "
-                          f"built in {s['build_s']:.1f} s)")
+            console.print(
+                f"{s['scene']:<14} {s['ms_median']:7.1f} ms/frame (CPU {s['cpu_ms_median']:.0f} ms)  "
+                f"({s['triangles']} triangles, "
+                f"built in {s['build_s']:.1f} s)"
+            )
         sm = data["summary"]
-        console.print(f"[bold]ms_per_frame_median[/bold] = {sm['ms_per_frame_median']:.1f} (target ≤ {sm['target_ms']:.0f}); "
-                      f"load average {data['machine']['load_avg_1min']:.1f} on {data['machine']['cpu_count']} cores")
+        console.print(
+            f"[bold]ms_per_frame_median[/bold] = {sm['ms_per_frame_median']:.1f} (target ≤ {sm['target_ms']:.0f}); "
+            f"load average {data['machine']['load_avg_1min']:.1f} on {data['machine']['cpu_count']} cores"
+        )
 
     emit(data, as_json=as_json, render=show)
 
@@ -84,10 +90,15 @@ def calibrate(
     def show(console):
         for r in data["rigs"]:
             f = r["target_free"]
-            free = (f"target-free {f['trans_err_mm']:.1f} mm / {f['rot_err_deg']:.2f} deg, scale {f['scale_err_pct']:.2f} %"
-                    if "error" not in f else f"target-free failed: {f['error']}")
-            console.print(f"rig {r['seed']} ({r['noise']}): intrinsics {r['intrinsics']['err_pct']:.3f} %, "
-                          f"board {r['target']['trans_err_mm']:.1f} mm / {r['target']['rot_err_deg']:.2f} deg, {free}")
+            free = (
+                f"target-free {f['trans_err_mm']:.1f} mm / {f['rot_err_deg']:.2f} deg, scale {f['scale_err_pct']:.2f} %"
+                if "error" not in f
+                else f"target-free failed: {f['error']}"
+            )
+            console.print(
+                f"rig {r['seed']} ({r['noise']}): intrinsics {r['intrinsics']['err_pct']:.3f} %, "
+                f"board {r['target']['trans_err_mm']:.1f} mm / {r['target']['rot_err_deg']:.2f} deg, {free}"
+            )
         for key, value in data["summary"].items():
             target = data["targets"].get(key)
             console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target ≤ {target})" if target else ""))
@@ -135,9 +146,11 @@ def vse(
         for r in data["scenes"]:
             ate = "—" if r["ate_mm"] is None else f"{r['ate_mm']:.2f}"
             cl = "—" if r["cloud_median_error_pct_depth"] is None else f"{r['cloud_median_error_pct_depth']:.2f}"
-            console.print(f"{r['scene']:<13} {r['variant']:<6} {r['status']:<12} ATE {ate:>6} mm  cloud {cl:>5} % "
-                          f"of depth  {r['cloud_points']:>6} pts  {r['track_fps']:.0f} fps track "
-                          f"({r['overall_fps']:.0f} with mapping)")
+            console.print(
+                f"{r['scene']:<13} {r['variant']:<6} {r['status']:<12} ATE {ate:>6} mm  cloud {cl:>5} % "
+                f"of depth  {r['cloud_points']:>6} pts  {r['track_fps']:.0f} fps track "
+                f"({r['overall_fps']:.0f} with mapping)"
+            )
         for key, value in data["summary"].items():
             target = data["targets"].get(key)
             console.print(f"[bold]{key}[/bold] = {value}" + (f"  (target {target})" if target else ""))
@@ -165,10 +178,14 @@ def relocate(
                 if mode in r:
                     m = r[mode]
                     if "error" in m:
-                        console.print(f"{r['case']:<11} {mode:<8} [red]error[/red]: {m['error']} (AFD {m.get('afd_px', float('nan')):.2f} px)")
+                        console.print(
+                            f"{r['case']:<11} {mode:<8} [red]error[/red]: {m['error']} (AFD {m.get('afd_px', float('nan')):.2f} px)"
+                        )
                     else:
-                        console.print(f"{r['case']:<11} {mode:<8} AFD {m['afd_px']:6.2f} px  {m['pose_err_mm']:6.2f} mm  "
-                                      f"{m['adjustments']} adj  {m['session_s']:6.1f} s rig  {m['wall_s']:6.1f} s wall")
+                        console.print(
+                            f"{r['case']:<11} {mode:<8} AFD {m['afd_px']:6.2f} px  {m['pose_err_mm']:6.2f} mm  "
+                            f"{m['adjustments']} adj  {m['session_s']:6.1f} s rig  {m['wall_s']:6.1f} s wall"
+                        )
             if "error" in r:
                 console.print(f"{r['case']:<11} [red]{r['error']}[/red]")
         for k, v in data["summary"].items():
@@ -181,10 +198,16 @@ def relocate(
 @app.command("paper")
 def paper(
     quick: bool = typer.Option(False, "--quick", help="One or two cases per experiment (<= 30 min)."),
-    out: Path = typer.Option(Path("fgcd-bench-paper"), "--out", help="Folder of the worlds, per-run JSON, tables "
-                                                                      "(paper.md) and figures; a re-run resumes it."),
-    experiment: list[str] | None = typer.Option(None, "--experiment", help="table2, table5, fig7, table3, table4, "
-                                                   "fig4, fig6, fig12, s55, revisit (repeatable; default all)."),
+    out: Path = typer.Option(
+        Path("fgcd-bench-paper"),
+        "--out",
+        help="Folder of the worlds, per-run JSON, tables (paper.md) and figures; a re-run resumes it.",
+    ),
+    experiment: list[str] | None = typer.Option(
+        None,
+        "--experiment",
+        help="table2, table5, fig7, table3, table4, fig4, fig6, fig12, s55, revisit (repeatable; default all).",
+    ),
     case: list[str] | None = typer.Option(None, "--case", help="Only these relocation cases (repeatable)."),
     deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
@@ -202,12 +225,20 @@ def paper(
         raise UserInputError(f"--experiment: unknown {', '.join(unknown)} (valid: {', '.join(EXPERIMENTS)})")
     unknown = [c for c in case or [] if c not in {c.name for c in [*CASES, *TABLE4_CASES]}]
     if unknown:
-        raise UserInputError(f"--case: unknown {', '.join(unknown)} (see `fgcd bench relocate`; Table 4: W1-3, R1-3, "
-                             "V1-3)")
+        raise UserInputError(
+            f"--case: unknown {', '.join(unknown)} (see `fgcd bench relocate`; Table 4: W1-3, R1-3, V1-3)"
+        )
     with step_progress(enabled=True) as bar:
         say = bar.lines(info) if bar is not None else info
-        data = run(quick=quick, out=out, experiments=tuple(experiment) if experiment else EXPERIMENTS,
-                   cases=case, say=say, on_progress=bar, deterministic=deterministic)
+        data = run(
+            quick=quick,
+            out=out,
+            experiments=tuple(experiment) if experiment else EXPERIMENTS,
+            cases=case,
+            say=say,
+            on_progress=bar,
+            deterministic=deterministic,
+        )
 
     def show(console):
         console.print((Path(data["out"]) / "paper.md").read_text())
@@ -239,14 +270,22 @@ def coarse(
                 if m is None:
                     continue
                 if "error" in m:
-                    console.print(f"{r['case']:<6} {label:<8} [red]error[/red]: {m['error']} "
-                                  f"(AFD {m.get('afd_px', float('nan')):.2f} px)")
+                    console.print(
+                        f"{r['case']:<6} {label:<8} [red]error[/red]: {m['error']} "
+                        f"(AFD {m.get('afd_px', float('nan')):.2f} px)"
+                    )
                     continue
                 c = m.get("coarse") or {}
-                stage = (f"coarse {c.get('steps')} steps, end {c.get('end_err_mm') or float('nan'):.0f} mm / "
-                         f"{c.get('end_err_deg') or float('nan'):.1f} deg" if c else "no coarse stage")
-                console.print(f"{r['case']:<6} {label:<8} AFD {m['afd_px']:6.2f} px  {m['adjustments']} adj  "
-                              f"{m['session_s']:6.1f} s rig  {stage}")
+                stage = (
+                    f"coarse {c.get('steps')} steps, end {c.get('end_err_mm') or float('nan'):.0f} mm / "
+                    f"{c.get('end_err_deg') or float('nan'):.1f} deg"
+                    if c
+                    else "no coarse stage"
+                )
+                console.print(
+                    f"{r['case']:<6} {label:<8} AFD {m['afd_px']:6.2f} px  {m['adjustments']} adj  "
+                    f"{m['session_s']:6.1f} s rig  {stage}"
+                )
             if "error" in r:
                 console.print(f"{r['case']:<6} [red]{r['error']}[/red]")
         for k, v in data["summary"].items():
@@ -270,8 +309,10 @@ def archive(
 
     def show(console):
         for name, r in data["runs"].items():
-            console.print(f"{name:<16} {r['visits']} visits on {r['workers']} worker(s): {r['done']} done, "
-                          f"{r['skipped']} skipped in {r['run_s']:.1f} s (+{r['cluster_start_s']:.1f} s start-up)")
+            console.print(
+                f"{name:<16} {r['visits']} visits on {r['workers']} worker(s): {r['done']} done, "
+                f"{r['skipped']} skipped in {r['run_s']:.1f} s (+{r['cluster_start_s']:.1f} s start-up)"
+            )
         for key, value in data["summary"].items():
             console.print(f"[bold]{key}[/bold] = {value:.3f}")
 
@@ -280,15 +321,26 @@ def archive(
 
 @app.command("faults")
 def faults(
-    quick: bool = typer.Option(False, "--quick", help="3 faults per single-move and campaign class instead of 15, "
-                               "without the whole-capture classes, and one fault of each group (whole operations, "
-                               "real disk full, link cuts, power loss)."),
+    quick: bool = typer.Option(
+        False,
+        "--quick",
+        help="3 faults per single-move and campaign class instead of 15, "
+        "without the whole-capture classes, and one fault of each group (whole operations, "
+        "real disk full, link cuts, power loss).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Seed of the fault moments and kinds."),
     fault: list[str] | None = typer.Option(None, "--fault", help="Only these fault classes (repeatable)."),
-    per_class: int | None = typer.Option(None, "--per-class", min=1, help="Faults per class (default: the "
-                                            "run's, 15 or 3; each group's own in the full run)."),
-    workdir: Path | None = typer.Option(None, "--workdir", help="Keep the bench campaign here and reuse it "
-                                           "(its calibration and captured stations) on the next run."),
+    per_class: int | None = typer.Option(
+        None,
+        "--per-class",
+        min=1,
+        help="Faults per class (default: the run's, 15 or 3; each group's own in the full run).",
+    ),
+    workdir: Path | None = typer.Option(
+        None,
+        "--workdir",
+        help="Keep the bench campaign here and reuse it (its calibration and captured stations) on the next run.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Injected field faults against real fgcd processes and emulated controllers (docs/hardware.md, Faults)."""
@@ -300,8 +352,14 @@ def faults(
         raise UserInputError(f"--fault: unknown class {', '.join(unknown)} (valid: {', '.join(FAULT_CLASSES)})")
     if not as_json:
         info("injecting faults…")
-    data = run(quick=quick, seed=seed, classes=tuple(fault) if fault else None, per_class=per_class, workdir=workdir,
-               on_progress=None if as_json else (lambda done, total, label: info(f"{done + 1}/{total} {label}")))
+    data = run(
+        quick=quick,
+        seed=seed,
+        classes=tuple(fault) if fault else None,
+        per_class=per_class,
+        workdir=workdir,
+        on_progress=None if as_json else (lambda done, total, label: info(f"{done + 1}/{total} {label}")),
+    )
 
     def show(console):
         for name, s in data["by_class"].items():
@@ -311,8 +369,10 @@ def faults(
                 console.print(f"[red]{row['fault']} seed {row['seed']}[/red]: exit {row['code']} {row['detail']}")
         for k, v in data["summary"].items():
             t = data["targets"].get(k)
-            console.print(f"[bold]{k}[/bold] = {v}" + (f"  (target {'≥' if k.startswith(('faults', 'fault_')) else '='} {t})"
-                                                      if t is not None else ""))
+            console.print(
+                f"[bold]{k}[/bold] = {v}"
+                + (f"  (target {'≥' if k.startswith(('faults', 'fault_')) else '='} {t})" if t is not None else "")
+            )
 
     emit(data, as_json=as_json, render=show)
 
@@ -320,12 +380,22 @@ def faults(
 @app.command("soak")
 def soak(
     quick: bool = typer.Option(False, "--quick", help="10 revisits, then 2 with change detection (else 100 + 20)."),
-    revisits: int | None = typer.Option(None, "--revisits", help="Consecutive revisits before the ones with "
-                                           "change detection (default 100; 10 with --quick)."),
-    change_revisits: int | None = typer.Option(None, "--change-revisits", help="Revisits with injected changes, "
-                                                  "diff and report after those (default 20; 2 with --quick)."),
-    out: Path | None = typer.Option(None, "--out", help="Keep the campaign and samples.jsonl (one line per "
-                                       "revisit, as it ends) in this folder; by default a temporary one, removed."),
+    revisits: int | None = typer.Option(
+        None,
+        "--revisits",
+        help="Consecutive revisits before the ones with change detection (default 100; 10 with --quick).",
+    ),
+    change_revisits: int | None = typer.Option(
+        None,
+        "--change-revisits",
+        help="Revisits with injected changes, diff and report after those (default 20; 2 with --quick).",
+    ),
+    out: Path | None = typer.Option(
+        None,
+        "--out",
+        help="Keep the campaign and samples.jsonl (one line per "
+        "revisit, as it ends) in this folder; by default a temporary one, removed.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Many simulated revisits of one station in one process: memory, threads, files and temporaries per revisit."""
@@ -337,8 +407,13 @@ def soak(
             raise UserInputError(f"{option} must be 0 or more, got {value}")
     if out is not None and out.exists() and any(out.iterdir()):
         raise UserInputError(f"--out {out} is not empty: give a new or empty folder")
-    data = run(quick=quick, revisits=revisits, change_revisits=change_revisits, out=out,
-               say=(lambda _m: None) if as_json else info)
+    data = run(
+        quick=quick,
+        revisits=revisits,
+        change_revisits=change_revisits,
+        out=out,
+        say=(lambda _m: None) if as_json else info,
+    )
 
     def show(console):
         for key, value in data["summary"].items():

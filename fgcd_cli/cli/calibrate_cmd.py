@@ -13,7 +13,9 @@ from fgcd_cli.cli import options as opt
 from fgcd_cli.cli.output import confirmer, emit, info
 from fgcd_cli.errors import run_record
 
-app = typer.Typer(help="Calibrate the rig: ChArUco board, camera intrinsics, hand-eye and map scale.", no_args_is_help=True)
+app = typer.Typer(
+    help="Calibrate the rig: ChArUco board, camera intrinsics, hand-eye and map scale.", no_args_is_help=True
+)
 
 JSON_OPT = typer.Option(False, "--json", help="Print one JSON object instead of text.")
 
@@ -29,8 +31,14 @@ DICT = typer.Option("DICT_5X5_100", "--dictionary", help="ArUco dictionary.")
 def _board(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary):
     from fgcd_cli.app.intrinsics import BoardOptions
 
-    return BoardOptions(board_file=board_file, squares_x=squares_x, squares_y=squares_y, square_mm=square_mm,
-                        marker_mm=marker_mm, dictionary=dictionary)
+    return BoardOptions(
+        board_file=board_file,
+        squares_x=squares_x,
+        squares_y=squares_y,
+        square_mm=square_mm,
+        marker_mm=marker_mm,
+        dictionary=dictionary,
+    )
 
 
 @app.command("board")
@@ -65,9 +73,13 @@ def intrinsics_cmd(
     images: Path | None = typer.Option(None, "--images", help="Folder of board photographs."),
     sim: bool = typer.Option(False, "--sim", help="Use views of a board rendered by the simulator."),
     sim_views: int = typer.Option(20, "--sim-views", help="Number of simulated views."),
-    seed: int | None = typer.Option(None, "--seed", help="Simulated rig whose camera is calibrated (--sim): same "
-                                       "seed as `calibrate hand-eye --seed` (default: the campaign's [rig.sim] seed, "
-                                       "else 0)."),
+    seed: int | None = typer.Option(
+        None,
+        "--seed",
+        help="Simulated rig whose camera is calibrated (--sim): same "
+        "seed as `calibrate hand-eye --seed` (default: the campaign's [rig.sim] seed, "
+        "else 0).",
+    ),
     board_file: Path | None = BOARD_FILE,
     squares_x: int = SQX,
     squares_y: int = SQY,
@@ -82,9 +94,17 @@ def intrinsics_cmd(
     from fgcd_cli.app.intrinsics import IntrinsicsRequest, plan_intrinsics, run_intrinsics, store_intrinsics
     from fgcd_cli.cli.progress import step_progress
 
-    plan = plan_intrinsics(IntrinsicsRequest(
-        images=images, sim=sim, sim_views=sim_views, seed=seed, distortion=distortion, campaign=campaign,
-        board=_board(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary)))
+    plan = plan_intrinsics(
+        IntrinsicsRequest(
+            images=images,
+            sim=sim,
+            sim_views=sim_views,
+            seed=seed,
+            distortion=distortion,
+            campaign=campaign,
+            board=_board(board_file, squares_x, squares_y, square_mm, marker_mm, dictionary),
+        )
+    )
     with step_progress(enabled=not as_json) as bar:
         result = run_intrinsics(plan, on_progress=bar)
     data = store_intrinsics(plan, result)
@@ -134,9 +154,7 @@ def _render_handeye(console, data: dict) -> None:
         )
         s_rot, s_std = ref.get("platform_rotation_scale"), ref.get("platform_rotation_scale_std")
         if s_rot is not None and s_std is not None and math.isfinite(s_std):
-            console.print(
-                f"platform rotations: {s_rot:.5f} x the reported ones (+- {s_std:.5f}), estimated with X"
-            )
+            console.print(f"platform rotations: {s_rot:.5f} x the reported ones (+- {s_std:.5f}), estimated with X")
     console.print(
         f"{data['n_samples']} samples, {data['n_pairs']} motion pairs, residual RMS {data['rms_mm']:.2f} mm / "
         f"{data['rms_deg']:.3f} deg, rotation-axis spread {data['axis_spread_deg']:.0f} deg"
@@ -148,7 +166,9 @@ def _render_handeye(console, data: dict) -> None:
     if "methods" in data:
         mt = Table("solver", "RMS mm", "RMS deg")
         for name, m in data["methods"].items():
-            mt.add_row(name + (" (chosen)" if name == data["method"] else ""), f"{m['rms_mm']:.2f}", f"{m['rms_deg']:.3f}")
+            mt.add_row(
+                name + (" (chosen)" if name == data["method"] else ""), f"{m['rms_mm']:.2f}", f"{m['rms_deg']:.3f}"
+            )
         console.print(mt)
         console.print(f"solvers agree within {data['agreement_mm']:.2f} mm / {data['agreement_deg']:.3f} deg")
     for note in data.get("notes", []):
@@ -169,21 +189,30 @@ def _run_handeye(handles, *, request, say, bar):
 @app.command("hand-eye")
 def handeye_cmd(
     mode: str = typer.Option("target-free", "--mode", help="target (ChArUco board) or target-free (VSE, rACR)."),
-    campaign: Path | None = typer.Option(None, "--campaign", "-c", help="Campaign: its rig, its intrinsics; the "
-                                            "result is stored in its rig/ (only a hand-eye of that rig)."),
+    campaign: Path | None = typer.Option(
+        None,
+        "--campaign",
+        "-c",
+        help="Campaign: its rig, its intrinsics; the result is stored in its rig/ (only a hand-eye of that rig).",
+    ),
     driver: str | None = opt.DRIVER,
     port: str | None = opt.PORT,
     host: str | None = opt.HOST,
     baud: int | None = opt.BAUD,
     camera: str | None = opt.CAMERA,
     scene: str | None = opt.SCENE,
-    seed: int | None = typer.Option(None, "--seed", help="Simulated rig seed (default: the campaign's [rig.sim] "
-                                       "seed, else 0)."),
+    seed: int | None = typer.Option(
+        None, "--seed", help="Simulated rig seed (default: the campaign's [rig.sim] seed, else 0)."
+    ),
     translation_mm: float = typer.Option(30.0, "--translation-mm", help="Exploration translation (target-free)."),
     rotation_deg: float = typer.Option(8.0, "--rotation-deg", help="Rotation about each axis (target: default 15)."),
     board_file: Path | None = BOARD_FILE,
-    accept_residual: bool = typer.Option(False, "--accept-residual", help="Store a hand-eye whose residuals are "
-                                         "beyond the limits (docs/calibration.md); refused with exit 6 otherwise."),
+    accept_residual: bool = typer.Option(
+        False,
+        "--accept-residual",
+        help="Store a hand-eye whose residuals are "
+        "beyond the limits (docs/calibration.md); refused with exit 6 otherwise.",
+    ),
     yes: bool = opt.YES,
     as_json: bool = JSON_OPT,
 ) -> None:
@@ -204,21 +233,38 @@ def handeye_cmd(
     confirm = confirmer(yes=yes)
     check_handeye_options(mode=mode, translation_mm=translation_mm, rotation_deg=rotation_deg)
     camp = calibration_campaign(campaign)
-    plan = plan_handeye(camp, RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera),
-                        HandEyeRequest(mode=HandEyeMode(mode), translation_mm=translation_mm,
-                                       rotation_deg=rotation_deg, board_file=board_file), scene=scene, seed=seed)
+    plan = plan_handeye(
+        camp,
+        RigOptions(driver=driver, port=port, host=host, baud=baud, camera=camera),
+        HandEyeRequest(
+            mode=HandEyeMode(mode), translation_mm=translation_mm, rotation_deg=rotation_deg, board_file=board_file
+        ),
+        scene=scene,
+        seed=seed,
+    )
     if plan.intrinsics is None and not as_json:
-        info("warning: no calibrated intrinsics (-c CAMPAIGN): using the simulated camera's nominal ones; a focal "
-             "length 1 % off puts the hand-eye centimetres off (docs/calibration.md, §2)")
+        info(
+            "warning: no calibrated intrinsics (-c CAMPAIGN): using the simulated camera's nominal ones; a focal "
+            "length 1 % off puts the hand-eye centimetres off (docs/calibration.md, §2)"
+        )
     rig_of = plan.rig
     run_record.no_writes()
     with step_progress(enabled=not as_json) as bar:
         if bar is not None:
             bar(0, 0, "opening the rig")
             confirm = bar.paused(confirm)
-        rig = open_rig(RigRequest(driver=rig_of.driver, intrinsics=plan.intrinsics.camera if plan.intrinsics else None,
-                                  scenario=plan.scenario, port=rig_of.port, baud=rig_of.baud, host=rig_of.host,
-                                  camera_index=rig_of.camera), hooks=RigHooks(confirm=confirm))
+        rig = open_rig(
+            RigRequest(
+                driver=rig_of.driver,
+                intrinsics=plan.intrinsics.camera if plan.intrinsics else None,
+                scenario=plan.scenario,
+                port=rig_of.port,
+                baud=rig_of.baud,
+                host=rig_of.host,
+                camera_index=rig_of.camera,
+            ),
+            hooks=RigHooks(confirm=confirm),
+        )
         run_record.platform_connected(rig.platform_name or rig_of.driver)
         with opened(rig):
             calibration = _run_handeye(rig.handles, request=plan.request, say=None if as_json else info, bar=bar)
@@ -236,5 +282,7 @@ def handeye_cmd(
     emit(data, as_json=as_json, render=lambda c: _render_handeye(c, data))
     if unusable is not None and stored is None:
         kept = "nothing stored" if camp is not None else "not stored (no -c)"
-        raise AlgorithmError(f"{unusable}: {kept}; calibrate again (docs/calibration.md, \"When a result is "
-                             f"refused\"), or store it anyway with --accept-residual")
+        raise AlgorithmError(
+            f'{unusable}: {kept}; calibrate again (docs/calibration.md, "When a result is '
+            f'refused"), or store it anyway with --accept-residual'
+        )

@@ -12,7 +12,9 @@ from fgcd_cli.app import campaign as campaign_uc
 from fgcd_cli.cli.output import emit
 from fgcd_cli.errors import DataIntegrityError, run_record
 
-app = typer.Typer(help="Create, inspect and verify campaigns (a site, its stations and observations).", no_args_is_help=True)
+app = typer.Typer(
+    help="Create, inspect and verify campaigns (a site, its stations and observations).", no_args_is_help=True
+)
 
 JSON_OPT = typer.Option(False, "--json", help="Print one JSON object instead of text.")
 
@@ -28,31 +30,48 @@ def init_cmd(
     directory: Path = typer.Argument(..., help="Campaign directory to create."),
     site: str = typer.Option(..., "--site", help="Site name, e.g. 'Dunhuang cave 45'."),
     description: str = typer.Option("", "--description", help="Free text."),
-    driver: str = typer.Option("sim", "--driver", "-d", help="The campaign's rig: sim, grbl, ur or manual "
-                                                            "(campaign.toml [rig] driver)."),
+    driver: str = typer.Option(
+        "sim", "--driver", "-d", help="The campaign's rig: sim, grbl, ur or manual (campaign.toml [rig] driver)."
+    ),
     port: str = typer.Option(None, "--port", help="GRBL serial device, e.g. /dev/ttyUSB0 ([rig] port)."),
     host: str = typer.Option(None, "--host", help="UR controller address, e.g. 192.168.0.10 ([rig] host)."),
     baud: int = typer.Option(None, "--baud", help="GRBL baud rate ([rig] baud; grbl: 115200 when not given)."),
-    camera: str = typer.Option(None, "--camera", help="OpenCV camera: an index or a device path such as "
-                                                      "/dev/video2 ([rig] camera; grbl, ur, manual: 0 when not given)."),
+    camera: str = typer.Option(
+        None,
+        "--camera",
+        help="OpenCV camera: an index or a device path such as "
+        "/dev/video2 ([rig] camera; grbl, ur, manual: 0 when not given).",
+    ),
     as_json: bool = JSON_OPT,
 ) -> None:
     """Create a new campaign directory: one site, one rig (every command that drives it reads campaign.toml [rig])."""
-    request = campaign_uc.CampaignInit(directory=directory, site=site, description=description, driver=driver,
-                                       port=port, host=host, baud=baud, camera=camera)
+    request = campaign_uc.CampaignInit(
+        directory=directory,
+        site=site,
+        description=description,
+        driver=driver,
+        port=port,
+        host=host,
+        baud=baud,
+        camera=camera,
+    )
     run_record.no_platform()
     with run_record.writing(f"the campaign in {directory}"):
         data = campaign_uc.create_campaign(request)
-    emit(data, as_json=as_json,
-         render=lambda c: c.print(f"Created campaign [bold]{data['site']}[/bold] in {data['campaign']}"))
+    emit(
+        data,
+        as_json=as_json,
+        render=lambda c: c.print(f"Created campaign [bold]{data['site']}[/bold] in {data['campaign']}"),
+    )
 
 
 @app.command("add-station")
 def add_station_cmd(
     name: str = typer.Argument(..., help="Station (viewpoint) name."),
     campaign: Path = typer.Option(..., "--campaign", "-c", help="Campaign directory."),
-    description: str = typer.Option("", "--description", help="Free text: what the station looks at, where "
-                                                                 "the camera stands."),
+    description: str = typer.Option(
+        "", "--description", help="Free text: what the station looks at, where the camera stands."
+    ),
     as_json: bool = JSON_OPT,
 ) -> None:
     """Add a station (a viewpoint to monitor) to a campaign."""
@@ -79,7 +98,12 @@ def list_cmd(
         t.add_column("visits", justify="right")
         t.add_column("latest visit")
         for s in stations:
-            t.add_row(s["name"], "yes" if s["reference"] else "—", str(len(s["visits"])), s["visits"][-1] if s["visits"] else "—")
+            t.add_row(
+                s["name"],
+                "yes" if s["reference"] else "—",
+                str(len(s["visits"])),
+                s["visits"][-1] if s["visits"] else "—",
+            )
         c.print(t)
 
     emit(listed.to_dict(), as_json=as_json, render=render)

@@ -19,11 +19,18 @@ def capture(
     baud: int | None = opt.BAUD,
     camera: str | None = opt.CAMERA,
     scene: str | None = opt.SCENE,
-    seed: int = typer.Option(None, "--seed", help="Simulator world seed of this station (default: the campaign's; "
-                                                   "the seed the hand-eye was calibrated with)."),
-    light: str = opt.light_option("front", "Lightings of the reference images, comma-separated, e.g. "
-                                  "ambient,led:3,led:9 (`fgcd sim lights`; the first lights the simulated capture; "
-                                  "hardware: channels of [rig.lights])."),
+    seed: int = typer.Option(
+        None,
+        "--seed",
+        help="Simulator world seed of this station (default: the campaign's; "
+        "the seed the hand-eye was calibrated with).",
+    ),
+    light: str = opt.light_option(
+        "front",
+        "Lightings of the reference images, comma-separated, e.g. "
+        "ambient,led:3,led:9 (`fgcd sim lights`; the first lights the simulated capture; "
+        "hardware: channels of [rig.lights]).",
+    ),
     yes: bool = opt.YES,
     as_json: bool = opt.JSON,
 ) -> None:
@@ -46,9 +53,15 @@ def capture(
         if progress is not None:
             progress(0, 0, "opening the rig")
             confirm, say, ask = progress.paused(confirm), progress.lines(info), progress.paused(ask_line)
-        outcome = run_capture(camp, plan, hooks=RigHooks(confirm=confirm, ask_light=ask, on_event=say,
-                                                         on_progress=progress))
+        outcome = run_capture(
+            camp, plan, hooks=RigHooks(confirm=confirm, ask_light=ask, on_event=say, on_progress=progress)
+        )
     result = outcome.result
-    emit(outcome.to_dict(), as_json=as_json, render=lambda c: c.print(
-        f"Reference of [bold]{station}[/bold] written to {result.observation_path} "
-        f"({result.cloud_points} cloud points, scale {result.scale.scale:.4f} m/unit, images: {', '.join(result.images)})"))
+    emit(
+        outcome.to_dict(),
+        as_json=as_json,
+        render=lambda c: c.print(
+            f"Reference of [bold]{station}[/bold] written to {result.observation_path} "
+            f"({result.cloud_points} cloud points, scale {result.scale.scale:.4f} m/unit, images: {', '.join(result.images)})"
+        ),
+    )

@@ -35,8 +35,10 @@ def summary_lines(summary: dict, *, summary_path: Path) -> list[str]:
         injected = ev.get("injected_changes", ev["true_changes"])
         hidden = injected - ev["true_changes"]
         view = f" ({hidden} out of the reference's view)" if hidden > 0 else ""
-        lines.append(f"  [dim]simulator truth: {ev['true_changes_found']} of {injected} injected changes found{view}, "
-                     f"{ev['false_regions']} false regions, pixel F1 {ev['f1']:.2f}[/dim]")
+        lines.append(
+            f"  [dim]simulator truth: {ev['true_changes_found']} of {injected} injected changes found{view}, "
+            f"{ev['false_regions']} false regions, pixel F1 {ev['f1']:.2f}[/dim]"
+        )
     lines.append(f"  summary: {summary_path}")
     return lines
 
@@ -44,10 +46,13 @@ def summary_lines(summary: dict, *, summary_path: Path) -> list[str]:
 def demo(
     out: Path = typer.Option(Path("runs/demo"), "--out", "-o", help="Directory for the campaign and the summary."),
     scene: str = typer.Option("relief_panel", "--scene", help="Simulator scene (fgcd sim scenes)."),
-    visit_light: str = typer.Option("led:3", "--light", help="Lighting of the revisit (e.g. led:3, sun-evening; "
-                                                             "`fgcd sim lights`)."),
+    visit_light: str = typer.Option(
+        "led:3", "--light", help="Lighting of the revisit (e.g. led:3, sun-evening; `fgcd sim lights`)."
+    ),
     changes: int = typer.Option(4, "--changes", help="Fine-grained changes injected before the revisit."),
-    vse: str = typer.Option("mono", "--vse", help="VSE of capture and relocation: mono (rACR, monocular) or rgbd (depth camera)."),
+    vse: str = typer.Option(
+        "mono", "--vse", help="VSE of capture and relocation: mono (rACR, monocular) or rgbd (depth camera)."
+    ),
     deterministic: bool = DETERMINISTIC,
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
@@ -71,9 +76,15 @@ def demo(
     # Every step of the demo reports through on_progress: a live bar with its elapsed time, or off a
     # terminal a plain line per step and a heartbeat (stderr, also with --json), so no step runs silently.
     with step_progress(enabled=True) as bar:
-        summary = demo_uc.run_demo(out, config=demo_uc.DemoConfig(scene=scene, visit_light=visit_light, changes=changes, vse=vse,
-                                                                  deterministic=deterministic),
-                           say=info, on_record=print_record, on_progress=bar)
+        summary = demo_uc.run_demo(
+            out,
+            config=demo_uc.DemoConfig(
+                scene=scene, visit_light=visit_light, changes=changes, vse=vse, deterministic=deterministic
+            ),
+            say=info,
+            on_record=print_record,
+            on_progress=bar,
+        )
 
     def render(c) -> None:
         for line in summary_lines(summary, summary_path=out / "summary.json"):

@@ -12,9 +12,11 @@ import typer
 __all__ = ["DETERMINISTIC", "deterministic_setup"]
 
 DETERMINISTIC = typer.Option(
-    False, "--deterministic",
+    False,
+    "--deterministic",
     help="Step the relocation's threads (VSE, alignment, adjustment) in a fixed order and pin native thread "
-         "pools to one thread: the same seeds give the same figures (slower; time on the rig counts the steps).")
+    "pools to one thread: the same seeds give the same figures (slower; time on the rig counts the steps).",
+)
 
 
 def deterministic_setup(deterministic: bool) -> None:

@@ -27,7 +27,9 @@ def _render(data: dict):
                 for line in no_change_lines(data.get("candidates") or [], epsilon=epsilon):
                     console.print(line, markup=False)
             else:
-                console.print(f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area")
+                console.print(
+                    f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area"
+                )
             for r in data["regions"][:10]:
                 console.print("  " + region_line(r, epsilon=epsilon))
             set_aside = int((data.get("settings") or {}).get("edge_explained_regions") or 0)
@@ -36,12 +38,17 @@ def _render(data: dict):
             for w in data.get("warnings", []):
                 console.print(f"[yellow]warning[/yellow]: {w}")
         if "afd" in data:
-            console.print(f"AFD {data['afd']['afd_px']:.2f} px ({data['afd']['method']}, {data['afd']['inliers']} vectors)")
+            console.print(
+                f"AFD {data['afd']['afd_px']:.2f} px ({data['afd']['method']}, {data['afd']['inliers']} vectors)"
+            )
         if data.get("scores"):
             s = data["scores"]
-            console.print(f"against ground truth: F1 {s['f1']:.3f} (P {s['precision']:.3f}, R {s['recall']:.3f}), "
-                          f"best F1 {s['best_f1']:.3f}, AP {s['average_precision']:.3f}")
+            console.print(
+                f"against ground truth: F1 {s['f1']:.3f} (P {s['precision']:.3f}, R {s['recall']:.3f}), "
+                f"best F1 {s['best_f1']:.3f}, AP {s['average_precision']:.3f}"
+            )
         console.print(f"outputs: {data['output']}")
+
     return render
 
 
@@ -76,8 +83,14 @@ def diff_progress(*, enabled: bool):
     def update(done: int, total: int, label: str) -> None:
         nonlocal bar, task
         if bar is None:
-            bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                           TimeElapsedColumn(), transient=True, console=Console(stderr=True))
+            bar = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                TextColumn("{task.completed}/{task.total}"),
+                TimeElapsedColumn(),
+                transient=True,
+                console=Console(stderr=True),
+            )
             bar.start()
             task = bar.add_task(label, total=total)
         bar.update(task, completed=done, total=total, description=label)
@@ -90,30 +103,52 @@ def diff_progress(*, enabled: bool):
 
 
 def diff(
-    ref: list[str] | None = typer.Option(None, "--ref", help="Reference image(s): repeat, comma-separate or quote a glob; one per lighting."),
+    ref: list[str] | None = typer.Option(
+        None, "--ref", help="Reference image(s): repeat, comma-separate or quote a glob; one per lighting."
+    ),
     cur: list[str] | None = typer.Option(None, "--cur", help="Current image(s), same lightings in the same order."),
     output: Path | None = typer.Option(None, "-o", "--output", help="Output folder (bare-image mode)."),
     campaign: Path | None = typer.Option(None, "--campaign", "-c", help="Campaign folder (campaign mode)."),
     station: str | None = typer.Option(None, "--station", "-s", help="Station name (campaign mode)."),
     visit: str | None = typer.Option(None, "--visit", help="Visit name (default: latest)."),
     roi: Path | None = typer.Option(
-        None, "--roi", "--eval-mask", help="Region of interest: compare only where this mask (reference frame) is "
-        "non-zero, e.g. the object without its background. Default: the whole frame."),
-    truth: Path | None = typer.Option(None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."),
+        None,
+        "--roi",
+        "--eval-mask",
+        help="Region of interest: compare only where this mask (reference frame) is "
+        "non-zero, e.g. the object without its background. Default: the whole frame.",
+    ),
+    truth: Path | None = typer.Option(
+        None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."
+    ),
     score_mask: Path | None = typer.Option(
-        None, "--score-mask", help="With --truth: score only inside this mask (an evaluator's region; the "
-        "detector never sees it). Default: the region of interest, else the whole frame."),
-    mm_per_px: float | None = typer.Option(None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."),
+        None,
+        "--score-mask",
+        help="With --truth: score only inside this mask (an evaluator's region; the "
+        "detector never sees it). Default: the region of interest, else the whole frame.",
+    ),
+    mm_per_px: float | None = typer.Option(
+        None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."
+    ),
     no_register: bool = typer.Option(False, "--no-register", help="Images are already aligned: skip registration."),
     edge_check: int | None = typer.Option(
-        None, "--edge-check", help="Set aside regions along strong reference edges that a shift of up to this many px "
-        "explains (shown in cyan); 0 = off. Default: 2 on a campaign, 0 on bare images."),
+        None,
+        "--edge-check",
+        help="Set aside regions along strong reference edges that a shift of up to this many px "
+        "explains (shown in cyan); 0 = off. Default: 2 on a campaign, 0 on bare images.",
+    ),
     ambient_index: int | None = typer.Option(
-        None, "--ambient-index", help="Bare images: 0-based index of the ambient-light image (left out of the "
-        "photometric stereo that labels regions relief/colour). Campaigns know it from the lighting names."),
+        None,
+        "--ambient-index",
+        help="Bare images: 0-based index of the ambient-light image (left out of the "
+        "photometric stereo that labels regions relief/colour). Campaigns know it from the lighting names.",
+    ),
     force: bool = typer.Option(
-        False, "--force", help="Campaign mode: replace the visit's stored diff even when it was made with other "
-        "options (without it such a diff is kept and the command refused, exit 5)."),
+        False,
+        "--force",
+        help="Campaign mode: replace the visit's stored diff even when it was made with other "
+        "options (without it such a diff is kept and the command refused, exit 5).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Find fine-grained changes; writes change_score.png/.npy, change_mask.png, overlay.png, regions.json, report.html.
@@ -132,9 +167,17 @@ def diff(
             raise UserInputError("give either --campaign/--station or --ref/--cur, not both")
         if campaign is None or station is None:
             raise UserInputError("campaign mode needs both --campaign and --station")
-        request = diff_uc.CampaignDiffRequest(campaign=campaign, station=station, visit=visit, roi=roi,
-                                              mm_per_px=mm_per_px, register=not no_register, output=output,
-                                              edge_check_px=edge_check, force=force)
+        request = diff_uc.CampaignDiffRequest(
+            campaign=campaign,
+            station=station,
+            visit=visit,
+            roi=roi,
+            mm_per_px=mm_per_px,
+            register=not no_register,
+            output=output,
+            edge_check_px=edge_check,
+            force=force,
+        )
         run_record.no_platform()
         where = output or f"visit {visit or '(latest)'} of station '{station}'"
         with (
@@ -151,9 +194,18 @@ def diff(
             raise UserInputError("--force is for campaign mode (a visit's stored diff); bare mode writes to -o DIR")
         if score_mask is not None and truth is None:
             raise UserInputError("--score-mask says where --truth is scored: give --truth too")
-        request = diff_uc.BareDiffRequest(ref=ref, cur=cur, output=output, roi=roi, truth=truth, score_mask=score_mask,
-                                          mm_per_px=mm_per_px, register=not no_register,
-                                          edge_check_px=edge_check or 0, ambient_index=ambient_index)
+        request = diff_uc.BareDiffRequest(
+            ref=ref,
+            cur=cur,
+            output=output,
+            roi=roi,
+            truth=truth,
+            score_mask=score_mask,
+            mm_per_px=mm_per_px,
+            register=not no_register,
+            edge_check_px=edge_check or 0,
+            ambient_index=ambient_index,
+        )
         run_record.no_platform()
         with (
             run_record.writing(f"the change maps and report in {output}", whole=False),

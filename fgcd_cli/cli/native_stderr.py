@@ -36,14 +36,16 @@ def route_native_stderr() -> Path | None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         log = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        os.write(log, f"--- fgcd pid {os.getpid()} {time.strftime('%Y-%m-%dT%H:%M:%S')} "
-                      f"{' '.join(sys.argv[1:3])}\n".encode())
+        os.write(
+            log, f"--- fgcd pid {os.getpid()} {time.strftime('%Y-%m-%dT%H:%M:%S')} {' '.join(sys.argv[1:3])}\n".encode()
+        )
         terminal = os.dup(2)
     except OSError:
         return None
     sys.stderr.flush()
-    sys.stderr = os.fdopen(terminal, "w", buffering=1, encoding=sys.stderr.encoding or "utf-8",
-                           errors="backslashreplace")
+    sys.stderr = os.fdopen(
+        terminal, "w", buffering=1, encoding=sys.stderr.encoding or "utf-8", errors="backslashreplace"
+    )
     os.dup2(log, 2)
     os.close(log)
     return path

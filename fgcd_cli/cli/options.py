@@ -15,19 +15,42 @@ import typer
 
 from fgcd_cli.app.rig_options import DEFAULT_BAUD, DEFAULT_CAMERA, DEFAULT_DRIVER, DEFAULT_SCENE
 
-__all__ = ["BAUD", "CAMERA", "CAMPAIGN", "DRIVER", "HOST", "JSON", "PORT", "SCENE", "YES", "install_help_conventions",
-           "light_option"]
+__all__ = [
+    "BAUD",
+    "CAMERA",
+    "CAMPAIGN",
+    "DRIVER",
+    "HOST",
+    "JSON",
+    "PORT",
+    "SCENE",
+    "YES",
+    "install_help_conventions",
+    "light_option",
+]
 
-DRIVER = typer.Option(None, "--driver", "-d", help=f"Platform driver: sim, grbl, ur or manual (default: the "
-                                                   f"campaign's [rig] driver, else {DEFAULT_DRIVER}).")
+DRIVER = typer.Option(
+    None,
+    "--driver",
+    "-d",
+    help=f"Platform driver: sim, grbl, ur or manual (default: the campaign's [rig] driver, else {DEFAULT_DRIVER}).",
+)
 PORT = typer.Option(None, "--port", help="GRBL serial device, e.g. /dev/ttyUSB0 (default: the campaign's [rig] port).")
-HOST = typer.Option(None, "--host", help="UR controller address, e.g. 192.168.0.10 (default: the campaign's "
-                                         "[rig] host).")
+HOST = typer.Option(
+    None, "--host", help="UR controller address, e.g. 192.168.0.10 (default: the campaign's [rig] host)."
+)
 BAUD = typer.Option(None, "--baud", help=f"GRBL baud rate (default: the campaign's [rig] baud, else {DEFAULT_BAUD}).")
-CAMERA = typer.Option(None, "--camera", help=f"OpenCV camera: an index or a device path such as /dev/video2 "
-                                             f"(default: the campaign's [rig] camera, else {DEFAULT_CAMERA}).")
-SCENE = typer.Option(None, "--scene", help=f"Simulator scene (default: the campaign's [rig.sim] scene, else "
-                                           f"{DEFAULT_SCENE}; `fgcd sim scenes`).")
+CAMERA = typer.Option(
+    None,
+    "--camera",
+    help=f"OpenCV camera: an index or a device path such as /dev/video2 "
+    f"(default: the campaign's [rig] camera, else {DEFAULT_CAMERA}).",
+)
+SCENE = typer.Option(
+    None,
+    "--scene",
+    help=f"Simulator scene (default: the campaign's [rig.sim] scene, else {DEFAULT_SCENE}; `fgcd sim scenes`).",
+)
 YES = typer.Option(False, "--yes", "-y", help="Answer the first-motion confirmation (scripts).")
 CAMPAIGN = typer.Option(..., "--campaign", "-c", help="Campaign directory.")
 JSON = typer.Option(False, "--json", help="Print one JSON object.")

@@ -94,8 +94,15 @@ def move(
     """Relative move in the flange frame through the motion guard; exit 0 once arrived."""
     from fgcd_cli.app.platform import MoveRequest, move_platform, opened_platform, plan_move
 
-    move = plan_move(MoveRequest(translation_mm=(dx, dy, dz), rotation_deg=(rx, ry, rz), max_step_mm=max_step_mm,
-                                 max_step_deg=max_step_deg, speed_fraction=speed_fraction))
+    move = plan_move(
+        MoveRequest(
+            translation_mm=(dx, dy, dz),
+            rotation_deg=(rx, ry, rz),
+            max_step_mm=max_step_mm,
+            max_step_deg=max_step_deg,
+            speed_fraction=speed_fraction,
+        )
+    )
     confirm = confirmer(yes=yes)
     with opened_platform(_rig(campaign, driver, port, baud, host), timeout) as platform:
         data, result = move_platform(platform, move, confirm=confirm, say=debug)
@@ -104,7 +111,9 @@ def move(
         p = data["reached"]["position_mm"]
         console.print(f"[green]arrived[/green] at {p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f} mm in {result.duration_s:.2f} s")
         if result.unreachable:
-            console.print(f"[yellow]not performed[/yellow] (platform lacks these axes): {', '.join(result.unreachable)}")
+            console.print(
+                f"[yellow]not performed[/yellow] (platform lacks these axes): {', '.join(result.unreachable)}"
+            )
 
     emit(data, as_json=as_json, render=render)
 

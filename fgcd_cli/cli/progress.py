@@ -61,8 +61,13 @@ class StepBar:
                 self._progress.remove_task(self._task)
             self._task = self._progress.add_task(label, total=total if known else None, count="")
             self._label = step
-        self._progress.update(self._task, completed=done if known else 0, total=total if known else None,
-                              count=f"{done}/{total}" if known else "", description=label)
+        self._progress.update(
+            self._task,
+            completed=done if known else 0,
+            total=total if known else None,
+            count=f"{done}/{total}" if known else "",
+            description=label,
+        )
 
     def lines(self, say: Callable[[str], None]) -> Callable[[str], None]:
         """``say`` whose lines also name the bar's step while no counted step is under way.
@@ -111,8 +116,9 @@ class PlainSteps:
     :func:`fgcd_cli.cli.output.info`) for ``heartbeat_s`` seconds.
     """
 
-    def __init__(self, write: Callable[[str], None], *, heartbeat_s: float,
-                 last_printed: Callable[[], float] = lambda: 0.0) -> None:
+    def __init__(
+        self, write: Callable[[str], None], *, heartbeat_s: float, last_printed: Callable[[], float] = lambda: 0.0
+    ) -> None:
         self._write = write
         self._heartbeat_s = float(heartbeat_s)
         self._last_printed = last_printed  # when another writer last printed on stderr (time.monotonic)
@@ -211,12 +217,20 @@ def step_progress(*, enabled: bool, heartbeat_s: float | None = None) -> Iterato
 
     if not err_console.is_terminal:
         # a log file, a pipe: no live display (it would only leave a blank line), plain lines instead
-        with PlainSteps(plain_line, heartbeat_s=HEARTBEAT_S if heartbeat_s is None else heartbeat_s,
-                        last_printed=lambda: state.last_line_at) as steps:
+        with PlainSteps(
+            plain_line,
+            heartbeat_s=HEARTBEAT_S if heartbeat_s is None else heartbeat_s,
+            last_printed=lambda: state.last_line_at,
+        ) as steps:
             yield steps
         return
 
-    columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
-               TextColumn("{task.fields[count]}"), TimeElapsedColumn())
+    columns = (
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.fields[count]}"),
+        TimeElapsedColumn(),
+    )
     with Progress(*columns, console=err_console, transient=True) as progress:
         yield StepBar(progress)

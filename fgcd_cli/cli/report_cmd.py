@@ -32,7 +32,9 @@ def report(
         damaged = f", {len(data['damaged'])} damaged or missing" if data["damaged"] else ""
         console.print(f"station {station}: {len(data['visits'])} visit(s){damaged}")
         for v in data["visits"]:
-            status = f"{v['regions']} region(s), {v['changed_px']} px" if v["comparable"] else f"not compared: {v['reason']}"
+            status = (
+                f"{v['regions']} region(s), {v['changed_px']} px" if v["comparable"] else f"not compared: {v['reason']}"
+            )
             console.print(f"  {v['name']}: {status}")
         for v in data["damaged"]:
             console.print(f"  {v['name']}: [red]damaged[/red]: {v['reason']}")
@@ -43,6 +45,8 @@ def report(
         from fgcd_cli.errors import DataIntegrityError
 
         names = ", ".join(v["name"] for v in data["damaged"])
-        raise DataIntegrityError(f"station '{station}': {len(data['damaged'])} recorded visit(s) damaged or missing "
-                                 f"({names}); the report covers the other {len(data['visits'])}; "
-                                 "run `fgcd campaign verify`")
+        raise DataIntegrityError(
+            f"station '{station}': {len(data['damaged'])} recorded visit(s) damaged or missing "
+            f"({names}); the report covers the other {len(data['visits'])}; "
+            "run `fgcd campaign verify`"
+        )

@@ -8,8 +8,9 @@ import typer
 
 from fgcd_cli.cli.output import emit, info
 
-app = typer.Typer(help="Simulated world: list scenes and lightings, render views with ground truth.",
-                  no_args_is_help=True)
+app = typer.Typer(
+    help="Simulated world: list scenes and lightings, render views with ground truth.", no_args_is_help=True
+)
 
 
 @app.command("scenes")
@@ -50,8 +51,9 @@ def lights(as_json: bool = typer.Option(False, "--json", help="Print one JSON ob
 def render_cmd(
     scene: str = typer.Option(..., "--scene", help="Scene name (fgcd sim scenes)."),
     light: str = typer.Option("front", "--light", help="Lighting preset (fgcd sim lights)."),
-    pose: str | None = typer.Option(None, "--pose", help="x,y,z,rx,ry,rz in mm and degrees, camera frame, "
-                                                          "relative to the scene's default camera."),
+    pose: str | None = typer.Option(
+        None, "--pose", help="x,y,z,rx,ry,rz in mm and degrees, camera frame, relative to the scene's default camera."
+    ),
     out: Path = typer.Option(..., "-o", "--out", help="Output image (PNG)."),
     depth: Path | None = typer.Option(None, "--depth", help="Also write z-depth: .npy (metres) or .png (16-bit mm)."),
     mask: Path | None = typer.Option(None, "--mask", help="Also write the change mask (PNG, 255 = change)."),
@@ -67,9 +69,23 @@ def render_cmd(
     """Render one view of a scene (and optionally its depth and change mask)."""
     from fgcd_cli.app.sim import RenderRequest, render_view
 
-    outcome = render_view(RenderRequest(scene=scene, light=light, pose=pose, out=out, depth=depth, mask=mask,
-                                        changes=changes, change_seed=change_seed, seed=seed, gray=gray, width=width,
-                                        height=height, supersample=supersample))
+    outcome = render_view(
+        RenderRequest(
+            scene=scene,
+            light=light,
+            pose=pose,
+            out=out,
+            depth=depth,
+            mask=mask,
+            changes=changes,
+            change_seed=change_seed,
+            seed=seed,
+            gray=gray,
+            width=width,
+            height=height,
+            supersample=supersample,
+        )
+    )
     written = outcome.written
 
     def show(console):
@@ -94,5 +110,7 @@ def contact_sheet(
     """Every scene (rows) under several lightings (columns), labelled, in one PNG."""
     from fgcd_cli.app.sim import contact_sheet as render_sheet
 
-    emit(render_sheet(out, lights=lights_, width=width, supersample=supersample, say=None if as_json else info),
-         as_json=as_json)
+    emit(
+        render_sheet(out, lights=lights_, width=width, supersample=supersample, say=None if as_json else info),
+        as_json=as_json,
+    )

@@ -211,8 +211,10 @@ def compute_fdf(
         for label, image in (("reference", ref), ("current", cur)):
             problem = image_health(image)
             if problem:
-                raise AlgorithmError(f"cannot measure AFD: {label} {problem} "
-                                     "(neither SIFT nor the grid variant can; point pairs picked by hand can: --pairs)")
+                raise AlgorithmError(
+                    f"cannot measure AFD: {label} {problem} "
+                    "(neither SIFT nor the grid variant can; point pairs picked by hand can: --pairs)"
+                )
     if config.method == FdfMethod.SIFT:
         return _sift_fdf(ref, cur, config)
     if config.method == FdfMethod.GRID:
@@ -222,8 +224,13 @@ def compute_fdf(
 
 def _sift_fdf(ref: np.ndarray, cur: np.ndarray, config: FdfConfig) -> FdfResult:
     """The authors' protocol: SIFT matches, RANSAC homography, its inliers."""
-    settings = {"detector": "SIFT (OpenCV)", "ratio": config.ratio, "model": "homography",
-                "ransac_px": config.ransac_px, "max_features": config.max_features}
+    settings = {
+        "detector": "SIFT (OpenCV)",
+        "ratio": config.ratio,
+        "model": "homography",
+        "ransac_px": config.ransac_px,
+        "max_features": config.max_features,
+    }
     points_ref, points_cur = match_sift(ref, cur, ratio=config.ratio, max_features=config.max_features)
     _, inliers = ransac_homography(points_ref, points_cur, ransac_px=config.ransac_px)
     if inliers.sum() < config.min_inliers:
@@ -231,24 +238,42 @@ def _sift_fdf(ref: np.ndarray, cur: np.ndarray, config: FdfConfig) -> FdfResult:
             f"AFD: only {int(inliers.sum())} SIFT inliers out of {len(points_ref)} matches (need {config.min_inliers}); "
             "try the lighting-robust grid variant (--grid) or give point pairs (--pairs)"
         )
-    return _result(points_ref[inliers], points_cur[inliers], candidates=len(points_ref), method=FdfMethod.SIFT.value,
-                   settings=settings, shape=ref.shape)
+    return _result(
+        points_ref[inliers],
+        points_cur[inliers],
+        candidates=len(points_ref),
+        method=FdfMethod.SIFT.value,
+        settings=settings,
+        shape=ref.shape,
+    )
 
 
 def _grid_result(ref: np.ndarray, cur: np.ndarray, config: FdfConfig) -> FdfResult:
     """The grid variant: correlated cells that agree on one homography (8 at least, half of the correlated)."""
-    settings = {"detector": "phase correlation of gradient-magnitude patches", "grid_cells": config.grid_cells,
-                "patch_px": config.patch_px, "min_response": config.min_response, "model": "homography",
-                "ransac_px": config.ransac_px}
-    points_ref, points_cur, candidates = _grid_fdf(ref, cur, grid_cells=config.grid_cells, patch_px=config.patch_px,
-                                                   min_response=config.min_response, ransac_px=config.ransac_px)
+    settings = {
+        "detector": "phase correlation of gradient-magnitude patches",
+        "grid_cells": config.grid_cells,
+        "patch_px": config.patch_px,
+        "min_response": config.min_response,
+        "model": "homography",
+        "ransac_px": config.ransac_px,
+    }
+    points_ref, points_cur, candidates = _grid_fdf(
+        ref,
+        cur,
+        grid_cells=config.grid_cells,
+        patch_px=config.patch_px,
+        min_response=config.min_response,
+        ransac_px=config.ransac_px,
+    )
     if len(points_ref) < 8 or len(points_ref) < 0.5 * candidates:
         raise AlgorithmError(
             f"AFD (grid): only {len(points_ref)} of {candidates} correlated cells ({config.grid_cells**2} in the grid) "
             "agree on one motion; no reliable displacement (do the images overlap?)"
         )
-    return _result(points_ref, points_cur, candidates=candidates, method=FdfMethod.GRID.value, settings=settings,
-                   shape=ref.shape)
+    return _result(
+        points_ref, points_cur, candidates=candidates, method=FdfMethod.GRID.value, settings=settings, shape=ref.shape
+    )
 
 
 def _pairs_fdf(ref: np.ndarray, pairs: tuple[np.ndarray, np.ndarray] | None) -> FdfResult:
@@ -259,8 +284,14 @@ def _pairs_fdf(ref: np.ndarray, pairs: tuple[np.ndarray, np.ndarray] | None) -> 
     points_cur = np.asarray(pairs[1], dtype=np.float64).reshape(-1, 2)
     if len(points_ref) != len(points_cur) or len(points_ref) == 0:
         raise UserInputError("point pairs: need the same, non-zero number of reference and current points")
-    return _result(points_ref, points_cur, candidates=len(points_ref), method=FdfMethod.PAIRS.value,
-                   settings={"source": "user-supplied pairs"}, shape=ref.shape)
+    return _result(
+        points_ref,
+        points_cur,
+        candidates=len(points_ref),
+        method=FdfMethod.PAIRS.value,
+        settings={"source": "user-supplied pairs"},
+        shape=ref.shape,
+    )
 
 
 def read_pairs_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -281,7 +312,9 @@ def read_pairs_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                     continue  # header
                 raise UserInputError(f"{path}: line {line_no}: expected 4 numbers x_ref,y_ref,x_cur,y_cur") from None
             if len(values) != 4:
-                raise UserInputError(f"{path}: line {line_no}: expected 4 numbers x_ref,y_ref,x_cur,y_cur, got {len(values)}")
+                raise UserInputError(
+                    f"{path}: line {line_no}: expected 4 numbers x_ref,y_ref,x_cur,y_cur, got {len(values)}"
+                )
             rows.append(values)
     if not rows:
         raise UserInputError(f"{path}: no point pairs")

@@ -55,12 +55,16 @@ def binary_scores(predicted: np.ndarray, truth: np.ndarray, *, eval_mask: np.nda
     fp = int(np.count_nonzero(p & ~t))
     fn = int(np.count_nonzero(~p & t))
     if tp + fp + fn == 0:
-        return BinaryScores(precision=1.0, recall=1.0, f1=1.0, iou=1.0, true_positive=0, false_positive=0, false_negative=0)
+        return BinaryScores(
+            precision=1.0, recall=1.0, f1=1.0, iou=1.0, true_positive=0, false_positive=0, false_negative=0
+        )
     precision = tp / (tp + fp) if tp + fp else 0.0
     recall = tp / (tp + fn) if tp + fn else 0.0
     f1 = 2 * tp / (2 * tp + fp + fn)
     iou = tp / (tp + fp + fn)
-    return BinaryScores(precision=precision, recall=recall, f1=f1, iou=iou, true_positive=tp, false_positive=fp, false_negative=fn)
+    return BinaryScores(
+        precision=precision, recall=recall, f1=f1, iou=iou, true_positive=tp, false_positive=fp, false_negative=fn
+    )
 
 
 def precision_recall_curve(score: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray | None = None):

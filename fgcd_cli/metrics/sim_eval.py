@@ -86,8 +86,14 @@ def score_change_detection(found_mask: np.ndarray, truth_mask: np.ndarray) -> di
     f_labels, n_found = ndimage.label(found_mask)
     false = sum(1 for i in range(1, n_found + 1) if not np.any(truth_mask[f_labels == i]))
     out = {k: float(v) for k, v in s.__dict__.items() if isinstance(v, (int, float))}
-    out.update({"true_changes": int(n_true), "true_changes_found": int(hit), "found_regions": int(n_found),
-                "false_regions": int(false)})
+    out.update(
+        {
+            "true_changes": int(n_true),
+            "true_changes_found": int(hit),
+            "found_regions": int(n_found),
+            "false_regions": int(false),
+        }
+    )
     return out
 
 

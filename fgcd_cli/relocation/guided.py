@@ -90,8 +90,9 @@ def motions_between(waypoints: list[np.ndarray], *, stops_per_leg: int = 2) -> l
     return [exp_se3(log_se3(L) / n) for L in legs for _ in range(n)]
 
 
-def within_workspace(T_base_flange_start: np.ndarray, motions: list[np.ndarray], lo_m: np.ndarray,
-                     hi_m: np.ndarray) -> bool:
+def within_workspace(
+    T_base_flange_start: np.ndarray, motions: list[np.ndarray], lo_m: np.ndarray, hi_m: np.ndarray
+) -> bool:
     """True when every stop of ``motions`` from ``T_base_flange_start`` lies in the box ``[lo_m, hi_m]`` (metres).
 
     The path between two stops is a screw motion of a few centimetres; the guard checks each of its

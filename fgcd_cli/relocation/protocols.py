@@ -31,5 +31,12 @@ class ImageRefiner(Protocol):
     """The camera motion to the reference pose measured from the reference images
     (:func:`fgcd_cli.relocation.image.refine.refine_from_reference_image` fits)."""
 
-    def __call__(self, *, reference_images: dict[str, np.ndarray], current_image: np.ndarray, camera: CameraModel,
-                 ref_points: np.ndarray, T_ref_camref: np.ndarray): ...  # noqa: D102
+    def __call__(
+        self,
+        *,
+        reference_images: dict[str, np.ndarray],
+        current_image: np.ndarray,
+        camera: CameraModel,
+        ref_points: np.ndarray,
+        T_ref_camref: np.ndarray,
+    ): ...  # noqa: D102

@@ -279,8 +279,9 @@ class VseSession:
         return self.move_by(M, progress=None if label is None else (0, self.substeps(M), label))
 
     # -- exploration and scale
-    def explore(self, motions: Sequence[np.ndarray], *,
-                until: Callable[[list, list], bool] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    def explore(
+        self, motions: Sequence[np.ndarray], *, until: Callable[[list, list], bool] | None = None
+    ) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Run an exploration; return the flange and VSE poses at each tracked waypoint.
 
         ``until(flange, cams)``, asked after each motion: True ends the exploration there.
@@ -300,7 +301,9 @@ class VseSession:
                 self.on_event(f"exploration {i + 1}/{len(motions)}: VSE {st.status}")
             if until is not None and i + 1 < len(motions) and until(flange, cams):
                 if self.on_event:
-                    self.on_event(f"exploration ended after {i + 1}/{len(motions)} motions: the alignment is trustworthy")
+                    self.on_event(
+                        f"exploration ended after {i + 1}/{len(motions)} motions: the alignment is trustworthy"
+                    )
                 break
         return flange, cams
 

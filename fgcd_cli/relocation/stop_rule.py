@@ -57,8 +57,10 @@ class Residual:
 
     def text(self) -> str:
         """One phrase for people: ``residual 0.99 ± 0.23 mm (image estimate; tolerance 1.36 mm)``."""
-        return (f"residual {self.offset_mm:.2f} ± {self.sigma_mm:.2f} mm ({self.source} estimate; "
-                f"tolerance {self.tolerance_mm:.2f} mm; 3D/image: {self.agreement})")
+        return (
+            f"residual {self.offset_mm:.2f} ± {self.sigma_mm:.2f} mm ({self.source} estimate; "
+            f"tolerance {self.tolerance_mm:.2f} mm; 3D/image: {self.agreement})"
+        )
 
     def to_dict(self) -> dict:
         """Plain data for JSON output."""
@@ -87,8 +89,9 @@ def reference_depth_m(ref_points: np.ndarray, T_ref_camref: np.ndarray) -> float
     return float(np.median(z)) if len(z) else math.nan
 
 
-def tolerance_mm(ref_points: np.ndarray, T_ref_camref: np.ndarray, camera: CameraModel | None, *,
-                 stop_afd_px: float) -> float:
+def tolerance_mm(
+    ref_points: np.ndarray, T_ref_camref: np.ndarray, camera: CameraModel | None, *, stop_afd_px: float
+) -> float:
     """Stop tolerance on the remaining camera offset, mm (docs/relocation.md, "Stop rules").
 
     Model: a sideways camera shift ``d`` at distance ``Z`` moves the object's image by
@@ -123,8 +126,9 @@ def tolerance_mm(ref_points: np.ndarray, T_ref_camref: np.ndarray, camera: Camer
     return 1000.0 * stop_afd_px * z / f
 
 
-def estimates_agree(offset_a_mm: np.ndarray, sigma_a_mm: float, offset_b_mm: np.ndarray, sigma_b_mm: float, *,
-                    k: float) -> tuple[bool, float, float]:
+def estimates_agree(
+    offset_a_mm: np.ndarray, sigma_a_mm: float, offset_b_mm: np.ndarray, sigma_b_mm: float, *, k: float
+) -> tuple[bool, float, float]:
     """Whether two estimates of the camera position agree within their uncertainties.
 
     Parameters
@@ -188,7 +192,11 @@ def offset_vector_mm(T_ref_cam: np.ndarray, T_ref_camref: np.ndarray) -> np.ndar
 
 
 def estimated_afd_px(
-    ref_points: np.ndarray, T_ref_camref: np.ndarray, T_ref_cam: np.ndarray, camera: CameraModel | None, *,
+    ref_points: np.ndarray,
+    T_ref_camref: np.ndarray,
+    T_ref_cam: np.ndarray,
+    camera: CameraModel | None,
+    *,
     max_points: int = 3000,
 ) -> float:
     """Mean image displacement (px) between the reference camera and the estimated current one.

@@ -17,7 +17,7 @@ def nfa_value(log10_nfa: float | None) -> float | None:
     """``10 ** log10_nfa`` (0.0 below the smallest float, ``inf`` above the largest), or None."""
     if log10_nfa is None or not math.isfinite(log10_nfa):
         return None if log10_nfa is None or math.isnan(log10_nfa) else (0.0 if log10_nfa < 0 else math.inf)
-    return 10.0 ** log10_nfa if log10_nfa < 308 else math.inf
+    return 10.0**log10_nfa if log10_nfa < 308 else math.inf
 
 
 def nfa_text(log10_nfa: float | None) -> str:
@@ -35,7 +35,7 @@ def nfa_text(log10_nfa: float | None) -> str:
     if mantissa >= 10.0:
         mantissa, exponent = 1.0, exponent + 1
     if -2 <= exponent <= 1:
-        return f"{mantissa * 10.0 ** exponent:.2g}"
+        return f"{mantissa * 10.0**exponent:.2g}"
     digits = f"{mantissa:g}"
     return f"{digits}e{'+' if exponent > 0 else '-'}{abs(exponent):02d}"
 
@@ -73,8 +73,10 @@ def candidate_dict(candidate: SignificantRegion) -> dict:
 def candidate_text(candidate: dict) -> str:
     """``"NFA = 3.2 (p = 0.0012) at (120, 45), 34 px"`` for a candidate in its JSON form."""
     x, y = candidate["centroid_xy"]
-    return (f"NFA = {nfa_text(candidate.get('log10_nfa'))} (p = {p_text(candidate.get('p_level'))}) "
-            f"at ({x:.0f}, {y:.0f}), {candidate['area_px']} px")
+    return (
+        f"NFA = {nfa_text(candidate.get('log10_nfa'))} (p = {p_text(candidate.get('p_level'))}) "
+        f"at ({x:.0f}, {y:.0f}), {candidate['area_px']} px"
+    )
 
 
 def settings_epsilon(settings: dict | None) -> float:
@@ -107,8 +109,10 @@ def no_change_line(candidates: list[dict], *, epsilon: float) -> str:
         return "no significant change; no candidate region"
     strongest = candidates[0]
     if is_significant(strongest.get("log10_nfa"), epsilon=epsilon):
-        return (f"no change reported, but the strongest candidate is significant: {candidate_text(strongest)}"
-                " (not kept by the threshold rule; check it by eye)")
+        return (
+            f"no change reported, but the strongest candidate is significant: {candidate_text(strongest)}"
+            " (not kept by the threshold rule; check it by eye)"
+        )
     return f"no significant change; strongest candidate {candidate_text(strongest)}"
 
 

@@ -115,8 +115,9 @@ def _area_label(area: float, area_px: int, use_mm2: bool) -> str:
     return area_mm2_text(float(area), area_px) if use_mm2 else f"{int(area)} px"
 
 
-def history_figure(dates: list[str], changed_mm2: list[float | None], changed_px: list[int],
-                   afd_px: list[float | None]):
+def history_figure(
+    dates: list[str], changed_mm2: list[float | None], changed_px: list[int], afd_px: list[float | None]
+):
     """Station history: changed area (bars) and AFD after relocation (dots) per visit.
 
     Both y axes start at 0: the area axis reaches at least 1 (an unchanged visit is a
@@ -128,14 +129,21 @@ def history_figure(dates: list[str], changed_mm2: list[float | None], changed_px
     use_mm2 = any(v is not None for v in changed_mm2)
     area = np.array([np.nan if v is None else float(v) for v in (changed_mm2 if use_mm2 else changed_px)])
     bars = ax.bar(x, area, width=0.6, color="#c2185b", alpha=0.8)
-    ax.bar_label(bars, labels=[_area_label(a, p, use_mm2) for a, p in zip(area, changed_px)], fontsize=7,
-                 color="#c2185b", padding=2)
+    ax.bar_label(
+        bars,
+        labels=[_area_label(a, p, use_mm2) for a, p in zip(area, changed_px)],
+        fontsize=7,
+        color="#c2185b",
+        padding=2,
+    )
     ax.set_ylabel("changed area (mm²)" if use_mm2 else "changed area (px)", fontsize=9, color="#c2185b")
     top = np.nanmax(area) if np.isfinite(area).any() else 0.0
     ax.set_ylim(0, max(1.0, 1.15 * top))
     pad = max(0.0, (HISTORY_MIN_SLOTS - len(dates)) / 2)
     ax.set_xlim(-0.6 - pad, len(dates) - 0.4 + pad)
-    ax.set_xticks(x, dates, rotation=20 if len(dates) > 1 else 0, fontsize=7, ha="right" if len(dates) > 1 else "center")
+    ax.set_xticks(
+        x, dates, rotation=20 if len(dates) > 1 else 0, fontsize=7, ha="right" if len(dates) > 1 else "center"
+    )
     ax2 = ax.twinx()
     afd = np.array([np.nan if v is None else float(v) for v in afd_px])
     ax2.plot(x, afd, "o-", color="#1f5fa8")
@@ -148,6 +156,8 @@ def history_figure(dates: list[str], changed_mm2: list[float | None], changed_px
     return fig
 
 
-def history_png(dates: list[str], changed_mm2: list[float | None], changed_px: list[int], afd_px: list[float | None]) -> bytes:
+def history_png(
+    dates: list[str], changed_mm2: list[float | None], changed_px: list[int], afd_px: list[float | None]
+) -> bytes:
     """PNG bytes of :func:`history_figure`."""
     return figure_png(history_figure(dates, changed_mm2, changed_px, afd_px))

@@ -71,8 +71,9 @@ def candidate_radius_px(area_px: float, shape: tuple[int, ...]) -> int:
     return int(round(max(1.5 * np.sqrt(max(area_px, 0) / np.pi), min(shape[:2]) / 100, 5)))
 
 
-def _dashed_circle(out: np.ndarray, centre: tuple[int, int], radius: int, colour: tuple[int, int, int], *,
-                   dashes: int = 16) -> None:
+def _dashed_circle(
+    out: np.ndarray, centre: tuple[int, int], radius: int, colour: tuple[int, int, int], *, dashes: int = 16
+) -> None:
     """A thin dashed circle (``dashes`` arcs drawn, as many gaps) on ``out``, in place."""
     step = 360.0 / (2 * max(dashes, 4))
     for k in range(0, 2 * max(dashes, 4), 2):
@@ -95,8 +96,15 @@ def _draw_candidates(out: np.ndarray, candidates: list[SignificantRegion]) -> np
     return cv2.addWeighted(layer, CANDIDATE_ALPHA, out, 1.0 - CANDIDATE_ALPHA, 0.0)
 
 
-def change_overlay(image: np.ndarray, labels: np.ndarray, regions: list[ChangeRegion], *, valid: np.ndarray | None = None,
-                   set_aside: np.ndarray | None = None, candidates: list[SignificantRegion] | None = None) -> np.ndarray:
+def change_overlay(
+    image: np.ndarray,
+    labels: np.ndarray,
+    regions: list[ChangeRegion],
+    *,
+    valid: np.ndarray | None = None,
+    set_aside: np.ndarray | None = None,
+    candidates: list[SignificantRegion] | None = None,
+) -> np.ndarray:
     """The reference image with changed regions tinted, outlined and numbered.
 
     Parameters
@@ -165,8 +173,9 @@ class LegendEntry:
     text: str
 
 
-def overlay_legend_entries(regions: list[ChangeRegion], *, set_aside: bool = False, candidates: bool = False,
-                           dimmed: bool = False) -> list[LegendEntry]:
+def overlay_legend_entries(
+    regions: list[ChangeRegion], *, set_aside: bool = False, candidates: bool = False, dimmed: bool = False
+) -> list[LegendEntry]:
     """What :func:`change_overlay` drew, as legend entries (only what is on the image).
 
     Parameters
@@ -186,7 +195,9 @@ def overlay_legend_entries(regions: list[ChangeRegion], *, set_aside: bool = Fal
         if cue in cues:
             entries.append(LegendEntry(swatch="fill", colour=colour, text=f"changed: {cue}"))
     if any(r.cue not in CUE_RGB for r in regions):
-        entries.append(LegendEntry(swatch="fill", colour=CHANGE_RGB, text="changed" if len(entries) == 0 else "changed: no cue"))
+        entries.append(
+            LegendEntry(swatch="fill", colour=CHANGE_RGB, text="changed" if len(entries) == 0 else "changed: no cue")
+        )
     if regions:
         entries.append(LegendEntry(swatch="number", colour=LABEL_RGB, text="region number"))
     if set_aside:
@@ -222,8 +233,16 @@ def _draw_swatch(band: np.ndarray, entry: LegendEntry, x: int, y: int, side: int
     else:  # number
         band[box] = (60, 60, 60)
         scale = side / 30
-        cv2.putText(band, "1", (x + side // 4, y + side - side // 6), cv2.FONT_HERSHEY_SIMPLEX, scale, entry.colour,
-                    2, cv2.LINE_AA)
+        cv2.putText(
+            band,
+            "1",
+            (x + side // 4, y + side - side // 6),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale,
+            entry.colour,
+            2,
+            cv2.LINE_AA,
+        )
 
 
 def with_legend(overlay: np.ndarray, entries: list[LegendEntry]) -> np.ndarray:
@@ -255,8 +274,16 @@ def with_legend(overlay: np.ndarray, entries: list[LegendEntry]) -> np.ndarray:
         y = gap + r * row_h
         for entry, x in items:
             _draw_swatch(band, entry, x, y, side)
-            cv2.putText(band, entry.text, (x + side + gap // 2, y + side - side // 4), cv2.FONT_HERSHEY_SIMPLEX, scale,
-                        (40, 40, 40), 1, cv2.LINE_AA)
+            cv2.putText(
+                band,
+                entry.text,
+                (x + side + gap // 2, y + side - side // 4),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                scale,
+                (40, 40, 40),
+                1,
+                cv2.LINE_AA,
+            )
     return np.vstack([overlay, band])
 
 
@@ -298,8 +325,16 @@ def fdf_magnification(median_px: float, width_px: int) -> float:
     return float(max(1.0, round(FDF_ARROW_FRACTION * width_px / reference)))
 
 
-def fdf_quiver_png(ref_image: np.ndarray, points_ref: np.ndarray, points_cur: np.ndarray, *, afd_px: float,
-                   inliers: int, method: str, max_arrows: int = 400) -> bytes:
+def fdf_quiver_png(
+    ref_image: np.ndarray,
+    points_ref: np.ndarray,
+    points_cur: np.ndarray,
+    *,
+    afd_px: float,
+    inliers: int,
+    method: str,
+    max_arrows: int = 400,
+) -> bytes:
     """FDF quiver figure: displacement vectors drawn on the reference image, AFD in the title.
 
     Arrows are magnified (:func:`fdf_magnification`); the magnification is stated in the
@@ -319,21 +354,42 @@ def fdf_quiver_png(ref_image: np.ndarray, points_ref: np.ndarray, points_cur: np
     fig, ax = plt.subplots(figsize=(6.4, 6.4 * h / w))
     ax.imshow(rgb, cmap="gray")
     if len(pts):
-        arrows = ax.quiver(pts[:, 0], pts[:, 1], disp[:, 0] * magnify, disp[:, 1] * magnify, angles="xy",
-                           scale_units="xy", scale=1, color="#ffd400", width=0.004, headwidth=4)
+        arrows = ax.quiver(
+            pts[:, 0],
+            pts[:, 1],
+            disp[:, 0] * magnify,
+            disp[:, 1] * magnify,
+            angles="xy",
+            scale_units="xy",
+            scale=1,
+            color="#ffd400",
+            width=0.004,
+            headwidth=4,
+        )
         # the key: an arrow of the success limit at the drawing's scale, in the image's lower left corner
-        key = ax.quiverkey(arrows, 0.05, 0.05, FDF_SCALE_FLOOR_PX * magnify,
-                           f"{FDF_SCALE_FLOOR_PX:g} px (success limit)", labelpos="E", coordinates="axes",
-                           labelcolor="white", fontproperties={"size": 8, "weight": "bold"})
+        key = ax.quiverkey(
+            arrows,
+            0.05,
+            0.05,
+            FDF_SCALE_FLOOR_PX * magnify,
+            f"{FDF_SCALE_FLOOR_PX:g} px (success limit)",
+            labelpos="E",
+            coordinates="axes",
+            labelcolor="white",
+            fontproperties={"size": 8, "weight": "bold"},
+        )
         key.set_zorder(5)
-    ax.set_title(f"FDF ({method}): AFD = {afd_px:.2f} px, {inliers} vectors\n"
-                 f"arrows drawn x{magnify:g} (median {median:.2f} px)", fontsize=10)
+    ax.set_title(
+        f"FDF ({method}): AFD = {afd_px:.2f} px, {inliers} vectors\narrows drawn x{magnify:g} (median {median:.2f} px)",
+        fontsize=10,
+    )
     ax.set_axis_off()
     return _figure_png(fig)
 
 
-def region_closeup(ref_image: np.ndarray, cur_image: np.ndarray, labels: np.ndarray, region: ChangeRegion, *,
-                   tile_px: int = 180) -> np.ndarray:
+def region_closeup(
+    ref_image: np.ndarray, cur_image: np.ndarray, labels: np.ndarray, region: ChangeRegion, *, tile_px: int = 180
+) -> np.ndarray:
     """Before / after / outlined close-up of one region, side by side (HxWx3 uint8 RGB).
 
     The crop is square, centred on the region, its side 2x the region's larger
@@ -375,8 +431,9 @@ def result_overlay(image: np.ndarray, result, *, legend: bool = True) -> np.ndar
     legend : bool, keyword-only; append the legend band (:func:`with_legend`).
     """
     valid = result.valid if result.comparable else None
-    overlay = change_overlay(image, result.labels, result.regions, valid=valid, set_aside=result.edge_explained,
-                             candidates=result.candidates)
+    overlay = change_overlay(
+        image, result.labels, result.regions, valid=valid, set_aside=result.edge_explained, candidates=result.candidates
+    )
     if not legend:
         return overlay
     entries = overlay_legend_entries(

@@ -37,10 +37,17 @@ def result_summary(result: ChangeResult, fdf: FdfResult | None = None) -> dict:
         "compared_fraction": float(result.valid.mean()),
         "regions": [{**asdict(r), "nfa": nfa_value(r.log10_nfa)} for r in result.regions],
         "candidates": [candidate_dict(c) for c in result.candidates],
-        "registration": None if reg is None else {
-            "H_cur_ref": reg.H_cur_ref.tolist(), "ok": reg.ok, "reason": reg.reason, "init": reg.init,
-            "sift_inliers": reg.sift_inliers, "ecc_correlation": reg.ecc_correlation,
-            "overlap_fraction": reg.overlap_fraction, "settings": reg.settings,
+        "registration": None
+        if reg is None
+        else {
+            "H_cur_ref": reg.H_cur_ref.tolist(),
+            "ok": reg.ok,
+            "reason": reg.reason,
+            "init": reg.init,
+            "sift_inliers": reg.sift_inliers,
+            "ecc_correlation": reg.ecc_correlation,
+            "overlap_fraction": reg.overlap_fraction,
+            "settings": reg.settings,
         },
         "threshold": None if result.threshold is None else asdict(result.threshold),
         "settings": result.settings,
@@ -92,10 +99,14 @@ def diff_products(
     files[schema.OVERLAY_PNG] = png_bytes(result_overlay(ref_shown, result))
     files[schema.REGIONS_JSON] = json.dumps(summary, indent=1, default=float).encode()
     if fdf is not None:
-        files[schema.FDF_PNG] = fdf_quiver_png(ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px,
-                                          inliers=fdf.inliers, method=fdf.method)
+        files[schema.FDF_PNG] = fdf_quiver_png(
+            ref_shown, fdf.points_ref, fdf.points_cur, afd_px=fdf.afd_px, inliers=fdf.inliers, method=fdf.method
+        )
     files[schema.REPORT_HTML] = render_diff_report(
-        ref_image=ref_shown, cur_image=cur_images[shown_lighting], result=result, fdf=fdf,
+        ref_image=ref_shown,
+        cur_image=cur_images[shown_lighting],
+        result=result,
+        fdf=fdf,
         cur_registered=result.current_registered[shown_lighting] if result.current_registered else None,
         context=ctx,
     ).encode()

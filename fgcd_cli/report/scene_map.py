@@ -36,7 +36,8 @@ def coarse_positions_mm(coarse_log: list[dict] | None) -> tuple[np.ndarray, np.n
         used = estimates.get(row.get("source") or "") or {}
         pos = used.get("position_refcam_m") or next(
             (e["position_refcam_m"] for e in estimates.values() if isinstance(e, dict) and "position_refcam_m" in e),
-            None)
+            None,
+        )
         if pos is None:
             continue
         xyz.append(np.asarray(pos, dtype=float) * 1e3)
@@ -57,9 +58,11 @@ def scene_uncertainty_figure(scene_map, coarse_log: list[dict] | None = None):
     """
     layer = int(np.argmin(np.abs(np.asarray(scene_map.z_m))))
     n = float(scene_map.n_directions)
-    panels = (("scene uncertainty U (Eq. 2)", scene_map.uncertainty[layer], "magma"),
-              ("image localizer succeeds", scene_map.image_successes[layer] / n, "viridis"),
-              ("3D localizer succeeds", scene_map.geometry_successes[layer] / n, "viridis"))
+    panels = (
+        ("scene uncertainty U (Eq. 2)", scene_map.uncertainty[layer], "magma"),
+        ("image localizer succeeds", scene_map.image_successes[layer] / n, "viridis"),
+        ("3D localizer succeeds", scene_map.geometry_successes[layer] / n, "viridis"),
+    )
     x_mm, y_mm = np.asarray(scene_map.x_m) * 1e3, np.asarray(scene_map.y_m) * 1e3
     half = (x_mm[1] - x_mm[0]) / 2 if len(x_mm) > 1 else 1.0
     extent = (x_mm[0] - half, x_mm[-1] + half, y_mm[-1] + half, y_mm[0] - half)  # y down: image rows
@@ -67,16 +70,38 @@ def scene_uncertainty_figure(scene_map, coarse_log: list[dict] | None = None):
     fig, axes = plt.subplots(1, 3, figsize=(12.5, 4.0), constrained_layout=True)
     for ax, (title, values, cmap) in zip(axes, panels):
         im = ax.imshow(values, extent=extent, origin="upper", vmin=0.0, vmax=1.0, cmap=cmap, interpolation="nearest")
-        ax.plot([0.0], [0.0], marker="*", color="#2ca02c", markersize=14, markeredgecolor="white", linestyle="none",
-                label="reference camera")
+        ax.plot(
+            [0.0],
+            [0.0],
+            marker="*",
+            color="#2ca02c",
+            markersize=14,
+            markeredgecolor="white",
+            linestyle="none",
+            label="reference camera",
+        )
         if len(xyz):
             ax.plot(xyz[:, 0], xyz[:, 1], color="#00bcd4", linewidth=1, zorder=3)
             if verified.any():
-                ax.scatter(xyz[verified, 0], xyz[verified, 1], s=36, color="#00bcd4", edgecolor="black", zorder=4,
-                           label="coarse step, verified estimate")
+                ax.scatter(
+                    xyz[verified, 0],
+                    xyz[verified, 1],
+                    s=36,
+                    color="#00bcd4",
+                    edgecolor="black",
+                    zorder=4,
+                    label="coarse step, verified estimate",
+                )
             if not verified.all():
-                ax.scatter(xyz[~verified, 0], xyz[~verified, 1], s=36, facecolor="white", edgecolor="#00bcd4",
-                           zorder=4, label="coarse step, unverified estimate")
+                ax.scatter(
+                    xyz[~verified, 0],
+                    xyz[~verified, 1],
+                    s=36,
+                    facecolor="white",
+                    edgecolor="#00bcd4",
+                    zorder=4,
+                    label="coarse step, unverified estimate",
+                )
             for (x, y, _z), k in zip(xyz, steps):
                 ax.annotate(str(k), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8, color="white")
         ax.set_xlim(extent[0], extent[1])
@@ -97,14 +122,18 @@ def scene_uncertainty_section(scene_map, coarse_log: list[dict] | None = None) -
 
     png = figure_png(scene_uncertainty_figure(scene_map, coarse_log))
     depth = float(np.asarray(scene_map.z_m)[int(np.argmin(np.abs(np.asarray(scene_map.z_m))))]) * 1e3
-    caption = (f"Scene uncertainty of the reference (paper 001, Eq. 2): for each candidate camera position on the "
-               f"plane {depth:+.0f} mm along the reference camera's axis, U = 1 - the fraction of "
-               f"{scene_map.n_directions} view directions (at the object, and turned "
-               f"{scene_map.config.spread_deg:g} deg left, right, up, down) from which the image (PnP) or the 3D "
-               "localizer is predicted to succeed (docs/relocation.md, \"Scene uncertainty\"). Seen from behind the "
-               "reference camera (green star).")
+    caption = (
+        f"Scene uncertainty of the reference (paper 001, Eq. 2): for each candidate camera position on the "
+        f"plane {depth:+.0f} mm along the reference camera's axis, U = 1 - the fraction of "
+        f"{scene_map.n_directions} view directions (at the object, and turned "
+        f"{scene_map.config.spread_deg:g} deg left, right, up, down) from which the image (PnP) or the 3D "
+        'localizer is predicted to succeed (docs/relocation.md, "Scene uncertainty"). Seen from behind the '
+        "reference camera (green star)."
+    )
     if coarse_positions_mm(coarse_log)[2]:
         caption += " Cyan: the camera positions the coarse stage estimated, by step (filled: verified)."
-    return ['<div class="pair"><figure class="wide">'
-            f'<img src="{data_uri(png)}" alt="scene uncertainty map">'
-            f"<figcaption>{html.escape(caption)}</figcaption></figure></div>"]
+    return [
+        '<div class="pair"><figure class="wide">'
+        f'<img src="{data_uri(png)}" alt="scene uncertainty map">'
+        f"<figcaption>{html.escape(caption)}</figcaption></figure></div>"
+    ]

@@ -36,46 +36,70 @@ def _tracks_table(history) -> str:
     rows = []
     latest = history.analysed[-1] if history.analysed else None
     for t in sorted(history.tracks, key=lambda t: (_STATUS_ORDER[t.status.value], t.id)):
-        rows.append(f"<tr><td>{t.id}</td><td class=\"l\">{html.escape(t.status.value)}</td>"
-                    f"<td class=\"l\">{html.escape(_human_date(t.first_seen))}</td>"
-                    f"<td>{_area(t.areas.get(latest), history.unit)}</td>"
-                    f"<td>{_area(t.change_since_previous, history.unit)}</td>"
-                    f"<td>{html.escape(growth_text(t.growth_per_year, history.unit))}</td>"
-                    f"<td>({t.centroid_xy[0]:.0f}, {t.centroid_xy[1]:.0f})</td></tr>")
-    return ("<table><tr><th>region</th><th class=\"l\">status</th><th class=\"l\">first seen</th>"
-            "<th>area now</th><th>since previous visit</th><th>growth rate</th><th>where (ref. px)</th></tr>"
-            + "".join(rows) + "</table>")
+        rows.append(
+            f'<tr><td>{t.id}</td><td class="l">{html.escape(t.status.value)}</td>'
+            f'<td class="l">{html.escape(_human_date(t.first_seen))}</td>'
+            f"<td>{_area(t.areas.get(latest), history.unit)}</td>"
+            f"<td>{_area(t.change_since_previous, history.unit)}</td>"
+            f"<td>{html.escape(growth_text(t.growth_per_year, history.unit))}</td>"
+            f"<td>({t.centroid_xy[0]:.0f}, {t.centroid_xy[1]:.0f})</td></tr>"
+        )
+    return (
+        '<table><tr><th>region</th><th class="l">status</th><th class="l">first seen</th>'
+        "<th>area now</th><th>since previous visit</th><th>growth rate</th><th>where (ref. px)</th></tr>"
+        + "".join(rows)
+        + "</table>"
+    )
 
 
 def tracks_section(history, *, figures: str = "") -> str:
     """HTML of one station's tracks: the area-vs-date chart (after ``figures``) and the table (also ``fgcd report``)."""
     chart = track_area_png(history.tracks, history.dates, unit=history.unit)
-    missing = (f'<p class="small">Not analysed yet (run <code>fgcd archive analyze</code>): '
-               f"{html.escape(', '.join(history.not_analysed))}</p>" if history.not_analysed else "")
-    return ('<div class="pair">' + figures + _figure(chart, f"Area of each region per visit ({history.unit})")
-            + "</div>" + _tracks_table(history) + missing)
+    missing = (
+        f'<p class="small">Not analysed yet (run <code>fgcd archive analyze</code>): '
+        f"{html.escape(', '.join(history.not_analysed))}</p>"
+        if history.not_analysed
+        else ""
+    )
+    return (
+        '<div class="pair">'
+        + figures
+        + _figure(chart, f"Area of each region per visit ({history.unit})")
+        + "</div>"
+        + _tracks_table(history)
+        + missing
+    )
 
 
 def _ranking_table(stations: list) -> str:
     rows = []
     for rank, s in enumerate(stations, 1):
         latest = _human_date(s.analysed[-1]) if s.analysed else "not analysed"
-        rows.append(f"<tr><td>{rank}</td><td class=\"l\"><a href=\"#st-{html.escape(s.station)}\">"
-                    f"{html.escape(s.station)}</a></td><td class=\"l\">{html.escape(latest)}</td>"
-                    f"<td>{s.count_new()}</td><td>{_area(s.new_area, s.unit)}</td><td>{s.count_growing()}</td>"
-                    f"<td>{_area(s.grown_area, s.unit)}</td><td>{len(s.tracks)}</td>"
-                    f"<td>{len(s.analysed)}/{len(s.analysed) + len(s.not_analysed)}</td></tr>")
-    return ("<table><tr><th>rank</th><th class=\"l\">station</th><th class=\"l\">latest visit</th>"
-            "<th>new regions</th><th>new area</th><th>growing regions</th><th>area added</th>"
-            "<th>regions tracked</th><th>visits analysed</th></tr>" + "".join(rows) + "</table>")
+        rows.append(
+            f'<tr><td>{rank}</td><td class="l"><a href="#st-{html.escape(s.station)}">'
+            f'{html.escape(s.station)}</a></td><td class="l">{html.escape(latest)}</td>'
+            f"<td>{s.count_new()}</td><td>{_area(s.new_area, s.unit)}</td><td>{s.count_growing()}</td>"
+            f"<td>{_area(s.grown_area, s.unit)}</td><td>{len(s.tracks)}</td>"
+            f"<td>{len(s.analysed)}/{len(s.analysed) + len(s.not_analysed)}</td></tr>"
+        )
+    return (
+        '<table><tr><th>rank</th><th class="l">station</th><th class="l">latest visit</th>'
+        "<th>new regions</th><th>new area</th><th>growing regions</th><th>area added</th>"
+        "<th>regions tracked</th><th>visits analysed</th></tr>" + "".join(rows) + "</table>"
+    )
 
 
 def _station_block(s) -> str:
-    parts = [f'<h2 id="st-{html.escape(s.station)}">Station {html.escape(s.station)}</h2>',
-             f'<div class="sub">new: {s.count_new()} region(s), {_area(s.new_area, s.unit)} · growing: '
-             f"{s.count_growing()} region(s), +{_area(s.grown_area, s.unit)} since the visit before</div>"]
-    overlay = (_figure(s.overlay_png, f"Latest change map ({_human_date(s.analysed[-1])})")
-               if s.overlay_png and s.analysed else "")
+    parts = [
+        f'<h2 id="st-{html.escape(s.station)}">Station {html.escape(s.station)}</h2>',
+        f'<div class="sub">new: {s.count_new()} region(s), {_area(s.new_area, s.unit)} · growing: '
+        f"{s.count_growing()} region(s), +{_area(s.grown_area, s.unit)} since the visit before</div>",
+    ]
+    overlay = (
+        _figure(s.overlay_png, f"Latest change map ({_human_date(s.analysed[-1])})")
+        if s.overlay_png and s.analysed
+        else ""
+    )
     parts.append(tracks_section(s, figures=overlay))
     return "".join(parts)
 
@@ -91,9 +115,11 @@ def render_site_page(*, site: str, stations: list) -> str:
         ``dates``, ``unit``, ``new_area``, ``grown_area``, ``overlay_png``.
     """
     total = sum(len(s.analysed) + len(s.not_analysed) for s in stations)
-    head = [f"<h1>Site {html.escape(site)}: change over time</h1>",
-            f'<div class="sub">{len(stations)} station(s) · {total} visit(s) · ranked by new plus grown area at '
-            "the latest visit (regions followed across visits by overlap in the reference image)</div>"]
+    head = [
+        f"<h1>Site {html.escape(site)}: change over time</h1>",
+        f'<div class="sub">{len(stations)} station(s) · {total} visit(s) · ranked by new plus grown area at '
+        "the latest visit (regions followed across visits by overlap in the reference image)</div>",
+    ]
     if not stations:
         head.append('<div class="verdict cannot">No station in this campaign.</div>')
         return _page(f"Site {site}", "".join(head))

@@ -14,8 +14,9 @@ __all__ = ["track_area_figure", "track_area_png"]
 _COLOURS = ("#c2185b", "#1f5fa8", "#2e7d32", "#ef6c00", "#6a1b9a", "#00838f", "#5d4037", "#9e9d24")
 
 
-def track_area_figure(tracks: list, dates: dict[str, datetime], *, unit: str, max_tracks: int = 8,
-                      size: tuple[float, float] = (6.0, 2.8)):
+def track_area_figure(
+    tracks: list, dates: dict[str, datetime], *, unit: str, max_tracks: int = 8, size: tuple[float, float] = (6.0, 2.8)
+):
     """Area per tracked region against date, one line per region (the largest ``max_tracks``).
 
     Parameters
@@ -33,8 +34,14 @@ def track_area_figure(tracks: list, dates: dict[str, datetime], *, unit: str, ma
         points = [(dates[v], a) for v, a in track.areas.items() if a is not None]
         if points:
             x, y = zip(*points)
-            ax.plot(x, y, "o-", color=_COLOURS[i % len(_COLOURS)], markersize=4,
-                    label=f"region {track.id} ({track.status.value})")
+            ax.plot(
+                x,
+                y,
+                "o-",
+                color=_COLOURS[i % len(_COLOURS)],
+                markersize=4,
+                label=f"region {track.id} ({track.status.value})",
+            )
     if dates:
         first, last = min(dates.values()), max(dates.values())
         pad = max((last - first) * 0.06, timedelta(days=5))  # the first and last points stay inside the frame
@@ -48,8 +55,9 @@ def track_area_figure(tracks: list, dates: dict[str, datetime], *, unit: str, ma
     if shown:
         ax.legend(fontsize=7, loc="upper left")
     else:
-        ax.text(0.5, 0.5, "no change region at any visit", ha="center", va="center", transform=ax.transAxes,
-                color="#666")
+        ax.text(
+            0.5, 0.5, "no change region at any visit", ha="center", va="center", transform=ax.transAxes, color="#666"
+        )
     fig.tight_layout()
     return fig
 

@@ -24,8 +24,16 @@ from fgcd_core.lm import LMSchedule, huber_cost, huber_weights, levenberg_marqua
 from fgcd_core.schur import BlockNormalEquations, Damping, SchurDamping, block_normal_equations, schur_step
 from fgcd_core.se3 import exp_se3, transform_each
 
-__all__ = ["BundleResult", "BundleAdjustConfig", "OutlierRejectionConfig", "bundle_adjust",
-           "bundle_adjust_rejecting_outliers", "outlier_threshold_px", "refine_pose", "projection_residuals"]
+__all__ = [
+    "BundleResult",
+    "BundleAdjustConfig",
+    "OutlierRejectionConfig",
+    "bundle_adjust",
+    "bundle_adjust_rejecting_outliers",
+    "outlier_threshold_px",
+    "refine_pose",
+    "projection_residuals",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,7 +62,12 @@ class BundleResult:
 
 
 def projection_residuals(
-    T_cam_map: np.ndarray, points: np.ndarray, obs_cam: np.ndarray, obs_pt: np.ndarray, obs_uv: np.ndarray, K: np.ndarray
+    T_cam_map: np.ndarray,
+    points: np.ndarray,
+    obs_cam: np.ndarray,
+    obs_pt: np.ndarray,
+    obs_uv: np.ndarray,
+    K: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Residuals ``projected - observed`` (M, 2) in pixels and camera-frame points (M, 3)."""
     Xc = transform_each(T_cam_map[obs_cam], points[obs_pt])
@@ -153,8 +166,7 @@ class _BundleProblem:
         Jc, Jp = _jacobians(s.Xc, s.T[self.obs_cam, :3, :3], self.K)
         Jc[~self.free[self.obs_cam]] = 0.0
         w = huber_weights(np.linalg.norm(s.r, axis=1), self.huber_px)
-        return block_normal_equations(s.r, Jc, Jp, w, self.obs_cam, self.obs_pt, n_cameras=len(s.T),
-                                      n_points=len(s.X))
+        return block_normal_equations(s.r, Jc, Jp, w, self.obs_cam, self.obs_pt, n_cameras=len(s.T), n_points=len(s.X))
 
     def step(self, eq: BlockNormalEquations, lam: float):
         return schur_step(eq, lam, _DAMPING, self.free)
@@ -174,8 +186,9 @@ class _BundleProblem:
 #: parallel rays keeps an invertible block).
 _DAMPING = SchurDamping(rule=Damping.MARQUARDT, camera_floor=1e-9, point_floor=1e-9)
 #: lambda / 5 after a success, x 10 after a failure, converged below a 1e-6 relative decrease
-_SCHEDULE = LMSchedule(initial_damping=1e-3, decrease=5.0, min_damping=1e-7, increase=10.0, max_damping=1e6,
-                       relative_decrease=1e-6)
+_SCHEDULE = LMSchedule(
+    initial_damping=1e-3, decrease=5.0, min_damping=1e-7, increase=10.0, max_damping=1e6, relative_decrease=1e-6
+)
 
 
 def bundle_adjust(
@@ -218,19 +231,26 @@ def bundle_adjust(
     if fixed_cams is None:
         fixed_cams = np.zeros(len(T), dtype=bool)
         fixed_cams[0] = True
-    problem = _BundleProblem(obs_cam=np.asarray(obs_cam, dtype=np.int64), obs_pt=np.asarray(obs_pt, dtype=np.int64),
-                             obs_uv=np.asarray(obs_uv, dtype=float), K=K, free=~np.asarray(fixed_cams, dtype=bool),
-                             huber_px=cfg.huber_px)
+    problem = _BundleProblem(
+        obs_cam=np.asarray(obs_cam, dtype=np.int64),
+        obs_pt=np.asarray(obs_pt, dtype=np.int64),
+        obs_uv=np.asarray(obs_uv, dtype=float),
+        K=K,
+        free=~np.asarray(fixed_cams, dtype=bool),
+        huber_px=cfg.huber_px,
+    )
     out = levenberg_marquardt(problem, problem.state(T, X), replace(_SCHEDULE, max_iterations=cfg.iterations))
     res = np.linalg.norm(out.state.r, axis=1)
     inl = res < 3 * cfg.huber_px
     rms = float(np.sqrt(np.mean(res[inl] ** 2))) if np.any(inl) else float("inf")
-    return BundleResult(T_cam_map=out.state.T, points=out.state.X, residual_px=res, rms_px=rms,
-                        iterations=out.iterations)
+    return BundleResult(
+        T_cam_map=out.state.T, points=out.state.X, residual_px=res, rms_px=rms, iterations=out.iterations
+    )
 
 
-def outlier_threshold_px(residual_px: np.ndarray, *, sigmas: float = 4.0, min_px: float = 0.5,
-                         max_px: float = 6.0) -> float:
+def outlier_threshold_px(
+    residual_px: np.ndarray, *, sigmas: float = 4.0, min_px: float = 0.5, max_px: float = 6.0
+) -> float:
     """Reprojection error above which an observation is an outlier, from the residuals' own scale.
 
     The per-axis noise scale of 2-D residuals is their median norm / 1.1774
@@ -290,15 +310,17 @@ def bundle_adjust_rejecting_outliers(
     bad = np.zeros(len(obs_cam), bool)
     res, new = None, bad
     for _ in range(cfg.max_rounds):
-        res = bundle_adjust(T_cam_map, X_in, obs_cam[~bad], obs_pt[~bad], obs_uv[~bad], K, fixed_cams=fixed_cams,
-                            config=solve)
+        res = bundle_adjust(
+            T_cam_map, X_in, obs_cam[~bad], obs_pt[~bad], obs_uv[~bad], K, fixed_cams=fixed_cams, config=solve
+        )
         seen = np.bincount(obs_pt[~bad], minlength=len(X_in)) > 0
         X = np.where(seen[:, None], res.points, X_in)
         r = np.linalg.norm(projection_residuals(res.T_cam_map, X, obs_cam, obs_pt, obs_uv, K)[0], axis=1)
         res = replace(res, points=X, residual_px=r)
         # judged afresh each round: a first solution pulled by the outliers misjudges some inliers
-        thr = outlier_threshold_px(r[~bad], sigmas=cfg.outlier_sigmas, min_px=cfg.outlier_min_px,
-                                   max_px=cfg.outlier_max_px)
+        thr = outlier_threshold_px(
+            r[~bad], sigmas=cfg.outlier_sigmas, min_px=cfg.outlier_min_px, max_px=cfg.outlier_max_px
+        )
         new = r > thr
         if np.array_equal(new, bad) or (~new).sum() < 10:
             break

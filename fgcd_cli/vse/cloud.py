@@ -72,13 +72,19 @@ class LandmarkCloud:
 
     def cloud(self, eng: EngineView) -> MapCloud:
         if self._cache is None:
-            self._cache = landmark_cloud(eng.kfs, eng.landmarks.points, eng.landmarks.ok[: eng.landmarks.next_id],
-                                         eng.K, kf_min_baseline_ratio=eng.config.kf_min_baseline_ratio)
+            self._cache = landmark_cloud(
+                eng.kfs,
+                eng.landmarks.points,
+                eng.landmarks.ok[: eng.landmarks.next_id],
+                eng.K,
+                kf_min_baseline_ratio=eng.config.kf_min_baseline_ratio,
+            )
         return self._cache
 
 
-def landmark_cloud(kfs: list[KeyframeRecord], points: np.ndarray, ok: np.ndarray, K: np.ndarray, *,
-                   kf_min_baseline_ratio: float) -> MapCloud:
+def landmark_cloud(
+    kfs: list[KeyframeRecord], points: np.ndarray, ok: np.ndarray, K: np.ndarray, *, kf_min_baseline_ratio: float
+) -> MapCloud:
     """Cloud of the landmarks ``points[ok]`` seen in a keyframe.
 
     The depth sigma of a landmark is nominal: 0.5 px of disparity over a
@@ -109,8 +115,13 @@ def landmark_cloud(kfs: list[KeyframeRecord], points: np.ndarray, ok: np.ndarray
             z = transform_points(kf.T_cam_map, points[ids[sel]])[:, 2]
             sig[sel] = np.abs(z) * 0.5 / (K[0, 0] * ratio)
     keep = kf_of >= 0
-    return MapCloud(points=points[ids[keep]].copy(), intensities=inten[keep], keyframe_ids=kf_of[keep],
-                    depth_sigma=sig[keep], pixels=pix[keep])
+    return MapCloud(
+        points=points[ids[keep]].copy(),
+        intensities=inten[keep],
+        keyframe_ids=kf_of[keep],
+        depth_sigma=sig[keep],
+        pixels=pix[keep],
+    )
 
 
 class _FusedKeyframeCloud:
@@ -156,14 +167,23 @@ class _FusedKeyframeCloud:
         rho, rho_sig = sd.inv_depth, sd.inv_depth_sigma
         if partners:
             # the same surface seen from other keyframes: their estimates carry independent reference noise
-            others = [(o.semidense.pixels, o.semidense.inv_depth, o.semidense.inv_depth_sigma,
-                       kf.T_cam_map @ invert_pose(o.T_cam_map)) for o in partners]
+            others = [
+                (
+                    o.semidense.pixels,
+                    o.semidense.inv_depth,
+                    o.semidense.inv_depth_sigma,
+                    kf.T_cam_map @ invert_pose(o.T_cam_map),
+                )
+                for o in partners
+            ]
             rho, rho_sig, _ = fuse_across_keyframes(K, (sd.pixels, rho, rho_sig), others)
         keep = rho_sig / rho < eng.config.semidense_max_rel_sigma
         rho, rho_sig, pix = rho[keep], rho_sig[keep], sd.pixels[keep]
         depth = 1.0 / rho
-        Xc = np.column_stack([(pix[:, 0] - K[0, 2]) / K[0, 0],
-                              (pix[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(pix))]) * depth[:, None]
+        Xc = (
+            np.column_stack([(pix[:, 0] - K[0, 2]) / K[0, 0], (pix[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(pix))])
+            * depth[:, None]
+        )
         X = transform_points(invert_pose(kf.T_cam_map), Xc)
         return X, sd.intensities[keep], np.full(len(X), kf.id, np.int64), rho_sig * depth**2, eng.distort_px(pix)
 
@@ -246,10 +266,17 @@ def semidense_of_keyframe(eng: EngineView, k: int, nbs: list[int]) -> SemiDenseD
     lo, hi = float(np.percentile(rho, 1)) * 0.7, float(np.percentile(rho, 99)) * 1.3
     neighbors = [(eng.kfs[j].undist, eng.kfs[j].T_cam_map @ invert_pose(kf.T_cam_map)) for j in nbs]
     return keyframe_depth(
-        kf.undist, neighbors, eng.K, (lo, hi),
-        config=KeyframeDepthConfig(grad_threshold=cfg.semidense_grad_threshold,
-                                   max_points=cfg.semidense_max_points_per_kf, cell_px=cfg.semidense_cell_px,
-                                   min_views=cfg.semidense_min_views, max_rel_sigma=2.0 * cfg.semidense_max_rel_sigma),
+        kf.undist,
+        neighbors,
+        eng.K,
+        (lo, hi),
+        config=KeyframeDepthConfig(
+            grad_threshold=cfg.semidense_grad_threshold,
+            max_points=cfg.semidense_max_points_per_kf,
+            cell_px=cfg.semidense_cell_px,
+            min_views=cfg.semidense_min_views,
+            max_rel_sigma=2.0 * cfg.semidense_max_rel_sigma,
+        ),
     )
 
 
@@ -262,13 +289,27 @@ class DepthImageCloud(_FusedKeyframeCloud):
         if kf.depth is None:
             return
         cfg = eng.config
-        px = select_pixels(kf.undist, grad_threshold=cfg.semidense_grad_threshold,
-                           max_points=cfg.semidense_max_points_per_kf)
+        px = select_pixels(
+            kf.undist, grad_threshold=cfg.semidense_grad_threshold, max_points=cfg.semidense_max_points_per_kf
+        )
         raw = eng.distort_px(px.astype(float))
-        d = cv2.remap(kf.depth.astype(np.float32), raw[:, 0].astype(np.float32).reshape(-1, 1),
-                      raw[:, 1].astype(np.float32).reshape(-1, 1), cv2.INTER_NEAREST).ravel().astype(float)
+        d = (
+            cv2.remap(
+                kf.depth.astype(np.float32),
+                raw[:, 0].astype(np.float32).reshape(-1, 1),
+                raw[:, 1].astype(np.float32).reshape(-1, 1),
+                cv2.INTER_NEAREST,
+            )
+            .ravel()
+            .astype(float)
+        )
         ok = np.isfinite(d) & (d > 0)
         px, d = px[ok], d[ok]
         sig = cfg.depth_sigma_rel * d
-        kf.semidense = SemiDenseDepth(pixels=px.astype(float), inv_depth=1.0 / d, inv_depth_sigma=sig / d**2,
-                                      n_views=np.ones(len(d), int), intensities=kf.undist[px[:, 1], px[:, 0]].astype(np.float32))
+        kf.semidense = SemiDenseDepth(
+            pixels=px.astype(float),
+            inv_depth=1.0 / d,
+            inv_depth_sigma=sig / d**2,
+            n_views=np.ones(len(d), int),
+            intensities=kf.undist[px[:, 1], px[:, 0]].astype(np.float32),
+        )

@@ -53,8 +53,14 @@ class Triangulation:
         self.initializer.step(eng, img_u8, frame_image)
 
     def on_keyframe(self, eng: EngineView, kf: KeyframeRecord) -> None:
-        triangulate_new(kf, eng.kfs, eng.landmarks, eng.K, min_angle_deg=eng.frontend.min_triangulation_deg,
-                        reproj_inlier_px=eng.config.reproj_inlier_px)
+        triangulate_new(
+            kf,
+            eng.kfs,
+            eng.landmarks,
+            eng.K,
+            min_angle_deg=eng.frontend.min_triangulation_deg,
+            reproj_inlier_px=eng.config.reproj_inlier_px,
+        )
 
     def on_new_tracks(self, eng: EngineView, kf: KeyframeRecord) -> None:
         """New tracks wait for a second keyframe."""

@@ -76,8 +76,15 @@ class VisualSlamEngine:
     parts; callers use :meth:`process`, :meth:`state` and :meth:`reset`.
     """
 
-    def __init__(self, camera: PinholeCamera, *, config: VseConfig = VseConfig(), frontend: TrackingFrontend,
-                 depth_source: DepthSource, cloud: CloudBuilder) -> None:
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        *,
+        config: VseConfig = VseConfig(),
+        frontend: TrackingFrontend,
+        depth_source: DepthSource,
+        cloud: CloudBuilder,
+    ) -> None:
         if not isinstance(camera, PinholeCamera):
             raise TypeError("camera must be a fgcd_core.camera.PinholeCamera")
         self.camera = camera
@@ -182,8 +189,13 @@ class VisualSlamEngine:
         """Raw-image pixels (N, 2) of undistorted pixels (identity without distortion)."""
         if not self.camera.has_distortion or len(uv_undist) == 0:
             return uv_undist
-        rays = np.column_stack([(uv_undist[:, 0] - self.K[0, 2]) / self.K[0, 0],
-                                (uv_undist[:, 1] - self.K[1, 2]) / self.K[1, 1], np.ones(len(uv_undist))])
+        rays = np.column_stack(
+            [
+                (uv_undist[:, 0] - self.K[0, 2]) / self.K[0, 0],
+                (uv_undist[:, 1] - self.K[1, 2]) / self.K[1, 1],
+                np.ones(len(uv_undist)),
+            ]
+        )
         return self.camera.project(rays)[0]
 
     def project(self, T_cam_map: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -198,8 +210,16 @@ class VisualSlamEngine:
         """New tracks (at most ``max_new``) away from the existing ones."""
         self.frontend.detect(self.tracks, img_u8, max_new, self.landmarks.new_ids)
 
-    def add_keyframe(self, img_u8: np.ndarray, frame_image: np.ndarray, T_cam_map: np.ndarray, ids: np.ndarray,
-                     uv_raw: np.ndarray, timestamp_s: float, depth: np.ndarray | None) -> KeyframeRecord:
+    def add_keyframe(
+        self,
+        img_u8: np.ndarray,
+        frame_image: np.ndarray,
+        T_cam_map: np.ndarray,
+        ids: np.ndarray,
+        uv_raw: np.ndarray,
+        timestamp_s: float,
+        depth: np.ndarray | None,
+    ) -> KeyframeRecord:
         """Append a keyframe observing tracks ``ids`` (n,) at raw pixels ``uv_raw`` (n, 2)."""
         img_f = to_gray_f32(frame_image)
         kf = KeyframeRecord(
@@ -237,8 +257,9 @@ class VisualSlamEngine:
 
     def insert_keyframe(self, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         """The current frame becomes a keyframe: new landmarks, bundle adjustment, new corners."""
-        kf = self.add_keyframe(img_u8, frame_image, self.T_cam_map, self.tracks.ids, self.tracks.pts, self.timestamp,
-                               self.depth)
+        kf = self.add_keyframe(
+            img_u8, frame_image, self.T_cam_map, self.tracks.ids, self.tracks.pts, self.timestamp, self.depth
+        )
         self.depth_source.on_keyframe(self, kf)
         self.run_ba()
         self.T_cam_map = self.kfs[-1].T_cam_map.copy()
@@ -266,8 +287,9 @@ class VisualSlamEngine:
             return None
         # the pose from the observations within the measured noise level only (docs/vse.md,
         # "Design and why", item 3); the tracks beyond it are kept, the bundle adjustment judges them
-        fit = res < outlier_threshold_px(res[good], sigmas=cfg.outlier_sigmas, min_px=cfg.outlier_min_px,
-                                         max_px=3.0 * cfg.reproj_inlier_px)
+        fit = res < outlier_threshold_px(
+            res[good], sigmas=cfg.outlier_sigmas, min_px=cfg.outlier_min_px, max_px=3.0 * cfg.reproj_inlier_px
+        )
         if self.frontend.noise_level_outliers and fit.sum() >= cfg.min_tracked_landmarks and not fit.all():
             T, _ = refine_pose(T, X[fit], uv[fit], self.K, iterations=5, huber_px=cfg.reproj_inlier_px * 0.5)
             r, _ = projection_residuals(T[None], X, np.zeros(len(X), np.int64), np.arange(len(X)), uv, self.K)
@@ -284,8 +306,17 @@ class VisualSlamEngine:
         rvec, _ = cv2.Rodrigues(T_pred[:3, :3])
         tvec = T_pred[:3, 3].reshape(3, 1).copy()
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
-            X, uv, self.K, None, rvec=rvec.copy(), tvec=tvec, useExtrinsicGuess=True, iterationsCount=100,
-            reprojectionError=cfg.reproj_inlier_px * 2, confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE,
+            X,
+            uv,
+            self.K,
+            None,
+            rvec=rvec.copy(),
+            tvec=tvec,
+            useExtrinsicGuess=True,
+            iterationsCount=100,
+            reprojectionError=cfg.reproj_inlier_px * 2,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_ITERATIVE,
         )
         if not ok or inl is None or len(inl) < cfg.min_tracked_landmarks:
             return None
@@ -297,8 +328,9 @@ class VisualSlamEngine:
     def _track(self, img_u8: np.ndarray, frame_image: np.ndarray) -> None:
         T_pred = self.velocity @ self.T_cam_map
         lm_ids = self.tracks.ids
-        guess = self.frontend.motion_guess(self.tracks, self.landmarks.ok[lm_ids],
-                                           lambda has: self.project(T_pred, self.landmarks.points[lm_ids[has]]))
+        guess = self.frontend.motion_guess(
+            self.tracks, self.landmarks.ok[lm_ids], lambda has: self.project(T_pred, self.landmarks.points[lm_ids[has]])
+        )
         self.follow(img_u8, guess)
         T = self.locate(T_pred)
         if T is None:
@@ -325,8 +357,11 @@ class VisualSlamEngine:
         rot = math.degrees(rotation_angle_rad(T[:3, :3] @ last.T_cam_map[:3, :3].T))
         last_lms = last.landmark_ids(self.landmarks)
         still = np.isin(last_lms, self.tracks.ids).sum() / max(len(last_lms), 1)
-        return bool(baseline_ratio > cfg.kf_min_baseline_ratio or rot > cfg.kf_max_rotation_deg
-                    or still < cfg.kf_min_tracked_fraction)
+        return bool(
+            baseline_ratio > cfg.kf_min_baseline_ratio
+            or rot > cfg.kf_max_rotation_deg
+            or still < cfg.kf_min_tracked_fraction
+        )
 
     # ------------------------------------------------------------------ snapshot
     def _snapshot(self) -> VseState:
@@ -336,8 +371,11 @@ class VisualSlamEngine:
                 img = kf.image.copy()
                 img.setflags(write=False)
                 kf.published_image = img
-            kfs.append(Keyframe(id=kf.id, T_map_cam=invert_pose(kf.T_cam_map), image=kf.published_image,
-                                timestamp_s=kf.timestamp_s))
+            kfs.append(
+                Keyframe(
+                    id=kf.id, T_map_cam=invert_pose(kf.T_cam_map), image=kf.published_image, timestamp_s=kf.timestamp_s
+                )
+            )
         return VseState(
             status=self.status,
             message=self.message,
@@ -368,16 +406,18 @@ class MonocularVSE(VisualSlamEngine):
     """
 
     def __init__(self, camera: PinholeCamera, *, config: VseConfig = VseConfig()) -> None:
-        super().__init__(camera, config=config, frontend=KltTracking(config), depth_source=Triangulation(),
-                         cloud=SemiDenseCloud())
+        super().__init__(
+            camera, config=config, frontend=KltTracking(config), depth_source=Triangulation(), cloud=SemiDenseCloud()
+        )
 
 
 class SparseVSE(VisualSlamEngine):
     """Feature-based variant (ORB matching, landmark cloud), for the paper's rACR-ORB comparison."""
 
     def __init__(self, camera: PinholeCamera, *, config: VseConfig = VseConfig()) -> None:
-        super().__init__(camera, config=config, frontend=OrbTracking(config), depth_source=Triangulation(),
-                         cloud=LandmarkCloud())
+        super().__init__(
+            camera, config=config, frontend=OrbTracking(config), depth_source=Triangulation(), cloud=LandmarkCloud()
+        )
 
 
 class RgbdVSE(VisualSlamEngine):
@@ -389,8 +429,9 @@ class RgbdVSE(VisualSlamEngine):
     """
 
     def __init__(self, camera: PinholeCamera, *, config: VseConfig = VseConfig()) -> None:
-        super().__init__(camera, config=config, frontend=KltTracking(config), depth_source=DepthImage(),
-                         cloud=DepthImageCloud())
+        super().__init__(
+            camera, config=config, frontend=KltTracking(config), depth_source=DepthImage(), cloud=DepthImageCloud()
+        )
 
 
 class VseVariant(StrEnum):
@@ -402,10 +443,14 @@ class VseVariant(StrEnum):
 
 
 _VARIANTS: dict[VseVariant, type[VisualSlamEngine]] = {
-    VseVariant.MONO: MonocularVSE, VseVariant.SPARSE: SparseVSE, VseVariant.RGBD: RgbdVSE,
+    VseVariant.MONO: MonocularVSE,
+    VseVariant.SPARSE: SparseVSE,
+    VseVariant.RGBD: RgbdVSE,
 }
 
 
-def make_engine(variant: VseVariant | str, camera: PinholeCamera, *, config: VseConfig = VseConfig()) -> VisualSlamEngine:
+def make_engine(
+    variant: VseVariant | str, camera: PinholeCamera, *, config: VseConfig = VseConfig()
+) -> VisualSlamEngine:
     """The engine of a variant (``ValueError`` for an unknown name)."""
     return _VARIANTS[VseVariant(variant)](camera, config=config)

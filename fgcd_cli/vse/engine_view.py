@@ -77,8 +77,16 @@ class EngineView(Protocol):
 
     def detect(self, img_u8: np.ndarray, max_new: int) -> None: ...
 
-    def add_keyframe(self, img_u8: np.ndarray, frame_image: np.ndarray, T_cam_map: np.ndarray, ids: np.ndarray,
-                     uv_raw: np.ndarray, timestamp_s: float, depth: np.ndarray | None) -> KeyframeRecord: ...
+    def add_keyframe(
+        self,
+        img_u8: np.ndarray,
+        frame_image: np.ndarray,
+        T_cam_map: np.ndarray,
+        ids: np.ndarray,
+        uv_raw: np.ndarray,
+        timestamp_s: float,
+        depth: np.ndarray | None,
+    ) -> KeyframeRecord: ...
 
     def run_ba(self) -> None: ...
 

@@ -40,7 +40,6 @@ def image_gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear samples of ``img`` at float coordinates of any shape (NaN outside)."""
     shape = x.shape
@@ -51,8 +50,14 @@ def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     my = np.full(rows * cols, -10.0, np.float32)
     mx[:n] = x.ravel()
     my[:n] = y.ravel()
-    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    out = cv2.remap(
+        img,
+        mx.reshape(rows, cols),
+        my.reshape(rows, cols),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=np.nan,
+    )
     return out.ravel()[:n].reshape(shape)
 
 
@@ -125,8 +130,15 @@ def _mean_free(v: np.ndarray) -> np.ndarray:
     return v - v.mean(axis=-1, keepdims=True)
 
 
-def _discrete_search(nb_img: np.ndarray, lines: _EpipolarLines, ref_v: np.ndarray, lo: float, hi: float,
-                     M: int, cfg: EpipolarSearchConfig) -> tuple[np.ndarray, np.ndarray, float]:
+def _discrete_search(
+    nb_img: np.ndarray,
+    lines: _EpipolarLines,
+    ref_v: np.ndarray,
+    lo: float,
+    hi: float,
+    M: int,
+    cfg: EpipolarSearchConfig,
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Best of ``M`` inverse-depth samples in ``[lo, hi]`` by mean-free SSD: ``(rho (m,), ok (m,), step)``."""
     m = len(ref_v)
     rhos = np.linspace(lo, hi, M)
@@ -150,8 +162,9 @@ def _discrete_search(nb_img: np.ndarray, lines: _EpipolarLines, ref_v: np.ndarra
     return lo + best * step, ok, step
 
 
-def _refine_along_line(nb: GradientImage, lines: _EpipolarLines, ref_v: np.ndarray, rho: np.ndarray,
-                       step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _refine_along_line(
+    nb: GradientImage, lines: _EpipolarLines, ref_v: np.ndarray, rho: np.ndarray, step: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gauss-Newton on the same cost along the line (3 iterations, steps within one sample).
 
     Returns the inverse depths (m,), the line direction ``dq`` (m, 2) in pixels
@@ -174,8 +187,9 @@ def _refine_along_line(nb: GradientImage, lines: _EpipolarLines, ref_v: np.ndarr
     return rho, dq, H
 
 
-def _inverse_depth_sigma(ref_g: tuple[np.ndarray, np.ndarray], dq: np.ndarray, H: np.ndarray,
-                         cfg: EpipolarSearchConfig) -> np.ndarray:
+def _inverse_depth_sigma(
+    ref_g: tuple[np.ndarray, np.ndarray], dq: np.ndarray, H: np.ndarray, cfg: EpipolarSearchConfig
+) -> np.ndarray:
     """One-sigma inverse depth (m,): photometric (noise through the gradient along the line) and
     geometric (line position error through the gradient across it) error, Engel et al. 2013,
     plus a 0.05 px floor; ``ref_g`` are the reference gradients (m,) at the pixels."""
@@ -191,8 +205,15 @@ def _inverse_depth_sigma(ref_g: tuple[np.ndarray, np.ndarray], dq: np.ndarray, H
     return sig_px / np.maximum(dq_norm, 1e-12)
 
 
-def _search_chunk(ref: GradientImage, nb: GradientImage, T_nb_ref: np.ndarray, K: np.ndarray, pix: np.ndarray,
-                  inv_depth_range: tuple[float, float], cfg: EpipolarSearchConfig):
+def _search_chunk(
+    ref: GradientImage,
+    nb: GradientImage,
+    T_nb_ref: np.ndarray,
+    K: np.ndarray,
+    pix: np.ndarray,
+    inv_depth_range: tuple[float, float],
+    cfg: EpipolarSearchConfig,
+):
     """:func:`epipolar_search` for pixels ``pix`` (m, 2) float: ``(rho, sigma, ok)`` or None when no line is finite."""
     lo, hi = float(inv_depth_range[0]), float(inv_depth_range[1])
     h, w = nb.image.shape

@@ -59,8 +59,15 @@ class KltFrontend:
 
     name = "klt"
 
-    def __init__(self, *, window_px: int = 21, levels: int = 3, fb_max_px: float = 0.5, min_distance_px: float = 12.0,
-                 min_corner_response: float = 1e-3):
+    def __init__(
+        self,
+        *,
+        window_px: int = 21,
+        levels: int = 3,
+        fb_max_px: float = 0.5,
+        min_distance_px: float = 12.0,
+        min_corner_response: float = 1e-3,
+    ):
         self.window = (int(window_px), int(window_px))
         self.levels = int(levels)
         self.fb_max_px = float(fb_max_px)
@@ -92,7 +99,13 @@ class KltFrontend:
             prev_u8, cur_u8, p0, p1, winSize=self.window, maxLevel=self.levels, criteria=self._criteria, flags=flags
         )
         p0b, st2, _ = cv2.calcOpticalFlowPyrLK(
-            cur_u8, prev_u8, p1, p0.copy(), winSize=self.window, maxLevel=self.levels, criteria=self._criteria,
+            cur_u8,
+            prev_u8,
+            p1,
+            p0.copy(),
+            winSize=self.window,
+            maxLevel=self.levels,
+            criteria=self._criteria,
             flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
         )
         p1 = p1.reshape(-1, 2).astype(float)
@@ -115,8 +128,12 @@ class KltFrontend:
         # image's strongest corner, so one dark pit or glint under a torch (100x the texture's response)
         # would hide every other corner; expressed relative to that maximum it is min_corner_response.
         corners = cv2.goodFeaturesToTrack(
-            img_u8, maxCorners=int(max_new), qualityLevel=min(1.0, self.min_corner_response / strongest),
-            minDistance=self.min_distance_px, mask=mask, blockSize=7
+            img_u8,
+            maxCorners=int(max_new),
+            qualityLevel=min(1.0, self.min_corner_response / strongest),
+            minDistance=self.min_distance_px,
+            mask=mask,
+            blockSize=7,
         )
         if corners is None:
             return np.zeros((0, 2))
@@ -125,7 +142,11 @@ class KltFrontend:
         if len(corners) == 0:
             return np.zeros((0, 2))
         corners = cv2.cornerSubPix(
-            img_u8, corners.astype(np.float32), (4, 4), (-1, -1), (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+            img_u8,
+            corners.astype(np.float32),
+            (4, 4),
+            (-1, -1),
+            (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01),
         )
         return corners.reshape(-1, 2).astype(float)
 
@@ -140,8 +161,16 @@ class OrbFrontend:
 
     name = "orb"
 
-    def __init__(self, *, n_features: int = 2000, search_radius_px: float = 20.0, max_hamming: int = 50, ratio: float = 0.8,
-                 min_distance_px: float = 8.0, min_corner_response: float = 1e-3):
+    def __init__(
+        self,
+        *,
+        n_features: int = 2000,
+        search_radius_px: float = 20.0,
+        max_hamming: int = 50,
+        ratio: float = 0.8,
+        min_distance_px: float = 8.0,
+        min_corner_response: float = 1e-3,
+    ):
         self.orb = cv2.ORB_create(nfeatures=int(n_features), scaleFactor=1.2, nlevels=4, fastThreshold=10)
         self.min_corner_response = float(min_corner_response)
         self.search_radius_px = float(search_radius_px)

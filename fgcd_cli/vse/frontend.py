@@ -90,8 +90,9 @@ class TrackingFrontend(Protocol):
     def detect(self, tracks: Tracks, img_u8: np.ndarray, max_new: int, new_ids: Callable[[int], np.ndarray]) -> None:
         """Add up to ``max_new`` tracks away from the existing ones (``new_ids(k)`` gives fresh ids)."""
 
-    def motion_guess(self, tracks: Tracks, has_landmark: np.ndarray,
-                     projected: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]) -> np.ndarray | None:
+    def motion_guess(
+        self, tracks: Tracks, has_landmark: np.ndarray, projected: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+    ) -> np.ndarray | None:
         """Predicted pixels (N, 2) of the tracks, or None to start from their previous positions."""
 
     def describe(self, tracks: Tracks, img_u8: np.ndarray, orb: cv2.ORB) -> None:
@@ -106,9 +107,13 @@ class KltTracking:
     noise_level_outliers = True
 
     def __init__(self, config: VseConfig) -> None:
-        self.klt = KltFrontend(window_px=config.klt_window_px, levels=config.klt_levels,
-                               fb_max_px=config.klt_fb_max_px, min_distance_px=config.min_feature_distance_px,
-                               min_corner_response=config.min_corner_response)
+        self.klt = KltFrontend(
+            window_px=config.klt_window_px,
+            levels=config.klt_levels,
+            fb_max_px=config.klt_fb_max_px,
+            min_distance_px=config.min_feature_distance_px,
+            min_corner_response=config.min_corner_response,
+        )
 
     def follow(self, tracks: Tracks, prev_u8: np.ndarray, img_u8: np.ndarray, guess: np.ndarray | None) -> None:
         if len(tracks) == 0:
@@ -144,9 +149,11 @@ class OrbTracking:
     noise_level_outliers = False
 
     def __init__(self, config: VseConfig) -> None:
-        self.orb = OrbFrontend(n_features=max(2 * config.max_features, 1000),
-                               min_distance_px=config.min_feature_distance_px * 0.6,
-                               min_corner_response=config.min_corner_response)
+        self.orb = OrbFrontend(
+            n_features=max(2 * config.max_features, 1000),
+            min_distance_px=config.min_feature_distance_px * 0.6,
+            min_corner_response=config.min_corner_response,
+        )
         self.klt = KltFrontend()
 
     def follow(self, tracks: Tracks, prev_u8: np.ndarray, img_u8: np.ndarray, guess: np.ndarray | None) -> None:
@@ -165,8 +172,9 @@ class OrbTracking:
                 tracks.desc = np.zeros((len(tracks), DESCRIPTOR_BYTES), np.uint8)
             tracks.add(new_ids(len(pts)), pts, desc)
 
-    def motion_guess(self, tracks: Tracks, has_landmark: np.ndarray,
-                     projected: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]) -> np.ndarray | None:
+    def motion_guess(
+        self, tracks: Tracks, has_landmark: np.ndarray, projected: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+    ) -> np.ndarray | None:
         """Tracks with a landmark start the search at its projection at the predicted pose.
 
         ``projected(mask)`` returns the raw pixels and in-view flags of the

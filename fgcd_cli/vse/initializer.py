@@ -102,9 +102,14 @@ class TwoViewInitializer(_TextureGate):
         if not self.reference_tracks(eng, img_u8):
             self.reference = None
             return
-        self.reference = _Reference(ids=eng.tracks.ids.copy(), uv=eng.undistort_pts(eng.tracks.pts),
-                                    uv_raw=eng.tracks.pts.copy(), image=frame_image, u8=img_u8,
-                                    timestamp_s=eng.timestamp)
+        self.reference = _Reference(
+            ids=eng.tracks.ids.copy(),
+            uv=eng.undistort_pts(eng.tracks.pts),
+            uv_raw=eng.tracks.pts.copy(),
+            image=frame_image,
+            u8=img_u8,
+            timestamp_s=eng.timestamp,
+        )
         eng.message = "initialising: reference frame set, waiting for parallax"
 
     @staticmethod
@@ -126,8 +131,9 @@ class TwoViewInitializer(_TextureGate):
         # short exploration baseline (1.5 cm at 1.2 m is 80 baselines); keep all but infinity
         _, R, t, mask2, _ = cv2.recoverPose(E, p0, p1, K, distanceThresh=1e6, mask=mask.copy())
         inl = mask2.ravel() > 0
-        R, t, inl = planar_two_view(K, p0, p1, R, t, inl, planar_ratio=cfg.init_planar_ratio,
-                                    reproj_inlier_px=cfg.reproj_inlier_px)
+        R, t, inl = planar_two_view(
+            K, p0, p1, R, t, inl, planar_ratio=cfg.init_planar_ratio, reproj_inlier_px=cfg.reproj_inlier_px
+        )
         if inl.sum() < cfg.init_min_inliers:
             eng.message = f"initialising: {int(inl.sum())} inliers, need {cfg.init_min_inliers}"
             return None
@@ -143,8 +149,16 @@ class TwoViewInitializer(_TextureGate):
         T10[:3, 3] /= float(np.median(X[good][:, 2]))
         return T10, inl
 
-    def _make_map(self, eng: EngineView, img_u8: np.ndarray, frame_image: np.ndarray, T10: np.ndarray,
-                  ids: np.ndarray, uv0: np.ndarray, uv1: np.ndarray) -> None:
+    def _make_map(
+        self,
+        eng: EngineView,
+        img_u8: np.ndarray,
+        frame_image: np.ndarray,
+        T10: np.ndarray,
+        ids: np.ndarray,
+        uv0: np.ndarray,
+        uv1: np.ndarray,
+    ) -> None:
         """Keyframes 0 (the reference) and 1 (this frame), the landmarks of the inlier tracks ``ids`` (N,)
         at ``uv0``/``uv1`` (N, 2)."""
         ref = self.reference

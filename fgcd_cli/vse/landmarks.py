@@ -135,8 +135,15 @@ def _first_observations(cand: np.ndarray, keyframes: list[KeyframeRecord]) -> tu
     return first_kf, first_uv
 
 
-def triangulate_new(kf: KeyframeRecord, keyframes: list[KeyframeRecord], landmarks: LandmarkMap, K: np.ndarray, *,
-                    min_angle_deg: float, reproj_inlier_px: float) -> None:
+def triangulate_new(
+    kf: KeyframeRecord,
+    keyframes: list[KeyframeRecord],
+    landmarks: LandmarkMap,
+    K: np.ndarray,
+    *,
+    min_angle_deg: float,
+    reproj_inlier_px: float,
+) -> None:
     """Landmarks for the tracks of ``kf`` that have none, from their first keyframe and ``kf``.
 
     Parameters
@@ -162,15 +169,17 @@ def triangulate_new(kf: KeyframeRecord, keyframes: list[KeyframeRecord], landmar
     for k in np.unique(first_kf[first_kf >= 0]):
         sel = first_kf == k
         T0 = keyframes[k].T_cam_map
-        X, good, _ = triangulate_pair(K, T0, kf.T_cam_map, first_uv[sel], uv_now[sel],
-                                      reproj_inlier_px=reproj_inlier_px)
+        X, good, _ = triangulate_pair(
+            K, T0, kf.T_cam_map, first_uv[sel], uv_now[sel], reproj_inlier_px=reproj_inlier_px
+        )
         angles = ray_angles_rad(X, invert_pose(T0)[:3, 3], invert_pose(kf.T_cam_map)[:3, 3])
         good &= np.degrees(angles) > min_angle_deg
         landmarks.set(cand[sel][good], X[good])
 
 
-def lift_with_depth(camera: PinholeCamera, landmarks: LandmarkMap, kf: KeyframeRecord, ids: np.ndarray,
-                    pts_raw: np.ndarray) -> None:
+def lift_with_depth(
+    camera: PinholeCamera, landmarks: LandmarkMap, kf: KeyframeRecord, ids: np.ndarray, pts_raw: np.ndarray
+) -> None:
     """Landmarks from the keyframe's depth image for the tracks ``ids`` (K,) at raw pixels ``pts_raw`` (K, 2)
     that have none (RGB-D)."""
     if kf.depth is None or len(ids) == 0:
@@ -179,8 +188,12 @@ def lift_with_depth(camera: PinholeCamera, landmarks: LandmarkMap, kf: KeyframeR
     if not np.any(need):
         return
     pts = pts_raw[need]
-    d = cv2.remap(kf.depth.astype(np.float32), pts[:, 0].astype(np.float32).reshape(-1, 1),
-                  pts[:, 1].astype(np.float32).reshape(-1, 1), cv2.INTER_NEAREST).ravel()
+    d = cv2.remap(
+        kf.depth.astype(np.float32),
+        pts[:, 0].astype(np.float32).reshape(-1, 1),
+        pts[:, 1].astype(np.float32).reshape(-1, 1),
+        cv2.INTER_NEAREST,
+    ).ravel()
     # reject depth discontinuities: the 3x3 neighbourhood must agree within 1 %
     dil = cv2.dilate(kf.depth.astype(np.float32), np.ones((3, 3), np.uint8))
     ero = cv2.erode(kf.depth.astype(np.float32), np.ones((3, 3), np.uint8))

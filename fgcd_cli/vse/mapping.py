@@ -48,9 +48,12 @@ def _rejection_config(eng: EngineView) -> OutlierRejectionConfig:
     cfg = eng.config
     noise_level = eng.frontend.noise_level_outliers
     return OutlierRejectionConfig(
-        iterations=cfg.ba_iterations, huber_px=1.0, outlier_sigmas=cfg.outlier_sigmas,
+        iterations=cfg.ba_iterations,
+        huber_px=1.0,
+        outlier_sigmas=cfg.outlier_sigmas,
         outlier_min_px=cfg.outlier_min_px if noise_level else 3.0 * cfg.reproj_inlier_px,
-        outlier_max_px=3.0 * cfg.reproj_inlier_px, max_rounds=4 if noise_level else 1,
+        outlier_max_px=3.0 * cfg.reproj_inlier_px,
+        max_rounds=4 if noise_level else 1,
     )
 
 
@@ -68,8 +71,14 @@ def windowed_bundle_adjustment(eng: EngineView) -> None:
     fixed = np.zeros(C, bool)
     fixed[: 2 if C >= 3 else 1] = True
     res, bad = bundle_adjust_rejecting_outliers(
-        np.stack([kf.T_cam_map for kf in window]), eng.landmarks.points[uniq], obs_cam, obs_pt, obs_uv, eng.K,
-        fixed_cams=fixed, config=_rejection_config(eng),
+        np.stack([kf.T_cam_map for kf in window]),
+        eng.landmarks.points[uniq],
+        obs_cam,
+        obs_pt,
+        obs_uv,
+        eng.K,
+        fixed_cams=fixed,
+        config=_rejection_config(eng),
     )
     for c, kf in enumerate(window):
         kf.T_cam_map = res.T_cam_map[c]
@@ -78,8 +87,15 @@ def windowed_bundle_adjustment(eng: EngineView) -> None:
         _drop_outliers(eng, window, obs_cam[bad], obs_id[bad], uniq, obs_pt, bad)
 
 
-def _drop_outliers(eng: EngineView, window: list[KeyframeRecord], bad_cam: np.ndarray, bad_id: np.ndarray,
-                   uniq: np.ndarray, obs_pt: np.ndarray, bad: np.ndarray) -> None:
+def _drop_outliers(
+    eng: EngineView,
+    window: list[KeyframeRecord],
+    bad_cam: np.ndarray,
+    bad_id: np.ndarray,
+    uniq: np.ndarray,
+    obs_pt: np.ndarray,
+    bad: np.ndarray,
+) -> None:
     """Remove rejected observations from their keyframes; drop landmarks rejected in half their observations."""
     bad_ids = set(zip(bad_cam.tolist(), bad_id.tolist()))
     for c, kf in enumerate(window):

@@ -55,8 +55,9 @@ class Relocalizer:
         eng.lost_frames += 1
         c_last = invert_pose(eng.T_cam_map)[:3, 3]
         kfs = eng.kfs
-        order = sorted(range(len(kfs)),
-                       key=lambda k: np.linalg.norm(invert_pose(kfs[k].T_cam_map)[:3, 3] - c_last))[:MAX_KEYFRAMES_TRIED]
+        order = sorted(range(len(kfs)), key=lambda k: np.linalg.norm(invert_pose(kfs[k].T_cam_map)[:3, 3] - c_last))[
+            :MAX_KEYFRAMES_TRIED
+        ]
         cur_orb = None
         for k in order:
             kf = kfs[k]
@@ -81,8 +82,9 @@ class Relocalizer:
             return
         eng.message = f"lost for {eng.lost_frames} frames: no keyframe matches the view"
 
-    def _locate_from_keyframe(self, eng: EngineView, kf: KeyframeRecord, img_u8: np.ndarray,
-                              T_guess: np.ndarray) -> np.ndarray | None:
+    def _locate_from_keyframe(
+        self, eng: EngineView, kf: KeyframeRecord, img_u8: np.ndarray, T_guess: np.ndarray
+    ) -> np.ndarray | None:
         """Pose from KLT tracks keyframe -> frame started at the projections at ``T_guess``."""
         cfg = eng.config
         ok_lm = eng.landmarks.ok[kf.track_ids]
@@ -106,8 +108,7 @@ class Relocalizer:
         return T
 
     @staticmethod
-    def _orb_pose(eng: EngineView, kf: KeyframeRecord, kp_xy: np.ndarray,
-                  desc: np.ndarray | None) -> np.ndarray | None:
+    def _orb_pose(eng: EngineView, kf: KeyframeRecord, kp_xy: np.ndarray, desc: np.ndarray | None) -> np.ndarray | None:
         """Coarse pose from ORB matches between a keyframe's landmarks and the frame (keypoints ``kp_xy`` (K, 2))."""
         cfg = eng.config
         if desc is None or kf.orb_desc is None or len(kf.orb_desc) < cfg.min_tracked_landmarks:
@@ -119,8 +120,9 @@ class Relocalizer:
         lm_ids = kf.orb_ids[[m.queryIdx for m in good]]
         X = eng.landmarks.points[lm_ids]
         uv = eng.undistort_pts(kp_xy[[m.trainIdx for m in good]])
-        succ, rvec, tvec, inl = cv2.solvePnPRansac(X, uv, eng.K, None, iterationsCount=300,
-                                                  reprojectionError=8.0, confidence=0.999)
+        succ, rvec, tvec, inl = cv2.solvePnPRansac(
+            X, uv, eng.K, None, iterationsCount=300, reprojectionError=8.0, confidence=0.999
+        )
         if not succ or inl is None or len(inl) < cfg.min_tracked_landmarks // 2:
             return None
         return make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel())

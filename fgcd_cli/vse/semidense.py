@@ -23,8 +23,18 @@ import numpy as np
 from fgcd_cli.vse.epipolar import PATTERN, EpipolarSearchConfig, GradientImage, epipolar_search, image_gradients  # noqa: F401
 from fgcd_core.camera import pinhole_pixels
 
-__all__ = ["SemiDenseDepth", "EpipolarSearchConfig", "KeyframeDepthConfig", "GradientImage", "select_pixels",
-           "image_gradients", "epipolar_search", "fuse_estimates", "keyframe_depth", "fuse_across_keyframes"]
+__all__ = [
+    "SemiDenseDepth",
+    "EpipolarSearchConfig",
+    "KeyframeDepthConfig",
+    "GradientImage",
+    "select_pixels",
+    "image_gradients",
+    "epipolar_search",
+    "fuse_estimates",
+    "keyframe_depth",
+    "fuse_across_keyframes",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -62,8 +72,9 @@ class SemiDenseDepth:
         return self.inv_depth_sigma / self.inv_depth**2
 
 
-def select_pixels(image: np.ndarray, *, grad_threshold: float, max_points: int, cell_px: int = 4,
-                  border_px: int = 6) -> np.ndarray:
+def select_pixels(
+    image: np.ndarray, *, grad_threshold: float, max_points: int, cell_px: int = 4, border_px: int = 6
+) -> np.ndarray:
     """High-gradient pixels, at most one per ``cell_px`` square, strongest first.
 
     Parameters
@@ -95,7 +106,12 @@ def select_pixels(image: np.ndarray, *, grad_threshold: float, max_points: int, 
     score[:, :border_px] = 0
     score[:, -border_px:] = 0
     ch, cw = h // cell_px, w // cell_px
-    cells = score[: ch * cell_px, : cw * cell_px].reshape(ch, cell_px, cw, cell_px).transpose(0, 2, 1, 3).reshape(ch, cw, -1)
+    cells = (
+        score[: ch * cell_px, : cw * cell_px]
+        .reshape(ch, cell_px, cw, cell_px)
+        .transpose(0, 2, 1, 3)
+        .reshape(ch, cw, -1)
+    )
     arg = np.argmax(cells, axis=2)
     best = np.take_along_axis(cells, arg[..., None], axis=2)[..., 0]
     cy, cx = np.nonzero(best > 0)
@@ -106,7 +122,9 @@ def select_pixels(image: np.ndarray, *, grad_threshold: float, max_points: int, 
     return np.column_stack([u[order], v[order]]).astype(int)
 
 
-def fuse_estimates(rho: np.ndarray, sigma: np.ndarray, *, gate: float = 2.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fuse_estimates(
+    rho: np.ndarray, sigma: np.ndarray, *, gate: float = 2.5
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Outlier-rejecting inverse-variance fusion of per-neighbour estimates.
 
     Parameters
@@ -133,7 +151,9 @@ def fuse_estimates(rho: np.ndarray, sigma: np.ndarray, *, gate: float = 2.5) -> 
     k = np.argmax(cw >= 0.5 * np.maximum(tot, 1e-300), axis=1)
     anchor = rs[np.arange(len(rs)), k]
     s_anchor = np.take_along_axis(np.where(valid, sigma, np.inf), order, axis=1)[np.arange(len(rs)), k]
-    keep = valid & (np.abs(r0 - anchor[:, None]) <= gate * np.sqrt(np.where(valid, sigma, 0.0) ** 2 + s_anchor[:, None] ** 2))
+    keep = valid & (
+        np.abs(r0 - anchor[:, None]) <= gate * np.sqrt(np.where(valid, sigma, 0.0) ** 2 + s_anchor[:, None] ** 2)
+    )
     wk = np.where(keep, wts, 0.0)
     W = wk.sum(axis=1)
     n_views = keep.sum(axis=1)
@@ -201,8 +221,13 @@ def keyframe_depth(
     cfg = config if config is not None else KeyframeDepthConfig()
     pixels = select_pixels(ref_img, grad_threshold=cfg.grad_threshold, max_points=cfg.max_points, cell_px=cfg.cell_px)
     if len(pixels) == 0 or not neighbors:
-        return SemiDenseDepth(pixels=np.zeros((0, 2)), inv_depth=np.zeros(0), inv_depth_sigma=np.zeros(0),
-                              n_views=np.zeros(0, int), intensities=np.zeros(0, np.float32))
+        return SemiDenseDepth(
+            pixels=np.zeros((0, 2)),
+            inv_depth=np.zeros(0),
+            inv_depth_sigma=np.zeros(0),
+            n_views=np.zeros(0, int),
+            intensities=np.zeros(0, np.float32),
+        )
     ref = GradientImage.of(ref_img)
     search = EpipolarSearchConfig(noise_sigma=cfg.noise_sigma)
     rhos, sigs = [], []

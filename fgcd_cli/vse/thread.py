@@ -195,8 +195,9 @@ class SteppedVse:
 
     stepped = True
 
-    def __init__(self, engine, source: FrameSource, *, frame_period_s: float = 1.0 / 30.0,
-                 max_consecutive_errors: int = 20):
+    def __init__(
+        self, engine, source: FrameSource, *, frame_period_s: float = 1.0 / 30.0, max_consecutive_errors: int = 20
+    ):
         self.engine = engine
         self.source = source
         self.frame_period_s = float(frame_period_s)

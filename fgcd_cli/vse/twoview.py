@@ -23,8 +23,9 @@ def ray_angles_rad(X: np.ndarray, c0: np.ndarray, c1: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(cosang, -1, 1))
 
 
-def triangulate_pair(K: np.ndarray, T0: np.ndarray, T1: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, *,
-                     reproj_inlier_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def triangulate_pair(
+    K: np.ndarray, T0: np.ndarray, T1: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, *, reproj_inlier_px: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Triangulate undistorted pixel pairs between two map-to-camera poses.
 
     Parameters
@@ -89,8 +90,17 @@ def rotation_only_residual_px(K: np.ndarray, uv0: np.ndarray, uv1: np.ndarray) -
     return float(np.median(ang) * K[0, 0])
 
 
-def planar_two_view(K: np.ndarray, p0: np.ndarray, p1: np.ndarray, R: np.ndarray, t: np.ndarray, inl: np.ndarray, *,
-                    planar_ratio: float, reproj_inlier_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def planar_two_view(
+    K: np.ndarray,
+    p0: np.ndarray,
+    p1: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    inl: np.ndarray,
+    *,
+    planar_ratio: float,
+    reproj_inlier_px: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The two-view motion when the scene is (nearly) a plane: from the homography.
 
     A stele or a mural seen from 1-2 m over a few-cm baseline is a plane to
@@ -129,8 +139,14 @@ def planar_two_view(K: np.ndarray, p0: np.ndarray, p1: np.ndarray, R: np.ndarray
         if norm < 1e-12:
             continue
         t_i = np.asarray(t_i, dtype=float).reshape(3, 1) / norm
-        _, good, _ = triangulate_pair(K, np.eye(4), make_pose(np.asarray(R_i, float), t_i.ravel()), p0[hin], p1[hin],
-                                      reproj_inlier_px=reproj_inlier_px)
+        _, good, _ = triangulate_pair(
+            K,
+            np.eye(4),
+            make_pose(np.asarray(R_i, float), t_i.ravel()),
+            p0[hin],
+            p1[hin],
+            reproj_inlier_px=reproj_inlier_px,
+        )
         solutions.append((int(good.sum()), abs(float(n_i[2, 0])), np.asarray(R_i, float), t_i))
     if not solutions:
         return R, t, inl

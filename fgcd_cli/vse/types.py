@@ -23,7 +23,6 @@ __all__ = [
 ]
 
 
-
 class VseStatus(StrEnum):
     """Tracking status of an engine (a ``str``: compares, formats and serialises as its value)."""
 

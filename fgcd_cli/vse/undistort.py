@@ -23,8 +23,9 @@ class Undistorter:
 
     def __init__(self, camera: PinholeCamera) -> None:
         self.camera = camera
-        self.ideal = PinholeCamera(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy,
-                                   width=camera.width, height=camera.height)
+        self.ideal = PinholeCamera(
+            fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, width=camera.width, height=camera.height
+        )
         self._map1, self._map2 = cv2.initUndistortRectifyMap(
             camera.K, np.array(camera.dist), None, self.ideal.K, (camera.width, camera.height), cv2.CV_32FC1
         )
@@ -35,8 +36,14 @@ class Undistorter:
 
     def depth(self, depth: np.ndarray) -> np.ndarray:
         """Nearest-neighbour remap of a z-depth image (no mixing across edges)."""
-        return cv2.remap(np.asarray(depth, dtype=np.float32), self._map1, self._map2, cv2.INTER_NEAREST,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        return cv2.remap(
+            np.asarray(depth, dtype=np.float32),
+            self._map1,
+            self._map2,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0.0,
+        )
 
 
 @dataclass

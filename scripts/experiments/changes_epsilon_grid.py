@@ -39,8 +39,9 @@ def real(eps_values: list[float]) -> None:
         result = detect_changes(ref, cur, roi=mask)
         names.append(folder.name)
         for key in grid:
-            config = RegionConfig(decision=DecisionRule.ACONTRARIO, seed_p=key[0], extent_fraction=key[1],
-                                  epsilon=key[2])
+            config = RegionConfig(
+                decision=DecisionRule.ACONTRARIO, seed_p=key[0], extent_fraction=key[1], epsilon=key[2]
+            )
             changed, _, _ = decide(result.score, result.valid, config=config)
             b = binary_scores(changed, truth, eval_mask=mask)
             scores[(folder.name, key)] = (b.f1, b.precision, b.recall)
@@ -50,9 +51,17 @@ def real(eps_values: list[float]) -> None:
         chosen = max(grid, key=lambda k: (np.mean([scores[(n, k)][0] for n in others]), -grid.index(k)))
         rows.append({"group": held, "chosen": chosen, "f1_p_r": scores[(held, chosen)]})
     deployed = max(grid, key=lambda k: (np.mean([scores[(n, k)][0] for n in names]), -grid.index(k)))
-    print(json.dumps({"groups": rows, "logo_auto_f1": float(np.mean([r["f1_p_r"][0] for r in rows])),
-                      "logo_min_auto_recall": float(min(r["f1_p_r"][2] for r in rows)),
-                      "deployed": deployed}, indent=1))
+    print(
+        json.dumps(
+            {
+                "groups": rows,
+                "logo_auto_f1": float(np.mean([r["f1_p_r"][0] for r in rows])),
+                "logo_min_auto_recall": float(min(r["f1_p_r"][2] for r in rows)),
+                "deployed": deployed,
+            },
+            indent=1,
+        )
+    )
 
 
 def sim(seed_p: float, extent: float, epsilon: float) -> None:

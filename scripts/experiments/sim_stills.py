@@ -48,15 +48,27 @@ def trials(samples: int, n: int) -> dict:
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
         xi = np.r_[direction * 0.4e-3, rng.normal(size=3) / np.sqrt(3) * np.deg2rad(0.013)]
-        cur = [renderer.render(T_ref @ exp_se3(xi), INTRINSICS, "front", effects=EFFECTS, exposure=4.0, rng=rng,
-                               want=("rgb",)).rgb]
+        cur = [
+            renderer.render(
+                T_ref @ exp_se3(xi), INTRINSICS, "front", effects=EFFECTS, exposure=4.0, rng=rng, want=("rgb",)
+            ).rgb
+        ]
         result = detect_changes(ref, cur, roi=geometry.labels == 1, pixel_area_mm2=area, config=config)
-        rows.append({"seed": seed, "false_regions": len(result.regions),
-                     "set_aside": int(result.settings.get("edge_explained_regions", 0)), "render_s": render_s})
-    return {"samples_per_axis": samples, "trials": rows,
-            "false_regions_total": sum(r["false_regions"] for r in rows),
-            "pairs_with_false_regions": sum(r["false_regions"] > 0 for r in rows),
-            "render_s_median": float(np.median([r["render_s"] for r in rows]))}
+        rows.append(
+            {
+                "seed": seed,
+                "false_regions": len(result.regions),
+                "set_aside": int(result.settings.get("edge_explained_regions", 0)),
+                "render_s": render_s,
+            }
+        )
+    return {
+        "samples_per_axis": samples,
+        "trials": rows,
+        "false_regions_total": sum(r["false_regions"] for r in rows),
+        "pairs_with_false_regions": sum(r["false_regions"] > 0 for r in rows),
+        "render_s_median": float(np.median([r["render_s"] for r in rows])),
+    }
 
 
 def main() -> None:

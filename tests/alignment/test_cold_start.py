@@ -96,8 +96,9 @@ def test_stalled_scale_is_flagged_although_every_point_is_an_inlier(study):
     # A cold start (12 cm off along the normal) whose scale cannot move: no search, no drift.
     # It ends 8 % off in scale; on this thick reference the inlier ratio stays near 1.
     base = FastAlignConfig()
-    stuck = replace(base, cold=replace(base.cold, scale_candidates=(1.0,), shift_steps=0),
-                    scale=replace(base.scale, max_drift=0.0))
+    stuck = replace(
+        base, cold=replace(base.cold, scale_candidates=(1.0,), shift_steps=0), scale=replace(base.scale, max_drift=0.0)
+    )
     init = _perturbed(T_true, rot_deg=2.0, shift_m=T_true.R @ np.array([0.0, 0.0, 0.12]), scale=0.92)
     result = fast_align(cur, ref, init=init, config=stuck)
     assert abs(result.T_ref_cur.scale / T_true.scale - 1) > 0.02  # really wrong
@@ -116,8 +117,9 @@ def test_warm_run_that_stalls_at_a_wrong_scale_is_redone_cold(study):
     ref, p_ref, T_true = study
     cur = T_true.inverse().apply(p_ref)
     init = _perturbed(T_true, rot_deg=1.0, shift_m=(0.0, 0.0, 0.0), scale=0.92)
-    unchecked = replace(FastAlignConfig(), warm=replace(FastAlignConfig().warm, check_scale_change=1.0, max_scale_change=1.0),
-                        **STALL)
+    unchecked = replace(
+        FastAlignConfig(), warm=replace(FastAlignConfig().warm, check_scale_change=1.0, max_scale_change=1.0), **STALL
+    )
     stalled = fast_align(cur, ref, init=init, config=unchecked)
     assert stalled.start == "warm"  # the case: it looks warm...
     assert abs(stalled.T_ref_cur.scale / T_true.scale - 1) > 0.03  # ...stalls well off in scale...

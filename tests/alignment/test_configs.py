@@ -53,12 +53,19 @@ def test_assess_reports_every_failed_check_in_order():
     pts = np.column_stack([rng.uniform(-1, 1, (200, 2)), np.zeros(200)])
     normals = np.tile([0.0, 0.0, 1.0], (200, 1))
     evidence = HealthEvidence(distances=d, matched_points=pts, matched_normals=normals, converged=False, scale=2.0)
-    limits = HealthLimits(inlier_threshold=0.01, overlap_threshold=0.02, min_inlier_ratio=0.7, min_overlap=0.3,
-                          min_condition_ratio=5e-3, scale_bounds=(0.5, 1.5))
+    limits = HealthLimits(
+        inlier_threshold=0.01,
+        overlap_threshold=0.02,
+        min_inlier_ratio=0.7,
+        min_overlap=0.3,
+        min_condition_ratio=5e-3,
+        scale_bounds=(0.5, 1.5),
+    )
     health = assess(evidence, limits)
     assert not health.ok and health.degenerate
     assert health.reason.startswith("did not converge; inlier ratio 60% < 70%; degenerate geometry")
     assert health.reason.endswith("scale changed by a factor 2.000, outside [0.500, 1.500]")
-    good = assess(replace(evidence, converged=True, scale=1.0), replace(limits, min_inlier_ratio=0.5,
-                                                                        min_condition_ratio=0.0))
+    good = assess(
+        replace(evidence, converged=True, scale=1.0), replace(limits, min_inlier_ratio=0.5, min_condition_ratio=0.0)
+    )
     assert good.ok and good.reason == HEALTH_OK

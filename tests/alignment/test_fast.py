@@ -70,8 +70,12 @@ def test_without_scale_keeps_initial_scale(scene, reference):
     T_true = random_similarity(rng, rotation_deg=30, translation_m=0.5, scale_rel=0.1)
     init = random_similarity(rng, rotation_deg=3.0, translation_m=0.02, scale_rel=0.0) @ T_true
     init = Sim3(init.R, init.t, 1.03 * T_true.scale)
-    result = fast_align(T_true.inverse().apply(p_ref), reference, init=init,
-                        config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)))
+    result = fast_align(
+        T_true.inverse().apply(p_ref),
+        reference,
+        init=init,
+        config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)),
+    )
     assert result.T_ref_cur.scale == init.scale
     with_scale = fast_align(T_true.inverse().apply(p_ref), reference, init=init)
     assert abs(with_scale.T_ref_cur.scale / T_true.scale - 1) < 0.005
@@ -148,8 +152,10 @@ def test_shrink_is_the_proximal_operator():
     for hi, zi in zip(h, z):
         cost = np.abs(grid) ** p + mu / 2 * (grid - hi) ** 2
         best = grid[np.argmin(cost)]
+
         def f(v, hi=hi):
             return abs(v) ** p + mu / 2 * (v - hi) ** 2
+
         # Same objective value as the brute-force minimiser (to the 3-iteration fixed point).
         assert f(zi) <= f(best) + 1e-3
     assert np.all(z[np.abs(h) < shrink_threshold(mu, p) * 0.99] == 0.0)

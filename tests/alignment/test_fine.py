@@ -24,8 +24,13 @@ def setup():
     pts, normals, intensities = scene.sample(40000, rng=rng)
     ref = ReferenceIndex(pts, normals=normals, intensities=intensities)
     T_true = random_similarity(rng, rotation_deg=30, translation_m=0.3, scale_rel=0.03)
-    session = make_session(scene, camera=CAMERA, T_ref_cur=T_true, rng=rng,
-                           config=SessionConfig(n_keyframes=5, pose_noise_deg=0.15, pose_noise_m=0.0015))
+    session = make_session(
+        scene,
+        camera=CAMERA,
+        T_ref_cur=T_true,
+        rng=rng,
+        config=SessionConfig(n_keyframes=5, pose_noise_deg=0.15, pose_noise_m=0.0015),
+    )
     init = random_similarity(rng, rotation_deg=2, translation_m=0.02, scale_rel=0.02) @ T_true
     fast = fast_align(session.cur_points, ref, init=init)
     return scene, ref, session, fast
@@ -41,8 +46,13 @@ def test_fine_improves_camera_poses_over_fast(setup):
     assert fast.health.ok, fast.health.reason
     vse_poses = [T for T, _ in session.keyframes]
     mm_fast, deg_fast = _camera_errors(fast.T_ref_cur, vse_poses, session.T_ref_cam_true)
-    result = fine_align(ref_points=ref, cur_keyframes=session.keyframes, camera=CAMERA, init=fast.T_ref_cur,
-                        cur_points=session.cur_points)
+    result = fine_align(
+        ref_points=ref,
+        cur_keyframes=session.keyframes,
+        camera=CAMERA,
+        init=fast.T_ref_cur,
+        cur_points=session.cur_points,
+    )
     mm_fine, deg_fine = _camera_errors(result.T_ref_cur, result.keyframe_poses, session.T_ref_cam_true)
     # VSE pose noise is 0.15 deg / 1.5 mm per axis; with exact images and a 1.25 mm
     # pixel footprint the photometric term must remove most of it.
@@ -60,11 +70,21 @@ def test_fine_does_not_drift_from_the_truth():
     pts, normals, intensities = scene.sample(30000, rng=rng)
     ref = ReferenceIndex(pts, normals=normals, intensities=intensities)
     T_true = Sim3(np.eye(3), np.zeros(3), 1.0)
-    session = make_session(scene, camera=CAMERA, T_ref_cur=T_true, rng=rng,
-                           config=SessionConfig(n_keyframes=4, pose_noise_deg=0.0, pose_noise_m=0.0,
-                                                depth_noise_rel=0.001))
-    result = fine_align(ref_points=ref, cur_keyframes=session.keyframes, camera=CAMERA, init=T_true,
-                        cur_points=session.cur_points, config=FineAlignConfig(blur_sigmas=(1.0,)))
+    session = make_session(
+        scene,
+        camera=CAMERA,
+        T_ref_cur=T_true,
+        rng=rng,
+        config=SessionConfig(n_keyframes=4, pose_noise_deg=0.0, pose_noise_m=0.0, depth_noise_rel=0.001),
+    )
+    result = fine_align(
+        ref_points=ref,
+        cur_keyframes=session.keyframes,
+        camera=CAMERA,
+        init=T_true,
+        cur_points=session.cur_points,
+        config=FineAlignConfig(blur_sigmas=(1.0,)),
+    )
     E = result.T_ref_cur @ T_true.inverse()
     # The renderer shades a faceted mesh (3 mm triangles) while the reference points
     # lie on the smooth surface, so the photometric optimum is not exactly the truth;

@@ -73,8 +73,9 @@ def test_an_empty_current_cloud_gives_the_camera_prior_without_a_multi_start(wor
     T_cur_cam0 = exp_se3([0.01, 0.0, 0.0, 0.0, 0.0, 0.0])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        guess = initial_guess(T_ref_camref=T_ref_camref, T_cur_cam0=T_cur_cam0, cur_points=np.zeros((0, 3)),
-                              reference=ref)
+        guess = initial_guess(
+            T_ref_camref=T_ref_camref, T_cur_cam0=T_cur_cam0, cur_points=np.zeros((0, 3)), reference=ref
+        )
     assert guess.source == "first_camera+fast"
     assert not guess.fast.health.ok
     np.testing.assert_allclose(guess.T_ref_cur.transform_pose(T_cur_cam0), T_ref_camref, atol=1e-9)

@@ -117,5 +117,4 @@ def test_view_rim_tells_an_outline_from_the_edge_of_the_view_and_a_limb():
 
 def test_probe_reports_one_value_per_probed_direction():
     result, _ = _align_wall(joints=True)
-    assert len(result.health.weak_probe) == min(len(result.health.weak_directions),
-                                                FastAlignConfig().probe.directions)
+    assert len(result.health.weak_probe) == min(len(result.health.weak_directions), FastAlignConfig().probe.directions)

@@ -18,6 +18,11 @@ def test_schema_spells_the_layout():
     assert schema.change_relpath(schema.REPORT_HTML) == "report.html"
     assert schema.change_relpath(schema.REGIONS_JSON) == "changes/regions.json"
     assert schema.ObservationKind.REFERENCE == "reference" and schema.ObservationKind.VISIT == "visit"
-    assert (schema.CAMPAIGN_FILE, schema.STATION_FILE, schema.MANIFEST, schema.CLOUD_FILE, schema.RELOCATION_LOG) == \
-        ("campaign.toml", "station.json", "manifest.json", "cloud.ply", "relocation.jsonl")
+    assert (schema.CAMPAIGN_FILE, schema.STATION_FILE, schema.MANIFEST, schema.CLOUD_FILE, schema.RELOCATION_LOG) == (
+        "campaign.toml",
+        "station.json",
+        "manifest.json",
+        "cloud.ply",
+        "relocation.jsonl",
+    )
     assert schema.rig_record_file("handeye") == "handeye.json"

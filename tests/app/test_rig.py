@@ -27,8 +27,9 @@ def test_the_rig_guard_marks_its_motions_and_not_its_question():
             return self.pose.copy()
 
         def capabilities(self):
-            return SimpleNamespace(workspace_min_m=(-1, -1, -1), workspace_max_m=(1, 1, 1),
-                                   controllable=("x", "y", "z", "rx", "ry", "rz"))
+            return SimpleNamespace(
+                workspace_min_m=(-1, -1, -1), workspace_max_m=(1, 1, 1), controllable=("x", "y", "z", "rx", "ry", "rz")
+            )
 
         def move_to(self, T, speed_fraction=1.0):
             self.during = run_record.moving

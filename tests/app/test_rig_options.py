@@ -8,10 +8,12 @@ from fgcd_cli.errors import CampaignError, UserInputError
 
 
 def test_an_option_wins_over_the_campaign_which_wins_over_the_default(tmp_path):
-    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "grbl", "port": "/dev/ttyUSB0", "baud": 57600,
-                                                        "camera": "/dev/video2"})
-    assert resolve_rig(camp, RigOptions()) == EffectiveRig(driver="grbl", port="/dev/ttyUSB0", baud=57600,
-                                                           camera="/dev/video2")
+    camp = init_campaign(
+        tmp_path / "c", site="x", rig={"driver": "grbl", "port": "/dev/ttyUSB0", "baud": 57600, "camera": "/dev/video2"}
+    )
+    assert resolve_rig(camp, RigOptions()) == EffectiveRig(
+        driver="grbl", port="/dev/ttyUSB0", baud=57600, camera="/dev/video2"
+    )
     given = resolve_rig(camp, RigOptions(port="/dev/ttyACM0", baud=9600, camera="1"))
     assert (given.port, given.baud, given.camera) == ("/dev/ttyACM0", 9600, 1)
     assert resolve_rig(None, RigOptions()) == EffectiveRig(driver="sim", baud=115200, camera=0)

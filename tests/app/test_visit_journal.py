@@ -25,8 +25,11 @@ def station(tmp_path):
 
     def visit_names():  # as fgcd_cli.campaign.store.Station: committed visit folders, oldest first
         folder = path / "visits"
-        return sorted(p.name for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")) \
-            if folder.is_dir() else []
+        return (
+            sorted(p.name for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+            if folder.is_dir()
+            else []
+        )
 
     return SimpleNamespace(name="s1", path=path, visit_names=visit_names)
 
@@ -68,12 +71,15 @@ def test_a_line_cut_by_a_killed_process_is_dropped_not_fatal(station):
     assert decision.mode == ResumeMode.CONTINUED and len(decision.records) == 2
 
 
-@pytest.mark.parametrize("damage, mode, words", [
-    (None, ResumeMode.STARTED_OVER, "no interrupted visit"),
-    (b"\x00garbage\n{}\n", ResumeMode.STARTED_OVER, "damaged"),
-    ("options", ResumeMode.STARTED_OVER, "another light"),
-    ("empty", ResumeMode.STARTED_OVER, "no adjustment yet"),
-])
+@pytest.mark.parametrize(
+    "damage, mode, words",
+    [
+        (None, ResumeMode.STARTED_OVER, "no interrupted visit"),
+        (b"\x00garbage\n{}\n", ResumeMode.STARTED_OVER, "damaged"),
+        ("options", ResumeMode.STARTED_OVER, "another light"),
+        ("empty", ResumeMode.STARTED_OVER, "no adjustment yet"),
+    ],
+)
 def test_resume_starts_over_cleanly_and_says_why(station, damage, mode, words):
     if damage == "options":
         _interrupted(station, 2)
@@ -102,8 +108,11 @@ def test_resume_starts_a_new_visit_when_the_journal_outlived_its_committed_visit
     visit.mkdir(parents=True)
     (visit / "relocation.jsonl").write_text("".join(_record(i).to_json() + "\n" for i in (1, 2)))
     decision = decide_resume(station, resume=True, options=OPTIONS)
-    assert decision.mode == ResumeMode.STARTED_OVER and "already written (visits/20261201T000000000Z)" in \
-        decision.reason and not decision.records
+    assert (
+        decision.mode == ResumeMode.STARTED_OVER
+        and "already written (visits/20261201T000000000Z)" in decision.reason
+        and not decision.records
+    )
     (visit / "relocation.jsonl").write_text(_record(1).to_json() + "\n")  # another revisit's log: continue
     assert decide_resume(station, resume=True, options=OPTIONS).mode == ResumeMode.CONTINUED
 
@@ -136,8 +145,9 @@ def test_an_interrupted_simulated_revisit_is_continued_by_resume(tmp_path):
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
     # stands in for `fgcd calibrate hand-eye` (tested elsewhere): the simulated rig's mounting
-    camp.write_rig("handeye", {"T_flange_cam": build_sim_rig(scene="stele", seed=0).ground_truth
-                               .T_flange_cam_true().tolist()})
+    camp.write_rig(
+        "handeye", {"T_flange_cam": build_sim_rig(scene="stele", seed=0).ground_truth.T_flange_cam_true().tolist()}
+    )
     run_capture(camp, plan_capture(camp, CaptureRequest(station="s1", light="led:3")))
 
     def interrupt(record):
@@ -173,10 +183,25 @@ def test_campaign_verify_notes_an_interrupted_visit(tmp_path):
 def _adjustment(i: int):
     from fgcd_cli.relocation.log import AdjustmentRecord
 
-    return AdjustmentRecord(iteration=i, t_wall_s=1.0, t_session_s=1.0, stage="fine", g=0.1, offset_mm=2.0,
-                            offset_deg=0.1, T_ref_cam=np.eye(4).tolist(), M_flange_commanded=np.eye(4).tolist(),
-                            clamped=False, vse_status="tracking", vse_points=100, alignment_ok=True,
-                            alignment_reason="ok", scale=1.0, sigma=0.0, afd_est_px=1.0)
+    return AdjustmentRecord(
+        iteration=i,
+        t_wall_s=1.0,
+        t_session_s=1.0,
+        stage="fine",
+        g=0.1,
+        offset_mm=2.0,
+        offset_deg=0.1,
+        T_ref_cam=np.eye(4).tolist(),
+        M_flange_commanded=np.eye(4).tolist(),
+        clamped=False,
+        vse_status="tracking",
+        vse_points=100,
+        alignment_ok=True,
+        alignment_reason="ok",
+        scale=1.0,
+        sigma=0.0,
+        afd_est_px=1.0,
+    )
 
 
 def _relocate_interrupted(tmp_path, monkeypatch, capsys, *, adjustments: int) -> tuple[int, str, Path]:
@@ -194,8 +219,9 @@ def _relocate_interrupted(tmp_path, monkeypatch, capsys, *, adjustments: int) ->
         w.commit()
     platform = ManualPlatform(ask=lambda prompt: "", say=lambda text: None)
     handles = SimpleNamespace(guard=MotionGuard(platform, GuardLimits()), say=lambda text: None)
-    monkeypatch.setattr(rig_uc, "open_rig", lambda request, hooks=None: rig_uc.OpenedRig(
-        handles=handles, close=lambda: None))
+    monkeypatch.setattr(
+        rig_uc, "open_rig", lambda request, hooks=None: rig_uc.OpenedRig(handles=handles, close=lambda: None)
+    )
 
     def relocate_and_capture(rig, station, request, hooks):
         for i in range(1, adjustments + 1):
@@ -213,7 +239,8 @@ def test_ctrl_c_in_a_revisit_says_the_journal_is_kept_for_resume(tmp_path, monke
     assert code == 130 and journal.exists()
     assert err.strip().splitlines()[-1] == (
         "interrupted (Ctrl-C): the manual platform was not moving; no visit was written; "
-        f"the journal {journal} is kept for `fgcd relocate --resume`")
+        f"the journal {journal} is kept for `fgcd relocate --resume`"
+    )
     from fgcd_cli.campaign.store import open_campaign
 
     station = open_campaign(journal.parents[3]).station("s1")
@@ -223,8 +250,9 @@ def test_ctrl_c_in_a_revisit_says_the_journal_is_kept_for_resume(tmp_path, monke
 def test_ctrl_c_before_the_first_adjustment_leaves_no_journal(tmp_path, monkeypatch, capsys):
     code, err, journal = _relocate_interrupted(tmp_path, monkeypatch, capsys, adjustments=0)
     assert code == 130 and not journal.exists()
-    assert err.strip().splitlines()[-1] == \
-        "interrupted (Ctrl-C): the manual platform was not moving; nothing was written"
+    assert (
+        err.strip().splitlines()[-1] == "interrupted (Ctrl-C): the manual platform was not moving; nothing was written"
+    )
 
 
 def test_the_kept_journal_is_no_longer_claimed_once_the_visit_is_committed(station):
@@ -233,8 +261,9 @@ def test_the_kept_journal_is_no_longer_claimed_once_the_visit_is_committed(stati
     run_record.reset()
     run_record.no_writes()
     journal = _interrupted(station, 1)
-    assert run_record.writes_clause() == (f"no visit was written; the journal {journal.path} is kept for "
-                                          "`fgcd relocate --resume`")
+    assert run_record.writes_clause() == (
+        f"no visit was written; the journal {journal.path} is kept for `fgcd relocate --resume`"
+    )
     with run_record.writing("the visit of station 's1'"):
         assert run_record.writes_clause().startswith("not written: the visit of station 's1'; the journal ")
         journal.remove()

@@ -37,8 +37,14 @@ CONFIG = SyntheticArchiveConfig(campaigns=3, stations=1, visits=2, changes=1, wi
 
 @pytest.fixture(scope="module")
 def cluster():
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as local:
+    with distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+    ) as local:
         yield local
 
 
@@ -57,8 +63,9 @@ def expected(pristine, tmp_path_factory):
     shutil.copytree(pristine, copy)
     out = {}
     for key in archive_visits(find_campaigns([copy])):
-        data = run_campaign(request=CampaignDiffRequest(campaign=Path(key.campaign), station=key.station,
-                                                        visit=key.visit))
+        data = run_campaign(
+            request=CampaignDiffRequest(campaign=Path(key.campaign), station=key.station, visit=key.visit)
+        )
         out[(Path(key.campaign).name, key.station, key.visit)] = _regions(data)
     return out
 
@@ -106,7 +113,8 @@ def _copy(pristine: Path, tmp_path: Path, *only: str) -> Path:
 
 
 def test_two_workers_match_the_diff_skip_when_up_to_date_and_redo_only_what_was_deleted(
-        pristine, expected, cluster, tmp_path):
+    pristine, expected, cluster, tmp_path
+):
     root = _copy(pristine, tmp_path)
     request = ArchiveRequest(roots=[root], scheduler=cluster.scheduler_address)
     first = analyze_archive(request)
@@ -117,8 +125,14 @@ def test_two_workers_match_the_diff_skip_when_up_to_date_and_redo_only_what_was_
     assert not _same_regions({k: [] for k in expected}, expected)
     again = analyze_archive(request)
     assert again.count(VisitStatus.SKIPPED) == 6
-    victim = root / "site-1" / "stations" / "S01" / "visits" / sorted(os.listdir(
-        root / "site-1" / "stations" / "S01" / "visits"))[-1]
+    victim = (
+        root
+        / "site-1"
+        / "stations"
+        / "S01"
+        / "visits"
+        / sorted(os.listdir(root / "site-1" / "stations" / "S01" / "visits"))[-1]
+    )
     shutil.rmtree(victim / schema.CHANGES_DIR)
     _, planned = plan_archive(request)
     assert [p.key.visit for p in planned if p.needs_work] == [victim.name]
@@ -167,18 +181,29 @@ def test_one_worker_reports_a_damaged_image_and_completes_the_other_visit(pristi
 def test_cli_dry_run_lists_the_work_and_bad_roots_are_one_line(pristine, tmp_path):
     env = {**os.environ, "COLUMNS": "200"}
     fgcd = str(Path(sys.executable).parent / "fgcd")
-    out = subprocess.run([fgcd, "archive", "analyze", str(pristine), "--dry-run", "--json"], capture_output=True,
-                         text=True, timeout=120, env=env)
+    out = subprocess.run(
+        [fgcd, "archive", "analyze", str(pristine), "--dry-run", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     assert (data["campaigns"], data["visits"], data["to_do"]) == (3, 6, 6)
     assert {p["state"] for p in data["planned"]} == {Freshness.NOT_ANALYSED.value}
-    bad = subprocess.run([fgcd, "archive", "analyze", str(tmp_path / "nowhere")], capture_output=True, text=True,
-                         timeout=120, env=env)
+    bad = subprocess.run(
+        [fgcd, "archive", "analyze", str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=120, env=env
+    )
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "Traceback" not in bad.stderr
     # nobody listens on port 9 (discard): an unreachable scheduler is one line and the operating-system code
-    lost = subprocess.run([fgcd, "archive", "analyze", str(pristine), "--scheduler", "tcp://127.0.0.1:9"],
-                          capture_output=True, text=True, timeout=120, env=env)
+    lost = subprocess.run(
+        [fgcd, "archive", "analyze", str(pristine), "--scheduler", "tcp://127.0.0.1:9"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert lost.returncode == 1 and "Dask scheduler" in lost.stderr and lost.stderr.strip().count("\n") == 0
 
 
@@ -186,8 +211,12 @@ def test_cli_dry_run_lists_the_work_and_bad_roots_are_one_line(pristine, tmp_pat
 def test_a_run_killed_midway_is_finished_by_the_next(pristine, expected, cluster, tmp_path):
     root = _copy(pristine, tmp_path)
     fgcd = str(Path(sys.executable).parent / "fgcd")
-    proc = subprocess.Popen([fgcd, "archive", "analyze", str(root), "--workers", "1", "--json"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen(
+        [fgcd, "archive", "analyze", str(root), "--workers", "1", "--json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     records = lambda: sorted(root.glob(f"*/stations/*/visits/*/{ANALYSIS_RELPATH}"))  # noqa: E731
     deadline = time.monotonic() + 240
     while not records() and time.monotonic() < deadline and proc.poll() is None:
@@ -207,9 +236,13 @@ def test_a_run_killed_midway_is_finished_by_the_next(pristine, expected, cluster
 def test_ctrl_c_cancels_the_rest_in_one_line_and_the_next_run_finishes(pristine, expected, cluster, tmp_path):
     root = _copy(pristine, tmp_path)
     fgcd = str(Path(sys.executable).parent / "fgcd")
-    proc = subprocess.Popen([fgcd, "archive", "analyze", str(root), "--workers", "1"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = subprocess.Popen(
+        [fgcd, "archive", "analyze", str(root), "--workers", "1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 240
     while not list(root.glob(f"*/stations/*/visits/*/{ANALYSIS_RELPATH}")) and time.monotonic() < deadline:
         time.sleep(0.2)

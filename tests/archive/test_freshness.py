@@ -38,8 +38,10 @@ def analysed(tmp_path):
     visit.add_derived(schema.change_relpath(schema.REGIONS_JSON), b'{"regions": []}')
     visit.add_derived(schema.REPORT_HTML, b"<html></html>")
     inputs = analysis_inputs(st.reference(), visit)
-    visit.add_derived(ANALYSIS_RELPATH, json.dumps(analysis_record(visit, inputs=inputs, options=AnalysisOptions(),
-                                                                   seconds=1.0)).encode())
+    visit.add_derived(
+        ANALYSIS_RELPATH,
+        json.dumps(analysis_record(visit, inputs=inputs, options=AnalysisOptions(), seconds=1.0)).encode(),
+    )
     return st
 
 
@@ -51,7 +53,9 @@ def test_up_to_date_until_the_version_the_options_an_input_or_a_product_changes(
     monkeypatch.setattr(fr, "DETECTOR_VERSION", "next")
     assert freshness(ref, visit, AnalysisOptions()) == Freshness.DETECTOR_CHANGED
     monkeypatch.undo()
-    (visit.path / schema.REPORT_HTML).write_bytes(b"<html>edited</html>")  # another size: the product is not the one recorded
+    (visit.path / schema.REPORT_HTML).write_bytes(
+        b"<html>edited</html>"
+    )  # another size: the product is not the one recorded
     assert freshness(ref, visit, AnalysisOptions()) == Freshness.PRODUCTS_MISSING
     (visit.path / ANALYSIS_RELPATH).unlink()
     assert freshness(ref, visit, AnalysisOptions()) == Freshness.NOT_ANALYSED

@@ -18,7 +18,7 @@ MM2_PER_PX = 0.25
 
 
 def _disc(cx: float, cy: float, r: float) -> np.ndarray:
-    y, x = np.mgrid[0:SHAPE[0], 0:SHAPE[1]]
+    y, x = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]]
     return (x - cx) ** 2 + (y - cy) ** 2 <= r * r
 
 
@@ -29,20 +29,32 @@ def _visit(i: int, discs: list[tuple[float, float, float]], *, comparable: bool 
         d = _disc(cx, cy, r)
         mask |= d
         ys, xs = np.nonzero(d)
-        regions.append({"area_px": int(d.sum()), "area_mm2": float(d.sum()) * MM2_PER_PX,
-                        "bbox_xywh": [int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1],
-                        "centroid_xy": [float(xs.mean()), float(ys.mean())]})
-    return VisitRegions(visit=f"v{i}", date=T0 + timedelta(days=91 * i), comparable=comparable,
-                        regions=regions if comparable else [], mask=mask if comparable else np.zeros(SHAPE, bool))
+        regions.append(
+            {
+                "area_px": int(d.sum()),
+                "area_mm2": float(d.sum()) * MM2_PER_PX,
+                "bbox_xywh": [int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1],
+                "centroid_xy": [float(xs.mean()), float(ys.mean())],
+            }
+        )
+    return VisitRegions(
+        visit=f"v{i}",
+        date=T0 + timedelta(days=91 * i),
+        comparable=comparable,
+        regions=regions if comparable else [],
+        mask=mask if comparable else np.zeros(SHAPE, bool),
+    )
 
 
 def test_a_growing_region_a_new_one_and_a_stable_one_are_told_apart():
     # Region A grows (r 5 -> 7 -> 9, its centre moving by 1 px a visit: a relocation's residual);
     # B stays (r 6, within its boundary ring); C appears at the last visit far from both.
-    visits = [_visit(0, []),
-              _visit(1, [(40, 40, 5), (110, 80, 6)]),
-              _visit(2, [(41, 40, 7), (110, 81, 6)]),
-              _visit(3, [(42, 41, 9), (111, 80, 6), (60, 100, 4)])]
+    visits = [
+        _visit(0, []),
+        _visit(1, [(40, 40, 5), (110, 80, 6)]),
+        _visit(2, [(41, 40, 7), (110, 81, 6)]),
+        _visit(3, [(42, 41, 9), (111, 80, 6), (60, 100, 4)]),
+    ]
     tracks = track_regions(visits)
     assert [t.first_seen for t in tracks] == ["v1", "v1", "v3"]
     a, b, c = tracks
@@ -76,8 +88,13 @@ def _stations():
     from fgcd_cli.app.archive_history import StationHistory, _latest_gains
 
     def station(name, visits):
-        h = StationHistory(campaign="c", station=name, analysed=[v.visit for v in visits],
-                           dates={v.visit: v.date for v in visits}, tracks=track_regions(visits))
+        h = StationHistory(
+            campaign="c",
+            station=name,
+            analysed=[v.visit for v in visits],
+            dates={v.visit: v.date for v in visits},
+            tracks=track_regions(visits),
+        )
         _latest_gains(h)
         return h
 
@@ -97,9 +114,21 @@ def test_site_page_renders_in_chromium(tmp_path):
     page = tmp_path / "site.html"
     page.write_text(render_site_page(site="test", stations=[worse, calm]), encoding="utf-8")
     shot = tmp_path / "shot.png"
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={shot}", "--window-size=1400,2000", page.as_uri()]
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        f"--screenshot={shot}",
+        "--window-size=1400,2000",
+        page.as_uri(),
+    ]
     subprocess.run(cmd, capture_output=True, timeout=120)
     image = cv2.imread(str(shot))
     assert image is not None and image.shape[:2] == (2000, 1400)

@@ -41,13 +41,13 @@ def test_a_vanished_index_entry_or_an_edited_station_field_is_earlier_data_chang
     info = json.loads(station_file.read_text(encoding="utf-8"))
     dropped = {**info, "observations": info["observations"][:1]}
     station_file.write_text(json.dumps(dropped), encoding="utf-8")
-    assert earlier_changed(before, committed_digests(campaign)) == [
-        f"s/station.json#indexes/{info['observations'][1]}"]
+    assert earlier_changed(before, committed_digests(campaign)) == [f"s/station.json#indexes/{info['observations'][1]}"]
     station_file.write_text(json.dumps({**info, "site": "elsewhere"}), encoding="utf-8")
     assert earlier_changed(before, committed_digests(campaign)) == ["s/station.json#fields"]
     station_file.write_bytes(b"{not json")
     assert earlier_changed(before, committed_digests(campaign)) == ["s/station.json#fields"] + [
-        f"s/station.json#indexes/{obs}" for obs in info["observations"]]
+        f"s/station.json#indexes/{obs}" for obs in info["observations"]
+    ]
 
 
 def test_a_capture_fault_takes_a_station_name_no_earlier_run_left(tmp_path):

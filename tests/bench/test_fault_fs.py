@@ -97,8 +97,9 @@ def test_a_read_only_campaign_refuses_the_lock_naming_its_file(tmpfs):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("fault", "seed"), [("fs_full_diff", 0), ("fs_full_diff", 1), ("readonly_campaign", 5),
-                                             ("fs_full_archive", 1)])
+@pytest.mark.parametrize(
+    ("fault", "seed"), [("fs_full_diff", 0), ("fs_full_diff", 1), ("readonly_campaign", 5), ("fs_full_archive", 1)]
+)
 def test_fgcd_on_a_real_small_file_system_ends_cleanly(tmp_path, fault, seed):
     """The real command on a full (or read-only) tmpfs: documented code, one line naming the file, nothing left."""
     from fgcd_cli.bench.faults.campaign_faults import prepare_campaign

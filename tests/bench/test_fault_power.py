@@ -32,8 +32,15 @@ shutil.rmtree(f"{root}/out/sub")
 """
 #: The writer's events under the root, in order (``shutil.rmtree`` removes through descriptors: its
 #: entries are resolved to full paths).
-WRITER_EVENTS = ["os.mkdir out", "os.mkdir out/sub", "open out/sub/f0.bin", "open out/sub/f1.bin",
-                 "open out/sub/f2.bin", "os.rename out/sub/f0.bin", "shutil.rmtree out/sub"]
+WRITER_EVENTS = [
+    "os.mkdir out",
+    "os.mkdir out/sub",
+    "open out/sub/f0.bin",
+    "open out/sub/f1.bin",
+    "open out/sub/f2.bin",
+    "os.rename out/sub/f0.bin",
+    "shutil.rmtree out/sub",
+]
 
 
 def _launch(tmp_path: Path, script: str, args: list[str], **env: str) -> tuple[int, list, object]:
@@ -42,9 +49,13 @@ def _launch(tmp_path: Path, script: str, args: list[str], **env: str) -> tuple[i
     path.write_text(textwrap.dedent(script))
     log = tmp_path / "events.log"
     variables = {f"FGCD_BENCH_POWER_{k.upper()}": v for k, v in env.items()}
-    proc = subprocess.run([sys.executable, "-m", "fgcd_cli.bench.faults.power_launch", *args], cwd=ROOT,
-                          env={**os.environ, "FGCD_BENCH_POWER_TARGET": str(path), "FGCD_BENCH_POWER_LOG": str(log),
-                               **variables}, capture_output=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-m", "fgcd_cli.bench.faults.power_launch", *args],
+        cwd=ROOT,
+        env={**os.environ, "FGCD_BENCH_POWER_TARGET": str(path), "FGCD_BENCH_POWER_LOG": str(log), **variables},
+        capture_output=True,
+        timeout=300,
+    )
     events, kill = read_log(log)
     return proc.returncode, events, kill
 
@@ -63,19 +74,21 @@ def test_a_counting_run_logs_each_write_under_the_root_in_order(tmp_path, root):
     code, events, kill = _launch(tmp_path, WRITER, [str(root), str(tmp_path / "outside.txt")], under=str(root))
     assert code == 0 and kill is None
     names = _names(events, root)
-    assert names[:len(WRITER_EVENTS)] == WRITER_EVENTS
+    assert names[: len(WRITER_EVENTS)] == WRITER_EVENTS
     # then the removal of each entry of the tree (in directory order) and the folder itself
-    assert sorted(names[len(WRITER_EVENTS):]) == sorted(["os.remove out/sub/g0.bin", "os.remove out/sub/f1.bin",
-                                                        "os.remove out/sub/f2.bin", "os.rmdir out/sub"])
+    assert sorted(names[len(WRITER_EVENTS) :]) == sorted(
+        ["os.remove out/sub/g0.bin", "os.remove out/sub/f1.bin", "os.remove out/sub/f2.bin", "os.rmdir out/sub"]
+    )
     assert [e.n for e in events] == list(range(1, len(events) + 1))
 
 
 @pytest.mark.parametrize("n", [1, 4, 6])
 def test_the_kill_falls_before_the_chosen_event(tmp_path, root, n):
-    code, events, kill = _launch(tmp_path, WRITER, [str(root), str(tmp_path / "outside.txt")], under=str(root),
-                                 at=str(n))
+    code, events, kill = _launch(
+        tmp_path, WRITER, [str(root), str(tmp_path / "outside.txt")], under=str(root), at=str(n)
+    )
     assert code == -signal.SIGKILL
-    assert _names(events, root) == WRITER_EVENTS[:n - 1] and kill.n == n
+    assert _names(events, root) == WRITER_EVENTS[: n - 1] and kill.n == n
     assert kill.path.startswith("before " + WRITER_EVENTS[n - 1].split()[0])
     made = sorted(p.relative_to(root).as_posix() for p in root.rglob("*"))
     assert ("out/sub/f0.bin" in made) == (n > 3) and ("out/sub/f2.bin" in made) == (n > 5)
@@ -94,8 +107,9 @@ def test_events_count_from_the_first_matching_one_and_only_matching_ones(tmp_pat
 def test_a_delayed_kill_lands_after_the_first_event(tmp_path, root):
     os.environ["WRITER_PAUSE_S"] = "120"  # the writer waits there: the delayed kill ends it long before
     try:
-        code, events, kill = _launch(tmp_path, WRITER, [str(root), str(tmp_path / "outside.txt")], under=str(root),
-                                     delay_s="0.2")
+        code, events, kill = _launch(
+            tmp_path, WRITER, [str(root), str(tmp_path / "outside.txt")], under=str(root), delay_s="0.2"
+        )
     finally:
         del os.environ["WRITER_PAUSE_S"]
     assert code == -signal.SIGKILL and kill.path == "after 0.200 s"

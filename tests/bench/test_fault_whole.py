@@ -37,8 +37,14 @@ writing the visit
 def test_each_phase_is_recognised_from_its_progress_line():
     phases = [phase_of(line) for line in RELOCATE_STDERR.splitlines()]
     seen = [p for i, p in enumerate(phases) if p is not None and p != (phases[:i] or [None])[-1]]
-    assert [p for p in dict.fromkeys(seen)] == ["exploration", "alignment_wait", "adjustment_motion",
-                                                 "image_stage", "stills", "writing"]
+    assert [p for p in dict.fromkeys(seen)] == [
+        "exploration",
+        "alignment_wait",
+        "adjustment_motion",
+        "image_stage",
+        "stills",
+        "writing",
+    ]
     assert phase_of("image stage (3D degenerate) 2/6: moving 1.2 mm / 0.05 deg") == "adjustment_motion"
     assert phase_of("opening the rig") is None
     assert phase_of("the image stage measures under the reference's light (led:3)") is None  # said before the loop
@@ -79,8 +85,9 @@ def test_the_tracker_fires_once_inside_the_target_phase():
 def test_a_target_phase_the_run_skips_is_hit_at_the_next_one():
     hits = []
     fired = threading.Event()
-    tracker = PhaseTracker("image_stage", 0.0, lambda proc: (hits.append(tracker.current), fired.set()),
-                           order=fault_whole.RELOCATE_PHASES)
+    tracker = PhaseTracker(
+        "image_stage", 0.0, lambda proc: (hits.append(tracker.current), fired.set()), order=fault_whole.RELOCATE_PHASES
+    )
     for line in ("exploration 1/6: VSE tracking", "adjustment 1: moving 3.0 mm / 0.10 deg", "writing the visit"):
         tracker.on_line(line, _Child())
     assert fired.wait(10) and hits == ["writing"]
@@ -89,8 +96,12 @@ def test_a_target_phase_the_run_skips_is_hit_at_the_next_one():
 def test_an_adjustment_motion_fault_waits_for_the_image_stages_motion():
     hits = []
     fired = threading.Event()
-    tracker = PhaseTracker("adjustment_motion", 0.0, lambda proc: (hits.append(tracker.current), fired.set()),
-                           order=fault_whole.RELOCATE_PHASES)
+    tracker = PhaseTracker(
+        "adjustment_motion",
+        0.0,
+        lambda proc: (hits.append(tracker.current), fired.set()),
+        order=fault_whole.RELOCATE_PHASES,
+    )
     tracker.on_line("image stage (3D degenerate) 1/6: matching the current image with 1 reference image(s)", _Child())
     assert not fired.wait(0.3)
     tracker.on_line("image stage (3D degenerate) 1/6: moving 1.2 mm / 0.05 deg", _Child())
@@ -127,8 +138,9 @@ def test_a_failed_light_controller_is_refused_by_the_serial_driver(mode):
     from fgcd_drivers.lights_serial import SerialLights
 
     with FaultyLightController() as emu:
-        lights = SerialLights.open(LightsSpec(driver=LightsDriver.SERIAL, port=emu.port,
-                                              channels={"led:3": "1", "led:9": "2"}), timeout_s=0.3)
+        lights = SerialLights.open(
+            LightsSpec(driver=LightsDriver.SERIAL, port=emu.port, channels={"led:3": "1", "led:9": "2"}), timeout_s=0.3
+        )
         try:
             lights.set("led:3")
             assert not emu.showed_fault
@@ -145,8 +157,9 @@ def test_a_light_fault_after_the_last_switch_is_not_shown():
     from fgcd_drivers.lights_serial import SerialLights
 
     with FaultyLightController() as emu:
-        lights = SerialLights.open(LightsSpec(driver=LightsDriver.SERIAL, port=emu.port,
-                                              channels={"led:3": "1"}), timeout_s=0.3)
+        lights = SerialLights.open(
+            LightsSpec(driver=LightsDriver.SERIAL, port=emu.port, channels={"led:3": "1"}), timeout_s=0.3
+        )
         lights.set("led:3")
         emu.fail("silent")
         lights.close()  # ignores the silence, as fgcd's rig does when it closes

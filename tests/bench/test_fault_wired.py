@@ -43,8 +43,14 @@ def test_frame_map_keeps_motions_rigid():
 
 def test_inner_workspace_is_inside_the_driver_box_for_any_rotation():
     rng = np.random.default_rng(5)
-    caps = Capabilities(dof=3, controllable=("x", "y", "z"), workspace_min_m=(-0.4, -0.4, -0.4),
-                        workspace_max_m=(0.0, 0.0, 0.0), max_linear_speed_m_s=0.02, max_angular_speed_rad_s=0.0)
+    caps = Capabilities(
+        dof=3,
+        controllable=("x", "y", "z"),
+        workspace_min_m=(-0.4, -0.4, -0.4),
+        workspace_max_m=(0.0, 0.0, 0.0),
+        max_linear_speed_m_s=0.02,
+        max_angular_speed_rad_s=0.0,
+    )
     T_drv_home = np.eye(4)
     T_drv_home[:3, 3] = [-0.2, -0.15, -0.25]
     for _ in range(10):
@@ -83,9 +89,14 @@ class _Sim:
 
     def capabilities(self) -> Capabilities:
         h = self.T_base_flange_home[:3, 3]
-        return Capabilities(dof=6, controllable=("x", "y", "z", "rx", "ry", "rz"),
-                            workspace_min_m=tuple(h - 0.25), workspace_max_m=tuple(h + 0.25),
-                            max_linear_speed_m_s=0.0067, max_angular_speed_rad_s=0.1)
+        return Capabilities(
+            dof=6,
+            controllable=("x", "y", "z", "rx", "ry", "rz"),
+            workspace_min_m=tuple(h - 0.25),
+            workspace_max_m=tuple(h + 0.25),
+            max_linear_speed_m_s=0.0067,
+            max_angular_speed_rad_s=0.1,
+        )
 
 
 class _Driver:
@@ -106,14 +117,21 @@ class _Driver:
         return self.T.copy()
 
     def capabilities(self) -> Capabilities:
-        return Capabilities(dof=6, controllable=("x", "y", "z", "rx", "ry", "rz"), workspace_min_m=(-1, -1, -1),
-                            workspace_max_m=(1, 1, 1), max_linear_speed_m_s=0.02, max_angular_speed_rad_s=0.5)
+        return Capabilities(
+            dof=6,
+            controllable=("x", "y", "z", "rx", "ry", "rz"),
+            workspace_min_m=(-1, -1, -1),
+            workspace_max_m=(1, 1, 1),
+            max_linear_speed_m_s=0.02,
+            max_angular_speed_rad_s=0.5,
+        )
 
     def move_to(self, T, *, speed_fraction: float = 1.0) -> MoveResult:
         self.T = np.asarray(T, float).copy()
         self.T[0, 3] += 0.001
-        return MoveResult(T_base_flange_target=T, T_base_flange_reached=self.T.copy(), T_base_flange_commanded=T,
-                          duration_s=0.5)
+        return MoveResult(
+            T_base_flange_target=T, T_base_flange_reached=self.T.copy(), T_base_flange_commanded=T, duration_s=0.5
+        )
 
 
 def test_wired_platform_renders_at_the_reported_pose_not_the_commanded_one():

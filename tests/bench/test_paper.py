@@ -12,9 +12,19 @@ from fgcd_cli.bench.paper.report import markdown
 def test_quick_plan_covers_every_experiment():
     runs = paper.plan(quick=True)
     labels = {(r.experiment, r.label) for r in runs}
-    assert {("table2", "racr"), ("table2", "acr"), ("table5", "racr-serial"), ("fig7", "racr"),
-            ("fig7", "acr"), ("table3", "racr-no-handeye"), ("table3", "acr-handeye"), ("table4", "racr"),
-            ("table4", "acr"), ("fig6", "racr-sparse"), ("revisit", "racr-usual")} <= labels
+    assert {
+        ("table2", "racr"),
+        ("table2", "acr"),
+        ("table5", "racr-serial"),
+        ("fig7", "racr"),
+        ("fig7", "acr"),
+        ("table3", "racr-no-handeye"),
+        ("table3", "acr-handeye"),
+        ("table4", "racr"),
+        ("table4", "acr"),
+        ("fig6", "racr-sparse"),
+        ("revisit", "racr-usual"),
+    } <= labels
     # s55 scores Table 2's visits and adds no relocation; every other experiment runs at least once
     # (and Figs. 4, 6, 12 bring their own pure-rACR baseline, "pure")
     assert {r.experiment for r in runs} == set(paper.EXPERIMENTS) - {"s55"} | {"pure"}
@@ -80,10 +90,20 @@ def test_the_reference_noise_has_the_stated_spread():
 
 
 def fake_result(spec, afd):
-    return {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
-            "afd_px": afd, "success": afd < 3.0, "adjustments": 4, "session_s": 40.0 if spec.label != "racr-serial"
-            else 50.0, "platform_s": 30.0, "scene": spec.world.scene, "reference_light": spec.reference_light,
-            "visit_light": spec.visit_light}
+    return {
+        "experiment": spec.experiment,
+        "case": spec.case,
+        "label": spec.label,
+        "method": str(spec.method),
+        "afd_px": afd,
+        "success": afd < 3.0,
+        "adjustments": 4,
+        "session_s": 40.0 if spec.label != "racr-serial" else 50.0,
+        "platform_s": 30.0,
+        "scene": spec.world.scene,
+        "reference_light": spec.reference_light,
+        "visit_light": spec.visit_light,
+    }
 
 
 def test_a_rerun_resumes_from_the_run_files(tmp_path, monkeypatch):
@@ -104,16 +124,27 @@ def test_a_rerun_resumes_from_the_run_files(tmp_path, monkeypatch):
     assert len(calls) == 3 + total - 2  # the two finished runs were not run again
     assert len(data["runs"]) == total
     s = data["summary"]
-    for key in ("racr_success_rate", "acr_success_rate", "racr_mean_afd_px", "acr_mean_afd_px",
-                "racr_mean_iterations", "acr_mean_iterations", "racr_mean_rig_s", "acr_mean_rig_s",
-                "parallel_over_serial_speedup", "led_sweep_success_rate"):
+    for key in (
+        "racr_success_rate",
+        "acr_success_rate",
+        "racr_mean_afd_px",
+        "acr_mean_afd_px",
+        "racr_mean_iterations",
+        "acr_mean_iterations",
+        "racr_mean_rig_s",
+        "acr_mean_rig_s",
+        "parallel_over_serial_speedup",
+        "led_sweep_success_rate",
+    ):
         assert key in s and math.isfinite(s[key]), key
     assert s["racr_success_rate"] == 1.0 and s["acr_success_rate"] == 0.0
     assert s["parallel_over_serial_speedup"] == pytest.approx(50.0 / 40.0)
     text = (tmp_path / "paper.md").read_text()
     assert "**5.00**" in text and "316.7" in text  # ACR's failures marked; the paper's figures beside ours
     assert (tmp_path / "table2_afd.png").stat().st_size > 1000
-    assert json.loads((tmp_path / "summary.json").read_text())["summary"]["led_sweep_runs"] == len(paper.QUICK["fig7_clock"])  # 1 scene
+    assert json.loads((tmp_path / "summary.json").read_text())["summary"]["led_sweep_runs"] == len(
+        paper.QUICK["fig7_clock"]
+    )  # 1 scene
     for section in ("Table 3", "Table 4", "Fig. 4", "Fig. 6", "Fig. 12"):
         assert f"### {section}" in text, section
     assert "12.35" in text and "256.4" in text  # the paper's Table 4 and Table 3 beside ours
@@ -122,18 +153,43 @@ def test_a_rerun_resumes_from_the_run_files(tmp_path, monkeypatch):
 
 
 def test_report_marks_paused_runs():
-    runs = [{"experiment": "table2", "case": "c1", "label": "acr", "afd_px": 12.0, "success": False,
-             "error": "ACR paused at adjustment 2: only 3 SIFT matches", "scene": "stele"}]
+    runs = [
+        {
+            "experiment": "table2",
+            "case": "c1",
+            "label": "acr",
+            "afd_px": 12.0,
+            "success": False,
+            "error": "ACR paused at adjustment 2: only 3 SIFT matches",
+            "scene": "stele",
+        }
+    ]
     data = {"runs": runs, "summary": paper.summarise(runs), "paper": paper.PAPER}
     text = markdown(data)
     assert "**12.00** (paused)" in text and "only 3 SIFT matches" in text
 
 
 def test_report_shows_change_detection_after_each_method():
-    runs = [{"experiment": "s55", "case": "indoor-2", "label": "racr", "afd_px": 0.2, "f1": 0.81, "false_regions": 0,
-             "scene": "relief_panel"},
-            {"experiment": "s55", "case": "indoor-2", "label": "acr", "afd_px": 4.1, "f1": 0.37, "false_regions": 5,
-             "scene": "relief_panel"}]
+    runs = [
+        {
+            "experiment": "s55",
+            "case": "indoor-2",
+            "label": "racr",
+            "afd_px": 0.2,
+            "f1": 0.81,
+            "false_regions": 0,
+            "scene": "relief_panel",
+        },
+        {
+            "experiment": "s55",
+            "case": "indoor-2",
+            "label": "acr",
+            "afd_px": 4.1,
+            "f1": 0.37,
+            "false_regions": 5,
+            "scene": "relief_panel",
+        },
+    ]
     data = {"runs": runs, "summary": paper.summarise(runs), "paper": paper.PAPER}
     text = markdown(data)
     assert "| indoor-2 | relief_panel | 0.20 | 0.81 | 0 | 4.10 | 0.37 | 5 |" in text

@@ -19,8 +19,18 @@ from fgcd_cli.bench.soak.sample import (
 
 
 def _sample(index, rss, *, phase="quick", fds=10, threads=5, tmp=0, hwm=None, afd=float("nan")):
-    return ResourceSample(index=index, phase=phase, seconds=1.0, rss_mb=rss, hwm_mb=hwm or rss + 1.0,
-                          threads_native=threads, threads_python=2, fds=fds, tmp_left=tmp, afd_px=afd)
+    return ResourceSample(
+        index=index,
+        phase=phase,
+        seconds=1.0,
+        rss_mb=rss,
+        hwm_mb=hwm or rss + 1.0,
+        threads_native=threads,
+        threads_python=2,
+        fds=fds,
+        tmp_left=tmp,
+        afd_px=afd,
+    )
 
 
 def test_growth_is_the_least_squares_slope_after_the_warmup():
@@ -47,8 +57,10 @@ def test_growth_needs_two_points_after_the_warmup():
 
 def test_summary_fits_each_phase_and_takes_the_maxima():
     samples = [_sample(0, 90.0, phase="setup", fds=8, threads=3)]
-    samples += [_sample(k, 200.0 + 2.0 * k + 30.0 * (k == 6), fds=10 + (k == 4), threads=6 + (k == 2),
-                        afd=0.5 + 0.01 * k) for k in range(1, 7)]
+    samples += [
+        _sample(k, 200.0 + 2.0 * k + 30.0 * (k == 6), fds=10 + (k == 4), threads=6 + (k == 2), afd=0.5 + 0.01 * k)
+        for k in range(1, 7)
+    ]
     samples += [_sample(k, 400.0 - k, phase="changes", tmp=1 if k == 8 else 0, hwm=900.0) for k in range(7, 10)]
     s = summarize_samples(samples, warmup=1)
     # revisits 2..6 after the warm-up: 2 MB each, and a one-off step of 30 MB at the last

@@ -15,8 +15,14 @@ ROOT = Path(__file__).parents[2]
 
 
 def fgcd(*args, timeout=600):
-    return subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=timeout, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def one_line_error(r, code=2, *, mentions: str):
@@ -53,7 +59,9 @@ def test_handeye_unknown_mode():
     one_line_error(fgcd("calibrate", "hand-eye", "--mode", "magic", "--yes"), mentions="unknown mode")
 
 
-@pytest.mark.parametrize("rig", [("--driver", "ur", "--host", "192.0.2.1"), ("--driver", "grbl", "--port", "/dev/null")])
+@pytest.mark.parametrize(
+    "rig", [("--driver", "ur", "--host", "192.0.2.1"), ("--driver", "grbl", "--port", "/dev/null")]
+)
 def test_handeye_on_hardware_without_intrinsics_is_one_message(tmp_path, rig):
     for campaign in ((), ("-c", init_campaign(tmp_path / rig[1], site="x").path)):
         r = fgcd("calibrate", "hand-eye", "--mode", "target-free", *rig, *campaign, "--yes", timeout=120)
@@ -75,8 +83,19 @@ def test_handeye_rejects_a_zero_rotation_before_moving():
     one_line_error(r, mentions="rotation")
     assert "stop 1/" not in r.stderr + r.stdout
     assert "platform makes small motions" not in r.stderr + r.stdout  # refused before the rig is opened
-    r = fgcd("calibrate", "hand-eye", "--mode", "target-free", "--driver", "ur", "--host", "192.0.2.1",
-             "--translation-mm", "500", "--yes")
+    r = fgcd(
+        "calibrate",
+        "hand-eye",
+        "--mode",
+        "target-free",
+        "--driver",
+        "ur",
+        "--host",
+        "192.0.2.1",
+        "--translation-mm",
+        "500",
+        "--yes",
+    )
     one_line_error(r, mentions="translation")  # not a connection error: checked before connecting
 
 
@@ -107,8 +126,12 @@ def test_sim_intrinsics_calibrate_the_camera_of_the_rig_of_that_seed(tmp_path):
 
 
 # ----------------------------------------------------------------------------- the campaign's rig (issue 48, item 1)
-INTRINSICS = {"camera": {"fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480},
-              "distortion_model": "none", "rms_px": 0.2, "n_views": 20}
+INTRINSICS = {
+    "camera": {"fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480},
+    "distortion_model": "none",
+    "rms_px": 0.2,
+    "n_views": 20,
+}
 
 
 def _ur_campaign(tmp_path):
@@ -152,10 +175,20 @@ def _fake_calibration(rms_mm: float):
     from fgcd_cli.app.calibrate import HandEyeCalibration
     from fgcd_cli.calibration.handeye.result import HandEyeResult
 
-    result = HandEyeResult(T_flange_cam=np.eye(4), scale=1.6, method="racr-linear", n_samples=12, n_pairs=2,
-                           pairs=[(0, 1), (1, 2)], residuals_mm=np.array([rms_mm, rms_mm]),
-                           residuals_deg=np.array([0.2, 0.2]), sample_residuals_mm=np.full(3, rms_mm),
-                           sample_residuals_deg=np.full(3, 0.2), axis_spread_deg=80.0, max_rotation_deg=8.0)
+    result = HandEyeResult(
+        T_flange_cam=np.eye(4),
+        scale=1.6,
+        method="racr-linear",
+        n_samples=12,
+        n_pairs=2,
+        pairs=[(0, 1), (1, 2)],
+        residuals_mm=np.array([rms_mm, rms_mm]),
+        residuals_deg=np.array([0.2, 0.2]),
+        sample_residuals_mm=np.full(3, rms_mm),
+        sample_residuals_deg=np.full(3, 0.2),
+        axis_spread_deg=80.0,
+        max_rotation_deg=8.0,
+    )
     return HandEyeCalibration(result=result, record=result.to_dict(), run=None)
 
 
@@ -169,8 +202,12 @@ def handeye_of(monkeypatch):
 
     def run(rms_mm):
         monkeypatch.setattr(calibrate_uc, "run_handeye", lambda *a, **k: _fake_calibration(rms_mm))
-        monkeypatch.setattr(rig_uc, "open_rig", lambda request, hooks=None: rig_uc.OpenedRig(
-            handles=SimpleNamespace(guard=None), close=lambda: None))
+        monkeypatch.setattr(
+            rig_uc,
+            "open_rig",
+            lambda request, hooks=None: rig_uc.OpenedRig(handles=SimpleNamespace(guard=None), close=lambda: None),
+        )
+
     return run
 
 
@@ -205,9 +242,14 @@ def test_sim_intrinsics_are_not_silent_in_a_pipe():
     silence in a log; here the heartbeat is shortened to 0.3 s), and stdout keeps only the result."""
     import os
 
-    r = subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", "calibrate", "intrinsics", "--sim", "--sim-views",
-                        "8"], capture_output=True, text=True, cwd=ROOT, timeout=300,
-                       env={**os.environ, "FGCD_HEARTBEAT_S": "0.3"})
+    r = subprocess.run(
+        [sys.executable, "-m", "fgcd_cli.cli.app", "calibrate", "intrinsics", "--sim", "--sim-views", "8"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+        env={**os.environ, "FGCD_HEARTBEAT_S": "0.3"},
+    )
     assert r.returncode == 0, r.stderr
     lines = r.stderr.splitlines()
     assert lines and lines[0] == "rendering board views", lines

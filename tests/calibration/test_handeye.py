@@ -232,9 +232,19 @@ def test_hand_eye_report_shows_the_image_refinement(handeye_data):
 
     d = handeye_data(seed=2)
     res = solve_handeye_scale(d["T_base_flange"], d["T_map_cam"])
-    res = replace(res, method="racr-linear+image-ba", refinement={
-        "points": 543, "rms_px": 0.25, "std_mm": 0.7, "std_deg": 0.024, "change_mm": 9.8, "change_deg": 0.29,
-        "scale_method": "map depths (scale_from_depths)"})
+    res = replace(
+        res,
+        method="racr-linear+image-ba",
+        refinement={
+            "points": 543,
+            "rms_px": 0.25,
+            "std_mm": 0.7,
+            "std_deg": 0.024,
+            "change_mm": 9.8,
+            "change_deg": 0.29,
+            "scale_method": "map depths (scale_from_depths)",
+        },
+    )
     console = Console(record=True, width=200)
     _render_handeye(console, res.to_dict())
     text = console.export_text()

@@ -79,8 +79,7 @@ def test_a_platform_rotation_scale_error_is_estimated_with_x():
     true_scale = 1.003
     tracks = _tracks(_rotations_scaled(reported, true_scale), noise_px=0.1, seed=2)
     res = refine_handeye_tracks(reported, tracks, K, _x_init())
-    fixed = refine_handeye_tracks(reported, tracks, K, _x_init(),
-                                  config=RefineConfig(estimate_rotation_scale=False))
+    fixed = refine_handeye_tracks(reported, tracks, K, _x_init(), config=RefineConfig(estimate_rotation_scale=False))
     mm, deg = pose_distance(res.T_flange_cam, X_TRUE)
     assert abs(res.rotation_scale - true_scale) < 4 * res.rotation_scale_std and res.rotation_scale_std < 2e-4
     assert mm < 4 * res.std_mm + 0.05 and deg < 4 * res.std_deg + 0.005
@@ -128,8 +127,9 @@ def _texture(seed=0, size=1200) -> np.ndarray:
     rng = np.random.default_rng(seed)
     tex = np.zeros((size, size), np.float32)
     for cells, weight in ((40, 1.0), (150, 0.6), (400, 0.3)):
-        tex += weight * cv2.resize(rng.uniform(0, 1, (cells, cells)).astype(np.float32), (size, size),
-                                   interpolation=cv2.INTER_CUBIC)
+        tex += weight * cv2.resize(
+            rng.uniform(0, 1, (cells, cells)).astype(np.float32), (size, size), interpolation=cv2.INTER_CUBIC
+        )
     tex -= tex.min()
     return (255 * tex / tex.max()).astype(np.uint8)
 
@@ -186,8 +186,9 @@ def test_refinement_fixes_the_hand_eye_and_scale_of_noisy_vse_poses(plane_case):
         keyframes.append(KeyframeDepths(T_base_flange=T, T_map_cam=T_map_cam, pixels=uv, points_map=P_map))
     # fewer features: a fast test
     camera = PinholeCamera.from_K(K, W, H)
-    refined = refine_target_free(linear, hand, eye, images, camera, keyframes=keyframes,
-                                 config=TargetFreeConfig(n_features=800))
+    refined = refine_target_free(
+        linear, hand, eye, images, camera, keyframes=keyframes, config=TargetFreeConfig(n_features=800)
+    )
     by_motion = refine_target_free(linear, hand, eye, images, camera, config=TargetFreeConfig(n_features=800))
     lin_mm, _ = pose_distance(linear.T_flange_cam, X_TRUE)
     mm, deg = pose_distance(refined.T_flange_cam, X_TRUE)

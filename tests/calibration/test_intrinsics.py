@@ -22,8 +22,13 @@ SPEC = BoardSpec()
 def _views(n, seed, dist=DIST, **pose_kw):
     poses = random_board_poses(SIM_BOARD, n, PinholeCamera(**CAM), rng=np.random.default_rng(seed), **pose_kw)
     return [
-        render_board_view(SIM_BOARD, T, PinholeCamera(**CAM, dist=dist), options=BoardViewOptions(supersample=2),
-                          rng=np.random.default_rng(seed * 100 + i))
+        render_board_view(
+            SIM_BOARD,
+            T,
+            PinholeCamera(**CAM, dist=dist),
+            options=BoardViewOptions(supersample=2),
+            rng=np.random.default_rng(seed * 100 + i),
+        )
         for i, T in enumerate(poses)
     ], poses
 
@@ -41,7 +46,9 @@ def test_rendered_corners_match_the_projection_of_the_true_board(views):
     for image, T in zip(images[:4], poses[:4]):
         det = SPEC.detect(image)
         assert det.n_corners >= 8
-        proj, _ = cv2.projectPoints(SPEC.corner_points()[det.ids], cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K, np.array(DIST))
+        proj, _ = cv2.projectPoints(
+            SPEC.corner_points()[det.ids], cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K, np.array(DIST)
+        )
         offsets.append(det.corners_px - proj.reshape(-1, 2))
     off = np.concatenate(offsets)
     assert np.all(np.abs(off.mean(axis=0)) < 0.03)

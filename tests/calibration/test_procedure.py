@@ -143,7 +143,9 @@ def test_run_target_free_reports_a_vse_that_never_tracks():
     platform = IdealPlatform()
     guard = MotionGuard(platform)
     with pytest.raises(CalibrationError, match="VSE gave a pose at only 0"):
-        run_target_free(guard, FakeCamera(), lambda cam: FakeVSE(platform, np.eye(4), 1.0, init_frames=10**6), camera=CAMERA)
+        run_target_free(
+            guard, FakeCamera(), lambda cam: FakeVSE(platform, np.eye(4), 1.0, init_frames=10**6), camera=CAMERA
+        )
 
 
 def test_results_are_stored_in_the_campaign_rig_with_history(tmp_path, handeye_data):
@@ -202,8 +204,10 @@ def test_run_target_free_gives_the_refinement_every_rest_pose_of_the_path(monkey
     for k, i in enumerate(path.stop_index):
         np.testing.assert_allclose(path.T_base_flange[i], seen["hand"][k], atol=1e-12)
     # consecutive views are distinct rest poses a step apart
-    steps = [max(pose_distance(a, b)[0] / 5.0, pose_distance(a, b)[1]) for a, b in
-             zip(path.T_base_flange[:-1], path.T_base_flange[1:])]
+    steps = [
+        max(pose_distance(a, b)[0] / 5.0, pose_distance(a, b)[1])
+        for a, b in zip(path.T_base_flange[:-1], path.T_base_flange[1:])
+    ]
     assert min(steps) > 0.01 and max(steps) <= 1.0 + 1e-9  # distinct poses, each <= 5 mm / 1 deg on
     assert 0 not in path.stop_index
     assert all(img.dtype == np.uint8 and img.ndim == 2 for img in path.images)
@@ -214,8 +218,13 @@ def test_target_free_reports_its_progress_through_a_plain_callback():
     X = make_pose(exp_so3([0.1, -0.3, 0.2]), [0.03, -0.05, 0.08])
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
     calls = []
-    run_target_free(guard, FakeCamera(), lambda cam: FakeVSE(platform, X, 0.42), camera=CAMERA,
-                    on_progress=lambda done, total, label: calls.append((done, total, label)))
+    run_target_free(
+        guard,
+        FakeCamera(),
+        lambda cam: FakeVSE(platform, X, 0.42),
+        camera=CAMERA,
+        on_progress=lambda done, total, label: calls.append((done, total, label)),
+    )
     path = [c for c in calls if c[1] > 0]
     assert path, calls
     totals = {t for _, t, _ in path}
@@ -245,18 +254,30 @@ def test_the_hand_eye_use_case_is_the_target_free_procedure():
         platform = IdealPlatform()
         guard = MotionGuard(platform, GuardLimits(max_step_m=0.006, max_step_rad=math.radians(1.2)))
         says, ticks = [], []
+
         def factory(cam, platform=platform):
             return FakeVSE(platform, X, 0.42)
+
         if use_case:
-            calibration = run_handeye(HandEyeRig(guard=guard, camera_source=FakeCamera(), intrinsics=CAMERA),
-                                      HandEyeRequest(), say=says.append,
-                                      on_progress=lambda *a, ticks=ticks: ticks.append(a), vse_factory=factory)
+            calibration = run_handeye(
+                HandEyeRig(guard=guard, camera_source=FakeCamera(), intrinsics=CAMERA),
+                HandEyeRequest(),
+                say=says.append,
+                on_progress=lambda *a, ticks=ticks: ticks.append(a),
+                vse_factory=factory,
+            )
             assert isinstance(calibration, HandEyeCalibration)
             assert calibration.record["skipped_stops"] == {"0": "VSE initializing: need parallax"}
             run = calibration.run
         else:
-            run = run_target_free(guard, FakeCamera(), factory, camera=CAMERA, progress=says.append,
-                                  on_progress=lambda *a, ticks=ticks: ticks.append(a))
+            run = run_target_free(
+                guard,
+                FakeCamera(),
+                factory,
+                camera=CAMERA,
+                progress=says.append,
+                on_progress=lambda *a, ticks=ticks: ticks.append(a),
+            )
         outcomes.append((np.asarray(run.result.T_flange_cam), run.result.scale, says, ticks, run.frames))
     (X_a, s_a, say_a, tick_a, f_a), (X_b, s_b, say_b, tick_b, f_b) = outcomes
     assert np.array_equal(X_a, X_b) and s_a == s_b and say_a == say_b and tick_a == tick_b and f_a == f_b

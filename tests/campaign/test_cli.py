@@ -17,7 +17,9 @@ ROOT = Path(__file__).parents[2]
 def fgcd(*args, cwd=None):
     return subprocess.run(
         [sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)],
-        capture_output=True, text=True, cwd=cwd or ROOT,
+        capture_output=True,
+        text=True,
+        cwd=cwd or ROOT,
     )
 
 
@@ -144,8 +146,11 @@ def test_verify_broken_station_json_still_checks_that_stations_observations(tmp_
     assert data["observations"] == 2  # the intact reference and the visit were both read
 
 
-@pytest.mark.parametrize("content", ['["reference"]', '"s"', '{"observations": "reference"}', None],
-                         ids=["array", "string", "bad-index", "missing"])
+@pytest.mark.parametrize(
+    "content",
+    ['["reference"]', '"s"', '{"observations": "reference"}', None],
+    ids=["array", "string", "bad-index", "missing"],
+)
 def test_verify_names_a_malformed_or_missing_station_json(tmp_path, content):
     root = tmp_path / "c"
     _, st, _, _ = _campaign_with_observations(root)
@@ -199,8 +204,21 @@ def test_init_stores_the_rigs_camera_and_baud_rate(tmp_path):
     """`campaign init` writes the whole rig into campaign.toml [rig] (issue 48, item 4)."""
     import tomllib
 
-    r = fgcd("campaign", "init", tmp_path / "g", "--site", "x", "-d", "grbl", "--port", "/dev/ttyUSB1", "--baud",
-             "57600", "--camera", "/dev/video2")
+    r = fgcd(
+        "campaign",
+        "init",
+        tmp_path / "g",
+        "--site",
+        "x",
+        "-d",
+        "grbl",
+        "--port",
+        "/dev/ttyUSB1",
+        "--baud",
+        "57600",
+        "--camera",
+        "/dev/video2",
+    )
     assert r.returncode == 0, r.stderr
     rig = tomllib.loads((tmp_path / "g" / "campaign.toml").read_text())["rig"]
     assert rig == {"driver": "grbl", "port": "/dev/ttyUSB1", "baud": 57600, "camera": "/dev/video2"}

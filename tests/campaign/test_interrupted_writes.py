@@ -91,8 +91,12 @@ def test_a_read_only_folder_is_refused_by_name_before_any_work(tmp_path):
     check_writable(tmp_path)  # writable: nothing said
     folder = tmp_path / "ro"
     folder.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m,ro", "tmpfs", str(folder)],
-                             capture_output=True).returncode == 0
+    mounted = (
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=1m,ro", "tmpfs", str(folder)], capture_output=True
+        ).returncode
+        == 0
+    )
     if not mounted:
         pytest.skip("mounting a read-only tmpfs is not permitted here (needs root)")
     try:

@@ -20,8 +20,11 @@ pytestmark = pytest.mark.timeout(120)
 
 
 def _tree_digest(path: Path) -> dict[str, str]:
-    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(path.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(path.rglob("*"))
+        if p.is_file()
+    }
 
 
 @pytest.fixture
@@ -48,10 +51,20 @@ def test_the_second_holder_is_refused_naming_the_first(camp):
 
 
 def test_a_lock_left_by_a_killed_process_is_stale_and_does_not_block(camp):
-    holder = subprocess.Popen([sys.executable, "-c", (
-        "import sys, time; from fgcd_cli.campaign.lock import station_lock\n"
-        "with station_lock(sys.argv[1], 's1', command='relocate'):\n"
-        "    print('held', flush=True); time.sleep(60)"), str(camp.path)], stdout=subprocess.PIPE, cwd=ROOT)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            (
+                "import sys, time; from fgcd_cli.campaign.lock import station_lock\n"
+                "with station_lock(sys.argv[1], 's1', command='relocate'):\n"
+                "    print('held', flush=True); time.sleep(60)"
+            ),
+            str(camp.path),
+        ],
+        stdout=subprocess.PIPE,
+        cwd=ROOT,
+    )
     try:
         assert holder.stdout.readline().strip() == b"held"
         with pytest.raises(StationBusy, match=f"pid {holder.pid}"):
@@ -70,8 +83,14 @@ def test_a_second_relocate_gets_one_line_exit_3_and_changes_nothing(camp):
     before = _tree_digest(camp.path / "stations")
     with station_lock(camp.path, "s1", command="relocate"):  # the first revisit, running
         started = time.monotonic()
-        r = subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", "relocate", "-c", str(camp.path), "-s", "s1",
-                            "--yes"], capture_output=True, text=True, cwd=ROOT, timeout=120, stdin=subprocess.DEVNULL)
+        r = subprocess.run(
+            [sys.executable, "-m", "fgcd_cli.cli.app", "relocate", "-c", str(camp.path), "-s", "s1", "--yes"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=120,
+            stdin=subprocess.DEVNULL,
+        )
         assert r.returncode == 3, r.stderr
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and "Traceback" not in r.stderr

@@ -259,7 +259,10 @@ def test_deleted_observation_directories_are_named(camp):
             w.add_image("cur", np.zeros((4, 4), np.uint8))
             w.commit()
     assert json.loads((st.path / "station.json").read_text())["observations"] == [
-        "reference", "visits/20260100T000000000Z", "visits/20260101T000000000Z"]
+        "reference",
+        "visits/20260100T000000000Z",
+        "visits/20260101T000000000Z",
+    ]
     assert verify_campaign(camp).ok
     os.chmod(ref.path, 0o755)
     for p in ref.path.rglob("*"):
@@ -292,15 +295,21 @@ def test_latest_recorded_visit_missing_is_named_never_replaced_by_an_older_one(c
     shutil.rmtree(st.path / "visits" / "20260102T000000000Z")
     st = open_campaign(camp.path).station("s")
     assert st.missing_visit_names() == ["20260102T000000000Z"]
-    with pytest.raises(DataIntegrityError, match=r"latest recorded visit 20260102T000000000Z is missing.*"
-                                                 r"--visit 20260101T000000000Z"):
+    with pytest.raises(
+        DataIntegrityError,
+        match=r"latest recorded visit 20260102T000000000Z is missing.*"
+        r"--visit 20260101T000000000Z",
+    ):
         st.visit()
     with pytest.raises(DataIntegrityError, match="recorded in station.json but its folder"):
         st.visit("20260102T000000000Z")
     assert st.visit("20260101T000000000Z").name == "20260101T000000000Z"  # asked for by name: given
     shutil.rmtree(st.path / "visits" / "20260100T000000000Z")  # an older one missing too: the latest present is fine
-    (st.path / "station.json").write_text(json.dumps({**st.info, "observations": [
-        "reference", "visits/20260100T000000000Z", "visits/20260101T000000000Z"]}))
+    (st.path / "station.json").write_text(
+        json.dumps(
+            {**st.info, "observations": ["reference", "visits/20260100T000000000Z", "visits/20260101T000000000Z"]}
+        )
+    )
     assert open_campaign(camp.path).station("s").visit().name == "20260101T000000000Z"
 
 
@@ -309,9 +318,15 @@ def test_verify_names_a_diff_made_with_a_non_physical_scale(camp):
     _write_reference(st)
     _three_visits(st)
     visit = st.visit()
-    for scale, bad in (("0.5 mm per px (given)", False), ("-1.0 mm per px (given)", True), ("0.0 mm per px (given)", True),
-                       ("from the reference metric cloud", False)):
-        visit.add_derived("changes/regions.json", json.dumps({"regions": [], "metadata": {"metric scale": scale}}).encode())
+    for scale, bad in (
+        ("0.5 mm per px (given)", False),
+        ("-1.0 mm per px (given)", True),
+        ("0.0 mm per px (given)", True),
+        ("from the reference metric cloud", False),
+    ):
+        visit.add_derived(
+            "changes/regions.json", json.dumps({"regions": [], "metadata": {"metric scale": scale}}).encode()
+        )
         report = verify_campaign(camp)
         assert report.ok != bad, scale
         assert [p.kind for p in report.problems] == (["scale"] if bad else [])
@@ -429,8 +444,12 @@ def test_old_campaigns_with_colon_file_names_are_still_read(camp):
     img = np.full((6, 8), 90, np.uint8)
     data = encode_png(img)
     (visit / "images" / "led:3.png").write_bytes(data)
-    manifest = {"format_version": 1, "kind": "visit", "metadata": {"lightings": ["led:3"]},
-                "files": {"images/led:3.png": {"sha256": sha256_bytes(data), "bytes": len(data)}}}
+    manifest = {
+        "format_version": 1,
+        "kind": "visit",
+        "metadata": {"lightings": ["led:3"]},
+        "files": {"images/led:3.png": {"sha256": sha256_bytes(data), "bytes": len(data)}},
+    }
     (visit / MANIFEST).write_text(json.dumps(manifest))
     old = st.visit()
     assert old.image_names() == ["led:3"]

@@ -78,8 +78,9 @@ def test_a_journal_killed_at_its_first_line_is_a_leftover(station, text):
     assert _problems(station) == [(f"{VISITS_DIR}/{VISIT_JOURNAL}", "incomplete-write", "warning")]
 
 
-@pytest.mark.parametrize("text", [_lines(START) + "garbage\n" + _lines(ENTRIES[0]), _lines(ENTRIES[0]),
-                                  _lines(START) + "not json\n"])
+@pytest.mark.parametrize(
+    "text", [_lines(START) + "garbage\n" + _lines(ENTRIES[0]), _lines(ENTRIES[0]), _lines(START) + "not json\n"]
+)
 def test_a_journal_damaged_otherwise_is_an_error(station, text):
     # every line is written whole and fsynced: a bad middle line, a missing start line or a bad whole
     # last line is no interrupted write's doing

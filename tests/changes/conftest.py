@@ -11,13 +11,15 @@ from skimage import data
 def textured_scene(size: int = 256) -> np.ndarray:
     """A real photographic texture (scikit-image 'gravel'), float32 in [0, 1], size x size."""
     gravel = data.gravel().astype(np.float32) / 255.0
-    return cv2.resize(gravel[:size * 2, :size * 2], (size, size), interpolation=cv2.INTER_AREA)
+    return cv2.resize(gravel[: size * 2, : size * 2], (size, size), interpolation=cv2.INTER_AREA)
 
 
 def translate(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
     """Content moves by (dx, dy) pixels: out(x) = in(x - d)."""
     M = np.float32([[1, 0, dx], [0, 1, dy]])
-    moved = cv2.warpAffine(image, M, (image.shape[1], image.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    moved = cv2.warpAffine(
+        image, M, (image.shape[1], image.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
     return np.clip(moved, 0.0, 1.0)
 
 

@@ -27,15 +27,16 @@ def _lights(tilt_deg: float = 40.0, azimuth_offset_deg: float = 0.0) -> np.ndarr
     """Six unit directions towards the lights (rows), on the camera side (l_z < 0)."""
     azimuths = np.deg2rad(np.arange(6) * 60.0 + 15.0 + azimuth_offset_deg)
     tilt = np.deg2rad(tilt_deg)
-    return np.stack([np.sin(tilt) * np.cos(azimuths), np.sin(tilt) * np.sin(azimuths),
-                     -np.cos(tilt) * np.ones(6)], axis=1)
+    return np.stack(
+        [np.sin(tilt) * np.cos(azimuths), np.sin(tilt) * np.sin(azimuths), -np.cos(tilt) * np.ones(6)], axis=1
+    )
 
 
 def _height(pit: bool) -> np.ndarray:
     ys, xs = np.mgrid[0:SIZE, 0:SIZE].astype(np.float64)
     h = 6.0 * np.sin(xs / 17.0) * np.cos(ys / 23.0) + 4.0 * np.exp(-((xs - 60) ** 2 + (ys - 100) ** 2) / 600.0)
     if pit:
-        h -= PIT_DEPTH * np.exp(-((xs - PIT_CENTRE[0]) ** 2 + (ys - PIT_CENTRE[1]) ** 2) / (2 * PIT_SIGMA ** 2))
+        h -= PIT_DEPTH * np.exp(-((xs - PIT_CENTRE[0]) ** 2 + (ys - PIT_CENTRE[1]) ** 2) / (2 * PIT_SIGMA**2))
     return h
 
 
@@ -65,7 +66,7 @@ def _render(albedo, normals, lights, gains, ambient_gain, noise_seed):
 
 def _truths():
     ys, xs = np.mgrid[0:SIZE, 0:SIZE]
-    stain = (xs - STAIN_CENTRE[0]) ** 2 + (ys - STAIN_CENTRE[1]) ** 2 <= STAIN_RADIUS ** 2
+    stain = (xs - STAIN_CENTRE[0]) ** 2 + (ys - STAIN_CENTRE[1]) ** 2 <= STAIN_RADIUS**2
     n0, n1 = _normals(_height(False)), _normals(_height(True))
     angle = np.degrees(np.arccos(np.clip(np.sum(n0 * n1, axis=2), -1, 1)))
     return stain, angle > TRUTH_ANGLE_DEG
@@ -117,8 +118,7 @@ def _moved_lights():
 
 def test_unchanged_pair_under_moved_lights_stays_low(scene):
     # The current/reference ratio of each lighting now depends on the normal.
-    moved = _render(_albedo(), _normals(_height(False)), _moved_lights(), CURRENT_GAINS, CURRENT_AMBIENT,
-                    noise_seed=4)
+    moved = _render(_albedo(), _normals(_height(False)), _moved_lights(), CURRENT_GAINS, CURRENT_AMBIENT, noise_seed=4)
     changed = iccv2015_score(scene["ref"], scene["cur"], valid=scene["valid"])
     quiet = iccv2015_score(scene["ref"], moved, valid=scene["valid"])
     inside = np.median(changed[scene["stain"] | scene["pit"]])
@@ -131,8 +131,7 @@ def test_normal_groups_follow_the_normal_dependent_ratio(scene):
     # correction must explain clearly more of the per-pixel ratio than one gain per lighting.
     normals = _normals(_height(False))
     moved = _render(_albedo(), normals, _moved_lights(), CURRENT_GAINS, CURRENT_AMBIENT, noise_seed=4)
-    details = iccv2015_details(scene["ref"], moved, valid=scene["valid"],
-                               config=ICCV2015Config(spatial_sigma_px=None))
+    details = iccv2015_details(scene["ref"], moved, valid=scene["valid"], config=ICCV2015Config(spatial_sigma_px=None))
     groups = details.normal_groups
     big = [g for g in range(16) if np.count_nonzero(groups == g) > 300]
     assert len(big) >= 8
@@ -151,8 +150,9 @@ def test_normal_groups_follow_the_normal_dependent_ratio(scene):
 def test_group_gains_recover_the_light_gains(scene):
     # Same light directions, other intensities: every normal group of lighting k should get the
     # log of the current/reference intensity ratio (ambient included in the directional images).
-    details = iccv2015_details(scene["ref"], scene["unchanged"], valid=scene["valid"],
-                               config=ICCV2015Config(spatial_sigma_px=None))
+    details = iccv2015_details(
+        scene["ref"], scene["unchanged"], valid=scene["valid"], config=ICCV2015Config(spatial_sigma_px=None)
+    )
     groups = details.normal_groups
     assert groups.min() >= 0 and groups.max() <= 16
     big = [g for g in range(16) if np.count_nonzero(groups == g) > 500]

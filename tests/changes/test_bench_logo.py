@@ -4,17 +4,24 @@ from fgcd_cli.bench.changes.main import leave_one_group_out, leave_one_group_out
 
 
 def _group(name, scores_by_key, metric):
-    return {"group": name, "kind": "Db", "changed_fraction_true": 0.01,
-            "grid": {key: {metric: value, "best_f1": value, "ap": value, "auto_f1": value, "auto_recall": value}
-                     for key, value in scores_by_key.items()},
-            "score_variants": {key: {"best_f1": value, "ap": value} for key, value in scores_by_key.items()}}
+    return {
+        "group": name,
+        "kind": "Db",
+        "changed_fraction_true": 0.01,
+        "grid": {
+            key: {metric: value, "best_f1": value, "ap": value, "auto_f1": value, "auto_recall": value}
+            for key, value in scores_by_key.items()
+        },
+        "score_variants": {key: {"best_f1": value, "ap": value} for key, value in scores_by_key.items()},
+    }
 
 
 def test_held_out_group_is_scored_with_the_constants_the_others_prefer():
     a, b = ("acontrario", 0.005, 0.3), ("acontrario", 0.01, 0.2)
     # Group g0 alone prefers b (0.9 vs 0.1); the four others prefer a (0.6 vs 0.5).
-    groups = [_group("g0", {a: 0.1, b: 0.9}, "auto_f1")] + [_group(f"g{i}", {a: 0.6, b: 0.5}, "auto_f1")
-                                                             for i in range(1, 5)]
+    groups = [_group("g0", {a: 0.1, b: 0.9}, "auto_f1")] + [
+        _group(f"g{i}", {a: 0.6, b: 0.5}, "auto_f1") for i in range(1, 5)
+    ]
     rows = leave_one_group_out(groups, [a, b])
     assert rows[0]["group"] == "g0" and rows[0]["auto_f1"] == 0.1  # chosen without g0: a
     assert rows[0]["chosen"] == {"decision": "acontrario", "seed_p": 0.005, "extent_fraction": 0.3}

@@ -63,8 +63,9 @@ def test_decide_takes_its_section():
     score = np.abs(rng.normal(size=(96, 96))).astype(np.float32)
     score[40:52, 40:52] += 30.0
     valid = np.ones(score.shape, bool)
-    by_config = decide(score, valid, config=DetectionConfig.from_options(
-        decision="hysteresis", k_high=14.0, k_low=7.0).regions)
+    by_config = decide(
+        score, valid, config=DetectionConfig.from_options(decision="hysteresis", k_high=14.0, k_low=7.0).regions
+    )
     assert by_config[0][45, 45] and not by_config[0][5, 5]
     with pytest.raises(TypeError):
         decide(score, valid, k_high=14.0)

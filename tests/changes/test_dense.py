@@ -46,8 +46,13 @@ def _render_current(scene: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for _ in range(30):
         px, py = _parallax(xs + qx, ys + qy, w)
         qx, qy = -px, -py
-    cur = cv2.remap(scene.astype(np.float32), (xs + qx).astype(np.float32), (ys + qy).astype(np.float32),
-                    cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    cur = cv2.remap(
+        scene.astype(np.float32),
+        (xs + qx).astype(np.float32),
+        (ys + qy).astype(np.float32),
+        cv2.INTER_CUBIC,
+        borderMode=cv2.BORDER_REFLECT,
+    )
     truth = np.stack(_parallax(xs, ys, w), axis=2).astype(np.float32)
     return np.clip(cur * _gain(w), 0.0, 1.0), truth
 
@@ -196,9 +201,9 @@ def test_occlusion_gets_low_confidence_not_a_wild_flow():
     cur, truth = _render_current(ref)
     # An 80 px patch of unrelated texture (another part of the image, rotated) covers the view.
     y0, x0 = 150, 200
-    cur[y0:y0 + 80, x0:x0 + 80] = np.rot90(ref[20:100, 280:360]) * _gain()[:, x0:x0 + 80]
+    cur[y0 : y0 + 80, x0 : x0 + 80] = np.rot90(ref[20:100, 280:360]) * _gain()[:, x0 : x0 + 80]
     occluded = np.zeros((SIZE, SIZE), bool)
-    occluded[y0:y0 + 80, x0:x0 + 80] = True
+    occluded[y0 : y0 + 80, x0 : x0 + 80] = True
     error_raw = np.hypot(*(_raw_dis(ref, cur) - truth).transpose(2, 0, 1))
     assert np.percentile(error_raw[occluded], 90) > 2.0  # raw matching there is wild
 
@@ -266,8 +271,15 @@ def _real_pair(group: str) -> dict:
     warped, valid = warp_to_reference(cur, registration.H_cur_ref, ref.shape)
     truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
     mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
-    return {"ref": ref, "cur": cur, "warped": warped, "valid": valid, "truth": truth, "mask": mask,
-            "H": registration.H_cur_ref}
+    return {
+        "ref": ref,
+        "cur": cur,
+        "warped": warped,
+        "valid": valid,
+        "truth": truth,
+        "mask": mask,
+        "H": registration.H_cur_ref,
+    }
 
 
 def _gradient_residuals(pair: dict, result) -> tuple[float, float, float, float]:
@@ -279,11 +291,17 @@ def _gradient_residuals(pair: dict, result) -> tuple[float, float, float, float]
     compared = pair["mask"] & pair["valid"] & seen & ~result.not_compared
     background = compared & ~pair["truth"]
     change = compared & pair["truth"]
-    return (float(before[background].mean()), float(after[background].mean()),
-            float(before[change].mean()), float(after[change].mean()))
+    return (
+        float(before[background].mean()),
+        float(after[background].mean()),
+        float(before[change].mean()),
+        float(after[change].mean()),
+    )
 
 
-@pytest.mark.skipif(not (DATASET / "Ds" / "Ds-1").is_dir(), reason=f"real FGCD dataset not found at {DATASET.resolve()}")
+@pytest.mark.skipif(
+    not (DATASET / "Ds" / "Ds-1").is_dir(), reason=f"real FGCD dataset not found at {DATASET.resolve()}"
+)
 def test_statue_is_not_made_worse():
     """Ds-1: the homography already fits the statue (raw residual flow p95 0.2 px): nothing to gain, nothing to lose.
 
@@ -301,7 +319,9 @@ def test_statue_is_not_made_worse():
     assert change_after > 0.95 * change_before
 
 
-@pytest.mark.skipif(not (DATASET / "Dp" / "Dp-1").is_dir(), reason=f"real FGCD dataset not found at {DATASET.resolve()}")
+@pytest.mark.skipif(
+    not (DATASET / "Dp" / "Dp-1").is_dir(), reason=f"real FGCD dataset not found at {DATASET.resolve()}"
+)
 def test_relief_parallax_is_removed_and_changes_kept():
     """Dp-1: an outdoor relief with real parallax (residual flow up to 7 px at the left border)."""
     pair = _real_pair("Dp/Dp-1")

@@ -57,8 +57,9 @@ def light_directions() -> np.ndarray:
     """6x3 unit vectors towards the lights (camera frame; 12 o'clock is image up, -y)."""
     hours = np.radians(np.array(CLOCK_HOURS) * 30.0)
     tilt = np.radians(TILT_DEG)
-    return np.stack([np.sin(tilt) * np.sin(hours), -np.sin(tilt) * np.cos(hours),
-                     -np.cos(tilt) * np.ones_like(hours)], axis=1)
+    return np.stack(
+        [np.sin(tilt) * np.sin(hours), -np.sin(tilt) * np.cos(hours), -np.cos(tilt) * np.ones_like(hours)], axis=1
+    )
 
 
 def albedo() -> np.ndarray:
@@ -151,8 +152,15 @@ def calibrated_lights() -> np.ndarray:
 def scene() -> dict:
     alb, depth = albedo(), depth_map()
     pit_depth, pit_disc, sphere = spherical_pit()
-    return dict(albedo=alb, depth=depth, pit_depth=pit_depth, pit=pit_disc, sphere=sphere,
-                stain=disc(STAIN_XY, STAIN_RADIUS_PX), ref=render(depth, alb, rng=np.random.default_rng(0)))
+    return dict(
+        albedo=alb,
+        depth=depth,
+        pit_depth=pit_depth,
+        pit=pit_disc,
+        sphere=sphere,
+        stain=disc(STAIN_XY, STAIN_RADIUS_PX),
+        ref=render(depth, alb, rng=np.random.default_rng(0)),
+    )
 
 
 def stained(scene: dict) -> np.ndarray:
@@ -169,8 +177,10 @@ def region_on(result: ChangeResult, truth: np.ndarray):
 def describe(result: ChangeResult) -> list:
     """(id, area, cue, evidence, magnitude) of every region, for assertion messages."""
     maps = result.cue_maps
-    return [(r.id, r.area_px, r.cue, maps.evidence.get(r.id), getattr(maps, "magnitude", {}).get(r.id))
-            for r in result.regions]
+    return [
+        (r.id, r.area_px, r.cue, maps.evidence.get(r.id), getattr(maps, "magnitude", {}).get(r.id))
+        for r in result.regions
+    ]
 
 
 def assert_found(result: ChangeResult, truth: np.ndarray, radius_px: float):
@@ -232,21 +242,24 @@ def test_renderer_matches_the_stated_case(scene):
     """The scene is what the tests below assume: non-planar, unclipped, lights at 45 degrees."""
     lights = light_directions()
     np.testing.assert_allclose(np.degrees(np.arccos(-lights[:, 2])), TILT_DEG)
-    np.testing.assert_allclose(lights[0], [0.0, -np.sin(np.radians(TILT_DEG)), -np.cos(np.radians(TILT_DEG))],
-                               atol=1e-12)  # 12 o'clock is image up
+    np.testing.assert_allclose(
+        lights[0], [0.0, -np.sin(np.radians(TILT_DEG)), -np.cos(np.radians(TILT_DEG))], atol=1e-12
+    )  # 12 o'clock is image up
     slope = np.degrees(np.arccos(-normals_of(scene["depth"])[:, :, 2]))
     assert 10.0 < np.median(slope) and slope.max() < TILT_DEG  # relief everywhere, no attached shadow
     assert max(float(im.max()) for im in scene["ref"]) < 0.98  # nothing clipped
     # The pit: 3.1 px deep, rim slope 35 degrees.
     assert scene["pit_depth"].max() == pytest.approx(
-        scene["sphere"] - np.sqrt(scene["sphere"] ** 2 - PIT_RADIUS_PX**2), rel=0.02)
+        scene["sphere"] - np.sqrt(scene["sphere"] ** 2 - PIT_RADIUS_PX**2), rel=0.02
+    )
 
 
 @pytest.mark.parametrize("calibrated", [False, True], ids=["uncalibrated", "calibrated"])
 def test_pit_is_found_and_labelled_relief(scene, calibrated):
     cur = render(scene["depth"] + scene["pit_depth"], scene["albedo"], rng=np.random.default_rng(1))
-    result = detect_changes(scene["ref"], cur,
-                            config=DetectionConfig.from_options(light_dirs=calibrated_lights() if calibrated else None))
+    result = detect_changes(
+        scene["ref"], cur, config=DetectionConfig.from_options(light_dirs=calibrated_lights() if calibrated else None)
+    )
     region, _ = assert_found(result, scene["pit"], PIT_RADIUS_PX)
     check_pit_label(result, scene, region)
 
@@ -254,8 +267,9 @@ def test_pit_is_found_and_labelled_relief(scene, calibrated):
 @pytest.mark.parametrize("calibrated", [False, True], ids=["uncalibrated", "calibrated"])
 def test_stain_is_found_and_labelled_colour(scene, calibrated):
     cur = render(scene["depth"], stained(scene), rng=np.random.default_rng(2))
-    result = detect_changes(scene["ref"], cur,
-                            config=DetectionConfig.from_options(light_dirs=calibrated_lights() if calibrated else None))
+    result = detect_changes(
+        scene["ref"], cur, config=DetectionConfig.from_options(light_dirs=calibrated_lights() if calibrated else None)
+    )
     region, _ = assert_found(result, scene["stain"], STAIN_RADIUS_PX)
     check_stain_label(result, region)
 
@@ -312,8 +326,11 @@ def peak_bias_px(smooth_px: float) -> float:
 def parallax_pair(scene) -> dict:
     clean = render(scene["depth"], scene["albedo"])
     cur = shifted_view(clean, np.random.default_rng(4))
-    return dict(cur=cur, dense=detect_changes(scene["ref"], cur), homography=detect_changes(scene["ref"], cur,
-                                                                                            config=DetectionConfig.from_options(dense=False)))
+    return dict(
+        cur=cur,
+        dense=detect_changes(scene["ref"], cur),
+        homography=detect_changes(scene["ref"], cur, config=DetectionConfig.from_options(dense=False)),
+    )
 
 
 def test_parallax_is_aligned_not_flagged(scene, parallax_pair):

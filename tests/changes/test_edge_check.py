@@ -22,7 +22,7 @@ def _two_grooves(*, gap_px: int = 7, stain_value: float | None = None, radius_px
     texture = cv2.resize(textured_scene(size), (size * SCALE, size * SCALE), interpolation=cv2.INTER_LINEAR)
     fine = 0.35 + 0.3 * texture
     for x in (100, 100 + gap_px):
-        fine[:, x * SCALE + 1:x * SCALE + 4] = 0.05
+        fine[:, x * SCALE + 1 : x * SCALE + 4] = 0.05
     truth_fine = np.zeros(fine.shape, np.uint8)
     if stain_value is not None:
         centre = (int((100 + gap_px / 2 + 0.4) * SCALE), 128 * SCALE)
@@ -68,7 +68,7 @@ def test_elongation_is_one_for_a_disc_and_length_over_width_for_a_band():
     band = np.zeros(gray.shape, bool)
     band[10:70, 38:42] = True  # 60 px along the edge, 4 px across
     # uniform band: sqrt(var_along / var_across) = 60 / 4 (variances (L²-1)/12)
-    assert along_edge_elongation(band, gray) == pytest.approx(np.sqrt((60 ** 2 - 1) / (4 ** 2 - 1)), rel=0.01)
+    assert along_edge_elongation(band, gray) == pytest.approx(np.sqrt((60**2 - 1) / (4**2 - 1)), rel=0.01)
     across = np.zeros(gray.shape, bool)
     across[38:42, 10:70] = True  # the same band lying across the edge is not a shifted edge
     assert along_edge_elongation(across, gray) < 0.1
@@ -77,6 +77,6 @@ def test_elongation_is_one_for_a_disc_and_length_over_width_for_a_band():
 def test_hidden_blob_bound_grows_with_the_tolerance_and_the_smoothing():
     base = max_hidden_blob_px(edge_check_px=2, smooth_sigma_px=2.0)
     # diameter 2 * ((2 * 2 + 1) + 4 * 2) = 26 px
-    assert base == pytest.approx(np.pi * 13 ** 2)
+    assert base == pytest.approx(np.pi * 13**2)
     assert max_hidden_blob_px(edge_check_px=3, smooth_sigma_px=2.0) > base
     assert max_hidden_blob_px(edge_check_px=2, smooth_sigma_px=3.0) > base

@@ -29,8 +29,10 @@ def _niche_scene(shift_fine_px: int = 0, stain: bool = False) -> tuple[np.ndarra
     texture = cv2.resize(textured_scene(size), (size * SCALE, size * SCALE), interpolation=cv2.INTER_LINEAR)
     fine = 0.35 + 0.3 * texture
     x0 = 100 * SCALE + 1 + shift_fine_px
-    fine[:, x0:x0 + 3] = 0.05  # groove 0.75 px wide: area sampling makes its contrast depend on the sub-pixel position
-    fine[:, 180 * SCALE + 2 + shift_fine_px:] += 0.3  # a bright step (the niche's lit front face)
+    fine[:, x0 : x0 + 3] = (
+        0.05  # groove 0.75 px wide: area sampling makes its contrast depend on the sub-pixel position
+    )
+    fine[:, 180 * SCALE + 2 + shift_fine_px :] += 0.3  # a bright step (the niche's lit front face)
     truth_fine = np.zeros(fine.shape, np.uint8)
     if stain:
         cv2.circle(truth_fine, (108 * SCALE, 128 * SCALE), 6 * SCALE, 1, -1)  # 6 px radius, 2 px off the groove
@@ -69,11 +71,14 @@ def test_half_pixel_shifted_edge_is_not_a_change():
     assert len(without.regions) > 0  # the situation the tolerance is for
 
 
-@pytest.mark.parametrize("setting,min_recall", [
-    ({"edge_tolerance_px": 2}, 0.6),
-    # the pixel-level tolerance trims the stain's pixels inside the band; the region check keeps them all
-    ({"edge_check_px": 2}, 0.8),
-])
+@pytest.mark.parametrize(
+    "setting,min_recall",
+    [
+        ({"edge_tolerance_px": 2}, 0.6),
+        # the pixel-level tolerance trims the stain's pixels inside the band; the region check keeps them all
+        ({"edge_check_px": 2}, 0.8),
+    ],
+)
 def test_stain_next_to_an_edge_is_still_found(setting, min_recall):
     ref, _ = _niche_scene(0)
     cur, truth = _niche_scene(2, stain=True)
@@ -85,6 +90,7 @@ def test_stain_next_to_an_edge_is_still_found(setting, min_recall):
 
 
 # -- region-level edge check (what `fgcd diff` on a campaign uses)
+
 
 def test_edge_check_sets_the_shifted_groove_aside_and_keeps_it_visible():
     ref, _ = _niche_scene(0)

@@ -44,8 +44,19 @@ def test_the_bench_scores_the_change_map_fgcd_diff_writes(tmp_path):
 
     lightings = [1, 3, 5, 7]
     found = user_detection(GROUP, lightings)
-    args = [sys.executable, "-c", "from fgcd_cli.cli.app import main; main()", "diff", "-o", str(tmp_path / "out"),
-            "--truth", str(GROUP / "GT.png"), "--score-mask", str(GROUP / "mask.png"), "--json"]
+    args = [
+        sys.executable,
+        "-c",
+        "from fgcd_cli.cli.app import main; main()",
+        "diff",
+        "-o",
+        str(tmp_path / "out"),
+        "--truth",
+        str(GROUP / "GT.png"),
+        "--score-mask",
+        str(GROUP / "mask.png"),
+        "--json",
+    ]
     for k in lightings:
         args += ["--ref", str(GROUP / f"2-{k}.png"), "--cur", str(GROUP / f"1-{k}.png")]
     proc = subprocess.run(args, capture_output=True, text=True, timeout=600)

@@ -60,9 +60,13 @@ def test_strong_change_region_matches_its_footprint(decision):
     assert scores.precision > (10 / 11.5) ** 2, f"region {result.mask.sum()} px for a {truth.sum()} px change"
     if decision == "hysteresis":
         # Without the two fixes the same change comes out about twice too large.
-        loose = detect_changes([ref], [cur],
-                               config=DetectionConfig.from_options(register=False, decision=decision,
-                                                                   robust_gain_rounds=0, edge_fraction=0.0))
+        loose = detect_changes(
+            [ref],
+            [cur],
+            config=DetectionConfig.from_options(
+                register=False, decision=decision, robust_gain_rounds=0, edge_fraction=0.0
+            ),
+        )
         assert loose.mask.sum() > 1.5 * result.mask.sum()
 
 

@@ -67,7 +67,7 @@ def test_ecc_returns_the_same_homography_wherever_the_image_lies_in_memory():
     results = set()
     for offset in range(4):
         buffer = np.empty(ref.size + 16, np.float32)
-        ref_at_offset = buffer[offset:offset + ref.size].reshape(ref.shape)
+        ref_at_offset = buffer[offset : offset + ref.size].reshape(ref.shape)
         ref_at_offset[:] = ref
         results.add(ecc_gradient(ref_at_offset, cur, np.eye(3))[0].tobytes())
     assert len(results) == 1

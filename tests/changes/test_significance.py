@@ -34,8 +34,14 @@ def _strong_and_medium_change():
 def test_pure_noise_gives_no_region_in_most_images():
     # epsilon = 1 means at most ~1 false region expected per image under the model;
     # over 10 noise images the model is conservative (half-normal floor), so nearly none.
-    found = [len(acontrario_decision(_background(seed=s), np.ones((300, 300), bool), min_cluster_area_px=4 * np.pi * 4)
-                 .regions) for s in range(10)]
+    found = [
+        len(
+            acontrario_decision(
+                _background(seed=s), np.ones((300, 300), bool), min_cluster_area_px=4 * np.pi * 4
+            ).regions
+        )
+        for s in range(10)
+    ]
     assert sum(found) <= 2
 
 
@@ -51,20 +57,28 @@ def test_compact_changes_are_found_with_their_extent_and_weak_ones_stay_candidat
         assert min(c.log10_nfa for c in decision.candidates) >= max(r.log10_nfa for r in decision.regions)
 
 
-@pytest.mark.xfail(strict=True, reason="known weakness (issue 19): the seed level is an empirical quantile, so a strong "
-                   "change covering most of the top seed_p pixels pushes a weaker one below it")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known weakness (issue 19): the seed level is an empirical quantile, so a strong "
+    "change covering most of the top seed_p pixels pushes a weaker one below it",
+)
 def test_a_weaker_change_beside_a_strong_one_is_at_least_a_candidate():
     strong, medium, decision = _strong_and_medium_change()
     found_medium = (decision.mask & medium).any()
     first = decision.candidates[0] if decision.candidates else None
-    assert found_medium or (first is not None and medium[int(round(first.centroid_xy[1])), int(round(first.centroid_xy[0]))])
+    assert found_medium or (
+        first is not None and medium[int(round(first.centroid_xy[1])), int(round(first.centroid_xy[0]))]
+    )
     # Every candidate left over is less significant than every reported region.
     if decision.candidates:
         assert min(c.log10_nfa for c in decision.candidates) >= max(r.log10_nfa for r in decision.regions)
 
 
-@pytest.mark.xfail(strict=True, reason="known weakness (issue 19): dozens of similar changes inflate the empirical "
-                   "null's tail and the cluster area; the a-contrario rule is not the default decision yet")
+@pytest.mark.xfail(
+    strict=True,
+    reason="known weakness (issue 19): dozens of similar changes inflate the empirical "
+    "null's tail and the cluster area; the a-contrario rule is not the default decision yet",
+)
 def test_many_similar_small_changes_are_not_hidden_by_each_other():
     # Dozens of pits of similar strength: an empirical null alone would call each one
     # "common"; clustering of exceedances at the independent-sample scale keeps them.

@@ -54,8 +54,9 @@ def changed_pair():
     refs, curs, truth = _pair()
     calls = []
     plain = detect_changes(refs, curs, config=DetectionConfig.from_options(**FAST))
-    tiled = detect_changes_tiled(refs, curs, progress=lambda *a: calls.append(a),
-                                 config=DetectionConfig.from_options(tile_px=TILE, **FAST))
+    tiled = detect_changes_tiled(
+        refs, curs, progress=lambda *a: calls.append(a), config=DetectionConfig.from_options(tile_px=TILE, **FAST)
+    )
     return {"refs": refs, "curs": curs, "truth": truth, "plain": plain, "tiled": tiled, "calls": calls}
 
 
@@ -102,9 +103,9 @@ def test_no_seams_on_an_unchanged_pair():
     for tile in tile_grid((H, W), TILE, 0):
         y0, y1, x0, x1 = tile.core
         for x in (x0, x1):
-            seam[:, max(0, x - 3): x + 3] = True
+            seam[:, max(0, x - 3) : x + 3] = True
         for y in (y0, y1):
-            seam[max(0, y - 3): y + 3, :] = True
+            seam[max(0, y - 3) : y + 3, :] = True
     seam[:20], seam[-20:], seam[:, :20], seam[:, -20:] = False, False, False, False  # the frame border is not a seam
     at_seams, inside = score[seam & valid], score[~seam & valid]
     assert at_seams.size > 10000

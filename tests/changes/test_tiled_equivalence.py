@@ -37,8 +37,9 @@ def _grow_by_reconstruction(seeds, score, valid, *, background, fraction):
         core = seed & allowed
         if not core.any():
             core = seed
-        out[y0:y1, x0:x1] |= reconstruction(core.astype(np.uint8), (allowed | core).astype(np.uint8),
-                                            method="dilation").astype(bool)
+        out[y0:y1, x0:x1] |= reconstruction(
+            core.astype(np.uint8), (allowed | core).astype(np.uint8), method="dilation"
+        ).astype(bool)
     return out & valid
 
 
@@ -77,13 +78,16 @@ def test_symmetric_shift_difference_is_the_larger_of_the_two_one_sided_minima():
             if quantised:  # many ties between shifts
                 ref, cur = np.round(ref * 8) / 8, np.round(cur * 8) / 8
             for radius in (1, 2):
-                two_passes = np.maximum(_min_shifted_difference(ref, cur, radius),
-                                        _min_shifted_difference(cur, ref, radius))
+                two_passes = np.maximum(
+                    _min_shifted_difference(ref, cur, radius), _min_shifted_difference(cur, ref, radius)
+                )
                 np.testing.assert_array_equal(shift_tolerant_difference(ref, cur, radius_px=radius), two_passes)
     # Row-strided views are read as they are.
     ref, cur = rng.random((60, 80, 3), dtype=np.float32), rng.random((60, 80, 3), dtype=np.float32)
-    np.testing.assert_array_equal(shift_tolerant_difference(ref[5:50, 7:70], cur[5:50, 7:70]),
-                                  shift_tolerant_difference(ref[5:50, 7:70].copy(), cur[5:50, 7:70].copy()))
+    np.testing.assert_array_equal(
+        shift_tolerant_difference(ref[5:50, 7:70], cur[5:50, 7:70]),
+        shift_tolerant_difference(ref[5:50, 7:70].copy(), cur[5:50, 7:70].copy()),
+    )
 
 
 @pytest.mark.parametrize("shape", [(400, 420, 3), (380, 300)])
@@ -104,8 +108,9 @@ def test_gain_on_a_region_with_a_shared_weight_equals_the_whole_image_gain(shape
         assert part.shape == whole[region].shape and part.dtype == np.float32
         np.testing.assert_allclose(part, whole[region], rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="prepared"):  # a weight prepared for another region
-        normalize_local_gain(ref, cur, sigma_px=12.0, weight=prepare_gain_weight(weight, 12.0, ref.shape),
-                             region=region)
+        normalize_local_gain(
+            ref, cur, sigma_px=12.0, weight=prepare_gain_weight(weight, 12.0, ref.shape), region=region
+        )
 
 
 def test_grow_to_extent_equals_a_reconstruction_per_seed():
@@ -115,7 +120,8 @@ def test_grow_to_extent_equals_a_reconstruction_per_seed():
     for fraction in (0.0, 0.3, 0.6):
         np.testing.assert_array_equal(
             grow_to_extent(seeds, score, valid, background=float(np.median(score)), fraction=fraction),
-            _grow_by_reconstruction(seeds, score, valid, background=float(np.median(score)), fraction=fraction))
+            _grow_by_reconstruction(seeds, score, valid, background=float(np.median(score)), fraction=fraction),
+        )
     empty = np.zeros_like(seeds)
     np.testing.assert_array_equal(grow_to_extent(empty, score, valid, background=0.5, fraction=0.3), empty)
 
@@ -123,8 +129,12 @@ def test_grow_to_extent_equals_a_reconstruction_per_seed():
 def test_regions_from_the_mask_pixels_equal_the_extracted_ones():
     rng = np.random.default_rng(RNG_SEED)
     score, valid = _score_with_blobs(rng)
-    decision = acontrario_decision(score, valid, config=AcontrarioConfig(epsilon=1.0, seed_p=0.005, extent_fraction=0.3),
-                                   min_cluster_area_px=4 * np.pi * 4)
+    decision = acontrario_decision(
+        score,
+        valid,
+        config=AcontrarioConfig(epsilon=1.0, seed_p=0.005, extent_fraction=0.3),
+        min_cluster_area_px=4 * np.pi * 4,
+    )
     mask = decision.mask.copy()
     mask[50:53, 50:80] = True  # a region without a seed
     area = np.full(score.shape, 0.04)
@@ -183,8 +193,12 @@ def test_first_pass_reads_only_the_narrow_reach_and_later_passes_the_overlap():
     for tile in tiles:
         y0, y1, x0, x1 = scorer._read_box(tile, 0)
         cy0, cy1, cx0, cx1 = tile.core
-        assert (y0, y1, x0, x1) == (max(0, cy0 - reach), min(shape[0], cy1 + reach),
-                                    max(0, cx0 - reach), min(shape[1], cx1 + reach))
+        assert (y0, y1, x0, x1) == (
+            max(0, cy0 - reach),
+            min(shape[0], cy1 + reach),
+            max(0, cx0 - reach),
+            min(shape[1], cx1 + reach),
+        )
         assert scorer._read_box(tile, 1) == tile.ext
 
 

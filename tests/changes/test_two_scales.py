@@ -61,8 +61,9 @@ def test_unchanged_noisy_pairs_give_no_region_at_either_scale():
 
 def test_the_finer_scan_is_off_where_edge_shifts_are_tolerated():
     ref, cur, _ = _pair()
-    campaign = detect_changes([ref], [cur], config=DetectionConfig.from_options(register=False, cues=False,
-                                                                                edge_check_px=2))
+    campaign = detect_changes(
+        [ref], [cur], config=DetectionConfig.from_options(register=False, cues=False, edge_check_px=2)
+    )
     assert campaign.settings["fine_smooth_sigma_px"] == 0.0 and campaign.fine_score is None
 
 
@@ -70,14 +71,29 @@ def test_a_candidate_seen_at_both_scales_is_listed_once():
     from fgcd_cli.changes.significance import Decision, SignificantRegion, merge_decisions
 
     def decision(candidates):
-        return Decision(mask=np.zeros((8, 8), bool), regions=[], candidates=candidates, cluster_area_px=50.0,
-                        n_tests=1.0, seed_level=1.0, median=1.0, seed_index=np.zeros((8, 8), np.int32))
+        return Decision(
+            mask=np.zeros((8, 8), bool),
+            regions=[],
+            candidates=candidates,
+            cluster_area_px=50.0,
+            n_tests=1.0,
+            seed_level=1.0,
+            median=1.0,
+            seed_index=np.zeros((8, 8), np.int32),
+        )
 
     def candidate(nfa, xy):
         return SignificantRegion(log10_nfa=nfa, p_level=0.01, area_px=3, centroid_xy=xy, peak_score=5.0)
 
-    merged = merge_decisions([decision([candidate(0.5, (10.0, 10.0)), candidate(1.5, (40.0, 40.0))]),
-                              decision([candidate(0.3, (11.0, 10.5)), candidate(2.0, (70.0, 10.0))])],
-                             max_candidates=5)
+    merged = merge_decisions(
+        [
+            decision([candidate(0.5, (10.0, 10.0)), candidate(1.5, (40.0, 40.0))]),
+            decision([candidate(0.3, (11.0, 10.5)), candidate(2.0, (70.0, 10.0))]),
+        ],
+        max_candidates=5,
+    )
     assert [(c.log10_nfa, c.centroid_xy) for c in merged.candidates] == [
-        (0.3, (11.0, 10.5)), (1.5, (40.0, 40.0)), (2.0, (70.0, 10.0))]
+        (0.3, (11.0, 10.5)),
+        (1.5, (40.0, 40.0)),
+        (2.0, (70.0, 10.0)),
+    ]

@@ -58,8 +58,9 @@ def _one_pixel(*rgb, dtype=np.uint8) -> np.ndarray:
     return np.array([[rgb]], dtype=dtype)
 
 
-@pytest.mark.parametrize("rgb, luma_u8", [((255, 0, 0), 76), ((0, 255, 0), 150), ((0, 0, 255), 29),
-                                          ((255, 255, 255), 255), ((0, 0, 0), 0)])
+@pytest.mark.parametrize(
+    "rgb, luma_u8", [((255, 0, 0), 76), ((0, 255, 0), 150), ((0, 0, 255), 29), ((255, 255, 255), 255), ((0, 0, 0), 0)]
+)
 def test_a_known_colour_gives_its_rec601_luma(rgb, luma_u8):
     """Y = 0.299 R + 0.587 G + 0.114 B, rounded to the integer type first (OpenCV), then scaled to [0, 1]."""
     img = _one_pixel(*rgb)
@@ -71,8 +72,10 @@ def test_a_known_colour_gives_its_rec601_luma(rgb, luma_u8):
     assert to_gray_f32(img, channels=GrayChannels.MEAN)[0, 0] == pytest.approx(sum(rgb) / 3 / 255, abs=1e-6)
     # the alpha channel is ignored
     assert to_gray_u8(_one_pixel(*rgb, 7))[0, 0] == luma_u8
-    assert to_gray_f32(_one_pixel(*rgb, 7), channels=GrayChannels.MEAN)[0, 0] == to_gray_f32(
-        img, channels=GrayChannels.MEAN)[0, 0]
+    assert (
+        to_gray_f32(_one_pixel(*rgb, 7), channels=GrayChannels.MEAN)[0, 0]
+        == to_gray_f32(img, channels=GrayChannels.MEAN)[0, 0]
+    )
 
 
 def test_other_dtypes_take_their_range_from_the_dtype():
@@ -124,8 +127,9 @@ def test_sift_matches_find_the_shift_of_a_shifted_texture_and_nothing_on_a_blank
 def test_one_to_one_matching_uses_each_descriptor_once():
     """The hand-eye refinement's features: CLAHE'd SIFT, FLANN ratio test, every ``b`` descriptor matched once."""
     grey = to_gray_u8(INPUTS["f32_gray"], rounding=U8Rounding.TRUNCATE_F32)
-    (xy_a, d_a), (xy_b, d_b) = [sift_features(clahe(im, clip_limit=3.0, tiles=8), n_features=1500)
-                                for im in (grey, _shifted(grey, 4.0, -3.0))]
+    (xy_a, d_a), (xy_b, d_b) = [
+        sift_features(clahe(im, clip_limit=3.0, tiles=8), n_features=1500) for im in (grey, _shifted(grey, 4.0, -3.0))
+    ]
     assert d_a.dtype == np.float32 and d_a.shape == (len(xy_a), 128)
     cv2.setRNGSeed(11)  # FLANN's randomised kd-trees draw from OpenCV's global RNG
     idx = match_descriptors(d_a, d_b, ratio=0.8, matcher=DescriptorMatcher.FLANN, one_to_one=True)

@@ -20,8 +20,17 @@ def _random_blocks(rng, *, C=4, P=30, k=6, per_point=3):
     obs_pt = np.repeat(np.arange(P), per_point)
     obs_cam = np.concatenate([rng.choice(C, per_point, replace=C < per_point) for _ in range(P)])
     M = len(obs_pt)
-    return (rng.normal(size=(M, 2)), rng.normal(size=(M, 2, k)), rng.normal(size=(M, 2, 3)),
-            rng.uniform(0.2, 1.0, M), obs_cam, obs_pt, C, P, k)
+    return (
+        rng.normal(size=(M, 2)),
+        rng.normal(size=(M, 2, k)),
+        rng.normal(size=(M, 2, 3)),
+        rng.uniform(0.2, 1.0, M),
+        obs_cam,
+        obs_pt,
+        C,
+        P,
+        k,
+    )
 
 
 def _dense(r, Jc, Jp, w, obs_cam, obs_pt, C, P, k):
@@ -29,8 +38,8 @@ def _dense(r, Jc, Jp, w, obs_cam, obs_pt, C, P, k):
     M = len(r)
     J = np.zeros((2 * M, C * k + 3 * P))
     for m in range(M):
-        J[2 * m:2 * m + 2, k * obs_cam[m]:k * obs_cam[m] + k] = Jc[m]
-        J[2 * m:2 * m + 2, C * k + 3 * obs_pt[m]:C * k + 3 * obs_pt[m] + 3] = Jp[m]
+        J[2 * m : 2 * m + 2, k * obs_cam[m] : k * obs_cam[m] + k] = Jc[m]
+        J[2 * m : 2 * m + 2, C * k + 3 * obs_pt[m] : C * k + 3 * obs_pt[m] + 3] = Jp[m]
     W = np.repeat(w, 2)
     return J.T @ (W[:, None] * J), -J.T @ (W * r.reshape(-1))
 
@@ -45,7 +54,9 @@ def test_schur_step_equals_the_dense_solve_of_the_damped_normal_equations(rule):
     damping = SchurDamping(rule=rule, camera_floor=1e-3, point_floor=2e-3, point_floor_relative=1e-4)
     Hd = H.copy()
     d = np.diag(H).copy()
-    traces = np.array([np.trace(H[C * k + 3 * p:C * k + 3 * p + 3, C * k + 3 * p:C * k + 3 * p + 3]) for p in range(P)])
+    traces = np.array(
+        [np.trace(H[C * k + 3 * p : C * k + 3 * p + 3, C * k + 3 * p : C * k + 3 * p + 3]) for p in range(P)]
+    )
     extra = np.r_[np.full(C * k, 1e-3), np.repeat(1e-4 * traces + 2e-3, 3)]
     Hd[np.diag_indices_from(H)] = d * (1 + lam) + extra if rule is Damping.MARQUARDT else d + lam + extra
     dense = np.linalg.solve(Hd, b)
@@ -113,8 +124,9 @@ class _Uphill(_ExpFit):
 def test_driver_reaches_the_known_minimum_from_far_away():
     x = np.linspace(0, 1, 40)
     problem = _ExpFit(x, 2.0 * np.exp(-1.5 * x))
-    out = levenberg_marquardt(problem, np.array([0.5, 1.0]), LMSchedule(max_iterations=100, relative_decrease=1e-15,
-                                                                        min_step=1e-12))
+    out = levenberg_marquardt(
+        problem, np.array([0.5, 1.0]), LMSchedule(max_iterations=100, relative_decrease=1e-15, min_step=1e-12)
+    )
     np.testing.assert_allclose(out.state, [2.0, -1.5], atol=1e-8)
     assert out.cost < 1e-16 and out.converged
     assert out.attempts >= out.iterations >= 2
@@ -144,6 +156,9 @@ def test_huber_is_quadratic_then_linear_and_its_weights_match_its_derivative():
     np.testing.assert_allclose(huber_weights(n, 1.0), [1.0, 1.0, 1.0, 1 / 3])
     # IRLS weight = rho'(|r|) / |r|
     eps = 1e-6
-    np.testing.assert_allclose(huber_weights(n[1:], 1.0) * n[1:],
-                               (huber_rho(n[1:] + eps, 1.0) - huber_rho(n[1:] - eps, 1.0)) / (2 * eps), rtol=1e-6)
+    np.testing.assert_allclose(
+        huber_weights(n[1:], 1.0) * n[1:],
+        (huber_rho(n[1:] + eps, 1.0) - huber_rho(n[1:] - eps, 1.0)) / (2 * eps),
+        rtol=1e-6,
+    )
     assert huber_cost(n, 1.0) == pytest.approx(3.125)

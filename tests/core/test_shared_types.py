@@ -25,8 +25,9 @@ def test_look_at_puts_an_opencv_camera_at_the_eye_facing_the_target():
     np.testing.assert_allclose(look_at((0, -1, 0), (0, 0, 0), up=(0.0, 0.0, 1.0)), facing, atol=1e-15)
     # looking along up: the fallback axis takes its place
     down = make_pose(np.array([[0.0, -1, 0], [-1, 0, 0], [0, 0, -1]]), [0.0, 0.0, 1.0])
-    np.testing.assert_allclose(look_at((0, 0, 1), (0, 0, 0), up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0)), down,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        look_at((0, 0, 1), (0, 0, 0), up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0)), down, atol=1e-15
+    )
     for eye, target in zip(EYES, TARGETS):
         T = look_at(eye, target, up=(0.0, -1.0, 0.0), fallback_up=(0.0, 0.0, 1.0))
         np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)
@@ -40,8 +41,9 @@ def test_the_simulators_look_at_is_the_core_one_with_z_up():
     from fgcd_drivers.sim.transforms import look_at as sim_look_at
 
     for eye, target in zip(EYES + [np.array([0.0, 0.0, 1.0])], TARGETS + [np.zeros(3)]):
-        assert np.array_equal(sim_look_at(eye, target),
-                              look_at(eye, target, up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0)))
+        assert np.array_equal(
+            sim_look_at(eye, target), look_at(eye, target, up=(0.0, 0.0, 1.0), fallback_up=(1.0, 0.0, 0.0))
+        )
 
 
 def test_look_at_needs_up_and_refuses_a_silent_fallback():
@@ -67,14 +69,26 @@ def test_one_intrinsics_type_with_both_old_interfaces():
 
     assert DriversIntrinsics is CameraIntrinsics is PinholeCamera is GeometryPinhole
     cam = CameraIntrinsics(fx=600.0, fy=601.0, cx=319.5, cy=239.5, width=640, height=480, dist=(-0.05, 0.01, 0, 0, 0))
-    for name in ("K", "dist_array", "has_distortion", "scaled", "to_dict", "from_dict", "from_K", "project",
-                 "normalized_rays", "unproject", "backproject_depth"):
+    for name in (
+        "K",
+        "dist_array",
+        "has_distortion",
+        "scaled",
+        "to_dict",
+        "from_dict",
+        "from_K",
+        "project",
+        "normalized_rays",
+        "unproject",
+        "backproject_depth",
+    ):
         assert hasattr(cam, name), name
     assert np.array_equal(cam.dist_array, np.array([-0.05, 0.01, 0.0, 0.0, 0.0]))
     # the JSON both old types wrote, key for key
     assert json.dumps(cam.to_dict()) == (
         '{"fx": 600.0, "fy": 601.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480, '
-        '"dist": [-0.05, 0.01, 0.0, 0.0, 0.0]}')
+        '"dist": [-0.05, 0.01, 0.0, 0.0, 0.0]}'
+    )
     assert CameraIntrinsics.from_dict(cam.to_dict()) == cam
     assert type(CameraIntrinsics(fx=1, fy=1, cx=0, cy=0, width=4.0, height=3.0).width) is int
 
@@ -89,7 +103,13 @@ def test_board_geometry_is_shared():
     assert {f.name for f in fields(SimBoard)} == base | {"margin_m"}
     assert {f.name for f in fields(BoardSpec)} == base
     assert (sim.squares_x, sim.squares_y, sim.square_m, sim.marker_m, sim.dictionary, sim.margin_m) == (
-        10, 7, 0.025, 0.018, "DICT_5X5_100", 0.01)
+        10,
+        7,
+        0.025,
+        0.018,
+        "DICT_5X5_100",
+        0.01,
+    )
     assert np.array_equal(sim.corner_points(), spec.corner_points())
     assert np.array_equal(sim.image(px_per_square=40), spec.image(px_per_square=40))
 
@@ -108,15 +128,18 @@ def test_board_view_keyword_form_equals_camera_form():
     from fgcd_drivers.sim.board import BoardViewOptions, SimBoard, random_board_poses, render_board_view
 
     board = SimBoard(squares_x=5, squares_y=4)
-    cam = CameraIntrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240,
-                           dist=(-0.05, 0.01, 0.0, 0.0, 0.0))
+    cam = CameraIntrinsics(
+        fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240, dist=(-0.05, 0.01, 0.0, 0.0, 0.0)
+    )
     poses = random_board_poses(board, 2, cam, rng=np.random.default_rng(1))
     assert len(poses) == 2
-    image = render_board_view(board, poses[0], cam, options=BoardViewOptions(supersample=2),
-                              rng=np.random.default_rng(5))
+    image = render_board_view(
+        board, poses[0], cam, options=BoardViewOptions(supersample=2), rng=np.random.default_rng(5)
+    )
     assert image.dtype == np.uint8 and image.shape == (240, 320) and image.std() > 10
-    assert BoardViewOptions() == BoardViewOptions(noise_sigma=1.5 / 255.0, blur_sigma_px=0.6, background=0.45,
-                                                  supersample=3)
+    assert BoardViewOptions() == BoardViewOptions(
+        noise_sigma=1.5 / 255.0, blur_sigma_px=0.6, background=0.45, supersample=3
+    )
     with pytest.raises(TypeError):  # one call form: the camera and the options objects
         render_board_view(board, poses[0], cam, supersample=2)
     with pytest.raises(TypeError):
@@ -133,9 +156,16 @@ def test_fgcd_core_imports_nothing_of_fgcd():
     import subprocess
     import sys
 
-    code = ("import sys, fgcd_core.se3, fgcd_core.sim3, fgcd_core.camera, fgcd_core.board, fgcd_core.imaging; "
-            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('fgcd_cli', 'drivers')))")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                       cwd=Path(__file__).resolve().parents[2])
+    code = (
+        "import sys, fgcd_core.se3, fgcd_core.sim3, fgcd_core.camera, fgcd_core.board, fgcd_core.imaging; "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('fgcd_cli', 'drivers')))"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[2],
+    )
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"

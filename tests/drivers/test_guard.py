@@ -63,9 +63,7 @@ class RecordingPlatform:
         self.moves.append(np.array(T_base_flange))
         self.speed_fractions.append(speed_fraction)
         self.T = np.array(T_base_flange)
-        return MoveResult(
-            T_base_flange_target=self.T, T_base_flange_reached=self.T, T_base_flange_commanded=self.T
-        )
+        return MoveResult(T_base_flange_target=self.T, T_base_flange_reached=self.T, T_base_flange_commanded=self.T)
 
     def stop(self) -> None:
         self.stops += 1
@@ -156,9 +154,7 @@ def test_trip_stops_platform_and_refuses_until_reset():
     assert len(platform.moves) == 1
 
 
-@pytest.mark.parametrize(
-    "failure", [KeyboardInterrupt(), PlatformConnectionError("link down"), SafetyStop("alarm 2")]
-)
+@pytest.mark.parametrize("failure", [KeyboardInterrupt(), PlatformConnectionError("link down"), SafetyStop("alarm 2")])
 def test_failures_during_motion_trip_the_guard(failure):
     platform = RecordingPlatform(fail_with=failure)
     guard = MotionGuard(platform)

@@ -30,8 +30,9 @@ def emulator():
 
 @pytest.fixture
 def board(emulator):
-    platform = GrblPlatform(GrblConfig(port=emulator.port, answer_timeout_s=0.8, banner_timeout_s=0.8,
-                                       open_banner_wait_s=0.05))
+    platform = GrblPlatform(
+        GrblConfig(port=emulator.port, answer_timeout_s=0.8, banner_timeout_s=0.8, open_banner_wait_s=0.05)
+    )
     platform.connect()
     try:
         yield platform
@@ -39,13 +40,16 @@ def board(emulator):
         platform.close()
 
 
-@pytest.mark.parametrize("lighting, pins", [
-    ("led:3", {"spindle": False, "spindle_pwm": 0.0, "flood": True, "mist": False}),
-    ("led:9", {"spindle": False, "spindle_pwm": 0.0, "flood": False, "mist": True}),
-    # spindle:250 with $30 = 1000: a quarter PWM duty
-    ("led:6", {"spindle": True, "spindle_pwm": 0.25, "flood": False, "mist": False}),
-    (AMBIENT, {"spindle": False, "spindle_pwm": 0.0, "flood": False, "mist": False}),
-])
+@pytest.mark.parametrize(
+    "lighting, pins",
+    [
+        ("led:3", {"spindle": False, "spindle_pwm": 0.0, "flood": True, "mist": False}),
+        ("led:9", {"spindle": False, "spindle_pwm": 0.0, "flood": False, "mist": True}),
+        # spindle:250 with $30 = 1000: a quarter PWM duty
+        ("led:6", {"spindle": True, "spindle_pwm": 0.25, "flood": False, "mist": False}),
+        (AMBIENT, {"spindle": False, "spindle_pwm": 0.0, "flood": False, "mist": False}),
+    ],
+)
 def test_grbl_lights_drive_exactly_one_output(board, emulator, lighting, pins):
     lights = GrblLights(board, GRBL_CHANNELS)
     lights.set("led:9")  # another light on first: switching must turn it off
@@ -84,8 +88,9 @@ def test_grbl_alarm_switches_the_lights_off_and_is_reported(board, emulator):
 
 
 def test_grbl_lights_share_the_stage_connection_or_open_their_own(board, emulator):
-    shared = open_lights(LightsSpec(driver=LightsDriver.GRBL, port=emulator.port, channels=GRBL_CHANNELS),
-                         platform=board)
+    shared = open_lights(
+        LightsSpec(driver=LightsDriver.GRBL, port=emulator.port, channels=GRBL_CHANNELS), platform=board
+    )
     assert shared._platform is board
     shared.set("led:3")
     assert emulator.outputs()["flood"]
@@ -93,8 +98,9 @@ def test_grbl_lights_share_the_stage_connection_or_open_their_own(board, emulato
 
 def test_serial_controller_relays_follow_the_lightings():
     with LightControllerEmulator(n_relays=4) as emu:
-        lights = open_lights(LightsSpec(driver=LightsDriver.SERIAL, port=emu.port,
-                                        channels={"led:3": "1", "led:6": "2", "led:9": "4"}))
+        lights = open_lights(
+            LightsSpec(driver=LightsDriver.SERIAL, port=emu.port, channels={"led:3": "1", "led:6": "2", "led:9": "4"})
+        )
         for lighting, relays in (("led:3", {1}), ("led:9", {4}), (AMBIENT, set())):
             lights.set(lighting)
             assert emu.relays_on == relays
@@ -138,8 +144,10 @@ def test_manual_lights_without_a_terminal_say_how_to_configure():
 def test_lights_spec_from_campaign_config():
     spec = LightsSpec.from_config({"driver": "grbl", "port": "/dev/ttyUSB0", "channels": {"led:3": "flood"}})
     assert spec.driver == LightsDriver.GRBL and spec.channels == {"led:3": "flood"}
-    assert LightsSpec.from_config({"driver": "manual", "channels": ["led:3", "led:6"]}).channels == \
-        {"led:3": "", "led:6": ""}
+    assert LightsSpec.from_config({"driver": "manual", "channels": ["led:3", "led:6"]}).channels == {
+        "led:3": "",
+        "led:6": "",
+    }
     assert LightsSpec.from_config(None) is None
     from fgcd_core.platform import PlatformConnectionError
 
@@ -153,8 +161,10 @@ def _sim_images(spec, lightings, hooks=None):
     from fgcd_cli.app.scenario import SimScenario
     from fgcd_cli.app.session import grab_images
 
-    rig = open_rig(RigRequest(driver="sim", scenario=SimScenario(scene="stele", lighting="front"), lights=spec),
-                   hooks=hooks or RigHooks())
+    rig = open_rig(
+        RigRequest(driver="sim", scenario=SimScenario(scene="stele", lighting="front"), lights=spec),
+        hooks=hooks or RigHooks(),
+    )
     try:
         return grab_images(rig.handles, lightings, average=1), rig.handles.lights
     finally:
@@ -197,11 +207,13 @@ def test_a_simulated_capture_switches_real_lights_end_to_end(tmp_path, emulator,
     lights = {"driver": driver, "channels": {"led:3": "flood", "led:9": "mist"}}
     if driver == "grbl":
         lights["port"] = emulator.port
-    camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0},
-                                                       "lights": lights})
+    camp = init_campaign(
+        tmp_path / "c", site="x", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}, "lights": lights}
+    )
     # stands in for `fgcd calibrate hand-eye` (tested elsewhere): the simulated rig's mounting
-    camp.write_rig("handeye", {"T_flange_cam": build_sim_rig(scene="stele", seed=0).ground_truth
-                               .T_flange_cam_true().tolist()})
+    camp.write_rig(
+        "handeye", {"T_flange_cam": build_sim_rig(scene="stele", seed=0).ground_truth.T_flange_cam_true().tolist()}
+    )
     prompts: list[str] = []
     plan = plan_capture(camp, CaptureRequest(station="s1", light="ambient,led:3,led:9"))
     outcome = run_capture(camp, plan, hooks=RigHooks(ask_light=lambda t: prompts.append(t) or ""))

@@ -99,10 +99,18 @@ def test_a_namespace_cut_loses_packets_without_a_reset_and_is_removed():
         import subprocess
         import sys
 
-        server = subprocess.Popen([*link.prefix(), sys.executable, "-c",
-                                   "import socket,sys\ns=socket.socket();s.bind((sys.argv[1],30004));s.listen(1)\n"
-                                   "print('up',flush=True)\nc,_=s.accept()\nwhile c.recv(1024): c.sendall(b'x')\n",
-                                   link.ns_ip], stdout=subprocess.PIPE, text=True)
+        server = subprocess.Popen(
+            [
+                *link.prefix(),
+                sys.executable,
+                "-c",
+                "import socket,sys\ns=socket.socket();s.bind((sys.argv[1],30004));s.listen(1)\n"
+                "print('up',flush=True)\nc,_=s.accept()\nwhile c.recv(1024): c.sendall(b'x')\n",
+                link.ns_ip,
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         try:
             assert server.stdout.readline().strip() == "up"
             with socket.create_connection((link.address, 30004), timeout=5) as client:
@@ -139,10 +147,18 @@ def test_a_connect_right_after_the_link_is_restored_reaches_the_peer():
         import subprocess
         import sys
 
-        server = subprocess.Popen([*link.prefix(), sys.executable, "-c",
-                                   "import socket,sys\ns=socket.socket();s.bind((sys.argv[1],30004));s.listen(4)\n"
-                                   "print('up',flush=True)\nwhile True: s.accept()[0].close()\n",
-                                   link.ns_ip], stdout=subprocess.PIPE, text=True)
+        server = subprocess.Popen(
+            [
+                *link.prefix(),
+                sys.executable,
+                "-c",
+                "import socket,sys\ns=socket.socket();s.bind((sys.argv[1],30004));s.listen(4)\n"
+                "print('up',flush=True)\nwhile True: s.accept()[0].close()\n",
+                link.ns_ip,
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         try:
             assert server.stdout.readline().strip() == "up"
             link.cut()

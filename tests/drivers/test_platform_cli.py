@@ -42,8 +42,20 @@ def test_check_grbl_json(emulator):
 
 def test_move_grbl_arrives_and_reports_unreachable_rotation(emulator):
     run = fgcd(
-        "platform", "move", "--driver", "grbl", "--port", emulator.port, "--timeout", "1",
-        "--dx", "-2.5", "--ry", "1.0", "--yes", "--json",
+        "platform",
+        "move",
+        "--driver",
+        "grbl",
+        "--port",
+        emulator.port,
+        "--timeout",
+        "1",
+        "--dx",
+        "-2.5",
+        "--ry",
+        "1.0",
+        "--yes",
+        "--json",
     )
     assert run.returncode == 0, run.stderr
     data = json.loads(run.stdout)
@@ -97,9 +109,27 @@ def test_a_missing_banner_states_the_time_the_command_waited(tmp_path):
 
 def test_ctrl_c_during_move_stops_stage_and_exits_130(emulator):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "grbl", "--port", emulator.port,
-         "--timeout", "1", "--dx", "-40", "--speed-fraction", "0.1", "--yes"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "fgcd_cli.cli.app",
+            "platform",
+            "move",
+            "--driver",
+            "grbl",
+            "--port",
+            emulator.port,
+            "--timeout",
+            "1",
+            "--dx",
+            "-40",
+            "--speed-fraction",
+            "0.1",
+            "--yes",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         deadline = time.monotonic() + 30
@@ -172,9 +202,25 @@ def test_ur_controller_hung_before_the_move_is_one_line_and_exits():
     with FakeURProcess() as fake:
         fake.send("freeze")
         proc = subprocess.run(
-            [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "ur", "--host", "127.0.0.1",
-             "--dx", "40", "--speed-fraction", "0.2", "--yes"],
-            capture_output=True, text=True, timeout=60,
+            [
+                sys.executable,
+                "-m",
+                "fgcd_cli.cli.app",
+                "platform",
+                "move",
+                "--driver",
+                "ur",
+                "--host",
+                "127.0.0.1",
+                "--dx",
+                "40",
+                "--speed-fraction",
+                "0.2",
+                "--yes",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
         )
         assert not fake.state()["moving"]
     assert proc.returncode == 7, proc.stderr
@@ -187,9 +233,25 @@ def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
     # reconnecting forever in native threads; fgcd must still say why and exit.
     with FakeURProcess() as fake:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "fgcd_cli.cli.app", "platform", "move", "--driver", "ur", "--host", "127.0.0.1",
-             "--dx", "40", "--speed-fraction", "0.2", "--yes"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            [
+                sys.executable,
+                "-m",
+                "fgcd_cli.cli.app",
+                "platform",
+                "move",
+                "--driver",
+                "ur",
+                "--host",
+                "127.0.0.1",
+                "--dx",
+                "40",
+                "--speed-fraction",
+                "0.2",
+                "--yes",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
         )
         try:
             # freeze mid-move: once the arm moves (40 mm at 10 mm/s), however long the CLI took to start

@@ -173,8 +173,13 @@ def test_hung_controller_state_is_stale_not_trusted(fake):
     # half-open link): isConnected() stays True and the getters repeat the last package.
     # Run in a child: ur_rtde's threads of a hung link keep reconnecting in native code
     # and must not share this test process with the next tests' clients.
-    child = subprocess.Popen([sys.executable, "-c", HUNG_SCRIPT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                             stderr=subprocess.DEVNULL, text=True)
+    child = subprocess.Popen(
+        [sys.executable, "-c", HUNG_SCRIPT],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         assert child.stdout.readline().strip() == "READY"
         fake.send("freeze")

@@ -8,7 +8,9 @@ from hypothesis import strategies as st
 from fgcd_core.camera import PinholeCamera
 
 CAM = PinholeCamera(fx=520.0, fy=515.0, cx=319.5, cy=239.5, width=640, height=480)
-DIST = PinholeCamera(fx=520.0, fy=515.0, cx=319.5, cy=239.5, width=640, height=480, dist=(-0.12, 0.05, 0.001, -0.0008, 0.0))
+DIST = PinholeCamera(
+    fx=520.0, fy=515.0, cx=319.5, cy=239.5, width=640, height=480, dist=(-0.12, 0.05, 0.001, -0.0008, 0.0)
+)
 
 
 @settings(max_examples=50)

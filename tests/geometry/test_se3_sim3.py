@@ -24,7 +24,9 @@ from fgcd_core.sim3 import Sim3, umeyama
 
 finite = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
 # rotation angles below pi (log is ambiguous at exactly pi)
-twist = arrays(np.float64, 6, elements=finite).map(lambda x: np.r_[x[:3], x[3:] * 2.5 / max(1.0, np.linalg.norm(x[3:]))])
+twist = arrays(np.float64, 6, elements=finite).map(
+    lambda x: np.r_[x[:3], x[3:] * 2.5 / max(1.0, np.linalg.norm(x[3:]))]
+)
 sim_tangent = st.tuples(twist, st.floats(-1.0, 1.0)).map(lambda p: np.r_[p[0], p[1]])
 
 

@@ -96,13 +96,17 @@ class PerfectRig:
         return self.T_base_flange @ self.X
 
     def afd_px(self) -> float:
-        return float(np.linalg.norm(project(self.camera(), self.points)
-                                    - project(self.T_base_camref, self.points), axis=1).mean())
+        return float(
+            np.linalg.norm(
+                project(self.camera(), self.points) - project(self.T_base_camref, self.points), axis=1
+            ).mean()
+        )
 
     def measure(self, _ref, _cur, _K, *, config) -> RelativePose:
         R, t = true_relative(self.camera(), self.T_base_camref)
-        return RelativePose(ok=True, reason="ok", R_cur_ref=R, t_dir=t, matches=400, inliers=400,
-                            measured_afd_px=self.afd_px())
+        return RelativePose(
+            ok=True, reason="ok", R_cur_ref=R, t_dir=t, matches=400, inliers=400, measured_afd_px=self.afd_px()
+        )
 
     def move(self, M_flange: np.ndarray) -> None:
         self.moves += 1
@@ -158,6 +162,7 @@ def test_no_trustworthy_pose_pauses():
 @pytest.mark.parametrize("seed", [0, 1])
 def test_with_the_hand_eye_the_bisection_needs_no_more_steps(seed):
     """ACR_w/X (paper 000 Table 3): the calibrated hand-eye turns each camera step into the right flange step."""
+
     def run(with_x: bool):
         rng = np.random.default_rng(seed)
         axis = rng.normal(size=3)
@@ -165,7 +170,9 @@ def test_with_the_hand_eye_the_bisection_needs_no_more_steps(seed):
         d, a = rng.normal(size=3), rng.normal(size=3)
         start = np.r_[0.03 * d / np.linalg.norm(d), math.radians(3.0) * a / np.linalg.norm(a)]
         rig = PerfectRig(X, start, scene(rng, relief_m=0.05))
-        result = acr_relocate(rig.acr_rig(), np.zeros((H, W)), K, config=AcrConfig(), T_flange_cam=X if with_x else None)
+        result = acr_relocate(
+            rig.acr_rig(), np.zeros((H, W)), K, config=AcrConfig(), T_flange_cam=X if with_x else None
+        )
         return result, rig.afd_px()
 
     with_x, afd_x = run(True)

@@ -21,8 +21,7 @@ def test_acr_revisit_on_the_simulator(tmp_path, method):
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
     st = camp.create_station("s")
-    rig = open_sim_rig(SimScenario(scene="relief_panel", seed=1, lighting="front"), T_flange_cam=None,
-                       intrinsics=None)
+    rig = open_sim_rig(SimScenario(scene="relief_panel", seed=1, lighting="front"), T_flange_cam=None, intrinsics=None)
     try:
         with st.write_reference({"lightings": ["front"]}) as w:
             for name, image in grab_images(rig.handles, ["front"]).items():
@@ -31,17 +30,25 @@ def test_acr_revisit_on_the_simulator(tmp_path, method):
             w.commit()
     finally:
         rig.close()
-    rig = open_sim_rig(SimScenario(scene="relief_panel", seed=1, lighting="led:3", start_offset_mm=30,
-                                   start_offset_deg=3, session_seed=2), T_flange_cam=None, intrinsics=None)
+    rig = open_sim_rig(
+        SimScenario(
+            scene="relief_panel", seed=1, lighting="led:3", start_offset_mm=30, start_offset_deg=3, session_seed=2
+        ),
+        T_flange_cam=None,
+        intrinsics=None,
+    )
     moves = []
     move_by = rig.handles.guard.move_by
     rig.handles.guard.move_by = lambda M: moves.append(M) or move_by(M)  # count what passes the guard
     try:
         ev = RelocationEvaluator.from_reference(rig.sim, st.reference())
         start = ev.evaluate()
-        out = relocate_and_capture(rig.handles, st, RelocateRequest(
-            config=RelocationConfig(), lightings=["led:3"], method=RelocationMethod(method)),
-            hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary))
+        out = relocate_and_capture(
+            rig.handles,
+            st,
+            RelocateRequest(config=RelocationConfig(), lightings=["led:3"], method=RelocationMethod(method)),
+            hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary),
+        )
         end = ev.evaluate()
     finally:
         rig.close()
@@ -63,9 +70,25 @@ def test_unknown_method_is_refused_in_one_line(tmp_path):
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
     camp.create_station("s")
-    r = subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", "relocate", "-c", str(tmp_path / "c"), "-s", "s",
-                        "--method", "teleport", "--yes"], capture_output=True, text=True,
-                       cwd=Path(__file__).parents[2], timeout=120)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "fgcd_cli.cli.app",
+            "relocate",
+            "-c",
+            str(tmp_path / "c"),
+            "-s",
+            "s",
+            "--method",
+            "teleport",
+            "--yes",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).parents[2],
+        timeout=120,
+    )
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert "--method" in r.stderr and "acr-h" in r.stderr

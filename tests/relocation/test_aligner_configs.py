@@ -24,8 +24,16 @@ def _state(points_map: np.ndarray):
 
 
 def _problem(config: RelocationConfig, reference: ReferenceData, index: ReferenceIndex):
-    ctx = LoopContext(session=None, reference=reference, ref_index=index, camera=None, scale=1.0,
-                      T_flange_cam=np.eye(4), init=Sim3(), config=config)
+    ctx = LoopContext(
+        session=None,
+        reference=reference,
+        ref_index=index,
+        camera=None,
+        scale=1.0,
+        T_flange_cam=np.eye(4),
+        init=Sim3(),
+        config=config,
+    )
     return ctx.problem()
 
 
@@ -39,7 +47,9 @@ def test_the_scale_ablation_keeps_the_scale_the_default_estimates_it():
     state = _state(cur * SCALE_ERROR)
     default = _problem(RelocationConfig(fine=False), reference, index)
     estimated = align_once(state=state, problem=default, init=Sim3())[0].T_ref_cur.scale
-    no_scale = RelocationConfig(fine=False, fast_align=replace(FastAlignConfig(), scale=ScaleStepConfig(estimate=False)))
+    no_scale = RelocationConfig(
+        fine=False, fast_align=replace(FastAlignConfig(), scale=ScaleStepConfig(estimate=False))
+    )
     kept = align_once(state=state, problem=_problem(no_scale, reference, index), init=Sim3())[0].T_ref_cur.scale
     # default: the scale step brings the map back to metric (within 1 %); -S: the prior's scale, exactly
     assert abs(estimated * SCALE_ERROR - 1.0) < 0.01
@@ -48,6 +58,7 @@ def test_the_scale_ablation_keeps_the_scale_the_default_estimates_it():
 
 def test_the_loop_passes_its_fine_options():
     config = RelocationConfig(fine_align=replace(RelocationConfig().fine_align, alpha=0.7, refine_keyframes=False))
-    problem = _problem(config, ReferenceData(points=np.zeros((3, 3)), intensities=np.zeros(3), T_ref_camref=np.eye(4)),
-                       None)
+    problem = _problem(
+        config, ReferenceData(points=np.zeros((3, 3)), intensities=np.zeros(3), T_ref_camref=np.eye(4)), None
+    )
     assert problem.fine_config.alpha == 0.7 and not problem.fine_config.refine_keyframes

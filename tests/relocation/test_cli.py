@@ -18,8 +18,14 @@ ROOT = Path(__file__).parents[2]
 
 
 def fgcd(*args, timeout=600):
-    return subprocess.run([sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=timeout, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def one_line_error(r, code: int, *mentions: str) -> str:
@@ -132,8 +138,21 @@ CAMERA = {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 48
 
 def _grbl_campaign(tmp_path, *, handeye_driver="grbl"):
     """A GRBL campaign made by `campaign init` (baud 57600, camera 2), calibrated, with a station 's' and its reference."""
-    r = fgcd("campaign", "init", tmp_path / "c", "--site", "x", "--driver", "grbl", "--port", "/dev/ttyFGCD-NOPE",
-             "--baud", "57600", "--camera", "2")
+    r = fgcd(
+        "campaign",
+        "init",
+        tmp_path / "c",
+        "--site",
+        "x",
+        "--driver",
+        "grbl",
+        "--port",
+        "/dev/ttyFGCD-NOPE",
+        "--baud",
+        "57600",
+        "--camera",
+        "2",
+    )
     assert r.returncode == 0, r.stderr
     from fgcd_cli.campaign.store import open_campaign
 
@@ -168,13 +187,37 @@ def test_capture_and_relocate_open_the_camera_and_baud_rate_of_the_campaign(tmp_
 
     camp = _grbl_campaign(tmp_path)
     assert run(app, [command[0], "-c", str(camp.path), *command[1:], "--yes"]) == 7
-    assert (opened_rigs[-1].driver, opened_rigs[-1].port, opened_rigs[-1].baud, opened_rigs[-1].camera_index) == \
-        ("grbl", "/dev/ttyFGCD-NOPE", 57600, 2)
+    assert (opened_rigs[-1].driver, opened_rigs[-1].port, opened_rigs[-1].baud, opened_rigs[-1].camera_index) == (
+        "grbl",
+        "/dev/ttyFGCD-NOPE",
+        57600,
+        2,
+    )
     # the options win over campaign.toml [rig]
-    assert run(app, [command[0], "-c", str(camp.path), *command[1:], "-y", "--camera", "/dev/video7", "--baud",
-                     "250000", "--port", "/dev/ttyACM3"]) == 7
-    assert (opened_rigs[-1].port, opened_rigs[-1].baud, opened_rigs[-1].camera_index) == \
-        ("/dev/ttyACM3", 250000, "/dev/video7")
+    assert (
+        run(
+            app,
+            [
+                command[0],
+                "-c",
+                str(camp.path),
+                *command[1:],
+                "-y",
+                "--camera",
+                "/dev/video7",
+                "--baud",
+                "250000",
+                "--port",
+                "/dev/ttyACM3",
+            ],
+        )
+        == 7
+    )
+    assert (opened_rigs[-1].port, opened_rigs[-1].baud, opened_rigs[-1].camera_index) == (
+        "/dev/ttyACM3",
+        250000,
+        "/dev/video7",
+    )
 
 
 @pytest.mark.parametrize("command", [["capture", "-s", "new"], ["relocate", "-s", "s"]])
@@ -201,19 +244,23 @@ def test_capture_and_relocate_refuse_another_driver_than_the_campaigns(tmp_path,
 
 
 # ----------------------------------------------------------------------------- a hardware driver's address
-@pytest.mark.parametrize("args, option", [
-    (["capture", "-s", "new", "--driver", "grbl"], "--port"),
-    (["capture", "-s", "new", "--driver", "ur"], "--host"),
-    (["relocate", "-s", "s", "--driver", "grbl"], "--port"),
-    (["relocate", "-s", "s", "--driver", "ur"], "--host"),
-])
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["capture", "-s", "new", "--driver", "grbl"], "--port"),
+        (["capture", "-s", "new", "--driver", "ur"], "--host"),
+        (["relocate", "-s", "s", "--driver", "grbl"], "--port"),
+        (["relocate", "-s", "s", "--driver", "ur"], "--host"),
+    ],
+)
 @pytest.mark.parametrize("intrinsics", [True, False])
 def test_a_hardware_driver_without_its_address_is_bad_input(camp_with_reference, args, option, intrinsics, capsys):
     # the missing address is the first thing to fix: said before the missing intrinsics
     camp = camp_with_reference
     if intrinsics:
-        camp.write_rig("intrinsics", {"camera": {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640,
-                                                 "height": 480}})
+        camp.write_rig(
+            "intrinsics", {"camera": {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480}}
+        )
     before = _stations(camp)
     assert run(app, [args[0], "-c", str(camp.path), *args[1:], "--yes"]) == 2
     one_line(capsys.readouterr().err, option)
@@ -221,11 +268,14 @@ def test_a_hardware_driver_without_its_address_is_bad_input(camp_with_reference,
 
 
 # ----------------------------------------------------------------------------- the demo's options
-@pytest.mark.parametrize("args, mentions", [
-    (["--light", "bogus"], ("--light", "bogus", "led:H")),
-    (["--scene", "nosuch"], ("nosuch", "relief_panel")),
-    (["--changes", "-1"], ("--changes",)),
-])
+@pytest.mark.parametrize(
+    "args, mentions",
+    [
+        (["--light", "bogus"], ("--light", "bogus", "led:H")),
+        (["--scene", "nosuch"], ("nosuch", "relief_panel")),
+        (["--changes", "-1"], ("--changes",)),
+    ],
+)
 def test_demo_checks_its_options_before_it_starts(tmp_path, monkeypatch, capsys, args, mentions):
     import fgcd_cli.app.demo as demo_mod
 
@@ -259,8 +309,18 @@ def _capture(c, station: str, **options):
     """Call the capture command in-process with every option explicit."""
     from fgcd_cli.cli.capture_cmd import capture
 
-    values = dict(driver=None, port=None, host=None, baud=None, camera=None, scene=None, seed=None, light="front",
-                  yes=True, as_json=True)
+    values = dict(
+        driver=None,
+        port=None,
+        host=None,
+        baud=None,
+        camera=None,
+        scene=None,
+        seed=None,
+        light="front",
+        yes=True,
+        as_json=True,
+    )
     values.update(options)
     return capture(campaign=c.path, station=station, **values)
 
@@ -276,8 +336,12 @@ def fake_capture(monkeypatch):
 
     def open_rig(request, **kwargs):
         seen["scenario"] = request.scenario
-        return SimpleNamespace(handles=None, close=lambda: None, sim=None,
-                               info={"scenario": request.scenario.__dict__ if request.scenario else None})
+        return SimpleNamespace(
+            handles=None,
+            close=lambda: None,
+            sim=None,
+            info={"scenario": request.scenario.__dict__ if request.scenario else None},
+        )
 
     def capture_reference(handles, station, *, lightings, metadata=None, evaluation=None):
         if seen["fail"] is not None:
@@ -286,8 +350,9 @@ def fake_capture(monkeypatch):
             for name in lightings:
                 w.add_image(name, np.zeros((4, 4), np.uint8))
             obs = w.commit()
-        return SimpleNamespace(observation_path=str(obs.path), cloud_points=0, images=list(lightings),
-                               scale=SimpleNamespace(scale=1.0))
+        return SimpleNamespace(
+            observation_path=str(obs.path), cloud_points=0, images=list(lightings), scale=SimpleNamespace(scale=1.0)
+        )
 
     monkeypatch.setattr(rigs, "open_rig", open_rig)
     monkeypatch.setattr(capture_uc, "capture_reference", capture_reference)
@@ -298,8 +363,13 @@ def fake_capture(monkeypatch):
 # ----------------------------------------------------------------------------- a capture's world is its station's
 def test_a_capture_with_an_unknown_scene_changes_nothing(camp):
     before = _toml(camp)
-    one_line_error(fgcd("capture", "-c", camp.path, "-s", "new", "--scene", "nosuch", "--yes"), 2,
-                   "nosuch", "stele", "relief_panel")
+    one_line_error(
+        fgcd("capture", "-c", camp.path, "-s", "new", "--scene", "nosuch", "--yes"),
+        2,
+        "nosuch",
+        "stele",
+        "relief_panel",
+    )
     assert _toml(camp) == before
     assert not (camp.path / "stations" / "new").exists()
 
@@ -324,8 +394,15 @@ def test_relocation_uses_the_world_of_the_station_not_the_campaign(camp):
     camp.update_config("rig", {"sim": {"scene": "mural", "seed": 0}})  # e.g. a campaign damaged by the old capture
     niche = open_campaign(camp.path).station("niche").reference()
     assert station_world(camp, niche)["scene"] == "relief_panel" and station_world(camp, niche)["seed"] == 3
-    scen = visit_scenario(camp, open_campaign(camp.path).station("stele-face").reference(), light="led:3", changes=2,
-                          start_offset_mm=10, start_offset_deg=1, session_seed=1)
+    scen = visit_scenario(
+        camp,
+        open_campaign(camp.path).station("stele-face").reference(),
+        light="led:3",
+        changes=2,
+        start_offset_mm=10,
+        start_offset_deg=1,
+        session_seed=1,
+    )
     assert (scen.scene, scen.lighting, scen.changes) == ("stele", "led:3", 2)
 
 
@@ -378,12 +455,15 @@ def test_a_damaged_station_is_named_damaged_not_already_existing(camp):
 
 
 # ----------------------------------------------------------------------------- bad option values, exit 2
-@pytest.mark.parametrize("args, mentions", [
-    (("--light", "bogus"), ("--light", "bogus", "front", "led:H")),
-    (("--light", "front,led:13"), ("--light", "1..12")),
-    (("--driver", "robot9000"), ("robot9000", "sim, grbl, ur, manual")),
-    (("--driver", "ur", "--host", "192.0.2.1", "--scene", "stele"), ("--scene", "--driver sim")),
-])
+@pytest.mark.parametrize(
+    "args, mentions",
+    [
+        (("--light", "bogus"), ("--light", "bogus", "front", "led:H")),
+        (("--light", "front,led:13"), ("--light", "1..12")),
+        (("--driver", "robot9000"), ("robot9000", "sim, grbl, ur, manual")),
+        (("--driver", "ur", "--host", "192.0.2.1", "--scene", "stele"), ("--scene", "--driver sim")),
+    ],
+)
 def test_capture_option_values_are_refused_before_anything_is_written(camp, args, mentions):
     before = _toml(camp)
     one_line_error(fgcd("capture", "-c", camp.path, "-s", "new", *args, "--yes"), 2, *mentions)
@@ -391,13 +471,16 @@ def test_capture_option_values_are_refused_before_anything_is_written(camp, args
     assert not (camp.path / "stations" / "new").exists()
 
 
-@pytest.mark.parametrize("args, mentions", [
-    (("--light", "bogus"), ("--light", "bogus", "front", "led:H")),
-    (("--changes", "-3"), ("--changes", "0 or more")),
-    (("--start-offset-mm", "-1"), ("--start-offset-mm", ">= 0")),
-    (("--max-adjustments", "0"), ("--max-adjustments",)),
-    (("--driver", "robot9000"), ("robot9000", "sim, grbl, ur, manual")),
-])
+@pytest.mark.parametrize(
+    "args, mentions",
+    [
+        (("--light", "bogus"), ("--light", "bogus", "front", "led:H")),
+        (("--changes", "-3"), ("--changes", "0 or more")),
+        (("--start-offset-mm", "-1"), ("--start-offset-mm", ">= 0")),
+        (("--max-adjustments", "0"), ("--max-adjustments",)),
+        (("--driver", "robot9000"), ("robot9000", "sim, grbl, ur, manual")),
+    ],
+)
 def test_relocate_option_values_are_refused_up_front(camp, args, mentions):
     _fake_reference(camp.create_station("s"), scene="stele")
     one_line_error(fgcd("relocate", "-c", camp.path, "-s", "s", *args, "--yes"), 2, *mentions)

@@ -25,8 +25,12 @@ CAMERA = PinholeCamera(fx=600.0, fy=600.0, cx=320.0, cy=240.0, width=640, height
 def _relief(n: int, rng: np.random.Generator) -> np.ndarray:
     x = rng.uniform(-0.6, 0.6, n)
     y = rng.uniform(-0.45, 0.45, n)
-    z = (1.5 + 0.04 * np.sin(x / 0.09) * np.cos(y / 0.07) + 0.06 * np.exp(-((x - 0.2) ** 2 + (y + 0.1) ** 2) / 0.02)
-         - 0.03 * np.exp(-((x + 0.3) ** 2 + (y - 0.15) ** 2) / 0.01))
+    z = (
+        1.5
+        + 0.04 * np.sin(x / 0.09) * np.cos(y / 0.07)
+        + 0.06 * np.exp(-((x - 0.2) ** 2 + (y + 0.1) ** 2) / 0.02)
+        - 0.03 * np.exp(-((x + 0.3) ** 2 + (y - 0.15) ** 2) / 0.01)
+    )
     return np.column_stack([x, y, z])
 
 
@@ -96,7 +100,9 @@ class _FakeSession:
     """A camera on a perfect platform over the relief; the VSE map is the ``ref`` frame moved by ``T_map_ref``
     and scaled by 1 / ``scale`` (what a monocular session's map is)."""
 
-    def __init__(self, T_ref_cam: np.ndarray, X: np.ndarray, cloud_ref: np.ndarray, T_map_ref: np.ndarray, scale: float):
+    def __init__(
+        self, T_ref_cam: np.ndarray, X: np.ndarray, cloud_ref: np.ndarray, T_map_ref: np.ndarray, scale: float
+    ):
         self.T_ref_cam, self.X, self.T_map_ref, self.scale = T_ref_cam.copy(), X, T_map_ref, scale
         self.cloud_map = (cloud_ref @ T_map_ref[:3, :3].T + T_map_ref[:3, 3]) / scale
         self.timing = SimpleNamespace(wait_s=0.0, total_s=0.0)
@@ -122,9 +128,20 @@ def _stage(session, reference_points, init, **config):
     from fgcd_cli.relocation.coarse.stage import CoarseInputs, run_coarse
 
     ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
-    return run_coarse(CoarseInputs(session=session, reference=ref, ref_index=ReferenceIndex(reference_points), camera=CAMERA,
-                            scale=session.scale, T_flange_cam=session.X, init=init, reference_images=None,
-                            grab_current=None, config=CoarseConfig(**config)))
+    return run_coarse(
+        CoarseInputs(
+            session=session,
+            reference=ref,
+            ref_index=ReferenceIndex(reference_points),
+            camera=CAMERA,
+            scale=session.scale,
+            T_flange_cam=session.X,
+            init=init,
+            reference_images=None,
+            grab_current=None,
+            config=CoarseConfig(**config),
+        )
+    )
 
 
 X_HANDEYE = exp_se3(np.r_[0.03, -0.05, 0.12, np.radians([1.0, 2.0, 90.0])])
@@ -236,14 +253,24 @@ def _scale_error_run(reference_points, monkeypatch, *, scale_error: float, scale
     cloud = _relief(30000, np.random.default_rng(8))
     session = _FakeSession(T_start, X_HANDEYE, cloud, np.eye(4), scale=1.0)
     # the image localizer measures the camera exactly (a textured object near the reference)
-    monkeypatch.setattr(coarse_mod, "image_estimate",
-                        lambda **_kw: (session.T_ref_cam.copy(), {"pnp": "ok", "inliers": 500}))
+    monkeypatch.setattr(
+        coarse_mod, "image_estimate", lambda **_kw: (session.T_ref_cam.copy(), {"pnp": "ok", "inliers": 500})
+    )
     ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
-    result = coarse_mod.run_coarse(coarse_mod.CoarseInputs(
-        session=session, reference=ref, ref_index=ReferenceIndex(reference_points), camera=CAMERA,
-        scale=1.0 + scale_error, scale_rel_std=scale_rel_std, T_flange_cam=X_HANDEYE,
-        init=Sim3(np.eye(3), np.zeros(3), 1.0 / (1.0 + scale_error)),
-        reference_images={"front": np.zeros((480, 640), np.float32)}, grab_current=lambda: None))
+    result = coarse_mod.run_coarse(
+        coarse_mod.CoarseInputs(
+            session=session,
+            reference=ref,
+            ref_index=ReferenceIndex(reference_points),
+            camera=CAMERA,
+            scale=1.0 + scale_error,
+            scale_rel_std=scale_rel_std,
+            T_flange_cam=X_HANDEYE,
+            init=Sim3(np.eye(3), np.zeros(3), 1.0 / (1.0 + scale_error)),
+            reference_images={"front": np.zeros((480, 640), np.float32)},
+            grab_current=lambda: None,
+        )
+    )
     return result, session
 
 

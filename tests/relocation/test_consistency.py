@@ -69,8 +69,9 @@ def _case(*, follow: bool, image: bool, mode: str = "serial"):
     exact image stage. Returns (result or AlgorithmError, true final offset mm, true offset at the start mm)."""
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
     u, v = np.meshgrid(np.linspace(-0.4, 0.4, 9), np.linspace(-0.3, 0.3, 7))
-    pts = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, DEPTH_M)]) @ T_ref_camref[:3, :3].T \
-        + T_ref_camref[:3, 3]
+    pts = (
+        np.column_stack([u.ravel(), v.ravel(), np.full(u.size, DEPTH_M)]) @ T_ref_camref[:3, :3].T + T_ref_camref[:3, 3]
+    )
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
     aside = T_ref_camref @ exp_se3([0.02, 0.0, 0.0, 0.0, 0.0, 0.0])
     biased = Sim3.from_pose(exp_se3([0.008, 0.0, 0.0, 0.0, 0.005, 0.0])) @ T_ref_cur
@@ -79,26 +80,65 @@ def _case(*, follow: bool, image: bool, mode: str = "serial"):
         T_cur_cam = np.array(state.T_map_cam, dtype=float)
         T_cur_cam[:3, 3] *= s
         T = Sim3.from_pose(aside @ invert_pose(T_cur_cam)) if follow else biased
-        return [AlignmentEstimate(T_ref_cur=T, stage="fast", ok=True, reason="ok", vse_frame=state.frames_processed,
-                                  seconds=0.0, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=T,
+                stage="fast",
+                ok=True,
+                reason="ok",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+            )
+        ]
 
     def refine(**_kw):
         T = true_cam()
-        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T) @ T_ref_camref,
-                               measured_afd_px=0.1 + 600.0 * pose_distance(T, T_ref_camref)[0] / 1000 / DEPTH_M,
-                               matches=400, inliers=350, rms_px=0.3, matcher="sift", offset_sigma_mm=0.3)
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=invert_pose(T) @ T_ref_camref,
+            measured_afd_px=0.1 + 600.0 * pose_distance(T, T_ref_camref)[0] / 1000 / DEPTH_M,
+            matches=400,
+            inliers=350,
+            rms_px=0.3,
+            matcher="sift",
+            offset_sigma_mm=0.3,
+        )
 
     start_mm = pose_distance(true_cam(), T_ref_camref)[0]
     vse = ExactVse(platform, X, T_map_base, s)
-    session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)), vse=vse,
-                         substep_m=1.0, substep_rad=1.0)
+    session = VseSession(
+        guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)),
+        vse=vse,
+        substep_m=1.0,
+        substep_rad=1.0,
+    )
     ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
-    extra = dict(reference_images={"front": np.zeros((480, 640), np.float32)},
-                 grab_current=lambda: np.zeros((480, 640), np.float32), image_refiner=refine) if image else {}
+    extra = (
+        dict(
+            reference_images={"front": np.zeros((480, 640), np.float32)},
+            grab_current=lambda: np.zeros((480, 640), np.float32),
+            image_refiner=refine,
+        )
+        if image
+        else {}
+    )
     try:
-        out = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=CAMERA, scale=s,
-                                   T_flange_cam=X, init=Sim3(), aligner=aligner, **extra,
-                                   config=RelocationConfig(mode=mode, eta=1e-6, agreement_wait_s=2.0)))
+        out = relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=CAMERA,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                aligner=aligner,
+                **extra,
+                config=RelocationConfig(mode=mode, eta=1e-6, agreement_wait_s=2.0),
+            )
+        )
     except AlgorithmError as exc:
         out = exc
     finally:

@@ -41,8 +41,14 @@ class Platform:
         self.events = events
 
     def capabilities(self):
-        return Capabilities(dof=6, controllable=("x", "y", "z", "rx", "ry", "rz"), workspace_min_m=(-5, -5, -5),
-                            workspace_max_m=(5, 5, 5), max_linear_speed_m_s=0.1, max_angular_speed_rad_s=1.0)
+        return Capabilities(
+            dof=6,
+            controllable=("x", "y", "z", "rx", "ry", "rz"),
+            workspace_min_m=(-5, -5, -5),
+            workspace_max_m=(5, 5, 5),
+            max_linear_speed_m_s=0.1,
+            max_angular_speed_rad_s=1.0,
+        )
 
     def flange_pose(self):
         return self.reported.copy()
@@ -52,8 +58,12 @@ class Platform:
         self.true = self.true @ exp_se3(log_se3(M) * (1.0 + 0.05 * self.rng.uniform(-1, 1, 6)))
         self.reported = np.array(T, dtype=float)
         self.events.append(("move",))
-        return MoveResult(T_base_flange_target=T, T_base_flange_reached=T, T_base_flange_commanded=T,
-                          duration_s=float(np.linalg.norm(M[:3, 3])) * 150.0)
+        return MoveResult(
+            T_base_flange_target=T,
+            T_base_flange_reached=T,
+            T_base_flange_commanded=T,
+            duration_s=float(np.linalg.norm(M[:3, 3])) * 150.0,
+        )
 
     def connect(self):
         pass
@@ -136,18 +146,40 @@ def _run(mode: str) -> tuple[list, object]:
         events.append(("align", state.frames_processed))
         time.sleep(random.random() * 0.003)  # the machine's speed: unseeded on purpose
         T = T_ref_cur.matrix() @ exp_se3(noise.normal(0, 2e-4, 6))
-        return [AlignmentEstimate(T_ref_cur=Sim3.from_matrix(T), stage="fast", ok=True, reason="noisy",
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=Sim3.from_matrix(T),
+                stage="fast",
+                ok=True,
+                reason="noisy",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+            )
+        ]
 
     platform = Platform(T0, events)
     vse = SteppedVse(Engine(), Source(platform, X, T_map_base, s, events)).start()
-    session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)), vse=vse,
-                         substep_m=0.01, substep_rad=0.05)
+    session = VseSession(
+        guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)),
+        vse=vse,
+        substep_m=0.01,
+        substep_rad=0.05,
+    )
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
-    result = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s,
-                                  T_flange_cam=X, init=Sim3(), aligner=aligner,
-                                  config=RelocationConfig(mode=mode, deterministic=True, eta=5e-3,
-                                                          tolerance_mm=0.5, max_adjustments=10)))
+    result = relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=None,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            aligner=aligner,
+            config=RelocationConfig(mode=mode, deterministic=True, eta=5e-3, tolerance_mm=0.5, max_adjustments=10),
+        )
+    )
     return events, result
 
 
@@ -215,12 +247,15 @@ def _simulated_station(tmp_path):
 
     camp = init_campaign(tmp_path / "c", site="x", rig={"driver": "sim"})
     station = camp.create_station("s")
-    rig = open_sim_rig(SimScenario(scene="relief_panel", seed=1, lighting="front"), T_flange_cam=None,
-                       intrinsics=None)
+    rig = open_sim_rig(SimScenario(scene="relief_panel", seed=1, lighting="front"), T_flange_cam=None, intrinsics=None)
     try:
-        capture_uc.capture_reference(deterministic_rig(rig.handles), station, lightings=["front"],
-                                     metadata={"driver": "sim", "scenario": rig.info["scenario"]},
-                                     evaluation=reference_truth(rig.sim))
+        capture_uc.capture_reference(
+            deterministic_rig(rig.handles),
+            station,
+            lightings=["front"],
+            metadata={"driver": "sim", "scenario": rig.info["scenario"]},
+            evaluation=reference_truth(rig.sim),
+        )
     finally:
         rig.close()
     return station
@@ -232,14 +267,21 @@ def _relocate_once(station):
     from fgcd_cli.app.rig import open_sim_rig
     from fgcd_cli.app.scenario import SimScenario
 
-    scenario = SimScenario(scene="relief_panel", seed=1, lighting="led:3", start_offset_mm=20, start_offset_deg=2,
-                           session_seed=2)
+    scenario = SimScenario(
+        scene="relief_panel", seed=1, lighting="led:3", start_offset_mm=20, start_offset_deg=2, session_seed=2
+    )
     rig = open_sim_rig(scenario, T_flange_cam=None, intrinsics=None)
     try:
-        out = relocate_and_capture(rig.handles, station, RelocateRequest(
-            config=RelocationConfig(deterministic=True, image_refine=False, image_fallback=False),
-            lightings=["led:3"], metadata={"driver": "sim", "scenario": rig.info["scenario"]}),
-            hooks=RelocateHooks())
+        out = relocate_and_capture(
+            rig.handles,
+            station,
+            RelocateRequest(
+                config=RelocationConfig(deterministic=True, image_refine=False, image_fallback=False),
+                lightings=["led:3"],
+                metadata={"driver": "sim", "scenario": rig.info["scenario"]},
+            ),
+            hooks=RelocateHooks(),
+        )
     finally:
         rig.close()
     return out
@@ -256,8 +298,13 @@ def test_two_deterministic_relocations_of_a_simulated_station_are_identical(tmp_
     np.testing.assert_array_equal(a.relocation.final_T_ref_cam, b.relocation.final_T_ref_cam)
     assert _records(a.relocation) == _records(b.relocation)
     va, vb = station.visits()[-2:]
-    logs = [[{k: v for k, v in json.loads(line).items() if k != "t_wall_s"}
-             for line in v.bytes(schema.RELOCATION_LOG).decode().splitlines()] for v in (va, vb)]
+    logs = [
+        [
+            {k: v for k, v in json.loads(line).items() if k != "t_wall_s"}
+            for line in v.bytes(schema.RELOCATION_LOG).decode().splitlines()
+        ]
+        for v in (va, vb)
+    ]
     assert logs[0] == logs[1] and logs[0]
     run = va.metadata["relocation"]["run"]
     assert run["deterministic"] is True and run["seeds"]["session_seed"] == 2 and "numpy" in run["versions"]

@@ -66,8 +66,14 @@ class BoxPlatform:
         self.T, self.lo, self.hi, self.visited = np.array(T0, float), lo, hi, []
 
     def capabilities(self):
-        return Capabilities(dof=6, controllable=("x", "y", "z", "rx", "ry", "rz"), workspace_min_m=self.lo,
-                            workspace_max_m=self.hi, max_linear_speed_m_s=0.1, max_angular_speed_rad_s=1.0)
+        return Capabilities(
+            dof=6,
+            controllable=("x", "y", "z", "rx", "ry", "rz"),
+            workspace_min_m=self.lo,
+            workspace_max_m=self.hi,
+            max_linear_speed_m_s=0.1,
+            max_angular_speed_rad_s=1.0,
+        )
 
     def flange_pose(self):
         return self.T.copy()
@@ -143,8 +149,11 @@ def test_exploration_ends_when_until_says_so():
     from fgcd_cli.relocation.session import VseSession, exploration_pattern
 
     platform = BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1))
-    session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
-                         vse=TrackingVse(), frame_timeout_s=1.0)
+    session = VseSession(
+        guard=MotionGuard(platform, GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
+        vse=TrackingVse(),
+        frame_timeout_s=1.0,
+    )
     motions = exploration_pattern(translation_m=0.04, legs=3, stops_per_leg=2)
     asked = []
 
@@ -155,9 +164,13 @@ def test_exploration_ends_when_until_says_so():
     flange, _ = session.explore(motions, until=until)
     assert len(motions) == 6 and len(flange) == 4 and asked == [1, 2, 3, 4]
     # without it, all six stops (the return leg included)
-    session2 = VseSession(guard=MotionGuard(BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1)),
-                                            GuardLimits(max_step_m=0.06, max_step_rad=0.3)),
-                          vse=TrackingVse(), frame_timeout_s=1.0)
+    session2 = VseSession(
+        guard=MotionGuard(
+            BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1)), GuardLimits(max_step_m=0.06, max_step_rad=0.3)
+        ),
+        vse=TrackingVse(),
+        frame_timeout_s=1.0,
+    )
     assert len(session2.explore(motions)[0]) == 6
 
 

@@ -26,13 +26,25 @@ SIGMA_MM = 0.5  # the stand-in's PnP uncertainty
 
 def _refinement(M, T_true, T_ref_camref):
     mm, deg = pose_distance(np.eye(4), M)
-    common = dict(M_cam=M, measured_afd_px=frames_afd_px(T_true, T_ref_camref), matches=60, inliers=45,
-                  rms_px=0.4, matcher="sift", offset_sigma_mm=SIGMA_MM)
+    common = dict(
+        M_cam=M,
+        measured_afd_px=frames_afd_px(T_true, T_ref_camref),
+        matches=60,
+        inliers=45,
+        rms_px=0.4,
+        matcher="sift",
+        offset_sigma_mm=SIGMA_MM,
+    )
     if mm <= 1000 * LIMIT_M and deg <= LIMIT_DEG:
         return ImageRefinement(ok=True, reason="ok", **common)
     step, _ = clamp_motion(M, max_step_m=LIMIT_M, max_step_rad=math.radians(LIMIT_DEG))
-    return ImageRefinement(ok=False, reason=f"correction of {mm:.1f} mm is too large to trust on 45 inliers",
-                           unverified=True, step_M_cam=step, **common)
+    return ImageRefinement(
+        ok=False,
+        reason=f"correction of {mm:.1f} mm is too large to trust on 45 inliers",
+        unverified=True,
+        step_M_cam=step,
+        **common,
+    )
 
 
 def test_a_true_estimate_predicts_the_next_measurement_and_a_stuck_one_does_not():
@@ -42,8 +54,9 @@ def test_a_true_estimate_predicts_the_next_measurement_and_a_stuck_one_does_not(
     step, _ = clamp_motion(M, max_step_m=LIMIT_M, max_step_rad=math.radians(LIMIT_DEG))
     prediction = predict_after_step(T_ref_camref, M, step, sigma_mm=SIGMA_MM)
     T_after = T_true @ step
-    ok, dist, bound = corroborates(prediction, T_ref_camref, invert_pose(T_after) @ T_ref_camref, sigma_mm=SIGMA_MM,
-                                   k=2.0)
+    ok, dist, bound = corroborates(
+        prediction, T_ref_camref, invert_pose(T_after) @ T_ref_camref, sigma_mm=SIGMA_MM, k=2.0
+    )
     assert ok and dist == pytest.approx(0.0, abs=1e-6)
     assert bound == pytest.approx(2 * math.sqrt(2) * SIGMA_MM)
     # a fit that does not follow the motion (the same correction again) is one step from the prediction

@@ -80,8 +80,9 @@ def test_recovers_a_small_offset_under_another_light(relief):
     M_true = exp_se3(np.array([0.004, -0.003, 0.003, math.radians(0.2), math.radians(-0.2), math.radians(0.1)]))
     T_cur = T_ref @ invert_pose(M_true)  # M_cam = T_cur_camref = inv(T_cur) T_ref
     cur = renderer.render(T_cur, INTR, "led:3", exposure="auto", rng=np.random.default_rng(1), want=("gray",))
-    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA,
-                                      ref_points=pts, T_ref_camref=T_ref)
+    res = refine_from_reference_image(
+        reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA, ref_points=pts, T_ref_camref=T_ref
+    )
     assert res.ok, res.reason
     assert res.inliers >= 40
     mm, deg = pose_distance(res.M_cam, M_true)
@@ -96,8 +97,9 @@ def test_recovers_a_small_offset_under_another_light(relief):
 def test_refuses_when_the_evidence_is_weak(relief):
     _, T_ref, ref, pts = relief
     blank = np.full_like(ref.gray, 0.5)
-    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=blank, camera=CAMERA,
-                                      ref_points=pts, T_ref_camref=T_ref)
+    res = refine_from_reference_image(
+        reference_images={"front": ref.gray}, current_image=blank, camera=CAMERA, ref_points=pts, T_ref_camref=T_ref
+    )
     assert not res.ok and res.M_cam is None
     assert "matches" in res.reason or "grid" in res.reason
 
@@ -106,8 +108,9 @@ def test_a_large_correction_needs_strong_evidence(relief):
     renderer, T_ref, ref, pts = relief
     M_true = exp_se3(np.array([0.04, 0.0, 0.0, 0.0, 0.0, 0.0]))  # 40 mm: beyond the ordinary 20 mm limit
     cur = renderer.render(T_ref @ invert_pose(M_true), INTR, "front", exposure=1.0, want=("gray",))
-    kw = dict(reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA, ref_points=pts,
-              T_ref_camref=T_ref)
+    kw = dict(
+        reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA, ref_points=pts, T_ref_camref=T_ref
+    )
     # Same light, 40 mm: hundreds of consistent matches, so the correction is trusted ...
     res = refine_from_reference_image(**kw)
     assert res.ok, res.reason
@@ -123,12 +126,18 @@ def test_a_large_correction_needs_strong_evidence(relief):
 
 def test_bad_images_are_refused_not_raised(relief):
     _, T_ref, ref, pts = relief
-    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=ref.gray * 300.0,
-                                      camera=CAMERA, ref_points=pts, T_ref_camref=T_ref)
+    res = refine_from_reference_image(
+        reference_images={"front": ref.gray},
+        current_image=ref.gray * 300.0,
+        camera=CAMERA,
+        ref_points=pts,
+        T_ref_camref=T_ref,
+    )
     assert not res.ok and "[0, 1]" in res.reason
     as16 = (ref.gray * 65535).astype(np.uint16)  # 16-bit reference PNGs, as a campaign stores them
-    res = refine_from_reference_image(reference_images={"front": as16}, current_image=ref.gray, camera=CAMERA,
-                                      ref_points=pts, T_ref_camref=T_ref)
+    res = refine_from_reference_image(
+        reference_images={"front": as16}, current_image=ref.gray, camera=CAMERA, ref_points=pts, T_ref_camref=T_ref
+    )
     assert res.ok and res.measured_afd_px < 0.5
 
 
@@ -151,10 +160,12 @@ def test_low_contrast_wall_under_a_side_light_from_a_few_centimetres():
     direction = np.array([0.6, -0.48, 0.64])
     axis = np.array([0.36, 0.48, -0.8])
     M_true = exp_se3(np.r_[direction * 0.030, axis * math.radians(3.0)])
-    cur = renderer.render(T_ref @ invert_pose(M_true), INTR, "led:4", exposure="auto", rng=np.random.default_rng(2),
-                          want=("gray",))
-    res = refine_from_reference_image(reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA,
-                                      ref_points=pts, T_ref_camref=T_ref)
+    cur = renderer.render(
+        T_ref @ invert_pose(M_true), INTR, "led:4", exposure="auto", rng=np.random.default_rng(2), want=("gray",)
+    )
+    res = refine_from_reference_image(
+        reference_images={"front": ref.gray}, current_image=cur.gray, camera=CAMERA, ref_points=pts, T_ref_camref=T_ref
+    )
     assert res.ok, res.reason
     assert res.matcher == "sift" and res.inliers >= ImageRefineConfig().strong_min_inliers
     mm, deg = pose_distance(res.M_cam, M_true)

@@ -42,8 +42,14 @@ class ErringPlatform:
         pass
 
     def capabilities(self):
-        return Capabilities(dof=6, controllable=("x", "y", "z", "rx", "ry", "rz"), workspace_min_m=(-5, -5, -5),
-                            workspace_max_m=(5, 5, 5), max_linear_speed_m_s=0.1, max_angular_speed_rad_s=1.0)
+        return Capabilities(
+            dof=6,
+            controllable=("x", "y", "z", "rx", "ry", "rz"),
+            workspace_min_m=(-5, -5, -5),
+            workspace_max_m=(5, 5, 5),
+            max_linear_speed_m_s=0.1,
+            max_angular_speed_rad_s=1.0,
+        )
 
     def flange_pose(self):
         return self.reported.copy()
@@ -51,12 +57,17 @@ class ErringPlatform:
     def move_to(self, T, *, speed_fraction=1.0):
         M = invert_pose(self.reported) @ T
         from fgcd_core.se3 import log_se3
+
         xi = log_se3(M) * (1.0 + self.proportional * self.rng.uniform(-1, 1, 6))
         self.true = self.true @ exp_se3(xi)
         self.reported = np.array(T, dtype=float)
         self.moves += 1
-        return MoveResult(T_base_flange_target=T, T_base_flange_reached=self.reported, T_base_flange_commanded=T,
-                          duration_s=float(np.linalg.norm(M[:3, 3])) * 150.0)
+        return MoveResult(
+            T_base_flange_target=T,
+            T_base_flange_reached=self.reported,
+            T_base_flange_commanded=T,
+            duration_s=float(np.linalg.norm(M[:3, 3])) * 150.0,
+        )
 
     def stop(self):
         pass
@@ -141,8 +152,17 @@ def test_perfect_platform_and_alignment_reach_reference_in_one_adjustment(monkey
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
 
     def exact_align_once(*, serial=0, state=None, **kw):
-        return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=T_ref_cur,
+                stage="fast",
+                ok=True,
+                reason="exact",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+            )
+        ]
 
     vse = ExactVse(platform, X, T_map_base, s)
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
@@ -152,9 +172,20 @@ def test_perfect_platform_and_alignment_reach_reference_in_one_adjustment(monkey
     def truth():
         return {"mm": pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]}
 
-    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), evaluate=truth,
-                         aligner=exact_align_once))
+    res = relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=None,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            config=RelocationConfig(mode=mode, eta=1e-6),
+            evaluate=truth,
+            aligner=exact_align_once,
+        )
+    )
     vse.stop()
     assert res.converged
     assert res.adjustments == 2  # one motion, then g ~ 0 confirms arrival
@@ -170,8 +201,19 @@ def test_erring_platform_converges_in_a_few_adjustments(monkeypatch):
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
-    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(eta=1e-4, max_adjustments=10), aligner=aligner))
+    res = relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=None,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            config=RelocationConfig(eta=1e-4, max_adjustments=10),
+            aligner=aligner,
+        )
+    )
     vse.stop()
     assert res.converged
     # a 5 % proportional error shrinks the offset ~20x per adjustment: 35 mm -> <0.1 mm in <= 4
@@ -184,20 +226,52 @@ def test_failed_alignment_pauses_motion(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _ = make_case()
 
     def aligner(*, serial=0, state=None, **kw):
-        return [AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=Sim3(),
+                stage="fast",
+                ok=False,
+                reason="degenerate geometry (plane)",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+            )
+        ]
 
     vse = ExactVse(platform, X, T_map_base, s)
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse)
     ref = ReferenceData(points=np.zeros((10, 3)), intensities=np.zeros(10), T_ref_camref=T_ref_camref)
     from fgcd_cli.errors import AlgorithmError
+
     with pytest.raises(AlgorithmError, match="plane"):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="serial"), aligner=aligner))
+        relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=None,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=RelocationConfig(mode="serial"),
+                aligner=aligner,
+            )
+        )
     with pytest.raises(AlgorithmError, match="plane"):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5), aligner=aligner))
+        relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=None,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=RelocationConfig(mode="parallel", estimate_timeout_s=0.5),
+                aligner=aligner,
+            )
+        )
     vse.stop()
     assert platform.moves == 0
 
@@ -229,12 +303,22 @@ def _biased_case_with_image_stage(monkeypatch, refine):
     guard = MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5))
     session = VseSession(guard=guard, vse=vse, substep_m=1.0, substep_rad=1.0)
     ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
-    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=camera, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6),
-                         reference_images={"front": np.zeros((480, 640), np.float32)},
-                         grab_current=lambda: np.zeros((480, 640), np.float32),
-                         aligner=_exact_aligner(bias @ T_ref_cur, reason="biased"),
-                         image_refiner=lambda **kw: refine(true_cam())))
+    res = relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=camera,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            config=RelocationConfig(mode="serial", eta=1e-6),
+            reference_images={"front": np.zeros((480, 640), np.float32)},
+            grab_current=lambda: np.zeros((480, 640), np.float32),
+            aligner=_exact_aligner(bias @ T_ref_cur, reason="biased"),
+            image_refiner=lambda **kw: refine(true_cam()),
+        )
+    )
     vse.stop()
     return res, pose_distance(true_cam(), T_ref_camref)
 
@@ -251,9 +335,17 @@ def test_image_stage_removes_a_biased_alignment(monkeypatch):
 
     def exact(T_ref_cam_true):
         # what a perfect image stage measures: the reference camera seen from the current one
-        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ ref_T[0],
-                               measured_afd_px=frames_afd_px(T_ref_cam_true, ref_T[0]),
-                               matches=100, inliers=100, rms_px=0.2, reference_image="front", matcher="sift")
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=invert_pose(T_ref_cam_true) @ ref_T[0],
+            measured_afd_px=frames_afd_px(T_ref_cam_true, ref_T[0]),
+            matches=100,
+            inliers=100,
+            rms_px=0.2,
+            reference_image="front",
+            matcher="sift",
+        )
 
     ref_T = [make_case()[4]]
     res, (mm, deg) = _biased_case_with_image_stage(monkeypatch, exact)
@@ -272,9 +364,17 @@ def test_weak_image_evidence_leaves_the_3d_result_unconfirmed(monkeypatch):
     weak evidence, and no "converged" on one estimator either (issue 25)."""
     from fgcd_cli.relocation.image.refine import ImageRefinement
 
-    weak = lambda _T: ImageRefinement(ok=False, reason="only 12 feature matches with the reference image",  # noqa: E731
-                                      M_cam=None, measured_afd_px=float("nan"), matches=12, inliers=0,
-                                      rms_px=float("nan"))
+    def weak(_T):
+        return ImageRefinement(
+            ok=False,
+            reason="only 12 feature matches with the reference image",
+            M_cam=None,
+            measured_afd_px=float("nan"),
+            matches=12,
+            inliers=0,
+            rms_px=float("nan"),
+        )
+
     res, (mm, deg) = _biased_case_with_image_stage(monkeypatch, weak)
     assert not res.converged
     assert res.records[-1].stage == "image" and not res.records[-1].alignment_ok
@@ -285,9 +385,20 @@ def test_weak_image_evidence_leaves_the_3d_result_unconfirmed(monkeypatch):
 
 def _exact_aligner(T_ref_cur, *, reason="exact"):
     """An exact stand-in for the alignment (an :class:`~fgcd_cli.relocation.racr.aligner.Aligner`) returning ``T_ref_cur``."""
+
     def aligner(*, serial=0, state=None, **kw):
-        return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason=reason,
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=T_ref_cur,
+                stage="fast",
+                ok=True,
+                reason=reason,
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+            )
+        ]
+
     return aligner
 
 
@@ -311,9 +422,19 @@ def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     start_mm = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]
     with pytest.raises(AlgorithmError, match="diverging"):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X_wrong,
-                       init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-6, max_adjustments=12),
-                       aligner=aligner))
+        relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=None,
+                scale=s,
+                T_flange_cam=X_wrong,
+                init=Sim3(),
+                config=RelocationConfig(mode="serial", eta=1e-6, max_adjustments=12),
+                aligner=aligner,
+            )
+        )
     vse.stop()
     assert platform.moves <= 4  # stopped within a few adjustments, not after the 12 allowed
     end_mm = pose_distance(T_ref_base @ platform.true @ X, T_ref_camref)[0]
@@ -323,15 +444,26 @@ def test_a_wrong_hand_eye_makes_the_loop_diverge_and_it_stops(monkeypatch):
 def test_divergence_check_does_not_fire_on_a_normal_convergence(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case(proportional=0.3)
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
-    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode="serial", eta=1e-4, max_adjustments=12),
-                         aligner=_exact_aligner(T_ref_cur)))
+    res = relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=None,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            config=RelocationConfig(mode="serial", eta=1e-4, max_adjustments=12),
+            aligner=_exact_aligner(T_ref_cur),
+        )
+    )
     vse.stop()
     assert res.converged  # a 30 % sloppy platform still shrinks the offset every time
 
 
-def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, untrusted_min_wait_s=0.2,
-                                         prior_sigma_mm=None, calls=None):
+def _degenerate_case_with_image_fallback(
+    monkeypatch, refine, mode="serial", *, untrusted_min_wait_s=0.2, prior_sigma_mm=None, calls=None
+):
     """The 3D alignment never trusts itself (a flat wall); the image stage is ``refine``. ``prior_sigma_mm``: the
     exploration ended where the image localizer put the reference; ``calls`` collects the alignments' serials."""
     from fgcd_core.camera import PinholeCamera
@@ -341,8 +473,18 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, 
     def degenerate(*, serial=0, state=None, **kw):
         if calls is not None:
             calls.append(serial)
-        return [AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="degenerate geometry (plane)",
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial, degenerate=True)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=Sim3(),
+                stage="fast",
+                ok=False,
+                reason="degenerate geometry (plane)",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+                degenerate=True,
+            )
+        ]
 
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
     camera = PinholeCamera(fx=600, fy=600, cx=319.5, cy=239.5, width=640, height=480)
@@ -355,12 +497,23 @@ def _degenerate_case_with_image_fallback(monkeypatch, refine, mode="serial", *, 
     ref = ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
     config = RelocationConfig(mode=mode, eta=1e-6, estimate_timeout_s=120.0, untrusted_min_wait_s=untrusted_min_wait_s)
     try:
-        res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=camera, scale=s,
-                             T_flange_cam=X, init=Sim3(), config=config,
-                             reference_images={"front": np.zeros((480, 640), np.float32)},
-                             grab_current=lambda: np.zeros((480, 640), np.float32), aligner=degenerate,
-                             image_refiner=lambda **kw: refine(true_cam(), T_ref_camref),
-                             image_prior_sigma_mm=prior_sigma_mm))
+        res = relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=camera,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=config,
+                reference_images={"front": np.zeros((480, 640), np.float32)},
+                grab_current=lambda: np.zeros((480, 640), np.float32),
+                aligner=degenerate,
+                image_refiner=lambda **kw: refine(true_cam(), T_ref_camref),
+                image_prior_sigma_mm=prior_sigma_mm,
+            )
+        )
     finally:
         vse.stop()
     return res, platform, pose_distance(true_cam(), T_ref_camref)
@@ -371,9 +524,16 @@ def test_image_fallback_relocates_when_3d_alignment_is_degenerate(monkeypatch, m
     from fgcd_cli.relocation.image.refine import ImageRefinement
 
     def exact(T_ref_cam_true, T_ref_camref):
-        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
-                               measured_afd_px=frames_afd_px(T_ref_cam_true, T_ref_camref), matches=300,
-                               inliers=250, rms_px=0.3, matcher="sift")
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
+            measured_afd_px=frames_afd_px(T_ref_cam_true, T_ref_camref),
+            matches=300,
+            inliers=250,
+            rms_px=0.3,
+            matcher="sift",
+        )
 
     res, platform, (mm, deg) = _degenerate_case_with_image_fallback(monkeypatch, exact, mode)
     assert res.converged
@@ -388,13 +548,21 @@ def test_degenerate_geometry_falls_back_without_waiting_for_the_untrusted_timeou
     from fgcd_cli.relocation.image.refine import ImageRefinement
 
     def exact(T_ref_cam_true, T_ref_camref):
-        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
-                               measured_afd_px=frames_afd_px(T_ref_cam_true, T_ref_camref), matches=300,
-                               inliers=250, rms_px=0.3, matcher="sift")
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
+            measured_afd_px=frames_afd_px(T_ref_cam_true, T_ref_camref),
+            matches=300,
+            inliers=250,
+            rms_px=0.3,
+            matcher="sift",
+        )
 
     t0 = time.monotonic()
-    res, _platform, (mm, _deg) = _degenerate_case_with_image_fallback(monkeypatch, exact, "parallel",
-                                                                       untrusted_min_wait_s=100.0)
+    res, _platform, (mm, _deg) = _degenerate_case_with_image_fallback(
+        monkeypatch, exact, "parallel", untrusted_min_wait_s=100.0
+    )
     assert res.converged and "degenerate geometry in 3 estimates" in res.reason
     assert mm < 1e-3
     # the untrusted rule alone would have waited 100 s (the 120 s timeout behind it)
@@ -408,12 +576,21 @@ def test_degenerate_geometry_where_the_localizer_led_hands_over_at_the_first_est
     from fgcd_cli.relocation.image.refine import ImageRefinement
 
     def exact(T_ref_cam_true, T_ref_camref):
-        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
-                               measured_afd_px=frames_afd_px(T_ref_cam_true, T_ref_camref), matches=300,
-                               inliers=250, rms_px=0.3, matcher="sift", offset_sigma_mm=0.3)
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=invert_pose(T_ref_cam_true) @ T_ref_camref,
+            measured_afd_px=frames_afd_px(T_ref_cam_true, T_ref_camref),
+            matches=300,
+            inliers=250,
+            rms_px=0.3,
+            matcher="sift",
+            offset_sigma_mm=0.3,
+        )
 
-    res, _platform, (mm, _deg) = _degenerate_case_with_image_fallback(monkeypatch, exact, "parallel",
-                                                                       untrusted_min_wait_s=100.0, prior_sigma_mm=2.0)
+    res, _platform, (mm, _deg) = _degenerate_case_with_image_fallback(
+        monkeypatch, exact, "parallel", untrusted_min_wait_s=100.0, prior_sigma_mm=2.0
+    )
     assert res.converged and mm < 1e-3
     assert "image stage (3D degenerate)" in res.reason and "in 3 estimates" not in res.reason
     assert all(r.stage == "image" for r in res.records)
@@ -425,9 +602,17 @@ def test_weak_image_evidence_where_the_localizer_led_hands_back_and_keeps_the_pa
     from fgcd_cli.errors import AlgorithmError
     from fgcd_cli.relocation.image.refine import ImageRefinement
 
-    weak = lambda _T, _R: ImageRefinement(ok=False, reason="only 9 feature matches with the reference image",  # noqa: E731
-                                          M_cam=None, measured_afd_px=float("nan"), matches=9, inliers=0,
-                                          rms_px=float("nan"))
+    def weak(_T, _R):
+        return ImageRefinement(
+            ok=False,
+            reason="only 9 feature matches with the reference image",
+            M_cam=None,
+            measured_afd_px=float("nan"),
+            matches=9,
+            inliers=0,
+            rms_px=float("nan"),
+        )
+
     calls: list = []
     with pytest.raises(AlgorithmError, match="degenerate geometry in 3 estimates.*image fallback: only 9"):
         _degenerate_case_with_image_fallback(monkeypatch, weak, "parallel", prior_sigma_mm=2.0, calls=calls)
@@ -438,9 +623,17 @@ def test_weak_image_evidence_keeps_the_pause(monkeypatch):
     from fgcd_cli.errors import AlgorithmError
     from fgcd_cli.relocation.image.refine import ImageRefinement
 
-    weak = lambda _T, _R: ImageRefinement(ok=False, reason="only 9 feature matches with the reference image",  # noqa: E731
-                                          M_cam=None, measured_afd_px=float("nan"), matches=9, inliers=0,
-                                          rms_px=float("nan"))
+    def weak(_T, _R):
+        return ImageRefinement(
+            ok=False,
+            reason="only 9 feature matches with the reference image",
+            M_cam=None,
+            measured_afd_px=float("nan"),
+            matches=9,
+            inliers=0,
+            rms_px=float("nan"),
+        )
+
     with pytest.raises(AlgorithmError, match="plane.*image fallback: only 9 feature matches"):
         _degenerate_case_with_image_fallback(monkeypatch, weak)
 
@@ -452,15 +645,34 @@ def test_untrustworthy_estimates_pause_before_the_timeout(monkeypatch):
     X, platform, T_map_base, s, T_ref_camref, T_ref_cur, _ = make_case()
 
     def untrustworthy(*, serial=0, state=None, **kw):
-        return [AlignmentEstimate(T_ref_cur=Sim3(), stage="fast", ok=False, reason="inlier ratio 41% < 60%",
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=Sim3(),
+                stage="fast",
+                ok=False,
+                reason="inlier ratio 41% < 60%",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+            )
+        ]
 
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     t0 = time.monotonic()
     with pytest.raises(AlgorithmError, match="untrustworthy in .* estimates in a row.*inlier ratio"):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="parallel", estimate_timeout_s=60.0,
-                                                            untrusted_min_wait_s=0.5), aligner=untrustworthy))
+        relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=None,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=RelocationConfig(mode="parallel", estimate_timeout_s=60.0, untrusted_min_wait_s=0.5),
+                aligner=untrustworthy,
+            )
+        )
     vse.stop()
     assert time.monotonic() - t0 < 30.0  # far below the 60 s timeout
     assert platform.moves == 0
@@ -480,9 +692,19 @@ def test_ctrl_c_during_a_motion_stops_the_platform_and_the_alignment_thread(monk
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     before = {t.name for t in threading.enumerate()}
     with pytest.raises(KeyboardInterrupt):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-6),
-                       aligner=_exact_aligner(T_ref_cur)))
+        relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=None,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=RelocationConfig(mode="parallel", eta=1e-6),
+                aligner=_exact_aligner(T_ref_cur),
+            )
+        )
     vse.stop()
     assert stops, "the platform was not told to stop"
     assert session.guard.tripped and "Ctrl-C" in session.guard.tripped
@@ -502,8 +724,19 @@ def test_an_estimate_far_beyond_any_revisit_start_pauses_before_moving(monkeypat
     wrong = Sim3.from_pose(exp_se3([0.8, -0.5, 0.3, 0.0, 0.0, 0.0])) @ T_ref_cur  # ~1 m off
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     with pytest.raises(AlgorithmError, match="beyond the 250 mm"):
-        relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                       init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6), aligner=_exact_aligner(wrong)))
+        relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=None,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=RelocationConfig(mode=mode, eta=1e-6),
+                aligner=_exact_aligner(wrong),
+            )
+        )
     vse.stop()
     assert platform.moves == 0
 
@@ -515,8 +748,17 @@ def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(mon
 
     def slow_exact(*, serial=0, state=None, **kw):
         time.sleep(0.4)
-        return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
-                                  vse_frame=state.frames_processed, seconds=0.4, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=T_ref_cur,
+                stage="fast",
+                ok=True,
+                reason="exact",
+                vse_frame=state.frames_processed,
+                seconds=0.4,
+                serial=serial,
+            )
+        ]
 
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     frames_after_motion = []
@@ -528,9 +770,19 @@ def test_parallel_moves_on_the_latest_estimate_but_stops_only_on_a_fresh_one(mon
         return out
 
     session.move_by = move_and_note
-    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12),
-                         aligner=slow_exact))
+    res = relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=None,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12),
+            aligner=slow_exact,
+        )
+    )
     vse.stop()
     assert res.converged
     serials = [r.estimate_serial for r in res.records]
@@ -544,8 +796,18 @@ def test_an_unknown_mode_is_refused_before_anything_starts():
     from fgcd_cli.errors import AlgorithmError
 
     with pytest.raises(AlgorithmError, match="unknown relocation mode 'sideways'"):
-        relocate(LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0,
-                             T_flange_cam=np.eye(4), init=None, config=RelocationConfig(mode="sideways")))
+        relocate(
+            LoopContext(
+                session=None,
+                reference=None,
+                ref_index=None,
+                camera=None,
+                scale=1.0,
+                T_flange_cam=np.eye(4),
+                init=None,
+                config=RelocationConfig(mode="sideways"),
+            )
+        )
 
 
 def test_the_contexts_refuse_unknown_inputs_and_inject_their_parts():
@@ -553,8 +815,28 @@ def test_the_contexts_refuse_unknown_inputs_and_inject_their_parts():
         LoopContext(session=None, unknown_option=1)
     with pytest.raises(TypeError):
         CoarseInputs(session=None, unknown_option=1)
-    ctx = LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
-                      init=None, image_refiner=lambda **kw: "measured")
+    ctx = LoopContext(
+        session=None,
+        reference=None,
+        ref_index=None,
+        camera=None,
+        scale=1.0,
+        T_flange_cam=np.eye(4),
+        init=None,
+        image_refiner=lambda **kw: "measured",
+    )
     assert ctx.refiner()() == "measured" and not ctx.can_image
-    assert CoarseInputs(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
-                        init=None, reference_images=None, grab_current=None).config == CoarseConfig()
+    assert (
+        CoarseInputs(
+            session=None,
+            reference=None,
+            ref_index=None,
+            camera=None,
+            scale=1.0,
+            T_flange_cam=np.eye(4),
+            init=None,
+            reference_images=None,
+            grab_current=None,
+        ).config
+        == CoarseConfig()
+    )

@@ -15,8 +15,17 @@ def test_every_step_and_every_wait_says_something(monkeypatch):
 
     def slow_exact(*, serial=0, state=None, **kw):
         time.sleep(0.3)
-        return [AlignmentEstimate(T_ref_cur=T_ref_cur, stage="fast", ok=True, reason="exact",
-                                  vse_frame=state.frames_processed, seconds=0.3, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=T_ref_cur,
+                stage="fast",
+                ok=True,
+                reason="exact",
+                vse_frame=state.frames_processed,
+                seconds=0.3,
+                serial=serial,
+            )
+        ]
 
     vse, session, ref = _exact_session(platform, X, T_map_base, s, T_ref_camref)
     lines: list[tuple[float, str]] = []
@@ -24,10 +33,19 @@ def test_every_step_and_every_wait_says_something(monkeypatch):
     session.on_event = lambda text: lines.append((time.monotonic(), text))
     session.on_progress = lambda done, total, label: progress.append((done, total, label))
     t0 = time.monotonic()
-    res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s, T_flange_cam=X,
-                         init=Sim3(), config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12,
-                                                                 heartbeat_s=0.1),
-                         aligner=slow_exact))
+    res = relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=None,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            config=RelocationConfig(mode="parallel", eta=1e-4, max_adjustments=12, heartbeat_s=0.1),
+            aligner=slow_exact,
+        )
+    )
     vse.stop()
     assert res.converged
     texts = [t for _, t in lines]
@@ -58,8 +76,19 @@ def _session_with_a_fixed_cloud(n_points: int):
 
 
 def _relocate_on(session, ref, X, s, config: RelocationConfig):
-    return relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=None, scale=s,
-                                T_flange_cam=X, init=Sim3(), aligner=lambda **kw: [], config=config))
+    return relocate(
+        LoopContext(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=None,
+            scale=s,
+            T_flange_cam=X,
+            init=Sim3(),
+            aligner=lambda **kw: [],
+            config=config,
+        )
+    )
 
 
 def test_a_wait_with_no_estimate_at_all_says_why():
@@ -72,8 +101,11 @@ def test_a_wait_with_no_estimate_at_all_says_why():
     session, ref, _platform, X, s = _session_with_a_fixed_cloud(12)
     lines: list[str] = []
     session.on_event = lines.append
-    with pytest.raises(AlgorithmError, match=r"no estimate yet \(the VSE is tracking, its cloud has 12 points, "
-                                             r"alignment needs 500\)"):
+    with pytest.raises(
+        AlgorithmError,
+        match=r"no estimate yet \(the VSE is tracking, its cloud has 12 points, "
+        r"alignment needs 500\)",
+    ):
         _relocate_on(session, ref, X, s, RelocationConfig(mode="parallel", estimate_timeout_s=0.5, heartbeat_s=0.1))
     session.vse.stop()
     assert any("still aligning" in t and "its cloud has 12 points" in t for t in lines)
@@ -91,8 +123,15 @@ def test_a_wait_on_a_cloud_that_cannot_grow_ends_early():
     patience_s = 0.3
     t0 = time.monotonic()
     with pytest.raises(AlgorithmError, match=r"no alignment possible.*its cloud has 0 points.*camera standing still"):
-        _relocate_on(session, ref, X, s, RelocationConfig(mode="parallel", estimate_timeout_s=60.0, heartbeat_s=0.1,
-                                                          untrusted_min_wait_s=patience_s))
+        _relocate_on(
+            session,
+            ref,
+            X,
+            s,
+            RelocationConfig(
+                mode="parallel", estimate_timeout_s=60.0, heartbeat_s=0.1, untrusted_min_wait_s=patience_s
+            ),
+        )
     elapsed = time.monotonic() - t0
     session.vse.stop()
     # at least the patience; far below the 60 s timeout (a heartbeat's 0.1 s checks it; loose for a loaded machine)

@@ -47,36 +47,79 @@ def _flat_reference(T_ref_camref):
     return ReferenceData(points=pts, intensities=np.zeros(len(pts)), T_ref_camref=T_ref_camref)
 
 
-def _run(monkeypatch, *, bias_3d: np.ndarray, refine, start_offset: np.ndarray | None = None, mode="serial",
-         image=True, config_kw=None):
+def _run(
+    monkeypatch,
+    *,
+    bias_3d: np.ndarray,
+    refine,
+    start_offset: np.ndarray | None = None,
+    mode="serial",
+    image=True,
+    config_kw=None,
+):
     """Relocate with 3D estimates biased by ``bias_3d`` (a camera motion hidden from the 3D loop).
 
     The 3D loop stops with the true camera at ``T_ref_camref @ bias_3d``; ``refine(T_true, T_ref_camref)``
     stands in for the image measurement. Returns the result, the platform and the true final offset.
     """
     X, _platform, T_map_base, s, T_ref_camref, T_ref_cur, T_ref_base = make_case()
-    T0 = invert_pose(T_ref_base) @ T_ref_camref @ (start_offset if start_offset is not None else exp_se3(
-        [0.02, -0.015, 0.01, 0.03, -0.02, 0.05])) @ invert_pose(X)
+    T0 = (
+        invert_pose(T_ref_base)
+        @ T_ref_camref
+        @ (start_offset if start_offset is not None else exp_se3([0.02, -0.015, 0.01, 0.03, -0.02, 0.05]))
+        @ invert_pose(X)
+    )
     platform = ErringPlatform(T0)
     # the estimate says "at the reference" when the camera is truly at T_ref_camref @ bias_3d
     B = Sim3.from_pose(T_ref_camref @ invert_pose(bias_3d) @ invert_pose(T_ref_camref))
 
     def biased(*, serial=0, state=None, **kw):
-        return [AlignmentEstimate(T_ref_cur=B @ T_ref_cur, stage="fast", ok=True, reason="biased",
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=B @ T_ref_cur,
+                stage="fast",
+                ok=True,
+                reason="biased",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+            )
+        ]
 
     true_cam = lambda: T_ref_base @ platform.true @ X  # noqa: E731
     vse = ExactVse(platform, X, T_map_base, s)
-    session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)), vse=vse,
-                         substep_m=1.0, substep_rad=1.0)
+    session = VseSession(
+        guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)),
+        vse=vse,
+        substep_m=1.0,
+        substep_rad=1.0,
+    )
     ref = _flat_reference(T_ref_camref)
-    kw = dict(reference_images={"front": np.zeros((480, 640), np.float32)},
-              grab_current=lambda: np.zeros((480, 640), np.float32)) if image else {}
+    kw = (
+        dict(
+            reference_images={"front": np.zeros((480, 640), np.float32)},
+            grab_current=lambda: np.zeros((480, 640), np.float32),
+        )
+        if image
+        else {}
+    )
     try:
-        res = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=CAMERA, scale=s, T_flange_cam=X,
-                             init=Sim3(), config=RelocationConfig(mode=mode, eta=1e-6, **(config_kw or {})),
-                             evaluate=lambda: {"pose_err_mm": pose_distance(true_cam(), T_ref_camref)[0]},
-                             aligner=biased, image_refiner=lambda **kw: refine(true_cam(), T_ref_camref), **kw))
+        res = relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=CAMERA,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=RelocationConfig(mode=mode, eta=1e-6, **(config_kw or {})),
+                evaluate=lambda: {"pose_err_mm": pose_distance(true_cam(), T_ref_camref)[0]},
+                aligner=biased,
+                image_refiner=lambda **kw: refine(true_cam(), T_ref_camref),
+                **kw,
+            )
+        )
     finally:
         vse.stop()
     return res, platform, pose_distance(true_cam(), T_ref_camref)[0]
@@ -84,9 +127,19 @@ def _run(monkeypatch, *, bias_3d: np.ndarray, refine, start_offset: np.ndarray |
 
 def _exact_image(sigma_mm=0.2):
     def refine(T_true, T_ref_camref):
-        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(T_true) @ T_ref_camref, measured_afd_px=0.2,
-                               matches=300, inliers=300, rms_px=0.2, reference_image="front", matcher="sift",
-                               offset_sigma_mm=sigma_mm)
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=invert_pose(T_true) @ T_ref_camref,
+            measured_afd_px=0.2,
+            matches=300,
+            inliers=300,
+            rms_px=0.2,
+            reference_image="front",
+            matcher="sift",
+            offset_sigma_mm=sigma_mm,
+        )
+
     return refine
 
 
@@ -130,8 +183,18 @@ def test_an_image_estimate_that_keeps_saying_8_mm_pauses_instead_of_converging(m
     D = _hidden_offset(0.008)
 
     def stuck(_T_true, _T_ref_camref):
-        return ImageRefinement(ok=True, reason="ok", M_cam=invert_pose(D), measured_afd_px=0.2, matches=300,
-                               inliers=300, rms_px=0.2, reference_image="front", matcher="sift", offset_sigma_mm=0.2)
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=invert_pose(D),
+            measured_afd_px=0.2,
+            matches=300,
+            inliers=300,
+            rms_px=0.2,
+            reference_image="front",
+            matcher="sift",
+            offset_sigma_mm=0.2,
+        )
 
     res, _platform, _final_mm = _run(monkeypatch, bias_3d=D, refine=stuck)
     assert not res.converged
@@ -141,8 +204,9 @@ def test_an_image_estimate_that_keeps_saying_8_mm_pauses_instead_of_converging(m
 
 def test_3d_loop_does_not_stop_while_its_estimate_says_more_than_the_tolerance(monkeypatch):
     """Pure rACR (no image stage): a start 8 mm away that the AFD rule cannot see is still corrected."""
-    res, platform, final_mm = _run(monkeypatch, bias_3d=np.eye(4), refine=_exact_image(),
-                                   start_offset=_hidden_offset(0.008), image=False)
+    res, platform, final_mm = _run(
+        monkeypatch, bias_3d=np.eye(4), refine=_exact_image(), start_offset=_hidden_offset(0.008), image=False
+    )
     assert res.records[0].offset_mm == pytest.approx(8.0, abs=0.01) and res.records[0].afd_est_px < 0.5
     assert res.converged and platform.moves >= 1
     assert final_mm < 0.01
@@ -156,8 +220,9 @@ def test_3d_and_image_estimates_that_disagree_never_converge(monkeypatch, mode):
     """The 3D estimate stays 40 mm off what the exact image estimate says: more than 2 x the combined
     uncertainty (image 0.2 mm, 3D 1 % of 1.5 m = 15 mm, bound ~30 mm). No 'converged'."""
     bias = exp_se3([0.04, 0.0, 0.0, 0.0, 0.0, 0.0])
-    res, _platform, final_mm = _run(monkeypatch, bias_3d=bias, refine=_exact_image(), mode=mode,
-                                    config_kw={"agreement_wait_s": 5.0})
+    res, _platform, final_mm = _run(
+        monkeypatch, bias_3d=bias, refine=_exact_image(), mode=mode, config_kw={"agreement_wait_s": 5.0}
+    )
     assert not res.converged
     assert "disagree by 40.0 mm" in res.reason
     checked = [r.agreement for r in res.records if r.agreement]
@@ -166,8 +231,13 @@ def test_3d_and_image_estimates_that_disagree_never_converge(monkeypatch, mode):
 
 
 def test_3d_bias_within_its_uncertainty_agrees(monkeypatch):
-    res, _platform, final_mm = _run(monkeypatch, bias_3d=_hidden_offset(0.008), refine=_exact_image(),
-                                    mode="parallel", config_kw={"agreement_wait_s": 5.0})
+    res, _platform, final_mm = _run(
+        monkeypatch,
+        bias_3d=_hidden_offset(0.008),
+        refine=_exact_image(),
+        mode="parallel",
+        config_kw={"agreement_wait_s": 5.0},
+    )
     assert res.converged and res.residual.agreement == "agree"
     assert final_mm < 0.01
 
@@ -191,8 +261,9 @@ def test_pnp_uncertainty_matches_the_scatter_of_noisy_solutions():
     errors, sigmas = [], []
     for _ in range(60):
         uv = uv0 + rng.normal(scale=noise_px, size=uv0.shape)
-        ok, rvec, tvec = cv2.solvePnP(P, uv, K, None, rvec0.copy(), tvec0.copy(), useExtrinsicGuess=True,
-                                      flags=cv2.SOLVEPNP_ITERATIVE)
+        ok, rvec, tvec = cv2.solvePnP(
+            P, uv, K, None, rvec0.copy(), tvec0.copy(), useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE
+        )
         assert ok
         errors.append(np.sum((tvec.ravel() - tvec0) ** 2))
         sigmas.append(pnp_translation_sigma_m(P, uv, rvec, tvec, K))
@@ -205,9 +276,18 @@ def test_pnp_uncertainty_matches_the_scatter_of_noisy_solutions():
 
 
 def _declining(_T_true, _T_ref_camref):
-    return ImageRefinement(ok=False, reason="too few matches (12)", M_cam=None, measured_afd_px=math.nan, matches=12,
-                           inliers=0, rms_px=math.nan, reference_image="front", matcher="sift",
-                           offset_sigma_mm=math.nan)
+    return ImageRefinement(
+        ok=False,
+        reason="too few matches (12)",
+        M_cam=None,
+        measured_afd_px=math.nan,
+        matches=12,
+        inliers=0,
+        rms_px=math.nan,
+        reference_image="front",
+        matcher="sift",
+        offset_sigma_mm=math.nan,
+    )
 
 
 @pytest.mark.parametrize("mode", ["serial", "parallel"])
@@ -215,16 +295,28 @@ def test_a_3d_offset_within_its_own_uncertainty_goes_to_the_image_stage_without_
     """10 mm from the reference, the 3D estimate (1 % of 1.5 m = 15 mm) cannot resolve the offset: the image
     stage takes over at once; the 3D loop makes no motion."""
     start = exp_se3([0.008, -0.006, 0.0, 0.0, 0.0, 0.0])
-    res, platform, final_mm = _run(monkeypatch, bias_3d=np.eye(4), refine=_exact_image(), start_offset=start,
-                                   mode=mode, config_kw={"agreement_wait_s": 5.0})
+    res, platform, final_mm = _run(
+        monkeypatch,
+        bias_3d=np.eye(4),
+        refine=_exact_image(),
+        start_offset=start,
+        mode=mode,
+        config_kw={"agreement_wait_s": 5.0},
+    )
     stages = [r.stage for r in res.records]
     assert stages[0] != "image" and all(s == "image" for s in stages[1:])
     assert res.records[0].offset_mm == pytest.approx(10.0, abs=0.05)
     assert res.converged and res.residual.source == "image" and final_mm < 0.01
     assert platform.moves == sum(1 for r in res.records[1:] if not np.allclose(r.M_flange_commanded, np.eye(4)))
     # without the hand-over the 3D loop moves on the same estimate first
-    res_3d, _, _ = _run(monkeypatch, bias_3d=np.eye(4), refine=_exact_image(), start_offset=start, mode=mode,
-                        config_kw={"agreement_wait_s": 5.0, "image_handover": False})
+    res_3d, _, _ = _run(
+        monkeypatch,
+        bias_3d=np.eye(4),
+        refine=_exact_image(),
+        start_offset=start,
+        mode=mode,
+        config_kw={"agreement_wait_s": 5.0, "image_handover": False},
+    )
     assert [r.stage for r in res_3d.records].count("image") < len(res_3d.records) - 1
 
 

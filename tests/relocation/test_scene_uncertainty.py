@@ -45,8 +45,9 @@ def recess():
     rng = np.random.default_rng(0)
     strip = np.column_stack([rng.uniform(-0.12, -0.01, 1000), rng.uniform(-0.4, 0.4, 1000), np.full(1000, 1.5)])
     config = SceneUncertaintyConfig(cells=5, max_points=len(points))  # every point: no z-buffer holes
-    model = build_scene_model(reference_points=points, T_ref_camref=np.eye(4), camera=CAMERA,
-                              keypoints_per_image=[strip], config=config)
+    model = build_scene_model(
+        reference_points=points, T_ref_camref=np.eye(4), camera=CAMERA, keypoints_per_image=[strip], config=config
+    )
     return model, config
 
 
@@ -82,8 +83,14 @@ def test_the_predicted_pnp_error_agrees_with_the_localizers_own_covariance(reces
 
     rng = np.random.default_rng(1)
     X = np.column_stack([rng.uniform(-0.4, 0.4, 400), rng.uniform(-0.3, 0.3, 400), rng.uniform(1.3, 1.7, 400)])
-    model = SceneModel(points=X, normals=np.tile([0.0, 0.0, -1.0], (len(X), 1)), keypoints=X,
-                       keypoint_image=np.zeros(len(X), dtype=int), T_ref_camref=np.eye(4), centroid=X.mean(axis=0))
+    model = SceneModel(
+        points=X,
+        normals=np.tile([0.0, 0.0, -1.0], (len(X), 1)),
+        keypoints=X,
+        keypoint_image=np.zeros(len(X), dtype=int),
+        T_ref_camref=np.eye(4),
+        centroid=X.mean(axis=0),
+    )
     config = SceneUncertaintyConfig(min_points=10**9)  # the image localizer only
     pred = predict_view(model, np.eye(4), CAMERA, config=config)
     K = np.array([[CAMERA.fx, 0, CAMERA.cx], [0, CAMERA.fy, CAMERA.cy], [0, 0, 1.0]])
@@ -127,9 +134,20 @@ def _run(scene):
     X = exp_se3(np.r_[0.03, -0.05, 0.12, np.radians([1.0, 2.0, 90.0])])
     session = _TurnOnlySession(X)
     ref = SimpleNamespace(points=_sheet(-1.0, 1.0, -0.5, 0.5, 1.5, 0.01), T_ref_camref=np.eye(4))
-    run = _CoarseRun(CoarseInputs(session=session, reference=ref, ref_index=None, camera=NARROW, scale=1.0,
-                                  T_flange_cam=X, init=Sim3(np.eye(3), np.zeros(3), 1.0), reference_images=None,
-                                  grab_current=None, scene=scene))
+    run = _CoarseRun(
+        CoarseInputs(
+            session=session,
+            reference=ref,
+            ref_index=None,
+            camera=NARROW,
+            scale=1.0,
+            T_flange_cam=X,
+            init=Sim3(np.eye(3), np.zeros(3), 1.0),
+            reference_images=None,
+            grab_current=None,
+            scene=scene,
+        )
+    )
     view = _View(T_cur_cam=np.eye(4), notes={}, best=None, unverified=("3d", np.eye(4), None))
     assert run._look(1, view, None) is None
     return run, session, X
@@ -139,9 +157,14 @@ def test_the_look_turns_towards_the_lower_uncertainty_heading():
     # a flat wall at 1.5 m whose only texture lies left of the current view (negative yaw turns left)
     wall = _sheet(-1.0, 1.0, -0.5, 0.5, 1.5, 0.004)
     texture = wall[(wall[:, 0] < -0.15)][::3]
-    model = SceneModel(points=wall, normals=np.tile([0.0, 0.0, -1.0], (len(wall), 1)), keypoints=texture,
-                       keypoint_image=np.zeros(len(texture), dtype=int), T_ref_camref=np.eye(4),
-                       centroid=np.array([0.0, 0.0, 1.5]))
+    model = SceneModel(
+        points=wall,
+        normals=np.tile([0.0, 0.0, -1.0], (len(wall), 1)),
+        keypoints=texture,
+        keypoint_image=np.zeros(len(texture), dtype=int),
+        T_ref_camref=np.eye(4),
+        centroid=np.array([0.0, 0.0, 1.5]),
+    )
     config = SceneUncertaintyConfig(cells=1, extent_m=0.0, max_points=10**6)
     smap = scene_uncertainty_map(model, NARROW, config=config)
     u_right = view_uncertainty(model, camera_turn(math.radians(4.0), 0.0), NARROW, config=config)[0]
@@ -162,18 +185,28 @@ def test_the_look_turns_towards_the_lower_uncertainty_heading():
 
 def test_without_a_map_the_look_keeps_the_fixed_order():
     run, session, _X = _run(None)
-    assert run.steps[0].look == {"yaw_deg": pytest.approx(CoarseConfig().look_deg), "pitch_deg": 0.0,
-                                 "chosen_by": "fixed order"}
+    assert run.steps[0].look == {
+        "yaw_deg": pytest.approx(CoarseConfig().look_deg),
+        "pitch_deg": 0.0,
+        "chosen_by": "fixed order",
+    }
 
 
 # ----------------------------------------------------------------------------- the report
 def _coarse_rows() -> list[dict]:
     """Two coarse steps as ``coarse.jsonl`` holds them: an unverified look, then a verified move."""
-    return [{"step": 1, "action": "look", "source": "",
-             "estimates": {"3d": {"position_refcam_m": [0.18, -0.05, 0.02]}}},
-            {"step": 2, "action": "move", "source": "image",
-             "estimates": {"3d": {"position_refcam_m": [0.0, 0.0, 0.0]},
-                           "image": {"position_refcam_m": [0.15, -0.04, 0.01]}}}]
+    return [
+        {"step": 1, "action": "look", "source": "", "estimates": {"3d": {"position_refcam_m": [0.18, -0.05, 0.02]}}},
+        {
+            "step": 2,
+            "action": "move",
+            "source": "image",
+            "estimates": {
+                "3d": {"position_refcam_m": [0.0, 0.0, 0.0]},
+                "image": {"position_refcam_m": [0.15, -0.04, 0.01]},
+            },
+        },
+    ]
 
 
 def test_the_report_shows_the_map_with_the_coarse_estimates(recess):
@@ -191,8 +224,9 @@ def test_the_report_shows_the_map_with_the_coarse_estimates(recess):
     rng = np.random.default_rng(0)
     img = cv2.GaussianBlur(rng.random((96, 96)).astype(np.float32), (0, 0), 2)
     result = detect_changes([img], [img.copy()])
-    with_map = render_diff_report(ref_image=img, cur_image=img, result=result,
-                                  context=ReportContext(scene_map=smap, coarse_log=_coarse_rows()))
+    with_map = render_diff_report(
+        ref_image=img, cur_image=img, result=result, context=ReportContext(scene_map=smap, coarse_log=_coarse_rows())
+    )
     assert 'alt="scene uncertainty map"' in with_map and "coarse stage estimated" in with_map
     without = render_diff_report(ref_image=img, cur_image=img, result=result, context=ReportContext())
     assert "scene uncertainty map" not in without
@@ -208,9 +242,13 @@ def test_the_map_is_computed_once_per_reference_and_never_overwritten(tmp_path, 
         path = tmp_path
 
         def reference(self):
-            return SimpleNamespace(manifest={"created": "2026-01-01"}, image_names=lambda: [],
-                                   array=lambda name: {"cloud_points": model.points, "cloud_intensities": None,
-                                                       "T_ref_camref": np.eye(4)}[name])
+            return SimpleNamespace(
+                manifest={"created": "2026-01-01"},
+                image_names=lambda: [],
+                array=lambda name: {"cloud_points": model.points, "cloud_intensities": None, "T_ref_camref": np.eye(4)}[
+                    name
+                ],
+            )
 
     station = _Station()
     config = SceneUncertaintyConfig(cells=3)
@@ -235,8 +273,11 @@ def test_a_corner_pins_every_direction_for_the_3d_localizer():
     A, B = np.meshgrid(s, s)
     a, b = A.ravel(), B.ravel()
     corner = np.array([0.0, 0.0, 0.6])
-    walls = [np.column_stack([a, b, np.zeros_like(a)]), np.column_stack([a, np.zeros_like(a), b]),
-             np.column_stack([np.zeros_like(a), a, b])]
+    walls = [
+        np.column_stack([a, b, np.zeros_like(a)]),
+        np.column_stack([a, np.zeros_like(a), b]),
+        np.column_stack([np.zeros_like(a), a, b]),
+    ]
     normals = [np.tile(n, (len(a), 1)) for n in ([0, 0, 1.0], [0, 1.0, 0], [1.0, 0, 0])]
     # the corner opens towards the camera: walls at x, y, z >= 0 around it, turned to face the camera
     inward = np.ones(3) / math.sqrt(3.0)  # the corner's opening, in wall coordinates: towards the camera (-z)
@@ -244,8 +285,14 @@ def test_a_corner_pins_every_direction_for_the_3d_localizer():
     R = np.vstack([r1, np.cross(-inward, r1), -inward])
     assert np.linalg.det(R) == pytest.approx(1.0)
     points = np.vstack(walls) @ R.T + corner
-    model = SceneModel(points=points, normals=np.vstack(normals) @ R.T, keypoints=np.zeros((0, 3)),
-                       keypoint_image=np.zeros(0, dtype=int), T_ref_camref=np.eye(4), centroid=corner)
+    model = SceneModel(
+        points=points,
+        normals=np.vstack(normals) @ R.T,
+        keypoints=np.zeros((0, 3)),
+        keypoint_image=np.zeros(0, dtype=int),
+        T_ref_camref=np.eye(4),
+        centroid=corner,
+    )
     pred = predict_view(model, np.eye(4), CAMERA, config=SceneUncertaintyConfig(max_points=10**6))
     assert pred.surface_points > 1000
     assert pred.weak_directions == 0 and pred.geometry_ok and not pred.image_ok
@@ -258,8 +305,9 @@ def test_a_reference_without_a_cloud_gives_no_map_and_says_why(tmp_path):
     def missing(name):
         raise CampaignError(f"the reference has no array {name!r}")
 
-    station = SimpleNamespace(path=tmp_path, reference=lambda: SimpleNamespace(manifest={}, array=missing,
-                                                                                image_names=lambda: []))
+    station = SimpleNamespace(
+        path=tmp_path, reference=lambda: SimpleNamespace(manifest={}, array=missing, image_names=lambda: [])
+    )
     said = []
     assert station_scene_uncertainty(station, CAMERA, say=said.append) is None
     assert len(said) == 1 and "fixed order" in said[0] and "cloud_points" in said[0]

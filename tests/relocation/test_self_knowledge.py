@@ -59,7 +59,8 @@ def test_a_plane_pins_only_its_distance():
 
 def test_frame_bound_is_the_stop_rule_plus_the_matching_noise():
     assert frame_afd_bound_px(stop_afd_px=0.5, rms_px=0.3, inliers=400, k=2.0) == pytest.approx(
-        math.hypot(0.5, 0.3) + 2 * 0.3 / 20)
+        math.hypot(0.5, 0.3) + 2 * 0.3 / 20
+    )
     assert math.isnan(frame_afd_bound_px(stop_afd_px=0.5, rms_px=math.nan, inliers=10, k=2.0))
 
 
@@ -85,9 +86,18 @@ class _Cloud:
         return len(self.points)
 
 
-def _relief_case(*, image_bias: np.ndarray, start: np.ndarray, frames_px=None, oversize_mm=None,
-                 aligner_ok=False, cloud_tilt_deg=0.0, aligner_bias: np.ndarray | None = None,
-                 prior_sigma_mm: float | None = None, moves: list | None = None):
+def _relief_case(
+    *,
+    image_bias: np.ndarray,
+    start: np.ndarray,
+    frames_px=None,
+    oversize_mm=None,
+    aligner_ok=False,
+    cloud_tilt_deg=0.0,
+    aligner_bias: np.ndarray | None = None,
+    prior_sigma_mm: float | None = None,
+    moves: list | None = None,
+):
     """Relocate over a relief at 1.5 m from the reference camera.
 
     The 3D loop is degenerate (``aligner_ok`` False: the image fallback runs) or exact. The image
@@ -116,10 +126,18 @@ def _relief_case(*, image_bias: np.ndarray, start: np.ndarray, frames_px=None, o
     def aligner(*, serial=0, state=None, **kw):
         if moves is not None:
             moves.append(pose_distance(true_cam(), T_ref_camref)[0])
-        return [AlignmentEstimate(T_ref_cur=estimate if aligner_ok else Sim3(), stage="fast", ok=aligner_ok,
-                                  reason="exact" if aligner_ok else "degenerate geometry (plane)",
-                                  vse_frame=state.frames_processed, seconds=0.0, serial=serial,
-                                  degenerate=not aligner_ok)]
+        return [
+            AlignmentEstimate(
+                T_ref_cur=estimate if aligner_ok else Sim3(),
+                stage="fast",
+                ok=aligner_ok,
+                reason="exact" if aligner_ok else "degenerate geometry (plane)",
+                vse_frame=state.frames_processed,
+                seconds=0.0,
+                serial=serial,
+                degenerate=not aligner_ok,
+            )
+        ]
 
     def refine(**_kw):
         T_true = true_cam()
@@ -127,23 +145,57 @@ def _relief_case(*, image_bias: np.ndarray, start: np.ndarray, frames_px=None, o
         mm, deg = pose_distance(np.eye(4), M)
         shown = frames_px(T_true) if frames_px else 0.1 + 600.0 * (pose_distance(T_true, T_ref_camref)[0] / 1500.0)
         if oversize_mm is not None and mm > oversize_mm:
-            return ImageRefinement(ok=False, reason=f"correction of {mm:.1f} mm is too large to trust on image "
-                                   "evidence alone", M_cam=M, measured_afd_px=shown, matches=400, inliers=350,
-                                   rms_px=0.3, matcher="sift", offset_sigma_mm=0.3, oversize=True)
-        return ImageRefinement(ok=True, reason="ok", M_cam=M, measured_afd_px=shown, matches=400, inliers=350,
-                               rms_px=0.3, matcher="sift", offset_sigma_mm=0.3)
+            return ImageRefinement(
+                ok=False,
+                reason=f"correction of {mm:.1f} mm is too large to trust on image evidence alone",
+                M_cam=M,
+                measured_afd_px=shown,
+                matches=400,
+                inliers=350,
+                rms_px=0.3,
+                matcher="sift",
+                offset_sigma_mm=0.3,
+                oversize=True,
+            )
+        return ImageRefinement(
+            ok=True,
+            reason="ok",
+            M_cam=M,
+            measured_afd_px=shown,
+            matches=400,
+            inliers=350,
+            rms_px=0.3,
+            matcher="sift",
+            offset_sigma_mm=0.3,
+        )
 
     vse = _CloudVse(platform, X, T_map_base, s, cloud_map)
-    session = VseSession(guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)), vse=vse,
-                         substep_m=1.0, substep_rad=1.0)
+    session = VseSession(
+        guard=MotionGuard(platform, GuardLimits(max_step_m=0.1, max_step_rad=0.5)),
+        vse=vse,
+        substep_m=1.0,
+        substep_rad=1.0,
+    )
     ref = ReferenceData(points=ref_points, intensities=np.zeros(len(ref_points)), T_ref_camref=T_ref_camref)
     config = RelocationConfig(mode="serial", eta=1e-6, untrusted_min_wait_s=0.0, agreement_wait_s=2.0)
     try:
-        out = relocate(LoopContext(session=session, reference=ref, ref_index=None, camera=CAMERA, scale=s,
-                                   T_flange_cam=X, init=Sim3(), config=config,
-                                   reference_images={"front": np.zeros((480, 640), np.float32)},
-                                   grab_current=lambda: np.zeros((480, 640), np.float32), aligner=aligner,
-                                   image_refiner=refine, image_prior_sigma_mm=prior_sigma_mm))
+        out = relocate(
+            LoopContext(
+                session=session,
+                reference=ref,
+                ref_index=None,
+                camera=CAMERA,
+                scale=s,
+                T_flange_cam=X,
+                init=Sim3(),
+                config=config,
+                reference_images={"front": np.zeros((480, 640), np.float32)},
+                grab_current=lambda: np.zeros((480, 640), np.float32),
+                aligner=aligner,
+                image_refiner=refine,
+                image_prior_sigma_mm=prior_sigma_mm,
+            )
+        )
     except AlgorithmError as exc:
         out = exc
     finally:
@@ -259,8 +311,14 @@ def test_a_first_3d_estimate_that_disputes_the_image_localizer_hands_over_before
     log says why."""
     T_ref_camref = make_case()[4]
     moves: list = []
-    res, (mm, _deg) = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True,
-                                   aligner_bias=_orbit_about_object(T_ref_camref), prior_sigma_mm=1.0, moves=moves)
+    res, (mm, _deg) = _relief_case(
+        image_bias=np.eye(4),
+        start=NEAR,
+        aligner_ok=True,
+        aligner_bias=_orbit_about_object(T_ref_camref),
+        prior_sigma_mm=1.0,
+        moves=moves,
+    )
     assert not isinstance(res, Exception), res
     assert res.converged and mm <= res.residual.tolerance_mm  # the localizer's ~1 mm is within it: no motion needed
     assert "the 3D alignment disputed" in res.reason
@@ -273,8 +331,14 @@ def test_without_the_localizer_prior_the_same_wrong_3d_estimate_moves_the_camera
     3D estimate, and the loop drives the camera along its orbit (the behaviour the rule removes)."""
     T_ref_camref = make_case()[4]
     moves: list = []
-    res, _ = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True,
-                          aligner_bias=_orbit_about_object(T_ref_camref), prior_sigma_mm=None, moves=moves)
+    res, _ = _relief_case(
+        image_bias=np.eye(4),
+        start=NEAR,
+        aligner_ok=True,
+        aligner_bias=_orbit_about_object(T_ref_camref),
+        prior_sigma_mm=None,
+        moves=moves,
+    )
     assert max(moves) > 40.0
     assert "disputed" not in str(getattr(res, "reason", res))
 
@@ -301,8 +365,14 @@ def test_a_3d_estimate_that_agrees_with_a_precise_localizer_is_combined_not_foll
     estimate's 1-sigma: the image stage takes over and the camera is never driven the 22 mm."""
     T_ref_camref = make_case()[4]
     moves: list = []
-    res, (mm, _deg) = _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True, prior_sigma_mm=3.0,
-                                   aligner_bias=_shift_in_ref(T_ref_camref, SHIFT_22MM), moves=moves)
+    res, (mm, _deg) = _relief_case(
+        image_bias=np.eye(4),
+        start=NEAR,
+        aligner_ok=True,
+        prior_sigma_mm=3.0,
+        aligner_bias=_shift_in_ref(T_ref_camref, SHIFT_22MM),
+        moves=moves,
+    )
     assert not isinstance(res, Exception), res
     assert res.converged and mm <= res.residual.tolerance_mm
     assert res.records[0].offset_mm > 15.0  # the 3D estimate alone would have moved ...
@@ -314,8 +384,14 @@ def test_without_the_localizer_prior_an_agreeing_3d_estimate_is_followed():
     """Negative control: with no prior the same 22 mm estimate drives the camera ~22 mm before the image stage."""
     T_ref_camref = make_case()[4]
     moves: list = []
-    _relief_case(image_bias=np.eye(4), start=NEAR, aligner_ok=True, prior_sigma_mm=None,
-                 aligner_bias=_shift_in_ref(T_ref_camref, SHIFT_22MM), moves=moves)
+    _relief_case(
+        image_bias=np.eye(4),
+        start=NEAR,
+        aligner_ok=True,
+        prior_sigma_mm=None,
+        aligner_bias=_shift_in_ref(T_ref_camref, SHIFT_22MM),
+        moves=moves,
+    )
     assert max(moves) > 15.0
 
 
@@ -324,8 +400,9 @@ def test_the_image_stage_trusts_on_ordinary_evidence_what_the_3d_estimate_cannot
     1.5 m (15 mm) a 21 mm correction is the image stage's to make; near objects keep the 20 mm limit."""
     from fgcd_cli.relocation.image.refine import ImageRefineConfig
 
-    ctx = LoopContext(session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4),
-                      init=Sim3())
+    ctx = LoopContext(
+        session=None, reference=None, ref_index=None, camera=None, scale=1.0, T_flange_cam=np.eye(4), init=Sim3()
+    )
     assert ctx.refiner(unresolved_mm=31.0).keywords["config"].max_motion_m == pytest.approx(0.031)
     assert ctx.refiner(unresolved_mm=5.0).keywords["config"].max_motion_m == ImageRefineConfig().max_motion_m
     assert ctx.refiner(unresolved_mm=math.inf).keywords["config"].max_motion_m == ImageRefineConfig().max_motion_m
@@ -336,10 +413,16 @@ def _overhang(n: int, rng: np.random.Generator) -> np.ndarray:
     """A wall 1.5 m in front of the reference camera under a cornice projecting 0.28 m toward it, above the
     optical axis (camera frame: x right, y down, z forward): the wall, the cornice's soffit (its underside,
     seen from below), its front face and a row of dentils under it. Points in the camera frame, metres."""
+
     def sample(k, x, y, z):
-        return np.column_stack([rng.uniform(*x, k) if isinstance(x, tuple) else np.full(k, x),
-                                rng.uniform(*y, k) if isinstance(y, tuple) else np.full(k, y),
-                                rng.uniform(*z, k) if isinstance(z, tuple) else np.full(k, z)])
+        return np.column_stack(
+            [
+                rng.uniform(*x, k) if isinstance(x, tuple) else np.full(k, x),
+                rng.uniform(*y, k) if isinstance(y, tuple) else np.full(k, y),
+                rng.uniform(*z, k) if isinstance(z, tuple) else np.full(k, z),
+            ]
+        )
+
     k = n // 5
     wall = sample(2 * k, (-1.0, 1.0), (-0.25, 0.8), 1.5)
     wall[:, 2] += 0.004 * np.sin(wall[:, 0] / 0.05) * np.cos(wall[:, 1] / 0.07)  # ashlar tooling
@@ -370,9 +453,20 @@ def test_a_far_start_under_an_overhang_verifies_or_pauses_with_a_reason():
     T_ref_map = invert_pose(T_map_ref) @ exp_se3(np.r_[0.015, -0.01, 0.008, 0.0, np.radians(1.5), 0.0])
     init = Sim3(T_ref_map[:3, :3], T_ref_map[:3, 3], 1.0)
     ref = SimpleNamespace(points=reference, T_ref_camref=np.eye(4))
-    result = run_coarse(CoarseInputs(session=session, reference=ref, ref_index=ReferenceIndex(reference),
-                                     camera=CAMERA, scale=session.scale, T_flange_cam=X_HANDEYE, init=init,
-                                     reference_images=None, grab_current=None, config=CoarseConfig()))
+    result = run_coarse(
+        CoarseInputs(
+            session=session,
+            reference=ref,
+            ref_index=ReferenceIndex(reference),
+            camera=CAMERA,
+            scale=session.scale,
+            T_flange_cam=X_HANDEYE,
+            init=init,
+            reference_images=None,
+            grab_current=None,
+            config=CoarseConfig(),
+        )
+    )
     mm, deg = pose_distance(session.T_ref_cam, np.eye(4))
     if result.handed_over:
         assert mm < 50.0 and deg < 5.0, result.reason

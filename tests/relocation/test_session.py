@@ -161,4 +161,6 @@ def test_session_exploration_reports_every_substep():
     total = sum(session.substeps(M) for M in motions)
     assert [d for d, _, _ in calls] == list(range(1, total + 1))
     assert {t for _, t, _ in calls} == {total}
-    assert calls[0][2] == f"exploring (1/{len(motions)})" and calls[-1][2] == f"exploring ({len(motions)}/{len(motions)})"
+    assert (
+        calls[0][2] == f"exploring (1/{len(motions)})" and calls[-1][2] == f"exploring ({len(motions)}/{len(motions)})"
+    )

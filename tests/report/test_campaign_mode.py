@@ -38,8 +38,10 @@ def _campaign(tmp_path):
     cv2.circle(changed, (50, 140), 10, 0.9, -1)
     for stamp, image in zip(VISITS, (ref, changed)):
         cur = translate(image, 0.8, -1.1)
-        log = "".join(json.dumps({"iteration": i, "t_wall_s": i, "g": 1.0, "offset_mm": 5 * 0.5**i, "offset_deg": 0.5**i}) + "\n"
-                      for i in range(5))
+        log = "".join(
+            json.dumps({"iteration": i, "t_wall_s": i, "g": 1.0, "offset_mm": 5 * 0.5**i, "offset_deg": 0.5**i}) + "\n"
+            for i in range(5)
+        )
         with station.new_visit({"lightings": ["L1", "L2"]}, stamp=stamp) as w:
             w.add_image("L1", _u8(cur))
             w.add_image("L2", _u8(cur * 0.6))
@@ -81,8 +83,17 @@ def _nothing_is_loaded(monkeypatch):
     monkeypatch.setattr(store, "open_campaign", load)
 
 
-@pytest.mark.parametrize("option", [("--mm-per-px", "-1"), ("--mm-per-px", "0"), ("--mm-per-px", "nan"),
-                                    ("--mm-per-px", "inf"), ("--edge-check", "-2"), ("--edge-check", "9")])
+@pytest.mark.parametrize(
+    "option",
+    [
+        ("--mm-per-px", "-1"),
+        ("--mm-per-px", "0"),
+        ("--mm-per-px", "nan"),
+        ("--mm-per-px", "inf"),
+        ("--edge-check", "-2"),
+        ("--edge-check", "9"),
+    ],
+)
 def test_campaign_diff_refuses_bad_options_before_reading_anything(tmp_path, capsys, monkeypatch, option):
     camp = _campaign(tmp_path)
     _nothing_is_loaded(monkeypatch)
@@ -117,7 +128,11 @@ def test_rediff_with_other_options_keeps_the_stored_diff_unless_forced(tmp_path,
     assert record["options"]["mm_per_px"] is None and record["options"]["edge_check_px"] is None
     code, out, err = _fgcd(capsys, "diff", "-c", str(camp.path), "-s", "S1", "--mm-per-px", "0.5")
     assert code == 5 and out == "" and err.count("\n") == 1
-    assert "already has a diff made with no --mm-per-px, --edge-check 2" in err and "--mm-per-px 0.5" in err and "--force" in err
+    assert (
+        "already has a diff made with no --mm-per-px, --edge-check 2" in err
+        and "--mm-per-px 0.5" in err
+        and "--force" in err
+    )
     assert (visit / "changes/regions.json").read_bytes() == stored
     again = run_campaign(CampaignDiffRequest(campaign=camp.path, station="S1", edge_check_px=2))  # the same diff
     assert again["regions"] == first["regions"] and not any("replaced" in w for w in again["warnings"])
@@ -130,7 +145,9 @@ def test_rediff_with_other_options_keeps_the_stored_diff_unless_forced(tmp_path,
 def test_rediff_over_a_diff_without_a_record_says_it_replaced_it(tmp_path):
     camp = _campaign(tmp_path)
     visit = open_campaign(camp.path).station("S1").visit()
-    visit.add_derived("changes/regions.json", b'{"regions": [], "metadata": {"metric scale": "-1.0 mm per px (given)"}}')
+    visit.add_derived(
+        "changes/regions.json", b'{"regions": [], "metadata": {"metric scale": "-1.0 mm per px (given)"}}'
+    )
     assert [p.kind for p in verify_campaign(open_campaign(camp.path)).problems] == ["scale"]
     data = run_campaign(CampaignDiffRequest(campaign=camp.path, station="S1"))
     assert any("replaced the stored diff of visit 20250601T000000Z" in w for w in data["warnings"])
@@ -162,4 +179,4 @@ def test_history_reports_the_good_visits_and_names_the_damaged_one(tmp_path, cap
     assert [d["name"] for d in data["damaged"]] == [VISITS[0]]
     assert ("not valid JSON" if damage == "manifest" else "folder") in data["damaged"][0]["reason"]
     page = Path(data["output"]).read_text()
-    assert "Damaged or missing visit(s), not compared: " + VISITS[0] in page and "<td class=\"l\">damaged: " in page
+    assert "Damaged or missing visit(s), not compared: " + VISITS[0] in page and '<td class="l">damaged: ' in page

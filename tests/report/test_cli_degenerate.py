@@ -48,14 +48,17 @@ def one_error_line(proc) -> str:
     return errors[0]
 
 
-@pytest.mark.parametrize("cur, expected_code, words", [
-    ("small.png", 2, "equal sizes"),
-    ("missing.png", 2, "not found"),
-    ("notimage.png", 2, "cannot read image"),
-    ("black.png", CANNOT_COMPARE, "black"),
-    ("flat.png", CANNOT_COMPARE, "no texture"),
-    ("elsewhere.png", CANNOT_COMPARE, "need 12"),
-])
+@pytest.mark.parametrize(
+    "cur, expected_code, words",
+    [
+        ("small.png", 2, "equal sizes"),
+        ("missing.png", 2, "not found"),
+        ("notimage.png", 2, "cannot read image"),
+        ("black.png", CANNOT_COMPARE, "black"),
+        ("flat.png", CANNOT_COMPARE, "no texture"),
+        ("elsewhere.png", CANNOT_COMPARE, "need 12"),
+    ],
+)
 def test_afd_refuses_in_one_line(files, cur, expected_code, words):
     proc = run("afd", files / "ref.png", files / cur)
     assert proc.returncode == expected_code, proc.stderr
@@ -78,22 +81,28 @@ def test_afd_16_bit_equals_8_bit(files):
     assert values[1] == pytest.approx(values[0], abs=0.02)
 
 
-@pytest.mark.parametrize("cur, words", [
-    ("small.png", "same size"),
-    ("missing.png", "not found"),
-    ("notimage.png", "cannot read image"),
-])
+@pytest.mark.parametrize(
+    "cur, words",
+    [
+        ("small.png", "same size"),
+        ("missing.png", "not found"),
+        ("notimage.png", "cannot read image"),
+    ],
+)
 def test_diff_bad_input_is_one_line(files, tmp_path, cur, words):
     proc = run("diff", "--ref", files / "ref.png", "--cur", files / cur, "-o", tmp_path / "out")
     assert proc.returncode == 2
     assert words in one_error_line(proc)
 
 
-@pytest.mark.parametrize("cur, words", [
-    ("black.png", "black"),
-    ("flat.png", "no texture"),
-    ("elsewhere.png", "registration failed"),
-])
+@pytest.mark.parametrize(
+    "cur, words",
+    [
+        ("black.png", "black"),
+        ("flat.png", "no texture"),
+        ("elsewhere.png", "registration failed"),
+    ],
+)
 def test_diff_cannot_compare_is_honest(files, tmp_path, cur, words):
     out = tmp_path / "out"
     proc = run("diff", "--ref", files / "ref.png", "--cur", files / cur, "-o", out, "--json")

@@ -34,22 +34,41 @@ def run(*args):
 
 def test_diff_writes_all_outputs(image_files, tmp_path):
     out = tmp_path / "out"
-    proc = run("diff", "--ref", str(image_files / "ref-*.png"), "--cur", str(image_files / "cur-*.png"),
-               "-o", str(out), "--mm-per-px", "0.1", "--json")
+    proc = run(
+        "diff",
+        "--ref",
+        str(image_files / "ref-*.png"),
+        "--cur",
+        str(image_files / "cur-*.png"),
+        "-o",
+        str(out),
+        "--mm-per-px",
+        "0.1",
+        "--json",
+    )
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
     assert data["comparable"] and data["settings"]["lightings"] == 2
     assert data["regions"][0]["area_mm2"] == pytest.approx(data["regions"][0]["area_px"] * 0.01)
     cx, cy = data["regions"][0]["centroid_xy"]
     assert abs(cx - 200) < 3 and abs(cy - 60) < 3  # reference frame, not the current one
-    for name in ("change_score.png", "change_score.npy", "change_mask.png", "overlay.png", "regions.json", "report.html"):
+    for name in (
+        "change_score.png",
+        "change_score.npy",
+        "change_mask.png",
+        "overlay.png",
+        "regions.json",
+        "report.html",
+    ):
         assert (out / name).stat().st_size > 0
     assert cv2.imread(str(out / "change_score.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint16
     assert np.load(out / "change_score.npy").shape == (256, 256)
 
 
 def test_diff_size_mismatch_is_one_line(image_files, tmp_path):
-    proc = run("diff", "--ref", str(image_files / "ref-1.png"), "--cur", str(image_files / "small.png"), "-o", str(tmp_path))
+    proc = run(
+        "diff", "--ref", str(image_files / "ref-1.png"), "--cur", str(image_files / "small.png"), "-o", str(tmp_path)
+    )
     assert proc.returncode == 2
     assert "same size" in proc.stderr and "Traceback" not in proc.stderr
     assert sum(line.startswith("error:") for line in proc.stderr.splitlines()) == 1
@@ -62,12 +81,26 @@ def test_diff_missing_file(tmp_path):
 
 def test_diff_input_errors_are_exactly_one_stderr_line(image_files, tmp_path):
     """No empty line from a progress bar, no "comparing..." before a size mismatch: the error line alone."""
-    missing = run("diff", "--ref", str(tmp_path / "missing.png"), "--cur", str(image_files / "ref-1.png"),
-                  "-o", str(tmp_path / "o1"))
+    missing = run(
+        "diff",
+        "--ref",
+        str(tmp_path / "missing.png"),
+        "--cur",
+        str(image_files / "ref-1.png"),
+        "-o",
+        str(tmp_path / "o1"),
+    )
     assert missing.returncode == 2 and missing.stdout == ""
     assert missing.stderr == f"error: image not found: {tmp_path / 'missing.png'}\n"
-    mismatch = run("diff", "--ref", str(image_files / "ref-1.png"), "--cur", str(image_files / "small.png"),
-                   "-o", str(tmp_path / "o2"))
+    mismatch = run(
+        "diff",
+        "--ref",
+        str(image_files / "ref-1.png"),
+        "--cur",
+        str(image_files / "small.png"),
+        "-o",
+        str(tmp_path / "o2"),
+    )
     assert mismatch.returncode == 2 and mismatch.stdout == ""
     assert len(mismatch.stderr.splitlines()) == 1 and mismatch.stderr.startswith("error: current image 1 is 256x100 px")
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
@@ -77,13 +110,17 @@ def test_diff_names_empty_and_damaged_image_files(image_files, tmp_path):
     """A 0-byte file is empty, a cut-short PNG or JPEG is damaged (OpenCV would decode the JPEG with grey rows)."""
     png = (image_files / "ref-1.png").read_bytes()
     ok, jpg = cv2.imencode(".jpg", (textured_scene(64) * 255).astype(np.uint8))
-    cases = {"empty.png": (b"", "empty file (0 bytes)"),
-             "cut.png": (png[: len(png) // 2], "damaged or truncated PNG file"),
-             "cut.jpg": (jpg.tobytes()[: len(jpg) // 2], "damaged or truncated JPEG file"),
-             "notes.png": (b"field notes, not an image", "not an image format OpenCV knows")}
+    cases = {
+        "empty.png": (b"", "empty file (0 bytes)"),
+        "cut.png": (png[: len(png) // 2], "damaged or truncated PNG file"),
+        "cut.jpg": (jpg.tobytes()[: len(jpg) // 2], "damaged or truncated JPEG file"),
+        "notes.png": (b"field notes, not an image", "not an image format OpenCV knows"),
+    }
     for name, (data, said) in cases.items():
         (tmp_path / name).write_bytes(data)
-        proc = run("diff", "--ref", str(tmp_path / name), "--cur", str(image_files / "ref-1.png"), "-o", str(tmp_path / "o"))
+        proc = run(
+            "diff", "--ref", str(tmp_path / name), "--cur", str(image_files / "ref-1.png"), "-o", str(tmp_path / "o")
+        )
         assert proc.returncode == 2, name
         assert proc.stderr.splitlines() == [proc.stderr.strip()] and said in proc.stderr, (name, proc.stderr)
 
@@ -127,9 +164,12 @@ def test_large_frames_take_the_tiled_path_with_the_same_change(image_files, tmp_
 
     monkeypatch.setattr(usecases, "LARGE_FRAME_PX", 10_000)
     calls = []
-    data = usecases.run_bare(usecases.BareDiffRequest(ref=[str(image_files / "ref-*.png")],
-                                                      cur=[str(image_files / "cur-*.png")], output=tmp_path / "out"),
-                             tile_progress=lambda done, total, label: calls.append((done, total)))
+    data = usecases.run_bare(
+        usecases.BareDiffRequest(
+            ref=[str(image_files / "ref-*.png")], cur=[str(image_files / "cur-*.png")], output=tmp_path / "out"
+        ),
+        tile_progress=lambda done, total, label: calls.append((done, total)),
+    )
     assert data["comparable"] and "work_scale" in data["settings"]
     cx, cy = data["regions"][0]["centroid_xy"]
     assert abs(cx - 200) < 3 and abs(cy - 60) < 3
@@ -142,9 +182,22 @@ def test_a_diff_in_a_pipe_names_its_step_and_beats(image_files, tmp_path):
     long comparison (a 24 MP frame: about a minute) is never silent in a log; stdout keeps only the result."""
     import os
 
-    proc = subprocess.run([*FGCD, "diff", "--ref", str(image_files / "ref-*.png"), "--cur",
-                           str(image_files / "cur-*.png"), "-o", str(tmp_path / "out")], capture_output=True,
-                          text=True, timeout=300, env={**os.environ, "FGCD_HEARTBEAT_S": "0.05"})
+    proc = subprocess.run(
+        [
+            *FGCD,
+            "diff",
+            "--ref",
+            str(image_files / "ref-*.png"),
+            "--cur",
+            str(image_files / "cur-*.png"),
+            "-o",
+            str(tmp_path / "out"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "FGCD_HEARTBEAT_S": "0.05"},
+    )
     assert proc.returncode == 0, proc.stderr
     lines = proc.stderr.splitlines()
     assert lines[0].startswith("comparing 2 lighting(s)"), lines

@@ -38,11 +38,25 @@ def _result(*, regions=(), labels=None, candidates=CANDIDATES) -> ChangeResult:
     shape = (SIZE, SIZE)
     labels = np.zeros(shape, np.int32) if labels is None else labels
     return ChangeResult(
-        comparable=True, score=np.ones(shape, np.float32), mask=labels > 0, labels=labels, valid=np.ones(shape, bool),
-        regions=list(regions), registration=None,
-        threshold=ThresholdInfo(method="hysteresis", median=1.0, sigma_upper=0.2, k_high=20, k_low=10, high=5.0,
-                                low=3.0, changed_fraction=float((labels > 0).mean())),
-        settings={"decision": "hysteresis", "epsilon": 1.0}, candidates=list(candidates),
+        comparable=True,
+        score=np.ones(shape, np.float32),
+        mask=labels > 0,
+        labels=labels,
+        valid=np.ones(shape, bool),
+        regions=list(regions),
+        registration=None,
+        threshold=ThresholdInfo(
+            method="hysteresis",
+            median=1.0,
+            sigma_upper=0.2,
+            k_high=20,
+            k_low=10,
+            high=5.0,
+            low=3.0,
+            changed_fraction=float((labels > 0).mean()),
+        ),
+        settings={"decision": "hysteresis", "epsilon": 1.0},
+        candidates=list(candidates),
     )
 
 
@@ -59,16 +73,31 @@ def _printed(data: dict) -> str:
 def test_regions_json_carries_candidates_and_region_significance():
     labels = np.zeros((SIZE, SIZE), np.int32)
     labels[10:20, 60:70] = 1
-    region = ChangeRegion(id=1, area_px=100, area_mm2=None, bbox_xywh=(60, 10, 10, 10), centroid_xy=(64.5, 14.5),
-                          mean_score=8.0, max_score=12.0, log10_nfa=-12.0, cue="relief")
+    region = ChangeRegion(
+        id=1,
+        area_px=100,
+        area_mm2=None,
+        bbox_xywh=(60, 10, 10, 10),
+        centroid_xy=(64.5, 14.5),
+        mean_score=8.0,
+        max_score=12.0,
+        log10_nfa=-12.0,
+        cue="relief",
+    )
     files = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=_result(regions=[region], labels=labels))
     summary = json.loads(files["regions.json"])
     assert summary["regions"][0]["log10_nfa"] == -12.0 and summary["regions"][0]["cue"] == "relief"
     assert summary["regions"][0]["nfa"] == pytest.approx(1e-12)
     assert len(summary["candidates"]) == len(CANDIDATES)
     first = summary["candidates"][0]
-    assert first == {"log10_nfa": 0.5, "nfa": pytest.approx(10**0.5), "p_level": 0.0012, "area_px": 34,
-                     "centroid_xy": [40.2, 90.7], "peak_score": 6.0}
+    assert first == {
+        "log10_nfa": 0.5,
+        "nfa": pytest.approx(10**0.5),
+        "p_level": 0.0012,
+        "area_px": 34,
+        "centroid_xy": [40.2, 90.7],
+        "peak_score": 6.0,
+    }
 
 
 def test_report_without_region_says_no_significant_change_and_names_the_candidate():
@@ -83,13 +112,16 @@ def test_report_without_region_says_no_significant_change_and_names_the_candidat
 
 def test_report_says_so_when_the_unreported_candidate_is_significant():
     significant = SignificantRegion(log10_nfa=-3.0, p_level=1e-4, area_px=20, centroid_xy=(50.0, 50.0), peak_score=9.0)
-    html = diff_products(ref_images=[_scene()], cur_images=[_scene()],
-                         result=_result(candidates=[significant]))["report.html"].decode()
+    html = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=_result(candidates=[significant]))[
+        "report.html"
+    ].decode()
     assert "No change reported" in html and "NFA = 1e-03" in html and "No significant change" not in html
 
 
 def test_report_without_candidate_is_still_explicit():
-    html = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=_result(candidates=[]))["report.html"].decode()
+    html = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=_result(candidates=[]))[
+        "report.html"
+    ].decode()
     assert "No significant change" in html and "no candidate region" in html
     assert "Candidates not reported" not in html
 
@@ -99,13 +131,30 @@ def test_region_table_has_significance_and_cue_columns():
     labels[10:20, 60:70] = 1
     labels[80:86, 10:16] = 2
     regions = [
-        ChangeRegion(id=1, area_px=100, area_mm2=None, bbox_xywh=(60, 10, 10, 10), centroid_xy=(64.5, 14.5),
-                     mean_score=8.0, max_score=12.0, log10_nfa=-12.0, cue="colour"),
-        ChangeRegion(id=2, area_px=36, area_mm2=None, bbox_xywh=(10, 80, 6, 6), centroid_xy=(12.5, 82.5),
-                     mean_score=6.0, max_score=7.0),
+        ChangeRegion(
+            id=1,
+            area_px=100,
+            area_mm2=None,
+            bbox_xywh=(60, 10, 10, 10),
+            centroid_xy=(64.5, 14.5),
+            mean_score=8.0,
+            max_score=12.0,
+            log10_nfa=-12.0,
+            cue="colour",
+        ),
+        ChangeRegion(
+            id=2,
+            area_px=36,
+            area_mm2=None,
+            bbox_xywh=(10, 80, 6, 6),
+            centroid_xy=(12.5, 82.5),
+            mean_score=6.0,
+            max_score=7.0,
+        ),
     ]
-    html = diff_products(ref_images=[_scene()], cur_images=[_scene()],
-                         result=_result(regions=regions, labels=labels))["report.html"].decode()
+    html = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=_result(regions=regions, labels=labels))[
+        "report.html"
+    ].decode()
     assert "<th>significance (NFA)</th>" in html and '<th class="l">cue</th>' in html
     assert "<td>1e-12</td>" in html and '<td class="l">colour</td>' in html
     assert "not significant (NFA ≥ 1)" in html  # region 2 holds no significant seed
@@ -118,10 +167,25 @@ def test_overlay_draws_candidates_faintly_and_regions_by_cue():
     labels[10:20, 60:70] = 1
     labels[100:110, 100:110] = 2
     regions = [
-        ChangeRegion(id=1, area_px=100, area_mm2=None, bbox_xywh=(60, 10, 10, 10), centroid_xy=(64.5, 14.5),
-                     mean_score=8.0, max_score=12.0, cue="relief"),
-        ChangeRegion(id=2, area_px=100, area_mm2=None, bbox_xywh=(100, 100, 10, 10), centroid_xy=(104.5, 104.5),
-                     mean_score=8.0, max_score=12.0),
+        ChangeRegion(
+            id=1,
+            area_px=100,
+            area_mm2=None,
+            bbox_xywh=(60, 10, 10, 10),
+            centroid_xy=(64.5, 14.5),
+            mean_score=8.0,
+            max_score=12.0,
+            cue="relief",
+        ),
+        ChangeRegion(
+            id=2,
+            area_px=100,
+            area_mm2=None,
+            bbox_xywh=(100, 100, 10, 10),
+            centroid_xy=(104.5, 104.5),
+            mean_score=8.0,
+            max_score=12.0,
+        ),
     ]
     plain = change_overlay(image, labels, regions)
     drawn = change_overlay(image, labels, regions, candidates=CANDIDATES[:1])
@@ -154,10 +218,26 @@ def test_cli_region_lines_show_significance_and_cue():
     labels[10:20, 60:70] = 1
     labels[80:86, 10:16] = 2
     regions = [
-        ChangeRegion(id=1, area_px=100, area_mm2=0.25, bbox_xywh=(60, 10, 10, 10), centroid_xy=(64.5, 14.5),
-                     mean_score=8.0, max_score=12.0, log10_nfa=-12.0, cue="both"),
-        ChangeRegion(id=2, area_px=36, area_mm2=None, bbox_xywh=(10, 80, 6, 6), centroid_xy=(12.5, 82.5),
-                     mean_score=6.0, max_score=7.0),
+        ChangeRegion(
+            id=1,
+            area_px=100,
+            area_mm2=0.25,
+            bbox_xywh=(60, 10, 10, 10),
+            centroid_xy=(64.5, 14.5),
+            mean_score=8.0,
+            max_score=12.0,
+            log10_nfa=-12.0,
+            cue="both",
+        ),
+        ChangeRegion(
+            id=2,
+            area_px=36,
+            area_mm2=None,
+            bbox_xywh=(10, 80, 6, 6),
+            centroid_xy=(12.5, 82.5),
+            mean_score=6.0,
+            max_score=7.0,
+        ),
     ]
     printed = _printed(result_summary(_result(regions=regions, labels=labels)) | {"output": "out"})
     assert "#1: 100 px, 0.250 mm² at (64, 14), NFA 1e-12, both" in printed  # to the 0.0025 mm² of a pixel
@@ -170,16 +250,34 @@ def test_diff_json_output_is_one_object_with_candidates(tmp_path):
     for name, image in (("ref", ref), ("cur", translate(ref, 1.2, -0.7))):
         cv2.imwrite(str(tmp_path / f"{name}.png"), np.round(image * 255).astype(np.uint8))
     out = tmp_path / "out"
-    proc = subprocess.run([*FGCD, "diff", "--ref", str(tmp_path / "ref.png"), "--cur", str(tmp_path / "cur.png"),
-                           "-o", str(out), "--json"], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            *FGCD,
+            "diff",
+            "--ref",
+            str(tmp_path / "ref.png"),
+            "--cur",
+            str(tmp_path / "cur.png"),
+            "-o",
+            str(out),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
     assert isinstance(data["candidates"], list)
     assert json.loads((out / "regions.json").read_text())["candidates"] == data["candidates"]
     for candidate in data["candidates"]:
         assert candidate["nfa"] == pytest.approx(10 ** candidate["log10_nfa"])
-    human = subprocess.run([*FGCD, "diff", "--ref", str(tmp_path / "ref.png"), "--cur", str(tmp_path / "cur.png"),
-                            "-o", str(out)], capture_output=True, text=True, timeout=300)
+    human = subprocess.run(
+        [*FGCD, "diff", "--ref", str(tmp_path / "ref.png"), "--cur", str(tmp_path / "cur.png"), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     if not data["regions"]:
         assert human.stdout.startswith("no significant change; ")
 

@@ -28,8 +28,16 @@ from fgcd_cli.report.figures import (
 from fgcd_cli.report.html import ReportContext  # noqa: E402
 from fgcd_cli.report.products import diff_products  # noqa: E402
 
-ESTIMATES = {"afd_est_px": [30.0, 2.0, 0.5, 0.2], "offset_mm": [25.0, 3.0, 0.4, 0.1], "offset_deg": [2.5, 0.3, 0.05, 0.01]}
-TRUTH = {"afd_px": [32.0, 1.0, 0.8, 0.07], "pose_err_mm": [25.2, 5.3, 2.9, 0.2], "pose_err_deg": [2.5, 0.12, 0.1, 0.007]}
+ESTIMATES = {
+    "afd_est_px": [30.0, 2.0, 0.5, 0.2],
+    "offset_mm": [25.0, 3.0, 0.4, 0.1],
+    "offset_deg": [2.5, 0.3, 0.05, 0.01],
+}
+TRUTH = {
+    "afd_px": [32.0, 1.0, 0.8, 0.07],
+    "pose_err_mm": [25.2, 5.3, 2.9, 0.2],
+    "pose_err_deg": [2.5, 0.12, 0.1, 0.007],
+}
 
 
 class _Visit:
@@ -63,8 +71,9 @@ def test_convergence_plots_the_tools_estimates_and_labels_truth_as_simulator_tru
     fig = convergence_figure(relocation_log_rows(_Visit(_logged_rows(with_truth=True))))
     axes = fig.axes
     assert len(axes) == 3
-    for ax, (est_key, true_key) in zip(axes, [("afd_est_px", "afd_px"), ("offset_mm", "pose_err_mm"),
-                                              ("offset_deg", "pose_err_deg")]):
+    for ax, (est_key, true_key) in zip(
+        axes, [("afd_est_px", "afd_px"), ("offset_mm", "pose_err_mm"), ("offset_deg", "pose_err_deg")]
+    ):
         lines = _lines(ax)
         estimate = next(v for k, v in lines.items() if k.startswith("estimate"))
         np.testing.assert_allclose(estimate, ESTIMATES[est_key])
@@ -134,11 +143,19 @@ def test_report_areas_have_no_digits_finer_than_a_pixel():
 def test_overlay_png_carries_a_legend_below_the_unchanged_map():
     ref, cur, result = _coarse_pixel_result()
     files = diff_products(ref_images=[ref], cur_images=[cur], result=result)
-    overlay = cv2.cvtColor(cv2.imdecode(np.frombuffer(files["overlay.png"], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    overlay = cv2.cvtColor(
+        cv2.imdecode(np.frombuffer(files["overlay.png"], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB
+    )
     h, w = ref.shape[:2]
     assert overlay.shape[1] == w and overlay.shape[0] > h + 10
-    plain = change_overlay(ref, result.labels, result.regions, valid=result.valid, set_aside=result.edge_explained,
-                           candidates=result.candidates)
+    plain = change_overlay(
+        ref,
+        result.labels,
+        result.regions,
+        valid=result.valid,
+        set_aside=result.edge_explained,
+        candidates=result.candidates,
+    )
     np.testing.assert_array_equal(overlay[:h], plain)  # the map itself stays pixel-aligned with the reference
     band = overlay[h:]
     assert (band == 255).all(axis=2).mean() > 0.5  # a white band with dark text
@@ -146,10 +163,19 @@ def test_overlay_png_carries_a_legend_below_the_unchanged_map():
 
 
 def test_legend_names_only_what_is_drawn():
-    relief = ChangeRegion(id=1, area_px=10, area_mm2=None, bbox_xywh=(0, 0, 3, 3), centroid_xy=(1, 1),
-                          mean_score=5, max_score=6, cue="relief")
-    plain = ChangeRegion(id=2, area_px=10, area_mm2=None, bbox_xywh=(0, 0, 3, 3), centroid_xy=(1, 1),
-                         mean_score=5, max_score=6)
+    relief = ChangeRegion(
+        id=1,
+        area_px=10,
+        area_mm2=None,
+        bbox_xywh=(0, 0, 3, 3),
+        centroid_xy=(1, 1),
+        mean_score=5,
+        max_score=6,
+        cue="relief",
+    )
+    plain = ChangeRegion(
+        id=2, area_px=10, area_mm2=None, bbox_xywh=(0, 0, 3, 3), centroid_xy=(1, 1), mean_score=5, max_score=6
+    )
     texts = [e.text for e in overlay_legend_entries([relief, plain], set_aside=True, candidates=True)]
     assert any("relief" in t for t in texts) and any("no cue" in t for t in texts)
     colours = {e.colour for e in overlay_legend_entries([relief], set_aside=True, candidates=True)}
@@ -171,10 +197,12 @@ def test_report_names_simulator_truth_only_when_the_log_holds_it():
     ref, cur, result = _coarse_pixel_result()
     estimates = relocation_log_rows(_Visit(_logged_rows(with_truth=False)))
     with_truth = relocation_log_rows(_Visit(_logged_rows(with_truth=True)))
-    plain = diff_products(ref_images=[ref], cur_images=[cur], result=result,
-                          context=ReportContext(relocation_log=estimates))["report.html"]
-    simulated = diff_products(ref_images=[ref], cur_images=[cur], result=result,
-                              context=ReportContext(relocation_log=with_truth))["report.html"]
+    plain = diff_products(
+        ref_images=[ref], cur_images=[cur], result=result, context=ReportContext(relocation_log=estimates)
+    )["report.html"]
+    simulated = diff_products(
+        ref_images=[ref], cur_images=[cur], result=result, context=ReportContext(relocation_log=with_truth)
+    )["report.html"]
     assert b"the tool&#x27;s own estimates" in plain and b"simulator" not in plain
     assert b"the simulator&#x27;s truth" in simulated
 

@@ -30,23 +30,47 @@ def products():
     rgb = lambda g: np.repeat(g[:, :, None], 3, axis=2)  # noqa: E731
     result = detect_changes([rgb(ref)], [rgb(cur)], pixel_area_mm2=np.full((256, 256), 0.04))
     fdf = compute_fdf(ref, cur)
-    log = [{"iteration": i, "t_wall_s": i * 0.5, "g": 1.0, "afd_px_true": 40 * 0.5**i, "pose_err_mm_true": 20 * 0.5**i,
-            "pose_err_deg_true": 2 * 0.5**i} for i in range(8)]
-    files = diff_products(ref_images=[rgb(ref)], cur_images=[rgb(cur)], result=result, fdf=fdf,
-                          context=ReportContext(relocation_log=log, metadata={"station": "S1", "lightings": ["ambient"]},
-                                                title="Test report"))
+    log = [
+        {
+            "iteration": i,
+            "t_wall_s": i * 0.5,
+            "g": 1.0,
+            "afd_px_true": 40 * 0.5**i,
+            "pose_err_mm_true": 20 * 0.5**i,
+            "pose_err_deg_true": 2 * 0.5**i,
+        }
+        for i in range(8)
+    ]
+    files = diff_products(
+        ref_images=[rgb(ref)],
+        cur_images=[rgb(cur)],
+        result=result,
+        fdf=fdf,
+        context=ReportContext(
+            relocation_log=log, metadata={"station": "S1", "lightings": ["ambient"]}, title="Test report"
+        ),
+    )
     return result, files
 
 
 def test_products_are_complete_and_consistent(products, tmp_path):
     result, files = products
-    assert {"change_score.png", "change_score.npy", "change_mask.png", "overlay.png", "regions.json", "report.html"} <= set(files)
+    assert {
+        "change_score.png",
+        "change_score.npy",
+        "change_mask.png",
+        "overlay.png",
+        "regions.json",
+        "report.html",
+    } <= set(files)
     path = tmp_path / "score.png"
     path.write_bytes(files["change_score.png"])
     score16 = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     assert score16.dtype == np.uint16 and score16.shape == (256, 256)
     # The change is the brightest area of the 16-bit score map.
-    assert np.unravel_index(np.argmax(cv2.GaussianBlur(score16.astype(float), (0, 0), 3)), score16.shape) == pytest.approx((180, 60), abs=8)
+    assert np.unravel_index(
+        np.argmax(cv2.GaussianBlur(score16.astype(float), (0, 0), 3)), score16.shape
+    ) == pytest.approx((180, 60), abs=8)
     assert result.regions and result.regions[0].area_mm2 == pytest.approx(result.regions[0].area_px * 0.04)
 
 
@@ -63,9 +87,21 @@ def test_report_renders_in_chromium(products, tmp_path):
     page = tmp_path / "report.html"
     page.write_bytes(products[1]["report.html"])
     shot = tmp_path / "shot.png"
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={shot}", "--window-size=1280,2000", page.as_uri()]
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        f"--screenshot={shot}",
+        "--window-size=1280,2000",
+        page.as_uri(),
+    ]
     subprocess.run(cmd, capture_output=True, timeout=120)
     assert shot.exists(), "Chromium wrote no screenshot"
     image = cv2.imread(str(shot))

@@ -125,12 +125,18 @@ def test_random_changes_lie_on_the_visible_object():
 
 # random_changes(load_scene("plane"), n=12, seed=0) recorded before pit and lifted existed: (kind, seed, size_mm)
 _PLANE_12_SEED_0 = [
-    ("stain", 330529326, 2.243885060187946), ("crack", 17746413, 11.43112505181846),
-    ("missing", 1042327185, 6.155329991455284), ("stain", 583712889, 16.464830777272045),
-    ("missing", 423214460, 1.008237556829487), ("stain", 36062236, 8.898229901136776),
-    ("crack", 23731787, 13.274606911924353), ("crack", 321813192, 3.5475518652144635),
-    ("crack", 8895210, 1.451096420079578), ("stain", 694914446, 6.318798246003776),
-    ("flaking", 864350543, 19.833530958985794), ("flaking", 736095100, 7.018867263540793),
+    ("stain", 330529326, 2.243885060187946),
+    ("crack", 17746413, 11.43112505181846),
+    ("missing", 1042327185, 6.155329991455284),
+    ("stain", 583712889, 16.464830777272045),
+    ("missing", 423214460, 1.008237556829487),
+    ("stain", 36062236, 8.898229901136776),
+    ("crack", 23731787, 13.274606911924353),
+    ("crack", 321813192, 3.5475518652144635),
+    ("crack", 8895210, 1.451096420079578),
+    ("stain", 694914446, 6.318798246003776),
+    ("flaking", 864350543, 19.833530958985794),
+    ("flaking", 736095100, 7.018867263540793),
 ]
 
 
@@ -162,8 +168,9 @@ def test_random_changes_default_kinds_draw_as_before_and_kinds_select():
 _FINE = CameraIntrinsics(fx=2000.0, fy=2000.0, cx=49.5, cy=49.5, width=100, height=100)
 # a camera LED on its 0.6 m arm lights the plane 0.5 m away at beta = atan(0.6 / 0.5) = 50 deg from the normal
 _TAN_BETA = 0.6 / 0.5
-_LIGHTINGS = [AMBIENT] + [lighting_preset(n) for n in ("front", "led:3", "led:9", "led:12", "sun-noon", "overcast",
-                                                      "night")]
+_LIGHTINGS = [AMBIENT] + [
+    lighting_preset(n) for n in ("front", "led:3", "led:9", "led:12", "sun-noon", "overcast", "night")
+]
 
 
 def _relative_change(r, ch, lighting):
@@ -255,8 +262,10 @@ def test_relief_changes_mask_depth_normals_and_albedo(factories, kind):
 
 def _stain_seeds() -> tuple[int, int]:
     """A seed drawing a dark (filtering) stain and one drawing an efflorescence (covering)."""
-    kinds = {ChangeSpec(kind="stain", position=(0, 0, 1.0), normal=(0, -1, 0), size_mm=8.0, seed=s).albedo_filters: s
-             for s in range(20)}
+    kinds = {
+        ChangeSpec(kind="stain", position=(0, 0, 1.0), normal=(0, -1, 0), size_mm=8.0, seed=s).albedo_filters: s
+        for s in range(20)
+    }
     return kinds[True], kinds[False]
 
 

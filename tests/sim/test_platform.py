@@ -20,8 +20,16 @@ from fgcd_core.se3 import exp_so3, make_pose
 from fgcd_drivers.sim.platform import PlatformErrorModel, SimPlatform, SimPlatformConfig
 from fgcd_drivers.sim.transforms import rot_angle
 
-ZERO = dict(scale_error=0, axis_misalignment_rad=0, rotation_scale_error=0, noise_m=0, noise_rad=0, backlash_m=0,
-            encoder_noise_m=0, encoder_noise_rad=0)
+ZERO = dict(
+    scale_error=0,
+    axis_misalignment_rad=0,
+    rotation_scale_error=0,
+    noise_m=0,
+    noise_rad=0,
+    backlash_m=0,
+    encoder_noise_m=0,
+    encoder_noise_rad=0,
+)
 
 
 def _platform(seed=0, **errors):
@@ -165,6 +173,7 @@ def test_determinism_under_seed():
         for d in (0.01, -0.02, 0.03):
             p.move_to(make_pose(np.eye(3), [d, d / 2, 0]))
         return p.true_flange_pose()
+
     np.testing.assert_array_equal(run(7), run(7))
     assert not np.allclose(run(7), run(8))
 
@@ -186,7 +195,9 @@ def test_faults_take_the_time_they_would_on_the_rig():
         p.move_to(_target(p, [0.01, 0, 0]))
     assert p.clock.now() - t0 == pytest.approx(p.timeout_s)  # the host waited the whole timeout
     # a motion longer than the timeout gets as far as its speed allows in that time
-    q = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", config=SimPlatformConfig(timeout_s=3.0))
+    q = SimPlatform(
+        T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", config=SimPlatformConfig(timeout_s=3.0)
+    )
     q.connect()
     t0 = q.clock.now()
     with pytest.raises(PlatformTimeout):
@@ -199,7 +210,11 @@ def test_realtime_factor_runs_the_clock_faster_than_wall_time_and_stop_halts():
     import threading
     import time
 
-    p = SimPlatform(T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]), errors="none", config=SimPlatformConfig(realtime_factor=20.0))
+    p = SimPlatform(
+        T_base_flange_home=make_pose(np.eye(3), [0.5, 0.0, 0.4]),
+        errors="none",
+        config=SimPlatformConfig(realtime_factor=20.0),
+    )
     p.connect()
     w0, t0 = time.perf_counter(), p.clock.now()
     res = p.move_to(_target(p, [0.01, 0, 0]))  # 1.7 s simulated

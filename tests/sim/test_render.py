@@ -22,8 +22,9 @@ def _rays_world(intr, T, dist=None):
         xy = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy], -1)
     else:
         pts = np.stack([uu.ravel(), vv.ravel()], 1).reshape(-1, 1, 2)
-        xy = cv2.undistortPointsIter(pts, intr.K, np.asarray(dist), None, None,
-                                     (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)).reshape(vv.shape + (2,))
+        xy = cv2.undistortPointsIter(
+            pts, intr.K, np.asarray(dist), None, None, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+        ).reshape(vv.shape + (2,))
     d_cam = np.concatenate([xy, np.ones(vv.shape + (1,))], -1)
     return d_cam @ T[:3, :3].T, T[:3, 3]
 
@@ -70,9 +71,11 @@ def test_lambert_shading_of_known_normal(factories, small_intr):
     T = look_at((0.0, -1.0, 1.0), (0.0, 0.0, 1.0))
     theta = np.radians(50.0)
     to_light = np.array([np.sin(theta), -np.cos(theta), 0.0])  # the plane's normal is -y
-    light = Lighting(name="t", lights=(Light(kind="directional", frame="world", direction=tuple(to_light),
-                                             intensity=0.8),),
-                     ambient=0.1)
+    light = Lighting(
+        name="t",
+        lights=(Light(kind="directional", frame="world", direction=tuple(to_light), intensity=0.8),),
+        ambient=0.1,
+    )
     res = Renderer(scene).render(T, small_intr, light, exposure=1.0, effects=LINEAR, want=("gray",))
     expected = albedo * (0.1 + 0.8 * np.cos(theta))
     np.testing.assert_allclose(res.gray, expected, atol=2e-3)
@@ -81,8 +84,11 @@ def test_lambert_shading_of_known_normal(factories, small_intr):
 def test_point_light_inverse_square(factories, small_intr):
     scene = factories.make_scene([factories.plane_part(albedo=0.5)])
     T = look_at((0.0, -1.0, 1.0), (0.0, 0.0, 1.0))
-    light = Lighting(name="t", lights=(Light(kind="point", frame="camera", position=(0, 0, 0), intensity=1.0,
-                                             reference_distance_m=1.0),), ambient=0.0)
+    light = Lighting(
+        name="t",
+        lights=(Light(kind="point", frame="camera", position=(0, 0, 0), intensity=1.0, reference_distance_m=1.0),),
+        ambient=0.0,
+    )
     res = Renderer(scene).render(T, small_intr, light, exposure=1.0, effects=LINEAR, want=("gray",))
     d, o = _rays_world(small_intr, T)
     t = res.depth
@@ -96,16 +102,25 @@ def test_cast_shadow_where_geometry_occludes(factories):
     intr = CameraIntrinsics(fx=100.0, fy=100.0, cx=49.5, cy=49.5, width=100, height=100)
     # a 20 cm cube 30 cm in front of the wall; light straight along the wall normal from the camera side
     v, t, uv = factories.box(center=(0.0, -0.4, 1.0), size=(0.2, 0.2, 0.2))
-    cube = MeshPart(name="cube", label=2, vertices=v, triangles=t, tri_uv=uv,
-                    texture=factories.uniform_texture(0.5), texel_size_m=0.1, smooth=False)
+    cube = MeshPart(
+        name="cube",
+        label=2,
+        vertices=v,
+        triangles=t,
+        tri_uv=uv,
+        texture=factories.uniform_texture(0.5),
+        texel_size_m=0.1,
+        smooth=False,
+    )
     scene = factories.make_scene([factories.plane_part(albedo=0.5), cube])
     T = look_at((0.6, -1.5, 1.0), (0.0, 0.0, 1.0))  # from the side so the shadow is visible next to the cube
-    light = Lighting(name="t", lights=(Light(kind="directional", frame="world", direction=(0, -1, 0), intensity=1.0),),
-                     ambient=0.2)
+    light = Lighting(
+        name="t", lights=(Light(kind="directional", frame="world", direction=(0, -1, 0), intensity=1.0),), ambient=0.2
+    )
     res = Renderer(scene).render(T, intr, light, exposure=1.0, effects=LINEAR, want=("gray",))
     d, o = _rays_world(intr, T)
     p = o + res.depth[..., None] * d
-    on_wall = (res.labels == 1)
+    on_wall = res.labels == 1
     # the cube's shadow on the wall is the square |x| < 0.1, |z - 1| < 0.1 (light along -y... from -y)
     in_shadow = on_wall & (np.abs(p[..., 0]) < 0.09) & (np.abs(p[..., 2] - 1.0) < 0.09)
     lit = on_wall & ((np.abs(p[..., 0]) > 0.12) | (np.abs(p[..., 2] - 1.0) > 0.12))
@@ -115,7 +130,9 @@ def test_cast_shadow_where_geometry_occludes(factories):
 
 
 def test_distorted_camera_rays_follow_opencv(factories):
-    intr = CameraIntrinsics(fx=80.0, fy=80.0, cx=40.2, cy=29.1, width=80, height=60, dist=(-0.2, 0.05, 0.001, -0.001, 0.0))
+    intr = CameraIntrinsics(
+        fx=80.0, fy=80.0, cx=40.2, cy=29.1, width=80, height=60, dist=(-0.2, 0.05, 0.001, -0.001, 0.0)
+    )
     scene = factories.make_scene([factories.plane_part()])
     T = look_at((0.2, -1.0, 1.0), (0.0, 0.0, 1.1))
     res = Renderer(scene).render(T, intr, None, want=("depth",))
@@ -161,13 +178,22 @@ def test_bilinear_texture_sampling_with_wrap(factories, small_intr):
     rng = np.random.default_rng(5)
     tex = np.repeat(rng.uniform(0.2, 0.8, (16, 16, 1)), 3, axis=2).astype(np.float32)
     part = factories.plane_part()
-    part = MeshPart(name="plane", label=1, vertices=part.vertices, triangles=part.triangles, tri_uv=part.tri_uv,
-                    texture=tex, texel_size_m=part.texel_size_m, smooth=False)
+    part = MeshPart(
+        name="plane",
+        label=1,
+        vertices=part.vertices,
+        triangles=part.triangles,
+        tri_uv=part.tri_uv,
+        texture=tex,
+        texel_size_m=part.texel_size_m,
+        smooth=False,
+    )
     scene = factories.make_scene([part])
     # frontal, 1 m away: a pixel covers 12.5 mm, a texel 31 mm (mip level 0); the view centre is a tile corner
     T = look_at((0.0, -1.0, 1.0), (0.0, 0.0, 1.0))
-    res = Renderer(scene).render(T, small_intr, Lighting(name="a", lights=(), ambient=1.0), exposure=1.0,
-                                 effects=LINEAR, want=("gray",))
+    res = Renderer(scene).render(
+        T, small_intr, Lighting(name="a", lights=(), ambient=1.0), exposure=1.0, effects=LINEAR, want=("gray",)
+    )
     d, o = _rays_world(small_intr, T)
     p = o + (-o[1] / d[..., 1])[..., None] * d
     u = (p[..., 0] + 2.0) / 0.5  # plane_part: origin (-2, 0, -1), 0.5 m per texture repeat, v runs down z
@@ -181,8 +207,9 @@ def test_bilinear_texture_sampling_with_wrap(factories, small_intr):
     def at(yy, xx):
         return g[yy % 16, xx % 16]
 
-    expected = ((1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1))
-                + fy * ((1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1)))
+    expected = (1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1)) + fy * (
+        (1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1)
+    )
     nearest = at(np.round(y).astype(int), np.round(x).astype(int))
     assert (np.abs(x - 7.5) > 7.5).any() and (np.abs(y - 7.5) > 7.5).any()  # samples straddle the wrap
     # cv2.remap interpolates with 1/32-pixel weights: error <= 0.6 (largest step) / 64 per axis

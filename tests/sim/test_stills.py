@@ -12,9 +12,17 @@ NOISELESS = CameraEffects(gamma=1.0)
 
 
 def _rig(still_supersample: int):
-    return build_sim_rig(scene="relief_panel", config=SimRigConfig(noise="none", intrinsics_error="none", seed=3,
-                                                                   effects=NOISELESS, exposure=4.0,
-                                                                   still_supersample=still_supersample))
+    return build_sim_rig(
+        scene="relief_panel",
+        config=SimRigConfig(
+            noise="none",
+            intrinsics_error="none",
+            seed=3,
+            effects=NOISELESS,
+            exposure=4.0,
+            still_supersample=still_supersample,
+        ),
+    )
 
 
 def test_still_is_the_box_filtered_supersampled_render_and_frames_stay_point_sampled():
@@ -24,10 +32,12 @@ def test_still_is_the_box_filtered_supersampled_render_and_frames_stay_point_sam
     still = rig.camera.grab_still().image
     frame = rig.camera.grab().image
     renderer = rig.world.renderer
-    expected_still = renderer.with_supersample(2).render(T, intr, rig.lights.lighting, effects=NOISELESS,
-                                                          exposure=4.0, want=("gray",)).gray
-    expected_frame = renderer.render(T, intr, rig.lights.lighting, effects=NOISELESS, exposure=4.0,
-                                     want=("gray",)).gray
+    expected_still = (
+        renderer.with_supersample(2)
+        .render(T, intr, rig.lights.lighting, effects=NOISELESS, exposure=4.0, want=("gray",))
+        .gray
+    )
+    expected_frame = renderer.render(T, intr, rig.lights.lighting, effects=NOISELESS, exposure=4.0, want=("gray",)).gray
     assert np.allclose(still, expected_still, atol=1e-6)
     assert np.allclose(frame, expected_frame, atol=1e-6)
     assert renderer.supersample == 1  # the twin did not change the world's renderer

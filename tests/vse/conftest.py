@@ -34,7 +34,11 @@ class SyntheticWorld:
         xs = np.linspace(-0.5, 0.5, nx)
         ys = np.linspace(-0.4, 0.4, ny)
         X, Y = np.meshgrid(xs, ys)
-        Z = distance_m + 0.03 * np.sin(5 * X + 1.0) * np.cos(4 * Y) + 0.02 * np.exp(-((X - 0.1) ** 2 + (Y + 0.05) ** 2) / 0.01)
+        Z = (
+            distance_m
+            + 0.03 * np.sin(5 * X + 1.0) * np.cos(4 * Y)
+            + 0.02 * np.exp(-((X - 0.1) ** 2 + (Y + 0.05) ** 2) / 0.01)
+        )
         verts = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()]).astype(np.float32)
         idx = np.arange(nx * ny).reshape(ny, nx)
         a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()

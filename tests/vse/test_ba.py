@@ -51,8 +51,16 @@ def test_bundle_adjustment_down_weights_outliers():
     bad = rng.choice(len(uv), 40, replace=False)
     uv_bad = uv.copy()
     uv_bad[bad] += rng.uniform(20, 40, (40, 2))
-    res = bundle_adjust(T, X, cam, pt, uv_bad, K, fixed_cams=np.array([True, True, False, False, False]),
-                        config=BundleAdjustConfig(iterations=30))
+    res = bundle_adjust(
+        T,
+        X,
+        cam,
+        pt,
+        uv_bad,
+        K,
+        fixed_cams=np.array([True, True, False, False, False]),
+        config=BundleAdjustConfig(iterations=30),
+    )
     good = np.setdiff1d(np.arange(len(uv)), bad)
     # Huber bounds the pull of each outlier to 1.5 px of weight: the inliers stay near exact
     assert np.median(res.residual_px[good]) < 0.1
@@ -83,8 +91,10 @@ def _junction_uv(T_cam_map, x_f, z_f, y_b, z_b):
             h.append(np.append(K[:2, :2] @ (Xc[:2] / Xc[2]) + K[:2, 2], 1.0))
         return np.cross(h[0], h[1])
 
-    p = np.cross(line(np.array([x_f, -1.0, z_f]), np.array([x_f, 1.0, z_f])),
-                 line(np.array([-3.0, y_b, z_b]), np.array([3.0, y_b, z_b])))
+    p = np.cross(
+        line(np.array([x_f, -1.0, z_f]), np.array([x_f, 1.0, z_f])),
+        line(np.array([-3.0, y_b, z_b]), np.array([3.0, y_b, z_b])),
+    )
     return p[:2] / p[2]
 
 
@@ -95,10 +105,21 @@ def test_bundle_adjustment_rejects_tracks_sliding_along_occluding_contours():
     rng = np.random.default_rng(0)
     n_cams, n_pts, n_j = 8, 300, 12
     # a relief 1.6 m away (+-15 cm), the exploration ring (+-3 cm, +-2 deg), KLT noise 0.05 px
-    X = np.column_stack([rng.uniform(-0.4, 0.4, n_pts), rng.uniform(-0.3, 0.3, n_pts), 1.6 + rng.uniform(-0.15, 0.15, n_pts)])
+    X = np.column_stack(
+        [rng.uniform(-0.4, 0.4, n_pts), rng.uniform(-0.3, 0.3, n_pts), 1.6 + rng.uniform(-0.15, 0.15, n_pts)]
+    )
     ang = np.linspace(0, 2 * np.pi, n_cams, endpoint=False)
-    T = np.stack([invert_pose(make_pose(exp_so3(np.radians(2) * np.array([np.sin(a), -np.cos(a), 0])),
-                                        [0.03 * np.cos(a), 0.03 * np.sin(a), 0])) for a in ang])
+    T = np.stack(
+        [
+            invert_pose(
+                make_pose(
+                    exp_so3(np.radians(2) * np.array([np.sin(a), -np.cos(a), 0])),
+                    [0.03 * np.cos(a), 0.03 * np.sin(a), 0],
+                )
+            )
+            for a in ang
+        ]
+    )
     junctions = [(rng.choice([-0.45, 0.45]), 1.6, rng.uniform(-0.3, 0.3), 5.7) for _ in range(n_j)]
     cam = np.repeat(np.arange(n_cams), n_pts + n_j)
     pt = np.tile(np.arange(n_pts + n_j), n_cams)
@@ -122,12 +143,22 @@ def test_bundle_adjustment_rejects_tracks_sliding_along_occluding_contours():
     def worst_mm(T_est):
         return max(pose_distance(invert_pose(T_est[c]), invert_pose(T[c]))[0] for c in range(n_cams))
 
-    oracle = bundle_adjust(T0, X0[:n_pts], cam[~slide], pt[~slide], uv[~slide], K, fixed_cams=fixed,
-                           config=BundleAdjustConfig(iterations=40))
-    plain = bundle_adjust(T0, X0, cam, pt, uv, K, fixed_cams=fixed,
-                          config=BundleAdjustConfig(iterations=40, huber_px=1.0))
-    robust, bad = bundle_adjust_rejecting_outliers(T0, X0, cam, pt, uv, K, fixed_cams=fixed,
-                                                   config=OutlierRejectionConfig(iterations=40))
+    oracle = bundle_adjust(
+        T0,
+        X0[:n_pts],
+        cam[~slide],
+        pt[~slide],
+        uv[~slide],
+        K,
+        fixed_cams=fixed,
+        config=BundleAdjustConfig(iterations=40),
+    )
+    plain = bundle_adjust(
+        T0, X0, cam, pt, uv, K, fixed_cams=fixed, config=BundleAdjustConfig(iterations=40, huber_px=1.0)
+    )
+    robust, bad = bundle_adjust_rejecting_outliers(
+        T0, X0, cam, pt, uv, K, fixed_cams=fixed, config=OutlierRejectionConfig(iterations=40)
+    )
     e_oracle, e_plain, e_robust = worst_mm(oracle.T_cam_map), worst_mm(plain.T_cam_map), worst_mm(robust.T_cam_map)
     # the sliding tracks (errors up to 7 px) are what the former 6 px rule kept: tens of mm
     assert np.max(plain.residual_px[slide]) < 6.0 and e_plain > 10 * e_oracle

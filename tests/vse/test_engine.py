@@ -179,11 +179,14 @@ def test_the_status_is_the_string_logs_and_json_carry():
     assert json.dumps({"status": VseStatus.FAILED}) == '{"status": "failed"}'
 
 
-@pytest.mark.parametrize(("variant", "cls", "frontend", "source", "cloud"), [
-    ("mono", MonocularVSE, KltTracking, Triangulation, SemiDenseCloud),
-    ("sparse", SparseVSE, OrbTracking, Triangulation, LandmarkCloud),
-    ("rgbd", RgbdVSE, KltTracking, DepthImage, DepthImageCloud),
-])
+@pytest.mark.parametrize(
+    ("variant", "cls", "frontend", "source", "cloud"),
+    [
+        ("mono", MonocularVSE, KltTracking, Triangulation, SemiDenseCloud),
+        ("sparse", SparseVSE, OrbTracking, Triangulation, LandmarkCloud),
+        ("rgbd", RgbdVSE, KltTracking, DepthImage, DepthImageCloud),
+    ],
+)
 def test_variants_are_compositions_of_parts(small_camera, variant, cls, frontend, source, cloud):
     eng = make_engine(variant, small_camera, config=VseConfig(max_features=300))
     assert type(eng) is cls and isinstance(eng, VisualSlamEngine)

@@ -85,8 +85,9 @@ def test_keyframe_depth_takes_its_options_as_one_config(world, small_camera, hel
     i0, _ = world.render(small_camera, T0)
     i1, _ = world.render(small_camera, T1)
     nbs = [(i1, np.linalg.inv(T1) @ T0)]
-    b = keyframe_depth(i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45),
-                       config=KeyframeDepthConfig(max_points=2000, min_views=1))
+    b = keyframe_depth(
+        i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45), config=KeyframeDepthConfig(max_points=2000, min_views=1)
+    )
     assert len(b.inv_depth) > 100 and len(b.pixels) <= 2000
     with pytest.raises(TypeError):
         keyframe_depth(i0, nbs, small_camera.K, (1 / 0.8, 1 / 0.45), max_points=2000)

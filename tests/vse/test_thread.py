@@ -45,7 +45,9 @@ def test_latest_is_cheap_and_consistent_while_engine_runs(world, small_camera, h
     seen = []
     first = None  # (time, frames) at the first processed frame: the engine's start-up is not a frame
     with th:
-        deadline = time.monotonic() + 240  # generous: a loaded 2-core machine maps slowly; this test is about consistency
+        deadline = (
+            time.monotonic() + 240
+        )  # generous: a loaded 2-core machine maps slowly; this test is about consistency
         while time.monotonic() < deadline:
             t0 = time.perf_counter()
             st = th.latest()

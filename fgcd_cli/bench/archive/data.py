@@ -90,7 +90,7 @@ def _station_pose(scene, k: int) -> np.ndarray:
 
 def _reference_cloud(depth: np.ndarray, intr: CameraIntrinsics, T_ref_cam: np.ndarray, step: int = 2) -> np.ndarray:
     """(N, 3) points in the reference frame from a depth image (every ``step``-th pixel), metres."""
-    v, u = np.mgrid[0:depth.shape[0]:step, 0:depth.shape[1]:step]
+    v, u = np.mgrid[0 : depth.shape[0] : step, 0 : depth.shape[1] : step]
     z = depth[v, u]
     ok = np.isfinite(z) & (z > 0)
     x = (u[ok] - intr.cx) / intr.fx * z[ok]
@@ -111,8 +111,9 @@ def _changes_at(base: list, visit: int) -> list:
 
 def _write_station(camp, name: str, k: int, renderer: Renderer, config: SyntheticArchiveConfig) -> dict:
     scene, c = renderer.scene, config
-    intr = CameraIntrinsics(fx=c.focal_px, fy=c.focal_px, cx=(c.width - 1) / 2, cy=(c.height - 1) / 2,
-                            width=c.width, height=c.height)
+    intr = CameraIntrinsics(
+        fx=c.focal_px, fy=c.focal_px, cx=(c.width - 1) / 2, cy=(c.height - 1) / 2, width=c.width, height=c.height
+    )
     T_ref = _station_pose(scene, k)
     rng = np.random.default_rng(c.seed * 1000 + k)
     effects = CameraEffects(read_noise=0.003, shot_noise=0.004)
@@ -122,25 +123,45 @@ def _write_station(camp, name: str, k: int, renderer: Renderer, config: Syntheti
     meta = {"lightings": list(LIGHTINGS), "intrinsics": intr.to_dict(), "synthetic": "fgcd_cli.bench.archive.data"}
     with station.write_reference(meta) as w:
         for light in LIGHTINGS:
-            w.add_image(light, renderer.render(T_ref, intr, light, effects=effects, exposure=exposure, rng=rng,
-                                               want=("rgb",)).rgb)
+            w.add_image(
+                light,
+                renderer.render(T_ref, intr, light, effects=effects, exposure=exposure, rng=rng, want=("rgb",)).rgb,
+            )
         w.add_cloud(_reference_cloud(geometry.depth, intr, T_ref))
         w.add_array(schema.ARRAY_T_REF_CAMREF, T_ref)
         w.commit()
-    base = [replace(ch, size_mm=c.size_mm) for ch in _changes_in_view(scene, T_ref, intr, n=c.changes,
-                                                                    seed=c.seed * 1000 + k)]
+    base = [
+        replace(ch, size_mm=c.size_mm)
+        for ch in _changes_in_view(scene, T_ref, intr, n=c.changes, seed=c.seed * 1000 + k)
+    ]
     truth = {}
     for j in range(c.visits):
         xi = np.r_[rng.normal(size=3) / np.sqrt(3) * 0.5e-3, rng.normal(size=3) / np.sqrt(3) * np.deg2rad(0.1)]
         T_cur = T_ref @ exp_se3(xi)
         present = _changes_at(base, j)
-        with station.new_visit({"lightings": list(LIGHTINGS), "intrinsics": intr.to_dict()},
-                               stamp=visit_stamp(j)) as w:
+        with station.new_visit({"lightings": list(LIGHTINGS), "intrinsics": intr.to_dict()}, stamp=visit_stamp(j)) as w:
             for light in LIGHTINGS:
-                w.add_image(light, renderer.render(T_cur, intr, light, changes=present or None, effects=effects,
-                                                   exposure=exposure * 0.85, rng=rng, want=("rgb",)).rgb)
-            w.add_json(schema.SIM_TRUTH, {"changes": [{"kind": ch.kind, "size_mm": ch.size_mm,
-                                                        "position": list(ch.position)} for ch in present]})
+                w.add_image(
+                    light,
+                    renderer.render(
+                        T_cur,
+                        intr,
+                        light,
+                        changes=present or None,
+                        effects=effects,
+                        exposure=exposure * 0.85,
+                        rng=rng,
+                        want=("rgb",),
+                    ).rgb,
+                )
+            w.add_json(
+                schema.SIM_TRUTH,
+                {
+                    "changes": [
+                        {"kind": ch.kind, "size_mm": ch.size_mm, "position": list(ch.position)} for ch in present
+                    ]
+                },
+            )
             w.commit()
         truth[visit_stamp(j)] = len(present)
     return truth

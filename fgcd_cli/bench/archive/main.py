@@ -56,18 +56,27 @@ def _regions(root: Path) -> dict:
 def _timed_run(root: Path, *, workers: int, force: bool) -> dict:
     result = analyze_archive(ArchiveRequest(roots=[root], workers=workers, force=force))
     n = len(result.outcomes)
-    return {"workers": result.workers, "visits": n, "done": result.count(VisitStatus.DONE),
-            "skipped": result.count(VisitStatus.SKIPPED), "failed": result.count(VisitStatus.FAILED),
-            "cluster_start_s": result.start_s, "run_s": result.run_s,
-            "visits_per_minute": 60.0 * n / result.run_s if result.run_s > 0 else float("nan"),
-            "task_s_median": sorted(o.seconds for o in result.outcomes)[n // 2] if n else float("nan"),
-            "peak_worker_rss_mb": max((o.worker_peak_rss_mb for o in result.outcomes), default=0.0)}
+    return {
+        "workers": result.workers,
+        "visits": n,
+        "done": result.count(VisitStatus.DONE),
+        "skipped": result.count(VisitStatus.SKIPPED),
+        "failed": result.count(VisitStatus.FAILED),
+        "cluster_start_s": result.start_s,
+        "run_s": result.run_s,
+        "visits_per_minute": 60.0 * n / result.run_s if result.run_s > 0 else float("nan"),
+        "task_s_median": sorted(o.seconds for o in result.outcomes)[n // 2] if n else float("nan"),
+        "peak_worker_rss_mb": max((o.worker_peak_rss_mb for o in result.outcomes), default=0.0),
+    }
 
 
 def run(*, quick: bool) -> dict:
     """Build a synthetic archive, analyse it with 1 and 2 workers, re-run it unchanged (summary: issue 22's keys)."""
-    config = (SyntheticArchiveConfig(campaigns=2, stations=2, visits=3) if quick
-              else SyntheticArchiveConfig(campaigns=3, stations=3, visits=4))
+    config = (
+        SyntheticArchiveConfig(campaigns=2, stations=2, visits=3)
+        if quick
+        else SyntheticArchiveConfig(campaigns=3, stations=3, visits=4)
+    )
     with tempfile.TemporaryDirectory(prefix="fgcd-bench-archive-") as tmp:
         root = Path(tmp)
         t0 = time.perf_counter()
@@ -82,9 +91,14 @@ def run(*, quick: bool) -> dict:
     overhead = _scheduler_overhead_ms(TRIVIAL_TASKS // (4 if quick else 1))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     return {
-        "archive": {"campaigns": config.campaigns, "stations_per_campaign": config.stations,
-                    "visits_per_station": config.visits, "image_size": [config.width, config.height],
-                    "lightings": 3, "build_s": build_s},
+        "archive": {
+            "campaigns": config.campaigns,
+            "stations_per_campaign": config.stations,
+            "visits_per_station": config.visits,
+            "image_size": [config.width, config.height],
+            "lightings": 3,
+            "build_s": build_s,
+        },
         "runs": {"1_worker": one, "2_workers": two, "rerun_unchanged": rerun},
         "scheduler": overhead,
         "regions_identical_1w_2w": not differ,

@@ -64,37 +64,58 @@ def child_main(folder: str, lightings: str, tile_px: int, workers: int) -> None:
     t0 = time.perf_counter()
     # One pool over all the files: two calls would each end on one file decoding alone.
     images = load_images([root / f"ref-{k}.png" for k in ks] + [root / f"cur-{k}.png" for k in ks])
-    ref, cur = images[:len(ks)], images[len(ks):]
+    ref, cur = images[: len(ks)], images[len(ks) :]
     del images
     mask = cv2.imread(str(root / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
     t_load = time.perf_counter() - t0
     stages: list[tuple[str, float]] = []
-    result = detect_changes_tiled(ref, cur, roi=mask, progress=lambda done, total, label: stages.append((label, time.perf_counter() - t0)),
-                                  config=DetectionConfig.from_options(tile_px=tile_px, workers=workers))
+    result = detect_changes_tiled(
+        ref,
+        cur,
+        roi=mask,
+        progress=lambda done, total, label: stages.append((label, time.perf_counter() - t0)),
+        config=DetectionConfig.from_options(tile_px=tile_px, workers=workers),
+    )
     seconds = time.perf_counter() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     truth = cv2.imread(str(root / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
     f1 = binary_scores(result.mask, truth, eval_mask=mask).f1
     first_tile = next((t for label, t in stages if label.startswith("gain pass")), None)
     last_tile = max((t for label, t in stages if "tile" in label), default=None)
-    print(json.dumps({
-        "seconds": seconds, "peak_rss_mb": peak_mb, "f1": f1, "regions": len(result.regions),
-        "comparable": result.comparable, "reason": result.reason,
-        "seconds_loading": t_load,
-        "seconds_working_resolution": (stages[0][1] - t_load) if stages else None,
-        "seconds_tiles": (last_tile - stages[0][1]) if stages and last_tile else None,
-        "seconds_decision_and_cues": (seconds - last_tile) if last_tile else None,
-        "first_tile_at": first_tile, "tiles": result.settings.get("tiled", {}).get("tiles"),
-        "robust_gain_rounds": result.settings.get("robust_gain_rounds"),
-    }))
+    print(
+        json.dumps(
+            {
+                "seconds": seconds,
+                "peak_rss_mb": peak_mb,
+                "f1": f1,
+                "regions": len(result.regions),
+                "comparable": result.comparable,
+                "reason": result.reason,
+                "seconds_loading": t_load,
+                "seconds_working_resolution": (stages[0][1] - t_load) if stages else None,
+                "seconds_tiles": (last_tile - stages[0][1]) if stages and last_tile else None,
+                "seconds_decision_and_cues": (seconds - last_tile) if last_tile else None,
+                "first_tile_at": first_tile,
+                "tiles": result.settings.get("tiled", {}).get("tiles"),
+                "robust_gain_rounds": result.settings.get("robust_gain_rounds"),
+            }
+        )
+    )
 
 
 def _run_child(folder: Path, lightings: list[int], tile_px: int, workers: int) -> dict:
-    code = ("import sys; from fgcd_cli.bench.changes.large import child_main; "
-            "child_main(sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))")
+    code = (
+        "import sys; from fgcd_cli.bench.changes.large import child_main; "
+        "child_main(sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))"
+    )
     cwd = REPO_ROOT
-    done = subprocess.run([sys.executable, "-c", code, str(folder), ",".join(map(str, lightings)), str(tile_px),
-                           str(workers)], capture_output=True, text=True, cwd=cwd, check=False)
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(folder), ",".join(map(str, lightings)), str(tile_px), str(workers)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        check=False,
+    )
     if done.returncode != 0:
         raise RuntimeError(f"tiled detection child failed ({done.returncode}): {done.stderr[-2000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -113,9 +134,11 @@ def _untiled_f1(folder: Path, lightings: list[int]) -> dict:
     truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
     plain = detect_changes(ref, cur, roi=mask)
     tiled = detect_changes_tiled(ref, cur, roi=mask, config=DetectionConfig.from_options(tile_px=256))
-    return {"f1_untiled": binary_scores(plain.mask, truth, eval_mask=mask).f1,
-            "f1_tiled_256px": binary_scores(tiled.mask, truth, eval_mask=mask).f1,
-            "f1_tiled_vs_untiled": binary_scores(tiled.mask, plain.mask, eval_mask=mask).f1}
+    return {
+        "f1_untiled": binary_scores(plain.mask, truth, eval_mask=mask).f1,
+        "f1_tiled_256px": binary_scores(tiled.mask, truth, eval_mask=mask).f1,
+        "f1_tiled_vs_untiled": binary_scores(tiled.mask, plain.mask, eval_mask=mask).f1,
+    }
 
 
 def run_large(*, quick: bool, dataset: Path = DATASET, tile_px: int = 2048, workers: int = 2) -> dict:
@@ -141,15 +164,19 @@ def run_large(*, quick: bool, dataset: Path = DATASET, tile_px: int = 2048, work
         "workers": workers,
         "f1_vs_upscaled_gt": child["f1"],
         "regions": child["regions"],
-        "stage_seconds": {k: child[k] for k in ("seconds_loading", "seconds_working_resolution", "seconds_tiles",
-                                                "seconds_decision_and_cues")},
+        "stage_seconds": {
+            k: child[k]
+            for k in ("seconds_loading", "seconds_working_resolution", "seconds_tiles", "seconds_decision_and_cues")
+        },
         "real_group_700px": small,
         "synthesised": f"{GROUP[1]} upscaled {factor}x (cubic), stated as such",
         "measured": "in a child process that loads the PNGs itself; seconds include loading; peak RSS = its ru_maxrss",
     }
     if quick:
-        out["note"] = (f"quick: {megapixels:.0f} MP and {len(lightings)} lightings, not 24 MP x 7: the "
-                       "*_24mp keys hold this smaller case")
+        out["note"] = (
+            f"quick: {megapixels:.0f} MP and {len(lightings)} lightings, not 24 MP x 7: the "
+            "*_24mp keys hold this smaller case"
+        )
     return out
 
 

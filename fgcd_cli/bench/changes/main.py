@@ -76,8 +76,9 @@ def _decide_at(result, key: tuple) -> np.ndarray:
     fine_score = result.fine_score if fine_sigma_px > 0 else None
     if fine_score is None and fine_sigma_px > 0:
         raise ValueError("the grid scans a finer smoothing that the detection did not compute")
-    changed, _, _ = decide(result.score, result.valid, config=RegionConfig(**options), fine_score=fine_score,
-                           fine_sigma_px=fine_sigma_px)
+    changed, _, _ = decide(
+        result.score, result.valid, config=RegionConfig(**options), fine_score=fine_score, fine_sigma_px=fine_sigma_px
+    )
     return changed
 
 
@@ -90,8 +91,9 @@ def _read_rgb(path: Path) -> np.ndarray:
 
 def find_groups(dataset: Path) -> list[Path]:
     """Every group folder (``<kind>/<group>`` with GT.png and mask.png), sorted by name."""
-    return sorted((p.parent for p in dataset.glob("*/*/GT.png") if (p.parent / "mask.png").is_file()),
-                  key=lambda p: p.name)
+    return sorted(
+        (p.parent for p in dataset.glob("*/*/GT.png") if (p.parent / "mask.png").is_file()), key=lambda p: p.name
+    )
 
 
 def group_lightings(folder: Path) -> list[int]:
@@ -109,9 +111,12 @@ def user_detection(folder: Path, lightings: list[int], *, roi: bool = False):
     """
     from fgcd_cli.app.diff import BareDiffRequest, detect_bare
 
-    request = BareDiffRequest(ref=[str(folder / f"2-{k}.png") for k in lightings],
-                              cur=[str(folder / f"1-{k}.png") for k in lightings],
-                              output=folder / "never-written", roi=folder / "mask.png" if roi else None)
+    request = BareDiffRequest(
+        ref=[str(folder / f"2-{k}.png") for k in lightings],
+        cur=[str(folder / f"1-{k}.png") for k in lightings],
+        output=folder / "never-written",
+        roi=folder / "mask.png" if roi else None,
+    )
     return detect_bare(request)
 
 
@@ -123,9 +128,13 @@ def _grid_rows(result, truth: np.ndarray, mask: np.ndarray, grid: list[tuple], s
         changed = _decide_at(result, key)
         auto = binary_scores(changed, truth, eval_mask=mask)
         rows[key] = {
-            "best_f1": sweep.best_f1, "ap": sweep.average_precision, "auto_f1": auto.f1,
-            "auto_precision": auto.precision, "auto_recall": auto.recall,
-            "changed_fraction_found": float(changed[mask].mean()), "seconds": seconds,
+            "best_f1": sweep.best_f1,
+            "ap": sweep.average_precision,
+            "auto_f1": auto.f1,
+            "auto_precision": auto.precision,
+            "auto_recall": auto.recall,
+            "changed_fraction_found": float(changed[mask].mean()),
+            "seconds": seconds,
         }
     return rows
 
@@ -150,26 +159,40 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
     no_dense = detect_changes(ref, cur, config=DetectionConfig.from_options(dense=False, cues=False))
     no_dense_sweep = sweep_scores(no_dense.score, truth, eval_mask=mask)
     registered = [warp_to_reference(to_float_image(c), result.registration.H_cur_ref, truth.shape)[0] for c in cur]
-    iccv = iccv2015_score([to_float_image(r) for r in ref], registered, valid=result.valid,
-                          ambient_index=0 if len(lightings) > 3 else None)
+    iccv = iccv2015_score(
+        [to_float_image(r) for r in ref],
+        registered,
+        valid=result.valid,
+        ambient_index=0 if len(lightings) > 3 else None,
+    )
     iccv_sweep = sweep_scores(iccv, truth, eval_mask=mask)
     variants = {}
     for gain_sigma, smooth_sigma in score_grid:
         if (gain_sigma, smooth_sigma) == SCORE_GRID[0]:
             variants[(gain_sigma, smooth_sigma)] = {"best_f1": rows[grid[0]]["best_f1"], "ap": rows[grid[0]]["ap"]}
             continue
-        variant = detect_changes(ref, cur, config=DetectionConfig.from_options(cues=False, gain_sigma_px=gain_sigma,
-                                                                               smooth_sigma_px=smooth_sigma))
+        variant = detect_changes(
+            ref,
+            cur,
+            config=DetectionConfig.from_options(cues=False, gain_sigma_px=gain_sigma, smooth_sigma_px=smooth_sigma),
+        )
         variant_sweep = sweep_scores(variant.score, truth, eval_mask=mask)
         variants[(gain_sigma, smooth_sigma)] = {"best_f1": variant_sweep.best_f1, "ap": variant_sweep.average_precision}
-    return {"group": folder.name, "kind": folder.parent.name, "lightings": lightings,
-            "changed_fraction_true": float(truth[mask].mean()), "grid": rows, "roi_grid": roi_rows,
-            "seconds": seconds, "regions": len(result.regions),
-            "cues": {c: sum(r.cue == c for r in result.regions) for c in ("relief", "colour", "both")},
-            "not_compared_fraction": float(result.not_compared[mask].mean()) if result.not_compared is not None else 0.0,
-            "no_dense": {"best_f1": no_dense_sweep.best_f1, "ap": no_dense_sweep.average_precision},
-            "iccv2015": {"best_f1": iccv_sweep.best_f1, "ap": iccv_sweep.average_precision},
-            "score_variants": variants}
+    return {
+        "group": folder.name,
+        "kind": folder.parent.name,
+        "lightings": lightings,
+        "changed_fraction_true": float(truth[mask].mean()),
+        "grid": rows,
+        "roi_grid": roi_rows,
+        "seconds": seconds,
+        "regions": len(result.regions),
+        "cues": {c: sum(r.cue == c for r in result.regions) for c in ("relief", "colour", "both")},
+        "not_compared_fraction": float(result.not_compared[mask].mean()) if result.not_compared is not None else 0.0,
+        "no_dense": {"best_f1": no_dense_sweep.best_f1, "ap": no_dense_sweep.average_precision},
+        "iccv2015": {"best_f1": iccv_sweep.best_f1, "ap": iccv_sweep.average_precision},
+        "score_variants": variants,
+    }
 
 
 def leave_one_group_out_score_constants(scored: list[dict]) -> dict | None:
@@ -180,18 +203,30 @@ def leave_one_group_out_score_constants(scored: list[dict]) -> dict | None:
     rows = []
     for held in scored:
         others = [g for g in scored if g is not held]
-        chosen = max(keys, key=lambda key: (np.mean([g["score_variants"][key]["best_f1"] for g in others]),
-                                            -keys.index(key)))
-        rows.append({"group": held["group"], "gain_sigma_px": chosen[0], "smooth_sigma_px": chosen[1],
-                     **held["score_variants"][chosen]})
+        chosen = max(
+            keys, key=lambda key: (np.mean([g["score_variants"][key]["best_f1"] for g in others]), -keys.index(key))
+        )
+        rows.append(
+            {
+                "group": held["group"],
+                "gain_sigma_px": chosen[0],
+                "smooth_sigma_px": chosen[1],
+                **held["score_variants"][chosen],
+            }
+        )
     return {
         "groups": rows,
         "logo_best_f1_all_constants": float(np.mean([r["best_f1"] for r in rows])),
         "logo_ap_all_constants": float(np.mean([r["ap"] for r in rows])),
-        "per_setting": [{"gain_sigma_px": key[0], "smooth_sigma_px": key[1],
-                         "mean_best_f1": float(np.mean([g["score_variants"][key]["best_f1"] for g in scored])),
-                         "mean_ap": float(np.mean([g["score_variants"][key]["ap"] for g in scored]))}
-                        for key in keys],
+        "per_setting": [
+            {
+                "gain_sigma_px": key[0],
+                "smooth_sigma_px": key[1],
+                "mean_best_f1": float(np.mean([g["score_variants"][key]["best_f1"] for g in scored])),
+                "mean_ap": float(np.mean([g["score_variants"][key]["ap"] for g in scored])),
+            }
+            for key in keys
+        ],
     }
 
 
@@ -205,8 +240,14 @@ def leave_one_group_out(scored: list[dict], grid: list[tuple[float, float]], *, 
         others = [g for g in scored if g is not held]
         chosen = max(grid, key=lambda key: (np.mean([g[table][key]["auto_f1"] for g in others]), -grid.index(key)))
         row = dict(held[table][chosen])
-        row.update({"group": held["group"], "kind": held["kind"], "chosen": detector_options(chosen),
-                    "changed_fraction_true": held["changed_fraction_true"]})
+        row.update(
+            {
+                "group": held["group"],
+                "kind": held["kind"],
+                "chosen": detector_options(chosen),
+                "changed_fraction_true": held["changed_fraction_true"],
+            }
+        )
         out.append(row)
     return out
 
@@ -267,14 +308,26 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         "iccv2015_ap": float(np.mean([g["iccv2015"]["ap"] for g in scored])),
         "no_dense_best_f1": float(np.mean([g["no_dense"]["best_f1"] for g in scored])),
         "no_dense_ap": float(np.mean([g["no_dense"]["ap"] for g in scored])),
-        "baselines": [{"group": g["group"], "iccv2015": g["iccv2015"], "no_dense": g["no_dense"],
-                       "not_compared_fraction": g["not_compared_fraction"], "regions": g["regions"],
-                       "cues": g["cues"]} for g in scored],
-        "per_setting": [{"setting": detector_options(key),
-                         "mean_auto_f1": float(np.mean([g["grid"][key]["auto_f1"] for g in scored])),
-                         "auto_recall": {g["group"]: g["grid"][key]["auto_recall"] for g in scored},
-                         "auto_precision": {g["group"]: g["grid"][key]["auto_precision"] for g in scored}}
-                        for key in grid + reference_grid],
+        "baselines": [
+            {
+                "group": g["group"],
+                "iccv2015": g["iccv2015"],
+                "no_dense": g["no_dense"],
+                "not_compared_fraction": g["not_compared_fraction"],
+                "regions": g["regions"],
+                "cues": g["cues"],
+            }
+            for g in scored
+        ],
+        "per_setting": [
+            {
+                "setting": detector_options(key),
+                "mean_auto_f1": float(np.mean([g["grid"][key]["auto_f1"] for g in scored])),
+                "auto_recall": {g["group"]: g["grid"][key]["auto_recall"] for g in scored},
+                "auto_precision": {g["group"]: g["grid"][key]["auto_precision"] for g in scored},
+            }
+            for key in grid + reference_grid
+        ],
         # Full run only: the gain window and smoothing chosen leave one group out too (None in --quick).
         "score_constants": score_constants,
         "logo_best_f1_all_constants": score_constants["logo_best_f1_all_constants"] if score_constants else None,
@@ -297,13 +350,15 @@ def _write_overlays(folders, scored, deployed, overlay_dir: Path) -> None:
         truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
         mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
         result = detect_changes(ref, cur, config=DetectionConfig.from_options(**detector_options(deployed)))
-        overlay = change_overlay(ref[0], result.labels, result.regions, valid=result.valid,
-                                 candidates=result.candidates)
+        overlay = change_overlay(
+            ref[0], result.labels, result.regions, valid=result.valid, candidates=result.candidates
+        )
         contours, _ = cv2.findContours((truth & mask).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         cv2.drawContours(overlay, contours, -1, (0, 255, 0), 1)
         h, w = overlay.shape[:2]
         (overlay_dir / f"changes_{folder.name}.png").write_bytes(
-            png_bytes(cv2.resize(overlay, (w // 2, h // 2), interpolation=cv2.INTER_AREA)))
+            png_bytes(cv2.resize(overlay, (w // 2, h // 2), interpolation=cv2.INTER_AREA))
+        )
         maps = result.cue_maps
         if maps is not None and maps.normals_ref is not None:
             # Reference (pseudo-)normals as RGB = (n + 1) / 2, and the albedo scaled to its 99th percentile.
@@ -315,7 +370,8 @@ def _write_overlays(folders, scored, deployed, overlay_dir: Path) -> None:
             pair = np.concatenate([normals, albedo], axis=1)
             pair = (pair * 255 + 0.5).astype(np.uint8)
             (overlay_dir / f"normals_albedo_{folder.name}.png").write_bytes(
-                png_bytes(cv2.resize(pair, (pair.shape[1] // 2, pair.shape[0] // 2), interpolation=cv2.INTER_AREA)))
+                png_bytes(cv2.resize(pair, (pair.shape[1] // 2, pair.shape[0] // 2), interpolation=cv2.INTER_AREA))
+            )
 
 
 def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
@@ -323,14 +379,33 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
     real = run_real(quick=quick, overlay_dir=overlay_dir)
     summary = {}
     if real.get("available"):
-        summary.update({k: real[k] for k in ("logo_best_f1", "logo_ap", "logo_auto_f1", "logo_min_auto_recall",
-                                             "roi_logo_best_f1", "roi_logo_ap", "roi_logo_auto_f1",
-                                             "roi_logo_min_auto_recall",
-                                             "in_sample_auto_f1", "seconds_per_pair", "logo_hysteresis_auto_f1",
-                                             "iccv2015_best_f1", "iccv2015_ap", "no_dense_best_f1",
-                                             "logo_best_f1_all_constants", "logo_ap_all_constants",
-                                             "logo_single_scale_auto_f1", "logo_single_scale_min_auto_recall",
-                                             "logo_scale_chosen_auto_f1", "logo_scale_chosen_min_auto_recall")})
+        summary.update(
+            {
+                k: real[k]
+                for k in (
+                    "logo_best_f1",
+                    "logo_ap",
+                    "logo_auto_f1",
+                    "logo_min_auto_recall",
+                    "roi_logo_best_f1",
+                    "roi_logo_ap",
+                    "roi_logo_auto_f1",
+                    "roi_logo_min_auto_recall",
+                    "in_sample_auto_f1",
+                    "seconds_per_pair",
+                    "logo_hysteresis_auto_f1",
+                    "iccv2015_best_f1",
+                    "iccv2015_ap",
+                    "no_dense_best_f1",
+                    "logo_best_f1_all_constants",
+                    "logo_ap_all_constants",
+                    "logo_single_scale_auto_f1",
+                    "logo_single_scale_min_auto_recall",
+                    "logo_scale_chosen_auto_f1",
+                    "logo_scale_chosen_min_auto_recall",
+                )
+            }
+        )
     sim = None
     try:
         from fgcd_cli.bench.changes.simulated import run_sim
@@ -339,7 +414,9 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
     else:
         sim = run_sim(quick=quick)
         if sim.get("available"):
-            summary.update({k: sim[k] for k in ("sim_auto_f1", "sim_false_regions_unchanged", "sim_max_false_region_mm2")})
+            summary.update(
+                {k: sim[k] for k in ("sim_auto_f1", "sim_false_regions_unchanged", "sim_max_false_region_mm2")}
+            )
             summary.update({k: v for k, v in sim.items() if k.startswith("sim_heldout_")})
             summary.update({k: v for k, v in sim.items() if k.startswith("sim_relocated_")})
     from fgcd_cli.bench.changes.large import run_large
@@ -347,8 +424,15 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
     large = run_large(quick=quick)
     if large.get("available"):
         summary.update({k: large[k] for k in ("seconds_per_pair_24mp", "peak_rss_mb_24mp")})
-    targets = {"logo_best_f1": 0.70, "logo_auto_f1": 0.60, "logo_min_auto_recall": 0.3, "sim_auto_f1": 0.9,
-               "seconds_per_pair": 10.0, "seconds_per_pair_24mp": 90.0, "peak_rss_mb_24mp": 4096.0}
+    targets = {
+        "logo_best_f1": 0.70,
+        "logo_auto_f1": 0.60,
+        "logo_min_auto_recall": 0.3,
+        "sim_auto_f1": 0.9,
+        "seconds_per_pair": 10.0,
+        "seconds_per_pair_24mp": 90.0,
+        "peak_rss_mb_24mp": 4096.0,
+    }
     return {
         "benchmark": "changes",
         "quick": quick,

@@ -62,8 +62,10 @@ def _changes_in_view(scene, T_ref, intr, *, n: int, seed: int):
 
 
 def _render_set(renderer, T, intr, *, changes, effects, exposure, rng):
-    return [renderer.render(T, intr, name, changes=changes, effects=effects, exposure=exposure, rng=rng, want=("rgb",)).rgb
-            for name in LIGHTINGS]
+    return [
+        renderer.render(T, intr, name, changes=changes, effects=effects, exposure=exposure, rng=rng, want=("rgb",)).rgb
+        for name in LIGHTINGS
+    ]
 
 
 RELOCATED_SCENE = "relief_panel"
@@ -98,8 +100,10 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
     rows = []
     for seed in seeds:
         rng = np.random.default_rng(2000 + seed)
-        ref_images = [renderer.render(T_ref, intr, name, effects=ref_effects, exposure=ref_exposure, rng=rng,
-                                      want=("rgb",)).rgb for name in LIGHTINGS]
+        ref_images = [
+            renderer.render(T_ref, intr, name, effects=ref_effects, exposure=ref_exposure, rng=rng, want=("rgb",)).rgb
+            for name in LIGHTINGS
+        ]
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
         xi = np.r_[direction * RELOCATED_TRANSLATION_MM * 1e-3, rng.normal(size=3) / np.sqrt(3) * np.deg2rad(0.1)]
@@ -107,18 +111,42 @@ def run_relocated(*, quick: bool, seeds: tuple[int, ...] | None = None) -> dict:
         changes = _changes_in_view(scene, T_ref, intr, n=3, seed=seed)
         truth = renderer.render(T_ref, intr, None, changes=changes, want=("depth",)).change_mask
         for changed in (True, False):
-            cur_images = _render_set(renderer, T_cur, intr, changes=changes if changed else None,
-                                     effects=cur_effects, exposure=ref_exposure * 0.8, rng=rng)
+            cur_images = _render_set(
+                renderer,
+                T_cur,
+                intr,
+                changes=changes if changed else None,
+                effects=cur_effects,
+                exposure=ref_exposure * 0.8,
+                rng=rng,
+            )
             for setting, check in (("campaign", EDGE_CHECK_PX), ("plain", 0)):
-                result = detect_changes(ref_images, cur_images, pixel_area_mm2=area,
-                                        config=DetectionConfig.from_options(edge_check_px=check))
-                row = {"scene": RELOCATED_SCENE, "seed": seed, "changed": changed, "setting": setting,
-                       "edge_check_px": check, "comparable": result.comparable, "regions": len(result.regions),
-                       "set_aside_regions": result.settings.get("edge_explained_regions", 0)}
+                result = detect_changes(
+                    ref_images,
+                    cur_images,
+                    pixel_area_mm2=area,
+                    config=DetectionConfig.from_options(edge_check_px=check),
+                )
+                row = {
+                    "scene": RELOCATED_SCENE,
+                    "seed": seed,
+                    "changed": changed,
+                    "setting": setting,
+                    "edge_check_px": check,
+                    "comparable": result.comparable,
+                    "regions": len(result.regions),
+                    "set_aside_regions": result.settings.get("edge_explained_regions", 0),
+                }
                 if changed:
                     scores = binary_scores(result.mask, truth, eval_mask=eval_mask)
-                    row.update({"auto_f1": scores.f1, "precision": scores.precision, "recall": scores.recall,
-                                "truth_px": int(truth[eval_mask].sum())})
+                    row.update(
+                        {
+                            "auto_f1": scores.f1,
+                            "precision": scores.precision,
+                            "recall": scores.recall,
+                            "truth_px": int(truth[eval_mask].sum()),
+                        }
+                    )
                 rows.append(row)
     out = {"translation_mm": RELOCATED_TRANSLATION_MM, "focal_px": intr.fx, "image_size": [w, h], "pairs": rows}
     for setting in ("campaign", "plain"):
@@ -145,8 +173,12 @@ def _sim_pairs(scenes, seeds, intr, *, detector_options: dict | None) -> tuple[l
         ref_exposure = renderer.render(T_ref, intr, LIGHTINGS[0], want=("gray",)).exposure
         for seed in seeds:
             rng = np.random.default_rng(1000 + seed)
-            ref_images = [renderer.render(T_ref, intr, name, effects=ref_effects, exposure=ref_exposure, rng=rng,
-                                          want=("rgb",)).rgb for name in LIGHTINGS]
+            ref_images = [
+                renderer.render(
+                    T_ref, intr, name, effects=ref_effects, exposure=ref_exposure, rng=rng, want=("rgb",)
+                ).rgb
+                for name in LIGHTINGS
+            ]
             # Relocation residual: 0.5 mm and 0.1 deg in random directions, in the camera frame.
             xi = np.r_[rng.normal(size=3) / np.sqrt(3) * 0.5e-3, rng.normal(size=3) / np.sqrt(3) * np.deg2rad(0.1)]
             T_cur = T_ref @ exp_se3(xi)
@@ -154,17 +186,41 @@ def _sim_pairs(scenes, seeds, intr, *, detector_options: dict | None) -> tuple[l
             truth = renderer.render(T_ref, intr, None, changes=changes, want=("depth",)).change_mask
             for changed in (True, False):
                 t0 = time.perf_counter()
-                cur_images = _render_set(renderer, T_cur, intr, changes=changes if changed else None,
-                                         effects=cur_effects, exposure=ref_exposure * 0.8, rng=rng)
-                result = detect_changes(ref_images, cur_images, pixel_area_mm2=area,
-                                        config=DetectionConfig.from_options(**(detector_options or {})))
-                row = {"scene": scene_name, "seed": seed, "changed": changed, "comparable": result.comparable,
-                       "reason": result.reason, "regions": len(result.regions),
-                       "seconds": time.perf_counter() - t0, "region_mm2": [r.area_mm2 for r in result.regions]}
+                cur_images = _render_set(
+                    renderer,
+                    T_cur,
+                    intr,
+                    changes=changes if changed else None,
+                    effects=cur_effects,
+                    exposure=ref_exposure * 0.8,
+                    rng=rng,
+                )
+                result = detect_changes(
+                    ref_images,
+                    cur_images,
+                    pixel_area_mm2=area,
+                    config=DetectionConfig.from_options(**(detector_options or {})),
+                )
+                row = {
+                    "scene": scene_name,
+                    "seed": seed,
+                    "changed": changed,
+                    "comparable": result.comparable,
+                    "reason": result.reason,
+                    "regions": len(result.regions),
+                    "seconds": time.perf_counter() - t0,
+                    "region_mm2": [r.area_mm2 for r in result.regions],
+                }
                 if changed:
                     scores = binary_scores(result.mask, truth, eval_mask=eval_mask)
-                    row.update({"auto_f1": scores.f1, "precision": scores.precision, "recall": scores.recall,
-                                "truth_px": int(truth[eval_mask].sum())})
+                    row.update(
+                        {
+                            "auto_f1": scores.f1,
+                            "precision": scores.precision,
+                            "recall": scores.recall,
+                            "truth_px": int(truth[eval_mask].sum()),
+                        }
+                    )
                     pairs.append(row)
                 else:
                     unchanged.append(row)
@@ -173,13 +229,20 @@ def _sim_pairs(scenes, seeds, intr, *, detector_options: dict | None) -> tuple[l
 
 def _sim_keys(prefix: str, pairs: list[dict], unchanged: list[dict]) -> dict:
     false_mm2 = [a for r in unchanged for a in r["region_mm2"] if a is not None]
-    return {f"{prefix}_auto_f1": float(np.mean([p["auto_f1"] for p in pairs])) if pairs else float("nan"),
-            f"{prefix}_false_regions_unchanged": int(sum(r["regions"] for r in unchanged)),
-            f"{prefix}_max_false_region_mm2": float(max(false_mm2)) if false_mm2 else 0.0}
+    return {
+        f"{prefix}_auto_f1": float(np.mean([p["auto_f1"] for p in pairs])) if pairs else float("nan"),
+        f"{prefix}_false_regions_unchanged": int(sum(r["regions"] for r in unchanged)),
+        f"{prefix}_max_false_region_mm2": float(max(false_mm2)) if false_mm2 else 0.0,
+    }
 
 
-def run_sim(*, quick: bool, seeds: tuple[int, ...] | None = None, scenes: tuple[str, ...] | None = None,
-            detector_options: dict | None = None) -> dict:
+def run_sim(
+    *,
+    quick: bool,
+    seeds: tuple[int, ...] | None = None,
+    scenes: tuple[str, ...] | None = None,
+    detector_options: dict | None = None,
+) -> dict:
     """Changed and unchanged simulated pairs; auto F1 and false regions.
 
     The pairs are rendered as the simulated camera's stills (``STILL_SUPERSAMPLE``² samples per pixel: a sensor
@@ -199,8 +262,12 @@ def run_sim(*, quick: bool, seeds: tuple[int, ...] | None = None, scenes: tuple[
     heldout = {}
     if fixed_set and not quick:
         h_pairs, h_unchanged = _sim_pairs(scenes, HELDOUT_SEEDS, intr, detector_options=None)
-        heldout = {"heldout_seeds": list(HELDOUT_SEEDS), "heldout_changed_pairs": h_pairs,
-                   "heldout_unchanged_pairs": h_unchanged, **_sim_keys("sim_heldout", h_pairs, h_unchanged)}
+        heldout = {
+            "heldout_seeds": list(HELDOUT_SEEDS),
+            "heldout_changed_pairs": h_pairs,
+            "heldout_unchanged_pairs": h_unchanged,
+            **_sim_keys("sim_heldout", h_pairs, h_unchanged),
+        }
     relocated = run_relocated(quick=quick) if fixed_set else None
     return {
         "available": True,

@@ -33,8 +33,13 @@ from fgcd_cli.campaign import schema
 
 __all__ = ["DATA_FAULTS", "data_fault", "prepare_campaign"]
 
-DATA_FAULTS = ("sigint_during_write", "sigkill_during_write", "enospc_during_write", "two_relocates_at_once",
-               "damaged_reference")
+DATA_FAULTS = (
+    "sigint_during_write",
+    "sigkill_during_write",
+    "enospc_during_write",
+    "two_relocates_at_once",
+    "damaged_reference",
+)
 #: Faults on a whole simulated ``fgcd capture`` (about 90 s each on 2 busy cores): fewer of them per run.
 CAPTURE_FAULTS = ("signal_during_capture", "enospc_during_capture")
 #: Documented exit codes (README, "Errors").
@@ -52,8 +57,11 @@ def prepare_campaign(folder: Path) -> Path:
     camp = init_campaign(path, site="fault bench", rig={"driver": "sim", "sim": {"scene": "stele", "seed": 0}})
     rig = build_sim_rig(scene="stele", config=SimRigConfig(lighting="led:3", seed=0))
     camp.write_rig("handeye", {"T_flange_cam": np.eye(4).tolist()})
-    meta = {"lightings": ["led:3", "led:9"], "driver": "sim",
-            "scenario": {"scene": "stele", "seed": 0, "noise": "default"}}
+    meta = {
+        "lightings": ["led:3", "led:9"],
+        "driver": "sim",
+        "scenario": {"scene": "stele", "seed": 0, "noise": "default"},
+    }
 
     def images() -> dict[str, np.ndarray]:
         out = {}
@@ -90,18 +98,29 @@ class _Case(NamedTuple):
     command: str
 
 
-def _outcome(case: _Case, run, expected, *, campaign, before, allowed=frozenset(),
-             extra: dict | None = None) -> FaultOutcome:
+def _outcome(
+    case: _Case, run, expected, *, campaign, before, allowed=frozenset(), extra: dict | None = None
+) -> FaultOutcome:
     """Judge one fault on its run, the campaign's consistency and the earlier data (``extra``: its details)."""
     fault, seed, command = case
     changed = earlier_changed(before, committed_digests(campaign))
     changed = [c for c in changed if str(campaign / schema.STATIONS_DIR / c) not in allowed]
     problems = campaign_problems(campaign, allowed=set(allowed))
     killed = run.code == -signal.SIGKILL
-    return FaultOutcome(fault=fault, seed=seed, command=command, code=run.code, expected=expected,
-                        stderr_lines=run.failure_lines, traceback=run.traceback, campaign_inconsistent=bool(problems),
-                        earlier_data_changed=bool(changed), one_line_expected=run.code != 0 and not killed,
-                        detail="; ".join(problems + changed) or (run.error_lines or run.lines or [""])[-1], extra=extra or {})
+    return FaultOutcome(
+        fault=fault,
+        seed=seed,
+        command=command,
+        code=run.code,
+        expected=expected,
+        stderr_lines=run.failure_lines,
+        traceback=run.traceback,
+        campaign_inconsistent=bool(problems),
+        earlier_data_changed=bool(changed),
+        one_line_expected=run.code != 0 and not killed,
+        detail="; ".join(problems + changed) or (run.error_lines or run.lines or [""])[-1],
+        extra=extra or {},
+    )
 
 
 def _temporaries(campaign: Path) -> set[Path]:
@@ -128,8 +147,14 @@ def _signal_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
 
     run = run_fgcd(["diff", "-c", str(campaign), "-s", "s1", "--json"], inject=inject)
     expected = (0, EXIT_INTERRUPTED) if sig == signal.SIGINT else (0, -signal.SIGKILL)
-    return _outcome(_Case(fault, seed, "diff -c C -s s1"), run, expected, campaign=campaign, before=before,
-                    extra={"moment": "during a write" if during_write else f"at {delay:.2f} s"})
+    return _outcome(
+        _Case(fault, seed, "diff -c C -s s1"),
+        run,
+        expected,
+        campaign=campaign,
+        before=before,
+        extra={"moment": "during a write" if during_write else f"at {delay:.2f} s"},
+    )
 
 
 def _enospc_fault(seed: int, campaign: Path) -> FaultOutcome:
@@ -137,11 +162,19 @@ def _enospc_fault(seed: int, campaign: Path) -> FaultOutcome:
     rng = np.random.default_rng(seed)
     budget = int(rng.integers(0, 400_000))
     before = committed_digests(campaign)
-    run = run_fgcd(["diff", "-c", str(campaign), "-s", "s1", "--json"], launcher=["fgcd_cli.bench.faults.launch"],
-                   env={"FGCD_BENCH_ENOSPC_AFTER": str(budget),
-                        "FGCD_BENCH_ENOSPC_UNDER": str(campaign / schema.STATIONS_DIR)})
-    return _outcome(_Case("enospc_during_write", seed, "diff -c C -s s1 (disk full)"), run, (0, EXIT_OS),
-                    campaign=campaign, before=before, extra={"budget_bytes": budget})
+    run = run_fgcd(
+        ["diff", "-c", str(campaign), "-s", "s1", "--json"],
+        launcher=["fgcd_cli.bench.faults.launch"],
+        env={"FGCD_BENCH_ENOSPC_AFTER": str(budget), "FGCD_BENCH_ENOSPC_UNDER": str(campaign / schema.STATIONS_DIR)},
+    )
+    return _outcome(
+        _Case("enospc_during_write", seed, "diff -c C -s s1 (disk full)"),
+        run,
+        (0, EXIT_OS),
+        campaign=campaign,
+        before=before,
+        extra={"budget_bytes": budget},
+    )
 
 
 def _lock_holder(campaign: Path, pid: int) -> bool:
@@ -158,18 +191,32 @@ def _two_relocates(seed: int, campaign: Path) -> FaultOutcome:
 
     def inject(first) -> None:
         if wait_until(lambda: _lock_holder(campaign, first.pid), timeout_s=120, proc=first):
-            second["run"] = run_fgcd(["relocate", "-c", str(campaign), "-s", "s1", "--yes", "--session-seed",
-                                      str(seed)])
+            second["run"] = run_fgcd(
+                ["relocate", "-c", str(campaign), "-s", "s1", "--yes", "--session-seed", str(seed)]
+            )
         send_signal(first, signal.SIGINT)
 
     first = run_fgcd(["relocate", "-c", str(campaign), "-s", "s1", "--yes"], inject=inject)
     run = second.get("run")
     if run is None:
-        return FaultOutcome(fault="two_relocates_at_once", seed=seed, command="relocate x2", code=first.code,
-                            expected=(EXIT_CAMPAIGN,), stderr_lines=first.failure_lines, traceback=first.traceback,
-                            detail="the first relocate never held the lock: " + (first.lines or [""])[-1])
-    outcome = _outcome(_Case("two_relocates_at_once", seed, "relocate (second, while the first runs)"), run,
-                       (EXIT_CAMPAIGN,), campaign=campaign, before=before, extra={"first_code": first.code})
+        return FaultOutcome(
+            fault="two_relocates_at_once",
+            seed=seed,
+            command="relocate x2",
+            code=first.code,
+            expected=(EXIT_CAMPAIGN,),
+            stderr_lines=first.failure_lines,
+            traceback=first.traceback,
+            detail="the first relocate never held the lock: " + (first.lines or [""])[-1],
+        )
+    outcome = _outcome(
+        _Case("two_relocates_at_once", seed, "relocate (second, while the first runs)"),
+        run,
+        (EXIT_CAMPAIGN,),
+        campaign=campaign,
+        before=before,
+        extra={"first_code": first.code},
+    )
     outcome.traceback = outcome.traceback or first.traceback
     if first.code not in (EXIT_INTERRUPTED, EXIT_ALGORITHM, 0) or first.failure_lines > 1:
         outcome.detail = f"the first relocate ended with {first.code}: {first.lines[-1:]}"
@@ -192,9 +239,15 @@ def _damaged_reference(seed: int, campaign: Path) -> FaultOutcome:
     try:
         run = run_fgcd(["relocate", "-c", str(campaign), "-s", "s2", "--yes"], timeout_s=120)
         named = any(str(victim) in p for p in campaign_problems(campaign))
-        outcome = _outcome(_Case("damaged_reference", seed, "relocate -s s2 (damaged reference)"), run,
-                           (EXIT_INTEGRITY,), campaign=campaign, before=before, allowed={str(victim)},
-                           extra={"damaged": victim.relative_to(campaign).as_posix()})
+        outcome = _outcome(
+            _Case("damaged_reference", seed, "relocate -s s2 (damaged reference)"),
+            run,
+            (EXIT_INTEGRITY,),
+            campaign=campaign,
+            before=before,
+            allowed={str(victim)},
+            extra={"damaged": victim.relative_to(campaign).as_posix()},
+        )
         if not named:
             outcome.campaign_inconsistent = True
             outcome.detail = f"campaign verify did not name {victim}"
@@ -212,8 +265,24 @@ def calibrate_campaign(campaign: Path) -> None:
         return
     # The faults need a stored hand-eye, not a good one: seed 0's motion pairs fit to 24 mm RMS, over the
     # 12 mm at which `fgcd calibrate hand-eye` refuses to store one (app/calibrate.py, MAX_HANDEYE_RMS_MM).
-    run = run_fgcd(["calibrate", "hand-eye", "-c", str(campaign), "--driver", "sim", "--scene", "stele", "--seed",
-                    "0", "--accept-residual", "--yes", "--json"], timeout_s=1800)
+    run = run_fgcd(
+        [
+            "calibrate",
+            "hand-eye",
+            "-c",
+            str(campaign),
+            "--driver",
+            "sim",
+            "--scene",
+            "stele",
+            "--seed",
+            "0",
+            "--accept-residual",
+            "--yes",
+            "--json",
+        ],
+        timeout_s=1800,
+    )
     if run.code != 0 or open_campaign(campaign).read_rig("handeye") is None:
         raise RuntimeError(f"the bench campaign's hand-eye calibration failed: {(run.lines or ['?'])[-1]}")
     marker.write_text("ok\n")
@@ -227,11 +296,23 @@ def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     args = ["capture", "-c", str(campaign), "-s", station, "--light", "led:3,led:9", "--yes", "--json"]
     if fault == "enospc_during_capture":
         budget = int(rng.integers(0, 1_500_000))  # below the reference's size (two images, cloud)
-        run = run_fgcd(args, launcher=["fgcd_cli.bench.faults.launch"], timeout_s=900,
-                       env={"FGCD_BENCH_ENOSPC_AFTER": str(budget),
-                            "FGCD_BENCH_ENOSPC_UNDER": str(campaign / schema.STATIONS_DIR)})
-        return _outcome(_Case(fault, seed, "capture (disk full)"), run, (0, EXIT_OS), campaign=campaign,
-                        before=before, extra={"budget_bytes": budget})
+        run = run_fgcd(
+            args,
+            launcher=["fgcd_cli.bench.faults.launch"],
+            timeout_s=900,
+            env={
+                "FGCD_BENCH_ENOSPC_AFTER": str(budget),
+                "FGCD_BENCH_ENOSPC_UNDER": str(campaign / schema.STATIONS_DIR),
+            },
+        )
+        return _outcome(
+            _Case(fault, seed, "capture (disk full)"),
+            run,
+            (0, EXIT_OS),
+            campaign=campaign,
+            before=before,
+            extra={"budget_bytes": budget},
+        )
     sig = signal.SIGKILL if rng.random() < 0.5 else signal.SIGINT
     during_write = seed % 2 == 0
     delay = float(rng.uniform(1.0, 40.0))
@@ -246,8 +327,14 @@ def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
 
     run = run_fgcd(args, inject=inject, timeout_s=900)
     expected = (0, EXIT_INTERRUPTED) if sig == signal.SIGINT else (0, -signal.SIGKILL)
-    return _outcome(_Case(fault, seed, f"capture ({sig.name})"), run, expected, campaign=campaign, before=before,
-                    extra={"moment": "during the reference write" if during_write else f"at {delay:.1f} s"})
+    return _outcome(
+        _Case(fault, seed, f"capture ({sig.name})"),
+        run,
+        expected,
+        campaign=campaign,
+        before=before,
+        extra={"moment": "during the reference write" if during_write else f"at {delay:.1f} s"},
+    )
 
 
 def data_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:

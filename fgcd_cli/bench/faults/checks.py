@@ -20,13 +20,28 @@ from fgcd_cli.bench.paths import REPO_ROOT
 from fgcd_cli.campaign.schema import MANIFEST, STATION_FILE, STATIONS_DIR
 from fgcd_cli.campaign.verify import verify_campaign_dir
 
-__all__ = ["FaultOutcome", "FgcdRun", "committed_digests", "campaign_problems", "run_fgcd", "run_fgcd_lines",
-           "wait_until"]
+__all__ = [
+    "FaultOutcome",
+    "FgcdRun",
+    "committed_digests",
+    "campaign_problems",
+    "run_fgcd",
+    "run_fgcd_lines",
+    "wait_until",
+]
 
 #: How the CLI's one failure line starts (``fgcd_cli/cli/app.py``, Failure prefixes).
-FAILURE_PREFIXES = ("error:", "platform error:", "interrupted (Ctrl-C):", "internal error:", "usage error:",
-                    "terminated (SIGTERM):", "hung up (SIGHUP):", "camera error:",
-                    "aborted:")
+FAILURE_PREFIXES = (
+    "error:",
+    "platform error:",
+    "interrupted (Ctrl-C):",
+    "internal error:",
+    "usage error:",
+    "terminated (SIGTERM):",
+    "hung up (SIGHUP):",
+    "camera error:",
+    "aborted:",
+)
 
 ROOT = REPO_ROOT  # the fgcd children run from the repository root, like the tests
 
@@ -52,8 +67,11 @@ class FgcdRun:
         ``platform error:``, ``interrupted (Ctrl-C):``...); any other line carrying ``Error``
         or ``error`` also counts (a library's message reaching the terminal).
         """
-        return [line for line in self.lines
-                if line.startswith(FAILURE_PREFIXES) or "Error" in line or "error" in line.split(":")[0]]
+        return [
+            line
+            for line in self.lines
+            if line.startswith(FAILURE_PREFIXES) or "Error" in line or "error" in line.split(":")[0]
+        ]
 
     @property
     def failure_lines(self) -> int:
@@ -127,30 +145,59 @@ class FaultOutcome:
     def ok(self) -> bool:
         """Every check passed: documented code, one stderr line (none for SIGKILL), nothing left moving or damaged."""
         lines_ok = self.stderr_lines == 1 if self.one_line_expected else self.stderr_lines <= 1
-        return (self.code in self.expected and lines_ok and not self.traceback and not self.platform_left_moving
-                and not self.campaign_inconsistent and not self.earlier_data_changed and not self.resume_failed)
+        return (
+            self.code in self.expected
+            and lines_ok
+            and not self.traceback
+            and not self.platform_left_moving
+            and not self.campaign_inconsistent
+            and not self.earlier_data_changed
+            and not self.resume_failed
+        )
 
     def to_dict(self) -> dict:
         """The JSON row of this fault."""
-        return {"fault": self.fault, "seed": self.seed, "command": self.command, "code": self.code,
-                "expected": list(self.expected), "stderr_lines": self.stderr_lines, "traceback": self.traceback,
-                "platform_left_moving": self.platform_left_moving,
-                "campaign_inconsistent": self.campaign_inconsistent,
-                "earlier_data_changed": self.earlier_data_changed, "resume_failed": self.resume_failed,
-                "ok": self.ok, "landed": self.landed, "detail": self.detail[:300],
-                **self.extra}
+        return {
+            "fault": self.fault,
+            "seed": self.seed,
+            "command": self.command,
+            "code": self.code,
+            "expected": list(self.expected),
+            "stderr_lines": self.stderr_lines,
+            "traceback": self.traceback,
+            "platform_left_moving": self.platform_left_moving,
+            "campaign_inconsistent": self.campaign_inconsistent,
+            "earlier_data_changed": self.earlier_data_changed,
+            "resume_failed": self.resume_failed,
+            "ok": self.ok,
+            "landed": self.landed,
+            "detail": self.detail[:300],
+            **self.extra,
+        }
 
 
-def run_fgcd(args: list[str], *, inject: Callable[[subprocess.Popen], None] | None = None,
-             timeout_s: float = 300.0, launcher: list[str] | None = None, env: dict | None = None) -> FgcdRun:
+def run_fgcd(
+    args: list[str],
+    *,
+    inject: Callable[[subprocess.Popen], None] | None = None,
+    timeout_s: float = 300.0,
+    launcher: list[str] | None = None,
+    env: dict | None = None,
+) -> FgcdRun:
     """Run ``fgcd ARGS`` as a child; ``inject(process)`` runs in a thread meanwhile (the fault).
 
     ``launcher`` replaces ``python -m fgcd_cli.cli.app`` (the ENOSPC launcher).
     """
     command = [sys.executable, "-m", *(launcher or ["fgcd_cli.bench.faults.child"]), *args]  # a terminal's signals
     started = time.monotonic()
-    proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            cwd=ROOT, env={**os.environ, **(env or {})})
+    proc = subprocess.Popen(
+        command,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=ROOT,
+        env={**os.environ, **(env or {})},
+    )
     thread = None
     if inject is not None:
         thread = threading.Thread(target=inject, args=(proc,), daemon=True)
@@ -163,12 +210,18 @@ def run_fgcd(args: list[str], *, inject: Callable[[subprocess.Popen], None] | No
         err += b"\n[bench] the command did not end in time and was killed"
     if thread is not None:
         thread.join(timeout=30)
-    return FgcdRun(code=proc.returncode, stderr=err.decode("utf-8", errors="replace"),
-                   seconds=time.monotonic() - started)
+    return FgcdRun(
+        code=proc.returncode, stderr=err.decode("utf-8", errors="replace"), seconds=time.monotonic() - started
+    )
 
 
-def run_fgcd_lines(args: list[str], *, on_line: Callable[[str, subprocess.Popen], None],
-                   timeout_s: float = 300.0, env: dict | None = None) -> FgcdRun:
+def run_fgcd_lines(
+    args: list[str],
+    *,
+    on_line: Callable[[str, subprocess.Popen], None],
+    timeout_s: float = 300.0,
+    env: dict | None = None,
+) -> FgcdRun:
     """Run ``fgcd ARGS`` as a child, handing each stderr line to ``on_line(line, process)`` as it comes.
 
     The streaming form of :func:`run_fgcd` (whole-operation faults act on the
@@ -179,8 +232,14 @@ def run_fgcd_lines(args: list[str], *, on_line: Callable[[str, subprocess.Popen]
     # the terminal's signal defaults, whatever the bench's own (`faults.child`: a bench run in the background)
     command = [sys.executable, "-m", "fgcd_cli.bench.faults.child", *args]
     started = time.monotonic()
-    proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            cwd=ROOT, env={**os.environ, **(env or {})})
+    proc = subprocess.Popen(
+        command,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=ROOT,
+        env={**os.environ, **(env or {})},
+    )
     lines: list[str] = []
 
     def read_stderr() -> None:
@@ -189,8 +248,10 @@ def run_fgcd_lines(args: list[str], *, on_line: Callable[[str, subprocess.Popen]
             lines.append(line)
             on_line(line, proc)
 
-    readers = [threading.Thread(target=read_stderr, daemon=True),
-               threading.Thread(target=proc.stdout.read, daemon=True)]
+    readers = [
+        threading.Thread(target=read_stderr, daemon=True),
+        threading.Thread(target=proc.stdout.read, daemon=True),
+    ]
     for reader in readers:
         reader.start()
     try:
@@ -242,11 +303,13 @@ def committed_digests(campaign: Path) -> dict[str, str]:
         data = json.loads(manifest.read_text(encoding="utf-8"))
         captured = {k: v for k, v in data.get("files", {}).items() if not v.get("derived", False)}
         out[f"{rel_obs.as_posix()}/{MANIFEST}#captured"] = hashlib.sha256(
-            json.dumps([captured, data.get("metadata")], sort_keys=True).encode()).hexdigest()
+            json.dumps([captured, data.get("metadata")], sort_keys=True).encode()
+        ).hexdigest()
         for relpath in captured:
             path = manifest.parent / relpath
-            out[f"{rel_obs.as_posix()}/{relpath}"] = (hashlib.sha256(path.read_bytes()).hexdigest()
-                                                      if path.is_file() else "missing")
+            out[f"{rel_obs.as_posix()}/{relpath}"] = (
+                hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else "missing"
+            )
     for station_file in sorted(root.glob(f"*/{STATION_FILE}")):
         out.update(_station_record_digests(station_file, station_file.relative_to(root).as_posix()))
     return out
@@ -281,8 +344,11 @@ def earlier_changed(before: dict[str, str], after: dict[str, str]) -> list[str]:
 def campaign_problems(campaign: Path, *, allowed: set[str] = frozenset()) -> list[str]:
     """``fgcd campaign verify``'s errors (warnings such as write leftovers are not errors), minus ``allowed`` paths."""
     report = verify_campaign_dir(Path(campaign))
-    return [f"{p.path}: {p.kind}" for p in report.problems
-            if getattr(p, "severity", "error") == "error" and str(p.path) not in allowed]
+    return [
+        f"{p.path}: {p.kind}"
+        for p in report.problems
+        if getattr(p, "severity", "error") == "error" and str(p.path) not in allowed
+    ]
 
 
 SIGNALS = {"SIGINT": signal.SIGINT, "SIGKILL": signal.SIGKILL, "SIGTERM": signal.SIGTERM, "SIGHUP": signal.SIGHUP}

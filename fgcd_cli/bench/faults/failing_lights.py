@@ -99,7 +99,7 @@ class FaultyLightController(LightControllerEmulator):
         """
         if self.mode in ("stuck", "wrong"):
             return self.revealed
-        since = self.lines_received[self._lines_at_fault:] if self.mode else []
+        since = self.lines_received[self._lines_at_fault :] if self.mode else []
         if since and since[-1].upper().split() == ["ALL", "OFF"]:
             since = since[:-1]
         return bool(since)

@@ -32,11 +32,25 @@ class FsOutcome(FaultOutcome):
 
     def to_dict(self) -> dict:
         """The JSON row of this fault."""
-        return {**super().to_dict(), "leftovers": list(self.leftovers or [])[:10], "file_named": self.file_named,
-                **({"skipped": self.skipped} if self.skipped else {})}
+        return {
+            **super().to_dict(),
+            "leftovers": list(self.leftovers or [])[:10],
+            "file_named": self.file_named,
+            **({"skipped": self.skipped} if self.skipped else {}),
+        }
 
 
 def skipped(fault: str, seed: int, reason: str) -> FsOutcome:
     """The outcome of a fault that could not be injected: not ok, with the reason as its detail."""
-    return FsOutcome(fault=fault, seed=seed, command="(skipped)", code=0, expected=(), stderr_lines=0,
-                     traceback=False, one_line_expected=False, detail=f"skipped: {reason}", skipped=reason)
+    return FsOutcome(
+        fault=fault,
+        seed=seed,
+        command="(skipped)",
+        code=0,
+        expected=(),
+        stderr_lines=0,
+        traceback=False,
+        one_line_expected=False,
+        detail=f"skipped: {reason}",
+        skipped=reason,
+    )

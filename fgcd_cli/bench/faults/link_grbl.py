@@ -75,13 +75,19 @@ def _after_replug(fault: str, emu, port: str, code: int | None) -> tuple[bool, s
     still = emu.state == "Alarm"
     home = run_fgcd([*_grbl("home", port=port), "--yes"], timeout_s=120)
     info.update(refused_move_code=move.code, home_code=home.code)
-    problems = [text for bad, text in (
-        (check.code != EXIT_PLATFORM or check.failure_lines != 1, f"check gave {check.code}: {check.lines[-1:]}"),
-        (move.code != EXIT_PLATFORM or move.failure_lines != 1, f"move gave {move.code}: {move.lines[-1:]}"),
-        (bool(unlocked), f"a connect sent {unlocked}"), (bool(moved), f"a motion line reached the board: {moved}"),
-        (not still, f"the alarm was left before a person homed ({emu.state})"),
-        (home.code != 0 or emu.state != "Idle", f"fgcd platform home gave {home.code}, state {emu.state}"),
-        (check.traceback or move.traceback or home.traceback, "a traceback")) if bad]
+    problems = [
+        text
+        for bad, text in (
+            (check.code != EXIT_PLATFORM or check.failure_lines != 1, f"check gave {check.code}: {check.lines[-1:]}"),
+            (move.code != EXIT_PLATFORM or move.failure_lines != 1, f"move gave {move.code}: {move.lines[-1:]}"),
+            (bool(unlocked), f"a connect sent {unlocked}"),
+            (bool(moved), f"a motion line reached the board: {moved}"),
+            (not still, f"the alarm was left before a person homed ({emu.state})"),
+            (home.code != 0 or emu.state != "Idle", f"fgcd platform home gave {home.code}, state {emu.state}"),
+            (check.traceback or move.traceback or home.traceback, "a traceback"),
+        )
+        if bad
+    ]
     return not problems, "reconnect: " + "; ".join(problems), info
 
 
@@ -96,8 +102,9 @@ def grbl_link_fault(fault: str, seed: int) -> FaultOutcome:
     emu.settings[22] = 1  # homing cycle enabled ($22), so a person can home after an alarm
     seen: dict = {}
     try:
-        run = run_fgcd([*_grbl("move", port=emu.port), "--yes", *GRBL_MOVE],
-                       inject=_cut_mid_move(emu, delay, seen), timeout_s=120)
+        run = run_fgcd(
+            [*_grbl("move", port=emu.port), "--yes", *GRBL_MOVE], inject=_cut_mid_move(emu, delay, seen), timeout_s=120
+        )
         ended = time.monotonic()
         cut = seen.get("cut")
         if cut is not None and alarm is not None:
@@ -105,15 +112,24 @@ def grbl_link_fault(fault: str, seed: int) -> FaultOutcome:
         stop_s = None if cut is None or "stopped" not in seen else seen["stopped"] - cut
         bound = seen.get("block_left_s", 0.0) + STOP_MARGIN_S
         outcome = FaultOutcome(
-            fault=fault, seed=seed, command="platform move --driver grbl (cable pulled)", code=run.code,
-            expected=(EXIT_PLATFORM,) if cut is not None else (0,), stderr_lines=run.failure_lines,
-            traceback=run.traceback, platform_left_moving=cut is not None and (stop_s is None or stop_s > bound),
+            fault=fault,
+            seed=seed,
+            command="platform move --driver grbl (cable pulled)",
+            code=run.code,
+            expected=(EXIT_PLATFORM,) if cut is not None else (0,),
+            stderr_lines=run.failure_lines,
+            traceback=run.traceback,
+            platform_left_moving=cut is not None and (stop_s is None or stop_s > bound),
             detail=(run.error_lines or run.lines or ["the move ended before the cut"])[-1],
             one_line_expected=run.code != 0,
-            extra={"at_s": round(delay, 3), "alarm_during_cut": alarm,
-                   "block_left_at_cut_s": round(seen.get("block_left_s", 0.0), 3),
-                   "board_stopped_after_cut_s": None if stop_s is None else round(stop_s, 3),
-                   "command_ended_after_cut_s": None if cut is None else round(ended - cut, 3)})
+            extra={
+                "at_s": round(delay, 3),
+                "alarm_during_cut": alarm,
+                "block_left_at_cut_s": round(seen.get("block_left_s", 0.0), 3),
+                "board_stopped_after_cut_s": None if stop_s is None else round(stop_s, 3),
+                "command_ended_after_cut_s": None if cut is None else round(ended - cut, 3),
+            },
+        )
         if cut is not None and ended - cut > COMMAND_END_S:
             outcome.expected = ()
             outcome.detail = f"the command ended {ended - cut:.1f} s after the cut (stated {COMMAND_END_S:.1f} s)"

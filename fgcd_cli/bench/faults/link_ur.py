@@ -31,7 +31,7 @@ UR_LINK_FAULTS = ("link_cut_ur_move", "link_cut_ur_idle")
 #: so that a fake controller slow to answer on a machine at load 20 does not fail the move before the cut.
 _TIMEOUT_S = 2.0
 #: ``UR_MOVE`` (60 mm at 10 mm/s: 6 s) with that timeout.
-LINK_MOVE = [*UR_MOVE[:UR_MOVE.index("--timeout")], "--timeout", str(_TIMEOUT_S)]
+LINK_MOVE = [*UR_MOVE[: UR_MOVE.index("--timeout")], "--timeout", str(_TIMEOUT_S)]
 
 
 def _driver_config():
@@ -56,8 +56,20 @@ def _open(fault: str, seed: int, prefer: str):
     try:
         link = open_link(prefer=prefer)
     except LinkUnavailable as exc:
-        return None, None, FaultOutcome(fault=fault, seed=seed, command="-", code=-1, expected=(), stderr_lines=0,
-                                        traceback=False, detail=f"no cuttable link here: {exc}")
+        return (
+            None,
+            None,
+            FaultOutcome(
+                fault=fault,
+                seed=seed,
+                command="-",
+                code=-1,
+                expected=(),
+                stderr_lines=0,
+                traceback=False,
+                detail=f"no cuttable link here: {exc}",
+            ),
+        )
     fake = FakeURProcess(host=link.fake_host, prefix=link.prefix())
     try:
         fake.start()
@@ -72,8 +84,11 @@ def _reconnect(link, fake, *, protective: bool) -> tuple[bool, str, dict]:
     link.restore()
     check = run_fgcd(["platform", "check", "--driver", "ur", "--host", link.address, "--json"], timeout_s=120)
     state = fake.state()
-    info = {"reconnect_code": check.code, "reconnect_s": round(check.seconds, 2),
-            "watchdog_stops": state.get("watchdog_stops")}
+    info = {
+        "reconnect_code": check.code,
+        "reconnect_s": round(check.seconds, 2),
+        "watchdog_stops": state.get("watchdog_stops"),
+    }
     if protective:  # the stop raised while the link was down: reported, and still raised afterwards
         ok = check.code == EXIT_PLATFORM and "protective stop" in check.stderr and state["safety"] & 4 != 0
     else:
@@ -102,11 +117,21 @@ def _moving_cut(seed: int, link, fake) -> FaultOutcome:
         if protective:
             fake.send("protective_stop")
 
-    run = run_fgcd(["platform", "move", "--driver", "ur", "--host", link.address, "--yes", *LINK_MOVE],
-                   inject=inject, timeout_s=120)
+    run = run_fgcd(
+        ["platform", "move", "--driver", "ur", "--host", link.address, "--yes", *LINK_MOVE],
+        inject=inject,
+        timeout_s=120,
+    )
     seen["ended"] = time.monotonic()
-    return _judge(("link_cut_ur_move", seed, "platform move --driver ur (network cut)"), run, seen, link, fake,
-                  protective=protective, extra={"at_s": round(delay, 3)})
+    return _judge(
+        ("link_cut_ur_move", seed, "platform move --driver ur (network cut)"),
+        run,
+        seen,
+        link,
+        fake,
+        protective=protective,
+        extra={"at_s": round(delay, 3)},
+    )
 
 
 def _idle_cut(seed: int, link, fake) -> FaultOutcome:
@@ -118,11 +143,19 @@ def _idle_cut(seed: int, link, fake) -> FaultOutcome:
     if protective:
         fake.send("protective_stop")
     before = fake.state()
-    run = run_fgcd(["platform", "move", "--driver", "ur", "--host", link.address, "--yes", *LINK_MOVE],
-                   timeout_s=120)  # its end is not timed from the cut: the process started after it
+    run = run_fgcd(
+        ["platform", "move", "--driver", "ur", "--host", link.address, "--yes", *LINK_MOVE], timeout_s=120
+    )  # its end is not timed from the cut: the process started after it
     seen["stopped"] = seen["cut"] if before["moving"] == 0 and fake.state()["moving"] == 0 else None
-    return _judge(("link_cut_ur_idle", seed, "platform move --driver ur (network down)"), run, seen, link, fake,
-                  protective=protective, extra={})
+    return _judge(
+        ("link_cut_ur_idle", seed, "platform move --driver ur (network down)"),
+        run,
+        seen,
+        link,
+        fake,
+        protective=protective,
+        extra={},
+    )
 
 
 def _judge(case, run, seen: dict, link, fake, *, protective: bool, extra: dict) -> FaultOutcome:
@@ -139,12 +172,25 @@ def _judge(case, run, seen: dict, link, fake, *, protective: bool, extra: dict) 
     else:
         stop_s = None if stopped is None else stopped - cut
     left_moving = cut is not None and (stop_s is None or stop_s > config.link_stop_s + STOP_MARGIN_S)
-    outcome = FaultOutcome(fault=fault, seed=seed, command=command, code=run.code, expected=expected,
-                           stderr_lines=run.failure_lines, traceback=run.traceback, platform_left_moving=left_moving,
-                           detail=detail, one_line_expected=run.code != 0,
-                           extra={**extra, "link": link.kind, "protective_during_cut": protective,
-                                  "arm_stopped_after_cut_s": None if stop_s is None else round(stop_s, 3),
-                                  "stated_stop_s": round(config.link_stop_s, 3)})
+    outcome = FaultOutcome(
+        fault=fault,
+        seed=seed,
+        command=command,
+        code=run.code,
+        expected=expected,
+        stderr_lines=run.failure_lines,
+        traceback=run.traceback,
+        platform_left_moving=left_moving,
+        detail=detail,
+        one_line_expected=run.code != 0,
+        extra={
+            **extra,
+            "link": link.kind,
+            "protective_during_cut": protective,
+            "arm_stopped_after_cut_s": None if stop_s is None else round(stop_s, 3),
+            "stated_stop_s": round(config.link_stop_s, 3),
+        },
+    )
     if cut is not None and "ended" in seen:
         ended_s = seen["ended"] - cut
         outcome.extra["command_ended_after_cut_s"] = round(ended_s, 3)

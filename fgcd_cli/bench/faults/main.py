@@ -40,22 +40,31 @@ from fgcd_cli.bench.faults.motion import GRBL_FAULTS, UR_FAULTS, grbl_fault, ur_
 __all__ = ["FAULT_CLASSES", "GROUPS", "group_of", "run", "run_fault", "summarize"]
 
 #: The groups of fault classes beyond the single-move and campaign ones: summary key -> its modules.
-GROUP_MODULES = {"whole_operation_faults": ("fgcd_cli.bench.faults.whole", "fgcd_cli.bench.faults.wired"),
-                 "real_fs_full_faults": ("fgcd_cli.bench.faults.real_fs",),
-                 "link_cut_faults": ("fgcd_cli.bench.faults.link_cuts",),
-                 "power_loss_points": ("fgcd_cli.bench.faults.power",)}
+GROUP_MODULES = {
+    "whole_operation_faults": ("fgcd_cli.bench.faults.whole", "fgcd_cli.bench.faults.wired"),
+    "real_fs_full_faults": ("fgcd_cli.bench.faults.real_fs",),
+    "link_cut_faults": ("fgcd_cli.bench.faults.link_cuts",),
+    "power_loss_points": ("fgcd_cli.bench.faults.power",),
+}
 #: Fault class -> the module that injects it.
-_MODULE_OF = {fault: module for names in GROUP_MODULES.values() for module in map(importlib.import_module, names)
-              for fault in module.FAULTS}
+_MODULE_OF = {
+    fault: module
+    for names in GROUP_MODULES.values()
+    for module in map(importlib.import_module, names)
+    for fault in module.FAULTS
+}
 #: Summary key -> its fault classes.
-GROUPS = {key: tuple(f for name in names for f in importlib.import_module(name).FAULTS)
-          for key, names in GROUP_MODULES.items()}
+GROUPS = {
+    key: tuple(f for name in names for f in importlib.import_module(name).FAULTS)
+    for key, names in GROUP_MODULES.items()
+}
 FAULT_CLASSES = GRBL_FAULTS + UR_FAULTS + DATA_FAULTS + CAPTURE_FAULTS + tuple(c for g in GROUPS.values() for c in g)
 
 
 def group_of(fault: str) -> str | None:
     """The summary key of the group ``fault`` belongs to (None: the single-move and campaign classes)."""
     return next((key for key, classes in GROUPS.items() if fault in classes), None)
+
 
 #: Faults per class: the full run tries 15 x 14 + 3 x 2 = 216 (a simulated capture takes about 90 s: its
 #: classes run a fifth as often); the quick one 3 x 14 = 42, without the capture classes.
@@ -86,8 +95,9 @@ def summarize(outcomes: list[FaultOutcome]) -> dict:
         "earlier_data_changed": sum(o.earlier_data_changed for o in outcomes),
         "tracebacks": sum(o.traceback for o in outcomes),
         "unexpected_exit_codes": sum(o.code not in o.expected for o in outcomes),
-        "stderr_not_one_line": sum((o.stderr_lines != 1) if o.one_line_expected else (o.stderr_lines > 1)
-                                   for o in outcomes),
+        "stderr_not_one_line": sum(
+            (o.stderr_lines != 1) if o.one_line_expected else (o.stderr_lines > 1) for o in outcomes
+        ),
         "faults_ok": sum(o.ok for o in outcomes),
         # a group counts the faults that reached their command; the others are counted apart
         **{key: sum(group_of(o.fault) == key and o.landed for o in outcomes) for key in GROUPS},
@@ -96,14 +106,21 @@ def summarize(outcomes: list[FaultOutcome]) -> dict:
         "resume_not_said": sum(o.resume_failed for o in outcomes),
         # faults that could not be injected on this machine (no tmpfs mount): not ok, counted apart
         "skipped": sum(bool(getattr(o, "skipped", "")) for o in outcomes),
-        "whole_operation_classes": len({o.fault for o in outcomes
-                                        if group_of(o.fault) == "whole_operation_faults" and o.landed}),
+        "whole_operation_classes": len(
+            {o.fault for o in outcomes if group_of(o.fault) == "whole_operation_faults" and o.landed}
+        ),
     }
 
 
-def run(*, quick: bool = False, seed: int = 0, classes: tuple[str, ...] | None = None,
-        per_class: int | None = None, workdir: Path | None = None,
-        on_progress: Callable[[int, int, str], None] | None = None) -> dict:
+def run(
+    *,
+    quick: bool = False,
+    seed: int = 0,
+    classes: tuple[str, ...] | None = None,
+    per_class: int | None = None,
+    workdir: Path | None = None,
+    on_progress: Callable[[int, int, str], None] | None = None,
+) -> dict:
     """Run the fault campaign; a JSON-able dict with ``summary``, ``by_class`` and one row per fault.
 
     Parameters
@@ -137,20 +154,38 @@ def run(*, quick: bool = False, seed: int = 0, classes: tuple[str, ...] | None =
     summary = summarize(outcomes)
     summary["seconds"] = round(time.monotonic() - started, 1)
     by_class = {c: summarize([o for o in outcomes if o.fault == c]) for c in chosen}
-    return {"bench": "faults", "quick": quick, "seed": seed, "summary": summary,
-            "targets": {"faults_tried": 200, "fault_classes": 10, "platform_left_moving": 0,
-                        "campaign_inconsistent": 0, "earlier_data_changed": 0, "tracebacks": 0,
-                        **({} if quick else TARGETS)},
-            "by_class": by_class, "faults": [o.to_dict() for o in outcomes]}
+    return {
+        "bench": "faults",
+        "quick": quick,
+        "seed": seed,
+        "summary": summary,
+        "targets": {
+            "faults_tried": 200,
+            "fault_classes": 10,
+            "platform_left_moving": 0,
+            "campaign_inconsistent": 0,
+            "earlier_data_changed": 0,
+            "tracebacks": 0,
+            **({} if quick else TARGETS),
+        },
+        "by_class": by_class,
+        "faults": [o.to_dict() for o in outcomes],
+    }
 
 
 #: Targets of the full run for the groups (issue "Faults in the middle of real work").
-TARGETS = {"whole_operation_faults": 60, "whole_operation_classes": 8, "real_fs_full_faults": 10,
-           "link_cut_faults": 10, "power_loss_points": 50}
+TARGETS = {
+    "whole_operation_faults": 60,
+    "whole_operation_classes": 8,
+    "real_fs_full_faults": 10,
+    "link_cut_faults": 10,
+    "power_loss_points": 50,
+}
 
 
-def _plan(chosen: tuple[str, ...], *, quick: bool, seed: int, per_class: int | None,
-          explicit: bool) -> list[tuple[str, int]]:
+def _plan(
+    chosen: tuple[str, ...], *, quick: bool, seed: int, per_class: int | None, explicit: bool
+) -> list[tuple[str, int]]:
     """``(fault, k)`` pairs to run: fault ``k`` of its class gets seed ``1000 * seed + k``.
 
     Classes of a group run ``PER_CLASS_FULL`` of their module each in the full run; the quick run keeps one
@@ -167,6 +202,10 @@ def _plan(chosen: tuple[str, ...], *, quick: bool, seed: int, per_class: int | N
             continue
         plan += [(c, k) for c in picked for k in range(per_class or _MODULE_OF[c].PER_CLASS_FULL)]
     rest = [c for c in chosen if group_of(c) is None]
-    plan = [(fault, k) for k in range(count) for fault in rest
-            if fault not in CAPTURE_FAULTS or k < max(1, count // 5) or per_class is not None] + plan
+    plan = [
+        (fault, k)
+        for k in range(count)
+        for fault in rest
+        if fault not in CAPTURE_FAULTS or k < max(1, count // 5) or per_class is not None
+    ] + plan
     return plan

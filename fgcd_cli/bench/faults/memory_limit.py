@@ -88,19 +88,42 @@ def memory_fault(seed: int, campaign: Path):
         return skipped("memory_limit_diff", seed, "the FGCD dataset's group Db-1 is not there to make a 24 MP pair")
     out = Path(tempfile.mkdtemp(prefix="fgcd-memdiff-", dir=str(Path(campaign).parent))) / "out"
     try:
-        run = run_fgcd(["diff", "--ref", ",".join(str(pair / f"ref-{k}.png") for k in LIGHTINGS),
-                        "--cur", ",".join(str(pair / f"cur-{k}.png") for k in LIGHTINGS), "-o", str(out), "--json"],
-                       launcher=["fgcd_cli.bench.faults.memory_limit"], env={"FGCD_BENCH_RLIMIT_AS_MB": str(limit_mb)},
-                       timeout_s=1800)
+        run = run_fgcd(
+            [
+                "diff",
+                "--ref",
+                ",".join(str(pair / f"ref-{k}.png") for k in LIGHTINGS),
+                "--cur",
+                ",".join(str(pair / f"cur-{k}.png") for k in LIGHTINGS),
+                "-o",
+                str(out),
+                "--json",
+            ],
+            launcher=["fgcd_cli.bench.faults.memory_limit"],
+            env={"FGCD_BENCH_RLIMIT_AS_MB": str(limit_mb)},
+            timeout_s=1800,
+        )
         bad = _incomplete(out) if out.exists() else []
         missing = [name for name in REQUIRED if run.code == 0 and not (out / name).is_file()]
         lines = run.error_lines or run.lines or [""]
         detail = "; ".join([f"half-written {b}" for b in bad] + [f"missing {m}" for m in missing]) or lines[-1]
-        return FsOutcome(fault="memory_limit_diff", seed=seed, command=f"diff 24 MP (RLIMIT_AS {limit_mb} MiB)",
-                         code=run.code, expected=CODES, stderr_lines=run.failure_lines, traceback=run.traceback,
-                         one_line_expected=run.code != 0, detail=detail, leftovers=bad + missing,
-                         extra={"limit_mb": limit_mb, "seconds": round(run.seconds, 1),
-                                "products": sorted(p.name for p in out.iterdir()) if out.exists() else []})
+        return FsOutcome(
+            fault="memory_limit_diff",
+            seed=seed,
+            command=f"diff 24 MP (RLIMIT_AS {limit_mb} MiB)",
+            code=run.code,
+            expected=CODES,
+            stderr_lines=run.failure_lines,
+            traceback=run.traceback,
+            one_line_expected=run.code != 0,
+            detail=detail,
+            leftovers=bad + missing,
+            extra={
+                "limit_mb": limit_mb,
+                "seconds": round(run.seconds, 1),
+                "products": sorted(p.name for p in out.iterdir()) if out.exists() else [],
+            },
+        )
     finally:
         shutil.rmtree(out.parent, ignore_errors=True)
 

@@ -69,18 +69,30 @@ def grbl_fault(fault: str, seed: int) -> FaultOutcome:
     emu = GrblEmulator(time_scale=1.0)
     try:
         inject, delay = _grbl_inject(emu, fault, rng)
-        run = run_fgcd(["platform", "move", "--driver", "grbl", "--port", emu.port, "--yes", *GRBL_MOVE],
-                       inject=inject, timeout_s=120)
+        run = run_fgcd(
+            ["platform", "move", "--driver", "grbl", "--port", emu.port, "--yes", *GRBL_MOVE],
+            inject=inject,
+            timeout_s=120,
+        )
         could_stop = fault not in ("grbl_link_dropped", "grbl_frozen")
         moving = emu.moving() if could_stop else not wait_until(lambda: not emu.moving(), timeout_s=BLOCK_END_S)
         expected = (0, EXIT_PLATFORM) if fault == "grbl_garbage" else (EXIT_PLATFORM,)
         # a fault that lands after arrival (the delay is drawn inside a nominal 1 s move) is no fault: exit 0 is right
         if run.code == 0 and fault != "grbl_garbage":
             expected = (0, EXIT_PLATFORM)
-        return FaultOutcome(fault=fault, seed=seed, command="platform move --driver grbl", code=run.code,
-                            expected=expected, stderr_lines=run.failure_lines, traceback=run.traceback,
-                            platform_left_moving=moving, detail=(run.error_lines or run.lines or [""])[-1],
-                            one_line_expected=run.code != 0, extra={"at_s": round(delay, 3)})
+        return FaultOutcome(
+            fault=fault,
+            seed=seed,
+            command="platform move --driver grbl",
+            code=run.code,
+            expected=expected,
+            stderr_lines=run.failure_lines,
+            traceback=run.traceback,
+            platform_left_moving=moving,
+            detail=(run.error_lines or run.lines or [""])[-1],
+            one_line_expected=run.code != 0,
+            extra={"at_s": round(delay, 3)},
+        )
     finally:
         emu.close()
 
@@ -89,8 +101,12 @@ def ur_fault(fault: str, seed: int, fake) -> FaultOutcome:
     """One UR fault mid-move on a fresh fake controller process ``fake`` (started, fixed ports)."""
     rng = np.random.default_rng(seed)
     delay = float(rng.uniform(0.5, 4.0))  # inside the 6 s move, after the client has connected and started it
-    command = {"ur_protective_stop": "protective_stop", "ur_emergency_stop": "emergency_stop",
-               "ur_frozen": "freeze", "ur_link_dropped": "disconnect"}[fault]
+    command = {
+        "ur_protective_stop": "protective_stop",
+        "ur_emergency_stop": "emergency_stop",
+        "ur_frozen": "freeze",
+        "ur_link_dropped": "disconnect",
+    }[fault]
 
     def inject(proc) -> None:
         if not wait_until(lambda: fake.state()["moving"] == 1, timeout_s=60, proc=proc):
@@ -98,9 +114,19 @@ def ur_fault(fault: str, seed: int, fake) -> FaultOutcome:
         time.sleep(delay)
         fake.send(command)
 
-    run = run_fgcd(["platform", "move", "--driver", "ur", "--host", "127.0.0.1", "--yes", *UR_MOVE],
-                   inject=inject, timeout_s=120)
+    run = run_fgcd(
+        ["platform", "move", "--driver", "ur", "--host", "127.0.0.1", "--yes", *UR_MOVE], inject=inject, timeout_s=120
+    )
     moving = not wait_until(lambda: fake.state()["moving"] == 0, timeout_s=0.5)
-    return FaultOutcome(fault=fault, seed=seed, command="platform move --driver ur", code=run.code,
-                        expected=(EXIT_PLATFORM,), stderr_lines=run.failure_lines, traceback=run.traceback,
-                        platform_left_moving=moving, detail=(run.error_lines or run.lines or [""])[-1], extra={"at_s": round(delay, 3)})
+    return FaultOutcome(
+        fault=fault,
+        seed=seed,
+        command="platform move --driver ur",
+        code=run.code,
+        expected=(EXIT_PLATFORM,),
+        stderr_lines=run.failure_lines,
+        traceback=run.traceback,
+        platform_left_moving=moving,
+        detail=(run.error_lines or run.lines or [""])[-1],
+        extra={"at_s": round(delay, 3)},
+    )

@@ -86,8 +86,17 @@ def _launch_env(campaign: Path, log: Path, fault: str) -> dict:
 
 
 def _relocate_args(campaign: Path, station: str, seed: int, *, resume: bool) -> list[str]:
-    return ["relocate", "-c", str(campaign), "-s", station, "--session-seed", str(seed % 1000 + 1),
-            *RELOCATE_OPTIONS, *(["--resume"] if resume else [])]
+    return [
+        "relocate",
+        "-c",
+        str(campaign),
+        "-s",
+        station,
+        "--session-seed",
+        str(seed % 1000 + 1),
+        *RELOCATE_OPTIONS,
+        *(["--resume"] if resume else []),
+    ]
 
 
 def event_counts(campaign: Path, station: str) -> dict:
@@ -109,20 +118,26 @@ def event_counts(campaign: Path, station: str) -> dict:
         return json.loads(path.read_text(encoding="utf-8"))
     with tempfile.TemporaryDirectory(prefix="fgcd-power-") as tmp:
         log = Path(tmp) / "events.log"  # every event under stations/: each class's filter is applied below
-        run = run_fgcd(_relocate_args(campaign, station, 0, resume=False), timeout_s=_TIMEOUT_S,
-                       launcher=["fgcd_cli.bench.faults.power_launch"],
-                       env={"FGCD_BENCH_POWER_UNDER": str(campaign / schema.STATIONS_DIR),
-                            "FGCD_BENCH_POWER_LOG": str(log)})
+        run = run_fgcd(
+            _relocate_args(campaign, station, 0, resume=False),
+            timeout_s=_TIMEOUT_S,
+            launcher=["fgcd_cli.bench.faults.power_launch"],
+            env={"FGCD_BENCH_POWER_UNDER": str(campaign / schema.STATIONS_DIR), "FGCD_BENCH_POWER_LOG": str(log)},
+        )
         events, _ = read_log(log)
     write_start = f"/{schema.VISITS_DIR}/{TMP_PREFIX}"
     first = next((i for i, e in enumerate(events) if write_start in e.path), None)
     journal = [e for e in events if schema.VISIT_JOURNAL in e.path]
     if run.code != 0 or first is None or not journal:
         raise RuntimeError(f"the power-loss counting run failed ({run.code}): {(run.lines or ['?'])[-1]}")
-    counts = {"power_loss_visit_write": {"events": len(events) - first,
-                                         "seconds": events[-1].seconds - events[first].seconds},
-              "power_loss_journal": {"events": len(journal), "seconds": journal[-1].seconds - journal[0].seconds},
-              "relocate_seconds": round(run.seconds, 1)}
+    counts = {
+        "power_loss_visit_write": {
+            "events": len(events) - first,
+            "seconds": events[-1].seconds - events[first].seconds,
+        },
+        "power_loss_journal": {"events": len(journal), "seconds": journal[-1].seconds - journal[0].seconds},
+        "relocate_seconds": round(run.seconds, 1),
+    }
     path.write_text(json.dumps(counts) + "\n", encoding="utf-8")
     return counts
 
@@ -137,16 +152,21 @@ def _instant(fault: str, seed: int, count: dict) -> _Instant:
     draw = rng.random()
     if fault == "power_loss_journal":
         if draw < REMOVAL_SHARE:
-            return _Instant(env={"FGCD_BENCH_POWER_EVENT": "os.remove", "FGCD_BENCH_POWER_AT": "1"},
-                            text="before the journal's removal")
+            return _Instant(
+                env={"FGCD_BENCH_POWER_EVENT": "os.remove", "FGCD_BENCH_POWER_AT": "1"},
+                text="before the journal's removal",
+            )
         lines = max(count["events"] - 1, 1)
         n = int(rng.integers(1, lines + 1))
-        return _Instant(env={"FGCD_BENCH_POWER_EVENT": "open", "FGCD_BENCH_POWER_AT": str(n)},
-                        text=f"before journal line write {n} of {lines}")
+        return _Instant(
+            env={"FGCD_BENCH_POWER_EVENT": "open", "FGCD_BENCH_POWER_AT": str(n)},
+            text=f"before journal line write {n} of {lines}",
+        )
     if draw < JITTERED_SHARE:
         delay = float(rng.uniform(0.0, 1.1 * max(count["seconds"], 0.1)))
-        return _Instant(env={"FGCD_BENCH_POWER_DELAY_S": f"{delay:.4f}"},
-                        text=f"{delay:.3f} s after the write's first event")
+        return _Instant(
+            env={"FGCD_BENCH_POWER_DELAY_S": f"{delay:.4f}"}, text=f"{delay:.3f} s after the write's first event"
+        )
     n = int(rng.integers(1, count["events"] + 1))
     return _Instant(env={"FGCD_BENCH_POWER_AT": str(n)}, text=f"before event {n} of {count['events']}")
 
@@ -154,8 +174,13 @@ def _instant(fault: str, seed: int, count: dict) -> _Instant:
 def leftovers(station_path: Path) -> set[str]:
     """What an interrupted write of the station leaves on disk: store temporaries, the journal, unindexed visits."""
     visits = station_path / schema.VISITS_DIR
-    out = {str(p) for parent in (station_path, visits) if parent.is_dir()
-           for p in parent.iterdir() if p.name.startswith(TMP_PREFIX)}
+    out = {
+        str(p)
+        for parent in (station_path, visits)
+        if parent.is_dir()
+        for p in parent.iterdir()
+        if p.name.startswith(TMP_PREFIX)
+    }
     if (visits / schema.VISIT_JOURNAL).exists():
         out.add(str(visits / schema.VISIT_JOURNAL))
     try:
@@ -163,8 +188,11 @@ def leftovers(station_path: Path) -> set[str]:
     except (OSError, ValueError, KeyError, TypeError):
         index = set()
     if visits.is_dir():
-        out |= {str(p) for p in visits.iterdir() if p.is_dir() and not p.name.startswith(".")
-                and f"{schema.VISITS_DIR}/{p.name}" not in index}
+        out |= {
+            str(p)
+            for p in visits.iterdir()
+            if p.is_dir() and not p.name.startswith(".") and f"{schema.VISITS_DIR}/{p.name}" not in index
+        }
     return out
 
 
@@ -179,8 +207,11 @@ def judge_verify(campaign: Path, station_path: Path, before: set[tuple]) -> tupl
     wrong = [f"{p.path}: {p.kind} ({p.severity}) outside the write" for p in new if not p.path.startswith(scope)]
     wrong += [f"{p.path}: {p.kind} is an error ({p.detail})" for p in new if p.severity == "error"]
     named = {p.path for p in report.problems}
-    wrong += [f"{path}: left on disk, not named by campaign verify" for path in sorted(leftovers(station_path))
-              if path not in named]
+    wrong += [
+        f"{path}: left on disk, not named by campaign verify"
+        for path in sorted(leftovers(station_path))
+        if path not in named
+    ]
     return wrong, new
 
 
@@ -210,14 +241,22 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     problems_before = {(p.path, p.kind, p.detail) for p in verify_campaign_dir(campaign).problems}
     with tempfile.TemporaryDirectory(prefix="fgcd-power-") as tmp:
         log = Path(tmp) / "events.log"
-        run = run_fgcd(_relocate_args(campaign, station, seed, resume=fault == "power_loss_visit_write"),
-                       launcher=["fgcd_cli.bench.faults.power_launch"], timeout_s=_TIMEOUT_S,
-                       env={**_launch_env(campaign, log, fault), **instant.env})
+        run = run_fgcd(
+            _relocate_args(campaign, station, seed, resume=fault == "power_loss_visit_write"),
+            launcher=["fgcd_cli.bench.faults.power_launch"],
+            timeout_s=_TIMEOUT_S,
+            env={**_launch_env(campaign, log, fault), **instant.env},
+        )
         events, kill = read_log(log)
     changed = earlier_changed(before, committed_digests(campaign))
     wrong, new = judge_verify(campaign, station_path, problems_before)
-    extra = {"instant": instant.text, "killed": kill.path[:160] if kill else None, "events_done": len(events),
-             "seconds": round(run.seconds, 1), "left": sorted({f"{p.kind}:{Path(p.path).name[:24]}" for p in new})}
+    extra = {
+        "instant": instant.text,
+        "killed": kill.path[:160] if kill else None,
+        "events_done": len(events),
+        "seconds": round(run.seconds, 1),
+        "left": sorted({f"{p.kind}:{Path(p.path).name[:24]}" for p in new}),
+    }
     _clean(new)
     revisit_failed = False
     if seed % REVISIT_EVERY == REVISIT_EVERY - 1:
@@ -229,10 +268,21 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     killed = run.code == -signal.SIGKILL
     # the plan's kill, or (its instant never came: the write ended first) a revisit that succeeded
     expected = () if revisit_failed else (-signal.SIGKILL,) if kill is not None else (0,)
-    return FaultOutcome(fault=fault, seed=seed, command=f"relocate -s {station} ({instant.text})", code=run.code,
-                        expected=expected, stderr_lines=run.failure_lines, traceback=run.traceback,
-                        campaign_inconsistent=bool(wrong), earlier_data_changed=bool(changed),
-                        one_line_expected=run.code != 0 and not killed,
-                        detail="; ".join(wrong + changed + ([f"the new revisit failed: {extra['revisit_line']}"]
-                                                            if revisit_failed else []))
-                        or (run.error_lines or run.lines or [""])[-1], extra=extra, landed=kill is not None)
+    return FaultOutcome(
+        fault=fault,
+        seed=seed,
+        command=f"relocate -s {station} ({instant.text})",
+        code=run.code,
+        expected=expected,
+        stderr_lines=run.failure_lines,
+        traceback=run.traceback,
+        campaign_inconsistent=bool(wrong),
+        earlier_data_changed=bool(changed),
+        one_line_expected=run.code != 0 and not killed,
+        detail="; ".join(
+            wrong + changed + ([f"the new revisit failed: {extra['revisit_line']}"] if revisit_failed else [])
+        )
+        or (run.error_lines or run.lines or [""])[-1],
+        extra=extra,
+        landed=kill is not None,
+    )

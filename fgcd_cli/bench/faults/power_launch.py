@@ -38,9 +38,25 @@ from pathlib import Path
 __all__ = ["LoggedEvent", "PowerPlan", "install_power_loss", "read_log", "write_event_path"]
 
 #: Audit events that change the file system (``open`` only with a writing flag).
-WRITE_EVENTS = frozenset({"open", "os.rename", "os.remove", "os.mkdir", "os.rmdir", "os.chmod", "os.truncate",
-                          "os.link", "os.symlink", "shutil.rmtree", "shutil.move", "shutil.copyfile",
-                          "shutil.copytree", "shutil.copymode", "shutil.copystat"})
+WRITE_EVENTS = frozenset(
+    {
+        "open",
+        "os.rename",
+        "os.remove",
+        "os.mkdir",
+        "os.rmdir",
+        "os.chmod",
+        "os.truncate",
+        "os.link",
+        "os.symlink",
+        "shutil.rmtree",
+        "shutil.move",
+        "shutil.copyfile",
+        "shutil.copytree",
+        "shutil.copymode",
+        "shutil.copystat",
+    }
+)
 _WRITE_FLAGS = os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_TRUNC | os.O_APPEND
 #: The audit argument that holds a relative path's ``dir_fd`` (``shutil.rmtree`` works through descriptors).
 _DIR_FD_ARG = {"os.remove": 1, "os.rmdir": 1, "os.mkdir": 2, "os.chmod": 2, "os.rename": 2}
@@ -81,10 +97,15 @@ class PowerPlan:
         """The plan of the ``FGCD_BENCH_POWER_*`` variables."""
         env = os.environ if env is None else env
         at, delay = env.get("FGCD_BENCH_POWER_AT", ""), env.get("FGCD_BENCH_POWER_DELAY_S", "")
-        return cls(under=env["FGCD_BENCH_POWER_UNDER"], start=env.get("FGCD_BENCH_POWER_FROM", ""),
-                   only=env.get("FGCD_BENCH_POWER_ONLY", ""), event=env.get("FGCD_BENCH_POWER_EVENT", ""),
-                   kill_at=int(at) if at else None, delay_s=float(delay) if delay else None,
-                   log=env.get("FGCD_BENCH_POWER_LOG") or None)
+        return cls(
+            under=env["FGCD_BENCH_POWER_UNDER"],
+            start=env.get("FGCD_BENCH_POWER_FROM", ""),
+            only=env.get("FGCD_BENCH_POWER_ONLY", ""),
+            event=env.get("FGCD_BENCH_POWER_EVENT", ""),
+            kill_at=int(at) if at else None,
+            delay_s=float(delay) if delay else None,
+            log=env.get("FGCD_BENCH_POWER_LOG") or None,
+        )
 
 
 @dataclass(frozen=True)

@@ -52,8 +52,14 @@ from fgcd_cli.campaign import schema
 __all__ = ["FAULTS", "PER_CLASS_FULL", "FsOutcome", "inject"]
 
 #: The quick run keeps one class of the group, ``FAULTS[seed % 6]``: the cheapest (a diff, ~40 s) comes first.
-FAULTS: tuple[str, ...] = ("fs_full_diff", "fs_full_archive", "readonly_campaign", "fs_full_capture",
-                           "fs_full_relocate", "memory_limit_diff")
+FAULTS: tuple[str, ...] = (
+    "fs_full_diff",
+    "fs_full_archive",
+    "readonly_campaign",
+    "fs_full_capture",
+    "fs_full_relocate",
+    "memory_limit_diff",
+)
 #: Two faults per class: 12 in the full run (a capture or a revisit takes minutes on 2 busy cores).
 PER_CLASS_FULL = 2
 
@@ -86,7 +92,6 @@ COMMANDS = {
     # archive analyze: a visit whose task failed is one line of its summary and exit 3 (docs/archive.md)
     "archive": _Command(name="archive", stations=("s1",), codes=(EXIT_OK, EXIT_OS, EXIT_CAMPAIGN), timeout_s=1200),
 }
-
 
 
 def _copy_campaign(campaign: Path, dest: Path, stations: tuple[str, ...]) -> Path:
@@ -156,8 +161,13 @@ def stray_lines(run: FgcdRun, point: Path) -> list[str]:
     ``Matplotlib created a temporary cache directory ...``) carries none, and is caught here by what it names.
     """
     errors = set(run.error_lines)
-    return [line for line in run.lines if line not in errors and not line.startswith(VISIT_FAILED)
-            and (str(point) in line or "Errno" in line or "arning" in line)]
+    return [
+        line
+        for line in run.lines
+        if line not in errors
+        and not line.startswith(VISIT_FAILED)
+        and (str(point) in line or "Errno" in line or "arning" in line)
+    ]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -172,8 +182,9 @@ class _Judged:
     leftovers_checked: bool = True
 
 
-def judge(fault: str, seed: int, command: str, run: FgcdRun, codes: tuple[int, ...], ctx: _Judged,
-          extra: dict) -> FsOutcome:
+def judge(
+    fault: str, seed: int, command: str, run: FgcdRun, codes: tuple[int, ...], ctx: _Judged, extra: dict
+) -> FsOutcome:
     """Judge one fault on its run, the campaign copy and what the small file system holds (before unmounting)."""
     changed = earlier_changed(ctx.before, committed_digests(ctx.copy))
     problems = campaign_problems(ctx.copy)
@@ -186,12 +197,27 @@ def judge(fault: str, seed: int, command: str, run: FgcdRun, codes: tuple[int, .
     detail = "; ".join(problems + changed + [f"left {p}" for p in leftovers[:3]] + stray[:2]) or lines[-1]
     if not named:
         detail = f"the failure does not name a file on the small file system: {lines[-1]}"
-    return FsOutcome(fault=fault, seed=seed, command=command, code=run.code, expected=codes,
-                     stderr_lines=run.failure_lines - len(visits_failed) + len(stray), traceback=run.traceback,
-                     campaign_inconsistent=bool(problems), earlier_data_changed=bool(changed),
-                     one_line_expected=run.code != EXIT_OK, detail=detail, leftovers=leftovers, file_named=named,
-                     extra={**extra, "seconds": round(run.seconds, 1), "stray_lines": stray[:5],
-                            "visit_failures": visits_failed[:3]})
+    return FsOutcome(
+        fault=fault,
+        seed=seed,
+        command=command,
+        code=run.code,
+        expected=codes,
+        stderr_lines=run.failure_lines - len(visits_failed) + len(stray),
+        traceback=run.traceback,
+        campaign_inconsistent=bool(problems),
+        earlier_data_changed=bool(changed),
+        one_line_expected=run.code != EXIT_OK,
+        detail=detail,
+        leftovers=leftovers,
+        file_named=named,
+        extra={
+            **extra,
+            "seconds": round(run.seconds, 1),
+            "stray_lines": stray[:5],
+            "visit_failures": visits_failed[:3],
+        },
+    )
 
 
 def _full_fault(fault: str, seed: int, campaign: Path) -> FsOutcome:
@@ -209,9 +235,15 @@ def _full_fault(fault: str, seed: int, campaign: Path) -> FsOutcome:
         before = committed_digests(copy)
         free = fill_to(point, leave)
         run = run_fgcd(_args(name, copy, seed), env=env, timeout_s=spec.timeout_s)
-        return judge(fault, seed, f"{name} (disk full{', HOME/TMPDIR too' if outside else ''})", run, spec.codes,
-                     _Judged(copy=copy, point=point, before=before, env=env, strerror=NO_SPACE),
-                     {"free_bytes": free, "free_after": free_bytes(point), "outside_env": outside})
+        return judge(
+            fault,
+            seed,
+            f"{name} (disk full{', HOME/TMPDIR too' if outside else ''})",
+            run,
+            spec.codes,
+            _Judged(copy=copy, point=point, before=before, env=env, strerror=NO_SPACE),
+            {"free_bytes": free, "free_after": free_bytes(point), "outside_env": outside},
+        )
 
 
 def _readonly_fault(seed: int, campaign: Path) -> FsOutcome:
@@ -228,9 +260,15 @@ def _readonly_fault(seed: int, campaign: Path) -> FsOutcome:
         before = committed_digests(copy)
         remount_readonly(point)
         run = run_fgcd(_args(name, copy, seed), env=env, timeout_s=spec.timeout_s)
-        return judge("readonly_campaign", seed, f"{name} (read-only campaign{', HOME/TMPDIR too' if outside else ''})",
-                     run, codes, _Judged(copy=copy, point=point, before=before, env=env, strerror=READ_ONLY),
-                     {"outside_env": outside})
+        return judge(
+            "readonly_campaign",
+            seed,
+            f"{name} (read-only campaign{', HOME/TMPDIR too' if outside else ''})",
+            run,
+            codes,
+            _Judged(copy=copy, point=point, before=before, env=env, strerror=READ_ONLY),
+            {"outside_env": outside},
+        )
 
 
 def _prepare_source(command: str, campaign: Path) -> None:

@@ -33,8 +33,10 @@ def prepare_real_station(campaign: Path, station: str = REAL_STATION) -> str:
     reference = Path(campaign) / schema.STATIONS_DIR / station / schema.REFERENCE_DIR / schema.MANIFEST
     if reference.is_file():
         return station
-    run = run_fgcd(["capture", "-c", str(campaign), "-s", station, "--light", REAL_STATION_LIGHTS, "--yes",
-                    "--json"], timeout_s=1800)
+    run = run_fgcd(
+        ["capture", "-c", str(campaign), "-s", station, "--light", REAL_STATION_LIGHTS, "--yes", "--json"],
+        timeout_s=1800,
+    )
     if run.code != 0 or not reference.is_file():
         raise RuntimeError(f"the bench station's capture failed: {(run.lines or ['?'])[-1]}")
     return station

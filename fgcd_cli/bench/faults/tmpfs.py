@@ -18,8 +18,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["MountUnavailable", "fill_to", "free_bytes", "mount_refusal", "remount_readonly", "small_fs",
-           "tree_bytes"]
+__all__ = ["MountUnavailable", "fill_to", "free_bytes", "mount_refusal", "remount_readonly", "small_fs", "tree_bytes"]
 
 #: Bytes the filler writes per call (the last write is cut to the byte count that stays free).
 CHUNK = 1 << 20

@@ -33,11 +33,27 @@ from fgcd_cli.bench.faults.checks import FaultOutcome, FgcdRun, fresh_station, r
 from fgcd_cli.bench.faults.station import REAL_STATION_LIGHTS, prepare_real_station
 from fgcd_cli.campaign import schema
 
-__all__ = ["CAPTURE_PHASES", "FAULTS", "PER_CLASS_FULL", "PhaseTracker", "RELOCATE_PHASES", "inject", "phase_of",
-           "resume_mode"]
+__all__ = [
+    "CAPTURE_PHASES",
+    "FAULTS",
+    "PER_CLASS_FULL",
+    "PhaseTracker",
+    "RELOCATE_PHASES",
+    "inject",
+    "phase_of",
+    "resume_mode",
+]
 
-FAULTS = ("capture_sigint", "capture_sigkill", "capture_sigterm", "relocate_sigint", "relocate_sigkill",
-          "relocate_sigterm", "relocate_sighup", "relocate_light_stuck")
+FAULTS = (
+    "capture_sigint",
+    "capture_sigkill",
+    "capture_sigterm",
+    "relocate_sigint",
+    "relocate_sigkill",
+    "relocate_sigterm",
+    "relocate_sighup",
+    "relocate_light_stuck",
+)
 #: 8 classes x 5 = 40 faults here; with the wired group's 4 x 5 the whole-operation group tries 60 over 12 classes.
 PER_CLASS_FULL = 5
 
@@ -60,8 +76,14 @@ RELOCATE_PHASES = ("exploration", "alignment_wait", "adjustment_motion", "image_
 CAPTURE_PHASES = ("exploration", "stills", "writing")
 #: The longest seeded delay into each phase, s: inside its usual length on 2 busy cores (a delay that outlasts
 #: the phase hits the next one; the row's ``phase_at_fault`` says which).
-PHASE_DELAY_S = {"exploration": 20.0, "alignment_wait": 3.0, "adjustment_motion": 2.0, "image_stage": 4.0,
-                 "stills": 4.0, "writing": 0.3}
+PHASE_DELAY_S = {
+    "exploration": 20.0,
+    "alignment_wait": 3.0,
+    "adjustment_motion": 2.0,
+    "image_stage": 4.0,
+    "stills": 4.0,
+    "writing": 0.3,
+}
 
 
 def phase_of(line: str) -> str | None:
@@ -206,26 +228,36 @@ def _expected(sig: int, state: dict, natural: tuple[int, ...]) -> tuple[int, ...
 
 
 def _timing(tracker: PhaseTracker, delay: float) -> dict:
-    return {"phase": tracker.target, "delay_s": round(delay, 2), "phase_at_fault": tracker.fired_in,
-            "phases_seen": tracker.phases_seen[:12]}
+    return {
+        "phase": tracker.target,
+        "delay_s": round(delay, 2),
+        "phase_at_fault": tracker.fired_in,
+        "phases_seen": tracker.phases_seen[:12],
+    }
 
 
 def _capture_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     """``fgcd capture`` of a new station, signalled at a seeded instant of a seeded phase."""
     calibrate_campaign(campaign)
-    sig = {"capture_sigint": signal.SIGINT, "capture_sigkill": signal.SIGKILL,
-           "capture_sigterm": signal.SIGTERM}[fault]
+    sig = {"capture_sigint": signal.SIGINT, "capture_sigkill": signal.SIGKILL, "capture_sigterm": signal.SIGTERM}[fault]
     phase, delay, _ = _draw(fault, seed)
     station = fresh_station(campaign, f"{fault.replace('_', '-')}-{seed}")  # a new station per fault
     reference = campaign / schema.STATIONS_DIR / station / schema.REFERENCE_DIR / schema.MANIFEST
     before, left, state = _snapshot(campaign)
-    tracker = PhaseTracker(phase, delay, _signal_action(sig, state, reference.is_file), watch=campaign,
-                           order=CAPTURE_PHASES)
-    run = _run_tracked(["capture", "-c", str(campaign), "-s", station, "--light", REAL_STATION_LIGHTS, "--yes"],
-                       tracker, left)
-    outcome = _outcome(_Case(fault, seed, f"capture ({sig.name} in {phase})"), run,
-                       _expected(sig, state, (EXIT_OK,)), campaign=campaign, before=before,
-                       extra=_timing(tracker, delay))
+    tracker = PhaseTracker(
+        phase, delay, _signal_action(sig, state, reference.is_file), watch=campaign, order=CAPTURE_PHASES
+    )
+    run = _run_tracked(
+        ["capture", "-c", str(campaign), "-s", station, "--light", REAL_STATION_LIGHTS, "--yes"], tracker, left
+    )
+    outcome = _outcome(
+        _Case(fault, seed, f"capture ({sig.name} in {phase})"),
+        run,
+        _expected(sig, state, (EXIT_OK,)),
+        campaign=campaign,
+        before=before,
+        extra=_timing(tracker, delay),
+    )
     outcome.landed = bool(state.get("sent"))
     return outcome
 
@@ -258,29 +290,46 @@ def _resume(outcome: FaultOutcome, campaign: Path, station: str) -> FaultOutcome
     run = run_fgcd(_relocate_args(campaign, station, resume=True), timeout_s=1800)
     mode = resume_mode(run.stderr)
     said = next((line for line in run.lines if resume_mode(line)), "")
-    outcome.extra.update({"resume": mode, "resume_reason": said, "resume_code": run.code,
-                          "resume_s": round(run.seconds, 1)})
+    outcome.extra.update(
+        {"resume": mode, "resume_reason": said, "resume_code": run.code, "resume_s": round(run.seconds, 1)}
+    )
     if mode is None or run.code not in (EXIT_OK, EXIT_NOT_CONVERGED) or run.traceback:
         outcome.resume_failed = True
-        outcome.detail = (f"the resume ended with {run.code} ({mode or 'saying neither continued nor started over'}): "
-                          + (run.lines or [""])[-1])
+        outcome.detail = (
+            f"the resume ended with {run.code} ({mode or 'saying neither continued nor started over'}): "
+            + (run.lines or [""])[-1]
+        )
     return outcome
 
 
 def _relocate_signal_fault(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     """``fgcd relocate -s real`` signalled at a seeded instant of a seeded phase, then ``--resume``."""
     station = prepare_real_station(campaign)
-    sig = {"relocate_sigint": signal.SIGINT, "relocate_sigkill": signal.SIGKILL, "relocate_sigterm": signal.SIGTERM,
-           "relocate_sighup": signal.SIGHUP}[fault]
+    sig = {
+        "relocate_sigint": signal.SIGINT,
+        "relocate_sigkill": signal.SIGKILL,
+        "relocate_sigterm": signal.SIGTERM,
+        "relocate_sighup": signal.SIGHUP,
+    }[fault]
     phase, delay, _ = _draw(fault, seed)
     before, left, state = _snapshot(campaign)
     visits = _visits(campaign, station)
-    tracker = PhaseTracker(phase, delay, _signal_action(sig, state, lambda: _visits(campaign, station) > visits),
-                           watch=campaign, order=RELOCATE_PHASES)
+    tracker = PhaseTracker(
+        phase,
+        delay,
+        _signal_action(sig, state, lambda: _visits(campaign, station) > visits),
+        watch=campaign,
+        order=RELOCATE_PHASES,
+    )
     run = _run_tracked(_relocate_args(campaign, station), tracker, left)
-    outcome = _outcome(_Case(fault, seed, f"relocate -s {station} ({sig.name} in {phase})"), run,
-                       _expected(sig, state, (EXIT_OK, EXIT_NOT_CONVERGED)), campaign=campaign, before=before,
-                       extra=_timing(tracker, delay))
+    outcome = _outcome(
+        _Case(fault, seed, f"relocate -s {station} ({sig.name} in {phase})"),
+        run,
+        _expected(sig, state, (EXIT_OK, EXIT_NOT_CONVERGED)),
+        campaign=campaign,
+        before=before,
+        extra=_timing(tracker, delay),
+    )
     outcome.landed = bool(state.get("sent"))
     return _resume(outcome, campaign, station)
 
@@ -312,11 +361,20 @@ def _light_fault(seed: int, campaign: Path) -> FaultOutcome:
             run = _run_tracked(_relocate_args(campaign, station), tracker, left)
             shown = lights.showed_fault and not state.get("committed_before")
             expected = (EXIT_PLATFORM,) if shown else (EXIT_OK, EXIT_NOT_CONVERGED, EXIT_PLATFORM)
-            extra = {**_timing(tracker, delay), "light_fault": mode, "shown_to_fgcd": lights.showed_fault,
-                     "commands_after_fault": lights.commands_since_fault}
-            outcome = _outcome(_Case("relocate_light_stuck", seed, f"relocate -s {station} (lights {mode} in {phase})"),
-                               run, expected, campaign=campaign, before=before,
-                               extra=extra)
+            extra = {
+                **_timing(tracker, delay),
+                "light_fault": mode,
+                "shown_to_fgcd": lights.showed_fault,
+                "commands_after_fault": lights.commands_since_fault,
+            }
+            outcome = _outcome(
+                _Case("relocate_light_stuck", seed, f"relocate -s {station} (lights {mode} in {phase})"),
+                run,
+                expected,
+                campaign=campaign,
+                before=before,
+                extra=extra,
+            )
             outcome.landed = bool(lights.showed_fault)
             lights.mode = None  # the operator has fixed the controller
             lights.set_silent(False)

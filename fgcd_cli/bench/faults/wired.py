@@ -39,11 +39,26 @@ from fgcd_cli.bench.faults.motion import BLOCK_END_S, EXIT_PLATFORM
 from fgcd_cli.bench.faults.wired_rig import ENV_LOG, ENV_TARGET
 from fgcd_cli.campaign import schema
 
-__all__ = ["FAULTS", "PER_CLASS_FULL", "STATIONS", "WiredPlan", "clean_revisit", "draw_plan", "inject",
-           "prepare_wired_station"]
+__all__ = [
+    "FAULTS",
+    "PER_CLASS_FULL",
+    "STATIONS",
+    "WiredPlan",
+    "clean_revisit",
+    "draw_plan",
+    "inject",
+    "prepare_wired_station",
+]
 
-FAULTS = ("relocate_grbl_link_lost", "relocate_grbl_alarm", "relocate_grbl_silent", "relocate_grbl_garbage",
-          "relocate_ur_protective_stop", "relocate_ur_link_lost", "relocate_ur_frozen")
+FAULTS = (
+    "relocate_grbl_link_lost",
+    "relocate_grbl_alarm",
+    "relocate_grbl_silent",
+    "relocate_grbl_garbage",
+    "relocate_ur_protective_stop",
+    "relocate_ur_link_lost",
+    "relocate_ur_frozen",
+)
 PER_CLASS_FULL = 5
 #: The wired stations of the bench campaign, captured once each through the launcher.
 STATIONS = {"grbl": "wired-grbl", "ur": "wired-ur"}
@@ -59,8 +74,11 @@ GRBL_TRAVEL_MM, GRBL_START_MM = 400.0, -200.0
 UR_PORTS_WAIT_S = 300.0
 #: Faults whose stop can still reach the controller (the others: no stop can travel).
 _CAN_STOP = ("relocate_grbl_alarm", "relocate_grbl_garbage", "relocate_ur_protective_stop")
-_UR_COMMANDS = {"relocate_ur_protective_stop": "protective_stop", "relocate_ur_link_lost": "disconnect",
-                "relocate_ur_frozen": "freeze"}
+_UR_COMMANDS = {
+    "relocate_ur_protective_stop": "protective_stop",
+    "relocate_ur_link_lost": "disconnect",
+    "relocate_ur_frozen": "freeze",
+}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -190,8 +208,12 @@ def prepare_wired_station(campaign: Path, kind: str) -> str:
         return station
     with tempfile.TemporaryDirectory(prefix="fgcd-wired-") as tmp, _controller(kind) as side:
         log = Path(tmp) / "motions.jsonl"
-        run = run_fgcd(["capture", "-c", str(campaign), "-s", station, "--light", "led:3,led:9", "--yes", "--json"],
-                       launcher=["fgcd_cli.bench.faults.wired_launch"], env=_wired(side, log), timeout_s=1800)
+        run = run_fgcd(
+            ["capture", "-c", str(campaign), "-s", station, "--light", "led:3,led:9", "--yes", "--json"],
+            launcher=["fgcd_cli.bench.faults.wired_launch"],
+            env=_wired(side, log),
+            timeout_s=1800,
+        )
         if run.code != 0 or not reference.is_file():
             raise RuntimeError(f"the wired {kind} station's capture failed: {(run.lines or ['?'])[-1]}")
     return station
@@ -204,8 +226,17 @@ def _revisit_args(campaign: Path, kind: str, session_seed: int, *, guided: bool 
     sub-millimetre step; a fault meant for the adjustments explores with the
     fixed pattern (``--no-guided``), whose adjustments travel the whole offset.
     """
-    args = ["relocate", "-c", str(campaign), "-s", STATIONS[kind], "--yes", "--json", "--session-seed",
-            str(session_seed)]
+    args = [
+        "relocate",
+        "-c",
+        str(campaign),
+        "-s",
+        STATIONS[kind],
+        "--yes",
+        "--json",
+        "--session-seed",
+        str(session_seed),
+    ]
     return args + (["--start-offset-deg", "0"] if kind == "grbl" else []) + ([] if guided else ["--no-guided"])
 
 
@@ -224,16 +255,29 @@ def clean_revisit(campaign: Path, kind: str, *, session_seed: int = 1, guided: b
                     side.moving()
                     time.sleep(0.05)
 
-            run = run_fgcd(_revisit_args(campaign, kind, session_seed, guided=guided), inject=watch,
-                           launcher=["fgcd_cli.bench.faults.wired_launch"], env=_wired(side, log), timeout_s=1800)
+            run = run_fgcd(
+                _revisit_args(campaign, kind, session_seed, guided=guided),
+                inject=watch,
+                launcher=["fgcd_cli.bench.faults.wired_launch"],
+                env=_wired(side, log),
+                timeout_s=1800,
+            )
             done.set()
         else:
-            run = run_fgcd(_revisit_args(campaign, kind, session_seed, guided=guided),
-                           launcher=["fgcd_cli.bench.faults.wired_launch"], env=_wired(side, log), timeout_s=1800)
+            run = run_fgcd(
+                _revisit_args(campaign, kind, session_seed, guided=guided),
+                launcher=["fgcd_cli.bench.faults.wired_launch"],
+                env=_wired(side, log),
+                timeout_s=1800,
+            )
         motions = _motions(log)
-        return {"code": run.code, "seconds": round(run.seconds, 1), "motions": {p: motions.count(p) for p in
-                                                                               set(motions)},
-                "emulator_travel_mm": round(side.travelled_mm(), 2), "last_line": (run.lines or [""])[-1]}
+        return {
+            "code": run.code,
+            "seconds": round(run.seconds, 1),
+            "motions": {p: motions.count(p) for p in set(motions)},
+            "emulator_travel_mm": round(side.travelled_mm(), 2),
+            "last_line": (run.lines or [""])[-1],
+        }
 
 
 def _motions(log: Path) -> list[str]:
@@ -294,8 +338,13 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     with tempfile.TemporaryDirectory(prefix="fgcd-wired-") as tmp, _controller(kind) as side:
         log = Path(tmp) / "motions.jsonl"
         args = _revisit_args(campaign, kind, 1 + seed % 1000, guided=plan.phase == "exploration")
-        run = run_fgcd(args, inject=_injector(side, plan, log, record),
-                       launcher=["fgcd_cli.bench.faults.wired_launch"], env=_wired(side, log), timeout_s=1200)
+        run = run_fgcd(
+            args,
+            inject=_injector(side, plan, log, record),
+            launcher=["fgcd_cli.bench.faults.wired_launch"],
+            env=_wired(side, log),
+            timeout_s=1200,
+        )
         moving = _left_moving(side, fault)
         motions = len(_motions(log))
         watchdog = side.watchdog_stops() if kind == "ur" else None
@@ -304,12 +353,31 @@ def inject(fault: str, seed: int, campaign: Path) -> FaultOutcome:
     expected = (0, 6, EXIT_PLATFORM) if fault == "relocate_grbl_garbage" else (EXIT_PLATFORM,)
     if "missed" in record:
         expected = ()  # the fault never hit a motion: not a pass, whatever the exit
-    extra = {"phase": plan.phase, "motion": plan.motion + 1, "delay_s": round(plan.delay_s, 3),
-             "motions": motions, "attempts": record.get("attempts"), "travelled_mm": record.get("travelled_mm"),
-             "moved_after_s": record.get("moved_after_s"), "watchdog_stops": watchdog}
+    extra = {
+        "phase": plan.phase,
+        "motion": plan.motion + 1,
+        "delay_s": round(plan.delay_s, 3),
+        "motions": motions,
+        "attempts": record.get("attempts"),
+        "travelled_mm": record.get("travelled_mm"),
+        "moved_after_s": record.get("moved_after_s"),
+        "watchdog_stops": watchdog,
+    }
     line = (run.error_lines or run.lines or [""])[-1]
     detail = "; ".join(problems + changed) or (f"{record['missed']}: {line}" if "missed" in record else line)
-    return FaultOutcome(fault=fault, seed=seed, command=f"relocate (wired {kind})", code=run.code, expected=expected,
-                        stderr_lines=run.failure_lines, traceback=run.traceback, platform_left_moving=moving,
-                        campaign_inconsistent=bool(problems), earlier_data_changed=bool(changed), detail=detail,
-                        one_line_expected=run.code != 0, extra=extra, landed="missed" not in record)
+    return FaultOutcome(
+        fault=fault,
+        seed=seed,
+        command=f"relocate (wired {kind})",
+        code=run.code,
+        expected=expected,
+        stderr_lines=run.failure_lines,
+        traceback=run.traceback,
+        platform_left_moving=moving,
+        campaign_inconsistent=bool(problems),
+        earlier_data_changed=bool(changed),
+        detail=detail,
+        one_line_expected=run.code != 0,
+        extra=extra,
+        landed="missed" not in record,
+    )

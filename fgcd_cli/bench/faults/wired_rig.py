@@ -29,8 +29,16 @@ import numpy as np
 
 from fgcd_core.se3 import invert_pose
 
-__all__ = ["ENV_LOG", "ENV_TARGET", "FrameMap", "WiredPlatform", "inner_workspace", "install_wired_rig",
-           "open_driver", "parse_target"]
+__all__ = [
+    "ENV_LOG",
+    "ENV_TARGET",
+    "FrameMap",
+    "WiredPlatform",
+    "inner_workspace",
+    "install_wired_rig",
+    "open_driver",
+    "parse_target",
+]
 
 #: ``grbl:/dev/pts/N`` or ``ur:127.0.0.1``: the driver the launcher wires in.
 ENV_TARGET = "FGCD_BENCH_WIRED"
@@ -133,10 +141,12 @@ class WiredPlatform:
         """The driver's capabilities, its workspace seen from the simulated frame (:func:`inner_workspace`)."""
         caps = self.driver.capabilities()
         own = self.sim.capabilities()
-        lo, hi = inner_workspace(caps, self._home_driver, self.sim.T_base_flange_home, own.workspace_min_m,
-                                 own.workspace_max_m)
-        return dataclasses.replace(caps, workspace_min_m=tuple(float(v) for v in lo),
-                                   workspace_max_m=tuple(float(v) for v in hi))
+        lo, hi = inner_workspace(
+            caps, self._home_driver, self.sim.T_base_flange_home, own.workspace_min_m, own.workspace_max_m
+        )
+        return dataclasses.replace(
+            caps, workspace_min_m=tuple(float(v) for v in lo), workspace_max_m=tuple(float(v) for v in hi)
+        )
 
     def flange_pose(self) -> np.ndarray:
         """The driver's reported pose, in the simulated frame."""
@@ -150,9 +160,12 @@ class WiredPlatform:
         result = self.driver.move_to(self.map.to_driver(T_base_flange), speed_fraction=speed_fraction)
         self._last = self.map.to_sim(result.T_base_flange_reached)
         self.clock.advance(max(0.0, float(result.duration_s)))
-        return dataclasses.replace(result, T_base_flange_target=np.asarray(T_base_flange, float),
-                                   T_base_flange_reached=self._last.copy(),
-                                   T_base_flange_commanded=self.map.to_sim(result.T_base_flange_commanded))
+        return dataclasses.replace(
+            result,
+            T_base_flange_target=np.asarray(T_base_flange, float),
+            T_base_flange_reached=self._last.copy(),
+            T_base_flange_commanded=self.map.to_sim(result.T_base_flange_commanded),
+        )
 
     def stop(self) -> None:
         """The driver's stop."""

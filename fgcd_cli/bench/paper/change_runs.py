@@ -30,17 +30,32 @@ def _score(spec: RunSpec, run: dict, out: Path, worlds: dict, say) -> dict:
     station = camp.station(station_name(spec.reference_light))
     diff = run_campaign(CampaignDiffRequest(campaign=camp.path, station=station.name, visit=run["visit"]))
     w = spec.world
-    row = {"experiment": "s55", "case": spec.case, "label": spec.label, "method": run.get("method"),
-           "scene": w.scene, "afd_px": run.get("afd_px"), "pose_err_mm": run.get("pose_err_mm"),
-           "relocation_success": run.get("success"), "comparable": diff.get("comparable"),
-           "regions": len(diff.get("regions", []))}
+    row = {
+        "experiment": "s55",
+        "case": spec.case,
+        "label": spec.label,
+        "method": run.get("method"),
+        "scene": w.scene,
+        "afd_px": run.get("afd_px"),
+        "pose_err_mm": run.get("pose_err_mm"),
+        "relocation_success": run.get("success"),
+        "comparable": diff.get("comparable"),
+        "regions": len(diff.get("regions", [])),
+    }
     if diff.get("comparable", True):
-        row.update(score_visit_changes(station.visit(run["visit"]), station, scenario=visit_scenario(spec), X=X,
-                                       camera=camera, injected=VISIT_CHANGES["changes"]))
+        row.update(
+            score_visit_changes(
+                station.visit(run["visit"]),
+                station,
+                scenario=visit_scenario(spec),
+                X=X,
+                camera=camera,
+                injected=VISIT_CHANGES["changes"],
+            )
+        )
     else:
         row["f1"] = 0.0  # the diff refused the pair: nothing detected is nothing found
-    say(f"s55 {spec.case} {spec.label}: change F1 {row.get('f1', float('nan')):.2f} "
-        f"after AFD {row['afd_px']:.2f} px")
+    say(f"s55 {spec.case} {spec.label}: change F1 {row.get('f1', float('nan')):.2f} after AFD {row['afd_px']:.2f} px")
     return row
 
 

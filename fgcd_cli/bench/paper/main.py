@@ -40,8 +40,16 @@ from fgcd_cli.campaign.atomic import atomic_write_json
 __all__ = ["QUICK", "plan", "run", "summarise"]
 
 
-def run(*, quick: bool, out: Path, experiments: tuple[str, ...] = EXPERIMENTS,
-        cases: list[str] | None = None, say=lambda _m: None, on_progress=None, deterministic: bool = False) -> dict:
+def run(
+    *,
+    quick: bool,
+    out: Path,
+    experiments: tuple[str, ...] = EXPERIMENTS,
+    cases: list[str] | None = None,
+    say=lambda _m: None,
+    on_progress=None,
+    deterministic: bool = False,
+) -> dict:
     """Run (or resume) the experiments; returns ``{"summary", "targets", "paper", "runs", "out"}``.
 
     ``deterministic``: the rACR runs with their threads stepped in a fixed order (runs already in ``out`` are
@@ -87,16 +95,32 @@ def _run_spec(spec: RunSpec, out: Path, worlds: dict, say, *, deterministic: boo
         station = ensure_station(camp, spec.world, spec.reference_light, X, camera, say=say)
     except FgcdError as exc:
         say(f"{spec.world.name}: set-up failed: {exc}")
-        return {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
-                "error": f"setup: {exc}", "success": False, "afd_px": None}
+        return {
+            "experiment": spec.experiment,
+            "case": spec.case,
+            "label": spec.label,
+            "method": str(spec.method),
+            "error": f"setup: {exc}",
+            "success": False,
+            "afd_px": None,
+        }
     return run_one(spec, camp, station, X, camera, say=say, deterministic=deterministic)
 
 
 # ----------------------------------------------------------------------------- summary
 #: The paper's published figures (paper 000, Tables 2, 3, 5) beside ours.
-PAPER = {"racr_success": "20/20", "racr_mean_afd_px": 1.46, "racr_mean_iterations": 5.3, "racr_mean_rig_s": 61.1,
-         "acr_success": "6/20", "acr_mean_afd_px": 20.1, "acr_mean_iterations": 18.6, "acr_mean_rig_s": 316.7,
-         "parallel_rig_s": 59.5, "serial_rig_s": 84.6}
+PAPER = {
+    "racr_success": "20/20",
+    "racr_mean_afd_px": 1.46,
+    "racr_mean_iterations": 5.3,
+    "racr_mean_rig_s": 61.1,
+    "acr_success": "6/20",
+    "acr_mean_afd_px": 20.1,
+    "acr_mean_iterations": 18.6,
+    "acr_mean_rig_s": 316.7,
+    "parallel_rig_s": 59.5,
+    "serial_rig_s": 84.6,
+}
 #: Issue 21's targets.
 TARGETS = {"racr_success_rate": 1.0, "racr_mean_afd_px": 0.5, "racr_mean_rig_s": 30.0, "led_sweep_success_rate": 1.0}
 
@@ -121,8 +145,9 @@ def _method_summary(rows: list[dict], prefix: str) -> dict:
         f"{prefix}_mean_platform_s": _mean(r.get("platform_s") for r in ok),
         # AFD hides a sideways shift that a small turn compensates: the true camera-position error beside it
         f"{prefix}_mean_pose_err_mm": _mean(r.get("pose_err_mm") for r in rows),
-        f"{prefix}_max_pose_err_mm": max((float(r["pose_err_mm"]) for r in rows if r.get("pose_err_mm") is not None),
-                                          default=math.nan),
+        f"{prefix}_max_pose_err_mm": max(
+            (float(r["pose_err_mm"]) for r in rows if r.get("pose_err_mm") is not None), default=math.nan
+        ),
     }
 
 
@@ -144,8 +169,9 @@ def summarise(results: list[dict]) -> dict:
     summary["led_sweep_runs"] = len(sweep)
     summary["led_sweep_success_rate"] = (sum(bool(r.get("success")) for r in sweep) / len(sweep)) if sweep else math.nan
     acr_sweep = _rows(results, "fig7", "acr")
-    summary["acr_led_sweep_success_rate"] = (sum(bool(r.get("success")) for r in acr_sweep) / len(acr_sweep)
-                                             if acr_sweep else math.nan)
+    summary["acr_led_sweep_success_rate"] = (
+        sum(bool(r.get("success")) for r in acr_sweep) / len(acr_sweep) if acr_sweep else math.nan
+    )
     summary.update(_more_summary(results))
     return summary
 
@@ -159,7 +185,9 @@ def _more_summary(results: list[dict]) -> dict:
     sparse = _rows(results, "fig6", "racr-sparse")
     out.update(_method_summary(sparse, "fig6_sparse"))
     cases = {r["case"] for r in sparse}
-    out.update(_method_summary([r for r in _rows(results, "pure", "racr-pure") if r["case"] in cases], "fig6_semidense"))
+    out.update(
+        _method_summary([r for r in _rows(results, "pure", "racr-pure") if r["case"] in cases], "fig6_semidense")
+    )
     out.update(_method_summary(_rows(results, "pure", "racr-pure"), "pure_racr"))
     for experiment in ("fig12", "fig4"):
         for label in sorted({r["label"] for r in results if r.get("experiment") == experiment}):

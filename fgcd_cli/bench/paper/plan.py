@@ -19,8 +19,15 @@ __all__ = ["EXPERIMENTS", "QUICK", "TABLE4_CASES", "plan"]
 EXPERIMENTS = ("table2", "table5", "fig7", "table3", "table4", "fig4", "fig6", "fig12", "s55", "revisit")
 #: ``--quick``: one or two cases per experiment, sized for <= 30 min on 2 cores (the time: docs/benchmarks.md,
 #: "rACR beside the ACR baseline (`fgcd bench paper`)").
-QUICK = {"cases": ("indoor-2", "outdoor-1"), "one_case": ("indoor-2",), "fig7_scenes": ("relief_panel",),
-         "fig7_clock": (9,), "table4": ("W1",), "fig12": ("alpha-1.0", "no-S"), "fig4": (0.08,)}
+QUICK = {
+    "cases": ("indoor-2", "outdoor-1"),
+    "one_case": ("indoor-2",),
+    "fig7_scenes": ("relief_panel",),
+    "fig7_clock": (9,),
+    "table4": ("W1",),
+    "fig12": ("alpha-1.0", "no-S"),
+    "fig4": (0.08,),
+}
 FIG7_REFERENCE = "led:12"
 FIG7_OFFSET = (30.0, 3.0)  # mm, deg: the start of the 20 cases' median
 #: The paper's S1-3 (Fig. 12, Fig. 4) and S1-5 (Fig. 6): the first indoor cases.
@@ -28,7 +35,8 @@ ABLATION_CASES = ("indoor-1", "indoor-2", "indoor-3")
 VSE_CASES = ("indoor-1", "indoor-2", "indoor-3", "indoor-4", "indoor-5")
 #: Fig. 12a: alpha over [0, 1] (0.2, the default, is Table 2's run); Fig. 12b: the ablations.
 FIG12_VARIANTS = tuple((f"alpha-{a:.1f}", a, "") for a in (0.0, 0.4, 0.6, 0.8, 1.0)) + tuple(
-    (f"no-{x}", 0.2, x) for x in ("P", "F", "S"))
+    (f"no-{x}", 0.2, x) for x in ("P", "F", "S")
+)
 #: Fig. 4: reference-point noise as a fraction of the cloud's width (the paper's 1-16 %).
 FIG4_NOISE = (0.01, 0.02, 0.04, 0.08, 0.16)
 #: Table 4: weak textures (a limewashed wall with about 50 trackable corners in view; W3 lime plaster with
@@ -53,15 +61,27 @@ CALIBRATION_SCENE = "relief_panel"
 
 
 def _world(case: Case) -> World:
-    return World(name=f"{case.scene}-{case.seed}", scene=case.scene, seed=case.seed,
-                 calibration_light=case.reference_light,
-                 calibration_scene=CALIBRATION_SCENE if case.scene in WEAK_TEXTURE else "")
+    return World(
+        name=f"{case.scene}-{case.seed}",
+        scene=case.scene,
+        seed=case.seed,
+        calibration_light=case.reference_light,
+        calibration_scene=CALIBRATION_SCENE if case.scene in WEAK_TEXTURE else "",
+    )
 
 
 def _spec(experiment: str, case: Case, label: str, variant: dict | None = None) -> RunSpec:
-    return RunSpec(experiment=experiment, case=case.name, label=label, world=_world(case),
-                   reference_light=case.reference_light, visit_light=case.visit_light,
-                   offset_mm=case.offset_mm, offset_deg=case.offset_deg, **(variant or {}))
+    return RunSpec(
+        experiment=experiment,
+        case=case.name,
+        label=label,
+        world=_world(case),
+        reference_light=case.reference_light,
+        visit_light=case.visit_light,
+        offset_mm=case.offset_mm,
+        offset_deg=case.offset_deg,
+        **(variant or {}),
+    )
 
 
 _RACR, _ACR, _SER = RelocationMethod.RACR, RelocationMethod.ACR, LoopMode.SERIAL
@@ -90,8 +110,11 @@ def _cases_of(experiment: str, *, quick: bool, names: list[str] | None) -> list[
     else:
         pool = list(CASES)
         own = {"fig6": VSE_CASES, "fig12": ABLATION_CASES, "fig4": ABLATION_CASES, "pure": VSE_CASES}.get(experiment)
-        quick_names = (QUICK["one_case"] if experiment in ("table3", "fig6", "fig12", "fig4", "revisit", "pure")
-                       else QUICK["cases"])
+        quick_names = (
+            QUICK["one_case"]
+            if experiment in ("table3", "fig6", "fig12", "fig4", "revisit", "pure")
+            else QUICK["cases"]
+        )
         default = [c for c in pool if (c.name in quick_names if quick else (own is None or c.name in own))]
     return [c for c in pool if c.name in names] if names else default
 
@@ -125,11 +148,14 @@ def plan(*, quick: bool, experiments: tuple[str, ...] = EXPERIMENTS, cases: list
     for experiment in experiments:
         if experiment in CASE_VARIANTS:
             for case in _cases_of(experiment, quick=quick, names=cases):
-                runs += [_spec(experiment, case, label, fields)
-                         for label, fields in _variants(experiment, quick=quick).items()]
+                runs += [
+                    _spec(experiment, case, label, fields)
+                    for label, fields in _variants(experiment, quick=quick).items()
+                ]
     if "fig7" in experiments:
         indoor = tuple(dict.fromkeys(c.scene for c in CASES if c.name.startswith("indoor")))
-        runs += _fig7_runs(QUICK["fig7_scenes"] if quick else indoor,
-                           QUICK["fig7_clock"] if quick else tuple(range(1, 13)))
+        runs += _fig7_runs(
+            QUICK["fig7_scenes"] if quick else indoor, QUICK["fig7_clock"] if quick else tuple(range(1, 13))
+        )
     order = {name: i for i, name in enumerate(dict.fromkeys(r.world.name for r in runs))}
     return sorted(runs, key=lambda r: order[r.world.name])  # stable: each world's runs keep their order

@@ -16,8 +16,10 @@ __all__ = ["PAPER_MORE", "afd_cell", "figures", "fmt", "runs_by", "sections"]
 #: Paper 000's Table 3 (total time s, adjustments) and Table 4 (mean AFD px; None: "fail").
 PAPER_MORE = {
     "table3": {"rACR": (61.1, 5.3), "ACR_w/X": (256.4, 14.3), "rACR_w/oX": (102.6, 8.1)},
-    "table4": {"ACR": (12.35, 8.845, None, 4.263, 4.186, 7.069, 16.17, 19.24, 11.74),
-               "rACR": (1.375, 1.183, 1.579, 1.372, 1.544, 1.466, 1.789, 1.528, 1.719)},
+    "table4": {
+        "ACR": (12.35, 8.845, None, 4.263, 4.186, 7.069, 16.17, 19.24, 11.74),
+        "rACR": (1.375, 1.183, 1.579, 1.372, 1.544, 1.466, 1.789, 1.528, 1.719),
+    },
 }
 
 
@@ -54,26 +56,37 @@ def _table3(results: list[dict], summary: dict) -> list[str]:
     if not (summary.get("acr_handeye_runs") or summary.get("racr_no_handeye_runs")):
         return []
     paper = PAPER_MORE["table3"]
-    lines = ["### Table 3: with and without the hand-eye (means over the Table 3 cases; rig time at 1.5 s/cm)", "",
-             "| method | runs | success | mean AFD (px) | adjustments | rig time (s) | paper: time (s) | "
-             "paper: adjustments |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "### Table 3: with and without the hand-eye (means over the Table 3 cases; rig time at 1.5 s/cm)",
+        "",
+        "| method | runs | success | mean AFD (px) | adjustments | rig time (s) | paper: time (s) | "
+        "paper: adjustments |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     t3_cases = {r["case"] for r in results if r.get("experiment") == "table3"}
-    base = [r for r in results if r.get("experiment") == "table2" and r["label"] in ("racr", "acr")
-            and r["case"] in t3_cases]
-    rows = (("rACR", [r for r in base if r["label"] == "racr"]),
-            ("ACR_w/X", [r for r in results if r.get("experiment") == "table3" and r["label"] == "acr-handeye"]),
-            ("ACR (X = I)", [r for r in base if r["label"] == "acr"]),
-            ("rACR_w/oX", [r for r in results if r.get("experiment") == "table3" and r["label"] == "racr-no-handeye"]))
+    base = [
+        r
+        for r in results
+        if r.get("experiment") == "table2" and r["label"] in ("racr", "acr") and r["case"] in t3_cases
+    ]
+    rows = (
+        ("rACR", [r for r in base if r["label"] == "racr"]),
+        ("ACR_w/X", [r for r in results if r.get("experiment") == "table3" and r["label"] == "acr-handeye"]),
+        ("ACR (X = I)", [r for r in base if r["label"] == "acr"]),
+        ("rACR_w/oX", [r for r in results if r.get("experiment") == "table3" and r["label"] == "racr-no-handeye"]),
+    )
     for name, runs in rows:
         if not runs:
             continue
         ok = [r for r in runs if "error" not in r]
         p = paper.get(name, (None, None))
-        lines.append(f"| {name} | {len(runs)} | {sum(bool(r.get('success')) for r in runs)}/{len(runs)} | "
-                     f"{fmt(_mean_std(r.get('afd_px') for r in runs)[0])} | "
-                     f"{fmt(_mean_std(r.get('adjustments') for r in ok)[0], '{:.1f}')} | "
-                     f"{fmt(_mean_std(r.get('session_s') for r in ok)[0], '{:.1f}')} | {fmt(p[0], '{}')} | "
-                     f"{fmt(p[1], '{}')} |")
+        lines.append(
+            f"| {name} | {len(runs)} | {sum(bool(r.get('success')) for r in runs)}/{len(runs)} | "
+            f"{fmt(_mean_std(r.get('afd_px') for r in runs)[0])} | "
+            f"{fmt(_mean_std(r.get('adjustments') for r in ok)[0], '{:.1f}')} | "
+            f"{fmt(_mean_std(r.get('session_s') for r in ok)[0], '{:.1f}')} | {fmt(p[0], '{}')} | "
+            f"{fmt(p[1], '{}')} |"
+        )
     return lines + [""]
 
 
@@ -82,16 +95,31 @@ def _table4(results: list[dict]) -> list[str]:
     if not runs:
         return []
     names = [c.name for c in TABLE4_CASES]
-    lines = ["### Table 4: true AFD (px) under challenging situations (W: weak texture, R: repetitive pattern, "
-             "V: highly varied illumination; bold: failure)", "",
-             "| method | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    lines = [
+        "### Table 4: true AFD (px) under challenging situations (W: weak texture, R: repetitive pattern, "
+        "V: highly varied illumination; bold: failure)",
+        "",
+        "| method | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
     for label, name in (("acr", "ACR"), ("racr", "rACR")):
         lines.append(f"| {name}, ours | " + " | ".join(afd_cell(runs.get((n, label))) for n in names) + " |")
-        lines.append(f"| {name}, paper | " + " | ".join(fmt(v, "{}") if v is not None else "fail"
-                                                       for v in PAPER_MORE["table4"][name]) + " |")
+        lines.append(
+            f"| {name}, paper | "
+            + " | ".join(fmt(v, "{}") if v is not None else "fail" for v in PAPER_MORE["table4"][name])
+            + " |"
+        )
     cases = {c.name: c for c in TABLE4_CASES}
-    lines += ["", "Cases: " + "; ".join(f"{n} {cases[n].scene} ({cases[n].reference_light} → {cases[n].visit_light})"
-                                        for n in names if any(k[0] == n for k in runs)) + "."]
+    lines += [
+        "",
+        "Cases: "
+        + "; ".join(
+            f"{n} {cases[n].scene} ({cases[n].reference_light} → {cases[n].visit_light})"
+            for n in names
+            if any(k[0] == n for k in runs)
+        )
+        + ".",
+    ]
     return lines + [""]
 
 
@@ -102,13 +130,20 @@ def _fig4(results: list[dict]) -> list[str]:
     base = runs_by(results, "pure")
     cases = list(dict.fromkeys(case for case, _ in runs))
     levels = [r for r in FIG4_NOISE if any(lab == f"noise-{r:.2f}" for _, lab in runs)]
-    lines = ["### Fig. 4: pure rACR (no image stage) with noise on the reference points (σ = r × the cloud's "
-             "width); true AFD (px), in brackets the true camera-position error (mm)", "",
-             "| case | r = 0 | " + " | ".join(f"r = {r:.0%}" for r in levels) + " |", "|---|---|" + "---|" * len(levels)]
+    lines = [
+        "### Fig. 4: pure rACR (no image stage) with noise on the reference points (σ = r × the cloud's "
+        "width); true AFD (px), in brackets the true camera-position error (mm)",
+        "",
+        "| case | r = 0 | " + " | ".join(f"r = {r:.0%}" for r in levels) + " |",
+        "|---|---|" + "---|" * len(levels),
+    ]
     for case in cases:
         cells = [base.get((case, "racr-pure"))] + [runs.get((case, f"noise-{r:.2f}")) for r in levels]
-        lines.append(f"| {case} | " + " | ".join(f"{afd_cell(c)} ({fmt((c or {}).get('pose_err_mm'), '{:.1f}')})"
-                                                  for c in cells) + " |")
+        lines.append(
+            f"| {case} | "
+            + " | ".join(f"{afd_cell(c)} ({fmt((c or {}).get('pose_err_mm'), '{:.1f}')})" for c in cells)
+            + " |"
+        )
     return lines + [""]
 
 
@@ -117,14 +152,20 @@ def _fig6(results: list[dict]) -> list[str]:
     if not runs:
         return []
     base = runs_by(results, "pure")
-    lines = ["### Fig. 6: pure rACR with the semi-dense (direct, the paper's DSO) against the sparse (ORB landmarks) "
-             "VSE, true AFD (px) and true position error (mm)", "",
-             "| case | scene | visit light | semi-dense AFD | mm | sparse AFD | mm |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "### Fig. 6: pure rACR with the semi-dense (direct, the paper's DSO) against the sparse (ORB landmarks) "
+        "VSE, true AFD (px) and true position error (mm)",
+        "",
+        "| case | scene | visit light | semi-dense AFD | mm | sparse AFD | mm |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for (case, _), sparse in runs.items():
         dense = base.get((case, "racr-pure"))
-        lines.append(f"| {case} | {sparse.get('scene', '')} | {sparse.get('visit_light', '')} | {afd_cell(dense)} | "
-                     f"{fmt((dense or {}).get('pose_err_mm'), '{:.1f}')} | {afd_cell(sparse)} | "
-                     f"{fmt(sparse.get('pose_err_mm'), '{:.1f}')} |")
+        lines.append(
+            f"| {case} | {sparse.get('scene', '')} | {sparse.get('visit_light', '')} | {afd_cell(dense)} | "
+            f"{fmt((dense or {}).get('pose_err_mm'), '{:.1f}')} | {afd_cell(sparse)} | "
+            f"{fmt(sparse.get('pose_err_mm'), '{:.1f}')} |"
+        )
     return lines + [""]
 
 
@@ -134,11 +175,16 @@ def _fig12(results: list[dict]) -> list[str]:
         return []
     base = runs_by(results, "pure")
     cases = list(dict.fromkeys(case for case, _ in runs))
-    variants = [("rACR (α = 0.2)", "racr-pure", base)] + [(label, label, runs) for label, _, _ in FIG12_VARIANTS
-                                                    if any(lab == label for _, lab in runs)]
-    lines = ["### Fig. 12: pure rACR (no image stage), the weight α of Eq. 11 and the ablations (rACR-P: no "
-             "keyframe refinement, Eq. 16; -F: no fine alignment; -S: no scale estimate); true AFD (px)", "",
-             "| variant | " + " | ".join(cases) + " | mean ± std |", "|---|" + "---|" * (len(cases) + 1)]
+    variants = [("rACR (α = 0.2)", "racr-pure", base)] + [
+        (label, label, runs) for label, _, _ in FIG12_VARIANTS if any(lab == label for _, lab in runs)
+    ]
+    lines = [
+        "### Fig. 12: pure rACR (no image stage), the weight α of Eq. 11 and the ablations (rACR-P: no "
+        "keyframe refinement, Eq. 16; -F: no fine alignment; -S: no scale estimate); true AFD (px)",
+        "",
+        "| variant | " + " | ".join(cases) + " | mean ± std |",
+        "|---|" + "---|" * (len(cases) + 1),
+    ]
     for name, label, table in variants:
         cells = [table.get((c, label)) for c in cases]
         m, s = _mean_std((c or {}).get("afd_px") for c in cells)
@@ -151,33 +197,48 @@ def _s55(results: list[dict]) -> list[str]:
     if not runs:
         return []
     cases = list(dict.fromkeys(case for case, _ in runs))
-    lines = ["### §5.5: change detection after each relocation (3 injected changes; pixel F1 against the "
-             "simulator's truth)", "",
-             "| case | scene | rACR AFD | rACR F1 | rACR false regions | ACR AFD | ACR F1 | ACR false regions |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "### §5.5: change detection after each relocation (3 injected changes; pixel F1 against the simulator's truth)",
+        "",
+        "| case | scene | rACR AFD | rACR F1 | rACR false regions | ACR AFD | ACR F1 | ACR false regions |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for case in cases:
         r, a = runs.get((case, "racr")) or {}, runs.get((case, "acr")) or {}
-        lines.append(f"| {case} | {(r or a).get('scene', '')} | {fmt(r.get('afd_px'))} | {fmt(r.get('f1'))} | "
-                     f"{fmt(r.get('false_regions'), '{}')} | {fmt(a.get('afd_px'))} | {fmt(a.get('f1'))} | "
-                     f"{fmt(a.get('false_regions'), '{}')} |")
+        lines.append(
+            f"| {case} | {(r or a).get('scene', '')} | {fmt(r.get('afd_px'))} | {fmt(r.get('f1'))} | "
+            f"{fmt(r.get('false_regions'), '{}')} | {fmt(a.get('afd_px'))} | {fmt(a.get('f1'))} | "
+            f"{fmt(a.get('false_regions'), '{}')} |"
+        )
     return lines + [""]
 
 
 def sections(data: dict) -> list[str]:
     """The Markdown lines of these experiments (empty for those without runs)."""
     results, summary = data["runs"], data["summary"]
-    return (_table3(results, summary) + _table4(results) + _fig4(results) + _fig6(results) + _fig12(results)
-            + _s55(results))
+    return (
+        _table3(results, summary) + _table4(results) + _fig4(results) + _fig6(results) + _fig12(results) + _s55(results)
+    )
 
 
 def _plot_runs(ax, runs: list[tuple[float, dict | None]], *, label: str) -> None:
     """One case's true AFD against the swept value; a run that paused (did not converge) is ringed in black."""
-    pts = [(x, run["afd_px"], not run.get("converged")) for x, run in runs
-           if run is not None and run.get("afd_px") is not None]
+    pts = [
+        (x, run["afd_px"], not run.get("converged"))
+        for x, run in runs
+        if run is not None and run.get("afd_px") is not None
+    ]
     ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=label)
     paused = [p for p in pts if p[2]]
-    ax.scatter([p[0] for p in paused], [p[1] for p in paused], s=110, facecolors="none", edgecolors="k",
-               linewidths=1.2, zorder=3)
+    ax.scatter(
+        [p[0] for p in paused],
+        [p[1] for p in paused],
+        s=110,
+        facecolors="none",
+        edgecolors="k",
+        linewidths=1.2,
+        zorder=3,
+    )
 
 
 def _paused_legend(ax) -> None:
@@ -196,8 +257,7 @@ def figures(data: dict) -> dict[str, bytes]:
     if f4:
         fig, ax = plt.subplots(figsize=(5, 3.2))
         for case in dict.fromkeys(c for c, _ in f4):
-            runs = [(0.0, base.get((case, "racr-pure")))] + [
-                (r, f4.get((case, f"noise-{r:.2f}"))) for r in FIG4_NOISE]
+            runs = [(0.0, base.get((case, "racr-pure")))] + [(r, f4.get((case, f"noise-{r:.2f}"))) for r in FIG4_NOISE]
             _plot_runs(ax, [(x * 100, run) for x, run in runs], label=case)
         _paused_legend(ax)
         ax.axhline(3.0, color="k", linestyle="--", linewidth=0.8)
@@ -210,15 +270,19 @@ def figures(data: dict) -> dict[str, bytes]:
         fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(8, 3.2))
         for case in dict.fromkeys(c for c, _ in f12):
             runs = [(0.2, base.get((case, "racr-pure")))] + [
-                (a, f12.get((case, label))) for label, a, x in FIG12_VARIANTS if not x]
+                (a, f12.get((case, label))) for label, a, x in FIG12_VARIANTS if not x
+            ]
             _plot_runs(ax_a, sorted(runs, key=lambda xr: xr[0]), label=case)
         _paused_legend(ax_a)
         ax_a.set_xlabel("α (weight of the geometric term)")
         ax_a.set_ylabel("true AFD (px)")
         bars = [("rACR", [r for (c, lab), r in base.items() if lab == "racr-pure" and any(c == k[0] for k in f12)])]
         bars += [(f"rACR-{x}", [r for (_, lab), r in f12.items() if lab == f"no-{x}"]) for x in "PFS"]
-        stats = [(name, *_mean_std([r.get("afd_px") for r in v]), sum(not r.get("converged") for r in v), len(v))
-                 for name, v in bars if v]
+        stats = [
+            (name, *_mean_std([r.get("afd_px") for r in v]), sum(not r.get("converged") for r in v), len(v))
+            for name, v in bars
+            if v
+        ]
         ax_b.bar([s[0] for s in stats], [s[1] for s in stats], yerr=[s[2] for s in stats], color="#1f5fa8", capsize=3)
         for i, (_, mean, std, n_paused, n) in enumerate(stats):
             if n_paused:  # a mean over paused runs is not an accuracy: say how many

@@ -22,8 +22,18 @@ import numpy as np
 from fgcd_cli.campaign.atomic import atomic_write_json
 from fgcd_cli.relocation.enums import EstimateStage, LoopMode, RelocationMethod
 
-__all__ = ["VISIT_CHANGES", "RunSpec", "World", "ensure_station", "ensure_world", "load_run", "loop_config",
-           "run_one", "station_name", "visit_scenario"]
+__all__ = [
+    "VISIT_CHANGES",
+    "RunSpec",
+    "World",
+    "ensure_station",
+    "ensure_world",
+    "load_run",
+    "loop_config",
+    "run_one",
+    "station_name",
+    "visit_scenario",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -133,8 +143,12 @@ def ensure_world(world: World, out: Path, *, say) -> tuple[object, np.ndarray, o
     root.parent.mkdir(parents=True, exist_ok=True)
     camp = init_campaign(root, site=world.name, rig={"driver": "sim"})
     say(f"world {world.name}: calibrating ({world.scene}, seed {world.seed})")
-    calib = SimScenario(scene=world.calibration_scene or world.scene, seed=world.seed,
-                        lighting=world.calibration_light, session_seed=100)
+    calib = SimScenario(
+        scene=world.calibration_scene or world.scene,
+        seed=world.seed,
+        lighting=world.calibration_light,
+        session_seed=100,
+    )
     camera = calibrate_sim_intrinsics(camp, calib, say=lambda _m: None)
     he = calibrate_sim_handeye(camp, calib, say=lambda _m: None, camera=camera)
     atomic_write_json(marker, asdict(world))
@@ -153,8 +167,9 @@ def ensure_station(camp, world: World, light: str, T_flange_cam: np.ndarray, cam
     if st.has_reference():
         return st
     say(f"world {world.name}: capturing the reference under {light}")
-    rig = open_sim_rig(SimScenario(scene=world.scene, seed=world.seed, lighting=light), T_flange_cam=T_flange_cam,
-                       intrinsics=camera)
+    rig = open_sim_rig(
+        SimScenario(scene=world.scene, seed=world.seed, lighting=light), T_flange_cam=T_flange_cam, intrinsics=camera
+    )
     try:
         capture_reference(rig.handles, st, lightings=[light], evaluation=reference_truth(rig.sim))
     finally:
@@ -165,10 +180,20 @@ def ensure_station(camp, world: World, light: str, T_flange_cam: np.ndarray, cam
 def _outcome(spec: RunSpec, vis, truth: dict, wall_s: float) -> dict:
     """A finished run's figures: truth at the end, the tool's own view, times on the rig."""
     r = vis.relocation
-    out = {"converged": r.converged, "reason": r.reason, "adjustments": r.adjustments, "afd_px": truth["afd_px"],
-           "pose_err_mm": truth["pose_err_mm"], "pose_err_deg": truth["pose_err_deg"], "session_s": r.session_s,
-           "platform_s": r.platform_s, "synthetic_s": r.synthetic_s, "wall_s": wall_s,
-           "success": bool(truth["afd_px"] < 3.0), "visit": Path(vis.observation_path).name}
+    out = {
+        "converged": r.converged,
+        "reason": r.reason,
+        "adjustments": r.adjustments,
+        "afd_px": truth["afd_px"],
+        "pose_err_mm": truth["pose_err_mm"],
+        "pose_err_deg": truth["pose_err_deg"],
+        "session_s": r.session_s,
+        "platform_s": r.platform_s,
+        "synthetic_s": r.synthetic_s,
+        "wall_s": wall_s,
+        "success": bool(truth["afd_px"] < 3.0),
+        "visit": Path(vis.observation_path).name,
+    }
     three_d = [rec for rec in r.records if rec.stage in (EstimateStage.FAST, EstimateStage.FINE) and rec.truth]
     if three_d:
         out["afd_px_racr_only"] = three_d[-1].truth["afd_px"]
@@ -187,8 +212,15 @@ def visit_scenario(spec: RunSpec):
     from fgcd_cli.app.scenario import SimScenario
 
     w = spec.world
-    return SimScenario(scene=w.scene, seed=w.seed, lighting=spec.visit_light, start_offset_mm=spec.offset_mm,
-                       start_offset_deg=spec.offset_deg, session_seed=spec.session_seed, **VISIT_CHANGES)
+    return SimScenario(
+        scene=w.scene,
+        seed=w.seed,
+        lighting=spec.visit_light,
+        start_offset_mm=spec.offset_mm,
+        start_offset_deg=spec.offset_deg,
+        session_seed=spec.session_seed,
+        **VISIT_CHANGES,
+    )
 
 
 def loop_config(spec: RunSpec, *, deterministic: bool = False):
@@ -200,9 +232,15 @@ def loop_config(spec: RunSpec, *, deterministic: bool = False):
 
     fast = FastAlignConfig(scale=ScaleStepConfig(estimate=False)) if spec.ablation == "S" else FastAlignConfig()
     fine = FineAlignConfig(alpha=spec.alpha, refine_keyframes=spec.ablation != "P")
-    return RelocationConfig(mode=spec.mode, deterministic=deterministic, fine=spec.ablation != "F", fast_align=fast,
-                            fine_align=fine,
-                            image_refine=spec.image_stage, image_fallback=spec.image_stage)
+    return RelocationConfig(
+        mode=spec.mode,
+        deterministic=deterministic,
+        fine=spec.ablation != "F",
+        fast_align=fast,
+        fine_align=fine,
+        image_refine=spec.image_stage,
+        image_fallback=spec.image_stage,
+    )
 
 
 def _noisy_reference(noise: float):
@@ -221,8 +259,9 @@ def _noisy_reference(noise: float):
     return perturb
 
 
-def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say,
-            deterministic: bool = False) -> dict:
+def run_one(
+    spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, say, deterministic: bool = False
+) -> dict:
     """Relocate once as ``spec`` says and score it; a pause or a refused motion is an outcome (``error``)."""
     from fgcd_cli.app.relocate import relocate_and_capture
     from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
@@ -238,30 +277,66 @@ def run_one(spec: RunSpec, camp, station, T_flange_cam: np.ndarray, camera, *, s
     X = None if spec.no_handeye else T_flange_cam  # the rig opens with the identity (app.rig.hand_eye_or_identity)
     rig = open_sim_rig(scen, T_flange_cam=X, intrinsics=camera, vse_variant=spec.vse)
     ev = RelocationEvaluator.from_reference(rig.sim, station.reference())
-    result = {"experiment": spec.experiment, "case": spec.case, "label": spec.label, "method": str(spec.method),
-              "mode": str(spec.mode), "no_handeye": spec.no_handeye, "guided": spec.guided, "vse": spec.vse,
-              "alpha": spec.alpha, "ablation": spec.ablation, "reference_noise": spec.reference_noise,
-              "acr_handeye": spec.acr_handeye, "image_stage": spec.image_stage, "world": w.name, "scene": w.scene, "seed": w.seed,
-              "reference_light": spec.reference_light, "visit_light": spec.visit_light,
-              "start_err_mm": ev.evaluate()["pose_err_mm"], "start_afd_px": ev.evaluate()["afd_px"]}
+    result = {
+        "experiment": spec.experiment,
+        "case": spec.case,
+        "label": spec.label,
+        "method": str(spec.method),
+        "mode": str(spec.mode),
+        "no_handeye": spec.no_handeye,
+        "guided": spec.guided,
+        "vse": spec.vse,
+        "alpha": spec.alpha,
+        "ablation": spec.ablation,
+        "reference_noise": spec.reference_noise,
+        "acr_handeye": spec.acr_handeye,
+        "image_stage": spec.image_stage,
+        "world": w.name,
+        "scene": w.scene,
+        "seed": w.seed,
+        "reference_light": spec.reference_light,
+        "visit_light": spec.visit_light,
+        "start_err_mm": ev.evaluate()["pose_err_mm"],
+        "start_afd_px": ev.evaluate()["afd_px"],
+    }
     t0 = time.monotonic()
     try:
         vis = relocate_and_capture(
-            rig.handles, station,
-            RelocateRequest(config=loop_config(spec, deterministic=deterministic), lightings=[spec.visit_light, spec.reference_light],
-                            coarse=CoarseConfig(), method=spec.method, guided=spec.guided,
-                            acr=AcrConfig(use_handeye=spec.acr_handeye)),
-            hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary,
-                                reference_override=_noisy_reference(spec.reference_noise)))
+            rig.handles,
+            station,
+            RelocateRequest(
+                config=loop_config(spec, deterministic=deterministic),
+                lightings=[spec.visit_light, spec.reference_light],
+                coarse=CoarseConfig(),
+                method=spec.method,
+                guided=spec.guided,
+                acr=AcrConfig(use_handeye=spec.acr_handeye),
+            ),
+            hooks=RelocateHooks(
+                evaluate=ev.evaluate, evaluation=ev.summary, reference_override=_noisy_reference(spec.reference_noise)
+            ),
+        )
         result.update(_outcome(spec, vis, ev.evaluate(), time.monotonic() - t0))
     except (FgcdError, PlatformError) as exc:
         truth = ev.evaluate()
-        result.update({"error": str(exc), "success": False, "afd_px": truth["afd_px"],
-                       "pose_err_mm": truth["pose_err_mm"], "pose_err_deg": truth["pose_err_deg"],
-                       "wall_s": time.monotonic() - t0})
+        result.update(
+            {
+                "error": str(exc),
+                "success": False,
+                "afd_px": truth["afd_px"],
+                "pose_err_mm": truth["pose_err_mm"],
+                "pose_err_deg": truth["pose_err_deg"],
+                "wall_s": time.monotonic() - t0,
+            }
+        )
     finally:
         rig.close()
-    say(f"{spec.experiment} {spec.case} {spec.label}: true AFD {result['afd_px']:.2f} px"
-        + (f", {result['adjustments']} adjustments, {result['session_s']:.1f} s on the rig" if "error" not in result
-           else f" (paused: {result['error'][:80]})"))
+    say(
+        f"{spec.experiment} {spec.case} {spec.label}: true AFD {result['afd_px']:.2f} px"
+        + (
+            f", {result['adjustments']} adjustments, {result['session_s']:.1f} s on the rig"
+            if "error" not in result
+            else f" (paused: {result['error'][:80]})"
+        )
+    )
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in result.items()}

@@ -129,8 +129,12 @@ def set_up_station(campaign: Path, config: SoakConfig, *, say: Say) -> dict:
     calibrate_sim_intrinsics(camp, SimScenario(scene=config.scene, seed=0), say=say)
     say("target-free hand-eye on the simulated rig")
     plan = plan_handeye(camp, RigOptions(driver="sim"), HandEyeRequest())
-    rig = open_rig(RigRequest(driver="sim", intrinsics=plan.intrinsics.camera if plan.intrinsics else None,
-                              scenario=plan.scenario), hooks=RigHooks())
+    rig = open_rig(
+        RigRequest(
+            driver="sim", intrinsics=plan.intrinsics.camera if plan.intrinsics else None, scenario=plan.scenario
+        ),
+        hooks=RigHooks(),
+    )
     with opened(rig):
         calibration = run_handeye(rig.handles, plan.request, say=say)
     stored, unusable = store_handeye(camp, plan, calibration)
@@ -141,18 +145,26 @@ def set_up_station(campaign: Path, config: SoakConfig, *, say: Say) -> dict:
     run_record.reset()
     capture_plan = plan_capture(camp, CaptureRequest(station=STATION, light=config.light))
     outcome = run_capture(camp, capture_plan, hooks=RigHooks())
-    return {"calibration_s": round(t1 - t0, 1), "capture_s": round(time.monotonic() - t1, 1),
-            "cloud_points": outcome.result.cloud_points, "handeye_rms_mm": round(calibration.result.rms_mm, 2)}
+    return {
+        "calibration_s": round(t1 - t0, 1),
+        "capture_s": round(time.monotonic() - t1, 1),
+        "cloud_points": outcome.result.cloud_points,
+        "handeye_rms_mm": round(calibration.result.rms_mm, 2),
+    }
 
 
 def _revisit_request(config: SoakConfig, k: int, rng: np.random.Generator, *, changes: int):
     """Revisit ``k``'s options, as ``fgcd relocate -s soak --session-seed S --start-offset-mm ... --yes`` gives them."""
     from fgcd_cli.app.revisit import RevisitRequest
 
-    return RevisitRequest(station=STATION, light=config.light, changes=changes,
-                          start_offset_mm=float(rng.uniform(*config.offset_mm)),
-                          start_offset_deg=float(rng.uniform(*config.offset_deg)),
-                          session_seed=1000 * config.seed + k)
+    return RevisitRequest(
+        station=STATION,
+        light=config.light,
+        changes=changes,
+        start_offset_mm=float(rng.uniform(*config.offset_mm)),
+        start_offset_deg=float(rng.uniform(*config.offset_deg)),
+        session_seed=1000 * config.seed + k,
+    )
 
 
 def _verify_visit(campaign: Path, visit: str) -> str:
@@ -193,9 +205,13 @@ def one_revisit(campaign: Path, request, *, diff_and_report: bool) -> dict:
         return {"converged": False, "visit": "", "detail": f"{type(exc).__name__}: {exc}", "report_visits": None}
     visit = Path(outcome.result.observation_path).name
     truth = _visit_truth(outcome)
-    out = {"converged": outcome.converged, "visit": visit,
-           "detail": "" if outcome.converged else f"not converged: {outcome.result.relocation.reason}",
-           "report_visits": None, "afd_px": float(truth.get("afd_px", float("nan")))}
+    out = {
+        "converged": outcome.converged,
+        "visit": visit,
+        "detail": "" if outcome.converged else f"not converged: {outcome.result.relocation.reason}",
+        "report_visits": None,
+        "afd_px": float(truth.get("afd_px", float("nan"))),
+    }
     if diff_and_report:
         run_record.reset()
         run_campaign(CampaignDiffRequest(campaign=campaign, station=STATION, visit=visit))
@@ -226,12 +242,20 @@ def read_history(campaign: Path, visits: list[str]) -> dict:
     tracked = set(tracks.analysed) | set(tracks.not_analysed)
     missing = sorted(set(visits) - set(listed))
     complete = not missing and not unreadable and not st.missing_visit_names() and tracked == set(listed)
-    return {"listed": len(listed), "written": len(visits), "missing": missing, "unreadable": unreadable,
-            "tracked": len(tracked), "analysed": len(tracks.analysed), "complete": complete}
+    return {
+        "listed": len(listed),
+        "written": len(visits),
+        "missing": missing,
+        "unreadable": unreadable,
+        "tracked": len(tracked),
+        "analysed": len(tracks.analysed),
+        "complete": complete,
+    }
 
 
-def _revisits(campaign: Path, config: SoakConfig, baseline: TempBaseline, *, say: Say,
-              on_sample: Callable[[ResourceSample], None]) -> list[ResourceSample]:
+def _revisits(
+    campaign: Path, config: SoakConfig, baseline: TempBaseline, *, say: Say, on_sample: Callable[[ResourceSample], None]
+) -> list[ResourceSample]:
     """Every revisit of the soak, sampled after each (``on_sample``: as each is taken)."""
     rng = np.random.default_rng(config.seed)
     samples = []
@@ -239,26 +263,45 @@ def _revisits(campaign: Path, config: SoakConfig, baseline: TempBaseline, *, say
     for k in range(1, total + 1):
         changes = k > config.revisits
         t0 = time.monotonic()
-        done = one_revisit(campaign, _revisit_request(config, k, rng, changes=config.changes if changes else 0),
-                           diff_and_report=changes)
+        done = one_revisit(
+            campaign,
+            _revisit_request(config, k, rng, changes=config.changes if changes else 0),
+            diff_and_report=changes,
+        )
         seconds = time.monotonic() - t0
         problems = _verify_visit(campaign, done["visit"])
         detail = "; ".join(d for d in (done["detail"], problems) if d)
-        sample = sample_resources(index=k, phase="changes" if changes else "quick", seconds=seconds,
-                                  baseline=baseline, outcome={
-                                      "verified": bool(done["visit"]) and not problems, "converged": done["converged"],
-                                      "visit": done["visit"], "detail": detail,
-                                      "afd_px": done.get("afd_px", float("nan"))})
+        sample = sample_resources(
+            index=k,
+            phase="changes" if changes else "quick",
+            seconds=seconds,
+            baseline=baseline,
+            outcome={
+                "verified": bool(done["visit"]) and not problems,
+                "converged": done["converged"],
+                "visit": done["visit"],
+                "detail": detail,
+                "afd_px": done.get("afd_px", float("nan")),
+            },
+        )
         samples.append(sample)
         on_sample(sample)
-        say(f"revisit {k}/{total} ({sample.phase}): {seconds:.0f} s, RSS {sample.rss_mb:.0f} MB, "
+        say(
+            f"revisit {k}/{total} ({sample.phase}): {seconds:.0f} s, RSS {sample.rss_mb:.0f} MB, "
             f"{sample.threads_native} threads, {sample.fds} fds, {sample.tmp_left} tmp left"
-            + (f" [{detail}]" if detail else ""))
+            + (f" [{detail}]" if detail else "")
+        )
     return samples
 
 
-def run(*, quick: bool = False, revisits: int | None = None, change_revisits: int | None = None,
-        out: Path | None = None, say: Say = lambda _m: None) -> dict:
+def run(
+    *,
+    quick: bool = False,
+    revisits: int | None = None,
+    change_revisits: int | None = None,
+    out: Path | None = None,
+    say: Say = lambda _m: None,
+) -> dict:
     """Run the soak; its JSON-able result (``summary``, ``targets``, ``samples``, ``history``, ``setup``).
 
     Parameters
@@ -274,8 +317,12 @@ def run(*, quick: bool = False, revisits: int | None = None, change_revisits: in
         One line per step and revisit.
     """
     config = QUICK if quick else FULL
-    config = SoakConfig(**{**asdict(config), **{k: v for k, v in (("revisits", revisits),
-                                                                  ("change_revisits", change_revisits)) if v is not None}})
+    config = SoakConfig(
+        **{
+            **asdict(config),
+            **{k: v for k, v in (("revisits", revisits), ("change_revisits", change_revisits)) if v is not None},
+        }
+    )
     work = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fgcd-bench-soak-"))
     work.mkdir(parents=True, exist_ok=True)
     try:
@@ -304,14 +351,27 @@ def _run_in(work: Path, config: SoakConfig, *, say: Say) -> dict:
         history = read_history(campaign, [s.visit for s in samples if s.visit])
         left = baseline.left()
     resources = summarize_samples([first, *samples], warmup=config.warmup)
-    summary = {"revisits": len(samples), "change_revisits": sum(s.phase == "changes" for s in samples),
-               "warmup_revisits": config.warmup, **resources, "tmp_files_left": len(left),
-               "visits_verified": sum(s.verified for s in samples), "converged": sum(s.converged for s in samples),
-               "history_complete": history["complete"],
-               "seconds_per_revisit_median": round(float(np.median([s.seconds for s in samples if s.phase == "quick"]
-                                                                   or [0.0])), 1),
-               "seconds": round(time.monotonic() - t0, 1)}
-    return {"summary": summary, "targets": {"tmp_files_left": 0, "visits_verified": len(samples),
-                                            "history_complete": True},
-            "config": asdict(config), "setup": setup, "history": history, "tmp_left": left[:20],
-            "samples": [first.to_dict(), *(s.to_dict() for s in samples)], "load_avg_1min": os.getloadavg()[0]}
+    summary = {
+        "revisits": len(samples),
+        "change_revisits": sum(s.phase == "changes" for s in samples),
+        "warmup_revisits": config.warmup,
+        **resources,
+        "tmp_files_left": len(left),
+        "visits_verified": sum(s.verified for s in samples),
+        "converged": sum(s.converged for s in samples),
+        "history_complete": history["complete"],
+        "seconds_per_revisit_median": round(
+            float(np.median([s.seconds for s in samples if s.phase == "quick"] or [0.0])), 1
+        ),
+        "seconds": round(time.monotonic() - t0, 1),
+    }
+    return {
+        "summary": summary,
+        "targets": {"tmp_files_left": 0, "visits_verified": len(samples), "history_complete": True},
+        "config": asdict(config),
+        "setup": setup,
+        "history": history,
+        "tmp_left": left[:20],
+        "samples": [first.to_dict(), *(s.to_dict() for s in samples)],
+        "load_avg_1min": os.getloadavg()[0],
+    }

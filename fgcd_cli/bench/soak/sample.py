@@ -28,8 +28,14 @@ import numpy as np
 
 from fgcd_cli.campaign.atomic import TMP_PREFIX
 
-__all__ = ["ResourceSample", "TempBaseline", "growth_per_revisit", "proc_status_mb", "sample_resources",
-           "summarize_samples"]
+__all__ = [
+    "ResourceSample",
+    "TempBaseline",
+    "growth_per_revisit",
+    "proc_status_mb",
+    "sample_resources",
+    "summarize_samples",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -119,8 +125,9 @@ class TempBaseline:
     def left(self) -> list[str]:
         """New entries since :meth:`take`: temporary-folder names, then campaign paths (relative)."""
         new_tmp = sorted(set(os.listdir(self.tmp_dir)) - self.tmp_entries)
-        new_camp = sorted(p.relative_to(self.campaign).as_posix() for p in _campaign_tmp(self.campaign)
-                          if p not in self.campaign_tmp)
+        new_camp = sorted(
+            p.relative_to(self.campaign).as_posix() for p in _campaign_tmp(self.campaign) if p not in self.campaign_tmp
+        )
         return new_tmp + new_camp
 
 
@@ -128,18 +135,28 @@ def _campaign_tmp(campaign: Path) -> set[Path]:
     return set(campaign.rglob(TMP_PREFIX + "*")) if campaign.is_dir() else set()
 
 
-def sample_resources(*, index: int, phase: str, seconds: float, baseline: TempBaseline,
-                     outcome: dict | None = None) -> ResourceSample:
+def sample_resources(
+    *, index: int, phase: str, seconds: float, baseline: TempBaseline, outcome: dict | None = None
+) -> ResourceSample:
     """Sample the process now (after a full garbage collection: cyclic garbage is not a leak).
 
     ``outcome``: the revisit's ``verified``, ``converged``, ``visit``, ``detail``, ``afd_px`` (:class:`ResourceSample`).
     """
     gc.collect()
     status = Path("/proc/self/status").read_text()
-    return ResourceSample(index=index, phase=phase, seconds=seconds, rss_mb=proc_status_mb(status, "VmRSS"),
-                          hwm_mb=proc_status_mb(status, "VmHWM"), threads_native=len(os.listdir("/proc/self/task")),
-                          threads_python=threading.active_count(), fds=len(os.listdir("/proc/self/fd")) - 1,
-                          tmp_left=len(baseline.left()), python_objects=len(gc.get_objects()), **(outcome or {}))
+    return ResourceSample(
+        index=index,
+        phase=phase,
+        seconds=seconds,
+        rss_mb=proc_status_mb(status, "VmRSS"),
+        hwm_mb=proc_status_mb(status, "VmHWM"),
+        threads_native=len(os.listdir("/proc/self/task")),
+        threads_python=threading.active_count(),
+        fds=len(os.listdir("/proc/self/fd")) - 1,
+        tmp_left=len(baseline.left()),
+        python_objects=len(gc.get_objects()),
+        **(outcome or {}),
+    )
 
 
 def growth_per_revisit(values: Sequence[float], *, warmup: int) -> float:
@@ -178,7 +195,8 @@ def summarize_samples(samples: Sequence[ResourceSample], *, warmup: int) -> dict
         "rss_growth_mb_per_change_revisit": _rounded(growth_per_revisit([s.rss_mb for s in changes], warmup=1), 3),
         "fds_growth_per_revisit": _rounded(growth_per_revisit([s.fds for s in quick], warmup=warmup), 3),
         "python_objects_growth_per_revisit": _rounded(
-            growth_per_revisit([s.python_objects for s in quick], warmup=warmup), 1),
+            growth_per_revisit([s.python_objects for s in quick], warmup=warmup), 1
+        ),
         "rss_largest_step_mb": round(float(max(np.diff(rss), default=0.0)), 1) if len(rss) > 1 else 0.0,
         "afd_px_max": round(max(afd), 2) if afd else None,
         "afd_growth_px_per_revisit": _rounded(growth_per_revisit(afd, warmup=0), 4),

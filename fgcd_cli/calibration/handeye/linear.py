@@ -100,9 +100,7 @@ def pair_residuals(
     return arr[:, 0], arr[:, 1]
 
 
-def per_sample_residuals(
-    n_samples: int, pairs: Sequence[tuple[int, int]], values: np.ndarray
-) -> np.ndarray:
+def per_sample_residuals(n_samples: int, pairs: Sequence[tuple[int, int]], values: np.ndarray) -> np.ndarray:
     """Mean of the pair residuals involving each sample, shape (N,) (NaN if unused)."""
     total = np.zeros(n_samples)
     count = np.zeros(n_samples)
@@ -191,7 +189,9 @@ def solve_handeye_scale(
     MA = relative_motions(eye, index_pairs)
     rotating = check_rotation_diversity([M[:3, :3] for M in MB])
 
-    R_X = rotation_from_axes([M[:3, :3] for m, M in zip(rotating, MB) if m], [M[:3, :3] for m, M in zip(rotating, MA) if m])
+    R_X = rotation_from_axes(
+        [M[:3, :3] for m, M in zip(rotating, MB) if m], [M[:3, :3] for m, M in zip(rotating, MA) if m]
+    )
 
     # Linear least squares in (t_X, s): (R_B - I) t_X - s R_X t_VSE = -t_B.
     rows = [np.column_stack([B[:3, :3] - np.eye(3), -(R_X @ A[:3, 3])]) for B, A in zip(MB, MA)]
@@ -361,4 +361,3 @@ def _fit_scale(u: np.ndarray, b: np.ndarray, regress: Regress, shared: float) ->
     scale = bb / ub
     r = u - b / scale  # map units
     return scale, float(math.sqrt(float(r @ r) / dof / bb)) * scale**2 * shared
-

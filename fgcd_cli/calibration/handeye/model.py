@@ -24,8 +24,7 @@ from fgcd_cli.calibration.handeye.tracks import triangulate_dlt
 from fgcd_core.camera import MIN_DEPTH_M, pinhole_pixels
 from fgcd_core.se3 import exp_so3, invert_pose, log_so3, make_pose, transform_each
 
-__all__ = ["HandPoses", "Observations", "residuals", "linearise", "initial_landmarks",
-           "INIT_MAX_PX"]
+__all__ = ["HandPoses", "Observations", "residuals", "linearise", "initial_landmarks", "INIT_MAX_PX"]
 
 #: A triangulated track whose initial reprojection error exceeds this (pixels) is left out.
 INIT_MAX_PX = 8.0
@@ -98,8 +97,9 @@ def residuals(inv_hand: np.ndarray, K: np.ndarray, X: np.ndarray, P: np.ndarray,
     return pinhole_pixels(K, transform_each(T_cam_base[obs.cam], P[obs.pt])) - obs.uv
 
 
-def linearise(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, scale: float, *,
-              with_scale: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def linearise(
+    hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, scale: float, *, with_scale: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals and their Jacobians at ``(X, P, scale)``.
 
     Returns
@@ -187,6 +187,7 @@ def initial_landmarks(
         obs_cam.extend(cam_idx.tolist())
         obs_pt.extend([j] * len(members))
         obs_uv.extend(uv)
-    obs = Observations(np.asarray(obs_cam, dtype=int), np.asarray(obs_pt, dtype=int),
-                       np.asarray(obs_uv, dtype=float).reshape(-1, 2))
+    obs = Observations(
+        np.asarray(obs_cam, dtype=int), np.asarray(obs_pt, dtype=int), np.asarray(obs_uv, dtype=float).reshape(-1, 2)
+    )
     return np.asarray(pts, dtype=float).reshape(-1, 3), obs

@@ -193,8 +193,9 @@ def refine_handeye_tracks(
     return _result(poses, K, X0, adjusted, obs, estimated=s0 is not None)
 
 
-def _drop_outliers(poses: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, s_rot: float,
-                   config: RefineConfig) -> tuple[np.ndarray, Observations]:
+def _drop_outliers(
+    poses: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, s_rot: float, config: RefineConfig
+) -> tuple[np.ndarray, Observations]:
     """Observations off by ``reject_px`` or more go, then the landmarks left with fewer than two observations."""
     r = residuals(poses.inv(s_rot), K, X, P, obs)
     keep = np.linalg.norm(r, axis=1) < config.reject_px
@@ -203,23 +204,27 @@ def _drop_outliers(poses: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray
     used = np.flatnonzero(counts >= 2)
     if len(used) < config.min_points:
         raise CalibrationError(
-            f"only {len(used)} scene points are consistent across the stop images (need {config.min_points})")
+            f"only {len(used)} scene points are consistent across the stop images (need {config.min_points})"
+        )
     remap = -np.ones(len(P), int)
     remap[used] = np.arange(len(used))
     return P[used], obs.subset(keep, remap)
 
 
-def _result(poses: HandPoses, K: np.ndarray, X0: np.ndarray, adjusted: Adjusted, obs: Observations, *,
-            estimated: bool) -> BAHandEyeResult:
+def _result(
+    poses: HandPoses, K: np.ndarray, X0: np.ndarray, adjusted: Adjusted, obs: Observations, *, estimated: bool
+) -> BAHandEyeResult:
     """Residual statistics, covariance and notes of the adjusted model."""
     X, P, s_rot, S = adjusted
     n = len(poses.T)
     r = residuals(poses.inv(s_rot), K, X, P, obs)
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
-    per_image = np.array([
-        float(np.sqrt(np.mean(np.sum(r[obs.cam == i] ** 2, axis=1)))) if np.any(obs.cam == i) else float("nan")
-        for i in range(n)
-    ])
+    per_image = np.array(
+        [
+            float(np.sqrt(np.mean(np.sum(r[obs.cam == i] ** 2, axis=1)))) if np.any(obs.cam == i) else float("nan")
+            for i in range(n)
+        ]
+    )
     # covariance of the hand-eye (and rotation scale): inverse Schur complement times the residual variance
     dof = max(r.size - len(S) - 3 * len(P), 1)
     sigma2 = float(np.sum(r**2)) / dof
@@ -232,9 +237,18 @@ def _result(poses: HandPoses, K: np.ndarray, X0: np.ndarray, adjusted: Adjusted,
         std_mm = std_deg = s_std = float("inf")
     change_mm, change_deg = pose_distance(X, X0)
     return BAHandEyeResult(
-        T_flange_cam=X, std_mm=std_mm, std_deg=std_deg, rms_px=rms, n_points=len(P), n_observations=len(obs.cam),
-        per_image_rms_px=per_image, change_mm=change_mm, change_deg=change_deg,
-        notes=_notes(s_rot, s_std, rms, estimated=estimated), points_base=P, rotation_scale=s_rot,
+        T_flange_cam=X,
+        std_mm=std_mm,
+        std_deg=std_deg,
+        rms_px=rms,
+        n_points=len(P),
+        n_observations=len(obs.cam),
+        per_image_rms_px=per_image,
+        change_mm=change_mm,
+        change_deg=change_deg,
+        notes=_notes(s_rot, s_std, rms, estimated=estimated),
+        points_base=P,
+        rotation_scale=s_rot,
         rotation_scale_std=s_std,
     )
 

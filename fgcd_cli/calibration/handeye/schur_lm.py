@@ -40,8 +40,16 @@ __all__ = ["lm_handeye", "Adjusted"]
 #: point seen only from one camera centre (a pure rotation) has no depth information
 _DAMPING = SchurDamping(rule=Damping.LEVENBERG, point_floor=1e-12, point_floor_relative=1e-9)
 #: lambda / 3 after a success, x 10 after a failure, at most 8 tries per linearisation
-_SCHEDULE = LMSchedule(initial_damping=1e-3, decrease=3.0, min_damping=1e-9, increase=10.0, max_damping=np.inf,
-                       max_rejections=8, relative_decrease=1e-10, min_step=1e-10)
+_SCHEDULE = LMSchedule(
+    initial_damping=1e-3,
+    decrease=3.0,
+    min_damping=1e-9,
+    increase=10.0,
+    max_damping=np.inf,
+    max_rejections=8,
+    relative_decrease=1e-10,
+    min_step=1e-10,
+)
 
 
 class Adjusted(NamedTuple):
@@ -92,8 +100,9 @@ class _HandEyeProblem:
         return _HandEyeState(X, P, scale, r, A, B)
 
     def normal_equations(self, s: _HandEyeState, w: np.ndarray) -> BlockNormalEquations:
-        return block_normal_equations(s.r, s.A, s.B, w, np.zeros(len(w), dtype=np.int64), self.obs.pt, n_cameras=1,
-                                      n_points=len(s.P))
+        return block_normal_equations(
+            s.r, s.A, s.B, w, np.zeros(len(w), dtype=np.int64), self.obs.pt, n_cameras=1, n_points=len(s.P)
+        )
 
     def cost(self, s: _HandEyeState) -> float:
         return huber_cost(np.linalg.norm(s.r, axis=1), self.huber_px)
@@ -113,8 +122,17 @@ class _HandEyeProblem:
         return float(np.linalg.norm(step[0]))
 
 
-def lm_handeye(hand: HandPoses, K: np.ndarray, X: np.ndarray, P: np.ndarray, obs: Observations, *,
-               rotation_scale: float | None = None, iterations: int = 40, huber_px: float = 1.0) -> Adjusted:
+def lm_handeye(
+    hand: HandPoses,
+    K: np.ndarray,
+    X: np.ndarray,
+    P: np.ndarray,
+    obs: Observations,
+    *,
+    rotation_scale: float | None = None,
+    iterations: int = 40,
+    huber_px: float = 1.0,
+) -> Adjusted:
     """Levenberg-Marquardt over ``X`` (right perturbation ``X exp(d)``), the landmarks and, if
     ``rotation_scale`` is given (its start value), the platform's rotation scale.
 

@@ -33,8 +33,9 @@ from fgcd_core.camera import PinholeCamera
 __all__ = ["PathViews", "TargetFreeConfig", "ScaleMethod", "refine_target_free"]
 
 #: What the refinement record says it did (stored in ``handeye.json``).
-REFINEMENT_TEXT = ("bundle adjustment of X over the images of the platform's rest poses, camera poses = "
-                   "T_base_flange @ X")
+REFINEMENT_TEXT = (
+    "bundle adjustment of X over the images of the platform's rest poses, camera poses = T_base_flange @ X"
+)
 
 
 class ScaleMethod(StrEnum):
@@ -165,8 +166,9 @@ def refine_target_free(
     )
 
 
-def _depth_scale(ba: BAHandEyeResult, keyframes: Sequence[KeyframeDepths] | None, K: np.ndarray,
-                 motions_scale: float) -> tuple[float, ScaleMethod, dict]:
+def _depth_scale(
+    ba: BAHandEyeResult, keyframes: Sequence[KeyframeDepths] | None, K: np.ndarray, motions_scale: float
+) -> tuple[float, ScaleMethod, dict]:
     """The scale from the map depths when keyframes are given and match, else ``motions_scale``; with its record."""
     if not keyframes:
         return motions_scale, ScaleMethod.MOTIONS, {}
@@ -177,18 +179,23 @@ def _depth_scale(ba: BAHandEyeResult, keyframes: Sequence[KeyframeDepths] | None
     return d_scale, ScaleMethod.DEPTHS, {"scale_depth_spread": d_spread, "scale_depth_matches": d_n}
 
 
-def _adjust(linear, T_base_flange, images, K, dist, path: PathViews | None,
-            config: TargetFreeConfig) -> tuple[BAHandEyeResult, int, np.ndarray]:
+def _adjust(
+    linear, T_base_flange, images, K, dist, path: PathViews | None, config: TargetFreeConfig
+) -> tuple[BAHandEyeResult, int, np.ndarray]:
     """The bundle adjustment over the path's views when given (else the stops); ``(result, views, stop RMS)``."""
     if path is not None and len(path.images) > len(images):
         if len(path.stop_index) != len(images) or len(path.T_base_flange) != len(path.images):
             raise CalibrationError("the path views do not match the stop samples")
-        match = MatchConfig(n_features=config.n_features, match_window=config.match_window,
-                            anchors=tuple(int(a) for a in path.stop_index))
+        match = MatchConfig(
+            n_features=config.n_features,
+            match_window=config.match_window,
+            anchors=tuple(int(a) for a in path.stop_index),
+        )
         ba = refine_handeye_images(path.T_base_flange, path.images, K, linear.T_flange_cam, dist=dist, match=match)
         return ba, len(path.images), np.asarray(ba.per_image_rms_px)[list(path.stop_index)]
-    ba = refine_handeye_images(T_base_flange, images, K, linear.T_flange_cam, dist=dist,
-                               match=MatchConfig(n_features=config.n_features))
+    ba = refine_handeye_images(
+        T_base_flange, images, K, linear.T_flange_cam, dist=dist, match=MatchConfig(n_features=config.n_features)
+    )
     return ba, len(images), np.asarray(ba.per_image_rms_px)
 
 

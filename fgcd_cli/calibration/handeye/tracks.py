@@ -88,8 +88,10 @@ def stop_features(images: Sequence[np.ndarray], *, n_features: int = 1500) -> li
     (docs/calibration.md, "Target-free"; measurements in docs/lab/2026-11-22-calibrate.md,
     "2026-11-25: the bias explained, the target met").
     """
-    return [sift_features(clahe(gray_u8(img), clip_limit=CLAHE_CLIP, tiles=CLAHE_TILES), n_features=n_features)
-            for img in images]
+    return [
+        sift_features(clahe(gray_u8(img), clip_limit=CLAHE_CLIP, tiles=CLAHE_TILES), n_features=n_features)
+        for img in images
+    ]
 
 
 def undistort_features(features: list[Features], K: np.ndarray, dist: Sequence[float] | None) -> list[Features]:
@@ -98,8 +100,12 @@ def undistort_features(features: list[Features], K: np.ndarray, dist: Sequence[f
         return features
     K_ = np.asarray(K, dtype=float)
     return [
-        (cv2.undistortPoints(xy.reshape(-1, 1, 2), K_, np.asarray(dist, dtype=float), P=K_).reshape(-1, 2)
-         if len(xy) else xy, desc)
+        (
+            cv2.undistortPoints(xy.reshape(-1, 1, 2), K_, np.asarray(dist, dtype=float), P=K_).reshape(-1, 2)
+            if len(xy)
+            else xy,
+            desc,
+        )
         for xy, desc in features
     ]
 
@@ -110,7 +116,7 @@ def pair_list(n: int, match_window: int | None = None, anchors: Sequence[int] = 
         return [(i, j) for i in range(n) for j in range(i + 1, n)]
     pairs = {(i, j) for i in range(n) for j in range(i + 1, min(n, i + 1 + int(match_window)))}
     stops = sorted({int(a) for a in (anchors or ()) if 0 <= int(a) < n})
-    pairs |= {(a, b) for k, a in enumerate(stops) for b in stops[k + 1:]}
+    pairs |= {(a, b) for k, a in enumerate(stops) for b in stops[k + 1 :]}
     return sorted(pairs)
 
 
@@ -130,8 +136,9 @@ def pair_matches(f_a: Features, f_b: Features, *, ratio: float, ransac_px: float
     return idx[mask.ravel().astype(bool)]
 
 
-def build_tracks(features: Sequence[Features], pairs: Sequence[tuple[int, int]],
-                 matches: Sequence[np.ndarray]) -> list[list[tuple[int, int]]]:
+def build_tracks(
+    features: Sequence[Features], pairs: Sequence[tuple[int, int]], matches: Sequence[np.ndarray]
+) -> list[list[tuple[int, int]]]:
     """Union-find over ``(image, keypoint)`` nodes; tracks seen twice in one image are dropped.
 
     Returns
@@ -167,8 +174,13 @@ def build_tracks(features: Sequence[Features], pairs: Sequence[tuple[int, int]],
     return out
 
 
-def feature_tracks(images: Sequence[np.ndarray], K: np.ndarray, *, dist: Sequence[float] | None = None,
-                   config: MatchConfig = MatchConfig()) -> list[Track]:
+def feature_tracks(
+    images: Sequence[np.ndarray],
+    K: np.ndarray,
+    *,
+    dist: Sequence[float] | None = None,
+    config: MatchConfig = MatchConfig(),
+) -> list[Track]:
     """Tracks of undistorted pixels across the images, the longest first (at most ``config.max_points``).
 
     Parameters
@@ -187,11 +199,10 @@ def feature_tracks(images: Sequence[np.ndarray], K: np.ndarray, *, dist: Sequenc
     """
     features = undistort_features(stop_features(images, n_features=config.n_features), K, dist)
     pairs = pair_list(len(images), config.match_window, config.anchors)
-    matches = [pair_matches(features[i], features[j], ratio=config.ratio, ransac_px=config.ransac_px)
-               for i, j in pairs]
+    matches = [pair_matches(features[i], features[j], ratio=config.ratio, ransac_px=config.ransac_px) for i, j in pairs]
     tracks = build_tracks(features, pairs, matches)
     tracks.sort(key=len, reverse=True)
-    return [[(img, features[img][0][k]) for img, k in members] for members in tracks[:config.max_points]]
+    return [[(img, features[img][0][k]) for img, k in members] for members in tracks[: config.max_points]]
 
 
 def triangulate_dlt(P_list: Sequence[np.ndarray], uv: Sequence[np.ndarray]) -> np.ndarray:

@@ -189,14 +189,18 @@ def solve_handeye_target(
         res_mm, res_deg, _ = target_sample_residuals(X, hand, board)
         pair_mm, pair_deg = pair_residuals(X, MB, MA)
         per_method[name] = HandEyeResult(
-            T_flange_cam=X, scale=None, method=name, residuals_mm=pair_mm, residuals_deg=pair_deg,
-            sample_residuals_mm=res_mm, sample_residuals_deg=res_deg, **common,
+            T_flange_cam=X,
+            scale=None,
+            method=name,
+            residuals_mm=pair_mm,
+            residuals_deg=pair_deg,
+            sample_residuals_mm=res_mm,
+            sample_residuals_deg=res_deg,
+            **common,
         )
     if not per_method:
         raise CalibrationError("every hand-eye solver failed: " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
-    rms = {
-        name: float(np.sqrt(np.mean(np.square(r.sample_residuals_mm)))) for name, r in per_method.items()
-    }
+    rms = {name: float(np.sqrt(np.mean(np.square(r.sample_residuals_mm)))) for name, r in per_method.items()}
     best_name = min(rms, key=rms.get)
     agreement_mm, agreement_deg = _agreement(per_method)
     best = replace(per_method[best_name], notes=_notes(agreement_mm, agreement_deg, failed))
@@ -211,8 +215,9 @@ def solve_handeye_target(
     )
 
 
-def _check_inputs(T_base_flange: Sequence[np.ndarray], T_cam_target: Sequence[np.ndarray],
-                  methods: Sequence[str]) -> None:
+def _check_inputs(
+    T_base_flange: Sequence[np.ndarray], T_cam_target: Sequence[np.ndarray], methods: Sequence[str]
+) -> None:
     """Refuse mismatched lengths, fewer than 3 samples and unknown solver names."""
     if len(T_base_flange) != len(T_cam_target):
         raise UserInputError(
@@ -227,7 +232,9 @@ def _check_inputs(T_base_flange: Sequence[np.ndarray], T_cam_target: Sequence[np
         raise UserInputError(f"unknown hand-eye method(s) {unknown}; choose from {', '.join(OPENCV_METHODS)}")
 
 
-def _opencv_solve(hand: list[np.ndarray], board: list[np.ndarray], name: str, failed: dict[str, str]) -> np.ndarray | None:
+def _opencv_solve(
+    hand: list[np.ndarray], board: list[np.ndarray], name: str, failed: dict[str, str]
+) -> np.ndarray | None:
     """``X`` from one OpenCV solver, or None with the reason recorded in ``failed``."""
     R_g2b = [T[:3, :3] for T in hand]
     t_g2b = [T[:3, 3].reshape(3, 1) for T in hand]

@@ -87,8 +87,14 @@ class CueMaps:
     caused by each cue, less the pair's median (the quantity the label compares)."""
 
 
-def relief_colour_cues(refs: list[np.ndarray], currents: list[np.ndarray], *, valid: np.ndarray,
-                       ambient_index: int | None = 0, light_dirs: np.ndarray | None = None) -> CueMaps:
+def relief_colour_cues(
+    refs: list[np.ndarray],
+    currents: list[np.ndarray],
+    *,
+    valid: np.ndarray,
+    ambient_index: int | None = 0,
+    light_dirs: np.ndarray | None = None,
+) -> CueMaps:
     """Relief and colour cue maps of a registered pair (photometric stereo of both stacks in one basis).
 
     Parameters
@@ -110,16 +116,24 @@ def relief_colour_cues(refs: list[np.ndarray], currents: list[np.ndarray], *, va
     """
     directional = len(refs) - (ambient_index is not None)
     if directional < 3:
-        return CueMaps(relief=None, colour=None, reason=f"{directional} directional lighting(s); photometric stereo needs 3")
+        return CueMaps(
+            relief=None, colour=None, reason=f"{directional} directional lighting(s); photometric stereo needs 3"
+        )
     try:
-        fit_ref, fit_cur = joint_photometric_stereo(refs, currents, valid=valid, ambient_index=ambient_index,
-                                                    light_dirs=light_dirs)
+        fit_ref, fit_cur = joint_photometric_stereo(
+            refs, currents, valid=valid, ambient_index=ambient_index, light_dirs=light_dirs
+        )
     except (AlgorithmError, UserInputError, np.linalg.LinAlgError) as exc:
         return CueMaps(relief=None, colour=None, reason=f"photometric stereo failed: {exc}")
     relief, colour = relief_and_colour_cues(fit_ref, fit_cur, valid=valid)
-    return CueMaps(relief=relief, colour=colour, normals_ref=fit_ref.normals, albedo_ref=fit_ref.albedo,
-                   relief_scale=_relief_scale(light_dirs, fit_ref.used),
-                   channels=fit_ref.albedo.shape[2] if fit_ref.albedo.ndim == 3 else 1)
+    return CueMaps(
+        relief=relief,
+        colour=colour,
+        normals_ref=fit_ref.normals,
+        albedo_ref=fit_ref.albedo,
+        relief_scale=_relief_scale(light_dirs, fit_ref.used),
+        channels=fit_ref.albedo.shape[2] if fit_ref.albedo.ndim == 3 else 1,
+    )
 
 
 def _relief_scale(light_dirs: np.ndarray | None, used: np.ndarray) -> float:
@@ -148,8 +162,9 @@ def _neglog10_tail(smooth: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (-np.log10(survival)).astype(np.float32)
 
 
-def label_regions(regions: list[ChangeRegion], labels: np.ndarray, cues: CueMaps, *, valid: np.ndarray,
-                  smooth_sigma_px: float) -> None:
+def label_regions(
+    regions: list[ChangeRegion], labels: np.ndarray, cues: CueMaps, *, valid: np.ndarray, smooth_sigma_px: float
+) -> None:
     """Set ``region.cue`` of every region from the cue maps (the module's rule).
 
     Fills ``cues.evidence`` and ``cues.magnitude``.

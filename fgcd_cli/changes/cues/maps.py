@@ -38,8 +38,9 @@ def _min_shifted_difference(fixed: np.ndarray, moving: np.ndarray, radius_px: in
     return out
 
 
-def shift_tolerant_difference(ref_image: np.ndarray, cur_image: np.ndarray, *, radius_px: int = 1,
-                              symmetric: bool = True) -> np.ndarray:
+def shift_tolerant_difference(
+    ref_image: np.ndarray, cur_image: np.ndarray, *, radius_px: int = 1, symmetric: bool = True
+) -> np.ndarray:
     """Absolute difference, minimized over small shifts, in both directions.
 
     The minimum over shifts of up to ``radius_px`` absorbs residual misregistration

@@ -29,8 +29,9 @@ where the support surrounds the pixel it hardly matters (``docs/lab/2026-11-25-c
 "Change detection")."""
 
 
-def smoothing_scale_px(change_px: float = MAX_CHANGE_PX, *, share: float = CHANGE_SHARE,
-                       order: int = FIT_ORDER) -> float:
+def smoothing_scale_px(
+    change_px: float = MAX_CHANGE_PX, *, share: float = CHANGE_SHARE, order: int = FIT_ORDER
+) -> float:
     """Gaussian scale of the flow fit that keeps a change of ``change_px`` from steering it.
 
     With uniform weights, a local polynomial fit with a Gaussian window ``g`` of
@@ -81,8 +82,9 @@ def _monomials(order: int) -> list[tuple[int, int]]:
     return [(px, total - px) for total in range(order + 1) for px in range(total, -1, -1)]
 
 
-def local_poly_fit(values: np.ndarray, weight: np.ndarray, sigma: float, order: int,
-                    ridge: float) -> tuple[np.ndarray, np.ndarray]:
+def local_poly_fit(
+    values: np.ndarray, weight: np.ndarray, sigma: float, order: int, ridge: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Weighted local polynomial fit (normalized convolution, Gaussian applicability).
 
     For every pixel ``i`` solves ``min sum_j w_j g(x_j - x_i) (v_j - p_i((x_j - x_i)/sigma))^2``

@@ -218,7 +218,7 @@ class DenseConfig:
         """The options as :attr:`DenseAlignment.settings` records them."""
         return {
             "model": "DIS optical flow (Kroeger et al. 2016), preset MEDIUM, forward and backward, on "
-                     "local-contrast-normalised log images; robust local polynomial normalized convolution",
+            "local-contrast-normalised log images; robust local polynomial normalized convolution",
             "max_flow_px": self.max_flow_px,
             "smooth_px": self.smooth_px,
             "fb_px": self.fb_px,
@@ -280,8 +280,9 @@ def refine_dense(
     valid_f = valid_mask.astype(np.float32)
     consistent_f, weight_f = _evidence(forward, backward, texture, valid_f, config)
     _, weight_b = _evidence(backward, forward, texture, valid_f, config)
-    fit = dict(sigma_px=config.smooth_px, robust_px=config.robust_px, iterations=config.robust_iterations,
-               order=config.order)
+    fit = dict(
+        sigma_px=config.smooth_px, robust_px=config.robust_px, iterations=config.robust_iterations, order=config.order
+    )
     smooth_f = robust_smooth(forward, weight_f, **fit)
     smooth_b = robust_smooth(backward, weight_b, **fit)
 
@@ -297,12 +298,18 @@ def refine_dense(
     agreement = 1.0 / (1.0 + (deviation / config.robust_px) ** 2)
     confidence = np.clip(consistent_f * texture * agreement, 0.0, 1.0).astype(np.float32)
     confidence[not_compared] = 0.0
-    return DenseAlignment(flow=flow, confidence=confidence, not_compared=not_compared,
-                          max_flow_px=float(max_flow_px), settings=config.settings())
+    return DenseAlignment(
+        flow=flow,
+        confidence=confidence,
+        not_compared=not_compared,
+        max_flow_px=float(max_flow_px),
+        settings=config.settings(),
+    )
 
 
-def _evidence(flow: np.ndarray, other: np.ndarray, texture: np.ndarray, valid_f: np.ndarray,
-              config: DenseConfig) -> tuple[np.ndarray, np.ndarray]:
+def _evidence(
+    flow: np.ndarray, other: np.ndarray, texture: np.ndarray, valid_f: np.ndarray, config: DenseConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """Raw evidence of a flow: forward-backward consistency, and the fit weight (consistency, texture in
     both images, inside valid, and not absurdly long: a match twice the cap away is no parallax evidence)."""
     consistent = 1.0 / (1.0 + (_forward_backward_error(flow, other) / (0.5 * config.fb_px)) ** 2)
@@ -338,8 +345,15 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
     map_y = ((H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den).astype(np.float32)
     src = np.ascontiguousarray(image, dtype=np.float32)
     if src.ndim == 3 and src.shape[2] > 4:
-        warped = np.stack([cv2.remap(np.ascontiguousarray(src[..., c]), map_x, map_y, cv2.INTER_LINEAR,
-                                     borderMode=cv2.BORDER_REFLECT) for c in range(src.shape[2])], axis=2)
+        warped = np.stack(
+            [
+                cv2.remap(
+                    np.ascontiguousarray(src[..., c]), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
+                )
+                for c in range(src.shape[2])
+            ],
+            axis=2,
+        )
     else:
         warped = cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
         warped = warped.reshape((h, w) + src.shape[2:])

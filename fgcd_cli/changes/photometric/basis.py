@@ -193,5 +193,3 @@ def align_basis(b_cur: np.ndarray, b_ref: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- public API
-
-

@@ -36,8 +36,9 @@ class Stack:
 # --------------------------------------------------------------------------- input
 
 
-def _falloff_gains(grey: np.ndarray, weight: np.ndarray, index: np.ndarray, shape: tuple[int, int],
-                   sigma_px: float) -> np.ndarray:
+def _falloff_gains(
+    grey: np.ndarray, weight: np.ndarray, index: np.ndarray, shape: tuple[int, int], sigma_px: float
+) -> np.ndarray:
     """Smooth brightness gain of each lighting relative to the mean directional image (near lights).
 
     Per lighting k and pixel x0, ``g_k(x0)`` is the intercept of the locally linear
@@ -154,10 +155,15 @@ def prepare_stack(images, *, valid, ambient_index, falloff_sigma_px, name) -> St
         grey /= gains
         if colour is not None:
             colour /= gains[None]
-    return Stack(shape=(h, w), index=index, grey=grey.astype(np.float32), saturated=saturated,
-                  colour=colour, channel_saturated=channel_saturated, used=used)
+    return Stack(
+        shape=(h, w),
+        index=index,
+        grey=grey.astype(np.float32),
+        saturated=saturated,
+        colour=colour,
+        channel_saturated=channel_saturated,
+        used=used,
+    )
 
 
 # --------------------------------------------------------------------------- per-pixel fit
-
-

@@ -145,8 +145,9 @@ def _robust_fit(stack: Stack, lights: np.ndarray, shadow_fraction: float):
     return b, weights
 
 
-def _finish(stack: Stack, b: np.ndarray, weights: np.ndarray, lights: np.ndarray,
-            light_rows: np.ndarray | None) -> PhotometricStereo:
+def _finish(
+    stack: Stack, b: np.ndarray, weights: np.ndarray, lights: np.ndarray, light_rows: np.ndarray | None
+) -> PhotometricStereo:
     """Normals, per-channel albedo and residual images from the fitted ``b`` (3, N)."""
     h, w = stack.shape
     lights32 = lights.astype(np.float32)
@@ -267,8 +268,9 @@ def photometric_stereo(
     this matters for change detection: angles between two fits in one basis
     (:func:`joint_photometric_stereo`) are meaningful, absolute slopes are not.
     """
-    stack = prepare_stack(images, valid=valid, ambient_index=ambient_index, falloff_sigma_px=falloff_sigma_px,
-                     name="photometric stereo")
+    stack = prepare_stack(
+        images, valid=valid, ambient_index=ambient_index, falloff_sigma_px=falloff_sigma_px, name="photometric stereo"
+    )
     if light_dirs is not None:
         lights, rows = _given_lights(light_dirs, stack)
         b, weights = _robust_fit(stack, lights, shadow_fraction)

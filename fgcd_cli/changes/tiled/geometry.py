@@ -43,8 +43,9 @@ def tile_grid(shape: tuple[int, int], tile_px: int, overlap_px: int) -> list[Til
         for j in range(nx):
             y0, y1, x0, x1 = ys[i], ys[i + 1], xs[j], xs[j + 1]
             ext = (max(0, y0 - overlap_px), min(h, y1 + overlap_px), max(0, x0 - overlap_px), min(w, x1 + overlap_px))
-            tiles.append(Tile(index=len(tiles), core=(int(y0), int(y1), int(x0), int(x1)),
-                               ext=tuple(int(v) for v in ext)))
+            tiles.append(
+                Tile(index=len(tiles), core=(int(y0), int(y1), int(x0), int(x1)), ext=tuple(int(v) for v in ext))
+            )
     return tiles
 
 
@@ -82,8 +83,13 @@ def tile_maps(geom: Geometry, ext: tuple[int, int, int, int], cur_shape: tuple[i
         x += flow[..., 0] * geom.fx
         y += flow[..., 1] * geom.fy
         if geom.not_compared_work is not None:
-            not_compared = cv2.remap(geom.not_compared_work.astype(np.uint8), map_wx, map_wy, cv2.INTER_NEAREST,
-                                     borderMode=cv2.BORDER_REPLICATE).astype(bool)
+            not_compared = cv2.remap(
+                geom.not_compared_work.astype(np.uint8),
+                map_wx,
+                map_wy,
+                cv2.INTER_NEAREST,
+                borderMode=cv2.BORDER_REPLICATE,
+            ).astype(bool)
     H = geom.H_full
     den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
     map_x = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den
@@ -151,8 +157,7 @@ def tile_sampling(geom: Geometry, ext: tuple[int, int, int, int], cur_shape: tup
     else:
         mx = np.where(finite, map_x - lo_x, -1e6).astype(np.float32)
         my = np.where(finite, map_y - lo_y, -1e6).astype(np.float32)
-    return Sampling(shape=shape, box=(lo_y, hi_y, lo_x, hi_x), map_x=mx, map_y=my, seen=seen,
-                     not_compared=not_compared)
+    return Sampling(shape=shape, box=(lo_y, hi_y, lo_x, hi_x), map_x=mx, map_y=my, seen=seen, not_compared=not_compared)
 
 
 def warp_tile(cur: np.ndarray, sampling: Sampling) -> np.ndarray:

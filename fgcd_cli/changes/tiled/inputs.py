@@ -23,6 +23,7 @@ def load_images(paths: Sequence[str | os.PathLike], *, workers: int = 2) -> list
     16-bit files are reduced to 8 bits (the detector's cue resolution is far coarser
     than 1/255); a missing or unreadable file raises :class:`UserInputError`.
     """
+
     def read(path) -> np.ndarray:
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:

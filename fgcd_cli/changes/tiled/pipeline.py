@@ -116,41 +116,73 @@ def detect_changes_tiled(
     config = _tiled_config(config)
     shape, _ = check_stacks(ref_images, cur_images)
     n = len(ref_images)
-    roi = check_side_inputs(shape, n, roi=roi, pixel_area_mm2=pixel_area_mm2,
-                                  registration_lighting=config.registration.registration_lighting)
+    roi = check_side_inputs(
+        shape,
+        n,
+        roi=roi,
+        pixel_area_mm2=pixel_area_mm2,
+        registration_lighting=config.registration.registration_lighting,
+    )
     plan = _Plan.of(shape, config)
     report = _Report(progress, total=1 + len(plan.tiles) * plan.passes + 1)
     settings = _tiled_settings(config, n, plan)
-    small = working_resolution(ref_images, cur_images, plan.work_wh, roi=roi,
-                               config=config.registration, workers=config.tiling.workers)
+    small = working_resolution(
+        ref_images, cur_images, plan.work_wh, roi=roi, config=config.registration, workers=config.tiling.workers
+    )
     if isinstance(small, tuple):
         report(small[0], units=report.total)
         return empty_result(shape, small[1], None, settings)
     registration, geom = _to_full_resolution(small, plan)
     report("registered (working resolution)")
     # The finer smoothing is scanned only where the decision runs at full resolution (`tiled.decision`).
-    score_config = (config.score if max(shape) <= config.tiling.decision_px
-                    else dataclasses.replace(config.score, fine_smooth_sigma_px=0.0))
-    tiled = TiledScore(ref_images, cur_images, geom, plan.tiles, roi=roi, workers=config.tiling.workers,
-                       score=score_config, report=report)
+    score_config = (
+        config.score
+        if max(shape) <= config.tiling.decision_px
+        else dataclasses.replace(config.score, fine_smooth_sigma_px=0.0)
+    )
+    tiled = TiledScore(
+        ref_images,
+        cur_images,
+        geom,
+        plan.tiles,
+        roi=roi,
+        workers=config.tiling.workers,
+        score=score_config,
+        report=report,
+    )
     tiled.run_pass(0, None)
     valid = tiled.valid()
     if valid.sum() < 100:
         report("nothing to compare", units=report.total - report.done)
-        return empty_result(shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings)
+        return empty_result(
+            shape, "cannot compare: fewer than 100 pixels are seen in both images", registration, settings
+        )
     score, fine, settings["robust_gain_rounds"] = _robust_rounds(tiled, valid, config)
     report.done = 1 + len(plan.tiles) * plan.passes  # rounds skipped by the early exits
     not_compared = tiled.not_compared
     del tiled
     mask, regions, labels, threshold, significance, cue_maps = _decide_and_label(
-        (score, fine), valid, small, pixel_area_mm2=pixel_area_mm2, config=config, plan=plan, settings=settings)
+        (score, fine), valid, small, pixel_area_mm2=pixel_area_mm2, config=config, plan=plan, settings=settings
+    )
     report("decided")
     return ChangeResult(
-        comparable=True, score=score, fine_score=fine, mask=mask, labels=labels, valid=valid, regions=regions,
-        registration=registration, threshold=threshold, current_registered=[], settings=settings,
+        comparable=True,
+        score=score,
+        fine_score=fine,
+        mask=mask,
+        labels=labels,
+        valid=valid,
+        regions=regions,
+        registration=registration,
+        threshold=threshold,
+        current_registered=[],
+        settings=settings,
         warnings=result_warnings(mask, valid, registration, register=config.registration.register),
-        edge_explained=None, candidates=unreported_candidates(significance, mask),
-        not_compared=not_compared, dense=small.dense_fit, cue_maps=cue_maps,
+        edge_explained=None,
+        candidates=unreported_candidates(significance, mask),
+        not_compared=not_compared,
+        dense=small.dense_fit,
+        cue_maps=cue_maps,
     )
 
 
@@ -201,8 +233,15 @@ class _Plan:
             overlap_px = default_overlap_px(score)
         scale = max(1.0, max(h, w) / float(tiling.work_px))
         ws, hs = max(2, int(round(w / scale))), max(2, int(round(h / scale)))
-        return cls(tiles=tile_grid(shape, tiling.tile_px, overlap_px), overlap_px=overlap_px,
-                   passes=1 + max(0, score.robust_gain_rounds), work_wh=(ws, hs), full_wh=(w, h), fx=w / ws, fy=h / hs)
+        return cls(
+            tiles=tile_grid(shape, tiling.tile_px, overlap_px),
+            overlap_px=overlap_px,
+            passes=1 + max(0, score.robust_gain_rounds),
+            work_wh=(ws, hs),
+            full_wh=(w, h),
+            fx=w / ws,
+            fy=h / hs,
+        )
 
 
 def default_overlap_px(score: ScoreConfig) -> int:
@@ -217,8 +256,13 @@ def _tiled_settings(config: DetectionConfig, lightings: int, plan: _Plan) -> dic
     settings = detection_settings(config, lightings=lightings, shading=False)
     del settings["edge_contrast"]
     tiling = config.tiling
-    settings["tiled"] = {"tile_px": tiling.tile_px, "overlap_px": plan.overlap_px, "tiles": len(plan.tiles),
-                         "workers": tiling.workers, "medians": "global (all compared pixels of the frame)"}
+    settings["tiled"] = {
+        "tile_px": tiling.tile_px,
+        "overlap_px": plan.overlap_px,
+        "tiles": len(plan.tiles),
+        "workers": tiling.workers,
+        "medians": "global (all compared pixels of the frame)",
+    }
     settings["work_scale"] = float(max(plan.fx, plan.fy))
     settings["work_size_wh"] = list(plan.work_wh)
     return settings
@@ -231,20 +275,31 @@ def _to_full_resolution(small: Small, plan: _Plan) -> tuple[Registration, Geomet
     A = scale_matrix(fx, fy)
     H_full = A @ reg_small.H_cur_ref @ np.linalg.inv(A)
     H_full = H_full / H_full[2, 2]
-    registration = Registration(H_cur_ref=H_full, ok=reg_small.ok, reason=reg_small.reason,
-                                ecc_correlation=reg_small.ecc_correlation, overlap_fraction=reg_small.overlap_fraction,
-                                sift_inliers=reg_small.sift_inliers, init=reg_small.init,
-                                settings=dict(reg_small.settings, resolution=f"{ws}x{hs} (area-downscaled), "
-                                              f"conjugated to {w}x{h}"))
+    registration = Registration(
+        H_cur_ref=H_full,
+        ok=reg_small.ok,
+        reason=reg_small.reason,
+        ecc_correlation=reg_small.ecc_correlation,
+        overlap_fraction=reg_small.overlap_fraction,
+        sift_inliers=reg_small.sift_inliers,
+        init=reg_small.init,
+        settings=dict(reg_small.settings, resolution=f"{ws}x{hs} (area-downscaled), conjugated to {w}x{h}"),
+    )
     dense_fit = small.dense_fit
-    geom = Geometry(H_full=H_full, flow_work=None if dense_fit is None else dense_fit.flow,
-                    not_compared_work=None if dense_fit is None else dense_fit.not_compared,
-                    fx=fx, fy=fy, max_flow_full=0.0 if dense_fit is None else dense_fit.max_flow_px * max(fx, fy))
+    geom = Geometry(
+        H_full=H_full,
+        flow_work=None if dense_fit is None else dense_fit.flow,
+        not_compared_work=None if dense_fit is None else dense_fit.not_compared,
+        fx=fx,
+        fy=fy,
+        max_flow_full=0.0 if dense_fit is None else dense_fit.max_flow_px * max(fx, fy),
+    )
     return registration, geom
 
 
-def _robust_rounds(tiled: TiledScore, valid: np.ndarray,
-                   config: DetectionConfig) -> tuple[np.ndarray, np.ndarray | None, int]:
+def _robust_rounds(
+    tiled: TiledScore, valid: np.ndarray, config: DetectionConfig
+) -> tuple[np.ndarray, np.ndarray | None, int]:
     """The fused score after the robust gain rounds, its finer smoothing (or None), and the rounds run.
 
     As :func:`fgcd_cli.changes.score.score_pair`, on the full frame: the suspect set is
@@ -270,8 +325,9 @@ def _robust_rounds(tiled: TiledScore, valid: np.ndarray,
     return score, fine, rounds
 
 
-def _decide_and_label(scores, valid, small: Small, *, pixel_area_mm2, config: DetectionConfig, plan: _Plan,
-                      settings: dict):
+def _decide_and_label(
+    scores, valid, small: Small, *, pixel_area_mm2, config: DetectionConfig, plan: _Plan, settings: dict
+):
     """Decision on the full frame (as ``detect_changes``), the cue maps alongside at the working resolution.
 
     ``scores`` is the fused score and its finer smoothing (or None).
@@ -283,16 +339,30 @@ def _decide_and_label(scores, valid, small: Small, *, pixel_area_mm2, config: De
     smooth_sigma_px, workers = config.score.smooth_sigma_px, config.tiling.workers
     cue_job = None
     if config.cue_labels.cues:
-        cue_job = partial(cue_maps_small, small, valid, small.dense_fit,
-                          gain_sigma_px=config.score.gain_sigma_px / max(fx, fy), config=config.cue_labels)
+        cue_job = partial(
+            cue_maps_small,
+            small,
+            valid,
+            small.dense_fit,
+            gain_sigma_px=config.score.gain_sigma_px / max(fx, fy),
+            config=config.cue_labels,
+        )
     with opencv_threads(1 if workers > 1 else None), ThreadPoolExecutor(max_workers=1) as aside:
         mask, regions, labels, threshold, significance, cue_maps = decide_tiled(
-            scores, valid, aside, cue_job, pixel_area_mm2=pixel_area_mm2, config=config.regions,
-            decision_px=config.tiling.decision_px, smoothing_px=(smooth_sigma_px, config.score.fine_smooth_sigma_px))
+            scores,
+            valid,
+            aside,
+            cue_job,
+            pixel_area_mm2=pixel_area_mm2,
+            config=config.regions,
+            decision_px=config.tiling.decision_px,
+            smoothing_px=(smooth_sigma_px, config.score.fine_smooth_sigma_px),
+        )
         settings["significance_scale"] = significance.settings.get("scale", 1.0)
         if cue_maps is not None:
             cue_maps, valid_small = cue_maps.result()
-            label_cues_small(cue_maps, valid_small, regions, labels, (ws, hs), smooth_sigma_px=smooth_sigma_px,
-                             fx=fx, fy=fy)
+            label_cues_small(
+                cue_maps, valid_small, regions, labels, (ws, hs), smooth_sigma_px=smooth_sigma_px, fx=fx, fy=fy
+            )
             settings["cues"] = (cue_maps.reason or CUES_COMPUTED) + f", at {ws}x{hs}"
     return mask, regions, labels, threshold, significance, cue_maps

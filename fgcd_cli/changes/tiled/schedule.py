@@ -68,8 +68,7 @@ def median_float16(values: np.ndarray) -> float:
     return float(np.mean(np.array([value_at(half - 1), value_at(half)], np.float32)))
 
 
-def run_tiles(tiles: list[Tile], n: int, prepare: Callable, work: Callable, finished: Callable,
-               workers: int) -> None:
+def run_tiles(tiles: list[Tile], n: int, prepare: Callable, work: Callable, finished: Callable, workers: int) -> None:
     """Run ``work(tile, context, k)`` for every lighting ``k`` of every tile, ``context = prepare(tile)``.
 
     Work is spread over ``workers`` threads lighting by lighting (a tile's lightings

@@ -28,8 +28,18 @@ from fgcd_cli.changes.tiled.schedule import median_float16, release_free_memory,
 class TiledScore:
     """The per-lighting difference maps of the whole frame, computed tile by tile, and their fusion."""
 
-    def __init__(self, ref_images, cur_images, geom: Geometry, tiles: list[Tile], *, roi, workers: int,
-                 score: ScoreConfig, report):
+    def __init__(
+        self,
+        ref_images,
+        cur_images,
+        geom: Geometry,
+        tiles: list[Tile],
+        *,
+        roi,
+        workers: int,
+        score: ScoreConfig,
+        report,
+    ):
         """``geom`` carries the dense flow when the dense refinement ran (then ``not_compared`` is kept)."""
         self.refs, self.curs, self.geom, self.tiles = ref_images, cur_images, geom, tiles
         self.shape = np.asarray(ref_images[0]).shape[:2]
@@ -71,13 +81,16 @@ class TiledScore:
                 if sampling.not_compared is not None and self.not_compared is not None:
                     self.not_compared[cy0:cy1, cx0:cx1] = sampling.not_compared[core]
             sampling.seen = sampling.not_compared = None
-            region = (slice(max(y0, cy0 - r) - y0, min(y1, cy1 + r) - y0),
-                      slice(max(x0, cx0 - r) - x0, min(x1, cx1 + r) - x0))
+            region = (
+                slice(max(y0, cy0 - r) - y0, min(y1, cy1 + r) - y0),
+                slice(max(x0, cx0 - r) - x0, min(x1, cx1 + r) - x0),
+            )
             weight = None
             if weight_map is not None:
                 image_shape = (y1 - y0, x1 - x0) if self.grey else (y1 - y0, x1 - x0, 3)
-                weight = prepare_gain_weight(weight_map[y0:y1, x0:x1].astype(np.float32), self.gain_sigma_px,
-                                             image_shape, region=region)
+                weight = prepare_gain_weight(
+                    weight_map[y0:y1, x0:x1].astype(np.float32), self.gain_sigma_px, image_shape, region=region
+                )
             return box, region, sampling, weight
 
         def work(tile: Tile, context, k: int) -> None:
@@ -89,7 +102,7 @@ class TiledScore:
             diff = shift_tolerant_difference(ref[region], normalized, radius_px=r)
             cy0, cy1, cx0, cx1 = tile.core
             ry0, rx0 = y0 + region[0].start, x0 + region[1].start  # the region's corner in the frame
-            self.differences[k][cy0:cy1, cx0:cx1] = diff[cy0 - ry0:cy1 - ry0, cx0 - rx0:cx1 - rx0]
+            self.differences[k][cy0:cy1, cx0:cx1] = diff[cy0 - ry0 : cy1 - ry0, cx0 - rx0 : cx1 - rx0]
 
         def finished(tile: Tile) -> None:
             self.report(f"{label}: tile {tile.index + 1}/{len(self.tiles)}")
@@ -133,8 +146,9 @@ class TiledScore:
         else:
             for rows in bands:
                 add(rows)
-        fused, fine = smooth_at_two_scales(fused, smooth_sigma_px=self.smooth_sigma_px,
-                                           fine_sigma_px=self.fine_smooth_sigma_px)
+        fused, fine = smooth_at_two_scales(
+            fused, smooth_sigma_px=self.smooth_sigma_px, fine_sigma_px=self.fine_smooth_sigma_px
+        )
         fused[~valid] = 0.0
         if fine is not None:
             fine[~valid] = 0.0

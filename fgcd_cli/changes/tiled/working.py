@@ -28,8 +28,9 @@ class Small:
     dense_fit: DenseAlignment | None
 
 
-def working_resolution(ref_images, cur_images, size_wh, *, roi, config: RegistrationConfig,
-                       workers: int) -> Small | tuple[str, str]:
+def working_resolution(
+    ref_images, cur_images, size_wh, *, roi, config: RegistrationConfig, workers: int
+) -> Small | tuple[str, str]:
     """Downscale the stacks, check them, register and refine at the working resolution.
 
     Returns ``(progress label, reason)`` when the pair cannot be compared.
@@ -91,8 +92,9 @@ def cue_maps_small(small: Small, valid, dense_fit, *, gain_sigma_px: float, conf
     # A working pixel is compared when most of the full pixels it covers are.
     valid_small = cv2.resize(valid.astype(np.float32), (ws, hs), interpolation=cv2.INTER_AREA) > 0.5
     release_free_memory()
-    cue_maps = relief_colour_cues(refs, normalized, valid=valid_small, ambient_index=config.ambient_index,
-                                  light_dirs=config.light_dirs)
+    cue_maps = relief_colour_cues(
+        refs, normalized, valid=valid_small, ambient_index=config.ambient_index, light_dirs=config.light_dirs
+    )
     return cue_maps, valid_small
 
 
@@ -104,5 +106,10 @@ def label_cues_small(cue_maps, valid_small, regions, labels, size_wh, *, smooth_
         if not (labels_small == region.id).any():
             cx, cy = region.centroid_xy
             labels_small[min(hs - 1, int((cy + 0.5) / fy)), min(ws - 1, int((cx + 0.5) / fx))] = region.id
-    label_regions(regions, labels_small, cue_maps, valid=valid_small | (labels_small > 0),
-                  smooth_sigma_px=max(smooth_sigma_px / max(fx, fy), 0.5))
+    label_regions(
+        regions,
+        labels_small,
+        cue_maps,
+        valid=valid_small | (labels_small > 0),
+        smooth_sigma_px=max(smooth_sigma_px / max(fx, fy), 0.5),
+    )

@@ -142,20 +142,38 @@ def acr_camera_motion(pose: RelativePose, step_m: float, *, max_step_rad: float)
     return make_pose(exp_so3(phi), step_m * np.asarray(pose.t_dir, dtype=float))
 
 
-def _record(rig: AcrRig, *, iteration: int, stage: str, pose: RelativePose, M_flange: np.ndarray,
-            step_m: float, t_start: float) -> AdjustmentRecord:
+def _record(
+    rig: AcrRig, *, iteration: int, stage: str, pose: RelativePose, M_flange: np.ndarray, step_m: float, t_start: float
+) -> AdjustmentRecord:
     """One log line: ACR has no metric pose, so ``T_ref_cam`` and ``offset_mm`` are NaN."""
     nan = math.nan
     return AdjustmentRecord(
-        iteration=iteration, t_wall_s=time.monotonic() - t_start, t_session_s=rig.timing.total_s, stage=stage,
-        g=float(np.linalg.norm(M_flange - np.eye(4))), offset_mm=nan,
+        iteration=iteration,
+        t_wall_s=time.monotonic() - t_start,
+        t_session_s=rig.timing.total_s,
+        stage=stage,
+        g=float(np.linalg.norm(M_flange - np.eye(4))),
+        offset_mm=nan,
         offset_deg=math.degrees(rotation_angle_rad(pose.R_cur_ref)) if pose.ok else nan,
-        T_ref_cam=np.full((4, 4), nan).tolist(), M_flange_commanded=np.asarray(M_flange).tolist(), clamped=False,
-        vse_status="none", vse_points=0, alignment_ok=pose.ok, alignment_reason=pose.reason, scale=nan, sigma=nan,
-        afd_est_px=pose.measured_afd_px, truth=rig.evaluate() if rig.evaluate else None,
-        image={"matches": pose.matches, "inliers": pose.inliers, "measured_afd_px": pose.measured_afd_px,
-               "t_dir": np.asarray(pose.t_dir).tolist(), "step_mm": 1000.0 * step_m,
-               "stop_rule": "measured AFD only (ACR has no metric offset estimate)"},
+        T_ref_cam=np.full((4, 4), nan).tolist(),
+        M_flange_commanded=np.asarray(M_flange).tolist(),
+        clamped=False,
+        vse_status="none",
+        vse_points=0,
+        alignment_ok=pose.ok,
+        alignment_reason=pose.reason,
+        scale=nan,
+        sigma=nan,
+        afd_est_px=pose.measured_afd_px,
+        truth=rig.evaluate() if rig.evaluate else None,
+        image={
+            "matches": pose.matches,
+            "inliers": pose.inliers,
+            "measured_afd_px": pose.measured_afd_px,
+            "t_dir": np.asarray(pose.t_dir).tolist(),
+            "step_mm": 1000.0 * step_m,
+            "stop_rule": "measured AFD only (ACR has no metric offset estimate)",
+        },
     )
 
 
@@ -168,8 +186,14 @@ def _measure(rig: AcrRig, reference_image: np.ndarray, K: np.ndarray, config: Ac
     return pose
 
 
-def acr_relocate(rig: AcrRig, reference_image: np.ndarray, K: np.ndarray, *,
-                 T_flange_cam: np.ndarray | None = None, config: AcrConfig = AcrConfig()) -> RelocationResult:
+def acr_relocate(
+    rig: AcrRig,
+    reference_image: np.ndarray,
+    K: np.ndarray,
+    *,
+    T_flange_cam: np.ndarray | None = None,
+    config: AcrConfig = AcrConfig(),
+) -> RelocationResult:
     """Drive the camera to the view of ``reference_image`` with ACR (module docstring).
 
     Parameters
@@ -197,8 +221,9 @@ def acr_relocate(rig: AcrRig, reference_image: np.ndarray, K: np.ndarray, *,
     X = np.eye(4) if T_flange_cam is None else np.asarray(T_flange_cam, dtype=float)
     stage = str(config.pose.model)
     bisection, records, t_start = Bisection(config.initial_step_m), [], time.monotonic()
-    result = RelocationResult(False, f"not converged after {config.max_adjustments} adjustments",
-                              config.max_adjustments)
+    result = RelocationResult(
+        False, f"not converged after {config.max_adjustments} adjustments", config.max_adjustments
+    )
     for iteration in range(1, config.max_adjustments + 1):
         pose = _measure(rig, reference_image, K, config)
         done = pose.ok and pose.measured_afd_px <= config.stop_afd_px
@@ -206,25 +231,36 @@ def acr_relocate(rig: AcrRig, reference_image: np.ndarray, K: np.ndarray, *,
         M_cam = acr_camera_motion(pose, step_m, max_step_rad=config.max_step_rad) if pose.ok else np.eye(4)
         too_small = pose.ok and not done and step_m < config.min_step_m
         M_flange = np.eye(4) if (done or too_small) else flange_motion(X, M_cam)
-        records.append(_record(rig, iteration=iteration, stage=stage, pose=pose, M_flange=M_flange, step_m=step_m,
-                               t_start=t_start))
+        records.append(
+            _record(rig, iteration=iteration, stage=stage, pose=pose, M_flange=M_flange, step_m=step_m, t_start=t_start)
+        )
         if rig.on_record:
             rig.on_record(records[-1])
         if not pose.ok:
             result.records = records
             raise AlgorithmError(f"ACR paused at adjustment {iteration}: {pose.reason}")
         if done:
-            result = RelocationResult(True, f"measured AFD {pose.measured_afd_px:.2f} px <= {config.stop_afd_px} px "
-                                            f"({pose.inliers} inliers; ACR has no metric offset estimate)", iteration)
+            result = RelocationResult(
+                True,
+                f"measured AFD {pose.measured_afd_px:.2f} px <= {config.stop_afd_px} px "
+                f"({pose.inliers} inliers; ACR has no metric offset estimate)",
+                iteration,
+            )
             break
         if too_small:
-            result = RelocationResult(False, f"bisection step {step_m * 1e3:.3f} mm below {config.min_step_m * 1e3} mm "
-                                             f"with the measured AFD at {pose.measured_afd_px:.2f} px", iteration)
+            result = RelocationResult(
+                False,
+                f"bisection step {step_m * 1e3:.3f} mm below {config.min_step_m * 1e3} mm "
+                f"with the measured AFD at {pose.measured_afd_px:.2f} px",
+                iteration,
+            )
             break
         if rig.say:
-            rig.say(f"ACR adjustment {iteration}: step {step_m * 1e3:.1f} mm, turn "
-                    f"{math.degrees(rotation_angle_rad(M_cam[:3, :3])):.2f} deg, measured AFD "
-                    f"{pose.measured_afd_px:.2f} px")
+            rig.say(
+                f"ACR adjustment {iteration}: step {step_m * 1e3:.1f} mm, turn "
+                f"{math.degrees(rotation_angle_rad(M_cam[:3, :3])):.2f} deg, measured AFD "
+                f"{pose.measured_afd_px:.2f} px"
+            )
         rig.move(M_flange)
         bisection.moved(M_cam, pose.t_dir)
     result.records = records

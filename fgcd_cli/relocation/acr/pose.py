@@ -104,8 +104,15 @@ class RelativePose:
 
 
 def _failed(reason: str, *, matches: int = 0, inliers: int = 0, afd: float = math.nan) -> RelativePose:
-    return RelativePose(ok=False, reason=reason, R_cur_ref=np.eye(3), t_dir=np.zeros(3), matches=matches,
-                        inliers=inliers, measured_afd_px=afd)
+    return RelativePose(
+        ok=False,
+        reason=reason,
+        R_cur_ref=np.eye(3),
+        t_dir=np.zeros(3),
+        matches=matches,
+        inliers=inliers,
+        measured_afd_px=afd,
+    )
 
 
 def _measured_afd(p_cur: np.ndarray, p_ref: np.ndarray, ransac_px: float) -> float:
@@ -130,8 +137,7 @@ def _essential(p_cur: np.ndarray, p_ref: np.ndarray, K: np.ndarray, config: AcrP
         return f"only {inliers} essential-matrix inliers (need {config.min_inliers})"
     # distanceThresh: points up to 1e6 baselines away count (OpenCV's default of 50 drops the whole
     # object of a revisit, whose baseline is a few centimetres at a metre and more)
-    front, R, t, _, _ = cv2.recoverPose(E, p_cur, p_ref, K, distanceThresh=1e6,
-                                       mask=mask.copy())
+    front, R, t, _, _ = cv2.recoverPose(E, p_cur, p_ref, K, distanceThresh=1e6, mask=mask.copy())
     if front < config.min_front_fraction * inliers:
         return f"recoverPose put only {front} of {inliers} inliers in front of both cameras (ambiguous solution)"
     return R, t.ravel(), inliers
@@ -163,8 +169,9 @@ def _homography(p_cur: np.ndarray, p_ref: np.ndarray, K: np.ndarray, config: Acr
     return Rs[best], (t / norm if norm > 0 else t), int(inl.sum())
 
 
-def relative_pose_from_matches(p_cur: np.ndarray, p_ref: np.ndarray, K: np.ndarray, *,
-                               config: AcrPoseConfig = AcrPoseConfig()) -> RelativePose:
+def relative_pose_from_matches(
+    p_cur: np.ndarray, p_ref: np.ndarray, K: np.ndarray, *, config: AcrPoseConfig = AcrPoseConfig()
+) -> RelativePose:
     """The reference camera in the current camera's frame, up to scale, from matched pixels.
 
     Parameters
@@ -196,12 +203,20 @@ def relative_pose_from_matches(p_cur: np.ndarray, p_ref: np.ndarray, K: np.ndarr
     R_cur_ref = np.asarray(R_ref_cur, dtype=float).T
     t_dir = -R_cur_ref @ np.asarray(t_ref_cur, dtype=float)
     norm = float(np.linalg.norm(t_dir))
-    return RelativePose(ok=True, reason="ok", R_cur_ref=R_cur_ref, t_dir=t_dir / norm if norm > 0 else t_dir,
-                        matches=n, inliers=inliers, measured_afd_px=afd)
+    return RelativePose(
+        ok=True,
+        reason="ok",
+        R_cur_ref=R_cur_ref,
+        t_dir=t_dir / norm if norm > 0 else t_dir,
+        matches=n,
+        inliers=inliers,
+        measured_afd_px=afd,
+    )
 
 
-def measure_relative_pose(reference_image: np.ndarray, current_image: np.ndarray, K: np.ndarray, *,
-                          config: AcrPoseConfig = AcrPoseConfig()) -> RelativePose:
+def measure_relative_pose(
+    reference_image: np.ndarray, current_image: np.ndarray, K: np.ndarray, *, config: AcrPoseConfig = AcrPoseConfig()
+) -> RelativePose:
     """SIFT matches of two images, then :func:`relative_pose_from_matches`.
 
     Parameters

@@ -20,8 +20,14 @@ import numpy as np
 from fgcd_cli.relocation.coarse.config import CoarseConfig
 from fgcd_core.se3 import pose_distance
 
-__all__ = ["CameraUncertainty", "camera_uncertainty", "in_view", "render_visible_points", "strong_directions",
-           "visible_points"]
+__all__ = [
+    "CameraUncertainty",
+    "camera_uncertainty",
+    "in_view",
+    "render_visible_points",
+    "strong_directions",
+    "visible_points",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -74,8 +80,11 @@ class CameraUncertainty:
         if self.fitness < config.min_fitness:
             return False
         if geometric_source:
-            return (self.weak_directions == 0 and self.translation_m <= config.verify_m
-                    and self.rotation_deg <= config.verify_deg)
+            return (
+                self.weak_directions == 0
+                and self.translation_m <= config.verify_m
+                and self.rotation_deg <= config.verify_deg
+            )
         return self.constrained_translation_m <= config.verify_m and self.constrained_rotation_deg <= config.verify_deg
 
     def correction(self, *, geometric_source: bool = True) -> np.ndarray:
@@ -96,17 +105,23 @@ class CameraUncertainty:
         return np.eye(4)
 
     def to_dict(self) -> dict:
-        return {"translation_mm": self.translation_m * 1e3, "rotation_deg": self.rotation_deg,
-                "fitness": self.fitness, "rmse_mm": self.rmse_m * 1e3, "observed": self.observed,
-                "rendered": self.rendered, "weak_directions": self.weak_directions,
-                "constrained_translation_mm": self.constrained_translation_m * 1e3,
-                "constrained_rotation_deg": self.constrained_rotation_deg,
-                "check_sigma_mm": self.check_sigma_m * 1e3}
+        return {
+            "translation_mm": self.translation_m * 1e3,
+            "rotation_deg": self.rotation_deg,
+            "fitness": self.fitness,
+            "rmse_mm": self.rmse_m * 1e3,
+            "observed": self.observed,
+            "rendered": self.rendered,
+            "weak_directions": self.weak_directions,
+            "constrained_translation_mm": self.constrained_translation_m * 1e3,
+            "constrained_rotation_deg": self.constrained_rotation_deg,
+            "check_sigma_mm": self.check_sigma_m * 1e3,
+        }
 
 
-
-def render_visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera, *, stride_px: int = 4,
-                          depth_tolerance_rel: float = 0.02) -> np.ndarray:
+def render_visible_points(
+    points_ref: np.ndarray, T_ref_cam: np.ndarray, camera, *, stride_px: int = 4, depth_tolerance_rel: float = 0.02
+) -> np.ndarray:
     """The reference cloud as a depth camera at ``T_ref_cam`` would see it.
 
     Parameters
@@ -128,13 +143,15 @@ def render_visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera,
     (M, 3) ndarray
         Visible points in the camera frame, metres.
     """
-    _index, Xc = visible_points(points_ref, T_ref_cam, camera, stride_px=stride_px,
-                                depth_tolerance_rel=depth_tolerance_rel)
+    _index, Xc = visible_points(
+        points_ref, T_ref_cam, camera, stride_px=stride_px, depth_tolerance_rel=depth_tolerance_rel
+    )
     return Xc
 
 
-def visible_points(points_ref: np.ndarray, T_ref_cam: np.ndarray, camera, *, stride_px: int = 4,
-                   depth_tolerance_rel: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+def visible_points(
+    points_ref: np.ndarray, T_ref_cam: np.ndarray, camera, *, stride_px: int = 4, depth_tolerance_rel: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
     """Which points a camera at ``T_ref_cam`` sees: in view and not hidden (z-buffer of the points themselves).
 
     Parameters are those of :func:`render_visible_points`.
@@ -216,8 +233,15 @@ def camera_uncertainty(
     if len(rendered) > 2 * config.max_points:
         rendered = rendered[rng.choice(len(rendered), 2 * config.max_points, replace=False)]
     if len(obs) < 100 or len(rendered) < 100:
-        return CameraUncertainty(translation_m=math.inf, rotation_deg=math.inf, fitness=0.0, rmse_m=math.inf,
-                                 observed=len(obs), rendered=len(rendered), T_correction=np.eye(4))
+        return CameraUncertainty(
+            translation_m=math.inf,
+            rotation_deg=math.inf,
+            fitness=0.0,
+            rmse_m=math.inf,
+            observed=len(obs),
+            rendered=len(rendered),
+            T_correction=np.eye(4),
+        )
     depth = float(np.median(obs[:, 2]))
     src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(obs))
     dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rendered))
@@ -227,7 +251,10 @@ def camera_uncertainty(
     result = None
     for radius_rel, iterations in ((0.15, 30), (0.05, 30), (0.02, 30)):
         result = o3d.pipelines.registration.registration_icp(
-            src, dst, radius_rel * depth, T,
+            src,
+            dst,
+            radius_rel * depth,
+            T,
             o3d.pipelines.registration.TransformationEstimationPointToPlane(),
             o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=iterations),
         )
@@ -235,13 +262,23 @@ def camera_uncertainty(
     # ``T`` maps observed (true camera frame) points onto the rendering (estimated camera frame):
     # T_estcam_truecam, i.e. the true camera in the estimated camera's frame.
     mm, deg = pose_distance(np.eye(4), T)
-    weak, T_constrained, check_sigma_m = _constrained_part(T, obs, rendered, np.asarray(dst.normals),
-                                                           radius=0.02 * depth, depth=depth, config=config)
+    weak, T_constrained, check_sigma_m = _constrained_part(
+        T, obs, rendered, np.asarray(dst.normals), radius=0.02 * depth, depth=depth, config=config
+    )
     c_mm, c_deg = pose_distance(np.eye(4), T_constrained)
-    return CameraUncertainty(translation_m=mm / 1e3, rotation_deg=deg, fitness=float(result.fitness),
-                             rmse_m=float(result.inlier_rmse), observed=len(obs), rendered=len(rendered),
-                             T_correction=T.copy(), weak_directions=weak, constrained_translation_m=c_mm / 1e3,
-                             constrained_rotation_deg=c_deg, check_sigma_m=check_sigma_m)
+    return CameraUncertainty(
+        translation_m=mm / 1e3,
+        rotation_deg=deg,
+        fitness=float(result.fitness),
+        rmse_m=float(result.inlier_rmse),
+        observed=len(obs),
+        rendered=len(rendered),
+        T_correction=T.copy(),
+        weak_directions=weak,
+        constrained_translation_m=c_mm / 1e3,
+        constrained_rotation_deg=c_deg,
+        check_sigma_m=check_sigma_m,
+    )
 
 
 def sensitivity_of(evals: np.ndarray, n: int) -> np.ndarray:
@@ -250,8 +287,16 @@ def sensitivity_of(evals: np.ndarray, n: int) -> np.ndarray:
     return np.sqrt(np.clip(evals, 0.0, None) / max(n, 1))
 
 
-def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray, normals: np.ndarray, *,
-                      radius: float, depth: float, config: CoarseConfig) -> tuple[int, np.ndarray, float]:
+def _constrained_part(
+    T: np.ndarray,
+    observed: np.ndarray,
+    rendered: np.ndarray,
+    normals: np.ndarray,
+    *,
+    radius: float,
+    depth: float,
+    config: CoarseConfig,
+) -> tuple[int, np.ndarray, float]:
     """The residual motion ``T`` without its part along the registration's weak directions
     (:func:`strong_directions` on the ``N`` final correspondences). Returns the weak count, ``exp`` of
     the twist projected onto the others, and the check's own uncertainty on that part (metres): along
@@ -277,9 +322,9 @@ def _constrained_part(T: np.ndarray, observed: np.ndarray, rendered: np.ndarray,
     return int((~strong).sum()), exp_se3(np.concatenate([v_c[:3], v_c[3:] / depth])), check_sigma
 
 
-
-def strong_directions(points_cam: np.ndarray, normals_cam: np.ndarray, *, depth: float,
-                      config: CoarseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def strong_directions(
+    points_cam: np.ndarray, normals_cam: np.ndarray, *, depth: float, config: CoarseConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which directions of a point-to-plane registration the geometry constrains (the covariance model).
 
     Parameters

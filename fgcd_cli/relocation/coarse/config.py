@@ -69,10 +69,16 @@ class CoarseConfig:
         simulator's depths (1.3-1.75 m) that is 24-15 mm and 3.9 deg.
         """
         depth = depth_m if math.isfinite(depth_m) and depth_m > 0 else 0.0
-        m = self.handover_m if self.handover_m is not None else max(
-            0.0, self.basin_m - self.k_sigma * self.sigma_rel * depth)
-        deg = self.handover_deg if self.handover_deg is not None else max(
-            0.0, self.basin_deg - self.k_sigma * math.degrees(self.sigma_rel))
+        m = (
+            self.handover_m
+            if self.handover_m is not None
+            else max(0.0, self.basin_m - self.k_sigma * self.sigma_rel * depth)
+        )
+        deg = (
+            self.handover_deg
+            if self.handover_deg is not None
+            else max(0.0, self.basin_deg - self.k_sigma * math.degrees(self.sigma_rel))
+        )
         return m, deg
 
 

@@ -154,9 +154,15 @@ class ViewPrediction:
         return self.image_ok or self.geometry_ok
 
 
-def build_scene_model(*, reference_points: np.ndarray, T_ref_camref: np.ndarray, camera,
-                      keypoints_per_image: list[np.ndarray],
-                      config: SceneUncertaintyConfig = SceneUncertaintyConfig(), seed: int = 0) -> SceneModel:
+def build_scene_model(
+    *,
+    reference_points: np.ndarray,
+    T_ref_camref: np.ndarray,
+    camera,
+    keypoints_per_image: list[np.ndarray],
+    config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
+    seed: int = 0,
+) -> SceneModel:
     """The success models' inputs from the reference observation.
 
     Parameters
@@ -191,10 +197,14 @@ def build_scene_model(*, reference_points: np.ndarray, T_ref_camref: np.ndarray,
     cloud.orient_normals_towards_camera_location(T[:3, 3])
     centroid = (seen.mean(axis=0) @ T[:3, :3].T + T[:3, 3]) if len(seen) else P.mean(axis=0)
     kps = [np.asarray(k, dtype=float).reshape(-1, 3) for k in keypoints_per_image]
-    return SceneModel(points=P, normals=np.asarray(cloud.normals), keypoints=np.vstack(kps or [np.zeros((0, 3))]),
-                      keypoint_image=np.concatenate([np.full(len(k), i) for i, k in enumerate(kps)] or
-                                                    [np.zeros(0)]).astype(int),
-                      T_ref_camref=T, centroid=np.asarray(centroid, dtype=float))
+    return SceneModel(
+        points=P,
+        normals=np.asarray(cloud.normals),
+        keypoints=np.vstack(kps or [np.zeros((0, 3))]),
+        keypoint_image=np.concatenate([np.full(len(k), i) for i, k in enumerate(kps)] or [np.zeros(0)]).astype(int),
+        T_ref_camref=T,
+        centroid=np.asarray(centroid, dtype=float),
+    )
 
 
 def camera_turn(yaw_rad: float, pitch_rad: float) -> np.ndarray:
@@ -203,7 +213,8 @@ def camera_turn(yaw_rad: float, pitch_rad: float) -> np.ndarray:
     cy, sy, cp, sp = math.cos(yaw_rad), math.sin(yaw_rad), math.cos(pitch_rad), math.sin(pitch_rad)
     M = np.eye(4)
     M[:3, :3] = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]]) @ np.array(
-        [[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
+        [[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]]
+    )
     return M
 
 
@@ -234,13 +245,20 @@ def _pnp_sigma(Xc: np.ndarray, camera, pixel_sigma_px: float) -> tuple[float, fl
     if np.linalg.cond(H) > 1e12:
         return math.inf, math.inf
     cov = pixel_sigma_px**2 * np.linalg.inv(H)
-    return (float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:]))))),
-            math.degrees(math.sqrt(max(0.0, float(np.trace(cov[:3, :3]))))))
+    return (
+        float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:]))))),
+        math.degrees(math.sqrt(max(0.0, float(np.trace(cov[:3, :3]))))),
+    )
 
 
-def predict_view(model: SceneModel, T_ref_cam: np.ndarray, camera, *,
-                 config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
-                 coarse: CoarseConfig = CoarseConfig()) -> ViewPrediction:
+def predict_view(
+    model: SceneModel,
+    T_ref_cam: np.ndarray,
+    camera,
+    *,
+    config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
+    coarse: CoarseConfig = CoarseConfig(),
+) -> ViewPrediction:
     """Whether each passive localizer is predicted to succeed from a camera at ``T_ref_cam`` (4, 4).
 
     The reference cloud and keypoints are rendered into one z-buffer (a keypoint behind the
@@ -253,13 +271,13 @@ def predict_view(model: SceneModel, T_ref_cam: np.ndarray, camera, *,
     """
     T = np.asarray(T_ref_cam, dtype=float)
     n = len(model.points)
-    idx, Xc = visible_points(np.vstack([model.points, model.keypoints]), T, camera,
-                             stride_px=config.render_stride_px)
+    idx, Xc = visible_points(np.vstack([model.points, model.keypoints]), T, camera, stride_px=config.render_stride_px)
     surf = idx < n
     weak = 6
     if surf.sum() >= config.min_points:
-        strong, _, _ = strong_directions(Xc[surf], model.normals[idx[surf]] @ T[:3, :3],
-                                      depth=float(np.median(Xc[surf, 2])), config=coarse)
+        strong, _, _ = strong_directions(
+            Xc[surf], model.normals[idx[surf]] @ T[:3, :3], depth=float(np.median(Xc[surf, 2])), config=coarse
+        )
         weak = int((~strong).sum())
     k = idx[~surf] - n
     K = model.keypoints[k]
@@ -273,14 +291,25 @@ def predict_view(model: SceneModel, T_ref_cam: np.ndarray, camera, *,
     if counts[best] >= config.min_keypoints:
         sel = matchable & (model.keypoint_image[k] == best)
         sigma_m, sigma_deg = _pnp_sigma(Xc[~surf][sel], camera, config.pixel_sigma_px)
-    return ViewPrediction(image_ok=bool(sigma_m <= coarse.verify_m and sigma_deg <= coarse.verify_deg),
-                          geometry_ok=weak == 0, keypoints=int(counts[best]), image_sigma_m=sigma_m,
-                          image_sigma_deg=sigma_deg, surface_points=int(surf.sum()), weak_directions=weak)
+    return ViewPrediction(
+        image_ok=bool(sigma_m <= coarse.verify_m and sigma_deg <= coarse.verify_deg),
+        geometry_ok=weak == 0,
+        keypoints=int(counts[best]),
+        image_sigma_m=sigma_m,
+        image_sigma_deg=sigma_deg,
+        surface_points=int(surf.sum()),
+        weak_directions=weak,
+    )
 
 
-def view_uncertainty(model: SceneModel, T_ref_cam: np.ndarray, camera, *,
-                     config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
-                     coarse: CoarseConfig = CoarseConfig()) -> tuple[float, float, float]:
+def view_uncertainty(
+    model: SceneModel,
+    T_ref_cam: np.ndarray,
+    camera,
+    *,
+    config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
+    coarse: CoarseConfig = CoarseConfig(),
+) -> tuple[float, float, float]:
     """Eq. 2 at one camera pose (4, 4): over the ``N_cd`` directions ``config.directions()`` turned from it.
 
     Returns
@@ -290,11 +319,16 @@ def view_uncertainty(model: SceneModel, T_ref_cam: np.ndarray, camera, *,
     image_fraction, geometry_fraction : float
         Fraction where the image (PnP), the 3D localizer succeeds.
     """
-    preds = [predict_view(model, T_ref_cam @ camera_turn(yaw, pitch), camera, config=config, coarse=coarse)
-             for yaw, pitch in config.directions()]
+    preds = [
+        predict_view(model, T_ref_cam @ camera_turn(yaw, pitch), camera, config=config, coarse=coarse)
+        for yaw, pitch in config.directions()
+    ]
     n = len(preds)
-    return (1.0 - sum(p.ok for p in preds) / n, sum(p.image_ok for p in preds) / n,
-            sum(p.geometry_ok for p in preds) / n)
+    return (
+        1.0 - sum(p.ok for p in preds) / n,
+        sum(p.image_ok for p in preds) / n,
+        sum(p.geometry_ok for p in preds) / n,
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -333,10 +367,15 @@ class SceneUncertaintyMap:
 
     def to_npz(self) -> bytes:
         """The map as ``.npz`` bytes (arrays, the options as JSON)."""
-        arrays = {k: np.asarray(getattr(self, k)) for k in ("x_m", "y_m", "z_m", "uncertainty", "successes",
-                                                              "image_successes", "geometry_successes")}
-        arrays.update(n_directions=np.array(self.n_directions), seconds=np.array(self.seconds),
-                      config=np.array(json.dumps(asdict(self.config))))
+        arrays = {
+            k: np.asarray(getattr(self, k))
+            for k in ("x_m", "y_m", "z_m", "uncertainty", "successes", "image_successes", "geometry_successes")
+        }
+        arrays.update(
+            n_directions=np.array(self.n_directions),
+            seconds=np.array(self.seconds),
+            config=np.array(json.dumps(asdict(self.config))),
+        )
         if self.model is not None:
             arrays.update({f"model_{k}": np.asarray(v) for k, v in self.model.__dict__.items()})
         buf = io.BytesIO()
@@ -352,14 +391,28 @@ class SceneUncertaintyMap:
             model = None
             if "model_points" in z:
                 model = SceneModel(**{k: z[f"model_{k}"] for k in SceneModel.__dataclass_fields__})
-            return cls(x_m=z["x_m"], y_m=z["y_m"], z_m=z["z_m"], uncertainty=z["uncertainty"],
-                       successes=z["successes"], image_successes=z["image_successes"],
-                       geometry_successes=z["geometry_successes"], n_directions=int(z["n_directions"]),
-                       config=SceneUncertaintyConfig(**options), model=model, seconds=float(z["seconds"]))
+            return cls(
+                x_m=z["x_m"],
+                y_m=z["y_m"],
+                z_m=z["z_m"],
+                uncertainty=z["uncertainty"],
+                successes=z["successes"],
+                image_successes=z["image_successes"],
+                geometry_successes=z["geometry_successes"],
+                n_directions=int(z["n_directions"]),
+                config=SceneUncertaintyConfig(**options),
+                model=model,
+                seconds=float(z["seconds"]),
+            )
 
 
-def scene_uncertainty_map(model: SceneModel, camera, *, config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
-                          coarse: CoarseConfig = CoarseConfig()) -> SceneUncertaintyMap:
+def scene_uncertainty_map(
+    model: SceneModel,
+    camera,
+    *,
+    config: SceneUncertaintyConfig = SceneUncertaintyConfig(),
+    coarse: CoarseConfig = CoarseConfig(),
+) -> SceneUncertaintyMap:
     """The camera-driven scene map ``U_cd`` (Eq. 2) over the workspace grid.
 
     Parameters
@@ -391,7 +444,16 @@ def scene_uncertainty_map(model: SceneModel, camera, *, config: SceneUncertainty
         counts["any"][iz, iy, ix] = round((1.0 - u) * n_dir)
         counts["image"][iz, iy, ix] = round(f_img * n_dir)
         counts["geometry"][iz, iy, ix] = round(f_geo * n_dir)
-    return SceneUncertaintyMap(x_m=axis, y_m=axis.copy(), z_m=z_m, uncertainty=1.0 - counts["any"] / n_dir,
-                               successes=counts["any"], image_successes=counts["image"],
-                               geometry_successes=counts["geometry"], n_directions=n_dir, config=config,
-                               model=model, seconds=time.monotonic() - t0)
+    return SceneUncertaintyMap(
+        x_m=axis,
+        y_m=axis.copy(),
+        z_m=z_m,
+        uncertainty=1.0 - counts["any"] / n_dir,
+        successes=counts["any"],
+        image_successes=counts["image"],
+        geometry_successes=counts["geometry"],
+        n_directions=n_dir,
+        config=config,
+        model=model,
+        seconds=time.monotonic() - t0,
+    )

@@ -61,8 +61,9 @@ from fgcd_core.sim3 import Sim3
 __all__ = ["check_scale", "CameraUncertainty", "CoarseInputs", "CoarseStep", "image_estimate", "run_coarse"]
 
 
-def image_estimate(*, reference_images: dict[str, np.ndarray], current_image: np.ndarray, camera,
-                   reference) -> tuple[np.ndarray | None, dict]:
+def image_estimate(
+    *, reference_images: dict[str, np.ndarray], current_image: np.ndarray, camera, reference
+) -> tuple[np.ndarray | None, dict]:
     """The image (PnP) passive localizer: the current camera in ``ref``, or None.
 
     Parameters
@@ -87,11 +88,22 @@ def image_estimate(*, reference_images: dict[str, np.ndarray], current_image: np
     """
     from fgcd_cli.relocation.image.refine import ImageRefineConfig, refine_from_reference_image
 
-    config = replace(ImageRefineConfig(), max_motion_m=10.0, max_motion_deg=180.0,
-                     strong_max_motion_m=10.0, strong_max_motion_deg=180.0)
+    config = replace(
+        ImageRefineConfig(),
+        max_motion_m=10.0,
+        max_motion_deg=180.0,
+        strong_max_motion_m=10.0,
+        strong_max_motion_deg=180.0,
+    )
     T_ref_camref = np.asarray(reference.T_ref_camref, dtype=float)
-    pnp = refine_from_reference_image(reference_images=reference_images, current_image=current_image, camera=camera,
-                                      ref_points=reference.points, T_ref_camref=T_ref_camref, config=config)
+    pnp = refine_from_reference_image(
+        reference_images=reference_images,
+        current_image=current_image,
+        camera=camera,
+        ref_points=reference.points,
+        T_ref_camref=T_ref_camref,
+        config=config,
+    )
     info = {"pnp": pnp.reason, "inliers": pnp.inliers, "sigma_mm": pnp.offset_sigma_mm}
     return (T_ref_camref @ invert_pose(pnp.M_cam) if pnp.ok else None), info
 
@@ -180,12 +192,18 @@ def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, las
     if not fast.health.ok and not fast.health.degenerate:
         fast = global_registration(cloud, inp.ref_index, around=last_3d)
     candidates[EstimateSource.THREE_D] = fast.T_ref_cur.transform_pose(T_cur_cam)
-    notes[EstimateSource.THREE_D] = {"alignment": fast.health.reason, "scale": float(fast.T_ref_cur.scale),
-                                      "scale_measured": bool(fast.health.scale_measured)}
+    notes[EstimateSource.THREE_D] = {
+        "alignment": fast.health.reason,
+        "scale": float(fast.T_ref_cur.scale),
+        "scale_measured": bool(fast.health.scale_measured),
+    }
     if inp.reference_images and inp.grab_current is not None:
-        T_img, notes[EstimateSource.IMAGE] = image_estimate(reference_images=inp.reference_images,
-                                                            current_image=inp.grab_current(), camera=inp.camera,
-                                                            reference=inp.reference)
+        T_img, notes[EstimateSource.IMAGE] = image_estimate(
+            reference_images=inp.reference_images,
+            current_image=inp.grab_current(),
+            camera=inp.camera,
+            reference=inp.reference,
+        )
         if T_img is not None:
             candidates[EstimateSource.IMAGE] = T_img
     return candidates, notes
@@ -228,18 +246,20 @@ def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
     for name, T_ref_cam in candidates.items():
         geometric = name == EstimateSource.THREE_D
         notes[name]["check_scale"] = s_check = check_scale(
-            align["scale"], scale_rel_std=inp.scale_rel_std, scale_measured=align["scale_measured"] and not geometric)
-        unc = camera_uncertainty(observed * s_check, inp.reference.points, T_ref_cam, camera, config=config,
-                                 seed=step)
+            align["scale"], scale_rel_std=inp.scale_rel_std, scale_measured=align["scale_measured"] and not geometric
+        )
+        unc = camera_uncertainty(observed * s_check, inp.reference.points, T_ref_cam, camera, config=config, seed=step)
         notes[name]["uncertainty"] = unc.to_dict()
         notes[name]["offset_mm"], notes[name]["offset_deg"] = pose_distance(T_ref_cam, T_ref_camref)
         # the estimated camera centre in the reference camera frame (the scene uncertainty map's frame)
         notes[name]["position_refcam_m"] = (invert_pose(T_ref_camref) @ T_ref_cam)[:3, 3].tolist()
         if unc.verified(config, geometric_source=geometric) and (
-                best is None or unc.constrained_translation_m < best[2].constrained_translation_m):
+            best is None or unc.constrained_translation_m < best[2].constrained_translation_m
+        ):
             best = (name, T_ref_cam @ unc.correction(geometric_source=geometric), unc)
         if unc.fitness >= config.min_fitness and (
-                unverified is None or _residual_m(unc, name) < _residual_m(unverified[2], unverified[0])):
+            unverified is None or _residual_m(unc, name) < _residual_m(unverified[2], unverified[0])
+        ):
             unverified = (name, T_ref_cam, unc)
     session.timing.wait_s += time.monotonic() - t0
     return _View(T_cur_cam=T_cur_cam, notes=notes, best=best, unverified=None if best is not None else unverified)
@@ -262,12 +282,16 @@ def _why_not_verified(notes: dict, config: CoarseConfig) -> str:
         elif unc["fitness"] < config.min_fitness:
             parts.append(f"{name}: overlap {unc['fitness']:.0%} < {config.min_fitness:.0%}")
         elif name == EstimateSource.THREE_D and unc["weak_directions"]:
-            parts.append(f"3d: residual {unc['translation_mm']:.0f} mm / {unc['rotation_deg']:.1f} deg, but "
-                         f"{unc['weak_directions']} direction(s) the geometry cannot check")
+            parts.append(
+                f"3d: residual {unc['translation_mm']:.0f} mm / {unc['rotation_deg']:.1f} deg, but "
+                f"{unc['weak_directions']} direction(s) the geometry cannot check"
+            )
         else:
-            parts.append(f"{name}: camera uncertainty {unc['constrained_translation_mm']:.0f} mm / "
-                         f"{unc['constrained_rotation_deg']:.1f} deg above {config.verify_m * 1e3:.0f} mm / "
-                         f"{config.verify_deg:.0f} deg")
+            parts.append(
+                f"{name}: camera uncertainty {unc['constrained_translation_mm']:.0f} mm / "
+                f"{unc['constrained_rotation_deg']:.1f} deg above {config.verify_m * 1e3:.0f} mm / "
+                f"{config.verify_deg:.0f} deg"
+            )
     return "; ".join(parts)
 
 
@@ -290,18 +314,42 @@ class _CoarseRun:
         depth = reference_depth_m(inp.reference.points, self.T_ref_camref)
         self.handover_m, self.handover_deg = inp.config.handover_limits(depth)
 
-    def _log(self, step: int, action: CoarseAction, source: EstimateSource, view: _View, truth, *,
-             offset=(math.nan, math.nan), commanded=(0.0, 0.0), look: dict | None = None) -> None:
-        self.steps.append(CoarseStep(step=step, t_session_s=self.t_s, action=action,
-                                     source=source, estimates=view.notes, offset_mm=offset[0], offset_deg=offset[1],
-                                     commanded_mm=commanded[0], commanded_deg=commanded[1], truth=truth, look=look))
+    def _log(
+        self,
+        step: int,
+        action: CoarseAction,
+        source: EstimateSource,
+        view: _View,
+        truth,
+        *,
+        offset=(math.nan, math.nan),
+        commanded=(0.0, 0.0),
+        look: dict | None = None,
+    ) -> None:
+        self.steps.append(
+            CoarseStep(
+                step=step,
+                t_session_s=self.t_s,
+                action=action,
+                source=source,
+                estimates=view.notes,
+                offset_mm=offset[0],
+                offset_deg=offset[1],
+                commanded_mm=commanded[0],
+                commanded_deg=commanded[1],
+                truth=truth,
+                look=look,
+            )
+        )
 
     def _pause(self, step: int, view: _View, truth) -> CoarseResult:
         """No estimate verified in the views allowed: turn back to the starting heading and give up."""
         c = self.inp.config
         self._log(step, CoarseAction.PAUSE, EstimateSource.NONE, view, truth)
-        reason = (f"coarse stage: no estimate verified in {self.looks + 1} views ({_why_not_verified(view.notes, c)}); "
-                  "bring the camera nearer the reference pose")
+        reason = (
+            f"coarse stage: no estimate verified in {self.looks + 1} views ({_why_not_verified(view.notes, c)}); "
+            "bring the camera nearer the reference pose"
+        )
         try:  # back to the heading the stage started from: the loop starts where it would have
             if self.heading != (0.0, 0.0):
                 self.inp.session.move_by(flange_motion(self.X, invert_pose(camera_turn(*self.heading))))
@@ -335,13 +383,30 @@ class _CoarseRun:
         scene = self._scene_map() if view.unverified is not None else None
         if scene is not None and scene.model is not None:
             R_back = invert_pose(camera_turn(*self.heading))
-            scored = [(view_uncertainty(scene.model, view.unverified[1] @ R_back @ camera_turn(*h), self.inp.camera,
-                                        config=scene.config, coarse=c), h) for h in candidates]
+            scored = [
+                (
+                    view_uncertainty(
+                        scene.model,
+                        view.unverified[1] @ R_back @ camera_turn(*h),
+                        self.inp.camera,
+                        config=scene.config,
+                        coarse=c,
+                    ),
+                    h,
+                )
+                for h in candidates
+            ]
             (u, f_img, f_geo), chosen = min(scored, key=lambda r: r[0][0])  # min keeps the first of a tie
-            note = {"chosen_by": "scene uncertainty", "uncertainty": u, "image_fraction": f_img,
-                    "geometry_fraction": f_geo,
-                    "candidates": [{"yaw_deg": math.degrees(h[0]), "pitch_deg": math.degrees(h[1]),
-                                    "uncertainty": r[0]} for r, h in scored]}
+            note = {
+                "chosen_by": "scene uncertainty",
+                "uncertainty": u,
+                "image_fraction": f_img,
+                "geometry_fraction": f_geo,
+                "candidates": [
+                    {"yaw_deg": math.degrees(h[0]), "pitch_deg": math.degrees(h[1]), "uncertainty": r[0]}
+                    for r, h in scored
+                ],
+            }
         return chosen, {"yaw_deg": math.degrees(chosen[0]), "pitch_deg": math.degrees(chosen[1]), **note}
 
     def _look(self, step: int, view: _View, truth) -> CoarseResult | None:
@@ -356,10 +421,18 @@ class _CoarseRun:
         try:
             inp.session.move_by(flange_motion(self.X, M_cam))
         except MotionRejected as exc:
-            return CoarseResult(False, f"coarse stage: a look-around motion is refused by the platform "
-                                f"guard ({exc})", None, self.steps)
-        self._log(step, CoarseAction.LOOK, EstimateSource.NONE, view, truth,
-                  commanded=(0.0, pose_distance(np.eye(4), M_cam)[1]), look=note)
+            return CoarseResult(
+                False, f"coarse stage: a look-around motion is refused by the platform guard ({exc})", None, self.steps
+            )
+        self._log(
+            step,
+            CoarseAction.LOOK,
+            EstimateSource.NONE,
+            view,
+            truth,
+            commanded=(0.0, pose_distance(np.eye(4), M_cam)[1]),
+            look=note,
+        )
         self.heading = target
         self.seen_headings.append(target)
         self.looks += 1
@@ -382,17 +455,21 @@ class _CoarseRun:
         M_half = np.eye(4)  # half the translation, half the rotation angle about the same axis
         M_half[:3, :3] = Rotation.from_rotvec(0.5 * Rotation.from_matrix(M_cam[:3, :3]).as_rotvec()).as_matrix()
         M_half[:3, 3] = 0.5 * M_cam[:3, 3]
-        M_flange, _ = clamp_motion(flange_motion(self.X, M_half), max_step_m=c.step_m,
-                                   max_step_rad=math.radians(c.step_deg))
+        M_flange, _ = clamp_motion(
+            flange_motion(self.X, M_half), max_step_m=c.step_m, max_step_rad=math.radians(c.step_deg)
+        )
         cmd_mm, cmd_deg = pose_distance(np.eye(4), M_flange)
-        inp.say(f"coarse step {step}: no verified estimate; descending {cmd_mm:.0f} mm toward the reference on the "
-                f"{name} estimate ({off_mm:.0f} mm / {off_deg:.1f} deg away, residual "
-                f"{_residual_m(unc, name) * 1e3:.0f} mm)")
+        inp.say(
+            f"coarse step {step}: no verified estimate; descending {cmd_mm:.0f} mm toward the reference on the "
+            f"{name} estimate ({off_mm:.0f} mm / {off_deg:.1f} deg away, residual "
+            f"{_residual_m(unc, name) * 1e3:.0f} mm)"
+        )
         try:
             inp.session.move_by(M_flange)
         except MotionRejected as exc:
-            return CoarseResult(False, f"coarse stage: a descent motion is refused by the platform guard ({exc})",
-                                None, self.steps)
+            return CoarseResult(
+                False, f"coarse stage: a descent motion is refused by the platform guard ({exc})", None, self.steps
+            )
         self._log(step, CoarseAction.DESCEND, name, view, truth, offset=(off_mm, off_deg), commanded=(cmd_mm, cmd_deg))
         self.descents += 1
         inp.session.settle(frames=inp.session.settle_frames + 1)
@@ -406,24 +483,37 @@ class _CoarseRun:
         off_mm, off_deg = pose_distance(T_ref_cam, self.T_ref_camref)
         if off_mm <= self.handover_m * 1e3 and off_deg <= self.handover_deg:
             self._log(step, CoarseAction.HANDOVER, name, view, truth, offset=(off_mm, off_deg))
-            inp.say(f"coarse step {step}: verified ({name}) {off_mm:.0f} mm / {off_deg:.1f} deg from the reference; "
-                    "handing over to rACR")
-            return CoarseResult(True, f"verified {name} estimate within {self.handover_m * 1e3:.0f} mm / "
-                                f"{self.handover_deg:.1f} deg", self.last_3d, self.steps)
+            inp.say(
+                f"coarse step {step}: verified ({name}) {off_mm:.0f} mm / {off_deg:.1f} deg from the reference; "
+                "handing over to rACR"
+            )
+            return CoarseResult(
+                True,
+                f"verified {name} estimate within {self.handover_m * 1e3:.0f} mm / {self.handover_deg:.1f} deg",
+                self.last_3d,
+                self.steps,
+            )
         M_cam = invert_pose(T_ref_cam) @ self.T_ref_camref
-        M_flange, _ = clamp_motion(flange_motion(self.X, M_cam), max_step_m=c.step_m,
-                                   max_step_rad=math.radians(c.step_deg))
+        M_flange, _ = clamp_motion(
+            flange_motion(self.X, M_cam), max_step_m=c.step_m, max_step_rad=math.radians(c.step_deg)
+        )
         cmd_mm, cmd_deg = pose_distance(np.eye(4), M_flange)
         self._log(step, CoarseAction.MOVE, name, view, truth, offset=(off_mm, off_deg), commanded=(cmd_mm, cmd_deg))
-        inp.say(f"coarse step {step}: verified ({name}, uncertainty {unc.constrained_translation_m * 1e3:.0f} mm / "
-                f"{unc.constrained_rotation_deg:.1f} deg"
-                + (f", {unc.weak_directions} weak directions" if unc.weak_directions else "")
-                + f") {off_mm:.0f} mm / {off_deg:.1f} deg away; moving {cmd_mm:.0f} mm")
+        inp.say(
+            f"coarse step {step}: verified ({name}, uncertainty {unc.constrained_translation_m * 1e3:.0f} mm / "
+            f"{unc.constrained_rotation_deg:.1f} deg"
+            + (f", {unc.weak_directions} weak directions" if unc.weak_directions else "")
+            + f") {off_mm:.0f} mm / {off_deg:.1f} deg away; moving {cmd_mm:.0f} mm"
+        )
         try:
             inp.session.move_by(M_flange)
         except MotionRejected as exc:
-            return CoarseResult(False, f"coarse stage: the way to the reference is refused by the platform "
-                                f"guard ({exc})", None, self.steps)
+            return CoarseResult(
+                False,
+                f"coarse stage: the way to the reference is refused by the platform guard ({exc})",
+                None,
+                self.steps,
+            )
         inp.session.settle(frames=inp.session.settle_frames + 1)
         return None
 
@@ -441,8 +531,13 @@ class _CoarseRun:
                 done = self._look(step, view, truth)
             if done is not None:
                 return done
-        return CoarseResult(False, f"coarse stage: not within {self.handover_m * 1e3:.0f} mm / "
-                            f"{self.handover_deg:.1f} deg of the reference after {c.max_steps} steps", None, self.steps)
+        return CoarseResult(
+            False,
+            f"coarse stage: not within {self.handover_m * 1e3:.0f} mm / "
+            f"{self.handover_deg:.1f} deg of the reference after {c.max_steps} steps",
+            None,
+            self.steps,
+        )
 
 
 def run_coarse(inp: CoarseInputs) -> CoarseResult:

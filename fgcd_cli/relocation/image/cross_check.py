@@ -44,8 +44,9 @@ ALIGNMENT = "alignment"
 CAMERA_UNCERTAINTY = "camera uncertainty"
 
 
-def _alignment_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_img: np.ndarray,
-                     sigma_img_mm: float) -> dict:
+def _alignment_check(
+    ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_img: np.ndarray, sigma_img_mm: float
+) -> dict:
     """The alignment's estimate of the same view against the image estimate."""
     T_3d, note = fresh_3d_estimate(ctx, st, after_frame)
     if T_3d is None:
@@ -54,12 +55,18 @@ def _alignment_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_ca
     d_img = offset_vector_mm(T_ref_cam_img, T_ref_camref)
     d_3d = offset_vector_mm(T_3d, T_ref_camref)
     ok, dist, bound = estimates_agree(d_img, sigma_img_mm, d_3d, st.sigma3d_mm, k=ctx.config.agreement_k)
-    return {"agree": ok, "distance_mm": dist, "bound_mm": bound, "offset_3d_mm": float(np.linalg.norm(d_3d)),
-            "sigma_3d_mm": st.sigma3d_mm, "note": "", "check": ALIGNMENT}
+    return {
+        "agree": ok,
+        "distance_mm": dist,
+        "bound_mm": bound,
+        "offset_3d_mm": float(np.linalg.norm(d_3d)),
+        "sigma_3d_mm": st.sigma3d_mm,
+        "note": "",
+        "check": ALIGNMENT,
+    }
 
 
-def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np.ndarray,
-                              sigma_img_mm: float) -> dict:
+def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np.ndarray, sigma_img_mm: float) -> dict:
     """Paper 001's camera uncertainty of the image estimate (constrained part of the residual motion)."""
     from fgcd_cli.relocation.coarse.camera_uncertainty import camera_uncertainty, in_view
     from fgcd_cli.relocation.coarse.config import CoarseConfig
@@ -79,20 +86,36 @@ def _camera_uncertainty_check(ctx: LoopContext, st: LoopState, T_ref_cam_img: np
     unc = camera_uncertainty(observed, ctx.reference.points, T_ref_cam_img, ctx.camera, config=config)
     ctx.session.timing.wait_s += time.monotonic() - t0
     if not math.isfinite(unc.constrained_translation_m) or unc.fitness < config.min_fitness:
-        return {**out, "note": f"camera uncertainty not measurable ({unc.observed} observed points, "
-                               f"overlap {unc.fitness:.0%})"}
+        return {
+            **out,
+            "note": f"camera uncertainty not measurable ({unc.observed} observed points, overlap {unc.fitness:.0%})",
+        }
     dist = 1000.0 * unc.constrained_translation_m
     sa = sigma_img_mm if math.isfinite(sigma_img_mm) else 0.0
     # the check's own uncertainty: the covariance model along the directions it constrains, never less
     # than a cloud's placement (vse_sigma_rel x depth); on a near-plane its tilts are barely constrained
     sigma_check = max(st.sigma3d_mm, 1000.0 * unc.check_sigma_m)
     bound = ctx.config.agreement_k * math.hypot(sa, sigma_check)
-    return {**out, "agree": bool(dist <= bound), "distance_mm": dist, "bound_mm": bound,
-            "sigma_3d_mm": sigma_check, "weak_directions": unc.weak_directions, "note": ""}
+    return {
+        **out,
+        "agree": bool(dist <= bound),
+        "distance_mm": dist,
+        "bound_mm": bound,
+        "sigma_3d_mm": sigma_check,
+        "weak_directions": unc.weak_directions,
+        "note": "",
+    }
 
 
-def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: np.ndarray, camera, *,
-                      stride_px: int = 4, min_pixels: int = 100) -> np.ndarray:
+def _depth_normalised(
+    observed: np.ndarray,
+    ref_points: np.ndarray,
+    T_ref_cam: np.ndarray,
+    camera,
+    *,
+    stride_px: int = 4,
+    min_pixels: int = 100,
+) -> np.ndarray:
     """The observed cloud (N, 3), camera frame, metres, scaled about the camera so that its depths match the
     reference rendering's at ``T_ref_cam`` *on the same pixels* (median ratio over the pixel bins both cover).
 
@@ -113,6 +136,7 @@ def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: n
     uv_obs, in_obs = camera.project(observed)
     cols = int(math.ceil(camera.width / stride_px)) + 1
     rows = int(math.ceil(camera.height / stride_px)) + 1
+
     def cell(uv: np.ndarray) -> np.ndarray:
         bins = (uv[:, 1] // stride_px).astype(np.int64) * cols + (uv[:, 0] // stride_px).astype(np.int64)
         return np.clip(bins, 0, rows * cols - 1)
@@ -127,8 +151,15 @@ def _depth_normalised(observed: np.ndarray, ref_points: np.ndarray, T_ref_cam: n
     return observed * (z_r / z_obs) if z_obs > 0 and z_r > 0 else observed
 
 
-def geometry_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_img: np.ndarray,
-                   sigma_img_mm: float, *, use_alignment: bool = True) -> dict:
+def geometry_check(
+    ctx: LoopContext,
+    st: LoopState,
+    after_frame: int,
+    T_ref_cam_img: np.ndarray,
+    sigma_img_mm: float,
+    *,
+    use_alignment: bool = True,
+) -> dict:
     """Compare an image estimate of the current camera with the 3D geometry of the same view.
 
     Parameters
@@ -150,8 +181,11 @@ def geometry_check(ctx: LoopContext, st: LoopState, after_frame: int, T_ref_cam_
     dict
         See the module docstring; the alignment's verdict when it has one, else the camera uncertainty's.
     """
-    first = (_alignment_check(ctx, st, after_frame, T_ref_cam_img, sigma_img_mm) if use_alignment else
-             {"agree": None, "note": "the 3D alignment not asked (paused or set aside)", "check": ALIGNMENT})
+    first = (
+        _alignment_check(ctx, st, after_frame, T_ref_cam_img, sigma_img_mm)
+        if use_alignment
+        else {"agree": None, "note": "the 3D alignment not asked (paused or set aside)", "check": ALIGNMENT}
+    )
     if first["agree"] is not None:
         return first
     second = _camera_uncertainty_check(ctx, st, T_ref_cam_img, sigma_img_mm)

@@ -11,8 +11,9 @@ import numpy as np
 __all__ = ["pnp_jacobian", "pnp_translation_sigma_m"]
 
 
-def pnp_translation_sigma_m(points_3d: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
-                            K: np.ndarray) -> float:
+def pnp_translation_sigma_m(
+    points_3d: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, K: np.ndarray
+) -> float:
     """1-sigma uncertainty of a PnP translation from its own reprojection residuals, metres.
 
     Gauss-Newton covariance of the six pose parameters,
@@ -55,10 +56,16 @@ def pnp_translation_sigma_m(points_3d: np.ndarray, pixels: np.ndarray, rvec: np.
     return float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:])))))
 
 
-def pnp_jacobian(points_3d: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
-                 K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def pnp_jacobian(
+    points_3d: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Projections (n, 2) of ``points_3d`` (n, 3) under the pose ``(rvec, tvec)`` and the reprojection
     Jacobian (2n, 6) with respect to ``(rvec, tvec)`` (OpenCV's ``projectPoints``, no distortion)."""
-    proj, jac = cv2.projectPoints(np.asarray(points_3d, dtype=np.float64), np.asarray(rvec, dtype=np.float64),
-                                  np.asarray(tvec, dtype=np.float64), K, None)
+    proj, jac = cv2.projectPoints(
+        np.asarray(points_3d, dtype=np.float64),
+        np.asarray(rvec, dtype=np.float64),
+        np.asarray(tvec, dtype=np.float64),
+        K,
+        None,
+    )
     return proj.reshape(-1, 2), jac[:, :6]

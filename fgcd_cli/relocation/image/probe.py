@@ -40,8 +40,9 @@ class Prediction:
     sigma_mm: float
 
 
-def predict_after_step(T_ref_camref: np.ndarray, M_cam: np.ndarray, step_M_cam: np.ndarray, *,
-                       sigma_mm: float) -> Prediction:
+def predict_after_step(
+    T_ref_camref: np.ndarray, M_cam: np.ndarray, step_M_cam: np.ndarray, *, sigma_mm: float
+) -> Prediction:
     """The camera after moving by ``step_M_cam`` (its own frame), as the estimate ``M_cam`` places it now.
 
     Parameters
@@ -60,8 +61,9 @@ def predict_after_step(T_ref_camref: np.ndarray, M_cam: np.ndarray, step_M_cam: 
     return Prediction(T_ref_cam=T_ref_cam @ np.asarray(step_M_cam, dtype=float), sigma_mm=float(sigma_mm))
 
 
-def corroborates(prediction: Prediction, T_ref_camref: np.ndarray, M_cam: np.ndarray, *, sigma_mm: float,
-                 k: float) -> tuple[bool, float, float]:
+def corroborates(
+    prediction: Prediction, T_ref_camref: np.ndarray, M_cam: np.ndarray, *, sigma_mm: float, k: float
+) -> tuple[bool, float, float]:
     """Whether a new measurement ``M_cam`` (uncertainty ``sigma_mm``) puts the camera where ``prediction`` does.
 
     Returns
@@ -71,5 +73,10 @@ def corroborates(prediction: Prediction, T_ref_camref: np.ndarray, M_cam: np.nda
         As :func:`~fgcd_cli.relocation.stop_rule.estimates_agree` (``k`` times both uncertainties).
     """
     T_ref_cam = np.asarray(T_ref_camref, dtype=float) @ invert_pose(np.asarray(M_cam, dtype=float))
-    return estimates_agree(offset_vector_mm(T_ref_cam, T_ref_camref), sigma_mm,
-                           offset_vector_mm(prediction.T_ref_cam, T_ref_camref), prediction.sigma_mm, k=k)
+    return estimates_agree(
+        offset_vector_mm(T_ref_cam, T_ref_camref),
+        sigma_mm,
+        offset_vector_mm(prediction.T_ref_cam, T_ref_camref),
+        prediction.sigma_mm,
+        k=k,
+    )

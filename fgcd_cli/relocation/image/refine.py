@@ -226,8 +226,9 @@ def reference_depth_lookup(
     return out
 
 
-def lift_reference_pixels(pixels: np.ndarray, *, ref_points: np.ndarray, T_ref_camref: np.ndarray, camera,
-                          radius_px: float) -> tuple[np.ndarray, np.ndarray]:
+def lift_reference_pixels(
+    pixels: np.ndarray, *, ref_points: np.ndarray, T_ref_camref: np.ndarray, camera, radius_px: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Reference-image pixels lifted to 3D by the reference cloud (the image localizer's 2D-3D points).
 
     Parameters
@@ -253,13 +254,21 @@ def lift_reference_pixels(pixels: np.ndarray, *, ref_points: np.ndarray, T_ref_c
     z = reference_depth_lookup(ref_points, T_ref_camref, camera, p, radius_px=radius_px)
     has = np.isfinite(z)
     p, z = p[has], z[has]
-    X = np.column_stack([(p[:, 0] - camera.cx) / camera.fx, (p[:, 1] - camera.cy) / camera.fy,
-                         np.ones(len(p))]) * z[:, None]
+    X = (
+        np.column_stack([(p[:, 0] - camera.cx) / camera.fx, (p[:, 1] - camera.cy) / camera.fy, np.ones(len(p))])
+        * z[:, None]
+    )
     return X, has
 
 
-def reference_keypoints_3d(*, reference_images: dict[str, np.ndarray], camera, ref_points: np.ndarray,
-                           T_ref_camref: np.ndarray, config: ImageRefineConfig = ImageRefineConfig()) -> list[np.ndarray]:
+def reference_keypoints_3d(
+    *,
+    reference_images: dict[str, np.ndarray],
+    camera,
+    ref_points: np.ndarray,
+    T_ref_camref: np.ndarray,
+    config: ImageRefineConfig = ImageRefineConfig(),
+) -> list[np.ndarray]:
     """The reference keypoints the image localizer can match, lifted to 3D, per reference image.
 
     The same detection (SIFT on the locally equalised image, ``config.max_features``) and lifting
@@ -277,8 +286,9 @@ def reference_keypoints_3d(*, reference_images: dict[str, np.ndarray], camera, r
     for name, img in reference_images.items():
         gray = to_gray(to_float_image(img, name=f"reference image {name!r}"))
         xy, _desc = sift_features(_local_contrast_u8(gray), n_features=config.max_features)
-        X, _has = lift_reference_pixels(xy, ref_points=ref_points, T_ref_camref=T, camera=camera,
-                                        radius_px=config.depth_search_px)
+        X, _has = lift_reference_pixels(
+            xy, ref_points=ref_points, T_ref_camref=T, camera=camera, radius_px=config.depth_search_px
+        )
         out.append(X @ T[:3, :3].T + T[:3, 3])
     return out
 
@@ -311,9 +321,18 @@ def refine_from_reference_image(
     -------
     ImageRefinement
     """
+
     def refused(reason: str, name: str = "") -> ImageRefinement:
-        return ImageRefinement(ok=False, reason=reason, M_cam=None, measured_afd_px=math.nan, matches=0, inliers=0,
-                               rms_px=math.nan, reference_image=name)
+        return ImageRefinement(
+            ok=False,
+            reason=reason,
+            M_cam=None,
+            measured_afd_px=math.nan,
+            matches=0,
+            inliers=0,
+            rms_px=math.nan,
+            reference_image=name,
+        )
 
     try:
         cur = to_gray(to_float_image(current_image, name="current image"))
@@ -330,8 +349,13 @@ def refine_from_reference_image(
             if ref.shape != cur.shape:
                 res = refused(f"reference image {name!r} is {ref.shape}, current {cur.shape}", name)
             else:
-                res = _refine_one(ref, cur, _ReferenceView(K=K, camera=camera, ref_points=ref_points,
-                                                           T_ref_camref=T_ref_camref, config=config, name=name))
+                res = _refine_one(
+                    ref,
+                    cur,
+                    _ReferenceView(
+                        K=K, camera=camera, ref_points=ref_points, T_ref_camref=T_ref_camref, config=config, name=name
+                    ),
+                )
         if best is None or (res.ok, res.inliers) > (best.ok, best.inliers):
             best = res
     return best if best is not None else refused("no reference image")
@@ -377,16 +401,20 @@ class _ReferenceView:
 
 def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
     config = view.config
-    p_ref, p_cur = match_sift(_local_contrast_u8(ref), _local_contrast_u8(cur), ratio=config.ratio,
-                              max_features=config.max_features)
+    p_ref, p_cur = match_sift(
+        _local_contrast_u8(ref), _local_contrast_u8(cur), ratio=config.ratio, max_features=config.max_features
+    )
     sift = _refine_matches(p_ref, p_cur, view, matcher="sift", min_inliers=config.min_inliers)
     if sift.ok or sift.oversize:
         return sift
     # Strong lighting change (another sun): lighting-robust grid correspondences
     # (phase correlation of gradient-magnitude patches, the FDF grid variant).
     try:
-        fdf = compute_fdf(ref, cur, config=FdfConfig(method="grid", grid_cells=config.grid_cells,
-                                                    patch_px=config.grid_patch_px, ransac_px=3.0))
+        fdf = compute_fdf(
+            ref,
+            cur,
+            config=FdfConfig(method="grid", grid_cells=config.grid_cells, patch_px=config.grid_patch_px, ransac_px=3.0),
+        )
     except FgcdError as exc:
         return _replace_reason(sift, f"{sift.reason}; grid: {exc}")
     grid = _refine_matches(fdf.points_ref, fdf.points_cur, view, matcher="grid", min_inliers=config.min_grid_inliers)
@@ -402,19 +430,40 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     K, camera, config, name = view.K, view.camera, view.config, view.name
 
     def fail(reason: str, matches: int = 0, inliers: int = 0, afd: float = math.nan, rms: float = math.nan):
-        return ImageRefinement(ok=False, reason=reason, M_cam=None, measured_afd_px=afd, matches=matches,
-                               inliers=inliers, rms_px=rms, reference_image=name, matcher=matcher)
+        return ImageRefinement(
+            ok=False,
+            reason=reason,
+            M_cam=None,
+            measured_afd_px=afd,
+            matches=matches,
+            inliers=inliers,
+            rms_px=rms,
+            reference_image=name,
+            matcher=matcher,
+        )
 
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} feature matches with the reference image", len(p_ref))
-    X, has = lift_reference_pixels(p_ref, ref_points=view.ref_points, T_ref_camref=view.T_ref_camref, camera=camera,
-                                   radius_px=config.depth_search_px)
+    X, has = lift_reference_pixels(
+        p_ref,
+        ref_points=view.ref_points,
+        T_ref_camref=view.T_ref_camref,
+        camera=camera,
+        radius_px=config.depth_search_px,
+    )
     p_ref, p_cur = p_ref[has], p_cur[has]
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} of {len(has)} matches on the reference cloud", len(p_ref))
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(X, p_cur, K, None, iterationsCount=500,
-                                             reprojectionError=float(config.ransac_px), confidence=0.999,
-                                             flags=cv2.SOLVEPNP_SQPNP)
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        X,
+        p_cur,
+        K,
+        None,
+        iterationsCount=500,
+        reprojectionError=float(config.ransac_px),
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_SQPNP,
+    )
     n = len(p_ref)
     if not ok or inl is None or len(inl) < min_inliers:
         return fail(f"PnP found {0 if inl is None else len(inl)} inliers of {n}", n, 0 if inl is None else len(inl))
@@ -429,26 +478,60 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     mm, deg = pose_distance(np.eye(4), M_cam)
     sigma_mm = 1000.0 * pnp_translation_sigma_m(X[inl], p_cur[inl], rvec, tvec, K)
     if len(inl) / n < config.min_inlier_ratio:
-        return fail(f"{len(inl)} PnP inliers of {n} matches (below {config.min_inlier_ratio:.0%})", n, len(inl), afd, rms)
+        return fail(
+            f"{len(inl)} PnP inliers of {n} matches (below {config.min_inlier_ratio:.0%})", n, len(inl), afd, rms
+        )
     if rms > config.max_rms_px:
         return fail(f"PnP reprojection RMS {rms:.2f} px", n, len(inl), afd, rms)
     if mm > 1000 * config.max_motion_m or deg > config.max_motion_deg:
         strong = len(inl) >= config.strong_min_inliers and len(inl) / n >= config.strong_min_inlier_ratio
         if not strong:
-            reason = (f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on {len(inl)} inliers "
-                      f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})")
+            reason = (
+                f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on {len(inl)} inliers "
+                f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})"
+            )
             if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
                 return fail(reason, n, len(inl), afd, rms)
-            step, _ = clamp_motion(M_cam, max_step_m=config.max_motion_m,
-                                   max_step_rad=math.radians(config.max_motion_deg))
-            return ImageRefinement(ok=False, reason=reason, M_cam=M_cam, measured_afd_px=afd, matches=n,
-                                   inliers=len(inl), rms_px=rms, reference_image=name, matcher=matcher,
-                                   offset_sigma_mm=sigma_mm, unverified=True, step_M_cam=step)
+            step, _ = clamp_motion(
+                M_cam, max_step_m=config.max_motion_m, max_step_rad=math.radians(config.max_motion_deg)
+            )
+            return ImageRefinement(
+                ok=False,
+                reason=reason,
+                M_cam=M_cam,
+                measured_afd_px=afd,
+                matches=n,
+                inliers=len(inl),
+                rms_px=rms,
+                reference_image=name,
+                matcher=matcher,
+                offset_sigma_mm=sigma_mm,
+                unverified=True,
+                step_M_cam=step,
+            )
         if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
-            return ImageRefinement(ok=False, reason=f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to "
-                                   f"trust on image evidence alone", M_cam=M_cam, measured_afd_px=afd, matches=n,
-                                   inliers=len(inl), rms_px=rms, reference_image=name, matcher=matcher,
-                                   offset_sigma_mm=sigma_mm, oversize=True)
-    return ImageRefinement(ok=True, reason="ok", M_cam=M_cam, measured_afd_px=afd, matches=n, inliers=len(inl),
-                           rms_px=rms, reference_image=name, matcher=matcher, offset_sigma_mm=sigma_mm)
-
+            return ImageRefinement(
+                ok=False,
+                reason=f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on image evidence alone",
+                M_cam=M_cam,
+                measured_afd_px=afd,
+                matches=n,
+                inliers=len(inl),
+                rms_px=rms,
+                reference_image=name,
+                matcher=matcher,
+                offset_sigma_mm=sigma_mm,
+                oversize=True,
+            )
+    return ImageRefinement(
+        ok=True,
+        reason="ok",
+        M_cam=M_cam,
+        measured_afd_px=afd,
+        matches=n,
+        inliers=len(inl),
+        rms_px=rms,
+        reference_image=name,
+        matcher=matcher,
+        offset_sigma_mm=sigma_mm,
+    )

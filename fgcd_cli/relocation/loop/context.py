@@ -100,9 +100,15 @@ class LoopContext:
 
     def problem(self) -> AlignmentProblem:
         """The fixed part of every alignment of this run."""
-        return AlignmentProblem(reference=self.reference, ref_index=self.ref_index, camera=self.camera,
-                                scale=self.scale, fine=self.config.fine, fast_config=self.config.fast_align,
-                                fine_config=self.config.fine_align)
+        return AlignmentProblem(
+            reference=self.reference,
+            ref_index=self.ref_index,
+            camera=self.camera,
+            scale=self.scale,
+            fine=self.config.fine,
+            fast_config=self.config.fast_align,
+            fine_config=self.config.fine_align,
+        )
 
     def refiner(self, *, unresolved_mm: float = 0.0) -> ImageRefiner:
         """The image refiner: the injected one, else the default (imported on first use: OpenCV's SIFT).
@@ -172,8 +178,11 @@ class LoopState:
     def for_context(cls, ctx: LoopContext, *, t_start: float) -> LoopState:
         """Tolerance and 3D uncertainty from the reference (docs/relocation.md, "Stop rules")."""
         config, reference = ctx.config, ctx.reference
-        tol = config.tolerance_mm if config.tolerance_mm is not None else tolerance_mm(
-            reference.points, reference.T_ref_camref, ctx.camera, stop_afd_px=config.stop_afd_px)
+        tol = (
+            config.tolerance_mm
+            if config.tolerance_mm is not None
+            else tolerance_mm(reference.points, reference.T_ref_camref, ctx.camera, stop_afd_px=config.stop_afd_px)
+        )
         depth = reference_depth_m(reference.points, reference.T_ref_camref)
         sigma3d = 1000.0 * config.vse_sigma_rel * depth if math.isfinite(depth) else math.inf
         return cls(tol_mm=tol, sigma3d_mm=sigma3d, t_start=t_start)

@@ -65,8 +65,9 @@ def _check_mode(config: RelocationConfig) -> LoopMode:
 def _start_worker(ctx: LoopContext) -> AlignmentWorker:
     """The alignment thread; deterministic runs step it in turn with the VSE (no thread)."""
     kind = SteppedAlignmentWorker if ctx.config.deterministic else AlignmentWorker
-    return kind(vse=ctx.session.vse, problem=ctx.problem(), init=ctx.init,
-                min_points=ctx.config.min_points, aligner=ctx.aligner).start()
+    return kind(
+        vse=ctx.session.vse, problem=ctx.problem(), init=ctx.init, min_points=ctx.config.min_points, aligner=ctx.aligner
+    ).start()
 
 
 def _run_stages(ctx: LoopContext, st: LoopState) -> RelocationResult:
@@ -99,9 +100,13 @@ def _run_stages(ctx: LoopContext, st: LoopState) -> RelocationResult:
         return image_stage(ctx, st, result, fallback=True)
     if result.converged and st.records:
         last = st.records[-1]
-        result.residual = Residual(offset_mm=last.offset_mm, sigma_mm=st.sigma3d_mm, tolerance_mm=st.tol_mm,
-                                   source=EstimateSource.THREE_D,
-                                   agreement=Agreement.NOT_CHECKED.because("no image stage"))
+        result.residual = Residual(
+            offset_mm=last.offset_mm,
+            sigma_mm=st.sigma3d_mm,
+            tolerance_mm=st.tol_mm,
+            source=EstimateSource.THREE_D,
+            agreement=Agreement.NOT_CHECKED.because("no image stage"),
+        )
         result.reason = f"{result.reason}; {result.residual.text()}"
     return result
 

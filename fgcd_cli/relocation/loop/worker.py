@@ -44,8 +44,7 @@ class AlignmentWorker:
         One alignment of a state (default :func:`align_once`).
     """
 
-    def __init__(self, *, vse, problem: AlignmentProblem, init: Sim3, min_points: int,
-                 aligner: Aligner = align_once):
+    def __init__(self, *, vse, problem: AlignmentProblem, init: Sim3, min_points: int, aligner: Aligner = align_once):
         self._vse = vse
         self._problem = problem
         self._init = init
@@ -83,8 +82,9 @@ class AlignmentWorker:
     def wait_until(self, predicate: Callable[[AlignmentEstimate | None], bool], timeout_s: float) -> bool:
         """Wait until ``predicate(latest())`` holds or the thread failed; False after ``timeout_s`` seconds."""
         with self._cond:
-            return self._cond.wait_for(lambda: self._error is not None or predicate(self._latest),
-                                       timeout=max(0.0, timeout_s))
+            return self._cond.wait_for(
+                lambda: self._error is not None or predicate(self._latest), timeout=max(0.0, timeout_s)
+            )
 
     def can_align(self, state) -> bool:
         """Whether this thread aligns ``state`` at all: a tracking VSE with at least ``min_points`` cloud points."""

@@ -89,8 +89,7 @@ class AlignmentProblem:
 class Aligner(Protocol):
     """Aligns one VSE state; returns the estimates it produced, in order (fast, then fine)."""
 
-    def __call__(self, *, state, problem: AlignmentProblem, init: Sim3,
-                 serial: int = 0) -> list[AlignmentEstimate]: ...  # noqa: D102
+    def __call__(self, *, state, problem: AlignmentProblem, init: Sim3, serial: int = 0) -> list[AlignmentEstimate]: ...  # noqa: D102
 
 
 def scaled_pose(T_map_cam: np.ndarray, scale: float) -> np.ndarray:
@@ -131,10 +130,18 @@ def align_once(*, state, problem: AlignmentProblem, init: Sim3, serial: int = 0)
     cur_points = local_cloud(state, problem.recent_keyframes) * scale
     t0 = time.monotonic()
     fast = fast_align(cur_points, ref_index, init=init, config=problem.fast_config)
-    out.append(AlignmentEstimate(T_ref_cur=fast.T_ref_cur, stage=EstimateStage.FAST, ok=bool(fast.health.ok),
-                                 reason=fast.health.reason, vse_frame=state.frames_processed,
-                                 seconds=time.monotonic() - t0, serial=serial,
-                                 degenerate=bool(fast.health.degenerate)))
+    out.append(
+        AlignmentEstimate(
+            T_ref_cur=fast.T_ref_cur,
+            stage=EstimateStage.FAST,
+            ok=bool(fast.health.ok),
+            reason=fast.health.reason,
+            vse_frame=state.frames_processed,
+            seconds=time.monotonic() - t0,
+            serial=serial,
+            degenerate=bool(fast.health.degenerate),
+        )
+    )
     if problem.fine and fast.health.ok and len(state.keyframes) >= 2:
         t1 = time.monotonic()
         kfs = [(scaled_pose(kf.T_map_cam, scale), kf.image) for kf in state.keyframes[-6:]]
@@ -147,8 +154,16 @@ def align_once(*, state, problem: AlignmentProblem, init: Sim3, serial: int = 0)
             cur_points=cur_points,
             config=problem.fine_config,
         )
-        out.append(AlignmentEstimate(T_ref_cur=res.T_ref_cur, stage=EstimateStage.FINE, ok=bool(res.health.ok),
-                                     reason=res.health.reason, vse_frame=state.frames_processed,
-                                     seconds=time.monotonic() - t1, serial=serial + 1,
-                                     degenerate=bool(res.health.degenerate)))
+        out.append(
+            AlignmentEstimate(
+                T_ref_cur=res.T_ref_cur,
+                stage=EstimateStage.FINE,
+                ok=bool(res.health.ok),
+                reason=res.health.reason,
+                vse_frame=state.frames_processed,
+                seconds=time.monotonic() - t1,
+                serial=serial + 1,
+                degenerate=bool(res.health.degenerate),
+            )
+        )
     return out

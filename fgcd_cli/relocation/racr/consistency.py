@@ -51,8 +51,9 @@ class EstimateSpread:
     against: int
 
 
-def estimate_spread(new: Sim3, earlier: list[Sim3], T_cur_cam: np.ndarray, *, sigma_mm: float,
-                    k: float) -> EstimateSpread:
+def estimate_spread(
+    new: Sim3, earlier: list[Sim3], T_cur_cam: np.ndarray, *, sigma_mm: float, k: float
+) -> EstimateSpread:
     """Compare a new estimate of ``T_ref_cur`` with the run's earlier ones at one camera pose.
 
     Parameters

@@ -54,20 +54,27 @@ class _Patience:
             self.degenerate.clear()
         if len(self.degenerate) >= (self.degenerate_patience or config.degenerate_patience):
             ctx.session.timing.wait_s += waited
-            raise DegenerateGeometry(f"alignment found degenerate geometry in {len(self.degenerate)} estimates in a "
-                                     f"row ({waited:.0f} s), motion paused: {est.reason}", detail=est.reason)
+            raise DegenerateGeometry(
+                f"alignment found degenerate geometry in {len(self.degenerate)} estimates in a "
+                f"row ({waited:.0f} s), motion paused: {est.reason}",
+                detail=est.reason,
+            )
         if len(self.bad) >= config.untrusted_patience and waited >= config.untrusted_min_wait_s:
             ctx.session.timing.wait_s += waited
-            raise AlgorithmError(f"alignment untrustworthy in {len(self.bad)} estimates in a row "
-                                 f"({waited:.0f} s), motion paused: {est.reason}")
+            raise AlgorithmError(
+                f"alignment untrustworthy in {len(self.bad)} estimates in a row "
+                f"({waited:.0f} s), motion paused: {est.reason}"
+            )
 
 
 def _none_yet(ctx: LoopContext) -> str:
     """Why the alignment thread has published nothing: it aligns only a tracking VSE state with at least
     ``min_points`` cloud points."""
     state = ctx.session.vse.latest()
-    return (f"no estimate yet (the VSE is {state.status}, its cloud has {len(state.cloud)} points, "
-            f"alignment needs {ctx.config.min_points})")
+    return (
+        f"no estimate yet (the VSE is {state.status}, its cloud has {len(state.cloud)} points, "
+        f"alignment needs {ctx.config.min_points})"
+    )
 
 
 class _StandingStill:
@@ -93,18 +100,24 @@ class _StandingStill:
             return
         if not worker.can_align(state) and waited - self.since >= ctx.config.untrusted_min_wait_s:
             ctx.session.timing.wait_s += waited
-            raise AlgorithmError(f"no alignment possible, motion paused: {_none_yet(ctx)}, unchanged for "
-                                 f"{waited - self.since:.0f} s with the camera standing still")
+            raise AlgorithmError(
+                f"no alignment possible, motion paused: {_none_yet(ctx)}, unchanged for "
+                f"{waited - self.since:.0f} s with the camera standing still"
+            )
 
 
 def _heartbeat(ctx: LoopContext, worker: AlignmentWorker, waited: float) -> None:
     est = worker.latest()
-    ctx.say(f"  still aligning ({waited:.0f} s; latest estimate: "
-            + (_none_yet(ctx) if est is None else f"{est.stage}, {'ok' if est.ok else est.reason}") + ")")
+    ctx.say(
+        f"  still aligning ({waited:.0f} s; latest estimate: "
+        + (_none_yet(ctx) if est is None else f"{est.stage}, {'ok' if est.ok else est.reason}")
+        + ")"
+    )
 
 
-def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: int, *,
-                      degenerate_patience: int | None = None) -> AlignmentEstimate:
+def wait_for_estimate(
+    ctx: LoopContext, worker: AlignmentWorker, last_serial: int, *, degenerate_patience: int | None = None
+) -> AlignmentEstimate:
     """The newest trustworthy alignment published after ``last_serial``; pause on failures.
 
     Raises
@@ -139,7 +152,9 @@ def wait_for_estimate(ctx: LoopContext, worker: AlignmentWorker, last_serial: in
         if waited > config.estimate_timeout_s:
             ctx.session.timing.wait_s += waited
             why = est.reason if est is not None else _none_yet(ctx)
-            raise AlgorithmError(f"no trustworthy alignment within {config.estimate_timeout_s:.0f} s, motion paused: {why}")
+            raise AlgorithmError(
+                f"no trustworthy alignment within {config.estimate_timeout_s:.0f} s, motion paused: {why}"
+            )
         # sleep until the next publication or the next deadline (heartbeat, patience, timeout)
         deadlines = [next_note, t0 + config.estimate_timeout_s + _DEADLINE_SLACK_S]
         if waited < config.untrusted_min_wait_s:
@@ -226,4 +241,3 @@ def fresh_3d_estimate(ctx: LoopContext, st: LoopState, after_frame: int) -> tupl
     if state.status != VseStatus.TRACKING or state.T_map_cam is None:
         return None, f"the VSE is not tracking ({state.status})"
     return camera_in_reference(est.T_ref_cur, scaled_pose(state.T_map_cam, ctx.scale)), ""
-

@@ -40,8 +40,10 @@ class _Divergence:
     def check(self, adj: Adjustment, ctx: LoopContext) -> None:
         """Raise AlgorithmError after ``divergence_patience`` growths beyond ``factor x best + margin`` in a row."""
         c, best = ctx.config, self.best
-        if best is not None and (adj.offset_mm > c.divergence_factor * best[0] + c.divergence_margin_mm
-                                 or adj.offset_deg > c.divergence_factor * best[1] + c.divergence_margin_deg):
+        if best is not None and (
+            adj.offset_mm > c.divergence_factor * best[0] + c.divergence_margin_mm
+            or adj.offset_deg > c.divergence_factor * best[1] + c.divergence_margin_deg
+        ):
             self.growths += 1
             if self.growths >= c.divergence_patience:
                 raise AlgorithmError(
@@ -58,9 +60,14 @@ class _Divergence:
 def _adjustment(ctx: LoopContext, est: AlignmentEstimate, state) -> tuple[Adjustment, float]:
     """Eq. 3 for the estimate and the VSE's pose, with its estimated AFD (px)."""
     c, reference = ctx.config, ctx.reference
-    adj = compute_adjustment(T_ref_cur=est.T_ref_cur, T_cur_cam=scaled_pose(state.T_map_cam, ctx.scale),
-                             T_ref_camref=reference.T_ref_camref, T_flange_cam=ctx.T_flange_cam,
-                             max_step_m=c.max_step_m, max_step_rad=c.max_step_rad)
+    adj = compute_adjustment(
+        T_ref_cur=est.T_ref_cur,
+        T_cur_cam=scaled_pose(state.T_map_cam, ctx.scale),
+        T_ref_camref=reference.T_ref_camref,
+        T_flange_cam=ctx.T_flange_cam,
+        max_step_m=c.max_step_m,
+        max_step_rad=c.max_step_rad,
+    )
     return adj, estimated_afd_px(reference.points, reference.T_ref_camref, adj.T_ref_cam, ctx.camera)
 
 
@@ -74,8 +81,13 @@ def _hands_over(ctx: LoopContext, st: LoopState, adj: Adjustment) -> bool:
     """The 3D estimate cannot resolve what remains (its offset within its own 1-sigma uncertainty, which is
     above the tolerance) and the image stage can measure it (``RelocationConfig.image_handover``)."""
     c = ctx.config
-    return (c.image_handover and c.image_refine and ctx.can_image and st.sigma3d_mm > st.tol_mm
-            and adj.offset_mm <= st.sigma3d_mm)
+    return (
+        c.image_handover
+        and c.image_refine
+        and ctx.can_image
+        and st.sigma3d_mm > st.tol_mm
+        and adj.offset_mm <= st.sigma3d_mm
+    )
 
 
 def _against_prior(ctx: LoopContext, st: LoopState, adj: Adjustment) -> RelocationResult | None:
@@ -90,13 +102,16 @@ def _against_prior(ctx: LoopContext, st: LoopState, adj: Adjustment) -> Relocati
         return None
     st.prior_checked = True
     offset_3d = offset_vector_mm(adj.T_ref_cam, ctx.reference.T_ref_camref)
-    ok, dist, bound = estimates_agree(offset_3d, st.sigma3d_mm, np.zeros(3), ctx.image_prior_sigma_mm,
-                                      k=c.agreement_k)
+    ok, dist, bound = estimates_agree(offset_3d, st.sigma3d_mm, np.zeros(3), ctx.image_prior_sigma_mm, k=c.agreement_k)
     if ok:
         return _combined(ctx, st, float(np.linalg.norm(offset_3d)))
-    out = RelocationResult(False, f"the first 3D estimate puts the camera {dist:.1f} mm from where the image "
-                                  f"localizer led the exploration (> {bound:.1f} mm, both uncertainties): "
-                                  "handed to the image stage, the 3D alignment disputed", st.records[-1].iteration)
+    out = RelocationResult(
+        False,
+        f"the first 3D estimate puts the camera {dist:.1f} mm from where the image "
+        f"localizer led the exploration (> {bound:.1f} mm, both uncertainties): "
+        "handed to the image stage, the 3D alignment disputed",
+        st.records[-1].iteration,
+    )
     out.handed_over, out.alignment_set_aside = True, "disputed"
     return out
 
@@ -113,15 +128,20 @@ def _combined(ctx: LoopContext, st: LoopState, offset_3d_mm: float) -> Relocatio
     combined_mm = offset_3d_mm * s_img**2 / (s_img**2 + s_3d**2)
     if combined_mm > s_3d:
         return None
-    out = RelocationResult(False, f"the first 3D estimate ({offset_3d_mm:.1f} ± {s_3d:.1f} mm) agrees with the "
-                                  f"image localizer that led the exploration (0 ± {s_img:.1f} mm); combined, "
-                                  f"{combined_mm:.1f} mm: handed to the image stage", st.records[-1].iteration)
+    out = RelocationResult(
+        False,
+        f"the first 3D estimate ({offset_3d_mm:.1f} ± {s_3d:.1f} mm) agrees with the "
+        f"image localizer that led the exploration (0 ± {s_img:.1f} mm); combined, "
+        f"{combined_mm:.1f} mm: handed to the image stage",
+        st.records[-1].iteration,
+    )
     out.handed_over = True
     return out
 
 
-def _follows_camera(ctx: LoopContext, st: LoopState, est: AlignmentEstimate, state, iteration: int,
-                    handover: bool) -> RelocationResult | None:
+def _follows_camera(
+    ctx: LoopContext, st: LoopState, est: AlignmentEstimate, state, iteration: int, handover: bool
+) -> RelocationResult | None:
     """The new estimate against the run's earlier ones, all of one map-to-reference transform
     (:mod:`~fgcd_cli.relocation.racr.consistency`). When two disagree beyond their uncertainties, the alignment's
     estimate moves with the camera and following it walks the camera away: the image stage takes over without
@@ -129,15 +149,18 @@ def _follows_camera(ctx: LoopContext, st: LoopState, est: AlignmentEstimate, sta
     "Estimates that follow the camera"). None when they agree."""
     c = ctx.config
     earlier = [e.T_ref_cur for e in st.map_estimates if e.serial != est.serial]
-    spread = estimate_spread(est.T_ref_cur, earlier, scaled_pose(state.T_map_cam, ctx.scale),
-                             sigma_mm=st.sigma3d_mm, k=c.agreement_k)
+    spread = estimate_spread(
+        est.T_ref_cur, earlier, scaled_pose(state.T_map_cam, ctx.scale), sigma_mm=st.sigma3d_mm, k=c.agreement_k
+    )
     if spread.agree:
         if all(e.serial != est.serial for e in st.map_estimates):
             st.map_estimates.append(est)
         return None
-    text = (f"the 3D estimates follow the camera: estimate {iteration} puts it {spread.distance_mm:.1f} mm from "
-            f"where an earlier estimate of the same map-to-reference transform puts it (> {spread.bound_mm:.1f} mm, "
-            "both uncertainties)")
+    text = (
+        f"the 3D estimates follow the camera: estimate {iteration} puts it {spread.distance_mm:.1f} mm from "
+        f"where an earlier estimate of the same map-to-reference transform puts it (> {spread.bound_mm:.1f} mm, "
+        "both uncertainties)"
+    )
     if not (handover and c.image_handover and c.image_refine and ctx.can_image):
         raise AlgorithmError(f"{text}; motion paused")
     out = RelocationResult(False, f"{text}: handed to the image stage, the 3D alignment inconsistent", iteration)
@@ -154,8 +177,13 @@ def _at_prior(ctx: LoopContext, st: LoopState) -> bool:
     """The camera stands where the image localizer led the exploration and nothing has checked that yet
     (``LoopContext.image_prior_sigma_mm``), and the image stage may take over there."""
     c = ctx.config
-    return (not st.prior_checked and ctx.image_prior_sigma_mm is not None and c.image_handover
-            and c.image_refine and ctx.can_image)
+    return (
+        not st.prior_checked
+        and ctx.image_prior_sigma_mm is not None
+        and c.image_handover
+        and c.image_refine
+        and ctx.can_image
+    )
 
 
 def _degenerate_at_prior(st: LoopState, iteration: int, exc: DegenerateGeometry) -> RelocationResult:
@@ -163,15 +191,26 @@ def _degenerate_at_prior(st: LoopState, iteration: int, exc: DegenerateGeometry)
     once, without the alignment (docs/relocation.md, "A disputed start"), instead of waiting for
     ``degenerate_patience`` estimates in a row; weak image evidence there hands the loop back."""
     st.prior_checked = True
-    out = RelocationResult(False, f"the first alignment found {exc.detail or 'degenerate geometry'} where the image "
-                                  "localizer led the exploration: handed to the image stage, the 3D alignment "
-                                  "degenerate", max(iteration - 1, 0))
+    out = RelocationResult(
+        False,
+        f"the first alignment found {exc.detail or 'degenerate geometry'} where the image "
+        "localizer led the exploration: handed to the image stage, the 3D alignment "
+        "degenerate",
+        max(iteration - 1, 0),
+    )
     out.handed_over, out.alignment_set_aside = True, "degenerate"
     return out
 
 
-def _estimate(ctx: LoopContext, st: LoopState, iteration: int, last_serial: int, current_init, *,
-              degenerate_patience: int | None = None):
+def _estimate(
+    ctx: LoopContext,
+    st: LoopState,
+    iteration: int,
+    last_serial: int,
+    current_init,
+    *,
+    degenerate_patience: int | None = None,
+):
     """The estimate this adjustment uses, and the VSE state to combine it with."""
     session = ctx.session
     state = session.tracking_state()
@@ -196,8 +235,11 @@ def _confirmed(ctx: LoopContext, st: LoopState, iteration: int, est: AlignmentEs
     """Parallel mode, about to stop (or hand over) on an estimate of the view before the last motion: confirm it
     first."""
     adj, afd = _adjustment(ctx, est, state)
-    while ctx.config.mode == LoopMode.PARALLEL and est.vse_frame < st.moved_at_frame and (
-            _stops(ctx, st, adj, afd) or (handover and _hands_over(ctx, st, adj))):
+    while (
+        ctx.config.mode == LoopMode.PARALLEL
+        and est.vse_frame < st.moved_at_frame
+        and (_stops(ctx, st, adj, afd) or (handover and _hands_over(ctx, st, adj)))
+    ):
         ctx.say(f"adjustment {iteration}: confirming the stop on an alignment of the current view")
         est = wait_for_estimate(ctx, st.worker, est.serial)
         state = _tracking_or(ctx.session, state)
@@ -205,15 +247,32 @@ def _confirmed(ctx: LoopContext, st: LoopState, iteration: int, est: AlignmentEs
     return est, state, adj, afd
 
 
-def _record(ctx: LoopContext, st: LoopState, iteration: int, est: AlignmentEstimate, state,
-            adj: Adjustment, afd: float) -> AdjustmentRecord:
+def _record(
+    ctx: LoopContext, st: LoopState, iteration: int, est: AlignmentEstimate, state, adj: Adjustment, afd: float
+) -> AdjustmentRecord:
     return AdjustmentRecord(
-        iteration=iteration, t_wall_s=st.elapsed_s(), t_session_s=ctx.session.timing.total_s, stage=est.stage,
-        g=adj.g, offset_mm=adj.offset_mm, offset_deg=adj.offset_deg, T_ref_cam=adj.T_ref_cam.tolist(),
-        M_flange_commanded=adj.M_flange_commanded.tolist(), clamped=adj.clamped, vse_status=state.status,
-        vse_points=len(state.cloud), alignment_ok=est.ok, alignment_reason=est.reason, scale=ctx.scale,
-        sigma=est.T_ref_cur.scale, afd_est_px=afd, truth=ctx.truth(), estimate_serial=est.serial,
-        estimate_vse_frame=est.vse_frame, offset_sigma_mm=st.sigma3d_mm, tolerance_mm=st.tol_mm,
+        iteration=iteration,
+        t_wall_s=st.elapsed_s(),
+        t_session_s=ctx.session.timing.total_s,
+        stage=est.stage,
+        g=adj.g,
+        offset_mm=adj.offset_mm,
+        offset_deg=adj.offset_deg,
+        T_ref_cam=adj.T_ref_cam.tolist(),
+        M_flange_commanded=adj.M_flange_commanded.tolist(),
+        clamped=adj.clamped,
+        vse_status=state.status,
+        vse_points=len(state.cloud),
+        alignment_ok=est.ok,
+        alignment_reason=est.reason,
+        scale=ctx.scale,
+        sigma=est.T_ref_cur.scale,
+        afd_est_px=afd,
+        truth=ctx.truth(),
+        estimate_serial=est.serial,
+        estimate_vse_frame=est.vse_frame,
+        offset_sigma_mm=st.sigma3d_mm,
+        tolerance_mm=st.tol_mm,
     )
 
 
@@ -228,8 +287,9 @@ def _check_within_revisit_range(ctx: LoopContext, adj: Adjustment) -> None:
         )
 
 
-def _stop_result(ctx: LoopContext, st: LoopState, iteration: int, adj: Adjustment,
-                 afd: float) -> RelocationResult | None:
+def _stop_result(
+    ctx: LoopContext, st: LoopState, iteration: int, adj: Adjustment, afd: float
+) -> RelocationResult | None:
     """Converged when the paper's ``g <= eta`` or the image-space AFD rule holds, in both cases with the
     estimated offset within the tolerance (docs/relocation.md, "Stop rules"); None otherwise."""
     c = ctx.config
@@ -237,8 +297,12 @@ def _stop_result(ctx: LoopContext, st: LoopState, iteration: int, adj: Adjustmen
     if adj.g <= c.eta and within:
         return RelocationResult(True, f"g = {adj.g:.2e} <= eta = {c.eta:.0e}", iteration)
     if afd <= c.stop_afd_px and within:
-        return RelocationResult(True, f"estimated AFD {afd:.2f} px <= {c.stop_afd_px} px and offset "
-                                      f"{adj.offset_mm:.2f} mm <= {st.tol_mm:.2f} mm (g = {adj.g:.2e})", iteration)
+        return RelocationResult(
+            True,
+            f"estimated AFD {afd:.2f} px <= {c.stop_afd_px} px and offset "
+            f"{adj.offset_mm:.2f} mm <= {st.tol_mm:.2f} mm (g = {adj.g:.2e})",
+            iteration,
+        )
     return None
 
 
@@ -246,8 +310,10 @@ def _move(ctx: LoopContext, st: LoopState, iteration: int, adj: Adjustment) -> N
     session = ctx.session
     mm_cmd, deg_cmd = pose_distance(np.eye(4), adj.M_flange_commanded)
     ctx.say(f"adjustment {iteration}: moving {mm_cmd:.1f} mm / {deg_cmd:.2f} deg")
-    session.move_by(adj.M_flange_commanded, progress=(0, session.substeps(adj.M_flange_commanded),
-                                                      f"adjustment {iteration}: moving"))
+    session.move_by(
+        adj.M_flange_commanded,
+        progress=(0, session.substeps(adj.M_flange_commanded), f"adjustment {iteration}: moving"),
+    )
     st.moved_at_frame = session.vse.latest().frames_processed
 
 
@@ -269,8 +335,9 @@ def racr_loop(ctx: LoopContext, st: LoopState, *, handover: bool = True) -> Relo
     for iteration in range((last.iteration + 1) if last is not None else 1, ctx.config.max_adjustments + 1):
         at_prior = handover and _at_prior(ctx, st)
         try:
-            est, state = _estimate(ctx, st, iteration, last_serial, current_init,
-                                   degenerate_patience=1 if at_prior else None)
+            est, state = _estimate(
+                ctx, st, iteration, last_serial, current_init, degenerate_patience=1 if at_prior else None
+            )
         except DegenerateGeometry as exc:
             if not at_prior:
                 raise
@@ -291,8 +358,12 @@ def racr_loop(ctx: LoopContext, st: LoopState, *, handover: bool = True) -> Relo
         if result is not None:
             return result
         if handover and _hands_over(ctx, st, adj):
-            out = RelocationResult(False, f"3D estimate {adj.offset_mm:.1f} mm within its own uncertainty "
-                                          f"(± {st.sigma3d_mm:.1f} mm): handed to the image stage", iteration)
+            out = RelocationResult(
+                False,
+                f"3D estimate {adj.offset_mm:.1f} mm within its own uncertainty "
+                f"(± {st.sigma3d_mm:.1f} mm): handed to the image stage",
+                iteration,
+            )
             out.handed_over = True
             return out
         _move(ctx, st, iteration, adj)
