@@ -17,8 +17,9 @@ from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
 from fgcd_cli.app.scenario import SimScenario, check_lighting, check_scenario, check_scene
 from fgcd_cli.app.session import grab_images, metric_keyframes, start_session
+from fgcd_cli.calibration.rig_files import rig_calibration
 from fgcd_cli.campaign import schema
-from fgcd_cli.campaign.records import campaign_world, rig_calibration
+from fgcd_cli.campaign.records import campaign_world
 from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError, run_record
 from fgcd_cli.relocation.coarse.config import CoarseResult
 from fgcd_cli.relocation.log import RelocationResult

@@ -22,8 +22,9 @@ from fgcd_cli.app.rig import RigHooks, RigRequest
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
 from fgcd_cli.app.scenario import SimScenario, check_driver, check_lighting, check_method, check_scenario, check_scene
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
+from fgcd_cli.calibration.rig_files import rig_calibration
 from fgcd_cli.campaign import schema
-from fgcd_cli.campaign.records import rig_calibration, station_world
+from fgcd_cli.campaign.records import station_world
 from fgcd_cli.errors import CampaignError, UserInputError, run_record
 from fgcd_cli.relocation.acr.baseline import AcrConfig
 from fgcd_cli.relocation.acr.pose import AcrModel, AcrPoseConfig

@@ -10,24 +10,19 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from fgcd_cli.campaign.atomic import atomic_write_json, sha256_bytes
 from fgcd_cli.campaign.schema import (
     RIG_CHECKSUM_KEY,
-    RIG_HANDEYE,
     RIG_HISTORY_DIR,
-    RIG_INTRINSICS,
     now_iso,
     rig_history_file,
     utc_stamp,
 )
-from fgcd_cli.errors import CampaignError, DataIntegrityError
+from fgcd_cli.errors import DataIntegrityError
 
 __all__ = [
     "campaign_world",
     "load_rig_record",
-    "rig_calibration",
     "rig_checksum",
     "station_world",
     "write_rig_record",
@@ -66,35 +61,6 @@ def write_rig_record(path: Path, name: str, record: dict) -> Path:
     atomic_write_json(history / rig_history_file(name, utc_stamp()), record)
     atomic_write_json(path, record)
     return path
-
-
-def rig_calibration(campaign):
-    """Hand-eye and intrinsics stored in the campaign rig (None when absent).
-
-    Returns
-    -------
-    T_flange_cam : (4, 4) ndarray or None
-        ``rig/handeye.json``'s hand-eye (metres).
-    camera : PinholeCamera or None
-        ``rig/intrinsics.json``'s camera model (its ``camera`` entry, or the record itself).
-    """
-    from fgcd_core.camera import PinholeCamera
-
-    he = campaign.read_rig(RIG_HANDEYE)
-    intr = campaign.read_rig(RIG_INTRINSICS)
-    T = None
-    if he is not None:
-        if "T_flange_cam" not in he:
-            raise CampaignError("rig/handeye.json has no T_flange_cam: calibrate again")
-        T = np.array(he["T_flange_cam"], dtype=float)
-    cam = None
-    if intr is not None:
-        data = intr.get("camera", intr)
-        try:
-            cam = PinholeCamera.from_dict(data)
-        except (KeyError, TypeError, ValueError):
-            raise CampaignError("rig/intrinsics.json is not a camera model: calibrate again") from None
-    return T, cam
 
 
 def _int_or(value, default: int) -> int:

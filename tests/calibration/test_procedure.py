@@ -168,6 +168,30 @@ def test_results_are_stored_in_the_campaign_rig_with_history(tmp_path, handeye_d
     assert len(list((camp.path / "rig" / "history").glob("handeye-*.json"))) >= 1
 
 
+def test_one_reader_gives_the_full_result_and_what_a_revisit_needs(tmp_path, handeye_data):
+    from fgcd_cli.calibration.handeye.linear import solve_handeye_scale
+    from fgcd_cli.calibration.rig_files import load_handeye, rig_calibration, save_handeye
+    from fgcd_cli.campaign.store import init_campaign
+    from fgcd_cli.errors import CampaignError
+
+    camp = init_campaign(tmp_path / "c", site="test")
+    assert rig_calibration(camp) == (None, None)
+    d = handeye_data(seed=1)
+    save_handeye(camp, solve_handeye_scale(d["T_base_flange"], d["T_map_cam"]))
+    T_flange_cam, camera = rig_calibration(camp)
+    assert camera is None and np.array_equal(T_flange_cam, load_handeye(camp).T_flange_cam)
+    # a record a person wrote by hand: the bare camera model is accepted as the intrinsics
+    camp.write_rig("intrinsics", {"fx": 600, "fy": 600, "cx": 320, "cy": 240, "width": 640, "height": 480})
+    assert rig_calibration(camp)[1].fx == 600
+    camp.write_rig("handeye", {"method": "by hand"})
+    for read in (rig_calibration, load_handeye):
+        with pytest.raises(CampaignError, match=r"handeye.json has no T_flange_cam"):
+            read(camp)
+    camp.write_rig("handeye", {"T_flange_cam": np.eye(3).tolist()})
+    with pytest.raises(CampaignError, match=r"not a 4 x 4 matrix"):
+        rig_calibration(camp)
+
+
 def test_calibration_package_never_imports_the_simulator():
     from pathlib import Path
 

@@ -129,7 +129,7 @@ def ensure_world(world: World, out: Path, *, say) -> tuple[object, np.ndarray, o
     """The world's campaign with its calibration, built unless complete: ``(campaign, T_flange_cam, camera)``."""
     from fgcd_cli.app.calibrate import calibrate_sim_handeye, calibrate_sim_intrinsics
     from fgcd_cli.app.scenario import SimScenario
-    from fgcd_cli.campaign.records import rig_calibration
+    from fgcd_cli.calibration.rig_files import rig_calibration
     from fgcd_cli.campaign.store import init_campaign, open_campaign
 
     root = out / "worlds" / world.name
