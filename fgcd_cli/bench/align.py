@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -143,6 +144,68 @@ def _camera_errors(T_ref_cur: Sim3, poses, truths) -> tuple[float, float]:
     return float(errs[:, 0].mean()), float(errs[:, 1].mean())
 
 
+@dataclass(frozen=True, kw_only=True)
+class _AlignSession:
+    """One simulated revisit session as the alignment trials see it (current map -> reference: ``T_true``)."""
+
+    lighting: str
+    cloud_depth_ratio: float
+    cur_points: np.ndarray
+    keyframes: list
+    vse_poses: list
+    truths_ref: list
+    T_true: Sim3
+
+
+def _trial_row(
+    session: _AlignSession, ref_index, camera, rng: np.random.Generator, *, fine: bool, small_start: bool
+) -> dict:
+    """One alignment trial from a random start: fast, rACR-S, and (``fine``) the fine stage with and without P.
+
+    Half of the trials (``small_start``) start within 5 deg / 5 cm / 5 % (the loop's usual case), half up
+    to the maxima of :data:`MAX_INIT`.
+    """
+    u = rng.uniform(0, 1, 3) * (1.0 / 3.0 if small_start else 1.0)
+    pert = random_similarity(
+        rng,
+        rotation_deg=MAX_INIT["rotation_deg"] * u[0],
+        translation_m=MAX_INIT["translation_m"] * u[1],
+        scale_rel=MAX_INIT["scale_rel"] * u[2],
+    )
+    T_true, vse_poses, truths_ref = session.T_true, session.vse_poses, session.truths_ref
+    init = pert @ T_true
+    small = pert.rotation_deg() <= 5.0 and np.linalg.norm(pert.t) <= 0.05 and abs(pert.scale - 1) <= 0.05
+    row = {
+        "lighting": session.lighting,
+        "cloud_depth_ratio": session.cloud_depth_ratio,
+        "init_small": bool(small),
+        "init_rot_deg": pert.rotation_deg(),
+        "init_trans_mm": float(np.linalg.norm(pert.t) * 1e3),
+        "init_scale_pct": 100 * abs(pert.scale - 1),
+    }
+    fast = fast_align(session.cur_points, ref_index, init=init)
+    # rACR-S: the session scale is taken as exact (sigma_p = 1), only R, t are estimated.
+    no_scale = fast_align(
+        session.cur_points,
+        ref_index,
+        init=Sim3(init.R, init.t, 1.0),
+        config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)),
+    )
+    row.update(_score("fast", fast.T_ref_cur, vse_poses, truths_ref, T_true, fast.health.ok))
+    row["fast_seconds"] = fast.seconds
+    row["fast_start"] = str(fast.start)
+    row.update(_score("S", no_scale.T_ref_cur, vse_poses, truths_ref, T_true, no_scale.health.ok))
+    if fast.health.ok and fine:
+        common = dict(ref_points=ref_index, cur_keyframes=session.keyframes, camera=camera, init=fast.T_ref_cur)
+        fine_r = fine_align(**common, cur_points=session.cur_points)
+        fine_p = fine_align(**common, cur_points=session.cur_points, config=FineAlignConfig(refine_keyframes=False))
+        row.update(_score("fine", fine_r.T_ref_cur, fine_r.keyframe_poses, truths_ref, T_true, fine_r.health.ok))
+        row.update(_score("P", fine_p.T_ref_cur, vse_poses, truths_ref, T_true, fine_p.health.ok))
+        row["fine_seconds"] = fine_r.seconds
+        row["fine_reason"] = fine_r.health.reason
+    return row
+
+
 def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
     from fgcd_core.camera import CameraIntrinsics
     from fgcd_drivers.sim.render import Renderer
@@ -190,62 +253,19 @@ def _vse_part(*, quick: bool, rng: np.random.Generator) -> dict:
         )
         keyframes = keyframes[-6:]
         kf_truth = kf_truth[-6:]
-        # The reference cloud was put into the world frame, so ref = world here.
-        T_true = T_world_cur  # current metric map -> reference
-        truths_ref = kf_truth
-        vse_poses = [T for T, _ in keyframes]
-        for k in range(trials_per_session):
-            # Half of the trials start within 5 deg / 5 cm / 5 % (the loop's usual case), half up to the maxima.
-            u = rng.uniform(0, 1, 3) * (1.0 if k % 2 else 1.0 / 3.0)
-            pert = random_similarity(
-                rng,
-                rotation_deg=MAX_INIT["rotation_deg"] * u[0],
-                translation_m=MAX_INIT["translation_m"] * u[1],
-                scale_rel=MAX_INIT["scale_rel"] * u[2],
-            )
-            init = pert @ T_true
-            small = pert.rotation_deg() <= 5.0 and np.linalg.norm(pert.t) <= 0.05 and abs(pert.scale - 1) <= 0.05
-            row = {
-                "lighting": lighting,
-                "cloud_depth_ratio": cur_ratio,
-                "init_small": bool(small),
-                "init_rot_deg": pert.rotation_deg(),
-                "init_trans_mm": float(np.linalg.norm(pert.t) * 1e3),
-                "init_scale_pct": 100 * abs(pert.scale - 1),
-            }
-            fast = fast_align(cur_points, ref_index, init=init)
-            # rACR-S: the session scale is taken as exact (sigma_p = 1), only R, t are estimated.
-            no_scale = fast_align(
-                cur_points,
-                ref_index,
-                init=Sim3(init.R, init.t, 1.0),
-                config=FastAlignConfig(scale=ScaleStepConfig(estimate=False)),
-            )
-            row.update(_score("fast", fast.T_ref_cur, vse_poses, truths_ref, T_true, fast.health.ok))
-            row["fast_seconds"] = fast.seconds
-            row["fast_start"] = str(fast.start)
-            row.update(_score("S", no_scale.T_ref_cur, vse_poses, truths_ref, T_true, no_scale.health.ok))
-            if fast.health.ok and k < (3 if quick else 5):
-                fine = fine_align(
-                    ref_points=ref_index,
-                    cur_keyframes=keyframes,
-                    camera=camera,
-                    init=fast.T_ref_cur,
-                    cur_points=cur_points,
-                )
-                fine_p = fine_align(
-                    ref_points=ref_index,
-                    cur_keyframes=keyframes,
-                    camera=camera,
-                    init=fast.T_ref_cur,
-                    cur_points=cur_points,
-                    config=FineAlignConfig(refine_keyframes=False),
-                )
-                row.update(_score("fine", fine.T_ref_cur, fine.keyframe_poses, truths_ref, T_true, fine.health.ok))
-                row.update(_score("P", fine_p.T_ref_cur, vse_poses, truths_ref, T_true, fine_p.health.ok))
-                row["fine_seconds"] = fine.seconds
-                row["fine_reason"] = fine.health.reason
-            rows.append(row)
+        session = _AlignSession(
+            lighting=lighting,
+            cloud_depth_ratio=cur_ratio,
+            cur_points=cur_points,
+            keyframes=keyframes,
+            vse_poses=[T for T, _ in keyframes],
+            truths_ref=kf_truth,
+            T_true=T_world_cur,  # the reference cloud was put into the world frame, so ref = world here
+        )
+        rows += [
+            _trial_row(session, ref_index, camera, rng, fine=k < (3 if quick else 5), small_start=not k % 2)
+            for k in range(trials_per_session)
+        ]
     degenerate = [
         _degenerate_case(name, intr, camera, rng, frames=25 if quick else 35)
         for name in DEGENERATE_SCENES + NEAR_PLANAR_SCENES

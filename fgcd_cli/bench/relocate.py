@@ -116,22 +116,7 @@ def _run_case(
         "visit_light": case.visit_light,
     }
     try:
-        calib = SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light, session_seed=100)
-        cam = calibrate_sim_intrinsics(camp, calib, say=say)
-        he = calibrate_sim_handeye(camp, calib, say=say, camera=cam)
-        X = np.array(he["T_flange_cam"])
-        rig = open_sim_rig(
-            SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light), T_flange_cam=X, intrinsics=cam
-        )
-        try:
-            capture_reference(
-                deterministic_rig(rig.handles, deterministic),
-                st,
-                lightings=[case.reference_light],
-                evaluation=reference_truth(rig.sim),
-            )
-        finally:
-            rig.close()
+        X, cam = _calibrate_and_capture(case, camp, st, say=say, deterministic=deterministic)
     except FgcdError as exc:
         out["error"] = f"setup: {exc}"
         say(f"{case.name}: setup failed: {exc}")
@@ -164,37 +149,7 @@ def _run_case(
                 ),
                 hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary),
             )
-            r = vis.relocation
-            truth = ev.evaluate()
-            out[label] = {
-                "converged": r.converged,
-                "reason": r.reason,
-                "adjustments": r.adjustments,
-                "afd_px": truth["afd_px"],
-                "pose_err_mm": truth["pose_err_mm"],
-                "pose_err_deg": truth["pose_err_deg"],
-                "session_s": r.session_s,
-                "platform_s": r.platform_s,
-                "synthetic_s": r.synthetic_s,
-                "session_s_with_rendering": r.session_s + r.synthetic_s,
-                "wall_s": time.monotonic() - t0,
-                "success": bool(truth["afd_px"] < 3.0),
-                **_residual_summary(r.residual),
-            }
-            # The 3D loop's own end (before the final image stage), from the log's evaluation records.
-            racr = [rec for rec in r.records if rec.stage != EstimateStage.IMAGE and rec.truth]
-            if racr:
-                out[label]["afd_px_racr_only"] = racr[-1].truth["afd_px"]
-            image = [rec for rec in r.records if rec.stage == EstimateStage.IMAGE]
-            out[label]["image_fallback"] = any(rec.image and rec.image.get("fallback") for rec in image)
-            out[label]["coarse"] = _coarse_summary(vis.coarse)
-            out[label]["image_stage"] = (
-                "not run"
-                if not image
-                else "ok"
-                if all(rec.alignment_ok for rec in image)
-                else image[-1].alignment_reason
-            )
+            out[label] = _relocation_row(vis, ev.evaluate(), wall_s=time.monotonic() - t0)
         except (FgcdError, PlatformError) as exc:  # a refused motion is an outcome of the run, not of the bench
             truth = ev.evaluate()
             out[label] = {
@@ -208,6 +163,58 @@ def _run_case(
             rig.close()
         say(f"{case.name} ({label}): {out[label]}")
     return out
+
+
+def _relocation_row(vis, truth: dict, *, wall_s: float) -> dict:
+    """One relocation's bench row: its own outcome and timings beside the simulator's truth (scoring only)."""
+    r = vis.relocation
+    row = {
+        "converged": r.converged,
+        "reason": r.reason,
+        "adjustments": r.adjustments,
+        "afd_px": truth["afd_px"],
+        "pose_err_mm": truth["pose_err_mm"],
+        "pose_err_deg": truth["pose_err_deg"],
+        "session_s": r.session_s,
+        "platform_s": r.platform_s,
+        "synthetic_s": r.synthetic_s,
+        "session_s_with_rendering": r.session_s + r.synthetic_s,
+        "wall_s": wall_s,
+        "success": bool(truth["afd_px"] < 3.0),
+        **_residual_summary(r.residual),
+    }
+    # The 3D loop's own end (before the final image stage), from the log's evaluation records.
+    racr = [rec for rec in r.records if rec.stage != EstimateStage.IMAGE and rec.truth]
+    if racr:
+        row["afd_px_racr_only"] = racr[-1].truth["afd_px"]
+    image = [rec for rec in r.records if rec.stage == EstimateStage.IMAGE]
+    row["image_fallback"] = any(rec.image and rec.image.get("fallback") for rec in image)
+    row["coarse"] = _coarse_summary(vis.coarse)
+    row["image_stage"] = (
+        "not run" if not image else "ok" if all(rec.alignment_ok for rec in image) else image[-1].alignment_reason
+    )
+    return row
+
+
+def _calibrate_and_capture(case: Case, camp, st, *, say, deterministic: bool) -> tuple[np.ndarray, object]:
+    """Intrinsics and hand-eye on the simulator, then the station's reference: ``T_flange_cam`` and the camera."""
+    calib = SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light, session_seed=100)
+    cam = calibrate_sim_intrinsics(camp, calib, say=say)
+    he = calibrate_sim_handeye(camp, calib, say=say, camera=cam)
+    X = np.array(he["T_flange_cam"])
+    rig = open_sim_rig(
+        SimScenario(scene=case.scene, seed=case.seed, lighting=case.reference_light), T_flange_cam=X, intrinsics=cam
+    )
+    try:
+        capture_reference(
+            deterministic_rig(rig.handles, deterministic),
+            st,
+            lightings=[case.reference_light],
+            evaluation=reference_truth(rig.sim),
+        )
+    finally:
+        rig.close()
+    return X, cam
 
 
 def _residual_summary(residual) -> dict:

@@ -308,6 +308,20 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         "iccv2015_ap": float(np.mean([g["iccv2015"]["ap"] for g in scored])),
         "no_dense_best_f1": float(np.mean([g["no_dense"]["best_f1"] for g in scored])),
         "no_dense_ap": float(np.mean([g["no_dense"]["ap"] for g in scored])),
+        **_reference_tables(scored, grid + reference_grid),
+        # Full run only: the gain window and smoothing chosen leave one group out too (None in --quick).
+        "score_constants": score_constants,
+        "logo_best_f1_all_constants": score_constants["logo_best_f1_all_constants"] if score_constants else None,
+        "logo_ap_all_constants": score_constants["logo_ap_all_constants"] if score_constants else None,
+        "in_sample_auto_f1": mean(in_sample, "auto_f1"),
+        "in_sample_best_f1": mean(in_sample, "best_f1"),
+        "seconds_per_pair": float(np.median([g["seconds"] for g in scored])),
+    }
+
+
+def _reference_tables(scored: list[dict], keys: list) -> dict:
+    """Per group the baselines and cues, and per grid point its in-sample scores (a reference: how each rule behaves)."""
+    return {
         "baselines": [
             {
                 "group": g["group"],
@@ -326,15 +340,8 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
                 "auto_recall": {g["group"]: g["grid"][key]["auto_recall"] for g in scored},
                 "auto_precision": {g["group"]: g["grid"][key]["auto_precision"] for g in scored},
             }
-            for key in grid + reference_grid
+            for key in keys
         ],
-        # Full run only: the gain window and smoothing chosen leave one group out too (None in --quick).
-        "score_constants": score_constants,
-        "logo_best_f1_all_constants": score_constants["logo_best_f1_all_constants"] if score_constants else None,
-        "logo_ap_all_constants": score_constants["logo_ap_all_constants"] if score_constants else None,
-        "in_sample_auto_f1": mean(in_sample, "auto_f1"),
-        "in_sample_best_f1": mean(in_sample, "best_f1"),
-        "seconds_per_pair": float(np.median([g["seconds"] for g in scored])),
     }
 
 
