@@ -5,11 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from fgcd_cli.relocation.image.refine import (
-    ImageRefineConfig,
-    reference_depth_lookup,
-    refine_from_reference_image,
-)
+from fgcd_cli.relocation.image.reference_depth import reference_depth_lookup
+from fgcd_cli.relocation.image.refine import ImageRefineConfig, refine_from_reference_image
 from fgcd_core.camera import CameraIntrinsics, PinholeCamera
 from fgcd_core.se3 import exp_se3, invert_pose, pose_distance
 from fgcd_drivers.sim.render import Renderer

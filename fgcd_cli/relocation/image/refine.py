@@ -39,16 +39,14 @@ from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
 from fgcd_cli.relocation.adjustment import clamp_motion
 from fgcd_cli.relocation.image.pnp_uncertainty import pnp_translation_sigma_m
+from fgcd_cli.relocation.image.reference_depth import lift_reference_pixels
 from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
 from fgcd_core.se3 import make_pose, pose_distance
 
 __all__ = [
     "ImageRefineConfig",
     "ImageRefinement",
-    "lift_reference_pixels",
     "local_contrast",
-    "reference_depth_lookup",
-    "front_layer_depth",
     "reference_keypoints_3d",
     "refine_from_reference_image",
 ]
@@ -145,120 +143,6 @@ class ImageRefinement:
     step_M_cam: np.ndarray | None = None
     """With ``unverified``: ``M_cam`` shortened along its geodesic to ``max_motion_*`` (the largest motion
     ordinary evidence moves), (4, 4), metres."""
-
-
-# Two depths of one surface point in the semi-dense cloud differ by less than the fusion gate (2.5,
-# :func:`~fgcd_cli.vse.semidense.fuse_estimates`) times the kept points' largest relative sigma
-# (``VseConfig.semidense_max_rel_sigma``, 2 %): a larger step between consecutive depths
-# separates two surfaces (an occlusion), a smaller one is the cloud's own noise.
-LAYER_GAP_REL = 0.05
-
-
-def front_layer_depth(z: np.ndarray, dist_px: np.ndarray, *, layer_gap_rel: float = LAYER_GAP_REL) -> float:
-    """Depth of the front-most surface among cloud points near a pixel.
-
-    Parameters
-    ----------
-    z : (K,) ndarray
-        z-depths of the points projected near the pixel, metres (K >= 1).
-    dist_px : (K,) ndarray
-        Their image distances to the pixel.
-    layer_gap_rel : float
-        A step between consecutive sorted depths above this fraction starts a surface behind.
-
-    Returns
-    -------
-    float
-        Inverse-distance weighted mean depth of the points before the first such step. Taking
-        only the points near the minimum instead would pick the cloud's noise: the nearest of a
-        few noisy depths of one surface is biased toward the camera by about a sigma.
-    """
-    order = np.argsort(z)
-    zs = z[order]
-    steps = np.flatnonzero(np.diff(zs) > layer_gap_rel * zs[:-1])
-    layer = order[: steps[0] + 1] if len(steps) else order
-    w = 1.0 / (dist_px[layer] + 0.5)
-    return float(np.sum(w * z[layer]) / np.sum(w))
-
-
-def reference_depth_lookup(
-    ref_points: np.ndarray, T_ref_camref: np.ndarray, camera, pixels: np.ndarray, *, radius_px: float = 2.0
-) -> np.ndarray:
-    """Depth of the reference surface at given reference-image pixels, from the reference cloud.
-
-    Parameters
-    ----------
-    ref_points : (N, 3) ndarray
-        Reference cloud, metres, ``ref`` frame.
-    T_ref_camref : (4, 4) ndarray
-        Reference camera pose.
-    camera : PinholeCamera
-        Intrinsics of the (undistorted) reference image.
-    pixels : (M, 2) ndarray
-        ``(u, v)`` pixels of the reference image.
-    radius_px : float
-        Largest distance from a pixel to a projected cloud point.
-
-    Returns
-    -------
-    (M,) ndarray
-        z-depth in metres, NaN where no cloud point projects close enough. Of the
-        points within the radius, the front-most surface is taken (occlusion,
-        :func:`front_layer_depth`), and within it an inverse-distance weighted mean.
-    """
-    from scipy.spatial import cKDTree
-
-    P = np.asarray(ref_points, dtype=float)
-    Xc = (P - T_ref_camref[:3, 3]) @ T_ref_camref[:3, :3]
-    z = Xc[:, 2]
-    front = z > 1e-6
-    Xc, z = Xc[front], z[front]
-    uv = np.column_stack([camera.fx * Xc[:, 0] / z + camera.cx, camera.fy * Xc[:, 1] / z + camera.cy])
-    out = np.full(len(pixels), np.nan)
-    if len(uv) == 0 or len(pixels) == 0:
-        return out
-    tree = cKDTree(uv)
-    for i, nbrs in enumerate(tree.query_ball_point(np.asarray(pixels, dtype=float), r=radius_px)):
-        if not nbrs:
-            continue
-        nbrs = np.asarray(nbrs)
-        out[i] = front_layer_depth(z[nbrs], np.linalg.norm(uv[nbrs] - pixels[i], axis=1))
-    return out
-
-
-def lift_reference_pixels(
-    pixels: np.ndarray, *, ref_points: np.ndarray, T_ref_camref: np.ndarray, camera, radius_px: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Reference-image pixels lifted to 3D by the reference cloud (the image localizer's 2D-3D points).
-
-    Parameters
-    ----------
-    pixels : (N, 2) ndarray
-        ``(u, v)`` pixels of the reference image.
-    ref_points : (M, 3) ndarray
-        Reference cloud, metres, ``ref`` frame.
-    T_ref_camref : (4, 4) ndarray
-        Reference camera pose.
-    camera : PinholeCamera
-    radius_px : float
-        See :func:`reference_depth_lookup`.
-
-    Returns
-    -------
-    X : (K, 3) ndarray
-        The points with a depth, on each pixel's ray, in the reference camera frame, metres.
-    has : (N,) bool ndarray
-        Which pixels got a depth (``K = has.sum()``).
-    """
-    p = np.asarray(pixels, dtype=float).reshape(-1, 2)
-    z = reference_depth_lookup(ref_points, T_ref_camref, camera, p, radius_px=radius_px)
-    has = np.isfinite(z)
-    p, z = p[has], z[has]
-    X = (
-        np.column_stack([(p[:, 0] - camera.cx) / camera.fx, (p[:, 1] - camera.cy) / camera.fy, np.ones(len(p))])
-        * z[:, None]
-    )
-    return X, has
 
 
 def reference_keypoints_3d(
@@ -454,29 +338,12 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     p_ref, p_cur = p_ref[has], p_cur[has]
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} of {len(has)} matches on the reference cloud", len(p_ref))
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        X,
-        p_cur,
-        K,
-        None,
-        iterationsCount=500,
-        reprojectionError=float(config.ransac_px),
-        confidence=0.999,
-        flags=cv2.SOLVEPNP_SQPNP,
-    )
     n = len(p_ref)
-    if not ok or inl is None or len(inl) < min_inliers:
-        return fail(f"PnP found {0 if inl is None else len(inl)} inliers of {n}", n, 0 if inl is None else len(inl))
-    inl = inl.ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(X[inl], p_cur[inl], K, None, rvec, tvec)
-    proj, _ = cv2.projectPoints(X[inl], rvec, tvec, K, None)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - p_cur[inl]) ** 2, axis=1))))
-    afd = float(np.mean(np.linalg.norm(p_cur[inl] - p_ref[inl], axis=1)))
-    # (rvec, tvec) maps reference-camera coordinates into the current camera: T_cur_camref,
-    # i.e. the reference camera seen from the current one = the motion the camera must make.
-    M_cam = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel())
+    found, fit = _pnp_fit(X, p_ref, p_cur, K, ransac_px=config.ransac_px, min_inliers=min_inliers)
+    if fit is None:
+        return fail(f"PnP found {found} inliers of {n}", n, found)
+    inl, rms, afd, M_cam, sigma_mm = fit.inliers, fit.rms_px, fit.afd_px, fit.M_cam, fit.offset_sigma_mm
     mm, deg = pose_distance(np.eye(4), M_cam)
-    sigma_mm = 1000.0 * pnp_translation_sigma_m(X[inl], p_cur[inl], rvec, tvec, K)
     if len(inl) / n < config.min_inlier_ratio:
         return fail(
             f"{len(inl)} PnP inliers of {n} matches (below {config.min_inlier_ratio:.0%})", n, len(inl), afd, rms
@@ -484,45 +351,9 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     if rms > config.max_rms_px:
         return fail(f"PnP reprojection RMS {rms:.2f} px", n, len(inl), afd, rms)
     if mm > 1000 * config.max_motion_m or deg > config.max_motion_deg:
-        strong = len(inl) >= config.strong_min_inliers and len(inl) / n >= config.strong_min_inlier_ratio
-        if not strong:
-            reason = (
-                f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on {len(inl)} inliers "
-                f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})"
-            )
-            if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
-                return fail(reason, n, len(inl), afd, rms)
-            step, _ = clamp_motion(
-                M_cam, max_step_m=config.max_motion_m, max_step_rad=math.radians(config.max_motion_deg)
-            )
-            return ImageRefinement(
-                ok=False,
-                reason=reason,
-                M_cam=M_cam,
-                measured_afd_px=afd,
-                matches=n,
-                inliers=len(inl),
-                rms_px=rms,
-                reference_image=name,
-                matcher=matcher,
-                offset_sigma_mm=sigma_mm,
-                unverified=True,
-                step_M_cam=step,
-            )
-        if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
-            return ImageRefinement(
-                ok=False,
-                reason=f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on image evidence alone",
-                M_cam=M_cam,
-                measured_afd_px=afd,
-                matches=n,
-                inliers=len(inl),
-                rms_px=rms,
-                reference_image=name,
-                matcher=matcher,
-                offset_sigma_mm=sigma_mm,
-                oversize=True,
-            )
+        refused = _refuse_large_motion(fit, mm, deg, n=n, view=view, matcher=matcher)
+        if refused is not None:
+            return refused
     return ImageRefinement(
         ok=True,
         reason="ok",
@@ -535,3 +366,113 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
         matcher=matcher,
         offset_sigma_mm=sigma_mm,
     )
+
+
+@dataclass(frozen=True, kw_only=True)
+class _PnpFit:
+    """A RANSAC PnP fit of one reference image's 2D-3D matches, refined on its inliers.
+
+    ``inliers`` (K,) indices into the matches; ``rms_px`` the inliers' reprojection RMS and ``afd_px`` their
+    mean image displacement, px; ``M_cam`` (4, 4) the camera motion to the reference pose, metres;
+    ``offset_sigma_mm`` its translation's standard deviation.
+    """
+
+    inliers: np.ndarray
+    rms_px: float
+    afd_px: float
+    M_cam: np.ndarray
+    offset_sigma_mm: float
+
+
+def _pnp_fit(
+    X: np.ndarray, p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray, *, ransac_px: float, min_inliers: int
+) -> tuple[int, _PnpFit | None]:
+    """PnP with RANSAC (SQPnP), then Levenberg-Marquardt on the inliers.
+
+    ``X`` (M, 3) reference-camera points, metres; ``p_ref``, ``p_cur`` (M, 2) pixels; ``K`` (3, 3). Returns
+    the number of RANSAC inliers and the fit, None when RANSAC failed or found fewer than ``min_inliers``.
+    """
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        X,
+        p_cur,
+        K,
+        None,
+        iterationsCount=500,
+        reprojectionError=float(ransac_px),
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_SQPNP,
+    )
+    found = 0 if inl is None else len(inl)
+    if not ok or inl is None or found < min_inliers:
+        return found, None
+    inl = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(X[inl], p_cur[inl], K, None, rvec, tvec)
+    proj, _ = cv2.projectPoints(X[inl], rvec, tvec, K, None)
+    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - p_cur[inl]) ** 2, axis=1))))
+    afd = float(np.mean(np.linalg.norm(p_cur[inl] - p_ref[inl], axis=1)))
+    # (rvec, tvec) maps reference-camera coordinates into the current camera: T_cur_camref,
+    # i.e. the reference camera seen from the current one = the motion the camera must make.
+    M_cam = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel())
+    sigma_mm = 1000.0 * pnp_translation_sigma_m(X[inl], p_cur[inl], rvec, tvec, K)
+    return found, _PnpFit(inliers=inl, rms_px=rms, afd_px=afd, M_cam=M_cam, offset_sigma_mm=sigma_mm)
+
+
+def _refuse_large_motion(
+    fit: _PnpFit, mm: float, deg: float, *, n: int, view: _ReferenceView, matcher: str
+) -> ImageRefinement | None:
+    """The verdict on a correction beyond ``max_motion_*``: None when the evidence is strong enough to act on it.
+
+    Ordinary evidence refuses it (``unverified``, with one ordinary step toward it, up to
+    ``strong_max_motion_*``); beyond ``strong_max_motion_*`` it is refused whatever the evidence (``oversize``
+    when the evidence is strong).
+    """
+    config = view.config
+    inl, rms, afd, M_cam, sigma_mm = fit.inliers, fit.rms_px, fit.afd_px, fit.M_cam, fit.offset_sigma_mm
+    strong = len(inl) >= config.strong_min_inliers and len(inl) / n >= config.strong_min_inlier_ratio
+    if not strong:
+        reason = (
+            f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on {len(inl)} inliers "
+            f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})"
+        )
+        if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
+            return ImageRefinement(
+                ok=False,
+                reason=reason,
+                M_cam=None,
+                measured_afd_px=afd,
+                matches=n,
+                inliers=len(inl),
+                rms_px=rms,
+                reference_image=view.name,
+                matcher=matcher,
+            )
+        step, _ = clamp_motion(M_cam, max_step_m=config.max_motion_m, max_step_rad=math.radians(config.max_motion_deg))
+        return ImageRefinement(
+            ok=False,
+            reason=reason,
+            M_cam=M_cam,
+            measured_afd_px=afd,
+            matches=n,
+            inliers=len(inl),
+            rms_px=rms,
+            reference_image=view.name,
+            matcher=matcher,
+            offset_sigma_mm=sigma_mm,
+            unverified=True,
+            step_M_cam=step,
+        )
+    if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
+        return ImageRefinement(
+            ok=False,
+            reason=f"correction of {mm:.1f} mm / {deg:.2f} deg is too large to trust on image evidence alone",
+            M_cam=M_cam,
+            measured_afd_px=afd,
+            matches=n,
+            inliers=len(inl),
+            rms_px=rms,
+            reference_image=view.name,
+            matcher=matcher,
+            offset_sigma_mm=sigma_mm,
+            oversize=True,
+        )
+    return None
