@@ -58,3 +58,25 @@ def test_a_capture_fault_takes_a_station_name_no_earlier_run_left(tmp_path):
     assert fresh_station(campaign, "s") == "s-r2"
     (campaign / "stations" / "s-r2").mkdir()
     assert fresh_station(campaign, "s") == "s-r3"
+
+
+def test_the_full_disk_launcher_reaches_an_observations_own_files(tmp_path):
+    """The simulated ENOSPC hits the files an observation writes itself (``open``), not only atomic writes."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        from pathlib import Path
+        from fgcd_cli.bench.faults.launch import install_enospc
+        install_enospc(1000, {str(tmp_path)!r})
+        from fgcd_cli.campaign.observation import ObservationKind, ObservationWriter
+        writer = ObservationWriter(Path({str(tmp_path / "obs")!r}), ObservationKind.VISIT, {{}})
+        writer.add_bytes("small.bin", b"0" * 600)
+        try:
+            writer.add_bytes("large.bin", b"0" * 5000)
+        except OSError as exc:
+            print(exc.errno, exc.filename)
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["28", str(tmp_path / "obs" / "large.bin")]

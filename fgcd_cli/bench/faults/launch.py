@@ -1,16 +1,18 @@
 """``python -m fgcd_cli.bench.faults.launch ARGS``: ``fgcd ARGS`` whose campaign writes hit a full disk.
 
-Fault injection for ``fgcd bench faults`` only. Every file opened for writing
-through ``os.fdopen`` (the store's atomic writes, :mod:`fgcd_cli.campaign.atomic`)
-under ``FGCD_BENCH_ENOSPC_UNDER`` shares a budget of ``FGCD_BENCH_ENOSPC_AFTER``
+Fault injection for ``fgcd bench faults`` only. Every binary file opened for writing
+through ``os.fdopen`` (the store's atomic writes, :mod:`fgcd_cli.campaign.atomic`) or ``open``
+(an observation's files, :meth:`fgcd_cli.campaign.observation.ObservationWriter.add_bytes`) under ``FGCD_BENCH_ENOSPC_UNDER`` shares a budget of ``FGCD_BENCH_ENOSPC_AFTER``
 bytes; the write that crosses it writes what fits, then fails with ``ENOSPC``
 as a full file system does.
 """
 
 from __future__ import annotations
 
+import builtins
 import errno
 import os
+from pathlib import Path
 
 __all__ = ["install_enospc"]
 
@@ -57,7 +59,17 @@ def install_enospc(budget_bytes: int, under: str) -> None:
             return _Budgeted(handle, budget)
         return handle
 
+    real_open = builtins.open
+
+    def open_budgeted(file, mode="r", *args, **kwargs):
+        handle = real_open(file, mode, *args, **kwargs)
+        if isinstance(mode, str) and ("w" in mode or "a" in mode) and "b" in mode and isinstance(file, (str, Path)):
+            if os.path.realpath(file).startswith(root):
+                return _Budgeted(handle, budget)
+        return handle
+
     os.fdopen = fdopen
+    builtins.open = open_budgeted
 
 
 if __name__ == "__main__":
