@@ -51,6 +51,7 @@ from fgcd_core.platform import (
     SafetyStop,
 )
 from fgcd_drivers.ur_preflight import preflight
+from fgcd_drivers.ur_state import RECEIVE_VARIABLES, ROBOT_MODE_RUNNING, pose_to_vector, safety_problem, vector_to_pose
 from fgcd_drivers.ur_watchdog import links_up as _links_up
 from fgcd_drivers.ur_watchdog import locked, start_kicker
 
@@ -61,35 +62,9 @@ _ABANDONED: list = []
 __all__ = [
     "URConfig",
     "URPlatform",
-    "pose_to_vector",
-    "vector_to_pose",
-    "safety_problem",
     "abandoned_interface_count",
 ]
 
-#: Variables the receive interface asks for (less traffic than the default set).
-RECEIVE_VARIABLES = [
-    "timestamp",
-    "actual_TCP_pose",
-    "actual_TCP_speed",
-    "robot_mode",
-    "safety_mode",
-    "safety_status_bits",
-    "runtime_state",
-    "robot_status_bits",
-]
-ROBOT_MODE_RUNNING = 7
-_SAFETY_BITS = {
-    2: "protective stop",
-    3: "recovery mode",
-    4: "safeguard stop",
-    5: "system emergency stop",
-    6: "robot emergency stop",
-    7: "emergency stop",
-    8: "safety violation",
-    9: "safety fault",
-    10: "stopped due to safety",
-}
 # ur_rtde's accepted ranges for moveL (rtde_control_interface.h).
 _UR_TOOL_SPEED_MAX = 3.0
 _UR_TOOL_ACC_MAX = 150.0
@@ -102,29 +77,6 @@ def abandoned_interface_count() -> int:
     them: a command that abandoned one (the count grew) ends its process with ``os._exit``.
     """
     return len(_ABANDONED)
-
-
-def pose_to_vector(T: np.ndarray) -> list[float]:
-    """``[x, y, z, rx, ry, rz]`` (metres, rotation vector) of a 4x4 pose."""
-    T = np.asarray(T, dtype=float)
-    return [float(v) for v in T[:3, 3]] + [float(v) for v in Rotation.from_matrix(T[:3, :3]).as_rotvec()]
-
-
-def vector_to_pose(vector) -> np.ndarray:
-    """4x4 pose from ``[x, y, z, rx, ry, rz]`` (metres, rotation vector)."""
-    v = np.asarray(vector, dtype=float)
-    if v.shape != (6,) or not np.all(np.isfinite(v)):
-        raise PlatformConnectionError(f"the robot reported an invalid pose {list(v)}")
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(v[3:]).as_matrix()
-    T[:3, 3] = v[:3]
-    return T
-
-
-def safety_problem(bits: int) -> str | None:
-    """Words for the raised safety-status bits, or None when the robot is normal."""
-    raised = [text for bit, text in _SAFETY_BITS.items() if bits & (1 << bit)]
-    return ", ".join(raised) if raised else None
 
 
 @dataclass(frozen=True, kw_only=True)

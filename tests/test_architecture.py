@@ -325,7 +325,7 @@ def test_size_checker_sees_each_rule(tmp_path):
     pkg.mkdir()
     for top in ("drivers", "fgcd_cli"):
         (tmp_path / top).mkdir()
-    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES + 1))
     (pkg / "long.py").write_text(f"def long():\n{body}\n")
     params = ", ".join(f"p{i}" for i in range(MAX_PARAMETERS)) + ", **extra"
     (pkg / "wide.py").write_text(f"class A:\n    def wide(self, {params}):\n        pass\n")
@@ -340,12 +340,12 @@ def test_size_checker_sees_each_rule(tmp_path):
 
 #: The only ``**`` parameters: pass-through of write options, a station's free-form record,
 #: the one builder of a detector config from flat option names (the CLI's options), and the
-#: fault bench's stand-in for ``os.fdopen`` (it must accept what ``os.fdopen`` accepts).
+#: fault bench's stand-ins for ``os.fdopen`` and ``open`` (they must accept what those accept).
 ALLOWED_KEYWORD_CATCH_ALLS = {
     "fgcd_cli/campaign/atomic.py": {"atomic_write_text", "atomic_write_json"},
     "fgcd_cli/campaign/store.py": {"create_station", "station_or_create", "station_for_writing"},
     "fgcd_cli/changes/config.py": {"from_options"},
-    "fgcd_cli/bench/faults/launch.py": {"fdopen"},
+    "fgcd_cli/bench/faults/launch.py": {"fdopen", "open_budgeted"},
 }
 
 

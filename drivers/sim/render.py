@@ -30,65 +30,13 @@ import open3d as o3d
 from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.sim.changes import evaluate_changes
 from fgcd_drivers.sim.lights import Lighting, lighting_preset
+from fgcd_drivers.sim.render_buffers import RenderResult, Surface
 from fgcd_drivers.sim.scene import Scene
 from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
 
-__all__ = ["Renderer", "RenderResult", "apply_camera_response", "auto_exposure", "LUMA"]
+__all__ = ["Renderer", "apply_camera_response", "auto_exposure", "LUMA"]
 
 _MISS = np.uint32(0xFFFFFFFF)
-
-
-@dataclass(frozen=True, kw_only=True)
-class _Surface:
-    """Visible surface samples of one ray batch, the input of shading (float32 arrays).
-
-    Attributes
-    ----------
-    points : (N, 3) world points, m.
-    shade_n, geo_n : (N, 3) shading and geometric unit normals.
-    albedo : (N, 3) linear RGB albedo.
-    depth : (N,) ray distance, m.
-    cavity : (N,) ambient occlusion factor in [0, 1].
-    shadow_lift : (N,) m or None
-        Shadow rays start that much further along the geometric normal (back on
-        the mesh surface for relief-only changes).
-    """
-
-    points: np.ndarray
-    shade_n: np.ndarray
-    geo_n: np.ndarray
-    albedo: np.ndarray
-    depth: np.ndarray
-    cavity: np.ndarray
-    shadow_lift: np.ndarray | None = None
-
-
-@dataclass(kw_only=True)
-class RenderResult:
-    """Buffers of one rendered view (H, W at the requested intrinsics).
-
-    Attributes
-    ----------
-    gray : (H, W) float32 in [0, 1] or None
-    rgb : (H, W, 3) float32 in [0, 1] or None
-    depth : (H, W) float32 z-depth in metres, 0 where nothing was hit.
-    normals : (H, W, 3) float32 unit normals in the world frame, 0 where nothing.
-    labels : (H, W) int32 part labels (1 = object, 0 = nothing).
-    change_mask : (H, W) bool, pixels on an injected change.
-    change_ids : (H, W) int32, 0 where no change, else 1 + the index (in the
-        ``changes`` given to :meth:`Renderer.render`) of the change whose footprint
-        is the strongest there; ``change_mask == (change_ids > 0)``.
-    exposure : float used.
-    """
-
-    gray: np.ndarray | None
-    rgb: np.ndarray | None
-    depth: np.ndarray
-    normals: np.ndarray
-    labels: np.ndarray
-    change_mask: np.ndarray
-    change_ids: np.ndarray
-    exposure: float = 1.0
 
 
 def _remap_1d(img: np.ndarray, x: np.ndarray, y: np.ndarray, border=cv2.BORDER_WRAP) -> np.ndarray:
@@ -319,7 +267,7 @@ class Renderer:
             return np.asarray(self.scene.lamp_position, float)
         return np.asarray(light.position, float)
 
-    def _shade(self, surf: _Surface, lighting: Lighting, T_world_cam) -> np.ndarray:
+    def _shade(self, surf: Surface, lighting: Lighting, T_world_cam) -> np.ndarray:
         """Linear RGB radiance (N, 3) float32 of surface samples (all inputs float32)."""
         points, shade_n, geo_n, albedo = surf.points, surf.shade_n, surf.geo_n, surf.albedo
         depth, cavity, shadow_lift = surf.depth, surf.cavity, surf.shadow_lift
@@ -395,7 +343,7 @@ class Renderer:
                 ids_local[k] = np.where(eff.footprint >= 0.5, eff.change_index + 1, 0)
         radiance = None
         if want_albedo and lighting is not None:
-            surf = _Surface(
+            surf = Surface(
                 points=points,
                 shade_n=shade_n,
                 geo_n=geo_n,

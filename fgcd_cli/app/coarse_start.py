@@ -11,7 +11,9 @@ import numpy as np
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import grab_gray, reference_images
 from fgcd_cli.relocation.coarse.config import CoarseConfig, CoarseResult
-from fgcd_cli.relocation.coarse.stage import CoarseInputs, image_estimate, run_coarse
+from fgcd_cli.relocation.coarse.passive import image_estimate
+from fgcd_cli.relocation.coarse.stage import run_coarse
+from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
 from fgcd_cli.relocation.config import ReferenceData
 
 __all__ = ["CoarseStart", "maybe_coarse"]

@@ -5,9 +5,7 @@ Plain functions (no typer); the CLI parses options and renders what they return.
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -15,13 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcd_cli.archive.freshness import (
-    ANALYSIS_RELPATH,
-    AnalysisOptions,
-    analysis_inputs,
-    analysis_record,
-    stored_options,
+from fgcd_cli.app.diff_options import (
+    campaign_edge_check_px,
+    check_diff_options,
+    check_stored_diff,
+    checked_edge_check_px,
 )
+from fgcd_cli.app.visit_logs import coarse_log_rows, relocation_log_rows, relocation_residual_text
+from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, AnalysisOptions, analysis_inputs, analysis_record
 from fgcd_cli.campaign import schema
 from fgcd_cli.campaign.atomic import atomic_write_bytes, check_writable, sha256_file
 from fgcd_cli.changes.config import DetectionConfig
@@ -30,7 +29,7 @@ from fgcd_cli.changes.images import check_stack_sizes, to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
 from fgcd_cli.changes.regions import pixel_area_from_cloud
 from fgcd_cli.changes.result import ChangeResult
-from fgcd_cli.errors import AlgorithmError, CampaignError, ImmutableDataError, UserInputError
+from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.report.products import diff_products, result_summary
@@ -66,35 +65,6 @@ def _write_dir(output: Path, files: dict[str, bytes]) -> None:
     output.mkdir(parents=True, exist_ok=True)
     for name, data in files.items():
         atomic_write_bytes(output / name, data)
-
-
-def check_diff_options(
-    *,
-    mm_per_px: float | None,
-    edge_check_px: int | None,
-    ambient_index: int | None = None,
-    files: dict[str, Path | None] | None = None,
-) -> None:
-    """The one check of a diff's options, run when a request is made: before anything is read or written.
-
-    Raises :class:`UserInputError` (exit 2) for a scale that is not a positive finite
-    number of mm per px (a negative or zero scale would give non-physical areas), an
-    edge check outside 0..8 px, a negative ambient index, or a named file that is not there.
-    """
-    if mm_per_px is not None and (
-        isinstance(mm_per_px, bool)
-        or not isinstance(mm_per_px, (int, float))
-        or not math.isfinite(mm_per_px)
-        or mm_per_px <= 0
-    ):
-        raise UserInputError(f"--mm-per-px must be a positive number of millimetres per pixel, got {mm_per_px}")
-    if edge_check_px is not None:
-        _edge_check(edge_check_px)
-    if ambient_index is not None and ambient_index < 0:
-        raise UserInputError(f"--ambient-index must be 0 or more, got {ambient_index}")
-    for option, path in (files or {}).items():
-        if path is not None and not Path(path).is_file():
-            raise UserInputError(f"{option}: file not found: {path}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -198,7 +168,7 @@ def detect_bare(
             roi=roi,
             pixel_area_mm2=area,
             config=DetectionConfig.from_options(
-                register=r.register, edge_check_px=_edge_check(r.edge_check_px), ambient_index=r.ambient_index
+                register=r.register, edge_check_px=checked_edge_check_px(r.edge_check_px), ambient_index=r.ambient_index
             ),
         )
         same_size = ref_images[0].shape == cur_images[0].shape
@@ -271,84 +241,6 @@ def _shared_lightings(reference, visit) -> list[str]:
     return shared
 
 
-def coarse_log_rows(visit) -> list[dict] | None:
-    """The visit's coarse stage log (``coarse.jsonl``) as rows, or None when the stage did not run."""
-    if not visit.has(schema.COARSE_LOG):
-        return None
-    lines = visit.bytes(schema.COARSE_LOG).decode("utf-8").splitlines()
-    return [json.loads(line) for line in lines if line.strip()] or None
-
-
-def relocation_log_rows(visit) -> list[dict] | None:
-    """The visit's relocation log as plot rows: each logged row, its simulator truth (if any) under ``*_true`` keys.
-
-    The loop's own estimates keep their names (``afd_est_px``, ``offset_mm``, ``offset_deg``);
-    the ``truth`` entry a simulated run logs (``pose_err_mm``, ``pose_err_deg``, ``afd_px``)
-    becomes ``pose_err_mm_true``, ``pose_err_deg_true``, ``afd_px_true``, so that no
-    figure can show truth under an estimate's name. None without a log.
-    """
-    if not visit.has(schema.RELOCATION_LOG):
-        return None
-    rows = []
-    for line in visit.bytes(schema.RELOCATION_LOG).decode("utf-8").splitlines():
-        if line.strip():
-            row = json.loads(line)
-            truth = row.pop("truth", None) or {}
-            rows.append({**row, **{f"{key}_true": value for key, value in truth.items()}})
-    return rows or None
-
-
-# A relocated visit is never at the reference pose to the pixel: parallax, occlusion
-# and resampling differences at strong edges remain that the flat registration
-# cannot absorb. Campaign diffs set aside regions that lie along strong reference
-# edges and that a shift of up to this many pixels explains (region-level edge
-# check, docs/change-detection.md); they stay visible in the report.
-EDGE_CHECK_PX = 2
-
-
-def campaign_edge_check_px(px: int | None) -> int:
-    """The edge check of a campaign diff: ``px`` when given, else :data:`EDGE_CHECK_PX` (the one default)."""
-    return EDGE_CHECK_PX if px is None else px
-
-
-def _edge_check(px: int) -> int:
-    if not 0 <= px <= 8:
-        raise UserInputError(f"--edge-check must be between 0 (off) and 8 px, got {px}")
-    return int(px)
-
-
-def relocation_residual_mm(visit) -> float | None:
-    """The relocation's own estimate of the remaining camera offset (mm, last logged iteration), if logged."""
-    if not visit.has(schema.RELOCATION_LOG):
-        return None
-    last = None
-    for line in visit.bytes(schema.RELOCATION_LOG).decode("utf-8").splitlines():
-        if line.strip():
-            last = json.loads(line)
-    if not last or last.get("offset_mm") is None:
-        return None
-    return float(last["offset_mm"])  # the row's estimate; its "truth" entry is never read here
-
-
-def relocation_residual_text(visit) -> str:
-    """The relocation's stated residual for the report: ``0.27 ± 0.12 mm (image estimate; ...)``.
-
-    The visit manifest's ``relocation.residual`` (offset, uncertainty, tolerance,
-    estimator, agreement) when the run stated one, else the last logged offset
-    estimate alone; never the simulator's truth.
-    """
-    from fgcd_cli.relocation.stop_rule import Residual
-
-    stated = (visit.metadata.get("relocation") or {}).get("residual")
-    if isinstance(stated, dict):
-        try:
-            return Residual(**stated).text().removeprefix("residual ")
-        except TypeError:
-            pass  # a record from another version: fall back to the logged estimate
-    residual_mm = relocation_residual_mm(visit)
-    return f"{residual_mm:.2f} mm (no uncertainty logged)" if residual_mm is not None else "not logged"
-
-
 def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
     """mm² per reference pixel from the reference's metric cloud and camera, when stored."""
     from fgcd_core.camera import PinholeCamera
@@ -390,10 +282,11 @@ class CampaignDiffRequest:
     output : Path or None
         A folder that also receives the products (they are always stored in the visit).
     edge_check_px : int or None
-        Region-level edge check shift, pixels (None: :data:`EDGE_CHECK_PX`; 0: off).
+        Region-level edge check shift, pixels (None: :data:`fgcd_cli.app.diff_options.EDGE_CHECK_PX`; 0: off).
     force : bool
         Replace a stored diff of the visit that was made with other options
-        (without it such a diff is kept and the request refused, :func:`check_stored_diff`).
+        (without it such a diff is kept and the request refused,
+        :func:`fgcd_cli.app.diff_options.check_stored_diff`).
     """
 
     campaign: Path
@@ -419,51 +312,11 @@ class CampaignDiffRequest:
         )
 
 
-def _effective(options: AnalysisOptions) -> AnalysisOptions:
-    """``options`` with the campaign diff's default edge check spelled out (``None`` and 2 px make the same diff)."""
-    return dataclasses.replace(options, edge_check_px=campaign_edge_check_px(options.edge_check_px))
-
-
-def options_text(options: AnalysisOptions) -> str:
-    """``--mm-per-px 0.5, --edge-check 2`` (the options as a person would give them)."""
-    o = _effective(options)
-    parts = [
-        f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "no --mm-per-px",
-        f"--edge-check {o.edge_check_px}",
-    ]
-    parts += ["--no-register"] if not o.register else []
-    parts += [f"--roi sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []
-    return ", ".join(parts)
-
-
-def check_stored_diff(observation, options: AnalysisOptions, *, force: bool) -> str | None:
-    """Refuse to replace a visit's stored diff made with other options unless forced (docs/change-detection.md).
-
-    Returns a warning when the stored diff's options were not recorded (an older
-    fgcd): it is replaced, and the result says so. Raises
-    :class:`ImmutableDataError` (exit 5) naming both sets of options otherwise.
-    """
-    if not observation.has(schema.change_relpath(schema.REGIONS_JSON)):
-        return None
-    stored = stored_options(observation)
-    if stored is None:
-        return (
-            f"replaced the stored diff of visit {observation.name}, made by an older fgcd "
-            "that did not record its options"
-        )
-    if force or _effective(stored) == _effective(options):
-        return None
-    raise ImmutableDataError(
-        f"visit {observation.name} already has a diff made with {options_text(stored)}; "
-        f"this one asks for {options_text(options)}: give --force to replace it"
-    )
-
-
 def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> dict:
     """Compare a station's visit with its reference; store the products in the visit (``changes/``, ``report.html``).
 
     The options are checked when the request is made; a stored diff made with other
-    options is refused before any image is read (:func:`check_stored_diff`). The
+    options is refused before any image is read (:func:`fgcd_cli.app.diff_options.check_stored_diff`). The
     products are followed by ``changes/analysis.json``, the record of the options and
     inputs (:mod:`fgcd_cli.archive.freshness`).
     """
@@ -490,7 +343,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         area = _reference_pixel_area(reference, shape)
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
     mask = read_mask(r.roi) if r.roi is not None else None
-    edge_check = _edge_check(campaign_edge_check_px(r.edge_check_px))
+    edge_check = checked_edge_check_px(campaign_edge_check_px(r.edge_check_px))
     _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
     result = detect_changes(

@@ -16,7 +16,7 @@ import numpy as np
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import grab_gray, reference_images, start_session
 from fgcd_cli.relocation.coarse.config import CoarseConfig
-from fgcd_cli.relocation.coarse.stage import image_estimate
+from fgcd_cli.relocation.coarse.passive import image_estimate
 from fgcd_cli.relocation.guided import guided_waypoints, motions_between, within_workspace
 from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 

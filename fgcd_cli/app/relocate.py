@@ -81,32 +81,16 @@ def relocate_and_capture(
             evaluate=hooks.evaluate,
         )
         init, coarse_result = _initial_alignment(start, request.coarse)
-        ref_images, same_light = _measurement_images(rig, station)
-        rig.say(f"relocating ({request.config.loop_name}) to the reference of station '{station.name}'")
-        rig.progress(0, 0, "relocating")
-        try:
-            result = relocate(
-                LoopContext(
-                    session=session,
-                    reference=reference,
-                    ref_index=ref_index,
-                    camera=rig.intrinsics,
-                    scale=scale.scale,
-                    T_flange_cam=rig.T_flange_cam,
-                    init=init,
-                    config=request.config,
-                    evaluate=hooks.evaluate,
-                    on_record=hooks.on_record,
-                    reference_images=ref_images,
-                    grab_current=lambda: grab_gray_under(rig, vse, same_light),
-                    # the camera stands at the image localizer's reference only when nothing moved it since
-                    image_prior_sigma_mm=prior_sigma_mm if coarse_result is None else None,
-                )
-            )
-        except AlgorithmError as exc:
-            # the loop paused: what the coarse stage did before stays available to the caller
-            exc.coarse_result = coarse_result
-            raise
+        result = _run_racr_loop(
+            start,
+            request,
+            hooks,
+            vse=vse,
+            init=init,
+            coarse_result=coarse_result,
+            # the camera stands at the image localizer's reference only when nothing moved it since
+            image_prior_sigma_mm=prior_sigma_mm if coarse_result is None else None,
+        )
         rig.progress(0, 0, "settling at the reached pose")
         state = session.settle(frames=2)
         points = np.asarray(state.cloud.points, dtype=float) * scale.scale
@@ -158,6 +142,74 @@ def _initial_alignment(start: CoarseStart, coarse: CoarseConfig | None) -> tuple
     first_trusted = guess.fast is not None and guess.fast.health.ok
     coarse_result, init = maybe_coarse(start, init, coarse, first_trusted=first_trusted)
     return init, coarse_result
+
+
+def _run_racr_loop(
+    start: CoarseStart,
+    request: RelocateRequest,
+    hooks: RelocateHooks,
+    *,
+    vse,
+    init: np.ndarray,
+    coarse_result: CoarseResult | None,
+    image_prior_sigma_mm: float | None,
+) -> RelocationResult:
+    """Drive the camera back to the reference pose with the rACR loop, from the initial alignment.
+
+    Parameters
+    ----------
+    start : CoarseStart
+        The rig, session, reference (and its index), station and scale of this revisit.
+    request : RelocateRequest
+        The loop's configuration (``request.config``).
+    hooks : RelocateHooks
+        The evaluation (simulated runs) and the per-record callback, passed to the loop.
+    vse
+        The running VSE, whose images the image stage grabs.
+    init : ndarray
+        The 4x4 alignment (reference from current) the loop starts from.
+    coarse_result : CoarseResult or None
+        What the coarse stage did, when it ran.
+    image_prior_sigma_mm : float or None
+        The image localizer's prior on the camera's offset (None once anything moved the camera).
+
+    Returns
+    -------
+    RelocationResult
+        The loop's result and records.
+
+    Raises
+    ------
+    AlgorithmError
+        The loop paused; ``coarse_result`` is attached to it so that what the coarse
+        stage did before stays available to the caller.
+    """
+    rig, station = start.rig, start.station
+    ref_images, same_light = _measurement_images(rig, station)
+    rig.say(f"relocating ({request.config.loop_name}) to the reference of station '{station.name}'")
+    rig.progress(0, 0, "relocating")
+    try:
+        return relocate(
+            LoopContext(
+                session=start.session,
+                reference=start.reference,
+                ref_index=start.ref_index,
+                camera=rig.intrinsics,
+                scale=start.scale,
+                T_flange_cam=rig.T_flange_cam,
+                init=init,
+                config=request.config,
+                evaluate=hooks.evaluate,
+                on_record=hooks.on_record,
+                reference_images=ref_images,
+                grab_current=lambda: grab_gray_under(rig, vse, same_light),
+                image_prior_sigma_mm=image_prior_sigma_mm,
+            )
+        )
+    except AlgorithmError as exc:
+        # the loop paused: what the coarse stage did before stays available to the caller
+        exc.coarse_result = coarse_result
+        raise
 
 
 def _measurement_images(rig: RigHandles, station) -> tuple[dict[str, np.ndarray], str | None]:

@@ -17,7 +17,7 @@ _OVERLAY = schema.change_relpath(schema.OVERLAY_PNG)
 
 def _visit_summary(campaign: Path, st, name: str, progress: Progress):
     """One visit's row of the history (compared now when it has no stored diff)."""
-    from fgcd_cli.report.html import VisitSummary
+    from fgcd_cli.report.station_history import VisitSummary
 
     observation = st.visit(name)
     if not observation.has(_REGIONS):
@@ -51,7 +51,7 @@ def station_history(campaign: Path, station: str, *, output: Path | None = None,
     """
     from fgcd_cli.campaign.store import open_campaign
     from fgcd_cli.report.figures import png_bytes, to_display_rgb
-    from fgcd_cli.report.html import VisitSummary, render_station_history
+    from fgcd_cli.report.station_history import VisitSummary, render_station_history
 
     camp = open_campaign(campaign)
     st = camp.station(station)

@@ -32,7 +32,7 @@ __all__ = ["MATCH_DILATION_PX", "TrackStatus", "VisitRegions", "RegionTrack", "t
 
 MATCH_DILATION_PX = 2
 """Footprints are matched with this tolerance, px: the campaign diff's edge-check shift
-(:data:`fgcd_cli.app.diff.EDGE_CHECK_PX`), the residual misregistration a relocated visit keeps."""
+(:data:`fgcd_cli.app.diff_options.EDGE_CHECK_PX`), the residual misregistration a relocated visit keeps."""
 
 _SECONDS_PER_YEAR = 365.25 * 86400.0
 

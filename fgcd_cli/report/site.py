@@ -11,7 +11,7 @@ import html
 
 import numpy as np
 
-from fgcd_cli.report.html import _figure, _human_date, _page
+from fgcd_cli.report.html_page import _figure, _human_date, _page
 from fgcd_cli.report.track_chart import track_area_png
 
 __all__ = ["growth_text", "render_site_page", "tracks_section"]

@@ -28,15 +28,9 @@ from fgcd_core.platform import (
     SafetyStop,
 )
 from fgcd_drivers.testing.fake_ur import FakeURProcess
-from fgcd_drivers.ur import (
-    URConfig,
-    URPlatform,
-    abandoned_interface_count,
-    pose_to_vector,
-    safety_problem,
-    vector_to_pose,
-)
+from fgcd_drivers.ur import URConfig, URPlatform, abandoned_interface_count
 from fgcd_drivers.ur_preflight import preflight
+from fgcd_drivers.ur_state import pose_to_vector, safety_problem, vector_to_pose
 
 pytestmark = pytest.mark.timeout(90)
 

@@ -125,7 +125,8 @@ class _FakeSession:
 
 def _stage(session, reference_points, init, **config):
     from fgcd_cli.alignment.reference import ReferenceIndex
-    from fgcd_cli.relocation.coarse.stage import CoarseInputs, run_coarse
+    from fgcd_cli.relocation.coarse.stage import run_coarse
+    from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
 
     ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
     return run_coarse(
@@ -246,7 +247,9 @@ def _scale_error_run(reference_points, monkeypatch, *, scale_error: float, scale
     """The coarse stage from 41 mm / 1.6 deg with the session's scale ``1 + scale_error`` too large and an
     exact image localizer (a textured object near the reference): ``(result, session)``."""
     from fgcd_cli.alignment.reference import ReferenceIndex
-    from fgcd_cli.relocation.coarse import stage as coarse_mod
+    from fgcd_cli.relocation.coarse import passive
+    from fgcd_cli.relocation.coarse.stage import run_coarse
+    from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
     from fgcd_core.sim3 import Sim3
 
     T_start = exp_se3(np.r_[0.03, -0.02, 0.02, np.radians([0.5, 1.5, 0.0])])  # 41 mm / 1.6 deg away
@@ -254,11 +257,11 @@ def _scale_error_run(reference_points, monkeypatch, *, scale_error: float, scale
     session = _FakeSession(T_start, X_HANDEYE, cloud, np.eye(4), scale=1.0)
     # the image localizer measures the camera exactly (a textured object near the reference)
     monkeypatch.setattr(
-        coarse_mod, "image_estimate", lambda **_kw: (session.T_ref_cam.copy(), {"pnp": "ok", "inliers": 500})
+        passive, "image_estimate", lambda **_kw: (session.T_ref_cam.copy(), {"pnp": "ok", "inliers": 500})
     )
     ref = SimpleNamespace(points=reference_points, T_ref_camref=np.eye(4))
-    result = coarse_mod.run_coarse(
-        coarse_mod.CoarseInputs(
+    result = run_coarse(
+        CoarseInputs(
             session=session,
             reference=ref,
             ref_index=ReferenceIndex(reference_points),
@@ -312,7 +315,7 @@ def test_an_exact_image_estimate_verifies_through_a_large_session_scale_error(re
 
 
 def test_the_check_takes_the_alignment_scale_within_the_session_s_error_or_when_measured():
-    from fgcd_cli.relocation.coarse.stage import check_scale
+    from fgcd_cli.relocation.coarse.passive import check_scale
 
     assert check_scale(0.95, scale_rel_std=0.04) == 0.95  # 5 % against 3 x 4 %
     assert check_scale(0.95, scale_rel_std=0.01) == 1.0  # 5 % against 3 x 1 %: the alignment is suspect

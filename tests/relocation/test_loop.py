@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fgcd_cli.relocation.coarse.config import CoarseConfig
-from fgcd_cli.relocation.coarse.stage import CoarseInputs
+from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
 from fgcd_cli.relocation.config import ReferenceData, RelocationConfig
 from fgcd_cli.relocation.loop.context import LoopContext
 from fgcd_cli.relocation.loop.parallel import relocate

@@ -127,7 +127,9 @@ class _TurnOnlySession:
 
 
 def _run(scene):
-    from fgcd_cli.relocation.coarse.stage import CoarseInputs, _CoarseRun, _View
+    from fgcd_cli.relocation.coarse.passive import View
+    from fgcd_cli.relocation.coarse.stage import _CoarseRun
+    from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
     from fgcd_core.se3 import exp_se3
     from fgcd_core.sim3 import Sim3
 
@@ -148,7 +150,7 @@ def _run(scene):
             scene=scene,
         )
     )
-    view = _View(T_cur_cam=np.eye(4), notes={}, best=None, unverified=("3d", np.eye(4), None))
+    view = View(T_cur_cam=np.eye(4), notes={}, best=None, unverified=("3d", np.eye(4), None))
     assert run._look(1, view, None) is None
     return run, session, X
 

@@ -439,7 +439,8 @@ def test_a_far_start_under_an_overhang_verifies_or_pauses_with_a_reason():
     unverified estimate it only descends: at most ``max_descents`` times, each half the estimated way and at
     most one step; every other motion is a look-around (a pure rotation of the camera)."""
     from fgcd_cli.alignment.reference import ReferenceIndex
-    from fgcd_cli.relocation.coarse.stage import CoarseInputs, run_coarse
+    from fgcd_cli.relocation.coarse.stage import run_coarse
+    from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
     from tests.relocation.test_coarse import X_HANDEYE, _FakeSession
 
     rng = np.random.default_rng(11)

@@ -2,7 +2,7 @@
 
 import json
 
-from fgcd_cli.app.diff import relocation_residual_mm
+from fgcd_cli.app.visit_logs import relocation_residual_mm
 
 
 class _Visit:
@@ -33,7 +33,7 @@ class _Manifested(_Visit):
 
 
 def test_report_row_states_the_runs_residual_with_its_uncertainty():
-    from fgcd_cli.app.diff import relocation_residual_text
+    from fgcd_cli.app.visit_logs import relocation_residual_text
 
     stated = {"offset_mm": 0.2736, "sigma_mm": 0.1152, "tolerance_mm": 1.078, "source": "image", "agreement": "agree"}
     rows = [{"iteration": 6, "offset_mm": 0.27, "truth": {"pose_err_mm": 0.44}}]

@@ -13,7 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
-from fgcd_cli.app.diff import relocation_log_rows  # noqa: E402
+from fgcd_cli.app.visit_logs import relocation_log_rows  # noqa: E402
 from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.regions import ChangeRegion  # noqa: E402
 from fgcd_cli.report.areas import area_mm2_text, round_area_mm2  # noqa: E402
@@ -208,7 +208,7 @@ def test_report_names_simulator_truth_only_when_the_log_holds_it():
 
 
 def test_history_dates_visit_names_with_milliseconds():
-    from fgcd_cli.report.html import _human_date
+    from fgcd_cli.report.html_page import _human_date
 
     assert _human_date("20261125T175551460Z") == "2026-11-25 17:55 UTC"  # the store names visits to the millisecond
     assert _human_date("20250601T000000Z") == "2025-06-01 00:00 UTC"

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from fgcd_cli.app.diff import EDGE_CHECK_PX
+from fgcd_cli.app.diff_options import EDGE_CHECK_PX
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.regions import pixel_area_from_depth

@@ -92,7 +92,7 @@ class CameraUncertainty:
         an image estimate.
 
         The check registers the session's cloud at a scale known to a percent or so (the alignment's,
-        :func:`~fgcd_cli.relocation.coarse.stage.check_scale`, or the exploration's few %), whose error shifts
+        :func:`~fgcd_cli.relocation.coarse.passive.check_scale`, or the exploration's few %), whose error shifts
         the registration along the view by that fraction of the depth: 15 mm at 1.5 m for 1 %, against
         2 mm for PnP on a textured slab 92 mm from the reference. The check's constrained part may reject
         an image estimate, but as a correction it would move a good one by the scale's error

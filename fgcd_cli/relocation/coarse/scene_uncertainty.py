@@ -11,7 +11,7 @@ localizer; here each localizer's success is *predicted* from the reference
 observation by a stated model (docs/relocation.md, "Scene uncertainty"):
 
 * **image localizer** (SIFT matches to the reference image lifted to 3D by the
-  reference cloud, PnP; :func:`fgcd_cli.relocation.coarse.stage.image_estimate`): the
+  reference cloud, PnP; :func:`fgcd_cli.relocation.coarse.passive.image_estimate`): the
   reference keypoints with a 3D point that the candidate sees (in view, not
   hidden behind the reference surface) under a viewing-angle change SIFT
   tolerates; it succeeds when they are at least the PnP minimum the localizer

@@ -35,240 +35,28 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fgcd_cli.relocation.adjustment import clamp_motion
-from fgcd_cli.relocation.coarse.camera_uncertainty import (
-    CameraUncertainty,
-    camera_uncertainty,
-    in_view,
-)
 from fgcd_cli.relocation.coarse.config import CoarseConfig, CoarseResult, CoarseStep
+from fgcd_cli.relocation.coarse.passive import View, localize, residual_m
 from fgcd_cli.relocation.coarse.scene_uncertainty import SceneUncertaintyMap, camera_turn, view_uncertainty
-from fgcd_cli.relocation.config import ReferenceData
+from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
 from fgcd_cli.relocation.enums import CoarseAction, EstimateSource
-from fgcd_cli.relocation.protocols import CameraModel
-from fgcd_cli.relocation.session import VseSession
 from fgcd_cli.relocation.stop_rule import reference_depth_m
 from fgcd_core.platform import MotionRejected
 from fgcd_core.se3 import flange_motion, invert_pose, pose_distance
 from fgcd_core.sim3 import Sim3
 
-__all__ = ["check_scale", "CameraUncertainty", "CoarseInputs", "CoarseStep", "image_estimate", "run_coarse"]
-
-
-def image_estimate(
-    *, reference_images: dict[str, np.ndarray], current_image: np.ndarray, camera, reference
-) -> tuple[np.ndarray | None, dict]:
-    """The image (PnP) passive localizer: the current camera in ``ref``, or None.
-
-    Parameters
-    ----------
-    reference_images : dict of name -> (H, W) ndarray
-        Undistorted reference images.
-    current_image : (H, W) ndarray
-        Undistorted current image.
-    camera : PinholeCamera
-    reference : ReferenceData
-        ``points`` (N, 3) metres and ``T_ref_camref`` (4, 4).
-
-    Returns
-    -------
-    T_ref_cam : (4, 4) ndarray or None
-        None when the matches do not make a PnP solution (too few, too few inliers, large residual).
-    info : dict
-        PnP outcome for the log.
-
-    Unlike the loop's image stage, any motion size is accepted here: the camera
-    uncertainty, not the size of the correction, decides whether it is trusted.
-    """
-    from fgcd_cli.relocation.image.refine import ImageRefineConfig, refine_from_reference_image
-
-    config = replace(
-        ImageRefineConfig(),
-        max_motion_m=10.0,
-        max_motion_deg=180.0,
-        strong_max_motion_m=10.0,
-        strong_max_motion_deg=180.0,
-    )
-    T_ref_camref = np.asarray(reference.T_ref_camref, dtype=float)
-    pnp = refine_from_reference_image(
-        reference_images=reference_images,
-        current_image=current_image,
-        camera=camera,
-        ref_points=reference.points,
-        T_ref_camref=T_ref_camref,
-        config=config,
-    )
-    info = {"pnp": pnp.reason, "inliers": pnp.inliers, "sigma_mm": pnp.offset_sigma_mm}
-    return (T_ref_camref @ invert_pose(pnp.M_cam) if pnp.ok else None), info
+__all__ = ["run_coarse"]
 
 
 def _sim3_from_camera(T_ref_cam: np.ndarray, T_cur_cam: np.ndarray) -> Sim3:
     """The rigid ``T_ref_cur`` that puts the session camera at ``T_ref_cam``."""
     M = np.asarray(T_ref_cam, dtype=float) @ invert_pose(np.asarray(T_cur_cam, dtype=float))
     return Sim3(M[:3, :3].copy(), M[:3, 3].copy(), 1.0)
-
-
-@dataclass(frozen=True, kw_only=True)
-class CoarseInputs:
-    """The inputs of :func:`run_coarse`.
-
-    Attributes
-    ----------
-    session : VseSession
-        Running session (exploration done); every motion goes through its guard.
-    reference : ReferenceData
-        ``points`` (N, 3) metres and ``T_ref_camref`` (4, 4).
-    ref_index : ReferenceIndex
-        Search structure over the reference cloud.
-    camera : CameraModel
-        Undistorted intrinsics.
-    scale : float
-        Metres per map unit of this session.
-    scale_rel_std : float
-        One-sigma relative error of ``scale`` (the exploration's fit); the alignment's own scale is
-        used by the check within three of them, or for an image estimate whenever the alignment
-        measured it (:func:`check_scale`). 0: the session's scale is taken as exact (a metric
-        session, or a caller that does not know its error).
-    T_flange_cam : (4, 4) ndarray
-        Hand-eye.
-    init : Sim3
-        First alignment ``T_ref_cur`` (the one that triggered the stage).
-    reference_images, grab_current :
-        For the image (PnP) localizer; without them only the 3D one runs.
-    config : CoarseConfig
-    evaluate : callable, optional
-        Simulation only: truth for the log (evaluation code).
-    say : callable(str)
-        Progress lines for people.
-    scene : callable() -> SceneUncertaintyMap or None, optional
-        The reference observation's scene uncertainty map, asked for (and so computed) only when a
-        look is chosen; None, or a None map: the looks keep their fixed order.
-    """
-
-    session: VseSession
-    reference: ReferenceData
-    ref_index: object
-    camera: CameraModel
-    scale: float
-    T_flange_cam: np.ndarray
-    init: Sim3
-    scale_rel_std: float = 0.0
-    reference_images: dict[str, np.ndarray] | None
-    grab_current: Callable[[], np.ndarray] | None
-    config: CoarseConfig = CoarseConfig()
-    evaluate: Callable[[], dict] | None = None
-    say: Callable[[str], None] = lambda _m: None
-    scene: Callable[[], SceneUncertaintyMap | None] | None = None
-
-
-@dataclass(frozen=True, kw_only=True)
-class _View:
-    """What one view gave: the camera in the session's metric frame (4, 4), the log notes, the
-    best verified estimate ``(source, T_ref_cam corrected (4, 4), its uncertainty)`` if any, and
-    else the best unverified one ``(source, T_ref_cam (4, 4), its uncertainty)`` that overlaps the
-    reference (or None)."""
-
-    T_cur_cam: np.ndarray
-    notes: dict
-    best: tuple[EstimateSource, np.ndarray, CameraUncertainty] | None
-    unverified: tuple[EstimateSource, np.ndarray, CameraUncertainty] | None = None
-    """When nothing verified: the estimate that overlaps the observation with the smallest residual."""
-
-
-def _candidates(inp: CoarseInputs, cloud: np.ndarray, T_cur_cam: np.ndarray, last_3d: Sim3):
-    """The passive localizers' estimates of the current camera in ``ref``, and their notes for the log."""
-    from fgcd_cli.alignment.fast import fast_align
-    from fgcd_cli.alignment.initial import global_registration
-
-    candidates: dict[EstimateSource, np.ndarray] = {}
-    notes: dict[str, dict] = {}
-    fast = fast_align(cloud, inp.ref_index, init=last_3d)
-    if not fast.health.ok and not fast.health.degenerate:
-        fast = global_registration(cloud, inp.ref_index, around=last_3d)
-    candidates[EstimateSource.THREE_D] = fast.T_ref_cur.transform_pose(T_cur_cam)
-    notes[EstimateSource.THREE_D] = {
-        "alignment": fast.health.reason,
-        "scale": float(fast.T_ref_cur.scale),
-        "scale_measured": bool(fast.health.scale_measured),
-    }
-    if inp.reference_images and inp.grab_current is not None:
-        T_img, notes[EstimateSource.IMAGE] = image_estimate(
-            reference_images=inp.reference_images,
-            current_image=inp.grab_current(),
-            camera=inp.camera,
-            reference=inp.reference,
-        )
-        if T_img is not None:
-            candidates[EstimateSource.IMAGE] = T_img
-    return candidates, notes
-
-
-def check_scale(alignment_scale: float, *, scale_rel_std: float, scale_measured: bool = False) -> float:
-    """The factor that brings the session's metric cloud to the reference's scale for the check.
-
-    The check registers shapes: a cloud 3 % too small at 1.5 m reads as a 45 mm slide along the
-    view, whatever the estimate. The session's metric scale comes from the exploration's short
-    legs (a few % of error, ``scale_rel_std``, which does not count the monocular map's drift since);
-    the alignment's Sim3 scale measures the ratio of the two clouds themselves (docs/relocation.md,
-    "Far starts"). It is used when it lies within three sigmas of the session's, or, for a monocular
-    session (``scale_rel_std`` > 0), whenever the alignment measured it (``scale_measured``: converged,
-    overlapping, and the scale well conditioned, :attr:`AlignmentHealth.scale_measured`, even if the
-    pose slides along a weak direction); else the alignment is suspect and the session's scale stands
-    (1). Pass ``scale_measured`` only for an estimate independent of the alignment: checked at the
-    alignment's own scale, the alignment's estimate would be checked against itself.
-    """
-    s = float(alignment_scale)
-    if not (math.isfinite(s) and s > 0):
-        return 1.0
-    sigma = max(float(scale_rel_std), 0.0)
-    return s if abs(math.log(s)) <= 3.0 * sigma or (scale_measured and sigma > 0) else 1.0
-
-
-def _localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> _View:
-    """Both localizers on the current view, each checked by its camera uncertainty; the best verified one."""
-    session, camera, config = inp.session, inp.camera, inp.config
-    T_ref_camref = np.asarray(inp.reference.T_ref_camref, dtype=float)
-    state = session.tracking_state()
-    T_cur_cam = np.array(state.T_map_cam, dtype=float)
-    T_cur_cam[:3, 3] *= inp.scale
-    cloud = np.asarray(state.cloud.points, dtype=float) * inp.scale
-    observed, _ = in_view(cloud, T_cur_cam, camera)
-    t0 = time.monotonic()
-    candidates, notes = _candidates(inp, cloud, T_cur_cam, last_3d)
-    align = notes[EstimateSource.THREE_D]
-    best = unverified = None
-    for name, T_ref_cam in candidates.items():
-        geometric = name == EstimateSource.THREE_D
-        notes[name]["check_scale"] = s_check = check_scale(
-            align["scale"], scale_rel_std=inp.scale_rel_std, scale_measured=align["scale_measured"] and not geometric
-        )
-        unc = camera_uncertainty(observed * s_check, inp.reference.points, T_ref_cam, camera, config=config, seed=step)
-        notes[name]["uncertainty"] = unc.to_dict()
-        notes[name]["offset_mm"], notes[name]["offset_deg"] = pose_distance(T_ref_cam, T_ref_camref)
-        # the estimated camera centre in the reference camera frame (the scene uncertainty map's frame)
-        notes[name]["position_refcam_m"] = (invert_pose(T_ref_camref) @ T_ref_cam)[:3, 3].tolist()
-        if unc.verified(config, geometric_source=geometric) and (
-            best is None or unc.constrained_translation_m < best[2].constrained_translation_m
-        ):
-            best = (name, T_ref_cam @ unc.correction(geometric_source=geometric), unc)
-        if unc.fitness >= config.min_fitness and (
-            unverified is None or _residual_m(unc, name) < _residual_m(unverified[2], unverified[0])
-        ):
-            unverified = (name, T_ref_cam, unc)
-    session.timing.wait_s += time.monotonic() - t0
-    return _View(T_cur_cam=T_cur_cam, notes=notes, best=best, unverified=None if best is not None else unverified)
-
-
-def _residual_m(unc: CameraUncertainty, source: EstimateSource) -> float:
-    """The residual an estimate is judged on: all of it for the geometry's own, the constrained part for an image
-    estimate (:meth:`CameraUncertainty.verified`)."""
-    return unc.translation_m if source == EstimateSource.THREE_D else unc.constrained_translation_m
 
 
 def _why_not_verified(notes: dict, config: CoarseConfig) -> str:
@@ -319,7 +107,7 @@ class _CoarseRun:
         step: int,
         action: CoarseAction,
         source: EstimateSource,
-        view: _View,
+        view: View,
         truth,
         *,
         offset=(math.nan, math.nan),
@@ -342,7 +130,7 @@ class _CoarseRun:
             )
         )
 
-    def _pause(self, step: int, view: _View, truth) -> CoarseResult:
+    def _pause(self, step: int, view: View, truth) -> CoarseResult:
         """No estimate verified in the views allowed: turn back to the starting heading and give up."""
         c = self.inp.config
         self._log(step, CoarseAction.PAUSE, EstimateSource.NONE, view, truth)
@@ -366,7 +154,7 @@ class _CoarseRun:
             self.inp.session.timing.wait_s += time.monotonic() - t0
         return self.scene
 
-    def _choose_look(self, view: _View) -> tuple[tuple[float, float], dict]:
+    def _choose_look(self, view: View) -> tuple[tuple[float, float], dict]:
         """The next look's heading ``(yaw, pitch)`` (radians, from where the stage started) and its log note.
 
         Candidates not yet seen: the fixed order's yaw headings +a, -a, +2a, ... (``max_looks`` of
@@ -409,7 +197,7 @@ class _CoarseRun:
             }
         return chosen, {"yaw_deg": math.degrees(chosen[0]), "pitch_deg": math.degrees(chosen[1]), **note}
 
-    def _look(self, step: int, view: _View, truth) -> CoarseResult | None:
+    def _look(self, step: int, view: View, truth) -> CoarseResult | None:
         """The turn-around action: a turn about the camera's centre (:meth:`_choose_look`), relative to
         where the stage started (a pure rotation: no translation towards anything unverified).
         A result when the stage ends here."""
@@ -441,7 +229,7 @@ class _CoarseRun:
         inp.say(f"coarse step {step}: no verified estimate; looking {where} from the start{why}")
         return None
 
-    def _descend(self, step: int, view: _View, truth) -> CoarseResult | None:
+    def _descend(self, step: int, view: View, truth) -> CoarseResult | None:
         """Paper 001's scene descent on an unverified estimate: it is assumed roughly right and the camera moves
         toward the localizable region (the reference view), half the estimated way, at most one step. With the
         true offset ``c`` and the estimate ``e``, the offset after the move is ``c - e/2``, shorter than ``c``
@@ -462,7 +250,7 @@ class _CoarseRun:
         inp.say(
             f"coarse step {step}: no verified estimate; descending {cmd_mm:.0f} mm toward the reference on the "
             f"{name} estimate ({off_mm:.0f} mm / {off_deg:.1f} deg away, residual "
-            f"{_residual_m(unc, name) * 1e3:.0f} mm)"
+            f"{residual_m(unc, name) * 1e3:.0f} mm)"
         )
         try:
             inp.session.move_by(M_flange)
@@ -475,7 +263,7 @@ class _CoarseRun:
         inp.session.settle(frames=inp.session.settle_frames + 1)
         return None
 
-    def _advance(self, step: int, view: _View, truth) -> CoarseResult | None:
+    def _advance(self, step: int, view: View, truth) -> CoarseResult | None:
         """Hand over when the verified estimate is near enough; else one bounded step toward the reference."""
         inp, c = self.inp, self.inp.config
         name, T_ref_cam, unc = view.best
@@ -520,7 +308,7 @@ class _CoarseRun:
     def run(self) -> CoarseResult:
         inp, c = self.inp, self.inp.config
         for step in range(1, c.max_steps + 1):
-            view = _localize(inp, step, self.last_3d)
+            view = localize(inp, step, self.last_3d)
             truth = inp.evaluate() if inp.evaluate is not None else None
             self.t_s = inp.session.timing.total_s
             if view.best is not None:

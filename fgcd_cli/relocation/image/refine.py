@@ -14,8 +14,8 @@ image against each reference image (SIFT, ratio test: the authors' own FDF
 protocol; under a strong lighting change, the lighting-robust grid variant of
 :mod:`fgcd_cli.metrics.afd`), lifts the reference keypoints to 3D with the reference cloud's depth
 (points on each keypoint's ray, so a depth error only scales the correction),
-and solves PnP with RANSAC for the current camera relative to the reference
-camera. The motion it gives has the reference pose as an exact fixed point,
+and solves PnP with RANSAC (:mod:`fgcd_cli.relocation.image.pnp_fit`) for the current camera relative
+to the reference camera. The motion it gives has the reference pose as an exact fixed point,
 whatever the clouds' distortions. It acts only when the evidence is strong
 (enough inliers, small reprojection error, a small motion, or a larger one
 only on many more inliers); otherwise the rACR result stands and the log says
@@ -31,17 +31,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
 from fgcd_cli.changes.images import to_float_image, to_gray
 from fgcd_cli.errors import FgcdError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
 from fgcd_cli.relocation.adjustment import clamp_motion
-from fgcd_cli.relocation.image.pnp_uncertainty import pnp_translation_sigma_m
+from fgcd_cli.relocation.image.pnp_fit import PnpFit, pnp_fit
 from fgcd_cli.relocation.image.reference_depth import lift_reference_pixels
 from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
-from fgcd_core.se3 import make_pose, pose_distance
+from fgcd_core.se3 import pose_distance
 
 __all__ = [
     "ImageRefineConfig",
@@ -131,7 +130,8 @@ class ImageRefinement:
     offset_sigma_mm: float = math.nan
     """1-sigma uncertainty of the camera position this correction implies, mm: the RMS
     radius ``sqrt(trace(Cov_t))`` of the PnP translation's covariance (see
-    :func:`pnp_translation_sigma_m`). NaN when no PnP solution was found."""
+    :func:`~fgcd_cli.relocation.image.pnp_uncertainty.pnp_translation_sigma_m`). NaN when no PnP
+    solution was found."""
     oversize: bool = False
     """Refused only for its size: strong evidence, a correction beyond ``strong_max_motion_*``.
     ``M_cam`` and ``offset_sigma_mm`` are kept so that an independent check may confirm it."""
@@ -339,7 +339,7 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} of {len(has)} matches on the reference cloud", len(p_ref))
     n = len(p_ref)
-    found, fit = _pnp_fit(X, p_ref, p_cur, K, ransac_px=config.ransac_px, min_inliers=min_inliers)
+    found, fit = pnp_fit(X, p_ref, p_cur, K, ransac_px=config.ransac_px, min_inliers=min_inliers)
     if fit is None:
         return fail(f"PnP found {found} inliers of {n}", n, found)
     inl, rms, afd, M_cam, sigma_mm = fit.inliers, fit.rms_px, fit.afd_px, fit.M_cam, fit.offset_sigma_mm
@@ -368,57 +368,8 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     )
 
 
-@dataclass(frozen=True, kw_only=True)
-class _PnpFit:
-    """A RANSAC PnP fit of one reference image's 2D-3D matches, refined on its inliers.
-
-    ``inliers`` (K,) indices into the matches; ``rms_px`` the inliers' reprojection RMS and ``afd_px`` their
-    mean image displacement, px; ``M_cam`` (4, 4) the camera motion to the reference pose, metres;
-    ``offset_sigma_mm`` its translation's standard deviation.
-    """
-
-    inliers: np.ndarray
-    rms_px: float
-    afd_px: float
-    M_cam: np.ndarray
-    offset_sigma_mm: float
-
-
-def _pnp_fit(
-    X: np.ndarray, p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray, *, ransac_px: float, min_inliers: int
-) -> tuple[int, _PnpFit | None]:
-    """PnP with RANSAC (SQPnP), then Levenberg-Marquardt on the inliers.
-
-    ``X`` (M, 3) reference-camera points, metres; ``p_ref``, ``p_cur`` (M, 2) pixels; ``K`` (3, 3). Returns
-    the number of RANSAC inliers and the fit, None when RANSAC failed or found fewer than ``min_inliers``.
-    """
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        X,
-        p_cur,
-        K,
-        None,
-        iterationsCount=500,
-        reprojectionError=float(ransac_px),
-        confidence=0.999,
-        flags=cv2.SOLVEPNP_SQPNP,
-    )
-    found = 0 if inl is None else len(inl)
-    if not ok or inl is None or found < min_inliers:
-        return found, None
-    inl = inl.ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(X[inl], p_cur[inl], K, None, rvec, tvec)
-    proj, _ = cv2.projectPoints(X[inl], rvec, tvec, K, None)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - p_cur[inl]) ** 2, axis=1))))
-    afd = float(np.mean(np.linalg.norm(p_cur[inl] - p_ref[inl], axis=1)))
-    # (rvec, tvec) maps reference-camera coordinates into the current camera: T_cur_camref,
-    # i.e. the reference camera seen from the current one = the motion the camera must make.
-    M_cam = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel())
-    sigma_mm = 1000.0 * pnp_translation_sigma_m(X[inl], p_cur[inl], rvec, tvec, K)
-    return found, _PnpFit(inliers=inl, rms_px=rms, afd_px=afd, M_cam=M_cam, offset_sigma_mm=sigma_mm)
-
-
 def _refuse_large_motion(
-    fit: _PnpFit, mm: float, deg: float, *, n: int, view: _ReferenceView, matcher: str
+    fit: PnpFit, mm: float, deg: float, *, n: int, view: _ReferenceView, matcher: str
 ) -> ImageRefinement | None:
     """The verdict on a correction beyond ``max_motion_*``: None when the evidence is strong enough to act on it.
 
