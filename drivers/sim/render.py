@@ -13,8 +13,8 @@ pixel and box-filters it (anti-aliased edges); depth, normals, labels, change
 masks and change ids always come from the pixel centres.
 
 The camera response (exposure, vignetting, noise, gamma) is applied by
-:func:`fgcd_drivers.sim.sensor.apply_camera_response` (re-exported here with
-:class:`CameraEffects`, :func:`auto_exposure` and ``LUMA``).
+:func:`fgcd_drivers.sim.sensor.apply_camera_response` (that module also holds
+:class:`CameraEffects`, :func:`auto_exposure` and ``LUMA``; import them from there).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from fgcd_drivers.sim.render_buffers import RenderResult, Surface
 from fgcd_drivers.sim.scene import Scene
 from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
 
-__all__ = ["Renderer", "apply_camera_response", "auto_exposure", "LUMA"]
+__all__ = ["Renderer"]
 
 _MISS = np.uint32(0xFFFFFFFF)
 
