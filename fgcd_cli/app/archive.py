@@ -6,7 +6,7 @@ or an existing scheduler (``tcp://HOST:PORT``). Each task reads its inputs from
 the campaign, skips a visit whose stored analysis is up to date, and writes its
 products into the visit with ``changes/analysis.json`` last; a failing visit
 comes back with one line of reason while the others go on. Ctrl-C cancels the
-remaining tasks and closes an embedded cluster (docs/archive.md).
+remaining tasks and closes an embedded cluster (docs/archive.md, "Where the tasks run").
 """
 
 from __future__ import annotations

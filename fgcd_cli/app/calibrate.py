@@ -3,7 +3,7 @@
 One flow for `fgcd calibrate hand-eye`, `fgcd demo` and `fgcd bench calibrate`:
 the platform makes the procedure's motions behind its guard, the camera sees a
 board (``target``) or the monocular VSE tracks the scene (``target-free``: hand-eye
-and map scale, refined on the images of every rest pose; docs/calibration.md).
+and map scale, refined on the images of every rest pose; docs/calibration.md, "3. Hand-eye and map scale").
 """
 
 from __future__ import annotations

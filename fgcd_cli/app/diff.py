@@ -39,7 +39,7 @@ TileProgress = Callable[[int, int, str], None] | None
 
 LARGE_FRAME_PX = 8_000_000
 """Frames above this many pixels are compared tile by tile in bounded memory
-(:func:`fgcd_cli.changes.tiled.pipeline.detect_changes_tiled`; ``docs/change-detection.md``)."""
+(:func:`fgcd_cli.changes.tiled.pipeline.detect_changes_tiled`; ``docs/change-detection.md``, "Large frames")."""
 
 
 def _say(progress: Progress, message: str) -> None:

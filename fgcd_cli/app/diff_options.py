@@ -3,7 +3,7 @@
 :func:`check_diff_options` runs when a request is made, before anything is read or
 written; :data:`EDGE_CHECK_PX` is the one default edge check of a campaign diff;
 :func:`check_stored_diff` refuses to replace a visit's stored diff made with other
-options (docs/change-detection.md). The use cases themselves are in :mod:`fgcd_cli.app.diff`.
+options (docs/change-detection.md, "Commands"). The use cases themselves are in :mod:`fgcd_cli.app.diff`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def check_diff_options(
 # and resampling differences at strong edges remain that the flat registration
 # cannot absorb. Campaign diffs set aside regions that lie along strong reference
 # edges and that a shift of up to this many pixels explains (region-level edge
-# check, docs/change-detection.md); they stay visible in the report.
+# check, docs/change-detection.md, "Change detection pipeline", step 8); they stay visible in the report.
 EDGE_CHECK_PX = 2
 
 
@@ -90,7 +90,7 @@ def options_text(options: AnalysisOptions) -> str:
 
 
 def check_stored_diff(observation, options: AnalysisOptions, *, force: bool) -> str | None:
-    """Refuse to replace a visit's stored diff made with other options unless forced (docs/change-detection.md).
+    """Refuse to replace a visit's stored diff made with other options unless forced (docs/change-detection.md, "Commands").
 
     Returns a warning when the stored diff's options were not recorded (an older
     fgcd): it is replaced, and the result says so. Raises

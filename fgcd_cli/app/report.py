@@ -70,7 +70,8 @@ def station_history(campaign: Path, station: str, *, output: Path | None = None,
     from fgcd_cli.app.archive_history import station_tracks
     from fgcd_cli.report.site import tracks_section
 
-    tracks = station_tracks(camp.path, station)  # each region followed across the visits (docs/archive.md)
+    # each region followed across the visits (docs/archive.md, "Change over time")
+    tracks = station_tracks(camp.path, station)
     html_text = render_station_history(
         station=station,
         site=camp.site,

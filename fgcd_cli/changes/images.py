@@ -59,7 +59,7 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 def check_stack_sizes(ref_images: list[np.ndarray], cur_images: list[np.ndarray]) -> None:
     """Check that the stacks are non-empty, of equal length and of one image size (cheap: shapes only).
 
-    Callers run it before announcing any work (``docs/change-detection.md``); raises
+    Callers run it before announcing any work (``docs/change-detection.md``, "Commands"); raises
     :class:`UserInputError` naming the first image that does not fit.
     """
     if len(ref_images) == 0 or len(cur_images) == 0:

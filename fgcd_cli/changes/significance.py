@@ -41,7 +41,7 @@ score excess over the background median is at least ``extent_fraction`` of its
 peak excess: the flank of a smoothed change, as a half-maximum rule is for a
 blob). The two constants that are not fixed by the model (``seed_p``,
 ``extent_fraction``) are chosen by leave-one-group-out in ``fgcd bench
-changes``; see ``docs/change-detection.md``.
+changes``; see ``docs/change-detection.md``, "Significance of each region (a-contrario)".
 """
 
 from __future__ import annotations

@@ -55,7 +55,7 @@ def robust_hysteresis_threshold(
         Seed and growing thresholds in units of ``sigma_upper``. The fused score's
         background is heavy-tailed (texture, cast shadows, sub-pixel residuals), so
         the thresholds are far larger than the 3-5 of a Gaussian; the defaults were
-        chosen on a plateau of the development data (docs/change-detection.md).
+        chosen on a plateau of the development data (docs/change-detection.md, "Change detection pipeline").
 
     Returns
     -------

@@ -3,7 +3,7 @@
 The engine (:class:`fgcd_cli.vse.engine.VisualSlamEngine`) is composed of these
 parts and hands itself to each of them; the parts are typed against this
 protocol instead of the engine, so the engine imports its parts and no part
-imports the engine (no import circle, docs/architecture.md).
+imports the engine (no import circle, docs/architecture.md, "Modules").
 """
 
 from __future__ import annotations

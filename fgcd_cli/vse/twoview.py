@@ -105,7 +105,7 @@ def planar_two_view(
 
     A stele or a mural seen from 1-2 m over a few-cm baseline is a plane to
     within a fraction of a pixel of parallax; the essential matrix is then
-    ill-conditioned and RANSAC can return a wrong motion (docs/vse.md).
+    ill-conditioned and RANSAC can return a wrong motion (docs/vse.md, "Design and why").
     As ORB-SLAM does, the homography is preferred when it explains at least
     ``planar_ratio`` of the essential matrix's inliers. Its decomposition has up to
     two solutions with (nearly) every point in front of both cameras; of

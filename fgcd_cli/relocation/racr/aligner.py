@@ -1,4 +1,4 @@
-"""One alignment of the current VSE state to the reference: fast, then fine (docs/alignment.md).
+"""One alignment of the current VSE state to the reference: fast, then fine (docs/alignment.md, "Fast alignment", "Fine-grained alignment").
 
 :func:`align_once` is the loop's default :class:`Aligner`; the loop receives
 an aligner as a value (``LoopContext.aligner``), so a stand-in replaces it
