@@ -5,5 +5,5 @@
 (detector version + the inputs' checksums + its products present);
 ``tracking.py`` follows each change region across a station's visits.
 The use cases that run them (on Dask) are :mod:`fgcd_cli.app.archive` and
-:mod:`fgcd_cli.app.archive_history`; see docs/archive.md.
+:mod:`fgcd_cli.app.archive_history`; see docs/archive.md, "One task per visit".
 """

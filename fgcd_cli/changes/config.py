@@ -1,7 +1,7 @@
 """Options of the change detector (:func:`fgcd_cli.changes.detect.detect_changes`), grouped by stage.
 
 Each section is a frozen, keyword-only dataclass whose defaults are the shipped
-detector's (``docs/change-detection.md``). :class:`DetectionConfig` holds one of
+detector's (``docs/change-detection.md``, "Change detection pipeline"). :class:`DetectionConfig` holds one of
 each; :meth:`DetectionConfig.from_options` builds one from the flat keyword
 options the detector has always accepted (``k_high=...``, ``dense=False``...),
 so that every section field keeps its historical keyword name.

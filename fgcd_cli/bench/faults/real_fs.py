@@ -89,7 +89,7 @@ COMMANDS = {
     "capture": _Command(name="capture", stations=(), codes=(EXIT_OK, EXIT_OS), timeout_s=1800),
     "relocate": _Command(name="relocate", stations=("real",), codes=(EXIT_OK, EXIT_OS), timeout_s=1800),
     "diff": _Command(name="diff", stations=("s1",), codes=(EXIT_OK, EXIT_OS), timeout_s=900),
-    # archive analyze: a visit whose task failed is one line of its summary and exit 3 (docs/archive.md)
+    # archive analyze: a visit whose task failed is one line of its summary and exit 3 (docs/archive.md, "One task per visit")
     "archive": _Command(name="archive", stations=("s1",), codes=(EXIT_OK, EXIT_OS, EXIT_CAMPAIGN), timeout_s=1200),
 }
 
@@ -140,7 +140,7 @@ def _outside_env(point: Path) -> dict[str, str]:
 #: What Dask keeps in ``TMPDIR`` on purpose across runs (``distributed.diskutils``: the shared scratch folder's
 #: locks, a few bytes, never one per run); the per-worker folders in it are removed and are counted.
 DASK_KEEPS = frozenset({"dask-scratch-space", "dask-scratch-space/global.lock", "dask-scratch-space/purge.lock"})
-#: The per-visit failure lines of ``fgcd archive analyze`` (docs/archive.md): one per failed visit, then its line.
+#: The per-visit failure lines of ``fgcd archive analyze`` (docs/archive.md, "One task per visit"): one per failed visit, then its line.
 VISIT_FAILED = "failed: "
 
 
