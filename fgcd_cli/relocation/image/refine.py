@@ -314,17 +314,7 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     K, camera, config, name = view.K, view.camera, view.config, view.name
 
     def fail(reason: str, matches: int = 0, inliers: int = 0, afd: float = math.nan, rms: float = math.nan):
-        return ImageRefinement(
-            ok=False,
-            reason=reason,
-            M_cam=None,
-            measured_afd_px=afd,
-            matches=matches,
-            inliers=inliers,
-            rms_px=rms,
-            reference_image=name,
-            matcher=matcher,
-        )
+        return _refused(reason, view, matcher=matcher, matches=matches, inliers=inliers, afd=afd, rms=rms)
 
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} feature matches with the reference image", len(p_ref))
@@ -368,6 +358,23 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     )
 
 
+def _refused(
+    reason: str, view: _ReferenceView, *, matcher: str, matches: int, inliers: int, afd: float, rms: float
+) -> ImageRefinement:
+    """A refused measurement of one reference image: no motion, the evidence counted for the log (px)."""
+    return ImageRefinement(
+        ok=False,
+        reason=reason,
+        M_cam=None,
+        measured_afd_px=afd,
+        matches=matches,
+        inliers=inliers,
+        rms_px=rms,
+        reference_image=view.name,
+        matcher=matcher,
+    )
+
+
 def _refuse_large_motion(
     fit: PnpFit, mm: float, deg: float, *, n: int, view: _ReferenceView, matcher: str
 ) -> ImageRefinement | None:
@@ -386,17 +393,7 @@ def _refuse_large_motion(
             f"of {n} (needs {config.strong_min_inliers} and {config.strong_min_inlier_ratio:.0%})"
         )
         if mm > 1000 * config.strong_max_motion_m or deg > config.strong_max_motion_deg:
-            return ImageRefinement(
-                ok=False,
-                reason=reason,
-                M_cam=None,
-                measured_afd_px=afd,
-                matches=n,
-                inliers=len(inl),
-                rms_px=rms,
-                reference_image=view.name,
-                matcher=matcher,
-            )
+            return _refused(reason, view, matcher=matcher, matches=n, inliers=len(inl), afd=afd, rms=rms)
         step, _ = clamp_motion(M_cam, max_step_m=config.max_motion_m, max_step_rad=math.radians(config.max_motion_deg))
         return ImageRefinement(
             ok=False,
