@@ -10,7 +10,10 @@ estimates the reference pose before any motion, the legs go *toward* it:
 with ``a`` perpendicular to the way there and to the optical axis, ``|a|`` half
 the exploration amplitude, so that the two sideways legs span the same ``2|a|``
 baseline as one leg of the usual pattern, and ``b`` a step back along the
-optical axis, away from the object, of :data:`BACK_FRACTION` of the amplitude.
+optical axis, away from the object, of :data:`BACK_FRACTION` of the amplitude
+from the nearer of the start and ``R`` (when the way there leads toward the
+object, a step back from ``R`` alone would cancel it and leave the stops level
+with the start, the initialiser's first view).
 The step back is what lets a monocular VSE start on a flat object: before a
 plane facing the camera, a sideways translation moves the image as a small
 rotation does (the homography ``K (R + t nᵀ/d) K⁻¹`` differs from ``K R K⁻¹`` by
@@ -71,7 +74,12 @@ def guided_waypoints(M_flange_ref: np.ndarray, T_flange_cam: np.ndarray, *, expl
     X = np.asarray(T_flange_cam, dtype=float)
     d = M[:3, 3]
     a = 0.5 * explore_m * _sideways(d, X[:3, 2], X[:3, 0])
-    back = -BACK_FRACTION * explore_m * X[:3, 2] / np.linalg.norm(X[:3, 2])  # away from the object
+    axis = X[:3, 2] / np.linalg.norm(X[:3, 2])  # the optical axis, toward the object
+    # The stops' depth along the axis: a step back of BACK_FRACTION from the nearer of the start
+    # and R (module docstring): behind R, and behind the start, the initialiser's first view,
+    # even when the way there leads toward the object and would cancel a step back from R alone.
+    d_axial = float(np.dot(d, axis))
+    back = (min(d_axial, 0.0) - BACK_FRACTION * explore_m - d_axial) * axis
     xi = log_se3(M)
     # rotation toward the reference spread over the legs: 1/3, 2/3, all of it
     waypoints = [np.eye(4)]

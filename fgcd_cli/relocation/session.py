@@ -298,7 +298,8 @@ class VseSession:
                 flange.append(self.guard.platform.flange_pose())
                 cams.append(np.asarray(st.T_map_cam, dtype=float))
             if self.on_event:
-                self.on_event(f"exploration {i + 1}/{len(motions)}: VSE {st.status}")
+                said = f" ({st.message})" if st.status != VseStatus.TRACKING and getattr(st, "message", "") else ""
+                self.on_event(f"exploration {i + 1}/{len(motions)}: VSE {st.status}{said}")
             if until is not None and i + 1 < len(motions) and until(flange, cams):
                 if self.on_event:
                     self.on_event(

@@ -208,3 +208,32 @@ def test_the_sideways_stops_step_back_so_a_flat_object_shows_parallax(seed):
     flat = stop.copy()
     flat[:3, 3] -= back * axis  # the same stop without the step back
     assert residual(stop) > 1.8 * residual(flat)
+
+
+@pytest.mark.parametrize("toward_m", [0.004, 0.01, 0.016])
+def test_a_way_toward_the_object_still_steps_back_from_the_start(toward_m):
+    """Soak revisits 46 and 69: a start ~1 cm behind the reference put a step back from R level with the
+    start, and the initialiser saw a rotation only (0.1–0.2 px) until the fifth stop. The stops now sit
+    BACK_FRACTION of the amplitude behind the nearer of the start and R, so the first stop alone scales the
+    image by that step (1 cm at 1.2 m: corners ~2.5 px, over ten times the rotation-only test)."""
+    from fgcd_cli.relocation.guided import BACK_FRACTION
+    from fgcd_cli.vse.twoview import rotation_only_residual_px
+    from fgcd_core.se3 import camera_motion, flange_motion
+
+    rng = np.random.default_rng(7)
+    K = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])
+    X = random_pose(rng, 0.05, 0.3)
+    uv = np.column_stack([rng.uniform(20, 620, 400), rng.uniform(20, 460, 400)])
+    P = (np.linalg.inv(K) @ np.column_stack([uv, np.ones(len(uv))]).T).T * 1.2
+    M_cam = np.eye(4)
+    M_cam[:3, 3] = [0.008, 0.004, toward_m]  # sideways and toward the object (camera z)
+    M_flange = flange_motion(X, M_cam)
+    w = guided_waypoints(M_flange, X, explore_m=0.04)
+    axis = X[:3, 2] / np.linalg.norm(X[:3, 2])
+    for stop in w[1:3]:
+        assert np.dot(stop[:3, 3], axis) == pytest.approx(-BACK_FRACTION * 0.04)  # behind the start
+        assert np.dot(stop[:3, 3] - M_flange[:3, 3], axis) < -BACK_FRACTION * 0.04  # and behind R
+    T = camera_motion(X, w[1])
+    Pc = (P - T[:3, 3]) @ T[:3, :3]
+    residual = rotation_only_residual_px(K, uv, (K @ (Pc / Pc[:, 2:]).T).T[:, :2])
+    assert residual > 5 * math.radians(0.02) * K[0, 0]  # the initialiser's rotation-only test (VseConfig)
