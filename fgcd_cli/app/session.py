@@ -10,7 +10,14 @@ from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.campaign import schema
 from fgcd_cli.errors import AlgorithmError
 from fgcd_cli.relocation.config import ReferenceData
-from fgcd_cli.relocation.session import ScaleEstimate, VseSession, exploration_pattern
+from fgcd_cli.relocation.session import (
+    MIN_SCALE_STOPS,
+    ScaleEstimate,
+    VseSession,
+    exploration_pattern,
+    retrace_motions,
+)
+from fgcd_cli.vse.types import VseStatus
 from fgcd_core.imaging import to_float01
 
 __all__ = [
@@ -84,12 +91,15 @@ def start_session(
         for attempt in range(1, attempts + 1):
             rig.say("exploring to initialise the VSE and its scale" + (f" (attempt {attempt})" if attempt > 1 else ""))
             try:
-                flange, cams = session.explore(
+                planned = (
                     motions
                     if motions is not None
-                    else exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2),
-                    until=None if until is None else (lambda f, c: until(session, f, c)),
+                    else exploration_pattern(translation_m=explore_m, legs=legs, stops_per_leg=2)
                 )
+                flange, cams = session.explore(
+                    planned, until=None if until is None else (lambda f, c: until(session, f, c))
+                )
+                flange, cams = _extend_late_start(rig, session, planned, flange, cams)
                 if getattr(vse.latest(), "scale_is_metric", False):
                     # a depth camera's map is metric: the platform motions only confirm it
                     check = session.estimate_scale(rig.T_flange_cam, flange, cams)
@@ -121,6 +131,22 @@ def start_session(
     except BaseException:
         vse.stop()
         raise
+
+
+def _extend_late_start(rig: RigHandles, session: VseSession, planned: list, flange: list, cams: list):
+    """The tracked stops, with more from retracing the exploration when the VSE started late in it.
+
+    A monocular engine that initialises at the last stops of an exploration tracks, but leaves the
+    scale fit fewer than :data:`MIN_SCALE_STOPS` stops; its map is sound, so rather than reset it the
+    session goes back over the last stops and forward again (:func:`retrace_motions`), poses the guard
+    already allowed, ending where the exploration was planned to end.
+    """
+    st = session.vse.latest()
+    if len(flange) >= MIN_SCALE_STOPS or st.status != VseStatus.TRACKING:
+        return flange, cams
+    rig.say(f"the VSE started late ({len(flange)} tracked stops): going back over the last stops")
+    more_flange, more_cams = session.explore(retrace_motions(planned, MIN_SCALE_STOPS - len(flange) + 1))
+    return flange + more_flange, cams + more_cams
 
 
 def metric_keyframes(state, scale: float) -> tuple[np.ndarray, np.ndarray]:

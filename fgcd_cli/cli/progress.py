@@ -33,8 +33,10 @@ ProgressCallback = Callable[[int, int, str], None]
 #: 10 s in a log; beating at 8 s leaves 2 s for a loaded machine (the pipe's and the scheduler's delays).
 HEARTBEAT_S = float(os.environ.get("FGCD_HEARTBEAT_S", "8"))
 #: Off a terminal, how long a step runs before its line is printed, seconds (or one heartbeat, if shorter):
-#: a step that ends sooner is not named, so a command that fails at once prints its one error line only.
-PLAIN_STEP_DELAY_S = 1.0
+#: a step that ends sooner is not named, so a command that fails at once prints its one error line only
+#: (``FGCD_STEP_DELAY_S`` overrides it: tests of a command's one error line lengthen it, as a loaded
+#: machine can take a second to reach the error).
+PLAIN_STEP_DELAY_S = float(os.environ.get("FGCD_STEP_DELAY_S", "1"))
 
 
 class StepBar:

@@ -25,12 +25,18 @@ from fgcd_core.platform import MotionGuard
 from fgcd_core.se3 import exp_se3, invert_pose, log_se3, rotation_angle_rad
 
 __all__ = [
+    "MIN_SCALE_STOPS",
     "SessionTiming",
     "ScaleEstimate",
     "VseSession",
     "exploration_pattern",
     "recorded_motion",
+    "retrace_motions",
 ]
+
+#: Tracked exploration stops the scale fit needs (rACR scale, docs/relocation.md "What a session does"):
+#: two give one baseline and no residual to judge the fit by.
+MIN_SCALE_STOPS = 3
 
 
 @contextmanager
@@ -150,6 +156,28 @@ def exploration_pattern(
     legs_rel = [invert_pose(a) @ b for a, b in zip(poses[:-1], poses[1:])]
     n = max(1, int(stops_per_leg))
     return [exp_se3(log_se3(M) / n) for M in legs_rel for _ in range(n)]
+
+
+def retrace_motions(motions: Sequence[np.ndarray], stops: int) -> list[np.ndarray]:
+    """Back over an exploration's last ``stops`` motions, then forward again to where it ended.
+
+    The extension of an exploration whose VSE started late (few tracked stops): every stop is one
+    the guard already allowed, and the exploration still ends where it was planned to.
+
+    Parameters
+    ----------
+    motions : sequence of (4, 4) ndarray
+        The exploration's relative flange motions, in the order they ran.
+    stops : int
+        How many of its last motions to retrace (clipped to ``len(motions)``).
+
+    Returns
+    -------
+    list of (4, 4) ndarray
+        ``2 * stops`` relative flange motions.
+    """
+    last = [np.asarray(M, dtype=float) for M in motions[len(motions) - min(max(0, stops), len(motions)) :]]
+    return [invert_pose(M) for M in reversed(last)] + last
 
 
 @dataclass
@@ -314,7 +342,7 @@ class VseSession:
         """Metric scale of the map from the recorded waypoints and a known hand-eye."""
         from fgcd_cli.calibration.handeye.linear import estimate_scale
 
-        if len(flange) < 3:
+        if len(flange) < MIN_SCALE_STOPS:
             st = self.vse.latest()  # its last word says why (too little texture, parallax, lost...)
             said = f" ({getattr(st.status, 'value', st.status)}: {st.message})" if getattr(st, "message", "") else ""
             raise AlgorithmError(

@@ -90,21 +90,23 @@ def _timed(*args: str) -> tuple[subprocess.CompletedProcess, float]:
 
 def test_a_missing_banner_states_the_time_the_command_waited(tmp_path):
     # Before: `--timeout 1.5` said "within 1.5 s" after waiting 3.0 s (1.5 s on open, then 1.5 s after a soft reset).
-    missing, baseline = _timed("platform", "check", "--driver", "grbl", "--port", str(tmp_path / "ttyUSB9"))
+    # The driver states the time it measured from opening the port to giving up, and states it truly
+    # (tests/drivers/test_grbl.py, in process); here: the command's --timeout is that one deadline, for one
+    # connection (one soft reset). No wall-clock comparison of two processes: a loaded machine adds seconds.
+    missing = fgcd("platform", "check", "--driver", "grbl", "--port", str(tmp_path / "ttyUSB9"))
     assert missing.returncode == 7, missing.stderr
     assert len(missing.stderr.splitlines()) == 1 and "cannot open GRBL port" in missing.stderr
     emu = GrblEmulator()
     emu.set_silent(True)
     try:
         run, wall = _timed("platform", "check", "--driver", "grbl", "--port", emu.port, "--timeout", "1.5")
+        resets = emu.silent_realtime_received.count(0x18)
     finally:
         emu.close()
     assert run.returncode == 7 and len(run.stderr.splitlines()) == 1, run.stderr
     stated = float(re.search(r"within ([0-9.]+) s", run.stderr).group(1))
     assert stated == pytest.approx(1.5, abs=0.1), run.stderr
-    # The same command on a port that does not exist does everything but the wait: the rest is the wait.
-    # Tolerance: the figure's rounding and two process start-ups on a shared machine (0.5 s).
-    assert wall - baseline == pytest.approx(stated, abs=0.5), (wall, baseline, run.stderr)
+    assert resets == 1 and wall > stated, (resets, wall)
 
 
 def test_ctrl_c_during_move_stops_stage_and_exits_130(emulator):

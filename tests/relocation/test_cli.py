@@ -2,6 +2,7 @@
 campaign's world and a revisit uses its station's; the full path is a slow test."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +19,8 @@ ROOT = Path(__file__).parents[2]
 
 
 def fgcd(*args, timeout=600):
+    """The command in a subprocess; its step lines wait 30 s, so that on a loaded machine a command refused
+    within a few seconds still prints its error line alone (``FGCD_STEP_DELAY_S``, fgcd_cli/cli/progress.py)."""
     return subprocess.run(
         [sys.executable, "-m", "fgcd_cli.cli.app", *map(str, args)],
         capture_output=True,
@@ -25,6 +28,7 @@ def fgcd(*args, timeout=600):
         cwd=ROOT,
         timeout=timeout,
         stdin=subprocess.DEVNULL,
+        env={**os.environ, "FGCD_STEP_DELAY_S": "30"},
     )
 
 

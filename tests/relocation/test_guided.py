@@ -237,3 +237,66 @@ def test_a_way_toward_the_object_still_steps_back_from_the_start(toward_m):
     Pc = (P - T[:3, 3]) @ T[:3, :3]
     residual = rotation_only_residual_px(K, uv, (K @ (Pc / Pc[:, 2:]).T).T[:, :2])
     assert residual > 5 * math.radians(0.02) * K[0, 0]  # the initialiser's rotation-only test (VseConfig)
+
+
+class LateVse:
+    """A VSE stand-in that initialises once ``platform`` has made ``late_moves`` moves, then reports the camera
+    pose of ``platform`` (hand-eye identity) in map units of ``scale`` metres; ``resets`` counts restarts."""
+
+    def __init__(self, platform, *, late_moves, scale):
+        self.platform, self.late, self.scale, self.frames, self.resets = platform, late_moves, scale, 0, 0
+
+    def start(self):
+        pass
+
+    def latest(self):
+        self.frames += 1
+        if len(self.platform.visited) < self.late:
+            return SimpleNamespace(frames_processed=self.frames, status="initializing", T_map_cam=None, message="")
+        T = self.platform.flange_pose()
+        T[:3, 3] /= self.scale
+        return SimpleNamespace(frames_processed=self.frames, status="tracking", T_map_cam=T, message="")
+
+    def reset(self):
+        self.resets += 1
+
+    def stop(self):
+        pass
+
+
+@pytest.mark.parametrize("tracked_at_end", [1, 2])
+def test_a_late_vse_start_goes_back_over_the_last_stops_instead_of_resetting(tracked_at_end):
+    """An engine that initialises at the last one or two stops has a sound map but too few stops for the
+    scale fit: the session retraces the last stops (poses the guard allowed) and ends where it was planned."""
+    from fgcd_cli.app.session import start_session
+    from fgcd_cli.relocation.session import MIN_SCALE_STOPS, VseSession, exploration_pattern
+
+    platform = BoxPlatform(np.eye(4), (-1, -1, -1), (1, 1, 1))
+    motions = exploration_pattern(translation_m=0.04, legs=3, stops_per_leg=2)
+    guard = MotionGuard(platform, GuardLimits(max_step_m=0.06, max_step_rad=0.3))
+    counter = VseSession(guard=guard, vse=None)
+    # tracking from the first sub-step of motion len - k + 1 on: only the last k stops are tracked
+    late_moves = 1 + sum(counter.substeps(M) for M in motions[: len(motions) - tracked_at_end])
+    vse = LateVse(platform, late_moves=late_moves, scale=0.25)
+    said = []
+    rig = SimpleNamespace(
+        guard=guard,
+        vse_factory=lambda: vse,
+        on_event=None,
+        on_progress=None,
+        frame_synthesis_s=None,
+        T_flange_cam=np.eye(4),
+        say=said.append,
+    )
+    session, _, scale, _ = start_session(rig, explore_m=0.04, motions=motions)
+    assert vse.resets == 0 and any("started late" in s for s in said)
+    assert scale.n_samples == tracked_at_end + 2 * (MIN_SCALE_STOPS - tracked_at_end + 1)
+    assert scale.scale == pytest.approx(0.25, rel=1e-9) and scale.residual_rms_mm < 1e-6
+    end = np.eye(4)
+    for M in motions:
+        end = end @ M
+    assert pose_distance(platform.flange_pose(), end)[0] < 1e-6  # where the exploration was planned to end
+    # the retrace adds no new place: every position after the exploration is one of its sub-steps
+    first_run = platform.visited[: sum(counter.substeps(M) for M in motions)]
+    assert len(platform.visited) > len(first_run)
+    assert all(min(np.linalg.norm(p - q) for q in [np.zeros(3), *first_run]) < 1e-9 for p in platform.visited)
