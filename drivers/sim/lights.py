@@ -13,7 +13,13 @@ Preset names (see :func:`list_lighting_presets`): ``front``, ``led:H`` (H = 1..1
 optional ``led:H,r=0.4`` arm radius in metres, default 0.6), ``sun:az=A,el=E`` (degrees;
 azimuth from +y (north) towards +x (east)), ``sun:day=D,hour=H[,lat=L]`` (day of
 year, local solar hour, latitude in degrees), ``sun-morning``, ``sun-noon``,
-``sun-evening``, ``sun-winter-noon``, ``overcast``, ``night``, ``ambient``.
+``sun-evening``, ``sun-winter-noon``, ``overcast``, ``night``, ``ambient``, ``dark``.
+
+Who owns a light (docs/simulator.md, "Lights a rig carries"): presets whose
+lights all ride on the camera (``front``, ``led:H``) are *rig lamps*, which a
+rig switches; every other preset is *the world's light* (the sun, the sky, the
+night's lamp, a lit room, a dark one), which only the visit's day and hour set.
+:func:`compose` lights a world with one rig lamp switched on.
 """
 
 from __future__ import annotations
@@ -23,7 +29,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Light", "Lighting", "lighting_preset", "list_lighting_presets", "sun_direction", "solar_az_el"]
+__all__ = [
+    "DARK",
+    "Light",
+    "Lighting",
+    "compose",
+    "is_rig_lamp",
+    "lighting_preset",
+    "list_lighting_presets",
+    "solar_az_el",
+    "sun_direction",
+]
+
+#: The world without light of its own: a closed room, or a night with no lamp (the rig's lamps alone light it).
+DARK = "dark"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -139,6 +158,7 @@ def list_lighting_presets() -> list[tuple[str, str]]:
         ("overcast", "diffuse sky light, no hard shadows"),
         ("night", "artificial light only: the scene's warm lamp, raking, very low ambient"),
         ("ambient", "uniform ambient light only (albedo), no shading"),
+        (DARK, "no light but the rig's lamps (a closed room); the world of a lamp preset"),
     ]
     return out
 
@@ -213,5 +233,48 @@ def lighting_preset(name: str) -> Lighting:
         )
     if key == "ambient":
         return Lighting(name="ambient", lights=(), ambient=1.0)
+    if key == DARK:
+        return Lighting(name=DARK, lights=(), ambient=0.0)
     known = ", ".join(n for n, _ in list_lighting_presets())
     raise ValueError(f"unknown lighting {name!r}; known: {known}")
+
+
+def is_rig_lamp(lighting: Lighting) -> bool:
+    """True when every light of ``lighting`` rides on the camera: a lamp a rig carries and switches.
+
+    Rule (docs/simulator.md, "Lights a rig carries"): a rig switches only what it
+    carries; the sun, the sky, the night's lamp and the room are the world's.
+    """
+    return bool(lighting.lights) and all(light.frame == "camera" for light in lighting.lights)
+
+
+def compose(world: Lighting, lamp: Lighting | None) -> Lighting:
+    """The light on the object: the world's light plus one rig lamp (None: every lamp off).
+
+    Irradiance adds: the lights are the union and the ambient terms sum (a lamp's
+    own ambient is its spill off the surroundings); the ambient colour and the sky
+    weighting are the ambient-weighted means. A dark world under a lamp is the
+    lamp's preset unchanged, so indoor renders stay what they were.
+
+    Parameters
+    ----------
+    world : Lighting
+        The world's light (not a rig lamp).
+    lamp : Lighting or None
+        The rig lamp switched on.
+    """
+    if lamp is None:
+        return world
+    if not world.lights and world.ambient == 0.0:
+        return lamp
+    total = world.ambient + lamp.ambient
+    w_world = world.ambient / total if total > 0 else 0.5
+    w_lamp = 1.0 - w_world
+    colour = tuple(w_world * a + w_lamp * b for a, b in zip(world.ambient_colour, lamp.ambient_colour))
+    return Lighting(
+        name=f"{world.name}+{lamp.name}",
+        lights=world.lights + lamp.lights,
+        ambient=total,
+        ambient_colour=colour,
+        sky_weight=w_world * world.sky_weight + w_lamp * lamp.sky_weight,
+    )

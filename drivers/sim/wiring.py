@@ -3,14 +3,14 @@
 The simulated scene is lit by what the light *controller reports* after each
 switch (GRBL's ``$G`` outputs, the relay board's ``STATE``), or by what the
 person confirmed (manual prompt): the rendering follows the pins, as a real
-scene follows the wiring. ``ambient`` (every rig light off) renders the
-session's own light, as the day's light stays on a real site.
+scene follows the wiring. The simulated rig carries the hardware's channels as
+its lamps; ``ambient`` (every rig light off) renders the world's own light, as
+the day's light stays on a real site.
 """
 
 from __future__ import annotations
 
-from fgcd_drivers.lights import AMBIENT, Lights, LightsError
-from fgcd_drivers.sim.lights import lighting_preset
+from fgcd_drivers.lights import Lights
 from fgcd_drivers.sim.world import SimLights
 
 __all__ = ["WiredSimLights"]
@@ -24,20 +24,15 @@ class WiredSimLights:
     hardware : Lights
         The driver commanded (manual, GRBL, serial).
     world : SimLights
-        The simulated scene's lighting (its current preset is the day's light).
+        The simulated rig's lamps in its world; it is made to carry the hardware's channels
+        (LightsError for a channel that is not a simulated lamp).
     """
 
     def __init__(self, hardware: Lights, world: SimLights) -> None:
         self._hardware = hardware
         self._world = world
-        self._day = world.current
         self.name = f"{hardware.name} (wired to the simulator)"
-        for channel in hardware.available():
-            if channel != AMBIENT:
-                try:
-                    lighting_preset(channel)
-                except ValueError:
-                    raise LightsError(f"the light '{channel}' has no simulated counterpart (led:H, front...)") from None
+        world.mount(hardware.available())
 
     @property
     def current(self) -> str:
@@ -58,7 +53,10 @@ class WiredSimLights:
         self._hardware.set(lighting)
         reported = getattr(self._hardware, "reported_lighting", None)
         seen = reported() if reported is not None else self._hardware.current
-        self._world.set(self._day if seen == AMBIENT else seen)
+        if seen not in self._world.available():
+            # a manual rig without listed channels: the lamp the person switched on is one it carries
+            self._world.mount([*self._world.available(), seen])
+        self._world.set(seen)
 
     def close(self) -> None:
         """Close the hardware lights."""

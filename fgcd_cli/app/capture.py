@@ -176,14 +176,27 @@ def rig_lights(campaign, lightings: list[str]) -> LightsSpec | None:
         spec = LightsSpec.from_config(campaign.rig_config.get("lights"))
     except PlatformError as exc:
         raise CampaignError(f"campaign.toml {exc}") from None
-    if spec is None or spec.driver == LightsDriver.SIM or not spec.channels:
+    if spec is None or not spec.channels:
         return spec
     missing = [n for n in lightings if n != AMBIENT and n not in spec.channels]
+    if spec.driver == LightsDriver.SIM:
+        # the simulator's world lights (sun, sky, night) are the day's, not channels of the rig
+        missing = [n for n in missing if not _is_world_light(n)]
     if missing:
         raise CampaignError(
             f"campaign.toml [rig.lights] wires no light {', '.join(missing)} (channels: {', '.join(spec.channels)})"
         )
     return spec
+
+
+def _is_world_light(name: str) -> bool:
+    """True when ``name`` is one of the simulator's world lights (the sun, the sky, the night), not a rig lamp."""
+    from fgcd_drivers.sim.lights import is_rig_lamp, lighting_preset
+
+    try:
+        return not is_rig_lamp(lighting_preset(name))
+    except ValueError:
+        return False
 
 
 def check_station_can_take_a_reference(campaign, name: str) -> None:

@@ -230,15 +230,26 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
     return data
 
 
-def _shared_lightings(reference, visit) -> list[str]:
-    ref_names = list(reference.metadata.get("lightings") or reference.image_names())
-    visit_names = set(visit.image_names())
-    shared = [n for n in ref_names if n in visit_names and reference.has_image(n)]
-    if not shared:
+def _paired_lightings(reference, visit) -> tuple[list[str], list[str]]:
+    """The reference's and the visit's image names compared pairwise.
+
+    Every lighting both observations hold, in the reference's order. When they
+    share none (an outdoor reference under one day's sun, a visit under
+    another's: no rig takes the reference's sun again, docs/change-detection.md,
+    "Campaign diffs"), each observation's own day light, the first of its
+    lightings, is compared across lightings.
+    """
+    ref_names = [n for n in (reference.metadata.get("lightings") or reference.image_names()) if reference.has_image(n)]
+    visit_order = list(visit.metadata.get("lightings") or visit.image_names())
+    visit_names = [n for n in visit_order if visit.has_image(n)]
+    shared = [n for n in ref_names if n in visit_names]
+    if shared:
+        return shared, shared
+    if not ref_names or not visit_names:
         raise CampaignError(
-            f"visit {visit.name} has no image with the reference's lightings ({', '.join(ref_names) or 'none'})"
+            f"visit {visit.name} has no image to compare with the reference's lightings ({', '.join(ref_names) or 'none'})"
         )
-    return shared
+    return ref_names[:1], visit_names[:1]
 
 
 def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
@@ -331,9 +342,9 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     options = r.options()
     replaced = check_stored_diff(observation, options, force=r.force)
     check_writable(observation.path)  # the products go into the visit: refused before the computation
-    lightings = _shared_lightings(reference, observation)
+    lightings, visit_lightings = _paired_lightings(reference, observation)
     ref_images = [reference.image(n) for n in lightings]
-    cur_images = [observation.image(n) for n in lightings]
+    cur_images = [observation.image(n) for n in visit_lightings]
     check_stack_sizes(ref_images, cur_images)
     shape = ref_images[0].shape[:2]
     if r.mm_per_px is not None:
@@ -344,7 +355,8 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
     mask = read_mask(r.roi) if r.roi is not None else None
     edge_check = checked_edge_check_px(campaign_edge_check_px(r.edge_check_px))
-    _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s)…")
+    across = "" if lightings == visit_lightings else f" across lightings ({lightings[0]} against {visit_lightings[0]})"
+    _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s){across}…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
     result = detect_changes(
         ref_images,
@@ -362,7 +374,9 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         "site": camp.site,
         "station": r.station,
         "visit": observation.name,
-        "lightings": lightings,
+        "lightings": lightings
+        if not across
+        else [f"{a} (reference) against {b} (visit)" for a, b in zip(lightings, visit_lightings)],
         "metric scale": scale_note,
         **({"scale (mm per px)": r.mm_per_px} if r.mm_per_px is not None else {}),
         "relocation": observation.metadata.get("relocation") or {},

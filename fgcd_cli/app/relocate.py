@@ -81,11 +81,13 @@ def relocate_and_capture(
             evaluate=hooks.evaluate,
         )
         init, coarse_result = _initial_alignment(start, request.coarse)
+        measurement = _measurement_images(rig, station)
         result = _run_racr_loop(
             start,
             request,
             hooks,
             vse=vse,
+            measurement=measurement,
             init=init,
             coarse_result=coarse_result,
             # the camera stands at the image localizer's reference only when nothing moved it since
@@ -96,6 +98,10 @@ def relocate_and_capture(
         points = np.asarray(state.cloud.points, dtype=float) * scale.scale
         images = grab_images(rig, request.lightings)
         meta = _visit_metadata(rig, request, scale, result, coarse_result)
+        meta["relocation"]["image_stage"] = {
+            "measured_under": measurement[1] or "the day's light",
+            "compared_with": list(measurement[0]),
+        }
         rig.progress(0, 0, "writing the visit")
         log = "".join(
             [json.dumps(e) + "\n" for e in request.earlier_log] + [r.to_json() + "\n" for r in result.records]
@@ -150,6 +156,7 @@ def _run_racr_loop(
     hooks: RelocateHooks,
     *,
     vse,
+    measurement: tuple[dict[str, np.ndarray], str | None],
     init: np.ndarray,
     coarse_result: CoarseResult | None,
     image_prior_sigma_mm: float | None,
@@ -166,6 +173,9 @@ def _run_racr_loop(
         The evaluation (simulated runs) and the per-record callback, passed to the loop.
     vse
         The running VSE, whose images the image stage grabs.
+    measurement : (dict, str or None)
+        The reference images the image stage compares with, and the rig lamp it
+        measures under (None: the day's light), from :func:`_measurement_images`.
     init : ndarray
         The 4x4 alignment (reference from current) the loop starts from.
     coarse_result : CoarseResult or None
@@ -185,7 +195,7 @@ def _run_racr_loop(
         stage did before stays available to the caller.
     """
     rig, station = start.rig, start.station
-    ref_images, same_light = _measurement_images(rig, station)
+    ref_images, same_light = measurement
     rig.say(f"relocating ({request.config.loop_name}) to the reference of station '{station.name}'")
     rig.progress(0, 0, "relocating")
     try:
@@ -219,7 +229,12 @@ def _measurement_images(rig: RigHandles, station) -> tuple[dict[str, np.ndarray]
     if same_light is not None:
         # like with like: the image stage compares with the reference image of that light only
         ref_images = {same_light: ref_images[same_light]}
-        rig.say(f"the image stage measures under the reference's light ({same_light})")
+        rig.say(f"the image stage measures under the reference's light ({same_light}), lit by the rig's own lamp")
+    else:
+        rig.say(
+            f"the image stage measures across lightings: no lamp of this rig makes the reference's light "
+            f"({', '.join(ref_images) or 'none'})"
+        )
     return ref_images, same_light
 
 

@@ -21,6 +21,7 @@ from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 from fgcd_cli.app.rig import RigHooks, RigRequest
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
 from fgcd_cli.app.scenario import SimScenario, check_driver, check_lighting, check_method, check_scenario, check_scene
+from fgcd_cli.app.session import rig_lightings, visit_lightings
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
 from fgcd_cli.calibration.rig_files import rig_calibration
 from fgcd_cli.campaign import schema
@@ -41,7 +42,6 @@ __all__ = [
     "check_relocation_options",
     "plan_revisit",
     "run_revisit",
-    "visit_lightings",
     "visit_scenario",
 ]
 
@@ -199,14 +199,6 @@ def visit_scenario(
     )
 
 
-def visit_lightings(visit_light: str, reference_lightings: list[str], *, controllable: bool) -> list[str]:
-    """Images of a visit: under the day's light, and under the reference's lightings when the rig controls its lights."""
-    names = [visit_light]
-    if controllable:
-        names += [n for n in reference_lightings if n not in names]
-    return names
-
-
 def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
     """Check every option of a revisit, then the campaign; nothing is written or opened.
 
@@ -274,7 +266,8 @@ def plan_revisit(campaign_path, request: RevisitRequest) -> RevisitPlan:
         if method != RelocationMethod.RACR
         else None
     )
-    lights = rig_lights(camp, visit_lightings(light, ref.metadata.get("lightings", []), controllable=True))
+    # every reference lighting a wired rig is asked for must be one of its channels (sim: the world's light is not)
+    lights = rig_lights(camp, visit_lightings(light, ref.metadata.get("lightings", []), available=[]))
     return RevisitPlan(
         request=replace(r, light=light),
         driver=driver,
@@ -341,9 +334,7 @@ def _revisit_locked(
         request = RelocateRequest(
             config=plan.config,
             lightings=visit_lightings(
-                r.light,
-                plan.reference.metadata.get("lightings", []),
-                controllable=getattr(rig.handles, "lights", None) is not None,
+                r.light, plan.reference.metadata.get("lightings", []), available=rig_lightings(rig.handles)
             ),
             metadata={
                 "driver": plan.driver,

@@ -328,6 +328,8 @@ def open_rig(request: RigRequest, *, hooks: RigHooks | None = None) -> OpenedRig
         )
         if request.lights is not None and request.lights.driver != LightsDriver.SIM:
             _wire_sim_lights(rig, request.lights, hooks)
+        elif request.lights is not None and request.lights.channels:
+            _mount_sim_lamps(rig, request.lights)
         return rig
     return _open_hardware_rig(request, hooks)
 
@@ -340,6 +342,17 @@ def _lights_for(spec: LightsSpec, hooks: RigHooks, platform=None) -> Lights:
     try:
         return open_lights(spec, platform=platform, ask=hooks.ask_light or input)
     except (PlatformError, OSError) as exc:
+        raise HardwareError(f"cannot open the lights: {exc}") from None
+
+
+def _mount_sim_lamps(rig: OpenedRig, spec: LightsSpec) -> None:
+    """The simulated rig carries the lamps ``[rig.lights]`` lists (driver ``sim``), as a real rig its wired ones."""
+    from fgcd_drivers.lights import LightsError
+
+    try:
+        rig.handles.lights.mount(list(spec.channels))
+    except LightsError as exc:
+        rig.close()
         raise HardwareError(f"cannot open the lights: {exc}") from None
 
 

@@ -19,6 +19,7 @@ from fgcd_cli.relocation.session import (
 )
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.imaging import to_float01
+from fgcd_drivers.lights import AMBIENT
 
 __all__ = [
     "MAX_SCALE_RESIDUAL_MM",
@@ -29,7 +30,9 @@ __all__ = [
     "measurement_lighting",
     "metric_keyframes",
     "reference_images",
+    "rig_lightings",
     "start_session",
+    "visit_lightings",
 ]
 
 
@@ -38,9 +41,9 @@ def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> d
     images: dict[str, np.ndarray] = {}
     frames = max(1, average)
     for k, name in enumerate(lightings):
-        # Rule: on a real light driver "ambient" switches every rig light off; on the
-        # simulator's own lights it is the session's light (docs/hardware.md, Lights).
-        if rig.lights is not None and (name != "ambient" or getattr(rig.lights, "name", "sim") != "sim"):
+        # Rule: "ambient" switches every rig light off, leaving the day's light
+        # (docs/hardware.md, "Lights"); the simulated rig's lamps obey the same rule.
+        if rig.lights is not None:
             rig.lights.set(name)
         acc = None
         for i in range(frames):
@@ -169,14 +172,46 @@ def grab_gray(rig: RigHandles, *, average: int = 2) -> np.ndarray:
     return (acc / max(1, average)).astype(np.float32)
 
 
+def rig_lightings(rig: RigHandles) -> list[str] | None:
+    """What the rig's lights can switch to (``Lights.available()``), None for a rig without switchable lights."""
+    return None if rig.lights is None else list(rig.lights.available())
+
+
+def visit_lightings(visit_light: str, reference_lightings: list[str], *, available: list[str] | None) -> list[str]:
+    """Images of a visit: under the day's light, and under each reference lighting the rig's lights make again.
+
+    Parameters
+    ----------
+    visit_light : str
+        The visit's own light (``--light``), imaged first.
+    reference_lightings : list of str
+        The reference's lightings.
+    available : list of str or None
+        What the rig's lights can switch to (``Lights.available()``); None: no
+        switchable lights, the day's light only. A rig that lists no channel
+        (a person asked to switch any light) is asked for every reference lighting;
+        otherwise a reference lighting the rig cannot make (the reference day's
+        sun, sky or night) is not retaken: no rig moves the sun.
+    """
+    names = [visit_light]
+    if available is None:
+        return names
+    listed = [n for n in available if n != AMBIENT]
+    names += [n for n in reference_lightings if n not in names and (not listed or n in available)]
+    return names
+
+
 def measurement_lighting(rig: RigHandles, reference_lightings: list[str]) -> str | None:
-    """The reference lighting the image stage measures under, when the rig can switch to it.
+    """The reference lighting the image stage measures under, when the rig's own lamps make it.
 
     Feature positions on a relief move with the light direction (shadows and
     shading), which biases a pose measured across lightings by a millimetre or
     two; under the reference's own light the image stage compares like with like
-    (docs/relocation.md, "Final image stage"). ``None`` on rigs without switchable
-    lights: the image stage then measures under the day's light.
+    (docs/relocation.md, "Final image stage"). Only a lamp the rig carries can
+    be lit again: ``ambient`` and the world's light (sun, sky, night) belong to
+    the day of the reference. ``None`` when no reference lighting is one of the
+    rig's lamps, or the rig switches none: the image stage then measures under
+    the day's light, across lightings.
     """
     if rig.lights is None:
         return None

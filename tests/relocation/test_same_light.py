@@ -64,3 +64,25 @@ def test_no_switch_when_already_under_that_light_or_without_lights():
     capture_uc.grab_gray_under(_rig(lights), vse, "front")
     assert lights.history == [] and vse.holds == 0
     assert np.allclose(capture_uc.grab_gray_under(_rig(None), vse, None), 0.5)
+
+
+def test_outdoors_the_simulated_rig_never_measures_under_the_reference_days_sun():
+    """The reference's sun or night is the world's: no lamp of the rig makes it, so the stage measures across."""
+    from fgcd_drivers.sim.world import SimLights
+
+    for reference, today in (("sun-morning", "sun-evening"), ("sun-noon", "night"), ("overcast", "sun-noon")):
+        lights = SimLights(today)
+        assert capture_uc.measurement_lighting(_rig(lights), [reference]) is None
+        # the visit's images: today's light only, the reference's cannot be taken again
+        assert capture_uc.visit_lightings(today, [reference], available=lights.available()) == [today]
+    # indoors the rig's own lamp makes the reference's light again
+    lights = SimLights("led:3")
+    assert capture_uc.measurement_lighting(_rig(lights), ["front"]) == "front"
+    assert capture_uc.visit_lightings("led:3", ["front"], available=lights.available()) == ["led:3", "front"]
+
+
+def test_visit_lightings_without_switchable_lights_or_with_a_person_asked():
+    assert capture_uc.visit_lightings("day", ["front", "led:3"], available=None) == ["day"]
+    # a manual rig that lists no channel: the person is asked for every reference lighting
+    assert capture_uc.visit_lightings("day", ["front", "led:3"], available=["ambient"]) == ["day", "front", "led:3"]
+    assert capture_uc.visit_lightings("led:3", ["front", "led:3"], available=["ambient", "led:3"]) == ["led:3"]
