@@ -174,7 +174,8 @@ def grab_gray(rig: RigHandles, *, average: int = 2) -> np.ndarray:
 
 def rig_lightings(rig: RigHandles) -> list[str] | None:
     """What the rig's lights can switch to (``Lights.available()``), None for a rig without switchable lights."""
-    return None if rig.lights is None else list(rig.lights.available())
+    lights = getattr(rig, "lights", None)  # a rig without switchable lights may not carry the attribute
+    return None if lights is None else list(lights.available())
 
 
 def visit_lightings(visit_light: str, reference_lightings: list[str], *, available: list[str] | None) -> list[str]:

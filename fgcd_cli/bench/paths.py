@@ -8,3 +8,5 @@ from pathlib import Path
 REPO_ROOT = Path(__file__).resolve().parents[2]
 #: The real FGCD dataset (Feng et al., ICCV 2015), in ``../shared`` beside the repository, never copied.
 FGCD_DATASET = REPO_ROOT / ".." / "shared" / "data" / "fgcd-dataset"
+#: Real objects under 12 known lights from a fixed camera (photometric-stereo sets), never copied.
+MULTILIGHT = REPO_ROOT / ".." / "shared" / "data" / "multilight"

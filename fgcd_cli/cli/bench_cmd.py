@@ -75,6 +75,40 @@ def render(
     emit(data, as_json=as_json, render=show)
 
 
+@app.command("lighting")
+def lighting(
+    quick: bool = typer.Option(
+        False, "--quick", help="One real group per kind, one multi-light object, one scene each."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+) -> None:
+    """Registration across lightings (paper 000, Table 1): real photographs beside their simulated counterparts."""
+    from fgcd_cli.bench.lighting.main import run
+
+    if not as_json:
+        info("registering across lightings: real photographs, then simulated scenes of the same kinds…")
+    data = run(quick=quick, say=(lambda text: None) if as_json else info)
+
+    def show(console):
+        if not data["real_available"]:
+            console.print("real photographs: none found beside the repository (../shared/data); simulated side only")
+        console.print("kind: real / simulated — failed, beyond 3 px, median corner error")
+        for kind, k in data["kinds"].items():
+            console.print(
+                f"{kind:<18} real {k.get('real_fail_rate', float('nan')):.2f} {k.get('real_over3_rate', float('nan')):.2f} "
+                f"{k.get('real_median_corner_px', float('nan')):.2f} px ({k.get('real_pairs', 0)} pairs)  "
+                f"sim {k.get('sim_fail_rate', float('nan')):.2f} {k.get('sim_over3_rate', float('nan')):.2f} "
+                f"{k.get('sim_median_corner_px', float('nan')):.2f} px ({k.get('sim_pairs', 0)} pairs)  "
+                f"{'met' if k.get('met') else 'not met'}"
+            )
+        for key, value in data["summary"].items():
+            console.print(
+                f"[bold]{key}[/bold] = {value:.3f}" if isinstance(value, float) else f"[bold]{key}[/bold] = {value}"
+            )
+
+    emit(data, as_json=as_json, render=show)
+
+
 @app.command("calibrate")
 def calibrate(
     quick: bool = typer.Option(False, "--quick", help="Two rigs, 12 intrinsics views each."),

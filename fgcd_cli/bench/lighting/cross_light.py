@@ -1,0 +1,139 @@
+"""Paper 000's Table 1 protocol: how far a registration across lightings lands from one made under a single light.
+
+Within one FGCD observation the camera does not move between its lightings, so
+the transform from the second observation to the first is the same for every
+lighting. The median of the same-lighting homographies is the *consensus*; a
+cross-lighting pair (the reference under one light, the revisit under another)
+is scored by the mean distance of its homography's image corners from the
+consensus's (docs/benchmarks.md, "Registration across lightings").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcd_cli.changes.registration import ransac_homography
+from fgcd_core.imaging import match_sift, to_gray_u8
+
+__all__ = [
+    "MIN_INLIERS",
+    "RANSAC_PX",
+    "PairMatch",
+    "consensus_homography",
+    "corner_error_px",
+    "match_pair",
+    "summarise",
+]
+
+#: A registration with fewer RANSAC inliers than this has failed (the issue's protocol: < 8 inliers).
+MIN_INLIERS = 8
+#: RANSAC reprojection threshold, pixels (the project's homography registration, ``changes/registration.py``).
+RANSAC_PX = 3.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class PairMatch:
+    """One registration of a current image onto a reference image.
+
+    Attributes
+    ----------
+    matches : int
+        SIFT matches passing the ratio test.
+    inliers : int
+        RANSAC inliers of the homography (0 when none was found).
+    H_cur_ref : (3, 3) ndarray or None
+        Homography mapping reference pixels ``(x, y, 1)`` to current ones; None when failed.
+    """
+
+    matches: int
+    inliers: int
+    H_cur_ref: np.ndarray | None
+
+    @property
+    def failed(self) -> bool:
+        """True when no homography with at least :data:`MIN_INLIERS` inliers was found."""
+        return self.H_cur_ref is None or self.inliers < MIN_INLIERS
+
+
+def match_pair(reference: np.ndarray, current: np.ndarray) -> PairMatch:
+    """Register ``current`` onto ``reference`` with the project's matcher (SIFT, ratio test, RANSAC at 3 px).
+
+    Parameters
+    ----------
+    reference, current : (H, W) or (H, W, 3) ndarray
+        Images (uint8, or floats in [0, 1]).
+    """
+    pts_ref, pts_cur = match_sift(to_gray_u8(reference), to_gray_u8(current))
+    H, inl = ransac_homography(pts_ref, pts_cur, ransac_px=RANSAC_PX)
+    return PairMatch(matches=len(pts_ref), inliers=int(inl.sum()), H_cur_ref=H)
+
+
+def consensus_homography(homographies: list[np.ndarray]) -> np.ndarray | None:
+    """The element-wise median of homographies normalised to ``H[2, 2] = 1`` (None when there are none).
+
+    Parameters
+    ----------
+    homographies : list of (3, 3) ndarray
+    """
+    if not homographies:
+        return None
+    stack = np.stack([H / H[2, 2] for H in homographies])
+    return np.median(stack, axis=0)
+
+
+def corner_error_px(H: np.ndarray, H_consensus: np.ndarray, shape: tuple[int, int]) -> float:
+    """Mean distance (px) between the four image corners mapped by ``H`` and by ``H_consensus``.
+
+    Parameters
+    ----------
+    H, H_consensus : (3, 3) ndarray
+        Homographies reference -> current.
+    shape : (height, width)
+        The reference image's size.
+    """
+    h, w = shape
+    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [w - 1, h - 1, 1], [0, h - 1, 1]], dtype=float).T
+
+    def mapped(M):
+        p = M @ corners
+        return p[:2] / p[2]
+
+    return float(np.mean(np.linalg.norm(mapped(H) - mapped(H_consensus), axis=0)))
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Failure rate, corner-error quantiles and the fraction beyond 1 and 3 px of scored pairs.
+
+    Parameters
+    ----------
+    rows : list of dict
+        One per cross-lighting pair, with ``failed`` (bool), ``matches``, ``inliers`` and
+        ``corner_px`` (float, NaN when failed).
+
+    Returns
+    -------
+    dict
+        ``pairs``, ``fail_rate``, ``over1_rate``, ``over3_rate`` (failed pairs count as beyond),
+        ``median_corner_px`` (over the registered pairs), ``p90_corner_px``, ``median_matches``,
+        ``median_inliers``, ``median_afd_px``.
+    """
+    n = len(rows)
+    if n == 0:
+        return {"pairs": 0}
+    failed = np.array([r["failed"] for r in rows])
+    err = np.array([r["corner_px"] if not r["failed"] else np.inf for r in rows], dtype=float)
+    ok = err[np.isfinite(err)]
+    afd = np.array([r.get("afd_px", np.nan) for r in rows], dtype=float)
+    return {
+        "pairs": n,
+        "fail_rate": float(failed.mean()),
+        "over1_rate": float(np.mean(err > 1.0)),
+        "over3_rate": float(np.mean(err > 3.0)),
+        "median_corner_px": float(np.median(ok)) if len(ok) else float("nan"),
+        "p90_corner_px": float(np.quantile(ok, 0.9)) if len(ok) else float("nan"),
+        "median_matches": float(np.median([r["matches"] for r in rows])),
+        "median_inliers": float(np.median([r["inliers"] for r in rows])),
+        "median_afd_px": float(np.nanmedian(afd)) if np.isfinite(afd).any() else float("nan"),
+    }

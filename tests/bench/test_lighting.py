@@ -1,0 +1,75 @@
+"""`fgcd bench lighting`: the Table 1 protocol's parts against synthetic ground truth."""
+
+import cv2
+import numpy as np
+import pytest
+
+from fgcd_cli.bench.lighting.cross_light import (
+    MIN_INLIERS,
+    consensus_homography,
+    corner_error_px,
+    match_pair,
+    summarise,
+)
+from fgcd_cli.bench.lighting.photographs import known_motion, resampled
+from fgcd_cli.bench.lighting.renders import multilight_lightings
+
+
+def _shift(dx, dy):
+    return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+
+
+def test_the_corner_error_of_a_shift_is_its_length():
+    assert corner_error_px(_shift(0, 0), _shift(0, 0), (480, 640)) == 0.0
+    assert corner_error_px(_shift(3.0, 4.0), _shift(0, 0), (480, 640)) == pytest.approx(5.0)
+    # a rotation about the centre moves each corner by r * angle: the mean over the 4 corners
+    H = known_motion((481, 641), (0.0, 0.0, 1.0))
+    r = np.hypot(320, 240)
+    assert corner_error_px(H, _shift(0, 0), (481, 641)) == pytest.approx(r * np.radians(1.0), rel=1e-3)
+
+
+def test_the_consensus_is_the_median_and_ignores_one_stray_registration():
+    Hs = [_shift(1.0, 0.0), _shift(1.1, 0.0), _shift(0.9, 0.0), _shift(25.0, 9.0)]
+    np.testing.assert_allclose(consensus_homography([2.0 * H for H in Hs]), _shift(1.05, 0.0))
+    assert consensus_homography([]) is None
+
+
+def _texture(seed=0, shape=(240, 320)):
+    rng = np.random.default_rng(seed)
+    img = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 2.0)
+    img = (img - img.min()) / (img.max() - img.min())
+    return np.clip(img * 255, 0, 255).astype(np.uint8)
+
+
+def test_a_known_sub_pixel_motion_is_registered_to_a_tenth_of_a_pixel():
+    ref = _texture()
+    H = known_motion(ref.shape, (0.6, 0.4, 0.1))
+    m = match_pair(ref, resampled(ref, H))
+    assert not m.failed and m.inliers >= MIN_INLIERS
+    assert corner_error_px(m.H_cur_ref, H, ref.shape) < 0.1
+
+
+def test_a_blank_image_fails_to_register():
+    blank = np.full((240, 320), 128, np.uint8)
+    assert match_pair(blank, blank).failed
+
+
+def test_summary_counts_failures_as_beyond_every_threshold():
+    rows = [
+        {"failed": False, "corner_px": 0.5, "matches": 100, "inliers": 80},
+        {"failed": False, "corner_px": 2.0, "matches": 100, "inliers": 60},
+        {"failed": False, "corner_px": 4.0, "matches": 50, "inliers": 20},
+        {"failed": True, "corner_px": float("nan"), "matches": 10, "inliers": 3},
+    ]
+    s = summarise(rows)
+    assert s["fail_rate"] == 0.25 and s["over1_rate"] == 0.75 and s["over3_rate"] == 0.5
+    assert s["median_corner_px"] == 2.0  # over the registered pairs only
+
+
+def test_multilight_directions_light_the_side_they_name():
+    """lights.txt: x right, y up, z toward the viewer; in the OpenCV camera frame (y down, z forward) (x, -y, -z)."""
+    T = np.eye(4)
+    (up_right,) = multilight_lightings(np.array([[0.6, 0.6, 0.53]]), T)
+    d = np.asarray(up_right.lights[0].direction)
+    assert d[0] > 0 and d[1] < 0 and d[2] < 0  # right, up (camera y is down), toward the camera
+    assert np.linalg.norm(d) == pytest.approx(1.0)
