@@ -11,19 +11,25 @@ consensus's (docs/benchmarks.md, "Registration across lightings").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
 from fgcd_cli.changes.registration import ransac_homography
-from fgcd_core.imaging import match_sift, to_gray_u8
+from fgcd_cli.errors import FgcdError
+from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
+from fgcd_cli.relocation.image.refine import ImageRefineConfig, local_contrast
+from fgcd_core.imaging import match_sift, to_gray_f32, to_gray_u8
 
 __all__ = [
     "MIN_INLIERS",
+    "Matcher",
     "RANSAC_PX",
     "PairMatch",
     "consensus_homography",
     "corner_error_px",
     "match_pair",
+    "score_pairs",
     "summarise",
 ]
 
@@ -31,6 +37,19 @@ __all__ = [
 MIN_INLIERS = 8
 #: RANSAC reprojection threshold, pixels (the project's homography registration, ``changes/registration.py``).
 RANSAC_PX = 3.0
+
+
+class Matcher(StrEnum):
+    """The correspondences the project registers images with, each measured by the bench."""
+
+    SIFT = "sift"
+    """SIFT on the grey image, ratio test: ``fgcd diff``'s registration and the ACR baseline."""
+    IMAGE_STAGE = "image_stage"
+    """SIFT on locally equalised images (``relocation/image/refine.py: local_contrast``): the
+    relocation's final image stage, with its own ratio and feature count."""
+    GRID = "grid"
+    """Phase correlation of gradient patches on a grid: ``fgcd afd``'s lighting-robust variant,
+    the image stage's fallback, with the stage's grid."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -57,17 +76,72 @@ class PairMatch:
         return self.H_cur_ref is None or self.inliers < MIN_INLIERS
 
 
-def match_pair(reference: np.ndarray, current: np.ndarray) -> PairMatch:
-    """Register ``current`` onto ``reference`` with the project's matcher (SIFT, ratio test, RANSAC at 3 px).
+def _correspondences(reference: np.ndarray, current: np.ndarray, matcher: Matcher) -> tuple[np.ndarray, np.ndarray]:
+    """Matched pixels ``(x, y)`` of the pair by ``matcher``, (N, 2) each (empty when it finds none)."""
+    stage = ImageRefineConfig()
+    if matcher == Matcher.SIFT:
+        return match_sift(to_gray_u8(reference), to_gray_u8(current))
+    ref, cur = to_gray_f32(reference), to_gray_f32(current)
+    if matcher == Matcher.IMAGE_STAGE:
+        return match_sift(
+            to_gray_u8(local_contrast(ref)),
+            to_gray_u8(local_contrast(cur)),
+            ratio=stage.ratio,
+            max_features=stage.max_features,
+        )
+    grid = FdfConfig(method="grid", grid_cells=stage.grid_cells, patch_px=stage.grid_patch_px, ransac_px=RANSAC_PX)
+    try:
+        fdf = compute_fdf(ref, cur, config=grid)
+    except FgcdError:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return fdf.points_ref, fdf.points_cur
+
+
+def match_pair(reference: np.ndarray, current: np.ndarray, matcher: Matcher = Matcher.SIFT) -> PairMatch:
+    """Register ``current`` onto ``reference``: ``matcher``'s correspondences, a RANSAC homography at 3 px.
 
     Parameters
     ----------
     reference, current : (H, W) or (H, W, 3) ndarray
         Images (uint8, or floats in [0, 1]).
+    matcher : Matcher
     """
-    pts_ref, pts_cur = match_sift(to_gray_u8(reference), to_gray_u8(current))
+    pts_ref, pts_cur = _correspondences(reference, current, Matcher(matcher))
     H, inl = ransac_homography(pts_ref, pts_cur, ransac_px=RANSAC_PX)
     return PairMatch(matches=len(pts_ref), inliers=int(inl.sum()), H_cur_ref=H)
+
+
+def score_pairs(kind: str, name: str, pairs, H_consensus: np.ndarray, *, matchers=tuple(Matcher)) -> list[dict]:
+    """One row per cross pair and matcher: matches, inliers, failed, corner error from the consensus.
+
+    Parameters
+    ----------
+    kind, name : str
+        The kind of scene and the group, object or scene the pairs come from.
+    pairs : iterable of (label, reference, current)
+        The cross-lighting pairs (images as :func:`match_pair` takes them).
+    H_consensus : (3, 3) ndarray
+        The transform the pairs should register to.
+    matchers : tuple of Matcher
+    """
+    rows = []
+    for label, reference, current in pairs:
+        for matcher in matchers:
+            m = match_pair(reference, current, matcher)
+            err = float("nan") if m.failed else corner_error_px(m.H_cur_ref, H_consensus, reference.shape[:2])
+            rows.append(
+                {
+                    "kind": kind,
+                    "name": name,
+                    "pair": label,
+                    "matcher": str(matcher),
+                    "matches": m.matches,
+                    "inliers": m.inliers,
+                    "failed": m.failed,
+                    "corner_px": err,
+                }
+            )
+    return rows
 
 
 def consensus_homography(homographies: list[np.ndarray]) -> np.ndarray | None:

@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from fgcd_cli.bench.lighting.cross_light import summarise
+from fgcd_cli.bench.lighting.cross_light import Matcher, summarise
 from fgcd_cli.bench.lighting.photographs import FGCD_KINDS, MULTILIGHT_KIND, fgcd_group_rows, multilight_rows
 from fgcd_cli.bench.lighting.renders import SIM_SCENES, sim_fgcd_rows, sim_multilight_rows
 from fgcd_cli.bench.paths import FGCD_DATASET, MULTILIGHT
@@ -62,7 +62,7 @@ def _directions() -> np.ndarray:
 
 
 def _brief(out: dict) -> dict:
-    s = summarise(out["rows"])
+    s = summarise([r for r in out["rows"] if r["matcher"] == Matcher.SIFT])
     return {
         "pairs": s.get("pairs", 0),
         "failed": int(round(s.get("fail_rate", 0.0) * s.get("pairs", 0))),
@@ -120,10 +120,13 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
     Returns
     -------
     dict
-        ``kinds`` (per kind: real and simulated summaries and whether the targets are met),
+        ``kinds`` (per kind, the SIFT matcher of the issue's protocol: real and simulated summaries and
+        whether the targets are met), ``matchers`` (every matcher's summaries, over all kinds and per kind),
         ``groups`` and ``scenes`` (one line each), ``rows`` (every cross pair) and ``summary``
         (``real_fail_rate``, ``real_over3_rate``, ``real_median_corner_px`` and the ``sim_*``
-        counterparts over all kinds, plus ``kinds_met``).
+        counterparts over all kinds with SIFT, ``<matcher>_real_*`` / ``<matcher>_sim_*`` for the image
+        stage's and the grid matchers, ``real_median_afd_error_px`` (how far ``fgcd afd`` across lightings
+        lands from its same-lighting value) and ``kinds_met``).
     """
     t0 = time.monotonic()
     real_rows, groups = _real(quick, say)
@@ -133,26 +136,45 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
     if not kinds:
         kinds = sorted(SIM_SCENES)
     sim_rows, scenes = _sim(kinds, quick, say)
+
+    def rows_of(rows, kind=None, matcher=Matcher.SIFT):
+        return [r for r in rows if r["matcher"] == matcher and (kind is None or r["kind"] == kind)]
+
     per_kind = {}
     for kind in kinds:
-        real = summarise([r for r in real_rows if r["kind"] == kind])
-        sim = summarise([r for r in sim_rows if r["kind"] == kind])
+        real, sim = summarise(rows_of(real_rows, kind)), summarise(rows_of(sim_rows, kind))
         per_kind[kind] = {**_flat("real", real), **_flat("sim", sim), **_targets_met(real, sim)}
-    real_all, sim_all = summarise(real_rows), summarise(sim_rows)
+    matchers = {
+        str(m): {
+            kind: {
+                **_flat("real", summarise(rows_of(real_rows, kind, m))),
+                **_flat("sim", summarise(rows_of(sim_rows, kind, m))),
+            }
+            for kind in [None, *kinds]
+        }
+        for m in Matcher
+    }
     comparable = [k for k, v in per_kind.items() if v.get("comparable")]
+    afd_errors = [r["afd_error_px"] for r in real_rows if "afd_error_px" in r]
     summary = {
-        **_flat("real", real_all),
-        **_flat("sim", sim_all),
-        "real_median_afd_error_px": float(np.nanmedian([r["afd_error_px"] for r in real_rows]))
-        if real_rows
-        else float("nan"),
+        **_flat("real", summarise(rows_of(real_rows))),
+        **_flat("sim", summarise(rows_of(sim_rows))),
+        "real_median_afd_error_px": float(np.nanmedian(afd_errors)) if afd_errors else float("nan"),
         "kinds_met": sum(per_kind[k].get("met", False) for k in comparable),
         "kinds_compared": len(comparable),
     }
+    for m in Matcher:
+        if m == Matcher.SIFT:
+            continue
+        for side in ("real", "sim"):
+            for key in ("fail_rate", "over3_rate", "median_corner_px"):
+                summary[f"{m}_{side}_{key}"] = matchers[str(m)][None].get(f"{side}_{key}")
+    matchers = {m: {("all" if k is None else k): v for k, v in by_kind.items()} for m, by_kind in matchers.items()}
     return {
         "settings": {"quick": quick, "rate_tolerance": RATE_TOLERANCE, "median_factor": MEDIAN_FACTOR},
         "real_available": bool(real_rows),
         "kinds": per_kind,
+        "matchers": matchers,
         "groups": groups,
         "scenes": scenes,
         "rows": real_rows + sim_rows,

@@ -21,12 +21,19 @@ import cv2
 import numpy as np
 
 from fgcd_cli.app.diff import measure_fdf
-from fgcd_cli.bench.lighting.cross_light import consensus_homography, corner_error_px, match_pair
+from fgcd_cli.bench.lighting.cross_light import (
+    Matcher,
+    consensus_homography,
+    corner_error_px,
+    match_pair,
+    score_pairs,
+)
 
 __all__ = [
     "FGCD_KINDS",
     "KNOWN_MOTION",
     "MULTILIGHT_KIND",
+    "failed_counts",
     "fgcd_group_rows",
     "frontal_light",
     "known_motion",
@@ -56,20 +63,24 @@ def _afd(reference: np.ndarray, current: np.ndarray) -> float:
     return float("nan") if fdf is None else float(fdf.afd_px)
 
 
-def _row(kind: str, name: str, pair: str, reference, current, consensus, *, afd_same: float) -> dict:
-    m = match_pair(reference, current)
-    afd = _afd(reference, current)
-    return {
-        "kind": kind,
-        "name": name,
-        "pair": pair,
-        "matches": m.matches,
-        "inliers": m.inliers,
-        "failed": m.failed,
-        "corner_px": float("nan") if m.failed else corner_error_px(m.H_cur_ref, consensus, reference.shape[:2]),
-        "afd_px": afd,
-        "afd_error_px": abs(afd - afd_same),
-    }
+def _pair_rows(kind: str, name: str, pairs: list, consensus: np.ndarray, afd_same: float) -> list[dict]:
+    """Every matcher's rows of ``pairs``, and the AFD ``fgcd afd`` reports for each (on its SIFT row)."""
+    rows = score_pairs(kind, name, pairs, consensus)
+    afd = {label: _afd(ref, cur) for label, ref, cur in pairs}
+    for row in rows:
+        if row["matcher"] == Matcher.SIFT:
+            row["afd_px"] = afd[row["pair"]]
+            row["afd_error_px"] = abs(afd[row["pair"]] - afd_same)
+    return rows
+
+
+def failed_counts(rows: list[dict]) -> str:
+    """``failed: sift 1/6, image_stage 0/6, grid 2/6``."""
+    counts = {}
+    for r in rows:
+        n, f = counts.get(r["matcher"], (0, 0))
+        counts[r["matcher"]] = (n + 1, f + int(r["failed"]))
+    return "failed: " + ", ".join(f"{m} {f}/{n}" for m, (n, f) in counts.items())
 
 
 def fgcd_group_rows(group: Path, *, say: Callable = print) -> dict:
@@ -104,8 +115,9 @@ def fgcd_group_rows(group: Path, *, say: Callable = print) -> dict:
     shape = ref[1].shape[:2]
     spread = float(np.median([corner_error_px(H, H_c, shape) for H in good]))
     afd_same = _afd(ref[1], cur[1])
-    rows = [_row(kind, group.name, f"2-1/1-{k}", ref[1], cur[k], H_c, afd_same=afd_same) for k in lightings if k != 1]
-    say(f"real {group.name}: same-lighting spread {spread:.2f} px, {sum(r['failed'] for r in rows)} failed")
+    pairs = [(f"2-1/1-{k}", ref[1], cur[k]) for k in lightings if k != 1]
+    rows = _pair_rows(kind, group.name, pairs, H_c, afd_same)
+    say(f"real {group.name}: same-lighting spread {spread:.2f} px, {failed_counts(rows)}")
     return {"rows": rows, "same_light_spread_px": spread}
 
 
@@ -144,20 +156,13 @@ def multilight_rows(obj: Path, directions: np.ndarray, *, say: Callable = print)
     ref_index = frontal_light(directions)
     reference = images[ref_index]
     afd_same = _afd(reference, resampled(reference, H_known))
-    rows = [
-        _row(
-            MULTILIGHT_KIND,
-            obj.name,
-            f"light-{ref_index:02d}/light-{i:02d}",
-            reference,
-            resampled(images[i], H_known),
-            H_known,
-            afd_same=afd_same,
-        )
+    pairs = [
+        (f"light-{ref_index:02d}/light-{i:02d}", reference, resampled(images[i], H_known))
         for i in range(len(images))
         if i != ref_index
     ]
+    rows = _pair_rows(MULTILIGHT_KIND, obj.name, pairs, H_known, afd_same)
     same = match_pair(reference, resampled(reference, H_known))
     spread = float("nan") if same.failed else corner_error_px(same.H_cur_ref, H_known, reference.shape[:2])
-    say(f"real {obj.name}: same-lighting error {spread:.2f} px, {sum(r['failed'] for r in rows)} failed")
+    say(f"real {obj.name}: same-lighting error {spread:.2f} px, {failed_counts(rows)}")
     return {"rows": rows, "same_light_spread_px": spread}

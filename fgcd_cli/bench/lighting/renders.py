@@ -16,8 +16,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from fgcd_cli.bench.lighting.cross_light import consensus_homography, corner_error_px, match_pair
-from fgcd_cli.bench.lighting.photographs import MULTILIGHT_KIND, frontal_light, known_motion, resampled
+from fgcd_cli.bench.lighting.cross_light import consensus_homography, corner_error_px, match_pair, score_pairs
+from fgcd_cli.bench.lighting.photographs import MULTILIGHT_KIND, failed_counts, frontal_light, known_motion, resampled
 from fgcd_core.se3 import exp_se3
 from fgcd_drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, STILL_SUPERSAMPLE
 from fgcd_drivers.sim.lights import Light, Lighting
@@ -75,21 +75,9 @@ def sim_fgcd_rows(kind: str, scene_name: str, *, say: Callable = print) -> dict:
     H_c = consensus_homography(good)
     shape = ref[0].shape[:2]
     spread = float(np.median([corner_error_px(H, H_c, shape) for H in good]))
-    rows = []
-    for k in range(1, len(FGCD_LIGHTINGS)):
-        m = match_pair(ref[0], cur[k])
-        rows.append(
-            {
-                "kind": kind,
-                "name": scene_name,
-                "pair": f"{FGCD_LIGHTINGS[0]}/{FGCD_LIGHTINGS[k]}",
-                "matches": m.matches,
-                "inliers": m.inliers,
-                "failed": m.failed,
-                "corner_px": float("nan") if m.failed else corner_error_px(m.H_cur_ref, H_c, shape),
-            }
-        )
-    say(f"sim {kind} {scene_name}: same-lighting spread {spread:.2f} px, {sum(r['failed'] for r in rows)} failed")
+    pairs = [(f"{FGCD_LIGHTINGS[0]}/{FGCD_LIGHTINGS[k]}", ref[0], cur[k]) for k in range(1, len(FGCD_LIGHTINGS))]
+    rows = score_pairs(kind, scene_name, pairs, H_c)
+    say(f"sim {kind} {scene_name}: same-lighting spread {spread:.2f} px, {failed_counts(rows)}")
     return {"rows": rows, "same_light_spread_px": spread}
 
 
@@ -123,21 +111,11 @@ def sim_multilight_rows(scene_name: str, directions: np.ndarray, *, say: Callabl
     H_known = known_motion(images[0].shape[:2])
     ref_index = frontal_light(directions)
     reference = images[ref_index]
-    rows = []
-    for i, image in enumerate(images):
-        if i == ref_index:
-            continue
-        m = match_pair(reference, resampled(image, H_known))
-        rows.append(
-            {
-                "kind": MULTILIGHT_KIND,
-                "name": scene_name,
-                "pair": f"light-{ref_index:02d}/light-{i:02d}",
-                "matches": m.matches,
-                "inliers": m.inliers,
-                "failed": m.failed,
-                "corner_px": float("nan") if m.failed else corner_error_px(m.H_cur_ref, H_known, reference.shape[:2]),
-            }
-        )
-    say(f"sim {MULTILIGHT_KIND} {scene_name}: {sum(r['failed'] for r in rows)} of {len(rows)} failed")
+    pairs = [
+        (f"light-{ref_index:02d}/light-{i:02d}", reference, resampled(image, H_known))
+        for i, image in enumerate(images)
+        if i != ref_index
+    ]
+    rows = score_pairs(MULTILIGHT_KIND, scene_name, pairs, H_known)
+    say(f"sim {MULTILIGHT_KIND} {scene_name}: {failed_counts(rows)}")
     return {"rows": rows}
