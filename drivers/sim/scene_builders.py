@@ -312,7 +312,10 @@ def build_sphere(p: dict, rng) -> dict:
     r = p.get("radius_m", 0.75)
     c = tuple(p.get("center", (0.0, 0.0, 1.0)))
     rep = p.get("texture_repeat_m", 0.6)
-    tex = stone(rng, size=1024, photo_name="moon", colour=(0.72, 0.7, 0.66), contrast=1.0)
+    if "albedo" in p:  # a matte calibration sphere: one grey albedo, no texture
+        tex = np.full((4, 4, 3), float(p["albedo"]), np.float32)
+    else:
+        tex = stone(rng, size=1024, photo_name="moon", colour=(0.72, 0.7, 0.66), contrast=1.0)
     v, t, uv = uv_sphere(
         center=c, radius=r, n_lat=int(p.get("n_lat", 240)), n_lon=int(p.get("n_lon", 480)), uv_repeat_m=rep
     )

@@ -14,6 +14,7 @@ from fgcd_cli.bench.lighting.cross_light import (
 )
 from fgcd_cli.bench.lighting.photographs import known_motion, resampled
 from fgcd_cli.bench.lighting.renders import multilight_lightings
+from fgcd_cli.bench.lighting.sphere import binned_by_normal, gain_fit_error
 
 
 def _shift(dx, dy):
@@ -78,3 +79,26 @@ def test_multilight_directions_light_the_side_they_name():
     d = np.asarray(up_right.lights[0].direction)
     assert d[0] > 0 and d[1] < 0 and d[2] < 0  # right, up (camera y is down), toward the camera
     assert np.linalg.norm(d) == pytest.approx(1.0)
+
+
+def _lambert_sphere(L, gamma=1.0, size=201):
+    """A synthetic orthographic sphere: grey levels of max(0, n.L)^(1/gamma), its normals and its inside."""
+    yy, xx = np.mgrid[0:size, 0:size]
+    c, r = (size - 1) / 2.0, size / 2.2
+    nx, ny = (xx - c) / r, (yy - c) / r
+    inside = nx**2 + ny**2 < 0.9**2
+    nz = np.sqrt(np.clip(1 - nx**2 - ny**2, 0, 1))
+    normals = np.dstack([nx, ny, nz])
+    return np.clip(normals @ np.asarray(L, float), 0, None) ** (1 / gamma) * 200.0, normals, inside
+
+
+def test_the_sphere_error_is_zero_for_the_same_shading_at_another_exposure_and_grows_with_gamma():
+    L = np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+    real, normals, inside = _lambert_sphere(L)
+    real_bins = binned_by_normal(real, normals, inside)
+    same = binned_by_normal(0.5 * real, normals, inside)  # another exposure: the gain absorbs it
+    assert gain_fit_error(real_bins, same) == pytest.approx(0.0, abs=1e-12)
+    errors = [
+        gain_fit_error(real_bins, binned_by_normal(_lambert_sphere(L, g)[0], normals, inside)) for g in (1.4, 2.2)
+    ]
+    assert 0.02 < errors[0] < errors[1]  # a camera curve is not an exposure: it shows, and more for 2.2

@@ -21,6 +21,7 @@ import numpy as np
 from fgcd_cli.bench.lighting.cross_light import Matcher, summarise
 from fgcd_cli.bench.lighting.photographs import FGCD_KINDS, MULTILIGHT_KIND, fgcd_group_rows, multilight_rows
 from fgcd_cli.bench.lighting.renders import SIM_SCENES, sim_fgcd_rows, sim_multilight_rows
+from fgcd_cli.bench.lighting.sphere import sphere_shading
 from fgcd_cli.bench.paths import FGCD_DATASET, MULTILIGHT
 
 __all__ = ["RATE_TOLERANCE", "MEDIAN_FACTOR", "run"]
@@ -126,7 +127,9 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
         (``real_fail_rate``, ``real_over3_rate``, ``real_median_corner_px`` and the ``sim_*``
         counterparts over all kinds with SIFT, ``<matcher>_real_*`` / ``<matcher>_sim_*`` for the image
         stage's and the grid matchers, ``real_median_afd_error_px`` (how far ``fgcd afd`` across lightings
-        lands from its same-lighting value) and ``kinds_met``).
+        lands from its same-lighting value), ``kinds_met``, and the grey sphere's shading check
+        (``sphere_render_rel_rms_median`` beside ``sphere_lambert_rel_rms_median``,
+        :mod:`fgcd_cli.bench.lighting.sphere`)).
     """
     t0 = time.monotonic()
     real_rows, groups = _real(quick, say)
@@ -170,11 +173,21 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
             for key in ("fail_rate", "over3_rate", "median_corner_px"):
                 summary[f"{m}_{side}_{key}"] = matchers[str(m)][None].get(f"{side}_{key}")
     matchers = {m: {("all" if k is None else k): v for k, v in by_kind.items()} for m, by_kind in matchers.items()}
+    sphere = None
+    if (MULTILIGHT / "gray" / "mask.png").exists():
+        sphere = sphere_shading(MULTILIGHT / "gray", _directions())
+        summary["sphere_render_rel_rms_median"] = sphere["render_rel_rms_median"]
+        summary["sphere_lambert_rel_rms_median"] = sphere["lambert_rel_rms_median"]
+        say(
+            f"grey sphere: render {sphere['render_rel_rms_median']:.3f}, ideal Lambert "
+            f"{sphere['lambert_rel_rms_median']:.3f} relative RMS (median over the lights)"
+        )
     return {
         "settings": {"quick": quick, "rate_tolerance": RATE_TOLERANCE, "median_factor": MEDIAN_FACTOR},
         "real_available": bool(real_rows),
         "kinds": per_kind,
         "matchers": matchers,
+        "sphere": sphere,
         "groups": groups,
         "scenes": scenes,
         "rows": real_rows + sim_rows,
