@@ -30,6 +30,7 @@ import open3d as o3d
 from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.sim.changes import evaluate_changes
 from fgcd_drivers.sim.lights import Lighting, lighting_preset
+from fgcd_drivers.sim.mesostructure import Mesostructure, slope_texture, triangle_tangents
 from fgcd_drivers.sim.render_buffers import RenderResult, Surface
 from fgcd_drivers.sim.scene import Scene
 from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
@@ -37,6 +38,54 @@ from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, 
 __all__ = ["Renderer"]
 
 _MISS = np.uint32(0xFFFFFFFF)
+
+
+def _mip_pyramid(texture: np.ndarray) -> list[np.ndarray]:
+    """A texture and its successive halvings down to 4 texels (float32)."""
+    pyr = [np.ascontiguousarray(texture, dtype=np.float32)]
+    while min(pyr[-1].shape[:2]) > 4:
+        pyr.append(cv2.pyrDown(pyr[-1]))
+    return pyr
+
+
+def _sample_mipmapped(pyramid: list[np.ndarray], uvs: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Trilinear lookup: bilinear in the two mip levels around ``level`` (N,), blended; (N, 3) float32."""
+    l0 = np.floor(level).astype(np.int64)
+    frac = (level - l0).astype(np.float32)[:, None]
+    out = np.empty((len(uvs), 3), np.float32)
+    lo, hi = int(l0.min()), int(l0.max())
+    for lv in range(lo, hi + 1):
+        m = slice(None) if lo == hi else np.flatnonzero(l0 == lv)
+        if not isinstance(m, slice) and len(m) == 0:
+            continue
+        acc = None
+        for k, wgt in ((lv, 1.0 - frac[m]), (min(lv + 1, len(pyramid) - 1), frac[m])):
+            tex = pyramid[k]
+            th, tw = tex.shape[:2]
+            x = uvs[m, 0] * np.float32(tw) - np.float32(0.5)
+            y = uvs[m, 1] * np.float32(th) - np.float32(0.5)
+            smp = _remap_1d(tex, x, y)
+            smp *= wgt
+            acc = smp if acc is None else acc + smp
+        out[m] = acc
+    return out
+
+
+def _bent_normals(normals: np.ndarray, slope: np.ndarray, tangents: np.ndarray) -> np.ndarray:
+    """Shading normals bent by the mesostructure's slope: ``n' ∝ n - (s_u t_u + s_v t_v)`` (bump mapping).
+
+    Parameters
+    ----------
+    normals : (N, 3) float32 unit normals.
+    slope : (N, 3) float32, the sampled slope texture (``d h / d u_m``, ``d h / d v_m``, 0).
+    tangents : (N, 2, 3) float32 unit world directions of u and v on each hit's triangle.
+    """
+    t_u, t_v = tangents[:, 0], tangents[:, 1]
+    # into the shading normal's tangent plane (interpolated normals are not the face's)
+    t_u = t_u - np.einsum("ij,ij->i", t_u, normals)[:, None] * normals
+    t_v = t_v - np.einsum("ij,ij->i", t_v, normals)[:, None] * normals
+    bent = normals - slope[:, 0:1] * t_u - slope[:, 1:2] * t_v
+    return bent / np.maximum(np.sqrt(np.einsum("ij,ij->i", bent, bent)), 1e-12)[:, None]
 
 
 def _remap_1d(img: np.ndarray, x: np.ndarray, y: np.ndarray, border=cv2.BORDER_WRAP) -> np.ndarray:
@@ -63,6 +112,7 @@ class _PartData:
     pyramid: list[np.ndarray]
     texel_size_m: float
     label: int
+    slope_pyramid: list[np.ndarray] | None = None
 
 
 class Renderer:
@@ -77,29 +127,35 @@ class Renderer:
         Open3D ray-casting threads (0 = all cores).
     """
 
-    def __init__(self, scene: Scene, *, supersample: int = 1, nthreads: int = 0):
+    def __init__(
+        self, scene: Scene, *, supersample: int = 1, nthreads: int = 0, mesostructure: Mesostructure | None = None
+    ):
         if supersample < 1:
             raise ValueError("supersample must be >= 1")
         self.scene = scene
+        self.mesostructure = mesostructure if mesostructure is not None and mesostructure.slope_rms > 0 else None
         self.supersample = int(supersample)
         self.nthreads = int(nthreads)
         self._rc = o3d.t.geometry.RaycastingScene()
         self._parts: dict[int, _PartData] = {}
         # Global per-triangle tables (all parts concatenated) so that one gather serves every hit.
-        offsets, uvs, corner_normals, part_of_tri = {}, [], [], []
+        offsets, uvs, corner_normals, part_of_tri, tangents = {}, [], [], [], []
         n_tri = 0
-        for part in scene.parts:
+        for index, part in enumerate(scene.parts):
             gid = self._rc.add_triangles(part.vertices.astype(np.float32), part.triangles.astype(np.uint32))
-            pyr = [np.ascontiguousarray(part.texture, dtype=np.float32)]
-            while min(pyr[-1].shape[:2]) > 4:
-                pyr.append(cv2.pyrDown(pyr[-1]))
+            slopes = None
+            if self.mesostructure is not None:
+                texture = slope_texture(part.texture.shape[:2], part.texel_size_m, self.mesostructure, index)
+                slopes = _mip_pyramid(texture)
+                tangents.append(triangle_tangents(part.vertices, part.triangles, part.tri_uv))
             self._parts[gid] = _PartData(
                 triangles=part.triangles,
                 tri_uv=part.tri_uv,
                 vertex_normals=part.vertex_normals if part.smooth else None,
-                pyramid=pyr,
+                pyramid=_mip_pyramid(part.texture),
                 texel_size_m=float(part.texel_size_m),
                 label=int(part.label),
+                slope_pyramid=slopes,
             )
             offsets[gid] = n_tri
             uvs.append(part.tri_uv.astype(np.float32))
@@ -120,6 +176,7 @@ class Renderer:
         self._tri_uv = np.concatenate(uvs) if uvs else np.zeros((0, 3, 2), np.float32)
         self._corner_normals = np.concatenate(corner_normals) if corner_normals else np.zeros((0, 3, 3), np.float32)
         self._tri_gid = np.concatenate(part_of_tri) if part_of_tri else np.zeros(0, np.int32)
+        self._tri_tangents = np.concatenate(tangents) if tangents else None
         self._labels_by_gid = np.zeros(max_gid + 2, np.int32)
         for gid, pd in self._parts.items():
             self._labels_by_gid[gid] = pd.label
@@ -230,32 +287,18 @@ class Renderer:
             cos_view = np.abs(ddotn) / dnorm
             # pixel footprint on the surface in metres (mip level selection)
             foot = tt * dnorm / np.float32(fx) / np.sqrt(np.maximum(cos_view, 0.2))
+            slope = np.zeros((len(idx), 3), np.float32) if self.mesostructure is not None else None
             for gid, pd in self._parts.items():
                 sel = np.flatnonzero(gids == gid) if len(self._parts) > 1 else np.arange(len(idx))
                 if len(sel) == 0:
                     continue
                 level = np.log2(np.maximum(foot[sel] / pd.texel_size_m, 1e-6))
                 level = np.clip(level, 0.0, len(pd.pyramid) - 1.0)
-                l0 = np.floor(level).astype(np.int64)
-                frac = (level - l0).astype(np.float32)[:, None]
-                uvs = uv[sel]
-                out = np.empty((len(sel), 3), np.float32)
-                lo, hi = int(l0.min()), int(l0.max())
-                for lv in range(lo, hi + 1):
-                    m = slice(None) if lo == hi else np.flatnonzero(l0 == lv)
-                    if not isinstance(m, slice) and len(m) == 0:
-                        continue
-                    acc = None
-                    for k, wgt in ((lv, 1.0 - frac[m]), (min(lv + 1, len(pd.pyramid) - 1), frac[m])):
-                        tex = pd.pyramid[k]
-                        th, tw = tex.shape[:2]
-                        x = uvs[m, 0] * np.float32(tw) - np.float32(0.5)
-                        y = uvs[m, 1] * np.float32(th) - np.float32(0.5)
-                        smp = _remap_1d(tex, x, y)
-                        smp *= wgt
-                        acc = smp if acc is None else acc + smp
-                    out[m] = acc
-                albedo[sel] = out
+                albedo[sel] = _sample_mipmapped(pd.pyramid, uv[sel], level)
+                if slope is not None and pd.slope_pyramid is not None:
+                    slope[sel] = _sample_mipmapped(pd.slope_pyramid, uv[sel], level)
+            if slope is not None:
+                shade_n = _bent_normals(shade_n, slope, self._tri_tangents[gtri])
         labels = self._labels_by_gid[gids]
         return idx, tt, labels, shade_n, geo_n, albedo
 

@@ -38,7 +38,7 @@ SIM_SCENES = {
     "test_block": ("mural", "lettered_slab"),
     "outdoor_relief": ("relief_panel", "stele"),
     "statue": ("statue",),
-    MULTILIGHT_KIND: ("statue", "sphere"),
+    MULTILIGHT_KIND: ("statue", "grey_sphere"),
 }
 #: An FGCD observation's lightings: the environment light first, then six side lights around the lens.
 FGCD_LIGHTINGS = ("front", "led:2", "led:4", "led:6", "led:8", "led:10", "led:12")
