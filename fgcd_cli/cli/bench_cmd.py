@@ -80,6 +80,9 @@ def lighting(
     quick: bool = typer.Option(
         False, "--quick", help="One real group per kind, one multi-light object, one scene each."
     ),
+    mesostructure: float = typer.Option(
+        0.0, "--mesostructure", min=0.0, help="RMS slope of the simulated surfaces' sub-millimetre relief (0: smooth)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Registration across lightings (paper 000, Table 1): real photographs beside their simulated counterparts."""
@@ -87,7 +90,7 @@ def lighting(
 
     if not as_json:
         info("registering across lightings: real photographs, then simulated scenes of the same kinds…")
-    data = run(quick=quick, say=(lambda text: None) if as_json else info)
+    data = run(quick=quick, mesostructure_slope=mesostructure, say=(lambda text: None) if as_json else info)
 
     def show(console):
         if not data["real_available"]:

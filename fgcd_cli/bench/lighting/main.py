@@ -23,6 +23,7 @@ from fgcd_cli.bench.lighting.photographs import FGCD_KINDS, MULTILIGHT_KIND, fgc
 from fgcd_cli.bench.lighting.renders import SIM_SCENES, sim_fgcd_rows, sim_multilight_rows
 from fgcd_cli.bench.lighting.sphere import sphere_shading
 from fgcd_cli.bench.paths import FGCD_DATASET, MULTILIGHT
+from fgcd_drivers.sim.mesostructure import Mesostructure
 
 __all__ = ["RATE_TOLERANCE", "MEDIAN_FACTOR", "run"]
 
@@ -73,7 +74,7 @@ def _brief(out: dict) -> dict:
     }
 
 
-def _sim(kinds: list[str], quick: bool, say: Callable) -> tuple[list[dict], list[dict]]:
+def _sim(kinds: list[str], quick: bool, meso, say: Callable) -> tuple[list[dict], list[dict]]:
     """Cross-lighting rows of the simulated counterparts of ``kinds``."""
     rows, scenes = [], []
     directions = _directions() if (MULTILIGHT / "lights.txt").exists() else None
@@ -82,9 +83,9 @@ def _sim(kinds: list[str], quick: bool, say: Callable) -> tuple[list[dict], list
             if kind == MULTILIGHT_KIND:
                 if directions is None:
                     continue
-                out = sim_multilight_rows(name, directions, say=say)
+                out = sim_multilight_rows(name, directions, meso=meso, say=say)
             else:
-                out = sim_fgcd_rows(kind, name, say=say)
+                out = sim_fgcd_rows(kind, name, meso=meso, say=say)
             rows += out["rows"]
             scenes.append({"name": name, "kind": kind, **_brief(out)})
     return rows, scenes
@@ -115,8 +116,11 @@ def _flat(prefix: str, s: dict) -> dict:
     return {f"{prefix}_{k}": s.get(k) for k in keys if k in s} | {f"{prefix}_pairs": s.get("pairs", 0)}
 
 
-def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
+def run(*, quick: bool = False, mesostructure_slope: float = 0.0, say: Callable[[str], None] = print) -> dict:
     """Run the protocol on the real photographs and their simulated counterparts.
+
+    ``mesostructure_slope``: the simulated scenes' RMS mesostructure slope
+    (:class:`fgcd_drivers.sim.mesostructure.Mesostructure`; 0: smooth surfaces).
 
     Returns
     -------
@@ -138,7 +142,7 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
     )
     if not kinds:
         kinds = sorted(SIM_SCENES)
-    sim_rows, scenes = _sim(kinds, quick, say)
+    sim_rows, scenes = _sim(kinds, quick, Mesostructure(slope_rms=mesostructure_slope), say)
 
     def rows_of(rows, kind=None, matcher=Matcher.SIFT):
         return [r for r in rows if r["matcher"] == matcher and (kind is None or r["kind"] == kind)]
@@ -183,7 +187,12 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
             f"{sphere['lambert_rel_rms_median']:.3f} relative RMS (median over the lights)"
         )
     return {
-        "settings": {"quick": quick, "rate_tolerance": RATE_TOLERANCE, "median_factor": MEDIAN_FACTOR},
+        "settings": {
+            "quick": quick,
+            "rate_tolerance": RATE_TOLERANCE,
+            "median_factor": MEDIAN_FACTOR,
+            "mesostructure_slope": mesostructure_slope,
+        },
         "real_available": bool(real_rows),
         "kinds": per_kind,
         "matchers": matchers,
