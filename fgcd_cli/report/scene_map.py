@@ -106,12 +106,26 @@ def scene_uncertainty_figure(scene_map, coarse_log: list[dict] | None = None):
                 ax.annotate(str(k), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8, color="white")
         ax.set_xlim(extent[0], extent[1])
         ax.set_ylim(extent[2], extent[3])
-        ax.set_title(title, fontsize=10)
+        ax.set_title(title + uniform_note(values), fontsize=10)
         ax.set_xlabel("x right of the reference camera (mm)")
         fig.colorbar(im, ax=ax, shrink=0.85)
     axes[0].set_ylabel("y below the reference camera (mm)")
     axes[0].legend(loc="lower left", fontsize=7, framealpha=0.8)
     return fig
+
+
+def uniform_note(values: np.ndarray) -> str:
+    """``"\n(1 % at every position)"`` when a panel's map is one value everywhere, else ``""``.
+
+    A map that is the same everywhere says one thing, not where: the title says it
+    (a flat object's 3D localizer, predicted to fail from every position, is a
+    computed 0, not a missing map).
+    """
+    v = np.asarray(values, dtype=float)
+    finite = v[np.isfinite(v)]
+    if finite.size == 0 or float(finite.max() - finite.min()) > 1e-9:
+        return ""
+    return f"\n({finite.max():.0%} at every position)"
 
 
 def scene_uncertainty_section(scene_map, coarse_log: list[dict] | None = None) -> list[str]:
@@ -130,6 +144,12 @@ def scene_uncertainty_section(scene_map, coarse_log: list[dict] | None = None) -
         'localizer is predicted to succeed (docs/relocation.md, "Scene uncertainty"). Seen from behind the '
         "reference camera (green star)."
     )
+    if not np.any(np.asarray(scene_map.geometry_successes)):
+        caption += (
+            " The 3D localizer is predicted to fail from every position: the visible surface leaves a "
+            "direction unconstrained (a flat or nearly flat object); the revisit's own 3D alignment, "
+            "which starts near the reference, is a different test."
+        )
     if coarse_positions_mm(coarse_log)[2]:
         caption += " Cyan: the camera positions the coarse stage estimated, by step (filled: verified)."
     return [

@@ -314,3 +314,11 @@ def test_a_reference_without_a_cloud_gives_no_map_and_says_why(tmp_path):
     assert station_scene_uncertainty(station, CAMERA, say=said.append) is None
     assert len(said) == 1 and "fixed order" in said[0] and "cloud_points" in said[0]
     assert not list(tmp_path.glob("scene_uncertainty-*"))
+
+
+def test_a_panel_that_is_one_value_everywhere_says_so():
+    from fgcd_cli.report.scene_map import uniform_note
+
+    assert uniform_note(np.zeros((3, 4))) == "\n(0% at every position)"
+    assert uniform_note(np.full((3, 4), 0.25)) == "\n(25% at every position)"
+    assert uniform_note(np.array([[0.0, 0.5]])) == ""  # a map that varies says where: no note
