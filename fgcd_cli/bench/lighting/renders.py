@@ -36,7 +36,7 @@ __all__ = [
 
 #: Simulated scenes standing for each real kind (the first one is the quick run's).
 SIM_SCENES = {
-    "test_block": ("mural", "lettered_slab"),
+    "test_block": ("test_block", "mural"),
     "outdoor_relief": ("relief_panel", "stele"),
     "statue": ("statue",),
     MULTILIGHT_KIND: ("statue", "grey_sphere"),
