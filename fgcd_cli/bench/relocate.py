@@ -184,7 +184,7 @@ def _relocation_row(vis, truth: dict, *, wall_s: float) -> dict:
         "session_s_with_rendering": r.session_s + r.synthetic_s,
         "wall_s": wall_s,
         "success": bool(truth["afd_px"] < 3.0),
-        **_residual_summary(r.residual),
+        **residual_fields(r.residual),
     }
     # The 3D loop's own end (before the final image stage), from the log's evaluation records.
     racr = [rec for rec in r.records if rec.stage != EstimateStage.IMAGE and rec.truth]
@@ -220,7 +220,7 @@ def _calibrate_and_capture(case: Case, camp, st, *, say, deterministic: bool) ->
     return X, cam
 
 
-def _residual_summary(residual) -> dict:
+def residual_fields(residual) -> dict:
     """The run's own final residual estimate (not truth), for comparison with the truth."""
     if residual is None:
         return {"residual_mm": None, "residual_sigma_mm": None, "tolerance_mm": None, "residual_source": None}

@@ -195,3 +195,31 @@ def test_report_shows_change_detection_after_each_method():
     assert "| indoor-2 | relief_panel | 0.20 | 0.81 | 0 | 4.10 | 0.37 | 5 |" in text
     assert data["summary"]["s55_racr_mean_f1"] == pytest.approx(0.81)
     assert data["summary"]["s55_acr_false_regions"] == 5
+
+
+def test_the_summary_scores_stated_residuals_against_the_truth_and_pure_racrs_median_error():
+    def run(experiment, label, err_mm, stated_mm, sigma_mm):
+        return {
+            "experiment": experiment,
+            "label": label,
+            "method": "racr",
+            "case": "indoor-1",
+            "success": True,
+            "afd_px": 0.3,
+            "pose_err_mm": err_mm,
+            "residual_mm": stated_mm,
+            "residual_sigma_mm": sigma_mm,
+            "adjustments": 2,
+            "session_s": 20.0,
+            "platform_s": 10.0,
+        }
+
+    rows = [
+        run("table2", "racr", 1.0, 0.8, 0.2),  # 1 sigma: covered
+        run("pure", "racr-pure", 6.0, 1.0, 1.0),  # 5 sigma: not covered
+        run("pure", "racr-pure", 4.0, 3.5, 0.5),  # 1 sigma: covered
+        run("pure", "racr-pure", 9.0, 8.0, 1.0),
+    ]
+    summary = paper.summarise(rows)
+    assert summary["racr_coverage_2sigma"] == pytest.approx(3 / 4)
+    assert summary["pure_racr_median_error_mm"] == 6.0

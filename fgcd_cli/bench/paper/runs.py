@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fgcd_cli.bench.relocate import residual_fields
 from fgcd_cli.campaign.atomic import atomic_write_json
 from fgcd_cli.relocation.enums import EstimateStage, LoopMode, RelocationMethod
 
@@ -193,6 +194,7 @@ def _outcome(spec: RunSpec, vis, truth: dict, wall_s: float) -> dict:
         "wall_s": wall_s,
         "success": bool(truth["afd_px"] < 3.0),
         "visit": Path(vis.observation_path).name,
+        **residual_fields(r.residual),  # the run's own stated residual, scored against the truth by coverage
     }
     three_d = [rec for rec in r.records if rec.stage in (EstimateStage.FAST, EstimateStage.FINE) and rec.truth]
     if three_d:
