@@ -403,7 +403,7 @@ DOCUMENTED = [
     row("change-detection.md", r"each (\d+) px tile", D, ("tiling.tile_px", int)),
     row("change-detection.md", r"the score averaged down to (\d+) px", D, ("tiling.decision_px", int)),
     row("change-detection.md", r"split into a rank-(\d+) part and a sparse part", ICCV2015Config(), ("rank", int)),
-    row("change-detection.md", r"close-ups of the (\d+) largest regions", ReportContext(), ("max_closeups", int)),
+    row("change-detection.md", r"close-ups of the (\d+) strongest regions", ReportContext(), ("max_closeups", int)),
     # alignment.md: fast alignment
     row("alignment.md", r"`tau_T = ([0-9.e-]+)`", F, ("convergence.tau_T", NUM)),
     row("alignment.md", r"`tau_sigma = ([0-9.e-]+)`", F, ("convergence.tau_sigma", NUM)),

@@ -7,11 +7,18 @@ as the HTML report (:mod:`fgcd_cli.report.areas`, :mod:`fgcd_cli.report.candidat
 
 from __future__ import annotations
 
-__all__ = ["no_change_lines", "region_line", "result_epsilon", "set_aside_line"]
+__all__ = ["no_change_lines", "region_line", "result_epsilon", "set_aside_line", "strongest_first"]
+
+
+def strongest_first(regions: list[dict]) -> list[dict]:
+    """A diff's regions (JSON form) strongest first, as the report lists them (``changes.regions.by_evidence``)."""
+    from fgcd_cli.changes.regions import evidence_rank
+
+    return sorted(regions, key=lambda r: evidence_rank(r["max_score"], r["area_px"], r["id"]))
 
 
 def region_line(region: dict, *, epsilon: float) -> str:
-    """``#1: 340 px, 3.40 mm² at (200, 60), NFA 1e-12, relief`` (the cue only when known; rich markup)."""
+    """``#1: strength 24.1, 340 px, 3.40 mm² at (200, 60), NFA 1e-12, relief`` (cue and strength when known)."""
     from fgcd_cli.report.areas import area_mm2_text
     from fgcd_cli.report.candidates import region_significance_text
 
@@ -19,7 +26,8 @@ def region_line(region: dict, *, epsilon: float) -> str:
     x, y = region["centroid_xy"]
     cue = f", [bold]{region['cue']}[/bold]" if region.get("cue") else ""
     significance = region_significance_text(region.get("log10_nfa"), epsilon=epsilon)
-    return f"#{region['id']}: {region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}"
+    strength = f"strength {region['strength']:.1f}, " if region.get("strength") is not None else ""
+    return f"#{region['id']}: {strength}{region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}"
 
 
 def no_change_lines(candidates: list[dict], *, epsilon: float, more: int = 2) -> list[str]:

@@ -14,7 +14,7 @@ HELP = "Find fine-grained changes between reference and current images; write ma
 
 
 def _render(data: dict):
-    from fgcd_cli.app.diff_summary import no_change_lines, region_line, result_epsilon, set_aside_line
+    from fgcd_cli.app.diff_summary import no_change_lines, region_line, result_epsilon, set_aside_line, strongest_first
 
     def render(console):
         if not data["comparable"]:
@@ -28,9 +28,10 @@ def _render(data: dict):
                     console.print(line, markup=False)
             else:
                 console.print(
-                    f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area"
+                    f"[bold]{n}[/bold] changed region(s), {data['changed_fraction'] * 100:.2f} % of the compared area; "
+                    "strongest first"
                 )
-            for r in data["regions"][:10]:
+            for r in strongest_first(data["regions"])[:10]:
                 console.print("  " + region_line(r, epsilon=epsilon))
             set_aside = int((data.get("settings") or {}).get("edge_explained_regions") or 0)
             if set_aside:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcd_cli.changes.config import RegionConfig
+from fgcd_cli.changes.regions import by_evidence
 from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.metrics.afd import FdfResult
 from fgcd_cli.report.areas import area_mm2_text
@@ -124,9 +125,15 @@ def _verdict_body(result: ChangeResult) -> str:
         if all(v is not None for v in mm2)
         else f"{total_px} px (no metric scale given)"
     )
+    top = by_evidence(result.regions)[0]
+    high = result.detection_level or 1.0
+    where = f"at ({top.centroid_xy[0]:.0f}, {top.centroid_xy[1]:.0f})"
+    size = area_mm2_text(top.area_mm2, top.area_px) if top.area_mm2 is not None else f"{top.area_px} px"
     return (
         f'<div class="verdict"><b>{n} changed region{"s" if n > 1 else ""}</b>, total area {area}, '
-        f"{result.changed_fraction * 100:.2f} % of the compared surface. Region 1 is the largest.</div>"
+        f"{result.changed_fraction * 100:.2f} % of the compared surface. Strongest: region {top.id}, "
+        f"{top.max_score / high:.1f} × the detection level, {size} {where}; the table and the close-ups "
+        "list the regions strongest first.</div>"
     )
 
 
@@ -312,7 +319,7 @@ def _changes_section(
 
 
 def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
-    """The changed regions as a table (largest first), with what its columns mean."""
+    """The changed regions as a table (strongest first, :func:`by_evidence`), with what its columns mean."""
     has_mm2 = any(r.area_mm2 is not None for r in result.regions)
     header = (
         "<tr><th>#</th><th>area (px)</th>"
@@ -323,7 +330,7 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
     epsilon = _epsilon(result)
     rows = []
     high = result.detection_level or 1.0
-    for r in result.regions[:max_rows]:
+    for r in by_evidence(result.regions)[:max_rows]:
         x, y, w, h = r.bbox_xywh
         rows.append(
             f"<tr><td>{r.id}</td><td>{r.area_px}</td>"
@@ -336,7 +343,7 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
     more = len(result.regions) - max_rows
     parts = [f"<h2>Changed regions</h2><table>{header}{''.join(rows)}</table>"]
     if more > 0:
-        parts.append(f'<p class="small">… and {more} smaller regions (all in regions.json).</p>')
+        parts.append(f'<p class="small">… and {more} weaker regions (all in regions.json).</p>')
     parts.append(
         '<p class="small">Positions are pixels of the reference image (x to the right, y down). '
         "Strength: the region's largest change score over the level at which the decision starts a "
@@ -351,21 +358,21 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
 
 
 def _closeups(ref_image: np.ndarray, shown_cur: np.ndarray, result: ChangeResult, max_closeups: int) -> list[str]:
-    """Each of the largest regions enlarged: reference | current | reference with the region outlined."""
+    """Each of the strongest regions enlarged: reference | current | reference with the region outlined."""
     high = result.detection_level or 1.0
     parts = [
         '<h2>Close-ups</h2><p class="small">Each region enlarged: reference | current '
         "(registered, light-normalized) | reference with the region outlined.</p>"
         '<div class="closeups">'
     ]
-    for r in result.regions[:max_closeups]:
+    for r in by_evidence(result.regions)[:max_closeups]:
         area = area_mm2_text(r.area_mm2, r.area_px) if r.area_mm2 is not None else f"{r.area_px} px"
         tile = region_closeup(ref_image, shown_cur, result.labels, r)
         extra = (f", NFA {nfa_text(r.log10_nfa)}" if r.log10_nfa is not None else "") + (f", {r.cue}" if r.cue else "")
         parts.append(_figure(png_bytes(tile), f"Region {r.id}: {area}, strength {r.max_score / high:.1f}{extra}"))
     parts.append("</div>")
     if len(result.regions) > max_closeups:
-        parts.append(f'<p class="small">Close-ups of the {max_closeups} largest regions only.</p>')
+        parts.append(f'<p class="small">Close-ups of the {max_closeups} strongest regions only.</p>')
     return parts
 
 

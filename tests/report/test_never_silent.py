@@ -4,6 +4,7 @@ import json
 import re
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -240,9 +241,14 @@ def test_cli_region_lines_show_significance_and_cue():
         ),
     ]
     printed = _printed(result_summary(_result(regions=regions, labels=labels)) | {"output": "out"})
-    assert "#1: 100 px, 0.250 mm² at (64, 14), NFA 1e-12, both" in printed  # to the 0.0025 mm² of a pixel
-    assert "#2: 36 px at (12, 82), not significant (NFA ≥ 1)" in printed
+    # strength: the peak score over the detection level (5.0 here: 12 / 5 and 7 / 5)
+    assert "#1: strength 2.4, 100 px, 0.250 mm² at (64, 14), NFA 1e-12, both" in printed  # to the 0.0025 mm²
+    assert "#2: strength 1.4, 36 px at (12, 82), not significant (NFA ≥ 1)" in printed
     assert "strongest candidate" not in printed
+    # listed strongest first, not largest first: a small strong region before a large weak one
+    regions[1] = replace(regions[1], max_score=30.0)
+    printed = _printed(result_summary(_result(regions=regions, labels=labels)) | {"output": "out"})
+    assert printed.index("#2: strength 6.0") < printed.index("#1: strength 2.4")
 
 
 def test_diff_json_output_is_one_object_with_candidates(tmp_path):
@@ -304,3 +310,36 @@ def test_verdict_has_no_set_aside_note_when_the_check_set_nothing_aside():
     html = diff_products(ref_images=[_scene()], cur_images=[_scene()], result=_result())["report.html"].decode()
     assert "set aside along an edge" not in html
     assert "set aside" not in _printed({**result_summary(_result()), "output": "out"})
+
+
+def test_the_report_names_the_strongest_region_and_lists_regions_strongest_first():
+    from fgcd_cli.report.html import ReportContext, render_diff_report
+
+    labels = np.zeros((SIZE, SIZE), np.int32)
+    labels[5:95, 2:8] = 1  # a long weak strip along an edge: the largest
+    labels[60:66, 60:66] = 2  # a small strong loss
+    strip = ChangeRegion(
+        id=1,
+        area_px=540,
+        area_mm2=None,
+        bbox_xywh=(2, 5, 6, 90),
+        centroid_xy=(4.5, 49.5),
+        mean_score=6.0,
+        max_score=12.0,
+    )
+    loss = ChangeRegion(
+        id=2,
+        area_px=36,
+        area_mm2=None,
+        bbox_xywh=(60, 60, 6, 6),
+        centroid_xy=(62.5, 62.5),
+        mean_score=60.0,
+        max_score=120.0,
+    )
+    image = np.full((SIZE, SIZE), 0.5, np.float32)
+    page = render_diff_report(
+        ref_image=image, cur_image=image, result=_result(regions=[strip, loss], labels=labels), context=ReportContext()
+    )
+    assert "Strongest: region 2, 24.0 × the detection level" in page
+    table = page[page.index("<h2>Changed regions</h2>") :]
+    assert table.index("<tr><td>2</td>") < table.index("<tr><td>1</td>")
