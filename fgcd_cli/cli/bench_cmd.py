@@ -50,6 +50,9 @@ def changes(
 def render(
     quick: bool = typer.Option(False, "--quick", help="Three scenes, three frames each."),
     supersample: int = typer.Option(1, "--supersample", help="Anti-aliasing samples per pixel and axis."),
+    mesostructure: float = typer.Option(
+        0.0, "--mesostructure", min=0.0, help="RMS slope of the surfaces' sub-millimetre relief (0: smooth)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Simulator renderer: time per shaded 640x480 frame for each scene (target <= 200 ms)."""
@@ -57,7 +60,7 @@ def render(
 
     if not as_json:
         info("timing the simulator renderer…")
-    data = run(quick=quick, supersample=supersample)
+    data = run(quick=quick, supersample=supersample, mesostructure=mesostructure)
 
     def show(console):
         for s in data["scenes"]:
