@@ -21,11 +21,11 @@ from fgcd_drivers.sim.textures import fractal_noise
 
 __all__ = ["PLASTER_SLOPE_RMS", "Mesostructure", "slope_texture", "triangle_tangents"]
 
-#: The RMS slope at which the simulated test block's pixel-scale roughness matches real plaster's:
-#: photometric stereo under the multi-light set's 12 lights, the median angle between each normal and
-#: its 2-pixel Gaussian neighbourhood is 8.7 deg on the real plaster buddha and 8.8 deg on the
-#: ``test_block`` rendered with this slope (6.1 deg without; docs/lab/2026-12-06-lighting.md, "Lead 4").
-#: Not yet the simulator's default: the benches run on the smooth world until they are re-measured.
+#: The RMS slope at which the simulated test block's pixel-scale roughness matches real plaster's,
+#: both measured the same way: photometric stereo under the multi-light set's 12 lights, the median
+#: angle between each normal and its 2-pixel Gaussian neighbourhood (the figures:
+#: docs/lab/2026-12-06-lighting.md, "Lead 4"). Not yet the simulator's default: the benches run on
+#: the smooth world until they are re-measured.
 PLASTER_SLOPE_RMS = 0.2
 
 

@@ -97,11 +97,7 @@ def relocate_and_capture(
         state = session.settle(frames=2)
         points = np.asarray(state.cloud.points, dtype=float) * scale.scale
         images = grab_images(rig, request.lightings)
-        meta = _visit_metadata(rig, request, scale, result, coarse_result)
-        meta["relocation"]["image_stage"] = {
-            "measured_under": measurement[1] or "the day's light",
-            "compared_with": list(measurement[0]),
-        }
+        meta = _visit_metadata(rig, request, scale, result, coarse_result, measurement=measurement)
         rig.progress(0, 0, "writing the visit")
         log = "".join(
             [json.dumps(e) + "\n" for e in request.earlier_log] + [r.to_json() + "\n" for r in result.records]
@@ -239,9 +235,16 @@ def _measurement_images(rig: RigHandles, station) -> tuple[dict[str, np.ndarray]
 
 
 def _visit_metadata(
-    rig: RigHandles, request: RelocateRequest, scale, result: RelocationResult, coarse_result: CoarseResult | None
+    rig: RigHandles,
+    request: RelocateRequest,
+    scale,
+    result: RelocationResult,
+    coarse_result: CoarseResult | None,
+    *,
+    measurement: tuple[dict[str, np.ndarray], str | None],
 ) -> dict:
-    """The visit manifest's metadata: lightings, scale, the relocation's outcome and the rig's calibration."""
+    """The visit manifest's metadata: lightings, scale, the relocation's outcome (with the light its image
+    stage measured under, ``measurement`` from :func:`_measurement_images`) and the rig's calibration."""
     return {
         "lightings": request.lightings,
         "scale": scale.__dict__,
@@ -256,6 +259,10 @@ def _visit_metadata(
             "mode": request.config.mode,
             "run": run_conditions(request.config, request.metadata),
             "residual": result.residual.to_dict() if result.residual else None,
+            "image_stage": {
+                "measured_under": measurement[1] or "the day's light",
+                "compared_with": list(measurement[0]),
+            },
         },
         "coarse": None
         if coarse_result is None

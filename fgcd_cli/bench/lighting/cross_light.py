@@ -26,7 +26,9 @@ __all__ = [
     "Matcher",
     "RANSAC_PX",
     "PairMatch",
+    "MIN_CONSENSUS",
     "consensus_homography",
+    "same_lighting_consensus",
     "corner_error_px",
     "match_pair",
     "score_pairs",
@@ -35,6 +37,8 @@ __all__ = [
 
 #: A registration with fewer RANSAC inliers than this has failed (the issue's protocol: < 8 inliers).
 MIN_INLIERS = 8
+#: Same-lighting registrations a consensus needs (of an FGCD group's 7).
+MIN_CONSENSUS = 3
 #: RANSAC reprojection threshold, pixels (the project's homography registration, ``changes/registration.py``).
 RANSAC_PX = 3.0
 
@@ -155,6 +159,29 @@ def consensus_homography(homographies: list[np.ndarray]) -> np.ndarray | None:
         return None
     stack = np.stack([H / H[2, 2] for H in homographies])
     return np.median(stack, axis=0)
+
+
+def same_lighting_consensus(references: list, currents: list) -> tuple[np.ndarray | None, float, str]:
+    """The consensus of an observation pair taken under the same lightings, and its spread.
+
+    Parameters
+    ----------
+    references, currents : lists of images
+        The two observations, one image per lighting, in the same order.
+
+    Returns
+    -------
+    (H_consensus or None, spread_px, reason)
+        The median of the same-lighting homographies (None below :data:`MIN_CONSENSUS`
+        registrations, ``reason`` saying so), and the median corner distance of those
+        homographies from it (px).
+    """
+    good = [m.H_cur_ref for m in (match_pair(r, c) for r, c in zip(references, currents)) if not m.failed]
+    if len(good) < MIN_CONSENSUS:
+        return None, float("nan"), f"{len(good)} of {len(references)} same-lighting registrations: no consensus"
+    H_c = consensus_homography(good)
+    shape = references[0].shape[:2]
+    return H_c, float(np.median([corner_error_px(H, H_c, shape) for H in good])), ""
 
 
 def corner_error_px(H: np.ndarray, H_consensus: np.ndarray, shape: tuple[int, int]) -> float:

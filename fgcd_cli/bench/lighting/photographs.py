@@ -23,9 +23,9 @@ import numpy as np
 from fgcd_cli.app.diff import measure_fdf
 from fgcd_cli.bench.lighting.cross_light import (
     Matcher,
-    consensus_homography,
     corner_error_px,
     match_pair,
+    same_lighting_consensus,
     score_pairs,
 )
 
@@ -107,13 +107,9 @@ def fgcd_group_rows(group: Path, *, say: Callable = print) -> dict:
         return {"rows": [], "reason": "no environment-light pair (1-1, 2-1)"}
     ref = {k: _read(group / f"2-{k}.png") for k in lightings}
     cur = {k: _read(group / f"1-{k}.png") for k in lightings}
-    same = [match_pair(ref[k], cur[k]) for k in lightings]
-    good = [m.H_cur_ref for m in same if not m.failed]
-    if len(good) < 3:
-        return {"rows": [], "reason": f"{len(good)} of {len(lightings)} same-lighting registrations: no consensus"}
-    H_c = consensus_homography(good)
-    shape = ref[1].shape[:2]
-    spread = float(np.median([corner_error_px(H, H_c, shape) for H in good]))
+    H_c, spread, reason = same_lighting_consensus([ref[k] for k in lightings], [cur[k] for k in lightings])
+    if H_c is None:
+        return {"rows": [], "reason": reason}
     afd_same = _afd(ref[1], cur[1])
     pairs = [(f"2-1/1-{k}", ref[1], cur[k]) for k in lightings if k != 1]
     rows = _pair_rows(kind, group.name, pairs, H_c, afd_same)

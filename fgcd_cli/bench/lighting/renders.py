@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from fgcd_cli.bench.lighting.cross_light import consensus_homography, corner_error_px, match_pair, score_pairs
+from fgcd_cli.bench.lighting.cross_light import same_lighting_consensus, score_pairs
 from fgcd_cli.bench.lighting.photographs import MULTILIGHT_KIND, failed_counts, frontal_light, known_motion, resampled
 from fgcd_core.se3 import exp_se3
 from fgcd_drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, STILL_SUPERSAMPLE
@@ -69,13 +69,9 @@ def sim_fgcd_rows(kind: str, scene_name: str, *, meso: Mesostructure | None = No
     T_cur = _offset_pose(T_ref, *REVISIT_OFFSET)
     ref = [_still(renderer, T_ref, name, rng) for name in FGCD_LIGHTINGS]
     cur = [_still(renderer, T_cur, name, rng) for name in FGCD_LIGHTINGS]
-    same = [match_pair(r, c) for r, c in zip(ref, cur)]
-    good = [m.H_cur_ref for m in same if not m.failed]
-    if len(good) < 3:
-        return {"rows": [], "reason": f"{len(good)} of 7 same-lighting registrations: no consensus"}
-    H_c = consensus_homography(good)
-    shape = ref[0].shape[:2]
-    spread = float(np.median([corner_error_px(H, H_c, shape) for H in good]))
+    H_c, spread, reason = same_lighting_consensus(ref, cur)
+    if H_c is None:
+        return {"rows": [], "reason": reason}
     pairs = [(f"{FGCD_LIGHTINGS[0]}/{FGCD_LIGHTINGS[k]}", ref[0], cur[k]) for k in range(1, len(FGCD_LIGHTINGS))]
     rows = score_pairs(kind, scene_name, pairs, H_c)
     say(f"sim {kind} {scene_name}: same-lighting spread {spread:.2f} px, {failed_counts(rows)}")
