@@ -33,7 +33,9 @@ __all__ = [
 DEFAULT_INTRINSICS = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
 
 #: A realistic small sensor: vignetting, read and shot noise, gamma.
-DEFAULT_EFFECTS = CameraEffects(gamma=2.2, vignetting=0.15, read_noise=0.002, shot_noise=0.006, max_exposure=32.0)
+DEFAULT_EFFECTS = CameraEffects(
+    gamma=2.2, vignetting=0.15, read_noise=0.002, shot_noise=0.006, max_exposure=32.0, bit_depth=8
+)
 
 
 class IntrinsicsErrorLevel(StrEnum):

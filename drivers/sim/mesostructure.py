@@ -3,7 +3,7 @@
 Real stone and plaster are rough below a millimetre: under a side light each
 grain is lit on one flank and dark on the other, so the shading texture of a
 surface moves with the light while its albedo does not (docs/simulator.md,
-"Mesostructure"). The renderer bends each shading normal by the local slope of
+"Appearance"). The renderer bends each shading normal by the local slope of
 a height field ``h`` (classic bump mapping): ``n' ∝ n - grad h`` with
 ``grad h`` in the surface's tangent plane. The slope field is a wrapped
 fractal texture in each part's own texture space, filtered with the same mip
@@ -24,8 +24,7 @@ __all__ = ["PLASTER_SLOPE_RMS", "Mesostructure", "slope_texture", "triangle_tang
 #: The RMS slope at which the simulated test block's pixel-scale roughness matches real plaster's,
 #: both measured the same way: photometric stereo under the multi-light set's 12 lights, the median
 #: angle between each normal and its 2-pixel Gaussian neighbourhood (the figures:
-#: docs/lab/2026-12-06-lighting.md, "Lead 4"). Not yet the simulator's default: the benches run on
-#: the smooth world until they are re-measured.
+#: docs/lab/2026-12-06-lighting.md, "Lead 4"). The calibrated world's slope (appearance.WORLDS).
 PLASTER_SLOPE_RMS = 0.2
 
 

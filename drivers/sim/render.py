@@ -8,7 +8,8 @@ normals are interpolated from per-triangle data; albedo is sampled bilinearly
 from a mip pyramid (trilinear between levels, chosen from the pixel footprint)
 so that distant texture does not alias. Shading is Lambert with an ambient
 (optionally hemispherical) term and hard cast shadows (occlusion rays towards
-each light). Optional supersampling (``supersample=s``) shades an s x s grid per
+each light), plus the world's specular lobe and mesostructure
+(:mod:`fgcd_drivers.sim.appearance`). Optional supersampling (``supersample=s``) shades an s x s grid per
 pixel and box-filters it (anti-aliased edges); depth, normals, labels, change
 masks and change ids always come from the pixel centres.
 
@@ -28,9 +29,10 @@ import numpy as np
 import open3d as o3d
 
 from fgcd_core.camera import CameraIntrinsics
+from fgcd_drivers.sim.appearance import Appearance, ggx_specular, world_appearance
 from fgcd_drivers.sim.changes import evaluate_changes
 from fgcd_drivers.sim.lights import Lighting, lighting_preset
-from fgcd_drivers.sim.mesostructure import Mesostructure, slope_texture, triangle_tangents
+from fgcd_drivers.sim.mesostructure import slope_texture, triangle_tangents
 from fgcd_drivers.sim.render_buffers import RenderResult, Surface
 from fgcd_drivers.sim.scene import Scene
 from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
@@ -125,15 +127,18 @@ class Renderer:
         Shading samples per pixel along each axis (1 = one ray per pixel).
     nthreads : int
         Open3D ray-casting threads (0 = all cores).
+    appearance : Appearance, optional
+        The world's surfaces (default: :func:`fgcd_drivers.sim.appearance.world_appearance`,
+        the process's world).
     """
 
-    def __init__(
-        self, scene: Scene, *, supersample: int = 1, nthreads: int = 0, mesostructure: Mesostructure | None = None
-    ):
+    def __init__(self, scene: Scene, *, supersample: int = 1, nthreads: int = 0, appearance: Appearance | None = None):
         if supersample < 1:
             raise ValueError("supersample must be >= 1")
         self.scene = scene
-        self.mesostructure = mesostructure if mesostructure is not None and mesostructure.slope_rms > 0 else None
+        self.appearance = appearance if appearance is not None else world_appearance()
+        meso = self.appearance.mesostructure
+        self.mesostructure = meso if meso.slope_rms > 0 else None
         self.supersample = int(supersample)
         self.nthreads = int(nthreads)
         self._rc = o3d.t.geometry.RaycastingScene()
@@ -322,6 +327,12 @@ class Renderer:
         amb = np.float32(lighting.ambient) * sky * cavity
         E = amb[:, None] * np.asarray(lighting.ambient_colour, np.float32)[None, :]
         offset = None
+        specular = self.appearance.specular
+        to_view = None
+        if specular.f0 > 0 and lighting.lights:
+            to_view = T_world_cam[:3, 3].astype(np.float32)[None, :] - points
+            to_view /= np.maximum(np.sqrt(np.einsum("ij,ij->i", to_view, to_view)), np.float32(1e-9))[:, None]
+        glossy = None
         for light in lighting.lights:
             if light.kind == "point":
                 pos = self._light_world(light, T_world_cam).astype(np.float32)
@@ -352,8 +363,15 @@ class Renderer:
                 else:
                     occ = self.occluded(org, np.broadcast_to(to_light, org.shape), math.inf)
                 strength[li[occ]] = 0.0
-            E += (np.float32(light.intensity) * strength)[:, None] * np.asarray(light.colour, np.float32)[None, :]
-        return albedo * E
+            colour = np.asarray(light.colour, np.float32)[None, :]
+            E += (np.float32(light.intensity) * strength)[:, None] * colour
+            if to_view is not None:
+                # the lobe of a dielectric is the light's colour, not the albedo's (appearance.ggx_specular)
+                to_light_n = L * inv[:, None] if light.kind == "point" else to_light
+                lobe = ggx_specular(shade_n, to_light_n, to_view, specular)
+                lobe = np.where(strength > 0, lobe * np.float32(light.intensity) * atten, np.float32(0))
+                glossy = lobe[:, None] * colour if glossy is None else glossy + lobe[:, None] * colour
+        return albedo * E if glossy is None else albedo * E + glossy
 
     def _shade_rays(self, T_world_cam, dirs_cam, fx, lighting, changes, want_albedo=True):
         """Cast rays and shade: per-ray radiance (N,3) and per-ray buffers."""

@@ -1,4 +1,4 @@
-"""The simulated sensor's response: exposure, vignetting, read and shot noise, gamma.
+"""The simulated sensor's response: exposure, vignetting, read and shot noise, gamma, quantisation, compression.
 
 Applied by :class:`fgcd_drivers.sim.render.Renderer` after shading (linear radiance
 in, image in [0, 1] out).
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 __all__ = ["CameraEffects", "apply_camera_response", "auto_exposure", "LUMA"]
@@ -32,6 +33,11 @@ class CameraEffects:
         Std of signal-dependent noise: sigma^2 = read^2 + shot^2 * value.
     max_exposure : float
         Largest exposure (gain) auto-exposure may use.
+    bit_depth : int or None
+        Bits per sample of the camera's output (8: an 8-bit frame, 12: a raw one); None keeps floats.
+    jpeg_quality : int or None
+        Where the camera compresses its frames (JPEG quality 1-100, on the 8-bit image); None: no
+        compression (the FGCD photographs and the rig's frames are lossless).
     """
 
     gamma: float = 2.2
@@ -39,6 +45,8 @@ class CameraEffects:
     read_noise: float = 0.0
     shot_noise: float = 0.0
     max_exposure: float = 64.0
+    bit_depth: int | None = None
+    jpeg_quality: int | None = None
 
 
 def auto_exposure(
@@ -72,4 +80,20 @@ def apply_camera_response(
     v = np.clip(v, 0.0, 1.0)
     if effects.gamma != 1.0:
         v = v ** np.float32(1.0 / effects.gamma)
+    if effects.jpeg_quality is not None:
+        v = _jpeg_round_trip(v, effects.jpeg_quality)
+    elif effects.bit_depth is not None:
+        levels = np.float32(2**effects.bit_depth - 1)
+        v = np.round(v * levels) / levels
     return v.astype(np.float32)
+
+
+def _jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
+    """The image as an 8-bit JPEG of ``quality`` decodes it (OpenCV's codec), in [0, 1]."""
+    u8 = np.clip(np.round(image * 255.0), 0, 255).astype(np.uint8)
+    colour = u8.ndim == 3
+    ok, buf = cv2.imencode(".jpg", u8[..., ::-1] if colour else u8, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("the JPEG encoder refused the frame")
+    out = cv2.imdecode(buf, cv2.IMREAD_COLOR if colour else cv2.IMREAD_GRAYSCALE)
+    return (out[..., ::-1] if colour else out).astype(np.float32) / np.float32(255.0)

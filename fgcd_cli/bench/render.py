@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from fgcd_core.camera import CameraIntrinsics
-from fgcd_drivers.sim.mesostructure import Mesostructure
+from fgcd_drivers.sim.appearance import world_appearance
 from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import list_scenes, load_scene
 
@@ -18,18 +18,19 @@ __all__ = ["run", "TARGET_MS"]
 TARGET_MS = 200.0
 
 
-def run(*, quick: bool = False, supersample: int = 1, lighting: str = "front", mesostructure: float = 0.0) -> dict:
+def run(*, quick: bool = False, supersample: int = 1, lighting: str = "front") -> dict:
     """Time the shaded gray frame (depth, normals, labels included) of every scene.
 
     Each scene renders ``repeats`` frames at small random offsets around its default
     camera after one warm-up frame (ray cache, first-touch allocations). ``quick``
-    uses 3 scenes and 3 frames each; ``mesostructure``: the surfaces' RMS grain slope (0: smooth).
+    uses 3 scenes and 3 frames each. The world is the process's (``fgcd bench --world``).
 
     Returns
     -------
     dict with ``scenes`` (per-scene medians), ``summary`` (``ms_per_frame_median``
     over all frames, ``ms_per_frame_p90``, ``target_ms``) and the machine load.
     """
+    appearance = world_appearance()
     intr = CameraIntrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
     names = [s.name for s in list_scenes()]
     if quick:
@@ -43,7 +44,7 @@ def run(*, quick: bool = False, supersample: int = 1, lighting: str = "front", m
         t0 = time.perf_counter()
         sc = load_scene(name)
         build_s = time.perf_counter() - t0
-        r = Renderer(sc, supersample=supersample, mesostructure=Mesostructure(slope_rms=mesostructure))
+        r = Renderer(sc, supersample=supersample, appearance=appearance)
         r.render(sc.default_T_world_cam, intr, lighting, want=("gray",))
         times, cpu = [], []
         for _ in range(repeats):
@@ -72,7 +73,7 @@ def run(*, quick: bool = False, supersample: int = 1, lighting: str = "front", m
             "height": 480,
             "supersample": supersample,
             "lighting": lighting,
-            "mesostructure_slope": mesostructure,
+            "world": appearance.name,
             "frames_per_scene": repeats,
             "quick": quick,
         },

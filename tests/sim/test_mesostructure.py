@@ -1,10 +1,11 @@
-"""Mesostructure (docs/simulator.md, "Mesostructure"): relief finer than the mesh, on synthetic ground truth."""
+"""Mesostructure (docs/simulator.md, "Appearance"): relief finer than the mesh, on synthetic ground truth."""
 
 import cv2
 import numpy as np
 import pytest
 
 from fgcd_core.camera import CameraIntrinsics
+from fgcd_drivers.sim.appearance import Appearance
 from fgcd_drivers.sim.mesostructure import Mesostructure, slope_texture, triangle_tangents
 from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
@@ -34,7 +35,7 @@ def test_triangle_tangents_follow_the_texture_axes():
 
 def _plane(meso: Mesostructure | None):
     scene = load_scene("plane")
-    return scene, Renderer(scene, mesostructure=meso)
+    return scene, Renderer(scene, appearance=Appearance(name="test", mesostructure=meso or Mesostructure()))
 
 
 def test_grain_shading_moves_with_the_light_and_not_with_the_camera():

@@ -381,9 +381,17 @@ def _write_overlays(folders, scored, deployed, overlay_dir: Path) -> None:
             )
 
 
-def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
-    """Run the change-detection benchmark; returns ``{"summary": {...}, "real": ..., "sim": ...}``."""
-    real = run_real(quick=quick, overlay_dir=overlay_dir)
+#: The bench's parts: the real FGCD groups, the simulated pairs, the 24 MP case.
+PARTS = ("real", "sim", "large")
+
+
+def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] = PARTS) -> dict:
+    """Run the change-detection benchmark; returns ``{"summary": {...}, "real": ..., "sim": ...}``.
+
+    ``parts``: which of :data:`PARTS` to run (a part not run reports ``{"available": False}``).
+    """
+    skipped = {"available": False, "reason": "not run (--part)"}
+    real = run_real(quick=quick, overlay_dir=overlay_dir) if "real" in parts else skipped
     summary = {}
     if real.get("available"):
         summary.update(
@@ -413,13 +421,14 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
                 )
             }
         )
-    sim = None
+    sim = skipped
     try:
         from fgcd_cli.bench.changes.simulated import run_sim
     except ImportError as exc:  # the simulator part needs fgcd_drivers.sim
         sim = {"available": False, "reason": f"simulator part unavailable: {exc}"}
     else:
-        sim = run_sim(quick=quick)
+        if "sim" in parts:
+            sim = run_sim(quick=quick)
         if sim.get("available"):
             summary.update(
                 {k: sim[k] for k in ("sim_auto_f1", "sim_false_regions_unchanged", "sim_max_false_region_mm2")}
@@ -428,7 +437,7 @@ def run(*, quick: bool, overlay_dir: Path | None = None) -> dict:
             summary.update({k: v for k, v in sim.items() if k.startswith("sim_relocated_")})
     from fgcd_cli.bench.changes.large import run_large
 
-    large = run_large(quick=quick)
+    large = run_large(quick=quick) if "large" in parts else skipped
     if large.get("available"):
         summary.update({k: large[k] for k in ("seconds_per_pair_24mp", "peak_rss_mb_24mp")})
     targets = {

@@ -23,7 +23,7 @@ from fgcd_cli.bench.lighting.photographs import FGCD_KINDS, MULTILIGHT_KIND, fgc
 from fgcd_cli.bench.lighting.renders import SIM_SCENES, sim_fgcd_rows, sim_multilight_rows
 from fgcd_cli.bench.lighting.sphere import sphere_shading
 from fgcd_cli.bench.paths import FGCD_DATASET, MULTILIGHT
-from fgcd_drivers.sim.mesostructure import Mesostructure
+from fgcd_drivers.sim.appearance import world_appearance
 
 __all__ = ["RATE_TOLERANCE", "MEDIAN_FACTOR", "run"]
 
@@ -74,7 +74,7 @@ def _brief(out: dict) -> dict:
     }
 
 
-def _sim(kinds: list[str], quick: bool, meso, say: Callable) -> tuple[list[dict], list[dict]]:
+def _sim(kinds: list[str], quick: bool, appearance, say: Callable) -> tuple[list[dict], list[dict]]:
     """Cross-lighting rows of the simulated counterparts of ``kinds``."""
     rows, scenes = [], []
     directions = _directions() if (MULTILIGHT / "lights.txt").exists() else None
@@ -83,9 +83,9 @@ def _sim(kinds: list[str], quick: bool, meso, say: Callable) -> tuple[list[dict]
             if kind == MULTILIGHT_KIND:
                 if directions is None:
                     continue
-                out = sim_multilight_rows(name, directions, meso=meso, say=say)
+                out = sim_multilight_rows(name, directions, appearance=appearance, say=say)
             else:
-                out = sim_fgcd_rows(kind, name, meso=meso, say=say)
+                out = sim_fgcd_rows(kind, name, appearance=appearance, say=say)
             rows += out["rows"]
             scenes.append({"name": name, "kind": kind, **_brief(out)})
     return rows, scenes
@@ -116,11 +116,8 @@ def _flat(prefix: str, s: dict) -> dict:
     return {f"{prefix}_{k}": s.get(k) for k in keys if k in s} | {f"{prefix}_pairs": s.get("pairs", 0)}
 
 
-def run(*, quick: bool = False, mesostructure_slope: float = 0.0, say: Callable[[str], None] = print) -> dict:
-    """Run the protocol on the real photographs and their simulated counterparts.
-
-    ``mesostructure_slope``: the simulated scenes' RMS mesostructure slope
-    (:class:`fgcd_drivers.sim.mesostructure.Mesostructure`; 0: smooth surfaces).
+def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
+    """Run the protocol on the real photographs and their simulated counterparts (the process's world).
 
     Returns
     -------
@@ -132,7 +129,8 @@ def run(*, quick: bool = False, mesostructure_slope: float = 0.0, say: Callable[
         counterparts over all kinds with SIFT, ``<matcher>_real_*`` / ``<matcher>_sim_*`` for the image
         stage's and the grid matchers, ``real_median_afd_error_px`` (how far ``fgcd afd`` across lightings
         lands from its same-lighting value), ``kinds_met``, and the grey sphere's shading check
-        (``sphere_render_rel_rms_median`` beside ``sphere_lambert_rel_rms_median``,
+        (``sphere_render_rel_rms_median`` with the multi-light camera's linear response,
+        ``sphere_field_camera_rel_rms_median`` with gamma 2.2, beside ``sphere_lambert_rel_rms_median``,
         :mod:`fgcd_cli.bench.lighting.sphere`)).
     """
     t0 = time.monotonic()
@@ -142,7 +140,8 @@ def run(*, quick: bool = False, mesostructure_slope: float = 0.0, say: Callable[
     )
     if not kinds:
         kinds = sorted(SIM_SCENES)
-    sim_rows, scenes = _sim(kinds, quick, Mesostructure(slope_rms=mesostructure_slope), say)
+    appearance = world_appearance()
+    sim_rows, scenes = _sim(kinds, quick, appearance, say)
 
     def rows_of(rows, kind=None, matcher=Matcher.SIFT):
         return [r for r in rows if r["matcher"] == matcher and (kind is None or r["kind"] == kind)]
@@ -182,8 +181,10 @@ def run(*, quick: bool = False, mesostructure_slope: float = 0.0, say: Callable[
         sphere = sphere_shading(MULTILIGHT / "gray", _directions())
         summary["sphere_render_rel_rms_median"] = sphere["render_rel_rms_median"]
         summary["sphere_lambert_rel_rms_median"] = sphere["lambert_rel_rms_median"]
+        summary["sphere_field_camera_rel_rms_median"] = sphere["field_camera_rel_rms_median"]
         say(
-            f"grey sphere: render {sphere['render_rel_rms_median']:.3f}, ideal Lambert "
+            f"grey sphere: render {sphere['render_rel_rms_median']:.3f} (linear camera; gamma 2.2: "
+            f"{sphere['field_camera_rel_rms_median']:.3f}), ideal Lambert "
             f"{sphere['lambert_rel_rms_median']:.3f} relative RMS (median over the lights)"
         )
     return {
@@ -191,7 +192,7 @@ def run(*, quick: bool = False, mesostructure_slope: float = 0.0, say: Callable[
             "quick": quick,
             "rate_tolerance": RATE_TOLERANCE,
             "median_factor": MEDIAN_FACTOR,
-            "mesostructure_slope": mesostructure_slope,
+            "world": appearance.name,
         },
         "real_available": bool(real_rows),
         "kinds": per_kind,

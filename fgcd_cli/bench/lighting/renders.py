@@ -19,9 +19,9 @@ import numpy as np
 from fgcd_cli.bench.lighting.cross_light import same_lighting_consensus, score_pairs
 from fgcd_cli.bench.lighting.photographs import MULTILIGHT_KIND, failed_counts, frontal_light, known_motion, resampled
 from fgcd_core.se3 import exp_se3
+from fgcd_drivers.sim.appearance import Appearance
 from fgcd_drivers.sim.camera import DEFAULT_EFFECTS, DEFAULT_INTRINSICS, STILL_SUPERSAMPLE
 from fgcd_drivers.sim.lights import Light, Lighting
-from fgcd_drivers.sim.mesostructure import Mesostructure
 from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
 
@@ -60,10 +60,10 @@ def _still(renderer: Renderer, T_world_cam: np.ndarray, lighting, rng: np.random
     return np.clip(np.round(np.asarray(res.gray) * 255.0), 0, 255).astype(np.uint8)
 
 
-def sim_fgcd_rows(kind: str, scene_name: str, *, meso: Mesostructure | None = None, say: Callable = print) -> dict:
+def sim_fgcd_rows(kind: str, scene_name: str, *, appearance: Appearance | None = None, say: Callable = print) -> dict:
     """Cross-lighting rows of one simulated scene taken as an FGCD group (same keys as the real rows)."""
     scene = load_scene(scene_name)
-    renderer = Renderer(scene, supersample=STILL_SUPERSAMPLE, mesostructure=meso)
+    renderer = Renderer(scene, supersample=STILL_SUPERSAMPLE, appearance=appearance)
     rng = np.random.default_rng(0)
     T_ref = scene.default_T_world_cam
     T_cur = _offset_pose(T_ref, *REVISIT_OFFSET)
@@ -99,11 +99,11 @@ def multilight_lightings(directions: np.ndarray, T_world_cam: np.ndarray) -> lis
 
 
 def sim_multilight_rows(
-    scene_name: str, directions: np.ndarray, *, meso: Mesostructure | None = None, say: Callable = print
+    scene_name: str, directions: np.ndarray, *, appearance: Appearance | None = None, say: Callable = print
 ) -> dict:
     """Cross-lighting rows of one simulated scene under the multi-light set's directions (fixed camera)."""
     scene = load_scene(scene_name)
-    renderer = Renderer(scene, supersample=STILL_SUPERSAMPLE, mesostructure=meso)
+    renderer = Renderer(scene, supersample=STILL_SUPERSAMPLE, appearance=appearance)
     rng = np.random.default_rng(0)
     T = scene.default_T_world_cam
     images = [_still(renderer, T, lighting, rng) for lighting in multilight_lightings(directions, T)]

@@ -9,6 +9,12 @@ each shot). The error measure is the relative RMS difference of the binned
 grey levels over the bins both see lit and unsaturated; beside it, the same
 measure for an ideal Lambertian sphere with a linear camera, which tells how
 far the real sphere is from that model.
+
+The render is taken as the multi-light camera takes its images: a linear
+response (:data:`MULTILIGHT_CAMERA`; an ideal Lambertian sphere fits the real
+one 0.062 with gamma 1 and 0.161 with 2.2, docs/lab/2026-12-06-lighting.md,
+"Lead 1"), 8 bits, the simulated sensor's noise. The same render through the
+field camera's response (gamma 2.2) is reported beside it.
 """
 
 from __future__ import annotations
@@ -23,8 +29,14 @@ from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.sim.camera import DEFAULT_EFFECTS
 from fgcd_drivers.sim.render import Renderer
 from fgcd_drivers.sim.scenes import load_scene
+from fgcd_drivers.sim.sensor import CameraEffects
 
-__all__ = ["BIN", "DARK", "SATURATED", "binned_by_normal", "gain_fit_error", "sphere_shading"]
+__all__ = ["BIN", "DARK", "SATURATED", "MULTILIGHT_CAMERA", "binned_by_normal", "gain_fit_error", "sphere_shading"]
+
+#: The photometric-stereo set's camera: linear response, 8 bits; noise as the simulated sensor's.
+MULTILIGHT_CAMERA = CameraEffects(
+    gamma=1.0, read_noise=DEFAULT_EFFECTS.read_noise, shot_noise=DEFAULT_EFFECTS.shot_noise, bit_depth=8
+)
 
 #: Width of a normal bin (in the normal's x and y).
 BIN = 0.05
@@ -78,7 +90,7 @@ def _real_sphere(folder: Path, n: int) -> tuple[list[np.ndarray], np.ndarray, np
     return images, normals, inside, (mask.shape, r)
 
 
-def _rendered_sphere(directions: np.ndarray, shape: tuple[int, int], radius_px: float):
+def _rendered_sphere(directions: np.ndarray, shape: tuple[int, int], radius_px: float, effects: CameraEffects):
     scene = load_scene("grey_sphere")
     T = scene.default_T_world_cam
     distance = float(np.linalg.norm(T[:3, 3] - np.array([0.0, 0.0, 1.0])))
@@ -89,7 +101,7 @@ def _rendered_sphere(directions: np.ndarray, shape: tuple[int, int], radius_px: 
     rng = np.random.default_rng(0)
     out, normals, valid = [], None, None
     for lighting in multilight_lightings(directions, T):
-        res = renderer.render(T, intr, lighting, effects=DEFAULT_EFFECTS, rng=rng, want=("gray",))
+        res = renderer.render(T, intr, lighting, effects=effects, rng=rng, want=("gray",))
         out.append(np.clip(np.round(res.gray * 255.0), 0, 255))
         if normals is None:
             n_cam = res.normals @ T[:3, :3]  # world -> OpenCV camera (x right, y down, z forward)
@@ -111,14 +123,17 @@ def sphere_shading(folder: Path, directions: np.ndarray) -> dict:
     Returns
     -------
     dict
-        ``render_rel_rms`` and ``lambert_rel_rms`` (lists, one per light), their medians and maxima.
+        ``render_rel_rms`` (the multi-light camera's response), ``field_camera_rel_rms`` (gamma 2.2)
+        and ``lambert_rel_rms`` (lists, one per light), their medians, the render's maximum.
     """
     real, normals, inside, (shape, radius) = _real_sphere(folder, len(directions))
-    rendered, r_normals, r_valid = _rendered_sphere(directions, shape, radius)
-    render_err, lambert_err = [], []
+    rendered, r_normals, r_valid = _rendered_sphere(directions, shape, radius, MULTILIGHT_CAMERA)
+    field, _, _ = _rendered_sphere(directions, shape, radius, DEFAULT_EFFECTS)
+    render_err, field_err, lambert_err = [], [], []
     for i, (x, y, z) in enumerate(directions):
         real_bins = binned_by_normal(real[i], normals, inside)
         render_err.append(gain_fit_error(real_bins, binned_by_normal(rendered[i], r_normals, r_valid)))
+        field_err.append(gain_fit_error(real_bins, binned_by_normal(field[i], r_normals, r_valid)))
         L = np.array([x, -y, z])  # lights.txt's y is up; the normals' y is down
         lambert = np.clip(normals @ L, 0.0, None) * 255.0
         lambert_err.append(gain_fit_error(real_bins, binned_by_normal(lambert, normals, inside)))
@@ -127,5 +142,7 @@ def sphere_shading(folder: Path, directions: np.ndarray) -> dict:
         "lambert_rel_rms": lambert_err,
         "render_rel_rms_median": float(np.nanmedian(render_err)),
         "render_rel_rms_max": float(np.nanmax(render_err)),
+        "field_camera_rel_rms": field_err,
+        "field_camera_rel_rms_median": float(np.nanmedian(field_err)),
         "lambert_rel_rms_median": float(np.nanmedian(lambert_err)),
     }
