@@ -24,9 +24,10 @@ from fgcd_drivers.sim.scene import OBJECT_LABEL, Scene, SceneInfo
 from fgcd_drivers.sim.scene_builders import BUILDERS as _BASE_BUILDERS
 from fgcd_drivers.sim.scene_builders_arch import ARCH_BUILDERS
 from fgcd_drivers.sim.scene_builders_lab import LAB_BUILDERS
+from fgcd_drivers.sim.scene_builders_rock import ROCK_BUILDERS
 from fgcd_drivers.sim.transforms import look_at
 
-BUILDERS = {**_BASE_BUILDERS, **ARCH_BUILDERS, **LAB_BUILDERS}
+BUILDERS = {**_BASE_BUILDERS, **ARCH_BUILDERS, **LAB_BUILDERS, **ROCK_BUILDERS}
 
 __all__ = [
     "scenes_dir",

@@ -101,3 +101,50 @@ def sweep_scores(score: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray 
     best = int(np.argmax(f1))
     ap = float(np.sum(np.diff(np.r_[0.0, recall]) * precision))
     return SweepScores(best_f1=float(f1[best]), best_threshold=float(thresholds[best]), average_precision=ap)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RegionCounts:
+    """What a conservator counts on a change map: changes found and false regions.
+
+    Attributes
+    ----------
+    changes_true : int
+        Ground-truth changes: connected components (8-connected) of the truth inside the evaluation mask.
+    changes_found : int
+        Those a predicted region overlaps by at least one pixel.
+    regions : int
+        Predicted regions: connected components of the prediction inside the evaluation mask.
+    false_regions : int
+        Predicted regions overlapping no ground-truth pixel.
+    """
+
+    changes_true: int
+    changes_found: int
+    regions: int
+    false_regions: int
+
+
+def region_counts(predicted: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray | None = None) -> RegionCounts:
+    """Count changes found and false regions of a predicted mask (HxW bool) against ground truth (HxW bool).
+
+    Both masks are cut to ``eval_mask`` first; components are 8-connected (``scipy.ndimage.label``).
+    """
+    from scipy import ndimage
+
+    if np.shape(predicted) != np.shape(truth):
+        raise ValueError(f"prediction shape {np.shape(predicted)} differs from truth {np.shape(truth)}")
+    inside = np.ones(np.shape(truth), bool) if eval_mask is None else np.asarray(eval_mask).astype(bool)
+    p = np.asarray(predicted).astype(bool) & inside
+    t = np.asarray(truth).astype(bool) & inside
+    eight = np.ones((3, 3), bool)
+    t_labels, n_true = ndimage.label(t, structure=eight)
+    p_labels, n_regions = ndimage.label(p, structure=eight)
+    found = np.unique(t_labels[p & t])
+    hit_regions = np.unique(p_labels[p & t])
+    return RegionCounts(
+        changes_true=int(n_true),
+        changes_found=int(np.count_nonzero(found)),
+        regions=int(n_regions),
+        false_regions=int(n_regions - np.count_nonzero(hit_regions)),
+    )

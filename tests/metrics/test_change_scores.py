@@ -53,3 +53,25 @@ def test_best_f1_matches_exhaustive_sweep():
     assert sweep_scores(score, truth).best_f1 == pytest.approx(best)
     precision, recall, thresholds = precision_recall_curve(score, truth)
     assert np.all(np.diff(thresholds) < 0) and np.all(np.diff(recall) >= 0)
+
+
+def test_region_counts_count_changes_found_and_false_regions():
+    from fgcd_cli.metrics.change_scores import region_counts
+
+    truth = np.zeros((40, 40), bool)
+    truth[2:6, 2:6] = True  # change A: found
+    truth[20:24, 20:24] = True  # change B: missed
+    truth[30:32, 30:32] = True  # change C: outside the evaluation mask
+    predicted = np.zeros_like(truth)
+    predicted[4:9, 4:9] = True  # overlaps A
+    predicted[10:12, 30:35] = True  # false
+    predicted[14, 14] = True  # false, one pixel
+    predicted[30:32, 30:32] = True  # on C, outside the mask: neither found nor false
+    mask = np.ones_like(truth)
+    mask[28:, 28:] = False
+    counts = region_counts(predicted, truth, eval_mask=mask)
+    assert (counts.changes_true, counts.changes_found, counts.regions, counts.false_regions) == (2, 1, 3, 2)
+    # diagonal neighbours are one region (8-connected)
+    diagonal = np.zeros_like(truth)
+    diagonal[1, 1] = diagonal[2, 2] = True
+    assert region_counts(diagonal, np.zeros_like(truth)).false_regions == 1

@@ -38,7 +38,7 @@ from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig,
 from fgcd_cli.changes.detect import decide, detect_changes
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.registration import warp_to_reference
-from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores
+from fgcd_cli.metrics.change_scores import binary_scores, region_counts, sweep_scores
 
 DATASET = FGCD_DATASET
 
@@ -127,7 +127,11 @@ def _grid_rows(result, truth: np.ndarray, mask: np.ndarray, grid: list[tuple], s
     for key in grid:
         changed = _decide_at(result, key)
         auto = binary_scores(changed, truth, eval_mask=mask)
+        counts = region_counts(changed, truth, eval_mask=mask)
         rows[key] = {
+            "changes_true": counts.changes_true,
+            "changes_found": counts.changes_found,
+            "false_regions": counts.false_regions,
             "best_f1": sweep.best_f1,
             "ap": sweep.average_precision,
             "auto_f1": auto.f1,
@@ -287,6 +291,9 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         "logo_ap": mean(logo, "ap"),
         "logo_auto_f1": mean(logo, "auto_f1"),
         "logo_min_auto_recall": float(min(r["auto_recall"] for r in logo)),
+        # What a conservator counts (issue 47, item 6), at the decision chosen on the other groups.
+        **_counts("", logo),
+        **_counts("roi_", logo_roi),
         # The same with the annotators' mask given as a region of interest (fgcd diff --roi mask.png).
         "roi_logo_best_f1": mean(logo_roi, "best_f1"),
         "roi_logo_ap": mean(logo_roi, "ap"),
@@ -316,6 +323,15 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         "in_sample_auto_f1": mean(in_sample, "auto_f1"),
         "in_sample_best_f1": mean(in_sample, "best_f1"),
         "seconds_per_pair": float(np.median([g["seconds"] for g in scored])),
+    }
+
+
+def _counts(prefix: str, rows: list[dict]) -> dict:
+    """``false_regions_per_pair`` (mean) and ``changes_found_fraction`` (found over true, all groups pooled)."""
+    true = sum(r["changes_true"] for r in rows)
+    return {
+        f"{prefix}false_regions_per_pair": float(np.mean([r["false_regions"] for r in rows])),
+        f"{prefix}changes_found_fraction": sum(r["changes_found"] for r in rows) / true if true else float("nan"),
     }
 
 
@@ -406,6 +422,10 @@ def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] 
                     "roi_logo_ap",
                     "roi_logo_auto_f1",
                     "roi_logo_min_auto_recall",
+                    "false_regions_per_pair",
+                    "changes_found_fraction",
+                    "roi_false_regions_per_pair",
+                    "roi_changes_found_fraction",
                     "in_sample_auto_f1",
                     "seconds_per_pair",
                     "logo_hysteresis_auto_f1",

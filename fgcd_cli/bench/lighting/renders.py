@@ -37,7 +37,7 @@ __all__ = [
 #: Simulated scenes standing for each real kind (the first one is the quick run's).
 SIM_SCENES = {
     "test_block": ("test_block", "mural"),
-    "outdoor_relief": ("relief_panel", "stele"),
+    "outdoor_relief": ("rock_niche", "relief_panel"),
     "statue": ("statue",),
     MULTILIGHT_KIND: ("statue", "grey_sphere"),
 }
