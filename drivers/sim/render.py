@@ -36,74 +36,11 @@ from fgcd_drivers.sim.mesostructure import slope_texture, triangle_tangents
 from fgcd_drivers.sim.render_buffers import RenderResult, Surface
 from fgcd_drivers.sim.scene import Scene
 from fgcd_drivers.sim.sensor import LUMA, CameraEffects, apply_camera_response, auto_exposure
+from fgcd_drivers.sim.texture_sampling import bent_normals, mip_pyramid, sample_mipmapped
 
 __all__ = ["Renderer"]
 
 _MISS = np.uint32(0xFFFFFFFF)
-
-
-def _mip_pyramid(texture: np.ndarray) -> list[np.ndarray]:
-    """A texture and its successive halvings down to 4 texels (float32)."""
-    pyr = [np.ascontiguousarray(texture, dtype=np.float32)]
-    while min(pyr[-1].shape[:2]) > 4:
-        pyr.append(cv2.pyrDown(pyr[-1]))
-    return pyr
-
-
-def _sample_mipmapped(pyramid: list[np.ndarray], uvs: np.ndarray, level: np.ndarray) -> np.ndarray:
-    """Trilinear lookup: bilinear in the two mip levels around ``level`` (N,), blended; (N, 3) float32."""
-    l0 = np.floor(level).astype(np.int64)
-    frac = (level - l0).astype(np.float32)[:, None]
-    out = np.empty((len(uvs), 3), np.float32)
-    lo, hi = int(l0.min()), int(l0.max())
-    for lv in range(lo, hi + 1):
-        m = slice(None) if lo == hi else np.flatnonzero(l0 == lv)
-        if not isinstance(m, slice) and len(m) == 0:
-            continue
-        acc = None
-        for k, wgt in ((lv, 1.0 - frac[m]), (min(lv + 1, len(pyramid) - 1), frac[m])):
-            tex = pyramid[k]
-            th, tw = tex.shape[:2]
-            x = uvs[m, 0] * np.float32(tw) - np.float32(0.5)
-            y = uvs[m, 1] * np.float32(th) - np.float32(0.5)
-            smp = _remap_1d(tex, x, y)
-            smp *= wgt
-            acc = smp if acc is None else acc + smp
-        out[m] = acc
-    return out
-
-
-def _bent_normals(normals: np.ndarray, slope: np.ndarray, tangents: np.ndarray) -> np.ndarray:
-    """Shading normals bent by the mesostructure's slope: ``n' ∝ n - (s_u t_u + s_v t_v)`` (bump mapping).
-
-    Parameters
-    ----------
-    normals : (N, 3) float32 unit normals.
-    slope : (N, 3) float32, the sampled slope texture (``d h / d u_m``, ``d h / d v_m``, 0).
-    tangents : (N, 2, 3) float32 unit world directions of u and v on each hit's triangle.
-    """
-    t_u, t_v = tangents[:, 0], tangents[:, 1]
-    # into the shading normal's tangent plane (interpolated normals are not the face's)
-    t_u = t_u - np.einsum("ij,ij->i", t_u, normals)[:, None] * normals
-    t_v = t_v - np.einsum("ij,ij->i", t_v, normals)[:, None] * normals
-    bent = normals - slope[:, 0:1] * t_u - slope[:, 1:2] * t_v
-    return bent / np.maximum(np.sqrt(np.einsum("ij,ij->i", bent, bent)), 1e-12)[:, None]
-
-
-def _remap_1d(img: np.ndarray, x: np.ndarray, y: np.ndarray, border=cv2.BORDER_WRAP) -> np.ndarray:
-    """Bilinear lookup of ``img`` at N float pixel coordinates (cv2.remap, 1/32 px precision).
-
-    cv2.remap is limited to < 32767 columns, so the N samples are laid out as rows of 1024.
-    """
-    n = x.size
-    cols = 1024
-    rows = max(1, (n + cols - 1) // cols)
-    mx = np.zeros(rows * cols, np.float32)
-    my = np.zeros(rows * cols, np.float32)
-    mx[:n] = x
-    my[:n] = y
-    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=border)
-    return out.reshape(rows * cols, -1)[:n]
 
 
 @dataclass
@@ -151,13 +88,13 @@ class Renderer:
             slopes = None
             if self.mesostructure is not None:
                 texture = slope_texture(part.texture.shape[:2], part.texel_size_m, self.mesostructure, index)
-                slopes = _mip_pyramid(texture)
+                slopes = mip_pyramid(texture)
                 tangents.append(triangle_tangents(part.vertices, part.triangles, part.tri_uv))
             self._parts[gid] = _PartData(
                 triangles=part.triangles,
                 tri_uv=part.tri_uv,
                 vertex_normals=part.vertex_normals if part.smooth else None,
-                pyramid=_mip_pyramid(part.texture),
+                pyramid=mip_pyramid(part.texture),
                 texel_size_m=float(part.texel_size_m),
                 label=int(part.label),
                 slope_pyramid=slopes,
@@ -299,11 +236,11 @@ class Renderer:
                     continue
                 level = np.log2(np.maximum(foot[sel] / pd.texel_size_m, 1e-6))
                 level = np.clip(level, 0.0, len(pd.pyramid) - 1.0)
-                albedo[sel] = _sample_mipmapped(pd.pyramid, uv[sel], level)
+                albedo[sel] = sample_mipmapped(pd.pyramid, uv[sel], level)
                 if slope is not None and pd.slope_pyramid is not None:
-                    slope[sel] = _sample_mipmapped(pd.slope_pyramid, uv[sel], level)
+                    slope[sel] = sample_mipmapped(pd.slope_pyramid, uv[sel], level)
             if slope is not None:
-                shade_n = _bent_normals(shade_n, slope, self._tri_tangents[gtri])
+                shade_n = bent_normals(shade_n, slope, self._tri_tangents[gtri])
         labels = self._labels_by_gid[gids]
         return idx, tt, labels, shade_n, geo_n, albedo
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import typer
+from rich.console import Console
 
 from fgcd_cli.cli.determinism import DETERMINISTIC, deterministic_setup
 from fgcd_cli.cli.output import emit as _emit_plain
@@ -23,7 +25,7 @@ def _world(
     ),
 ) -> None:
     """Benchmarks reproducing the papers' measurements."""
-    from fgcd_cli.bench.world import select_world
+    from fgcd_cli.bench.sim_world import select_world
     from fgcd_cli.errors import UserInputError
 
     try:
@@ -32,13 +34,13 @@ def _world(
         raise UserInputError(str(exc)) from None
 
 
-def emit(data: dict, **kwargs) -> None:
+def emit(data: dict, *, as_json: bool, render: Callable[[Console], None] | None = None) -> None:
     """Print a bench's result, recording the simulated world it ran in (``settings.world``)."""
-    from fgcd_cli.bench.world import current_world
+    from fgcd_cli.bench.sim_world import current_world
 
     if isinstance(data, dict):
         data.setdefault("settings", {})["world"] = current_world()
-    _emit_plain(data, **kwargs)
+    _emit_plain(data, as_json=as_json, render=render)
 
 
 @app.command("changes")

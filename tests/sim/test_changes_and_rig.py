@@ -10,6 +10,7 @@ import pytest
 
 from fgcd_core.camera import CameraIntrinsics
 from fgcd_drivers.cameras import CameraSource
+from fgcd_drivers.sim.appearance import WORLD_ENV
 from fgcd_drivers.sim.change_placement import random_changes
 from fgcd_drivers.sim.changes import ALL_KINDS, CHANGE_CATEGORY, KINDS, ChangeSpec, evaluate_changes
 from fgcd_drivers.sim.lights import Lighting, lighting_preset, list_lighting_presets, solar_az_el
@@ -18,6 +19,15 @@ from fgcd_drivers.sim.sensor import CameraEffects
 from fgcd_drivers.sim.transforms import look_at
 
 LINEAR = CameraEffects(gamma=1.0)
+
+
+@pytest.fixture(autouse=True)
+def _smooth_world(monkeypatch):
+    """These tests check the changes' geometry, normals and shading against analytic values of the Lambert model: the smooth
+    world. The calibrated world's grain and lobe have their own tests (test_appearance, test_mesostructure)."""
+    monkeypatch.setenv(WORLD_ENV, "smooth")
+
+
 AMBIENT = Lighting(name="a", lights=(), ambient=1.0)
 
 

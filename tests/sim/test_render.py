@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from fgcd_core.camera import CameraIntrinsics
+from fgcd_drivers.sim.appearance import WORLD_ENV
 from fgcd_drivers.sim.lights import Light, Lighting
 from fgcd_drivers.sim.meshes import MeshPart
 from fgcd_drivers.sim.render import Renderer
@@ -14,6 +15,13 @@ from fgcd_drivers.sim.sensor import CameraEffects
 from fgcd_drivers.sim.transforms import look_at
 
 LINEAR = CameraEffects(gamma=1.0)
+
+
+@pytest.fixture(autouse=True)
+def _smooth_world(monkeypatch):
+    """These tests check Lambert shading, shadows and inverse-square fall-off against analytic values of the Lambert model: the smooth
+    world. The calibrated world's grain and lobe have their own tests (test_appearance, test_mesostructure)."""
+    monkeypatch.setenv(WORLD_ENV, "smooth")
 
 
 def _rays_world(intr, T, dist=None):
