@@ -21,7 +21,13 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.images import image_health, to_float_image, to_gray
-from fgcd_cli.changes.registration import gradient_magnitude, match_sift, ransac_homography
+from fgcd_cli.changes.registration import (
+    ecc_gradient,
+    gradient_magnitude,
+    match_sift,
+    ransac_homography,
+    warp_to_reference,
+)
 from fgcd_cli.errors import AlgorithmError, UserInputError
 
 
@@ -82,18 +88,46 @@ def _result(points_ref, points_cur, *, candidates, method, settings, shape) -> F
     )
 
 
+#: Lowest ECC correlation of the whole-image start (the gradient images' zero-mean normalised
+#: correlation) trusted as the grid's starting motion; below it, or when ECC diverges, the cells
+#: start from no motion. The bar ``fgcd diff``'s registration trusts (``register_to_reference``).
+GRID_START_MIN_CORRELATION = 0.3
+
+
+def _grid_start(ref_gray: np.ndarray, cur_gray: np.ndarray) -> tuple[np.ndarray, float]:
+    """The whole-image motion the cells start from: ECC on gradient magnitude from no motion, (3, 3) and its
+    correlation (the identity and NaN when ECC diverges or correlates below :data:`GRID_START_MIN_CORRELATION`).
+
+    Why: a light that moves changes which edges a small patch sees, so a patch correlated from no
+    motion often locks onto the shading instead of the surface; the whole image's gradients agree on
+    the motion far more often (real photographs across lightings, docs/benchmarks.md, "Registration
+    across lightings": the grid failed 43 % of pairs from no motion).
+    """
+    try:
+        H, correlation = ecc_gradient(ref_gray, cur_gray, np.eye(3))
+    except cv2.error:
+        return np.eye(3), float("nan")
+    if not np.isfinite(correlation) or correlation < GRID_START_MIN_CORRELATION:
+        return np.eye(3), float("nan")
+    return H, correlation
+
+
 def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_response: float, ransac_px: float):
-    """Phase correlation of gradient-magnitude patches on a regular grid.
+    """Phase correlation of gradient-magnitude patches on a regular grid, from the whole image's motion.
 
     Hand-written loop over cells around ``cv2.phaseCorrelate`` (OpenCV has no
     block-wise variant). Gradient magnitudes make the patches insensitive to
-    smooth light gain; the Hann window suppresses the patch borders.
+    smooth light gain; the Hann window suppresses the patch borders. The current
+    image's gradients are first warped into the reference's pixels by the
+    whole-image motion (:func:`_grid_start`), so each cell measures only what is
+    left of it; each cell's match is mapped back through that motion.
     """
     h, w = ref_gray.shape
     patch = int(min(patch_px, h // 2, w // 2))
     patch -= patch % 2
+    H_start, _ = _grid_start(ref_gray, cur_gray)
     grad_ref = gradient_magnitude(ref_gray)
-    grad_cur = gradient_magnitude(cur_gray)
+    grad_cur, covered = warp_to_reference(gradient_magnitude(cur_gray), H_start, ref_gray.shape)
     window = cv2.createHanningWindow((patch, patch), cv2.CV_32F)
     xs = np.linspace(patch / 2, w - patch / 2, grid_cells)
     ys = np.linspace(patch / 2, h - patch / 2, grid_cells)
@@ -103,7 +137,7 @@ def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_respons
         for cx in xs:
             x0, y0 = int(round(cx)) - half, int(round(cy)) - half
             a = grad_ref[y0 : y0 + patch, x0 : x0 + patch]
-            if a.std() < 1e-4:
+            if a.std() < 1e-4 or covered[y0 : y0 + patch, x0 : x0 + patch].mean() < 0.9:
                 continue
             centre = np.array([x0 + half - 0.5, y0 + half - 0.5])
             # Windowed phase correlation is biased towards zero shift; re-centre the
@@ -128,12 +162,18 @@ def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_respons
     if candidates == 0:
         return np.zeros((0, 2)), np.zeros((0, 2)), 0
     points_ref = np.array(points_ref)
-    points_cur = np.array(points_cur)
+    points_cur = _apply_homography(H_start, np.array(points_cur))
     if candidates >= 8:
         # Keep only the cells that agree on one homography (the caller refuses too few).
         _, inliers = ransac_homography(points_ref, points_cur, ransac_px=ransac_px)
         points_ref, points_cur = points_ref[inliers], points_cur[inliers]
     return points_ref, points_cur, candidates
+
+
+def _apply_homography(H: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``H`` applied to pixel points ``(x, y)``, (N, 2) -> (N, 2)."""
+    p = np.column_stack([points, np.ones(len(points))]) @ np.asarray(H, float).T
+    return p[:, :2] / p[:, 2:3]
 
 
 class FdfMethod(StrEnum):
@@ -142,7 +182,8 @@ class FdfMethod(StrEnum):
     SIFT = "sift"
     """The authors' protocol: SIFT, ratio test, RANSAC homography."""
     GRID = "grid"
-    """Phase correlation of gradient-magnitude patches on a regular grid, RANSAC homography over the cells."""
+    """Phase correlation of gradient-magnitude patches on a regular grid, started from the whole image's
+    ECC motion on gradient magnitude; RANSAC homography over the cells."""
     PAIRS = "pairs"
     """Point pairs given by a person, as they are."""
 
