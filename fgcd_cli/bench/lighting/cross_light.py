@@ -15,7 +15,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from fgcd_cli.changes.registration import ransac_homography
+from fgcd_cli.changes.registration import ransac_homography, register_to_reference
 from fgcd_cli.errors import FgcdError
 from fgcd_cli.metrics.afd import FdfConfig, compute_fdf
 from fgcd_cli.relocation.image.refine import ImageRefineConfig, local_contrast
@@ -47,13 +47,17 @@ class Matcher(StrEnum):
     """The correspondences the project registers images with, each measured by the bench."""
 
     SIFT = "sift"
-    """SIFT on the grey image, ratio test: ``fgcd diff``'s registration and the ACR baseline."""
+    """SIFT on the grey image, ratio test: the ACR baseline, and the start of ``fgcd diff``'s registration."""
+    DIFF = "diff"
+    """``fgcd diff``'s registration (``changes/registration.py: register_to_reference``): the SIFT
+    homography refined by ECC on gradient magnitude, or ECC from no motion below 15 SIFT inliers;
+    a registration it refuses (overlap, correlation) fails."""
     IMAGE_STAGE = "image_stage"
     """SIFT on locally equalised images (``relocation/image/refine.py: local_contrast``): the
     relocation's final image stage, with its own ratio and feature count."""
     GRID = "grid"
-    """Phase correlation of gradient patches on a grid: ``fgcd afd``'s lighting-robust variant,
-    the image stage's fallback, with the stage's grid."""
+    """Phase correlation of gradient patches on a grid from the whole image's ECC motion: ``fgcd afd``'s
+    lighting-robust variant, the image stage's fallback, with the stage's grid."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -73,11 +77,16 @@ class PairMatch:
     matches: int
     inliers: int
     H_cur_ref: np.ndarray | None
+    refused: bool | None = None
+    """For a registration that judges itself (``diff``): whether it refused; None: judged by inliers."""
 
     @property
     def failed(self) -> bool:
-        """True when no homography with at least :data:`MIN_INLIERS` inliers was found."""
-        return self.H_cur_ref is None or self.inliers < MIN_INLIERS
+        """True when no homography was found, the registration refused, or (judged by inliers) it has
+        fewer than :data:`MIN_INLIERS`."""
+        if self.H_cur_ref is None:
+            return True
+        return self.refused if self.refused is not None else self.inliers < MIN_INLIERS
 
 
 def _correspondences(reference: np.ndarray, current: np.ndarray, matcher: Matcher) -> tuple[np.ndarray, np.ndarray]:
@@ -110,6 +119,11 @@ def match_pair(reference: np.ndarray, current: np.ndarray, matcher: Matcher = Ma
         Images (uint8, or floats in [0, 1]).
     matcher : Matcher
     """
+    if Matcher(matcher) == Matcher.DIFF:
+        reg = register_to_reference(to_gray_f32(reference), to_gray_f32(current))
+        return PairMatch(
+            matches=reg.sift_inliers, inliers=reg.sift_inliers, H_cur_ref=reg.H_cur_ref, refused=not reg.ok
+        )
     pts_ref, pts_cur = _correspondences(reference, current, Matcher(matcher))
     H, inl = ransac_homography(pts_ref, pts_cur, ransac_px=RANSAC_PX)
     return PairMatch(matches=len(pts_ref), inliers=int(inl.sum()), H_cur_ref=H)
