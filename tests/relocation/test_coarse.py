@@ -203,6 +203,31 @@ def test_an_unverifiable_observation_only_looks_around_then_pauses():
     assert mm < 1e-6 and deg < 1e-6
 
 
+def test_a_pause_undoes_a_descent_on_an_unverified_estimate(monkeypatch):
+    """Paper 001's descent follows an estimate nothing verified; when no view verifies anything after it, the
+    stage pauses with the camera back where it started, not where the unverified estimate led it."""
+    from fgcd_cli.relocation.coarse import stage
+    from fgcd_cli.relocation.coarse.camera_uncertainty import CameraUncertainty  # noqa: F401
+    from fgcd_cli.relocation.coarse.passive import View
+    from fgcd_core.sim3 import Sim3
+
+    T_start = exp_se3(np.r_[0.04, 0.0, 0.0, 0.0, np.radians(3.0), 0.0])
+    session = _FakeSession(T_start, X_HANDEYE, _relief(2000, np.random.default_rng(2)), np.eye(4), scale=1.0)
+    wrong = exp_se3(np.r_[-0.08, 0.03, 0.0, 0.0, 0.0, 0.0])  # an unverified estimate that is simply wrong
+    unc = SimpleNamespace(translation_m=0.05, constrained_translation_m=0.05)
+    views = iter(
+        [View(T_cur_cam=np.eye(4), notes={}, best=None, unverified=("3d", wrong, unc))]
+        + [View(T_cur_cam=np.eye(4), notes={}, best=None)] * 10
+    )
+    monkeypatch.setattr(stage, "localize", lambda inp, step, last_3d: next(views))
+    monkeypatch.setattr(stage, "_why_not_verified", lambda notes, config: "nothing")
+    result = _stage(session, _relief(2000, np.random.default_rng(3)), Sim3(np.eye(3), np.zeros(3), 1.0), max_looks=1)
+    assert [s.action for s in result.steps] == ["descend", "look", "pause"]
+    assert "undone" in result.reason
+    mm, deg = pose_distance(session.T_ref_cam, T_start)
+    assert mm < 1e-6 and deg < 1e-6
+
+
 def test_bench_coarse_is_registered_with_quick_and_json():
     from typer.testing import CliRunner
 

@@ -95,6 +95,9 @@ class _CoarseRun:
         self.looks = 0
         self.descents = 0
         self.heading = (0.0, 0.0)  # look-around turn (yaw, pitch) from where the stage started, radians
+        # the flange motion made on no verified estimate (looks, descents) since the stage started or last
+        # moved on a verified one: what a pause undoes
+        self.M_unverified = np.eye(4)
         self.seen_headings = [self.heading]
         self.scene: SceneUncertaintyMap | None = None
         self.scene_asked = False
@@ -131,18 +134,26 @@ class _CoarseRun:
         )
 
     def _pause(self, step: int, view: View, truth) -> CoarseResult:
-        """No estimate verified in the views allowed: turn back to the starting heading and give up."""
+        """No estimate verified in the views allowed: undo every motion made on no verified estimate and give up.
+
+        Rule: looks and descents move on nothing verified (a descent follows an unverified estimate, paper 001);
+        when nothing confirmed them the camera goes back to where the stage started (or last moved on a
+        verified estimate), so the loop starts from the best pose known, not from wherever the search ended.
+        """
         c = self.inp.config
         self._log(step, CoarseAction.PAUSE, EstimateSource.NONE, view, truth)
         reason = (
             f"coarse stage: no estimate verified in {self.looks + 1} views ({_why_not_verified(view.notes, c)}); "
             "bring the camera nearer the reference pose"
         )
-        try:  # back to the heading the stage started from: the loop starts where it would have
-            if self.heading != (0.0, 0.0):
-                self.inp.session.move_by(flange_motion(self.X, invert_pose(camera_turn(*self.heading))))
-        except MotionRejected:
-            pass
+        undo = invert_pose(self.M_unverified)
+        if pose_distance(np.eye(4), undo)[0] > 1e-6 or pose_distance(np.eye(4), undo)[1] > 1e-6:
+            try:
+                self.inp.session.move_by(undo)
+                self.M_unverified = np.eye(4)
+                reason += "; its unverified motions undone (the camera is back where it started or last moved on a verified estimate)"
+            except MotionRejected as exc:
+                reason += f"; the way back is refused by the platform guard ({exc})"
         return CoarseResult(False, reason, None, self.steps)
 
     def _scene_map(self) -> SceneUncertaintyMap | None:
@@ -208,6 +219,7 @@ class _CoarseRun:
         M_cam = invert_pose(camera_turn(*self.heading)) @ camera_turn(*target)
         try:
             inp.session.move_by(flange_motion(self.X, M_cam))
+            self.M_unverified = self.M_unverified @ flange_motion(self.X, M_cam)
         except MotionRejected as exc:
             return CoarseResult(
                 False, f"coarse stage: a look-around motion is refused by the platform guard ({exc})", None, self.steps
@@ -254,6 +266,7 @@ class _CoarseRun:
         )
         try:
             inp.session.move_by(M_flange)
+            self.M_unverified = self.M_unverified @ M_flange
         except MotionRejected as exc:
             return CoarseResult(
                 False, f"coarse stage: a descent motion is refused by the platform guard ({exc})", None, self.steps
@@ -295,6 +308,7 @@ class _CoarseRun:
         )
         try:
             inp.session.move_by(M_flange)
+            self.M_unverified = np.eye(4)  # moved on a verified estimate: the pose to come back to
         except MotionRejected as exc:
             return CoarseResult(
                 False,
