@@ -44,3 +44,24 @@ def test_score_constants_are_chosen_on_the_other_groups():
 def test_without_score_variants_there_is_no_all_constants_figure():
     groups = [_group("g0", {}, "best_f1"), _group("g1", {}, "best_f1")]
     assert leave_one_group_out_score_constants(groups) is None
+
+
+def test_per_kind_means_and_counts_pool_each_kind_alone():
+    from fgcd_cli.bench.changes.main import _per_kind
+
+    def row(kind, f1, true, found, false):
+        return {
+            "kind": kind,
+            "best_f1": f1,
+            "ap": f1,
+            "auto_f1": f1,
+            "changes_true": true,
+            "changes_found": found,
+            "false_regions": false,
+        }
+
+    out = _per_kind([row("Db", 0.8, 10, 9, 1), row("Db", 0.6, 30, 15, 3), row("Ds", 0.2, 4, 4, 20)])
+    assert out["Db"]["groups"] == 2 and abs(out["Db"]["auto_f1"] - 0.7) < 1e-12
+    assert out["Db"]["changes_found_fraction"] == 24 / 40  # pooled over the kind's changes, not averaged
+    assert out["Db"]["false_regions_per_pair"] == 2.0
+    assert out["Ds"]["false_regions_per_pair"] == 20.0 and out["Ds"]["changes_found_fraction"] == 1.0

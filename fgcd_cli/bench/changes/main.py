@@ -294,6 +294,7 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         # What a conservator counts (issue 47, item 6), at the decision chosen on the other groups.
         **_counts("", logo),
         **_counts("roi_", logo_roi),
+        "per_kind": _per_kind(logo),
         # The same with the annotators' mask given as a region of interest (fgcd diff --roi mask.png).
         "roi_logo_best_f1": mean(logo_roi, "best_f1"),
         "roi_logo_ap": mean(logo_roi, "ap"),
@@ -324,6 +325,19 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         "in_sample_best_f1": mean(in_sample, "best_f1"),
         "seconds_per_pair": float(np.median([g["seconds"] for g in scored])),
     }
+
+
+def _per_kind(rows: list[dict]) -> dict:
+    """Per kind of group (Db, Dp, Ds): the mean best F1, AP and auto F1 and the counts, leave one group out."""
+    out = {}
+    for kind in sorted({r["kind"] for r in rows}):
+        of_kind = [r for r in rows if r["kind"] == kind]
+        out[kind] = {
+            "groups": len(of_kind),
+            **{key: float(np.mean([r[key] for r in of_kind])) for key in ("best_f1", "ap", "auto_f1")},
+            **_counts("", of_kind),
+        }
+    return out
 
 
 def _counts(prefix: str, rows: list[dict]) -> dict:
