@@ -210,6 +210,7 @@ def _run_racr_loop(
                 reference_images=ref_images,
                 grab_current=lambda: grab_gray_under(rig, vse, same_light),
                 image_prior_sigma_mm=image_prior_sigma_mm,
+                same_light=same_light is not None,
             )
         )
     except AlgorithmError as exc:

@@ -32,12 +32,20 @@ class PnpFit:
 
 
 def pnp_fit(
-    X: np.ndarray, p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray, *, ransac_px: float, min_inliers: int
+    X: np.ndarray,
+    p_ref: np.ndarray,
+    p_cur: np.ndarray,
+    K: np.ndarray,
+    *,
+    ransac_px: float,
+    min_inliers: int,
+    common_px: float = 0.0,
 ) -> tuple[int, PnpFit | None]:
     """PnP with RANSAC (SQPnP), then Levenberg-Marquardt on the inliers.
 
-    ``X`` (M, 3) reference-camera points, metres; ``p_ref``, ``p_cur`` (M, 2) pixels; ``K`` (3, 3). Returns
-    the number of RANSAC inliers and the fit, None when RANSAC failed or found fewer than ``min_inliers``.
+    ``X`` (M, 3) reference-camera points, metres; ``p_ref``, ``p_cur`` (M, 2) pixels; ``K`` (3, 3);
+    ``common_px`` the error every match shares (:func:`pnp_translation_sigma_m`). Returns the number of
+    RANSAC inliers and the fit, None when RANSAC failed or found fewer than ``min_inliers``.
     """
     ok, rvec, tvec, inl = cv2.solvePnPRansac(
         X,
@@ -60,5 +68,5 @@ def pnp_fit(
     # (rvec, tvec) maps reference-camera coordinates into the current camera: T_cur_camref,
     # i.e. the reference camera seen from the current one = the motion the camera must make.
     M_cam = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel())
-    sigma_mm = 1000.0 * pnp_translation_sigma_m(X[inl], p_cur[inl], rvec, tvec, K)
+    sigma_mm = 1000.0 * pnp_translation_sigma_m(X[inl], p_cur[inl], rvec, tvec, K, common_px=common_px)
     return found, PnpFit(inliers=inl, rms_px=rms, afd_px=afd, M_cam=M_cam, offset_sigma_mm=sigma_mm)

@@ -12,9 +12,15 @@ __all__ = ["pnp_jacobian", "pnp_translation_sigma_m"]
 
 
 def pnp_translation_sigma_m(
-    points_3d: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, K: np.ndarray
+    points_3d: np.ndarray,
+    pixels: np.ndarray,
+    rvec: np.ndarray,
+    tvec: np.ndarray,
+    K: np.ndarray,
+    *,
+    common_px: float = 0.0,
 ) -> float:
-    """1-sigma uncertainty of a PnP translation from its own reprojection residuals, metres.
+    """1-sigma uncertainty of a PnP translation from its own reprojection residuals and a common error, metres.
 
     Gauss-Newton covariance of the six pose parameters,
     ``Cov = s^2 (J^T J)^-1`` with ``s^2 = sum(r^2) / (2n - 6)`` the residual
@@ -22,6 +28,13 @@ def pnp_translation_sigma_m(
     respect to ``(rvec, tvec)``. The rotation-translation coupling of a nearly
     planar scene (a sideways shift that a small turn almost hides) appears as a
     large marginal translation variance, which is the point.
+
+    Independent residuals average out over many matches; an error every match shares
+    does not. Registration across lightings has one (the lit and shadowed flanks of every
+    groove swap sides: docs/relocation.md, "Stop rules", Uncertainties), modelled as a common image shift
+    of ``common_px`` per axis added to every match: the pixel covariance is
+    ``s^2 I + common_px^2 A A^T`` with ``A`` (2n, 2) stacking one 2x2 identity per match,
+    propagated as ``(J^T J)^-1 J^T Cov_pix J (J^T J)^-1``.
 
     Parameters
     ----------
@@ -33,6 +46,8 @@ def pnp_translation_sigma_m(
         The PnP pose (reference camera into current camera).
     K : (3, 3) ndarray
         Pinhole matrix.
+    common_px : float
+        Standard deviation (pixels, per image axis) of an error shared by every match.
 
     Returns
     -------
@@ -50,9 +65,15 @@ def pnp_translation_sigma_m(
     r = (proj - np.asarray(pixels, dtype=np.float64)).ravel()
     s2 = float(r @ r) / max(1, 2 * n - 6)
     try:
-        cov = s2 * np.linalg.inv(J.T @ J)
+        JtJ_inv = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return math.inf
+    cov = s2 * JtJ_inv
+    if common_px > 0:
+        # J^T A: the pose's response to a unit shift of every match along x and along y, (6, 2)
+        JtA = np.stack([J[0::2].sum(axis=0), J[1::2].sum(axis=0)], axis=1)
+        G = JtJ_inv @ JtA
+        cov = cov + common_px**2 * (G @ G.T)
     return float(math.sqrt(max(0.0, float(np.trace(cov[3:, 3:])))))
 
 

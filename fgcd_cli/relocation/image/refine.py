@@ -43,12 +43,24 @@ from fgcd_core.imaging import clahe, match_sift, to_gray_f32, to_gray_u8
 from fgcd_core.se3 import pose_distance
 
 __all__ = [
+    "CROSS_LIGHT_COMMON_PX",
+    "SAME_LIGHT_COMMON_PX",
     "ImageRefineConfig",
     "ImageRefinement",
     "local_contrast",
     "reference_keypoints_3d",
     "refine_from_reference_image",
 ]
+
+
+#: The registration error every match of one image pair shares (pixels, per axis), measured on real
+#: photographs (``fgcd bench lighting``, paper 000's Table 1 protocol, the 53 cross-lighting pairs of the
+#: FGCD groups): under one light, the same-lighting homographies spread 0.10-0.18 px about their
+#: consensus on the test blocks; across lightings, the lighting-robust registrations (ECC on gradient
+#: magnitude, the grid from it) land a median 1.06-1.19 px from it, about 1.18 sigma of a 2D Gaussian
+#: (docs/lab/2026-12-06-calibrated-world.md). Used by the PnP uncertainty (``pnp_uncertainty``).
+SAME_LIGHT_COMMON_PX = 0.15
+CROSS_LIGHT_COMMON_PX = 1.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -70,6 +82,9 @@ class ImageRefineConfig:
     min_inlier_ratio: float = 0.25
     max_rms_px: float = 1.0
     """Largest RMS reprojection error of the inliers after refinement."""
+    common_error_px: float = CROSS_LIGHT_COMMON_PX
+    """The error every match shares (pixels per axis): :data:`CROSS_LIGHT_COMMON_PX` unless the current
+    image is taken under the reference image's own light (:data:`SAME_LIGHT_COMMON_PX`)."""
     depth_search_px: float = 6.0
     """A keypoint takes the depth of the reference points projected within this radius
     (front-most layer, inverse-distance weighted); the semi-dense cloud holds
@@ -329,7 +344,9 @@ def _refine_matches(p_ref, p_cur, view: _ReferenceView, *, matcher: str, min_inl
     if len(p_ref) < min_inliers:
         return fail(f"only {len(p_ref)} of {len(has)} matches on the reference cloud", len(p_ref))
     n = len(p_ref)
-    found, fit = pnp_fit(X, p_ref, p_cur, K, ransac_px=config.ransac_px, min_inliers=min_inliers)
+    found, fit = pnp_fit(
+        X, p_ref, p_cur, K, ransac_px=config.ransac_px, min_inliers=min_inliers, common_px=config.common_error_px
+    )
     if fit is None:
         return fail(f"PnP found {found} inliers of {n}", n, found)
     inl, rms, afd, M_cam, sigma_mm = fit.inliers, fit.rms_px, fit.afd_px, fit.M_cam, fit.offset_sigma_mm

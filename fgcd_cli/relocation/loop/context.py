@@ -70,6 +70,8 @@ class LoopContext:
     image_refiner : ImageRefiner, optional
         The image measurement (default
         :func:`~fgcd_cli.relocation.image.refine.refine_from_reference_image`).
+    same_light : bool
+        Whether the current image is taken under the reference images' light.
     image_prior_sigma_mm : float or None
         Set when the exploration ended where the image localizer put the reference pose
         (:mod:`fgcd_cli.app.guided_start`): the localizer's 1-sigma (RMS radius, mm) of that
@@ -92,6 +94,9 @@ class LoopContext:
     aligner: Aligner = align_once
     image_refiner: ImageRefiner | None = None
     image_prior_sigma_mm: float | None = None
+    same_light: bool = False
+    """The current image is taken under the light of the reference images (a lamp the rig carries): the
+    image stage's matches then share a smaller common error (``refine.SAME_LIGHT_COMMON_PX``)."""
 
     @property
     def can_image(self) -> bool:
@@ -122,9 +127,14 @@ class LoopContext:
             return self.image_refiner
         from functools import partial
 
-        from fgcd_cli.relocation.image.refine import ImageRefineConfig, refine_from_reference_image
+        from fgcd_cli.relocation.image.refine import (
+            CROSS_LIGHT_COMMON_PX,
+            SAME_LIGHT_COMMON_PX,
+            ImageRefineConfig,
+            refine_from_reference_image,
+        )
 
-        base = ImageRefineConfig()
+        base = ImageRefineConfig(common_error_px=SAME_LIGHT_COMMON_PX if self.same_light else CROSS_LIGHT_COMMON_PX)
         limit_m = max(base.max_motion_m, unresolved_mm / 1000.0) if math.isfinite(unresolved_mm) else base.max_motion_m
         return partial(refine_from_reference_image, config=replace(base, max_motion_m=limit_m))
 
