@@ -98,10 +98,10 @@ def _grid_start(ref_gray: np.ndarray, cur_gray: np.ndarray) -> tuple[np.ndarray,
     """The whole-image motion the cells start from: ECC on gradient magnitude from no motion, (3, 3) and its
     correlation (the identity and NaN when ECC diverges or correlates below :data:`GRID_START_MIN_CORRELATION`).
 
-    Why: a light that moves changes which edges a small patch sees, so a patch correlated from no
-    motion often locks onto the shading instead of the surface; the whole image's gradients agree on
-    the motion far more often (real photographs across lightings, docs/benchmarks.md, "Registration
-    across lightings": the grid failed 43 % of pairs from no motion).
+    Why: a patch correlated from no motion reaches only a fraction of its own size; the whole image's
+    gradients bring every cell within reach of a motion several patches wide (the image stage's
+    fallback after a far start). On the real FGCD cross-lighting pairs (motions of 1-4 px) it changes
+    little (docs/lab/2026-12-06-calibrated-world.md).
     """
     try:
         H, correlation = ecc_gradient(ref_gray, cur_gray, np.eye(3))
