@@ -9,6 +9,7 @@ images under each lighting).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,9 +64,14 @@ def capture_reference(
     lightings: list[str],
     explore_m: float = 0.05,
     metadata: dict | None = None,
-    evaluation: dict | None = None,
+    evaluation: Callable[[], dict] | None = None,
 ) -> CaptureResult:
-    """Capture the immutable reference observation of ``station`` at the platform's current pose."""
+    """Capture the immutable reference observation of ``station`` at the platform's current pose.
+
+    ``evaluation`` (simulator only, outside the algorithm): called when the reference images are taken,
+    the truth of that moment (the camera has explored and come back, with the platform's errors), written
+    as the observation's ``evaluation/sim_truth.json``.
+    """
     rig.progress(0, 0, "starting the VSE")
     session, vse, scale, T_base_flange_ref = start_session(rig, explore_m=explore_m)
     try:
@@ -86,6 +92,7 @@ def capture_reference(
         points = np.asarray(cloud.points, dtype=float) * scale.scale
         kf_poses, kf_images = metric_keyframes(state, scale.scale)
         images = grab_images(rig, lightings)
+        truth = evaluation() if evaluation is not None else None
         meta = {
             "lightings": lightings,
             "scale": scale.__dict__,
@@ -106,8 +113,8 @@ def capture_reference(
             w.add_array(schema.ARRAY_T_REF_CAMREF, T_ref_camref)
             w.add_array(schema.ARRAY_KEYFRAME_POSES, kf_poses)
             w.add_array(schema.ARRAY_KEYFRAME_IMAGES, kf_images.astype(np.float32))
-            if evaluation is not None:
-                w.add_json(schema.SIM_TRUTH, evaluation)
+            if truth is not None:
+                w.add_json(schema.SIM_TRUTH, truth)
             obs = w.commit()
     finally:
         vse.stop()
@@ -370,7 +377,7 @@ def run_capture(campaign, plan: CapturePlan, *, hooks: RigHooks = RigHooks()) ->
                     "rig": (plan.rig or EffectiveRig(driver=plan.driver)).record(),
                     "scenario": rig.info.get("scenario"),
                 },
-                evaluation=reference_truth(rig.sim) if rig.sim is not None else None,
+                evaluation=(lambda: reference_truth(rig.sim)) if rig.sim is not None else None,
             )
         # the platform is released; the reference's scene uncertainty map (paper 001), for the report and the
         # coarse stage's looks: guidance only, a reference that cannot give one says why and is kept

@@ -178,7 +178,7 @@ def _capture(run: _DemoRun) -> dict:
             run.station,
             lightings=[config.reference_light],
             metadata={"driver": "sim", "scenario": rig.info["scenario"]},
-            evaluation=reference_truth(rig.sim),
+            evaluation=lambda: reference_truth(rig.sim),
         )
     finally:
         rig.close()

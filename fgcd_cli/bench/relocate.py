@@ -213,7 +213,7 @@ def _calibrate_and_capture(case: Case, camp, st, *, say, deterministic: bool) ->
             deterministic_rig(rig.handles, deterministic),
             st,
             lightings=[case.reference_light],
-            evaluation=reference_truth(rig.sim),
+            evaluation=lambda: reference_truth(rig.sim),
         )
     finally:
         rig.close()

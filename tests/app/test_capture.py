@@ -59,3 +59,82 @@ def test_the_reference_is_named_not_written_when_ctrl_c_comes_while_writing(monk
         capture_uc.capture_reference(rig, station, lightings=["front"])
     assert run_record.writes_clause() == "not written: the reference of station 'north-wall'"
     run_record.reset()
+
+
+class _RecordingWriter:
+    """An observation writer that keeps what it is given."""
+
+    def __init__(self):
+        self.json = {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def add_image(self, name, img):
+        pass
+
+    def add_cloud(self, points, colors=None):
+        pass
+
+    def add_array(self, name, array):
+        pass
+
+    def add_json(self, name, data):
+        self.json[name] = data
+
+    def commit(self):
+        return SimpleNamespace(path="obs")
+
+
+def test_the_simulator_truth_is_taken_when_the_reference_images_are(monkeypatch):
+    """The reference's truth is the camera where its images were taken: after the exploration and the return to
+    the reference pose (with the platform's errors), not before (evaluation only)."""
+    import fgcd_cli.app.capture as capture_uc
+    from fgcd_cli.campaign import schema
+    from fgcd_cli.relocation.session import ScaleEstimate
+
+    events = []
+
+    class Cloud:
+        points = np.random.default_rng(0).random((1200, 3))
+        intensities = np.ones(1200)
+
+        def __len__(self):
+            return len(self.points)
+
+    state = SimpleNamespace(status="tracking", T_map_cam=np.eye(4), cloud=Cloud(), keyframes=[])
+    session = SimpleNamespace(
+        move_to_flange=lambda *a, **k: events.append("return"),
+        tracking_state=lambda: state,
+        settle=lambda **k: state,
+        timing=SimpleNamespace(platform_s=0.0),
+    )
+    scale = ScaleEstimate(scale=1.0, scale_std=0.0, n_samples=3, residual_rms_mm=0.0, method="test")
+    monkeypatch.setattr(
+        capture_uc,
+        "start_session",
+        lambda rig, **k: (events.append("explore"), (session, SimpleNamespace(stop=lambda: None), scale, np.eye(4)))[1],
+    )
+    monkeypatch.setattr(
+        capture_uc,
+        "grab_images",
+        lambda rig, lightings: (events.append("images"), {"front": np.zeros((4, 4), np.float32)})[1],
+    )
+    writer = _RecordingWriter()
+    station = SimpleNamespace(name="s", write_reference=lambda meta: writer)
+    rig = capture_uc.RigHandles(
+        guard=SimpleNamespace(platform=SimpleNamespace(flange_pose=lambda: np.eye(4))),
+        camera_source=None,
+        intrinsics=SimpleNamespace(to_dict=lambda: {}),
+        T_flange_cam=np.eye(4),
+        vse_factory=lambda: None,
+    )
+    truth = {"T_world_cam": "where the images were taken"}
+    capture_uc.capture_reference(
+        rig, station, lightings=["front"], evaluation=lambda: (events.append("truth"), truth)[1]
+    )
+    assert events == ["explore", "return", "images", "truth"]
+    assert writer.json[schema.SIM_TRUTH] is truth

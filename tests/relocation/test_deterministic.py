@@ -254,7 +254,7 @@ def _simulated_station(tmp_path):
             station,
             lightings=["front"],
             metadata={"driver": "sim", "scenario": rig.info["scenario"]},
-            evaluation=reference_truth(rig.sim),
+            evaluation=lambda: reference_truth(rig.sim),
         )
     finally:
         rig.close()

@@ -172,7 +172,7 @@ def ensure_station(camp, world: World, light: str, T_flange_cam: np.ndarray, cam
         SimScenario(scene=world.scene, seed=world.seed, lighting=light), T_flange_cam=T_flange_cam, intrinsics=camera
     )
     try:
-        capture_reference(rig.handles, st, lightings=[light], evaluation=reference_truth(rig.sim))
+        capture_reference(rig.handles, st, lightings=[light], evaluation=lambda: reference_truth(rig.sim))
     finally:
         rig.close()
     return st
