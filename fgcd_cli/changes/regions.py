@@ -56,8 +56,7 @@ def by_evidence(regions: list[ChangeRegion]) -> list[ChangeRegion]:
 
     Rule (docs/change-detection.md, "Reports"): a person acts on the region with
     the strongest evidence, not the largest; a long thin strip along an edge is
-    large and weak (the demo's false strips peak at 2-4 times the decision
-    level, its real changes at 18-25).
+    large and weak (the demo's figures are there).
     """
     return sorted(regions, key=lambda r: evidence_rank(r.max_score, r.area_px, r.id))
 

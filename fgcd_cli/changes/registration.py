@@ -54,6 +54,11 @@ class Registration:
     settings: dict = field(default_factory=dict)
 
 
+#: Lowest ECC correlation of the gradient-magnitude images (zero-mean normalised) at which a
+#: registration is trusted (``register_to_reference``; the grid AFD's whole-image start).
+MIN_GRADIENT_CORRELATION = 0.3
+
+
 def gradient_magnitude(gray: np.ndarray, *, sigma_px: float = 1.0) -> np.ndarray:
     """Gradient magnitude of a Gaussian-smoothed image.
 
@@ -221,7 +226,7 @@ def register_to_reference(
     *,
     min_sift_inliers: int = 15,
     min_overlap: float = 0.5,
-    min_correlation: float = 0.3,
+    min_correlation: float = MIN_GRADIENT_CORRELATION,
 ) -> Registration:
     """Register the current image onto the reference (homography), robust to lighting.
 

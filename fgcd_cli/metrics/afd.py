@@ -22,6 +22,7 @@ import numpy as np
 
 from fgcd_cli.changes.images import image_health, to_float_image, to_gray
 from fgcd_cli.changes.registration import (
+    MIN_GRADIENT_CORRELATION,
     ecc_gradient,
     gradient_magnitude,
     match_sift,
@@ -88,15 +89,10 @@ def _result(points_ref, points_cur, *, candidates, method, settings, shape) -> F
     )
 
 
-#: Lowest ECC correlation of the whole-image start (the gradient images' zero-mean normalised
-#: correlation) trusted as the grid's starting motion; below it, or when ECC diverges, the cells
-#: start from no motion. The bar ``fgcd diff``'s registration trusts (``register_to_reference``).
-GRID_START_MIN_CORRELATION = 0.3
-
-
 def _grid_start(ref_gray: np.ndarray, cur_gray: np.ndarray) -> tuple[np.ndarray, float]:
     """The whole-image motion the cells start from: ECC on gradient magnitude from no motion, (3, 3) and its
-    correlation (the identity and NaN when ECC diverges or correlates below :data:`GRID_START_MIN_CORRELATION`).
+    correlation (the identity and NaN when ECC diverges or correlates below
+    ``changes.registration.MIN_GRADIENT_CORRELATION``, the bar ``fgcd diff``'s registration trusts).
 
     Why: a patch correlated from no motion reaches only a fraction of its own size; the whole image's
     gradients bring every cell within reach of a motion several patches wide (the image stage's
@@ -107,7 +103,7 @@ def _grid_start(ref_gray: np.ndarray, cur_gray: np.ndarray) -> tuple[np.ndarray,
         H, correlation = ecc_gradient(ref_gray, cur_gray, np.eye(3))
     except cv2.error:
         return np.eye(3), float("nan")
-    if not np.isfinite(correlation) or correlation < GRID_START_MIN_CORRELATION:
+    if not np.isfinite(correlation) or correlation < MIN_GRADIENT_CORRELATION:
         return np.eye(3), float("nan")
     return H, correlation
 

@@ -12,7 +12,7 @@ far the real sphere is from that model.
 
 The render is taken as the multi-light camera takes its images: a linear
 response (:data:`MULTILIGHT_CAMERA`; an ideal Lambertian sphere fits the real
-one 0.062 with gamma 1 and 0.161 with 2.2, docs/lab/2026-12-06-lighting.md,
+one far better with gamma 1 than 2.2, docs/lab/2026-12-06-lighting.md,
 "Lead 1"), 8 bits, the simulated sensor's noise. The same render through the
 field camera's response (gamma 2.2) is reported beside it.
 """

@@ -53,12 +53,9 @@ __all__ = [
 ]
 
 
-#: The registration error every match of one image pair shares (pixels, per axis), measured on real
-#: photographs (``fgcd bench lighting``, paper 000's Table 1 protocol, the 53 cross-lighting pairs of the
-#: FGCD groups): under one light, the same-lighting homographies spread 0.10-0.18 px about their
-#: consensus on the test blocks; across lightings, the lighting-robust registrations (ECC on gradient
-#: magnitude, the grid from it) land a median 1.06-1.19 px from it, about 1.18 sigma of a 2D Gaussian
-#: (docs/lab/2026-12-06-calibrated-world.md). Used by the PnP uncertainty (``pnp_uncertainty``).
+#: The registration error every match of one image pair shares (pixels, per axis), under the reference's
+#: own light and across lightings: each measured on real photographs with ``fgcd bench lighting``'s protocol
+#: (the figures: docs/relocation.md, "Stop rules", Uncertainties). Used by the PnP uncertainty.
 SAME_LIGHT_COMMON_PX = 0.15
 CROSS_LIGHT_COMMON_PX = 1.0
 
