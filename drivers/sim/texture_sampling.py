@@ -9,11 +9,32 @@ __all__ = ["mip_pyramid", "sample_mipmapped", "bent_normals"]
 
 
 def mip_pyramid(texture: np.ndarray) -> list[np.ndarray]:
-    """A texture and its successive halvings down to 4 texels (float32)."""
+    """A texture and its successive halvings down to 4 texels (float32).
+
+    Every level keeps the texture where it is: a texel's centre ``(i + 0.5) / n`` in
+    texture coordinates is the centre of what it averages (docs/simulator.md, "Renderer").
+    """
     pyr = [np.ascontiguousarray(texture, dtype=np.float32)]
     while min(pyr[-1].shape[:2]) > 4:
-        pyr.append(cv2.pyrDown(pyr[-1]))
+        pyr.append(_halve(pyr[-1]))
     return pyr
+
+
+def _halve(tex: np.ndarray) -> np.ndarray:
+    """One mip level down: the binomial filter [1, 3, 3, 1] / 8 centred between each texel pair.
+
+    Written out because ``cv2.pyrDown`` centres output texel ``i`` on input texel ``2i``, not
+    between ``2i`` and ``2i + 1``: each level would slide the texture by half a texel of the
+    level above, (2^k - 1) / 2 texels at level k, so detail would move on the surface as the
+    camera's distance changes the level. Here a [1, 2, 1] / 4 blur (wrapping, as the lookups
+    do) followed by an area halving (the 2 x 2 mean; OpenCV's half-pixel-centred area resize
+    for odd sizes) makes the centred [1, 3, 3, 1] / 8.
+    """
+    h, w = tex.shape[:2]
+    padded = cv2.copyMakeBorder(tex, 1, 1, 1, 1, cv2.BORDER_WRAP)  # OpenCV's filters refuse BORDER_WRAP
+    kernel = np.array([0.25, 0.5, 0.25], np.float32)
+    blurred = cv2.sepFilter2D(padded, -1, kernel, kernel)[1 : h + 1, 1 : w + 1]
+    return cv2.resize(blurred, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)
 
 
 def sample_mipmapped(pyramid: list[np.ndarray], uvs: np.ndarray, level: np.ndarray) -> np.ndarray:

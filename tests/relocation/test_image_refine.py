@@ -166,7 +166,12 @@ def test_low_contrast_wall_under_a_side_light_from_a_few_centimetres():
     assert res.ok, res.reason
     assert res.matcher == "sift" and res.inliers >= ImageRefineConfig().strong_min_inliers
     mm, deg = pose_distance(res.M_cam, M_true)
-    assert mm < 3.0 and deg < 0.1  # ~1 px at 1.5 m is 2.5 mm; the offset itself is 30 mm / 3 deg
+    # Across lightings every match shares an error of about 1 px (CROSS_LIGHT_COMMON_PX, measured on
+    # real photographs): 2.5 mm / 0.1 deg at 1.5 m. The stated sigma must cover the error without
+    # being inflated past that model, and both must be far below the 30 mm / 3 deg offset.
+    assert mm < 2.0 * res.offset_sigma_mm
+    assert res.offset_sigma_mm < 2 * 2.5
+    assert deg < 0.2
 
 
 def test_local_contrast_is_the_core_clahe_and_its_8_bit_form_the_same_levels():
