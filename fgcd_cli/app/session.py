@@ -164,10 +164,16 @@ def metric_keyframes(state, scale: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def grab_gray(rig: RigHandles, *, average: int = 2) -> np.ndarray:
-    """The current undistorted grey image, averaged over a few frames (noise)."""
+    """The current undistorted grey image, averaged over a few stills (noise).
+
+    Stills, as the reference's images are (``grab_images``): a measurement compares
+    like with like. On the simulator a still integrates each pixel's area and a
+    stream frame samples one ray, which differ by aliasing on grain finer than a
+    pixel; a real camera's still is its next frame (``fgcd_drivers.cameras``).
+    """
     acc = None
     for _ in range(max(1, average)):
-        img = to_float01(np.asarray(rig.camera_source.grab().image)).astype(np.float64)
+        img = to_float01(np.asarray(rig.camera_source.grab_still().image)).astype(np.float64)
         acc = img if acc is None else acc + img
     return (acc / max(1, average)).astype(np.float32)
 

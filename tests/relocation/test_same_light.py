@@ -39,10 +39,10 @@ class _Vse:
 
 
 def _rig(lights):
-    def grab():
+    def grab_still():
         return SimpleNamespace(image=np.full((4, 4), 0.5 if lights is None or lights.current == "front" else 0.2))
 
-    return SimpleNamespace(lights=lights, camera_source=SimpleNamespace(grab=grab))
+    return SimpleNamespace(lights=lights, camera_source=SimpleNamespace(grab_still=grab_still))
 
 
 def test_lighting_is_the_references_first_switchable_one():
