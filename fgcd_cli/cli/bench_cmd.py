@@ -48,11 +48,11 @@ def changes(
     quick: bool = typer.Option(False, "--quick", help="Fewer lightings and pairs."),
     overlays: Path | None = typer.Option(None, "--overlays", help="Write sample overlays (PNG) into this folder."),
     part: list[str] | None = typer.Option(
-        None, "--part", help="Run only this part: real, sim or large (repeatable; default: all three)."
+        None, "--part", help="Run only this part: real, sim, large, multilight (repeatable; default: all)."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """Fine-grained change detection: real FGCD groups (leave one group out) and simulated pairs."""
+    """Fine-grained change detection: real FGCD groups (leave one group out), simulated pairs, real multi-light objects."""
     from fgcd_cli.bench.changes.main import PARTS, run
     from fgcd_cli.errors import UserInputError
 
@@ -78,8 +78,9 @@ def changes(
             console.print(f"simulated part: {data['sim'].get('reason')}")
         for key, value in data["summary"].items():
             target = data["targets"].get(key)
-            bound = "≤" if key.startswith(("seconds", "peak")) else "≥"  # times and memory are upper bounds
-            console.print(f"[bold]{key}[/bold] = {value:.3f}" + (f"  (target {bound} {target})" if target else ""))
+            bound = "≤" if key.startswith(("seconds", "peak")) or "false_regions" in key else "≥"  # upper bounds
+            shown = f"  (target {bound} {target})" if target is not None else ""
+            console.print(f"[bold]{key}[/bold] = {value:.3f}" + shown)
 
     emit(data, as_json=as_json, render=render)
 

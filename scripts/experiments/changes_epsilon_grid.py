@@ -20,9 +20,10 @@ import json
 import cv2
 import numpy as np
 
-from fgcd_cli.bench.changes.main import DATASET, _read_rgb, find_groups, group_lightings
+from fgcd_cli.bench.changes.main import DATASET, find_groups, group_lightings
 from fgcd_cli.changes.config import DecisionRule, RegionConfig
 from fgcd_cli.changes.detect import decide, detect_changes
+from fgcd_cli.changes.io import read_image as _read_rgb
 from fgcd_cli.metrics.change_scores import binary_scores
 
 

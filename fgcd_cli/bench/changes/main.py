@@ -32,6 +32,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fgcd_cli.bench.changes.multilight import run_multilight
+from fgcd_cli.bench.changes.overlays import write_overlays
 from fgcd_cli.bench.paths import FGCD_DATASET
 from fgcd_cli.changes.baseline_iccv import iccv2015_score
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig, ScoreConfig
@@ -80,13 +82,6 @@ def _decide_at(result, key: tuple) -> np.ndarray:
         result.score, result.valid, config=RegionConfig(**options), fine_score=fine_score, fine_sigma_px=fine_sigma_px
     )
     return changed
-
-
-def _read_rgb(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise FileNotFoundError(path)
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
 def find_groups(dataset: Path) -> list[Path]:
@@ -280,7 +275,7 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
     deployed = max(grid, key=lambda key: (np.mean([g["grid"][key]["auto_f1"] for g in scored]), -grid.index(key)))
     in_sample = [dict(g["grid"][deployed], group=g["group"]) for g in scored]
     if overlay_dir is not None:
-        _write_overlays(folders, scored, deployed, overlay_dir)
+        write_overlays(folders, scored, detector_options(deployed), overlay_dir)
     score_constants = leave_one_group_out_score_constants(scored)
     return {
         "available": True,
@@ -375,44 +370,8 @@ def _reference_tables(scored: list[dict], keys: list) -> dict:
     }
 
 
-def _write_overlays(folders, scored, deployed, overlay_dir: Path) -> None:
-    """Overlay per group at the deployed constants: found regions, ground truth outlined in green."""
-    from fgcd_cli.report.figures import change_overlay, png_bytes
-
-    overlay_dir.mkdir(parents=True, exist_ok=True)
-    for folder, group in zip(folders, scored):
-        lightings = group["lightings"]
-        ref = [_read_rgb(folder / f"2-{k}.png") for k in lightings]
-        cur = [_read_rgb(folder / f"1-{k}.png") for k in lightings]
-        truth = cv2.imread(str(folder / "GT.png"), cv2.IMREAD_GRAYSCALE) > 127
-        mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
-        result = detect_changes(ref, cur, config=DetectionConfig.from_options(**detector_options(deployed)))
-        overlay = change_overlay(
-            ref[0], result.labels, result.regions, valid=result.valid, candidates=result.candidates
-        )
-        contours, _ = cv2.findContours((truth & mask).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        cv2.drawContours(overlay, contours, -1, (0, 255, 0), 1)
-        h, w = overlay.shape[:2]
-        (overlay_dir / f"changes_{folder.name}.png").write_bytes(
-            png_bytes(cv2.resize(overlay, (w // 2, h // 2), interpolation=cv2.INTER_AREA))
-        )
-        maps = result.cue_maps
-        if maps is not None and maps.normals_ref is not None:
-            # Reference (pseudo-)normals as RGB = (n + 1) / 2, and the albedo scaled to its 99th percentile.
-            normals = np.nan_to_num((maps.normals_ref + 1.0) / 2.0, nan=0.0)
-            albedo = np.nan_to_num(maps.albedo_ref, nan=0.0)
-            albedo = np.clip(albedo / max(float(np.percentile(albedo, 99)), 1e-9), 0.0, 1.0)
-            if albedo.ndim == 2:
-                albedo = np.repeat(albedo[:, :, None], 3, axis=2)
-            pair = np.concatenate([normals, albedo], axis=1)
-            pair = (pair * 255 + 0.5).astype(np.uint8)
-            (overlay_dir / f"normals_albedo_{folder.name}.png").write_bytes(
-                png_bytes(cv2.resize(pair, (pair.shape[1] // 2, pair.shape[0] // 2), interpolation=cv2.INTER_AREA))
-            )
-
-
-#: The bench's parts: the real FGCD groups, the simulated pairs, the 24 MP case.
-PARTS = ("real", "sim", "large")
+#: The bench's parts: the real FGCD groups, the simulated pairs, the 24 MP case, the multi-light objects.
+PARTS = ("real", "sim", "large", "multilight")
 
 
 def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] = PARTS) -> dict:
@@ -474,7 +433,11 @@ def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] 
     large = run_large(quick=quick) if "large" in parts else skipped
     if large.get("available"):
         summary.update({k: large[k] for k in ("seconds_per_pair_24mp", "peak_rss_mb_24mp")})
+    multilight = run_multilight(quick=quick) if "multilight" in parts else skipped
+    if multilight.get("available"):
+        summary.update({k: v for k, v in multilight.items() if k.startswith("multilight_")})
     targets = {
+        "multilight_false_regions": 0,
         "logo_best_f1": 0.70,
         "logo_auto_f1": 0.60,
         "logo_min_auto_recall": 0.3,
@@ -491,5 +454,6 @@ def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] 
         "real": real,
         "sim": sim,
         "large": large,
+        "multilight": multilight,
         "dataset_citation": "W. Feng et al., Fine-Grained Change Detection of Misaligned Scenes with Varied Illuminations, ICCV 2015",
     }
