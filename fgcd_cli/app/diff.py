@@ -31,6 +31,7 @@ from fgcd_cli.changes.regions import pixel_area_from_cloud
 from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
+from fgcd_cli.metrics.change_scores import truth_report
 from fgcd_cli.report.html import ReportContext
 from fgcd_cli.report.products import diff_products, result_summary
 
@@ -191,8 +192,11 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
     left out of the photometric-stereo fit that labels regions relief / colour.
     """
     r = request
+    truth = _read_truth(r.truth, r.score_mask)  # a damaged file refused before the detection
     found = detect_bare(r, progress=progress, tile_progress=tile_progress)
     result, fdf = found.result, found.fdf
+    if truth is not None:
+        _check_truth_shape(truth, result.mask.shape)  # before any product is written
     metadata = {
         "reference images": [str(p) for p in found.ref_paths],
         "current images": [str(p) for p in found.cur_paths],
@@ -210,24 +214,38 @@ def run_bare(request: BareDiffRequest, *, progress: Progress = None, tile_progre
     _write_dir(r.output, files)
     data = result_summary(result, fdf)
     data["output"] = str(r.output)
-    if r.truth is not None:
-        from fgcd_cli.metrics.change_scores import binary_scores, sweep_scores
-
-        truth_mask = read_mask(r.truth)
-        scored = read_mask(r.score_mask) if r.score_mask is not None else found.roi
-        if truth_mask.shape != result.mask.shape or (scored is not None and scored.shape != truth_mask.shape):
-            raise UserInputError("--truth and --score-mask must have the reference image's size")
-        b = binary_scores(result.mask, truth_mask, eval_mask=scored)
-        s = sweep_scores(result.score, truth_mask, eval_mask=scored)
-        data["scores"] = {
-            "precision": b.precision,
-            "recall": b.recall,
-            "f1": b.f1,
-            "iou": b.iou,
-            "best_f1": s.best_f1,
-            "average_precision": s.average_precision,
-        }
+    if truth is not None:
+        data["scores"] = truth_report(result.mask, result.score, truth.truth, eval_mask=truth.scored_in(found.roi))
     return data
+
+
+@dataclass(frozen=True)
+class _Truth:
+    """An evaluator's ground truth (``--truth``) and where it is scored (``--score-mask``; None: the ROI)."""
+
+    truth: np.ndarray
+    score_mask: np.ndarray | None
+
+    def scored_in(self, roi: np.ndarray | None) -> np.ndarray | None:
+        return self.score_mask if self.score_mask is not None else roi
+
+
+def _read_truth(truth: Path | None, score_mask: Path | None, shape: tuple[int, int] | None = None) -> _Truth | None:
+    """Read ``--truth`` and ``--score-mask`` (never given to the detector); with ``shape``, check their size."""
+    if truth is None:
+        return None
+    read = _Truth(read_mask(truth), read_mask(score_mask) if score_mask is not None else None)
+    if shape is not None:
+        _check_truth_shape(read, shape)
+    return read
+
+
+def _check_truth_shape(truth: _Truth, shape: tuple[int, ...]) -> None:
+    masks = [truth.truth] + ([truth.score_mask] if truth.score_mask is not None else [])
+    if any(m.shape != tuple(shape[:2]) for m in masks):
+        raise UserInputError(
+            f"--truth and --score-mask must have the reference image's size ({shape[1]} x {shape[0]} px)"
+        )
 
 
 def _paired_lightings(reference, visit) -> tuple[list[str], list[str]]:
@@ -298,6 +316,9 @@ class CampaignDiffRequest:
         Replace a stored diff of the visit that was made with other options
         (without it such a diff is kept and the request refused,
         :func:`fgcd_cli.app.diff_options.check_stored_diff`).
+    truth, score_mask : Path or None
+        As :class:`BareDiffRequest`'s, in the reference image's frame (an evaluator's; the
+        stored products never depend on them).
     """
 
     campaign: Path
@@ -309,9 +330,15 @@ class CampaignDiffRequest:
     output: Path | None = None
     edge_check_px: int | None = None
     force: bool = False
+    truth: Path | None = None
+    score_mask: Path | None = None
 
     def __post_init__(self) -> None:
-        check_diff_options(mm_per_px=self.mm_per_px, edge_check_px=self.edge_check_px, files={"--roi": self.roi})
+        check_diff_options(
+            mm_per_px=self.mm_per_px,
+            edge_check_px=self.edge_check_px,
+            files={"--roi": self.roi, "--truth": self.truth, "--score-mask": self.score_mask},
+        )
 
     def options(self) -> AnalysisOptions:
         """The options this diff is made with, as its record (``changes/analysis.json``) states them."""
@@ -347,6 +374,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     cur_images = [observation.image(n) for n in visit_lightings]
     check_stack_sizes(ref_images, cur_images)
     shape = ref_images[0].shape[:2]
+    truth = _read_truth(r.truth, r.score_mask, shape)
     if r.mm_per_px is not None:
         area = np.full(shape, r.mm_per_px**2)
         scale_note = f"{r.mm_per_px} mm per px (given)"
@@ -407,6 +435,8 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     data["visit"] = observation.name
     if replaced:
         data["warnings"] = [*data.get("warnings", []), replaced]
+    if truth is not None:
+        data["scores"] = truth_report(result.mask, result.score, truth.truth, eval_mask=truth.scored_in(mask))
     return data
 
 

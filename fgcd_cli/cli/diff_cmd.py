@@ -45,8 +45,9 @@ def _render(data: dict):
         if data.get("scores"):
             s = data["scores"]
             console.print(
-                f"against ground truth: F1 {s['f1']:.3f} (P {s['precision']:.3f}, R {s['recall']:.3f}), "
-                f"best F1 {s['best_f1']:.3f}, AP {s['average_precision']:.3f}"
+                f"against ground truth: {s['changes_found']} of {s['changes_true']} change(s) found, "
+                f"{s['false_regions']} false region(s); pixels F1 {s['f1']:.3f} (P {s['precision']:.3f}, "
+                f"R {s['recall']:.3f}), best F1 {s['best_f1']:.3f}, AP {s['average_precision']:.3f}"
             )
         console.print(f"outputs: {data['output']}")
 
@@ -120,7 +121,10 @@ def diff(
         "non-zero, e.g. the object without its background. Default: the whole frame.",
     ),
     truth: Path | None = typer.Option(
-        None, "--truth", help="Ground-truth change mask (reference frame): print P/R/F1/AP."
+        None,
+        "--truth",
+        help="Ground-truth change mask (reference frame; bare or campaign mode): print the changes found, "
+        "the false regions and P/R/F1/AP.",
     ),
     score_mask: Path | None = typer.Option(
         None,
@@ -168,6 +172,8 @@ def diff(
             raise UserInputError("give either --campaign/--station or --ref/--cur, not both")
         if campaign is None or station is None:
             raise UserInputError("campaign mode needs both --campaign and --station")
+        if score_mask is not None and truth is None:
+            raise UserInputError("--score-mask says where --truth is scored: give --truth too")
         request = diff_uc.CampaignDiffRequest(
             campaign=campaign,
             station=station,
@@ -178,6 +184,8 @@ def diff(
             output=output,
             edge_check_px=edge_check,
             force=force,
+            truth=truth,
+            score_mask=score_mask,
         )
         run_record.no_platform()
         where = output or f"visit {visit or '(latest)'} of station '{station}'"

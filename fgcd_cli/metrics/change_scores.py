@@ -148,3 +148,38 @@ def region_counts(predicted: np.ndarray, truth: np.ndarray, *, eval_mask: np.nda
         regions=int(n_regions),
         false_regions=int(n_regions - np.count_nonzero(hit_regions)),
     )
+
+
+def truth_report(
+    predicted: np.ndarray, score: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray | None = None
+) -> dict:
+    """A change map against ground truth, as ``fgcd diff --truth`` prints it: pixels and regions.
+
+    Parameters
+    ----------
+    predicted : (H, W) bool, the changed pixels.
+    score : (H, W) float, the change score (swept for the threshold-free figures).
+    truth : (H, W) bool, the true changes.
+    eval_mask : (H, W) bool or None, where they are scored (None: everywhere).
+
+    Returns
+    -------
+    dict
+        ``precision``, ``recall``, ``f1``, ``iou`` (pixels, at the tool's decision), ``best_f1`` and
+        ``average_precision`` (the score swept), ``changes_true``, ``changes_found`` and
+        ``false_regions`` (:func:`region_counts`).
+    """
+    b = binary_scores(predicted, truth, eval_mask=eval_mask)
+    s = sweep_scores(score, truth, eval_mask=eval_mask)
+    c = region_counts(predicted, truth, eval_mask=eval_mask)
+    return {
+        "precision": b.precision,
+        "recall": b.recall,
+        "f1": b.f1,
+        "iou": b.iou,
+        "best_f1": s.best_f1,
+        "average_precision": s.average_precision,
+        "changes_true": c.changes_true,
+        "changes_found": c.changes_found,
+        "false_regions": c.false_regions,
+    }

@@ -103,6 +103,31 @@ def test_campaign_diff_refuses_bad_options_before_reading_anything(tmp_path, cap
     assert not (camp.path / "stations/S1/visits" / VISITS[1] / "changes").exists()  # nothing written
 
 
+def test_campaign_diff_scores_against_a_given_truth_and_counts_regions(tmp_path, capsys):
+    camp = _campaign(tmp_path)
+    truth = np.zeros((192, 192), np.uint8)
+    cv2.circle(truth, (50, 140), 10, 255, -1)  # the disc the later visit changed
+    cv2.circle(truth, (150, 40), 8, 255, -1)  # and a change the detector cannot have seen
+    cv2.imwrite(str(tmp_path / "truth.png"), truth)
+    code, out, err = _fgcd(capsys, "diff", "-c", str(camp.path), "-s", "S1", "--truth", str(tmp_path / "truth.png"))
+    assert code == 0, err
+    assert "1 of 2 change(s) found, 0 false region(s)" in out
+    code, out, err = _fgcd(
+        capsys, "diff", "-c", str(camp.path), "-s", "S1", "--truth", str(tmp_path / "truth.png"), "--json", "--force"
+    )
+    scores = json.loads(out)["scores"]
+    assert (scores["changes_true"], scores["changes_found"], scores["false_regions"]) == (2, 1, 0)
+    assert 0.4 < scores["recall"] < 0.75  # the disc's pixels of the two discs' (314 of 515)
+    # a truth of another size is refused before anything is written
+    cv2.imwrite(str(tmp_path / "small.png"), truth[:100])
+    stored = (camp.path / "stations/S1/visits" / VISITS[1] / "changes" / "regions.json").read_bytes()
+    code, out, err = _fgcd(
+        capsys, "diff", "-c", str(camp.path), "-s", "S1", "--truth", str(tmp_path / "small.png"), "--force"
+    )
+    assert code == 2 and err.count("\n") == 1 and "--truth" in err
+    assert (camp.path / "stations/S1/visits" / VISITS[1] / "changes" / "regions.json").read_bytes() == stored
+
+
 def test_diff_requests_check_their_options_for_every_caller(tmp_path):
     """The bench and the archive build the same requests: the check is theirs too."""
     from fgcd_cli.app.diff import BareDiffRequest
