@@ -18,16 +18,18 @@ def strongest_first(regions: list[dict]) -> list[dict]:
 
 
 def region_line(region: dict, *, epsilon: float) -> str:
-    """``#1: strength 24.1, 340 px, 3.40 mm² at (200, 60), NFA 1e-12, relief`` (cue and strength when known)."""
+    """``#1: strength 24.1, 340 px, 3.40 mm² at (200, 60), NFA 1e-12, colour, darker by 28 %`` (what is known)."""
     from fgcd_cli.report.areas import area_mm2_text
-    from fgcd_cli.report.candidates import region_significance_text
+    from fgcd_cli.report.candidates import region_significance_text, tone_text
 
     mm2 = f", {area_mm2_text(region['area_mm2'], region['area_px'])}" if region.get("area_mm2") is not None else ""
     x, y = region["centroid_xy"]
     cue = f", [bold]{region['cue']}[/bold]" if region.get("cue") else ""
     significance = region_significance_text(region.get("log10_nfa"), epsilon=epsilon)
     strength = f"strength {region['strength']:.1f}, " if region.get("strength") is not None else ""
-    return f"#{region['id']}: {strength}{region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}"
+    tone = tone_text(region.get("tone"), region.get("brightness_change"))
+    tone = f", {tone}" if tone else ""
+    return f"#{region['id']}: {strength}{region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}{tone}"
 
 
 def no_change_lines(candidates: list[dict], *, epsilon: float, more: int = 2) -> list[str]:

@@ -29,7 +29,13 @@ from fgcd_cli.changes.dense.refine import DenseAlignment, refine_dense, warp_wit
 from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.illumination import normalize_shading
 from fgcd_cli.changes.images import check_side_inputs, image_health, to_gray, validate_stacks
-from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak, regions_with_significance
+from fgcd_cli.changes.regions import (
+    ChangeRegion,
+    clean_mask,
+    refine_to_local_peak,
+    regions_with_significance,
+    set_brightness_changes,
+)
 from fgcd_cli.changes.registration import Registration, RegistrationInit, register_to_reference, warp_to_reference
 from fgcd_cli.changes.result import (
     CUES_COMPUTED,
@@ -149,6 +155,7 @@ def detect_changes(
         smooth_sigma_px=config.score.smooth_sigma_px,
         settings=settings,
     )
+    set_brightness_changes(found.regions, found.labels, refs, scored.normalized)
     step("labelled")
     return ChangeResult(
         comparable=True,

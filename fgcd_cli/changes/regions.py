@@ -43,6 +43,13 @@ class ChangeRegion:
     """log10 of the region's number of false alarms (a-contrario significance; < 0 is significant at epsilon = 1)."""
     cue: CueLabel | None = None
     """What changed, from the photometric-stereo cues (:class:`CueLabel`), or None when the cues were not computed."""
+    brightness_change: float | None = None
+    """How much brighter (> 0) or darker (< 0) the region is now, as a fraction (-0.2: 20 % darker):
+    :func:`set_brightness_changes`. Swapping reference and current flips its sign. None: not computed."""
+    tone: str | None = None
+    """``"darker"`` or ``"brighter"`` when every lighting agrees (:func:`set_brightness_changes`),
+    ``"mixed"`` when they do not (a relief change shades one way under one light, the other way under
+    another); None: not computed."""
 
 
 def clean_mask(mask: np.ndarray, *, min_region_px: int, max_hole_px: int) -> np.ndarray:
@@ -305,3 +312,42 @@ def regions_with_significance(mask, score, significance: Decision, pixel_area_mm
         for i in range(count)
     ]
     return regions, labels
+
+
+def set_brightness_changes(
+    regions: list[ChangeRegion], labels: np.ndarray, refs: list[np.ndarray], normalized: list[np.ndarray]
+) -> None:
+    """Set each region's ``brightness_change``: the geometric mean over lightings of its light ratio, less 1.
+
+    Per lighting ``k`` the ratio is ``sum(cur_k) / sum(ref_k)`` over the region's pixels (grey, the
+    current image re-lit to the reference by the local gain), so a stain reads below 0 and a
+    whitening or a loss showing a paler layer above 0; the geometric mean makes the swapped pair's
+    value ``1 / (1 + b) - 1``, of the opposite sign (docs/change-detection.md, "Reports").
+
+    Parameters
+    ----------
+    regions : list of ChangeRegion, ids 1..n matching ``labels``.
+    labels : (H, W) int32, region ids (0 elsewhere).
+    refs, normalized : lists of K (H, W[, 3]) float32 in [0, 1], the reference images and the
+        re-lit current images in the reference frame.
+    """
+    if not regions:
+        return
+    from fgcd_cli.changes.images import to_gray
+
+    index = np.array([r.id for r in regions])
+    log_ratios = []
+    for ref, cur in zip(refs, normalized):
+        sum_ref = ndimage.sum_labels(to_gray(ref).astype(np.float64), labels, index)
+        sum_cur = ndimage.sum_labels(np.clip(to_gray(cur), 0.0, None).astype(np.float64), labels, index)
+        log_ratios.append(np.log((sum_cur + 1e-6) / (sum_ref + 1e-6)))
+    log_ratios = np.array(log_ratios)
+    mean = log_ratios.mean(axis=0)
+    change = np.expm1(mean)
+    # The tone is stated when the lightings agree: the mean log ratio at least two of its standard
+    # errors from 0 (one lighting: its sign).
+    k = len(log_ratios)
+    standard_error = log_ratios.std(axis=0, ddof=1) / np.sqrt(k) if k > 1 else np.zeros_like(mean)
+    for region, value, m, se in zip(regions, change, mean, standard_error):
+        region.brightness_change = float(value)
+        region.tone = "mixed" if abs(m) <= 2.0 * se else ("darker" if m < 0 else "brighter")

@@ -121,3 +121,13 @@ def set_aside_text(n_set_aside: int) -> str:
     if n_set_aside <= 0:
         return ""
     return f"; {n_set_aside} candidate{'s' if n_set_aside > 1 else ''} set aside along an edge"
+
+
+def tone_text(tone: str | None, brightness_change: float | None) -> str:
+    """``"darker by 28 %"``, ``"brighter by 15 %"``, ``"mixed"`` (the lightings disagree: relief shades
+    both ways) or ``""`` when not computed (:func:`fgcd_cli.changes.regions.set_brightness_changes`)."""
+    if tone is None or brightness_change is None:
+        return ""
+    if tone == "mixed":
+        return "mixed"
+    return f"{tone} by {abs(brightness_change) * 100:.0f} %"

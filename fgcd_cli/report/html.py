@@ -28,6 +28,7 @@ from fgcd_cli.report.candidates import (
     region_significance_text,
     set_aside_text,
     settings_epsilon,
+    tone_text,
 )
 from fgcd_cli.report.charts import convergence_png
 from fgcd_cli.report.figures import (
@@ -325,7 +326,7 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
         "<tr><th>#</th><th>area (px)</th>"
         + ("<th>area (mm²)</th>" if has_mm2 else "")
         + "<th>centre x, y (px)</th><th>size w × h (px)</th><th>strength (× threshold)</th>"
-        '<th>significance (NFA)</th><th class="l">cue</th></tr>'
+        '<th>significance (NFA)</th><th class="l">cue</th><th class="l">now</th></tr>'
     )
     epsilon = _epsilon(result)
     rows = []
@@ -338,7 +339,8 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
             + f"<td>{r.centroid_xy[0]:.0f}, {r.centroid_xy[1]:.0f}</td><td>{w} × {h}</td>"
             f"<td>{r.max_score / high:.1f}</td>"
             f"<td>{html.escape(region_significance_text(r.log10_nfa, epsilon=epsilon).removeprefix('NFA '))}</td>"
-            f'<td class="l">{html.escape(r.cue or "–")}</td></tr>'
+            f'<td class="l">{html.escape(r.cue or "–")}</td>'
+            f'<td class="l">{html.escape(tone_text(r.tone, r.brightness_change) or "–")}</td></tr>'
         )
     more = len(result.regions) - max_rows
     parts = [f"<h2>Changed regions</h2><table>{header}{''.join(rows)}</table>"]
@@ -352,7 +354,9 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
         "hysteresis: its high threshold). Significance: the number of false alarms (NFA), how many regions "
         "at least as extreme are expected per image on an unchanged pair (a-contrario; "
         f"below {epsilon:g} = significant). Cue: what changed, relief (surface normals) or colour "
-        "(albedo) or both, when the photometric cues were computed.</p>"
+        "(albedo) or both, when the photometric cues were computed. Now: darker or brighter than at the "
+        "reference (the region's light over every lighting), or mixed when the lightings disagree "
+        "(relief shades one way under one light, the other way under another).</p>"
     )
     return parts
 
@@ -369,6 +373,8 @@ def _closeups(ref_image: np.ndarray, shown_cur: np.ndarray, result: ChangeResult
         area = area_mm2_text(r.area_mm2, r.area_px) if r.area_mm2 is not None else f"{r.area_px} px"
         tile = region_closeup(ref_image, shown_cur, result.labels, r)
         extra = (f", NFA {nfa_text(r.log10_nfa)}" if r.log10_nfa is not None else "") + (f", {r.cue}" if r.cue else "")
+        tone = tone_text(r.tone, r.brightness_change)
+        extra += f", {tone}" if tone else ""
         parts.append(_figure(png_bytes(tile), f"Region {r.id}: {area}, strength {r.max_score / high:.1f}{extra}"))
     parts.append("</div>")
     if len(result.regions) > max_closeups:
