@@ -108,7 +108,7 @@ def revisit_images(
     out = []
     for image in reference:
         painted = _paint(image.astype(np.float64), list(changes))
-        moved = cv2.warpAffine(painted, A, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        moved = cv2.warpAffine(painted, A, (w, h), flags=cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
         moved *= rng.uniform(*GAIN_RANGE)
         moved += rng.standard_normal(moved.shape) * sensor_noise_dn(moved)
         out.append(np.clip(np.round(moved), 0, 255).astype(np.uint8))

@@ -163,12 +163,15 @@ def tile_sampling(geom: Geometry, ext: tuple[int, int, int, int], cur_shape: tup
 def warp_tile(cur: np.ndarray, sampling: Sampling) -> np.ndarray:
     """Resample the current image at the tile's maps, reading (and converting to float) only the needed crop.
 
-    Equal to :func:`warp_with_flow` on the whole image: bilinear, border reflected about
-    the image's own border (the crop reaches the border on any side where a sample falls outside).
+    As :func:`warp_with_flow` on the whole image: Lanczos, clipped to [0, 1], the range of every image
+    the tiled pipeline reads (``fgcd_cli.changes.registration.clip_to_source`` clips to the source's own
+    range), border reflected about the image's own border (the crop reaches the border on any side
+    where a sample falls outside).
     """
     if sampling.box is None:
         return np.zeros(sampling.shape + np.asarray(cur).shape[2:3], np.float32)
     src = crop_float(cur, *sampling.box)
     # Any sample outside the image lies beyond a side the crop reaches (it holds every
     # sample inside, plus 2 px), so reflecting about the crop's edge is reflecting about the image's.
-    return cv2.remap(src, sampling.map_x, sampling.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    warped = cv2.remap(src, sampling.map_x, sampling.map_y, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT)
+    return np.clip(warped, 0.0, 1.0, out=warped)
