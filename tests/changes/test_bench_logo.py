@@ -65,3 +65,17 @@ def test_per_kind_means_and_counts_pool_each_kind_alone():
     assert out["Db"]["changes_found_fraction"] == 24 / 40  # pooled over the kind's changes, not averaged
     assert out["Db"]["false_regions_per_pair"] == 2.0
     assert out["Ds"]["false_regions_per_pair"] == 20.0 and out["Ds"]["changes_found_fraction"] == 1.0
+
+
+def test_leave_one_kind_out_chooses_on_the_other_kinds_only():
+    a, b = ("acontrario", 0.005, 0.3), ("acontrario", 0.01, 0.2)
+    # Two Db groups prefer b strongly; the one Ds group prefers a. Leave one group out, Db-1 would
+    # be chosen on Db-2 and Ds-1 (b wins); leave one kind out, only on Ds-1 (a wins).
+    groups = [_group("Db-1", {a: 0.2, b: 0.9}, "auto_f1"), _group("Db-2", {a: 0.2, b: 0.9}, "auto_f1")]
+    statue = _group("Ds-1", {a: 0.7, b: 0.6}, "auto_f1")
+    statue["kind"] = "Ds"
+    groups.append(statue)
+    by_group = leave_one_group_out(groups, [a, b])
+    by_kind = leave_one_group_out(groups, [a, b], by="kind")
+    assert by_group[0]["auto_f1"] == 0.9 and by_kind[0]["auto_f1"] == 0.2
+    assert by_kind[2]["auto_f1"] == 0.6  # the statue, chosen on the two test blocks: b

@@ -11,6 +11,7 @@ beside (``roi_*``). Scored
 **leave one group out**: the decision's data-chosen constants are selected on
 the other groups (best mean auto F1 over a small grid) and the held-out group is
 scored with them; the in-sample figures are reported beside, as a reference only.
+``lokind_*``: the same with the constants chosen on the other *kinds'* groups only.
 Each pair is scored once with the shipped defaults (timed end to end, reading
 the files and the FDF included); the decision rules are then applied to that score. Beside it, as references scored
 the same way: the former tuned hysteresis rule (k chosen leave one group out),
@@ -194,14 +195,20 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
     }
 
 
-def leave_one_group_out_score_constants(scored: list[dict]) -> dict | None:
+def _others(scored: list[dict], held: dict, by: str) -> list[dict]:
+    """The groups a held-out group's constants are chosen on: every other group (``by="group"``), or
+    every group of another kind (``by="kind"``: the next object may be of a kind never seen)."""
+    return [g for g in scored if g is not held and (by == "group" or g["kind"] != held["kind"])]
+
+
+def leave_one_group_out_score_constants(scored: list[dict], *, by: str = "group") -> dict | None:
     """Best F1 and AP with the score's constants chosen on the other groups (by their mean best F1)."""
     keys = list(scored[0]["score_variants"]) if scored and scored[0]["score_variants"] else []
     if not keys:
         return None
     rows = []
     for held in scored:
-        others = [g for g in scored if g is not held]
+        others = _others(scored, held, by)
         chosen = max(
             keys, key=lambda key: (np.mean([g["score_variants"][key]["best_f1"] for g in others]), -keys.index(key))
         )
@@ -229,14 +236,17 @@ def leave_one_group_out_score_constants(scored: list[dict]) -> dict | None:
     }
 
 
-def leave_one_group_out(scored: list[dict], grid: list[tuple[float, float]], *, table: str = "grid") -> list[dict]:
+def leave_one_group_out(
+    scored: list[dict], grid: list[tuple[float, float]], *, table: str = "grid", by: str = "group"
+) -> list[dict]:
     """For each group, the grid point with the best mean auto F1 on the *other* groups, and its held-out scores.
 
     ``table``: ``"grid"`` (the user's detection, no ROI) or ``"roi_grid"`` (the same with ``--roi mask.png``).
+    ``by``: ``"kind"`` chooses on the other kinds' groups only (:func:`_others`).
     """
     out = []
     for held in scored:
-        others = [g for g in scored if g is not held]
+        others = _others(scored, held, by)
         chosen = max(grid, key=lambda key: (np.mean([g[table][key]["auto_f1"] for g in others]), -grid.index(key)))
         row = dict(held[table][chosen])
         row.update(
@@ -270,6 +280,8 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
     logo_hysteresis = leave_one_group_out(scored, list(HYSTERESIS_GRID))
     logo_single = leave_one_group_out(scored, single_scale)
     logo_scale_chosen = leave_one_group_out(scored, grid + single_scale)
+    lokind = leave_one_group_out(scored, grid, by="kind")
+    lokind_constants = leave_one_group_out_score_constants(scored, by="kind")
     mean = lambda rows, key: float(np.mean([r[key] for r in rows]))  # noqa: E731
     # The shipped defaults: the grid point chosen on all groups (what the next, unseen object gets).
     deployed = max(grid, key=lambda key: (np.mean([g["grid"][key]["auto_f1"] for g in scored]), -grid.index(key)))
@@ -290,6 +302,12 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         **_counts("", logo),
         **_counts("roi_", logo_roi),
         "per_kind": _per_kind(logo),
+        # Each kind scored with every constant chosen on the other two kinds (decision; score in full runs).
+        "lokind_auto_f1": mean(lokind, "auto_f1"),
+        "lokind_best_f1": (
+            lokind_constants["logo_best_f1_all_constants"] if lokind_constants else mean(lokind, "best_f1")
+        ),
+        "lokind_per_kind": _per_kind(lokind),
         # The same with the annotators' mask given as a region of interest (fgcd diff --roi mask.png).
         "roi_logo_best_f1": mean(logo_roi, "best_f1"),
         "roi_logo_ap": mean(logo_roi, "ap"),
@@ -391,6 +409,8 @@ def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] 
                     "logo_ap",
                     "logo_auto_f1",
                     "logo_min_auto_recall",
+                    "lokind_best_f1",
+                    "lokind_auto_f1",
                     "roi_logo_best_f1",
                     "roi_logo_ap",
                     "roi_logo_auto_f1",
