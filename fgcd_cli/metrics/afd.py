@@ -6,7 +6,7 @@ FDF is the field of inlier displacement vectors, AFD their mean length in pixels
 of the input image. AFD depends on every one of these settings, so each value
 carries them. Under strong lighting change the authors picked 20-100 point pairs
 on a regular grid: :func:`compute_fdf` with ``method="grid"`` does it automatically
-(phase correlation of gradient-magnitude patches), ``method="pairs"`` takes pairs
+(phase correlation of gradient-orientation patches), ``method="pairs"`` takes pairs
 given by a person.
 """
 
@@ -24,12 +24,12 @@ from fgcd_cli.changes.images import image_health, to_float_image, to_gray
 from fgcd_cli.changes.registration import (
     MIN_GRADIENT_CORRELATION,
     ecc_gradient,
-    gradient_magnitude,
     match_sift,
     ransac_homography,
     warp_to_reference,
 )
 from fgcd_cli.errors import AlgorithmError, UserInputError
+from fgcd_cli.metrics.orientation_correlation import orientation_field, phase_correlate_orientation
 
 
 @dataclass(kw_only=True)
@@ -109,11 +109,12 @@ def _grid_start(ref_gray: np.ndarray, cur_gray: np.ndarray) -> tuple[np.ndarray,
 
 
 def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_response: float, ransac_px: float):
-    """Phase correlation of gradient-magnitude patches on a regular grid, from the whole image's motion.
+    """Phase correlation of gradient-orientation patches on a regular grid, from the whole image's motion.
 
-    Hand-written loop over cells around ``cv2.phaseCorrelate`` (OpenCV has no
-    block-wise variant). Gradient magnitudes make the patches insensitive to
-    smooth light gain; the Hann window suppresses the patch borders. The current
+    Hand-written loop over cells (OpenCV has no block-wise phase correlation). The
+    doubled-angle gradients (:mod:`fgcd_cli.metrics.orientation_correlation`) make the
+    patches insensitive to light gain and to an edge's polarity (a groove lit from the
+    other side); the Hann window suppresses the patch borders. The current
     image's gradients are first warped into the reference's pixels by the
     whole-image motion (:func:`_grid_start`), so each cell measures only what is
     left of it; each cell's match is mapped back through that motion.
@@ -122,8 +123,10 @@ def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_respons
     patch = int(min(patch_px, h // 2, w // 2))
     patch -= patch % 2
     H_start, _ = _grid_start(ref_gray, cur_gray)
-    grad_ref = gradient_magnitude(ref_gray)
-    grad_cur, covered = warp_to_reference(gradient_magnitude(cur_gray), H_start, ref_gray.shape)
+    field_ref = orientation_field(ref_gray)
+    field_cur = orientation_field(cur_gray)
+    real_cur, covered = warp_to_reference(np.ascontiguousarray(field_cur.real), H_start, ref_gray.shape)
+    imag_cur, _ = warp_to_reference(np.ascontiguousarray(field_cur.imag), H_start, ref_gray.shape)
     window = cv2.createHanningWindow((patch, patch), cv2.CV_32F)
     xs = np.linspace(patch / 2, w - patch / 2, grid_cells)
     ys = np.linspace(patch / 2, h - patch / 2, grid_cells)
@@ -132,8 +135,8 @@ def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_respons
     for cy in ys:
         for cx in xs:
             x0, y0 = int(round(cx)) - half, int(round(cy)) - half
-            a = grad_ref[y0 : y0 + patch, x0 : x0 + patch]
-            if a.std() < 1e-4 or covered[y0 : y0 + patch, x0 : x0 + patch].mean() < 0.9:
+            a = field_ref[y0 : y0 + patch, x0 : x0 + patch]
+            if np.abs(a).std() < 1e-4 or covered[y0 : y0 + patch, x0 : x0 + patch].mean() < 0.9:
                 continue
             centre = np.array([x0 + half - 0.5, y0 + half - 0.5])
             # Windowed phase correlation is biased towards zero shift; re-centre the
@@ -141,11 +144,14 @@ def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_respons
             shift = np.zeros(2)
             response = 0.0
             for _ in range(4):
-                b = cv2.getRectSubPix(grad_cur, (patch, patch), tuple(centre + shift))
-                if b.std() < 1e-4:
+                at = tuple(centre + shift)
+                b = cv2.getRectSubPix(real_cur, (patch, patch), at) + 1j * cv2.getRectSubPix(
+                    imag_cur, (patch, patch), at
+                )
+                if np.abs(b).std() < 1e-4:
                     response = 0.0
                     break
-                (dx, dy), response = cv2.phaseCorrelate(a, b, window)
+                (dx, dy), response = phase_correlate_orientation(a, b, window)
                 shift += (dx, dy)
                 if np.hypot(dx, dy) < 0.01:
                     break
@@ -178,7 +184,7 @@ class FdfMethod(StrEnum):
     SIFT = "sift"
     """The authors' protocol: SIFT, ratio test, RANSAC homography."""
     GRID = "grid"
-    """Phase correlation of gradient-magnitude patches on a regular grid, started from the whole image's
+    """Phase correlation of gradient-orientation patches on a regular grid, started from the whole image's
     ECC motion on gradient magnitude; RANSAC homography over the cells."""
     PAIRS = "pairs"
     """Point pairs given by a person, as they are."""
@@ -288,7 +294,7 @@ def _sift_fdf(ref: np.ndarray, cur: np.ndarray, config: FdfConfig) -> FdfResult:
 def _grid_result(ref: np.ndarray, cur: np.ndarray, config: FdfConfig) -> FdfResult:
     """The grid variant: correlated cells that agree on one homography (8 at least, half of the correlated)."""
     settings = {
-        "detector": "phase correlation of gradient-magnitude patches",
+        "detector": "phase correlation of gradient-orientation patches",
         "grid_cells": config.grid_cells,
         "patch_px": config.patch_px,
         "min_response": config.min_response,

@@ -56,7 +56,7 @@ class Matcher(StrEnum):
     """SIFT on locally equalised images (``relocation/image/refine.py: local_contrast``): the
     relocation's final image stage, with its own ratio and feature count."""
     GRID = "grid"
-    """Phase correlation of gradient patches on a grid from the whole image's ECC motion: ``fgcd afd``'s
+    """Phase correlation of gradient-orientation patches on a grid from the whole image's ECC motion: ``fgcd afd``'s
     lighting-robust variant, the image stage's fallback, with the stage's grid."""
 
 

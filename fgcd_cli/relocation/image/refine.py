@@ -138,7 +138,7 @@ class ImageRefinement:
     rms_px: float
     reference_image: str = ""
     matcher: str = ""
-    """"sift" or "grid" (phase correlation of gradient-magnitude patches)."""
+    """"sift" or "grid" (phase correlation of gradient-orientation patches)."""
     offset_sigma_mm: float = math.nan
     """1-sigma uncertainty of the camera position this correction implies, mm: the RMS
     radius ``sqrt(trace(Cov_t))`` of the PnP translation's covariance (see
@@ -304,7 +304,7 @@ def _refine_one(ref, cur, view: _ReferenceView) -> ImageRefinement:
     if sift.ok or sift.oversize:
         return sift
     # Strong lighting change (another sun): lighting-robust grid correspondences
-    # (phase correlation of gradient-magnitude patches, the FDF grid variant).
+    # (phase correlation of gradient-orientation patches, the FDF grid variant).
     try:
         fdf = compute_fdf(
             ref,
