@@ -300,17 +300,25 @@ def register_to_reference(
     return result
 
 
+#: The interpolation of every warp of the current images (homography, homography + flow, tiles), Lanczos
+#: 8 x 8, not bilinear: a bilinear sample at a fractional offset ``t`` is the filter ``[1 - t, t]``, which
+#: blurs a one-pixel line or a sharp outline by up to half its contrast while the reference, never
+#: resampled, keeps it sharp; the blur then reads as change along every fine dark line and outline
+#: (docs/change-detection.md, pipeline step 2). Its overshoot is clipped (:func:`clip_to_source`).
+WARP_INTERPOLATION = cv2.INTER_LANCZOS4
+
+
 def warp_to_reference(
     image: np.ndarray, H_cur_ref: np.ndarray, shape: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Resample a current image into the reference frame (:func:`clip_to_source`'s rule).
+    """Resample a current image into the reference frame (:data:`WARP_INTERPOLATION`, :func:`clip_to_source`).
 
     Returns (warped image float32, valid mask HxW bool: pixels that came from inside the current image).
     """
     h, w = shape
     source = image.astype(np.float32)
     warped = cv2.warpPerspective(
-        source, H_cur_ref, (w, h), flags=cv2.INTER_LANCZOS4 | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT
+        source, H_cur_ref, (w, h), flags=WARP_INTERPOLATION | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT
     )
     ones = np.ones(image.shape[:2], np.float32)
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
@@ -319,12 +327,6 @@ def warp_to_reference(
 
 
 def clip_to_source(resampled: np.ndarray, source: np.ndarray) -> np.ndarray:
-    """The one rule of the detector's warps, Lanczos resampling: ``resampled`` clipped to ``source``'s range.
-
-    Lanczos (8 x 8), not bilinear: a bilinear sample at a fractional offset ``t`` is the filter ``[1 - t, t]``,
-    which blurs a one-pixel line or a sharp outline by up to half its contrast, and the reference,
-    never resampled, keeps it sharp; the blur then reads as change along every fine dark line and
-    outline (docs/change-detection.md, pipeline step 2). Lanczos keeps them; its overshoot at steps
-    (a few percent) is clipped to the values the source holds. In place; returns ``resampled``.
-    """
+    """``resampled`` (a :data:`WARP_INTERPOLATION` warp of ``source``) clipped to ``source``'s range: the
+    interpolation's overshoot at steps (a few percent) is not in the image. In place; returns ``resampled``."""
     return np.clip(resampled, float(source.min()), float(source.max()), out=resampled)

@@ -15,9 +15,9 @@ re-quantised to 8 bits. Two pairs per object:
   found, and nothing else.
 
 Each pair runs ``fgcd diff --ref … --cur …`` with a user's defaults (no region of
-interest) through :func:`fgcd_cli.bench.changes.main.user_detection`'s use case, on
-PNG files written to a temporary folder. The object's mask and the painted areas
-are read by the scorer alone.
+interest) through its use case (:func:`fgcd_cli.app.diff.detect_bare`), on
+PNG files written to a temporary folder. The detector never sees the object's mask
+(it only places the painted changes) nor the painted areas (the scorer's truth).
 """
 
 from __future__ import annotations
@@ -108,6 +108,7 @@ def revisit_images(
     out = []
     for image in reference:
         painted = _paint(image.astype(np.float64), list(changes))
+        # Lanczos: a camera that samples the scene at a new phase adds no blur, a bilinear resampling would
         moved = cv2.warpAffine(painted, A, (w, h), flags=cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
         moved *= rng.uniform(*GAIN_RANGE)
         moved += rng.standard_normal(moved.shape) * sensor_noise_dn(moved)

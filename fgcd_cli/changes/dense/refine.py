@@ -74,7 +74,7 @@ from fgcd_cli.changes.dense.fit import (
     robust_smooth,
     smoothing_scale_px,
 )
-from fgcd_cli.changes.registration import clip_to_source
+from fgcd_cli.changes.registration import WARP_INTERPOLATION, clip_to_source
 
 
 @dataclass(kw_only=True)
@@ -322,7 +322,7 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
     """Resample the *original* current image into the reference frame through homography and flow at once.
 
     Equivalent to ``apply_flow(warp_to_reference(image, H)[0], flow)`` but with a
-    single interpolation (Lanczos, :func:`fgcd_cli.changes.registration.clip_to_source`): a second one
+    single interpolation (``changes.registration.WARP_INTERPOLATION``, clipped): a second one
     adds blur (a bilinear one up to 0.5 px standard deviation), which the gradient-based change cues
     read as change.
 
@@ -350,14 +350,14 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
         warped = np.stack(
             [
                 cv2.remap(
-                    np.ascontiguousarray(src[..., c]), map_x, map_y, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT
+                    np.ascontiguousarray(src[..., c]), map_x, map_y, WARP_INTERPOLATION, borderMode=cv2.BORDER_REFLECT
                 )
                 for c in range(src.shape[2])
             ],
             axis=2,
         )
     else:
-        warped = cv2.remap(src, map_x, map_y, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT)
+        warped = cv2.remap(src, map_x, map_y, WARP_INTERPOLATION, borderMode=cv2.BORDER_REFLECT)
         warped = warped.reshape((h, w) + src.shape[2:])
     warped = clip_to_source(warped, src)
     ch, cw = src.shape[:2]

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from fgcd_cli.changes.registration import WARP_INTERPOLATION
 from fgcd_cli.changes.tiled.inputs import crop_float
 
 
@@ -163,9 +164,9 @@ def tile_sampling(geom: Geometry, ext: tuple[int, int, int, int], cur_shape: tup
 def warp_tile(cur: np.ndarray, sampling: Sampling) -> np.ndarray:
     """Resample the current image at the tile's maps, reading (and converting to float) only the needed crop.
 
-    As :func:`warp_with_flow` on the whole image: Lanczos, clipped to [0, 1], the range of every image
-    the tiled pipeline reads (``fgcd_cli.changes.registration.clip_to_source`` clips to the source's own
-    range), border reflected about the image's own border (the crop reaches the border on any side
+    As :func:`warp_with_flow` on the whole image: ``changes.registration.WARP_INTERPOLATION``, clipped
+    to [0, 1], the range of every image the tiled pipeline reads (the whole-image warp clips to the
+    source's own range), border reflected about the image's own border (the crop reaches the border on any side
     where a sample falls outside).
     """
     if sampling.box is None:
@@ -173,5 +174,5 @@ def warp_tile(cur: np.ndarray, sampling: Sampling) -> np.ndarray:
     src = crop_float(cur, *sampling.box)
     # Any sample outside the image lies beyond a side the crop reaches (it holds every
     # sample inside, plus 2 px), so reflecting about the crop's edge is reflecting about the image's.
-    warped = cv2.remap(src, sampling.map_x, sampling.map_y, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT)
+    warped = cv2.remap(src, sampling.map_x, sampling.map_y, WARP_INTERPOLATION, borderMode=cv2.BORDER_REFLECT)
     return np.clip(warped, 0.0, 1.0, out=warped)
