@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from fgcd_cli.app.diff_options import (
-    campaign_edge_check_px,
     check_diff_options,
     check_stored_diff,
     checked_edge_check_px,
+    default_edge_check_px,
 )
 from fgcd_cli.app.visit_logs import coarse_log_rows, relocation_log_rows, relocation_residual_text
 from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, AnalysisOptions, analysis_inputs, analysis_record
@@ -88,8 +88,8 @@ class BareDiffRequest:
         Scale of the reference image, millimetres per pixel.
     register : bool
         Register the current images onto the reference first.
-    edge_check_px : int
-        Region-level edge check shift, pixels (0: off).
+    edge_check_px : int or None
+        Region-level edge check shift, pixels (None: :data:`fgcd_cli.app.diff_options.EDGE_CHECK_PX`; 0: off).
     ambient_index : int or None
         0-based index of the ambient-only image (left out of photometric stereo).
     """
@@ -102,7 +102,7 @@ class BareDiffRequest:
     score_mask: Path | None = None
     mm_per_px: float | None = None
     register: bool = True
-    edge_check_px: int = 0
+    edge_check_px: int | None = None
     ambient_index: int | None = None
 
     def __post_init__(self) -> None:
@@ -169,7 +169,9 @@ def detect_bare(
             roi=roi,
             pixel_area_mm2=area,
             config=DetectionConfig.from_options(
-                register=r.register, edge_check_px=checked_edge_check_px(r.edge_check_px), ambient_index=r.ambient_index
+                register=r.register,
+                edge_check_px=checked_edge_check_px(default_edge_check_px(r.edge_check_px)),
+                ambient_index=r.ambient_index,
             ),
         )
         same_size = ref_images[0].shape == cur_images[0].shape
@@ -382,7 +384,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         area = _reference_pixel_area(reference, shape)
         scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
     mask = read_mask(r.roi) if r.roi is not None else None
-    edge_check = checked_edge_check_px(campaign_edge_check_px(r.edge_check_px))
+    edge_check = checked_edge_check_px(default_edge_check_px(r.edge_check_px))
     across = "" if lightings == visit_lightings else f" across lightings ({lightings[0]} against {visit_lightings[0]})"
     _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s){across}…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.

@@ -1,7 +1,7 @@
 """The options of a diff (``fgcd diff``): their one check, the campaign diff's edge check, the stored-diff guard.
 
 :func:`check_diff_options` runs when a request is made, before anything is read or
-written; :data:`EDGE_CHECK_PX` is the one default edge check of a campaign diff;
+written; :data:`EDGE_CHECK_PX` is the one default edge check of every diff;
 :func:`check_stored_diff` refuses to replace a visit's stored diff made with other
 options (docs/change-detection.md, "Commands"). The use cases themselves are in :mod:`fgcd_cli.app.diff`.
 """
@@ -48,14 +48,15 @@ def check_diff_options(
 
 # A relocated visit is never at the reference pose to the pixel: parallax, occlusion
 # and resampling differences at strong edges remain that the flat registration
-# cannot absorb. Campaign diffs set aside regions that lie along strong reference
-# edges and that a shift of up to this many pixels explains (region-level edge
-# check, docs/change-detection.md, "Change detection pipeline", step 8); they stay visible in the report.
+# cannot absorb. Every diff (a campaign's or two sets of image files, which come
+# from a revisit too) sets aside regions that lie along strong reference edges and
+# that a shift of up to this many pixels explains (region-level edge check,
+# docs/change-detection.md, "Change detection pipeline", step 8); they stay visible in the report.
 EDGE_CHECK_PX = 2
 
 
-def campaign_edge_check_px(px: int | None) -> int:
-    """The edge check of a campaign diff: ``px`` when given, else :data:`EDGE_CHECK_PX` (the one default)."""
+def default_edge_check_px(px: int | None) -> int:
+    """The edge check of a diff: ``px`` when given, else :data:`EDGE_CHECK_PX` (the one default)."""
     return EDGE_CHECK_PX if px is None else px
 
 
@@ -73,8 +74,8 @@ def checked_edge_check_px(px: int) -> int:
 
 
 def _effective(options: AnalysisOptions) -> AnalysisOptions:
-    """``options`` with the campaign diff's default edge check spelled out (``None`` and 2 px make the same diff)."""
-    return dataclasses.replace(options, edge_check_px=campaign_edge_check_px(options.edge_check_px))
+    """``options`` with the default edge check spelled out (``None`` and 2 px make the same diff)."""
+    return dataclasses.replace(options, edge_check_px=default_edge_check_px(options.edge_check_px))
 
 
 def options_text(options: AnalysisOptions) -> str:

@@ -201,15 +201,3 @@ class DetectionConfig:
             config,
             **{section: dataclasses.replace(getattr(config, section), **values) for section, values in grouped.items()},
         )
-
-
-def with_scan_rules(config: DetectionConfig) -> DetectionConfig:
-    """``config`` with the finer scan off where edge shifts are tolerated (``edge_check_px > 0``).
-
-    A campaign diff tolerates strong edges moving by ``edge_check_px`` (2 px) under the
-    relocation residual; the finer smoothing resolves 1 px, so it would report the very edge
-    residues the check is there to tolerate (``docs/change-detection.md``, "Two scales").
-    """
-    if config.edge_check.edge_check_px > 0 and config.score.fine_smooth_sigma_px > 0:
-        return dataclasses.replace(config, score=dataclasses.replace(config.score, fine_smooth_sigma_px=0.0))
-    return config

@@ -22,13 +22,12 @@ from fgcd_cli.changes.config import (
     RegionConfig,
     RegistrationConfig,
     ScoreConfig,
-    with_scan_rules,
 )
 from fgcd_cli.changes.cues.labels import CueMaps, label_regions, relief_colour_cues
 from fgcd_cli.changes.dense.refine import DenseAlignment, refine_dense, warp_with_flow
 from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.illumination import normalize_shading
-from fgcd_cli.changes.images import check_side_inputs, image_health, to_gray, validate_stacks
+from fgcd_cli.changes.images import check_side_inputs, image_health, to_float_image, to_gray, validate_stacks
 from fgcd_cli.changes.regions import (
     ChangeRegion,
     clean_mask,
@@ -99,7 +98,7 @@ def detect_changes(
         ``comparable`` is False (with a reason) for black, textureless or non-overlapping
         pairs. Raises :class:`UserInputError` for inconsistent input.
     """
-    config = with_scan_rules(DetectionConfig() if config is None else config)
+    config = DetectionConfig() if config is None else config
     settings = detection_settings(config, lightings=len(ref_images), shading=shading_ref is not None)
     step = _Steps(progress, total=4)
     refs, curs, roi = _check_inputs(
@@ -175,7 +174,39 @@ def detect_changes(
         not_compared=alignment.not_compared,
         dense=alignment.dense,
         cue_maps=cue_maps,
+        pair_score=scored,
     )
+
+
+def decide_again(result: ChangeResult, ref_images: list[np.ndarray], config: DetectionConfig) -> np.ndarray:
+    """The change mask :func:`detect_changes` gives on ``result``'s score with ``config``'s decision and edge check.
+
+    For a benchmark's grid of decision constants: the same score, decided and edge-checked as the
+    detector does (registration and scoring are not redone, so ``config``'s other sections are unused).
+
+    Parameters
+    ----------
+    result : ChangeResult, a comparable detection that kept its ``pair_score``.
+    ref_images : list of (H, W[, 3]) ndarray, the reference stack it was detected on.
+    config : DetectionConfig
+
+    Returns
+    -------
+    (H, W) bool ndarray, the changed pixels.
+    """
+    if result.pair_score is None:
+        raise ValueError("the detection did not keep its pair score")
+    fine_score = result.fine_score if config.score.fine_smooth_sigma_px > 0 else None
+    if fine_score is None and config.score.fine_smooth_sigma_px > 0:
+        raise ValueError("the decision scans a finer smoothing that the detection did not compute")
+    found = decide_regions(
+        result.score, result.valid, pixel_area_mm2=None, config=config, settings={}, fine_score=fine_score
+    )
+    refs = [to_float_image(im, name=f"reference image {i + 1}") for i, im in enumerate(ref_images)]
+    apply_edge_check(
+        found, refs=refs, scored=result.pair_score, valid=result.valid, pixel_area_mm2=None, config=config, settings={}
+    )
+    return found.mask
 
 
 class _Steps:

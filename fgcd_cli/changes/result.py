@@ -11,6 +11,7 @@ from fgcd_cli.changes.cues.labels import CueMaps
 from fgcd_cli.changes.dense.refine import DenseAlignment
 from fgcd_cli.changes.regions import ChangeRegion
 from fgcd_cli.changes.registration import Registration, RegistrationInit
+from fgcd_cli.changes.score import PairScore
 from fgcd_cli.changes.significance import Decision, SignificantRegion
 from fgcd_cli.changes.threshold import ThresholdInfo
 
@@ -52,6 +53,10 @@ class ChangeResult:
     """The dense parallax refinement after the homography, when it ran."""
     cue_maps: CueMaps | None = None
     """Relief and colour cue maps (photometric stereo), when they were computed."""
+    pair_score: PairScore | None = None
+    """The fused score with its light-normalised current images and per-lighting medians: what a decision with
+    other constants needs to be made again as the detector makes it, edge check included
+    (:func:`fgcd_cli.changes.detect.decide_again`)."""
 
     @property
     def detection_level(self) -> float | None:

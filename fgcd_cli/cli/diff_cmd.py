@@ -140,7 +140,7 @@ def diff(
         None,
         "--edge-check",
         help="Set aside regions along strong reference edges that a shift of up to this many px "
-        "explains (shown in cyan); 0 = off. Default: 2 on a campaign, 0 on bare images.",
+        "explains (shown in cyan); 0 = off. Default: 2.",
     ),
     ambient_index: int | None = typer.Option(
         None,
@@ -212,7 +212,7 @@ def diff(
             score_mask=score_mask,
             mm_per_px=mm_per_px,
             register=not no_register,
-            edge_check_px=edge_check or 0,
+            edge_check_px=edge_check,
             ambient_index=ambient_index,
         )
         run_record.no_platform()

@@ -37,8 +37,8 @@ from fgcd_cli.bench.changes.multilight import run_multilight
 from fgcd_cli.bench.changes.overlays import write_overlays
 from fgcd_cli.bench.paths import FGCD_DATASET
 from fgcd_cli.changes.baseline_iccv import iccv2015_score
-from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig, ScoreConfig
-from fgcd_cli.changes.detect import decide, detect_changes
+from fgcd_cli.changes.config import DecisionRule, DetectionConfig, ScoreConfig
+from fgcd_cli.changes.detect import decide_again, detect_changes
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.registration import warp_to_reference
 from fgcd_cli.metrics.change_scores import binary_scores, region_counts, sweep_scores
@@ -72,17 +72,13 @@ def detector_options(key: tuple) -> dict:
     return {"decision": rule, "seed_p": a, "extent_fraction": b, **({"fine_smooth_sigma_px": fine[0]} if fine else {})}
 
 
-def _decide_at(result, key: tuple) -> np.ndarray:
-    """The changed pixels of a detection's scores decided with one grid point."""
+def _decide_at(result, ref_images: list[np.ndarray], key: tuple) -> np.ndarray:
+    """The changed pixels of a detection's scores decided with one grid point, edge check included as the
+    detection ran it (:func:`fgcd_cli.changes.detect.decide_again`)."""
     options = detector_options(key)
-    fine_sigma_px = options.pop("fine_smooth_sigma_px", 0.0)
-    fine_score = result.fine_score if fine_sigma_px > 0 else None
-    if fine_score is None and fine_sigma_px > 0:
-        raise ValueError("the grid scans a finer smoothing that the detection did not compute")
-    changed, _, _ = decide(
-        result.score, result.valid, config=RegionConfig(**options), fine_score=fine_score, fine_sigma_px=fine_sigma_px
-    )
-    return changed
+    options.setdefault("fine_smooth_sigma_px", 0.0)
+    config = DetectionConfig.from_options(edge_check_px=int(result.settings.get("edge_check_px", 0)), **options)
+    return decide_again(result, ref_images, config)
 
 
 def find_groups(dataset: Path) -> list[Path]:
@@ -116,12 +112,12 @@ def user_detection(folder: Path, lightings: list[int], *, roi: bool = False):
     return detect_bare(request)
 
 
-def _grid_rows(result, truth: np.ndarray, mask: np.ndarray, grid: list[tuple], seconds: float) -> dict:
+def _grid_rows(result, ref_images, truth: np.ndarray, mask: np.ndarray, grid: list[tuple], seconds: float) -> dict:
     """Threshold-free and decided scores of one detection at every grid point, scored inside ``mask``."""
     sweep = sweep_scores(result.score, truth, eval_mask=mask)
     rows = {}
     for key in grid:
-        changed = _decide_at(result, key)
+        changed = _decide_at(result, ref_images, key)
         auto = binary_scores(changed, truth, eval_mask=mask)
         counts = region_counts(changed, truth, eval_mask=mask)
         rows[key] = {
@@ -150,10 +146,10 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
     found = user_detection(folder, lightings)  # fgcd diff's own path and defaults, end to end (timed)
     seconds = time.perf_counter() - t0
     result, ref, cur = found.result, found.ref_images, found.cur_images
-    rows = _grid_rows(result, truth, mask, grid, seconds)
+    rows = _grid_rows(result, ref, truth, mask, grid, seconds)
     t0 = time.perf_counter()
     with_roi = user_detection(folder, lightings, roi=True)
-    roi_rows = _grid_rows(with_roi.result, truth, mask, grid, time.perf_counter() - t0)
+    roi_rows = _grid_rows(with_roi.result, with_roi.ref_images, truth, mask, grid, time.perf_counter() - t0)
     # Baselines on the same pair: without the dense refinement, and the
     # ICCV 2015 method's key ideas (normal-aware correction, low rank + sparse).
     no_dense = detect_changes(ref, cur, config=DetectionConfig.from_options(dense=False, cues=False))

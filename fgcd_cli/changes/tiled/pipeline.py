@@ -53,7 +53,7 @@ from functools import partial
 import cv2
 import numpy as np
 
-from fgcd_cli.changes.config import OPTION_SECTION, DetectionConfig, ScoreConfig, with_scan_rules
+from fgcd_cli.changes.config import OPTION_SECTION, DetectionConfig, ScoreConfig
 from fgcd_cli.changes.images import check_side_inputs
 from fgcd_cli.changes.registration import Registration
 from fgcd_cli.changes.result import (
@@ -196,7 +196,7 @@ def _tiled_config(config: DetectionConfig | None) -> DetectionConfig:
             raise UserInputError(f"{name} is not supported tile by tile (use detect_changes)")
     if config.tiling.tile_px < 64:
         raise UserInputError(f"tile size {config.tiling.tile_px} px is too small (at least 64 px)")
-    return with_scan_rules(config)
+    return config
 
 
 class _Report:
