@@ -66,6 +66,12 @@ class ChangeResult:
             return float(self.settings["seed_level"])
         return self.threshold.high if self.threshold is not None else None
 
+    def strength(self, region: ChangeRegion) -> float | None:
+        """A region's peak change score in units of :attr:`detection_level` (None without a decision): the
+        evidence the report ranks regions by and shows (docs/change-detection.md, "Reports")."""
+        level = self.detection_level
+        return float(region.max_score) / level if level else None
+
     @property
     def changed_fraction(self) -> float:
         """Fraction of compared pixels flagged as changed."""

@@ -150,6 +150,28 @@ def region_counts(predicted: np.ndarray, truth: np.ndarray, *, eval_mask: np.nda
     )
 
 
+def evidence_separation(true_values, false_values) -> float:
+    """How well an evidence measure ranks true regions above false ones: the probability that a true
+    region's value exceeds a false one's, ties counted half (the ROC area, Mann-Whitney U over
+    ``n_true * n_false``; ``scipy.stats.mannwhitneyu``). 0.5 is no separation, 1 a perfect one.
+
+    Parameters
+    ----------
+    true_values, false_values : sequences of float, the measure on the regions that overlap a true
+        change and on those that do not.
+
+    Returns
+    -------
+    float in [0, 1], NaN when either sequence is empty.
+    """
+    from scipy.stats import mannwhitneyu
+
+    t, f = np.asarray(true_values, float), np.asarray(false_values, float)
+    if t.size == 0 or f.size == 0:
+        return float("nan")
+    return float(mannwhitneyu(t, f).statistic / (t.size * f.size))
+
+
 def truth_report(
     predicted: np.ndarray, score: np.ndarray, truth: np.ndarray, *, eval_mask: np.ndarray | None = None
 ) -> dict:

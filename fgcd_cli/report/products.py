@@ -37,8 +37,7 @@ def result_summary(result: ChangeResult, fdf: FdfResult | None = None) -> dict:
         "compared_fraction": float(result.valid.mean()),
         # strength: the region's peak score over the level at which the decision starts a region
         "regions": [
-            {**asdict(r), "nfa": nfa_value(r.log10_nfa), "strength": _strength(r.max_score, result.detection_level)}
-            for r in result.regions
+            {**asdict(r), "nfa": nfa_value(r.log10_nfa), "strength": result.strength(r)} for r in result.regions
         ],
         "candidates": [candidate_dict(c) for c in result.candidates],
         "registration": None
@@ -115,8 +114,3 @@ def diff_products(
         context=ctx,
     ).encode()
     return files
-
-
-def _strength(max_score: float, level: float | None) -> float | None:
-    """A region's peak change score in units of the detection level (None without a decision)."""
-    return float(max_score) / level if level else None

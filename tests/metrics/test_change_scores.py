@@ -75,3 +75,13 @@ def test_region_counts_count_changes_found_and_false_regions():
     diagonal = np.zeros_like(truth)
     diagonal[1, 1] = diagonal[2, 2] = True
     assert region_counts(diagonal, np.zeros_like(truth)).false_regions == 1
+
+
+def test_evidence_separation_is_the_probability_a_true_region_ranks_above_a_false_one():
+    from fgcd_cli.metrics.change_scores import evidence_separation
+
+    assert evidence_separation([5.0, 6.0], [1.0, 2.0, 3.0]) == 1.0
+    assert evidence_separation([1.0, 2.0], [5.0, 6.0]) == 0.0
+    # by hand: true 2 beats false 1, ties false 2 (half), loses to false 3; true 4 beats all three
+    assert evidence_separation([2.0, 4.0], [1.0, 2.0, 3.0]) == pytest.approx((1 + 0.5 + 0 + 3) / 6)
+    assert np.isnan(evidence_separation([], [1.0]))

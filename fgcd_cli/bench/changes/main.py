@@ -41,7 +41,7 @@ from fgcd_cli.changes.config import DecisionRule, DetectionConfig, ScoreConfig
 from fgcd_cli.changes.detect import decide_again, detect_changes
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.registration import warp_to_reference
-from fgcd_cli.metrics.change_scores import binary_scores, region_counts, sweep_scores
+from fgcd_cli.metrics.change_scores import binary_scores, evidence_separation, region_counts, sweep_scores
 
 DATASET = FGCD_DATASET
 
@@ -135,6 +135,35 @@ def _grid_rows(result, ref_images, truth: np.ndarray, mask: np.ndarray, grid: li
     return rows
 
 
+def region_evidence(result, truth: np.ndarray, mask: np.ndarray) -> list[dict]:
+    """The evidence the user is shown for each reported region inside the scored area, and whether the
+    region overlaps a true change: ``strength`` (peak score over the detection level) and ``minus_log10_nfa``."""
+    out = []
+    for region in result.regions:
+        pixels = (result.labels == region.id) & mask
+        if pixels.any():
+            out.append(
+                {
+                    "strength": result.strength(region),
+                    "minus_log10_nfa": -region.log10_nfa if region.log10_nfa is not None else float("nan"),
+                    "true": bool((pixels & truth).any()),
+                }
+            )
+    return out
+
+
+def _separation(scored: list[dict]) -> dict:
+    """Pooled over the groups: how well each piece of evidence shown separates true regions from false
+    ones (:func:`~fgcd_cli.metrics.change_scores.evidence_separation`; issue 47, item 4)."""
+    regions = [r for g in scored for r in g["region_evidence"]]
+    out = {}
+    for key, name in (("strength", "region_strength_auc"), ("minus_log10_nfa", "region_nfa_auc")):
+        out[name] = evidence_separation(
+            [r[key] for r in regions if r["true"]], [r[key] for r in regions if not r["true"]]
+        )
+    return out
+
+
 def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_grid: tuple = ()) -> dict:
     """Score the user's detection of the pair (no ROI; the ROI beside), decide with every grid point; baselines.
 
@@ -183,6 +212,7 @@ def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_gr
         "roi_grid": roi_rows,
         "seconds": seconds,
         "regions": len(result.regions),
+        "region_evidence": region_evidence(result, truth, mask),
         "cues": {c: sum(r.cue == c for r in result.regions) for c in ("relief", "colour", "both")},
         "not_compared_fraction": float(result.not_compared[mask].mean()) if result.not_compared is not None else 0.0,
         "no_dense": {"best_f1": no_dense_sweep.best_f1, "ap": no_dense_sweep.average_precision},
@@ -297,6 +327,8 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         # What a conservator counts (issue 47, item 6), at the decision chosen on the other groups.
         **_counts("", logo),
         **_counts("roi_", logo_roi),
+        # The shipped decision's regions: does the evidence the report shows rank true above false?
+        **_separation(scored),
         "per_kind": _per_kind(logo),
         # Each kind scored with every constant chosen on the other two kinds (decision; score in full runs).
         "lokind_auto_f1": mean(lokind, "auto_f1"),
@@ -415,6 +447,8 @@ def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] 
                     "changes_found_fraction",
                     "roi_false_regions_per_pair",
                     "roi_changes_found_fraction",
+                    "region_strength_auc",
+                    "region_nfa_auc",
                     "in_sample_auto_f1",
                     "seconds_per_pair",
                     "logo_hysteresis_auto_f1",
