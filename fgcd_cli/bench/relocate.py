@@ -238,7 +238,8 @@ def _coarse_summary(result) -> dict | None:
     if result is None:
         return None
     last = result.steps[-1] if result.steps else None
-    truth = last.truth if last is not None else None
+    # where the stage left the camera: after a pause's undo, not the last view it localized
+    truth = result.end_truth if result.end_truth is not None else (last.truth if last is not None else None)
     return {
         "handed_over": result.handed_over,
         "reason": result.reason,

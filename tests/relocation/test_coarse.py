@@ -123,7 +123,7 @@ class _FakeSession:
         return 0.0
 
 
-def _stage(session, reference_points, init, **config):
+def _stage(session, reference_points, init, evaluate=None, **config):
     from fgcd_cli.alignment.reference import ReferenceIndex
     from fgcd_cli.relocation.coarse.stage import run_coarse
     from fgcd_cli.relocation.coarse.stage_inputs import CoarseInputs
@@ -141,6 +141,7 @@ def _stage(session, reference_points, init, **config):
             reference_images=None,
             grab_current=None,
             config=CoarseConfig(**config),
+            evaluate=evaluate,
         )
     )
 
@@ -221,11 +222,18 @@ def test_a_pause_undoes_a_descent_on_an_unverified_estimate(monkeypatch):
     )
     monkeypatch.setattr(stage, "localize", lambda inp, step, last_3d: next(views))
     monkeypatch.setattr(stage, "_why_not_verified", lambda notes, config: "nothing")
-    result = _stage(session, _relief(2000, np.random.default_rng(3)), Sim3(np.eye(3), np.zeros(3), 1.0), max_looks=1)
+    # the evaluator's truth: where the camera is when asked (evaluation only)
+    where = lambda: {"T_ref_cam": session.T_ref_cam.copy()}  # noqa: E731
+    result = _stage(
+        session, _relief(2000, np.random.default_rng(3)), Sim3(np.eye(3), np.zeros(3), 1.0), where, max_looks=1
+    )
     assert [s.action for s in result.steps] == ["descend", "look", "pause"]
     assert "undone" in result.reason
     mm, deg = pose_distance(session.T_ref_cam, T_start)
     assert mm < 1e-6 and deg < 1e-6
+    # the truth reported at the end is where the camera was left, not the last view localized before the undo
+    assert pose_distance(result.end_truth["T_ref_cam"], T_start)[0] < 1e-6
+    assert pose_distance(result.steps[-1].truth["T_ref_cam"], T_start)[1] > 1.0  # (that view was turned away)
 
 
 def test_bench_coarse_is_registered_with_quick_and_json():

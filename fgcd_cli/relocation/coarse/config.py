@@ -115,3 +115,6 @@ class CoarseResult:
     init: Sim3 | None
     """Alignment of the session's metric frame into ``ref`` for the rACR loop (when handed over)."""
     steps: list[CoarseStep] = field(default_factory=list)
+    end_truth: dict | None = None
+    """The evaluator's truth where the stage left the camera, measured after a pause undid its unverified
+    motions (evaluation only; None otherwise: the last step's truth is where it left it)."""

@@ -154,7 +154,8 @@ class _CoarseRun:
                 reason += "; its unverified motions undone (the camera is back where it started or last moved on a verified estimate)"
             except MotionRejected as exc:
                 reason += f"; the way back is refused by the platform guard ({exc})"
-        return CoarseResult(False, reason, None, self.steps)
+        end_truth = self.inp.evaluate() if self.inp.evaluate is not None else None
+        return CoarseResult(False, reason, None, self.steps, end_truth=end_truth)
 
     def _scene_map(self) -> SceneUncertaintyMap | None:
         """The scene uncertainty map, asked for once (its computation is waited for on the rig)."""
