@@ -6,7 +6,9 @@ walls, resampling). The difference it leaves is a *band along an edge*. A region
 is set aside only when all three hold:
 
 1. it lies mostly in the reference's strong-edge band (``band_fraction`` of its
-   pixels within ``edge_check_px`` of a strong edge);
+   pixels within ``edge_check_px`` of a strong edge; a thin line the reference saw
+   shallow at its sub-pixel phase and the current image deep counts as the reference's,
+   :func:`fgcd_cli.changes.cues.maps.edge_band_either_phase`);
 2. the two-sided envelope difference over ``edge_check_px``
    (:func:`fgcd_cli.changes.cues.maps.edge_tolerant_difference`) nowhere reaches the
    detection's seed level inside it: each image is explained by the other
@@ -36,7 +38,7 @@ import numpy as np
 from scipy import ndimage
 
 from fgcd_cli.changes.config import EdgeCheckConfig, ScoreConfig
-from fgcd_cli.changes.cues.maps import edge_band, edge_tolerant_difference, relative_to_median
+from fgcd_cli.changes.cues.maps import edge_band_either_phase, edge_tolerant_difference, relative_to_median
 from fgcd_cli.changes.images import to_gray
 from fgcd_cli.changes.score import PairScore
 
@@ -138,7 +140,10 @@ def edge_explained_regions(
     normalized_images, medians = scored.normalized, scored.medians
     shift_radius_px, smooth_sigma_px, edge_contrast = score.shift_radius_px, score.smooth_sigma_px, score.edge_contrast
     edge_check_px, band_fraction = config.edge_check_px, config.edge_check_band_fraction
-    check_bands = [edge_band(ref, radius_px=edge_check_px, contrast=edge_contrast) for ref in refs]
+    check_bands = [
+        edge_band_either_phase(ref, normalized, radius_px=edge_check_px, contrast=edge_contrast)
+        for ref, normalized in zip(refs, normalized_images)
+    ]
     tolerant = [
         relative_to_median(
             edge_tolerant_difference(

@@ -176,6 +176,29 @@ def edge_band(ref_image: np.ndarray, *, radius_px: int = 2, contrast: float = 3.
     return cv2.dilate(edges.astype(np.uint8), grow).astype(bool)
 
 
+def edge_band_either_phase(
+    ref_image: np.ndarray, cur_image: np.ndarray, *, radius_px: int = 2, contrast: float = 3.0
+) -> np.ndarray:
+    """:func:`edge_band` of the reference, and of the current image where the reference shows the same
+    edge at half the contrast or more.
+
+    Rule: a line narrower than a pixel is integrated by the pixel it falls in; seen again
+    from a viewpoint a fraction of a millimetre away it falls at another sub-pixel phase,
+    and split over two pixels it keeps at least half its depth in the deeper one. So a
+    thin line the reference happened to see shallow (below ``contrast``) but the current
+    image sees deep is still the reference's edge: the band takes the current image's
+    strong edges where the reference's range is at least ``contrast / 2`` times its
+    median. A new mark on a surface with no such edge in the reference (a crack on plain
+    stone) stays outside the band (docs/change-detection.md, "Change detection
+    pipeline", step 8).
+
+    Returns HxW bool.
+    """
+    own = edge_band(ref_image, radius_px=radius_px, contrast=contrast)
+    seen_at_half = edge_band(ref_image, radius_px=radius_px, contrast=contrast / 2.0)
+    return own | (edge_band(cur_image, radius_px=radius_px, contrast=contrast) & seen_at_half)
+
+
 def edge_tolerant_difference(
     ref_image: np.ndarray,
     cur_image: np.ndarray,
