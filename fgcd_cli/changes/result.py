@@ -56,7 +56,7 @@ class ChangeResult:
     pair_score: PairScore | None = None
     """The fused score with its light-normalised current images and per-lighting medians: what a decision with
     other constants needs to be made again as the detector makes it, edge check included
-    (:func:`fgcd_cli.changes.detect.decide_again`)."""
+    (:func:`fgcd_cli.changes.region_decision.decide_again`)."""
 
     @property
     def detection_level(self) -> float | None:

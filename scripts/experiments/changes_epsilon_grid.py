@@ -22,8 +22,9 @@ import numpy as np
 
 from fgcd_cli.bench.changes.main import DATASET, find_groups, group_lightings
 from fgcd_cli.changes.config import DecisionRule, RegionConfig
-from fgcd_cli.changes.detect import decide, detect_changes
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.io import read_image as _read_rgb
+from fgcd_cli.changes.region_decision import decide
 from fgcd_cli.metrics.change_scores import binary_scores
 
 

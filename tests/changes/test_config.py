@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from fgcd_cli.changes.config import OPTION_SECTION, DecisionRule, DetectionConfig
-from fgcd_cli.changes.detect import decide, detect_changes
+from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.region_decision import decide
 from fgcd_cli.changes.regions import CueLabel
 from fgcd_cli.changes.registration import RegistrationInit
 from fgcd_cli.changes.tiled.pipeline import detect_changes_tiled

@@ -71,7 +71,7 @@ def test_the_finer_scan_stays_on_beside_the_edge_check():
 
 
 def test_a_decision_made_again_with_the_same_constants_is_the_detections():
-    from fgcd_cli.changes.detect import decide_again
+    from fgcd_cli.changes.region_decision import decide_again
 
     ref, cur, truth = _pair()
     config = DetectionConfig.from_options(register=False, cues=False, edge_check_px=2)

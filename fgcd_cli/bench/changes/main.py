@@ -33,15 +33,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fgcd_cli.bench.changes.evidence import region_evidence, separation
 from fgcd_cli.bench.changes.multilight import run_multilight
 from fgcd_cli.bench.changes.overlays import write_overlays
 from fgcd_cli.bench.paths import FGCD_DATASET
 from fgcd_cli.changes.baseline_iccv import iccv2015_score
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig, ScoreConfig
-from fgcd_cli.changes.detect import decide_again, detect_changes
+from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.images import to_float_image
+from fgcd_cli.changes.region_decision import decide_again
 from fgcd_cli.changes.registration import warp_to_reference
-from fgcd_cli.metrics.change_scores import binary_scores, evidence_separation, region_counts, sweep_scores
+from fgcd_cli.metrics.change_scores import binary_scores, region_counts, sweep_scores
 
 DATASET = FGCD_DATASET
 
@@ -74,7 +76,7 @@ def detector_options(key: tuple) -> dict:
 
 def _decide_at(result, ref_images: list[np.ndarray], key: tuple) -> np.ndarray:
     """The changed pixels of a detection's scores decided with one grid point, edge check included as the
-    detection ran it (:func:`fgcd_cli.changes.detect.decide_again`)."""
+    detection ran it (:func:`fgcd_cli.changes.region_decision.decide_again`)."""
     options = detector_options(key)
     options.setdefault("fine_smooth_sigma_px", 0.0)
     config = DetectionConfig.from_options(edge_check_px=int(result.settings.get("edge_check_px", 0)), **options)
@@ -133,35 +135,6 @@ def _grid_rows(result, ref_images, truth: np.ndarray, mask: np.ndarray, grid: li
             "seconds": seconds,
         }
     return rows
-
-
-def region_evidence(result, truth: np.ndarray, mask: np.ndarray) -> list[dict]:
-    """The evidence the user is shown for each reported region inside the scored area, and whether the
-    region overlaps a true change: ``strength`` (peak score over the detection level) and ``minus_log10_nfa``."""
-    out = []
-    for region in result.regions:
-        pixels = (result.labels == region.id) & mask
-        if pixels.any():
-            out.append(
-                {
-                    "strength": result.strength(region),
-                    "minus_log10_nfa": -region.log10_nfa if region.log10_nfa is not None else float("nan"),
-                    "true": bool((pixels & truth).any()),
-                }
-            )
-    return out
-
-
-def _separation(scored: list[dict]) -> dict:
-    """Pooled over the groups: how well each piece of evidence shown separates true regions from false
-    ones (:func:`~fgcd_cli.metrics.change_scores.evidence_separation`; issue 47, item 4)."""
-    regions = [r for g in scored for r in g["region_evidence"]]
-    out = {}
-    for key, name in (("strength", "region_strength_auc"), ("minus_log10_nfa", "region_nfa_auc")):
-        out[name] = evidence_separation(
-            [r[key] for r in regions if r["true"]], [r[key] for r in regions if not r["true"]]
-        )
-    return out
 
 
 def _score_group(folder: Path, lightings: list[int], grid: list[tuple], score_grid: tuple = ()) -> dict:
@@ -328,7 +301,7 @@ def run_real(*, quick: bool, dataset: Path = DATASET, overlay_dir: Path | None =
         **_counts("", logo),
         **_counts("roi_", logo_roi),
         # The shipped decision's regions: does the evidence the report shows rank true above false?
-        **_separation(scored),
+        **separation(scored),
         "per_kind": _per_kind(logo),
         # Each kind scored with every constant chosen on the other two kinds (decision; score in full runs).
         "lokind_auto_f1": mean(lokind, "auto_f1"),
@@ -420,6 +393,39 @@ def _reference_tables(scored: list[dict], keys: list) -> dict:
 PARTS = ("real", "sim", "large", "multilight")
 
 
+#: The real part's figures the summary carries (the issue's keys first).
+REAL_SUMMARY_KEYS = (
+    "logo_best_f1",
+    "logo_ap",
+    "logo_auto_f1",
+    "logo_min_auto_recall",
+    "lokind_best_f1",
+    "lokind_auto_f1",
+    "roi_logo_best_f1",
+    "roi_logo_ap",
+    "roi_logo_auto_f1",
+    "roi_logo_min_auto_recall",
+    "false_regions_per_pair",
+    "changes_found_fraction",
+    "roi_false_regions_per_pair",
+    "roi_changes_found_fraction",
+    "region_strength_auc",
+    "region_nfa_auc",
+    "in_sample_auto_f1",
+    "seconds_per_pair",
+    "logo_hysteresis_auto_f1",
+    "iccv2015_best_f1",
+    "iccv2015_ap",
+    "no_dense_best_f1",
+    "logo_best_f1_all_constants",
+    "logo_ap_all_constants",
+    "logo_single_scale_auto_f1",
+    "logo_single_scale_min_auto_recall",
+    "logo_scale_chosen_auto_f1",
+    "logo_scale_chosen_min_auto_recall",
+)
+
+
 def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] = PARTS) -> dict:
     """Run the change-detection benchmark; returns ``{"summary": {...}, "real": ..., "sim": ...}``.
 
@@ -429,41 +435,7 @@ def run(*, quick: bool, overlay_dir: Path | None = None, parts: tuple[str, ...] 
     real = run_real(quick=quick, overlay_dir=overlay_dir) if "real" in parts else skipped
     summary = {}
     if real.get("available"):
-        summary.update(
-            {
-                k: real[k]
-                for k in (
-                    "logo_best_f1",
-                    "logo_ap",
-                    "logo_auto_f1",
-                    "logo_min_auto_recall",
-                    "lokind_best_f1",
-                    "lokind_auto_f1",
-                    "roi_logo_best_f1",
-                    "roi_logo_ap",
-                    "roi_logo_auto_f1",
-                    "roi_logo_min_auto_recall",
-                    "false_regions_per_pair",
-                    "changes_found_fraction",
-                    "roi_false_regions_per_pair",
-                    "roi_changes_found_fraction",
-                    "region_strength_auc",
-                    "region_nfa_auc",
-                    "in_sample_auto_f1",
-                    "seconds_per_pair",
-                    "logo_hysteresis_auto_f1",
-                    "iccv2015_best_f1",
-                    "iccv2015_ap",
-                    "no_dense_best_f1",
-                    "logo_best_f1_all_constants",
-                    "logo_ap_all_constants",
-                    "logo_single_scale_auto_f1",
-                    "logo_single_scale_min_auto_recall",
-                    "logo_scale_chosen_auto_f1",
-                    "logo_scale_chosen_min_auto_recall",
-                )
-            }
-        )
+        summary.update({k: real[k] for k in REAL_SUMMARY_KEYS})
     sim = skipped
     try:
         from fgcd_cli.bench.changes.simulated import run_sim

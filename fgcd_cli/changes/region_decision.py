@@ -1,0 +1,221 @@
+"""The decision on a fused score: significant regions (a-contrario or hysteresis), their cleaning and the
+region-level edge check; and the same decision made again with other constants on a finished detection.
+
+Steps 7 and 8 of ``docs/change-detection.md``, "Change detection pipeline"; :func:`fgcd_cli.changes.detect.detect_changes`
+chains them after the score.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig
+from fgcd_cli.changes.edge_check import edge_explained_regions
+from fgcd_cli.changes.images import to_float_image
+from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak, regions_with_significance
+from fgcd_cli.changes.result import ChangeResult
+from fgcd_cli.changes.score import PairScore
+from fgcd_cli.changes.significance import Decision, acontrario_config, acontrario_decision, merge_decisions
+from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
+
+__all__ = [
+    "Regions",
+    "apply_edge_check",
+    "decide",
+    "decide_again",
+    "decide_regions",
+    "region_mask",
+    "two_scale_decision",
+]
+
+
+@dataclass(kw_only=True)
+class Regions:
+    """The decision on a score map (result of :func:`decide_regions`)."""
+
+    mask: np.ndarray
+    """HxW bool, the cleaned change mask."""
+    regions: list[ChangeRegion]
+    labels: np.ndarray
+    """HxW int32, region id per pixel."""
+    threshold: ThresholdInfo
+    significance: Decision
+
+
+def decide_regions(
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    pixel_area_mm2,
+    config: DetectionConfig,
+    settings: dict,
+    fine_score: np.ndarray | None = None,
+) -> Regions:
+    """:func:`decide` on the score (and its finer smoothing), and the regions of its mask with their
+    significance and area."""
+    mask, threshold, significance = decide(
+        score,
+        valid,
+        config=config.regions,
+        smooth_sigma_px=config.score.smooth_sigma_px,
+        fine_score=fine_score,
+        fine_sigma_px=config.score.fine_smooth_sigma_px,
+    )
+    settings["seed_level"] = significance.seed_level
+    regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
+    return Regions(mask=mask, regions=regions, labels=labels, threshold=threshold, significance=significance)
+
+
+def decide(
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    config: RegionConfig | None = None,
+    smooth_sigma_px: float = 2.0,
+    fine_score: np.ndarray | None = None,
+    fine_sigma_px: float = 0.0,
+) -> tuple[np.ndarray, ThresholdInfo, Decision]:
+    """The changed pixels of a fused score map.
+
+    Both rules are evaluated: the hysteresis threshold is kept as a reference (and
+    is what the a-contrario scan is compared with in the report), the a-contrario
+    decision gives every region its significance.
+
+    Parameters
+    ----------
+    score, valid : ndarray, HxW float32 / bool, the fused score and the compared pixels.
+    config : RegionConfig, optional (default: the shipped one)
+    smooth_sigma_px : float, the score's smoothing (its correlation area bounds the a-contrario cluster area).
+    fine_score : ndarray, HxW float32, optional
+        The same score at the finer smoothing ``fine_sigma_px``: both maps are scanned, the number of
+        tests counted over both, and the significant regions of either are kept.
+
+    Returns
+    -------
+    mask : ndarray, HxW bool, the cleaned change mask (inside ``valid``)
+    threshold : ThresholdInfo, the hysteresis threshold's statistics
+    significance : Decision, the a-contrario scan
+    """
+    config = config or RegionConfig()
+    raw_mask, threshold = robust_hysteresis_threshold(score, valid, k_high=config.k_high, k_low=config.k_low)
+    significance = two_scale_decision(
+        score, valid, config=config, smooth_sigma_px=smooth_sigma_px, fine_score=fine_score, fine_sigma_px=fine_sigma_px
+    )
+    acontrario = significance.mask if config.decision == DecisionRule.ACONTRARIO else None
+    return region_mask(acontrario, raw_mask, score, valid, threshold=threshold, config=config), threshold, significance
+
+
+def two_scale_decision(
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    config: RegionConfig,
+    smooth_sigma_px: float,
+    fine_score: np.ndarray | None,
+    fine_sigma_px: float,
+) -> Decision:
+    """The a-contrario decision on the score, and on its finer smoothing when given (one family of tests)."""
+    maps = [(score, smooth_sigma_px)] + ([(fine_score, fine_sigma_px)] if fine_score is not None else [])
+    test = dataclasses.replace(acontrario_config(config), score_maps=len(maps))
+    return merge_decisions(
+        [acontrario_decision(s, valid, config=test, min_cluster_area_px=4.0 * np.pi * sigma**2) for s, sigma in maps],
+        max_candidates=test.max_candidates,
+    )
+
+
+def region_mask(
+    acontrario_mask: np.ndarray | None,
+    hysteresis_mask: np.ndarray | None,
+    score: np.ndarray,
+    valid: np.ndarray,
+    *,
+    threshold: ThresholdInfo,
+    config: RegionConfig,
+) -> np.ndarray:
+    """The decision rule's mask, cleaned, inside ``valid``.
+
+    A-contrario: the significant regions grown to their extent (``acontrario_mask``).
+    Hysteresis: the thresholded pixels trimmed to their local peak
+    (:func:`fgcd_cli.changes.regions.refine_to_local_peak`). Then regions up to
+    ``min_region_px`` are dropped and holes up to ``max_hole_px`` filled.
+    """
+    if config.decision == DecisionRule.ACONTRARIO:
+        raw_mask = acontrario_mask
+    else:
+        raw_mask = refine_to_local_peak(
+            hysteresis_mask,
+            score,
+            background=threshold.median,
+            fraction=config.edge_fraction,
+            radius_px=config.edge_radius_px,
+        )
+    return clean_mask(raw_mask, min_region_px=config.min_region_px, max_hole_px=config.max_hole_px) & valid
+
+
+def apply_edge_check(
+    found: Regions,
+    *,
+    refs,
+    scored: PairScore,
+    valid: np.ndarray,
+    pixel_area_mm2,
+    config: DetectionConfig,
+    settings: dict,
+) -> np.ndarray | None:
+    """The region-level edge check (:mod:`fgcd_cli.changes.edge_check`): the regions it sets aside leave
+    ``found`` (mask, regions, labels); returns their pixels, or None when the check did not run."""
+    if config.edge_check.edge_check_px <= 0 or not found.regions:
+        return None
+    acontrario = config.regions.decision == DecisionRule.ACONTRARIO
+    check = edge_explained_regions(
+        found.labels,
+        len(found.regions),
+        refs=refs,
+        scored=scored,
+        valid=valid,
+        seed_level=found.significance.seed_level if acontrario else found.threshold.high,
+        score=config.score,
+        config=config.edge_check,
+    )
+    settings["edge_explained_regions"] = check.n_explained
+    settings["edge_compact_kept_regions"] = check.n_compact_kept
+    if check.explained.any():
+        found.mask &= ~check.explained
+        found.regions, found.labels = regions_with_significance(
+            found.mask, scored.score, found.significance, pixel_area_mm2
+        )
+    return check.explained
+
+
+def decide_again(result: ChangeResult, ref_images: list[np.ndarray], config: DetectionConfig) -> np.ndarray:
+    """The change mask :func:`detect_changes` gives on ``result``'s score with ``config``'s decision and edge check.
+
+    For a benchmark's grid of decision constants: the same score, decided and edge-checked as the
+    detector does (registration and scoring are not redone, so ``config``'s other sections are unused).
+
+    Parameters
+    ----------
+    result : ChangeResult, a comparable detection that kept its ``pair_score``.
+    ref_images : list of (H, W[, 3]) ndarray, the reference stack it was detected on.
+    config : DetectionConfig
+
+    Returns
+    -------
+    (H, W) bool ndarray, the changed pixels.
+    """
+    if result.pair_score is None:
+        raise ValueError("the detection did not keep its pair score")
+    fine_score = result.fine_score if config.score.fine_smooth_sigma_px > 0 else None
+    if fine_score is None and config.score.fine_smooth_sigma_px > 0:
+        raise ValueError("the decision scans a finer smoothing that the detection did not compute")
+    found = decide_regions(
+        result.score, result.valid, pixel_area_mm2=None, config=config, settings={}, fine_score=fine_score
+    )
+    refs = [to_float_image(im, name=f"reference image {i + 1}") for i, im in enumerate(ref_images)]
+    apply_edge_check(
+        found, refs=refs, scored=result.pair_score, valid=result.valid, pixel_area_mm2=None, config=config, settings={}
+    )
+    return found.mask
