@@ -89,23 +89,51 @@ def _result(points_ref, points_cur, *, candidates, method, settings, shape) -> F
     )
 
 
+#: The whole-image shift the grid's start falls back on is measured at this fraction of the resolution: a
+#: quarter turns a 40-60 px motion into 10-15 px, well inside a whole-image window.
+COARSE_SHIFT_SCALE = 0.25
+
+
+def _coarse_shift(ref_gray: np.ndarray, cur_gray: np.ndarray) -> np.ndarray:
+    """The whole image's shift, (3, 3): phase correlation of the two orientation fields at
+    :data:`COARSE_SHIFT_SCALE` of the resolution, Hann-windowed, scaled back to pixels.
+
+    Why: ECC from no motion converges only within a few pixels at its coarsest level, so a start
+    2-3 degrees off (40-60 px) is refused; the shift of the edges' layout across the whole image
+    reaches it whatever the light (docs/lab/2026-12-06-stele-across-suns-per-surface.md).
+    """
+    size = (
+        max(16, round(ref_gray.shape[1] * COARSE_SHIFT_SCALE)),
+        max(16, round(ref_gray.shape[0] * COARSE_SHIFT_SCALE)),
+    )
+    a = orientation_field(cv2.resize(np.asarray(ref_gray, np.float32), size, interpolation=cv2.INTER_AREA))
+    b = orientation_field(cv2.resize(np.asarray(cur_gray, np.float32), size, interpolation=cv2.INTER_AREA))
+    window = cv2.createHanningWindow(size, cv2.CV_32F)
+    (dx, dy), _ = phase_correlate_orientation(a, b, window)
+    return np.array([[1.0, 0.0, dx / COARSE_SHIFT_SCALE], [0.0, 1.0, dy / COARSE_SHIFT_SCALE], [0.0, 0.0, 1.0]])
+
+
 def _grid_start(ref_gray: np.ndarray, cur_gray: np.ndarray) -> tuple[np.ndarray, float]:
-    """The whole-image motion the cells start from: ECC on gradient magnitude from no motion, (3, 3) and its
-    correlation (the identity and NaN when ECC diverges or correlates below
-    ``changes.registration.MIN_GRADIENT_CORRELATION``, the bar ``fgcd diff``'s registration trusts).
+    """The whole-image motion the cells start from, (3, 3), and its correlation: ECC on gradient magnitude
+    from no motion, else from the whole image's shift (:func:`_coarse_shift`); the identity and NaN when
+    both diverge or correlate below ``changes.registration.MIN_GRADIENT_CORRELATION``, the bar ``fgcd
+    diff``'s registration trusts.
 
     Why: a patch correlated from no motion reaches only a fraction of its own size; the whole image's
     gradients bring every cell within reach of a motion several patches wide (the image stage's
     fallback after a far start). On the real FGCD cross-lighting pairs (motions of 1-4 px) it changes
     little (docs/lab/2026-12-06-calibrated-world.md).
     """
-    try:
-        H, correlation = ecc_gradient(ref_gray, cur_gray, np.eye(3))
-    except cv2.error:
-        return np.eye(3), float("nan")
-    if not np.isfinite(correlation) or correlation < MIN_GRADIENT_CORRELATION:
-        return np.eye(3), float("nan")
-    return H, correlation
+    for start in (np.eye(3), None):
+        try:
+            H, correlation = ecc_gradient(
+                ref_gray, cur_gray, _coarse_shift(ref_gray, cur_gray) if start is None else start
+            )
+        except cv2.error:
+            continue
+        if np.isfinite(correlation) and correlation >= MIN_GRADIENT_CORRELATION:
+            return H, correlation
+    return np.eye(3), float("nan")
 
 
 def _grid_fdf(ref_gray, cur_gray, *, grid_cells: int, patch_px: int, min_response: float, ransac_px: float):

@@ -85,3 +85,33 @@ def test_grid_afd_measures_a_motion_larger_than_its_patches_reach():
     corners = np.array([[0, 0, 1], [255, 0, 1], [255, 255, 1], [0, 255, 1]], float).T
     mapped = lambda M: (M @ corners)[:2] / (M @ corners)[2]  # noqa: E731
     assert np.linalg.norm(mapped(H_cells) - mapped(H), axis=0).mean() < 1.0
+
+
+def test_grid_reaches_a_start_beyond_ecc_from_the_whole_image_shift(monkeypatch):
+    # 40 px and 2 degrees, the light inverted (an edge lit from the other side): ECC from no motion is
+    # refused at this distance; the shift of the orientation fields across the whole image brings it in.
+    import cv2
+
+    import fgcd_cli.metrics.afd as afd
+
+    ref = textured_scene(256)
+    angle = np.radians(2.0)
+    c, s = np.cos(angle), np.sin(angle)
+    centre = np.array([127.5, 127.5])
+    R = np.array([[c, -s], [s, c]])
+    H = np.eye(3)
+    H[:2, :2] = R
+    H[:2, 2] = centre + np.array([40.0, -12.0]) - R @ centre  # reference pixel -> current pixel
+    cur = cv2.warpPerspective(ref, H, (256, 256), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    cur = np.clip(1.0 - 0.8 * cur, 0, 1)
+    config = FdfConfig(method="grid", grid_cells=6, patch_px=32)
+    result = compute_fdf(ref, cur, config=config)
+    assert result.inliers >= 8
+    H_cells, _ = cv2.findHomography(result.points_ref, result.points_cur, 0)
+    corners = np.array([[0, 0, 1], [255, 0, 1], [255, 255, 1], [0, 255, 1]], float).T
+    mapped = lambda M: (M @ corners)[:2] / (M @ corners)[2]  # noqa: E731
+    assert np.linalg.norm(mapped(H_cells) - mapped(H), axis=0).mean() < 1.0
+    # negative control: without the whole-image shift the start is no motion, and the grid refuses
+    monkeypatch.setattr(afd, "_coarse_shift", lambda ref_gray, cur_gray: np.eye(3))
+    with pytest.raises(AlgorithmError, match="grid"):
+        compute_fdf(ref, cur, config=config)
