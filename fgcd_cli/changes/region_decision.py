@@ -1,7 +1,7 @@
 """The decision on a fused score: significant regions (a-contrario or hysteresis), their cleaning and the
 region-level edge check; and the same decision made again with other constants on a finished detection.
 
-Steps 7 and 8 of ``docs/change-detection.md``, "Change detection pipeline"; :func:`fgcd_cli.changes.detect.detect_changes`
+Steps 5 to 8 of ``docs/change-detection.md``, "Change detection pipeline"; :func:`fgcd_cli.changes.detect.detect_changes`
 chains them after the score.
 """
 
