@@ -62,55 +62,56 @@ def test_size_mismatch(pair):
         compute_fdf(pair[0], pair[1][:100])
 
 
-def test_grid_afd_measures_a_motion_larger_than_its_patches_reach():
-    # 16 px and 3 degrees across 32 px patches: from no motion, fewer than half the cells lock onto it
-    # (the grid refuses); started from the whole image's ECC motion (metrics/afd.py: _grid_start) they agree
+def _turned_and_shifted(deg: float, shift: tuple[float, float]):
+    """A textured scene and the same turned by ``deg`` about its centre and shifted by ``shift`` (px):
+    (reference, current, H) with H the reference-pixel -> current-pixel homography, (3, 3)."""
     import cv2
 
     ref = textured_scene(256)
-    angle = np.radians(3.0)
+    angle = np.radians(deg)
     c, s = np.cos(angle), np.sin(angle)
     centre = np.array([127.5, 127.5])
     R = np.array([[c, -s], [s, c]])
     H = np.eye(3)
     H[:2, :2] = R
-    H[:2, 2] = centre + np.array([16.0, -6.4]) - R @ centre  # reference pixel -> current pixel
+    H[:2, 2] = centre + np.asarray(shift) - R @ centre
     cur = cv2.warpPerspective(ref, H, (256, 256), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return ref, cur, H
+
+
+def _corner_error_px(result, H) -> float:
+    """Mean distance of the image corners mapped by the cells' least-squares homography and by ``H``, px."""
+    import cv2
+
+    H_cells, _ = cv2.findHomography(result.points_ref, result.points_cur, 0)
+    corners = np.array([[0, 0, 1], [255, 0, 1], [255, 255, 1], [0, 255, 1]], float).T
+    mapped = lambda M: (M @ corners)[:2] / (M @ corners)[2]  # noqa: E731
+    return float(np.linalg.norm(mapped(H_cells) - mapped(H), axis=0).mean())
+
+
+def test_grid_afd_measures_a_motion_larger_than_its_patches_reach():
+    # 16 px and 3 degrees across 32 px patches: from no motion, fewer than half the cells lock onto it
+    # (the grid refuses); started from the whole image's ECC motion (metrics/afd.py: _grid_start) they agree
+    ref, cur, H = _turned_and_shifted(3.0, (16.0, -6.4))
     cur = np.clip(cur * np.linspace(0.8, 1.1, 256, dtype=np.float32)[None, :], 0, 1)
     result = compute_fdf(ref, cur, config=FdfConfig(method="grid", grid_cells=6, patch_px=32))
     assert result.inliers >= 8
     # the cells' least-squares homography lands on the true one: each cell is within the 3 px RANSAC and
     # about 1 px RMS (phase correlation of 32 px gradient patches), ~25 cells, corners extrapolate ~3x
-    H_cells, _ = cv2.findHomography(result.points_ref, result.points_cur, 0)
-    corners = np.array([[0, 0, 1], [255, 0, 1], [255, 255, 1], [0, 255, 1]], float).T
-    mapped = lambda M: (M @ corners)[:2] / (M @ corners)[2]  # noqa: E731
-    assert np.linalg.norm(mapped(H_cells) - mapped(H), axis=0).mean() < 1.0
+    assert _corner_error_px(result, H) < 1.0
 
 
 def test_grid_reaches_a_start_beyond_ecc_from_the_whole_image_shift(monkeypatch):
     # 40 px and 2 degrees, the light inverted (an edge lit from the other side): ECC from no motion is
     # refused at this distance; the shift of the orientation fields across the whole image brings it in.
-    import cv2
-
     import fgcd_cli.metrics.afd as afd
 
-    ref = textured_scene(256)
-    angle = np.radians(2.0)
-    c, s = np.cos(angle), np.sin(angle)
-    centre = np.array([127.5, 127.5])
-    R = np.array([[c, -s], [s, c]])
-    H = np.eye(3)
-    H[:2, :2] = R
-    H[:2, 2] = centre + np.array([40.0, -12.0]) - R @ centre  # reference pixel -> current pixel
-    cur = cv2.warpPerspective(ref, H, (256, 256), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    ref, cur, H = _turned_and_shifted(2.0, (40.0, -12.0))
     cur = np.clip(1.0 - 0.8 * cur, 0, 1)
     config = FdfConfig(method="grid", grid_cells=6, patch_px=32)
     result = compute_fdf(ref, cur, config=config)
     assert result.inliers >= 8
-    H_cells, _ = cv2.findHomography(result.points_ref, result.points_cur, 0)
-    corners = np.array([[0, 0, 1], [255, 0, 1], [255, 255, 1], [0, 255, 1]], float).T
-    mapped = lambda M: (M @ corners)[:2] / (M @ corners)[2]  # noqa: E731
-    assert np.linalg.norm(mapped(H_cells) - mapped(H), axis=0).mean() < 1.0
+    assert _corner_error_px(result, H) < 1.0
     # negative control: without the whole-image shift the start is no motion, and the grid refuses
     monkeypatch.setattr(afd, "_coarse_shift", lambda ref_gray, cur_gray: np.eye(3))
     with pytest.raises(AlgorithmError, match="grid"):
