@@ -188,9 +188,10 @@ def edge_band_either_phase(
     thin line the reference happened to see shallow (below ``contrast``) but the current
     image sees deep is still the reference's edge: the band takes the current image's
     strong edges where the reference's range is at least ``contrast / 2`` times its
-    median. A new mark on a surface with no such edge in the reference (a crack on plain
-    stone) stays outside the band (docs/change-detection.md, "Change detection
-    pipeline", step 8).
+    median (docs/change-detection.md, "Change detection pipeline", step 8). On textured
+    stone that half contrast is common, so a new mark there may lie in the band too; it
+    stays a change only through the edge check's other rules (the envelope, the shape),
+    which ``tests/changes/test_edge_check.py`` checks for a new crack.
 
     Returns HxW bool.
     """
