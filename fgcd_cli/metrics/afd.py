@@ -121,14 +121,12 @@ def _grid_start(ref_gray: np.ndarray, cur_gray: np.ndarray) -> tuple[np.ndarray,
 
     Why: a patch correlated from no motion reaches only a fraction of its own size; the whole image's
     gradients bring every cell within reach of a motion several patches wide (the image stage's
-    fallback after a far start). On the real FGCD cross-lighting pairs (motions of 1-4 px) it changes
-    little (docs/lab/2026-12-06-calibrated-world.md).
+    fallback after a far start; measured: docs/change-detection.md, "FDF / AFD").
     """
-    for start in (np.eye(3), None):
+    starts = (lambda: np.eye(3), lambda: _coarse_shift(ref_gray, cur_gray))  # the shift only when needed
+    for start in starts:
         try:
-            H, correlation = ecc_gradient(
-                ref_gray, cur_gray, _coarse_shift(ref_gray, cur_gray) if start is None else start
-            )
+            H, correlation = ecc_gradient(ref_gray, cur_gray, start())
         except cv2.error:
             continue
         if np.isfinite(correlation) and correlation >= MIN_GRADIENT_CORRELATION:
