@@ -39,6 +39,15 @@ def _rule(value) -> DecisionRule:
 #: (docs/change-detection.md, "Significance of each region (a-contrario)").
 EPSILON = 1.0
 
+#: The contrast floor of a reported region (:mod:`fgcd_cli.changes.contrast`; docs/change-detection.md,
+#: "Contrast floor"): below half the faintest annotated change of the nine real development groups
+#: (their true regions' contrasts, all lightings, no ROI: 0.55 and up, Dp-1's paint and Db-6's pits;
+#: half of the faintest over any eight of the groups: 0.27-0.29), so a change half as strong as any
+#: annotated one is still reported (docs/lab/2026-12-06-contrast-floor.md). The pair's own null model sets the
+#: level in units of its noise; a pair cleaner than a real revisit (the simulator's, a camera that did
+#: not move) would otherwise report differences of a few percent.
+MIN_REGION_CONTRAST = 0.2
+
 
 @dataclass(frozen=True, kw_only=True)
 class RegistrationConfig:
@@ -109,6 +118,9 @@ class RegionConfig:
     """Regions up to this size are dropped."""
     max_hole_px: int = 30
     """Holes up to this size are filled."""
+    min_contrast: float = MIN_REGION_CONTRAST
+    """Regions whose contrast (:mod:`fgcd_cli.changes.contrast`) stays below this in every lighting are
+    not reported (they stay candidates); 0 disables. See :data:`MIN_REGION_CONTRAST`."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "decision", _rule(self.decision))

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig
+from fgcd_cli.changes.contrast import region_contrasts
 from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak, regions_with_significance
@@ -23,6 +24,7 @@ from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshol
 
 __all__ = [
     "Regions",
+    "apply_contrast_floor",
     "apply_edge_check",
     "decide",
     "decide_again",
@@ -190,6 +192,25 @@ def apply_edge_check(
     return check.explained
 
 
+def apply_contrast_floor(
+    found: Regions, *, refs, scored: PairScore, pixel_area_mm2, config: DetectionConfig, settings: dict
+) -> None:
+    """Regions below ``config.regions.min_contrast`` (:mod:`fgcd_cli.changes.contrast`) leave ``found``
+    (mask, regions, labels); they stay among the unreported candidates. Counted in
+    ``settings["low_contrast_regions"]``."""
+    floor = config.regions.min_contrast
+    if floor <= 0 or not found.regions:
+        return
+    contrast = region_contrasts(found.labels, len(found.regions), refs=refs, normalized=scored.normalized)
+    faint = [region.id for region, value in zip(found.regions, contrast) if value < floor]
+    settings["low_contrast_regions"] = len(faint)
+    if faint:
+        found.mask &= ~np.isin(found.labels, faint)
+        found.regions, found.labels = regions_with_significance(
+            found.mask, scored.score, found.significance, pixel_area_mm2
+        )
+
+
 def decide_again(result: ChangeResult, ref_images: list[np.ndarray], config: DetectionConfig) -> np.ndarray:
     """The change mask :func:`detect_changes` gives on ``result``'s score with ``config``'s decision and edge check.
 
@@ -218,4 +239,5 @@ def decide_again(result: ChangeResult, ref_images: list[np.ndarray], config: Det
     apply_edge_check(
         found, refs=refs, scored=result.pair_score, valid=result.valid, pixel_area_mm2=None, config=config, settings={}
     )
+    apply_contrast_floor(found, refs=refs, scored=result.pair_score, pixel_area_mm2=None, config=config, settings={})
     return found.mask
