@@ -20,7 +20,7 @@ def strongest_first(regions: list[dict]) -> list[dict]:
 def region_line(region: dict, *, epsilon: float) -> str:
     """``#1: strength 24.1, 340 px, 3.40 mm² at (200, 60), NFA 1e-12, colour, darker by 28 %`` (what is known)."""
     from fgcd_cli.report.areas import area_mm2_text
-    from fgcd_cli.report.candidates import region_significance_text, tone_text
+    from fgcd_cli.report.candidates import contrast_text, region_significance_text, tone_text
 
     mm2 = f", {area_mm2_text(region['area_mm2'], region['area_px'])}" if region.get("area_mm2") is not None else ""
     x, y = region["centroid_xy"]
@@ -29,7 +29,12 @@ def region_line(region: dict, *, epsilon: float) -> str:
     strength = f"strength {region['strength']:.1f}, " if region.get("strength") is not None else ""
     tone = tone_text(region.get("tone"), region.get("brightness_change"))
     tone = f", {tone}" if tone else ""
-    return f"#{region['id']}: {strength}{region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), {significance}{cue}{tone}"
+    contrast = contrast_text(region.get("contrast"), region.get("lightings"))
+    contrast = f", contrast {contrast}" if contrast else ""
+    return (
+        f"#{region['id']}: {strength}{region['area_px']} px{mm2} at ({x:.0f}, {y:.0f}), "
+        f"{significance}{cue}{tone}{contrast}"
+    )
 
 
 def no_change_lines(candidates: list[dict], *, epsilon: float, more: int = 2) -> list[str]:
@@ -49,6 +54,13 @@ def set_aside_line(regions: int, set_aside: int) -> str:
         f"{regions} change{'s' if regions != 1 else ''}{set_aside_text(set_aside)} "
         f"(cyan in the report; --edge-check 0 reports {'them' if set_aside != 1 else 'it'})"
     )
+
+
+def faint_line(data: dict) -> str:
+    """The regions the contrast floor left out of a diff result (its JSON form), or ``""``."""
+    from fgcd_cli.report.candidates import faint_text
+
+    return faint_text(data.get("settings"))
 
 
 def result_epsilon(data: dict) -> float:

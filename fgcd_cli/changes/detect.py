@@ -25,7 +25,7 @@ from fgcd_cli.changes.cues.labels import CueMaps, label_regions, relief_colour_c
 from fgcd_cli.changes.dense.refine import DenseAlignment, refine_dense, warp_with_flow
 from fgcd_cli.changes.illumination import normalize_shading
 from fgcd_cli.changes.images import check_side_inputs, image_health, to_gray, validate_stacks
-from fgcd_cli.changes.region_decision import apply_contrast_floor, apply_edge_check, decide_regions
+from fgcd_cli.changes.region_decision import decide_regions, set_aside_regions
 from fgcd_cli.changes.regions import (
     ChangeRegion,
     regions_with_significance,
@@ -134,11 +134,8 @@ def detect_changes(
         fine_score=scored.fine_score,
     )
     step("decided")
-    explained = apply_edge_check(
+    explained = set_aside_regions(
         found, refs=refs, scored=scored, valid=valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
-    )
-    apply_contrast_floor(
-        found, refs=refs, scored=scored, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
     )
     cue_maps = label_cues(
         refs,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig
-from fgcd_cli.changes.contrast import region_contrasts
+from fgcd_cli.changes.contrast import region_contrasts, set_contrasts
 from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak, regions_with_significance
@@ -26,6 +26,7 @@ __all__ = [
     "Regions",
     "apply_contrast_floor",
     "apply_edge_check",
+    "set_aside_regions",
     "decide",
     "decide_again",
     "decide_regions",
@@ -197,18 +198,41 @@ def apply_contrast_floor(
 ) -> None:
     """Regions below ``config.regions.min_contrast`` (:mod:`fgcd_cli.changes.contrast`) leave ``found``
     (mask, regions, labels); they stay among the unreported candidates. Counted in
-    ``settings["low_contrast_regions"]``."""
+    ``settings["low_contrast_regions"]``. Then each region left gets its contrast and the lightings
+    that show it (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""
     floor = config.regions.min_contrast
-    if floor <= 0 or not found.regions:
-        return
-    contrast = region_contrasts(found.labels, len(found.regions), refs=refs, normalized=scored.normalized)
-    faint = [region.id for region, value in zip(found.regions, contrast) if value < floor]
-    settings["low_contrast_regions"] = len(faint)
-    if faint:
-        found.mask &= ~np.isin(found.labels, faint)
-        found.regions, found.labels = regions_with_significance(
-            found.mask, scored.score, found.significance, pixel_area_mm2
-        )
+    if floor > 0 and found.regions:
+        contrast = region_contrasts(found.labels, len(found.regions), refs=refs, normalized=scored.normalized)
+        faint = [region.id for region, value in zip(found.regions, contrast) if value < floor]
+        settings["low_contrast_regions"] = len(faint)
+        settings["min_contrast"] = floor
+        if faint:
+            found.mask &= ~np.isin(found.labels, faint)
+            found.regions, found.labels = regions_with_significance(
+                found.mask, scored.score, found.significance, pixel_area_mm2
+            )
+    set_contrasts(found.regions, found.labels, refs, scored.normalized)
+
+
+def set_aside_regions(
+    found: Regions,
+    *,
+    refs,
+    scored: PairScore,
+    valid: np.ndarray,
+    pixel_area_mm2,
+    config: DetectionConfig,
+    settings: dict,
+) -> np.ndarray | None:
+    """Steps 8 and 9 of ``docs/change-detection.md``: the edge check (:func:`apply_edge_check`, whose set-aside
+    pixels it returns), then the contrast floor (:func:`apply_contrast_floor`)."""
+    explained = apply_edge_check(
+        found, refs=refs, scored=scored, valid=valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
+    )
+    apply_contrast_floor(
+        found, refs=refs, scored=scored, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
+    )
+    return explained
 
 
 def decide_again(result: ChangeResult, ref_images: list[np.ndarray], config: DetectionConfig) -> np.ndarray:
@@ -236,8 +260,7 @@ def decide_again(result: ChangeResult, ref_images: list[np.ndarray], config: Det
         result.score, result.valid, pixel_area_mm2=None, config=config, settings={}, fine_score=fine_score
     )
     refs = [to_float_image(im, name=f"reference image {i + 1}") for i, im in enumerate(ref_images)]
-    apply_edge_check(
+    set_aside_regions(
         found, refs=refs, scored=result.pair_score, valid=result.valid, pixel_area_mm2=None, config=config, settings={}
     )
-    apply_contrast_floor(found, refs=refs, scored=result.pair_score, pixel_area_mm2=None, config=config, settings={})
     return found.mask

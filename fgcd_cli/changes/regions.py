@@ -50,6 +50,12 @@ class ChangeRegion:
     """``"darker"`` or ``"brighter"`` when every lighting agrees (:func:`set_brightness_changes`),
     ``"mixed"`` when they do not (a relief change shades one way under one light, the other way under
     another); None: not computed."""
+    contrast: float | None = None
+    """The change's relative size at its strongest lighting and colour channel (0.3: 30 %;
+    :mod:`fgcd_cli.changes.contrast`). None: not computed."""
+    lightings: tuple[int, ...] | None = None
+    """1-based numbers of the lightings that show it (its contrast there at least half its strongest;
+    :func:`fgcd_cli.changes.contrast.set_contrasts`). None: not computed."""
 
 
 def clean_mask(mask: np.ndarray, *, min_region_px: int, max_hole_px: int) -> np.ndarray:

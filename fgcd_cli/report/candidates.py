@@ -123,6 +123,31 @@ def set_aside_text(n_set_aside: int) -> str:
     return f"; {n_set_aside} candidate{'s' if n_set_aside > 1 else ''} set aside along an edge"
 
 
+def faint_text(settings: dict | None) -> str:
+    """``"2 faint regions (contrast below 20 % in every lighting) not reported: listed among the candidates"``,
+    or ``""``: what a report and the command line say about the contrast floor
+    (:func:`fgcd_cli.changes.region_decision.apply_contrast_floor`)."""
+    settings = settings or {}
+    n = int(settings.get("low_contrast_regions") or 0)
+    if n <= 0:
+        return ""
+    floor = float(settings.get("min_contrast") or 0.0)
+    return (
+        f"{n} faint region{'s' if n > 1 else ''} (contrast below {floor * 100:.0f} % in every lighting) "
+        "not reported: listed among the candidates"
+    )
+
+
+def contrast_text(contrast: float | None, lightings, n_lightings: int | None = None) -> str:
+    """``"42 % (lightings 1, 3 of 4)"`` or ``""`` when not computed: a region's contrast at its strongest and
+    the lightings that show it (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""
+    if contrast is None:
+        return ""
+    shown = ", ".join(str(k) for k in lightings or ())
+    of = f" of {n_lightings}" if n_lightings else ""
+    return f"{contrast * 100:.0f} %" + (f" (lighting{'s' if len(lightings) > 1 else ''} {shown}{of})" if shown else "")
+
+
 def tone_text(tone: str | None, brightness_change: float | None) -> str:
     """``"darker by 28 %"``, ``"brighter by 15 %"``, ``"mixed"`` (the lightings disagree: relief shades
     both ways) or ``""`` when not computed (:func:`fgcd_cli.changes.regions.set_brightness_changes`)."""

@@ -22,6 +22,8 @@ from fgcd_cli.report.areas import area_mm2_text
 from fgcd_cli.report.candidates import (
     candidate_dict,
     candidate_text,
+    contrast_text,
+    faint_text,
     is_significant,
     nfa_text,
     p_text,
@@ -253,6 +255,9 @@ def _summary_section(result: ChangeResult, fdf: FdfResult | None, ctx: ReportCon
             f"{'them' if set_aside > 1 else 'it'} (thin lines and edges thinned or moved by up to 2 px). "
             "They are outlined in cyan on the change map; check them by eye where an edge itself may have changed.</p>"
         )
+    faint = faint_text(result.settings)
+    if faint:
+        parts.append(f"<p>{html.escape(faint)}: too faint for a surface change a revisit can vouch for.</p>")
     if fdf is not None:
         quality = "within" if fdf.afd_px < 3 else "outside"
         parts.append(
@@ -326,8 +331,10 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
         "<tr><th>#</th><th>area (px)</th>"
         + ("<th>area (mm²)</th>" if has_mm2 else "")
         + "<th>centre x, y (px)</th><th>size w × h (px)</th><th>strength (× threshold)</th>"
-        '<th>significance (NFA)</th><th class="l">cue</th><th class="l">now</th></tr>'
+        '<th>significance (NFA)</th><th class="l">contrast (seen under)</th><th class="l">cue</th>'
+        '<th class="l">now</th></tr>'
     )
+    n_lightings = int(result.settings.get("lightings") or 0) or None
     epsilon = _epsilon(result)
     rows = []
     high = result.detection_level or 1.0
@@ -339,6 +346,7 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
             + f"<td>{r.centroid_xy[0]:.0f}, {r.centroid_xy[1]:.0f}</td><td>{w} × {h}</td>"
             f"<td>{r.max_score / high:.1f}</td>"
             f"<td>{html.escape(region_significance_text(r.log10_nfa, epsilon=epsilon).removeprefix('NFA '))}</td>"
+            f'<td class="l">{html.escape(contrast_text(r.contrast, r.lightings, n_lightings) or "–")}</td>'
             f'<td class="l">{html.escape(r.cue or "–")}</td>'
             f'<td class="l">{html.escape(tone_text(r.tone, r.brightness_change) or "–")}</td></tr>'
         )
@@ -353,7 +361,9 @@ def _regions_table(result: ChangeResult, max_rows: int) -> list[str]:
         "a region also needs its significance, so a weak but extended one may be below 1; "
         "hysteresis: its high threshold). Significance: the number of false alarms (NFA), how many regions "
         "at least as extreme are expected per image on an unchanged pair (a-contrario; "
-        f"below {epsilon:g} = significant). Cue: what changed, relief (surface normals) or colour "
+        f"below {epsilon:g} = significant). Contrast: the change at its strongest, relative to the "
+        "surface's brightness, and the lightings (numbered as listed) where it is at least half that; "
+        "regions below the contrast floor are not reported. Cue: what changed, relief (surface normals) or colour "
         "(albedo) or both, when the photometric cues were computed. Now: darker or brighter than at the "
         "reference (the region's light over every lighting), or mixed when the lightings disagree "
         "(relief shades one way under one light, the other way under another).</p>"

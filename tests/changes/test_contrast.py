@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 
 from fgcd_cli.changes.config import MIN_REGION_CONTRAST, DetectionConfig
-from fgcd_cli.changes.contrast import region_contrasts
+from fgcd_cli.changes.contrast import region_contrasts, set_contrasts
 from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.regions import ChangeRegion
+from fgcd_cli.report.candidates import faint_text
 
 from .conftest import textured_scene
 
@@ -22,11 +24,14 @@ def test_contrast_is_the_relative_change_at_its_strongest():
     ref = np.full((120, 200), 0.5, np.float32)
     labels = _discs(ref.shape, [(50, 60), (150, 60)], 12)
     cur = ref.copy()
-    cur[labels == 1] = 0.35  # 30 % darker
-    cur[labels == 2] = 0.6  # 20 % brighter
+    cur[labels == 1] = 0.35  # darker
+    cur[labels == 2] = 0.6  # brighter
     contrast = region_contrasts(labels, 2, refs=[ref], normalized=[cur])
-    # A disc 12 px across keeps its full step at its centre under the 1 px averaging.
-    np.testing.assert_allclose(contrast, [0.30, 0.20], atol=0.005)
+    # |change| over the mean of the two brightnesses; a disc 12 px across keeps its full step at
+    # its centre under the 1 px averaging.
+    np.testing.assert_allclose(contrast, [0.15 / 0.425, 0.1 / 0.55], atol=0.005)
+    # swapping the observations gives the same contrast
+    np.testing.assert_allclose(region_contrasts(labels, 2, refs=[cur], normalized=[ref]), contrast, atol=1e-9)
 
 
 def test_contrast_takes_the_strongest_lighting_and_channel():
@@ -34,9 +39,16 @@ def test_contrast_takes_the_strongest_lighting_and_channel():
     labels = _discs(ref.shape[:2], [(40, 40)], 10)
     unchanged = ref.copy()
     tinted = ref.copy()
-    tinted[labels == 1] = (0.5, 0.4, 0.3)  # warmer: red +25 %, blue -25 %, about the same luma
+    tinted[labels == 1] = (0.5, 0.4, 0.3)  # warmer: red up, blue down, about the same luma
     contrast = region_contrasts(labels, 1, refs=[ref, ref], normalized=[unchanged, tinted])
-    np.testing.assert_allclose(contrast, [0.25], atol=0.005)
+    np.testing.assert_allclose(contrast, [0.1 / 0.35], atol=0.005)  # blue: 0.4 -> 0.3
+    regions = [
+        ChangeRegion(
+            id=1, area_px=1, area_mm2=None, bbox_xywh=(0, 0, 1, 1), centroid_xy=(40, 40), mean_score=1.0, max_score=1.0
+        )
+    ]
+    set_contrasts(regions, labels, [ref, ref], [unchanged, tinted])
+    assert regions[0].contrast == pytest.approx(contrast[0]) and regions[0].lightings == (2,)
 
 
 def _stained_pair(darkening: float):
@@ -67,5 +79,7 @@ def test_floor_sets_aside_faint_regions_only(darkening, reported):
     assert bool(hits) == reported
     if not reported:
         assert result.settings["low_contrast_regions"] >= 1
+        # and the report and the command line say so
+        assert "contrast below 20 % in every lighting" in faint_text(result.settings)
         # set aside, not lost: it stays among the candidates the report shows
         assert any(truth[int(c.centroid_xy[1]), int(c.centroid_xy[0])] for c in result.candidates)
