@@ -114,6 +114,7 @@ def _analyze(key: VisitKey, options: AnalysisOptions, force: bool, t0: float) ->
             mm_per_px=options.mm_per_px,
             register=options.register,
             edge_check_px=options.edge_check_px,
+            min_contrast=options.min_contrast,
             force=force,
         )
     )

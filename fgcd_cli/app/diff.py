@@ -17,6 +17,7 @@ from fgcd_cli.app.diff_options import (
     check_diff_options,
     check_stored_diff,
     checked_edge_check_px,
+    contrast_options,
     default_edge_check_px,
 )
 from fgcd_cli.app.visit_logs import coarse_log_rows, relocation_log_rows, relocation_residual_text
@@ -92,6 +93,8 @@ class BareDiffRequest:
         Region-level edge check shift, pixels (None: :data:`fgcd_cli.app.diff_options.EDGE_CHECK_PX`; 0: off).
     ambient_index : int or None
         0-based index of the ambient-only image (left out of photometric stereo).
+    min_contrast : float or None
+        Contrast floor of a reported region (``--min-contrast``; None: the detector's default, 0: off).
     """
 
     ref: list[str]
@@ -104,12 +107,14 @@ class BareDiffRequest:
     register: bool = True
     edge_check_px: int | None = None
     ambient_index: int | None = None
+    min_contrast: float | None = None
 
     def __post_init__(self) -> None:
         check_diff_options(
             mm_per_px=self.mm_per_px,
             edge_check_px=self.edge_check_px,
             ambient_index=self.ambient_index,
+            min_contrast=self.min_contrast,
             files={"--roi": self.roi, "--truth": self.truth, "--score-mask": self.score_mask},
         )
 
@@ -172,6 +177,7 @@ def detect_bare(
                 register=r.register,
                 edge_check_px=checked_edge_check_px(default_edge_check_px(r.edge_check_px)),
                 ambient_index=r.ambient_index,
+                **contrast_options(r.min_contrast),
             ),
         )
         same_size = ref_images[0].shape == cur_images[0].shape
@@ -314,6 +320,8 @@ class CampaignDiffRequest:
         A folder that also receives the products (they are always stored in the visit).
     edge_check_px : int or None
         Region-level edge check shift, pixels (None: :data:`fgcd_cli.app.diff_options.EDGE_CHECK_PX`; 0: off).
+    min_contrast : float or None
+        As :class:`BareDiffRequest`'s.
     force : bool
         Replace a stored diff of the visit that was made with other options
         (without it such a diff is kept and the request refused,
@@ -331,6 +339,7 @@ class CampaignDiffRequest:
     register: bool = True
     output: Path | None = None
     edge_check_px: int | None = None
+    min_contrast: float | None = None
     force: bool = False
     truth: Path | None = None
     score_mask: Path | None = None
@@ -339,6 +348,7 @@ class CampaignDiffRequest:
         check_diff_options(
             mm_per_px=self.mm_per_px,
             edge_check_px=self.edge_check_px,
+            min_contrast=self.min_contrast,
             files={"--roi": self.roi, "--truth": self.truth, "--score-mask": self.score_mask},
         )
 
@@ -346,6 +356,7 @@ class CampaignDiffRequest:
         """The options this diff is made with, as its record (``changes/analysis.json``) states them."""
         return AnalysisOptions(
             edge_check_px=self.edge_check_px,
+            min_contrast=self.min_contrast,
             mm_per_px=self.mm_per_px,
             register=self.register,
             eval_mask_sha256=sha256_file(self.roi) if self.roi is not None else None,
@@ -397,6 +408,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
             register=r.register,
             edge_check_px=edge_check,
             ambient_index=lightings.index("ambient") if "ambient" in lightings else None,
+            **contrast_options(r.min_contrast),
         ),
     )
     fdf = measure_fdf(ref_images[0], cur_images[0])

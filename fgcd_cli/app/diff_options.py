@@ -14,6 +14,7 @@ from pathlib import Path
 
 from fgcd_cli.archive.freshness import AnalysisOptions, stored_options
 from fgcd_cli.campaign import schema
+from fgcd_cli.changes.config import MIN_REGION_CONTRAST
 from fgcd_cli.errors import ImmutableDataError, UserInputError
 
 
@@ -22,13 +23,15 @@ def check_diff_options(
     mm_per_px: float | None,
     edge_check_px: int | None,
     ambient_index: int | None = None,
+    min_contrast: float | None = None,
     files: dict[str, Path | None] | None = None,
 ) -> None:
     """The one check of a diff's options, run when a request is made: before anything is read or written.
 
     Raises :class:`UserInputError` (exit 2) for a scale that is not a positive finite
     number of mm per px (a negative or zero scale would give non-physical areas), an
-    edge check outside 0..8 px, a negative ambient index, or a named file that is not there.
+    edge check outside 0..8 px, a negative ambient index, a contrast floor outside [0, 1), or a named
+    file that is not there.
     """
     if mm_per_px is not None and (
         isinstance(mm_per_px, bool)
@@ -39,6 +42,10 @@ def check_diff_options(
         raise UserInputError(f"--mm-per-px must be a positive number of millimetres per pixel, got {mm_per_px}")
     if edge_check_px is not None:
         checked_edge_check_px(edge_check_px)
+    if min_contrast is not None and (
+        isinstance(min_contrast, bool) or not isinstance(min_contrast, (int, float)) or not 0.0 <= min_contrast < 1.0
+    ):
+        raise UserInputError(f"--min-contrast must be a fraction from 0 (report all) to below 1, got {min_contrast}")
     if ambient_index is not None and ambient_index < 0:
         raise UserInputError(f"--ambient-index must be 0 or more, got {ambient_index}")
     for option, path in (files or {}).items():
@@ -73,9 +80,19 @@ def checked_edge_check_px(px: int) -> int:
     return int(px)
 
 
+def contrast_options(min_contrast: float | None) -> dict:
+    """The detector option a diff's ``--min-contrast`` gives (none when not given: the detector's default)."""
+    return {} if min_contrast is None else {"min_contrast": float(min_contrast)}
+
+
 def _effective(options: AnalysisOptions) -> AnalysisOptions:
-    """``options`` with the default edge check spelled out (``None`` and 2 px make the same diff)."""
-    return dataclasses.replace(options, edge_check_px=default_edge_check_px(options.edge_check_px))
+    """``options`` with the defaults spelled out (``None`` and 2 px make the same diff; so do ``None`` and
+    the detector's contrast floor)."""
+    return dataclasses.replace(
+        options,
+        edge_check_px=default_edge_check_px(options.edge_check_px),
+        min_contrast=MIN_REGION_CONTRAST if options.min_contrast is None else float(options.min_contrast),
+    )
 
 
 def options_text(options: AnalysisOptions) -> str:
@@ -84,6 +101,7 @@ def options_text(options: AnalysisOptions) -> str:
     parts = [
         f"--mm-per-px {o.mm_per_px}" if o.mm_per_px is not None else "no --mm-per-px",
         f"--edge-check {o.edge_check_px}",
+        f"--min-contrast {o.min_contrast:g}",
     ]
     parts += ["--no-register"] if not o.register else []
     parts += [f"--roi sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []

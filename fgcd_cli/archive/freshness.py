@@ -53,12 +53,15 @@ class AnalysisOptions:
         Register the visit's images onto the reference first.
     eval_mask_sha256 : str or None
         sha256 of the region of interest (``--roi``) the diff compared within (None: the whole image; the stored key keeps its first name).
+    min_contrast : float or None
+        Contrast floor of a reported region (``--min-contrast``; None: the detector's default).
     """
 
     edge_check_px: int | None = None
     mm_per_px: float | None = None
     register: bool = True
     eval_mask_sha256: str | None = None
+    min_contrast: float | None = None
 
 
 class Freshness(StrEnum):

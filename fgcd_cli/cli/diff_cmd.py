@@ -151,6 +151,12 @@ def diff(
         help="Set aside regions along strong reference edges that a shift of up to this many px "
         "explains (shown in cyan); 0 = off. Default: 2.",
     ),
+    min_contrast: float | None = typer.Option(
+        None,
+        "--min-contrast",
+        help="Report only regions whose change reaches this fraction of the surface's brightness under "
+        "some lighting (0.2 = 20 %); fainter ones stay candidates. 0 = report all. Default: 0.2.",
+    ),
     ambient_index: int | None = typer.Option(
         None,
         "--ambient-index",
@@ -192,6 +198,7 @@ def diff(
             register=not no_register,
             output=output,
             edge_check_px=edge_check,
+            min_contrast=min_contrast,
             force=force,
             truth=truth,
             score_mask=score_mask,
@@ -222,6 +229,7 @@ def diff(
             mm_per_px=mm_per_px,
             register=not no_register,
             edge_check_px=edge_check,
+            min_contrast=min_contrast,
             ambient_index=ambient_index,
         )
         run_record.no_platform()

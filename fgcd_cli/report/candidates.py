@@ -134,7 +134,7 @@ def faint_text(settings: dict | None) -> str:
     floor = float(settings.get("min_contrast") or 0.0)
     return (
         f"{n} faint region{'s' if n > 1 else ''} (contrast below {floor * 100:.0f} % in every lighting) "
-        "not reported: listed among the candidates"
+        "not reported: listed among the candidates (--min-contrast 0 reports them)"
     )
 
 
