@@ -300,6 +300,14 @@ def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | Non
     return area if np.isfinite(area).any() else None
 
 
+def _campaign_pixel_area(reference, shape: tuple[int, int], mm_per_px: float | None) -> tuple[np.ndarray | None, str]:
+    """mm² per reference pixel (the given scale, else the reference's metric cloud, else None) and how it was got."""
+    if mm_per_px is not None:
+        return np.full(shape, mm_per_px**2), f"{mm_per_px} mm per px (given)"
+    area = _reference_pixel_area(reference, shape)
+    return area, "from the reference metric cloud" if area is not None else "none (areas in px only)"
+
+
 @dataclass(frozen=True, kw_only=True)
 class CampaignDiffRequest:
     """A comparison of a station's visit with its reference (``fgcd diff -c ... -s ...``).
@@ -388,12 +396,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     check_stack_sizes(ref_images, cur_images)
     shape = ref_images[0].shape[:2]
     truth = _read_truth(r.truth, r.score_mask, shape)
-    if r.mm_per_px is not None:
-        area = np.full(shape, r.mm_per_px**2)
-        scale_note = f"{r.mm_per_px} mm per px (given)"
-    else:
-        area = _reference_pixel_area(reference, shape)
-        scale_note = "from the reference metric cloud" if area is not None else "none (areas in px only)"
+    area, scale_note = _campaign_pixel_area(reference, shape, r.mm_per_px)
     mask = read_mask(r.roi) if r.roi is not None else None
     edge_check = checked_edge_check_px(default_edge_check_px(r.edge_check_px))
     across = "" if lightings == visit_lightings else f" across lightings ({lightings[0]} against {visit_lightings[0]})"

@@ -24,8 +24,8 @@ from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshol
 
 __all__ = [
     "Regions",
-    "apply_contrast_floor",
-    "apply_edge_check",
+    "edge_checked_pixels",
+    "faint_pixels",
     "set_aside_regions",
     "decide",
     "decide_again",
@@ -46,6 +46,11 @@ class Regions:
     """HxW int32, region id per pixel."""
     threshold: ThresholdInfo
     significance: Decision
+
+    def set_aside(self, pixels: np.ndarray, score: np.ndarray, pixel_area_mm2) -> None:
+        """``pixels`` (HxW bool) leave the mask; the regions are labelled again from what is left."""
+        self.mask &= ~pixels
+        self.regions, self.labels = regions_with_significance(self.mask, score, self.significance, pixel_area_mm2)
 
 
 def decide_regions(
@@ -158,18 +163,11 @@ def region_mask(
     return clean_mask(raw_mask, min_region_px=config.min_region_px, max_hole_px=config.max_hole_px) & valid
 
 
-def apply_edge_check(
-    found: Regions,
-    *,
-    refs,
-    scored: PairScore,
-    valid: np.ndarray,
-    pixel_area_mm2,
-    config: DetectionConfig,
-    settings: dict,
+def edge_checked_pixels(
+    found: Regions, *, refs, scored: PairScore, valid: np.ndarray, config: DetectionConfig, settings: dict
 ) -> np.ndarray | None:
-    """The region-level edge check (:mod:`fgcd_cli.changes.edge_check`): the regions it sets aside leave
-    ``found`` (mask, regions, labels); returns their pixels, or None when the check did not run."""
+    """The pixels of the regions the edge check (:mod:`fgcd_cli.changes.edge_check`) sets aside, or None
+    when the check did not run; counted in ``settings``."""
     if config.edge_check.edge_check_px <= 0 or not found.regions:
         return None
     acontrario = config.regions.decision == DecisionRule.ACONTRARIO
@@ -185,33 +183,22 @@ def apply_edge_check(
     )
     settings["edge_explained_regions"] = check.n_explained
     settings["edge_compact_kept_regions"] = check.n_compact_kept
-    if check.explained.any():
-        found.mask &= ~check.explained
-        found.regions, found.labels = regions_with_significance(
-            found.mask, scored.score, found.significance, pixel_area_mm2
-        )
     return check.explained
 
 
-def apply_contrast_floor(
-    found: Regions, *, refs, scored: PairScore, pixel_area_mm2, config: DetectionConfig, settings: dict
-) -> None:
-    """Regions below ``config.regions.min_contrast`` (:mod:`fgcd_cli.changes.contrast`) leave ``found``
-    (mask, regions, labels); they stay among the unreported candidates. Counted in
-    ``settings["low_contrast_regions"]``. Then each region left gets its contrast and the lightings
-    that show it (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""
+def faint_pixels(
+    found: Regions, *, refs, scored: PairScore, config: DetectionConfig, settings: dict
+) -> np.ndarray | None:
+    """The pixels of the regions below ``config.regions.min_contrast`` (:mod:`fgcd_cli.changes.contrast`),
+    or None when the floor is off; counted in ``settings["low_contrast_regions"]``."""
     floor = config.regions.min_contrast
-    if floor > 0 and found.regions:
-        contrast = region_contrasts(found.labels, len(found.regions), refs=refs, normalized=scored.normalized)
-        faint = [region.id for region, value in zip(found.regions, contrast) if value < floor]
-        settings["low_contrast_regions"] = len(faint)
-        settings["min_contrast"] = floor
-        if faint:
-            found.mask &= ~np.isin(found.labels, faint)
-            found.regions, found.labels = regions_with_significance(
-                found.mask, scored.score, found.significance, pixel_area_mm2
-            )
-    set_contrasts(found.regions, found.labels, refs, scored.normalized)
+    if floor <= 0 or not found.regions:
+        return None
+    contrast = region_contrasts(found.labels, len(found.regions), refs=refs, normalized=scored.normalized)
+    faint = [region.id for region, value in zip(found.regions, contrast) if value < floor]
+    settings["low_contrast_regions"] = len(faint)
+    settings["min_contrast"] = floor
+    return np.isin(found.labels, faint)
 
 
 def set_aside_regions(
@@ -224,14 +211,18 @@ def set_aside_regions(
     config: DetectionConfig,
     settings: dict,
 ) -> np.ndarray | None:
-    """Steps 8 and 9 of ``docs/change-detection.md``: the edge check (:func:`apply_edge_check`, whose set-aside
-    pixels it returns), then the contrast floor (:func:`apply_contrast_floor`)."""
-    explained = apply_edge_check(
-        found, refs=refs, scored=scored, valid=valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
-    )
-    apply_contrast_floor(
-        found, refs=refs, scored=scored, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
-    )
+    """Steps 8 and 9 of ``docs/change-detection.md``: the regions the edge check explains, then those
+    below the contrast floor, leave ``found`` (mask, regions, labels; they stay among the unreported
+    candidates); each region left gets its contrast and the lightings that show it
+    (:func:`fgcd_cli.changes.contrast.set_contrasts`). Returns the edge check's set-aside pixels (None
+    when it did not run)."""
+    explained = edge_checked_pixels(found, refs=refs, scored=scored, valid=valid, config=config, settings=settings)
+    if explained is not None and explained.any():
+        found.set_aside(explained, scored.score, pixel_area_mm2)
+    faint = faint_pixels(found, refs=refs, scored=scored, config=config, settings=settings)
+    if faint is not None and faint.any():
+        found.set_aside(faint, scored.score, pixel_area_mm2)
+    set_contrasts(found.regions, found.labels, refs, scored.normalized)
     return explained
 
 
