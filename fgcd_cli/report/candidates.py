@@ -143,7 +143,7 @@ def contrast_text(contrast: float | None, lightings, n_lightings: int | None = N
     the lightings that show it (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""
     if contrast is None:
         return ""
-    shown = ", ".join(str(k) for k in lightings or ())
+    shown = ", ".join(str(k) for k in lightings or ()) if n_lightings != 1 else ""
     of = f" of {n_lightings}" if n_lightings else ""
     return f"{contrast * 100:.0f} %" + (f" (lighting{'s' if len(lightings) > 1 else ''} {shown}{of})" if shown else "")
 

@@ -8,7 +8,7 @@ from fgcd_cli.changes.config import MIN_REGION_CONTRAST, DetectionConfig
 from fgcd_cli.changes.contrast import region_contrasts, set_contrasts
 from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.regions import ChangeRegion
-from fgcd_cli.report.candidates import faint_text
+from fgcd_cli.report.candidates import contrast_text, faint_text
 
 from .conftest import textured_scene
 
@@ -83,3 +83,10 @@ def test_floor_sets_aside_faint_regions_only(darkening, reported):
         assert "contrast below 20 % in every lighting" in faint_text(result.settings)
         # set aside, not lost: it stays among the candidates the report shows
         assert any(truth[int(c.centroid_xy[1]), int(c.centroid_xy[0])] for c in result.candidates)
+
+
+def test_contrast_text_names_the_lightings_that_show_it():
+    assert contrast_text(0.42, (1, 3), 4) == "42 % (lightings 1, 3 of 4)"
+    assert contrast_text(0.3, (2,), 4) == "30 % (lighting 2 of 4)"
+    assert contrast_text(0.95, (1,), 1) == "95 %"  # one lighting: nothing to name
+    assert contrast_text(None, None) == ""
