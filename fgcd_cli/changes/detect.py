@@ -134,7 +134,7 @@ def detect_changes(
         fine_score=scored.fine_score,
     )
     step("decided")
-    explained = set_aside_regions(
+    set_aside = set_aside_regions(
         found, refs=refs, scored=scored, valid=valid, pixel_area_mm2=pixel_area_mm2, config=config, settings=settings
     )
     cue_maps = label_cues(
@@ -162,8 +162,8 @@ def detect_changes(
         current_registered=[np.clip(image, 0.0, 1.0) for image in scored.normalized],
         settings=settings,
         warnings=result_warnings(found.mask, valid, alignment.registration, register=config.registration.register),
-        edge_explained=explained,
-        candidates=unreported_candidates(found.significance, found.mask),
+        edge_explained=set_aside.edge,
+        candidates=unreported_candidates(found.significance, found.mask, first=set_aside.faint_candidates),
         not_compared=alignment.not_compared,
         dense=alignment.dense,
         cue_maps=cue_maps,

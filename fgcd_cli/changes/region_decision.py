@@ -19,13 +19,20 @@ from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak, regions_with_significance
 from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.changes.score import PairScore
-from fgcd_cli.changes.significance import Decision, acontrario_config, acontrario_decision, merge_decisions
+from fgcd_cli.changes.significance import (
+    Decision,
+    SignificantRegion,
+    acontrario_config,
+    acontrario_decision,
+    merge_decisions,
+)
 from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshold
 
 __all__ = [
     "Regions",
     "edge_checked_pixels",
     "faint_pixels",
+    "SetAside",
     "set_aside_regions",
     "decide",
     "decide_again",
@@ -201,6 +208,18 @@ def faint_pixels(
     return np.isin(found.labels, faint)
 
 
+@dataclass(frozen=True)
+class SetAside:
+    """What :func:`set_aside_regions` took out of the change mask (HxW bool each; None: the step did not run)."""
+
+    edge: np.ndarray | None
+    """The regions the edge check explains."""
+    faint: np.ndarray | None
+    """The regions below the contrast floor."""
+    faint_candidates: tuple[SignificantRegion, ...] = ()
+    """The same regions as candidates (strongest first), so that the report lists them."""
+
+
 def set_aside_regions(
     found: Regions,
     *,
@@ -210,20 +229,37 @@ def set_aside_regions(
     pixel_area_mm2,
     config: DetectionConfig,
     settings: dict,
-) -> np.ndarray | None:
+) -> SetAside:
     """Steps 8 and 9 of ``docs/change-detection.md``: the regions the edge check explains, then those
     below the contrast floor, leave ``found`` (mask, regions, labels; they stay among the unreported
     candidates); each region left gets its contrast and the lightings that show it
-    (:func:`fgcd_cli.changes.contrast.set_contrasts`). Returns the edge check's set-aside pixels (None
-    when it did not run)."""
+    (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""
     explained = edge_checked_pixels(found, refs=refs, scored=scored, valid=valid, config=config, settings=settings)
     if explained is not None and explained.any():
         found.set_aside(explained, scored.score, pixel_area_mm2)
     faint = faint_pixels(found, refs=refs, scored=scored, config=config, settings=settings)
+    listed: tuple[SignificantRegion, ...] = ()
     if faint is not None and faint.any():
+        listed = as_candidates([r for r in found.regions if faint[found.labels == r.id].any()], scored.score, valid)
         found.set_aside(faint, scored.score, pixel_area_mm2)
     set_contrasts(found.regions, found.labels, refs, scored.normalized)
-    return explained
+    return SetAside(edge=explained, faint=faint, faint_candidates=listed)
+
+
+def as_candidates(regions: list[ChangeRegion], score: np.ndarray, valid: np.ndarray) -> tuple[SignificantRegion, ...]:
+    """Regions not reported, as the report's candidates (strongest first): their significance, the share
+    of compared pixels scoring at least their peak (its level p), area, centre and peak score."""
+    compared = score[valid]
+    return tuple(
+        SignificantRegion(
+            log10_nfa=float(r.log10_nfa) if r.log10_nfa is not None else 0.0,
+            p_level=float((compared >= r.max_score).mean()) if compared.size else 1.0,
+            area_px=r.area_px,
+            centroid_xy=r.centroid_xy,
+            peak_score=r.max_score,
+        )
+        for r in sorted(regions, key=lambda r: -r.max_score)
+    )
 
 
 def decide_again(result: ChangeResult, ref_images: list[np.ndarray], config: DetectionConfig) -> np.ndarray:

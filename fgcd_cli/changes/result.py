@@ -139,13 +139,29 @@ def result_warnings(mask: np.ndarray, valid: np.ndarray, registration: Registrat
     return warnings
 
 
-def unreported_candidates(significance: Decision, mask: np.ndarray, *, count: int = 5) -> list[SignificantRegion]:
-    """The ``count`` most significant a-contrario regions whose centroid is not in the final mask."""
-    return sorted(
-        (
-            c
-            for c in significance.candidates + significance.regions
-            if not mask[int(round(c.centroid_xy[1])), int(round(c.centroid_xy[0]))]
-        ),
-        key=lambda c: c.log10_nfa,
-    )[:count]
+def unreported_candidates(
+    significance: Decision, mask: np.ndarray, *, count: int = 5, first: tuple[SignificantRegion, ...] = ()
+) -> list[SignificantRegion]:
+    """The ``count`` most significant a-contrario regions whose centroid is not in the final mask.
+
+    ``first`` (the regions the contrast floor set aside, which the report says are listed) all come
+    first, whatever ``count``; a-contrario regions whose centroid lies in one of them are not repeated.
+    """
+
+    def inside(candidate: SignificantRegion, pixels: np.ndarray) -> bool:
+        return bool(pixels[int(round(candidate.centroid_xy[1])), int(round(candidate.centroid_xy[0]))])
+
+    unreported = sorted(
+        (c for c in significance.candidates + significance.regions if not inside(c, mask)), key=lambda c: c.log10_nfa
+    )
+    if not first:
+        return unreported[:count]
+    rest = [c for c in unreported if not any(_near(c, f) for f in first)]
+    return list(first) + rest[: max(0, count - len(first))]
+
+
+def _near(candidate: SignificantRegion, region: SignificantRegion) -> bool:
+    """The same place: centres closer than the larger region's radius (an area-equivalent disc)."""
+    dx = candidate.centroid_xy[0] - region.centroid_xy[0]
+    dy = candidate.centroid_xy[1] - region.centroid_xy[1]
+    return dx * dx + dy * dy <= max(candidate.area_px, region.area_px) / np.pi
