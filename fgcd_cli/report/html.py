@@ -155,8 +155,9 @@ def _candidates_table(result: ChangeResult) -> str:
         "<h2>Candidates not reported</h2><table><tr><th>#</th><th>significance (NFA)</th><th>level p</th>"
         "<th>centre x, y (px)</th><th>area (px)</th><th>strength (× threshold)</th></tr>"
         + "".join(rows)
-        + '</table><p class="small">The strongest regions of the change score that were not reported, most '
-        "significant first (dashed amber circles on the change map). NFA: regions at least as extreme expected "
+        + '</table><p class="small">The strongest regions of the change score that were not reported (dashed '
+        "amber circles on the change map): first those fainter than the contrast floor, strongest first, then the "
+        "others, most significant first. NFA: regions at least as extreme expected "
         f"per image on an unchanged pair (reported below {_epsilon(result):g}); level p: the share of compared "
         "pixels scoring at least the level at which the region was found; area: pixels at that level.</p>"
     )
