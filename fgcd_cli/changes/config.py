@@ -39,11 +39,10 @@ def _rule(value) -> DecisionRule:
 #: (docs/change-detection.md, "Significance of each region (a-contrario)").
 EPSILON = 1.0
 
-#: The contrast floor of a reported region (:mod:`fgcd_cli.changes.contrast`; docs/change-detection.md,
-#: "Contrast floor"): below half the faintest annotated change of the nine real development groups
-#: (their true regions' contrasts, all lightings, no ROI: 0.58 and up, Db-6's pits; half of the
-#: faintest over any eight of the groups: 0.29-0.32), so a change half as strong as any
-#: annotated one is still reported (docs/lab/2026-12-06-contrast-floor.md). The pair's own null model sets the
+#: The contrast floor of a reported region (:mod:`fgcd_cli.changes.contrast`). Rule: below half the
+#: contrast of the faintest annotated change of the real development groups, taken leaving any one group
+#: out, so that a change half as strong as any annotated one is still reported (the figures:
+#: docs/change-detection.md, "Change detection pipeline", step 9). The pair's own null model sets the
 #: level in units of its noise; a pair cleaner than a real revisit (the simulator's, a camera that did
 #: not move) would otherwise report differences of a few percent.
 MIN_REGION_CONTRAST = 0.2

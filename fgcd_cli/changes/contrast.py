@@ -2,11 +2,12 @@
 
 A region's *contrast* is the peak, over its pixels, every lighting and every colour
 channel, of the locally averaged difference between the light-normalised current
-image and the reference, divided by the reference's median brightness in the
-region (a Weber contrast: 0.3 = 30 % darker or brighter at its strongest). Unlike
-the score's strength, which is in units of the pair's own noise, it does not grow
-as a pair gets cleaner, so it is what a floor on reported changes is stated in
-(``RegionConfig.min_contrast``, docs/change-detection.md, "Contrast floor").
+image and the reference, divided by the mean of the two images' median brightness in
+the region (0.3 = 30 % darker or brighter at its strongest; the same whichever
+observation is the reference). Unlike the score's strength, which is in units of the
+pair's own noise, it does not grow as a pair gets cleaner, so it is what a floor on
+reported changes is stated in (``RegionConfig.min_contrast``; docs/change-detection.md,
+"Change detection pipeline", step 9).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from scipy import ndimage
 #: pixel's noise is not a change's contrast.
 CONTRAST_SIGMA_PX = 1.0
 
-#: A region darker than this (reference median, [0, 1] units) has its contrast taken against it,
+#: A region darker than this (mean of the two medians, [0, 1] units) has its contrast taken against it,
 #: so that a region in deep shadow is not given an unbounded contrast by a near-zero denominator.
 MIN_BRIGHTNESS = 0.02
 

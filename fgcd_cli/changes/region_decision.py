@@ -31,7 +31,7 @@ from fgcd_cli.changes.threshold import ThresholdInfo, robust_hysteresis_threshol
 __all__ = [
     "Regions",
     "edge_checked_pixels",
-    "faint_pixels",
+    "faint_regions",
     "SetAside",
     "set_aside_regions",
     "decide",
@@ -193,19 +193,19 @@ def edge_checked_pixels(
     return check.explained
 
 
-def faint_pixels(
+def faint_regions(
     found: Regions, *, refs, scored: PairScore, config: DetectionConfig, settings: dict
-) -> np.ndarray | None:
-    """The pixels of the regions below ``config.regions.min_contrast`` (:mod:`fgcd_cli.changes.contrast`),
-    or None when the floor is off; counted in ``settings["low_contrast_regions"]``."""
+) -> list[ChangeRegion] | None:
+    """The regions below ``config.regions.min_contrast`` (:mod:`fgcd_cli.changes.contrast`), or None when
+    the floor is off; counted in ``settings["low_contrast_regions"]``."""
     floor = config.regions.min_contrast
     if floor <= 0 or not found.regions:
         return None
     contrast = region_contrasts(found.labels, len(found.regions), refs=refs, normalized=scored.normalized)
-    faint = [region.id for region, value in zip(found.regions, contrast) if value < floor]
+    faint = [region for region, value in zip(found.regions, contrast) if value < floor]
     settings["low_contrast_regions"] = len(faint)
     settings["min_contrast"] = floor
-    return np.isin(found.labels, faint)
+    return faint
 
 
 @dataclass(frozen=True)
@@ -237,13 +237,15 @@ def set_aside_regions(
     explained = edge_checked_pixels(found, refs=refs, scored=scored, valid=valid, config=config, settings=settings)
     if explained is not None and explained.any():
         found.set_aside(explained, scored.score, pixel_area_mm2)
-    faint = faint_pixels(found, refs=refs, scored=scored, config=config, settings=settings)
-    listed: tuple[SignificantRegion, ...] = ()
-    if faint is not None and faint.any():
-        listed = as_candidates([r for r in found.regions if faint[found.labels == r.id].any()], scored.score, valid)
-        found.set_aside(faint, scored.score, pixel_area_mm2)
+    faint = faint_regions(found, refs=refs, scored=scored, config=config, settings=settings)
+    faint_mask, listed = None, ()
+    if faint is not None:
+        faint_mask = np.isin(found.labels, [region.id for region in faint])
+        listed = as_candidates(faint, scored.score, valid)
+        if faint:
+            found.set_aside(faint_mask, scored.score, pixel_area_mm2)
     set_contrasts(found.regions, found.labels, refs, scored.normalized)
-    return SetAside(edge=explained, faint=faint, faint_candidates=listed)
+    return SetAside(edge=explained, faint=faint_mask, faint_candidates=listed)
 
 
 def as_candidates(regions: list[ChangeRegion], score: np.ndarray, valid: np.ndarray) -> tuple[SignificantRegion, ...]:

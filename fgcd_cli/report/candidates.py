@@ -126,7 +126,7 @@ def set_aside_text(n_set_aside: int) -> str:
 def faint_text(settings: dict | None) -> str:
     """``"2 faint regions (contrast below 20 % in every lighting) not reported: listed among the candidates"``,
     or ``""``: what a report and the command line say about the contrast floor
-    (:func:`fgcd_cli.changes.region_decision.faint_pixels`)."""
+    (:func:`fgcd_cli.changes.region_decision.faint_regions`)."""
     settings = settings or {}
     n = int(settings.get("low_contrast_regions") or 0)
     if n <= 0:
