@@ -63,6 +63,13 @@ def faint_line(data: dict) -> str:
     return faint_text(data.get("settings"))
 
 
+def clipped_line(data: dict) -> str:
+    """The regions the clip check left out of a diff result (its JSON form), or ``""``."""
+    from fgcd_cli.report.candidates import clipped_text
+
+    return clipped_text(data.get("settings"))
+
+
 def result_epsilon(data: dict) -> float:
     """The ε a diff result (its JSON form) was decided with."""
     from fgcd_cli.report.candidates import settings_epsilon

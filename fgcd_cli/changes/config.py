@@ -120,6 +120,10 @@ class RegionConfig:
     min_contrast: float = MIN_REGION_CONTRAST
     """Regions whose contrast (:mod:`fgcd_cli.changes.contrast`) stays below this in every lighting are
     not reported (they stay candidates); 0 disables. See :data:`MIN_REGION_CONTRAST`."""
+    clip_check: bool = True
+    """Regions whose evidence comes from clipped pixels only (a lighting saturates there in one
+    observation: a specular highlight) are not reported (they stay candidates); see
+    :mod:`fgcd_cli.changes.clip_check`. Count: ``settings["clipped_regions"]``."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "decision", _rule(self.decision))

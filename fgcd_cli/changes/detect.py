@@ -163,7 +163,7 @@ def detect_changes(
         settings=settings,
         warnings=result_warnings(found.mask, valid, alignment.registration, register=config.registration.register),
         edge_explained=set_aside.edge,
-        candidates=unreported_candidates(found.significance, found.mask, first=set_aside.faint_candidates),
+        candidates=unreported_candidates(found.significance, found.mask, first=set_aside.listed),
         not_compared=alignment.not_compared,
         dense=alignment.dense,
         cue_maps=cue_maps,

@@ -124,6 +124,29 @@ def check_side_inputs(
     return roi
 
 
+#: A channel at or above this fraction of full scale is clipped: the top code of an 8-bit image and
+#: the code below it (JPEG and demosaicing leave clipped areas a code under the top); on deeper images
+#: the same top 0.6 % of full scale (a 10- to 14-bit sensor's top code scaled to 16 bits included).
+CLIP_LEVEL = 253.5 / 255.0
+
+
+def clipped_pixels(image: np.ndarray) -> np.ndarray:
+    """Pixels at the sensor's top code in any colour channel: their radiance lies somewhere above
+    what the camera recorded, so no difference there measures the surface
+    (:mod:`fgcd_cli.changes.clip_check`).
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) float array in [0, 1].
+
+    Returns
+    -------
+    (H, W) bool array.
+    """
+    top = image.max(axis=-1) if image.ndim == 3 else image
+    return top >= CLIP_LEVEL
+
+
 def image_health(image: np.ndarray) -> str | None:
     """Why an image cannot be compared (too dark, saturated, textureless), or None if usable.
 

@@ -1,7 +1,7 @@
 """The decision on a fused score: significant regions (a-contrario or hysteresis), their cleaning and the
 region-level edge check; and the same decision made again with other constants on a finished detection.
 
-Steps 5 to 8 of ``docs/change-detection.md``, "Change detection pipeline"; :func:`fgcd_cli.changes.detect.detect_changes`
+Steps 5 to 10 of ``docs/change-detection.md``, "Change detection pipeline"; :func:`fgcd_cli.changes.detect.detect_changes`
 chains them after the score.
 """
 
@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgcd_cli.changes.clip_check import clip_explained_regions
 from fgcd_cli.changes.config import DecisionRule, DetectionConfig, RegionConfig
 from fgcd_cli.changes.contrast import region_contrasts, set_contrasts
 from fgcd_cli.changes.edge_check import edge_explained_regions
@@ -32,6 +33,7 @@ __all__ = [
     "Regions",
     "edge_checked_pixels",
     "faint_regions",
+    "clipped_regions",
     "SetAside",
     "set_aside_regions",
     "decide",
@@ -208,16 +210,47 @@ def faint_regions(
     return faint
 
 
+def clipped_regions(
+    found: Regions,
+    *,
+    refs,
+    scored: PairScore,
+    valid: np.ndarray,
+    config: DetectionConfig,
+    settings: dict,
+    faint: list[ChangeRegion],
+) -> list[ChangeRegion] | None:
+    """The regions, other than the ``faint`` ones, whose evidence comes from clipped pixels only
+    (:mod:`fgcd_cli.changes.clip_check`), or None when the check is off; counted in
+    ``settings["clipped_regions"]``."""
+    if not config.regions.clip_check or not found.regions:
+        return None
+    acontrario = config.regions.decision == DecisionRule.ACONTRARIO
+    check = clip_explained_regions(
+        found.labels,
+        len(found.regions),
+        refs=refs,
+        scored=scored,
+        valid=valid,
+        seed_level=found.significance.seed_level if acontrario else found.threshold.high,
+        score=config.score,
+    )
+    faint_ids = {region.id for region in faint}
+    clipped = [region for region in found.regions if region.id in check.region_ids and region.id not in faint_ids]
+    settings["clipped_regions"] = len(clipped)
+    return clipped
+
+
 @dataclass(frozen=True)
 class SetAside:
     """What :func:`set_aside_regions` took out of the change mask (HxW bool each; None: the step did not run)."""
 
     edge: np.ndarray | None
     """The regions the edge check explains."""
-    faint: np.ndarray | None
-    """The regions below the contrast floor."""
-    faint_candidates: tuple[SignificantRegion, ...] = ()
-    """The same regions as candidates (strongest first), so that the report lists them."""
+    unreported: np.ndarray | None
+    """The regions below the contrast floor and those explained by clipped pixels."""
+    listed: tuple[SignificantRegion, ...] = ()
+    """The same regions as candidates (strongest first), so that the report lists them first."""
 
 
 def set_aside_regions(
@@ -230,22 +263,27 @@ def set_aside_regions(
     config: DetectionConfig,
     settings: dict,
 ) -> SetAside:
-    """Steps 8 and 9 of ``docs/change-detection.md``: the regions the edge check explains, then those
-    below the contrast floor, leave ``found`` (mask, regions, labels; they stay among the unreported
-    candidates); each region left gets its contrast and the lightings that show it
-    (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""
+    """Steps 8 to 10 of ``docs/change-detection.md``: the regions the edge check explains, then those
+    below the contrast floor and those explained by clipped pixels, leave ``found`` (mask, regions,
+    labels; they stay among the unreported candidates, listed first); each region left gets its
+    contrast and the lightings that show it (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""
     explained = edge_checked_pixels(found, refs=refs, scored=scored, valid=valid, config=config, settings=settings)
     if explained is not None and explained.any():
         found.set_aside(explained, scored.score, pixel_area_mm2)
     faint = faint_regions(found, refs=refs, scored=scored, config=config, settings=settings)
-    faint_mask, listed = None, ()
-    if faint is not None:
-        faint_mask = np.isin(found.labels, [region.id for region in faint])
-        listed = as_candidates(faint, scored.score, valid)
-        if faint:
-            found.set_aside(faint_mask, scored.score, pixel_area_mm2)
+    clipped = clipped_regions(
+        found, refs=refs, scored=scored, valid=valid, config=config, settings=settings, faint=faint or []
+    )
+    if faint is None and clipped is None:
+        set_contrasts(found.regions, found.labels, refs, scored.normalized)
+        return SetAside(edge=explained, unreported=None)
+    unreported = {region.id: region for region in (faint or []) + (clipped or [])}
+    unreported_mask = np.isin(found.labels, list(unreported))
+    listed = as_candidates(list(unreported.values()), scored.score, valid)
+    if unreported:
+        found.set_aside(unreported_mask, scored.score, pixel_area_mm2)
     set_contrasts(found.regions, found.labels, refs, scored.normalized)
-    return SetAside(edge=explained, faint=faint_mask, faint_candidates=listed)
+    return SetAside(edge=explained, unreported=unreported_mask, listed=listed)
 
 
 def as_candidates(regions: list[ChangeRegion], score: np.ndarray, valid: np.ndarray) -> tuple[SignificantRegion, ...]:

@@ -10,7 +10,7 @@ import numpy as np
 from fgcd_cli.changes.config import RegionConfig, ScoreConfig
 from fgcd_cli.changes.cues.maps import edge_band, edge_tolerant_difference, local_ncc_dissimilarity, relative_to_median
 from fgcd_cli.changes.illumination import normalize_local_gain
-from fgcd_cli.changes.images import to_gray
+from fgcd_cli.changes.images import clipped_pixels, to_gray
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
 
 
@@ -61,6 +61,9 @@ class PairScore:
     edge_band_fraction: float | None = None
     fine_score: np.ndarray | None = None
     """HxW float32, the same fused score at ``fine_smooth_sigma_px`` (None when off)."""
+    clipped: np.ndarray | None = None
+    """(K, H, W) bool: per lighting, the pixels clipped in the reference or in the registered current
+    image (:func:`fgcd_cli.changes.images.clipped_pixels`), before any re-lighting."""
 
 
 def _fuse(refs, warped, *, valid, bands, options: ScoreOptions, gain_weight):
@@ -168,4 +171,5 @@ def score_pair(
         robust_rounds=rounds,
         edge_band_fraction=band_fraction,
         fine_score=fine,
+        clipped=np.array([clipped_pixels(ref) | clipped_pixels(current) for ref, current in zip(refs, warped)]),
     )

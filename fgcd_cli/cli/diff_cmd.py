@@ -15,6 +15,7 @@ HELP = "Find fine-grained changes between reference and current images; write ma
 
 def _render(data: dict):
     from fgcd_cli.app.diff_summary import (
+        clipped_line,
         faint_line,
         no_change_lines,
         region_line,
@@ -43,8 +44,9 @@ def _render(data: dict):
             set_aside = int((data.get("settings") or {}).get("edge_explained_regions") or 0)
             if set_aside:
                 console.print(set_aside_line(n, set_aside), markup=False)
-            if faint_line(data):
-                console.print(faint_line(data), markup=False)
+            for line in (faint_line(data), clipped_line(data)):
+                if line:
+                    console.print(line, markup=False)
             for w in data.get("warnings", []):
                 console.print(f"[yellow]warning[/yellow]: {w}")
         if "afd" in data:

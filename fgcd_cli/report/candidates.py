@@ -138,6 +138,19 @@ def faint_text(settings: dict | None) -> str:
     )
 
 
+def clipped_text(settings: dict | None) -> str:
+    """``"2 regions explained by clipped highlights (...) not reported: listed among the candidates"``, or
+    ``""``: what a report and the command line say about the clip check
+    (:func:`fgcd_cli.changes.region_decision.clipped_regions`)."""
+    n = int((settings or {}).get("clipped_regions") or 0)
+    if n <= 0:
+        return ""
+    return (
+        f"{n} region{'s' if n > 1 else ''} explained by clipped highlights (a lighting saturates there in one "
+        "observation, and the rest shows no change) not reported: listed among the candidates"
+    )
+
+
 def contrast_text(contrast: float | None, lightings, n_lightings: int | None = None) -> str:
     """``"42 % (lightings 1, 3 of 4)"`` or ``""`` when not computed: a region's contrast at its strongest and
     the lightings that show it (:func:`fgcd_cli.changes.contrast.set_contrasts`)."""

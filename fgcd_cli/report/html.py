@@ -22,6 +22,7 @@ from fgcd_cli.report.areas import area_mm2_text
 from fgcd_cli.report.candidates import (
     candidate_dict,
     candidate_text,
+    clipped_text,
     contrast_text,
     faint_text,
     is_significant,
@@ -156,7 +157,8 @@ def _candidates_table(result: ChangeResult) -> str:
         "<th>centre x, y (px)</th><th>area (px)</th><th>strength (× threshold)</th></tr>"
         + "".join(rows)
         + '</table><p class="small">The strongest regions of the change score that were not reported (dashed '
-        "amber circles on the change map): first those fainter than the contrast floor, strongest first, then the "
+        "amber circles on the change map): first those fainter than the contrast floor or explained by clipped "
+        "highlights, strongest first, then the "
         "others, most significant first. NFA: regions at least as extreme expected "
         f"per image on an unchanged pair (reported below {_epsilon(result):g}); level p: the share of compared "
         "pixels scoring at least the level at which the region was found; area: pixels at that level.</p>"
@@ -259,6 +261,12 @@ def _summary_section(result: ChangeResult, fdf: FdfResult | None, ctx: ReportCon
     faint = faint_text(result.settings)
     if faint:
         parts.append(f"<p>{html.escape(faint)}: too faint for a surface change a revisit can vouch for.</p>")
+    clipped = clipped_text(result.settings)
+    if clipped:
+        parts.append(
+            f"<p>{html.escape(clipped)}: a clipped pixel records no brightness, and a glossy highlight slides "
+            "over the surface when the camera moves by a millimetre.</p>"
+        )
     if fdf is not None:
         quality = "within" if fdf.afd_px < 3 else "outside"
         parts.append(

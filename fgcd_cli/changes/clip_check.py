@@ -1,0 +1,118 @@
+"""Region-level clip check: set aside regions whose evidence comes from clipped pixels only.
+
+A pixel at the sensor's top code in some colour channel is *clipped*
+(:func:`fgcd_cli.changes.images.clipped_pixels`): its radiance lies somewhere above what the
+camera recorded, so a difference there measures the clipping, not the surface. Specular
+highlights clip (a bronze's or a glaze's sheen), and they slide over a curved glossy
+surface when the viewpoint moves by a millimetre: two observations of an unchanged glossy
+object differ exactly where a lighting clips in one of them.
+
+A region is set aside when its score recomputed from *measured* pixels only nowhere reaches
+the detection's seed level inside it. A lighting measures a pixel when neither observation
+clips within the difference cue's shift radius of it (the cue at a pixel takes the best of
+the ±``shift_radius_px`` shifts, so a clipped neighbour within that radius enters it). A
+region no lighting clips keeps its score and is never set aside; a stain on white plaster
+that some lightings clip still shows in the lightings that do not, and stays.
+
+Set-aside regions are not deleted: the caller keeps them among the unreported candidates
+(``docs/change-detection.md``, "Change detection pipeline", step 10).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from fgcd_cli.changes.config import ScoreConfig
+from fgcd_cli.changes.cues.maps import edge_tolerant_difference, relative_to_median
+from fgcd_cli.changes.score import PairScore
+
+#: Where the smoothed count of measuring lightings is below this (half a lighting), a pixel has no
+#: measured evidence: its measured-only score is 0.
+MIN_MEASURING_LIGHTINGS = 0.5
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClipCheck:
+    """Outcome of the clip check on the regions of one change mask."""
+
+    explained: np.ndarray
+    """(H, W) bool, pixels of the regions set aside."""
+    region_ids: tuple[int, ...]
+    """Ids (in the labels checked) of the regions set aside."""
+
+
+def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.ndarray, score: ScoreConfig) -> np.ndarray:
+    """The detection's fused score with each lighting counted only where it measures the pixel.
+
+    ``G * (sum_k m_k r_k) / G * (sum_k m_k)``: ``r_k`` the lighting's difference cue over its median
+    (as in :func:`fgcd_cli.changes.score.score_pair`), ``m_k`` 1 where neither observation clips within
+    ``score.shift_radius_px``, ``G`` the detection's smoothing (normalised convolution). Where nothing
+    clips it equals the detection's score.
+
+    Parameters
+    ----------
+    refs : list of K (H, W[, 3]) float32 in [0, 1], the reference images.
+    scored : PairScore with ``clipped`` set.
+    valid : (H, W) bool, the compared pixels.
+    score : ScoreConfig, the detection's shift radius and smoothing (px).
+
+    Returns
+    -------
+    (H, W) float32, dimensionless (the detection score's unit); 0 where no lighting measures.
+    """
+    grow = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
+    numerator = np.zeros(valid.shape, np.float32)
+    weight = np.zeros(valid.shape, np.float32)
+    for ref, normalized, median, clipped in zip(refs, scored.normalized, scored.medians, scored.clipped):
+        measured = 1.0 - cv2.dilate(clipped.astype(np.uint8), grow).astype(np.float32)
+        difference = edge_tolerant_difference(ref, normalized, radius_px=score.shift_radius_px, edge_radius_px=0)
+        numerator += measured * relative_to_median(difference, valid, median=median)
+        weight += measured
+    if score.smooth_sigma_px > 0:
+        numerator = cv2.GaussianBlur(numerator, (0, 0), score.smooth_sigma_px)
+        weight = cv2.GaussianBlur(weight, (0, 0), score.smooth_sigma_px)
+    return np.where(weight >= MIN_MEASURING_LIGHTINGS, numerator / np.maximum(weight, 1e-6), 0.0).astype(np.float32)
+
+
+def clip_explained_regions(
+    labels: np.ndarray,
+    n_regions: int,
+    *,
+    refs: list[np.ndarray],
+    scored: PairScore,
+    valid: np.ndarray,
+    seed_level: float,
+    score: ScoreConfig,
+) -> ClipCheck:
+    """The regions of ``labels`` that some lighting clips and whose measured-only score
+    (:func:`measured_only_score`) stays below ``seed_level`` everywhere inside them.
+
+    Parameters
+    ----------
+    labels : (H, W) int array, region ids 1..n_regions (0 elsewhere).
+    n_regions : int
+    refs : list of K (H, W[, 3]) float32 in [0, 1], the reference images.
+    scored : PairScore, the detection's score (its clipped pixels, re-lit current images, cue medians).
+    valid : (H, W) bool, the compared pixels.
+    seed_level : float, the score level at which the detection seeds regions.
+    score : ScoreConfig, the detection's shift radius and smoothing (px).
+    """
+    explained = np.zeros(labels.shape, bool)
+    if scored.clipped is None or n_regions == 0:
+        return ClipCheck(explained=explained, region_ids=())
+    grow = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
+    any_clipped = cv2.dilate(np.logical_or.reduce(scored.clipped).astype(np.uint8), grow).astype(bool)
+    touched = [i for i in range(1, n_regions + 1) if any_clipped[labels == i].any()]
+    if not touched:
+        return ClipCheck(explained=explained, region_ids=())
+    measured = measured_only_score(refs, scored, valid, score)
+    ids = []
+    for region_id in touched:
+        pixels = labels == region_id
+        if measured[pixels].max() < seed_level:
+            explained |= pixels
+            ids.append(region_id)
+    return ClipCheck(explained=explained, region_ids=tuple(ids))

@@ -1,0 +1,122 @@
+"""Clip check: a highlight that clips and slides is not a change; a change seen by unclipped lightings stays."""
+
+import cv2
+import numpy as np
+import pytest
+
+from fgcd_cli.changes.clip_check import measured_only_score
+from fgcd_cli.changes.config import DetectionConfig
+from fgcd_cli.changes.detect import detect_changes
+from fgcd_cli.changes.images import CLIP_LEVEL, clipped_pixels
+from fgcd_cli.report.candidates import clipped_text
+
+from .conftest import textured_scene
+
+N_LIGHTINGS = 4
+
+
+def test_clipped_pixels_are_the_top_codes_of_8_and_16_bit_images():
+    codes = np.array([[255, 254, 253, 128]], np.uint8)
+    np.testing.assert_array_equal(clipped_pixels(codes.astype(np.float32) / 255.0), [[True, True, False, False]])
+    # deeper images: the same top 0.6 % of full scale (a 12-bit top code scaled to 16 bits is clipped,
+    # 99 % of full scale is not)
+    sixteen = np.array([[4095 << 4, 0.99 * 65535]], np.float32) / 65535.0
+    np.testing.assert_array_equal(clipped_pixels(sixteen), [[True, False]])
+    # any colour channel at the top clips the pixel
+    colour = np.full((1, 2, 3), 0.5, np.float32)
+    colour[0, 0, 2] = 1.0
+    np.testing.assert_array_equal(clipped_pixels(colour), [[True, False]])
+    assert 253 / 255 < CLIP_LEVEL <= 254 / 255
+
+
+def _stack(seed=5):
+    """Four lightings of one textured surface (each a different gain and texture mix), 8-bit noise."""
+    rng = np.random.default_rng(seed)
+    base = 0.15 + 0.5 * textured_scene(192)
+    stack = []
+    for k in range(N_LIGHTINGS):
+        shade = 0.8 + 0.1 * k
+        stack.append(np.clip(base * shade + rng.normal(0, 0.004, base.shape), 0, 1).astype(np.float32))
+    return stack
+
+
+def _disc(shape, centre, radius):
+    mask = np.zeros(shape, np.uint8)
+    cv2.circle(mask, centre, radius, 1, -1)
+    return mask.astype(bool)
+
+
+def _highlight(image, centre, radius=7):
+    """A specular highlight under one lighting: a clipped disc with a one-pixel soft rim."""
+    lobe = cv2.GaussianBlur(_disc(image.shape, centre, radius).astype(np.float32), (0, 0), 0.7)
+    return np.clip(image + 2.0 * lobe, 0, 1).astype(np.float32)
+
+
+def _highlight_pair():
+    """An unchanged glossy spot: under lighting 2 its highlight clips, and it lies 4 px further right
+    in the current observation (the camera moved a little); nothing else differs."""
+    refs, curs = _stack(), _stack(seed=6)
+    refs[1] = _highlight(refs[1], (90, 96))
+    curs[1] = _highlight(curs[1], (94, 96))
+    return refs, curs
+
+
+def _region_at(result, x, y, radius=12):
+    """Regions centred within ``radius`` px of (x, y) (the highlight's move leaves a crescent on each side)."""
+    return [r for r in result.regions if np.hypot(r.centroid_xy[0] - x, r.centroid_xy[1] - y) < radius]
+
+
+def test_a_sliding_clipped_highlight_is_set_aside_and_listed():
+    refs, curs = _highlight_pair()
+    # Without the check the highlight's move is the strongest difference of the pair.
+    unchecked = detect_changes(refs, curs, config=DetectionConfig.from_options(clip_check=False, cues=False))
+    assert _region_at(unchecked, 92, 96)
+    result = detect_changes(refs, curs, config=DetectionConfig.from_options(cues=False))
+    assert not _region_at(result, 92, 96)
+    assert result.settings["clipped_regions"] >= 1
+    # not deleted: listed first among the candidates, and said in one line
+    first = result.candidates[0]
+    assert np.hypot(first.centroid_xy[0] - 92, first.centroid_xy[1] - 96) < 12
+    assert clipped_text(result.settings).startswith(f"{result.settings['clipped_regions']} region")
+
+
+def test_a_stain_on_a_surface_one_lighting_clips_is_still_reported():
+    refs, curs = _stack(), _stack(seed=6)
+    white = _disc(refs[0].shape, (96, 96), 30)
+    stain = _disc(refs[0].shape, (96, 96), 8)
+    # the patch is white enough to clip under lighting 2 in both observations ...
+    refs[1][white] = 1.0
+    curs[1][white] = 1.0
+    # ... and the stain darkens it by 40 % under every lighting (under lighting 2 to below the clip)
+    for k in range(N_LIGHTINGS):
+        curs[k][stain] *= 0.6
+    result = detect_changes(refs, curs, config=DetectionConfig.from_options(cues=False))
+    assert _region_at(result, 96, 96)
+    assert result.settings["clipped_regions"] == 0
+
+
+def test_the_measured_only_score_is_the_detection_score_where_nothing_clips():
+    refs, curs = _highlight_pair()
+    config = DetectionConfig.from_options(cues=False, clip_check=False)
+    result = detect_changes(refs, curs, config=config)
+    measured = measured_only_score(refs, result.pair_score, result.valid, config.score)
+    # far from the highlight (its disc of 7 px at +-2 px, its soft rim, the shift radius and the smoothing
+    # kernel's reach of 4 sigmas) the two agree
+    reach = 7 + 2 + 2 + config.score.shift_radius_px + int(4 * config.score.smooth_sigma_px)
+    far = ~_disc(measured.shape, (92, 96), reach) & result.valid
+    margin = int(3 * config.score.smooth_sigma_px) + 2
+    far[:margin] = far[-margin:] = False
+    far[:, :margin] = far[:, -margin:] = False
+    np.testing.assert_allclose(measured[far], result.score[far], rtol=1e-4, atol=1e-4)
+    # inside the clipped core lighting 2 is left out: the score there is lower than the detection's
+    core = _disc(measured.shape, (92, 96), 4)
+    assert measured[core].max() < result.score[core].max()
+
+
+@pytest.mark.parametrize("clip_check", [True, False])
+def test_swapping_the_observations_sets_aside_the_same_highlight(clip_check):
+    refs, curs = _highlight_pair()
+    config = DetectionConfig.from_options(cues=False, clip_check=clip_check)
+    forward = detect_changes(refs, curs, config=config)
+    backward = detect_changes(curs, refs, config=config)
+    assert bool(_region_at(forward, 92, 96)) == bool(_region_at(backward, 92, 96)) == (not clip_check)
