@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from fgcd_cli.changes.config import ScoreConfig
 from fgcd_cli.changes.cues.maps import edge_tolerant_difference, relative_to_median
@@ -55,7 +56,7 @@ def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.nda
     Parameters
     ----------
     refs : list of K (H, W[, 3]) float32 in [0, 1], the reference images.
-    scored : PairScore with ``clipped`` set.
+    scored : PairScore with ``clipped_ref`` and ``clipped_cur`` set.
     valid : (H, W) bool, the compared pixels.
     score : ScoreConfig, the detection's shift radius and smoothing (px).
 
@@ -66,8 +67,10 @@ def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.nda
     grow = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
     numerator = np.zeros(valid.shape, np.float32)
     weight = np.zeros(valid.shape, np.float32)
-    for ref, normalized, median, clipped in zip(refs, scored.normalized, scored.medians, scored.clipped):
-        measured = 1.0 - cv2.dilate(clipped.astype(np.uint8), grow).astype(np.float32)
+    for ref, normalized, median, clipped_ref, clipped_cur in zip(
+        refs, scored.normalized, scored.medians, scored.clipped_ref, scored.clipped_cur
+    ):
+        measured = 1.0 - cv2.dilate((clipped_ref | clipped_cur).astype(np.uint8), grow).astype(np.float32)
         difference = edge_tolerant_difference(ref, normalized, radius_px=score.shift_radius_px, edge_radius_px=0)
         numerator += measured * relative_to_median(difference, valid, median=median)
         weight += measured
@@ -87,8 +90,8 @@ def clip_explained_regions(
     seed_level: float,
     score: ScoreConfig,
 ) -> ClipCheck:
-    """The regions of ``labels`` that some lighting clips and whose measured-only score
-    (:func:`measured_only_score`) stays below ``seed_level`` everywhere inside them.
+    """The regions of ``labels`` that some lighting clips in both observations and whose measured-only
+    score (:func:`measured_only_score`) stays below ``seed_level`` everywhere inside them.
 
     Parameters
     ----------
@@ -101,11 +104,20 @@ def clip_explained_regions(
     score : ScoreConfig, the detection's shift radius and smoothing (px).
     """
     explained = np.zeros(labels.shape, bool)
-    if scored.clipped is None or n_regions == 0:
+    if scored.clipped_ref is None or scored.clipped_cur is None or n_regions == 0:
         return ClipCheck(explained=explained, region_ids=())
     grow = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
-    any_clipped = cv2.dilate(np.logical_or.reduce(scored.clipped).astype(np.uint8), grow).astype(bool)
-    touched = [i for i in range(1, n_regions + 1) if any_clipped[labels == i].any()]
+    index = np.arange(1, n_regions + 1)
+    both = np.zeros(n_regions, bool)
+    for clipped_ref, clipped_cur in zip(scored.clipped_ref, scored.clipped_cur):
+        if not (clipped_ref.any() and clipped_cur.any()):
+            continue
+        near_ref = cv2.dilate(clipped_ref.astype(np.uint8), grow)
+        near_cur = cv2.dilate(clipped_cur.astype(np.uint8), grow)
+        both |= (np.asarray(ndimage.maximum(near_ref, labels, index)) > 0) & (
+            np.asarray(ndimage.maximum(near_cur, labels, index)) > 0
+        )
+    touched = [int(i) for i in index[both]]
     if not touched:
         return ClipCheck(explained=explained, region_ids=())
     measured = measured_only_score(refs, scored, valid, score)

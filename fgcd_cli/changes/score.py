@@ -61,9 +61,11 @@ class PairScore:
     edge_band_fraction: float | None = None
     fine_score: np.ndarray | None = None
     """HxW float32, the same fused score at ``fine_smooth_sigma_px`` (None when off)."""
-    clipped: np.ndarray | None = None
-    """(K, H, W) bool: per lighting, the pixels clipped in the reference or in the registered current
-    image (:func:`fgcd_cli.changes.images.clipped_pixels`), before any re-lighting."""
+    clipped_ref: np.ndarray | None = None
+    """(K, H, W) bool: per lighting, the pixels clipped in the reference
+    (:func:`fgcd_cli.changes.images.clipped_pixels`)."""
+    clipped_cur: np.ndarray | None = None
+    """(K, H, W) bool: the same in the registered current image, before any re-lighting."""
 
 
 def _fuse(refs, warped, *, valid, bands, options: ScoreOptions, gain_weight):
@@ -171,5 +173,6 @@ def score_pair(
         robust_rounds=rounds,
         edge_band_fraction=band_fraction,
         fine_score=fine,
-        clipped=np.array([clipped_pixels(ref) | clipped_pixels(current) for ref, current in zip(refs, warped)]),
+        clipped_ref=np.array([clipped_pixels(ref) for ref in refs]),
+        clipped_cur=np.array([clipped_pixels(current) for current in warped]),
     )

@@ -95,6 +95,19 @@ def test_a_stain_on_a_surface_one_lighting_clips_is_still_reported():
     assert result.settings["clipped_regions"] == 0
 
 
+@pytest.mark.parametrize("n_lightings", [1, N_LIGHTINGS])
+def test_a_whitening_that_clips_in_the_current_image_is_reported(n_lightings):
+    """Salts or a whitening brighter than the top code: clipped in the current image only. With a single
+    lighting (a campaign's one lamp) nothing measures it, yet the reference was below the clip: a change."""
+    refs, curs = _stack()[:n_lightings], _stack(seed=6)[:n_lightings]
+    whitening = _disc(refs[0].shape, (96, 96), 9)
+    for cur in curs:
+        cur[whitening] = 1.0
+    result = detect_changes(refs, curs, config=DetectionConfig.from_options(cues=False))
+    assert _region_at(result, 96, 96)
+    assert result.settings["clipped_regions"] == 0
+
+
 def test_the_measured_only_score_is_the_detection_score_where_nothing_clips():
     refs, curs = _highlight_pair()
     config = DetectionConfig.from_options(cues=False, clip_check=False)
