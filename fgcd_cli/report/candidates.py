@@ -146,8 +146,8 @@ def clipped_text(settings: dict | None) -> str:
     if n <= 0:
         return ""
     return (
-        f"{n} region{'s' if n > 1 else ''} explained by clipped highlights (a lighting saturates there in one "
-        "observation, and the rest shows no change) not reported: listed among the candidates"
+        f"{n} region{'s' if n > 1 else ''} explained by clipped highlights (a lighting saturates there in both "
+        "observations, in different places, and the rest shows no change) not reported: listed among the candidates"
     )
 
 

@@ -211,3 +211,22 @@ def test_a_diff_in_a_pipe_names_its_step_and_beats(image_files, tmp_path):
     assert lines[0].startswith("comparing 2 lighting(s)"), lines
     assert any(line.startswith("  ... comparing 2 lighting(s)") for line in lines), lines
     assert "comparing" not in proc.stdout and "changed region" in proc.stdout
+
+
+def test_diff_says_how_many_highlights_it_set_aside(tmp_path):
+    """A glossy highlight that clips in both 8-bit visits and slides: not reported, and both the summary
+    line and the report say so."""
+    from changes.test_clip_check import _highlight_pair
+
+    refs, curs = _highlight_pair()
+    for k, (ref, cur) in enumerate(zip(refs, curs), start=1):
+        cv2.imwrite(str(tmp_path / f"ref-{k}.png"), np.round(ref * 255).astype(np.uint8))
+        cv2.imwrite(str(tmp_path / f"cur-{k}.png"), np.round(cur * 255).astype(np.uint8))
+    out = tmp_path / "out"
+    proc = run("diff", "--ref", str(tmp_path / "ref-*.png"), "--cur", str(tmp_path / "cur-*.png"), "-o", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "explained by clipped highlights" in proc.stdout
+    data = json.loads((out / "regions.json").read_text())
+    assert data["settings"]["clipped_regions"] >= 1
+    assert all(np.hypot(r["centroid_xy"][0] - 92, r["centroid_xy"][1] - 96) > 12 for r in data["regions"])
+    assert "explained by clipped highlights" in (out / "report.html").read_text()
