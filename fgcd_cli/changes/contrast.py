@@ -56,20 +56,25 @@ def lighting_contrasts(
     if n_regions == 0:
         return contrast
     index = np.arange(1, n_regions + 1)
+    # The per-region statistics run on the regions' pixels only: scipy's labelled median sorts every
+    # pixel it is given, and the regions hold a few percent of the frame.
+    inside = labels > 0
+    region_labels = labels[inside]
     for k, (ref, cur) in enumerate(zip(refs, normalized)):
         ref = np.asarray(ref, np.float32)
         cur = np.asarray(cur, np.float32)
         difference = cv2.GaussianBlur(cur - ref, (0, 0), sigma_px) if sigma_px > 0 else cur - ref
+        ref, cur, difference = ref[inside], cur[inside], difference[inside]
         channels = (
             [(ref, cur, difference)]
-            if ref.ndim == 2
-            else [(ref[..., c], cur[..., c], difference[..., c]) for c in range(ref.shape[2])]
+            if ref.ndim == 1
+            else [(ref[:, c], cur[:, c], difference[:, c]) for c in range(ref.shape[1])]
         )
         for ref_c, cur_c, difference_c in channels:
-            peak = np.asarray(ndimage.maximum(np.abs(difference_c), labels, index), float)
+            peak = np.asarray(ndimage.maximum(np.abs(difference_c), region_labels, index), float)
             brightness = 0.5 * (
-                np.asarray(ndimage.median(ref_c, labels, index), float)
-                + np.asarray(ndimage.median(cur_c, labels, index), float)
+                np.asarray(ndimage.median(ref_c, region_labels, index), float)
+                + np.asarray(ndimage.median(cur_c, region_labels, index), float)
             )
             contrast[:, k] = np.maximum(contrast[:, k], peak / np.maximum(brightness, MIN_BRIGHTNESS))
     return contrast

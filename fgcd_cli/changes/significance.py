@@ -331,9 +331,10 @@ def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_c
         labels, count = ndimage.label((neglogp >= lam) & valid, structure=_EIGHT)
         if count == 0:
             continue
-        index = np.arange(1, count + 1)
-        sizes = np.bincount(labels.ravel(), minlength=count + 1)[1:].astype(np.float64)
-        excess = ndimage.sum_labels(neglogp - np.float32(lam), labels, index)
+        flat = labels.ravel()
+        sizes = np.bincount(flat, minlength=count + 1)[1:].astype(np.float64)
+        # the labelled sums by bincount directly (scipy's sum_labels maps the labels to ``index`` first)
+        excess = np.bincount(flat, weights=(neglogp - np.float32(lam)).ravel(), minlength=count + 1)[1:]
         log_nfa = np.log(n_tests) + _log_region_probability(float(lam), sizes, excess, area)
         slices = ndimage.find_objects(labels)
         order = np.argsort(log_nfa)
@@ -347,25 +348,25 @@ def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_c
     regions: list[SignificantRegion] = []
     candidates: list[SignificantRegion] = []
     for log_nfa, lam, label, window, labels in found:
-        component = np.zeros(score.shape, bool)
-        component[window] = labels[window] == label
-        if (component & seeds).any():
+        # Everything within the component's bounding box (``window``): the same as on the whole frame.
+        component = labels[window] == label
+        if (component & seeds[window]).any():
             continue
         ys, xs = np.nonzero(component)
         entry = SignificantRegion(
             log10_nfa=log_nfa / np.log(10.0),
             p_level=float(np.exp(-lam)),
             area_px=int(ys.size),
-            centroid_xy=(float(xs.mean()), float(ys.mean())),
-            peak_score=float(score[component].max()),
+            centroid_xy=(float(xs.mean() + window[1].start), float(ys.mean() + window[0].start)),
+            peak_score=float(score[window][component].max()),
         )
         if log_nfa < np.log(epsilon):
-            seeds |= component
-            significant |= component
+            seeds[window] |= component
+            significant[window] |= component
             regions.append(entry)
-            seed_index[component] = len(regions)
+            seed_index[window][component] = len(regions)
         elif len(candidates) < max_candidates:
-            seeds |= component  # a weaker, overlapping level of the same candidate is not another one
+            seeds[window] |= component  # a weaker, overlapping level of the same candidate is not another one
             candidates.append(entry)
     return regions, candidates, significant, seed_index
 
