@@ -324,32 +324,57 @@ def _scan_with_null(
     )
 
 
+def _level_components(neglogp, valid, levels):
+    """Every connected component of every level: (log-level index, size, excess, absolute bounding box,
+    its pixels inside the box).
+
+    A component of a higher level lies inside one component of the lowest level, so each lowest-level
+    component is labelled again level by level inside its own bounding box (the exceedances of a pair
+    cover a few percent of the frame): the same components as labelling the whole frame at every level.
+    """
+    base, _ = ndimage.label((neglogp >= levels[0]) & valid, structure=_EIGHT)
+    for j, window in enumerate(ndimage.find_objects(base), start=1):
+        if window is None:
+            continue
+        inside = base[window] == j
+        local_neglogp = neglogp[window]
+        for k, lam in enumerate(levels):
+            labels, count = ndimage.label((local_neglogp >= lam) & inside, structure=_EIGHT)
+            if count == 0:
+                break  # the levels above are subsets of this one
+            flat = labels.ravel()
+            sizes = np.bincount(flat, minlength=count + 1)[1:].astype(np.float64)
+            excess = np.bincount(flat, weights=(local_neglogp - np.float32(lam)).ravel(), minlength=count + 1)[1:]
+            for i, box in enumerate(ndimage.find_objects(labels)):
+                absolute = tuple(slice(w.start + b.start, w.start + b.stop) for w, b in zip(window, box))
+                yield k, sizes[i], excess[i], absolute, labels[box] == i + 1
+
+
 def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates):
     """Components of every level, their NFA, and the exclusion principle (most significant first)."""
+    per_level: list[list] = [[] for _ in levels]
+    if len(levels):
+        for k, size, excess, window, component in _level_components(neglogp, valid, levels):
+            per_level[k].append((size, excess, window, component))
     found = []
-    for lam in levels:
-        labels, count = ndimage.label((neglogp >= lam) & valid, structure=_EIGHT)
-        if count == 0:
+    for lam, components in zip(levels, per_level):
+        if not components:
             continue
-        flat = labels.ravel()
-        sizes = np.bincount(flat, minlength=count + 1)[1:].astype(np.float64)
-        # the labelled sums by bincount directly (scipy's sum_labels maps the labels to ``index`` first)
-        excess = np.bincount(flat, weights=(neglogp - np.float32(lam)).ravel(), minlength=count + 1)[1:]
+        sizes = np.array([c[0] for c in components], np.float64)
+        excess = np.array([c[1] for c in components], np.float64)
         log_nfa = np.log(n_tests) + _log_region_probability(float(lam), sizes, excess, area)
-        slices = ndimage.find_objects(labels)
-        order = np.argsort(log_nfa)
+        # per level, the significant components and the strongest others (4x as many as are listed)
+        order = np.argsort(log_nfa, kind="stable")
         keep = int((log_nfa < np.log(epsilon)).sum()) + 4 * max_candidates
-        for i in order[:keep]:
-            found.append((float(log_nfa[i]), float(lam), int(i + 1), slices[i], labels))
+        found.extend((float(log_nfa[i]), float(lam), components[i][2], components[i][3]) for i in order[:keep])
     found.sort(key=lambda item: item[0])
     seeds = np.zeros(score.shape, bool)
     significant = np.zeros(score.shape, bool)
     seed_index = np.zeros(score.shape, np.int32)
     regions: list[SignificantRegion] = []
     candidates: list[SignificantRegion] = []
-    for log_nfa, lam, label, window, labels in found:
+    for log_nfa, lam, window, component in found:
         # Everything within the component's bounding box (``window``): the same as on the whole frame.
-        component = labels[window] == label
         if (component & seeds[window]).any():
             continue
         ys, xs = np.nonzero(component)
