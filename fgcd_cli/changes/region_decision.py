@@ -56,6 +56,11 @@ class Regions:
     threshold: ThresholdInfo
     significance: Decision
 
+    def seed_level(self, rule: DecisionRule) -> float:
+        """The score level at which ``rule`` seeds regions: the a-contrario ``seed_p`` quantile, or the
+        hysteresis seed (what the region-level checks compare their recomputed scores with)."""
+        return self.significance.seed_level if rule == DecisionRule.ACONTRARIO else self.threshold.high
+
     def set_aside(self, pixels: np.ndarray, score: np.ndarray, pixel_area_mm2) -> None:
         """``pixels`` (HxW bool) leave the mask; the regions are labelled again from what is left."""
         self.mask &= ~pixels
@@ -179,14 +184,13 @@ def edge_checked_pixels(
     when the check did not run; counted in ``settings``."""
     if config.edge_check.edge_check_px <= 0 or not found.regions:
         return None
-    acontrario = config.regions.decision == DecisionRule.ACONTRARIO
     check = edge_explained_regions(
         found.labels,
         len(found.regions),
         refs=refs,
         scored=scored,
         valid=valid,
-        seed_level=found.significance.seed_level if acontrario else found.threshold.high,
+        seed_level=found.seed_level(config.regions.decision),
         score=config.score,
         config=config.edge_check,
     )
@@ -225,14 +229,13 @@ def clipped_regions(
     ``settings["clipped_regions"]``."""
     if not config.regions.clip_check or not found.regions:
         return None
-    acontrario = config.regions.decision == DecisionRule.ACONTRARIO
     check = clip_explained_regions(
         found.labels,
         len(found.regions),
         refs=refs,
         scored=scored,
         valid=valid,
-        seed_level=found.significance.seed_level if acontrario else found.threshold.high,
+        seed_level=found.seed_level(config.regions.decision),
         score=config.score,
     )
     faint_ids = {region.id for region in faint}
