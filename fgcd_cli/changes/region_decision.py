@@ -18,7 +18,7 @@ from fgcd_cli.changes.contrast import region_contrasts, set_contrasts
 from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak, regions_with_significance
-from fgcd_cli.changes.result import ChangeResult
+from fgcd_cli.changes.result import WHY_NOT_REPORTED, ChangeResult
 from fgcd_cli.changes.score import PairScore
 from fgcd_cli.changes.significance import (
     Decision,
@@ -282,16 +282,25 @@ def set_aside_regions(
         return SetAside(edge=explained, unreported=None)
     unreported = {region.id: region for region in (faint or []) + (clipped or [])}
     unreported_mask = np.isin(found.labels, list(unreported))
-    listed = as_candidates(list(unreported.values()), scored.score, valid)
+    faint_ids = {region.id for region in faint or []}
+    listed = as_candidates(
+        list(unreported.values()),
+        scored.score,
+        valid,
+        why={i: WHY_NOT_REPORTED["faint" if i in faint_ids else "clipped"] for i in unreported},
+    )
     if unreported:
         found.set_aside(unreported_mask, scored.score, pixel_area_mm2)
     set_contrasts(found.regions, found.labels, refs, scored.normalized)
     return SetAside(edge=explained, unreported=unreported_mask, listed=listed)
 
 
-def as_candidates(regions: list[ChangeRegion], score: np.ndarray, valid: np.ndarray) -> tuple[SignificantRegion, ...]:
+def as_candidates(
+    regions: list[ChangeRegion], score: np.ndarray, valid: np.ndarray, *, why: dict[int, str] | None = None
+) -> tuple[SignificantRegion, ...]:
     """Regions not reported, as the report's candidates (strongest first): their significance, the share
-    of compared pixels scoring at least their peak (its level p), area, centre and peak score."""
+    of compared pixels scoring at least their peak (its level p), area, centre, peak score and, from
+    ``why`` (region id -> reason), why each was not reported."""
     compared = score[valid]
     return tuple(
         SignificantRegion(
@@ -300,6 +309,7 @@ def as_candidates(regions: list[ChangeRegion], score: np.ndarray, valid: np.ndar
             area_px=r.area_px,
             centroid_xy=r.centroid_xy,
             peak_score=r.max_score,
+            why=(why or {}).get(r.id, ""),
         )
         for r in sorted(regions, key=lambda r: -r.max_score)
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -139,6 +140,16 @@ def result_warnings(mask: np.ndarray, valid: np.ndarray, registration: Registrat
     return warnings
 
 
+#: Why a candidate was not reported, as the report and ``regions.json`` say it (docs/change-detection.md,
+#: "Change detection pipeline", steps 5-10).
+WHY_NOT_REPORTED = {
+    "not_significant": "not significant (NFA of 1 or more)",
+    "set_aside": "set aside along an edge, or under the smallest region",
+    "faint": "fainter than the contrast floor",
+    "clipped": "a clipped highlight",
+}
+
+
 def unreported_candidates(
     significance: Decision, mask: np.ndarray, *, count: int = 5, first: tuple[SignificantRegion, ...] = ()
 ) -> list[SignificantRegion]:
@@ -152,7 +163,13 @@ def unreported_candidates(
         return bool(pixels[int(round(candidate.centroid_xy[1])), int(round(candidate.centroid_xy[0]))])
 
     unreported = sorted(
-        (c for c in significance.candidates + significance.regions if not inside(c, mask)), key=lambda c: c.log10_nfa
+        (
+            dataclasses.replace(c, why=WHY_NOT_REPORTED["set_aside" if significant else "not_significant"])
+            for cs, significant in ((significance.candidates, False), (significance.regions, True))
+            for c in cs
+            if not inside(c, mask)
+        ),
+        key=lambda c: c.log10_nfa,
     )
     if not first:
         return unreported[:count]

@@ -68,6 +68,8 @@ class SignificantRegion:
     """Pixels of the component at that level (before growing to its extent)."""
     centroid_xy: tuple[float, float]
     peak_score: float
+    why: str = ""
+    """For a candidate: why it was not reported (:data:`fgcd_cli.changes.result.WHY_NOT_REPORTED`)."""
 
 
 @dataclass(kw_only=True)

@@ -58,7 +58,7 @@ def candidate_dict(candidate: SignificantRegion) -> dict:
     Returns
     -------
     dict with ``log10_nfa``, ``nfa``, ``p_level``, ``area_px``, ``centroid_xy`` (reference
-    image pixels, x right, y down) and ``peak_score``.
+    image pixels, x right, y down), ``peak_score`` and ``why`` (why it was not reported).
     """
     return {
         "log10_nfa": float(candidate.log10_nfa),
@@ -67,6 +67,7 @@ def candidate_dict(candidate: SignificantRegion) -> dict:
         "area_px": int(candidate.area_px),
         "centroid_xy": [float(candidate.centroid_xy[0]), float(candidate.centroid_xy[1])],
         "peak_score": float(candidate.peak_score),
+        "why": candidate.why,
     }
 
 

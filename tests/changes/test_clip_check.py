@@ -8,6 +8,7 @@ from fgcd_cli.changes.clip_check import measured_only_score
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.images import CLIP_LEVEL, clipped_pixels
+from fgcd_cli.changes.result import WHY_NOT_REPORTED
 from fgcd_cli.report.candidates import clipped_text
 
 from .conftest import textured_scene
@@ -77,6 +78,7 @@ def test_a_sliding_clipped_highlight_is_set_aside_and_listed():
     # not deleted: listed first among the candidates, and said in one line
     first = result.candidates[0]
     assert np.hypot(first.centroid_xy[0] - 92, first.centroid_xy[1] - 96) < 12
+    assert first.why == WHY_NOT_REPORTED["clipped"]
     assert clipped_text(result.settings).startswith(f"{result.settings['clipped_regions']} region")
 
 

@@ -229,4 +229,6 @@ def test_diff_says_how_many_highlights_it_set_aside(tmp_path):
     data = json.loads((out / "regions.json").read_text())
     assert data["settings"]["clipped_regions"] >= 1
     assert all(np.hypot(r["centroid_xy"][0] - 92, r["centroid_xy"][1] - 96) > 12 for r in data["regions"])
-    assert "explained by clipped highlights" in (out / "report.html").read_text()
+    report = (out / "report.html").read_text()
+    assert "explained by clipped highlights" in report and "a clipped highlight" in report
+    assert data["candidates"][0]["why"] == "a clipped highlight"

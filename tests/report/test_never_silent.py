@@ -98,6 +98,7 @@ def test_regions_json_carries_candidates_and_region_significance():
         "area_px": 34,
         "centroid_xy": [40.2, 90.7],
         "peak_score": 6.0,
+        "why": "",  # built by hand here; the detector says why (tests/changes/test_clip_check.py)
     }
 
 
