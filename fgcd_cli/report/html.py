@@ -151,11 +151,11 @@ def _candidates_table(result: ChangeResult) -> str:
         rows.append(
             f"<tr><td>c{k}</td><td>{nfa_text(candidate.log10_nfa)}</td><td>{p_text(candidate.p_level)}</td>"
             f"<td>{x:.0f}, {y:.0f}</td><td>{candidate.area_px}</td><td>{strength}</td>"
-            f"<td>{html.escape(candidate.why)}</td></tr>"
+            f'<td class="l">{html.escape(candidate.why)}</td></tr>'
         )
     return (
         "<h2>Candidates not reported</h2><table><tr><th>#</th><th>significance (NFA)</th><th>level p</th>"
-        "<th>centre x, y (px)</th><th>area (px)</th><th>strength (× threshold)</th><th>why not reported</th></tr>"
+        '<th>centre x, y (px)</th><th>area (px)</th><th>strength (× threshold)</th><th class="l">why not reported</th></tr>'
         + "".join(rows)
         + '</table><p class="small">The strongest regions of the change score that were not reported (dashed '
         "amber circles on the change map): first those fainter than the contrast floor or explained by clipped "
