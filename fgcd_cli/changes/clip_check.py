@@ -51,7 +51,8 @@ def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.nda
     ``G * (sum_k m_k r_k) / G * (sum_k m_k)``: ``r_k`` the lighting's difference cue over its median
     (as in :func:`fgcd_cli.changes.score.score_pair`), ``m_k`` 1 where neither observation clips within
     ``score.shift_radius_px``, ``G`` the detection's smoothing (normalised convolution). Where nothing
-    clips it equals the detection's score.
+    clips it equals the detection's score (its colour difference cue, with the same edge tolerance; the
+    optional local-NCC cue, ``structure_weight``, is not recomputed).
 
     Parameters
     ----------
@@ -71,7 +72,13 @@ def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.nda
         refs, scored.normalized, scored.medians, scored.clipped_ref, scored.clipped_cur
     ):
         measured = 1.0 - cv2.dilate((clipped_ref | clipped_cur).astype(np.uint8), grow).astype(np.float32)
-        difference = edge_tolerant_difference(ref, normalized, radius_px=score.shift_radius_px, edge_radius_px=0)
+        difference = edge_tolerant_difference(
+            ref,
+            normalized,
+            radius_px=score.shift_radius_px,
+            edge_radius_px=score.edge_tolerance_px,
+            edge_contrast=score.edge_contrast,
+        )
         numerator += measured * relative_to_median(difference, valid, median=median)
         weight += measured
     if score.smooth_sigma_px > 0:

@@ -110,9 +110,10 @@ def test_a_whitening_that_clips_in_the_current_image_is_reported(n_lightings):
     assert result.settings["clipped_regions"] == 0
 
 
-def test_the_measured_only_score_is_the_detection_score_where_nothing_clips():
+@pytest.mark.parametrize("edge_tolerance_px", [0, 2])
+def test_the_measured_only_score_is_the_detection_score_where_nothing_clips(edge_tolerance_px):
     refs, curs = _highlight_pair()
-    config = DetectionConfig.from_options(cues=False, clip_check=False)
+    config = DetectionConfig.from_options(cues=False, clip_check=False, edge_tolerance_px=edge_tolerance_px)
     result = detect_changes(refs, curs, config=config)
     measured = measured_only_score(refs, result.pair_score, result.valid, config.score)
     # far from the highlight (its disc of 7 px at +-2 px, its soft rim, the shift radius and the smoothing
