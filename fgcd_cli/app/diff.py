@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fgcd_cli.app.diff_geometry import campaign_pixel_area, geometry_text, reference_geometry
 from fgcd_cli.app.diff_options import (
     check_diff_options,
     check_stored_diff,
@@ -28,7 +29,6 @@ from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.detect import detect_changes
 from fgcd_cli.changes.images import check_stack_sizes, to_float_image, to_gray
 from fgcd_cli.changes.io import expand_image_args, read_image, read_mask
-from fgcd_cli.changes.regions import pixel_area_from_cloud
 from fgcd_cli.changes.result import ChangeResult
 from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
@@ -278,36 +278,6 @@ def _paired_lightings(reference, visit) -> tuple[list[str], list[str]]:
     return ref_names[:1], visit_names[:1]
 
 
-def _reference_pixel_area(reference, shape: tuple[int, int]) -> np.ndarray | None:
-    """mm² per reference pixel from the reference's metric cloud and camera, when stored."""
-    from fgcd_core.camera import PinholeCamera
-
-    meta = reference.metadata
-    if not (
-        reference.has(schema.array_relpath(schema.ARRAY_CLOUD_POINTS))
-        and reference.has(schema.array_relpath(schema.ARRAY_T_REF_CAMREF))
-        and meta.get("intrinsics")
-    ):
-        return None
-    camera = PinholeCamera.from_dict(meta["intrinsics"])
-    K = camera.K.copy()
-    if (camera.width, camera.height) != (shape[1], shape[0]):
-        K[0] *= shape[1] / camera.width
-        K[1] *= shape[0] / camera.height
-    area = pixel_area_from_cloud(
-        reference.array(schema.ARRAY_CLOUD_POINTS), reference.array(schema.ARRAY_T_REF_CAMREF), K, shape
-    )
-    return area if np.isfinite(area).any() else None
-
-
-def _campaign_pixel_area(reference, shape: tuple[int, int], mm_per_px: float | None) -> tuple[np.ndarray | None, str]:
-    """mm² per reference pixel (the given scale, else the reference's metric cloud, else None) and how it was got."""
-    if mm_per_px is not None:
-        return np.full(shape, mm_per_px**2), f"{mm_per_px} mm per px (given)"
-    area = _reference_pixel_area(reference, shape)
-    return area, "from the reference metric cloud" if area is not None else "none (areas in px only)"
-
-
 @dataclass(frozen=True, kw_only=True)
 class CampaignDiffRequest:
     """A comparison of a station's visit with its reference (``fgcd diff -c ... -s ...``).
@@ -330,6 +300,10 @@ class CampaignDiffRequest:
         Region-level edge check shift, pixels (None: :data:`fgcd_cli.app.diff_options.EDGE_CHECK_PX`; 0: off).
     min_contrast : float or None
         As :class:`BareDiffRequest`'s.
+    geometry : bool
+        Warp the visit's images by the reference depth (its metric cloud) and the residual pose measured
+        against it, and leave depth edges uncompared (:mod:`fgcd_cli.changes.geometry`); False: the
+        homography, as a bare diff.
     force : bool
         Replace a stored diff of the visit that was made with other options
         (without it such a diff is kept and the request refused,
@@ -348,6 +322,7 @@ class CampaignDiffRequest:
     output: Path | None = None
     edge_check_px: int | None = None
     min_contrast: float | None = None
+    geometry: bool = True
     force: bool = False
     truth: Path | None = None
     score_mask: Path | None = None
@@ -368,6 +343,7 @@ class CampaignDiffRequest:
             mm_per_px=self.mm_per_px,
             register=self.register,
             eval_mask_sha256=sha256_file(self.roi) if self.roi is not None else None,
+            geometry=self.geometry,
         )
 
 
@@ -396,7 +372,8 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     check_stack_sizes(ref_images, cur_images)
     shape = ref_images[0].shape[:2]
     truth = _read_truth(r.truth, r.score_mask, shape)
-    area, scale_note = _campaign_pixel_area(reference, shape, r.mm_per_px)
+    geometry = reference_geometry(reference, shape)
+    area, scale_note = campaign_pixel_area(geometry, shape, r.mm_per_px)
     mask = read_mask(r.roi) if r.roi is not None else None
     edge_check = checked_edge_check_px(default_edge_check_px(r.edge_check_px))
     across = "" if lightings == visit_lightings else f" across lightings ({lightings[0]} against {visit_lightings[0]})"
@@ -407,6 +384,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         cur_images,
         roi=mask,
         pixel_area_mm2=area,
+        geometry=geometry if r.geometry else None,
         config=DetectionConfig.from_options(
             register=r.register,
             edge_check_px=edge_check,
@@ -426,6 +404,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         **({"scale (mm per px)": r.mm_per_px} if r.mm_per_px is not None else {}),
         "relocation": observation.metadata.get("relocation") or {},
         "relocation residual (its own estimate)": relocation_residual_text(observation),
+        "warp": geometry_text(result.settings),
         "edge check": (
             f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
             "edges set aside (cyan outlines)"

@@ -104,6 +104,7 @@ def options_text(options: AnalysisOptions) -> str:
         f"--min-contrast {o.min_contrast:g}",
     ]
     parts += ["--no-register"] if not o.register else []
+    parts += ["--no-geometry"] if not o.geometry else []
     parts += [f"--roi sha256 {o.eval_mask_sha256[:12]}"] if o.eval_mask_sha256 else []
     return ", ".join(parts)
 

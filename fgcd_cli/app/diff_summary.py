@@ -75,3 +75,11 @@ def result_epsilon(data: dict) -> float:
     from fgcd_cli.report.candidates import settings_epsilon
 
     return settings_epsilon(data.get("settings"))
+
+
+def warp_line(data: dict) -> str:
+    """``warp: by the reference depth; visit measured ...`` for a campaign diff ("" for bare images)."""
+    from fgcd_cli.app.diff_geometry import geometry_text
+
+    settings = data.get("settings") or {}
+    return f"warp: {geometry_text(settings)}" if "geometry" in settings else ""

@@ -55,6 +55,8 @@ class AnalysisOptions:
         sha256 of the region of interest (``--roi``) the diff compared within (None: the whole image; the stored key keeps its first name).
     min_contrast : float or None
         Contrast floor of a reported region (``--min-contrast``; None: the detector's default).
+    geometry : bool
+        Warp the visit by the reference depth and its measured residual pose (``--no-geometry``: off).
     """
 
     edge_check_px: int | None = None
@@ -62,6 +64,7 @@ class AnalysisOptions:
     register: bool = True
     eval_mask_sha256: str | None = None
     min_contrast: float | None = None
+    geometry: bool = True
 
 
 class Freshness(StrEnum):

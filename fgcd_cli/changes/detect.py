@@ -22,7 +22,9 @@ from fgcd_cli.changes.config import (
     ScoreConfig,
 )
 from fgcd_cli.changes.cues.labels import CueMaps, label_regions, relief_colour_cues
-from fgcd_cli.changes.dense.refine import DenseAlignment, refine_dense, warp_with_flow
+from fgcd_cli.changes.dense.refine import DenseAlignment, refine_dense, warp_with_flow, warp_with_maps
+from fgcd_cli.changes.geometry.depth import ReferenceGeometry
+from fgcd_cli.changes.geometry.stack_warp import GeometryWarp, geometry_warp
 from fgcd_cli.changes.illumination import normalize_shading
 from fgcd_cli.changes.images import check_side_inputs, image_health, to_gray, validate_stacks
 from fgcd_cli.changes.region_decision import decide_regions, set_aside_regions
@@ -60,8 +62,8 @@ def detect_changes(
     *,
     roi: np.ndarray | None = None,
     pixel_area_mm2: np.ndarray | None = None,
-    shading_ref: list[np.ndarray] | None = None,
-    shading_cur: list[np.ndarray] | None = None,
+    shading: tuple[list[np.ndarray], list[np.ndarray]] | None = None,
+    geometry: ReferenceGeometry | None = None,
     config: DetectionConfig | None = None,
     progress: Progress | None = None,
 ) -> ChangeResult:
@@ -76,10 +78,12 @@ def detect_changes(
         Pixels of the reference to compare (e.g. the object, not the background).
     pixel_area_mm2 : ndarray, HxW float, optional
         Surface area seen by each reference pixel, mm² (:mod:`fgcd_cli.changes.regions`).
-    shading_ref, shading_cur : list of ndarray, HxW float, optional
-        Per-lighting Lambertian shading maps in the reference frame
-        (:func:`fgcd_cli.changes.illumination.shading_from_normals`); when given, the
-        current images are re-lit to the reference lighting before the local gain correction.
+    shading : (list of ndarray, list of ndarray), optional
+        Per-lighting Lambertian shading maps (reference, current; HxW, reference frame;
+        :func:`fgcd_cli.changes.illumination.shading_from_normals`): the current images are re-lit first.
+    geometry : ReferenceGeometry, optional
+        The reference's depth: the current images are warped by it and the residual pose measured against
+        it, not the homography; depth edges are not compared (:mod:`fgcd_cli.changes.geometry`).
     config : DetectionConfig, optional
         Every option, by stage (default: the shipped detector); build one from flat option
         names with :meth:`DetectionConfig.from_options` (``from_options(k_high=14, dense=False)``).
@@ -92,14 +96,14 @@ def detect_changes(
         pairs. Raises :class:`UserInputError` for inconsistent input.
     """
     config = DetectionConfig() if config is None else config
-    settings = detection_settings(config, lightings=len(ref_images), shading=shading_ref is not None)
+    settings = detection_settings(config, lightings=len(ref_images), shading=shading is not None)
     step = _Steps(progress, total=4)
     refs, curs, roi = _check_inputs(
         ref_images,
         cur_images,
         roi=roi,
         pixel_area_mm2=pixel_area_mm2,
-        shading=(shading_ref, shading_cur),
+        shading=shading,
         config=config.registration,
     )
     shape = refs[0].shape[:2]
@@ -107,9 +111,7 @@ def detect_changes(
     problem = stack_health(grays_ref, grays_cur)
     if problem:
         return empty_result(shape, problem, None, settings)
-    alignment = align_stacks(
-        curs, grays_ref, grays_cur, roi=roi, config=config.registration, margin_px=comparison_margin_px(config.score)
-    )
+    alignment = align_stacks(curs, grays_ref, grays_cur, roi=roi, config=config, geometry=geometry)
     if isinstance(alignment, str):
         return empty_result(shape, alignment, None, settings)
     if alignment.valid.sum() < 100:
@@ -117,11 +119,7 @@ def detect_changes(
             shape, "cannot compare: fewer than 100 pixels are seen in both images", alignment.registration, settings
         )
     step("registered")
-    if shading_ref is not None:
-        alignment.warped = [
-            normalize_shading(ref, warped, shading_ref=s_ref, shading_cur=s_cur)
-            for ref, warped, s_ref, s_cur in zip(refs, alignment.warped, shading_ref, shading_cur)
-        ]
+    _relight_and_record(refs, alignment, shading=shading, settings=settings)
     scored = score_stacks(refs, alignment, score=config.score, regions=config.regions, settings=settings)
     step("scored")
     valid = alignment.valid
@@ -171,6 +169,18 @@ def detect_changes(
     )
 
 
+def _relight_and_record(refs, alignment: Alignment, *, shading, settings: dict) -> None:
+    """Re-light the registered current images to the reference lighting (when shading maps are given) and
+    record the geometry warp in ``settings``."""
+    if alignment.geometry is not None:
+        settings["geometry"] = geometry_settings(alignment.geometry)
+    if shading is not None:
+        alignment.warped = [
+            normalize_shading(ref, warped, shading_ref=s_ref, shading_cur=s_cur)
+            for ref, warped, s_ref, s_cur in zip(refs, alignment.warped, *shading)
+        ]
+
+
 class _Steps:
     """``progress(done, total, label)`` after each step (nothing without a callback)."""
 
@@ -193,8 +203,8 @@ def _check_inputs(ref_images, cur_images, *, roi, pixel_area_mm2, shading, confi
         pixel_area_mm2=pixel_area_mm2,
         registration_lighting=config.registration_lighting,
     )
-    if (shading[0] is None) != (shading[1] is None):
-        raise UserInputError("give shading maps for both the reference and the current observation, or neither")
+    if shading is not None and (len(shading) != 2 or any(len(maps) != len(refs) for maps in shading)):
+        raise UserInputError("give shading maps as (reference maps, current maps), one per lighting each")
     return refs, curs, roi
 
 
@@ -226,13 +236,25 @@ class Alignment:
     """HxW bool, pixels seen in every current image."""
     dense: DenseAlignment | None = None
     not_compared: np.ndarray | None = None
+    geometry: GeometryWarp | None = None
 
 
-def align_stacks(curs, grays_ref, grays_cur, *, roi, config: RegistrationConfig, margin_px: int) -> Alignment | str:
-    """Bring the current stack into the reference frame: homography, then (``config.dense``) the parallax flow.
+def align_stacks(
+    curs,
+    grays_ref,
+    grays_cur,
+    *,
+    roi,
+    config: DetectionConfig,
+    geometry: ReferenceGeometry | None = None,
+) -> Alignment | str:
+    """Bring the current stack into the reference frame: homography (or, with ``geometry``, the reference
+    depth and the residual pose measured against it), then (``config.dense``) the parallax flow.
 
     Returns a reason string when the pair cannot be registered.
     """
+    margin_px, tolerance_px = comparison_margin_px(config.score), config.score.shift_radius_px
+    config = config.registration
     shape, k = grays_ref[0].shape, config.registration_lighting
     if config.register:
         registration = register_to_reference(grays_ref[k], grays_cur[k])
@@ -241,18 +263,28 @@ def align_stacks(curs, grays_ref, grays_cur, *, roi, config: RegistrationConfig,
     else:
         registration = Registration(H_cur_ref=np.eye(3), ok=True, init=RegistrationInit.NONE, overlap_fraction=1.0)
     area = np.ones(shape, bool) if roi is None else roi.copy()
+    geo = None
+    if geometry is not None and config.register:
+        geo = geometry_warp(geometry, grays_ref[k], grays_cur[k], registration.H_cur_ref, tolerance_px=tolerance_px)
+
+    def warp(image, flow=None):
+        if geo is not None and geo.map_x is not None:
+            return warp_with_maps(image, geo.map_x, geo.map_y, flow)
+        if flow is not None:
+            return warp_with_flow(image, registration.H_cur_ref, flow)
+        return warp_to_reference(image, registration.H_cur_ref, shape)
+
     dense_fit = not_compared = None
     if config.dense:
-        warped_gray, seen = warp_to_reference(grays_cur[k], registration.H_cur_ref, shape)
+        warped_gray, seen = warp(grays_cur[k])
         dense_fit = refine_dense(grays_ref[k], warped_gray, valid=area & seen)
         not_compared = dense_fit.not_compared & area
+    if geo is not None and geo.not_compared is not None:
+        not_compared = (geo.not_compared & area) | (not_compared if not_compared is not None else False)
     warped_images = []
     seen_all = np.ones(shape, bool)
     for cur in curs:
-        if dense_fit is not None:
-            warped, seen = warp_with_flow(cur, registration.H_cur_ref, dense_fit.flow)
-        else:
-            warped, seen = warp_to_reference(cur, registration.H_cur_ref, shape)
+        warped, seen = warp(cur, dense_fit.flow if dense_fit is not None else None)
         seen_all &= seen
         warped_images.append(warped)
     valid = area & seen_all
@@ -270,7 +302,26 @@ def align_stacks(curs, grays_ref, grays_cur, *, roi, config: RegistrationConfig,
         seen_all=seen_all,
         dense=dense_fit,
         not_compared=not_compared,
+        geometry=geo,
     )
+
+
+def geometry_settings(geo: GeometryWarp) -> dict:
+    """What a detection records of its geometry warp: the residual pose measured, or why not."""
+    pose = geo.pose
+    if not pose.ok:
+        return {"warp": "homography (the residual pose was not measured)", "reason": pose.reason}
+    return {
+        "warp": "reference depth and residual pose",
+        "residual_pose_mm": round(pose.translation_mm, 3),
+        "residual_pose_deg": round(pose.rotation_deg, 4),
+        "T_cur_ref": np.round(pose.T_cur_ref, 9).tolist(),
+        "pnp_inliers": pose.inliers,
+        "pnp_matches": pose.matches,
+        "pnp_rms_px": round(pose.rms_px, 3),
+        "depth_fraction": round(geo.depth_fraction, 4),
+        "depth_edge_fraction": round(float(geo.not_compared.mean()), 4) if geo.not_compared is not None else 0.0,
+    }
 
 
 def score_stacks(

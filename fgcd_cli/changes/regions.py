@@ -10,8 +10,6 @@ import numpy as np
 from scipy import ndimage
 from skimage.morphology import remove_small_holes, remove_small_objects
 
-from fgcd_core.camera import pinhole_pixels
-
 if TYPE_CHECKING:
     from fgcd_cli.changes.significance import Decision
 
@@ -211,54 +209,6 @@ def pixel_area_from_depth(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     x = (u - K[0, 2]) / K[0, 0] * depth
     y = (v - K[1, 2]) / K[1, 1] * depth
     return pixel_area_from_points(np.stack([x, y, depth], axis=2))
-
-
-def pixel_area_from_cloud(
-    points_ref: np.ndarray,
-    T_ref_cam: np.ndarray,
-    K: np.ndarray,
-    shape: tuple[int, int],
-    *,
-    smooth_px: float = 3.0,
-) -> np.ndarray:
-    """Per-pixel surface area from an observation's metric point cloud.
-
-    The cloud is projected into the camera, a dense z-depth is interpolated
-    linearly between the projected points (NaN outside their convex hull), lightly
-    smoothed, and :func:`pixel_area_from_depth` gives the area per pixel.
-
-    Parameters
-    ----------
-    points_ref : ndarray, Nx3 float, metres, in the ``ref`` frame.
-    T_ref_cam : ndarray, 4x4, camera pose in the ``ref`` frame.
-    K : ndarray, 3x3 camera matrix (pixels) of the image whose pixels are measured.
-    shape : (H, W) of that image.
-    smooth_px : float
-        Gaussian smoothing of the interpolated depth (semi-dense clouds are noisy).
-
-    Returns
-    -------
-    ndarray, HxW float64, mm² per pixel (NaN where the cloud does not cover).
-    """
-    from scipy.interpolate import griddata
-
-    h, w = shape
-    T_cam_ref = np.linalg.inv(np.asarray(T_ref_cam, dtype=np.float64))
-    points = np.asarray(points_ref, dtype=np.float64)
-    cam = points @ T_cam_ref[:3, :3].T + T_cam_ref[:3, 3]
-    cam = cam[cam[:, 2] > 1e-6]
-    u, v = pinhole_pixels(K, cam).T
-    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    if inside.sum() < 10:
-        return np.full(shape, np.nan)
-    grid_v, grid_u = np.mgrid[0:h, 0:w]
-    depth = griddata(np.column_stack([u[inside], v[inside]]), cam[inside, 2], (grid_u, grid_v), method="linear")
-    if smooth_px > 0:
-        known = np.isfinite(depth)
-        filled = np.where(known, depth, 0.0)
-        weight = ndimage.gaussian_filter(known.astype(np.float64), smooth_px)
-        depth = np.where(known, ndimage.gaussian_filter(filled, smooth_px) / np.maximum(weight, 1e-9), np.nan)
-    return pixel_area_from_depth(depth, K)
 
 
 def regions_with_significance(mask, score, significance: Decision, pixel_area_mm2):

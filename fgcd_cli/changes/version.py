@@ -6,4 +6,4 @@ for the same inputs; ``fgcd archive analyze`` then re-does every visit analysed
 by an older version and skips the others (docs/archive.md, "Up to date").
 """
 
-DETECTOR_VERSION = "2026.12.2"
+DETECTOR_VERSION = "2026.12.3"

@@ -22,6 +22,7 @@ def _render(data: dict):
         result_epsilon,
         set_aside_line,
         strongest_first,
+        warp_line,
     )
 
     def render(console):
@@ -53,6 +54,8 @@ def _render(data: dict):
             console.print(
                 f"AFD {data['afd']['afd_px']:.2f} px ({data['afd']['method']}, {data['afd']['inliers']} vectors)"
             )
+        if warp_line(data):
+            console.print(warp_line(data), markup=False)
         if data.get("scores"):
             s = data["scores"]
             console.print(
@@ -147,6 +150,12 @@ def diff(
         None, "--mm-per-px", help="Known scale on the object (mm per pixel) for areas in mm²."
     ),
     no_register: bool = typer.Option(False, "--no-register", help="Images are already aligned: skip registration."),
+    no_geometry: bool = typer.Option(
+        False,
+        "--no-geometry",
+        help="Campaign mode: warp the visit by the image registration alone, not by the reference's depth "
+        "and the residual pose measured against it.",
+    ),
     edge_check: int | None = typer.Option(
         None,
         "--edge-check",
@@ -201,6 +210,7 @@ def diff(
             output=output,
             edge_check_px=edge_check,
             min_contrast=min_contrast,
+            geometry=not no_geometry,
             force=force,
             truth=truth,
             score_mask=score_mask,
@@ -219,6 +229,8 @@ def diff(
             raise UserInputError("give an output folder with -o DIR")
         if force:
             raise UserInputError("--force is for campaign mode (a visit's stored diff); bare mode writes to -o DIR")
+        if no_geometry:
+            raise UserInputError("--no-geometry is for campaign mode: bare images carry no reference depth")
         if score_mask is not None and truth is None:
             raise UserInputError("--score-mask says where --truth is scored: give --truth too")
         request = diff_uc.BareDiffRequest(

@@ -205,3 +205,54 @@ def test_history_reports_the_good_visits_and_names_the_damaged_one(tmp_path, cap
     assert ("not valid JSON" if damage == "manifest" else "folder") in data["damaged"][0]["reason"]
     page = Path(data["output"]).read_text()
     assert "Damaged or missing visit(s), not compared: " + VISITS[0] in page and '<td class="l">damaged: ' in page
+
+
+def _campaign_with_a_cloud(tmp_path, T_cur_ref):
+    """A station whose reference holds a metric cloud of a tilted plane and a raised block (exact geometry,
+    tests/changes/plane_scene.py); its visit is seen from ``T_cur_ref`` with one painted disc."""
+    from changes.plane_scene import H, K, W, scene  # noqa: PLC0415
+
+    ref, cur, depth = scene(T_cur_ref, block=True, paint=(100, 280))
+    v, u = np.mgrid[0:H:3, 0:W:3]
+    z = depth[v, u]
+    points = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1).reshape(-1, 3)
+    camp = init_campaign(tmp_path / "camp", site="test site")
+    station = camp.create_station("S1")
+    intrinsics = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "width": W, "height": H}
+    with station.write_reference({"lightings": ["L1"], "intrinsics": intrinsics}) as w:
+        w.add_image("L1", _u8(ref))
+        w.add_cloud(points)
+        w.add_array("T_ref_camref", np.eye(4))
+        w.commit()
+    with station.new_visit({"lightings": ["L1"]}, stamp=VISITS[0]) as w:
+        w.add_image("L1", _u8(cur))
+        w.commit()
+    return camp
+
+
+def test_campaign_diff_measures_the_visit_pose_against_the_reference_depth(tmp_path, capsys):
+    from changes.plane_scene import make_pose  # noqa: PLC0415
+
+    camp = _campaign_with_a_cloud(tmp_path, make_pose((40.0, 10.0, 5.0), (0.1, -0.2, 0.05)))
+    code, out, err = _fgcd(capsys, "diff", "-c", str(camp.path), "-s", "S1", "--json")
+    assert code == 0, err
+    geo = json.loads(out)["settings"]["geometry"]
+    # |t| = 41.5 mm; SIFT on the plane and block fixes it to a fraction of a millimetre (test_geometry.py)
+    assert geo["warp"] == "reference depth and residual pose"
+    assert abs(geo["residual_pose_mm"] - np.linalg.norm([40.0, 10.0, 5.0])) < 0.5
+    assert geo["depth_edge_fraction"] > 0  # the block's outline: a parallax jump of ~1.3 px
+    assert len(json.loads(out)["regions"]) == 1
+    # the same visit without the geometry: a different diff, refused over the stored one unless forced
+    code, out, err = _fgcd(capsys, "diff", "-c", str(camp.path), "-s", "S1", "--no-geometry")
+    assert code == 5 and "--no-geometry" in err
+    code, out, err = _fgcd(capsys, "diff", "-c", str(camp.path), "-s", "S1", "--no-geometry", "--force", "--json")
+    assert code == 0 and "geometry" not in json.loads(out)["settings"]
+
+
+def test_bare_diff_refuses_no_geometry(tmp_path, capsys):
+    image = tmp_path / "a.png"
+    cv2.imwrite(str(image), np.zeros((8, 8), np.uint8))
+    code, out, err = _fgcd(
+        capsys, "diff", "--ref", str(image), "--cur", str(image), "-o", str(tmp_path / "o"), "--no-geometry"
+    )
+    assert code == 2 and "--no-geometry is for campaign mode" in err and "Traceback" not in err

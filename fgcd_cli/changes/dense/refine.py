@@ -345,6 +345,46 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
     den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
     map_x = ((H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den).astype(np.float32)
     map_y = ((H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den).astype(np.float32)
+    warped, inside = remap_image(image, map_x, map_y)
+    return warped, (den > 0) & inside
+
+
+def warp_with_maps(
+    image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, flow: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Resample the current image into the reference frame through a per-pixel warp and the flow at once.
+
+    The reference pixel ``p`` takes the current image at ``map(p + flow(p))`` (the maps interpolated
+    bilinearly; they are smooth where defined): one interpolation of the image, as :func:`warp_with_flow`.
+
+    Parameters
+    ----------
+    image : ndarray, HxW or HxWxC, the current image (any size)
+    map_x, map_y : ndarray, hxw float32, current-image position of each reference pixel (finite everywhere)
+    flow : ndarray, hxwx2 float32, px, optional (none: the maps alone)
+
+    Returns
+    -------
+    warped : ndarray, float32, hxw or hxwxC
+    valid : ndarray, hxw bool, pixels that came from inside the current image
+    """
+    if flow is not None:
+        h, w = flow.shape[:2]
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        at_x, at_y = xs + flow[..., 0], ys + flow[..., 1]
+        map_x, map_y = (
+            cv2.remap(
+                np.ascontiguousarray(m, dtype=np.float32), at_x, at_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+            )
+            for m in (map_x, map_y)
+        )
+    return remap_image(image, np.asarray(map_x, np.float32), np.asarray(map_y, np.float32))
+
+
+def remap_image(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.remap`` of ``image`` (any number of channels) with ``changes.registration.WARP_INTERPOLATION``,
+    clipped to the source's range; and the pixels whose position lies inside the source image."""
+    h, w = map_x.shape
     src = np.ascontiguousarray(image, dtype=np.float32)
     if src.ndim == 3 and src.shape[2] > 4:
         warped = np.stack(
@@ -361,5 +401,5 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
         warped = warped.reshape((h, w) + src.shape[2:])
     warped = clip_to_source(warped, src)
     ch, cw = src.shape[:2]
-    valid = (den > 0) & (map_x >= 0) & (map_x <= cw - 1) & (map_y >= 0) & (map_y <= ch - 1)
+    valid = (map_x >= 0) & (map_x <= cw - 1) & (map_y >= 0) & (map_y <= ch - 1)
     return warped, valid
