@@ -112,3 +112,20 @@ def test_detection_with_geometry_finds_the_change_and_leaves_the_block_edges_unc
         block.astype(np.uint8), np.ones((3, 3), np.uint8)
     ).astype(bool)
     assert result.not_compared[outline].mean() > 0.6
+
+
+def test_cloud_outliers_are_dropped_and_a_depth_step_is_kept():
+    from fgcd_cli.changes.geometry.depth import depth_consistent
+
+    rng = np.random.default_rng(1)
+    uv = rng.uniform(0, [W - 1, H - 1], size=(4000, 2))
+    step = uv[:, 0] > W / 2
+    z = np.where(step, 0.95, 1.0) + rng.normal(0, 0.001, len(uv))  # a 5 cm step, 1 mm noise
+    outliers = rng.choice(len(uv), 40, replace=False)
+    z[outliers] += rng.choice([-0.2, 0.2], 40)
+    keep = depth_consistent(uv, z)
+    assert not keep[outliers].any()
+    inliers = np.setdiff1d(np.arange(len(uv)), outliers)
+    # both sides of the step survive; only points right on it, whose neighbours split, may go
+    assert keep[inliers].mean() > 0.97
+    assert keep[inliers][step[inliers]].mean() > 0.97 and keep[inliers][~step[inliers]].mean() > 0.97

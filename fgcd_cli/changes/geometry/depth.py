@@ -4,13 +4,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy import ndimage
 from scipy.interpolate import griddata
+from scipy.spatial import cKDTree
 
 from fgcd_core.camera import pinhole_pixels
 
 __all__ = ["ReferenceGeometry", "depth_from_cloud", "geometry_from_cloud", "smooth_known"]
+
+SUPPORT_SPACINGS = 2.0
+"""A pixel's depth is known when a cloud point projects within this many mean spacings of it."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -41,6 +46,31 @@ def projected_cloud(
     return uv[inside], cam[inside, 2]
 
 
+def depth_consistent(uv: np.ndarray, z: np.ndarray, *, neighbours: int = 8, k_sigma: float = 3.5) -> np.ndarray:
+    """The projected points whose depth agrees with their image neighbours' (a semi-dense cloud's outliers out).
+
+    Rule: a point's depth is compared with the median depth of its ``neighbours`` nearest projected points;
+    it is kept unless the difference exceeds ``k_sigma`` robust standard deviations (1.4826 MAD) of those
+    differences over the whole cloud. On a depth edge a point agrees with the majority of its own side.
+
+    Parameters
+    ----------
+    uv : ndarray, Nx2 float, px; z : ndarray, N float, m.
+
+    Returns
+    -------
+    ndarray, N bool.
+    """
+    if len(z) <= neighbours:
+        return np.ones(len(z), bool)
+    _, index = cKDTree(uv).query(uv, k=neighbours + 1)
+    difference = z - np.median(z[index[:, 1:]], axis=1)
+    spread = 1.4826 * np.median(np.abs(difference - np.median(difference)))
+    if spread <= 0:
+        return np.ones(len(z), bool)
+    return np.abs(difference - np.median(difference)) <= k_sigma * spread
+
+
 def depth_from_cloud(
     points_ref: np.ndarray, T_ref_cam: np.ndarray, K: np.ndarray, shape: tuple[int, int]
 ) -> np.ndarray:
@@ -61,6 +91,8 @@ def depth_from_cloud(
     uv, z = projected_cloud(points_ref, T_ref_cam, K, shape)
     if len(z) < 10:
         return np.full(shape, np.nan)
+    keep = depth_consistent(uv, z)
+    uv, z = uv[keep], z[keep]
     h, w = shape
     grid_v, grid_u = np.mgrid[0:h, 0:w]
     return griddata(uv, z, (grid_u, grid_v), method="linear")
@@ -76,9 +108,15 @@ def geometry_from_cloud(
     covered = int(np.isfinite(depth).sum())
     if covered == 0:
         return None
-    return ReferenceGeometry(
-        depth=depth, K=np.asarray(K, dtype=np.float64), spacing_px=float(np.sqrt(covered / len(z)))
-    )
+    spacing = float(np.sqrt(covered / len(z)))
+    # Between points farther apart than a few spacings (slivers along the hull, holes in a semi-dense
+    # cloud) the interpolated depth is a guess: it is unknown there, and the homography maps those pixels.
+    empty = np.ones(shape, np.uint8)
+    cols, rows = np.rint(uv).astype(int).T
+    empty[rows, cols] = 0
+    far = cv2.distanceTransform(empty, cv2.DIST_L2, 5) > SUPPORT_SPACINGS * spacing
+    depth[far] = np.nan
+    return ReferenceGeometry(depth=depth, K=np.asarray(K, dtype=np.float64), spacing_px=spacing)
 
 
 def smooth_known(values: np.ndarray, sigma_px: float) -> np.ndarray:

@@ -5,7 +5,7 @@ visit camera's pose relative to the reference camera (perspective-n-point; Lepet
 "EPnP", IJCV 2009, for the RANSAC hypotheses, then Levenberg-Marquardt on the inliers), OpenCV's solvers.
 
 No uncertainty is stated: the matching noise alone gives about 0.1 mm, while on ``fgcd bench paper``'s stored
-visits the pose was 0.14-0.75 mm from the simulator's truth (the reference cloud's own error), see
+visits the pose was 0.12-0.68 mm (median 0.28) from the simulator's truth (the reference cloud's own error), see
 docs/change-detection.md, "Geometry of a campaign diff".
 """
 

@@ -62,10 +62,10 @@ def parallax_edges(map_x: np.ndarray, map_y: np.ndarray, *, tolerance_px: float,
     kernel = np.ones((2 * window_px + 1, 2 * window_px + 1), np.uint8)
     jump = np.zeros((h, w), np.float32)
     for displacement in (map_x - u, map_y - v):
-        # Unknown pixels take a neutral value so they neither raise the max nor lower the min.
-        mean = float(np.nanmean(displacement)) if known.any() else 0.0
-        filled = np.where(known, displacement, mean).astype(np.float32)
-        jump = np.maximum(jump, cv2.dilate(filled, kernel) - cv2.erode(filled, kernel))
+        # Over the known pixels only: an unknown neighbour neither raises the max nor lowers the min.
+        highest = cv2.dilate(np.where(known, displacement, -1e9).astype(np.float32), kernel)
+        lowest = cv2.erode(np.where(known, displacement, 1e9).astype(np.float32), kernel)
+        jump = np.maximum(jump, np.where(known, highest - lowest, 0.0).astype(np.float32))
     edges = (jump > tolerance_px) & known
     if not edges.any():
         return edges
