@@ -1,8 +1,8 @@
 """The visit's residual pose, measured against the reference image and its depth (PnP).
 
 Rule: the reference's features, lifted to 3D by its depth, and their matches in the visit's image fix the
-visit camera's pose relative to the reference camera (perspective-n-point; Lepetit, Moreno-Noguer & Fua,
-"EPnP", IJCV 2009, for the RANSAC hypotheses, then Levenberg-Marquardt on the inliers), OpenCV's solvers.
+visit camera's pose relative to the reference camera: the relocation image stage's PnP fit
+(:func:`fgcd_cli.relocation.image.pnp_fit.pnp_fit`: SQPnP in RANSAC, then Levenberg-Marquardt on the inliers).
 
 No uncertainty is stated: the matching noise alone gives about 0.1 mm, while on ``fgcd bench paper``'s stored
 visits the pose was 0.12-0.68 mm (median 0.28) from the simulator's truth (the reference cloud's own error), see
@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from fgcd_cli.relocation.image.pnp_fit import pnp_fit
 from fgcd_core.imaging import match_sift, to_gray_u8
 
 __all__ = ["PnpOptions", "ResidualPose", "residual_pose"]
@@ -29,7 +30,6 @@ class PnpOptions:
     """RANSAC inlier distance (px): a sub-pixel registration leaves its inliers within a pixel."""
     min_inliers: int = 30
     """Fewer inliers and the pose is not trusted (the warp falls back to the image registration)."""
-    iterations: int = 2000
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -92,29 +92,8 @@ def residual_pose(
         return ResidualPose(ok=False, reason=f"{int(known.sum())} matches on the reference depth", matches=len(z))
     uv, z = pts_ref[known], z[known]
     X = np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(z))]) * z[:, None]
-    found, rvec, tvec, inliers = cv2.solvePnPRansac(
-        X,
-        pts_cur[known],
-        K,
-        None,
-        reprojectionError=options.reprojection_px,
-        iterationsCount=options.iterations,
-        flags=cv2.SOLVEPNP_EPNP,
-    )
-    count = 0 if inliers is None else len(inliers)
-    if not found or count < options.min_inliers:
-        return ResidualPose(ok=False, reason=f"{count} PnP inliers of {len(z)} matches", matches=len(z), inliers=count)
-    X_in, uv_in = X[inliers[:, 0]], pts_cur[known][inliers[:, 0]]
-    rvec, tvec = cv2.solvePnPRefineLM(X_in, uv_in, K, None, rvec, tvec)
-    projected, _ = cv2.projectPoints(X_in, rvec, tvec, K, None)
-    residual = projected[:, 0] - uv_in
-    T = np.eye(4)
-    T[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T[:3, 3] = tvec.ravel()
-    return ResidualPose(
-        ok=True,
-        T_cur_ref=T,
-        matches=len(z),
-        inliers=count,
-        rms_px=float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
-    )
+    # The image stage's PnP (SQPnP in RANSAC, Levenberg-Marquardt on the inliers): one rule for both.
+    found, fit = pnp_fit(X, uv, pts_cur[known], K, ransac_px=options.reprojection_px, min_inliers=options.min_inliers)
+    if fit is None:
+        return ResidualPose(ok=False, reason=f"{found} PnP inliers of {len(z)} matches", matches=len(z), inliers=found)
+    return ResidualPose(ok=True, T_cur_ref=fit.M_cam, matches=len(z), inliers=len(fit.inliers), rms_px=fit.rms_px)

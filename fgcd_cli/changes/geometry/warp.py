@@ -6,6 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from fgcd_core.camera import pinhole_pixels
+
 __all__ = ["depth_warp_maps", "parallax_edges"]
 
 
@@ -29,11 +31,11 @@ def depth_warp_maps(depth: np.ndarray, K: np.ndarray, T_cur_ref: np.ndarray) -> 
     z = np.asarray(depth, dtype=np.float64)
     X = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1)
     R, t = np.asarray(T_cur_ref, dtype=np.float64)[:3, :3], np.asarray(T_cur_ref, dtype=np.float64)[:3, 3]
-    Xc = X @ R.T + t
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ahead = Xc[..., 2] > 1e-6
-        map_x = np.where(ahead, K[0, 0] * Xc[..., 0] / Xc[..., 2] + K[0, 2], np.nan)
-        map_y = np.where(ahead, K[1, 1] * Xc[..., 1] / Xc[..., 2] + K[1, 2], np.nan)
+    Xc = (X @ R.T + t).reshape(-1, 3)
+    uv = np.full((len(Xc), 2), np.nan)
+    ahead = Xc[:, 2] > 1e-6  # NaN depths compare False: unknown stays NaN
+    uv[ahead] = pinhole_pixels(K, Xc[ahead])
+    map_x, map_y = uv[:, 0].reshape(h, w), uv[:, 1].reshape(h, w)
     return map_x.astype(np.float32), map_y.astype(np.float32)
 
 
