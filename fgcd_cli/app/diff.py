@@ -13,7 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcd_cli.app.diff_geometry import campaign_pixel_area, geometry_text, reference_geometry
+from fgcd_cli.app.diff_geometry import (
+    campaign_pixel_area,
+    geometry_text,
+    reference_geometry,
+    relocation_check_text,
+)
 from fgcd_cli.app.diff_options import (
     check_diff_options,
     check_stored_diff,
@@ -405,6 +410,10 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         "relocation": observation.metadata.get("relocation") or {},
         "relocation residual (its own estimate)": relocation_residual_text(observation),
         "warp": geometry_text(result.settings),
+        "relocation check": relocation_check_text(
+            (observation.metadata.get("relocation") or {}).get("residual"), result.settings
+        )
+        or "not made (no stated residual or no measured pose)",
         "edge check": (
             f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
             "edges set aside (cyan outlines)"
@@ -429,6 +438,9 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     data = result_summary(result, fdf)
     data["output"] = str(r.output or observation.path)
     data["visit"] = observation.name
+    check = relocation_check_text((observation.metadata.get("relocation") or {}).get("residual"), result.settings)
+    if check:
+        data["relocation_check"] = check
     if replaced:
         data["warnings"] = [*data.get("warnings", []), replaced]
     if truth is not None:

@@ -56,6 +56,8 @@ def _render(data: dict):
             )
         if warp_line(data):
             console.print(warp_line(data), markup=False)
+        if data.get("relocation_check"):
+            console.print(f"relocation check: {data['relocation_check']}", markup=False)
         if data.get("scores"):
             s = data["scores"]
             console.print(
