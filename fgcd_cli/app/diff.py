@@ -13,12 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcd_cli.app.diff_geometry import (
-    campaign_pixel_area,
-    geometry_text,
-    reference_geometry,
-    relocation_check_text,
-)
+from fgcd_cli.app.diff_geometry import campaign_pixel_area, reference_geometry
 from fgcd_cli.app.diff_options import (
     check_diff_options,
     check_stored_diff,
@@ -39,6 +34,7 @@ from fgcd_cli.errors import AlgorithmError, CampaignError, UserInputError
 from fgcd_cli.metrics.afd import FdfConfig, FdfResult, compute_fdf
 from fgcd_cli.metrics.change_scores import truth_report
 from fgcd_cli.report.html import ReportContext
+from fgcd_cli.report.pose_check import geometry_text, relocation_check_text
 from fgcd_cli.report.products import diff_products, result_summary
 
 Progress = Callable[[str], None] | None
@@ -398,6 +394,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         ),
     )
     fdf = measure_fdf(ref_images[0], cur_images[0])
+    check = relocation_check_text((observation.metadata.get("relocation") or {}).get("residual"), result.settings)
     metadata = {
         "site": camp.site,
         "station": r.station,
@@ -410,16 +407,8 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
         "relocation": observation.metadata.get("relocation") or {},
         "relocation residual (its own estimate)": relocation_residual_text(observation),
         "warp": geometry_text(result.settings),
-        "relocation check": relocation_check_text(
-            (observation.metadata.get("relocation") or {}).get("residual"), result.settings
-        )
-        or "not made (no stated residual or no measured pose)",
-        "edge check": (
-            f"{edge_check} px: {result.settings.get('edge_explained_regions', 0)} region(s) along strong "
-            "edges set aside (cyan outlines)"
-            if edge_check
-            else "off"
-        ),
+        "relocation check": check or "not made (no stated residual or no measured pose)",
+        "edge check": _edge_check_text(edge_check, result.settings),
     }
     from fgcd_cli.app.scene_uncertainty import cached_scene_uncertainty
 
@@ -438,7 +427,6 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     data = result_summary(result, fdf)
     data["output"] = str(r.output or observation.path)
     data["visit"] = observation.name
-    check = relocation_check_text((observation.metadata.get("relocation") or {}).get("residual"), result.settings)
     if check:
         data["relocation_check"] = check
     if replaced:
@@ -446,6 +434,16 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     if truth is not None:
         data["scores"] = truth_report(result.mask, result.score, truth.truth, eval_mask=truth.scored_in(mask))
     return data
+
+
+def _edge_check_text(edge_check: int, settings: dict) -> str:
+    """The report's line on the edge check a diff made."""
+    if not edge_check:
+        return "off"
+    return (
+        f"{edge_check} px: {settings.get('edge_explained_regions', 0)} region(s) along strong edges set aside "
+        "(cyan outlines)"
+    )
 
 
 def _store_products(

@@ -79,7 +79,7 @@ def result_epsilon(data: dict) -> float:
 
 def warp_line(data: dict) -> str:
     """``warp: by the reference depth; visit measured ...`` for a campaign diff ("" for bare images)."""
-    from fgcd_cli.app.diff_geometry import geometry_text
+    from fgcd_cli.report.pose_check import geometry_text
 
     settings = data.get("settings") or {}
     return f"warp: {geometry_text(settings)}" if "geometry" in settings else ""

@@ -44,6 +44,7 @@ from fgcd_cli.report.figures import (
     to_display_rgb,
 )
 from fgcd_cli.report.html_page import _figure, _img, _page
+from fgcd_cli.report.pose_check import relocation_check_text
 from fgcd_cli.report.scene_map import scene_uncertainty_section
 
 
@@ -273,6 +274,16 @@ def _summary_section(result: ChangeResult, fdf: FdfResult | None, ctx: ReportCon
         parts.append(
             f"<p>Camera return: AFD = <b>{fdf.afd_px:.2f} px</b> ({fdf.method}, {fdf.inliers} vectors), "
             f"{quality} the 3 px success limit of the rACR paper. Residual motion is compensated before comparing.</p>"
+        )
+    geo = result.settings.get("geometry") or {}
+    if "residual_pose_mm" in geo:
+        stated = ((ctx.metadata or {}).get("relocation") or {}).get("residual")
+        check = relocation_check_text(stated, result.settings)
+        parts.append(
+            f"<p>Camera position, measured against the reference's depth: <b>{geo['residual_pose_mm']:.2f} mm</b>, "
+            f"{geo['residual_pose_deg']:.3f}° from the reference"
+            + (f"; {html.escape(check.split(': ', 1)[1])}" if check else "")
+            + ".</p>"
         )
     return parts
 

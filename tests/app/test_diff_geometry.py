@@ -1,6 +1,6 @@
 """The campaign diff's statement of the pose it measured, and its check of the relocation's own residual."""
 
-from fgcd_cli.app.diff_geometry import MEASURED_POSE_ERROR_MM, geometry_text, relocation_check_text
+from fgcd_cli.report.pose_check import MEASURED_POSE_ERROR_MM, geometry_text, relocation_check_text
 
 MEASURED = {
     "geometry": {
