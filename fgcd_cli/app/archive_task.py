@@ -115,6 +115,7 @@ def _analyze(key: VisitKey, options: AnalysisOptions, force: bool, t0: float) ->
             register=options.register,
             edge_check_px=options.edge_check_px,
             min_contrast=options.min_contrast,
+            geometry=options.geometry,
             force=force,
         )
     )
