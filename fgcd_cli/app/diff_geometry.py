@@ -43,7 +43,7 @@ def campaign_pixel_area(
     if mm_per_px is not None:
         return np.full(shape, mm_per_px**2), f"{mm_per_px} mm per px (given)"
     if geometry is not None:
-        area = pixel_area_from_depth(smooth_known(geometry.depth, AREA_DEPTH_SMOOTH_PX), geometry.K)
+        area = pixel_area_from_depth(smooth_known(geometry.interpolated_depth, AREA_DEPTH_SMOOTH_PX), geometry.K)
         if np.isfinite(area).any():
             return area, "from the reference metric cloud"
     return None, "none (areas in px only)"

@@ -249,14 +249,14 @@ def align_stacks(
     geometry: ReferenceGeometry | None = None,
 ) -> Alignment | str:
     """Bring the current stack into the reference frame: homography (or, with ``geometry``, the reference
-    depth and the residual pose measured against it), then (``config.dense``) the parallax flow.
+    depth and the residual pose measured against it), then (``config.registration.dense``) the parallax flow.
 
     Returns a reason string when the pair cannot be registered.
     """
     margin_px, tolerance_px = comparison_margin_px(config.score), config.score.shift_radius_px
-    config = config.registration
-    shape, k = grays_ref[0].shape, config.registration_lighting
-    if config.register:
+    registration_config = config.registration
+    shape, k = grays_ref[0].shape, registration_config.registration_lighting
+    if registration_config.register:
         registration = register_to_reference(grays_ref[k], grays_cur[k])
         if not registration.ok:
             return f"cannot compare: {registration.reason}"
@@ -264,7 +264,7 @@ def align_stacks(
         registration = Registration(H_cur_ref=np.eye(3), ok=True, init=RegistrationInit.NONE, overlap_fraction=1.0)
     area = np.ones(shape, bool) if roi is None else roi.copy()
     geo = None
-    if geometry is not None and config.register:
+    if geometry is not None and registration_config.register:
         geo = geometry_warp(geometry, grays_ref[k], grays_cur[k], registration.H_cur_ref, tolerance_px=tolerance_px)
 
     def warp(image, flow=None):
@@ -275,7 +275,7 @@ def align_stacks(
         return warp_to_reference(image, registration.H_cur_ref, shape)
 
     dense_fit = not_compared = None
-    if config.dense:
+    if registration_config.dense:
         warped_gray, seen = warp(grays_cur[k])
         dense_fit = refine_dense(grays_ref[k], warped_gray, valid=area & seen)
         not_compared = dense_fit.not_compared & area

@@ -326,6 +326,16 @@ def warp_to_reference(
     return clip_to_source(warped, source), valid > 0.999
 
 
+def homography_points(H_cur_ref: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the homography sends reference positions ``(x, y)`` (arrays of any shape, px): the current-image
+    ``(x', y')`` as float32 maps for ``cv2.remap``, and where the point lies in front (denominator > 0)."""
+    H = np.asarray(H_cur_ref, dtype=np.float64)
+    den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    map_x = ((H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den).astype(np.float32)
+    map_y = ((H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den).astype(np.float32)
+    return map_x, map_y, den > 0
+
+
 def clip_to_source(resampled: np.ndarray, source: np.ndarray) -> np.ndarray:
     """``resampled`` (a :data:`WARP_INTERPOLATION` warp of ``source``) clipped to ``source``'s range: the
     interpolation's overshoot at steps (a few percent) is not in the image. In place; returns ``resampled``."""

@@ -20,10 +20,9 @@ def geometry_text(settings: dict) -> str:
     )
 
 
-# The measured pose's error against the simulator's truth on fgcd bench paper's stored visits: 0.12-0.68 mm
-# over 14 visits (docs/lab/2026-12-06-campaign-geometry-and-small-changes.md): the reference cloud's own
-# error, which a measurement against it shares. A relocation's stated residual is contradicted only
-# beyond its 2 sigma plus this.
+# The measured pose's largest error against the simulator's truth on the bench visits (docs/change-detection.md,
+# "Geometry of a campaign diff"): the reference cloud's own error, which any measurement against it shares.
+# A relocation's stated residual is contradicted only beyond its 2 sigma plus this.
 MEASURED_POSE_ERROR_MM = 0.7
 
 

@@ -73,7 +73,13 @@ def test_textureless_reference_falls_back():
     pose = residual_pose(flat, flat, plane_depth(N_BG, D_BG), K)
     assert not pose.ok and "matches" in pose.reason
     warp = geometry_warp(
-        ReferenceGeometry(depth=plane_depth(N_BG, D_BG), K=K, spacing_px=2.0), flat, flat, np.eye(3), tolerance_px=1
+        ReferenceGeometry(
+            depth=plane_depth(N_BG, D_BG), interpolated_depth=plane_depth(N_BG, D_BG), K=K, spacing_px=2.0
+        ),
+        flat,
+        flat,
+        np.eye(3),
+        tolerance_px=1,
     )
     assert warp.map_x is None
 
@@ -98,7 +104,7 @@ def test_depth_from_cloud_interpolates_a_plane():
 def test_detection_with_geometry_finds_the_change_and_leaves_the_block_edges_uncompared():
     T = make_pose((50.0, 10.0, 5.0), (0.1, -0.2, 0.05))
     ref, cur, depth = scene(T, block=True, paint=(100, 280))
-    geometry = ReferenceGeometry(depth=depth, K=K, spacing_px=1.0)
+    geometry = ReferenceGeometry(depth=depth, interpolated_depth=depth, K=K, spacing_px=1.0)
     result = detect_changes([ref], [cur], geometry=geometry, config=DetectionConfig.from_options(edge_check_px=2))
     geo = result.settings["geometry"]
     assert geo["warp"] == "reference depth and residual pose"

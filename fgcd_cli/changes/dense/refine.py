@@ -74,7 +74,7 @@ from fgcd_cli.changes.dense.fit import (
     robust_smooth,
     smoothing_scale_px,
 )
-from fgcd_cli.changes.registration import WARP_INTERPOLATION, clip_to_source
+from fgcd_cli.changes.registration import WARP_INTERPOLATION, clip_to_source, homography_points
 
 
 @dataclass(kw_only=True)
@@ -341,12 +341,9 @@ def warp_with_flow(image: np.ndarray, H_cur_ref: np.ndarray, flow: np.ndarray) -
     xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     x = xs + flow[..., 0]
     y = ys + flow[..., 1]
-    H = np.asarray(H_cur_ref, dtype=np.float64)
-    den = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-    map_x = ((H[0, 0] * x + H[0, 1] * y + H[0, 2]) / den).astype(np.float32)
-    map_y = ((H[1, 0] * x + H[1, 1] * y + H[1, 2]) / den).astype(np.float32)
+    map_x, map_y, ahead = homography_points(H_cur_ref, x, y)
     warped, inside = remap_image(image, map_x, map_y)
-    return warped, (den > 0) & inside
+    return warped, ahead & inside
 
 
 def warp_with_maps(

@@ -23,7 +23,10 @@ class ReferenceGeometry:
     """What a campaign knows of the reference's 3D, at the reference image's size."""
 
     depth: np.ndarray
-    """HxW float, z-depth in metres (NaN where the cloud does not cover)."""
+    """HxW float, z-depth in metres where a cloud point lies near (NaN elsewhere): what the warp uses."""
+    interpolated_depth: np.ndarray
+    """HxW float, z-depth interpolated over the cloud's whole convex hull (NaN outside it): the smooth
+    surface between points, the best guess of a pixel's area where the cloud has a hole."""
     K: np.ndarray
     """3x3 camera matrix of the reference image (and of the visit's: one camera), px."""
     spacing_px: float
@@ -88,14 +91,7 @@ def depth_from_cloud(
     ndarray, HxW float64, metres along the optical axis; NaN outside the convex hull of the projected
     points (and everywhere when fewer than 10 project into the image).
     """
-    uv, z = projected_cloud(points_ref, T_ref_cam, K, shape)
-    if len(z) < 10:
-        return np.full(shape, np.nan)
-    keep = depth_consistent(uv, z)
-    uv, z = uv[keep], z[keep]
-    h, w = shape
-    grid_v, grid_u = np.mgrid[0:h, 0:w]
-    return griddata(uv, z, (grid_u, grid_v), method="linear")
+    return _interpolated(*_consistent_projection(points_ref, T_ref_cam, K, shape), shape)
 
 
 def geometry_from_cloud(
@@ -103,20 +99,40 @@ def geometry_from_cloud(
 ) -> ReferenceGeometry | None:
     """The reference's :class:`ReferenceGeometry` from its metric cloud (None when the cloud does not
     cover the image); ``spacing_px`` is ``sqrt(covered pixels / projected points)``."""
-    uv, z = projected_cloud(points_ref, T_ref_cam, K, shape)
-    depth = depth_from_cloud(points_ref, T_ref_cam, K, shape)
-    covered = int(np.isfinite(depth).sum())
+    uv, z = _consistent_projection(points_ref, T_ref_cam, K, shape)
+    interpolated = _interpolated(uv, z, shape)
+    covered = int(np.isfinite(interpolated).sum())
     if covered == 0:
         return None
     spacing = float(np.sqrt(covered / len(z)))
     # Between points farther apart than a few spacings (slivers along the hull, holes in a semi-dense
-    # cloud) the interpolated depth is a guess: it is unknown there, and the homography maps those pixels.
+    # cloud) the interpolated depth is a guess: the warp leaves it to the homography there.
     empty = np.ones(shape, np.uint8)
     cols, rows = np.rint(uv).astype(int).T
     empty[rows, cols] = 0
     far = cv2.distanceTransform(empty, cv2.DIST_L2, 5) > SUPPORT_SPACINGS * spacing
-    depth[far] = np.nan
-    return ReferenceGeometry(depth=depth, K=np.asarray(K, dtype=np.float64), spacing_px=spacing)
+    return ReferenceGeometry(
+        depth=np.where(far, np.nan, interpolated),
+        interpolated_depth=interpolated,
+        K=np.asarray(K, dtype=np.float64),
+        spacing_px=spacing,
+    )
+
+
+def _consistent_projection(points_ref, T_ref_cam, K, shape) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`projected_cloud` without the points :func:`depth_consistent` drops."""
+    uv, z = projected_cloud(points_ref, T_ref_cam, K, shape)
+    keep = depth_consistent(uv, z)
+    return uv[keep], z[keep]
+
+
+def _interpolated(uv: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Linear interpolation of the points' depths over the image (NaN outside their hull; all NaN below 10)."""
+    if len(z) < 10:
+        return np.full(shape, np.nan)
+    h, w = shape
+    grid_v, grid_u = np.mgrid[0:h, 0:w]
+    return griddata(uv, z, (grid_u, grid_v), method="linear")
 
 
 def smooth_known(values: np.ndarray, sigma_px: float) -> np.ndarray:

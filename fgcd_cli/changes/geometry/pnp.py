@@ -4,9 +4,8 @@ Rule: the reference's features, lifted to 3D by its depth, and their matches in 
 visit camera's pose relative to the reference camera: the relocation image stage's PnP fit
 (:func:`fgcd_cli.relocation.image.pnp_fit.pnp_fit`: SQPnP in RANSAC, then Levenberg-Marquardt on the inliers).
 
-No uncertainty is stated: the matching noise alone gives about 0.1 mm, while on ``fgcd bench paper``'s stored
-visits the pose was 0.12-0.68 mm (median 0.28) from the simulator's truth (the reference cloud's own error), see
-docs/change-detection.md, "Geometry of a campaign diff".
+No uncertainty is stated: the matching noise misses the reference cloud's own error, which dominates
+(docs/change-detection.md, "Geometry of a campaign diff").
 """
 
 from __future__ import annotations

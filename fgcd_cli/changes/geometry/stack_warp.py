@@ -9,8 +9,9 @@ import numpy as np
 from fgcd_cli.changes.geometry.depth import ReferenceGeometry
 from fgcd_cli.changes.geometry.pnp import ResidualPose, residual_pose
 from fgcd_cli.changes.geometry.warp import depth_warp_maps, parallax_edges
+from fgcd_cli.changes.registration import homography_points
 
-__all__ = ["GeometryWarp", "ReferenceGeometry", "geometry_warp"]
+__all__ = ["GeometryWarp", "geometry_warp"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -60,8 +61,6 @@ def geometry_warp(
     by_depth = np.isfinite(map_x) & np.isfinite(map_y)
     h, w = map_x.shape
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    H = np.asarray(H_cur_ref, dtype=np.float64)
-    den = H[2, 0] * u + H[2, 1] * v + H[2, 2]
-    map_x = np.where(by_depth, map_x, (H[0, 0] * u + H[0, 1] * v + H[0, 2]) / den).astype(np.float32)
-    map_y = np.where(by_depth, map_y, (H[1, 0] * u + H[1, 1] * v + H[1, 2]) / den).astype(np.float32)
+    h_x, h_y, _ = homography_points(H_cur_ref, u, v)
+    map_x, map_y = np.where(by_depth, map_x, h_x), np.where(by_depth, map_y, h_y)
     return GeometryWarp(pose=pose, map_x=map_x, map_y=map_y, not_compared=edges, depth_fraction=float(by_depth.mean()))
