@@ -7,6 +7,11 @@ VSE tracks, ``grab_still()`` a still of the quality an observation stores (a
 still camera's capture rather than its live view), ``intrinsics_nominal`` the
 intrinsics the camera advertises (which calibration refines), ``close()``.
 
+A camera that can hold its exposure also offers ``exposure_locked()``, a context
+manager under which every frame keeps the exposure of its last still: a lamp's
+own image is the difference of two stills at one exposure (``fgcd_core.flash``).
+Without it the rig takes no lamp-only image.
+
 Drivers never import ``fgcd_cli``; everything here is plain numpy data and the
 shared bottom layer :mod:`fgcd_core` (intrinsics, grey conversion).
 """
@@ -17,6 +22,7 @@ import os
 import stat
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -46,12 +52,15 @@ class Frame:
         (H, W) float32 z-depth in metres, 0 where unknown (RGB-D cameras only).
     rgb : ndarray or None
         (H, W, 3) colour image, same dtype convention as ``image``.
+    exposure : float or None
+        The exposure (relative gain) the frame was taken at, None where the camera does not say.
     """
 
     image: np.ndarray
     timestamp_s: float
     depth: np.ndarray | None = None
     rgb: np.ndarray | None = None
+    exposure: float | None = None
 
 
 @runtime_checkable
@@ -152,6 +161,26 @@ class OpenCVCamera:
     def grab_still(self) -> Frame:
         """A device read through OpenCV has one stream: a still is its next frame."""
         return self.grab()
+
+    @contextmanager
+    def exposure_locked(self):
+        """Hold the exposure the device uses now (manual mode), automatic again after.
+
+        Backends name the modes differently (V4L2: 1 manual, 3 automatic; older
+        OpenCV: 0.25 and 0.75); the first the device accepts is used. A device that
+        accepts neither cannot lock: :class:`CameraError`, and no lamp-only image is taken.
+        """
+        import cv2
+
+        previous = self._cap.get(cv2.CAP_PROP_AUTO_EXPOSURE)
+        exposure = self._cap.get(cv2.CAP_PROP_EXPOSURE)
+        if not any(self._cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, manual) for manual in (1, 0.25)):
+            raise CameraError("this camera cannot lock its exposure (no manual exposure mode)")
+        self._cap.set(cv2.CAP_PROP_EXPOSURE, exposure)
+        try:
+            yield
+        finally:
+            self._cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, previous)
 
     def close(self) -> None:
         self._cap.release()

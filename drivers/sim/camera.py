@@ -9,6 +9,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -154,6 +155,7 @@ class SimCamera:
         self.frame_period_s = float(o.frame_period_s)
         self._rng = np.random.default_rng([o.seed, 0xCA3])
         self.last_exposure: float | None = None
+        self._still_exposure: float | None = None
         self._closed = False
         self._still_renderer = None
         # rendering time, for the rig-time model: finished renders, and the start of those in
@@ -177,7 +179,24 @@ class SimCamera:
             if self._still_renderer is None:
                 self._still_renderer = renderer.with_supersample(s)
             renderer = self._still_renderer
-        return self._render_frame(renderer)
+        frame = self._render_frame(renderer)
+        self._still_exposure = frame.exposure
+        return frame
+
+    @contextmanager
+    def exposure_locked(self):
+        """Every frame keeps the exposure of the last still until the block ends (automatic again after).
+
+        The stream frames the VSE grabs do not move the lock: it is the last *still*'s exposure.
+        """
+        if self._still_exposure is None:
+            self.grab_still()
+        previous = self.exposure
+        self.exposure = float(self._still_exposure)
+        try:
+            yield
+        finally:
+            self.exposure = previous
 
     def _render_frame(self, renderer) -> Frame:
         if self._closed:
@@ -209,7 +228,7 @@ class SimCamera:
             ts = self.clock.now()
             if self.frame_period_s:
                 self.clock.advance(self.frame_period_s)
-        return Frame(res.gray, ts, res.depth if self.with_depth else None, res.rgb)
+        return Frame(res.gray, ts, res.depth if self.with_depth else None, res.rgb, exposure=float(res.exposure))
 
     def synthetic_overhead_s(self) -> float:
         """Wall seconds spent so far synthesising frames (the render in progress included).

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fgcd_cli.app.lamp_image import reference_flash
 from fgcd_cli.app.rig import RigHandles, RigHooks, RigRequest
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
 from fgcd_cli.app.scenario import SimScenario, check_lighting, check_scenario, check_scene
@@ -92,9 +93,12 @@ def capture_reference(
         points = np.asarray(cloud.points, dtype=float) * scale.scale
         kf_poses, kf_images = metric_keyframes(state, scale.scale)
         images = grab_images(rig, lightings)
+        flash = reference_flash(rig, rig.say)
+        if flash is not None:
+            images[flash[0]] = flash[1]
         truth = evaluation() if evaluation is not None else None
         meta = {
-            "lightings": lightings,
+            "lightings": list(images),
             "scale": scale.__dict__,
             "T_flange_cam": np.asarray(rig.T_flange_cam).tolist(),
             "T_base_flange": np.asarray(rig.guard.platform.flange_pose()).tolist(),

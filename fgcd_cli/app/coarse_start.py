@@ -39,6 +39,12 @@ class CoarseStart:
         Its one-sigma relative error (the exploration's fit); 0 takes the scale as exact.
     evaluate : callable() -> dict, or None
         The simulator's truth at the current pose (evaluation only).
+    measured_images : dict of name -> (H, W) ndarray, or None
+        The reference images the image localizer compares with (default: all the station's).
+    grab_measured : callable() -> (H, W) ndarray, or None
+        The current image it compares (default: a grey still under the day's light); with
+        ``measured_images``, the image stage's own measurement (``app/relocate.py``), e.g. the lamp's
+        own image.
     """
 
     rig: RigHandles
@@ -49,6 +55,16 @@ class CoarseStart:
     scale: float
     scale_rel_std: float = 0.0
     evaluate: Callable[[], dict] | None = None
+    measured_images: dict | None = None
+    grab_measured: Callable[[], np.ndarray] | None = None
+
+    def images(self) -> dict:
+        """The reference images the image localizer compares with."""
+        return self.measured_images if self.measured_images is not None else reference_images(self.station)
+
+    def current(self) -> np.ndarray:
+        """The current image it compares."""
+        return self.grab_measured() if self.grab_measured is not None else grab_gray(self.rig)
 
 
 def maybe_coarse(
@@ -81,8 +97,8 @@ def maybe_coarse(
         rig.progress(0, 0, "locating the camera in the reference images")
         t0 = time.monotonic()
         T_img, _info = image_estimate(
-            reference_images=reference_images(start.station),
-            current_image=grab_gray(rig),
+            reference_images=start.images(),
+            current_image=start.current(),
             camera=rig.intrinsics,
             reference=reference,
         )
@@ -113,8 +129,8 @@ def maybe_coarse(
             scale_rel_std=start.scale_rel_std,
             T_flange_cam=rig.T_flange_cam,
             init=init,
-            reference_images=reference_images(start.station),
-            grab_current=lambda: grab_gray(rig),
+            reference_images=start.images(),
+            grab_current=start.current,
             config=config,
             evaluate=start.evaluate,
             say=rig.say,

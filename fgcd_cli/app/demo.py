@@ -192,7 +192,7 @@ def _relocate(run: _DemoRun) -> dict:
     from fgcd_cli.app import relocate as relocate_uc
     from fgcd_cli.app import rig as rig_uc
     from fgcd_cli.app.scenario import SimScenario
-    from fgcd_cli.app.session import rig_lightings, visit_lightings
+    from fgcd_cli.app.session import revisit_lightings
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.config import RelocationConfig
 
@@ -231,9 +231,7 @@ def _relocate(run: _DemoRun) -> dict:
             run.station,
             request=relocate_uc.RelocateRequest(
                 config=RelocationConfig(deterministic=config.deterministic),
-                lightings=visit_lightings(
-                    config.visit_light, [config.reference_light], available=rig_lightings(rig.handles)
-                ),
+                lightings=revisit_lightings(rig.handles, config.visit_light, run.station.reference()),
                 metadata={"driver": "sim", "scenario": rig.info["scenario"]},
             ),
             hooks=relocate_uc.RelocateHooks(

@@ -17,6 +17,7 @@ from fgcd_cli.app.capture import CaptureResult
 from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
 from fgcd_cli.app.determinism import deterministic_rig, run_conditions
 from fgcd_cli.app.guided_start import start_revisit_session
+from fgcd_cli.app.lamp_image import flash_lamp
 from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import (
@@ -70,6 +71,7 @@ def relocate_and_capture(
         ref_index=ref_index,
     )
     try:
+        measurement = _measurement_images(rig, station)
         start = CoarseStart(
             rig=rig,
             session=session,
@@ -79,9 +81,10 @@ def relocate_and_capture(
             scale=scale.scale,
             scale_rel_std=scale.scale_std / scale.scale,
             evaluate=hooks.evaluate,
+            measured_images=measurement[0],
+            grab_measured=lambda: grab_gray_under(rig, vse, measurement[1]),
         )
         init, coarse_result = _initial_alignment(start, request.coarse)
-        measurement = _measurement_images(rig, station)
         result = _run_racr_loop(
             start,
             request,
@@ -226,7 +229,13 @@ def _measurement_images(rig: RigHandles, station) -> tuple[dict[str, np.ndarray]
     if same_light is not None:
         # like with like: the image stage compares with the reference image of that light only
         ref_images = {same_light: ref_images[same_light]}
-        rig.say(f"the image stage measures under the reference's light ({same_light}), lit by the rig's own lamp")
+        if flash_lamp(same_light) is not None:
+            rig.say(
+                f"the image stage measures on the lamp's own image ({same_light}): "
+                "the same on every visit, whatever the day's light"
+            )
+        else:
+            rig.say(f"the image stage measures under the reference's light ({same_light}), lit by the rig's own lamp")
     else:
         rig.say(
             f"the image stage measures across lightings: no lamp of this rig makes the reference's light "

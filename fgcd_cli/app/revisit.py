@@ -21,7 +21,7 @@ from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 from fgcd_cli.app.rig import RigHooks, RigRequest
 from fgcd_cli.app.rig_options import EffectiveRig, RigOptions, check_campaign_rig, check_record_rig, resolve_rig
 from fgcd_cli.app.scenario import SimScenario, check_driver, check_lighting, check_method, check_scenario, check_scene
-from fgcd_cli.app.session import rig_lightings, visit_lightings
+from fgcd_cli.app.session import revisit_lightings, visit_lightings
 from fgcd_cli.app.visit_journal import JournalWriter, ResumeDecision, ResumeMode, decide_resume, return_to
 from fgcd_cli.calibration.rig_files import rig_calibration
 from fgcd_cli.campaign import schema
@@ -333,9 +333,7 @@ def _revisit_locked(
         evaluator = RelocationEvaluator.from_reference(rig.sim, plan.reference) if rig.sim is not None else None
         request = RelocateRequest(
             config=plan.config,
-            lightings=visit_lightings(
-                r.light, plan.reference.metadata.get("lightings", []), available=rig_lightings(rig.handles)
-            ),
+            lightings=revisit_lightings(rig.handles, r.light, plan.reference),
             metadata={
                 "driver": plan.driver,
                 "scenario": rig.info.get("scenario"),

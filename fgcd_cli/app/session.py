@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from fgcd_cli.app.lamp_image import can_flash, flash_lamp, grab_flash, mean_still
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.campaign import schema
 from fgcd_cli.errors import AlgorithmError
@@ -18,7 +19,7 @@ from fgcd_cli.relocation.session import (
     retrace_motions,
 )
 from fgcd_cli.vse.types import VseStatus
-from fgcd_core.imaging import to_float01
+from fgcd_core.imaging import to_float01, to_gray_f32
 from fgcd_drivers.lights import AMBIENT
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "measurement_lighting",
     "metric_keyframes",
     "reference_images",
+    "revisit_lightings",
     "rig_lightings",
     "start_session",
     "visit_lightings",
@@ -43,16 +45,19 @@ def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> d
     for k, name in enumerate(lightings):
         # Rule: "ambient" switches every rig light off, leaving the day's light
         # (docs/hardware.md, "Lights"); the simulated rig's lamps obey the same rule.
+        lamp = flash_lamp(name)
+        if lamp is not None:
+            # a lamp's own image: the difference of a lit and an unlit still (fgcd_cli.app.lamp_image)
+            if not can_flash(rig, lamp):
+                rig.say(f"no image {name}: this camera cannot lock its exposure or the rig lacks the lamp")
+                continue
+            rig.progress(k * frames, len(lightings) * frames, "images under each lighting")
+            images[name] = grab_flash(rig, lamp, average=frames).image.astype(np.float32)
+            continue
         if rig.lights is not None:
             rig.lights.set(name)
-        acc = None
-        for i in range(frames):
-            rig.progress(k * frames + i, len(lightings) * frames, "images under each lighting")
-            frame = rig.camera_source.grab_still()
-            img = frame.rgb if getattr(frame, "rgb", None) is not None else frame.image
-            img = to_float01(np.asarray(img)).astype(np.float64)  # by the frame's declared dtype
-            acc = img if acc is None else acc + img
-        images[name] = (acc / max(1, average)).astype(np.float32)
+        rig.progress(k * frames, len(lightings) * frames, "images under each lighting")
+        images[name] = mean_still(rig.camera_source, frames).astype(np.float32)
     return images
 
 
@@ -204,8 +209,20 @@ def visit_lightings(visit_light: str, reference_lightings: list[str], *, availab
     if available is None:
         return names
     listed = [n for n in available if n != AMBIENT]
-    names += [n for n in reference_lightings if n not in names and (not listed or n in available)]
+
+    def makes(name: str) -> bool:
+        lamp = flash_lamp(name)
+        if lamp is not None:
+            return lamp in available  # a lamp's own image needs that lamp
+        return not listed or name in available
+
+    names += [n for n in reference_lightings if n not in names and makes(n)]
     return names
+
+
+def revisit_lightings(rig: RigHandles, visit_light: str, reference) -> list[str]:
+    """:func:`visit_lightings` of a revisit: the day's light, then those of ``reference`` (an observation) the rig makes."""
+    return visit_lightings(visit_light, reference.metadata.get("lightings", []), available=rig_lightings(rig))
 
 
 def measurement_lighting(rig: RigHandles, reference_lightings: list[str]) -> str | None:
@@ -216,12 +233,18 @@ def measurement_lighting(rig: RigHandles, reference_lightings: list[str]) -> str
     two; under the reference's own light the image stage compares like with like
     (docs/relocation.md, "Final image stage"). Only a lamp the rig carries can
     be lit again: ``ambient`` and the world's light (sun, sky, night) belong to
-    the day of the reference. ``None`` when no reference lighting is one of the
-    rig's lamps, or the rig switches none: the image stage then measures under
-    the day's light, across lightings.
+    the day of the reference. A reference that holds a lamp's own image
+    (``flash:front``, taken where the day's light was part of it) is measured on
+    that image first, taken again now (:mod:`fgcd_cli.app.lamp_image`). ``None`` when no
+    reference lighting is one of the rig's lamps, or the rig switches none: the
+    image stage then measures under the day's light, across lightings.
     """
     if rig.lights is None:
         return None
+    for name in reference_lightings:
+        lamp = flash_lamp(name)
+        if lamp is not None and can_flash(rig, lamp):
+            return name
     available = set(rig.lights.available())
     for name in reference_lightings:
         if name != "ambient" and name in available:
@@ -233,6 +256,10 @@ def grab_gray_under(rig: RigHandles, vse, lighting: str | None) -> np.ndarray:
     """The current grey image under ``lighting`` (the VSE held meanwhile), lights restored after."""
     if lighting is None or rig.lights is None or rig.lights.current == lighting:
         return grab_gray(rig)
+    lamp = flash_lamp(lighting)
+    if lamp is not None:
+        with vse.held():
+            return to_gray_f32(grab_flash(rig, lamp).image)
     previous = rig.lights.current
     with vse.held():
         rig.lights.set(lighting)

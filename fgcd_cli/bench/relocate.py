@@ -37,7 +37,7 @@ from fgcd_cli.app.relocate import relocate_and_capture
 from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 from fgcd_cli.app.rig import open_sim_rig
 from fgcd_cli.app.scenario import SimScenario
-from fgcd_cli.app.session import rig_lightings, visit_lightings
+from fgcd_cli.app.session import revisit_lightings
 from fgcd_cli.campaign.store import init_campaign
 from fgcd_cli.errors import FgcdError
 from fgcd_cli.metrics.sim_eval import RelocationEvaluator, reference_truth
@@ -145,9 +145,7 @@ def _run_case(
                 st,
                 RelocateRequest(
                     config=RelocationConfig(mode=mode, deterministic=deterministic),
-                    lightings=visit_lightings(
-                        case.visit_light, [case.reference_light], available=rig_lightings(rig.handles)
-                    ),
+                    lightings=revisit_lightings(rig.handles, case.visit_light, st.reference()),
                     coarse=coarse,
                 ),
                 hooks=RelocateHooks(evaluate=ev.evaluate, evaluation=ev.summary),

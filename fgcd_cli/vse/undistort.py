@@ -54,6 +54,7 @@ class UndistortedFrame:
     timestamp_s: float
     depth: np.ndarray | None = None
     rgb: np.ndarray | None = None
+    exposure: float | None = None
 
 
 class UndistortedSource:
@@ -62,6 +63,10 @@ class UndistortedSource:
     def __init__(self, source, undistorter: Undistorter) -> None:
         self.source = source
         self.undistorter = undistorter
+        lock = getattr(source, "exposure_locked", None)
+        if lock is not None:
+            # the optional capability of fgcd_drivers.cameras: offered exactly when the wrapped camera offers it
+            self.exposure_locked = lock
 
     def grab(self) -> UndistortedFrame:
         return self._undistorted(self.source.grab())
@@ -79,6 +84,7 @@ class UndistortedSource:
             timestamp_s=f.timestamp_s,
             depth=None if depth is None else u.depth(depth),
             rgb=None if rgb is None else u.image(rgb),
+            exposure=getattr(f, "exposure", None),
         )
 
     def synthetic_overhead_s(self) -> float:

@@ -268,7 +268,7 @@ def run_one(
     from fgcd_cli.app.relocate import relocate_and_capture
     from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
     from fgcd_cli.app.rig import open_sim_rig
-    from fgcd_cli.app.session import rig_lightings, visit_lightings
+    from fgcd_cli.app.session import revisit_lightings
     from fgcd_cli.errors import FgcdError
     from fgcd_cli.metrics.sim_eval import RelocationEvaluator
     from fgcd_cli.relocation.acr.baseline import AcrConfig
@@ -309,9 +309,7 @@ def run_one(
             station,
             RelocateRequest(
                 config=loop_config(spec, deterministic=deterministic),
-                lightings=visit_lightings(
-                    spec.visit_light, [spec.reference_light], available=rig_lightings(rig.handles)
-                ),
+                lightings=revisit_lightings(rig.handles, spec.visit_light, station.reference()),
                 coarse=CoarseConfig(),
                 method=spec.method,
                 guided=spec.guided,

@@ -1,0 +1,95 @@
+"""The rig lamp's own image on the simulated rig: the same under two suns, where the day's images are not."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from fgcd_cli.app.lamp_image import can_flash, flash_name, grab_flash, reference_flash
+from fgcd_cli.app.session import measurement_lighting, visit_lightings
+from fgcd_core.camera import CameraIntrinsics
+from fgcd_core.flash import CAMERA_RESPONSE_GAMMA
+from fgcd_drivers.lights import AMBIENT
+from fgcd_drivers.sim.rig import SimRigConfig, build_sim_rig
+
+#: A quarter-size camera: the lamp's image does not need the full frame, the test's time does.
+SMALL = CameraIntrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240)
+
+
+def _rig(light: str):
+    sim = build_sim_rig(
+        scene="stele",
+        config=SimRigConfig(lighting=light, noise="none", intrinsics_error="none", intrinsics_nominal=SMALL),
+    )
+    said: list[str] = []
+    return SimpleNamespace(lights=sim.lights, camera_source=sim.camera, say=said.append, said=said)
+
+
+@pytest.fixture(scope="module")
+def two_suns():
+    return _rig("sun-morning"), _rig("sun-evening")
+
+
+def test_exposure_lock_holds_the_last_stills_exposure(two_suns):
+    rig = two_suns[0]
+    rig.lights.set("front")
+    lit = rig.camera_source.grab_still().exposure
+    with rig.camera_source.exposure_locked():
+        rig.lights.set(AMBIENT)
+        assert rig.camera_source.grab_still().exposure == lit
+    # automatic again: the darker scene (lamp off) calls for a longer exposure
+    assert rig.camera_source.grab_still().exposure > lit
+
+
+def test_the_lamps_image_is_the_same_under_two_suns(two_suns):
+    morning, evening = two_suns
+    lamp = [grab_flash(r) for r in two_suns]
+    days = []
+    for r in two_suns:
+        r.lights.set(AMBIENT)
+        days.append(r.camera_source.grab_still().image.astype(np.float64))
+    face = lamp[0].image > 0.3  # the stele's face and the ground near it, lit by the lamp
+    assert face.mean() > 0.2
+
+    def spread(a, b):
+        la, lb = a**CAMERA_RESPONSE_GAMMA, b**CAMERA_RESPONSE_GAMMA
+        ratio = la[face] / np.maximum(lb[face], 1e-6)
+        return np.median(np.abs(ratio / np.median(ratio) - 1))
+
+    # the lamp's images agree to the sensor's noise (a few %); the days' images swap their
+    # grooves' lit and shaded flanks, tens of % apart
+    assert spread(lamp[0].image, lamp[1].image) < 0.08
+    assert spread(days[0], days[1]) > 3 * spread(lamp[0].image, lamp[1].image)
+    for got in lamp:
+        assert 0.1 < got.lamp_share < 0.95
+    # the lights are back as they were
+    assert morning.lights.current == evening.lights.current == AMBIENT
+
+
+def test_a_reference_under_the_sun_stores_it_and_a_visit_measures_on_it(two_suns):
+    morning, evening = two_suns
+    assert can_flash(morning)
+    name, image = reference_flash(morning, morning.say)
+    assert name == flash_name() and image.shape == (240, 320)
+    assert any("alone" in line for line in morning.said)
+    lightings = visit_lightings("sun-evening", ["sun-morning", name], available=evening.lights.available())
+    assert lightings == ["sun-evening", name]
+    assert measurement_lighting(evening, ["sun-morning", name]) == name
+
+
+def test_a_dark_world_keeps_the_lamps_images_as_they_are():
+    rig = _rig("led:3")  # a dark room: the LED alone lights the object
+    assert reference_flash(rig, rig.say) is None
+    assert any("repeat as they are" in line for line in rig.said)
+    assert measurement_lighting(rig, ["led:3"]) == "led:3"
+
+
+def test_an_undistorting_camera_offers_the_lock_exactly_when_its_camera_does(two_suns):
+    from fgcd_cli.vse.undistort import UndistortedSource, Undistorter
+    from fgcd_core.camera import PinholeCamera
+
+    undistorter = Undistorter(PinholeCamera(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480))
+    wrapped = UndistortedSource(two_suns[0].camera_source, undistorter)
+    assert hasattr(wrapped, "exposure_locked")
+    assert wrapped.grab_still().exposure is not None
+    assert not hasattr(UndistortedSource(SimpleNamespace(grab=None), undistorter), "exposure_locked")
