@@ -102,3 +102,25 @@ def test_the_sphere_error_is_zero_for_the_same_shading_at_another_exposure_and_g
         gain_fit_error(real_bins, binned_by_normal(_lambert_sphere(L, g)[0], normals, inside)) for g in (1.4, 2.2)
     ]
     assert 0.02 < errors[0] < errors[1]  # a camera curve is not an exposure: it shows, and more for 2.2
+
+
+def test_lamp_pairs_hold_each_side_lights_own_image_and_leave_out_empty_ones():
+    from fgcd_cli.bench.lighting.photographs import lamp_pairs
+    from fgcd_core.flash import CAMERA_RESPONSE_GAMMA
+
+    rng = np.random.default_rng(2)
+    albedo = rng.uniform(0.3, 0.9, (64, 80))
+    env = 0.3 * albedo
+    side = 0.2 * albedo * np.linspace(0.2, 1.0, 80)[None, :]
+
+    def still(linear):
+        return (np.round(np.clip(linear, 0, 1) ** (1 / CAMERA_RESPONSE_GAMMA) * 255)).astype(np.uint8)
+
+    # lighting 3 is darker than the environment's everywhere: it adds no light, and is left out
+    obs = {1: still(env), 2: still(env + side), 3: still(0.5 * env)}
+    pairs = lamp_pairs(obs, obs, [1, 2, 3])
+    assert [label for label, _, _ in pairs] == ["2-2-2-1/1-2-1-1"]
+    recovered = pairs[0][1].astype(np.float64) ** CAMERA_RESPONSE_GAMMA
+    ratio = recovered / side
+    # 8-bit rounding of the two stills: a few % of the side light's 0.012-0.18 linear
+    assert np.median(np.abs(ratio / np.median(ratio) - 1)) < 0.05

@@ -19,7 +19,13 @@ from collections.abc import Callable
 import numpy as np
 
 from fgcd_cli.bench.lighting.cross_light import Matcher, summarise
-from fgcd_cli.bench.lighting.photographs import FGCD_KINDS, MULTILIGHT_KIND, fgcd_group_rows, multilight_rows
+from fgcd_cli.bench.lighting.photographs import (
+    FGCD_KINDS,
+    LAMP_MATCHERS,
+    MULTILIGHT_KIND,
+    fgcd_group_rows,
+    multilight_rows,
+)
 from fgcd_cli.bench.lighting.renders import SIM_SCENES, sim_fgcd_rows, sim_multilight_rows
 from fgcd_cli.bench.lighting.sphere import sphere_shading
 from fgcd_cli.bench.paths import FGCD_DATASET, MULTILIGHT
@@ -44,7 +50,7 @@ def _real(quick: bool, say: Callable) -> tuple[list[dict], list[dict]]:
                 if quick and group.name not in QUICK_GROUPS:
                     continue
                 out = fgcd_group_rows(group, say=say)
-                rows += out["rows"]
+                rows += out["rows"] + out.get("lamp_rows", [])
                 groups.append({"name": group.name, "kind": FGCD_KINDS.get(kind_dir.name, kind_dir.name), **_brief(out)})
     lights_txt = MULTILIGHT / "lights.txt"
     if lights_txt.exists():
@@ -143,8 +149,13 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
     appearance = world_appearance()
     sim_rows, scenes = _sim(kinds, quick, appearance, say)
 
-    def rows_of(rows, kind=None, matcher=Matcher.SIFT):
-        return [r for r in rows if r["matcher"] == matcher and (kind is None or r["kind"] == kind)]
+    def rows_of(rows, kind=None, matcher=Matcher.SIFT, pairing=None):
+        """Cross-lighting rows (``pairing`` None) or the lamp's own images' (``"lamp"``)."""
+        return [
+            r
+            for r in rows
+            if r["matcher"] == matcher and (kind is None or r["kind"] == kind) and r.get("pairing") == pairing
+        ]
 
     per_kind = {}
     for kind in kinds:
@@ -169,6 +180,9 @@ def run(*, quick: bool = False, say: Callable[[str], None] = print) -> dict:
         "kinds_met": sum(per_kind[k].get("met", False) for k in comparable),
         "kinds_compared": len(comparable),
     }
+    for m in LAMP_MATCHERS:
+        # the lamp's own images of the real groups (fgcd_cli/app/lamp_image.py), beside the cross pairs
+        summary |= _flat(f"lamp_{m}_real", summarise(rows_of(real_rows, matcher=m, pairing="lamp")))
     for m in Matcher:
         if m == Matcher.SIFT:
             continue
