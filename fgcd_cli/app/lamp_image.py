@@ -109,7 +109,11 @@ def reference_flash(rig, say=None) -> tuple[str, np.ndarray] | None:
     say = say or (lambda text: None)
     if not can_flash(rig):
         return None
-    got = grab_flash(rig, average=4)  # as many stills as each reference image (app/session.grab_images)
+    try:
+        got = grab_flash(rig, average=4)  # as many stills as each reference image (app/session.grab_images)
+    except AlgorithmError as exc:  # a lamp that adds nothing must not cost the reference
+        say(f"{exc}: no image of the lamp alone; revisits measure across lightings")
+        return None
     if got.lamp_share > DARK_WORLD_LAMP_SHARE:
         say(f"the day adds {100 * (1 - got.lamp_share):.0f} % to the lamp's light: its images repeat as they are")
         return None

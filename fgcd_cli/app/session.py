@@ -52,7 +52,10 @@ def grab_images(rig: RigHandles, lightings: list[str], *, average: int = 4) -> d
                 rig.say(f"no image {name}: this camera cannot lock its exposure or the rig lacks the lamp")
                 continue
             rig.progress(k * frames, len(lightings) * frames, "images under each lighting")
-            images[name] = grab_flash(rig, lamp, average=frames).image.astype(np.float32)
+            try:
+                images[name] = grab_flash(rig, lamp, average=frames).image.astype(np.float32)
+            except AlgorithmError as exc:  # the other images (and a relocated visit) are kept
+                rig.say(f"{exc}: the observation is stored without {name}")
             continue
         if rig.lights is not None:
             rig.lights.set(name)

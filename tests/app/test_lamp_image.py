@@ -1,5 +1,6 @@
 """The rig lamp's own image on the simulated rig: the same under two suns, where the day's images are not."""
 
+from contextlib import contextmanager
 from types import SimpleNamespace
 
 import numpy as np
@@ -56,9 +57,10 @@ def test_the_lamps_image_is_the_same_under_two_suns(two_suns):
         ratio = la[face] / np.maximum(lb[face], 1e-6)
         return np.median(np.abs(ratio / np.median(ratio) - 1))
 
-    # the lamp's images agree to the sensor's noise (a few %); the days' images swap their
-    # grooves' lit and shaded flanks, tens of % apart
-    assert spread(lamp[0].image, lamp[1].image) < 0.08
+    # a noiseless sensor at one pose: the lamp's images agree to float rounding (a response exponent
+    # of 1 instead of 2.2 leaves about 10 % of the day in them); the days' images swap their grooves'
+    # lit and shaded flanks, tens of % apart
+    assert spread(lamp[0].image, lamp[1].image) < 0.02
     assert spread(days[0], days[1]) > 3 * spread(lamp[0].image, lamp[1].image)
     for got in lamp:
         assert 0.1 < got.lamp_share < 0.95
@@ -93,3 +95,32 @@ def test_an_undistorting_camera_offers_the_lock_exactly_when_its_camera_does(two
     assert hasattr(wrapped, "exposure_locked")
     assert wrapped.grab_still().exposure is not None
     assert not hasattr(UndistortedSource(SimpleNamespace(grab=None), undistorter), "exposure_locked")
+
+
+class _DeadLampCamera:
+    """A camera whose stills do not change when the lamp switches (a lamp that adds nothing)."""
+
+    def __init__(self):
+        self.image = np.random.default_rng(0).uniform(0.2, 0.8, (24, 32)).astype(np.float32)
+
+    def grab_still(self):
+        return SimpleNamespace(image=self.image, rgb=None, exposure=1.0)
+
+    @contextmanager
+    def exposure_locked(self):
+        yield
+
+
+def test_a_lamp_that_adds_nothing_costs_no_reference_and_no_visit_image():
+    from fgcd_cli.app.session import grab_images
+    from fgcd_drivers.sim.world import SimLights
+
+    said: list[str] = []
+    rig = SimpleNamespace(
+        lights=SimLights("sun-noon"), camera_source=_DeadLampCamera(), say=said.append, progress=lambda *a: None
+    )
+    assert reference_flash(rig, rig.say) is None
+    assert "adds no light" in said[-1]
+    images = grab_images(rig, ["sun-noon", flash_name()])
+    assert list(images) == ["sun-noon"]
+    assert flash_name() in said[-1]
