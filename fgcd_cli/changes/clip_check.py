@@ -7,12 +7,17 @@ highlights clip (a bronze's or a glaze's sheen), and they slide over a curved gl
 surface when the viewpoint moves by a millimetre: two observations of an unchanged glossy
 object differ exactly where a lighting clips in one of them.
 
-A region is set aside when its score recomputed from *measured* pixels only nowhere reaches
-the detection's seed level inside it. A lighting measures a pixel when neither observation
-clips within the difference cue's shift radius of it (the cue at a pixel takes the best of
-the ±``shift_radius_px`` shifts, so a clipped neighbour within that radius enters it). A
-region no lighting clips keeps its score and is never set aside; a stain on white plaster
-that some lightings clip still shows in the lightings that do not, and stays.
+A region is set aside when its score recomputed from *measured* pixels only no longer seeds a
+significant region inside it: the detection's own a-contrario decision, made again on that
+score (the caller passes it), not a single pixel against the seed level, which the noise of an
+unchanged pair alone reaches in a region of a hundred pixels. A lighting measures a pixel when
+neither observation clips within the difference cue's shift radius plus the optics' blur reach
+of it: the cue at a pixel takes the best of the ±``shift_radius_px`` shifts, so a clipped
+neighbour within that radius enters it, and a clipped pixel's radiance, unknown and possibly
+many times the top code, spills into the pixels its blur reaches (:data:`BLUR_REACH_PX`), so a
+highlight's unclipped shoulder slides with it. A region no lighting clips keeps its score and
+is never set aside; a stain on white plaster that some lightings clip still shows in the
+lightings that do not, and stays.
 
 Set-aside regions are not deleted: the caller keeps them among the unreported candidates
 (``docs/change-detection.md``, "Change detection pipeline", step 10).
@@ -20,6 +25,7 @@ Set-aside regions are not deleted: the caller keeps them among the unreported ca
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -34,6 +40,11 @@ from fgcd_cli.changes.score import PairScore
 #: measured evidence: its measured-only score is 0.
 MIN_MEASURING_LIGHTINGS = 0.5
 
+#: Reach of the optics' blur around a clipped pixel, px: three sigmas of a 0.7 px Gaussian point
+#: spread (a lens and demosaicing at the sensor's native sampling, and the simulator's camera). The
+#: pixels within it are not measurements of the surface where a neighbour clips (module docstring).
+BLUR_REACH_PX = 2
+
 
 @dataclass(frozen=True, kw_only=True)
 class ClipCheck:
@@ -45,12 +56,17 @@ class ClipCheck:
     """Ids (in the labels checked) of the regions set aside."""
 
 
+def _not_measured_kernel(score: ScoreConfig) -> np.ndarray:
+    """Square structuring element of the pixels a clipped pixel takes out of the measurement."""
+    return cv2.getStructuringElement(cv2.MORPH_RECT, (2 * (score.shift_radius_px + BLUR_REACH_PX) + 1,) * 2)
+
+
 def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.ndarray, score: ScoreConfig) -> np.ndarray:
     """The detection's fused score with each lighting counted only where it measures the pixel.
 
     ``G * (sum_k m_k r_k) / G * (sum_k m_k)``: ``r_k`` the lighting's difference cue over its median
     (as in :func:`fgcd_cli.changes.score.score_pair`), ``m_k`` 1 where neither observation clips within
-    ``score.shift_radius_px``, ``G`` the detection's smoothing (normalised convolution). Where nothing
+    ``score.shift_radius_px + BLUR_REACH_PX``, ``G`` the detection's smoothing (normalised convolution). Where nothing
     clips it equals the detection's score (its colour difference cue, with the same edge tolerance; the
     optional local-NCC cue, ``structure_weight``, is not recomputed).
 
@@ -65,7 +81,7 @@ def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.nda
     -------
     (H, W) float32, dimensionless (the detection score's unit); 0 where no lighting measures.
     """
-    grow = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
+    grow = _not_measured_kernel(score)
     numerator = np.zeros(valid.shape, np.float32)
     weight = np.zeros(valid.shape, np.float32)
     for ref, normalized, median, clipped_ref, clipped_cur in zip(
@@ -94,11 +110,12 @@ def clip_explained_regions(
     refs: list[np.ndarray],
     scored: PairScore,
     valid: np.ndarray,
-    seed_level: float,
+    significant: Callable[[np.ndarray], np.ndarray],
     score: ScoreConfig,
 ) -> ClipCheck:
-    """The regions of ``labels`` that some lighting clips in both observations and whose measured-only
-    score (:func:`measured_only_score`) stays below ``seed_level`` everywhere inside them.
+    """The regions of ``labels`` that some lighting clips in both observations and in which the
+    detection's decision, made again on the measured-only score (:func:`measured_only_score`), seeds
+    no significant region.
 
     Parameters
     ----------
@@ -107,13 +124,14 @@ def clip_explained_regions(
     refs : list of K (H, W[, 3]) float32 in [0, 1], the reference images.
     scored : PairScore, the detection's score (its clipped pixels, re-lit current images, cue medians).
     valid : (H, W) bool, the compared pixels.
-    seed_level : float, the score level at which the detection seeds regions.
+    significant : callable, (H, W) float32 score -> (H, W) bool, the seed pixels of the significant
+        regions the detection's decision finds on a score map.
     score : ScoreConfig, the detection's shift radius and smoothing (px).
     """
     explained = np.zeros(labels.shape, bool)
     if scored.clipped_ref is None or scored.clipped_cur is None or n_regions == 0:
         return ClipCheck(explained=explained, region_ids=())
-    grow = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
+    grow = _not_measured_kernel(score)
     index = np.arange(1, n_regions + 1)
     both = np.zeros(n_regions, bool)
     for clipped_ref, clipped_cur in zip(scored.clipped_ref, scored.clipped_cur):
@@ -127,11 +145,11 @@ def clip_explained_regions(
     touched = [int(i) for i in index[both]]
     if not touched:
         return ClipCheck(explained=explained, region_ids=())
-    measured = measured_only_score(refs, scored, valid, score)
+    seeds = significant(measured_only_score(refs, scored, valid, score))
     ids = []
     for region_id in touched:
         pixels = labels == region_id
-        if measured[pixels].max() < seed_level:
+        if not seeds[pixels].any():
             explained |= pixels
             ids.append(region_id)
     return ClipCheck(explained=explained, region_ids=tuple(ids))

@@ -214,6 +214,25 @@ def faint_regions(
     return faint
 
 
+def _seeds(score: np.ndarray, valid: np.ndarray, config: DetectionConfig) -> np.ndarray:
+    """The seed pixels of the significant regions the detection's decision rule finds on ``score`` (one
+    smoothing: the clip check's measured-only score has only the coarse one)."""
+    if config.regions.decision == DecisionRule.ACONTRARIO:
+        decision = two_scale_decision(
+            score,
+            valid,
+            config=config.regions,
+            smooth_sigma_px=config.score.smooth_sigma_px,
+            fine_score=None,
+            fine_sigma_px=0.0,
+        )
+        return decision.seed_index > 0 if decision.seed_index is not None else decision.mask
+    mask, threshold = robust_hysteresis_threshold(
+        score, valid, k_high=config.regions.k_high, k_low=config.regions.k_low
+    )
+    return mask & (score >= threshold.high)
+
+
 def clipped_regions(
     found: Regions,
     *,
@@ -235,7 +254,7 @@ def clipped_regions(
         refs=refs,
         scored=scored,
         valid=valid,
-        seed_level=found.seed_level(config.regions.decision),
+        significant=lambda measured: _seeds(measured, valid, config),
         score=config.score,
     )
     faint_ids = {region.id for region in faint}
