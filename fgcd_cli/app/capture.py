@@ -93,9 +93,8 @@ def capture_reference(
         points = np.asarray(cloud.points, dtype=float) * scale.scale
         kf_poses, kf_images = metric_keyframes(state, scale.scale)
         images = grab_images(rig, lightings)
-        flash = reference_flash(rig, rig.say)
-        if flash is not None:
-            images[flash[0]] = flash[1]
+        lamp = reference_flash(rig, rig.say)
+        images.update(lamp.images)
         truth = evaluation() if evaluation is not None else None
         meta = {
             "lightings": list(images),
@@ -106,6 +105,7 @@ def capture_reference(
             "cloud_points": int(len(points)),
             "keyframes": int(len(kf_poses)),
             "platform_s": session.timing.platform_s,
+            **lamp.metadata,
             **(metadata or {}),
         }
         rig.progress(0, 0, "writing the reference")

@@ -21,6 +21,7 @@ from fgcd_cli.app.diff_options import (
     contrast_options,
     default_edge_check_px,
 )
+from fgcd_cli.app.lamp_image import dark_world, flash_name
 from fgcd_cli.app.visit_logs import coarse_log_rows, relocation_log_rows, relocation_residual_text
 from fgcd_cli.archive.freshness import ANALYSIS_RELPATH, AnalysisOptions, analysis_inputs, analysis_record
 from fgcd_cli.campaign import schema
@@ -260,7 +261,8 @@ def _check_truth_shape(truth: _Truth, shape: tuple[int, ...]) -> None:
 def _paired_lightings(reference, visit) -> tuple[list[str], list[str]]:
     """The reference's and the visit's image names compared pairwise.
 
-    Every lighting both observations hold, in the reference's order. When they
+    Every lighting both observations hold, in the reference's order (a dark-world reference's lamp
+    image with the visit's image of that lamp alone, where the visit holds one). When they
     share none (an outdoor reference under one day's sun, a visit under
     another's: no rig takes the reference's sun again, docs/change-detection.md,
     "Campaign diffs"), each observation's own day light, the first of its
@@ -270,6 +272,10 @@ def _paired_lightings(reference, visit) -> tuple[list[str], list[str]]:
     visit_order = list(visit.metadata.get("lightings") or visit.image_names())
     visit_names = [n for n in visit_order if visit.has_image(n)]
     shared = [n for n in ref_names if n in visit_names]
+    if shared and dark_world(reference.metadata):
+        # a dark world's lamp image is the lamp alone: where the visit holds that lamp's own image
+        # (its day added light, app/lamp_image.lamp_alone_now), that is what it is compared with
+        return shared, [flash_name(n) if flash_name(n) in visit_names else n for n in shared]
     if shared:
         return shared, shared
     if not ref_names or not visit_names:

@@ -17,7 +17,7 @@ from fgcd_cli.app.capture import CaptureResult
 from fgcd_cli.app.coarse_start import CoarseStart, maybe_coarse
 from fgcd_cli.app.determinism import deterministic_rig, run_conditions
 from fgcd_cli.app.guided_start import start_revisit_session
-from fgcd_cli.app.lamp_image import flash_lamp
+from fgcd_cli.app.lamp_image import flash_lamp, lamp_alone_now
 from fgcd_cli.app.relocate_request import RelocateHooks, RelocateRequest
 from fgcd_cli.app.rig import RigHandles
 from fgcd_cli.app.session import (
@@ -71,7 +71,7 @@ def relocate_and_capture(
         ref_index=ref_index,
     )
     try:
-        measurement = _measurement_images(rig, station)
+        measurement = _measurement_images(rig, station, vse)
         start = CoarseStart(
             rig=rig,
             session=session,
@@ -99,8 +99,10 @@ def relocate_and_capture(
         rig.progress(0, 0, "settling at the reached pose")
         state = session.settle(frames=2)
         points = np.asarray(state.cloud.points, dtype=float) * scale.scale
-        images = grab_images(rig, request.lightings)
+        lightings = _with_measured(request.lightings, measurement[1])
+        images = grab_images(rig, lightings)
         meta = _visit_metadata(rig, request, scale, result, coarse_result, measurement=measurement)
+        meta["lightings"] = lightings
         rig.progress(0, 0, "writing the visit")
         log = "".join(
             [json.dumps(e) + "\n" for e in request.earlier_log] + [r.to_json() + "\n" for r in result.records]
@@ -222,10 +224,14 @@ def _run_racr_loop(
         raise
 
 
-def _measurement_images(rig: RigHandles, station) -> tuple[dict[str, np.ndarray], str | None]:
+def _measurement_images(rig: RigHandles, station, vse) -> tuple[dict[str, np.ndarray], str | None]:
     """The reference images the image stage compares with, and the light it measures under (None: the day's)."""
     ref_images = reference_images(station)
     same_light = measurement_lighting(rig, list(ref_images))
+    alone = None if same_light is None else lamp_alone_now(rig, vse, station.reference().metadata, same_light, rig.say)
+    if alone is not None:
+        # a dark world's lamp image is the lamp alone: compared with the lamp's own image taken now
+        return {alone: ref_images[same_light]}, alone
     if same_light is not None:
         # like with like: the image stage compares with the reference image of that light only
         ref_images = {same_light: ref_images[same_light]}
@@ -242,6 +248,14 @@ def _measurement_images(rig: RigHandles, station) -> tuple[dict[str, np.ndarray]
             f"({', '.join(ref_images) or 'none'})"
         )
     return ref_images, same_light
+
+
+def _with_measured(lightings: list[str], measured: str | None) -> list[str]:
+    """The visit's lightings with the lamp image the image stage measured on (a dark world's lamp alone,
+    :func:`~fgcd_cli.app.lamp_image.lamp_alone_now`), so that the change map can compare it too."""
+    if measured is None or flash_lamp(measured) is None or measured in lightings:
+        return list(lightings)
+    return [*lightings, measured]
 
 
 def _visit_metadata(

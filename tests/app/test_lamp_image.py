@@ -1,12 +1,20 @@
 """The rig lamp's own image on the simulated rig: the same under two suns, where the day's images are not."""
 
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from fgcd_cli.app.lamp_image import can_flash, flash_name, grab_flash, reference_flash
+from fgcd_cli.app.lamp_image import (
+    DARK_WORLD_LAMP_SHARE,
+    can_flash,
+    dark_world,
+    flash_name,
+    grab_flash,
+    lamp_alone_now,
+    reference_flash,
+)
 from fgcd_cli.app.session import measurement_lighting, visit_lightings
 from fgcd_core.camera import CameraIntrinsics
 from fgcd_core.flash import CAMERA_RESPONSE_GAMMA
@@ -71,8 +79,10 @@ def test_the_lamps_image_is_the_same_under_two_suns(two_suns):
 def test_a_reference_under_the_sun_stores_it_and_a_visit_measures_on_it(two_suns):
     morning, evening = two_suns
     assert can_flash(morning)
-    name, image = reference_flash(morning, morning.say)
+    lamp = reference_flash(morning, morning.say)
+    ((name, image),) = lamp.images.items()
     assert name == flash_name() and image.shape == (240, 320)
+    assert not dark_world(lamp.metadata) and 0.1 < lamp.metadata["lamp_share"] < DARK_WORLD_LAMP_SHARE
     assert any("alone" in line for line in morning.said)
     lightings = visit_lightings("sun-evening", ["sun-morning", name], available=evening.lights.available())
     assert lightings == ["sun-evening", name]
@@ -81,9 +91,54 @@ def test_a_reference_under_the_sun_stores_it_and_a_visit_measures_on_it(two_suns
 
 def test_a_dark_world_keeps_the_lamps_images_as_they_are():
     rig = _rig("led:3")  # a dark room: the LED alone lights the object
-    assert reference_flash(rig, rig.say) is None
-    assert any("repeat as they are" in line for line in rig.said)
+    lamp = reference_flash(rig, rig.say)
+    assert lamp.images == {} and dark_world(lamp.metadata)
+    assert any("lamps alone" in line for line in rig.said)
     assert measurement_lighting(rig, ["led:3"]) == "led:3"
+    # a visit in the dark again measures under the lamp as it is
+    assert lamp_alone_now(rig, SimpleNamespace(held=nullcontext), lamp.metadata, "led:3", rig.say) is None
+
+
+def _linear_spread(a, b, where):
+    """Median relative deviation of the linear ratio a / b from its median over ``where`` (gain-free)."""
+    ratio = a[where] ** CAMERA_RESPONSE_GAMMA / np.maximum(b[where] ** CAMERA_RESPONSE_GAMMA, 1e-6)
+    return float(np.median(np.abs(ratio / np.median(ratio) - 1)))
+
+
+def test_a_dark_references_lamp_image_is_compared_with_the_lamp_alone_under_the_sun(two_suns):
+    night = _rig("led:3")  # the reference: a dark world, the LED alone
+    metadata = reference_flash(night, night.say).metadata
+    reference = night.camera_source.grab_still().image.astype(np.float64)
+    evening = two_suns[1]  # the visit: the evening sun, the same LED on the rig
+    name = lamp_alone_now(evening, SimpleNamespace(held=nullcontext), metadata, "led:3", evening.say)
+    assert name == flash_name("led:3")
+    assert "dark" in evening.said[-1] and name in evening.said[-1]
+    alone = grab_flash(evening, "led:3").image
+    evening.lights.set("led:3")
+    with_day = evening.camera_source.grab_still().image.astype(np.float64)
+    evening.lights.set(AMBIENT)
+    lit = reference > 0.3
+    assert lit.mean() > 0.1
+    # the lamp alone under the sun is the dark world's image (float rounding); with the sun in it, it is not
+    assert _linear_spread(alone, reference, lit) < 0.03
+    assert _linear_spread(with_day, reference, lit) > 3 * _linear_spread(alone, reference, lit)
+    # a reference under the sun (no share recorded: an old campaign) never switches
+    assert lamp_alone_now(evening, SimpleNamespace(held=nullcontext), {}, "led:3") is None
+
+
+def test_a_campaign_diff_compares_a_dark_reference_with_the_visits_lamp_alone():
+    from fgcd_cli.app.diff import _paired_lightings
+
+    def observation(names, **metadata):
+        return SimpleNamespace(
+            metadata={"lightings": names, **metadata}, has_image=lambda n: n in names, image_names=lambda: names
+        )
+
+    dark = observation(["led:3", "led:5"], lamp_share=0.99)
+    sunny_visit = observation(["sun-evening", "led:3", "led:5", flash_name("led:3")])
+    assert _paired_lightings(dark, sunny_visit) == (["led:3", "led:5"], [flash_name("led:3"), "led:5"])
+    # a dark visit holds no lamp-alone image: like with like, as before
+    assert _paired_lightings(dark, observation(["led:3", "led:5"])) == (["led:3", "led:5"], ["led:3", "led:5"])
 
 
 def test_an_undistorting_camera_offers_the_lock_exactly_when_its_camera_does(two_suns):
@@ -119,7 +174,7 @@ def test_a_lamp_that_adds_nothing_costs_no_reference_and_no_visit_image():
     rig = SimpleNamespace(
         lights=SimLights("sun-noon"), camera_source=_DeadLampCamera(), say=said.append, progress=lambda *a: None
     )
-    assert reference_flash(rig, rig.say) is None
+    assert reference_flash(rig, rig.say).images == {}
     assert "adds no light" in said[-1]
     images = grab_images(rig, ["sun-noon", flash_name()])
     assert list(images) == ["sun-noon"]

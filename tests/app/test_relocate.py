@@ -98,7 +98,7 @@ def test_the_visit_is_named_not_written_when_ctrl_c_comes_while_writing(monkeypa
     run_record.reset()
 
 
-def _revisit_on_the_simulated_rig(tmp_path, monkeypatch, reference_light: str, visit_light: str):
+def _revisit_on_the_simulated_rig(tmp_path, monkeypatch, reference_light: str, visit_light: str, **reference_metadata):
     """A reference imaged on the simulated rig under ``reference_light``; a revisit under ``visit_light``.
 
     Returns the visit, the rig's progress lines and the image the image stage measured (with the
@@ -118,7 +118,7 @@ def _revisit_on_the_simulated_rig(tmp_path, monkeypatch, reference_light: str, v
         images = grab_images(rig.handles, [reference_light], average=1)
     finally:
         rig.close()
-    with station.write_reference({"lightings": [reference_light]}) as w:
+    with station.write_reference({"lightings": [reference_light], **reference_metadata}) as w:
         for name, img in images.items():
             w.add_image(name, img)
         w.commit()
@@ -165,3 +165,17 @@ def test_an_indoor_revisit_measures_under_the_rigs_own_lamp(tmp_path, monkeypatc
     assert sorted(visit.image_names()) == ["front", "led:3"]
     ((image, compared),) = grabbed
     assert compared == ["front"]
+
+
+def test_a_sunny_revisit_of_a_dark_reference_measures_on_the_lamp_alone(tmp_path, monkeypatch):
+    # the reference: a dark room lit by LED 3 (its capture measured the lamp's share: all of the light)
+    visit, said, grabbed, _ = _revisit_on_the_simulated_rig(
+        tmp_path, monkeypatch, "led:3", "sun-evening", lamp_share=1.0
+    )
+    stage = visit.metadata["relocation"]["image_stage"]
+    assert stage == {"measured_under": "flash:led:3", "compared_with": ["flash:led:3"]}
+    assert any("world was dark" in line and "flash:led:3" in line for line in said), said
+    # the visit keeps the lamp-alone image for the change map, beside the day's and the lamp's with the day
+    assert sorted(visit.image_names()) == ["flash:led:3", "led:3", "sun-evening"]
+    ((image, compared),) = grabbed
+    assert compared == ["flash:led:3"] and image.shape == (480, 640)
