@@ -14,6 +14,8 @@ import pytest
 from fgcd_drivers.testing.fake_ur import FakeURProcess
 from fgcd_drivers.testing.grbl_emulator import GrblEmulator
 
+from .conftest import UR_HOST
+
 pytestmark = pytest.mark.timeout(120)
 
 
@@ -183,25 +185,25 @@ def test_home_without_terminal_or_yes_is_refused():
 
 
 def test_check_and_move_ur_against_fake_controller():
-    with FakeURProcess():
-        run = fgcd("platform", "check", "--driver", "ur", "--host", "127.0.0.1", "--json")
+    with FakeURProcess(host=UR_HOST):
+        run = fgcd("platform", "check", "--driver", "ur", "--host", UR_HOST, "--json")
         assert run.returncode == 0, run.stderr
         data = json.loads(run.stdout)
         assert data["healthy"] and data["pose"]["position_mm"] == pytest.approx([400.0, -100.0, 300.0])
-        run = fgcd("platform", "move", "--driver", "ur", "--host", "127.0.0.1", "--dz", "5", "--yes", "--json")
+        run = fgcd("platform", "move", "--driver", "ur", "--host", UR_HOST, "--dz", "5", "--yes", "--json")
         assert run.returncode == 0, run.stderr
         # The flange points down (rotation pi about x): +5 mm along flange z is -5 mm in base z.
         assert json.loads(run.stdout)["reached"]["position_mm"] == pytest.approx([400.0, -100.0, 295.0], abs=0.2)
 
 
 def test_ur_unreachable_host_is_one_line_error():
-    run = fgcd("platform", "check", "--driver", "ur", "--host", "127.0.0.1", "--timeout", "0.5")
+    run = fgcd("platform", "check", "--driver", "ur", "--host", UR_HOST, "--timeout", "0.5")
     assert run.returncode == 7 and "cannot reach the UR controller" in run.stderr
 
 
 def test_ur_controller_hung_before_the_move_is_one_line_and_exits():
     # Frozen before fgcd connects: sockets open, protocol answered, no state stream.
-    with FakeURProcess() as fake:
+    with FakeURProcess(host=UR_HOST) as fake:
         fake.send("freeze")
         proc = subprocess.run(
             [
@@ -213,7 +215,7 @@ def test_ur_controller_hung_before_the_move_is_one_line_and_exits():
                 "--driver",
                 "ur",
                 "--host",
-                "127.0.0.1",
+                UR_HOST,
                 "--dx",
                 "40",
                 "--speed-fraction",
@@ -233,7 +235,7 @@ def test_ur_controller_hung_before_the_move_is_one_line_and_exits():
 def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
     # The controller stops streaming mid-move but keeps its sockets open: ur_rtde keeps
     # reconnecting forever in native threads; fgcd must still say why and exit.
-    with FakeURProcess() as fake:
+    with FakeURProcess(host=UR_HOST) as fake:
         proc = subprocess.Popen(
             [
                 sys.executable,
@@ -244,7 +246,7 @@ def test_ur_controller_hanging_mid_move_is_one_line_and_exits():
                 "--driver",
                 "ur",
                 "--host",
-                "127.0.0.1",
+                UR_HOST,
                 "--dx",
                 "40",
                 "--speed-fraction",

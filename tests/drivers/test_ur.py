@@ -1,7 +1,8 @@
 """UR driver: the real ur_rtde client against the fake controller process.
 
 The fake controller's ports are fixed (29999, 30003, 30004): these tests must
-not run in parallel with each other; every test kills its fake in a finally.
+not run in parallel with each other (a pytest-xdist worker's fakes listen on its
+own loopback address, ``conftest.UR_HOST``); every test kills its fake in a finally.
 """
 
 from __future__ import annotations
@@ -32,14 +33,16 @@ from fgcd_drivers.ur import URConfig, URPlatform, abandoned_interface_count
 from fgcd_drivers.ur_preflight import preflight
 from fgcd_drivers.ur_state import pose_to_vector, safety_problem, vector_to_pose
 
+from .conftest import UR_HOST
+
 pytestmark = pytest.mark.timeout(90)
 
-CONFIG = URConfig(host="127.0.0.1", preflight_timeout_s=0.5, max_linear_speed_m_s=0.05, arrival_margin_s=1.0)
+CONFIG = URConfig(host=UR_HOST, preflight_timeout_s=0.5, max_linear_speed_m_s=0.05, arrival_margin_s=1.0)
 
 
 @pytest.fixture
 def fake():
-    process = FakeURProcess()
+    process = FakeURProcess(host=UR_HOST)
     try:
         yield process.start()
     finally:
@@ -128,7 +131,7 @@ HUNG_SCRIPT = """
 import json, os, sys, time
 from fgcd_core.platform import GuardLimits, MotionGuard, PlatformConnectionError
 from fgcd_drivers.ur import URConfig, URPlatform
-arm = URPlatform(URConfig(host="127.0.0.1", preflight_timeout_s=0.5, max_linear_speed_m_s=0.05))
+arm = URPlatform(URConfig(host=sys.argv[1], preflight_timeout_s=0.5, max_linear_speed_m_s=0.05))
 arm.connect()
 arm.flange_pose()
 print("READY", flush=True)
@@ -168,7 +171,7 @@ def test_hung_controller_state_is_stale_not_trusted(fake):
     # Run in a child: ur_rtde's threads of a hung link keep reconnecting in native code
     # and must not share this test process with the next tests' clients.
     child = subprocess.Popen(
-        [sys.executable, "-c", HUNG_SCRIPT],
+        [sys.executable, "-c", HUNG_SCRIPT, UR_HOST],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
@@ -210,11 +213,11 @@ def test_arrival_timeout_stops_the_arm(arm, fake):
 def test_garbage_peer_is_refused_before_ur_rtde_touches_it():
     # Something else answers on the RTDE port (a web server, a wrong device).
     with socket.socket() as probe:
-        if probe.connect_ex(("127.0.0.1", 30004)) == 0:
+        if probe.connect_ex((UR_HOST, 30004)) == 0:
             pytest.skip("something else listens on 30004")
     server = socket.socket()
     server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    server.bind(("127.0.0.1", 30004))
+    server.bind((UR_HOST, 30004))
     server.listen(1)
 
     def answer_garbage():
@@ -263,7 +266,7 @@ def test_outside_workspace_refused_before_moving(arm):
 
 
 def test_silent_peer_times_out_in_preflight_without_freezing():
-    with FakeURProcess(silent=True):
+    with FakeURProcess(host=UR_HOST, silent=True):
         t0 = time.monotonic()
         with pytest.raises(PlatformTimeout, match="did not answer"):
             URPlatform(CONFIG).connect()
@@ -272,7 +275,7 @@ def test_silent_peer_times_out_in_preflight_without_freezing():
 
 def test_a_controller_that_answers_but_does_not_stream_times_out_in_preflight():
     # ur_rtde's receive constructor would wait for the first state package forever (GIL held).
-    with FakeURProcess() as fake:
+    with FakeURProcess(host=UR_HOST) as fake:
         fake.send("freeze")
         t0 = time.monotonic()
         with pytest.raises(PlatformTimeout, match="sends no state"):
@@ -283,10 +286,10 @@ def test_a_controller_that_answers_but_does_not_stream_times_out_in_preflight():
 def test_refused_port_is_connection_error():
     # Nothing listens on the RTDE port once the fake is gone.
     with socket.socket() as probe:
-        if probe.connect_ex(("127.0.0.1", 30004)) == 0:
+        if probe.connect_ex((UR_HOST, 30004)) == 0:
             pytest.skip("something else listens on 30004")
     with pytest.raises(PlatformConnectionError, match="cannot reach"):
-        preflight("127.0.0.1", timeout_s=0.5)
+        preflight(UR_HOST, timeout_s=0.5)
 
 
 def test_stop_returns_even_when_ur_rtde_blocks_in_stopL():
@@ -304,7 +307,7 @@ def test_stop_returns_even_when_ur_rtde_blocks_in_stopL():
         def stopL(self, _acc):
             released.wait(30.0)
 
-    arm = URPlatform(URConfig(host="127.0.0.1", stop_timeout_s=0.3))
+    arm = URPlatform(URConfig(host=UR_HOST, stop_timeout_s=0.3))
     arm._rtde_c = BlockingControl()
     t0 = time.monotonic()
     arm.stop()
