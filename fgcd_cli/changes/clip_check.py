@@ -10,13 +10,12 @@ object differ exactly where a lighting clips in one of them.
 A region is set aside when its score recomputed from *measured* pixels only no longer seeds a
 significant region inside it: the detection's own a-contrario decision, made again on that
 score (the caller passes it), not a single pixel against the seed level, which the noise of an
-unchanged pair alone reaches in a region of a hundred pixels. A lighting measures a pixel when
-neither observation clips within the difference cue's shift radius plus the optics' blur reach
-of it: the cue at a pixel takes the best of the ±``shift_radius_px`` shifts, so a clipped
-neighbour within that radius enters it, and a clipped pixel's radiance, unknown and possibly
-many times the top code, spills into the pixels its blur reaches (:data:`BLUR_REACH_PX`), so a
-highlight's unclipped shoulder slides with it. A region no lighting clips keeps its score and
-is never set aside; a stain on white plaster that some lightings clip still shows in the
+unchanged pair alone reaches in a region of a hundred pixels. The decision is made at both of the
+detection's smoothings, as the detection made it: a pit a few pixels across is significant at the
+finer one only. A lighting measures a pixel when neither observation clips within the difference
+cue's shift radius of it (the cue at a pixel takes the best of the ±``shift_radius_px`` shifts,
+so a clipped neighbour within that radius enters it). A region no lighting clips keeps its score
+and is never set aside; a stain on white plaster that some lightings clip still shows in the
 lightings that do not, and stays.
 
 Set-aside regions are not deleted: the caller keeps them among the unreported candidates
@@ -40,11 +39,6 @@ from fgcd_cli.changes.score import PairScore
 #: measured evidence: its measured-only score is 0.
 MIN_MEASURING_LIGHTINGS = 0.5
 
-#: Reach of the optics' blur around a clipped pixel, px: three sigmas of a 0.7 px Gaussian point
-#: spread (a lens and demosaicing at the sensor's native sampling, and the simulator's camera). The
-#: pixels within it are not measurements of the surface where a neighbour clips (module docstring).
-BLUR_REACH_PX = 2
-
 
 @dataclass(frozen=True, kw_only=True)
 class ClipCheck:
@@ -58,17 +52,19 @@ class ClipCheck:
 
 def _not_measured_kernel(score: ScoreConfig) -> np.ndarray:
     """Square structuring element of the pixels a clipped pixel takes out of the measurement."""
-    return cv2.getStructuringElement(cv2.MORPH_RECT, (2 * (score.shift_radius_px + BLUR_REACH_PX) + 1,) * 2)
+    return cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
 
 
-def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.ndarray, score: ScoreConfig) -> np.ndarray:
+def measured_only_score(
+    refs: list[np.ndarray], scored: PairScore, valid: np.ndarray, score: ScoreConfig, *, fine: bool = False
+) -> np.ndarray:
     """The detection's fused score with each lighting counted only where it measures the pixel.
 
     ``G * (sum_k m_k r_k) / G * (sum_k m_k)``: ``r_k`` the lighting's difference cue over its median
     (as in :func:`fgcd_cli.changes.score.score_pair`), ``m_k`` 1 where neither observation clips within
-    ``score.shift_radius_px + BLUR_REACH_PX``, ``G`` the detection's smoothing (normalised convolution). Where nothing
-    clips it equals the detection's score (its colour difference cue, with the same edge tolerance; the
-    optional local-NCC cue, ``structure_weight``, is not recomputed).
+    ``score.shift_radius_px``, ``G`` the detection's smoothing (normalised convolution).
+    Where nothing clips it equals the detection's score (its colour difference cue, with the same edge
+    tolerance; the optional local-NCC cue, ``structure_weight``, is not recomputed).
 
     Parameters
     ----------
@@ -76,11 +72,19 @@ def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.nda
     scored : PairScore with ``clipped_ref`` and ``clipped_cur`` set.
     valid : (H, W) bool, the compared pixels.
     score : ScoreConfig, the detection's shift radius and smoothing (px).
+    fine : bool
+        At the detection's finer smoothing (``score.fine_smooth_sigma_px``) instead of its main one.
 
     Returns
     -------
     (H, W) float32, dimensionless (the detection score's unit); 0 where no lighting measures.
     """
+    numerator, weight = _measured_sums(refs, scored, valid, score)
+    return _smoothed_ratio(numerator, weight, score.fine_smooth_sigma_px if fine else score.smooth_sigma_px)
+
+
+def _measured_sums(refs, scored: PairScore, valid: np.ndarray, score: ScoreConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(sum_k m_k r_k, sum_k m_k)`` of :func:`measured_only_score`, unsmoothed, (H, W) float32 each."""
     grow = _not_measured_kernel(score)
     numerator = np.zeros(valid.shape, np.float32)
     weight = np.zeros(valid.shape, np.float32)
@@ -97,9 +101,14 @@ def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.nda
         )
         numerator += measured * relative_to_median(difference, valid, median=median)
         weight += measured
-    if score.smooth_sigma_px > 0:
-        numerator = cv2.GaussianBlur(numerator, (0, 0), score.smooth_sigma_px)
-        weight = cv2.GaussianBlur(weight, (0, 0), score.smooth_sigma_px)
+    return numerator, weight
+
+
+def _smoothed_ratio(numerator: np.ndarray, weight: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Normalised convolution ``G * numerator / G * weight`` (0 where under :data:`MIN_MEASURING_LIGHTINGS`)."""
+    if sigma_px > 0:
+        numerator = cv2.GaussianBlur(numerator, (0, 0), sigma_px)
+        weight = cv2.GaussianBlur(weight, (0, 0), sigma_px)
     return np.where(weight >= MIN_MEASURING_LIGHTINGS, numerator / np.maximum(weight, 1e-6), 0.0).astype(np.float32)
 
 
@@ -110,7 +119,7 @@ def clip_explained_regions(
     refs: list[np.ndarray],
     scored: PairScore,
     valid: np.ndarray,
-    significant: Callable[[np.ndarray], np.ndarray],
+    significant: Callable[[np.ndarray, np.ndarray | None], np.ndarray],
     score: ScoreConfig,
 ) -> ClipCheck:
     """The regions of ``labels`` that some lighting clips in both observations and in which the
@@ -124,8 +133,8 @@ def clip_explained_regions(
     refs : list of K (H, W[, 3]) float32 in [0, 1], the reference images.
     scored : PairScore, the detection's score (its clipped pixels, re-lit current images, cue medians).
     valid : (H, W) bool, the compared pixels.
-    significant : callable, (H, W) float32 score -> (H, W) bool, the seed pixels of the significant
-        regions the detection's decision finds on a score map.
+    significant : callable, ``(score, fine_score or None) -> (H, W) bool``, the seed pixels of the
+        significant regions the detection's decision finds on a score map (and its finer smoothing).
     score : ScoreConfig, the detection's shift radius and smoothing (px).
     """
     explained = np.zeros(labels.shape, bool)
@@ -145,7 +154,14 @@ def clip_explained_regions(
     touched = [int(i) for i in index[both]]
     if not touched:
         return ClipCheck(explained=explained, region_ids=())
-    seeds = significant(measured_only_score(refs, scored, valid, score))
+    # at both of the detection's smoothings, as it decided (a pit a few pixels across is significant at the
+    # finer one only)
+    numerator, weight = _measured_sums(refs, scored, valid, score)
+    two_scales = 0.0 < score.fine_smooth_sigma_px < score.smooth_sigma_px
+    seeds = significant(
+        _smoothed_ratio(numerator, weight, score.smooth_sigma_px),
+        _smoothed_ratio(numerator, weight, score.fine_smooth_sigma_px) if two_scales else None,
+    )
     ids = []
     for region_id in touched:
         pixels = labels == region_id

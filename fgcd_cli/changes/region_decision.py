@@ -214,17 +214,17 @@ def faint_regions(
     return faint
 
 
-def _seeds(score: np.ndarray, valid: np.ndarray, config: DetectionConfig) -> np.ndarray:
-    """The seed pixels of the significant regions the detection's decision rule finds on ``score`` (one
-    smoothing: the clip check's measured-only score has only the coarse one)."""
+def _seeds(score: np.ndarray, fine_score: np.ndarray | None, valid: np.ndarray, config: DetectionConfig) -> np.ndarray:
+    """The seed pixels of the significant regions the detection's decision rule finds on ``score`` (and on
+    ``fine_score``, the same at the finer smoothing, as :func:`decide_regions` does)."""
     if config.regions.decision == DecisionRule.ACONTRARIO:
         decision = two_scale_decision(
             score,
             valid,
             config=config.regions,
             smooth_sigma_px=config.score.smooth_sigma_px,
-            fine_score=None,
-            fine_sigma_px=0.0,
+            fine_score=fine_score,
+            fine_sigma_px=config.score.fine_smooth_sigma_px,
         )
         return decision.seed_index > 0 if decision.seed_index is not None else decision.mask
     mask, threshold = robust_hysteresis_threshold(
@@ -254,7 +254,7 @@ def clipped_regions(
         refs=refs,
         scored=scored,
         valid=valid,
-        significant=lambda measured: _seeds(measured, valid, config),
+        significant=lambda measured, fine: _seeds(measured, fine, valid, config),
         score=config.score,
     )
     faint_ids = {region.id for region in faint}
