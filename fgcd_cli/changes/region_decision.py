@@ -79,12 +79,7 @@ def decide_regions(
     """:func:`decide` on the score (and its finer smoothing), and the regions of its mask with their
     significance and area."""
     mask, threshold, significance = decide(
-        score,
-        valid,
-        config=config.regions,
-        smooth_sigma_px=config.score.smooth_sigma_px,
-        fine_score=fine_score,
-        fine_sigma_px=config.score.fine_smooth_sigma_px,
+        score, valid, config=config.regions, fine_score=fine_score, **_scales(config)
     )
     settings["seed_level"] = significance.seed_level
     regions, labels = regions_with_significance(mask, score, significance, pixel_area_mm2)
@@ -214,18 +209,16 @@ def faint_regions(
     return faint
 
 
+def _scales(config: DetectionConfig) -> dict:
+    """The detection's two smoothings (px), as :func:`decide` and :func:`two_scale_decision` take them."""
+    return {"smooth_sigma_px": config.score.smooth_sigma_px, "fine_sigma_px": config.score.fine_smooth_sigma_px}
+
+
 def _seeds(score: np.ndarray, fine_score: np.ndarray | None, valid: np.ndarray, config: DetectionConfig) -> np.ndarray:
     """The seed pixels of the significant regions the detection's decision rule finds on ``score`` (and on
     ``fine_score``, the same at the finer smoothing, as :func:`decide_regions` does)."""
     if config.regions.decision == DecisionRule.ACONTRARIO:
-        decision = two_scale_decision(
-            score,
-            valid,
-            config=config.regions,
-            smooth_sigma_px=config.score.smooth_sigma_px,
-            fine_score=fine_score,
-            fine_sigma_px=config.score.fine_smooth_sigma_px,
-        )
+        decision = two_scale_decision(score, valid, config=config.regions, fine_score=fine_score, **_scales(config))
         return decision.seed_index > 0 if decision.seed_index is not None else decision.mask
     mask, threshold = robust_hysteresis_threshold(
         score, valid, k_high=config.regions.k_high, k_low=config.regions.k_low
