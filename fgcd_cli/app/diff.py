@@ -285,6 +285,15 @@ def _paired_lightings(reference, visit) -> tuple[list[str], list[str]]:
     return ref_names[:1], visit_names[:1]
 
 
+def _pairing_note(lightings: list[str], visit_lightings: list[str]) -> str:
+    """What the progress line adds about the pairing of :func:`_paired_lightings` (empty: like with like)."""
+    if lightings == visit_lightings:
+        return ""
+    if all(v in (n, flash_name(n)) for n, v in zip(lightings, visit_lightings)):
+        return " (the dark reference's lamp images against the visit's images of the lamp alone)"
+    return f" across lightings ({lightings[0]} against {visit_lightings[0]})"
+
+
 @dataclass(frozen=True, kw_only=True)
 class CampaignDiffRequest:
     """A comparison of a station's visit with its reference (``fgcd diff -c ... -s ...``).
@@ -383,7 +392,7 @@ def run_campaign(request: CampaignDiffRequest, *, progress: Progress = None) -> 
     area, scale_note = campaign_pixel_area(geometry, shape, r.mm_per_px)
     mask = read_mask(r.roi) if r.roi is not None else None
     edge_check = checked_edge_check_px(default_edge_check_px(r.edge_check_px))
-    across = "" if lightings == visit_lightings else f" across lightings ({lightings[0]} against {visit_lightings[0]})"
+    across = _pairing_note(lightings, visit_lightings)
     _say(progress, f"station {r.station}, visit {observation.name}: comparing {len(lightings)} lighting(s){across}…")
     # The campaign names its lightings: the ambient one is left out of the photometric-stereo fit.
     result = detect_changes(

@@ -137,6 +137,9 @@ def test_a_campaign_diff_compares_a_dark_reference_with_the_visits_lamp_alone():
     dark = observation(["led:3", "led:5"], lamp_share=0.99)
     sunny_visit = observation(["sun-evening", "led:3", "led:5", flash_name("led:3")])
     assert _paired_lightings(dark, sunny_visit) == (["led:3", "led:5"], [flash_name("led:3"), "led:5"])
+    from fgcd_cli.app.diff import _pairing_note
+
+    assert "lamp alone" in _pairing_note(*_paired_lightings(dark, sunny_visit))
     # a dark visit holds no lamp-alone image: like with like, as before
     assert _paired_lightings(dark, observation(["led:3", "led:5"])) == (["led:3", "led:5"], ["led:3", "led:5"])
 
