@@ -21,20 +21,6 @@ def pytest_configure(config):
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-#: The modules that start the fake UR controller, whose ports are fixed (29999, 30003, 30004): one worker runs them.
-FAKE_UR_MODULES = ("test_ur", "test_link_cut", "test_platform_cli", "test_fault_wired")
-
-
-def pytest_collection_modifyitems(config, items):
-    # pytest-xdist's loadgroup: each module's tests stay on one worker (its module fixtures are built
-    # once, not once per worker), and the modules that bind the fake controller's ports share a group.
-    for item in items:
-        if item.get_closest_marker("xdist_group") is not None:
-            continue
-        module = item.module.__name__.rsplit(".", 1)[-1]
-        item.add_marker(pytest.mark.xdist_group("fake_ur_ports" if module in FAKE_UR_MODULES else item.module.__name__))
-
-
 @pytest.fixture
 def stand_in_rig(monkeypatch):
     """``open_rig`` replaced by a stand-in that records its options and asks the first-motion question."""

@@ -55,9 +55,7 @@ def _not_measured_kernel(score: ScoreConfig) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_RECT, (2 * score.shift_radius_px + 1,) * 2)
 
 
-def measured_only_score(
-    refs: list[np.ndarray], scored: PairScore, valid: np.ndarray, score: ScoreConfig, *, fine: bool = False
-) -> np.ndarray:
+def measured_only_score(refs: list[np.ndarray], scored: PairScore, valid: np.ndarray, score: ScoreConfig) -> np.ndarray:
     """The detection's fused score with each lighting counted only where it measures the pixel.
 
     ``G * (sum_k m_k r_k) / G * (sum_k m_k)``: ``r_k`` the lighting's difference cue over its median
@@ -72,15 +70,13 @@ def measured_only_score(
     scored : PairScore with ``clipped_ref`` and ``clipped_cur`` set.
     valid : (H, W) bool, the compared pixels.
     score : ScoreConfig, the detection's shift radius and smoothing (px).
-    fine : bool
-        At the detection's finer smoothing (``score.fine_smooth_sigma_px``) instead of its main one.
 
     Returns
     -------
     (H, W) float32, dimensionless (the detection score's unit); 0 where no lighting measures.
     """
     numerator, weight = _measured_sums(refs, scored, valid, score)
-    return _smoothed_ratio(numerator, weight, score.fine_smooth_sigma_px if fine else score.smooth_sigma_px)
+    return _smoothed_ratio(numerator, weight, score.smooth_sigma_px)
 
 
 def _measured_sums(refs, scored: PairScore, valid: np.ndarray, score: ScoreConfig) -> tuple[np.ndarray, np.ndarray]:
