@@ -115,7 +115,7 @@ def clip_explained_regions(
     refs: list[np.ndarray],
     scored: PairScore,
     valid: np.ndarray,
-    significant: Callable[[np.ndarray, np.ndarray | None], np.ndarray],
+    significant: Callable[[np.ndarray, np.ndarray | None, np.ndarray], np.ndarray],
     score: ScoreConfig,
 ) -> ClipCheck:
     """The regions of ``labels`` that some lighting clips in both observations and in which the
@@ -129,8 +129,9 @@ def clip_explained_regions(
     refs : list of K (H, W[, 3]) float32 in [0, 1], the reference images.
     scored : PairScore, the detection's score (its clipped pixels, re-lit current images, cue medians).
     valid : (H, W) bool, the compared pixels.
-    significant : callable, ``(score, fine_score or None) -> (H, W) bool``, the seed pixels of the
-        significant regions the detection's decision finds on a score map (and its finer smoothing).
+    significant : callable, ``(score, fine_score or None, within) -> (H, W) bool``, the seed pixels of the
+        significant regions the detection's decision finds on a score map (and its finer smoothing), at
+        least where they reach the (H, W) bool pixels ``within``.
     score : ScoreConfig, the detection's shift radius and smoothing (px).
     """
     explained = np.zeros(labels.shape, bool)
@@ -157,6 +158,7 @@ def clip_explained_regions(
     seeds = significant(
         _smoothed_ratio(numerator, weight, score.smooth_sigma_px),
         _smoothed_ratio(numerator, weight, score.fine_smooth_sigma_px) if two_scales else None,
+        np.isin(labels, touched),
     )
     ids = []
     for region_id in touched:

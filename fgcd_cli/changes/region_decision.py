@@ -18,6 +18,7 @@ from fgcd_cli.changes.contrast import region_contrasts, set_contrasts
 from fgcd_cli.changes.edge_check import edge_explained_regions
 from fgcd_cli.changes.images import to_float_image
 from fgcd_cli.changes.regions import ChangeRegion, clean_mask, refine_to_local_peak, regions_with_significance
+from fgcd_cli.changes.rescan import seeds_under_nulls
 from fgcd_cli.changes.result import WHY_NOT_REPORTED, ChangeResult
 from fgcd_cli.changes.score import PairScore
 from fgcd_cli.changes.significance import (
@@ -214,10 +215,21 @@ def _scales(config: DetectionConfig) -> dict:
     return {"smooth_sigma_px": config.score.smooth_sigma_px, "fine_sigma_px": config.score.fine_smooth_sigma_px}
 
 
-def _seeds(score: np.ndarray, fine_score: np.ndarray | None, valid: np.ndarray, config: DetectionConfig) -> np.ndarray:
+def _seeds(
+    found: Regions,
+    score: np.ndarray,
+    fine_score: np.ndarray | None,
+    valid: np.ndarray,
+    within: np.ndarray,
+    config: DetectionConfig,
+) -> np.ndarray:
     """The seed pixels of the significant regions the detection's decision rule finds on ``score`` (and on
-    ``fine_score``, the same at the finer smoothing, as :func:`decide_regions` does)."""
+    ``fine_score``, the same at the finer smoothing, as :func:`decide_regions` does) where they reach
+    ``within``: a-contrario, under the nulls ``found`` was decided under (:mod:`fgcd_cli.changes.rescan`)."""
     if config.regions.decision == DecisionRule.ACONTRARIO:
+        maps = [score] + ([fine_score] if fine_score is not None else [])
+        if len(found.significance.nulls) == len(maps):
+            return seeds_under_nulls(maps, valid, found.significance.nulls, within)
         decision = two_scale_decision(score, valid, config=config.regions, fine_score=fine_score, **_scales(config))
         return decision.seed_index > 0 if decision.seed_index is not None else decision.mask
     mask, threshold = robust_hysteresis_threshold(
@@ -247,7 +259,7 @@ def clipped_regions(
         refs=refs,
         scored=scored,
         valid=valid,
-        significant=lambda measured, fine: _seeds(measured, fine, valid, config),
+        significant=lambda measured, fine, within: _seeds(found, measured, fine, valid, within, config),
         score=config.score,
     )
     faint_ids = {region.id for region in faint}

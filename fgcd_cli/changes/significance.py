@@ -52,6 +52,7 @@ import numpy as np
 from scipy import ndimage, special
 
 from fgcd_cli.changes.config import EPSILON, RegionConfig
+from fgcd_cli.changes.extent import grow_to_extent
 
 _EIGHT = np.ones((3, 3), bool)
 
@@ -70,6 +71,22 @@ class SignificantRegion:
     peak_score: float
     why: str = ""
     """For a candidate: why it was not reported (:data:`fgcd_cli.changes.result.WHY_NOT_REPORTED`)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScanNull:
+    """The null one scan decided under, kept so that another map of the same pair can be tested
+    against it (:mod:`fgcd_cli.changes.rescan`)."""
+
+    sorted_background: np.ndarray
+    """(M,) float32, the background pixels' scores, ascending (the empirical marginal)."""
+    median: float
+    """Median score over the compared pixels (the half-normal floor's scale)."""
+    area: float
+    n_tests: float
+    levels: np.ndarray
+    """The ladder of ``-log p`` levels scanned."""
+    epsilon: float
 
 
 @dataclass(kw_only=True)
@@ -92,6 +109,8 @@ class Decision:
     seed_index: np.ndarray | None = None
     """HxW int32: i + 1 on the seed pixels of ``regions[i]``, 0 elsewhere."""
     settings: dict = field(default_factory=dict)
+    nulls: tuple[ScanNull, ...] = ()
+    """The null of each score map scanned (one per map, in order)."""
 
 
 def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray, *, sample: np.ndarray | None = None) -> np.ndarray:
@@ -109,7 +128,11 @@ def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray, *, sample: n
     -------
     ndarray, HxW float32 (0 outside ``valid``; at most ``log(2N)`` for N valid pixels).
     """
-    values = np.sort(score[valid if sample is None else sample & valid])
+    return neglog_survival_sorted(np.sort(score[valid if sample is None else sample & valid]), score, valid)
+
+
+def neglog_survival_sorted(values: np.ndarray, score: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """:func:`empirical_neglog_survival` under a distribution given as its sorted (M,) sample ``values``."""
     n = values.size
     rank = np.searchsorted(values, score, side="left")
     survival = np.clip((n - rank + 0.5) / n, 0.5 / n, 1.0)
@@ -252,6 +275,14 @@ def acontrario_decision(
             break
         background = new_background
         null_round += 1
+    null = ScanNull(
+        sorted_background=np.sort(score[background]),
+        median=median,
+        area=scan.area,
+        n_tests=float(scan.n_tests),
+        levels=scan.ladder if scan.ladder is not None else np.zeros(0),
+        epsilon=config.epsilon,
+    )
     return Decision(
         mask=mask,
         regions=scan.regions,
@@ -261,6 +292,7 @@ def acontrario_decision(
         seed_level=scan.seed_level,
         median=median,
         seed_index=scan.seed_index,
+        nulls=(null,),
         settings={
             "epsilon": config.epsilon,
             "seed_p": config.seed_p,
@@ -285,6 +317,8 @@ class _Scan:
     n_tests: float = 0.0
     seed_level: float = 0.0
     levels: int = 0
+    ladder: np.ndarray | None = None
+    """The ``-log p`` levels scanned."""
 
 
 def _scan_with_null(
@@ -300,7 +334,7 @@ def _scan_with_null(
     levels = np.arange(-np.log(config.seed_p), float(neglogp.max()) + 1e-9, config.level_step)
     for _ in range(config.area_rounds + 1):
         n_tests = n_valid / area * max(len(levels), 1) * config.score_maps
-        regions, candidates, significant, seed_index = _scan_levels(
+        regions, candidates, significant, seed_index = scan_levels(
             score,
             neglogp,
             valid,
@@ -323,6 +357,7 @@ def _scan_with_null(
         n_tests=n_tests,
         seed_level=seed_level,
         levels=int(len(levels)),
+        ladder=levels,
     )
 
 
@@ -352,7 +387,7 @@ def _level_components(neglogp, valid, levels):
                 yield k, sizes[i], excess[i], absolute, labels[box] == i + 1
 
 
-def _scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates):
+def scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates):
     """Components of every level, their NFA, and the exclusion principle (most significant first)."""
     per_level: list[list] = [[] for _ in levels]
     if len(levels):
@@ -436,48 +471,5 @@ def merge_decisions(decisions: list[Decision], *, max_candidates: int) -> Decisi
         median=first.median,
         seed_index=seed_index,
         settings=dict(first.settings, score_maps=len(decisions), regions_per_map=[len(d.regions) for d in decisions]),
+        nulls=tuple(null for d in decisions for null in d.nulls),
     )
-
-
-def grow_to_extent(
-    seeds: np.ndarray, score: np.ndarray, valid: np.ndarray, *, background: float, fraction: float
-) -> np.ndarray:
-    """Grow each seed region into connected pixels whose excess reaches ``fraction`` of its peak excess.
-
-    Parameters
-    ----------
-    seeds : ndarray, HxW bool
-    score : ndarray, HxW float
-    valid : ndarray, HxW bool
-    background : float, score of unchanged pixels (median).
-    fraction : float in [0, 1); 0 returns the seeds.
-
-    Returns
-    -------
-    ndarray, HxW bool
-    """
-    if fraction <= 0 or not seeds.any():
-        return seeds & valid
-    # Each seed grows inside its bounding box padded by its larger side (at least 8 px).
-    # The binary morphological reconstruction of the seed in the allowed pixels is the
-    # union of the 8-connected components of the allowed pixels that hold a seed pixel:
-    # labelling them gives it, several times faster, with no statistic over the frame.
-    labels, _ = ndimage.label(seeds, structure=_EIGHT)
-    out = np.zeros(seeds.shape, bool)
-    h, w = seeds.shape
-    for i, window in enumerate(ndimage.find_objects(labels)):
-        pad = max(8, int(max(window[0].stop - window[0].start, window[1].stop - window[1].start)))
-        ys = slice(max(0, window[0].start - pad), min(h, window[0].stop + pad))
-        xs = slice(max(0, window[1].start - pad), min(w, window[1].stop + pad))
-        seed = labels[ys, xs] == i + 1
-        excess = np.maximum(score[ys, xs].astype(np.float32) - np.float32(background), 0.0)
-        allowed = (excess >= fraction * excess[seed].max()) & valid[ys, xs]
-        # The seed obeys the same rule: a strong change found at a low level carries
-        # the low level's flank (and any gain halo) in its seed component.
-        core = seed & allowed
-        if not core.any():
-            core = seed
-        components, _ = ndimage.label(allowed | core, structure=_EIGHT)
-        reached = np.unique(components[core])
-        out[ys, xs] |= np.isin(components, reached[reached > 0])
-    return out & valid

@@ -9,9 +9,10 @@ from scipy import ndimage
 from skimage.morphology import reconstruction
 
 from fgcd_cli.changes.cues.maps import _min_shifted_difference, shift_tolerant_difference
+from fgcd_cli.changes.extent import grow_to_extent
 from fgcd_cli.changes.illumination import normalize_local_gain, prepare_gain_weight
 from fgcd_cli.changes.regions import extract_regions, regions_with_significance
-from fgcd_cli.changes.significance import AcontrarioConfig, acontrario_decision, grow_to_extent
+from fgcd_cli.changes.significance import AcontrarioConfig, acontrario_decision
 from fgcd_cli.changes.tiled.geometry import tile_grid
 from fgcd_cli.changes.tiled.schedule import median_float16, run_tiles
 from fgcd_cli.changes.tiled.tile_scores import TiledScore

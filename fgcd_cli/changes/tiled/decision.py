@@ -10,9 +10,10 @@ import cv2
 import numpy as np
 
 from fgcd_cli.changes.config import DecisionRule, RegionConfig
+from fgcd_cli.changes.extent import grow_to_extent
 from fgcd_cli.changes.region_decision import region_mask, two_scale_decision
 from fgcd_cli.changes.regions import regions_with_significance
-from fgcd_cli.changes.significance import acontrario_config, acontrario_decision, grow_to_extent
+from fgcd_cli.changes.significance import acontrario_config, acontrario_decision
 from fgcd_cli.changes.threshold import robust_hysteresis_threshold
 from fgcd_cli.changes.tiled.schedule import release_free_memory
 
