@@ -23,8 +23,8 @@ from scipy import ndimage
 from fgcd_cli.changes.significance import (
     ScanNull,
     halfnormal_neglog_survival,
-    neglog_survival_sorted,
     scan_levels,
+    scan_neglogp,
 )
 
 __all__ = ["seeds_under_nulls"]
@@ -62,9 +62,12 @@ def _seeds_under(score: np.ndarray, valid: np.ndarray, null: ScanNull, within: n
     if len(null.levels) == 0 or null.sorted_background.size == 0:
         return np.zeros(valid.shape, bool)
     # the pixel's -log p as the scan computed it: the empirical tail or half-normal noise, the less surprising
-    neglogp = np.minimum(
-        neglog_survival_sorted(null.sorted_background, score, valid),
+    neglogp = scan_neglogp(
+        null.sorted_background,
+        score,
+        valid,
         halfnormal_neglog_survival(score / max(null.median, 1e-12)),
+        floor=float(null.levels[0]),
     )
     base, _ = ndimage.label((neglogp >= null.levels[0]) & valid, structure=_EIGHT)
     reached = np.unique(base[within & (base > 0)])
