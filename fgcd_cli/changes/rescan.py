@@ -20,12 +20,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from fgcd_cli.changes.significance import (
-    ScanNull,
-    halfnormal_neglog_survival,
-    scan_levels,
-    scan_neglogp,
-)
+from fgcd_cli.changes.marginal import halfnormal_neglog_survival, scan_neglogp
+from fgcd_cli.changes.significance import ScanNull, scan_levels
 
 __all__ = ["seeds_under_nulls"]
 

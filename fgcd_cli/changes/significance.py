@@ -53,6 +53,7 @@ from scipy import ndimage, special
 
 from fgcd_cli.changes.config import EPSILON, RegionConfig
 from fgcd_cli.changes.extent import grow_to_extent
+from fgcd_cli.changes.marginal import halfnormal_neglog_survival, scan_neglogp
 
 _EIGHT = np.ones((3, 3), bool)
 
@@ -111,73 +112,6 @@ class Decision:
     settings: dict = field(default_factory=dict)
     nulls: tuple[ScanNull, ...] = ()
     """The null of each score map scanned (one per map, in order)."""
-
-
-def empirical_neglog_survival(score: np.ndarray, valid: np.ndarray, *, sample: np.ndarray | None = None) -> np.ndarray:
-    """``-log P(S >= s)`` of every pixel under the empirical distribution of ``score[valid]``.
-
-    Parameters
-    ----------
-    score : ndarray, HxW float
-    valid : ndarray, HxW bool
-    sample : ndarray, HxW bool, optional
-        Pixels whose scores form the distribution (default: ``valid``), e.g. the
-        compared pixels outside the regions already found significant.
-
-    Returns
-    -------
-    ndarray, HxW float32 (0 outside ``valid``; at most ``log(2N)`` for N valid pixels).
-    """
-    return neglog_survival_sorted(np.sort(score[valid if sample is None else sample & valid]), score, valid)
-
-
-def neglog_survival_sorted(values: np.ndarray, score: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """:func:`empirical_neglog_survival` under a distribution given as its sorted (M,) sample ``values``."""
-    n = values.size
-    rank = np.searchsorted(values, score, side="left")
-    survival = np.clip((n - rank + 0.5) / n, 0.5 / n, 1.0)
-    return np.where(valid, -np.log(survival), 0.0).astype(np.float32)
-
-
-def scan_neglogp(
-    values: np.ndarray, score: np.ndarray, valid: np.ndarray, halfnormal: np.ndarray, *, floor: float
-) -> np.ndarray:
-    """A pixel's ``-log p`` as the scan reads it: the smaller of the empirical one (under the sorted (M,)
-    sample ``values``, :func:`neglog_survival_sorted`) and ``halfnormal``, where it reaches ``floor`` (the
-    lowest level scanned); 0 elsewhere.
-
-    The scan looks at nothing below its lowest level, so only the pixels above the sample's
-    ``exp(-floor)`` quantile are ranked (a few percent of the frame instead of all of it).
-    """
-    out = np.zeros(score.shape, np.float32)
-    n = values.size
-    # empirical -log p >= floor  <=>  rank >= first: rank counts the sample below the score
-    first = int(np.ceil(n + 0.5 - n * np.exp(-floor)))
-    if n == 0 or first > n:
-        return out
-    candidates = valid & (score > values[first - 1]) if first >= 1 else valid
-    idx = np.flatnonzero(candidates)
-    rank = np.searchsorted(values, score.ravel()[idx], side="left")
-    empirical = -np.log(np.clip((n - rank + 0.5) / n, 0.5 / n, 1.0)).astype(np.float32)
-    value = np.minimum(empirical, halfnormal.ravel()[idx])
-    out.ravel()[idx] = np.where(value >= floor, value, 0.0)
-    return out
-
-
-def halfnormal_neglog_survival(relative_score: np.ndarray) -> np.ndarray:
-    """``-log P(S >= s)`` when ``S`` is half-normal with median 1 (the absolute value of Gaussian noise).
-
-    Parameters
-    ----------
-    relative_score : ndarray, HxW float, score divided by its median.
-
-    Returns
-    -------
-    ndarray, HxW float32.
-    """
-    # median |N(0, 1)| = 0.6745, so s * 0.6745 is in units of the noise's sigma.
-    z = np.asarray(relative_score, np.float64) * 0.6745
-    return (-(special.log_ndtr(-z) + np.log(2.0))).clip(min=0.0).astype(np.float32)
 
 
 def exceedance_cluster_area(
@@ -300,14 +234,6 @@ def acontrario_decision(
             break
         background = new_background
         null_round += 1
-    null = ScanNull(
-        sorted_background=np.sort(score[background]),
-        median=median,
-        area=scan.area,
-        n_tests=float(scan.n_tests),
-        levels=scan.ladder if scan.ladder is not None else np.zeros(0),
-        epsilon=config.epsilon,
-    )
     return Decision(
         mask=mask,
         regions=scan.regions,
@@ -317,7 +243,7 @@ def acontrario_decision(
         seed_level=scan.seed_level,
         median=median,
         seed_index=scan.seed_index,
-        nulls=(null,),
+        nulls=(_kept_null(score, background, median, scan, config),),
         settings={
             "epsilon": config.epsilon,
             "seed_p": config.seed_p,
@@ -344,6 +270,18 @@ class _Scan:
     levels: int = 0
     ladder: np.ndarray | None = None
     """The ``-log p`` levels scanned."""
+
+
+def _kept_null(score, background, median: float, scan: _Scan, config: AcontrarioConfig) -> ScanNull:
+    """The null the last scan decided under (its background's scores, sorted), for :mod:`fgcd_cli.changes.rescan`."""
+    return ScanNull(
+        sorted_background=np.sort(score[background]),
+        median=median,
+        area=scan.area,
+        n_tests=float(scan.n_tests),
+        levels=scan.ladder if scan.ladder is not None else np.zeros(0),
+        epsilon=config.epsilon,
+    )
 
 
 def _scan_with_null(

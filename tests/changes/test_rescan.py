@@ -1,7 +1,5 @@
 """The decision made again under a kept null (:mod:`fgcd_cli.changes.rescan`), on synthetic score maps."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -9,7 +7,7 @@ from scipy import ndimage
 from fgcd_cli.changes.config import RegionConfig
 from fgcd_cli.changes.region_decision import two_scale_decision
 from fgcd_cli.changes.rescan import seeds_under_nulls
-from fgcd_cli.changes.significance import acontrario_decision
+from fgcd_cli.changes.significance import AcontrarioConfig, acontrario_decision
 
 
 def _scores(seed: int):
@@ -75,9 +73,8 @@ def test_maps_and_nulls_must_pair_up():
 def test_a_decision_keeps_the_null_it_decided_under():
     coarse, _ = _scores(2)
     valid = np.ones(coarse.shape, bool)
-    config = dataclasses.replace(RegionConfig())
     decision = acontrario_decision(coarse, valid, min_cluster_area_px=4 * np.pi * 4)
     (null,) = decision.nulls
     assert null.area == decision.cluster_area_px and null.n_tests == decision.n_tests
     assert null.levels[0] == pytest.approx(-np.log(0.005)) and np.all(np.diff(null.sorted_background) >= 0)
-    assert config.epsilon == null.epsilon
+    assert null.epsilon == AcontrarioConfig().epsilon

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from fgcd_cli.changes.significance import acontrario_decision, empirical_neglog_survival, halfnormal_neglog_survival
+from fgcd_cli.changes.marginal import empirical_neglog_survival, halfnormal_neglog_survival
+from fgcd_cli.changes.significance import acontrario_decision
 
 
 def _background(shape=(300, 300), *, seed=0, sigma=2.0):
