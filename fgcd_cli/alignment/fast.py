@@ -118,9 +118,14 @@ def fast_align(
     # level and the scale search when the prior already fits.
     d0, _ = ref.nearest(T.apply(run.probe))
     if not np.median(d0) < config.warm.rel * ref.width:
-        return _cold_start(run, T, StartPath.COLD)
-    result = _warm_start(run, T)
-    return result if result is not None else _cold_start(run, T, StartPath.WARM_TO_COLD)
+        result = _cold_start(run, T, StartPath.COLD)
+    else:
+        result = _warm_start(run, T) or _cold_start(run, T, StartPath.WARM_TO_COLD)
+    if config.scale.symmetric and config.scale.estimate and result.health.ok:
+        from fgcd_cli.alignment.symmetric import symmetric_scale
+
+        result = symmetric_scale(cur, ref, result, config)
+    return result
 
 
 def _valid_points(cur_points: np.ndarray, cur_weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:

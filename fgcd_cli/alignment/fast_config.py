@@ -126,6 +126,14 @@ class ScaleStepConfig:
     scale otherwise runs away while R, t are still wrong (docs/alignment.md, "Fast alignment")."""
     trim_factor: float = 3.0
     """Correspondences beyond this times the median point-to-plane residual are left out."""
+    symmetric: bool = False
+    """Measure the scale both ways (current onto reference, reference onto current) and take the
+    geometric mean, then re-solve R, t at it (:mod:`~fgcd_cli.alignment.symmetric`): one-way
+    scales come out low on VSE clouds (docs/alignment.md, "Fast alignment")."""
+    errors_in_variables: bool = False
+    """Both clouds are noisy: the scale is Deming's regression with equal noise in metres
+    (:func:`~fgcd_cli.alignment.sparse_icp.scale_step_point_to_plane`), not least squares,
+    whose slope the current cloud's noise dilutes (docs/alignment.md, "Fast alignment")."""
 
 
 @dataclass(frozen=True, kw_only=True)
