@@ -21,6 +21,8 @@ from dataclasses import replace
 import numpy as np
 
 from fgcd_cli.alignment.fast_config import FastAlignConfig
+from fgcd_cli.alignment.health import residual_stats
+from fgcd_cli.alignment.icp_levels import LevelInputs, finest, run_levels
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.results import AlignmentResult
 from fgcd_core.sim3 import Sim3
@@ -33,6 +35,8 @@ _MIN_BACKWARD_POINTS = 200
 #: The backward alignment's reference points: those within this many forward inlier thresholds of
 #: the current cloud (the part of the reference the current cloud covers).
 _NEAR_THRESHOLDS = 2.0
+#: Points of the current cloud the backward run aligns onto.
+_BACKWARD_POINTS = 10000
 #: Largest relative change the backward scale may make to the forward one; larger means the
 #: backward run went elsewhere (the measured shrink is 0.2–0.7 %).
 _MAX_CORRECTION = 0.02
@@ -43,51 +47,76 @@ def symmetric_scale(
 ) -> AlignmentResult:
     """The forward alignment with its scale replaced by the two-way geometric mean.
 
+    The two extra runs are the finest ICP level from the forward result (as a warm start),
+    without the health check: the geometry's verdict is the forward's. The held run's own
+    probes could not judge it anyway (with the scale held, a weak direction that contains the
+    scale never comes back).
+
     Parameters
     ----------
     cur : (N, 3) ndarray
-        The current points the forward alignment used (current metric frame).
+        The finite current points the forward alignment used (current metric frame).
     ref : ReferenceIndex
         The reference.
     forward : AlignmentResult
         ``fast_align(cur, ref)``, healthy.
     config : FastAlignConfig
-        The forward's options (its ``scale.symmetric`` is ignored here).
+        The forward's options.
 
     Returns
     -------
     AlignmentResult
-        The re-solved alignment at the symmetric scale, or ``forward`` unchanged when the backward
-        alignment is not trustworthy (too few reference points near the current cloud, unhealthy,
-        or a correction above ``_MAX_CORRECTION``).
+        ``forward`` at the two-way scale with R, t re-solved (its residuals recomputed), or ``forward``
+        unchanged when the backward run cannot be trusted: too few reference points near the current
+        cloud, a run that lost its correspondences or did not converge, or a correction above
+        ``_MAX_CORRECTION``.
     """
-    from fgcd_cli.alignment.fast import fast_align
-
     t0 = time.perf_counter()
     T = forward.T_ref_cur
-    one_way = replace(config, scale=replace(config.scale, symmetric=False))
-    cur_index = ReferenceIndex(cur)
-    radius = _NEAR_THRESHOLDS * max(forward.residuals.inlier_threshold_mm * 1e-3, 3.0 * ref.spacing)
-    d, _ = cur_index.nearest(T.inverse().apply(ref.points), max_distance=radius / T.scale)
-    near = ref.points[np.isfinite(d)]
+    rng = np.random.default_rng(config.seed)
+    # The backward run's reference: the current cloud, thinned to the finest level's point count (its
+    # normals and rim cost in proportion; the forward's finest level uses as many current points).
+    thin = cur if len(cur) <= _BACKWARD_POINTS else cur[rng.choice(len(cur), _BACKWARD_POINTS, replace=False)]
+    cur_index = ReferenceIndex(thin)
+    inlier_m = forward.residuals.inlier_threshold_mm * 1e-3
+    radius = _NEAR_THRESHOLDS * max(inlier_m, 3.0 * ref.spacing)
+    d, idx = cur_index.nearest(T.inverse().apply(ref.points), max_distance=radius / T.scale)
+    # Reference points beyond the current cloud's rim match its rim points and pull the two rims
+    # together, which shrinks the backward scale: only points matched inside the rim count.
+    found = np.isfinite(d)
+    found[found] &= ~cur_index.view_rim[idx[found]]
+    near = ref.points[found]
     if len(near) < _MIN_BACKWARD_POINTS:
         return forward
-    backward = fast_align(near, cur_index, init=T.inverse(), config=one_way)
-    if not backward.health.ok:
+    backward = run_levels(
+        LevelInputs(cur=near, weights=None, ref=cur_index, order=rng.permutation(len(near))),
+        T.inverse(),
+        finest(config),
+        config,
+        estimate_scale=True,
+    )
+    if backward.T is None or not backward.converged:
         return forward
-    s = math.sqrt(T.scale / backward.T_ref_cur.scale)
+    s = math.sqrt(T.scale / backward.T.scale)
     if abs(math.log(s / T.scale)) > _MAX_CORRECTION:
         return forward
-    # the same centroid of the current cloud, at the new scale
+    # the same centroid of the current cloud, at the new scale; then R, t again at that scale
     c = cur.mean(axis=0)
     start = Sim3(T.R, T.apply(c) - s * (T.R @ c), s)
-    held = replace(config, scale=replace(config.scale, estimate=False, symmetric=False))
-    out = fast_align(cur, ref, init=start, config=held)
-    if not out.health.ok:
+    held = run_levels(
+        LevelInputs(cur=cur, weights=None, ref=ref, order=rng.permutation(len(cur))),
+        start,
+        finest(config),
+        config,
+        estimate_scale=False,
+    )
+    if held.T is None or not held.converged:
         return forward
+    distances, _ = ref.nearest(held.T.apply(cur), max_distance=_NEAR_THRESHOLDS * inlier_m)
     return replace(
-        out,
-        iterations=forward.iterations + backward.iterations + out.iterations,
+        forward,
+        T_ref_cur=held.T,
+        residuals=residual_stats(distances, inlier_threshold=inlier_m),
+        iterations=forward.iterations + backward.iterations + held.iterations,
         seconds=forward.seconds + (time.perf_counter() - t0),
-        start=forward.start,
     )
