@@ -126,7 +126,7 @@ class ScaleStepConfig:
     scale otherwise runs away while R, t are still wrong (docs/alignment.md, "Fast alignment")."""
     trim_factor: float = 3.0
     """Correspondences beyond this times the median point-to-plane residual are left out."""
-    symmetric: bool = False
+    symmetric: bool = True
     """Measure the scale both ways (current onto reference, reference onto current) and take the
     geometric mean, then re-solve R, t at it (:mod:`~fgcd_cli.alignment.symmetric`): one-way
     scales come out low on VSE clouds (docs/alignment.md, "Fast alignment")."""
