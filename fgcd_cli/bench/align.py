@@ -13,7 +13,10 @@ must absorb). Initial similarities are the true one composed with random
 errors up to 15 deg / 15 cm / 20 % scale. Errors are those of the current
 keyframe *camera poses* mapped into the reference frame (what relocation
 uses), against the renderer's true poses, in mm and degrees; the scale error is
-against the similarity fitted between VSE and true camera centres.
+against the similarity fitted between VSE and true camera centres. Each trial
+runs the one-way fast alignment (``fast_*``: the API's default) and the
+relocation loop's (``loop_fast_*``: the two-way scale); rACR's fine stage starts
+from the loop's, as in the loop, and ``ablation_F`` is the loop's fast stage.
 
 **Synthetic clouds** (controlled studies): timing on 20k current / 50k
 reference points, and the paper's Fig. 4 noise study: half of the reference
@@ -37,11 +40,14 @@ from fgcd_cli.alignment.fine import fine_align
 from fgcd_cli.alignment.fine_config import FineAlignConfig
 from fgcd_cli.alignment.reference import ReferenceIndex
 from fgcd_cli.alignment.synthetic import ReliefScene, random_similarity
+from fgcd_cli.relocation.config import RelocationConfig
 from fgcd_cli.vse.types import VseStatus
 from fgcd_core.camera import PinholeCamera
 from fgcd_core.se3 import exp_se3, pose_distance, project_to_so3
 from fgcd_core.sim3 import Sim3
 
+#: The relocation loop's fast alignment (the two-way scale, docs/alignment.md, "Fast alignment").
+LOOP_FAST = RelocationConfig().fast_align
 SUCCESS_ROT_DEG = 1.0
 SUCCESS_TRANS_MM = 20.0
 SUCCESS_SCALE_PCT = 2.0
@@ -184,6 +190,8 @@ def _trial_row(
         "init_scale_pct": 100 * abs(pert.scale - 1),
     }
     fast = fast_align(session.cur_points, ref_index, init=init)
+    # the relocation loop's fast stage (the two-way scale): what the fine stage starts from in the loop
+    loop = fast_align(session.cur_points, ref_index, init=init, config=LOOP_FAST)
     # rACR-S: the session scale is taken as exact (sigma_p = 1), only R, t are estimated.
     no_scale = fast_align(
         session.cur_points,
@@ -193,10 +201,12 @@ def _trial_row(
     )
     row.update(_score("fast", fast.T_ref_cur, vse_poses, truths_ref, T_true, fast.health.ok))
     row["fast_seconds"] = fast.seconds
+    row.update(_score("loop", loop.T_ref_cur, vse_poses, truths_ref, T_true, loop.health.ok))
+    row["loop_seconds"] = loop.seconds
     row["fast_start"] = str(fast.start)
     row.update(_score("S", no_scale.T_ref_cur, vse_poses, truths_ref, T_true, no_scale.health.ok))
-    if fast.health.ok and fine:
-        common = dict(ref_points=ref_index, cur_keyframes=session.keyframes, camera=camera, init=fast.T_ref_cur)
+    if loop.health.ok and fine:
+        common = dict(ref_points=ref_index, cur_keyframes=session.keyframes, camera=camera, init=loop.T_ref_cur)
         fine_r = fine_align(**common, cur_points=session.cur_points)
         fine_p = fine_align(**common, cur_points=session.cur_points, config=FineAlignConfig(refine_keyframes=False))
         row.update(_score("fine", fine_r.T_ref_cur, fine_r.keyframe_poses, truths_ref, T_true, fine_r.health.ok))
@@ -354,13 +364,14 @@ def _synthetic_part(*, quick: bool, rng: np.random.Generator) -> dict:
         return p + rng.normal(0, 0.002, p.shape)
 
     # timing: warm re-alignment (the loop's steady state) and cold start from the largest errors
-    warm, cold, cold_ok = [], [], []
+    warm, warm_loop, cold, cold_ok = [], [], [], []
     for _ in range(5 if quick else 15):
         p = current()
         T_true = random_similarity(rng, rotation_deg=rng.uniform(0, 180), translation_m=1.0, scale_rel=0.05)
         cur = T_true.inverse().apply(p)
         init = random_similarity(rng, rotation_deg=1.0, translation_m=0.01, scale_rel=0.01) @ T_true
         warm.append(fast_align(cur, ref, init=init).seconds)
+        warm_loop.append(fast_align(cur, ref, init=init, config=LOOP_FAST).seconds)
         init = random_similarity(rng, rotation_deg=15.0, translation_m=0.15, scale_rel=0.2) @ T_true
         r = fast_align(cur, ref, init=init)
         cold.append(r.seconds)
@@ -392,6 +403,7 @@ def _synthetic_part(*, quick: bool, rng: np.random.Generator) -> dict:
         "reference_points": len(ref),
         "current_points": 20000,
         "warm_median_s": float(np.median(warm)),
+        "warm_loop_median_s": float(np.median(warm_loop)),
         "cold_median_s": float(np.median(cold)),
         "cold_success_rate_at_max_errors": float(np.mean(cold_ok)),
         "noise_study": noise,
@@ -414,6 +426,7 @@ def run(*, quick: bool) -> dict:
     summary = {
         "fast_success_rate": _mean(rows, "fast_success"),
         "fast_hz": 1.0 / synthetic["warm_median_s"],
+        "loop_fast_hz": 1.0 / synthetic["warm_loop_median_s"],
         "fast_cold_seconds": synthetic["cold_median_s"],
         "fine_seconds": _mean(fine_rows, "fine_seconds"),
         "rot_err_deg": _mean(fine_rows, "fine_rot_deg"),
@@ -422,8 +435,11 @@ def run(*, quick: bool) -> dict:
         "fast_rot_err_deg": _mean(fine_rows, "fast_rot_deg"),
         "fast_trans_err_mm": _mean(fine_rows, "fast_trans_mm"),
         "fast_scale_err_pct": _mean(fine_rows, "fast_scale_pct"),
-        "ablation_F_rot_err_deg": _mean(fine_rows, "fast_rot_deg"),
-        "ablation_F_trans_err_mm": _mean(fine_rows, "fast_trans_mm"),
+        "loop_fast_rot_err_deg": _mean(fine_rows, "loop_rot_deg"),
+        "loop_fast_trans_err_mm": _mean(fine_rows, "loop_trans_mm"),
+        "loop_fast_scale_err_pct": _mean(fine_rows, "loop_scale_pct"),
+        "ablation_F_rot_err_deg": _mean(fine_rows, "loop_rot_deg"),
+        "ablation_F_trans_err_mm": _mean(fine_rows, "loop_trans_mm"),
         "ablation_P_rot_err_deg": _mean(fine_rows, "P_rot_deg"),
         "ablation_P_trans_err_mm": _mean(fine_rows, "P_trans_mm"),
         "ablation_S_rot_err_deg": _mean(rows, "S_rot_deg"),

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcd_cli.alignment.fast_config import FastAlignConfig
+from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
 from fgcd_cli.alignment.fine_config import FineAlignConfig
 from fgcd_cli.relocation.enums import LoopMode
 
@@ -143,8 +143,11 @@ class RelocationConfig:
     """Longest wait for a 3D estimate of the view after the last image motion, to check
     agreement; without one, the check is reported as not done."""
     heartbeat_s: float = HEARTBEAT_S
-    fast_align: FastAlignConfig = FastAlignConfig()
-    """Options of every fast alignment of the loop (the paper's ``rACR-S`` ablation keeps the scale)."""
+    fast_align: FastAlignConfig = FastAlignConfig(scale=ScaleStepConfig(symmetric=True))
+    """Options of every fast alignment of the loop (the paper's ``rACR-S`` ablation keeps the scale). The
+    scale is measured both ways: the loop's last estimates set the final pose, and the one-way scale is
+    low on VSE clouds (docs/alignment.md, "Fast alignment"; the cost did not lengthen the rig time in
+    ``fgcd bench relocate --quick``, docs/benchmarks.md)."""
     fine_align: FineAlignConfig = FineAlignConfig()
     """Options of every fine alignment of the loop (the paper's alpha, and ``rACR-P``)."""
 

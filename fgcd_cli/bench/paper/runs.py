@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import shutil
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -228,11 +228,11 @@ def visit_scenario(spec: RunSpec):
 def loop_config(spec: RunSpec, *, deterministic: bool = False):
     """The rACR loop's options for ``spec``: its mode, alpha and ablation (paper 000 §5.4); ``deterministic``:
     its threads stepped in a fixed order."""
-    from fgcd_cli.alignment.fast_config import FastAlignConfig, ScaleStepConfig
     from fgcd_cli.alignment.fine_config import FineAlignConfig
     from fgcd_cli.relocation.config import RelocationConfig
 
-    fast = FastAlignConfig(scale=ScaleStepConfig(estimate=False)) if spec.ablation == "S" else FastAlignConfig()
+    loop_fast = RelocationConfig().fast_align  # the user's default
+    fast = replace(loop_fast, scale=replace(loop_fast.scale, estimate=False)) if spec.ablation == "S" else loop_fast
     fine = FineAlignConfig(alpha=spec.alpha, refine_keyframes=spec.ablation != "P")
     return RelocationConfig(
         mode=spec.mode,
