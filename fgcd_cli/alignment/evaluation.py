@@ -18,7 +18,7 @@ from fgcd_cli.alignment.results import AlignmentHealth, AlignmentResult, Residua
 from fgcd_cli.alignment.weak_probe import probe_weak_directions
 from fgcd_core.sim3 import Sim3
 
-__all__ = ["evaluate_alignment", "finished_result", "failed_result"]
+__all__ = ["evaluate_alignment", "finished_result", "failed_result", "overlap_threshold"]
 
 #: At most this many matched reference points enter the conditioning.
 _MAX_MATCHED = 5000
@@ -60,7 +60,7 @@ def evaluate_alignment(
     # noise (each cloud's noise estimated on that cloud alone, so a bad fit cannot inflate it).
     noise = math.hypot(local_roughness(cur, samples=500) * T.scale, ref.roughness)
     inlier_thr = max(h.inlier_rel * ref.width, h.inlier_noise_factor * noise, 3 * ref.spacing)
-    overlap_thr = max(h.overlap_rel * ref.width, 2 * inlier_thr, 5 * ref.spacing)
+    overlap_thr = overlap_threshold(inlier_thr, ref, config)
     d, idx = ref.nearest(T.apply(cur), max_distance=overlap_thr)
     matched = idx[d < inlier_thr]
     if len(matched) > _MAX_MATCHED:
@@ -93,6 +93,12 @@ def evaluate_alignment(
     )
     health = assess(evidence, limits, probe=probe if config.probe.enabled else None)
     return residual_stats(d, inlier_threshold=inlier_thr), health
+
+
+def overlap_threshold(inlier_threshold: float, ref: ReferenceIndex, config: FastAlignConfig) -> float:
+    """Distance (m) within which a current point counts as overlapping the reference (the residuals'
+    ``count``): a fraction of the width, twice the inlier threshold, or five point spacings."""
+    return max(config.health.overlap_rel * ref.width, 2 * inlier_threshold, 5 * ref.spacing)
 
 
 def finished_result(

@@ -124,7 +124,7 @@ def fast_align(
     if config.scale.symmetric and config.scale.estimate and result.health.ok:
         from fgcd_cli.alignment.symmetric import symmetric_scale
 
-        result = symmetric_scale(cur, ref, result, config)
+        result = symmetric_scale(cur, ref, result, config, cur_weights=weights)
     return result
 
 

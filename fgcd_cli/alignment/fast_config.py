@@ -129,13 +129,9 @@ class ScaleStepConfig:
     symmetric: bool = False
     """Measure the scale both ways (current onto reference, reference onto current) and take the
     geometric mean, then re-solve R, t at it (:mod:`~fgcd_cli.alignment.symmetric`): one-way
-    scales come out low on VSE clouds (docs/alignment.md, "Fast alignment"). Off here, where a
-    warm call takes 0.08 s: it costs about 0.3 s more. The relocation loop turns it on
-    (:attr:`fgcd_cli.relocation.config.RelocationConfig.fast_align`)."""
-    errors_in_variables: bool = False
-    """Both clouds are noisy: the scale is Deming's regression with equal noise in metres
-    (:func:`~fgcd_cli.alignment.sparse_icp.scale_step_point_to_plane`), not least squares,
-    whose slope the current cloud's noise dilutes (docs/alignment.md, "Fast alignment")."""
+    scales come out low on VSE clouds. Off here, where a warm call must stay cheap (two more
+    finest-level runs and an index of the current cloud); the relocation loop turns it on
+    (:attr:`fgcd_cli.relocation.config.RelocationConfig.fast_align`; docs/alignment.md, "Fast alignment")."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -247,9 +247,7 @@ def _scale_step(
     if np.count_nonzero(use) < 10:
         return s, t
     w = use.astype(float) if m.weights is None else use * m.weights
-    s_new, t_new = scale_step_point_to_plane(
-        a, m.q, m.normals, w, noise_ratio=s * s if cfg.errors_in_variables else None
-    )
+    s_new, t_new = scale_step_point_to_plane(a, m.q, m.normals, w)
     if not (s_new > 0 and math.isfinite(s_new)):
         return s, t
     # The least-squares scale is biased low while the correspondences are poor: bounding

@@ -185,36 +185,12 @@ def trimmed_point_to_plane_step(y: np.ndarray, q: np.ndarray, n: np.ndarray, *, 
     return out
 
 
-def scale_step_point_to_plane(
-    a: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray, *, noise_ratio: float | None = None
-) -> tuple[float, np.ndarray]:
+def scale_step_point_to_plane(a: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
     """Closed-form scale step (Eq. 15 in point-to-plane form) with the rotation fixed.
 
     Minimises ``sum_i w_i (n_i . (s a_i + t - q_i))^2`` over the scale ``s`` and
     translation ``t`` (linear least squares in 4 unknowns; the rotation is
     already applied: ``a_i = R x_i``).
-
-    Both clouds are measured: the regressor ``n_i . a_i`` carries the current
-    cloud's noise as much as ``n_i . q_i`` carries the reference's, and least
-    squares then dilutes the slope toward 0 (errors in the variables). With
-    ``noise_ratio`` (the variance of the reference's noise along the normal over
-    the current's, in their own units) the slope is Deming's regression instead
-    (Fuller, *Measurement Error Models*, 1987, §1.3), after the translation is
-    partialled out (Frisch–Waugh); ``noise_ratio = s**2`` says both clouds are
-    equally noisy in metres.
-
-    Parameters
-    ----------
-    a : (K, 3) ndarray
-        Rotated current points (current units).
-    q : (K, 3) ndarray
-        Matched reference points (metres).
-    n : (K, 3) ndarray
-        Unit normals of the reference at ``q``.
-    w : (K,) ndarray
-        Non-negative weights.
-    noise_ratio : float, optional
-        ``var(reference noise) / var(current noise)``; None is least squares.
 
     Returns
     -------
@@ -222,21 +198,11 @@ def scale_step_point_to_plane(
     t : (3,) ndarray
     """
     ca = (w @ a) / w.sum()
-    x = np.sum(n * (a - ca), axis=1)
-    y = np.sum(n * q, axis=1)
-    # Partial the translation out: x, y minus their weighted projections on the normals.
-    Nw = n * w[:, None]
-    G = gram(Nw, n) + 1e-12 * np.eye(3)
-    beta_x = np.linalg.solve(G, x @ Nw)
-    beta_y = np.linalg.solve(G, y @ Nw)
-    xr, yr = x - n @ beta_x, y - n @ beta_y
-    sxx, syy, sxy = float(w @ (xr * xr)), float(w @ (yr * yr)), float(w @ (xr * yr))
-    if noise_ratio is None or sxy == 0.0:
-        s = sxy / sxx if sxx > 0 else float("nan")
-    else:
-        d = float(noise_ratio)
-        gap = syy - d * sxx
-        s = (gap + np.sqrt(gap * gap + 4.0 * d * sxy * sxy)) / (2.0 * sxy)
-    t_prime = beta_y - s * beta_x
-    # y = s (a - ca) . n + t' . n  ->  t = t' - s ca
-    return float(s), t_prime - s * ca
+    ac = a - ca
+    J = np.column_stack([np.sum(n * ac, axis=1), n])
+    r = np.sum(n * q, axis=1)
+    Jw = J * w[:, None]
+    sol = np.linalg.solve(gram(Jw, J) + 1e-12 * np.eye(4), r @ Jw)
+    s = float(sol[0])
+    # y = s (a - ca) + t'  ->  t = t' - s ca
+    return s, sol[1:] - s * ca

@@ -1,12 +1,9 @@
 """The scale measured both ways: current onto reference, and reference onto current.
 
-The closed-form scale step (Eq. 15) comes out low on VSE clouds: on 9 simulated
-relief-panel revisits the forward scale was below the truth every time (0.9942–0.9984),
-by 2–5 times what the clouds' roughness predicts as errors in the variables, and
-Deming's regression on the same correspondences corrects only a third of it
-(docs/lab/2026-12-07-symmetric-scale.md). Nearest-neighbour correspondences on a
-curved relief pull the matched offsets toward the local mean, whichever cloud is
-the source. Aligning the reference onto the current cloud shrinks the inverse scale
+The closed-form scale step (Eq. 15) comes out low on VSE clouds, more than errors in
+the variables explain (docs/alignment.md, "Fast alignment"): nearest-neighbour
+correspondences on a curved relief pull the matched offsets toward the local mean,
+whichever cloud is the source. Aligning the reference onto the current cloud shrinks the inverse scale
 the same way, so the geometric mean of the forward scale and the inverted backward
 one cancels the shrink when the two clouds sample the surface alike (two sessions
 of the same VSE). R and t are then re-solved at that scale.
@@ -20,6 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from fgcd_cli.alignment.evaluation import overlap_threshold
 from fgcd_cli.alignment.fast_config import FastAlignConfig
 from fgcd_cli.alignment.health import residual_stats
 from fgcd_cli.alignment.icp_levels import LevelInputs, finest, run_levels
@@ -38,12 +36,17 @@ _NEAR_THRESHOLDS = 2.0
 #: Points of the current cloud the backward run aligns onto.
 _BACKWARD_POINTS = 10000
 #: Largest relative change the backward scale may make to the forward one; larger means the
-#: backward run went elsewhere (the measured shrink is 0.2–0.7 %).
+#: backward run went elsewhere (the shrink it corrects is a fraction of this: docs/alignment.md).
 _MAX_CORRECTION = 0.02
 
 
 def symmetric_scale(
-    cur: np.ndarray, ref: ReferenceIndex, forward: AlignmentResult, config: FastAlignConfig
+    cur: np.ndarray,
+    ref: ReferenceIndex,
+    forward: AlignmentResult,
+    config: FastAlignConfig,
+    *,
+    cur_weights: np.ndarray | None = None,
 ) -> AlignmentResult:
     """The forward alignment with its scale replaced by the two-way geometric mean.
 
@@ -62,6 +65,8 @@ def symmetric_scale(
         ``fast_align(cur, ref)``, healthy.
     config : FastAlignConfig
         The forward's options.
+    cur_weights : (N,) ndarray, optional
+        The forward's per-point confidences (the held re-solve uses them as the forward did).
 
     Returns
     -------
@@ -104,7 +109,7 @@ def symmetric_scale(
     c = cur.mean(axis=0)
     start = Sim3(T.R, T.apply(c) - s * (T.R @ c), s)
     held = run_levels(
-        LevelInputs(cur=cur, weights=None, ref=ref, order=rng.permutation(len(cur))),
+        LevelInputs(cur=cur, weights=cur_weights, ref=ref, order=rng.permutation(len(cur))),
         start,
         finest(config),
         config,
@@ -112,7 +117,7 @@ def symmetric_scale(
     )
     if held.T is None or not held.converged:
         return forward
-    distances, _ = ref.nearest(held.T.apply(cur), max_distance=_NEAR_THRESHOLDS * inlier_m)
+    distances, _ = ref.nearest(held.T.apply(cur), max_distance=overlap_threshold(inlier_m, ref, config))
     return replace(
         forward,
         T_ref_cur=held.T,

@@ -146,8 +146,7 @@ class RelocationConfig:
     fast_align: FastAlignConfig = FastAlignConfig(scale=ScaleStepConfig(symmetric=True))
     """Options of every fast alignment of the loop (the paper's ``rACR-S`` ablation keeps the scale). The
     scale is measured both ways: the loop's last estimates set the final pose, and the one-way scale is
-    low on VSE clouds (docs/alignment.md, "Fast alignment"; the cost did not lengthen the rig time in
-    ``fgcd bench relocate --quick``, docs/benchmarks.md)."""
+    low on VSE clouds (docs/alignment.md, "Fast alignment")."""
     fine_align: FineAlignConfig = FineAlignConfig()
     """Options of every fine alignment of the loop (the paper's alpha, and ``rACR-P``)."""
 
