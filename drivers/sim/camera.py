@@ -158,10 +158,10 @@ class SimCamera:
         self._still_exposure: float | None = None
         self._closed = False
         self._still_renderer = None
-        # rendering time, for the rig-time model: finished renders, and the start of those in
-        # progress by thread (the VSE thread and a caller grabbing images may render at once)
+        # rendering time, for the rig-time model: finished renders' seconds and the start of those in
+        # progress, by thread (the VSE thread and a caller grabbing images may render at once)
         self._render_lock = threading.Lock()
-        self._render_total_s = 0.0
+        self._render_total_s: dict[int, float] = {}
         self._render_started: dict[int, float] = {}
 
     @property
@@ -220,7 +220,7 @@ class SimCamera:
             )
         finally:
             with self._render_lock:
-                self._render_total_s += time.monotonic() - start
+                self._render_total_s[me] = self._render_total_s.get(me, 0.0) + time.monotonic() - start
                 self._render_started.pop(me, None)
         self.last_exposure = res.exposure
         ts = 0.0
@@ -230,17 +230,24 @@ class SimCamera:
                 self.clock.advance(self.frame_period_s)
         return Frame(res.gray, ts, res.depth if self.with_depth else None, res.rgb, exposure=float(res.exposure))
 
-    def synthetic_overhead_s(self) -> float:
-        """Wall seconds spent so far synthesising frames (the render in progress included).
+    def synthetic_overhead_s(self, thread: int | None = None) -> float:
+        """Wall seconds spent so far synthesising frames and stills (the renders in progress included).
 
-        A real camera streams frames while the software works; this camera renders
-        each frame on demand in the grabbing thread, which a rig's time budget must
-        not count (docs/relocation.md, "Time"; render times in docs/benchmarks.md,
-        "Simulator renderer (`fgcd bench render`)"). ``time.monotonic`` seconds, comparable between calls.
+        A real camera streams frames while the software works, and its still is its
+        next frame; this camera renders each image on demand in the grabbing thread,
+        which a rig's time budget must not count (docs/relocation.md, "Time"; render
+        times in docs/benchmarks.md, "Simulator renderer (`fgcd bench render`)").
+        ``thread`` (a ``threading.get_ident()``): only the renders made in that thread,
+        for a caller timing its own stills while the VSE thread renders its stream.
+        ``time.monotonic`` seconds, comparable between calls.
         """
         with self._render_lock:
             now = time.monotonic()
-            return self._render_total_s + sum(now - t for t in self._render_started.values())
+            if thread is None:
+                done = sum(self._render_total_s.values())
+                return done + sum(now - t for t in self._render_started.values())
+            started = self._render_started.get(thread)
+            return self._render_total_s.get(thread, 0.0) + (now - started if started is not None else 0.0)
 
     def close(self) -> None:
         self._closed = True

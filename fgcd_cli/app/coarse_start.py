@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -95,14 +94,13 @@ def maybe_coarse(
         # untrustworthy fit may be a slide. When the image localizer puts the camera near, the loop
         # and its image fallback take it from there (docs/relocation.md, "Far starts").
         rig.progress(0, 0, "locating the camera in the reference images")
-        t0 = time.monotonic()
-        T_img, _info = image_estimate(
-            reference_images=start.images(),
-            current_image=start.current(),
-            camera=rig.intrinsics,
-            reference=reference,
-        )
-        session.timing.wait_s += time.monotonic() - t0  # the platform waits for it
+        with session.standing_still(stills=2):  # the platform waits for it, not for the simulator's rendering
+            T_img, _info = image_estimate(
+                reference_images=start.images(),
+                current_image=start.current(),
+                camera=rig.intrinsics,
+                reference=reference,
+            )
         if T_img is not None:
             img_mm, img_deg = pose_distance(T_img, reference.T_ref_camref)
             img_near = img_mm <= config.trigger_m * 1e3 and img_deg <= config.trigger_deg

@@ -58,14 +58,7 @@ def _grab_timed(rig: RigHandles, timing: SessionTiming, *, frames: int = 2) -> n
     synth0 = synth() if synth is not None else 0.0
     t0 = time.monotonic()
     image = grab_gray(rig, average=frames)
-    wall = time.monotonic() - t0
-    if synth is None:
-        timing.wait_s += wall
-    else:
-        rendered = min(wall, max(0.0, synth() - synth0))
-        counted = min(wall, max(wall - rendered, frames / CAMERA_FPS))
-        timing.wait_s += counted
-        timing.synthetic_s += wall - counted
+    timing.count_wait(time.monotonic() - t0, None if synth is None else synth() - synth0, floor_s=frames / CAMERA_FPS)
     return image
 
 

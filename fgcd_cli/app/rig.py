@@ -69,9 +69,9 @@ class RigHandles:
         Progress lines for people.
     on_progress : callable(done, total, label) or None
         Progress of long steps (``total <= 0``: length unknown).
-    frame_synthesis_s : callable() -> float, or None
+    frame_synthesis_s : callable([thread]) -> float, or None
         The camera's cumulative frame-synthesis time, seconds (a simulator's
-        rendering), so that session timing leaves it out
+        rendering; given a thread's ident, that thread's only), so that session timing leaves it out
         (:class:`fgcd_cli.relocation.session.VseSession`); None for real cameras.
     """
 
@@ -83,7 +83,7 @@ class RigHandles:
     lights: Lights | None = None
     on_event: Callable[[str], None] | None = None
     on_progress: Callable[[int, int, str], None] | None = None
-    frame_synthesis_s: Callable[[], float] | None = None
+    frame_synthesis_s: Callable[..., float] | None = None
 
     def say(self, text: str) -> None:
         """One progress line for people (no-op without ``on_event``)."""

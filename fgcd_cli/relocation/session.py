@@ -10,6 +10,7 @@ pose.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -91,6 +92,22 @@ class SessionTiming:
     step_clock: Callable[[], float] | None = None
     """A deterministic run's clock (:attr:`fgcd_cli.vse.thread.SteppedVse.seconds`, one frame period per
     frame step): its waits then count that, not the wall clock (docs/relocation.md, "Reproducibility")."""
+
+    def count_wait(self, wall_s: float, rendered_s: float | None, *, floor_s: float = 0.0) -> None:
+        """Count a wait of ``wall_s`` seconds while the platform stood still.
+
+        ``rendered_s``: the simulator's rendering within it (None on hardware: all of it counts).
+        The rendering is left out, as a real camera streams frames and its still is its next
+        frame, but the wait counts at least ``floor_s`` (the frames' periods) and never more
+        than the wall time (docs/relocation.md, "Time"). The one home of that rule.
+        """
+        if rendered_s is None:
+            self.wait_s += wall_s
+            return
+        rendered = min(wall_s, max(0.0, rendered_s))
+        counted = min(wall_s, max(wall_s - rendered, floor_s))
+        self.wait_s += counted
+        self.synthetic_s += wall_s - counted
 
     @property
     def total_s(self) -> float:
@@ -201,9 +218,9 @@ class VseSession:
     on_progress : callable(done, total, label), optional
         Progress of long steps (exploration, motions in sub-steps), reported
         after each sub-step; ``total <= 0`` means the length is unknown.
-    frame_synthesis_s : callable() -> float, optional
+    frame_synthesis_s : callable([thread]) -> float, optional
         Cumulative seconds the camera has spent synthesising frames (the
-        simulator's ``synthetic_overhead_s``). When given, frame waits count
+        simulator's ``synthetic_overhead_s``; given a thread's ident, that thread's only). When given, frame waits count
         without that time, and at least one ``1 / camera_fps`` per frame: the
         rig-time model of a streaming camera (see :class:`SessionTiming`).
     camera_fps : float
@@ -217,7 +234,7 @@ class VseSession:
     settle_frames: int = 2
     frame_timeout_s: float = 60.0
     on_event: Callable[[str], None] | None = None
-    frame_synthesis_s: Callable[[], float] | None = None
+    frame_synthesis_s: Callable[..., float] | None = None
     camera_fps: float = 30.0
     on_progress: Callable[[int, int, str], None] | None = None
     timing: SessionTiming = field(default_factory=SessionTiming)
@@ -245,13 +262,26 @@ class VseSession:
 
     def _count_frame_wait(self, wall_s: float, synth0: float, frames: int) -> None:
         """Add a frame wait to the timing, without the camera's frame synthesis (if known)."""
-        if self.frame_synthesis_s is None:
-            self.timing.wait_s += wall_s
-            return
-        synth = min(wall_s, max(0.0, self.frame_synthesis_s() - synth0))
-        rig = min(wall_s, max(wall_s - synth, frames / self.camera_fps))
-        self.timing.wait_s += rig
-        self.timing.synthetic_s += wall_s - rig
+        rendered = None if self.frame_synthesis_s is None else self.frame_synthesis_s() - synth0
+        self.timing.count_wait(wall_s, rendered, floor_s=frames / self.camera_fps)
+
+    @contextmanager
+    def standing_still(self, *, stills: int = 0) -> Iterator[None]:
+        """Time a block in which the platform stands still while this thread grabs stills and computes.
+
+        Rig time is the block's wall time without the simulator's rendering of this thread's
+        stills (the VSE thread's stream frames, rendered meanwhile, are not the block's),
+        at least ``stills`` frame periods (:meth:`SessionTiming.count_wait`).
+        """
+        me = threading.get_ident()
+        own = None if self.frame_synthesis_s is None else (lambda: self.frame_synthesis_s(me))
+        synth0 = own() if own is not None else 0.0
+        t0 = time.monotonic()
+        try:
+            yield
+        finally:
+            rendered = None if own is None else own() - synth0
+            self.timing.count_wait(time.monotonic() - t0, rendered, floor_s=stills / self.camera_fps)
 
     def tracking_state(self, *, timeout_s: float = 60.0):
         """Wait for a settled state in which the VSE tracks; raise if it fails."""

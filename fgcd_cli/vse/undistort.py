@@ -87,10 +87,13 @@ class UndistortedSource:
             exposure=getattr(f, "exposure", None),
         )
 
-    def synthetic_overhead_s(self) -> float:
-        """The wrapped source's frame-synthesis time (a simulator's rendering; 0 for real cameras)."""
+    def synthetic_overhead_s(self, thread: int | None = None) -> float:
+        """The wrapped source's frame-synthesis time (a simulator's rendering; 0 for real cameras);
+        ``thread``: that thread's only (``SimCamera.synthetic_overhead_s``)."""
         inner = getattr(self.source, "synthetic_overhead_s", None)
-        return float(inner()) if inner is not None else 0.0
+        if inner is None:
+            return 0.0
+        return float(inner() if thread is None else inner(thread))
 
     def close(self) -> None:
         close = getattr(self.source, "close", None)

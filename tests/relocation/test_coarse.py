@@ -8,6 +8,7 @@ with 1.5 mm of noise per axis and its own sampling (a VSE cloud, not a copy).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from types import SimpleNamespace
 
@@ -116,6 +117,10 @@ class _FakeSession:
 
     def settle(self, frames=None):
         return self.tracking_state()
+
+    @contextlib.contextmanager
+    def standing_still(self, *, stills=0):
+        yield
 
     def move_by(self, M_flange: np.ndarray) -> float:
         self.motions.append(M_flange.copy())

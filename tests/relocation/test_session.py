@@ -1,6 +1,8 @@
 """A VSE session: the exploration pattern, its sub-stepped motions, the time it counts."""
 
 import math
+import threading
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -46,9 +48,6 @@ class _SlowSynthesisVse:
     """A VSE thread stand-in whose every frame takes ``render_s`` of synthesis plus ``process_s`` of work."""
 
     def __init__(self, render_s: float, process_s: float):
-        import threading
-        import time
-
         self.synthesis = 0.0
         self.frames = 0
         self._stop = threading.Event()
@@ -164,3 +163,61 @@ def test_session_exploration_reports_every_substep():
     assert (
         calls[0][2] == f"exploring (1/{len(motions)})" and calls[-1][2] == f"exploring ({len(motions)}/{len(motions)})"
     )
+
+
+class _PerThreadSynthesis:
+    """A camera's synthesis clock by thread, as ``SimCamera.synthetic_overhead_s``."""
+
+    def __init__(self):
+        self.by_thread: dict[int, float] = {}
+        self.lock = threading.Lock()
+
+    def render(self, seconds: float) -> None:
+        time.sleep(seconds)
+        with self.lock:
+            me = threading.get_ident()
+            self.by_thread[me] = self.by_thread.get(me, 0.0) + seconds
+
+    def __call__(self, thread: int | None = None) -> float:
+        with self.lock:
+            return sum(self.by_thread.values()) if thread is None else self.by_thread.get(thread, 0.0)
+
+
+def test_a_stand_still_block_counts_its_work_but_not_the_rendering_of_its_own_stills():
+    """Rig-time model: a real camera's still is its next frame; the VSE thread's stream is not the block's."""
+    from fgcd_cli.relocation.session import VseSession
+
+    synth = _PerThreadSynthesis()
+    session = VseSession(guard=None, vse=None, frame_synthesis_s=synth, camera_fps=30.0)
+    stop = threading.Event()
+
+    def stream():  # the VSE thread renders its frames meanwhile
+        while not stop.is_set():
+            synth.render(0.02)
+
+    streaming = threading.Thread(target=stream, daemon=True)
+    streaming.start()
+    still_s, work_s = 0.3, 0.1
+    t0 = time.monotonic()
+    try:
+        with session.standing_still(stills=2):
+            synth.render(still_s)  # two stills rendered in this thread
+            time.sleep(work_s)  # the matching
+    finally:
+        wall = time.monotonic() - t0
+        stop.set()
+        streaming.join()
+    # the stills' rendering is set aside, the work counts; the stream's rendering is not subtracted
+    assert session.timing.synthetic_s == pytest.approx(still_s, abs=0.01)
+    assert session.timing.wait_s == pytest.approx(wall - still_s, abs=0.01)
+    assert session.timing.wait_s >= work_s
+    # without a synthesis clock (a real camera) the whole block counts
+    real = VseSession(guard=None, vse=None)
+    with real.standing_still(stills=2):
+        time.sleep(work_s)
+    assert real.timing.wait_s >= work_s and real.timing.synthetic_s == 0.0
+    # a block faster than its stills' frame periods counts those periods
+    fast = VseSession(guard=None, vse=None, frame_synthesis_s=synth, camera_fps=30.0)
+    with fast.standing_still(stills=2):
+        synth.render(0.1)
+    assert fast.timing.wait_s == pytest.approx(2 / 30.0, abs=1e-6)

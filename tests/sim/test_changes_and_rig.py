@@ -356,6 +356,8 @@ def test_rig_home_pose_camera_and_ground_truth():
     import threading
 
     before, errors = rig.camera.synthetic_overhead_s(), []
+    mine = rig.camera.synthetic_overhead_s(threading.get_ident())
+    assert mine == pytest.approx(before)  # so far every render was this thread's
 
     def grab():
         try:
@@ -371,6 +373,8 @@ def test_rig_home_pose_camera_and_ground_truth():
         w.join()
     assert not errors
     assert 0.0 < rig.camera.synthetic_overhead_s() - before <= 3 * (time.monotonic() - t0)
+    # by thread: the other threads' renders are not this thread's (a caller timing its own stills)
+    assert rig.camera.synthetic_overhead_s(threading.get_ident()) == mine
     # move the flange: the camera follows through the hidden hand-eye
     T = rig.platform.flange_pose()
     T[:3, 3] += [0.01, 0.0, 0.0]

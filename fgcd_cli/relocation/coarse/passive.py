@@ -12,7 +12,6 @@ view, else the best unverified one that overlaps the reference.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -145,29 +144,33 @@ def localize(inp: CoarseInputs, step: int, last_3d: Sim3) -> View:
     T_cur_cam[:3, 3] *= inp.scale
     cloud = np.asarray(state.cloud.points, dtype=float) * inp.scale
     observed, _ = in_view(cloud, T_cur_cam, camera)
-    t0 = time.monotonic()
-    candidates, notes = _candidates(inp, cloud, T_cur_cam, last_3d)
-    align = notes[EstimateSource.THREE_D]
-    best = unverified = None
-    for name, T_ref_cam in candidates.items():
-        geometric = name == EstimateSource.THREE_D
-        notes[name]["check_scale"] = s_check = check_scale(
-            align["scale"], scale_rel_std=inp.scale_rel_std, scale_measured=align["scale_measured"] and not geometric
-        )
-        unc = camera_uncertainty(observed * s_check, inp.reference.points, T_ref_cam, camera, config=config, seed=step)
-        notes[name]["uncertainty"] = unc.to_dict()
-        notes[name]["offset_mm"], notes[name]["offset_deg"] = pose_distance(T_ref_cam, T_ref_camref)
-        # the estimated camera centre in the reference camera frame (the scene uncertainty map's frame)
-        notes[name]["position_refcam_m"] = (invert_pose(T_ref_camref) @ T_ref_cam)[:3, 3].tolist()
-        if unc.verified(config, geometric_source=geometric) and (
-            best is None or unc.constrained_translation_m < best[2].constrained_translation_m
-        ):
-            best = (name, T_ref_cam @ unc.correction(geometric_source=geometric), unc)
-        if unc.fitness >= config.min_fitness and (
-            unverified is None or residual_m(unc, name) < residual_m(unverified[2], unverified[0])
-        ):
-            unverified = (name, T_ref_cam, unc)
-    session.timing.wait_s += time.monotonic() - t0
+    # the platform waits for the stills and the localizers, not for the simulator's rendering
+    with session.standing_still(stills=2):
+        candidates, notes = _candidates(inp, cloud, T_cur_cam, last_3d)
+        align = notes[EstimateSource.THREE_D]
+        best = unverified = None
+        for name, T_ref_cam in candidates.items():
+            geometric = name == EstimateSource.THREE_D
+            notes[name]["check_scale"] = s_check = check_scale(
+                align["scale"],
+                scale_rel_std=inp.scale_rel_std,
+                scale_measured=align["scale_measured"] and not geometric,
+            )
+            unc = camera_uncertainty(
+                observed * s_check, inp.reference.points, T_ref_cam, camera, config=config, seed=step
+            )
+            notes[name]["uncertainty"] = unc.to_dict()
+            notes[name]["offset_mm"], notes[name]["offset_deg"] = pose_distance(T_ref_cam, T_ref_camref)
+            # the estimated camera centre in the reference camera frame (the scene uncertainty map's frame)
+            notes[name]["position_refcam_m"] = (invert_pose(T_ref_camref) @ T_ref_cam)[:3, 3].tolist()
+            if unc.verified(config, geometric_source=geometric) and (
+                best is None or unc.constrained_translation_m < best[2].constrained_translation_m
+            ):
+                best = (name, T_ref_cam @ unc.correction(geometric_source=geometric), unc)
+            if unc.fitness >= config.min_fitness and (
+                unverified is None or residual_m(unc, name) < residual_m(unverified[2], unverified[0])
+            ):
+                unverified = (name, T_ref_cam, unc)
     return View(T_cur_cam=T_cur_cam, notes=notes, best=best, unverified=None if best is not None else unverified)
 
 

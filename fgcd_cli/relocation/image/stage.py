@@ -40,7 +40,6 @@ paused (the *fallback*) the image estimate is the only one left.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -156,16 +155,15 @@ class _ImageStage:
             f"{self.label} {step + 1}/{self.steps}: matching the current image with "
             f"{len(ctx.reference_images)} reference image(s)"
         )
-        t0 = time.monotonic()
-        ref = ctx.refiner(unresolved_mm=ctx.config.agreement_k * self.st.sigma3d_mm)(
-            reference_images=ctx.reference_images,
-            current_image=ctx.grab_current(),
-            camera=ctx.camera,
-            ref_points=ctx.reference.points,
-            T_ref_camref=ctx.reference.T_ref_camref,
-        )
-        session.timing.wait_s += time.monotonic() - t0
-        return ref
+        # the platform waits for the stills and the matching; the simulator's rendering is not the rig's
+        with session.standing_still(stills=2):
+            return ctx.refiner(unresolved_mm=ctx.config.agreement_k * self.st.sigma3d_mm)(
+                reference_images=ctx.reference_images,
+                current_image=ctx.grab_current(),
+                camera=ctx.camera,
+                ref_points=ctx.reference.points,
+                T_ref_camref=ctx.reference.T_ref_camref,
+            )
 
     def _record(
         self, step: int, state, ref, m: _Measurement, agreement: dict | None, frames: dict | None
