@@ -24,3 +24,30 @@ def test_the_worker_wakes_its_reader_on_publication():
         assert not worker.wait_until(lambda e: e.serial == 99, 0.05)  # one frame only: no newer estimate
     finally:
         worker.stop()
+
+
+def test_a_wait_for_a_3d_view_that_never_comes_is_counted_on_the_rig():
+    """The platform stands still for the whole agreement wait, whether an estimate comes or not."""
+    import time
+    from types import SimpleNamespace
+
+    from fgcd_cli.relocation.racr.estimates import _wait_for_view_after
+    from fgcd_cli.relocation.session import SessionTiming
+
+    class _Silent:  # an alignment thread that publishes nothing
+        error = None
+
+        def wait_until(self, predicate, timeout_s):
+            time.sleep(timeout_s)
+            return False
+
+        def latest_ok(self):
+            return None
+
+    timing = SessionTiming()
+    ctx = SimpleNamespace(
+        config=SimpleNamespace(agreement_wait_s=0.2), session=SimpleNamespace(timing=timing), say=lambda m: None
+    )
+    est, note = _wait_for_view_after(ctx, _Silent(), after_frame=10)
+    assert est is None and "no 3D estimate" in note
+    assert timing.wait_s >= 0.2

@@ -195,12 +195,13 @@ def _wait_for_view_after(ctx: LoopContext, worker: AlignmentWorker, after_frame:
     ctx.say("waiting for a 3D estimate of this view to compare with the image estimate")
     t0 = time.monotonic()
     worker.wait_until(lambda e: e is not None and e.ok and e.vse_frame > after_frame, wait_s)
+    # the platform stood still for the whole wait, whether an estimate came or not
+    ctx.session.timing.wait_s += time.monotonic() - t0
     if worker.error:
         return None, f"alignment thread stopped: {worker.error}"
     est = worker.latest_ok()
     if est is None or est.vse_frame <= after_frame:
         return None, f"no 3D estimate of this view within {wait_s:.0f} s"
-    ctx.session.timing.wait_s += time.monotonic() - t0
     return est, ""
 
 
