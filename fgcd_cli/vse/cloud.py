@@ -149,8 +149,9 @@ class _FusedKeyframeCloud:
         reach = self._reach(eng.config)
         for a, kf in enumerate(with_depth):
             partners = [o for b, o in enumerate(with_depth) if b != a and abs(b - a) <= reach]
-            # the fused part only changes when a pose involved (bundle adjustment) or a partner changes
-            key = tuple((o.id, o.T_cam_map.tobytes()) for o in [kf, *partners])
+            # the fused part only changes when a pose involved (bundle adjustment), a partner, or the depths
+            # searched again (the geometry they were searched with) change
+            key = tuple((o.id, o.T_cam_map.tobytes(), o.semidense_stereo) for o in [kf, *partners])
             hit = self._parts.get(kf.id)
             if hit is None or hit[0] != key:
                 hit = (key, self._part(eng, kf, partners))
@@ -220,7 +221,8 @@ class SemiDenseCloud(_FusedKeyframeCloud):
 
     @staticmethod
     def _update_depths(eng: EngineView) -> None:
-        """Depth for recent keyframes that have stereo partners on both sides (each keyframe once)."""
+        """Depth for recent keyframes that have stereo partners on both sides (each keyframe once), and again
+        for those whose stereo geometry bundle adjustment has moved since (``VseConfig.semidense_refresh``)."""
         kfs = eng.kfs
         n = len(kfs)
         for k in range(max(0, n - _SEMIDENSE_LOOKBACK), n - 1):
@@ -229,7 +231,32 @@ class SemiDenseCloud(_FusedKeyframeCloud):
             nbs = depth_partners(eng, k)
             if not any(j > k for j in nbs) or len(nbs) < min(2, eng.config.semidense_min_views):
                 continue
-            kfs[k].semidense = semidense_of_keyframe(eng, k, nbs)
+            _search_depths(eng, k, nbs)
+        if eng.config.semidense_refresh:
+            for k in range(max(0, n - eng.config.ba_window), n):
+                stereo = kfs[k].semidense_stereo
+                if stereo is not None and stereo != _stereo_key(eng, k, stereo[0]):
+                    _search_depths(eng, k, [j for j in range(n) if kfs[j].id in stereo[0]])
+
+
+def _stereo_key(eng: EngineView, k: int, partner_ids: tuple[int, ...]) -> tuple:
+    """The stereo geometry keyframe ``k``'s depths are searched with: its partners' ids and every pose involved."""
+    poses = {kf.id: kf.T_cam_map.tobytes() for kf in eng.kfs if kf.id in partner_ids}
+    return (partner_ids, eng.kfs[k].T_cam_map.tobytes(), tuple(poses.get(i) for i in partner_ids))
+
+
+def _search_depths(eng: EngineView, k: int, nbs: list[int]) -> None:
+    """Search keyframe ``k``'s semi-dense depths with partners ``nbs`` (indices) and note the geometry used.
+
+    Why again after bundle adjustment: a depth searched along the epipolar lines of poses that the
+    adjustment has since corrected carries their error as a tilt of the keyframe's cloud against its
+    own camera, which the alignment then reads as a pose offset (docs/vse.md, "Design and why", item 4).
+    """
+    kf = eng.kfs[k]
+    sd = semidense_of_keyframe(eng, k, nbs)
+    if sd is not None or kf.semidense is None:
+        kf.semidense = sd
+    kf.semidense_stereo = _stereo_key(eng, k, tuple(eng.kfs[j].id for j in nbs))
 
 
 def depth_partners(eng: EngineView, k: int) -> list[int]:

@@ -77,6 +77,9 @@ class KeyframeRecord:
         RGB-D only: z-depth in metres.
     semidense : SemiDenseDepth or None
         The keyframe's per-pixel depths once computed.
+    semidense_stereo : tuple or None
+        What they were searched with: the partner keyframes' ids and the poses of
+        the keyframe and its partners at the time (``vse.cloud``'s refresh rule).
     orb_desc, orb_ids : ndarrays or None
         ORB descriptors of the keyframe tied to the landmarks they lie on (relocalisation).
     """
@@ -92,6 +95,7 @@ class KeyframeRecord:
     uv_raw: np.ndarray
     depth: np.ndarray | None = None
     semidense: SemiDenseDepth | None = None
+    semidense_stereo: tuple | None = field(default=None, repr=False)
     orb_desc: np.ndarray | None = None
     orb_ids: np.ndarray | None = None
     published_image: np.ndarray | None = field(default=None, repr=False)

@@ -119,6 +119,10 @@ class VseConfig:
         Publish points whose depth sigma over depth, after the fusion across
         keyframes, is below this (a keyframe keeps its own estimates up to twice
         this, so that fusion can bring them under it).
+    semidense_refresh : bool
+        Search a keyframe's semi-dense depths again, with the same stereo
+        partners, when bundle adjustment has moved the keyframe or a partner
+        since they were searched (docs/vse.md, "Design and why", item 4).
     semidense_cross_fusion_keyframes : int
         A keyframe's semi-dense depths are fused with the estimates of the same
         surface points from the keyframes up to this many places away in the
@@ -160,6 +164,7 @@ class VseConfig:
     semidense_neighbors: int = 4
     semidense_min_views: int = 2
     semidense_max_rel_sigma: float = 0.02
+    semidense_refresh: bool = True
     semidense_cross_fusion_keyframes: int = 6
     cloud_max_points: int = 30000
     depth_sigma_rel: float = 0.002
