@@ -5,11 +5,10 @@ parallax) and the scale fit tracked stops (docs/relocation.md, "What a session
 does"). It need not lead away from the reference. When the image localizer
 estimates the reference pose before any motion, the legs go *toward* it:
 
-    start → R + a − b → R − a − b → R        (R: the estimated reference flange pose)
+    start → R + a − b → R        (R: the estimated reference flange pose)
 
 with ``a`` perpendicular to the way there and to the optical axis, ``|a|`` half
-the exploration amplitude, so that the two sideways legs span the same ``2|a|``
-baseline as one leg of the usual pattern, and ``b`` a step back along the
+the exploration amplitude, and ``b`` a step back along the
 optical axis, away from the object, of :data:`BACK_FRACTION` of the amplitude
 from the nearer of the start and ``R`` (when the way there leads toward the
 object, a step back from ``R`` alone would cancel it and leave the stops level
@@ -24,6 +23,13 @@ no rotation does (1 cm at 1.2 m moves the image corners ~2.5 px, ten times
 the test's 0.2 px). The stops never come closer to the object than R. The
 exploration ends where the rACR loop would have driven the camera anyway, and
 the loop only refines. Rotation toward the reference is spread over the legs.
+
+Two legs, not three: the map and the scale fit need translations with parallax
+from the start, in two directions (the start's view is the initialiser's first
+frame and the fit's origin). The first stop lies ``|d + a − b|`` from the start
+and R lies ``|d|`` from it, across ``|a − b|``; a third stop on the other side
+of R (``R − a − b``) adds one more displacement of the same size at the price
+of a 2|a| leg and a return (docs/relocation.md, "A guided exploration").
 
 Every waypoint is checked against the guard's workspace before the first
 motion (:func:`within_workspace`); a plan that leaves it is not used (the usual
@@ -63,12 +69,12 @@ def guided_waypoints(M_flange_ref: np.ndarray, T_flange_cam: np.ndarray, *, expl
     T_flange_cam : (4, 4) ndarray
         Hand-eye: the optical axis and the camera's x axis in the flange frame.
     explore_m : float
-        Exploration amplitude, metres: the two sideways legs span it.
+        Exploration amplitude, metres: the first stop lies half of it sideways of the way there.
 
     Returns
     -------
     list of (4, 4) ndarray
-        ``[I, R + a − b, R − a − b, R]``: poses in the start flange's frame.
+        ``[I, R + a − b, R]``: poses in the start flange's frame.
     """
     M = np.asarray(M_flange_ref, dtype=float)
     X = np.asarray(T_flange_cam, dtype=float)
@@ -81,14 +87,10 @@ def guided_waypoints(M_flange_ref: np.ndarray, T_flange_cam: np.ndarray, *, expl
     d_axial = float(np.dot(d, axis))
     back = (min(d_axial, 0.0) - BACK_FRACTION * explore_m - d_axial) * axis
     xi = log_se3(M)
-    # rotation toward the reference spread over the legs: 1/3, 2/3, all of it
-    waypoints = [np.eye(4)]
-    for fraction, side in ((1 / 3, +1.0), (2 / 3, -1.0)):
-        T = exp_se3(np.r_[np.zeros(3), xi[3:] * fraction])
-        T[:3, 3] = d + side * a + back
-        waypoints.append(T)
-    waypoints.append(M.copy())
-    return waypoints
+    # rotation toward the reference spread over the legs: half of it, then all of it
+    T_side = exp_se3(np.r_[np.zeros(3), xi[3:] * 0.5])
+    T_side[:3, 3] = d + a + back
+    return [np.eye(4), T_side, M.copy()]
 
 
 def motions_between(waypoints: list[np.ndarray], *, stops_per_leg: int = 2) -> list[np.ndarray]:
