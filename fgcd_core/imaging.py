@@ -15,6 +15,9 @@ colour balance must not weigh in.
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from enum import StrEnum
 
 import cv2
@@ -293,7 +296,45 @@ def match_sift(
     points_a, points_b : (N, 2) float64 ndarray
         Matched positions ``(x, y)``, pixels; empty when either image has fewer
         than two keypoints.
+
+    Notes
+    -----
+    The last results are kept by the images' contents (:data:`_MATCH_MEMO`): the same
+    pair matched again costs a digest of its pixels.
     """
+    key = (_content_key(gray_a_u8), _content_key(gray_b_u8), float(ratio), int(max_features))
+    with _MATCH_MEMO_LOCK:
+        hit = _MATCH_MEMO.get(key)
+        if hit is not None:
+            _MATCH_MEMO.move_to_end(key)
+    if hit is None:
+        hit = _match_sift_uncached(gray_a_u8, gray_b_u8, ratio=ratio, max_features=max_features)
+        with _MATCH_MEMO_LOCK:
+            _MATCH_MEMO[key] = hit
+            while len(_MATCH_MEMO) > _MATCH_MEMO_SIZE:
+                _MATCH_MEMO.popitem(last=False)
+    return hit[0].copy(), hit[1].copy()
+
+
+#: The last :func:`match_sift` results, keyed by the two images' contents and the options. ``fgcd diff``
+#: matches its first lighting's pair for the registration and again for the FDF (the authors' protocol:
+#: the same ratio and keypoint budget), and SIFT is deterministic, so the second call returns the first's
+#: matches. Written here because OpenCV and functools memoise nothing on array contents.
+_MATCH_MEMO: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+_MATCH_MEMO_SIZE = 2
+_MATCH_MEMO_LOCK = threading.Lock()
+
+
+def _content_key(image: np.ndarray) -> tuple:
+    """An image's identity for :data:`_MATCH_MEMO`: dtype, shape and a 128-bit digest of its pixels."""
+    image = np.ascontiguousarray(image)
+    return (image.dtype.str, image.shape, hashlib.blake2b(image.data, digest_size=16).digest())
+
+
+def _match_sift_uncached(
+    gray_a_u8: np.ndarray, gray_b_u8: np.ndarray, *, ratio: float, max_features: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`match_sift` itself (features of both images, ratio test)."""
     xy_a, desc_a = sift_features(gray_a_u8, n_features=max_features)
     xy_b, desc_b = sift_features(gray_b_u8, n_features=max_features)
     empty = np.zeros((0, 2))

@@ -124,6 +124,33 @@ def test_sift_matches_find_the_shift_of_a_shifted_texture_and_nothing_on_a_blank
     assert blank_ref.shape == blank_cur.shape == (0, 2)
 
 
+def test_the_same_pair_matched_again_reuses_the_matches_and_a_changed_pixel_does_not(monkeypatch):
+    """``fgcd diff`` matches its first pair for the registration and again for the FDF: one SIFT run.
+
+    The memo is keyed by the pixels and the options, so a one-level change of one pixel, or another
+    ratio, runs SIFT again; callers get their own copies (a caller's edit cannot reach the next).
+    """
+    import fgcd_core.imaging as imaging
+
+    ref = to_gray_u8(INPUTS["f32_gray"])
+    cur = _shifted(ref, 2.0, 1.0)
+    calls = []
+    real = imaging.sift_features
+    monkeypatch.setattr(imaging, "sift_features", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(imaging, "_MATCH_MEMO", type(imaging._MATCH_MEMO)())
+    first = match_sift(ref, cur)
+    assert len(calls) == 2
+    first[0][:] = -1.0  # the caller's copy
+    again = match_sift(ref.copy(), cur.copy())
+    assert len(calls) == 2
+    np.testing.assert_allclose(np.median(again[1] - again[0], axis=0), [2.0, 1.0], atol=0.1)
+    touched = cur.copy()
+    touched[0, 0] ^= 1
+    match_sift(ref, touched)
+    match_sift(ref, cur, ratio=0.6)
+    assert len(calls) == 6
+
+
 def test_one_to_one_matching_uses_each_descriptor_once():
     """The hand-eye refinement's features: CLAHE'd SIFT, FLANN ratio test, every ``b`` descriptor matched once."""
     grey = to_gray_u8(INPUTS["f32_gray"], rounding=U8Rounding.TRUNCATE_F32)
