@@ -1,4 +1,5 @@
-"""What a run depended on, and the deterministic mode's pinned native threads (docs/relocation.md, "Reproducibility").
+"""What a run depended on, the deterministic mode's pinned native threads (docs/relocation.md, "Reproducibility"),
+and the one BLAS thread of every command (:func:`limit_blas_threads`).
 
 The parallel rACR loop varies from run to run: how many frames the VSE
 processes while an alignment runs, and which estimate an adjustment takes,
@@ -16,7 +17,14 @@ import sys
 from dataclasses import replace
 from importlib import metadata
 
-__all__ = ["NATIVE_THREAD_VARIABLES", "deterministic_rig", "pin_native_threads", "run_conditions", "scenario_seeds"]
+__all__ = [
+    "NATIVE_THREAD_VARIABLES",
+    "deterministic_rig",
+    "limit_blas_threads",
+    "pin_native_threads",
+    "run_conditions",
+    "scenario_seeds",
+]
 
 #: Environment variables that size the native thread pools (OpenMP: Open3D; BLAS: numpy, scipy), read when
 #: each library loads: the CLI sets them before it imports one (:func:`pin_native_threads`).
@@ -34,6 +42,32 @@ _PACKAGES = (
     "open3d",
     "open3d-cpu",
 )
+
+
+#: The variables that size a BLAS pool: a user who sets one has chosen the pool, and it is left alone.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def limit_blas_threads() -> str:
+    """One BLAS thread for the rest of the process and its children, unless the user sized the pool.
+
+    Rule: fgcd's BLAS products are tall and thin (N x 3 points, 3 x N pseudo-normals, small normal
+    equations) and run beside OpenCV's own pool and, in a relocation, beside the VSE, alignment and
+    adjustment threads. A BLAS call split over two threads whose second core is busy waits for that
+    core, and costs many times its one-thread time (docs/lab/2026-12-07-blas-threads.md). Sets the
+    variables (children such as Dask workers load their BLAS afterwards) and, with ``threadpoolctl``,
+    limits the pools already loaded. Returns what was done, for the record.
+    """
+    if any(name in os.environ for name in BLAS_THREAD_VARIABLES):
+        return "as the environment sets it"
+    for name in BLAS_THREAD_VARIABLES:
+        os.environ[name] = "1"
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return "1 (pools loaded before keep their size: threadpoolctl is not installed)"
+    threadpool_limits(1, user_api="blas")
+    return "1"
 
 
 def pin_native_threads() -> dict:

@@ -121,9 +121,11 @@ class Failure:
 
 def main() -> None:
     """Console-script entry point: run the app, turn expected failures into one line."""
+    from fgcd_cli.app.determinism import limit_blas_threads
     from fgcd_cli.cli.native_stderr import route_native_stderr
 
     route_native_stderr()  # native libraries' own lines go to a log: stderr stays one line
+    limit_blas_threads()
     abandoned_before = _abandoned_native_interfaces()
     try:
         sys.exit(run(app, sys.argv[1:]))
