@@ -48,26 +48,25 @@ _PACKAGES = (
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def limit_blas_threads() -> str:
+def limit_blas_threads() -> None:
     """One BLAS thread for the rest of the process and its children, unless the user sized the pool.
 
     Rule: fgcd's BLAS products are tall and thin (N x 3 points, 3 x N pseudo-normals, small normal
     equations) and run beside OpenCV's own pool and, in a relocation, beside the VSE, alignment and
     adjustment threads. A BLAS call split over two threads whose second core is busy waits for that
     core, and costs many times its one-thread time (docs/lab/2026-12-07-blas-threads.md). Sets the
-    variables (children such as Dask workers load their BLAS afterwards) and, with ``threadpoolctl``,
-    limits the pools already loaded. Returns what was done, for the record.
+    variables (children such as Dask workers load their BLAS afterwards; every visit's manifest records
+    them, :func:`run_conditions`) and, with ``threadpoolctl``, limits the pools already loaded.
     """
     if any(name in os.environ for name in BLAS_THREAD_VARIABLES):
-        return "as the environment sets it"
+        return
     for name in BLAS_THREAD_VARIABLES:
         os.environ[name] = "1"
     try:
         from threadpoolctl import threadpool_limits
-    except ImportError:
-        return "1 (pools loaded before keep their size: threadpoolctl is not installed)"
+    except ImportError:  # a pool loaded before keeps its size
+        return
     threadpool_limits(1, user_api="blas")
-    return "1"
 
 
 def pin_native_threads() -> dict:
