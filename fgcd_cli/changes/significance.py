@@ -295,6 +295,8 @@ def _scan_with_null(
     seed_level = float(np.quantile(score[background], 1.0 - config.seed_p))
     area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
     levels = np.arange(-np.log(config.seed_p), float(neglogp.max()) + 1e-9, config.level_step)
+    # The components depend on the levels only, not on the cluster area: found once for every round.
+    components = level_components(neglogp, valid, levels)
     for _ in range(config.area_rounds + 1):
         n_tests = n_valid / area * max(len(levels), 1) * config.score_maps
         regions, candidates, significant, seed_index = scan_levels(
@@ -306,6 +308,7 @@ def _scan_with_null(
             n_tests=n_tests,
             epsilon=config.epsilon,
             max_candidates=config.max_candidates,
+            components=components,
         )
         used_area = area
         area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
@@ -350,12 +353,22 @@ def _level_components(neglogp, valid, levels):
                 yield k, sizes[i], excess[i], absolute, labels[box] == i + 1
 
 
-def scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates):
-    """Components of every level, their NFA, and the exclusion principle (most significant first)."""
+def level_components(neglogp, valid, levels) -> list[list]:
+    """Per level, its connected components as ``(size, excess, absolute bounding box, pixels in the box)``."""
     per_level: list[list] = [[] for _ in levels]
     if len(levels):
         for k, size, excess, window, component in _level_components(neglogp, valid, levels):
             per_level[k].append((size, excess, window, component))
+    return per_level
+
+
+def scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates, components=None):
+    """Components of every level, their NFA, and the exclusion principle (most significant first).
+
+    ``components``: :func:`level_components` of the same ``neglogp``, ``valid`` and ``levels``, when the
+    caller has them (they do not depend on ``area`` or ``n_tests``); found here otherwise.
+    """
+    per_level = components if components is not None else level_components(neglogp, valid, levels)
     found = []
     for lam, components in zip(levels, per_level):
         if not components:

@@ -102,3 +102,26 @@ def test_survival_functions():
     assert neglogp[9, 9] == pytest.approx(-np.log(1.5 / 100), rel=1e-3)  # (n - rank + 0.5) / n, rank 99 of 100
     # Half-normal with median 1: P(S >= 1) = 0.5.
     assert float(halfnormal_neglog_survival(np.array([1.0]))[0]) == pytest.approx(np.log(2.0), rel=1e-3)
+
+
+def test_level_components_are_the_whole_frame_components_of_every_level():
+    # The scan labels each level inside the lowest level's components; the rounds reuse that list.
+    # It must hold exactly the 8-connected components of labelling the whole frame at each level.
+    from fgcd_cli.changes.significance import level_components
+
+    score = _background(seed=5)
+    score[_disc(score.shape, (150, 150), 12)] += 4.0
+    neglogp = score.astype(np.float32)
+    valid = np.ones(score.shape, bool)
+    valid[:, :20] = False
+    levels = np.quantile(neglogp[valid], [0.95, 0.98, 0.995]).astype(np.float64)
+    per_level = level_components(neglogp, valid, levels)
+    for lam, components in zip(levels, per_level):
+        labels, count = ndimage.label((neglogp >= lam) & valid, structure=np.ones((3, 3), bool))
+        expected = sorted(np.bincount(labels.ravel())[1:].tolist())
+        assert sorted(int(c[0]) for c in components) == expected
+        rebuilt = np.zeros(score.shape, bool)
+        for _, _, window, pixels in components:
+            rebuilt[window] |= pixels
+        assert np.array_equal(rebuilt, labels > 0)
+        assert len(components) == count > 0
