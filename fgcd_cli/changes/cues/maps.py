@@ -168,12 +168,17 @@ def edge_band(ref_image: np.ndarray, *, radius_px: int = 2, contrast: float = 3.
 
     Returns HxW bool.
     """
-    gray = to_gray(np.asarray(ref_image, np.float32))
+    return _edge_bands(ref_image, radius_px=radius_px, contrasts=(contrast,))[0]
+
+
+def _edge_bands(image: np.ndarray, *, radius_px: int, contrasts: tuple[float, ...]) -> list[np.ndarray]:
+    """:func:`edge_band` of one image at several contrasts (its 3x3 range and their median found once)."""
+    gray = to_gray(np.asarray(image, np.float32))
     kernel = np.ones((3, 3), np.uint8)
     local_range = cv2.dilate(gray, kernel) - cv2.erode(gray, kernel)
-    edges = local_range > contrast * max(float(np.median(local_range)), 1e-6)
+    typical = max(float(np.median(local_range)), 1e-6)
     grow = np.ones((2 * radius_px + 1, 2 * radius_px + 1), np.uint8)
-    return cv2.dilate(edges.astype(np.uint8), grow).astype(bool)
+    return [cv2.dilate((local_range > c * typical).astype(np.uint8), grow).astype(bool) for c in contrasts]
 
 
 def edge_band_either_phase(
@@ -195,8 +200,7 @@ def edge_band_either_phase(
 
     Returns HxW bool.
     """
-    own = edge_band(ref_image, radius_px=radius_px, contrast=contrast)
-    seen_at_half = edge_band(ref_image, radius_px=radius_px, contrast=contrast / 2.0)
+    own, seen_at_half = _edge_bands(ref_image, radius_px=radius_px, contrasts=(contrast, contrast / 2.0))
     return own | (edge_band(cur_image, radius_px=radius_px, contrast=contrast) & seen_at_half)
 
 
