@@ -221,39 +221,22 @@ class SemiDenseCloud(_FusedKeyframeCloud):
 
     @staticmethod
     def _update_depths(eng: EngineView) -> None:
-        """Depth for recent keyframes, and again for those whose stereo partners or geometry have changed
-        since: a later neighbour arrived, or bundle adjustment moved a pose (``VseConfig.semidense_refresh``).
-
-        With the refresh, a keyframe is searched as soon as it has partners, the newest one included (the
-        camera's own view: the reference pose's last keyframe carries much of a capture's cloud), and again
-        as later neighbours arrive. Without it each keyframe is searched once, when it has partners on both
-        sides.
-        """
+        """Depth for recent keyframes that have stereo partners on both sides (each keyframe once), and again
+        for those whose stereo geometry bundle adjustment has moved since (``VseConfig.semidense_refresh``)."""
         kfs = eng.kfs
         n = len(kfs)
-        refresh = eng.config.semidense_refresh
-        for k in range(max(0, n - _SEMIDENSE_LOOKBACK), n if refresh else n - 1):
+        for k in range(max(0, n - _SEMIDENSE_LOOKBACK), n - 1):
             if kfs[k].semidense is not None:
                 continue
             nbs = depth_partners(eng, k)
-            if (not refresh and not any(j > k for j in nbs)) or len(nbs) < min(2, eng.config.semidense_min_views):
+            if not any(j > k for j in nbs) or len(nbs) < min(2, eng.config.semidense_min_views):
                 continue
             _search_depths(eng, k, nbs)
-        if refresh:
-            # A keyframe's partners lie within 2 * semidense_neighbors places (depth_partners): its
-            # stereo geometry can change while any of them is in bundle adjustment's window.
-            oldest = n - eng.config.ba_window - 2 * eng.config.semidense_neighbors
-            for k in range(max(0, oldest), n):
+        if eng.config.semidense_refresh:
+            for k in range(max(0, n - eng.config.ba_window), n):
                 stereo = kfs[k].semidense_stereo
-                if stereo is None:
-                    continue
-                # The partners as they are now: a keyframe first searched when its first later
-                # neighbour arrived gets its full set (nearest in time on both sides) a keyframe later.
-                nbs = depth_partners(eng, k)
-                if len(nbs) < min(2, eng.config.semidense_min_views):
-                    nbs = [j for j in range(n) if kfs[j].id in stereo[0]]
-                if stereo != _stereo_key(eng, k, tuple(kfs[j].id for j in nbs)):
-                    _search_depths(eng, k, nbs)
+                if stereo is not None and stereo != _stereo_key(eng, k, stereo[0]):
+                    _search_depths(eng, k, [j for j in range(n) if kfs[j].id in stereo[0]])
 
 
 def _stereo_key(eng: EngineView, k: int, partner_ids: tuple[int, ...]) -> tuple:

@@ -74,34 +74,3 @@ def test_a_search_that_fails_again_keeps_the_depths_found_before(monkeypatch):
     SemiDenseCloud._update_depths(eng)
     assert eng.kfs[1].semidense is kept
     assert len(calls) == 2
-
-
-def test_a_keyframe_gets_its_full_partner_set_once_a_later_neighbour_arrives(monkeypatch):
-    # Nearest in time, two on each side (as depth_partners orders them): a keyframe is searched at
-    # once with the partners it has (the newest with earlier ones only), again as each later
-    # neighbour arrives, and then left alone.
-    calls: list[tuple[int, tuple[int, ...]]] = []
-
-    def fake_search(eng, k, nbs):
-        calls.append((k, tuple(nbs)))
-        return SimpleNamespace(inv_depth=np.ones(3))
-
-    monkeypatch.setattr(cloud_mod, "semidense_of_keyframe", fake_search)
-    monkeypatch.setattr(
-        cloud_mod,
-        "depth_partners",
-        lambda eng, k: [j for j in (k - 1, k + 1, k - 2, k + 2) if 0 <= j < len(eng.kfs)],
-    )
-    eng = _engine(4, VseConfig())
-    SemiDenseCloud._update_depths(eng)
-    assert (2, (1, 3, 0)) in calls
-    assert (3, (2, 1)) in calls  # the newest keyframe, with its earlier neighbours
-    full = _engine(5, VseConfig())
-    full.kfs[:4] = eng.kfs
-    calls.clear()
-    SemiDenseCloud._update_depths(full)
-    assert (2, (1, 3, 0, 4)) in calls  # keyframe 2's second later neighbour arrived
-    assert (3, (2, 4, 1)) in calls  # keyframe 3's first later neighbour arrived
-    calls.clear()
-    SemiDenseCloud._update_depths(full)
-    assert calls == []
