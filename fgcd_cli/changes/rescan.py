@@ -21,7 +21,7 @@ import numpy as np
 from scipy import ndimage
 
 from fgcd_cli.changes.marginal import halfnormal_neglog_survival, scan_neglogp
-from fgcd_cli.changes.significance import ScanNull, scan_levels
+from fgcd_cli.changes.significance import ScanNull, level_components, scan_levels
 
 __all__ = ["seeds_under_nulls"]
 
@@ -72,9 +72,8 @@ def _seeds_under(score: np.ndarray, valid: np.ndarray, null: ScanNull, within: n
     asked = np.isin(base, reached)
     _, _, significant, _ = scan_levels(
         score,
-        neglogp,
-        asked,
         null.levels,
+        level_components(neglogp, asked, null.levels),
         area=null.area,
         n_tests=null.n_tests,
         epsilon=null.epsilon,

@@ -301,14 +301,12 @@ def _scan_with_null(
         n_tests = n_valid / area * max(len(levels), 1) * config.score_maps
         regions, candidates, significant, seed_index = scan_levels(
             score,
-            neglogp,
-            valid,
             levels,
+            components,
             area=area,
             n_tests=n_tests,
             epsilon=config.epsilon,
             max_candidates=config.max_candidates,
-            components=components,
         )
         used_area = area
         area = max(exceedance_cluster_area(score, valid, seed_level, exclude=significant), min_cluster_area_px)
@@ -362,13 +360,12 @@ def level_components(neglogp, valid, levels) -> list[list]:
     return per_level
 
 
-def scan_levels(score, neglogp, valid, levels, *, area, n_tests, epsilon, max_candidates, components=None):
-    """Components of every level, their NFA, and the exclusion principle (most significant first).
+def scan_levels(score, levels, per_level, *, area, n_tests, epsilon, max_candidates):
+    """The NFA of every level's components and the exclusion principle (most significant first).
 
-    ``components``: :func:`level_components` of the same ``neglogp``, ``valid`` and ``levels``, when the
-    caller has them (they do not depend on ``area`` or ``n_tests``); found here otherwise.
+    ``per_level``: :func:`level_components` of the score's ``-log p`` at ``levels`` (they do not depend on
+    ``area`` or ``n_tests``, so the cluster-area rounds of one null share them).
     """
-    per_level = components if components is not None else level_components(neglogp, valid, levels)
     found = []
     for lam, components in zip(levels, per_level):
         if not components:
