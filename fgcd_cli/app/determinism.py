@@ -26,9 +26,12 @@ __all__ = [
     "scenario_seeds",
 ]
 
+#: The variables that size a BLAS pool: a user who sets one has chosen the pool, and it is left alone.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
 #: Environment variables that size the native thread pools (OpenMP: Open3D; BLAS: numpy, scipy), read when
 #: each library loads: the CLI sets them before it imports one (:func:`pin_native_threads`).
-NATIVE_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+NATIVE_THREAD_VARIABLES = ("OMP_NUM_THREADS", *BLAS_THREAD_VARIABLES)
 
 _PACKAGES = (
     "fgcd",
@@ -42,10 +45,6 @@ _PACKAGES = (
     "open3d",
     "open3d-cpu",
 )
-
-
-#: The variables that size a BLAS pool: a user who sets one has chosen the pool, and it is left alone.
-BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def limit_blas_threads() -> None:
