@@ -5,8 +5,40 @@ from __future__ import annotations
 import numpy as np
 
 from fgcd_core.camera import CameraIntrinsics
+from fgcd_drivers.sim.camera import DEFAULT_INTRINSICS
 from fgcd_drivers.sim.changes import ALL_KINDS, KINDS, ChangeSpec
 from fgcd_drivers.sim.render import Renderer
+
+#: The placement's view: half the simulator's nominal camera (the object, its depth and normals, cheaply).
+_PLACEMENT_INTRINSICS = CameraIntrinsics(fx=300, fy=300, cx=159.5, cy=119.5, width=320, height=240)
+
+
+def _object_view(scene, T_world_cam: np.ndarray | None):
+    """The scene rendered at the placement's view: (camera pose, render with depth, normals and labels)."""
+    T = scene.default_T_world_cam if T_world_cam is None else T_world_cam
+    res = Renderer(scene).render(T, _PLACEMENT_INTRINSICS, None, want=("depth", "normals", "labels"))
+    return T, res
+
+
+def object_mm_per_px(scene, T_world_cam: np.ndarray | None = None) -> float:
+    """Millimetres per pixel of the simulator's nominal camera on the object, at its median depth.
+
+    Rule: a fronto-parallel millimetre at depth ``z`` spans ``fx / (1000 z)`` pixels
+    (``DEFAULT_INTRINSICS.fx``, 640 x 480), so a change sized in pixels of the stored
+    images is ``size_px * 1000 z / fx`` millimetres.
+
+    Parameters
+    ----------
+    scene : Scene
+    T_world_cam : (4, 4) ndarray, optional; the view (default: the scene's default camera).
+
+    Returns
+    -------
+    float, mm per px (NaN when the object is not in view).
+    """
+    _, res = _object_view(scene, T_world_cam)
+    z = res.depth[(res.labels == 1) & (res.depth > 0)]
+    return float(np.median(z) * 1000.0 / DEFAULT_INTRINSICS.fx) if len(z) else float("nan")
 
 
 def random_changes(
@@ -30,9 +62,8 @@ def random_changes(
     if unknown or not len(kinds):
         raise ValueError(f"kinds must be a non-empty subset of {', '.join(ALL_KINDS)}, got {list(kinds)}")
     rng = np.random.default_rng(seed)
-    T = scene.default_T_world_cam if T_world_cam is None else T_world_cam
-    intr = CameraIntrinsics(fx=300, fy=300, cx=159.5, cy=119.5, width=320, height=240)
-    res = Renderer(scene).render(T, intr, None, want=("depth", "normals", "labels"))
+    T, res = _object_view(scene, T_world_cam)
+    intr = _PLACEMENT_INTRINSICS
     m = margin_px // 2
     ok = np.zeros_like(res.labels, bool)
     ok[m:-m, m:-m] = True

@@ -133,6 +133,21 @@ def test_random_changes_lie_on_the_visible_object():
     assert random_changes(s, n=6, seed=2)[0].position == chs[0].position
 
 
+def test_object_mm_per_px_is_the_fronto_parallel_footprint_of_the_nominal_camera():
+    """The plane scene's slab is fronto-parallel 0.8 m from its default camera (scene_specs/plane.toml):
+    a pixel of the 640 x 480 camera (fx 600 px) spans 800 / 600 mm there, whatever the texture."""
+    from fgcd_drivers.sim.camera import DEFAULT_INTRINSICS
+    from fgcd_drivers.sim.change_placement import object_mm_per_px
+    from fgcd_drivers.sim.scenes import load_scene
+
+    expected = 0.8 * 1000.0 / DEFAULT_INTRINSICS.fx
+    assert object_mm_per_px(load_scene("plane")) == pytest.approx(expected, rel=1e-3)
+    # twice as far, twice the footprint
+    T = load_scene("plane").default_T_world_cam.copy()
+    T[1, 3] -= 0.8
+    assert object_mm_per_px(load_scene("plane"), T) == pytest.approx(2 * expected, rel=1e-3)
+
+
 # random_changes(load_scene("plane"), n=12, seed=0) recorded before pit and lifted existed: (kind, seed, size_mm)
 _PLANE_12_SEED_0 = [
     ("stain", 330529326, 2.243885060187946),

@@ -11,6 +11,7 @@ writes a visit there; its outcome is scored against the simulator's truth
 
 from __future__ import annotations
 
+import functools
 import math
 import shutil
 import time
@@ -203,10 +204,23 @@ def _outcome(spec: RunSpec, vis, truth: dict, wall_s: float) -> dict:
     return out
 
 
-#: Changes injected into every visit's world: 3, each 10-30 mm across (10-30 px at the simulator's ~1 mm per
-#: pixel, above the detector's 30 px minimum region, like the demo's 15-35 mm), so that §5.5 scores relocation,
-#: not the detector's resolution.
-VISIT_CHANGES = {"changes": 3, "change_seed": 7, "change_size_mm": (10.0, 30.0)}
+#: Changes injected into every visit's world: 3, each 10-30 px across in the stored images (above the
+#: detector's 30 px minimum region), so that §5.5 scores relocation, not the detector's resolution. Sized in
+#: pixels, not millimetres: the scenes are seen at 1.3-1.7 m, 2.2-2.8 mm per px, where 10-30 mm (the size
+#: before session 66) left the stupa's changes 8-57 px in area, below what the detector reports.
+VISIT_CHANGES = {"changes": 3, "change_seed": 7}
+VISIT_CHANGE_SIZE_PX = (10.0, 30.0)
+
+
+@functools.cache
+def visit_change_size_mm(scene: str, seed: int) -> tuple[float, float]:
+    """:data:`VISIT_CHANGE_SIZE_PX` in millimetres on the world's object (its default view's median depth)."""
+    from fgcd_drivers.sim.change_placement import object_mm_per_px
+    from fgcd_drivers.sim.scenes import load_scene
+
+    mm_per_px = object_mm_per_px(load_scene(scene, seed=seed))
+    lo, hi = VISIT_CHANGE_SIZE_PX
+    return (lo * mm_per_px, hi * mm_per_px)
 
 
 def visit_scenario(spec: RunSpec):
@@ -221,6 +235,7 @@ def visit_scenario(spec: RunSpec):
         start_offset_mm=spec.offset_mm,
         start_offset_deg=spec.offset_deg,
         session_seed=spec.session_seed,
+        change_size_mm=visit_change_size_mm(w.scene, w.seed),
         **VISIT_CHANGES,
     )
 
