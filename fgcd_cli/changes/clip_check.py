@@ -1,11 +1,13 @@
 """Region-level clip check: set aside regions whose evidence comes from clipped pixels only.
 
-A pixel at the sensor's top code in some colour channel is *clipped*
-(:func:`fgcd_cli.changes.images.clipped_pixels`): its radiance lies somewhere above what the
-camera recorded, so a difference there measures the clipping, not the surface. Specular
-highlights clip (a bronze's or a glaze's sheen), and they slide over a curved glossy
-surface when the viewpoint moves by a millimetre: two observations of an unchanged glossy
-object differ exactly where a lighting clips in one of them.
+A pixel is *clipped* (:func:`fgcd_cli.changes.images.clipped_pixels`) at either end of the sensor's
+range. At the top code in some colour channel its radiance lies somewhere above what the camera
+recorded, so a difference there measures the clipping, not the surface. Specular highlights clip (a
+bronze's or a glaze's sheen), and they slide over a curved glossy surface when the viewpoint moves by
+a millimetre: two observations of an unchanged glossy object differ exactly where a lighting clips in
+one of them. At the floor (every channel within the dark noise of black, where that noise alone is
+the contrast floor) a difference measures the noise, which the camera's gamma stretches in the dark:
+a black void beside a stupa, a deep shadow.
 
 A region is set aside when its score recomputed from *measured* pixels only no longer seeds a
 significant region inside it: the detection's own a-contrario decision, made again on that
@@ -14,9 +16,10 @@ unchanged pair alone reaches in a region of a hundred pixels. The decision is ma
 detection's smoothings, as the detection made it: a pit a few pixels across is significant at the
 finer one only. A lighting measures a pixel when neither observation clips within the difference
 cue's shift radius of it (the cue at a pixel takes the best of the ±``shift_radius_px`` shifts,
-so a clipped neighbour within that radius enters it). A region no lighting clips keeps its score
-and is never set aside; a stain on white plaster that some lightings clip still shows in the
-lightings that do not, and stays.
+so a clipped neighbour within that radius enters it). A region no lighting clips in both observations
+keeps its score and is never set aside; a stain on white plaster that some lightings clip still shows
+in the lightings that do not, and stays; a surface that darkens below the floor in one observation
+only is a change.
 
 Set-aside regions are not deleted: the caller keeps them among the unreported candidates
 (``docs/change-detection.md``, "Change detection pipeline", step 10).

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fgcd_cli.changes.config import MIN_REGION_CONTRAST
 from fgcd_cli.errors import UserInputError
 from fgcd_core.imaging import GrayChannels, to_gray_f32
 
@@ -130,9 +131,22 @@ def check_side_inputs(
 CLIP_LEVEL = 253.5 / 255.0
 
 
+#: An 8-bit camera's dark noise, in codes: on the real FGCD statues' dark backgrounds (grey 12-14) the
+#: difference of neighbouring pixels over sqrt 2 has a standard deviation of 1.5-1.9 codes (texture
+#: included); the simulated field camera's black void, 2.4 codes at grey 6.
+DARK_NOISE_CODES = 2.0
+
+#: A pixel whose brightest channel is at or below this fraction of full scale is at the sensor's floor:
+#: its dark noise alone is the contrast floor (:data:`~fgcd_cli.changes.config.MIN_REGION_CONTRAST`, a
+#: change 20 % of the surface's brightness), so a difference there measures the noise (gamma-stretched
+#: in the dark), not the surface. 10 codes of 8 bits (3.9 %).
+FLOOR_LEVEL = DARK_NOISE_CODES / MIN_REGION_CONTRAST / 255.0
+
+
 def clipped_pixels(image: np.ndarray) -> np.ndarray:
-    """Pixels at the sensor's top code in any colour channel: their radiance lies somewhere above
-    what the camera recorded, so no difference there measures the surface
+    """Pixels clipped at either end of the sensor's range: at its top code in any colour channel (their
+    radiance lies somewhere above what the camera recorded) or at its floor in every channel (too dark to
+    measure, :data:`FLOOR_LEVEL`). No difference there measures the surface
     (:mod:`fgcd_cli.changes.clip_check`).
 
     Parameters
@@ -144,7 +158,7 @@ def clipped_pixels(image: np.ndarray) -> np.ndarray:
     (H, W) bool array.
     """
     top = image.max(axis=-1) if image.ndim == 3 else image
-    return top >= CLIP_LEVEL
+    return (top >= CLIP_LEVEL) | (top <= FLOOR_LEVEL)
 
 
 def image_health(image: np.ndarray) -> str | None:

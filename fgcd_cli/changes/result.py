@@ -146,7 +146,7 @@ WHY_NOT_REPORTED = {
     "not_significant": "not significant (NFA of 1 or more)",
     "set_aside": "set aside along an edge, or under the smallest region",
     "faint": "fainter than the contrast floor",
-    "clipped": "a clipped highlight",
+    "clipped": "clipped: a highlight, or too dark to measure",
 }
 
 

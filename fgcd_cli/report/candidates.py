@@ -140,15 +140,15 @@ def faint_text(settings: dict | None) -> str:
 
 
 def clipped_text(settings: dict | None) -> str:
-    """``"2 regions explained by clipped highlights (...) not reported: listed among the candidates"``, or
+    """``"2 regions explained by clipped pixels (...) not reported: listed among the candidates"``, or
     ``""``: what a report and the command line say about the clip check
     (:func:`fgcd_cli.changes.region_decision.clipped_regions`)."""
     n = int((settings or {}).get("clipped_regions") or 0)
     if n <= 0:
         return ""
     return (
-        f"{n} region{'s' if n > 1 else ''} explained by clipped highlights (a lighting saturates there in both "
-        "observations, in different places, and the rest shows no change) not reported: listed among the candidates"
+        f"{n} region{'s' if n > 1 else ''} explained by clipped pixels (a lighting saturates there, or is too dark "
+        "to measure, in both observations, and the rest shows no change) not reported: listed among the candidates"
     )
 
 

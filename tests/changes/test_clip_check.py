@@ -8,7 +8,7 @@ from scipy import ndimage
 from fgcd_cli.changes.clip_check import measured_only_score
 from fgcd_cli.changes.config import DetectionConfig
 from fgcd_cli.changes.detect import detect_changes
-from fgcd_cli.changes.images import CLIP_LEVEL, clipped_pixels
+from fgcd_cli.changes.images import CLIP_LEVEL, FLOOR_LEVEL, clipped_pixels
 from fgcd_cli.changes.result import WHY_NOT_REPORTED
 from fgcd_cli.report.candidates import clipped_text
 
@@ -29,6 +29,17 @@ def test_clipped_pixels_are_the_top_codes_of_8_and_16_bit_images():
     colour[0, 0, 2] = 1.0
     np.testing.assert_array_equal(clipped_pixels(colour), [[True, False]])
     assert 253 / 255 < CLIP_LEVEL <= 254 / 255
+
+
+def test_pixels_at_the_floor_in_every_channel_are_clipped():
+    # 10 codes of 8 bits: 2 codes of dark noise are the 20 % contrast floor there
+    codes = np.array([[0, 10, 11, 128]], np.uint8)
+    np.testing.assert_array_equal(clipped_pixels(codes.astype(np.float32) / 255.0), [[True, True, False, False]])
+    assert FLOOR_LEVEL == pytest.approx(10 / 255)
+    # a dark pixel with one lit channel (a deep red) is measured
+    colour = np.full((1, 2, 3), 4 / 255, np.float32)
+    colour[0, 1, 0] = 0.3
+    np.testing.assert_array_equal(clipped_pixels(colour), [[True, False]])
 
 
 def _stack(seed=5):
@@ -139,3 +150,40 @@ def test_swapping_the_observations_sets_aside_the_same_highlight(clip_check):
     forward = detect_changes(refs, curs, config=config)
     backward = detect_changes(curs, refs, config=config)
     assert bool(_region_at(forward, 92, 96)) == bool(_region_at(backward, 92, 96)) == (not clip_check)
+
+
+def _void_pair(seed=3):
+    """One lighting (a campaign's one lamp) of a lit textured surface with a black void in one corner
+    (grey 5 with 1 code of dark noise, drawn afresh in each observation), in which the current
+    observation is 5 codes brighter over a small disc (the dark level's own drift: banding, a
+    compression block, noise the camera's gamma stretched), and a stain darkening the lit surface by
+    40 % in the current observation."""
+    rng = np.random.default_rng(seed)
+    refs, curs = _stack()[:1], _stack(seed=6)[:1]
+    void = np.zeros(refs[0].shape, bool)
+    void[:56, :56] = True
+    drift = _disc(refs[0].shape, (26, 26), 6)
+    stain = _disc(refs[0].shape, (130, 120), 8)
+    for image, offset in ((refs[0], 0.0), (curs[0], 5.0)):
+        dark = 5.0 + rng.normal(0.0, 1.0, image.shape) + offset * drift
+        image[void] = np.clip(np.round(dark[void]), 0, 10) / 255.0
+    curs[0][stain] *= 0.6
+    return refs, curs
+
+
+def test_a_difference_at_the_floor_is_set_aside_and_a_stain_on_the_lit_surface_stays():
+    refs, curs = _void_pair()
+    unchecked = detect_changes(refs, curs, config=DetectionConfig.from_options(clip_check=False, cues=False))
+    assert _region_at(unchecked, 26, 26)  # without the check the drift is a change twice the void's level
+    result = detect_changes(refs, curs, config=DetectionConfig.from_options(cues=False))
+    assert not _region_at(result, 26, 26)
+    assert result.settings["clipped_regions"] >= 1
+    assert _region_at(result, 130, 120)
+    # a surface that darkens to the floor in one observation only (soot) is a change
+    darkened = [curs[0].copy()]
+    soot = _disc(refs[0].shape, (120, 60), 8)
+    darkened[0][soot] *= 0.05
+    assert clipped_pixels(darkened[0])[soot].all() and not clipped_pixels(refs[0])[soot].any()
+    # (the observations are aligned by construction: a 192 px single image half dark is no test of registration)
+    aligned = DetectionConfig.from_options(cues=False, register=False)
+    assert _region_at(detect_changes(refs, darkened, config=aligned), 120, 60)

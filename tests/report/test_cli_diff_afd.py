@@ -9,6 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
+from fgcd_cli.changes.result import WHY_NOT_REPORTED
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from changes.conftest import textured_scene, translate  # noqa: E402
 
@@ -225,10 +227,10 @@ def test_diff_says_how_many_highlights_it_set_aside(tmp_path):
     out = tmp_path / "out"
     proc = run("diff", "--ref", str(tmp_path / "ref-*.png"), "--cur", str(tmp_path / "cur-*.png"), "-o", str(out))
     assert proc.returncode == 0, proc.stderr
-    assert "explained by clipped highlights" in proc.stdout
+    assert "explained by clipped pixels" in proc.stdout
     data = json.loads((out / "regions.json").read_text())
     assert data["settings"]["clipped_regions"] >= 1
     assert all(np.hypot(r["centroid_xy"][0] - 92, r["centroid_xy"][1] - 96) > 12 for r in data["regions"])
     report = (out / "report.html").read_text()
-    assert "explained by clipped highlights" in report and "a clipped highlight" in report
-    assert data["candidates"][0]["why"] == "a clipped highlight"
+    assert "explained by clipped pixels" in report and WHY_NOT_REPORTED["clipped"] in report
+    assert data["candidates"][0]["why"] == WHY_NOT_REPORTED["clipped"]
